@@ -1,0 +1,53 @@
+"""Write files so that a failure leaves no half-written output.
+
+Each output is written to a temporary file beside its destination and renamed into
+place only when every output of the operation has been written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+__all__ = ["atomic_outputs", "atomic_write_text"]
+
+
+@contextlib.contextmanager
+def atomic_outputs(*paths: Path) -> Iterator[list[Path]]:
+    """Yield temporary paths for ``paths``; rename them all into place on success.
+
+    On an exception the temporary files are removed and no destination is touched.
+    """
+    temps: list[Path] = []
+    try:
+        for p in paths:
+            p.parent.mkdir(parents=True, exist_ok=True)
+            fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+            os.close(fd)
+            # mkstemp makes owner-only files; outputs get the usual umask-based mode.
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(name, 0o666 & ~umask)
+            temps.append(Path(name))
+        yield temps
+    except BaseException:
+        for t in temps:
+            t.unlink(missing_ok=True)
+        raise
+    for t, p in zip(temps, paths, strict=True):
+        os.replace(t, p)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` atomically."""
+    with atomic_outputs(path) as (tmp,):
+        tmp.write_text(text)
+
+
+def atomic_write(path: Path, writer: Callable[[Path], None]) -> None:
+    """Call ``writer(tmp_path)`` and move the result to ``path``."""
+    with atomic_outputs(path) as (tmp,):
+        writer(tmp)

@@ -1,0 +1,249 @@
+"""Occupancy maps in the ROS map_server format (YAML + PGM/PNG), plus a float ``.npy``.
+
+The YAML keys follow map_server: ``image`` (path relative to the YAML file),
+``resolution`` (metres per pixel), ``origin`` ``[x, y, yaw]`` of the lower-left pixel,
+``negate``, ``occupied_thresh``, ``free_thresh`` and ``mode`` (``trinary``, ``scale``
+or ``raw``). Image row 0 is the top of the map. A pixel value ``v`` becomes
+``p = (255 - v) / 255`` (or ``v / 255`` with ``negate: 1``); colour pixels use the mean
+of their channels, as map_server does.
+
+sonarmap writes ``NAME.yaml``, ``NAME.pgm`` (0 occupied, 254 free, 205 unknown: the
+values map_saver writes) and ``NAME.npy`` (float32 occupancy in [0, 1], NaN where
+unknown, same orientation as the image).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import yaml
+from PIL import Image, UnidentifiedImageError
+
+from ..errors import InputError
+from ..grid import Grid
+from ._atomic import atomic_outputs
+
+__all__ = ["OccupancyMap", "read_map", "write_map"]
+
+F32 = npt.NDArray[np.float32]
+
+OCCUPIED_PIXEL = 0
+FREE_PIXEL = 254
+UNKNOWN_PIXEL = 205
+_MODES = ("trinary", "scale", "raw")
+_IMAGE_MODES = ("L", "LA", "RGB", "RGBA", "P", "1")
+
+
+@dataclass(frozen=True, eq=False)
+class OccupancyMap:
+    """Occupancy values over a grid.
+
+    Attributes
+    ----------
+    grid : Grid
+        Geometry.
+    occupancy : ndarray of float32, shape ``grid.shape``
+        Probability of occupancy in [0, 1], NaN where unknown; row 0 is the top.
+    """
+
+    grid: Grid
+    occupancy: F32
+
+    def __post_init__(self) -> None:
+        occ = np.asarray(self.occupancy, dtype=np.float32)
+        if occ.shape != self.grid.shape:
+            raise InputError(f"occupancy has shape {occ.shape}, grid has {self.grid.shape}")
+        finite = occ[np.isfinite(occ)]
+        if np.any(np.isinf(occ)) or np.any((finite < 0) | (finite > 1)):
+            raise InputError("occupancy values must lie in [0, 1] or be NaN")
+        object.__setattr__(self, "occupancy", occ)
+
+    def binary(self, threshold: float = 0.5) -> npt.NDArray[np.int8]:
+        """1 occupied (``p >= threshold``), 0 free, -1 unknown."""
+        out = np.full(self.grid.shape, -1, dtype=np.int8)
+        known = np.isfinite(self.occupancy)
+        out[known] = (self.occupancy[known] >= threshold).astype(np.int8)
+        return out
+
+
+def _key(d: Mapping[str, Any], key: str, path: Path) -> Any:
+    if key not in d:
+        raise InputError(f"missing key '{key}'", path=path, field=key)
+    return d[key]
+
+
+def _num(value: Any, path: Path, field: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InputError(f"expected a number, got {value!r}", path=path, field=field)
+    v = float(value)
+    if not math.isfinite(v):
+        raise InputError(f"expected a finite number, got {value!r}", path=path, field=field)
+    return v
+
+
+def read_map(path: str | Path) -> OccupancyMap:
+    """Read a map_server map (YAML and its image).
+
+    Parameters
+    ----------
+    path : str or Path
+        The YAML file.
+
+    Returns
+    -------
+    OccupancyMap
+        In trinary mode cells are 1 (occupied), 0 (free) or NaN (unknown); in scale mode
+        cells between the thresholds keep a graded value; in raw mode ``v / 100`` with
+        values above 100 unknown.
+    """
+    p = Path(path)
+    try:
+        meta = yaml.safe_load(p.read_text())
+    except OSError as err:
+        raise InputError(f"cannot read map file ({err.strerror})", path=p) from err
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise InputError(f"not valid YAML{where}", path=p) from err
+    if not isinstance(meta, Mapping):
+        raise InputError("expected a YAML mapping with image, resolution and origin", path=p)
+    image_name = _key(meta, "image", p)
+    if not isinstance(image_name, str) or not image_name:
+        raise InputError("expected an image file name", path=p, field="image")
+    resolution = _num(_key(meta, "resolution", p), p, "resolution")
+    if resolution <= 0:
+        raise InputError(f"must be > 0, got {resolution}", path=p, field="resolution")
+    origin = _key(meta, "origin", p)
+    if not isinstance(origin, list) or len(origin) not in (2, 3):
+        raise InputError(f"expected [x, y, yaw], got {origin!r}", path=p, field="origin")
+    ox, oy = (_num(v, p, "origin") for v in origin[:2])
+    if len(origin) == 3 and _num(origin[2], p, "origin") != 0.0:
+        raise InputError("rotated maps (origin yaw != 0) are not supported", path=p,
+                         field="origin")
+    negate = meta.get("negate", 0)
+    if negate not in (0, 1, True, False):
+        raise InputError(f"must be 0 or 1, got {negate!r}", path=p, field="negate")
+    occ_t = _num(meta.get("occupied_thresh", 0.65), p, "occupied_thresh")
+    free_t = _num(meta.get("free_thresh", 0.196), p, "free_thresh")
+    if not (0.0 <= free_t < occ_t <= 1.0):
+        raise InputError(f"thresholds need 0 <= free_thresh ({free_t}) < occupied_thresh "
+                         f"({occ_t}) <= 1", path=p, field="occupied_thresh")
+    mode = meta.get("mode", "trinary")
+    if mode not in _MODES:
+        raise InputError(f"unknown mode {mode!r}; valid: {', '.join(_MODES)}", path=p,
+                         field="mode")
+
+    image_path = Path(image_name) if Path(image_name).is_absolute() else p.parent / image_name
+    value, alpha = _read_image(image_path)
+    prob = value / 255.0 if negate else (255.0 - value) / 255.0
+    occ = np.full(value.shape, np.nan, dtype=np.float64)
+    if mode == "raw":
+        ok = value <= 100
+        occ[ok] = value[ok] / 100.0
+    else:
+        occ[prob > occ_t] = 1.0
+        occ[prob < free_t] = 0.0
+        if mode == "scale":
+            mid = (prob >= free_t) & (prob <= occ_t)
+            occ[mid] = (prob[mid] - free_t) / (occ_t - free_t)
+            if alpha is not None:
+                occ[alpha == 0] = np.nan
+    grid = Grid(resolution=resolution, origin=(ox, oy), shape=value.shape)  # type: ignore[arg-type]
+    return OccupancyMap(grid, occ.astype(np.float32))
+
+
+def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8] | None]:
+    try:
+        with Image.open(path) as im:
+            im.load()
+            if im.mode not in _IMAGE_MODES:
+                raise InputError(
+                    f"unsupported image mode '{im.mode}'; expected 8-bit grey or colour "
+                    f"({', '.join(_IMAGE_MODES)})", path=path)
+            if im.mode == "P":
+                im = im.convert("RGBA")
+            elif im.mode == "1":
+                im = im.convert("L")
+            arr = np.asarray(im)
+    except FileNotFoundError as err:
+        raise InputError("map image not found", path=path) from err
+    except (UnidentifiedImageError, OSError) as err:
+        raise InputError(f"cannot read image ({err})", path=path) from err
+    if arr.ndim == 2:
+        return arr.astype(np.float64), None
+    alpha = arr[..., -1] if arr.shape[-1] in (2, 4) else None
+    colour = arr[..., :1] if arr.shape[-1] <= 2 else arr[..., :3]
+    return colour.astype(np.float64).mean(axis=-1), alpha
+
+
+def map_paths(stem: str | Path) -> tuple[Path, Path, Path]:
+    """The ``.yaml``, ``.pgm`` and ``.npy`` paths of an output stem (a suffix is dropped)."""
+    s = Path(stem)
+    if s.suffix in (".yaml", ".yml", ".pgm", ".npy"):
+        s = s.with_suffix("")
+    return s.with_name(s.name + ".yaml"), s.with_name(s.name + ".pgm"), s.with_name(s.name + ".npy")
+
+
+def to_pixels(
+    occupancy: npt.ArrayLike, occupied_thresh: float = 0.65, free_thresh: float = 0.196
+) -> npt.NDArray[np.uint8]:
+    """Trinary map_saver pixels: 0 where ``p > occupied_thresh``, 254 where ``p < free_thresh``."""
+    occ = np.asarray(occupancy, dtype=np.float64)
+    px = np.full(occ.shape, UNKNOWN_PIXEL, dtype=np.uint8)
+    with np.errstate(invalid="ignore"):
+        px[occ > occupied_thresh] = OCCUPIED_PIXEL
+        px[occ < free_thresh] = FREE_PIXEL
+    return px
+
+
+def write_map(
+    m: OccupancyMap,
+    stem: str | Path,
+    *,
+    occupied_thresh: float = 0.65,
+    free_thresh: float = 0.196,
+) -> tuple[Path, Path, Path]:
+    """Write ``STEM.yaml``, ``STEM.pgm`` and ``STEM.npy`` atomically.
+
+    Parameters
+    ----------
+    m : OccupancyMap
+        The map.
+    stem : str or Path
+        Output path without suffix.
+    occupied_thresh, free_thresh : float
+        Cells above / below become occupied / free pixels; both are written to the YAML
+        so that map_server reads the classes back unchanged.
+
+    Returns
+    -------
+    tuple of Path
+        The three files written.
+    """
+    if not (0.0 <= free_thresh < occupied_thresh <= 1.0):
+        raise InputError(f"thresholds need 0 <= free_thresh ({free_thresh}) < "
+                         f"occupied_thresh ({occupied_thresh}) <= 1")
+    yaml_path, pgm_path, npy_path = map_paths(stem)
+    meta = {
+        "image": pgm_path.name,
+        "mode": "trinary",
+        "resolution": m.grid.resolution,
+        "origin": [m.grid.origin[0], m.grid.origin[1], 0.0],
+        "negate": 0,
+        # map_saver's values: they classify 0 / 254 / 205 pixels back as written.
+        "occupied_thresh": 0.65,
+        "free_thresh": 0.196,
+    }
+    pixels = to_pixels(m.occupancy, occupied_thresh, free_thresh)
+    with atomic_outputs(yaml_path, pgm_path, npy_path) as (ty, tp, tn):
+        ty.write_text(yaml.safe_dump(meta, sort_keys=False))
+        Image.fromarray(pixels).save(tp, format="PPM")
+        with tn.open("wb") as f:
+            np.save(f, m.occupancy.astype(np.float32), allow_pickle=False)
+    return yaml_path, pgm_path, npy_path

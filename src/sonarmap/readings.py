@@ -1,0 +1,298 @@
+"""Sonar readings and robot trajectories, and their CSV formats.
+
+Readings CSV: ``t,sensor,x,y,theta,range`` -- time (s), sonar name, the sonar's world
+pose at the reading (metres, radians) and the range (metres). A range ``>= r_max``
+(``inf`` included) means no echo. Trajectory CSV: ``t,x,y,theta`` -- robot poses.
+
+Files are read in chunks (plain or gzip-compressed), so memory holds the parsed
+arrays, never the text of a large file.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+import pandas as pd
+
+from .errors import InputError
+from .io._atomic import atomic_write
+
+__all__ = [
+    "READINGS_COLUMNS",
+    "TRAJECTORY_COLUMNS",
+    "Readings",
+    "Trajectory",
+    "iter_readings",
+    "read_readings",
+    "read_trajectory",
+    "write_readings",
+    "write_trajectory",
+]
+
+READINGS_COLUMNS = ("t", "sensor", "x", "y", "theta", "range")
+TRAJECTORY_COLUMNS = ("t", "x", "y", "theta")
+DEFAULT_CHUNK = 500_000
+
+F64 = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class Readings:
+    """A batch of sonar readings, one entry per reading.
+
+    Attributes
+    ----------
+    t : ndarray of float64, shape (N,)
+        Time in seconds, non-decreasing.
+    sensor : ndarray of int32, shape (N,)
+        Index into :attr:`names`.
+    x, y, theta : ndarray of float64, shape (N,)
+        World pose of the sonar at the reading (metres, radians).
+    range : ndarray of float64, shape (N,)
+        Measured range in metres; ``>= r_max`` means no echo.
+    names : tuple of str
+        Sonar names.
+    """
+
+    t: F64
+    sensor: npt.NDArray[np.int32]
+    x: F64
+    y: F64
+    theta: F64
+    range: F64
+    names: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        for name in ("sensor", "x", "y", "theta", "range"):
+            if len(getattr(self, name)) != n:
+                raise InputError(f"readings field '{name}' has {len(getattr(self, name))} "
+                                 f"entries, expected {n}")
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def take(self, index: npt.ArrayLike) -> Readings:
+        """The readings at ``index`` (a boolean mask or integer indices)."""
+        i = np.asarray(index)
+        return Readings(self.t[i], self.sensor[i], self.x[i], self.y[i], self.theta[i],
+                        self.range[i], self.names)
+
+    @classmethod
+    def concat(cls, parts: Sequence[Readings]) -> Readings:
+        """Join batches in order; sonar names are merged."""
+        names: list[str] = []
+        for p in parts:
+            names.extend(n for n in p.names if n not in names)
+        if not parts:
+            e = np.empty(0)
+            return cls(e, np.empty(0, np.int32), e, e, e, e, ())
+        lookup = {n: i for i, n in enumerate(names)}
+        sensor = np.concatenate(
+            [np.array([lookup[n] for n in p.names], dtype=np.int32)[p.sensor] if len(p)
+             else np.empty(0, np.int32) for p in parts]
+        )
+        return cls(
+            np.concatenate([p.t for p in parts]), sensor,
+            np.concatenate([p.x for p in parts]), np.concatenate([p.y for p in parts]),
+            np.concatenate([p.theta for p in parts]), np.concatenate([p.range for p in parts]),
+            tuple(names),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """Robot poses over time: ``t`` (s), ``x``, ``y`` (metres), ``theta`` (radians)."""
+
+    t: F64
+    x: F64
+    y: F64
+    theta: F64
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+_TOKENIZE = re.compile(r"Expected (\d+) fields in line (\d+), saw (\d+)")
+
+
+def _chunks(
+    path: Path, columns: Sequence[str], text_columns: Sequence[str], chunk_size: int
+) -> Iterator[tuple[int, dict[str, npt.NDArray[np.generic]]]]:
+    """Parse a CSV file with a header in chunks; yield (line of first row, columns).
+
+    Every value is checked: missing fields, non-numbers and non-finite numbers raise
+    :class:`InputError` naming the file, line and field.
+    """
+    if not path.is_file():
+        raise InputError("no such file", path=path)
+    try:
+        reader = pd.read_csv(
+            path, dtype=str, keep_default_na=False, skip_blank_lines=False,
+            chunksize=chunk_size, engine="c", compression="infer",
+        )
+        line = 2
+        for k, frame in enumerate(reader):
+            if k == 0:
+                _check_columns(path, list(frame.columns), columns)
+            out: dict[str, npt.NDArray[np.generic]] = {}
+            for col in columns:
+                raw = frame[col]
+                if col in text_columns:
+                    values = raw.to_numpy(dtype=str)
+                    bad = np.flatnonzero(values == "")
+                    if len(bad):
+                        raise InputError("missing value", path=path, line=line + int(bad[0]),
+                                         field=col)
+                    out[col] = values
+                    continue
+                num = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
+                bad_mask = np.isnan(num) | np.isneginf(num)
+                if col != "range":
+                    bad_mask |= ~np.isfinite(num)
+                if bad_mask.any():
+                    i = int(np.flatnonzero(bad_mask)[0])
+                    text = str(raw.iloc[i]).strip()
+                    why = "missing value" if text == "" else f"not a finite number ({text!r})"
+                    raise InputError(why, path=path, line=line + i, field=col)
+                out[col] = num
+            yield line, out
+            line += len(frame)
+    except pd.errors.EmptyDataError as err:
+        raise InputError(f"file is empty; expected a header {','.join(columns)}",
+                         path=path) from err
+    except pd.errors.ParserError as err:
+        m = _TOKENIZE.search(str(err))
+        if m:
+            raise InputError(f"expected {m.group(1)} fields, saw {m.group(3)}", path=path,
+                             line=int(m.group(2))) from err
+        raise InputError(f"malformed CSV ({str(err).strip().splitlines()[-1]})",
+                         path=path) from err
+    except (EOFError, OSError, UnicodeDecodeError) as err:
+        raise InputError(f"cannot read file ({type(err).__name__}: {err})", path=path) from err
+
+
+def _check_columns(path: Path, found: list[str], expected: Sequence[str]) -> None:
+    stripped = [c.strip() for c in found]
+    missing = [c for c in expected if c not in stripped]
+    extra = [c for c in stripped if c not in expected]
+    if missing or extra or len(stripped) != len(expected):
+        parts = []
+        if missing:
+            parts.append(f"missing column(s) {', '.join(missing)}")
+        if extra:
+            parts.append(f"unexpected column(s) {', '.join(extra)}")
+        if not parts:
+            parts.append("duplicate columns")
+        raise InputError(f"{'; '.join(parts)}; expected header {','.join(expected)}",
+                         path=path, line=1)
+
+
+def _check_time(path: Path, t: F64, first_line: int, previous: float) -> None:
+    prev = np.concatenate([[previous], t[:-1]])
+    back = np.flatnonzero(t < prev)
+    if len(back):
+        i = int(back[0])
+        raise InputError(f"time goes backwards ({t[i]} after {prev[i]})", path=path,
+                         line=first_line + i, field="t")
+
+
+def iter_readings(
+    path: str | Path, *, names: Sequence[str] | None = None, chunk_size: int = DEFAULT_CHUNK
+) -> Iterator[Readings]:
+    """Read a readings CSV chunk by chunk.
+
+    Parameters
+    ----------
+    path : str or Path
+        CSV file, optionally gzip-compressed.
+    names : sequence of str, optional
+        Valid sonar names (a rig's); any other name is an error. Indices in the
+        returned batches refer to this list. Without it, names are numbered in the
+        order they first appear.
+    chunk_size : int
+        Rows per chunk.
+    """
+    p = Path(path)
+    known: list[str] = list(names) if names is not None else []
+    lookup = {n: i for i, n in enumerate(known)}
+    last_t = -np.inf
+    for line, cols in _chunks(p, READINGS_COLUMNS, ("sensor",), chunk_size):
+        labels = np.char.strip(cols["sensor"].astype(str))
+        uniq, inverse = np.unique(labels, return_inverse=True)
+        codes = np.empty(len(uniq), dtype=np.int32)
+        for j, name in enumerate(uniq.tolist()):
+            if name not in lookup:
+                if names is not None:
+                    i = int(np.flatnonzero(labels == name)[0])
+                    raise InputError(
+                        f"unknown sensor '{name}'; the rig has {', '.join(known)}",
+                        path=p, line=line + i, field="sensor",
+                    )
+                lookup[name] = len(known)
+                known.append(name)
+            codes[j] = lookup[name]
+        rng = cols["range"].astype(np.float64)
+        neg = np.flatnonzero(rng < 0)
+        if len(neg):
+            i = int(neg[0])
+            raise InputError(f"range is negative ({rng[i]})", path=p, line=line + i,
+                             field="range")
+        t = cols["t"].astype(np.float64)
+        _check_time(p, t, line, last_t)
+        last_t = float(t[-1]) if len(t) else last_t
+        yield Readings(t, codes[inverse].astype(np.int32), cols["x"].astype(np.float64),
+                       cols["y"].astype(np.float64), cols["theta"].astype(np.float64), rng,
+                       tuple(known))
+
+
+def read_readings(
+    path: str | Path, *, names: Sequence[str] | None = None, chunk_size: int = DEFAULT_CHUNK
+) -> Readings:
+    """Read a whole readings CSV (see :func:`iter_readings`)."""
+    parts = list(iter_readings(path, names=names, chunk_size=chunk_size))
+    if not parts:
+        raise InputError("no readings (the file has a header only)", path=path)
+    return Readings.concat(parts)
+
+
+def read_trajectory(path: str | Path, *, chunk_size: int = DEFAULT_CHUNK) -> Trajectory:
+    """Read a trajectory CSV ``t,x,y,theta``; it must hold at least one pose."""
+    p = Path(path)
+    cols: dict[str, list[F64]] = {c: [] for c in TRAJECTORY_COLUMNS}
+    last_t = -np.inf
+    for line, chunk in _chunks(p, TRAJECTORY_COLUMNS, (), chunk_size):
+        t = chunk["t"].astype(np.float64)
+        _check_time(p, t, line, last_t)
+        last_t = float(t[-1]) if len(t) else last_t
+        for c in TRAJECTORY_COLUMNS:
+            cols[c].append(chunk[c].astype(np.float64))
+    if not cols["t"] or sum(len(a) for a in cols["t"]) == 0:
+        raise InputError("trajectory is empty (no poses after the header)", path=p)
+    t, x, y, th = (np.concatenate(cols[c]) for c in TRAJECTORY_COLUMNS)
+    return Trajectory(t, x, y, th)
+
+
+def write_readings(readings: Readings, path: str | Path) -> None:
+    """Write readings as CSV (atomically; gzip when the name ends in ``.gz``)."""
+    frame = pd.DataFrame({
+        "t": readings.t,
+        "sensor": np.asarray(readings.names, dtype=object)[readings.sensor]
+        if len(readings) else np.empty(0, dtype=object),
+        "x": readings.x, "y": readings.y, "theta": readings.theta, "range": readings.range,
+    })
+    p = Path(path)
+    compression = "gzip" if p.suffix == ".gz" else None
+    atomic_write(p, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g",
+                                             compression=compression))
+
+
+def write_trajectory(traj: Trajectory, path: str | Path) -> None:
+    """Write a trajectory as CSV (atomically)."""
+    frame = pd.DataFrame({"t": traj.t, "x": traj.x, "y": traj.y, "theta": traj.theta})
+    atomic_write(Path(path), lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g"))
