@@ -1,0 +1,221 @@
+"""The shared mapper interface and the method registry."""
+
+from __future__ import annotations
+
+import inspect
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any, ClassVar, Self
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import ConfigError, SonarmapError
+from ..grid import Grid
+from ..io.rosmap import OccupancyMap
+from ..raster import Footprint, rasterise
+from ..readings import Readings
+from ..rig import Rig
+from ..sensors import SensorModel
+
+__all__ = ["MAPPERS", "Mapper", "NotFittedError", "make_mapper", "parse_params", "register"]
+
+Progress = Callable[[int, int], None]
+
+MAPPERS: dict[str, type[Mapper]] = {}
+
+
+class NotFittedError(SonarmapError, RuntimeError):
+    """A result was read before any readings were given to the mapper."""
+
+
+def register(cls: type[Mapper]) -> type[Mapper]:
+    """Class decorator adding a mapper to :data:`MAPPERS` under ``cls.name``."""
+    if cls.name in MAPPERS:
+        raise RuntimeError(f"mapper name '{cls.name}' registered twice")
+    MAPPERS[cls.name] = cls
+    return cls
+
+
+class Mapper(ABC):
+    """A mapping method: readings in, occupancy grid out.
+
+    Subclasses take every parameter as an explicit keyword argument, store it unchanged
+    under the same name and validate it in ``__init__``; a parameter never changes
+    while a map is being built.
+
+    Use :meth:`fit` for a batch of readings, or :meth:`start` then :meth:`partial_fit`
+    repeatedly for readings that arrive over time. Results: :attr:`occupancy_` and
+    :meth:`result`.
+    """
+
+    name: ClassVar[str]
+    #: Readings rasterised at once; bounds the memory of a batch.
+    chunk_size: ClassVar[int] = 50_000
+
+    _grid: Grid | None = None
+    _sensor: SensorModel | None = None
+
+    @classmethod
+    def param_names(cls) -> list[str]:
+        sig = inspect.signature(cls.__init__)
+        return [p.name for p in sig.parameters.values() if p.kind is p.KEYWORD_ONLY]
+
+    @classmethod
+    def param_defaults(cls) -> dict[str, Any]:
+        sig = inspect.signature(cls.__init__)
+        return {p.name: p.default for p in sig.parameters.values() if p.kind is p.KEYWORD_ONLY}
+
+    def get_params(self) -> dict[str, Any]:
+        """The mapper's parameters, as given."""
+        return {k: getattr(self, k) for k in self.param_names()}
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
+        return f"{type(self).__name__}({args})"
+
+    # -- building a map ------------------------------------------------------------
+
+    def start(self, grid: Grid, sensor: SensorModel | Rig) -> Self:
+        """Begin a new map on ``grid`` for readings of ``sensor``."""
+        self._grid = grid
+        self._sensor = sensor.sensor if isinstance(sensor, Rig) else sensor
+        self._reset()
+        return self
+
+    def fit(
+        self,
+        readings: Readings,
+        grid: Grid,
+        sensor: SensorModel | Rig,
+        *,
+        progress: Progress | None = None,
+    ) -> Self:
+        """Build a map from a batch of readings (replacing any previous map)."""
+        self.start(grid, sensor)
+        return self.partial_fit(readings, progress=progress)
+
+    def partial_fit(self, readings: Readings, *, progress: Progress | None = None) -> Self:
+        """Add readings to the map being built."""
+        if self._grid is None:
+            raise NotFittedError(f"{type(self).__name__}: call start() or fit() first")
+        self._check_ranges(readings)
+        self._add(readings, progress)
+        return self
+
+    @property
+    def grid(self) -> Grid:
+        if self._grid is None:
+            raise NotFittedError(f"{type(self).__name__} has no map yet; call fit() first")
+        return self._grid
+
+    @property
+    def sensor(self) -> SensorModel:
+        if self._sensor is None:
+            raise NotFittedError(f"{type(self).__name__} has no map yet; call fit() first")
+        return self._sensor
+
+    @property
+    def occupancy_(self) -> npt.NDArray[np.float32]:
+        """Occupancy in [0, 1], NaN where no reading touched the cell; shape ``grid.shape``."""
+        if self._grid is None:
+            raise NotFittedError(f"{type(self).__name__} has no map yet; call fit() first")
+        return self._occupancy().reshape(self._grid.shape)
+
+    def result(self) -> OccupancyMap:
+        """The current map."""
+        return OccupancyMap(self.grid, self.occupancy_)
+
+    # -- for subclasses --------------------------------------------------------------
+
+    @abstractmethod
+    def _reset(self) -> None:
+        """Allocate an empty map for ``self.grid``."""
+
+    @abstractmethod
+    def _add(self, readings: Readings, progress: Progress | None) -> None:
+        """Fold readings into the map."""
+
+    @abstractmethod
+    def _occupancy(self) -> npt.NDArray[np.float32]:
+        """Flat occupancy, NaN where unknown."""
+
+    def _footprints(
+        self, readings: Readings, *, dr: float | None = None, with_bearing: bool = False,
+        progress: Progress | None = None,
+    ) -> Iterator[tuple[int, Footprint]]:
+        """Rasterise readings chunk by chunk; yields (index of first reading, footprint)."""
+        n = len(readings)
+        for a in range(0, n, self.chunk_size):
+            b = min(a + self.chunk_size, n)
+            fp = rasterise(self.grid, self.sensor, readings.x[a:b], readings.y[a:b],
+                           readings.theta[a:b], readings.range[a:b], dr=dr,
+                           with_bearing=with_bearing)
+            yield a, fp
+            if progress is not None:
+                progress(b, n)
+
+    def _check_ranges(self, readings: Readings) -> None:
+        r = readings.range
+        if np.isnan(r).any() or (r < 0).any():
+            i = int(np.flatnonzero(np.isnan(r) | (r < 0))[0])
+            raise ConfigError(f"reading {i}: range must be a number >= 0, got {r[i]}")
+
+
+def _coerce(value: str, default: Any, key: str) -> Any:
+    if isinstance(default, bool):
+        if value.lower() in ("1", "true", "yes", "on"):
+            return True
+        if value.lower() in ("0", "false", "no", "off"):
+            return False
+        raise ConfigError(f"parameter '{key}' expects true or false, got {value!r}")
+    if isinstance(default, int):
+        try:
+            return int(value)
+        except ValueError:
+            raise ConfigError(f"parameter '{key}' expects an integer, got {value!r}") from None
+    if isinstance(default, float) or default is None:
+        if default is None and value.lower() in ("none", ""):
+            return None
+        try:
+            return float(value)
+        except ValueError:
+            if default is None:
+                return value
+            raise ConfigError(f"parameter '{key}' expects a number, got {value!r}") from None
+    return value
+
+
+def parse_params(method: str, pairs: Mapping[str, str]) -> dict[str, Any]:
+    """Typed keyword arguments from ``KEY=VALUE`` strings, typed like each default."""
+    cls = _lookup(method)
+    defaults = cls.param_defaults()
+    bad = sorted(set(pairs) - set(defaults))
+    if bad:
+        raise ConfigError(f"unknown parameter(s) {bad} for method '{method}'; valid: "
+                          f"{', '.join(defaults)}")
+    return {k: _coerce(v, defaults[k], k) for k, v in pairs.items()}
+
+
+def _lookup(method: str) -> type[Mapper]:
+    try:
+        return MAPPERS[method]
+    except KeyError:
+        raise ConfigError(f"unknown method '{method}'; valid: {', '.join(sorted(MAPPERS))}") \
+            from None
+
+
+def make_mapper(method: str, **params: Any) -> Mapper:
+    """A mapper by registered name, with keyword parameters.
+
+    Examples
+    --------
+    >>> make_mapper("inverse", p_occ=0.8).p_occ
+    0.8
+    """
+    cls = _lookup(method)
+    bad = sorted(set(params) - set(cls.param_names()))
+    if bad:
+        raise ConfigError(f"unknown parameter(s) {bad} for method '{method}'; valid: "
+                          f"{', '.join(cls.param_names())}")
+    return cls(**params)

@@ -1,0 +1,30 @@
+"""Validators for mapper parameters: one line naming the parameter and its range."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from ..errors import ConfigError
+
+
+def number(name: str, value: object, lo: float | None = None, hi: float | None = None, *,
+           lo_open: bool = False, hi_open: bool = False) -> float:
+    """``value`` as a float inside the given bounds, or ConfigError."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ConfigError(f"parameter '{name}' must be a finite number, got {value!r}")
+    v = float(value)
+    below = lo is not None and (v <= lo if lo_open else v < lo)
+    above = hi is not None and (v >= hi if hi_open else v > hi)
+    if below or above:
+        left = "(" if lo_open else "["
+        right = ")" if hi_open else "]"
+        rng = f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}{right}"
+        raise ConfigError(f"parameter '{name}' must be in {rng}, got {value!r}")
+    return v
+
+
+def choice(name: str, value: object, options: Sequence[str]) -> str:
+    if value not in options:
+        raise ConfigError(f"parameter '{name}' must be one of {', '.join(options)}; got {value!r}")
+    return str(value)

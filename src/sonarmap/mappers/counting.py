@@ -1,0 +1,62 @@
+"""The hit/miss counting model of the lecture slides (methods.md section 1).
+
+Per cell, ``C`` counts the readings whose beam covers it and ``O`` sums their votes,
++1 from Omega_occ and -1 from Omega_free; the occupancy is ``(O + C) / (2 C)``, the
+fraction of votes that said "occupied".
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from ..readings import Readings
+from . import _checks
+from ._base import Mapper, Progress, register
+
+__all__ = ["CountingMapper"]
+
+
+@register
+class CountingMapper(Mapper):
+    """Occupancy as the fraction of "occupied" votes among the readings covering a cell.
+
+    Parameters
+    ----------
+    no_echo : {"free", "ignore"}
+        A reading with no echo votes "free" over its beam up to ``r_max - dr`` or is skipped.
+    dr : float or None
+        Half-width of the Omega_occ band, metres; None uses the rasteriser default.
+    """
+
+    name = "counting"
+
+    def __init__(self, *, no_echo: str = "free", dr: float | None = None) -> None:
+        self.no_echo = no_echo
+        self.dr = dr
+        _checks.choice("no_echo", no_echo, ("free", "ignore"))
+        if dr is not None:
+            _checks.number("dr", dr, 0.0, None)
+
+    def _reset(self) -> None:
+        self._hits = np.zeros(self.grid.size, dtype=np.int64)
+        self._seen = np.zeros(self.grid.size, dtype=np.int64)
+
+    def _add(self, readings: Readings, progress: Progress | None) -> None:
+        n_cells = self.grid.size
+        for a, fp in self._footprints(readings, dr=self.dr, progress=progress):
+            free_cells = fp.free.cells
+            if self.no_echo == "ignore":
+                rng = readings.range[a : a + fp.free.n_readings]
+                keep = (rng < self.sensor.r_max)[fp.free.reading_index()]
+                free_cells = free_cells[keep]
+            self._seen += np.bincount(free_cells, minlength=n_cells)
+            occ = np.bincount(fp.occ.cells, minlength=n_cells)
+            self._seen += occ
+            self._hits += occ
+
+    def _occupancy(self) -> npt.NDArray[np.float32]:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            # (O + C) / 2C with O = hits - misses and C = hits + misses is hits / C.
+            p = self._hits / self._seen
+        return p.astype(np.float32)

@@ -1,0 +1,144 @@
+"""The traditional inverse-model occupancy grid (Moravec & Elfes; methods.md section 1).
+
+Each cell keeps log-odds ``l``; every reading adds ``logit(p_free)`` to the cells of its
+Omega_free and ``logit(p_occ)`` to those of its Omega_occ, optionally scaled by a
+Gaussian fall-off with the angle off the beam axis, and clamps ``l`` to
+``[logit(clamp_min), logit(clamp_max)]`` after each reading -- the update rule of
+OctoMap, with its clamping bounds [0.12, 0.97].
+
+The increments are not OctoMap's laser values (0.7 / 0.4): with a wide beam, the
+occupied arc of one reading covers many free cells, and strong occupied increments
+paint the space in front of walls. The defaults (p_occ 0.55, p_free 0.3, a 15-degree
+Gaussian fall-off) scored best of a 36-point scan (p_occ 0.55-0.8, p_free 0.3-0.45,
+fall-off 0 / 7.5 / 15 degrees) by the F1 of occupied cells on the ``doorways`` and
+``passages`` scenarios: F1 0.55 and 0.63 against 0.27 and 0.28 with OctoMap's values.
+
+Readings are applied in order: with clamping the result depends on it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+import numpy.typing as npt
+
+from ..readings import Readings
+from . import _checks
+from ._base import Mapper, Progress, register
+
+__all__ = ["InverseMapper"]
+
+
+def _logit(p: float) -> float:
+    return math.log(p / (1.0 - p))
+
+
+@nb.njit(cache=True)
+def _apply(
+    logodds: npt.NDArray[np.float64],
+    touched: npt.NDArray[np.bool_],
+    f_off: npt.NDArray[np.int64], f_cell: npt.NDArray[np.int32], f_scale: npt.NDArray[np.float32],
+    o_off: npt.NDArray[np.int64], o_cell: npt.NDArray[np.int32], o_scale: npt.NDArray[np.float32],
+    use_reading: npt.NDArray[np.bool_],
+    l_free: float, l_occ: float, lo: float, hi: float,
+) -> None:
+    n = f_off.shape[0] - 1
+    for i in range(n):
+        if not use_reading[i]:
+            continue
+        for j in range(f_off[i], f_off[i + 1]):
+            c = f_cell[j]
+            v = logodds[c] + l_free * f_scale[j]
+            logodds[c] = min(max(v, lo), hi)
+            touched[c] = True
+        for j in range(o_off[i], o_off[i + 1]):
+            c = o_cell[j]
+            v = logodds[c] + l_occ * o_scale[j]
+            logodds[c] = min(max(v, lo), hi)
+            touched[c] = True
+
+
+@register
+class InverseMapper(Mapper):
+    """Log-odds occupancy grid with an inverse sonar model.
+
+    Parameters
+    ----------
+    p_occ : float
+        Inverse-model probability for a cell of Omega_occ, in (0.5, 1).
+    p_free : float
+        Inverse-model probability for a cell of Omega_free, in (0, 0.5).
+    clamp_min, clamp_max : float
+        Occupancy clamping bounds, ``0 < clamp_min < 0.5 < clamp_max < 1``.
+    falloff_deg : float
+        Standard deviation (degrees) of a Gaussian fall-off of both increments with the angle
+        off the beam axis (default 15); 0 applies them uniformly over the beam.
+    no_echo : {"free", "ignore"}
+        A reading with no echo clears its beam up to ``r_max - dr`` (``free``) or is
+        skipped (``ignore``).
+    dr : float or None
+        Half-width of the Omega_occ band, metres; None uses the rasteriser default
+        ``max(resolution, range resolution)``.
+    """
+
+    name = "inverse"
+
+    def __init__(
+        self,
+        *,
+        p_occ: float = 0.55,
+        p_free: float = 0.3,
+        clamp_min: float = 0.12,
+        clamp_max: float = 0.97,
+        falloff_deg: float = 15.0,
+        no_echo: str = "free",
+        dr: float | None = None,
+    ) -> None:
+        self.p_occ = p_occ
+        self.p_free = p_free
+        self.clamp_min = clamp_min
+        self.clamp_max = clamp_max
+        self.falloff_deg = falloff_deg
+        self.no_echo = no_echo
+        self.dr = dr
+        _checks.number("p_occ", p_occ, 0.5, 1.0, lo_open=True, hi_open=True)
+        _checks.number("p_free", p_free, 0.0, 0.5, lo_open=True, hi_open=True)
+        _checks.number("clamp_min", clamp_min, 0.0, 0.5, lo_open=True, hi_open=True)
+        _checks.number("clamp_max", clamp_max, 0.5, 1.0, lo_open=True, hi_open=True)
+        _checks.number("falloff_deg", falloff_deg, 0.0, None)
+        _checks.choice("no_echo", no_echo, ("free", "ignore"))
+        if dr is not None:
+            _checks.number("dr", dr, 0.0, None)
+
+    def _reset(self) -> None:
+        self._logodds = np.zeros(self.grid.size, dtype=np.float64)
+        self._touched = np.zeros(self.grid.size, dtype=np.bool_)
+
+    def _scale(self, bearing: npt.NDArray[np.float32] | None, n: int) -> npt.NDArray[np.float32]:
+        if bearing is None:
+            return np.ones(n, dtype=np.float32)
+        s = math.radians(self.falloff_deg)
+        return np.exp(-0.5 * (bearing / s) ** 2).astype(np.float32)
+
+    def _add(self, readings: Readings, progress: Progress | None) -> None:
+        falloff = self.falloff_deg > 0
+        l_free, l_occ = _logit(self.p_free), _logit(self.p_occ)
+        lo, hi = _logit(self.clamp_min), _logit(self.clamp_max)
+        for a, fp in self._footprints(readings, dr=self.dr, with_bearing=falloff,
+                                      progress=progress):
+            rng = readings.range[a : a + fp.free.n_readings]
+            use = np.ones(len(rng), dtype=np.bool_)
+            if self.no_echo == "ignore":
+                use = rng < self.sensor.r_max
+            _apply(self._logodds, self._touched,
+                   fp.free.offsets, fp.free.cells, self._scale(fp.free.bearing,
+                                                               len(fp.free.cells)),
+                   fp.occ.offsets, fp.occ.cells, self._scale(fp.occ.bearing, len(fp.occ.cells)),
+                   use, l_free, l_occ, lo, hi)
+
+    def _occupancy(self) -> npt.NDArray[np.float32]:
+        p = 1.0 / (1.0 + np.exp(-self._logodds))
+        p[~self._touched] = np.nan
+        return p.astype(np.float32)

@@ -1,0 +1,101 @@
+"""Pictures of maps: one map with optional truth and readings, or several side by side."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .io._atomic import atomic_write  # noqa: E402
+from .io.rosmap import OccupancyMap  # noqa: E402
+from .readings import Readings  # noqa: E402
+
+__all__ = ["draw_map", "save_map_picture", "save_side_by_side"]
+
+_UNKNOWN_RGBA = (0.80, 0.86, 0.93, 1.0)
+
+
+def draw_map(
+    ax: Any,
+    m: OccupancyMap,
+    *,
+    truth: OccupancyMap | None = None,
+    readings: Readings | None = None,
+    r_max: float | None = None,
+    binary: bool = False,
+    title: str | None = None,
+) -> None:
+    """Draw a map on a matplotlib axes: white free, black occupied, pale blue unknown.
+
+    With ``truth``, true obstacles are outlined in red; with ``readings``, sensor positions
+    are dots and echoes (ranges below ``r_max``) small crosses.
+    """
+    occ = m.occupancy.astype(np.float64)
+    if binary:
+        occ = np.where(np.isnan(occ), np.nan, (occ >= 0.5).astype(np.float64))
+    cmap = plt.get_cmap("gray_r").copy()
+    cmap.set_bad(_UNKNOWN_RGBA)
+    ax.imshow(np.ma.masked_invalid(occ), cmap=cmap, vmin=0.0, vmax=1.0, extent=m.grid.extent,
+              interpolation="nearest", origin="upper")
+    if truth is not None:
+        t = (np.nan_to_num(truth.occupancy, nan=0.0) >= 0.5).astype(float)
+        ax.contour(t, levels=[0.5], colors="red", linewidths=0.6, extent=truth.grid.extent,
+                   origin="upper")
+    if readings is not None and len(readings):
+        ax.plot(readings.x, readings.y, ".", ms=1.5, color="tab:blue")
+        rng = readings.range
+        hit = rng < (np.inf if r_max is None else r_max)
+        ex = readings.x[hit] + rng[hit] * np.cos(readings.theta[hit])
+        ey = readings.y[hit] + rng[hit] * np.sin(readings.theta[hit])
+        ax.plot(ex, ey, "x", ms=2, mew=0.5, color="tab:orange")
+    xmin, xmax, ymin, ymax = m.grid.extent
+    ax.set_xlim(xmin, xmax)
+    ax.set_ylim(ymin, ymax)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    if title:
+        ax.set_title(title)
+
+
+def _save(fig: Any, path: str | Path) -> Path:
+    p = Path(path)
+    atomic_write(p, lambda tmp: fig.savefig(tmp, dpi=150, bbox_inches="tight", format="png"))
+    plt.close(fig)
+    return p
+
+
+def save_map_picture(m: OccupancyMap, path: str | Path, **kwargs: Any) -> Path:
+    """Draw one map (see :func:`draw_map`) to a PNG file."""
+    fig, ax = plt.subplots(figsize=(6, 6))
+    draw_map(ax, m, **kwargs)
+    return _save(fig, path)
+
+
+def save_side_by_side(
+    maps: Mapping[str, OccupancyMap],
+    path: str | Path,
+    *,
+    truth: OccupancyMap | None = None,
+    binary_row: bool = True,
+) -> Path:
+    """Maps side by side (a second row binarised at 0.5) with the truth first, to a PNG."""
+    panels = ([("truth", truth)] if truth is not None else []) + list(maps.items())
+    rows = 2 if binary_row else 1
+    fig, axes = plt.subplots(rows, len(panels), figsize=(3.2 * len(panels), 3.4 * rows),
+                             squeeze=False)
+    for j, (name, m) in enumerate(panels):
+        draw_map(axes[0, j], m, truth=None if name == "truth" else truth, title=name)
+        if binary_row:
+            draw_map(axes[1, j], m, binary=True, title=f"{name} (binarised)")
+    fig.tight_layout()
+    return _save(fig, path)
+
+

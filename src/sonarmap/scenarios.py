@@ -1,0 +1,362 @@
+"""Built-in scenarios: floor plan, rig, trajectory and simulated readings.
+
+Each scenario writes ``truth.yaml``/``truth.pgm``/``truth.npy``, ``rig.yaml``,
+``trajectory.csv``, ``readings.csv`` and ``annotations.yaml`` (passages: the two jamb
+points across each opening and its true width) to a folder.
+
+- ``doorways``: the research's synthetic corridor (thesis 000 fig. 4.1, left): a 6 m x 6 m
+  territory, a corridor with doorways into rooms on both sides, the robot driving
+  straight up the middle with the ``paper-synthetic`` rig, exact readings.
+- ``passages``: a row of blocks separated by gaps of increasing width beside the robot's
+  path (thesis 002, figs 4.9-4.10).
+- ``room-turn``: a room with a door; the ``paper-real`` rig turns in place at uneven speed,
+  with outliers and a roughly known sonar mounting (thesis 000 fig. 4.1, right).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import yaml
+
+from .errors import ConfigError
+from .grid import Grid
+from .io._atomic import atomic_write_text
+from .io.rosmap import OccupancyMap, write_map
+from .readings import Readings, Trajectory, write_readings, write_trajectory
+from .rig import Mount, Rig, get_rig, save_rig
+from .sensors import Noise
+from .simulate import simulate
+
+__all__ = ["SCENARIOS", "Passage", "Scenario", "load_passages", "make_scenario"]
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class Passage:
+    """An opening in the floor plan.
+
+    ``a`` and ``b`` are the jamb points (world, metres) on the mid-line of the obstacle
+    the opening goes through, ``depth`` that obstacle's thickness across the opening.
+    """
+
+    name: str
+    a: tuple[float, float]
+    b: tuple[float, float]
+    depth: float = 0.1
+
+    @property
+    def width(self) -> float:
+        return math.dist(self.a, self.b)
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    """Everything a mapping experiment needs, in memory."""
+
+
+    name: str
+    truth: OccupancyMap
+    rig: Rig
+    trajectory: Trajectory
+    readings: Readings
+    passages: tuple[Passage, ...] = ()
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def write(self, folder: str | Path) -> Path:
+        """Write the scenario files into ``folder`` (created if needed)."""
+        d = Path(folder)
+        d.mkdir(parents=True, exist_ok=True)
+        write_map(self.truth, d / "truth")
+        save_rig(self.rig, d / "rig.yaml")
+        write_trajectory(self.trajectory, d / "trajectory.csv")
+        write_readings(self.readings, d / "readings.csv")
+        ann = {
+            "scenario": self.name,
+            "params": self.params,
+            "passages": [
+                {"name": p.name, "a": list(p.a), "b": list(p.b), "depth": p.depth,
+                 "width": round(p.width, 6)}
+                for p in self.passages
+            ],
+        }
+        atomic_write_text(d / "annotations.yaml", yaml.safe_dump(ann, sort_keys=False))
+        return d
+
+
+class _Plan:
+    """A floor plan being drawn: rectangles of obstacle on an empty grid."""
+
+    def __init__(self, grid: Grid) -> None:
+        self.grid = grid
+        self.occ = np.zeros(grid.shape, dtype=np.float32)
+        self.xc, self.yc = grid.all_centres()
+
+    def box(self, x0: float, y0: float, x1: float, y1: float) -> None:
+        inside = (self.xc >= x0) & (self.xc <= x1) & (self.yc >= y0) & (self.yc <= y1)
+        self.occ[inside] = 1.0
+
+    def clear(self, x0: float, y0: float, x1: float, y1: float) -> None:
+        inside = (self.xc >= x0) & (self.xc <= x1) & (self.yc >= y0) & (self.yc <= y1)
+        self.occ[inside] = 0.0
+
+    def border(self, t: float) -> None:
+        xmin, xmax, ymin, ymax = self.grid.extent
+        self.box(xmin, ymin, xmax, ymin + t)
+        self.box(xmin, ymax - t, xmax, ymax)
+        self.box(xmin, ymin, xmin + t, ymax)
+        self.box(xmax - t, ymin, xmax, ymax)
+
+    def done(self) -> OccupancyMap:
+        return OccupancyMap(self.grid, self.occ)
+
+
+def _check_positive(**values: float) -> None:
+    for k, v in values.items():
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"scenario parameter '{k}' must be > 0, got {v}")
+
+
+def _straight(x: float, y0: float, y1: float, speed: float, rate: float) -> Trajectory:
+    n = int(math.floor((y1 - y0) / speed * rate)) + 1
+    t = np.arange(n) / rate
+    return Trajectory(t, np.full(n, x), y0 + speed * t, np.full(n, math.pi / 2))
+
+
+def doorways(
+    *,
+    size: float = 6.0,
+    resolution: float = 0.05,
+    corridor_width: float = 2.0,
+    wall: float = 0.1,
+    door_widths: Sequence[float] = (1.0, 0.8, 0.9, 0.7),
+    speed: float = 0.25,
+    rate: float = 10.0,
+    noise: Noise | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> Scenario:
+    """The research's corridor with doorways.
+
+    Defaults: a ``size`` x ``size`` m territory at ``resolution`` m (6 m, 5 cm), walls
+    ``wall`` m thick around it and along a corridor of ``corridor_width`` m (2 m) centred
+    on x = size / 2; doorways of ``door_widths`` m (1.0, 0.8, 0.9, 0.7) alternate between
+    the left and right corridor walls, evenly spaced along the corridor. The robot drives up
+    the corridor centre from y = 0.5 to size - 0.5 at ``speed`` m/s (0.25), all six
+    ``paper-synthetic`` sonars firing at ``rate`` Hz (10). Readings are exact by default
+    (p_rand = 0, p_hit = 1, sigma = 0), as in the research.
+    """
+    _check_positive(size=size, resolution=resolution, corridor_width=corridor_width,
+                    wall=wall, speed=speed, rate=rate)
+    if not door_widths or any(w <= 0 for w in door_widths):
+        raise ConfigError("scenario parameter 'door_widths' must be positive widths")
+    grid = Grid.from_bounds(0.0, 0.0, size, size, resolution)
+    plan = _Plan(grid)
+    plan.border(wall)
+    cx = size / 2
+    xl, xr = cx - corridor_width / 2, cx + corridor_width / 2
+    plan.box(xl - wall, 0, xl, size)
+    plan.box(xr, 0, xr + wall, size)
+    passages = []
+    n = len(door_widths)
+    span = size - 2.0
+    for k, w in enumerate(door_widths):
+        yc = 1.0 + span * (k + 0.5) / n
+        # Doors alternate sides, so doors on one wall are two spacings apart.
+        if w > min(2 * span / n, span) - 0.2:
+            raise ConfigError(f"door width {w} m does not fit {n} doors in a {size} m corridor")
+        left = k % 2 == 0
+        x0, x1 = (xl - wall, xl) if left else (xr, xr + wall)
+        plan.clear(x0, yc - w / 2, x1, yc + w / 2)
+        xm = (x0 + x1) / 2
+        passages.append(Passage(f"door{k + 1}-{'left' if left else 'right'}",
+                                (xm, yc - w / 2), (xm, yc + w / 2), wall))
+    truth = plan.done()
+    rig = get_rig("paper-synthetic")
+    traj = _straight(cx, 0.5, size - 0.5, speed, rate)
+    nz = noise if noise is not None else Noise(0.0, 1.0, 0.0)
+    readings = simulate(truth, rig, traj, noise=nz, seed=seed, progress=progress)
+    params = {"size": size, "resolution": resolution, "corridor_width": corridor_width,
+              "wall": wall, "door_widths": list(door_widths), "speed": speed, "rate": rate,
+              "p_rand": nz.p_rand, "p_hit": nz.p_hit, "sigma": nz.sigma, "seed": seed}
+    return Scenario("doorways", truth, rig, traj, readings, tuple(passages), params)
+
+
+def passages(
+    *,
+    widths: Sequence[float] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8),
+    resolution: float = 0.05,
+    block: float = 0.6,
+    depth: float = 0.3,
+    offset: float = 1.0,
+    speed: float = 0.25,
+    rate: float = 10.0,
+    noise: Noise | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> Scenario:
+    """Blocks separated by gaps of increasing width, the robot passing alongside.
+
+    Defaults: gaps of ``widths`` m (0.1 to 0.8 in 0.1 steps) between blocks ``block`` m
+    long (0.6) and ``depth`` m deep (0.3), in a row parallel to the robot's path at
+    ``offset`` m (1.0) to its left; 2 m of free space behind the row, then a wall. The
+    robot drives past the whole row at ``speed`` m/s (0.25) with the ``paper-synthetic``
+    rig at ``rate`` Hz (10). Exact readings by default.
+    """
+    _check_positive(resolution=resolution, block=block, depth=depth, offset=offset,
+                    speed=speed, rate=rate)
+    if not widths or any(w <= 0 for w in widths):
+        raise ConfigError("scenario parameter 'widths' must be positive widths")
+    wall = 0.1
+    length = 1.0 + block + sum(w + block for w in widths) + 1.0
+    x_path = 1.0
+    x_row = x_path + offset
+    width = x_row + depth + 2.0 + wall
+    grid = Grid.from_bounds(0.0, 0.0, width, length, resolution)
+    plan = _Plan(grid)
+    plan.border(wall)
+    y = 1.0
+    plan.box(x_row, y, x_row + depth, y + block)
+    y += block
+    found = []
+    for k, w in enumerate(widths):
+        found.append(Passage(f"gap{k + 1}", (x_row + depth / 2, y),
+                             (x_row + depth / 2, y + w), depth))
+        y += w
+        plan.box(x_row, y, x_row + depth, y + block)
+        y += block
+    truth = plan.done()
+    rig = get_rig("paper-synthetic")
+    traj = _straight(x_path, 0.5, length - 0.5, speed, rate)
+    nz = noise if noise is not None else Noise(0.0, 1.0, 0.0)
+    readings = simulate(truth, rig, traj, noise=nz, seed=seed, progress=progress)
+    params = {"widths": list(widths), "resolution": resolution, "block": block,
+              "depth": depth, "offset": offset, "speed": speed, "rate": rate,
+              "p_rand": nz.p_rand, "p_hit": nz.p_hit, "sigma": nz.sigma, "seed": seed}
+    return Scenario("passages", truth, rig, traj, readings, tuple(found), params)
+
+
+def room_turn(
+    *,
+    room: float = 4.0,
+    resolution: float = 0.05,
+    door_width: float = 0.9,
+    turns: float = 1.0,
+    duration: float = 30.0,
+    rate: float = 10.0,
+    noise: Noise | None = None,
+    mount_yaw_sigma_deg: float = 2.0,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> Scenario:
+    """A room with a door; the ``paper-real`` rig turns in place at uneven speed.
+
+    Defaults: a ``room`` m square room (4 m) inside a 6 m territory, a door ``door_width``
+    m wide (0.9) in its upper wall; the robot stands off-centre and makes ``turns`` (1)
+    turns in ``duration`` s (30), its angular speed varying by a factor of five, the four
+    sonars firing at ``rate`` Hz (10). Noise p_rand = 0.05, p_hit = 0.9, sigma = 1 cm.
+    The readings come from sonars whose yaw differs from the written rig by Gaussian
+    errors of ``mount_yaw_sigma_deg`` degrees (2): the mounting is known only roughly.
+    """
+    _check_positive(room=room, resolution=resolution, door_width=door_width, turns=turns,
+                    duration=duration, rate=rate)
+    if not (math.isfinite(mount_yaw_sigma_deg) and mount_yaw_sigma_deg >= 0):
+        raise ConfigError(f"scenario parameter 'mount_yaw_sigma_deg' must be >= 0, "
+                          f"got {mount_yaw_sigma_deg}")
+    if door_width > room - 0.4:
+        raise ConfigError(f"door_width {door_width} m does not fit a {room} m room")
+    wall = 0.1
+    size = room + 2.0
+    grid = Grid.from_bounds(0.0, 0.0, size, size, resolution)
+    plan = _Plan(grid)
+    plan.border(wall)
+    lo, hi = 1.0, 1.0 + room
+    plan.box(lo - wall, lo - wall, hi + wall, lo)
+    plan.box(lo - wall, hi, hi + wall, hi + wall)
+    plan.box(lo - wall, lo - wall, lo, hi + wall)
+    plan.box(hi, lo - wall, hi + wall, hi + wall)
+    dx = lo + room * 0.55
+    plan.clear(dx - door_width / 2, hi - 0.01, dx + door_width / 2, hi + wall + 0.01)
+    truth = plan.done()
+    door = Passage("door", (dx - door_width / 2, hi + wall / 2),
+                   (dx + door_width / 2, hi + wall / 2), wall)
+
+    n = int(duration * rate) + 1
+    t = np.arange(n) / rate
+    # Angular speed 1 + 0.67 sin(...) varies between 0.33 and 1.67 of its mean.
+    phase = 2 * math.pi * t / duration
+    angle = 2 * math.pi * turns * (phase - 0.67 * (np.cos(phase * 3) - 1) / 3) / (2 * math.pi)
+    traj = Trajectory(t, np.full(n, lo + room * 0.45), np.full(n, lo + room * 0.4),
+                      np.angle(np.exp(1j * angle)))
+    rig = get_rig("paper-real")
+    rng = np.random.default_rng(seed + 7919)
+    actual = replace(rig, mounts=tuple(
+        Mount(m.name, m.x, m.y, m.yaw_deg + mount_yaw_sigma_deg * float(rng.standard_normal()))
+        for m in rig.mounts))
+    nz = noise if noise is not None else Noise(0.05, 0.9, 0.01)
+    readings = simulate(truth, actual, traj, noise=nz, seed=seed, progress=progress)
+    # The recorded poses are those the nominal mounting gives, as a real robot would log.
+    sx, sy, st = (a.reshape(-1) for a in rig.sensor_poses(traj.x, traj.y, traj.theta))
+    readings = replace(readings, x=sx, y=sy, theta=st)
+    params = {"room": room, "resolution": resolution, "door_width": door_width,
+              "turns": turns, "duration": duration, "rate": rate,
+              "mount_yaw_sigma_deg": mount_yaw_sigma_deg, "p_rand": nz.p_rand,
+              "p_hit": nz.p_hit, "sigma": nz.sigma, "seed": seed}
+    return Scenario("room-turn", truth, rig, traj, readings, (door,), params)
+
+
+SCENARIOS: dict[str, Callable[..., Scenario]] = {
+    "doorways": doorways,
+    "passages": passages,
+    "room-turn": room_turn,
+}
+
+
+def make_scenario(name: str, **params: Any) -> Scenario:
+    """Build a scenario by name with keyword parameters (see each scenario's function)."""
+    try:
+        fn = SCENARIOS[name]
+    except KeyError:
+        raise ConfigError(f"unknown scenario '{name}'; valid: {', '.join(SCENARIOS)}") from None
+    import inspect
+
+    valid = [p for p in inspect.signature(fn).parameters if p != "progress"]
+    bad = set(params) - set(valid) - {"progress"}
+    if bad:
+        raise ConfigError(f"unknown parameter(s) {sorted(bad)} for scenario '{name}'; "
+                          f"valid: {', '.join(valid)}")
+    return fn(**params)
+
+
+
+
+def load_passages(path: str | Path) -> tuple[Passage, ...]:
+    """Passages from a scenario's ``annotations.yaml``."""
+    from .errors import InputError
+
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text())
+    except OSError as err:
+        raise InputError(f"cannot read annotations ({err.strerror})", path=p) from err
+    except yaml.YAMLError as err:
+        raise InputError("not valid YAML", path=p) from err
+    items = (data or {}).get("passages", []) if isinstance(data, dict) else None
+    if not isinstance(items, list):
+        raise InputError("expected a list under 'passages'", path=p, field="passages")
+    out = []
+    for i, d in enumerate(items):
+        try:
+            out.append(Passage(str(d["name"]), (float(d["a"][0]), float(d["a"][1])),
+                               (float(d["b"][0]), float(d["b"][1])), float(d.get("depth", 0.1))))
+        except (KeyError, TypeError, ValueError, IndexError) as err:
+            raise InputError(f"bad passage entry ({err!r})", path=p,
+                             field=f"passages[{i}]") from err
+    return tuple(out)
