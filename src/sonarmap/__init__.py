@@ -1,0 +1,76 @@
+"""sonarmap: occupancy-grid mapping with wide-beam sonars.
+
+The main entry points::
+
+    from sonarmap import make_scenario, build_map, read_map, write_map, score
+"""
+
+from .api import build_map, grid_for_readings
+from .errors import ConfigError, InputError, SonarmapError
+from .grid import Grid
+from .io.rosmap import OccupancyMap, read_map, write_map
+from .mappers import MAPPERS, Mapper, make_mapper
+from .metrics import MapScore, passage_open, score
+from .raster import CellSet, Footprint, beam_cells, rasterise
+from .readings import (
+    Readings,
+    Trajectory,
+    iter_readings,
+    read_readings,
+    read_trajectory,
+    write_readings,
+    write_trajectory,
+)
+from .rig import Mount, Rig, get_rig, load_rig, save_rig
+from .scenarios import SCENARIOS, Passage, Scenario, load_passages, make_scenario
+from .sensors import Noise, Region, SensorModel, get_sensor, load_sensor
+from .simulate import PoseNoise, simulate
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "MAPPERS",
+    "SCENARIOS",
+    "CellSet",
+    "ConfigError",
+    "Footprint",
+    "Grid",
+    "InputError",
+    "MapScore",
+    "Mapper",
+    "Mount",
+    "Noise",
+    "OccupancyMap",
+    "Passage",
+    "PoseNoise",
+    "Readings",
+    "Region",
+    "Rig",
+    "Scenario",
+    "SensorModel",
+    "SonarmapError",
+    "Trajectory",
+    "__version__",
+    "beam_cells",
+    "build_map",
+    "get_rig",
+    "get_sensor",
+    "grid_for_readings",
+    "iter_readings",
+    "load_passages",
+    "load_rig",
+    "load_sensor",
+    "make_mapper",
+    "make_scenario",
+    "passage_open",
+    "rasterise",
+    "read_map",
+    "read_readings",
+    "read_trajectory",
+    "save_rig",
+    "score",
+    "simulate",
+    "write_map",
+    "write_readings",
+    "write_trajectory",
+]

@@ -1,0 +1,285 @@
+"""The ``sonarmap`` command line: a thin layer over the Python API.
+
+Every library error becomes one line on stderr and exit code 2; outputs are written
+atomically, so a failed command leaves no partial file.
+"""
+
+from __future__ import annotations
+
+import csv
+import inspect
+import io
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from enum import Enum
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+
+from . import __version__
+from .api import build_map, grid_for_readings
+from .errors import ConfigError, InputError, SonarmapError
+from .io._atomic import atomic_write_text
+from .io.rosmap import read_map, write_map
+from .mappers import MAPPERS, parse_params
+from .metrics import score
+from .plot import save_map_picture, save_side_by_side
+from .readings import read_readings, read_trajectory, write_readings
+from .rig import load_rig
+from .scenarios import SCENARIOS, make_scenario
+from .sensors import Noise
+from .simulate import PoseNoise, simulate
+
+app = typer.Typer(
+    name="sonarmap",
+    help="Occupancy-grid mapping with wide-beam sonars.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+err_console = Console(stderr=True)
+console = Console()
+
+ScenarioName = Enum("ScenarioName", {n.replace("-", "_"): n for n in SCENARIOS}, type=str)  # type: ignore[misc]
+MethodName = Enum("MethodName", {n: n for n in sorted(MAPPERS)}, type=str)  # type: ignore[misc]
+
+
+@contextmanager
+def _progress(label: str) -> Iterator[Callable[[int, int], None]]:
+    """A rich progress bar (on stderr, hidden when not a terminal) as a callback."""
+    bar = Progress(TextColumn(label), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                   TimeElapsedColumn(), TimeRemainingColumn(), console=err_console,
+                   transient=True)
+    task = bar.add_task(label, total=None)
+
+    def update(done: int, total: int) -> None:
+        bar.update(task, completed=done, total=total)
+
+    with bar:
+        yield update
+
+
+def _pairs(items: list[str] | None, option: str) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"{option} expects KEY=VALUE, got {item!r}")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def _scenario_params(name: str, pairs: dict[str, str]) -> dict[str, Any]:
+    sig = inspect.signature(SCENARIOS[name]).parameters
+    valid = [p for p in sig if p not in ("noise", "seed", "progress")]
+    out: dict[str, Any] = {}
+    for key, value in pairs.items():
+        if key not in valid:
+            raise ConfigError(f"unknown parameter '{key}' for scenario '{name}'; valid: "
+                              f"{', '.join(valid)}")
+        default = sig[key].default
+        try:
+            if isinstance(default, tuple | list):
+                out[key] = tuple(float(v) for v in value.split(","))
+            elif isinstance(default, int) and not isinstance(default, bool):
+                out[key] = int(value)
+            else:
+                out[key] = float(value)
+        except ValueError:
+            raise ConfigError(f"parameter '{key}' expects "
+                              f"{'numbers separated by commas' if isinstance(default, tuple) else 'a number'}"
+                              f", got {value!r}") from None
+    return out
+
+
+@app.command("scenario")
+def scenario_cmd(
+    name: Annotated[ScenarioName, typer.Argument(help="Which scenario.")],  # type: ignore[valid-type]
+    out: Annotated[Path, typer.Option("-o", "--out", help="Folder to write into.")],
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    param: Annotated[list[str] | None, typer.Option(
+        "--param", help="Scenario parameter KEY=VALUE (lists comma-separated), repeatable.")] = None,
+    p_rand: Annotated[float | None, typer.Option(help="Outlier probability.")] = None,
+    p_hit: Annotated[float | None, typer.Option(help="Reflection probability per cell.")] = None,
+    sigma: Annotated[float | None, typer.Option(help="Range noise, metres.")] = None,
+) -> None:
+    """Write a built-in scenario: truth map, rig, trajectory, readings, annotations."""
+    scen = name.value
+    params = _scenario_params(scen, _pairs(param, "--param"))
+    if p_rand is not None or p_hit is not None or sigma is not None:
+        base = make_scenario(scen, **params, seed=seed).params
+        params["noise"] = Noise(p_rand if p_rand is not None else base["p_rand"],
+                                p_hit if p_hit is not None else base["p_hit"],
+                                sigma if sigma is not None else base["sigma"])
+    with _progress(f"simulating {scen}") as cb:
+        s = make_scenario(scen, **params, seed=seed, progress=cb)
+    s.write(out)
+    console.print(f"wrote scenario [bold]{scen}[/] ({len(s.readings)} readings) to {out}")
+
+
+@app.command("simulate")
+def simulate_cmd(
+    map_: Annotated[Path, typer.Option("--map", help="Truth map YAML (map_server format).")],
+    rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
+    trajectory: Annotated[Path, typer.Option(help="Trajectory CSV t,x,y,theta.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Readings CSV to write.")],
+    p_rand: Annotated[float | None, typer.Option(help="Outlier probability [0, 1].")] = None,
+    p_hit: Annotated[float | None, typer.Option(help="Reflection probability (0, 1].")] = None,
+    sigma: Annotated[float | None, typer.Option(help="Range noise sigma, metres.")] = None,
+    pose_sigma_xy: Annotated[float, typer.Option(help="Recorded-pose noise, metres.")] = 0.0,
+    pose_sigma_theta: Annotated[float, typer.Option(help="Recorded-heading noise, rad.")] = 0.0,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+) -> None:
+    """Simulate sonar readings of a rig driven along a trajectory through a floor plan."""
+    truth = read_map(map_)
+    r = load_rig(rig)
+    traj = read_trajectory(trajectory)
+    base = r.sensor.noise
+    noise = Noise(base.p_rand if p_rand is None else p_rand,
+                  base.p_hit if p_hit is None else p_hit,
+                  base.sigma if sigma is None else sigma)
+    with _progress("simulating") as cb:
+        readings = simulate(truth, r, traj, noise=noise,
+                            pose_noise=PoseNoise(pose_sigma_xy, pose_sigma_theta), seed=seed,
+                            progress=cb)
+    write_readings(readings, out)
+    console.print(f"wrote {len(readings)} readings to {out}")
+
+
+@app.command("map")
+def map_cmd(
+    readings: Annotated[Path, typer.Argument(help="Readings CSV t,sensor,x,y,theta,range.")],
+    rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Output stem: writes .yaml/.pgm/.npy")],
+    method: Annotated[MethodName, typer.Option(help="Mapping method.")] = "inverse",  # type: ignore[valid-type,assignment]
+    like: Annotated[Path | None, typer.Option(help="Use the grid of this map YAML.")] = None,
+    resolution: Annotated[float | None, typer.Option(help="Cell size, metres.")] = None,
+    bounds: Annotated[tuple[float, float, float, float] | None, typer.Option(
+        help="XMIN YMIN XMAX YMAX in metres (default: around the data).")] = None,
+    param: Annotated[list[str] | None, typer.Option(
+        "--param", help="Method parameter KEY=VALUE, repeatable.")] = None,
+) -> None:
+    """Build an occupancy map from readings; writes OUT.yaml, OUT.pgm and OUT.npy."""
+    m = method.value
+    params = parse_params(m, _pairs(param, "--param"))
+    r = load_rig(rig)
+    if like is not None and (resolution is not None or bounds is not None):
+        raise ConfigError("give either --like or --resolution/--bounds, not both")
+    data = read_readings(readings, names=r.names)
+    if like is not None:
+        grid = read_map(like).grid
+    elif resolution is not None:
+        grid = grid_for_readings(data, r, resolution, bounds)
+    else:
+        raise ConfigError("give --like MAP.yaml or --resolution R")
+    try:
+        with _progress(f"mapping ({m})") as cb:
+            result = build_map(data, r, grid, m, params, progress=cb)
+    except InputError as err:
+        raise InputError(err.reason, path=readings, field=err.field) from err
+    paths = write_map(result, out)
+    console.print(f"wrote {', '.join(str(p) for p in paths)}")
+
+
+@app.command("show")
+def show_cmd(
+    map_: Annotated[Path, typer.Argument(help="Map YAML to draw.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="PNG to write.")],
+    readings: Annotated[Path | None, typer.Option(help="Readings CSV to overlay.")] = None,
+    truth: Annotated[Path | None, typer.Option(help="Truth map YAML to outline in red.")] = None,
+) -> None:
+    """Draw a map as a PNG, optionally with the truth outlined and readings overlaid."""
+    m = read_map(map_)
+    t = read_map(truth) if truth is not None else None
+    rd = read_readings(readings) if readings is not None else None
+    save_map_picture(m, out, truth=t, readings=rd, title=map_.stem)
+    console.print(f"wrote {out}")
+
+
+@app.command("methods")
+def methods_cmd() -> None:
+    """List mapping methods and their parameters with defaults."""
+    table = Table("method", "parameters (defaults)")
+    for name in sorted(MAPPERS):
+        cls = MAPPERS[name]
+        table.add_row(name, ", ".join(f"{k}={v!r}" for k, v in cls.param_defaults().items()))
+    console.print(table)
+
+
+@app.command("demo")
+def demo_cmd(
+    out: Annotated[Path, typer.Option("-o", "--out", help="Folder for the results.")] = Path("out"),
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+) -> None:
+    """Run the doorways scenario through every method: maps, a picture, a metrics table."""
+    with _progress("simulating doorways") as cb:
+        s = make_scenario("doorways", seed=seed, progress=cb)
+    s.write(out / "doorways")
+    maps = {}
+    for name in sorted(MAPPERS, key=lambda n: (n != "inverse", n)):
+        with _progress(f"mapping ({name})") as cb:
+            maps[name] = build_map(s.readings, s.rig, s.truth.grid, name, progress=cb)
+        write_map(maps[name], out / "maps" / name)
+    picture = save_side_by_side(maps, out / "doorways.png", truth=s.truth)
+    fields = ["method", "accuracy", "precision", "recall", "f1", "iou", "unknown",
+              "passages_open", "passages"]
+    rows = []
+    short = ["method", "acc", "prec", "recall", "F1", "IoU", "unknown", "open", "doors"]
+    table = Table(*short, title="doorways: maps against the truth (observed cells)")
+    for name, m in maps.items():
+        sc = score(s.truth, m, s.passages).as_dict()
+        rows.append({"method": name, **sc})
+        table.add_row(name, *(f"{sc[k]:.3f}" if k not in ("passages_open", "passages")
+                              else f"{int(sc[k])}" for k in fields[1:]))
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write_text(out / "metrics.csv", buf.getvalue())
+    console.print(table)
+    console.print(f"wrote {picture}, {out / 'metrics.csv'} and maps under {out / 'maps'}")
+
+
+@app.callback(invoke_without_command=True)
+def _root(
+    version: Annotated[bool, typer.Option("--version", help="Print the version.")] = False,
+) -> None:
+    if version:
+        console.print(f"sonarmap {__version__}")
+        raise typer.Exit()
+
+
+def _fail(message: str) -> None:
+    err_console.print(f"sonarmap: error: {message}", markup=False, highlight=False,
+                      soft_wrap=True)
+    sys.exit(2)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: every error becomes one line on stderr and exit code 2."""
+    try:
+        rv = app(args=argv, prog_name="sonarmap", standalone_mode=False)
+    except SonarmapError as err:
+        _fail(str(err))
+    except typer.Abort:
+        _fail("aborted")
+    except Exception as err:
+        # Usage errors of the command-line parser (typer vendors click, whose exception
+        # classes are private): they carry format_message() and a context.
+        fmt = getattr(err, "format_message", None)
+        if fmt is None:
+            raise
+        ctx = getattr(err, "ctx", None)
+        where = f"{ctx.command_path}: " if ctx is not None else ""
+        _fail(where + " ".join(str(fmt()).split()))
+    if isinstance(rv, int) and rv != 0:
+        sys.exit(rv)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()
