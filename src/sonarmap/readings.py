@@ -136,6 +136,20 @@ def _chunks(
             path, dtype=str, keep_default_na=False, skip_blank_lines=False,
             chunksize=chunk_size, engine="c", compression="infer",
         )
+    except pd.errors.EmptyDataError as err:
+        raise InputError(f"file is empty; expected a header {','.join(columns)}",
+                         path=path) from err
+    except (EOFError, OSError, UnicodeDecodeError) as err:
+        raise InputError(f"cannot read file ({type(err).__name__}: {err})", path=path) from err
+    with reader:
+        yield from _parse_chunks(path, reader, columns, text_columns)
+
+
+def _parse_chunks(
+    path: Path, reader: Iterator[pd.DataFrame], columns: Sequence[str],
+    text_columns: Sequence[str],
+) -> Iterator[tuple[int, dict[str, npt.NDArray[np.generic]]]]:
+    try:
         line = 2
         for k, frame in enumerate(reader):
             if k == 0:
@@ -256,7 +270,7 @@ def read_readings(
 ) -> Readings:
     """Read a whole readings CSV (see :func:`iter_readings`)."""
     parts = list(iter_readings(path, names=names, chunk_size=chunk_size))
-    if not parts:
+    if sum(len(p) for p in parts) == 0:
         raise InputError("no readings (the file has a header only)", path=path)
     return Readings.concat(parts)
 

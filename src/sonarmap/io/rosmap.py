@@ -173,8 +173,10 @@ def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uin
             arr = np.asarray(im)
     except FileNotFoundError as err:
         raise InputError("map image not found", path=path) from err
-    except (UnidentifiedImageError, OSError) as err:
-        raise InputError(f"cannot read image ({err})", path=path) from err
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError,
+            Image.DecompressionBombError) as err:
+        # Pillow reports malformed headers and truncated pixel data in several ways.
+        raise InputError(f"cannot read image ({type(err).__name__}: {err})", path=path) from err
     if arr.ndim == 2:
         return arr.astype(np.float64), None
     alpha = arr[..., -1] if arr.shape[-1] in (2, 4) else None

@@ -1,0 +1,116 @@
+"""ROS map_server maps: round trip, conventions, a hand-made map, bad files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sonarmap.errors import InputError
+from sonarmap.grid import Grid
+from sonarmap.io.rosmap import OccupancyMap, read_map, write_map
+
+
+def test_round_trip(tmp_path: Path) -> None:
+    grid = Grid(0.05, (-1.5, 2.25), (4, 5))
+    occ = np.array(
+        [[0, 1, np.nan, 0.5, 0.9], [0.1, 0.2, 0.3, 0.66, 1], [0, 0, 0, 0, 0], [1, 1, 1, 1, 1]],
+        dtype=np.float32,
+    )
+    yaml_p, pgm_p, npy_p = write_map(OccupancyMap(grid, occ), tmp_path / "m")
+    back = read_map(yaml_p)
+    assert back.grid == grid
+    np.testing.assert_array_equal(np.load(npy_p), occ)
+    px = np.asarray(Image.open(pgm_p))
+    assert px.dtype == np.uint8 and px.shape == (4, 5)
+    assert px[0, 0] == 254 and px[0, 1] == 0 and px[0, 2] == 205 and px[0, 3] == 205
+    # Trinary classes survive the trip: occupied > 0.65, free < 0.196, others unknown.
+    expect = np.where(occ > 0.65, 1.0, np.where(occ < 0.196, 0.0, np.nan))
+    np.testing.assert_array_equal(back.occupancy, expect.astype(np.float32))
+
+
+def test_hand_made_map_with_known_origin(tmp_path: Path) -> None:
+    # 3 rows x 4 columns; a single obstacle pixel at image row 0 (top), column 3.
+    px = np.full((3, 4), 254, dtype=np.uint8)
+    px[0, 3] = 0
+    px[2, 0] = 205
+    Image.fromarray(px).save(tmp_path / "hand.png")
+    (tmp_path / "hand.yaml").write_text(
+        "image: hand.png\nresolution: 0.5\norigin: [10.0, -2.0, 0.0]\nnegate: 0\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
+    m = read_map(tmp_path / "hand.yaml")
+    assert m.grid.shape == (3, 4)
+    # Lower-left pixel (row 2, col 0) has its lower-left corner at the origin.
+    assert m.grid.cell_centres(2, 0) == (10.25, -1.75)
+    # The obstacle (top row, last column) is the cell containing world (11.9, -0.6).
+    r, c = m.grid.world_to_cell(11.9, -0.6)
+    assert (int(r), int(c)) == (0, 3)
+    assert m.occupancy[0, 3] == 1.0
+    assert np.isnan(m.occupancy[2, 0])
+    assert m.occupancy[1, 1] == 0.0
+
+
+def test_negate_scale_raw_and_colour(tmp_path: Path) -> None:
+    px = np.array([[0, 100, 255]], dtype=np.uint8)
+    Image.fromarray(px).save(tmp_path / "p.pgm")
+    base = "image: p.pgm\nresolution: 1.0\norigin: [0, 0, 0]\n"
+    (tmp_path / "neg.yaml").write_text(base + "negate: 1\n")
+    np.testing.assert_array_equal(read_map(tmp_path / "neg.yaml").occupancy,
+                                  np.array([[0.0, np.nan, 1.0]], dtype=np.float32))
+    (tmp_path / "scale.yaml").write_text(base + "mode: scale\n")
+    p = (255 - 100) / 255
+    np.testing.assert_allclose(read_map(tmp_path / "scale.yaml").occupancy,
+                               [[1.0, (p - 0.196) / (0.65 - 0.196), 0.0]], rtol=1e-6)
+    (tmp_path / "raw.yaml").write_text(base + "mode: raw\n")
+    np.testing.assert_array_equal(read_map(tmp_path / "raw.yaml").occupancy,
+                                  np.array([[0.0, 1.0, np.nan]], dtype=np.float32))
+    rgb = np.zeros((1, 2, 3), dtype=np.uint8)
+    rgb[0, 1] = 255
+    Image.fromarray(rgb).save(tmp_path / "c.png")
+    (tmp_path / "c.yaml").write_text("image: c.png\nresolution: 1.0\norigin: [0, 0, 0]\n")
+    np.testing.assert_array_equal(read_map(tmp_path / "c.yaml").occupancy, [[1.0, 0.0]])
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("image: m.pgm\nresolution: [\n", "not valid YAML at line"),
+        ("image: m.pgm\norigin: [0, 0, 0]\n", "field 'resolution': missing key"),
+        ("image: m.pgm\nresolution: -1\norigin: [0, 0, 0]\n", "field 'resolution': must be > 0"),
+        ("image: m.pgm\nresolution: 0.1\norigin: [0]\n", "field 'origin': expected"),
+        ("image: m.pgm\nresolution: 0.1\norigin: [0, 0, 0.5]\n", "rotated maps"),
+        ("image: m.pgm\nresolution: 0.1\norigin: [0, 0, 0]\nmode: fancy\n", "unknown mode"),
+        ("image: m.pgm\nresolution: 0.1\norigin: [0, 0, 0]\nfree_thresh: 0.9\n", "thresholds"),
+        ("image: gone.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n", "map image not found"),
+        ("- just\n- a list\n", "expected a YAML mapping"),
+    ],
+)
+def test_bad_map_files(tmp_path: Path, text: str, match: str) -> None:
+    Image.fromarray(np.zeros((2, 2), dtype=np.uint8)).save(tmp_path / "m.pgm")
+    (tmp_path / "bad.yaml").write_text(text)
+    with pytest.raises(InputError, match=match):
+        read_map(tmp_path / "bad.yaml")
+
+
+def test_wrong_image_mode_and_garbage(tmp_path: Path) -> None:
+    Image.fromarray(np.zeros((2, 2), dtype=np.uint16)).save(tmp_path / "w.png")
+    (tmp_path / "w.yaml").write_text("image: w.png\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    with pytest.raises(InputError, match="unsupported image mode 'I;16'"):
+        read_map(tmp_path / "w.yaml")
+    (tmp_path / "g.pgm").write_bytes(b"P5 garbage")
+    (tmp_path / "g.yaml").write_text("image: g.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    with pytest.raises(InputError, match="cannot read image"):
+        read_map(tmp_path / "g.yaml")
+
+
+def test_failed_write_leaves_nothing(tmp_path: Path) -> None:
+    grid = Grid(1.0, (0, 0), (1, 2))
+    with pytest.raises(InputError, match="thresholds"):
+        write_map(OccupancyMap(grid, np.zeros((1, 2), np.float32)), tmp_path / "x",
+                  occupied_thresh=0.1, free_thresh=0.5)
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(InputError, match="occupancy values must lie in"):
+        OccupancyMap(grid, np.array([[0.0, 2.0]], np.float32))

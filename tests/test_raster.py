@@ -1,0 +1,192 @@
+"""The rasteriser against a brute-force reference over every cell centre."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sonarmap.errors import ConfigError, InputError
+from sonarmap.grid import Grid
+from sonarmap.raster import beam_cells, default_dr, rasterise
+from sonarmap.sensors import Region, SensorModel, get_sensor
+
+GRID = Grid(resolution=0.1, origin=(-2.0, -2.0), shape=(40, 40))
+
+
+def reference(
+    grid: Grid, sensor: SensorModel, x: float, y: float, theta: float, r: float, dr: float
+) -> tuple[set[int], set[int], dict[int, float]]:
+    """Free and occupied cells and their weights by testing every cell centre."""
+    xc, yc = grid.all_centres()
+    dx, dy = xc.ravel() - x, yc.ravel() - y
+    c, s = math.cos(theta), math.sin(theta)
+    local = np.c_[dx * c + dy * s, -dx * s + dy * c]
+    inside = sensor.beam.contains(local)
+    d = np.hypot(dx, dy)
+    if r >= sensor.r_max:
+        free = inside & (d < sensor.r_max - dr)
+        occ = np.zeros_like(free)
+    else:
+        free = inside & (d < r - dr)
+        occ = inside & (d >= r - dr) & (d <= r + dr)
+    size = sensor.sensitivity(local)
+    safe = np.where(size > 0, size, 1.0)
+    w = np.where(size > 0, np.minimum(grid.resolution**2 / safe**2, 1.0), 1.0)
+    weights = {int(i): float(w[i]) for i in np.flatnonzero(inside)}
+    return set(np.flatnonzero(free).tolist()), set(np.flatnonzero(occ).tolist()), weights
+
+
+def cone_sensor(aperture: float) -> SensorModel:
+    return SensorModel("cone", Region.cone(aperture, 3.0), r_min=0.0, r_max=3.0,
+                       range_resolution=0.02)
+
+
+def zoned_sensor() -> SensorModel:
+    return SensorModel(
+        "zoned", Region.polygon([[0, 0], [2.5, -1.0], [3.0, 0.0], [2.5, 1.0]]), r_min=0.0,
+        r_max=3.0, range_resolution=0.02, min_size=0.2,
+        zones=((Region.polygon([[0, 0], [1.5, -0.3], [1.5, 0.3]]), 0.05),),
+    )
+
+
+poses = st.tuples(
+    st.floats(-2.5, 2.5), st.floats(-2.5, 2.5), st.floats(-math.pi, math.pi),
+    st.floats(0.0, 3.5),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(pose=poses, aperture=st.floats(5.0, 170.0), dr=st.floats(0.0, 0.3))
+def test_cone_matches_reference(
+    pose: tuple[float, float, float, float], aperture: float, dr: float
+) -> None:
+    sensor = cone_sensor(aperture)
+    x, y, th, r = pose
+    fp = rasterise(GRID, sensor, [x], [y], [th], [r], dr=dr)
+    free, occ, _ = reference(GRID, sensor, x, y, th, r, dr)
+    assert set(fp.free.cells.tolist()) == free
+    assert set(fp.occ.cells.tolist()) == occ
+
+
+@settings(max_examples=60, deadline=None)
+@given(pose=poses)
+def test_polygon_with_zones_matches_reference(pose: tuple[float, float, float, float]) -> None:
+    sensor = zoned_sensor()
+    x, y, th, r = pose
+    fp = rasterise(GRID, sensor, [x], [y], [th], [r], dr=0.1)
+    free, occ, weights = reference(GRID, sensor, x, y, th, r, 0.1)
+    assert set(fp.free.cells.tolist()) == free
+    assert set(fp.occ.cells.tolist()) == occ
+    for cells, w in ((fp.free.cells, fp.free.weight), (fp.occ.cells, fp.occ.weight)):
+        got = dict(zip(cells.tolist(), w.tolist(), strict=True))
+        for cell, value in got.items():
+            assert value == pytest.approx(weights[cell], rel=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(pose=poses, aperture=st.floats(5.0, 170.0))
+def test_sets_disjoint_inside_beam_and_band(
+    pose: tuple[float, float, float, float], aperture: float
+) -> None:
+    sensor = cone_sensor(aperture)
+    x, y, th, r = pose
+    dr = 0.1
+    fp = rasterise(GRID, sensor, [x], [y], [th], [r], dr=dr, with_bearing=True)
+    assert not set(fp.free.cells.tolist()) & set(fp.occ.cells.tolist())
+    assert np.all(fp.free.distance < max(r if r < sensor.r_max else sensor.r_max, 0) - dr + 1e-6)
+    assert np.all(fp.occ.distance >= r - dr - 1e-6)
+    assert np.all(fp.occ.distance <= r + dr + 1e-6)
+    half = math.radians(aperture) / 2
+    for cs in (fp.free, fp.occ):
+        assert cs.bearing is not None
+        assert np.all(np.abs(cs.bearing) <= half + 1e-6)
+        assert np.unique(cs.cells).size == cs.cells.size
+
+
+@settings(max_examples=40, deadline=None)
+@given(pose=poses, turns=st.integers(1, 3))
+def test_rotating_pose_and_world_gives_same_cells(
+    pose: tuple[float, float, float, float], turns: int
+) -> None:
+    sensor = zoned_sensor()
+    grid = Grid(resolution=0.1, origin=(-2.0, -2.0), shape=(40, 40))
+    x, y, th, r = pose
+    base = rasterise(grid, sensor, [x], [y], [th], [r], dr=0.1)
+    xc, yc = grid.all_centres()
+    for k in range(1, turns + 1):
+        a = k * math.pi / 2
+        ca, sa = round(math.cos(a)), round(math.sin(a))
+        rx, ry = ca * x - sa * y, sa * x + ca * y
+        turned = rasterise(grid, sensor, [rx], [ry], [th + a], [r], dr=0.1)
+        # Where does each original cell centre land?
+        for cs_base, cs_turn in ((base.free, turned.free), (base.occ, turned.occ)):
+            bx, by = xc.ravel()[cs_base.cells], yc.ravel()[cs_base.cells]
+            tx, ty = ca * bx - sa * by, sa * bx + ca * by
+            rr, cc = grid.world_to_cell(tx, ty)
+            expected = set(grid.flat_index(rr, cc).tolist())
+            assert set(cs_turn.cells.tolist()) == expected
+            np.testing.assert_allclose(np.sort(cs_turn.distance), np.sort(cs_base.distance),
+                                       atol=1e-5)
+
+
+def test_cell_centres_decide_membership() -> None:
+    # A 1 m grid and a 10-degree cone along a row: a cell is in when its centre is.
+    grid = Grid(1.0, (0.0, 0.0), (3, 6))
+    sensor = SensorModel("c", Region.cone(10.0, 10.0), r_min=0.0, r_max=10.0,
+                         range_resolution=0.1)
+    fp = rasterise(grid, sensor, [0.0], [1.5], [0.0], [4.5], dr=0.5)
+    assert fp.free.cells.tolist() == [6, 7, 8, 9]  # middle row, centres at x = 0.5 .. 3.5
+    assert fp.occ.cells.tolist() == [10]  # centre at x = 4.5, inside [4.0, 5.0]
+    # A 90-degree cone: the centre of cell 12 (row 2, col 0; centre (0.5, 0.5)) lies exactly
+    # on the lower edge when the sensor is at (-0.5, 1.5), and 1 cm outside when it moves.
+    wide = SensorModel("w", Region.cone(90.0, 10.0), r_min=0.0, r_max=10.0,
+                       range_resolution=0.1)
+    on = rasterise(grid, wide, [-0.5], [1.5], [0.0], [3.0], dr=0.0)
+    assert 12 in on.free.cells.tolist()
+    off = rasterise(grid, wide, [-0.49], [1.5], [0.0], [3.0], dr=0.0)
+    assert 12 not in off.free.cells.tolist()
+
+
+def test_no_echo_has_no_occupied_band() -> None:
+    sensor = get_sensor("hc-sr04")
+    fp = rasterise(GRID, sensor, [0.0], [0.0], [0.0], [sensor.r_max], dr=0.05)
+    assert len(fp.occ.cells) == 0
+    assert fp.free.distance.max() < sensor.r_max - 0.05
+
+
+def test_clipped_to_grid_and_offsets_consistent() -> None:
+    sensor = get_sensor("maxsonar-ez1")
+    rng = np.random.default_rng(1)
+    n = 200
+    fp = rasterise(GRID, sensor, rng.uniform(-4, 4, n), rng.uniform(-4, 4, n),
+                   rng.uniform(-3, 3, n), rng.uniform(0.1, 7, n))
+    for cs in (fp.free, fp.occ):
+        assert cs.offsets[0] == 0 and cs.offsets[-1] == len(cs.cells)
+        assert np.all(np.diff(cs.offsets) >= 0)
+        assert cs.cells.min(initial=0) >= 0 and cs.cells.max(initial=0) < GRID.size
+        assert cs.matrix(GRID.size).shape == (n, GRID.size)
+
+
+def test_beam_cells_is_union_of_bands() -> None:
+    sensor = get_sensor("maxsonar-ez1")
+    all_cells = beam_cells(GRID, sensor, [0.0], [0.0], [0.3], max_range=1.5)
+    fp = rasterise(GRID, sensor, [0.0], [0.0], [0.3], [1.0], dr=0.5)
+    assert set(all_cells.cells.tolist()) == set(fp.free.cells.tolist()) | set(
+        fp.occ.cells.tolist())
+
+
+def test_default_dr_and_bad_input() -> None:
+    sensor = get_sensor("maxsonar-ez1")
+    assert default_dr(GRID, sensor) == pytest.approx(0.1)
+    with pytest.raises(InputError, match="'range' holds non-finite"):
+        rasterise(GRID, sensor, [0.0], [0.0], [0.0], [float("nan")])
+    with pytest.raises(InputError, match="ranges must be >= 0"):
+        rasterise(GRID, sensor, [0.0], [0.0], [0.0], [-1.0])
+    with pytest.raises(InputError, match="'y' has 2 entries, expected 1"):
+        rasterise(GRID, sensor, [0.0], [0.0, 1.0], [0.0], [1.0])
+    with pytest.raises(ConfigError, match="dr must be a non-negative"):
+        rasterise(GRID, sensor, [0.0], [0.0], [0.0], [1.0], dr=-0.1)

@@ -1,0 +1,98 @@
+"""Readings and trajectory CSV: round trip, chunks, every kind of bad line."""
+
+from __future__ import annotations
+
+import gzip
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import InputError
+from sonarmap.readings import (
+    Readings,
+    iter_readings,
+    read_readings,
+    read_trajectory,
+    write_readings,
+)
+
+GOOD = (
+    "t,sensor,x,y,theta,range\n"
+    "0.0,a,0.0,0.0,0.0,1.5\n"
+    "0.1,b,0.1,0.0,1.57,2.0\n"
+    "0.2,a,0.2,0.0,0.0,inf\n"
+)
+
+
+def write(tmp_path: Path, text: str, name: str = "r.csv") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_read_and_round_trip(tmp_path: Path) -> None:
+    r = read_readings(write(tmp_path, GOOD), names=["a", "b"])
+    assert len(r) == 3 and r.names == ("a", "b")
+    assert r.sensor.tolist() == [0, 1, 0]
+    assert np.isinf(r.range[2])
+    write_readings(r, tmp_path / "out.csv.gz")
+    back = read_readings(tmp_path / "out.csv.gz", names=["a", "b"])
+    np.testing.assert_allclose(back.range[:2], r.range[:2])
+    assert back.sensor.tolist() == r.sensor.tolist()
+
+
+def test_chunks_give_the_same_result(tmp_path: Path) -> None:
+    rows = ["t,sensor,x,y,theta,range"] + [f"{i * 0.1},s{i % 3},{i},0,0,{1 + i % 5}"
+                                           for i in range(50)]
+    p = write(tmp_path, "\n".join(rows) + "\n")
+    parts = list(iter_readings(p, chunk_size=7))
+    assert len(parts) == 8
+    whole = read_readings(p)
+    joined = Readings.concat(parts)
+    np.testing.assert_array_equal(whole.range, joined.range)
+    assert [whole.names[i] for i in whole.sensor] == [joined.names[i] for i in joined.sensor]
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        (GOOD.replace("1.5\n", "nan\n"), r"r.csv:2, field 'range': not a finite number"),
+        (GOOD.replace("2.0\n", "-2.0\n"), r"r.csv:3, field 'range': range is negative"),
+        (GOOD.replace("0.1,b,0.1", "0.1,b,abc"), r"r.csv:3, field 'x': not a finite number"),
+        (GOOD.replace("b,0.1,0.0,1.57", "c,0.1,0.0,1.57"), r"r.csv:3, field 'sensor': unknown"),
+        (GOOD.replace("theta,range", "heading,range"), r"r.csv:1: missing column\(s\) theta"),
+        (GOOD + "0.3,a,0.0,0.0\n", r"r.csv:5, field 'theta': missing value"),
+        (GOOD + "0.3,a,0,0,0,1,9\n", r"r.csv:5: expected 6 fields, saw 7"),
+        (GOOD.replace("0.2,a", "0.05,a"), r"r.csv:4, field 't': time goes backwards"),
+        (GOOD + "\n0.4,a,0,0,0,1\n", r"r.csv:5, field 't': missing value"),
+        ("", "file is empty"),
+        ("t,sensor,x,y,theta,range\n", "no readings"),
+    ],
+)
+def test_bad_readings(tmp_path: Path, text: str, match: str) -> None:
+    with pytest.raises(InputError, match=match):
+        read_readings(write(tmp_path, text), names=["a", "b"])
+
+
+def test_truncated_gzip(tmp_path: Path) -> None:
+    data = gzip.compress((GOOD * 200).encode())
+    p = tmp_path / "r.csv.gz"
+    p.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match="r.csv.gz: cannot read file"):
+        read_readings(p)
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="nope.csv: no such file"):
+        read_readings(tmp_path / "nope.csv")
+
+
+def test_trajectory(tmp_path: Path) -> None:
+    p = write(tmp_path, "t,x,y,theta\n0,0,0,0\n1,1,0,0.5\n", "traj.csv")
+    traj = read_trajectory(p)
+    assert len(traj) == 2 and traj.theta[1] == 0.5
+    with pytest.raises(InputError, match="trajectory is empty"):
+        read_trajectory(write(tmp_path, "t,x,y,theta\n", "e.csv"))
+    with pytest.raises(InputError, match=r"b.csv:3, field 'y': not a finite number \('inf'\)"):
+        read_trajectory(write(tmp_path, "t,x,y,theta\n0,0,0,0\n1,0,inf,0\n", "b.csv"))
