@@ -24,8 +24,12 @@ def test_round_trip(tmp_path: Path) -> None:
     assert back.grid == grid
     np.testing.assert_array_equal(np.load(npy_p), occ)
     px = np.asarray(Image.open(pgm_p))
-    assert px.dtype == np.uint8 and px.shape == (4, 5)
-    assert px[0, 0] == 254 and px[0, 1] == 0 and px[0, 2] == 205 and px[0, 3] == 205
+    assert px.dtype == np.uint8
+    assert px.shape == (4, 5)
+    assert px[0, 0] == 254
+    assert px[0, 1] == 0
+    assert px[0, 2] == 205
+    assert px[0, 3] == 205
     # Trinary classes survive the trip: occupied > 0.65, free < 0.196, others unknown.
     expect = np.where(occ > 0.65, 1.0, np.where(occ < 0.196, 0.0, np.nan))
     np.testing.assert_array_equal(back.occupancy, expect.astype(np.float32))
@@ -44,7 +48,8 @@ def test_hand_made_map_with_known_origin(tmp_path: Path) -> None:
     m = read_map(tmp_path / "hand.yaml")
     assert m.grid.shape == (3, 4)
     # Lower-left pixel (row 2, col 0) has its lower-left corner at the origin.
-    assert m.grid.cell_centres(2, 0) == (10.25, -1.75)
+    cx, cy = m.grid.cell_centres(2, 0)
+    assert (float(cx), float(cy)) == (10.25, -1.75)
     # The obstacle (top row, last column) is the cell containing world (11.9, -0.6).
     r, c = m.grid.world_to_cell(11.9, -0.6)
     assert (int(r), int(c)) == (0, 3)
@@ -58,15 +63,20 @@ def test_negate_scale_raw_and_colour(tmp_path: Path) -> None:
     Image.fromarray(px).save(tmp_path / "p.pgm")
     base = "image: p.pgm\nresolution: 1.0\norigin: [0, 0, 0]\n"
     (tmp_path / "neg.yaml").write_text(base + "negate: 1\n")
-    np.testing.assert_array_equal(read_map(tmp_path / "neg.yaml").occupancy,
-                                  np.array([[0.0, np.nan, 1.0]], dtype=np.float32))
+    np.testing.assert_array_equal(
+        read_map(tmp_path / "neg.yaml").occupancy, np.array([[0.0, np.nan, 1.0]], dtype=np.float32)
+    )
     (tmp_path / "scale.yaml").write_text(base + "mode: scale\n")
     p = (255 - 100) / 255
-    np.testing.assert_allclose(read_map(tmp_path / "scale.yaml").occupancy,
-                               [[1.0, (p - 0.196) / (0.65 - 0.196), 0.0]], rtol=1e-6)
+    np.testing.assert_allclose(
+        read_map(tmp_path / "scale.yaml").occupancy,
+        [[1.0, (p - 0.196) / (0.65 - 0.196), 0.0]],
+        rtol=1e-6,
+    )
     (tmp_path / "raw.yaml").write_text(base + "mode: raw\n")
-    np.testing.assert_array_equal(read_map(tmp_path / "raw.yaml").occupancy,
-                                  np.array([[0.0, 1.0, np.nan]], dtype=np.float32))
+    np.testing.assert_array_equal(
+        read_map(tmp_path / "raw.yaml").occupancy, np.array([[0.0, 1.0, np.nan]], dtype=np.float32)
+    )
     rgb = np.zeros((1, 2, 3), dtype=np.uint8)
     rgb[0, 1] = 255
     Image.fromarray(rgb).save(tmp_path / "c.png")
@@ -109,8 +119,12 @@ def test_wrong_image_mode_and_garbage(tmp_path: Path) -> None:
 def test_failed_write_leaves_nothing(tmp_path: Path) -> None:
     grid = Grid(1.0, (0, 0), (1, 2))
     with pytest.raises(InputError, match="thresholds"):
-        write_map(OccupancyMap(grid, np.zeros((1, 2), np.float32)), tmp_path / "x",
-                  occupied_thresh=0.1, free_thresh=0.5)
+        write_map(
+            OccupancyMap(grid, np.zeros((1, 2), np.float32)),
+            tmp_path / "x",
+            occupied_thresh=0.1,
+            free_thresh=0.5,
+        )
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(InputError, match="occupancy values must lie in"):
         OccupancyMap(grid, np.array([[0.0, 2.0]], np.float32))

@@ -41,20 +41,27 @@ def reference(
 
 
 def cone_sensor(aperture: float) -> SensorModel:
-    return SensorModel("cone", Region.cone(aperture, 3.0), r_min=0.0, r_max=3.0,
-                       range_resolution=0.02)
+    return SensorModel(
+        "cone", Region.cone(aperture, 3.0), r_min=0.0, r_max=3.0, range_resolution=0.02
+    )
 
 
 def zoned_sensor() -> SensorModel:
     return SensorModel(
-        "zoned", Region.polygon([[0, 0], [2.5, -1.0], [3.0, 0.0], [2.5, 1.0]]), r_min=0.0,
-        r_max=3.0, range_resolution=0.02, min_size=0.2,
-        zones=((Region.polygon([[0, 0], [1.5, -0.3], [1.5, 0.3]]), 0.05),),
+        "zoned",
+        Region.polygon([[0.0, 0.0], [2.5, -1.0], [3.0, 0.0], [2.5, 1.0]]),
+        r_min=0.0,
+        r_max=3.0,
+        range_resolution=0.02,
+        min_size=0.2,
+        zones=((Region.polygon([[0.0, 0.0], [1.5, -0.3], [1.5, 0.3]]), 0.05),),
     )
 
 
 poses = st.tuples(
-    st.floats(-2.5, 2.5), st.floats(-2.5, 2.5), st.floats(-math.pi, math.pi),
+    st.floats(-2.5, 2.5),
+    st.floats(-2.5, 2.5),
+    st.floats(-math.pi, math.pi),
     st.floats(0.0, 3.5),
 )
 
@@ -129,22 +136,21 @@ def test_rotating_pose_and_world_gives_same_cells(
             rr, cc = grid.world_to_cell(tx, ty)
             expected = set(grid.flat_index(rr, cc).tolist())
             assert set(cs_turn.cells.tolist()) == expected
-            np.testing.assert_allclose(np.sort(cs_turn.distance), np.sort(cs_base.distance),
-                                       atol=1e-5)
+            np.testing.assert_allclose(
+                np.sort(cs_turn.distance), np.sort(cs_base.distance), atol=1e-5
+            )
 
 
 def test_cell_centres_decide_membership() -> None:
     # A 1 m grid and a 10-degree cone along a row: a cell is in when its centre is.
     grid = Grid(1.0, (0.0, 0.0), (3, 6))
-    sensor = SensorModel("c", Region.cone(10.0, 10.0), r_min=0.0, r_max=10.0,
-                         range_resolution=0.1)
+    sensor = SensorModel("c", Region.cone(10.0, 10.0), r_min=0.0, r_max=10.0, range_resolution=0.1)
     fp = rasterise(grid, sensor, [0.0], [1.5], [0.0], [4.5], dr=0.5)
     assert fp.free.cells.tolist() == [6, 7, 8, 9]  # middle row, centres at x = 0.5 .. 3.5
     assert fp.occ.cells.tolist() == [10]  # centre at x = 4.5, inside [4.0, 5.0]
     # A 90-degree cone: the centre of cell 12 (row 2, col 0; centre (0.5, 0.5)) lies exactly
     # on the lower edge when the sensor is at (-0.5, 1.5), and 1 cm outside when it moves.
-    wide = SensorModel("w", Region.cone(90.0, 10.0), r_min=0.0, r_max=10.0,
-                       range_resolution=0.1)
+    wide = SensorModel("w", Region.cone(90.0, 10.0), r_min=0.0, r_max=10.0, range_resolution=0.1)
     on = rasterise(grid, wide, [-0.5], [1.5], [0.0], [3.0], dr=0.0)
     assert 12 in on.free.cells.tolist()
     off = rasterise(grid, wide, [-0.49], [1.5], [0.0], [3.0], dr=0.0)
@@ -162,12 +168,20 @@ def test_clipped_to_grid_and_offsets_consistent() -> None:
     sensor = get_sensor("maxsonar-ez1")
     rng = np.random.default_rng(1)
     n = 200
-    fp = rasterise(GRID, sensor, rng.uniform(-4, 4, n), rng.uniform(-4, 4, n),
-                   rng.uniform(-3, 3, n), rng.uniform(0.1, 7, n))
+    fp = rasterise(
+        GRID,
+        sensor,
+        rng.uniform(-4, 4, n),
+        rng.uniform(-4, 4, n),
+        rng.uniform(-3, 3, n),
+        rng.uniform(0.1, 7, n),
+    )
     for cs in (fp.free, fp.occ):
-        assert cs.offsets[0] == 0 and cs.offsets[-1] == len(cs.cells)
+        assert cs.offsets[0] == 0
+        assert cs.offsets[-1] == len(cs.cells)
         assert np.all(np.diff(cs.offsets) >= 0)
-        assert cs.cells.min(initial=0) >= 0 and cs.cells.max(initial=0) < GRID.size
+        assert cs.cells.min(initial=0) >= 0
+        assert cs.cells.max(initial=0) < GRID.size
         assert cs.matrix(GRID.size).shape == (n, GRID.size)
 
 
@@ -175,8 +189,7 @@ def test_beam_cells_is_union_of_bands() -> None:
     sensor = get_sensor("maxsonar-ez1")
     all_cells = beam_cells(GRID, sensor, [0.0], [0.0], [0.3], max_range=1.5)
     fp = rasterise(GRID, sensor, [0.0], [0.0], [0.3], [1.0], dr=0.5)
-    assert set(all_cells.cells.tolist()) == set(fp.free.cells.tolist()) | set(
-        fp.occ.cells.tolist())
+    assert set(all_cells.cells.tolist()) == set(fp.free.cells.tolist()) | set(fp.occ.cells.tolist())
 
 
 def test_default_dr_and_bad_input() -> None:

@@ -33,7 +33,8 @@ def write(tmp_path: Path, text: str, name: str = "r.csv") -> Path:
 
 def test_read_and_round_trip(tmp_path: Path) -> None:
     r = read_readings(write(tmp_path, GOOD), names=["a", "b"])
-    assert len(r) == 3 and r.names == ("a", "b")
+    assert len(r) == 3
+    assert r.names == ("a", "b")
     assert r.sensor.tolist() == [0, 1, 0]
     assert np.isinf(r.range[2])
     write_readings(r, tmp_path / "out.csv.gz")
@@ -43,8 +44,9 @@ def test_read_and_round_trip(tmp_path: Path) -> None:
 
 
 def test_chunks_give_the_same_result(tmp_path: Path) -> None:
-    rows = ["t,sensor,x,y,theta,range"] + [f"{i * 0.1},s{i % 3},{i},0,0,{1 + i % 5}"
-                                           for i in range(50)]
+    rows = ["t,sensor,x,y,theta,range"] + [
+        f"{i * 0.1},s{i % 3},{i},0,0,{1 + i % 5}" for i in range(50)
+    ]
     p = write(tmp_path, "\n".join(rows) + "\n")
     parts = list(iter_readings(p, chunk_size=7))
     assert len(parts) == 8
@@ -79,19 +81,20 @@ def test_truncated_gzip(tmp_path: Path) -> None:
     data = gzip.compress((GOOD * 200).encode())
     p = tmp_path / "r.csv.gz"
     p.write_bytes(data[: len(data) // 2])
-    with pytest.raises(InputError, match="r.csv.gz: cannot read file"):
+    with pytest.raises(InputError, match=r"r\.csv\.gz: cannot read file"):
         read_readings(p)
 
 
 def test_missing_file(tmp_path: Path) -> None:
-    with pytest.raises(InputError, match="nope.csv: no such file"):
+    with pytest.raises(InputError, match=r"nope\.csv: no such file"):
         read_readings(tmp_path / "nope.csv")
 
 
 def test_trajectory(tmp_path: Path) -> None:
     p = write(tmp_path, "t,x,y,theta\n0,0,0,0\n1,1,0,0.5\n", "traj.csv")
     traj = read_trajectory(p)
-    assert len(traj) == 2 and traj.theta[1] == 0.5
+    assert len(traj) == 2
+    assert traj.theta[1] == 0.5
     with pytest.raises(InputError, match="trajectory is empty"):
         read_trajectory(write(tmp_path, "t,x,y,theta\n", "e.csv"))
     with pytest.raises(InputError, match=r"b.csv:3, field 'y': not a finite number \('inf'\)"):

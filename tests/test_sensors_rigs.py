@@ -23,7 +23,8 @@ def test_presets_round_trip_through_dict(name: str) -> None:
 def test_maxsonar_zones_are_nested_and_graded() -> None:
     s = get_sensor("maxsonar-ez1")
     sizes = [z[1] for z in s.zones]
-    assert sizes == sorted(sizes) and sizes[-1] < s.min_size
+    assert sizes == sorted(sizes)
+    assert sizes[-1] < s.min_size
     near_axis = s.sensitivity(np.array([[1.0, 0.0], [3.0, 0.0], [5.0, 0.0]]))
     assert near_axis.tolist() == [0.0061, 0.0254, 0.0889]
     for region, _ in s.zones:
@@ -32,7 +33,7 @@ def test_maxsonar_zones_are_nested_and_graded() -> None:
 
 def test_polygon_validation() -> None:
     with pytest.raises(ConfigError, match="not convex"):
-        Region.polygon([[0, 0], [2, 0], [0.5, 0.5], [2, 1], [0, 1]])
+        Region.polygon([[0.0, 0.0], [2.0, 0.0], [0.5, 0.5], [2.0, 1.0], [0.0, 1.0]])
     with pytest.raises(ConfigError, match="at least 3 vertices"):
         Region.polygon([[0, 0], [1, 1]])
     with pytest.raises(ConfigError, match="aperture_deg must be in"):
@@ -49,7 +50,9 @@ def test_custom_sensor_yaml(tmp_path: Path) -> None:
         "noise: {p_rand: 0.02, p_hit: 0.9, sigma: 0.01}\n"
     )
     s = load_sensor(p)
-    assert s.r_max == 3.0 and s.noise.p_hit == 0.9 and len(s.zones) == 1
+    assert s.r_max == 3.0
+    assert s.noise.p_hit == 0.9
+    assert len(s.zones) == 1
     p.write_text("name: mine\nbeam: {cone: {aperture_deg: 40}}\nr_max: 3\n")
     with pytest.raises(InputError, match="missing key 'range_resolution'"):
         load_sensor(p)
@@ -63,7 +66,8 @@ def test_rig_presets_round_trip(tmp_path: Path, name: str) -> None:
     rig = get_rig(name)
     save_rig(rig, tmp_path / "rig.yaml")
     back = load_rig(tmp_path / "rig.yaml")
-    assert back.names == rig.names and back.sensor == rig.sensor
+    assert back.names == rig.names
+    assert back.sensor == rig.sensor
     assert [m.yaw_deg for m in back.mounts] == [m.yaw_deg for m in rig.mounts]
 
 
@@ -93,10 +97,19 @@ def test_sensor_poses() -> None:
         ("sonars: []\n", "missing key 'sensor'"),
         ("sensor: maxsonar-ez1\nsonars: []\n", "expected a non-empty list"),
         ("sensor: nope\nsonars: [{name: a, x: 0, y: 0, yaw_deg: 0}]\n", "unknown sensor preset"),
-        ("sensor: hc-sr04\nsonars: [{name: a, x: 0, y: 0}]\n", r"sonars\[0\]: missing key 'yaw_deg'"),
-        ("sensor: hc-sr04\nsonars: [{name: a, x: q, y: 0, yaw_deg: 0}]\n", r"sonars\[0\].x: expected a number"),
-        ("sensor: hc-sr04\nsonars:\n - {name: a, x: 0, y: 0, yaw_deg: 0}\n"
-         " - {name: a, x: 0, y: 0, yaw_deg: 9}\n", "duplicate sonar name"),
+        (
+            "sensor: hc-sr04\nsonars: [{name: a, x: 0, y: 0}]\n",
+            r"sonars\[0\]: missing key 'yaw_deg'",
+        ),
+        (
+            "sensor: hc-sr04\nsonars: [{name: a, x: q, y: 0, yaw_deg: 0}]\n",
+            r"sonars\[0\].x: expected a number",
+        ),
+        (
+            "sensor: hc-sr04\nsonars:\n - {name: a, x: 0, y: 0, yaw_deg: 0}\n"
+            " - {name: a, x: 0, y: 0, yaw_deg: 9}\n",
+            "duplicate sonar name",
+        ),
         ("sensor: [\n", "not valid YAML"),
     ],
 )

@@ -15,8 +15,7 @@ from sonarmap.rig import Mount, Rig
 from sonarmap.sensors import Noise, Region, SensorModel
 from sonarmap.simulate import PoseNoise, simulate
 
-SENSOR = SensorModel("cone", Region.cone(30.0, 5.0), r_min=0.1, r_max=5.0,
-                     range_resolution=0.01)
+SENSOR = SensorModel("cone", Region.cone(30.0, 5.0), r_min=0.1, r_max=5.0, range_resolution=0.01)
 RIG = Rig(SENSOR, (Mount("front", 0.0, 0.0, 0.0), Mount("left", 0.0, 0.0, 90.0)))
 
 
@@ -29,8 +28,12 @@ def scattered_map(seed: int = 0) -> OccupancyMap:
 
 def random_trajectory(n: int, seed: int = 1) -> Trajectory:
     rng = np.random.default_rng(seed)
-    return Trajectory(np.arange(n, dtype=float), rng.uniform(1, 4, n), rng.uniform(1, 4, n),
-                      rng.uniform(-math.pi, math.pi, n))
+    return Trajectory(
+        np.arange(n, dtype=float),
+        rng.uniform(1, 4, n),
+        rng.uniform(1, 4, n),
+        rng.uniform(-math.pi, math.pi, n),
+    )
 
 
 def test_noise_free_reading_is_distance_to_nearest_occupied_cell_in_beam() -> None:
@@ -73,8 +76,9 @@ def test_p_hit_lets_beams_pass_obstacles() -> None:
     truth = OccupancyMap(grid, occ)
     n = 4000
     traj = Trajectory(np.arange(n, dtype=float), np.full(n, 0.5), np.full(n, 1.05), np.zeros(n))
-    rig = Rig(SensorModel("pencil", Region.cone(1.0, 5.0), 0.0, 5.0, 0.01),
-              (Mount("s", 0.0, 0.0, 0.0),))
+    rig = Rig(
+        SensorModel("pencil", Region.cone(1.0, 5.0), 0.0, 5.0, 0.01), (Mount("s", 0.0, 0.0, 0.0),)
+    )
     readings = simulate(truth, rig, traj, noise=Noise(0.0, 0.5, 0.0), seed=2)
     assert float(np.mean(readings.range < 2.0)) == pytest.approx(0.5, abs=0.03)
 
@@ -97,8 +101,9 @@ def test_seed_determinism_and_pose_noise() -> None:
     c = simulate(truth, RIG, traj, noise=Noise(0.05, 0.8, 0.02), seed=10)
     np.testing.assert_array_equal(a.range, b.range)
     assert not np.array_equal(a.range, c.range)
-    noisy = simulate(truth, RIG, traj, noise=Noise(0.0, 1.0, 0.0), seed=9,
-                     pose_noise=PoseNoise(0.05, 0.0))
+    noisy = simulate(
+        truth, RIG, traj, noise=Noise(0.0, 1.0, 0.0), seed=9, pose_noise=PoseNoise(0.05, 0.0)
+    )
     exact = simulate(truth, RIG, traj, noise=Noise(0.0, 1.0, 0.0), seed=9)
     # Ranges come from the true poses; only the recorded poses move.
     np.testing.assert_array_equal(noisy.range, exact.range)

@@ -49,6 +49,14 @@ def _span(
     return lo, hi
 
 
+@nb.njit(cache=True, inline="always")
+def _bearing(dx: float, dy: float, cos_t: float, sin_t: float, d: float) -> float:
+    """Angle off the beam axis; 0 for a cell centred on the sensor, where it is undefined."""
+    if d < EDGE_TOL:
+        return 0.0
+    return math.atan2(-dx * sin_t + dy * cos_t, dx * cos_t + dy * sin_t)
+
+
 @nb.njit(cache=True)
 def _grow_i(a: npt.NDArray[np.int32], n: int, need: int) -> npt.NDArray[np.int32]:
     if n + need <= a.shape[0]:
@@ -88,12 +96,18 @@ def rasterise_kernel(
     with_bearing: bool,
     capacity: int,
 ) -> tuple[
-    npt.NDArray[np.int64], npt.NDArray[np.int32], npt.NDArray[np.float32],
-    npt.NDArray[np.float32], npt.NDArray[np.float32],
-    npt.NDArray[np.int64], npt.NDArray[np.int32], npt.NDArray[np.float32],
-    npt.NDArray[np.float32], npt.NDArray[np.float32],
+    npt.NDArray[np.int64],
+    npt.NDArray[np.int32],
+    npt.NDArray[np.float32],
+    npt.NDArray[np.float32],
+    npt.NDArray[np.float32],
+    npt.NDArray[np.int64],
+    npt.NDArray[np.int32],
+    npt.NDArray[np.float32],
+    npt.NDArray[np.float32],
+    npt.NDArray[np.float32],
 ]:
-    """Cells of each reading: free where d < free_lim[i], occupied where free_lim[i] <= d <= occ_hi[i].
+    """Cells of each reading: free if d < free_lim[i], occupied if free_lim[i] <= d <= occ_hi[i].
 
     Returns the free set then the occupied set, each as
     (offsets, cells, distance, weight w0, bearing).
@@ -124,21 +138,21 @@ def rasterise_kernel(
         b_lim = occ_hi[i]
         reach = min(max(a_lim, b_lim), beam_radius)
         if reach > 0.0:
-            iy_lo = max(0, int(math.ceil((y0 - reach - oy) / h - 0.5)))
-            iy_hi = min(rows - 1, int(math.floor((y0 + reach - oy) / h - 0.5)))
+            iy_lo = max(0, math.ceil((y0 - reach - oy) / h - 0.5))
+            iy_hi = min(rows - 1, math.floor((y0 + reach - oy) / h - 0.5))
             for iy in range(iy_lo, iy_hi + 1):
                 yc = oy + (iy + 0.5) * h
                 lo, hi = _span(beam_planes, c, s, x0, y0, yc, reach)
                 if hi < lo:
                     continue
-                c_lo = max(0, int(math.ceil((lo - ox) / h - 0.5)))
-                c_hi = min(cols - 1, int(math.floor((hi - ox) / h - 0.5)))
+                c_lo = max(0, math.ceil((lo - ox) / h - 0.5))
+                c_hi = min(cols - 1, math.floor((hi - ox) / h - 0.5))
                 if c_hi < c_lo:
                     continue
                 for z in range(nz):
                     zl, zh = _span(zone_planes[z], c, s, x0, y0, yc, zone_radius[z])
-                    zlo[z] = int(math.ceil((zl - ox) / h - 0.5))
-                    zhi[z] = int(math.floor((zh - ox) / h - 0.5))
+                    zlo[z] = math.ceil((zl - ox) / h - 0.5)
+                    zhi[z] = math.floor((zh - ox) / h - 0.5)
                 need = c_hi - c_lo + 1
                 f_cell = _grow_i(f_cell, nf, need)
                 f_dist = _grow_f(f_dist, nf, need)
@@ -171,20 +185,26 @@ def rasterise_kernel(
                         o_dist[no] = d
                         o_w[no] = w
                         if with_bearing:
-                            o_b[no] = math.atan2(-dx * s + dy * c, dx * c + dy * s)
+                            o_b[no] = _bearing(dx, dy, c, s, d)
                         no += 1
                     else:
                         f_cell[nf] = base + col
                         f_dist[nf] = d
                         f_w[nf] = w
                         if with_bearing:
-                            f_b[nf] = math.atan2(-dx * s + dy * c, dx * c + dy * s)
+                            f_b[nf] = _bearing(dx, dy, c, s, d)
                         nf += 1
         f_off[i + 1] = nf
         o_off[i + 1] = no
     return (
-        f_off, f_cell[:nf].copy(), f_dist[:nf].copy(), f_w[:nf].copy(),
+        f_off,
+        f_cell[:nf].copy(),
+        f_dist[:nf].copy(),
+        f_w[:nf].copy(),
         f_b[:nf].copy() if with_bearing else f_b,
-        o_off, o_cell[:no].copy(), o_dist[:no].copy(), o_w[:no].copy(),
+        o_off,
+        o_cell[:no].copy(),
+        o_dist[:no].copy(),
+        o_w[:no].copy(),
         o_b[:no].copy() if with_bearing else o_b,
     )

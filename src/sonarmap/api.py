@@ -34,7 +34,8 @@ def grid_for_readings(
     if bounds is not None:
         if len(bounds) != 4:
             raise ConfigError(f"bounds must be XMIN YMIN XMAX YMAX, got {list(bounds)}")
-        return Grid.from_bounds(*(float(b) for b in bounds), resolution=resolution)
+        x0, y0, x1, y1 = (float(b) for b in bounds)
+        return Grid.from_bounds(x0, y0, x1, y1, resolution)
     if len(readings) == 0:
         raise InputError("no readings to size the map from; give bounds")
     echo = readings.range < rig.sensor.r_max
@@ -42,8 +43,13 @@ def grid_for_readings(
     ey = readings.y[echo] + readings.range[echo] * np.sin(readings.theta[echo])
     xs = np.concatenate([readings.x, ex])
     ys = np.concatenate([readings.y, ey])
-    return Grid.from_bounds(float(xs.min()) - margin, float(ys.min()) - margin,
-                            float(xs.max()) + margin, float(ys.max()) + margin, resolution)
+    return Grid.from_bounds(
+        float(xs.min()) - margin,
+        float(ys.min()) - margin,
+        float(xs.max()) + margin,
+        float(ys.max()) + margin,
+        resolution,
+    )
 
 
 def build_map(
@@ -72,14 +78,18 @@ def build_map(
     """
     unknown = sorted(set(readings.names) - set(rig.names))
     if unknown:
-        raise InputError(f"readings name sensor(s) {unknown} that the rig lacks; the rig has "
-                         f"{', '.join(rig.names)}", field="sensor")
+        raise InputError(
+            f"readings name sensor(s) {unknown} that the rig lacks; the rig has "
+            f"{', '.join(rig.names)}",
+            field="sensor",
+        )
     below = readings.range < rig.sensor.r_min - 1e-9
     if below.any():
         i = int(np.flatnonzero(below)[0])
-        raise InputError(f"reading {i}: range {readings.range[i]} is below the sensor's r_min "
-                         f"({rig.sensor.r_min})", field="range")
+        raise InputError(
+            f"reading {i}: range {readings.range[i]} is below the sensor's r_min "
+            f"({rig.sensor.r_min})",
+            field="range",
+        )
     mapper = make_mapper(method, **dict(params or {}))
     return mapper.fit(readings, grid, rig, progress=progress).result()
-
-

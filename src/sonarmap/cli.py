@@ -52,9 +52,15 @@ MethodName = Enum("MethodName", {n: n for n in sorted(MAPPERS)}, type=str)  # ty
 @contextmanager
 def _progress(label: str) -> Iterator[Callable[[int, int], None]]:
     """A rich progress bar (on stderr, hidden when not a terminal) as a callback."""
-    bar = Progress(TextColumn(label), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                   TimeElapsedColumn(), TimeRemainingColumn(), console=err_console,
-                   transient=True)
+    bar = Progress(
+        TextColumn(label),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err_console,
+        transient=True,
+    )
     task = bar.add_task(label, total=None)
 
     def update(done: int, total: int) -> None:
@@ -80,8 +86,9 @@ def _scenario_params(name: str, pairs: dict[str, str]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in pairs.items():
         if key not in valid:
-            raise ConfigError(f"unknown parameter '{key}' for scenario '{name}'; valid: "
-                              f"{', '.join(valid)}")
+            raise ConfigError(
+                f"unknown parameter '{key}' for scenario '{name}'; valid: {', '.join(valid)}"
+            )
         default = sig[key].default
         try:
             if isinstance(default, tuple | list):
@@ -91,19 +98,25 @@ def _scenario_params(name: str, pairs: dict[str, str]) -> dict[str, Any]:
             else:
                 out[key] = float(value)
         except ValueError:
-            raise ConfigError(f"parameter '{key}' expects "
-                              f"{'numbers separated by commas' if isinstance(default, tuple) else 'a number'}"
-                              f", got {value!r}") from None
+            raise ConfigError(
+                f"parameter '{key}' expects "
+                f"{'numbers separated by commas' if isinstance(default, tuple) else 'a number'}"
+                f", got {value!r}"
+            ) from None
     return out
 
 
 @app.command("scenario")
 def scenario_cmd(
-    name: Annotated[ScenarioName, typer.Argument(help="Which scenario.")],  # type: ignore[valid-type]
+    name: Annotated[ScenarioName, typer.Argument(help="Which scenario.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="Folder to write into.")],
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
-    param: Annotated[list[str] | None, typer.Option(
-        "--param", help="Scenario parameter KEY=VALUE (lists comma-separated), repeatable.")] = None,
+    param: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--param", help="Scenario parameter KEY=VALUE (lists comma-separated), repeatable."
+        ),
+    ] = None,
     p_rand: Annotated[float | None, typer.Option(help="Outlier probability.")] = None,
     p_hit: Annotated[float | None, typer.Option(help="Reflection probability per cell.")] = None,
     sigma: Annotated[float | None, typer.Option(help="Range noise, metres.")] = None,
@@ -113,9 +126,11 @@ def scenario_cmd(
     params = _scenario_params(scen, _pairs(param, "--param"))
     if p_rand is not None or p_hit is not None or sigma is not None:
         base = make_scenario(scen, **params, seed=seed).params
-        params["noise"] = Noise(p_rand if p_rand is not None else base["p_rand"],
-                                p_hit if p_hit is not None else base["p_hit"],
-                                sigma if sigma is not None else base["sigma"])
+        params["noise"] = Noise(
+            p_rand if p_rand is not None else base["p_rand"],
+            p_hit if p_hit is not None else base["p_hit"],
+            sigma if sigma is not None else base["sigma"],
+        )
     with _progress(f"simulating {scen}") as cb:
         s = make_scenario(scen, **params, seed=seed, progress=cb)
     s.write(out)
@@ -140,13 +155,21 @@ def simulate_cmd(
     r = load_rig(rig)
     traj = read_trajectory(trajectory)
     base = r.sensor.noise
-    noise = Noise(base.p_rand if p_rand is None else p_rand,
-                  base.p_hit if p_hit is None else p_hit,
-                  base.sigma if sigma is None else sigma)
+    noise = Noise(
+        base.p_rand if p_rand is None else p_rand,
+        base.p_hit if p_hit is None else p_hit,
+        base.sigma if sigma is None else sigma,
+    )
     with _progress("simulating") as cb:
-        readings = simulate(truth, r, traj, noise=noise,
-                            pose_noise=PoseNoise(pose_sigma_xy, pose_sigma_theta), seed=seed,
-                            progress=cb)
+        readings = simulate(
+            truth,
+            r,
+            traj,
+            noise=noise,
+            pose_noise=PoseNoise(pose_sigma_xy, pose_sigma_theta),
+            seed=seed,
+            progress=cb,
+        )
     write_readings(readings, out)
     console.print(f"wrote {len(readings)} readings to {out}")
 
@@ -156,13 +179,16 @@ def map_cmd(
     readings: Annotated[Path, typer.Argument(help="Readings CSV t,sensor,x,y,theta,range.")],
     rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="Output stem: writes .yaml/.pgm/.npy")],
-    method: Annotated[MethodName, typer.Option(help="Mapping method.")] = "inverse",  # type: ignore[valid-type,assignment]
+    method: Annotated[MethodName, typer.Option(help="Mapping method.")] = "inverse",  # type: ignore[assignment]
     like: Annotated[Path | None, typer.Option(help="Use the grid of this map YAML.")] = None,
     resolution: Annotated[float | None, typer.Option(help="Cell size, metres.")] = None,
-    bounds: Annotated[tuple[float, float, float, float] | None, typer.Option(
-        help="XMIN YMIN XMAX YMAX in metres (default: around the data).")] = None,
-    param: Annotated[list[str] | None, typer.Option(
-        "--param", help="Method parameter KEY=VALUE, repeatable.")] = None,
+    bounds: Annotated[
+        tuple[float, float, float, float] | None,
+        typer.Option(help="XMIN YMIN XMAX YMAX in metres (default: around the data)."),
+    ] = None,
+    param: Annotated[
+        list[str] | None, typer.Option("--param", help="Method parameter KEY=VALUE, repeatable.")
+    ] = None,
 ) -> None:
     """Build an occupancy map from readings; writes OUT.yaml, OUT.pgm and OUT.npy."""
     m = method.value
@@ -226,16 +252,30 @@ def demo_cmd(
             maps[name] = build_map(s.readings, s.rig, s.truth.grid, name, progress=cb)
         write_map(maps[name], out / "maps" / name)
     picture = save_side_by_side(maps, out / "doorways.png", truth=s.truth)
-    fields = ["method", "accuracy", "precision", "recall", "f1", "iou", "unknown",
-              "passages_open", "passages"]
+    fields = [
+        "method",
+        "accuracy",
+        "precision",
+        "recall",
+        "f1",
+        "iou",
+        "unknown",
+        "passages_open",
+        "passages",
+    ]
     rows = []
     short = ["method", "acc", "prec", "recall", "F1", "IoU", "unknown", "open", "doors"]
     table = Table(*short, title="doorways: maps against the truth (observed cells)")
     for name, m in maps.items():
         sc = score(s.truth, m, s.passages).as_dict()
         rows.append({"method": name, **sc})
-        table.add_row(name, *(f"{sc[k]:.3f}" if k not in ("passages_open", "passages")
-                              else f"{int(sc[k])}" for k in fields[1:]))
+        table.add_row(
+            name,
+            *(
+                f"{sc[k]:.3f}" if k not in ("passages_open", "passages") else f"{int(sc[k])}"
+                for k in fields[1:]
+            ),
+        )
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
     writer.writeheader()
@@ -255,8 +295,7 @@ def _root(
 
 
 def _fail(message: str) -> None:
-    err_console.print(f"sonarmap: error: {message}", markup=False, highlight=False,
-                      soft_wrap=True)
+    err_console.print(f"sonarmap: error: {message}", markup=False, highlight=False, soft_wrap=True)
     sys.exit(2)
 
 

@@ -106,9 +106,7 @@ class Grid:
         ox, oy = self.origin
         return (ox, ox + self.cols * self.resolution, oy, oy + self.rows * self.resolution)
 
-    def world_to_cell(
-        self, x: npt.ArrayLike, y: npt.ArrayLike
-    ) -> tuple[IntArray, IntArray]:
+    def world_to_cell(self, x: npt.ArrayLike, y: npt.ArrayLike) -> tuple[IntArray, IntArray]:
         """Row and column of the cells containing world points (not clipped).
 
         Parameters

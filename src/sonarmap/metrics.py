@@ -58,8 +58,10 @@ def _ratio(a: int, b: int) -> float:
 
 def _check_same_grid(truth: OccupancyMap, m: OccupancyMap) -> None:
     if truth.grid != m.grid:
-        raise InputError(f"map grid {m.grid} differs from the truth grid {truth.grid}; "
-                         "build the map with the truth's grid (e.g. --like TRUTH.yaml)")
+        raise InputError(
+            f"map grid {m.grid} differs from the truth grid {truth.grid}; "
+            "build the map with the truth's grid (e.g. --like TRUTH.yaml)"
+        )
 
 
 def score(
@@ -96,8 +98,13 @@ def score(
     iou = _ratio(tp, tp + fp + fn)
     n_open = sum(passage_open(m, p, threshold=threshold) for p in passages)
     return MapScore(
-        accuracy=_ratio(tp + tn, tp + tn + fp + fn), precision=precision, recall=recall,
-        f1=f1, iou=iou, unknown=float(1.0 - known.mean()), passages_open=n_open,
+        accuracy=_ratio(tp + tn, tp + tn + fp + fn),
+        precision=precision,
+        recall=recall,
+        f1=f1,
+        iou=iou,
+        unknown=float(1.0 - known.mean()),
+        passages_open=n_open,
         passages=len(passages),
     )
 

@@ -10,12 +10,12 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from .io._atomic import atomic_write  # noqa: E402
-from .io.rosmap import OccupancyMap  # noqa: E402
-from .readings import Readings  # noqa: E402
+from .io._atomic import atomic_write
+from .io.rosmap import OccupancyMap
+from .readings import Readings
 
 __all__ = ["draw_map", "save_map_picture", "save_side_by_side"]
 
@@ -40,14 +40,21 @@ def draw_map(
     occ = m.occupancy.astype(np.float64)
     if binary:
         occ = np.where(np.isnan(occ), np.nan, (occ >= 0.5).astype(np.float64))
-    cmap = plt.get_cmap("gray_r").copy()
-    cmap.set_bad(_UNKNOWN_RGBA)
-    ax.imshow(np.ma.masked_invalid(occ), cmap=cmap, vmin=0.0, vmax=1.0, extent=m.grid.extent,
-              interpolation="nearest", origin="upper")
+    cmap = plt.get_cmap("gray_r").with_extremes(bad=_UNKNOWN_RGBA)
+    ax.imshow(
+        np.ma.masked_invalid(occ),
+        cmap=cmap,
+        vmin=0.0,
+        vmax=1.0,
+        extent=m.grid.extent,
+        interpolation="nearest",
+        origin="upper",
+    )
     if truth is not None:
         t = (np.nan_to_num(truth.occupancy, nan=0.0) >= 0.5).astype(float)
-        ax.contour(t, levels=[0.5], colors="red", linewidths=0.6, extent=truth.grid.extent,
-                   origin="upper")
+        ax.contour(
+            t, levels=[0.5], colors="red", linewidths=0.6, extent=truth.grid.extent, origin="upper"
+        )
     if readings is not None and len(readings):
         ax.plot(readings.x, readings.y, ".", ms=1.5, color="tab:blue")
         rng = readings.range
@@ -89,13 +96,12 @@ def save_side_by_side(
     """Maps side by side (a second row binarised at 0.5) with the truth first, to a PNG."""
     panels = ([("truth", truth)] if truth is not None else []) + list(maps.items())
     rows = 2 if binary_row else 1
-    fig, axes = plt.subplots(rows, len(panels), figsize=(3.2 * len(panels), 3.4 * rows),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        rows, len(panels), figsize=(3.2 * len(panels), 3.4 * rows), squeeze=False
+    )
     for j, (name, m) in enumerate(panels):
         draw_map(axes[0, j], m, truth=None if name == "truth" else truth, title=name)
         if binary_row:
             draw_map(axes[1, j], m, binary=True, title=f"{name} (binarised)")
     fig.tight_layout()
     return _save(fig, path)
-
-

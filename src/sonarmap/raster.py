@@ -115,8 +115,10 @@ def _pack_zones(
 def _poses(
     x: npt.ArrayLike, y: npt.ArrayLike, theta: npt.ArrayLike, extra: npt.ArrayLike | None = None
 ) -> tuple[npt.NDArray[np.float64], ...]:
-    arrays = [np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
-              for a in ((x, y, theta) if extra is None else (x, y, theta, extra))]
+    arrays = [
+        np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+        for a in ((x, y, theta) if extra is None else (x, y, theta, extra))
+    ]
     n = len(arrays[0])
     for name, a in zip(("x", "y", "theta", "range"), arrays, strict=False):
         if len(a) != n:
@@ -127,19 +129,38 @@ def _poses(
 
 
 def _run(
-    grid: Grid, sensor: SensorModel, sx: npt.NDArray[np.float64], sy: npt.NDArray[np.float64],
-    st: npt.NDArray[np.float64], free_lim: npt.NDArray[np.float64],
-    occ_hi: npt.NDArray[np.float64], with_bearing: bool,
+    grid: Grid,
+    sensor: SensorModel,
+    sx: npt.NDArray[np.float64],
+    sy: npt.NDArray[np.float64],
+    st: npt.NDArray[np.float64],
+    free_lim: npt.NDArray[np.float64],
+    occ_hi: npt.NDArray[np.float64],
+    with_bearing: bool,
 ) -> tuple[CellSet, CellSet]:
     zp, zr, zw, bw = _pack_zones(sensor, grid.resolution**2)
     # A first guess at the output size saves most re-allocations.
     reach = np.minimum(np.maximum(free_lim, occ_hi), sensor.beam.radius).clip(0.0)
     capacity = int(min(np.sum(reach**2) / grid.resolution**2 * 0.6, 2e8)) + 1024
     out = rasterise_kernel(
-        grid.resolution, grid.origin[0], grid.origin[1], grid.rows, grid.cols,
-        sx, sy, st, free_lim, occ_hi,
-        np.ascontiguousarray(sensor.beam.halfplanes), float(sensor.beam.radius),
-        zp, zr, zw, bw, with_bearing, capacity,
+        grid.resolution,
+        grid.origin[0],
+        grid.origin[1],
+        grid.rows,
+        grid.cols,
+        sx,
+        sy,
+        st,
+        free_lim,
+        occ_hi,
+        np.ascontiguousarray(sensor.beam.halfplanes),
+        float(sensor.beam.radius),
+        zp,
+        zr,
+        zw,
+        bw,
+        with_bearing,
+        capacity,
     )
     f = CellSet(out[0], out[1], out[2], out[3], out[4] if with_bearing else None)
     o = CellSet(out[5], out[6], out[7], out[8], out[9] if with_bearing else None)

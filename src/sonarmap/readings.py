@@ -14,6 +14,7 @@ import re
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -71,8 +72,9 @@ class Readings:
         n = len(self.t)
         for name in ("sensor", "x", "y", "theta", "range"):
             if len(getattr(self, name)) != n:
-                raise InputError(f"readings field '{name}' has {len(getattr(self, name))} "
-                                 f"entries, expected {n}")
+                raise InputError(
+                    f"readings field '{name}' has {len(getattr(self, name))} entries, expected {n}"
+                )
 
     def __len__(self) -> int:
         return len(self.t)
@@ -80,8 +82,15 @@ class Readings:
     def take(self, index: npt.ArrayLike) -> Readings:
         """The readings at ``index`` (a boolean mask or integer indices)."""
         i = np.asarray(index)
-        return Readings(self.t[i], self.sensor[i], self.x[i], self.y[i], self.theta[i],
-                        self.range[i], self.names)
+        return Readings(
+            self.t[i],
+            self.sensor[i],
+            self.x[i],
+            self.y[i],
+            self.theta[i],
+            self.range[i],
+            self.names,
+        )
 
     @classmethod
     def concat(cls, parts: Sequence[Readings]) -> Readings:
@@ -94,13 +103,20 @@ class Readings:
             return cls(e, np.empty(0, np.int32), e, e, e, e, ())
         lookup = {n: i for i, n in enumerate(names)}
         sensor = np.concatenate(
-            [np.array([lookup[n] for n in p.names], dtype=np.int32)[p.sensor] if len(p)
-             else np.empty(0, np.int32) for p in parts]
+            [
+                np.array([lookup[n] for n in p.names], dtype=np.int32)[p.sensor]
+                if len(p)
+                else np.empty(0, np.int32)
+                for p in parts
+            ]
         )
         return cls(
-            np.concatenate([p.t for p in parts]), sensor,
-            np.concatenate([p.x for p in parts]), np.concatenate([p.y for p in parts]),
-            np.concatenate([p.theta for p in parts]), np.concatenate([p.range for p in parts]),
+            np.concatenate([p.t for p in parts]),
+            sensor,
+            np.concatenate([p.x for p in parts]),
+            np.concatenate([p.y for p in parts]),
+            np.concatenate([p.theta for p in parts]),
+            np.concatenate([p.range for p in parts]),
             tuple(names),
         )
 
@@ -133,12 +149,18 @@ def _chunks(
         raise InputError("no such file", path=path)
     try:
         reader = pd.read_csv(
-            path, dtype=str, keep_default_na=False, skip_blank_lines=False,
-            chunksize=chunk_size, engine="c", compression="infer",
+            path,
+            dtype=str,
+            keep_default_na=False,
+            skip_blank_lines=False,
+            chunksize=chunk_size,
+            engine="c",
+            compression="infer",
         )
     except pd.errors.EmptyDataError as err:
-        raise InputError(f"file is empty; expected a header {','.join(columns)}",
-                         path=path) from err
+        raise InputError(
+            f"file is empty; expected a header {','.join(columns)}", path=path
+        ) from err
     except (EOFError, OSError, UnicodeDecodeError) as err:
         raise InputError(f"cannot read file ({type(err).__name__}: {err})", path=path) from err
     with reader:
@@ -146,7 +168,9 @@ def _chunks(
 
 
 def _parse_chunks(
-    path: Path, reader: Iterator[pd.DataFrame], columns: Sequence[str],
+    path: Path,
+    reader: Iterator[pd.DataFrame],
+    columns: Sequence[str],
     text_columns: Sequence[str],
 ) -> Iterator[tuple[int, dict[str, npt.NDArray[np.generic]]]]:
     try:
@@ -161,8 +185,9 @@ def _parse_chunks(
                     values = raw.to_numpy(dtype=str)
                     bad = np.flatnonzero(values == "")
                     if len(bad):
-                        raise InputError("missing value", path=path, line=line + int(bad[0]),
-                                         field=col)
+                        raise InputError(
+                            "missing value", path=path, line=line + int(bad[0]), field=col
+                        )
                     out[col] = values
                     continue
                 num = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
@@ -178,15 +203,16 @@ def _parse_chunks(
             yield line, out
             line += len(frame)
     except pd.errors.EmptyDataError as err:
-        raise InputError(f"file is empty; expected a header {','.join(columns)}",
-                         path=path) from err
+        raise InputError(
+            f"file is empty; expected a header {','.join(columns)}", path=path
+        ) from err
     except pd.errors.ParserError as err:
         m = _TOKENIZE.search(str(err))
         if m:
-            raise InputError(f"expected {m.group(1)} fields, saw {m.group(3)}", path=path,
-                             line=int(m.group(2))) from err
-        raise InputError(f"malformed CSV ({str(err).strip().splitlines()[-1]})",
-                         path=path) from err
+            raise InputError(
+                f"expected {m.group(1)} fields, saw {m.group(3)}", path=path, line=int(m.group(2))
+            ) from err
+        raise InputError(f"malformed CSV ({str(err).strip().splitlines()[-1]})", path=path) from err
     except (EOFError, OSError, UnicodeDecodeError) as err:
         raise InputError(f"cannot read file ({type(err).__name__}: {err})", path=path) from err
 
@@ -203,8 +229,9 @@ def _check_columns(path: Path, found: list[str], expected: Sequence[str]) -> Non
             parts.append(f"unexpected column(s) {', '.join(extra)}")
         if not parts:
             parts.append("duplicate columns")
-        raise InputError(f"{'; '.join(parts)}; expected header {','.join(expected)}",
-                         path=path, line=1)
+        raise InputError(
+            f"{'; '.join(parts)}; expected header {','.join(expected)}", path=path, line=1
+        )
 
 
 def _check_time(path: Path, t: F64, first_line: int, previous: float) -> None:
@@ -212,8 +239,12 @@ def _check_time(path: Path, t: F64, first_line: int, previous: float) -> None:
     back = np.flatnonzero(t < prev)
     if len(back):
         i = int(back[0])
-        raise InputError(f"time goes backwards ({t[i]} after {prev[i]})", path=path,
-                         line=first_line + i, field="t")
+        raise InputError(
+            f"time goes backwards ({t[i]} after {prev[i]})",
+            path=path,
+            line=first_line + i,
+            field="t",
+        )
 
 
 def iter_readings(
@@ -239,15 +270,23 @@ def iter_readings(
     for line, cols in _chunks(p, READINGS_COLUMNS, ("sensor",), chunk_size):
         labels = np.char.strip(cols["sensor"].astype(str))
         uniq, inverse = np.unique(labels, return_inverse=True)
+        if names is not None:
+            unknown = np.array([u not in lookup for u in uniq.tolist()], dtype=bool)
+            if unknown.any():
+                i = int(np.flatnonzero(unknown[inverse])[0])
+                raise InputError(
+                    f"unknown sensor '{labels[i]}'; the rig has {', '.join(known)}",
+                    path=p,
+                    line=line + i,
+                    field="sensor",
+                )
         codes = np.empty(len(uniq), dtype=np.int32)
-        for j, name in enumerate(uniq.tolist()):
+        # New names are numbered in order of first appearance, not alphabetically.
+        first = np.full(len(uniq), len(labels))
+        np.minimum.at(first, inverse, np.arange(len(labels)))
+        for j in np.argsort(first, kind="stable").tolist():
+            name = str(uniq[j])
             if name not in lookup:
-                if names is not None:
-                    i = int(np.flatnonzero(labels == name)[0])
-                    raise InputError(
-                        f"unknown sensor '{name}'; the rig has {', '.join(known)}",
-                        path=p, line=line + i, field="sensor",
-                    )
                 lookup[name] = len(known)
                 known.append(name)
             codes[j] = lookup[name]
@@ -255,14 +294,19 @@ def iter_readings(
         neg = np.flatnonzero(rng < 0)
         if len(neg):
             i = int(neg[0])
-            raise InputError(f"range is negative ({rng[i]})", path=p, line=line + i,
-                             field="range")
+            raise InputError(f"range is negative ({rng[i]})", path=p, line=line + i, field="range")
         t = cols["t"].astype(np.float64)
         _check_time(p, t, line, last_t)
         last_t = float(t[-1]) if len(t) else last_t
-        yield Readings(t, codes[inverse].astype(np.int32), cols["x"].astype(np.float64),
-                       cols["y"].astype(np.float64), cols["theta"].astype(np.float64), rng,
-                       tuple(known))
+        yield Readings(
+            t,
+            codes[inverse].astype(np.int32),
+            cols["x"].astype(np.float64),
+            cols["y"].astype(np.float64),
+            cols["theta"].astype(np.float64),
+            rng,
+            tuple(known),
+        )
 
 
 def read_readings(
@@ -294,16 +338,23 @@ def read_trajectory(path: str | Path, *, chunk_size: int = DEFAULT_CHUNK) -> Tra
 
 def write_readings(readings: Readings, path: str | Path) -> None:
     """Write readings as CSV (atomically; gzip when the name ends in ``.gz``)."""
-    frame = pd.DataFrame({
-        "t": readings.t,
-        "sensor": np.asarray(readings.names, dtype=object)[readings.sensor]
-        if len(readings) else np.empty(0, dtype=object),
-        "x": readings.x, "y": readings.y, "theta": readings.theta, "range": readings.range,
-    })
+    frame = pd.DataFrame(
+        {
+            "t": readings.t,
+            "sensor": np.asarray(readings.names, dtype=object)[readings.sensor]
+            if len(readings)
+            else np.empty(0, dtype=object),
+            "x": readings.x,
+            "y": readings.y,
+            "theta": readings.theta,
+            "range": readings.range,
+        }
+    )
     p = Path(path)
-    compression = "gzip" if p.suffix == ".gz" else None
-    atomic_write(p, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g",
-                                             compression=compression))
+    compression: Literal["gzip"] | None = "gzip" if p.suffix == ".gz" else None
+    atomic_write(
+        p, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g", compression=compression)
+    )
 
 
 def write_trajectory(traj: Trajectory, path: str | Path) -> None:

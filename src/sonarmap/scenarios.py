@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 import yaml
 
 from .errors import ConfigError
@@ -61,7 +60,6 @@ class Passage:
 class Scenario:
     """Everything a mapping experiment needs, in memory."""
 
-
     name: str
     truth: OccupancyMap
     rig: Rig
@@ -82,8 +80,13 @@ class Scenario:
             "scenario": self.name,
             "params": self.params,
             "passages": [
-                {"name": p.name, "a": list(p.a), "b": list(p.b), "depth": p.depth,
-                 "width": round(p.width, 6)}
+                {
+                    "name": p.name,
+                    "a": list(p.a),
+                    "b": list(p.b),
+                    "depth": p.depth,
+                    "width": round(p.width, 6),
+                }
                 for p in self.passages
             ],
         }
@@ -125,7 +128,7 @@ def _check_positive(**values: float) -> None:
 
 
 def _straight(x: float, y0: float, y1: float, speed: float, rate: float) -> Trajectory:
-    n = int(math.floor((y1 - y0) / speed * rate)) + 1
+    n = math.floor((y1 - y0) / speed * rate) + 1
     t = np.arange(n) / rate
     return Trajectory(t, np.full(n, x), y0 + speed * t, np.full(n, math.pi / 2))
 
@@ -153,8 +156,14 @@ def doorways(
     ``paper-synthetic`` sonars firing at ``rate`` Hz (10). Readings are exact by default
     (p_rand = 0, p_hit = 1, sigma = 0), as in the research.
     """
-    _check_positive(size=size, resolution=resolution, corridor_width=corridor_width,
-                    wall=wall, speed=speed, rate=rate)
+    _check_positive(
+        size=size,
+        resolution=resolution,
+        corridor_width=corridor_width,
+        wall=wall,
+        speed=speed,
+        rate=rate,
+    )
     if not door_widths or any(w <= 0 for w in door_widths):
         raise ConfigError("scenario parameter 'door_widths' must be positive widths")
     grid = Grid.from_bounds(0.0, 0.0, size, size, resolution)
@@ -176,16 +185,32 @@ def doorways(
         x0, x1 = (xl - wall, xl) if left else (xr, xr + wall)
         plan.clear(x0, yc - w / 2, x1, yc + w / 2)
         xm = (x0 + x1) / 2
-        passages.append(Passage(f"door{k + 1}-{'left' if left else 'right'}",
-                                (xm, yc - w / 2), (xm, yc + w / 2), wall))
+        passages.append(
+            Passage(
+                f"door{k + 1}-{'left' if left else 'right'}",
+                (xm, yc - w / 2),
+                (xm, yc + w / 2),
+                wall,
+            )
+        )
     truth = plan.done()
     rig = get_rig("paper-synthetic")
     traj = _straight(cx, 0.5, size - 0.5, speed, rate)
     nz = noise if noise is not None else Noise(0.0, 1.0, 0.0)
     readings = simulate(truth, rig, traj, noise=nz, seed=seed, progress=progress)
-    params = {"size": size, "resolution": resolution, "corridor_width": corridor_width,
-              "wall": wall, "door_widths": list(door_widths), "speed": speed, "rate": rate,
-              "p_rand": nz.p_rand, "p_hit": nz.p_hit, "sigma": nz.sigma, "seed": seed}
+    params = {
+        "size": size,
+        "resolution": resolution,
+        "corridor_width": corridor_width,
+        "wall": wall,
+        "door_widths": list(door_widths),
+        "speed": speed,
+        "rate": rate,
+        "p_rand": nz.p_rand,
+        "p_hit": nz.p_hit,
+        "sigma": nz.sigma,
+        "seed": seed,
+    }
     return Scenario("doorways", truth, rig, traj, readings, tuple(passages), params)
 
 
@@ -210,8 +235,9 @@ def passages(
     robot drives past the whole row at ``speed`` m/s (0.25) with the ``paper-synthetic``
     rig at ``rate`` Hz (10). Exact readings by default.
     """
-    _check_positive(resolution=resolution, block=block, depth=depth, offset=offset,
-                    speed=speed, rate=rate)
+    _check_positive(
+        resolution=resolution, block=block, depth=depth, offset=offset, speed=speed, rate=rate
+    )
     if not widths or any(w <= 0 for w in widths):
         raise ConfigError("scenario parameter 'widths' must be positive widths")
     wall = 0.1
@@ -227,8 +253,9 @@ def passages(
     y += block
     found = []
     for k, w in enumerate(widths):
-        found.append(Passage(f"gap{k + 1}", (x_row + depth / 2, y),
-                             (x_row + depth / 2, y + w), depth))
+        found.append(
+            Passage(f"gap{k + 1}", (x_row + depth / 2, y), (x_row + depth / 2, y + w), depth)
+        )
         y += w
         plan.box(x_row, y, x_row + depth, y + block)
         y += block
@@ -237,9 +264,19 @@ def passages(
     traj = _straight(x_path, 0.5, length - 0.5, speed, rate)
     nz = noise if noise is not None else Noise(0.0, 1.0, 0.0)
     readings = simulate(truth, rig, traj, noise=nz, seed=seed, progress=progress)
-    params = {"widths": list(widths), "resolution": resolution, "block": block,
-              "depth": depth, "offset": offset, "speed": speed, "rate": rate,
-              "p_rand": nz.p_rand, "p_hit": nz.p_hit, "sigma": nz.sigma, "seed": seed}
+    params = {
+        "widths": list(widths),
+        "resolution": resolution,
+        "block": block,
+        "depth": depth,
+        "offset": offset,
+        "speed": speed,
+        "rate": rate,
+        "p_rand": nz.p_rand,
+        "p_hit": nz.p_hit,
+        "sigma": nz.sigma,
+        "seed": seed,
+    }
     return Scenario("passages", truth, rig, traj, readings, tuple(found), params)
 
 
@@ -265,11 +302,18 @@ def room_turn(
     The readings come from sonars whose yaw differs from the written rig by Gaussian
     errors of ``mount_yaw_sigma_deg`` degrees (2): the mounting is known only roughly.
     """
-    _check_positive(room=room, resolution=resolution, door_width=door_width, turns=turns,
-                    duration=duration, rate=rate)
+    _check_positive(
+        room=room,
+        resolution=resolution,
+        door_width=door_width,
+        turns=turns,
+        duration=duration,
+        rate=rate,
+    )
     if not (math.isfinite(mount_yaw_sigma_deg) and mount_yaw_sigma_deg >= 0):
-        raise ConfigError(f"scenario parameter 'mount_yaw_sigma_deg' must be >= 0, "
-                          f"got {mount_yaw_sigma_deg}")
+        raise ConfigError(
+            f"scenario parameter 'mount_yaw_sigma_deg' must be >= 0, got {mount_yaw_sigma_deg}"
+        )
     if door_width > room - 0.4:
         raise ConfigError(f"door_width {door_width} m does not fit a {room} m room")
     wall = 0.1
@@ -285,30 +329,45 @@ def room_turn(
     dx = lo + room * 0.55
     plan.clear(dx - door_width / 2, hi - 0.01, dx + door_width / 2, hi + wall + 0.01)
     truth = plan.done()
-    door = Passage("door", (dx - door_width / 2, hi + wall / 2),
-                   (dx + door_width / 2, hi + wall / 2), wall)
+    door = Passage(
+        "door", (dx - door_width / 2, hi + wall / 2), (dx + door_width / 2, hi + wall / 2), wall
+    )
 
     n = int(duration * rate) + 1
     t = np.arange(n) / rate
     # Angular speed 1 + 0.67 sin(...) varies between 0.33 and 1.67 of its mean.
     phase = 2 * math.pi * t / duration
     angle = 2 * math.pi * turns * (phase - 0.67 * (np.cos(phase * 3) - 1) / 3) / (2 * math.pi)
-    traj = Trajectory(t, np.full(n, lo + room * 0.45), np.full(n, lo + room * 0.4),
-                      np.angle(np.exp(1j * angle)))
+    traj = Trajectory(
+        t, np.full(n, lo + room * 0.45), np.full(n, lo + room * 0.4), np.angle(np.exp(1j * angle))
+    )
     rig = get_rig("paper-real")
     rng = np.random.default_rng(seed + 7919)
-    actual = replace(rig, mounts=tuple(
-        Mount(m.name, m.x, m.y, m.yaw_deg + mount_yaw_sigma_deg * float(rng.standard_normal()))
-        for m in rig.mounts))
+    actual = replace(
+        rig,
+        mounts=tuple(
+            Mount(m.name, m.x, m.y, m.yaw_deg + mount_yaw_sigma_deg * float(rng.standard_normal()))
+            for m in rig.mounts
+        ),
+    )
     nz = noise if noise is not None else Noise(0.05, 0.9, 0.01)
     readings = simulate(truth, actual, traj, noise=nz, seed=seed, progress=progress)
     # The recorded poses are those the nominal mounting gives, as a real robot would log.
     sx, sy, st = (a.reshape(-1) for a in rig.sensor_poses(traj.x, traj.y, traj.theta))
     readings = replace(readings, x=sx, y=sy, theta=st)
-    params = {"room": room, "resolution": resolution, "door_width": door_width,
-              "turns": turns, "duration": duration, "rate": rate,
-              "mount_yaw_sigma_deg": mount_yaw_sigma_deg, "p_rand": nz.p_rand,
-              "p_hit": nz.p_hit, "sigma": nz.sigma, "seed": seed}
+    params = {
+        "room": room,
+        "resolution": resolution,
+        "door_width": door_width,
+        "turns": turns,
+        "duration": duration,
+        "rate": rate,
+        "mount_yaw_sigma_deg": mount_yaw_sigma_deg,
+        "p_rand": nz.p_rand,
+        "p_hit": nz.p_hit,
+        "sigma": nz.sigma,
+        "seed": seed,
+    }
     return Scenario("room-turn", truth, rig, traj, readings, (door,), params)
 
 
@@ -330,11 +389,10 @@ def make_scenario(name: str, **params: Any) -> Scenario:
     valid = [p for p in inspect.signature(fn).parameters if p != "progress"]
     bad = set(params) - set(valid) - {"progress"}
     if bad:
-        raise ConfigError(f"unknown parameter(s) {sorted(bad)} for scenario '{name}'; "
-                          f"valid: {', '.join(valid)}")
+        raise ConfigError(
+            f"unknown parameter(s) {sorted(bad)} for scenario '{name}'; valid: {', '.join(valid)}"
+        )
     return fn(**params)
-
-
 
 
 def load_passages(path: str | Path) -> tuple[Passage, ...]:
@@ -354,9 +412,16 @@ def load_passages(path: str | Path) -> tuple[Passage, ...]:
     out = []
     for i, d in enumerate(items):
         try:
-            out.append(Passage(str(d["name"]), (float(d["a"][0]), float(d["a"][1])),
-                               (float(d["b"][0]), float(d["b"][1])), float(d.get("depth", 0.1))))
+            out.append(
+                Passage(
+                    str(d["name"]),
+                    (float(d["a"][0]), float(d["a"][1])),
+                    (float(d["b"][0]), float(d["b"][1])),
+                    float(d.get("depth", 0.1)),
+                )
+            )
         except (KeyError, TypeError, ValueError, IndexError) as err:
-            raise InputError(f"bad passage entry ({err!r})", path=p,
-                             field=f"passages[{i}]") from err
+            raise InputError(
+                f"bad passage entry ({err!r})", path=p, field=f"passages[{i}]"
+            ) from err
     return tuple(out)

@@ -136,7 +136,8 @@ class Region:
         """Whether points ``(N, 2)`` of the sensor frame lie in the region (boundary included)."""
         p = np.atleast_2d(np.asarray(points, dtype=np.float64))
         inside = np.all(p @ self.halfplanes[:, :2].T <= self.halfplanes[:, 2] + tol, axis=1)
-        return inside & (np.hypot(p[:, 0], p[:, 1]) <= self.radius + tol)
+        near = np.hypot(p[:, 0], p[:, 1]) <= self.radius + tol
+        return np.asarray(inside & near, dtype=np.bool_)
 
 
 @dataclass(frozen=True)
@@ -223,7 +224,9 @@ class SensorModel:
         """A copy with some noise parameters changed (``p_rand``, ``p_hit``, ``sigma``)."""
         unknown = set(changes) - {"p_rand", "p_hit", "sigma"}
         if unknown:
-            raise ConfigError(f"unknown noise parameter(s) {sorted(unknown)}; valid: p_rand, p_hit, sigma")
+            raise ConfigError(
+                f"unknown noise parameter(s) {sorted(unknown)}; valid: p_rand, p_hit, sigma"
+            )
         return replace(self, noise=replace(self.noise, **changes))
 
     def sensitivity(self, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
@@ -237,6 +240,7 @@ class SensorModel:
 
     def to_dict(self) -> dict[str, Any]:
         """The YAML-ready description :func:`sensor_from_dict` reads back."""
+
         def region_dict(r: Region) -> dict[str, Any]:
             if r.kind == "cone":
                 half = math.atan2(-r.halfplanes[0, 0], r.halfplanes[0, 1])
@@ -386,8 +390,17 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
         return get_sensor(d)
     if not isinstance(d, Mapping):
         raise ConfigError(f"{where}: expected a preset name or a mapping")
-    known = {"preset", "name", "beam", "r_min", "r_max", "range_resolution", "min_size",
-             "zones", "noise"}
+    known = {
+        "preset",
+        "name",
+        "beam",
+        "r_min",
+        "r_max",
+        "range_resolution",
+        "min_size",
+        "zones",
+        "noise",
+    }
     unknown = set(d) - known
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}; valid: {sorted(known)}")
@@ -398,8 +411,11 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
                 raise ConfigError(f"{where}: missing key '{key}'")
     r_max = _number(d["r_max"], f"{where}.r_max") if "r_max" in d else base.r_max  # type: ignore[union-attr]
     kwargs: dict[str, Any] = {"name": str(d.get("name", base.name if base else "custom"))}
-    kwargs["beam"] = _region_from_dict(d["beam"], f"{where}.beam", r_max) if "beam" in d else (
-        base.beam if base else None)
+    kwargs["beam"] = (
+        _region_from_dict(d["beam"], f"{where}.beam", r_max)
+        if "beam" in d
+        else (base.beam if base else None)
+    )
     kwargs["r_max"] = r_max
     for key in ("r_min", "range_resolution", "min_size"):
         if key in d:
@@ -414,8 +430,12 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
         for i, z in enumerate(zones):
             if not isinstance(z, Mapping) or "min_size" not in z:
                 raise ConfigError(f"{where}.zones[{i}]: missing key 'min_size'")
-            parsed.append((_region_from_dict(z, f"{where}.zones[{i}]", r_max),
-                           _number(z["min_size"], f"{where}.zones[{i}].min_size")))
+            parsed.append(
+                (
+                    _region_from_dict(z, f"{where}.zones[{i}]", r_max),
+                    _number(z["min_size"], f"{where}.zones[{i}].min_size"),
+                )
+            )
         kwargs["zones"] = tuple(parsed)
     elif base is not None:
         kwargs["zones"] = base.zones
@@ -426,7 +446,9 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
             raise ConfigError(f"{where}.noise: expected a mapping")
         bad = set(nd) - {"p_rand", "p_hit", "sigma"}
         if bad:
-            raise ConfigError(f"{where}.noise: unknown key(s) {sorted(bad)}; valid: p_hit, p_rand, sigma")
+            raise ConfigError(
+                f"{where}.noise: unknown key(s) {sorted(bad)}; valid: p_hit, p_rand, sigma"
+            )
         noise = Noise(**{k: _number(v, f"{where}.noise.{k}") for k, v in nd.items()})
     kwargs["noise"] = noise
     return SensorModel(**kwargs)

@@ -143,8 +143,9 @@ def simulate(
     ry = trajectory.y + pn.sigma_xy * rng.standard_normal(n_pose)
     rt = trajectory.theta + pn.sigma_theta * rng.standard_normal(n_pose)
 
-    tx, ty, tt = (a.reshape(-1) for a in rig.sensor_poses(trajectory.x, trajectory.y,
-                                                         trajectory.theta))
+    tx, ty, tt = (
+        a.reshape(-1) for a in rig.sensor_poses(trajectory.x, trajectory.y, trajectory.theta)
+    )
     occupied = np.ascontiguousarray((np.nan_to_num(truth.occupancy, nan=0.0) >= 0.5).ravel())
     ranges = np.empty(total)
     step = max(1, chunk_size) * n_mount
@@ -166,5 +167,9 @@ def simulate(
     return Readings(
         t=np.repeat(trajectory.t, n_mount),
         sensor=np.tile(np.arange(n_mount, dtype=np.int32), n_pose),
-        x=sx, y=sy, theta=st, range=ranges, names=rig.names,
+        x=sx,
+        y=sy,
+        theta=st,
+        range=ranges,
+        names=rig.names,
     )

@@ -124,20 +124,21 @@ def read_map(path: str | Path) -> OccupancyMap:
         raise InputError(f"expected [x, y, yaw], got {origin!r}", path=p, field="origin")
     ox, oy = (_num(v, p, "origin") for v in origin[:2])
     if len(origin) == 3 and _num(origin[2], p, "origin") != 0.0:
-        raise InputError("rotated maps (origin yaw != 0) are not supported", path=p,
-                         field="origin")
+        raise InputError("rotated maps (origin yaw != 0) are not supported", path=p, field="origin")
     negate = meta.get("negate", 0)
     if negate not in (0, 1, True, False):
         raise InputError(f"must be 0 or 1, got {negate!r}", path=p, field="negate")
     occ_t = _num(meta.get("occupied_thresh", 0.65), p, "occupied_thresh")
     free_t = _num(meta.get("free_thresh", 0.196), p, "free_thresh")
     if not (0.0 <= free_t < occ_t <= 1.0):
-        raise InputError(f"thresholds need 0 <= free_thresh ({free_t}) < occupied_thresh "
-                         f"({occ_t}) <= 1", path=p, field="occupied_thresh")
+        raise InputError(
+            f"thresholds need 0 <= free_thresh ({free_t}) < occupied_thresh ({occ_t}) <= 1",
+            path=p,
+            field="occupied_thresh",
+        )
     mode = meta.get("mode", "trinary")
     if mode not in _MODES:
-        raise InputError(f"unknown mode {mode!r}; valid: {', '.join(_MODES)}", path=p,
-                         field="mode")
+        raise InputError(f"unknown mode {mode!r}; valid: {', '.join(_MODES)}", path=p, field="mode")
 
     image_path = Path(image_name) if Path(image_name).is_absolute() else p.parent / image_name
     value, alpha = _read_image(image_path)
@@ -154,7 +155,7 @@ def read_map(path: str | Path) -> OccupancyMap:
             occ[mid] = (prob[mid] - free_t) / (occ_t - free_t)
             if alpha is not None:
                 occ[alpha == 0] = np.nan
-    grid = Grid(resolution=resolution, origin=(ox, oy), shape=value.shape)  # type: ignore[arg-type]
+    grid = Grid(resolution=resolution, origin=(ox, oy), shape=(value.shape[0], value.shape[1]))
     return OccupancyMap(grid, occ.astype(np.float32))
 
 
@@ -165,16 +166,24 @@ def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uin
             if im.mode not in _IMAGE_MODES:
                 raise InputError(
                     f"unsupported image mode '{im.mode}'; expected 8-bit grey or colour "
-                    f"({', '.join(_IMAGE_MODES)})", path=path)
+                    f"({', '.join(_IMAGE_MODES)})",
+                    path=path,
+                )
             if im.mode == "P":
-                im = im.convert("RGBA")
+                arr = np.asarray(im.convert("RGBA"))
             elif im.mode == "1":
-                im = im.convert("L")
-            arr = np.asarray(im)
+                arr = np.asarray(im.convert("L"))
+            else:
+                arr = np.asarray(im)
     except FileNotFoundError as err:
         raise InputError("map image not found", path=path) from err
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError,
-            Image.DecompressionBombError) as err:
+    except (
+        UnidentifiedImageError,
+        OSError,
+        ValueError,
+        SyntaxError,
+        Image.DecompressionBombError,
+    ) as err:
         # Pillow reports malformed headers and truncated pixel data in several ways.
         raise InputError(f"cannot read image ({type(err).__name__}: {err})", path=path) from err
     if arr.ndim == 2:
@@ -229,8 +238,10 @@ def write_map(
         The three files written.
     """
     if not (0.0 <= free_thresh < occupied_thresh <= 1.0):
-        raise InputError(f"thresholds need 0 <= free_thresh ({free_thresh}) < "
-                         f"occupied_thresh ({occupied_thresh}) <= 1")
+        raise InputError(
+            f"thresholds need 0 <= free_thresh ({free_thresh}) < "
+            f"occupied_thresh ({occupied_thresh}) <= 1"
+        )
     yaml_path, pgm_path, npy_path = map_paths(stem)
     meta = {
         "image": pgm_path.name,

@@ -141,16 +141,27 @@ class Mapper(ABC):
         """Flat occupancy, NaN where unknown."""
 
     def _footprints(
-        self, readings: Readings, *, dr: float | None = None, with_bearing: bool = False,
+        self,
+        readings: Readings,
+        *,
+        dr: float | None = None,
+        with_bearing: bool = False,
         progress: Progress | None = None,
     ) -> Iterator[tuple[int, Footprint]]:
         """Rasterise readings chunk by chunk; yields (index of first reading, footprint)."""
         n = len(readings)
         for a in range(0, n, self.chunk_size):
             b = min(a + self.chunk_size, n)
-            fp = rasterise(self.grid, self.sensor, readings.x[a:b], readings.y[a:b],
-                           readings.theta[a:b], readings.range[a:b], dr=dr,
-                           with_bearing=with_bearing)
+            fp = rasterise(
+                self.grid,
+                self.sensor,
+                readings.x[a:b],
+                readings.y[a:b],
+                readings.theta[a:b],
+                readings.range[a:b],
+                dr=dr,
+                with_bearing=with_bearing,
+            )
             yield a, fp
             if progress is not None:
                 progress(b, n)
@@ -192,8 +203,9 @@ def parse_params(method: str, pairs: Mapping[str, str]) -> dict[str, Any]:
     defaults = cls.param_defaults()
     bad = sorted(set(pairs) - set(defaults))
     if bad:
-        raise ConfigError(f"unknown parameter(s) {bad} for method '{method}'; valid: "
-                          f"{', '.join(defaults)}")
+        raise ConfigError(
+            f"unknown parameter(s) {bad} for method '{method}'; valid: {', '.join(defaults)}"
+        )
     return {k: _coerce(v, defaults[k], k) for k, v in pairs.items()}
 
 
@@ -201,8 +213,9 @@ def _lookup(method: str) -> type[Mapper]:
     try:
         return MAPPERS[method]
     except KeyError:
-        raise ConfigError(f"unknown method '{method}'; valid: {', '.join(sorted(MAPPERS))}") \
-            from None
+        raise ConfigError(
+            f"unknown method '{method}'; valid: {', '.join(sorted(MAPPERS))}"
+        ) from None
 
 
 def make_mapper(method: str, **params: Any) -> Mapper:
@@ -216,6 +229,8 @@ def make_mapper(method: str, **params: Any) -> Mapper:
     cls = _lookup(method)
     bad = sorted(set(params) - set(cls.param_names()))
     if bad:
-        raise ConfigError(f"unknown parameter(s) {bad} for method '{method}'; valid: "
-                          f"{', '.join(cls.param_names())}")
+        raise ConfigError(
+            f"unknown parameter(s) {bad} for method '{method}'; valid: "
+            f"{', '.join(cls.param_names())}"
+        )
     return cls(**params)

@@ -8,8 +8,15 @@ from collections.abc import Sequence
 from ..errors import ConfigError
 
 
-def number(name: str, value: object, lo: float | None = None, hi: float | None = None, *,
-           lo_open: bool = False, hi_open: bool = False) -> float:
+def number(
+    name: str,
+    value: object,
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    lo_open: bool = False,
+    hi_open: bool = False,
+) -> float:
     """``value`` as a float inside the given bounds, or ConfigError."""
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise ConfigError(f"parameter '{name}' must be a finite number, got {value!r}")

@@ -30,6 +30,8 @@ class CountingMapper(Mapper):
     """
 
     name = "counting"
+    _hits: npt.NDArray[np.int64]
+    _seen: npt.NDArray[np.int64]
 
     def __init__(self, *, no_echo: str = "free", dr: float | None = None) -> None:
         self.no_echo = no_echo

@@ -39,10 +39,17 @@ def _logit(p: float) -> float:
 def _apply(
     logodds: npt.NDArray[np.float64],
     touched: npt.NDArray[np.bool_],
-    f_off: npt.NDArray[np.int64], f_cell: npt.NDArray[np.int32], f_scale: npt.NDArray[np.float32],
-    o_off: npt.NDArray[np.int64], o_cell: npt.NDArray[np.int32], o_scale: npt.NDArray[np.float32],
+    f_off: npt.NDArray[np.int64],
+    f_cell: npt.NDArray[np.int32],
+    f_scale: npt.NDArray[np.float32],
+    o_off: npt.NDArray[np.int64],
+    o_cell: npt.NDArray[np.int32],
+    o_scale: npt.NDArray[np.float32],
     use_reading: npt.NDArray[np.bool_],
-    l_free: float, l_occ: float, lo: float, hi: float,
+    l_free: float,
+    l_occ: float,
+    lo: float,
+    hi: float,
 ) -> None:
     n = f_off.shape[0] - 1
     for i in range(n):
@@ -84,6 +91,8 @@ class InverseMapper(Mapper):
     """
 
     name = "inverse"
+    _logodds: npt.NDArray[np.float64]
+    _touched: npt.NDArray[np.bool_]
 
     def __init__(
         self,
@@ -126,19 +135,30 @@ class InverseMapper(Mapper):
         falloff = self.falloff_deg > 0
         l_free, l_occ = _logit(self.p_free), _logit(self.p_occ)
         lo, hi = _logit(self.clamp_min), _logit(self.clamp_max)
-        for a, fp in self._footprints(readings, dr=self.dr, with_bearing=falloff,
-                                      progress=progress):
+        for a, fp in self._footprints(
+            readings, dr=self.dr, with_bearing=falloff, progress=progress
+        ):
             rng = readings.range[a : a + fp.free.n_readings]
             use = np.ones(len(rng), dtype=np.bool_)
             if self.no_echo == "ignore":
                 use = rng < self.sensor.r_max
-            _apply(self._logodds, self._touched,
-                   fp.free.offsets, fp.free.cells, self._scale(fp.free.bearing,
-                                                               len(fp.free.cells)),
-                   fp.occ.offsets, fp.occ.cells, self._scale(fp.occ.bearing, len(fp.occ.cells)),
-                   use, l_free, l_occ, lo, hi)
+            _apply(
+                self._logodds,
+                self._touched,
+                fp.free.offsets,
+                fp.free.cells,
+                self._scale(fp.free.bearing, len(fp.free.cells)),
+                fp.occ.offsets,
+                fp.occ.cells,
+                self._scale(fp.occ.bearing, len(fp.occ.cells)),
+                use,
+                l_free,
+                l_occ,
+                lo,
+                hi,
+            )
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
         p = 1.0 / (1.0 + np.exp(-self._logodds))
         p[~self._touched] = np.nan
-        return p.astype(np.float32)
+        return np.asarray(p, dtype=np.float32)

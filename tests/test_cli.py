@@ -1,0 +1,337 @@
+"""The command line: the documented workflow on a hand-made floor plan, and error paths."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sonarmap.cli import main
+from sonarmap.io.rosmap import read_map
+from sonarmap.metrics import score
+
+
+def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    try:
+        main(args)
+        code = 0
+    except SystemExit as e:
+        code = int(e.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture
+def floor_plan(tmp_path: Path) -> Path:
+    """A 5 m x 4 m room drawn as a map_server image, a rig and a loop trajectory."""
+    h = 0.05
+    rows, cols = int(4 / h), int(5 / h)
+    px = np.full((rows, cols), 254, dtype=np.uint8)
+    px[:3, :] = px[-3:, :] = 0
+    px[:, :3] = px[:, -3:] = 0
+    px[30:50, 40:44] = 0  # a pillar
+    Image.fromarray(px).save(tmp_path / "plan.png")
+    (tmp_path / "plan.yaml").write_text(
+        "image: plan.png\nresolution: 0.05\norigin: [-1.0, -1.0, 0.0]\nnegate: 0\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
+    (tmp_path / "rig.yaml").write_text(
+        "sensor: hc-sr04\nsonars:\n"
+        + "".join(
+            f"  - {{name: s{k}, x: 0.1, y: 0.0, yaw_deg: {a}}}\n"
+            for k, a in enumerate(range(-90, 91, 30))
+        )
+        + "  - {name: back, x: -0.1, y: 0.0, yaw_deg: 180}\n"
+    )
+    t = np.linspace(0, 60, 601)
+    a = 2 * math.pi * t / 60
+    lines = ["t,x,y,theta"] + [
+        f"{ti:.2f},{1.5 + 1.6 * math.cos(ai):.4f},{1.0 + 1.2 * math.sin(ai):.4f},"
+        f"{ai + math.pi / 2:.4f}"
+        for ti, ai in zip(t, a, strict=True)
+    ]
+    (tmp_path / "traj.csv").write_text("\n".join(lines) + "\n")
+    return tmp_path
+
+
+def test_workflow_on_outside_floor_plan(
+    floor_plan: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    d = floor_plan
+    code, _, err = run(
+        [
+            "simulate",
+            "--map",
+            str(d / "plan.yaml"),
+            "--rig",
+            str(d / "rig.yaml"),
+            "--trajectory",
+            str(d / "traj.csv"),
+            "--seed",
+            "1",
+            "-o",
+            str(d / "readings.csv"),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    code, _, err = run(
+        [
+            "map",
+            str(d / "readings.csv"),
+            "--rig",
+            str(d / "rig.yaml"),
+            "--method",
+            "inverse",
+            "--like",
+            str(d / "plan.yaml"),
+            "-o",
+            str(d / "inv"),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    m = read_map(d / "inv.yaml")
+    truth = read_map(d / "plan.yaml")
+    assert m.grid == truth.grid
+    s = score(truth, m)
+    assert s.recall > 0.8
+    assert s.accuracy > 0.85
+    # The walls are where the truth has them: every true wall cell next to the free room
+    # that the map observed is occupied in the map, within one cell.
+    occ_npy = np.load(d / "inv.npy")
+    assert occ_npy.shape == truth.grid.shape
+    assert occ_npy.dtype == np.float32
+    code, _, err = run(
+        [
+            "show",
+            str(d / "inv.yaml"),
+            "--truth",
+            str(d / "plan.yaml"),
+            "--readings",
+            str(d / "readings.csv"),
+            "-o",
+            str(d / "inv.png"),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    with Image.open(d / "inv.png") as im:
+        assert im.size[0] > 100
+    code, _, err = run(
+        [
+            "map",
+            str(d / "readings.csv"),
+            "--rig",
+            str(d / "rig.yaml"),
+            "--method",
+            "counting",
+            "--resolution",
+            "0.1",
+            "--bounds",
+            "-1",
+            "-1",
+            "4",
+            "3",
+            "-o",
+            str(d / "cnt"),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    assert read_map(d / "cnt.yaml").grid.shape == (40, 50)
+
+
+def test_scenario_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(
+        [
+            "scenario",
+            "passages",
+            "-o",
+            str(tmp_path / "p"),
+            "--seed",
+            "2",
+            "--param",
+            "widths=0.3,0.5",
+            "--p-rand",
+            "0.05",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    for name in (
+        "truth.yaml",
+        "truth.pgm",
+        "rig.yaml",
+        "trajectory.csv",
+        "readings.csv",
+        "annotations.yaml",
+    ):
+        assert (tmp_path / "p" / name).is_file()
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (
+            [
+                "map",
+                "{d}/readings.csv",
+                "--rig",
+                "{d}/rig.yaml",
+                "--method",
+                "magic",
+                "--like",
+                "{d}/plan.yaml",
+                "-o",
+                "{d}/x",
+            ],
+            "Invalid value for '--method'",
+        ),
+        (
+            [
+                "map",
+                "{d}/readings.csv",
+                "--rig",
+                "{d}/rig.yaml",
+                "--like",
+                "{d}/plan.yaml",
+                "--param",
+                "p_occ=3",
+                "-o",
+                "{d}/x",
+            ],
+            r"parameter 'p_occ' must be in \(0.5, 1.0\)",
+        ),
+        (
+            [
+                "map",
+                "{d}/readings.csv",
+                "--rig",
+                "{d}/rig.yaml",
+                "--like",
+                "{d}/plan.yaml",
+                "--param",
+                "p_occ",
+                "-o",
+                "{d}/x",
+            ],
+            "--param expects KEY=VALUE",
+        ),
+        (
+            ["map", "{d}/readings.csv", "--rig", "{d}/rig.yaml", "-o", "{d}/x"],
+            "give --like MAP.yaml or --resolution R",
+        ),
+        (
+            [
+                "map",
+                "{d}/bad.csv",
+                "--rig",
+                "{d}/rig.yaml",
+                "--like",
+                "{d}/plan.yaml",
+                "-o",
+                "{d}/x",
+            ],
+            r"bad.csv:3, field 'range': range is negative",
+        ),
+        (
+            [
+                "map",
+                "{d}/readings.csv",
+                "--rig",
+                "{d}/other_rig.yaml",
+                "--like",
+                "{d}/plan.yaml",
+                "-o",
+                "{d}/x",
+            ],
+            r"readings.csv:2, field 'sensor': unknown sensor 's0'",
+        ),
+        (
+            [
+                "simulate",
+                "--map",
+                "{d}/nope.yaml",
+                "--rig",
+                "{d}/rig.yaml",
+                "--trajectory",
+                "{d}/traj.csv",
+                "-o",
+                "{d}/x.csv",
+            ],
+            "nope.yaml: cannot read map file",
+        ),
+        (
+            [
+                "simulate",
+                "--map",
+                "{d}/plan.yaml",
+                "--rig",
+                "{d}/rig.yaml",
+                "--trajectory",
+                "{d}/traj.csv",
+                "--p-hit",
+                "0",
+                "-o",
+                "{d}/x.csv",
+            ],
+            r"p_hit must be in \(0, 1\]",
+        ),
+        (
+            ["scenario", "doorways", "-o", "{d}/x", "--param", "door_widths=wide"],
+            "parameter 'door_widths' expects numbers",
+        ),
+        (
+            ["scenario", "doorways", "-o", "{d}/x", "--param", "colour=3"],
+            "unknown parameter 'colour' for scenario 'doorways'",
+        ),
+    ],
+)
+def test_errors_are_one_line_exit_2_no_output(
+    floor_plan: Path, capsys: pytest.CaptureFixture[str], args: list[str], match: str
+) -> None:
+    d = floor_plan
+    run(
+        [
+            "simulate",
+            "--map",
+            str(d / "plan.yaml"),
+            "--rig",
+            str(d / "rig.yaml"),
+            "--trajectory",
+            str(d / "traj.csv"),
+            "-o",
+            str(d / "readings.csv"),
+        ],
+        capsys,
+    )
+    lines = (d / "readings.csv").read_text().splitlines()
+    fields = lines[2].split(",")
+    fields[-1] = "-0.5"
+    lines[2] = ",".join(fields)
+    (d / "bad.csv").write_text("\n".join(lines) + "\n")
+    (d / "other_rig.yaml").write_text(
+        "sensor: hc-sr04\nsonars: [{name: z, x: 0, y: 0, yaw_deg: 0}]\n"
+    )
+    before = set(d.iterdir())
+    code, _out, err = run([a.format(d=d) for a in args], capsys)
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1, err
+    import re
+
+    assert re.search(match, err), err
+    assert set(d.iterdir()) == before  # nothing written, not even a temporary file
+
+
+def test_help_and_version(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(["--version"], capsys)
+    assert code == 0
+    assert "sonarmap" in out
+    for cmd in ("scenario", "simulate", "map", "show", "demo", "methods"):
+        code, out, _ = run([cmd, "--help"], capsys)
+        assert code == 0
+        assert "Usage" in out
