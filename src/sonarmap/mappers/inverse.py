@@ -129,7 +129,7 @@ class InverseMapper(Mapper):
         if bearing is None:
             return np.ones(n, dtype=np.float32)
         s = math.radians(self.falloff_deg)
-        return np.exp(-0.5 * (bearing / s) ** 2).astype(np.float32)
+        return np.asarray(np.exp(-0.5 * (bearing / s) ** 2), dtype=np.float32)
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         falloff = self.falloff_deg > 0
