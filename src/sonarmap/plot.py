@@ -52,9 +52,9 @@ def draw_map(
     )
     if truth is not None:
         t = (np.nan_to_num(truth.occupancy, nan=0.0) >= 0.5).astype(float)
-        ax.contour(
-            t, levels=[0.5], colors="red", linewidths=0.6, extent=truth.grid.extent, origin="upper"
-        )
+        # Sample positions are the cell centres; the 0.5 level then runs along cell edges.
+        xc, yc = truth.grid.all_centres()
+        ax.contour(xc, yc, t, levels=[0.5], colors="red", linewidths=0.6)
     if readings is not None and len(readings):
         ax.plot(readings.x, readings.y, ".", ms=1.5, color="tab:blue")
         rng = readings.range
