@@ -48,8 +48,8 @@ class MapScore:
     passages_open: int
     passages: int
 
-    def as_dict(self) -> dict[str, float]:
-        return {k: float(v) for k, v in asdict(self).items()}
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
 
 
 def _ratio(a: int, b: int) -> float:
