@@ -118,3 +118,20 @@ def test_bad_rig_files(tmp_path: Path, text: str, match: str) -> None:
     p.write_text(text)
     with pytest.raises(InputError, match=match):
         load_rig(p)
+
+
+def test_rig_with_sensor_file(tmp_path: Path) -> None:
+    (tmp_path / "sonar.yaml").write_text(
+        "name: mine\nbeam: {cone: {aperture_deg: 25}}\nr_max: 3.0\nrange_resolution: 0.01\n"
+    )
+    (tmp_path / "rig.yaml").write_text(
+        "sensor: sonar.yaml\nsonars: [{name: a, x: 0, y: 0, yaw_deg: 0}]\n"
+    )
+    rig = load_rig(tmp_path / "rig.yaml")
+    assert rig.sensor.name == "mine"
+    assert rig.sensor.r_max == 3.0
+    (tmp_path / "rig.yaml").write_text(
+        "sensor: missing.yaml\nsonars: [{name: a, x: 0, y: 0, yaw_deg: 0}]\n"
+    )
+    with pytest.raises(InputError, match=r"missing\.yaml: cannot read file"):
+        load_rig(tmp_path / "rig.yaml")

@@ -218,12 +218,26 @@ def show_cmd(
     out: Annotated[Path, typer.Option("-o", "--out", help="PNG to write.")],
     readings: Annotated[Path | None, typer.Option(help="Readings CSV to overlay.")] = None,
     truth: Annotated[Path | None, typer.Option(help="Truth map YAML to outline in red.")] = None,
+    rig: Annotated[
+        Path | None,
+        typer.Option(help="Rig of the readings: its r_max tells echoes from no-echo readings."),
+    ] = None,
 ) -> None:
     """Draw a map as a PNG, optionally with the truth outlined and readings overlaid."""
     m = read_map(map_)
     t = read_map(truth) if truth is not None else None
-    rd = read_readings(readings) if readings is not None else None
-    save_map_picture(m, out, truth=t, readings=rd, title=map_.stem)
+    r = load_rig(rig) if rig is not None else None
+    rd = None
+    if readings is not None:
+        rd = read_readings(readings, names=r.names if r is not None else None)
+    save_map_picture(
+        m,
+        out,
+        truth=t,
+        readings=rd,
+        title=map_.stem,
+        r_max=r.sensor.r_max if r is not None else None,
+    )
     console.print(f"wrote {out}")
 
 

@@ -2,7 +2,7 @@
 
 A rig file looks like::
 
-    sensor: maxsonar-ez1          # a preset name, or a mapping (see sensors.sensor_from_dict)
+    sensor: maxsonar-ez1          # a preset, a mapping (sensors.sensor_from_dict) or a .yaml file
     sonars:
       - {name: left, x: 0.0, y: 0.15, yaw_deg: 90}
       - {name: right, x: 0.0, y: -0.15, yaw_deg: -90}
@@ -111,8 +111,12 @@ class Rig:
         }
 
 
-def rig_from_dict(d: Any, where: str = "rig") -> Rig:
-    """A rig from a parsed YAML mapping (keys ``sensor`` and ``sonars``)."""
+def rig_from_dict(d: Any, where: str = "rig", base_dir: Path | None = None) -> Rig:
+    """A rig from a parsed YAML mapping (keys ``sensor`` and ``sonars``).
+
+    ``sensor`` is a preset name, a sensor mapping, or the path of a sensor YAML file
+    (relative to ``base_dir``).
+    """
     if not isinstance(d, Mapping):
         raise ConfigError(f"{where}: expected a mapping with keys 'sensor' and 'sonars'")
     for key in ("sensor", "sonars"):
@@ -121,7 +125,13 @@ def rig_from_dict(d: Any, where: str = "rig") -> Rig:
     unknown = set(d) - {"sensor", "sonars"}
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}; valid: sensor, sonars")
-    sensor = sensor_from_dict(d["sensor"], f"{where}.sensor")
+    spec = d["sensor"]
+    if isinstance(spec, str) and spec.endswith((".yaml", ".yml")):
+        from .sensors import load_sensor
+
+        sensor = load_sensor((base_dir or Path(".")) / spec)
+    else:
+        sensor = sensor_from_dict(spec, f"{where}.sensor")
     sonars = d["sonars"]
     if not isinstance(sonars, list) or not sonars:
         raise ConfigError(f"{where}.sonars: expected a non-empty list")
@@ -156,7 +166,7 @@ def load_rig(path: str | Path) -> Rig:
     except yaml.YAMLError as err:
         raise InputError(f"not valid YAML ({_yaml_problem(err)})", path=p) from err
     try:
-        return rig_from_dict(data)
+        return rig_from_dict(data, base_dir=p.parent)
     except ConfigError as err:
         raise InputError(str(err), path=p) from err
 

@@ -382,8 +382,8 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
     """A sensor model from a parsed YAML mapping, or from a preset name.
 
     Keys: ``name``, ``beam`` (``{cone: {aperture_deg: A}}`` or ``{polygon: [[x, y], ...]}``),
-    ``r_min``, ``r_max``, ``range_resolution``, optional ``min_size``, ``zones`` (list of
-    regions each with ``min_size``) and ``noise`` (``p_rand``, ``p_hit``, ``sigma``). A
+    ``r_max``, ``range_resolution``, optional ``r_min`` (default 0), ``min_size``, ``zones``
+    (list of regions each with ``min_size``) and ``noise`` (``p_rand``, ``p_hit``, ``sigma``). A
     mapping ``{preset: NAME, ...}`` starts from a preset and overrides the keys given.
     """
     if isinstance(d, str):
@@ -422,6 +422,7 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
             kwargs[key] = _number(d[key], f"{where}.{key}")
         elif base is not None:
             kwargs[key] = getattr(base, key)
+    kwargs.setdefault("r_min", 0.0)
     if "zones" in d:
         zones = d["zones"] or []
         if not isinstance(zones, list):
