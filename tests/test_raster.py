@@ -194,7 +194,7 @@ def test_beam_cells_is_union_of_bands() -> None:
 
 def test_default_dr_and_bad_input() -> None:
     sensor = get_sensor("maxsonar-ez1")
-    assert default_dr(GRID, sensor) == pytest.approx(0.1)
+    assert default_dr(GRID, sensor) == pytest.approx(0.05)
     with pytest.raises(InputError, match="'range' holds non-finite"):
         rasterise(GRID, sensor, [0.0], [0.0], [0.0], [float("nan")])
     with pytest.raises(InputError, match="ranges must be >= 0"):

@@ -18,7 +18,7 @@ from .errors import InputError
 from .io.rosmap import OccupancyMap
 from .scenarios import Passage
 
-__all__ = ["MapScore", "passage_open", "score"]
+__all__ = ["MapScore", "PassageResult", "measure_passage", "passage_open", "score"]
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,8 @@ class MapScore:
         Truth passages left passable (see :func:`passage_open`).
     passages : int
         Number of truth passages scored.
+    passages_detected : int
+        Truth passages whose gap the map shows (see :func:`measure_passage`).
     """
 
     accuracy: float
@@ -47,6 +49,7 @@ class MapScore:
     unknown: float
     passages_open: int
     passages: int
+    passages_detected: int
 
     def as_dict(self) -> dict[str, float | int]:
         return asdict(self)
@@ -97,6 +100,7 @@ def score(
     f1 = _ratio(2 * tp, 2 * tp + fp + fn)
     iou = _ratio(tp, tp + fp + fn)
     n_open = sum(passage_open(m, p, threshold=threshold) for p in passages)
+    n_detected = sum(measure_passage(m, p, threshold=threshold).detected for p in passages)
     return MapScore(
         accuracy=_ratio(tp + tn, tp + tn + fp + fn),
         precision=precision,
@@ -106,6 +110,7 @@ def score(
         unknown=float(1.0 - known.mean()),
         passages_open=n_open,
         passages=len(passages),
+        passages_detected=n_detected,
     )
 
 
@@ -147,3 +152,82 @@ def passage_open(
     a = set(np.unique(labels[near & free]).tolist())
     b = set(np.unique(labels[far & free]).tolist())
     return bool((a & b) - {0})
+
+
+@dataclass(frozen=True)
+class PassageResult:
+    """What a map shows of one passage.
+
+    Attributes
+    ----------
+    width : float
+        Recovered width in metres (see :func:`measure_passage`); NaN when no line across
+        the passage is bounded by occupied cells on both sides.
+    detected : bool
+        The recovered width is positive and the gap holds at least one observed free cell.
+    open : bool
+        A free 4-connected path runs through the opening (:func:`passage_open`).
+    """
+
+    name: str
+    true_width: float
+    width: float
+    detected: bool
+    open: bool
+
+
+def measure_passage(
+    m: OccupancyMap, p: Passage, *, threshold: float = 0.5, search: float = 2.0
+) -> PassageResult:
+    """Recovered width of a passage, as the research measures it (thesis 002, fig. 4.10).
+
+    Lines parallel to the opening are laid through the obstacle, one per cell across its
+    depth plus one cell either side. On each line, starting at the cell nearest the passage
+    centre, the run of non-occupied cells is followed both ways up to ``search`` metres
+    past the jambs; a line whose run ends at occupied cells on both sides is *bounded* and
+    its gap is the run's length. The recovered width is the narrowest bounded gap (0 when
+    the centre cell is occupied there). Unknown cells do not bound a gap; a sonar that
+    sees an opening from one side only leaves the space behind it unknown.
+    """
+    h = m.grid.resolution
+    ax, ay = p.a
+    bx, by = p.b
+    ux, uy = (bx - ax) / p.width, (by - ay) / p.width
+    nx, ny = -uy, ux
+    mx, my = (ax + bx) / 2, (ay + by) / 2
+    occ = m.occupancy
+    reach = p.width / 2 + search
+    steps = math.ceil(reach / h)
+    # A quarter-cell shift keeps samples off cell boundaries when the gap's centre
+    # lies on one (an even number of cells), where rounding would pick either side.
+    offsets = np.arange(-steps, steps + 1) * h + h / 4
+    n_across = math.ceil((p.depth / 2) / h) + 1
+    best = math.inf
+    best_has_free = False
+    for k in range(-n_across, n_across + 1):
+        cx, cy = mx + k * h * nx, my + k * h * ny
+        rows, cols = m.grid.world_to_cell(cx + offsets * ux, cy + offsets * uy)
+        inside = m.grid.contains(rows, cols)
+        vals = np.full(len(offsets), np.nan)
+        vals[inside] = occ[rows[inside], cols[inside]]
+        is_occ = np.nan_to_num(vals, nan=0.0) >= threshold
+        is_free = np.isfinite(vals) & ~is_occ
+        c = steps
+        if is_occ[c]:
+            gap, has_free = 0.0, False
+        else:
+            left = c
+            while left - 1 >= 0 and not is_occ[left - 1]:
+                left -= 1
+            right = c
+            while right + 1 < len(offsets) and not is_occ[right + 1]:
+                right += 1
+            if left == 0 or right == len(offsets) - 1:
+                continue  # not bounded on both sides
+            gap = (right - left + 1) * h
+            has_free = bool(is_free[left : right + 1].any())
+        if gap < best:
+            best, best_has_free = gap, has_free
+    width = best if math.isfinite(best) else math.nan
+    detected = bool(math.isfinite(best) and best > 0 and best_has_free)
+    return PassageResult(p.name, p.width, width, detected, passage_open(m, p, threshold=threshold))

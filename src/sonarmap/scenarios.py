@@ -100,15 +100,22 @@ class _Plan:
     def __init__(self, grid: Grid) -> None:
         self.grid = grid
         self.occ = np.zeros(grid.shape, dtype=np.float32)
-        self.xc, self.yc = grid.all_centres()
+
+    def _cells(self, x0: float, y0: float, x1: float, y1: float) -> tuple[slice, slice]:
+        # Edges snap to the nearest cell boundary, so a 0.8 m gap at 5 cm is 16 cells
+        # whatever the rounding of its coordinates.
+        g = self.grid
+        c0 = max(0, round((x0 - g.origin[0]) / g.resolution))
+        c1 = min(g.cols, round((x1 - g.origin[0]) / g.resolution))
+        i0 = max(0, round((y0 - g.origin[1]) / g.resolution))
+        i1 = min(g.rows, round((y1 - g.origin[1]) / g.resolution))
+        return slice(g.rows - i1, g.rows - i0), slice(c0, c1)
 
     def box(self, x0: float, y0: float, x1: float, y1: float) -> None:
-        inside = (self.xc >= x0) & (self.xc <= x1) & (self.yc >= y0) & (self.yc <= y1)
-        self.occ[inside] = 1.0
+        self.occ[self._cells(x0, y0, x1, y1)] = 1.0
 
     def clear(self, x0: float, y0: float, x1: float, y1: float) -> None:
-        inside = (self.xc >= x0) & (self.xc <= x1) & (self.yc >= y0) & (self.yc <= y1)
-        self.occ[inside] = 0.0
+        self.occ[self._cells(x0, y0, x1, y1)] = 0.0
 
     def border(self, t: float) -> None:
         xmin, xmax, ymin, ymax = self.grid.extent
@@ -216,40 +223,53 @@ def doorways(
 
 def passages(
     *,
-    widths: Sequence[float] = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8),
+    widths: Sequence[float] = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.2),
     resolution: float = 0.05,
     block: float = 0.6,
-    depth: float = 0.3,
+    depth: float = 0.1,
     offset: float = 1.0,
+    room: float = 2.0,
     speed: float = 0.25,
     rate: float = 10.0,
     noise: Noise | None = None,
     seed: int = 0,
     progress: Progress | None = None,
 ) -> Scenario:
-    """Blocks separated by gaps of increasing width, the robot passing alongside.
+    """Wall segments separated by gaps of increasing width, the robot passing alongside.
 
-    Defaults: gaps of ``widths`` m (0.1 to 0.8 in 0.1 steps) between blocks ``block`` m
-    long (0.6) and ``depth`` m deep (0.3), in a row parallel to the robot's path at
-    ``offset`` m (1.0) to its left; 2 m of free space behind the row, then a wall. The
-    robot drives past the whole row at ``speed`` m/s (0.25) with the ``paper-synthetic``
-    rig at ``rate`` Hz (10). Exact readings by default.
+    Defaults: gaps of ``widths`` m (0.2 to 1.0 in 0.1 steps, and 1.2) between segments
+    ``block`` m long (0.6) and ``depth`` m thick (0.1), in a row parallel to the robot's
+    path at ``offset`` m (1.0) to its left, with a room ``room`` m deep (2.0) behind it
+    that the sonars can see into through the gaps, and a wall the same distance to the
+    right. The robot drives past the whole row at ``speed`` m/s (0.25) with the
+    ``paper-synthetic`` rig at ``rate`` Hz (10). Exact readings by default.
+
+    A gap seen from one side only cannot be confirmed free beyond the near face by a
+    wide beam (it always hits a corner first); a room behind it is what lets the oblique
+    sonars look through, as in the research's corridor.
     """
     _check_positive(
-        resolution=resolution, block=block, depth=depth, offset=offset, speed=speed, rate=rate
+        resolution=resolution,
+        block=block,
+        depth=depth,
+        offset=offset,
+        room=room,
+        speed=speed,
+        rate=rate,
     )
     if not widths or any(w <= 0 for w in widths):
         raise ConfigError("scenario parameter 'widths' must be positive widths")
     wall = 0.1
     length = 1.0 + block + sum(w + block for w in widths) + 1.0
-    x_path = 1.0
+    x_path = wall + offset + 0.2
     x_row = x_path + offset
-    width = x_row + depth + 2.0 + wall
+    width = x_row + depth + room + wall
     grid = Grid.from_bounds(0.0, 0.0, width, length, resolution)
     plan = _Plan(grid)
     plan.border(wall)
+    plan.box(wall, 0, x_path - offset, length)
     y = 1.0
-    plan.box(x_row, y, x_row + depth, y + block)
+    plan.box(x_row, 0, x_row + depth, y + block)
     y += block
     found = []
     for k, w in enumerate(widths):
@@ -257,7 +277,8 @@ def passages(
             Passage(f"gap{k + 1}", (x_row + depth / 2, y), (x_row + depth / 2, y + w), depth)
         )
         y += w
-        plan.box(x_row, y, x_row + depth, y + block)
+        end = length if k == len(widths) - 1 else y + block
+        plan.box(x_row, y, x_row + depth, end)
         y += block
     truth = plan.done()
     rig = get_rig("paper-synthetic")
@@ -270,6 +291,7 @@ def passages(
         "block": block,
         "depth": depth,
         "offset": offset,
+        "room": room,
         "speed": speed,
         "rate": rate,
         "p_rand": nz.p_rand,
@@ -327,7 +349,7 @@ def room_turn(
     plan.box(lo - wall, lo - wall, lo, hi + wall)
     plan.box(hi, lo - wall, hi + wall, hi + wall)
     dx = lo + room * 0.55
-    plan.clear(dx - door_width / 2, hi - 0.01, dx + door_width / 2, hi + wall + 0.01)
+    plan.clear(dx - door_width / 2, hi, dx + door_width / 2, hi + wall)
     truth = plan.done()
     door = Passage(
         "door", (dx - door_width / 2, hi + wall / 2), (dx + door_width / 2, hi + wall / 2), wall

@@ -4,20 +4,29 @@ Adding a method is adding one module here with a :func:`register`-ed subclass of
 :class:`Mapper`, and importing it below.
 """
 
-from . import counting, inverse
+from . import counting, em, gradient, inverse, stochastic
 from ._base import MAPPERS, Mapper, NotFittedError, make_mapper, parse_params, register
 from .counting import CountingMapper
+from .em import EMMapper
+from .gradient import GradientMapper
 from .inverse import InverseMapper
+from .stochastic import StochasticMapper
 
 __all__ = [
     "MAPPERS",
     "CountingMapper",
+    "EMMapper",
+    "GradientMapper",
     "InverseMapper",
     "Mapper",
     "NotFittedError",
+    "StochasticMapper",
     "counting",
+    "em",
+    "gradient",
     "inverse",
     "make_mapper",
     "parse_params",
     "register",
+    "stochastic",
 ]

@@ -50,6 +50,10 @@ class Mapper(ABC):
     """
 
     name: ClassVar[str]
+    #: Whether readings given in several partial_fit calls give exactly the map of one
+    #: fit. Methods that re-optimise a coupled objective warm-start from the previous
+    #: map instead, and end near, not at, the batch optimum.
+    exact_streaming: ClassVar[bool] = False
     #: Readings rasterised at once; bounds the memory of a batch.
     chunk_size: ClassVar[int] = 50_000
 

@@ -35,3 +35,12 @@ def choice(name: str, value: object, options: Sequence[str]) -> str:
     if value not in options:
         raise ConfigError(f"parameter '{name}' must be one of {', '.join(options)}; got {value!r}")
     return str(value)
+
+
+def integer(name: str, value: object, lo: int | None = None) -> int:
+    """``value`` as an int >= ``lo``, or ConfigError."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"parameter '{name}' must be an integer, got {value!r}")
+    if lo is not None and value < lo:
+        raise ConfigError(f"parameter '{name}' must be >= {lo}, got {value!r}")
+    return value

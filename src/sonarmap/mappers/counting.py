@@ -30,6 +30,7 @@ class CountingMapper(Mapper):
     """
 
     name = "counting"
+    exact_streaming = True
     _hits: npt.NDArray[np.int64]
     _seen: npt.NDArray[np.int64]
 

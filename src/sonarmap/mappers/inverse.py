@@ -91,6 +91,7 @@ class InverseMapper(Mapper):
     """
 
     name = "inverse"
+    exact_streaming = True
     _logodds: npt.NDArray[np.float64]
     _touched: npt.NDArray[np.bool_]
 

@@ -1,0 +1,35 @@
+"""Parameter handling shared by the two mappers of Thrun's model."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from ..readings import Readings
+from ._base import Mapper
+from ._thrun import BeamIndex, build_index
+
+
+def model_sigma(mapper: Mapper, sigma: float | None) -> float:
+    """The model's range noise: given, or the sensor's, at least half a cell and the
+    range resolution (a Gaussian narrower than a cell cannot be told apart on the grid)."""
+    if sigma is not None:
+        return sigma
+    s = mapper.sensor
+    return max(mapper.grid.resolution / 2, s.range_resolution, s.noise.sigma)
+
+
+def index_readings(mapper: Mapper, readings: Readings, sigma: float) -> BeamIndex:
+    """Rasterise with a band of 3 sigma and index the result."""
+    fps = [fp for _, fp in mapper._footprints(readings, dr=3.0 * sigma)]
+    r = np.minimum(readings.range, mapper.sensor.r_max)
+    return build_index(fps, np.asarray(r, dtype=np.float64))
+
+
+def scatter(
+    index: BeamIndex, values: npt.NDArray[np.float64], size: int
+) -> npt.NDArray[np.float32]:
+    """Local cell values onto a flat grid, NaN elsewhere."""
+    out = np.full(size, np.nan, dtype=np.float32)
+    out[index.cells] = values
+    return out

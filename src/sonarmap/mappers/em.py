@@ -1,0 +1,289 @@
+"""Expectation maximisation with Thrun's forward sonar model (after Thrun 2003).
+
+The reference peer of the forward-model methods: the same probabilistic sonar model
+as ``stochastic`` (methods.md sections 3-4), the map found by EM over the
+correspondence variables -- which cell, if any, caused each reading -- then a per-cell
+uncertainty.
+
+Our derivation (the paper's full text was not available to us; its abstract and the
+model of methods.md are what this follows): let cell i reflect with probability
+p_hit * m_i, m_i in [0, 1] (for a binary map this is methods.md's model exactly). For a
+reading z, the correspondence c is "random" (probability p_rand, density 1 / r_max),
+"the n-th cell of the beam in distance order" (probability
+(1 - p_rand) p_hit m_n prod_{k<n} (1 - p_hit m_k), density N(z; d_n, sigma)) or
+"max range" (probability (1 - p_rand) prod_k (1 - p_hit m_k), density N(z; r_max, sigma)).
+
+- E-step: the posterior e_t(c) of each reading's correspondence under the current map;
+  for each cell, a_i = expected readings it caused, b_i = expected readings that passed
+  it (caused by something farther, or max range).
+- M-step: each cell maximises a_i log m_i + b_i log(1 - p_hit m_i), so
+  m_i = min(1, a_i / (p_hit (a_i + b_i))).
+
+EM never decreases the likelihood. At convergence the map is binarised at 0.5 and each
+cell's uncertainty is its posterior with every other cell held at that map:
+p(m_i = 1 | Z, m_-i) from the change of sum_t log p(z_t | m) when cell i flips.
+``occupancy_`` holds this posterior; ``em_map_`` the EM estimate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+import numpy.typing as npt
+
+from ..readings import Readings
+from . import _checks
+from ._base import Mapper, Progress, register
+from ._thrun import BeamIndex, flip_delta, init_state
+from ._thrun_common import index_readings, model_sigma, scatter
+
+__all__ = ["EMMapper"]
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+
+@nb.njit(cache=True)
+def _e_step(
+    m: F64,
+    free_off: I64,
+    free_cell: I64,
+    band_off: I64,
+    band_cell: I64,
+    band_dist: F64,
+    z: F64,
+    p_rand: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+) -> tuple[F64, F64, float]:
+    """Expected hits a and passes b per cell, and the log-likelihood of the data."""
+    n_cells = m.shape[0]
+    hit = np.zeros(n_cells)
+    pas = np.zeros(n_cells)
+    log_norm = -math.log(sigma * math.sqrt(2.0 * math.pi))
+    log_rand = math.log(p_rand / r_max) if p_rand > 0 else -np.inf
+    log_keep = math.log(1.0 - p_rand)
+    max_band = 1
+    for i in range(z.shape[0]):
+        max_band = max(max_band, band_off[i + 1] - band_off[i])
+    loge = np.empty(max_band)
+    total_ll = 0.0
+    for i in range(z.shape[0]):
+        log_t = 0.0
+        for j in range(free_off[i], free_off[i + 1]):
+            log_t += math.log1p(-p_hit * m[free_cell[j]])
+        nb_ = band_off[i + 1] - band_off[i]
+        run = log_t
+        for q in range(nb_):
+            j = band_off[i] + q
+            mc = m[band_cell[j]]
+            u = (z[i] - band_dist[j]) / sigma
+            if mc > 0.0:
+                loge[q] = log_keep + log_norm - 0.5 * u * u + math.log(p_hit * mc) + run
+            else:
+                loge[q] = -np.inf
+            run += math.log1p(-p_hit * mc)
+        u = (z[i] - r_max) / sigma
+        log_max = log_keep + log_norm - 0.5 * u * u + run
+        top = max(log_rand, log_max)
+        for q in range(nb_):
+            top = max(top, loge[q])
+        s = math.exp(log_rand - top) + math.exp(log_max - top)
+        for q in range(nb_):
+            s += math.exp(loge[q] - top)
+        log_z = top + math.log(s)
+        total_ll += log_z
+        e_rand = math.exp(log_rand - log_z)
+        e_max = math.exp(log_max - log_z)
+        beyond = e_max
+        for q in range(nb_ - 1, -1, -1):
+            j = band_off[i] + q
+            e = math.exp(loge[q] - log_z)
+            pas[band_cell[j]] += beyond
+            hit[band_cell[j]] += e
+            beyond += e
+        for j in range(free_off[i], free_off[i + 1]):
+            pas[free_cell[j]] += 1.0 - e_rand
+    return hit, pas, total_ll
+
+
+@nb.njit(cache=True)
+def _posterior(
+    occ: npt.NDArray[np.bool_],
+    index_arrays: tuple[I64, I64, I64, I64, F64, I64, I64, npt.NDArray[np.int8], F64],
+    p_rand: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+) -> F64:
+    """log p(Z | m_i = 1, m_-i) - log p(Z | m_i = 0, m_-i) for every cell."""
+    (free_off, free_cell, band_off, band_cell, band_dist, cell_off, cell_reading, cell_kind, z) = (
+        index_arrays
+    )
+    n_before, bsum, loglik = init_state(
+        occ, free_off, free_cell, band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max
+    )
+    max_deg = 1
+    for c in range(occ.shape[0]):
+        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
+    new_ll = np.empty(max_deg)
+    new_b = np.empty(max_deg)
+    out = np.empty(occ.shape[0])
+    for c in range(occ.shape[0]):
+        d = flip_delta(
+            c,
+            occ,
+            n_before,
+            bsum,
+            loglik,
+            new_ll,
+            new_b,
+            cell_off,
+            cell_reading,
+            cell_kind,
+            band_off,
+            band_cell,
+            band_dist,
+            z,
+            p_rand,
+            p_hit,
+            sigma,
+            r_max,
+        )
+        out[c] = -d if occ[c] else d
+    return out
+
+
+@register
+class EMMapper(Mapper):
+    """Maximum-likelihood map by EM over the correspondences of Thrun's sonar model.
+
+    Parameters
+    ----------
+    p_rand : float
+        Outlier probability, in [0, 1) (0.05, thesis 000).
+    p_hit : float
+        Reflection probability of an occupied cell, in (0, 1) (0.75, thesis 000).
+    sigma : float or None
+        Range noise of the model, metres; default the sensor's, at least half a cell and
+        the range resolution.
+    init : float
+        Starting occupancy of every touched cell, in (0, 1].
+    max_iter : int
+        EM iterations at most.
+    tol : float
+        Stop when no cell's occupancy changes by more than this.
+    prior : float
+        Prior occupancy probability used for the final per-cell posterior, in (0, 1).
+
+    Attributes
+    ----------
+    em_map_ : ndarray
+        The EM estimate m (flat, NaN where untouched).
+    loglik_ : list of float
+        Log-likelihood of the data at each iteration (non-decreasing).
+    n_iter_ : int
+    """
+
+    name = "em"
+
+    def __init__(
+        self,
+        *,
+        p_rand: float = 0.05,
+        p_hit: float = 0.75,
+        sigma: float | None = None,
+        init: float = 0.5,
+        max_iter: int = 100,
+        tol: float = 1e-3,
+        prior: float = 0.5,
+    ) -> None:
+        self.p_rand = p_rand
+        self.p_hit = p_hit
+        self.sigma = sigma
+        self.init = init
+        self.max_iter = max_iter
+        self.tol = tol
+        self.prior = prior
+        _checks.number("p_rand", p_rand, 0.0, 1.0, hi_open=True)
+        _checks.number("p_hit", p_hit, 0.0, 1.0, lo_open=True, hi_open=True)
+        if sigma is not None:
+            _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+        _checks.number("init", init, 0.0, 1.0, lo_open=True)
+        _checks.integer("max_iter", max_iter, 1)
+        _checks.number("tol", tol, 0.0, None)
+        _checks.number("prior", prior, 0.0, 1.0, lo_open=True, hi_open=True)
+
+    def _reset(self) -> None:
+        self._batches: list[Readings] = []
+        self._index: BeamIndex | None = None
+        self._m: F64 | None = None
+        self._post: F64 | None = None
+        self.loglik_: list[float] = []
+        self.n_iter_ = 0
+
+    def _add(self, readings: Readings, progress: Progress | None) -> None:
+        self._batches.append(readings)
+        everything = Readings.concat(self._batches)
+        sigma = model_sigma(self, self.sigma)
+        ix = index_readings(self, everything, sigma)
+        r_max = self.sensor.r_max
+        m = np.full(ix.n_cells, self.init)
+        self.loglik_ = []
+        k = 0
+        for k in range(1, self.max_iter + 1):
+            hit, pas, ll = _e_step(
+                m,
+                ix.free_off,
+                ix.free_cell,
+                ix.band_off,
+                ix.band_cell,
+                ix.band_dist,
+                ix.z,
+                self.p_rand,
+                self.p_hit,
+                sigma,
+                r_max,
+            )
+            self.loglik_.append(ll)
+            seen = hit + pas > 0
+            new = m.copy()
+            new[seen] = np.minimum(hit[seen] / (self.p_hit * (hit[seen] + pas[seen])), 1.0)
+            change = float(np.max(np.abs(new - m))) if len(m) else 0.0
+            m = new
+            if progress is not None:
+                progress(k, self.max_iter)
+            if change <= self.tol:
+                break
+        self.n_iter_ = k
+        occ = m >= 0.5
+        arrays = (
+            ix.free_off,
+            ix.free_cell,
+            ix.band_off,
+            ix.band_cell,
+            ix.band_dist,
+            ix.cell_off,
+            ix.cell_reading,
+            ix.cell_kind,
+            ix.z,
+        )
+        log_odds = _posterior(occ, arrays, self.p_rand, self.p_hit, sigma, r_max)
+        log_odds += math.log(self.prior / (1.0 - self.prior))
+        self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))
+        self._m = m
+        self._index = ix
+
+    @property
+    def em_map_(self) -> npt.NDArray[np.float32]:
+        if self._index is None or self._m is None:
+            return np.full(self.grid.size, np.nan, dtype=np.float32)
+        return scatter(self._index, self._m, self.grid.size).reshape(self.grid.shape)
+
+    def _occupancy(self) -> npt.NDArray[np.float32]:
+        if self._index is None or self._post is None:
+            return np.full(self.grid.size, np.nan, dtype=np.float32)
+        return scatter(self._index, self._post, self.grid.size)

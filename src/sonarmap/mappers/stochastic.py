@@ -1,0 +1,320 @@
+"""Thrun's probabilistic forward model solved by random bit flips (Shepelev 2016).
+
+The map is binary. Its score (to maximise) is
+
+    Phi = sum_t log p(z_t | m) + w_occ * (occupied cells) + w_border * sum_i n_i^2,
+
+n_i the number of 4- (or 8-) neighbours whose state differs from cell i (methods.md
+section 3). A random cell among those some beam holds is flipped; the flip is kept if
+Phi grew, otherwise with probability ``p_randomfactor`` (``schedule="greedy"``, the
+thesis' rule) or ``exp(dPhi / T)`` with T falling geometrically from ``t0`` to ``t_end``
+(``schedule="anneal"``). Each flip recomputes only the terms it changes. The search is
+deterministic for a given ``seed``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import ConfigError
+from ..readings import Readings
+from . import _checks
+from ._base import Mapper, Progress, register
+from ._thrun import BeamIndex, apply_flip, flip_delta, init_state
+from ._thrun_common import index_readings, model_sigma, scatter
+
+__all__ = ["StochasticMapper"]
+
+#: The documents' parameter sets: thesis 000 and thesis 002, section 4.5.
+PRESETS: dict[str, dict[str, float]] = {
+    "thesis000": {"p_rand": 0.05, "p_hit": 0.75, "w_occ": -0.05, "w_border": -0.005},
+    "thesis002": {"p_rand": 0.001, "p_hit": 0.35, "w_occ": -0.25, "w_border": -0.05},
+}
+
+
+@nb.njit(cache=True)
+def _border_delta(g: int, full: npt.NDArray[np.bool_], rows: int, cols: int, eight: bool) -> int:
+    """Change of sum n_i^2 over g and its neighbours if grid cell g flips."""
+    r0 = g // cols
+    c0 = g % cols
+    delta = 0
+    for dr in range(-1, 2):
+        for dc in range(-1, 2):
+            r = r0 + dr
+            c = c0 + dc
+            if r < 0 or r >= rows or c < 0 or c >= cols:
+                continue
+            if not eight and dr != 0 and dc != 0:
+                continue
+            h = r * cols + c
+            # n before and after the flip, for cell h (g itself or a neighbour).
+            before = 0
+            after = 0
+            for er in range(-1, 2):
+                for ec in range(-1, 2):
+                    if er == 0 and ec == 0:
+                        continue
+                    if not eight and er != 0 and ec != 0:
+                        continue
+                    rr = r + er
+                    cc = c + ec
+                    if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+                        continue
+                    k = rr * cols + cc
+                    sh = full[h]
+                    sk = full[k]
+                    if sh != sk:
+                        before += 1
+                    sh2 = (not sh) if h == g else sh
+                    sk2 = (not sk) if k == g else sk
+                    if sh2 != sk2:
+                        after += 1
+            delta += after * after - before * before
+    return delta
+
+
+@nb.njit(cache=True)
+def _search(
+    occ: npt.NDArray[np.bool_],
+    full: npt.NDArray[np.bool_],
+    cells: npt.NDArray[np.int64],
+    rows: int,
+    cols: int,
+    eight: bool,
+    free_off: npt.NDArray[np.int64],
+    free_cell: npt.NDArray[np.int64],
+    band_off: npt.NDArray[np.int64],
+    band_cell: npt.NDArray[np.int64],
+    band_dist: npt.NDArray[np.float64],
+    z: npt.NDArray[np.float64],
+    cell_off: npt.NDArray[np.int64],
+    cell_reading: npt.NDArray[np.int64],
+    cell_kind: npt.NDArray[np.int8],
+    p_rand: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+    w_occ: float,
+    w_border: float,
+    n_flips: int,
+    anneal: bool,
+    p_random: float,
+    t0: float,
+    t_end: float,
+    seed: int,
+) -> tuple[int, float]:
+    # numba keeps its own generator per thread; seeding it here makes the search
+    # deterministic. NumPy's Generator objects are not what runs inside the kernel.
+    np.random.seed(seed)  # noqa: NPY002
+    n_before, bsum, loglik = init_state(
+        occ, free_off, free_cell, band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max
+    )
+    max_deg = 0
+    for c in range(cells.shape[0]):
+        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
+    new_ll = np.empty(max(max_deg, 1))
+    new_bsum = np.empty(max(max_deg, 1))
+    accepted = 0
+    n = cells.shape[0]
+    for k in range(n_flips):
+        c = np.random.randint(0, n)  # noqa: NPY002
+        d = flip_delta(
+            c,
+            occ,
+            n_before,
+            bsum,
+            loglik,
+            new_ll,
+            new_bsum,
+            cell_off,
+            cell_reading,
+            cell_kind,
+            band_off,
+            band_cell,
+            band_dist,
+            z,
+            p_rand,
+            p_hit,
+            sigma,
+            r_max,
+        )
+        d += w_occ * (-1.0 if occ[c] else 1.0)
+        if w_border != 0.0:
+            d += w_border * _border_delta(cells[c], full, rows, cols, eight)
+        keep = d > 0.0
+        if not keep:
+            u = np.random.random()  # noqa: NPY002
+            if anneal:
+                t = t0 * (t_end / t0) ** (k / n_flips)
+                keep = u < math.exp(d / t)
+            else:
+                keep = u < p_random
+        if keep:
+            apply_flip(
+                c, occ, n_before, bsum, loglik, new_ll, new_bsum, cell_off, cell_reading, cell_kind
+            )
+            full[cells[c]] = occ[c]
+            accepted += 1
+    return accepted, loglik.sum()
+
+
+@register
+class StochasticMapper(Mapper):
+    """Binary map maximising Thrun's likelihood with shape priors, by random flips.
+
+    Parameters
+    ----------
+    preset : {"thesis000", "thesis002"}
+        Parameter set the unset parameters come from: thesis 000 (p_rand 0.05,
+        p_hit 0.75, w_occ -0.05, w_border -0.005) or thesis 002 (0.001, 0.35, -0.25,
+        -0.05).
+    p_rand, p_hit : float or None
+        Outlier probability in [0, 1) and per-cell reflection probability in (0, 1).
+    w_occ, w_border : float or None
+        Weights of the occupied-cell count and of the border term (<= 0 favours free
+        space and compact obstacles).
+    sigma : float or None
+        Range noise of the model, metres; default the sensor's, at least half a cell and
+        the range resolution.
+    neighbours : {4, 8}
+        Neighbourhood of the border term.
+    sweeps : float
+        Flips proposed, in multiples of the number of candidate cells (30).
+    schedule : {"greedy", "anneal"}
+        Acceptance of flips that do not increase Phi: with ``p_randomfactor``, or by a
+        falling temperature.
+    p_randomfactor : float
+        Probability of keeping a flip that does not increase Phi (greedy), in [0, 1].
+    t0, t_end : float
+        Start and end temperature of ``anneal``.
+    init : {"free", "occupied"}
+        Starting map.
+    seed : int
+        Random seed.
+    """
+
+    name = "stochastic"
+
+    def __init__(
+        self,
+        *,
+        preset: str = "thesis000",
+        p_rand: float | None = None,
+        p_hit: float | None = None,
+        w_occ: float | None = None,
+        w_border: float | None = None,
+        sigma: float | None = None,
+        neighbours: int = 4,
+        sweeps: float = 30.0,
+        schedule: str = "greedy",
+        p_randomfactor: float = 0.0,
+        t0: float = 2.0,
+        t_end: float = 0.01,
+        init: str = "free",
+        seed: int = 0,
+    ) -> None:
+        self.preset = preset
+        self.p_rand = p_rand
+        self.p_hit = p_hit
+        self.w_occ = w_occ
+        self.w_border = w_border
+        self.sigma = sigma
+        self.neighbours = neighbours
+        self.sweeps = sweeps
+        self.schedule = schedule
+        self.p_randomfactor = p_randomfactor
+        self.t0 = t0
+        self.t_end = t_end
+        self.init = init
+        self.seed = seed
+        _checks.choice("preset", preset, tuple(PRESETS))
+        v = self.values()
+        _checks.number("p_rand", v["p_rand"], 0.0, 1.0, hi_open=True)
+        _checks.number("p_hit", v["p_hit"], 0.0, 1.0, lo_open=True, hi_open=True)
+        _checks.number("w_occ", v["w_occ"])
+        _checks.number("w_border", v["w_border"])
+        if sigma is not None:
+            _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+        if neighbours not in (4, 8):
+            raise ConfigError(f"parameter 'neighbours' must be 4 or 8, got {neighbours!r}")
+        _checks.number("sweeps", sweeps, 0.0, None)
+        _checks.choice("schedule", schedule, ("greedy", "anneal"))
+        _checks.number("p_randomfactor", p_randomfactor, 0.0, 1.0)
+        _checks.number("t0", t0, 0.0, None, lo_open=True)
+        _checks.number("t_end", t_end, 0.0, t0, lo_open=True)
+        _checks.choice("init", init, ("free", "occupied"))
+        _checks.integer("seed", seed, 0)
+
+    def values(self) -> dict[str, float]:
+        """The model weights in force: the preset's, overridden by those given."""
+        out = dict(PRESETS[self.preset])
+        for key in out:
+            given = getattr(self, key)
+            if given is not None:
+                out[key] = given
+        return out
+
+    def _reset(self) -> None:
+        self._batches: list[Readings] = []
+        self._occ: npt.NDArray[np.float64] | None = None
+        self._index: BeamIndex | None = None
+        self.accepted_ = 0
+        self.loglik_ = float("nan")
+
+    def _add(self, readings: Readings, progress: Progress | None) -> None:
+        # The score couples every reading; batches accumulate and the search restarts
+        # from the current map.
+        self._batches.append(readings)
+        everything = Readings.concat(self._batches)
+        sigma = model_sigma(self, self.sigma)
+        index = index_readings(self, everything, sigma)
+        full = np.zeros(self.grid.size, dtype=np.bool_)
+        if self._occ is not None and self._index is not None:
+            full[self._index.cells] = self._occ >= 0.5
+        elif self.init == "occupied":
+            full[index.cells] = True
+        occ = full[index.cells].copy()
+        v = self.values()
+        n_flips = round(self.sweeps * index.n_cells)
+        self.accepted_, self.loglik_ = _search(
+            occ,
+            full,
+            index.cells,
+            self.grid.rows,
+            self.grid.cols,
+            self.neighbours == 8,
+            index.free_off,
+            index.free_cell,
+            index.band_off,
+            index.band_cell,
+            index.band_dist,
+            index.z,
+            index.cell_off,
+            index.cell_reading,
+            index.cell_kind,
+            v["p_rand"],
+            v["p_hit"],
+            sigma,
+            self.sensor.r_max,
+            v["w_occ"],
+            v["w_border"],
+            n_flips,
+            self.schedule == "anneal",
+            self.p_randomfactor,
+            self.t0,
+            self.t_end,
+            self.seed,
+        )
+        if progress is not None:
+            progress(len(everything), len(everything))
+        self._occ = occ.astype(np.float64)
+        self._index = index
+
+    def _occupancy(self) -> npt.NDArray[np.float32]:
+        if self._occ is None or self._index is None:
+            return np.full(self.grid.size, np.nan, dtype=np.float32)
+        return scatter(self._index, self._occ, self.grid.size)
