@@ -91,15 +91,17 @@ class Footprint:
 
 
 def default_dr(grid: Grid, sensor: SensorModel) -> float:
-    """Half-width of the Omega_occ band: ``max(h / 2, range resolution)``.
+    """Half-width of the Omega_occ band: ``max(h / 2, range resolution, 2 sigma)``.
 
     methods.md's Decision was ``max(h, range resolution)``. Measured on the ``doorways``,
     ``passages`` and ``room-turn`` scenes, the half-cell band raises the F1 of occupied
     cells of the inverse, counting and gradient maps alike and narrows the passages they
     detect (see the README); h / 2 is the largest error of a distance measured to a
     cell centre, and the range resolution bounds what the sensor itself can tell apart.
+    ``sigma`` is the sensor model's range noise: a band narrower than the noise lets the
+    Omega_free of long readings erase the obstacles that shorter ones found.
     """
-    return max(grid.resolution / 2, sensor.range_resolution)
+    return max(grid.resolution / 2, sensor.range_resolution, 2.0 * sensor.noise.sigma)
 
 
 def _pack_zones(

@@ -134,6 +134,12 @@ def _check_positive(**values: float) -> None:
             raise ConfigError(f"scenario parameter '{k}' must be > 0, got {v}")
 
 
+def _with_noise(rig: Rig, noise: Noise) -> Rig:
+    """The rig with its sensor model stating the simulation's noise, as a calibrated
+    sensor file would: mappers take their default band and model noise from it."""
+    return replace(rig, sensor=replace(rig.sensor, noise=noise))
+
+
 def _straight(x: float, y0: float, y1: float, speed: float, rate: float) -> Trajectory:
     n = math.floor((y1 - y0) / speed * rate) + 1
     t = np.arange(n) / rate
@@ -201,9 +207,9 @@ def doorways(
             )
         )
     truth = plan.done()
-    rig = get_rig("paper-synthetic")
-    traj = _straight(cx, 0.5, size - 0.5, speed, rate)
     nz = noise if noise is not None else Noise(0.0, 1.0, 0.0)
+    rig = _with_noise(get_rig("paper-synthetic"), nz)
+    traj = _straight(cx, 0.5, size - 0.5, speed, rate)
     readings = simulate(truth, rig, traj, noise=nz, seed=seed, progress=progress)
     params = {
         "size": size,
@@ -281,9 +287,9 @@ def passages(
         plan.box(x_row, y, x_row + depth, end)
         y += block
     truth = plan.done()
-    rig = get_rig("paper-synthetic")
-    traj = _straight(x_path, 0.5, length - 0.5, speed, rate)
     nz = noise if noise is not None else Noise(0.0, 1.0, 0.0)
+    rig = _with_noise(get_rig("paper-synthetic"), nz)
+    traj = _straight(x_path, 0.5, length - 0.5, speed, rate)
     readings = simulate(truth, rig, traj, noise=nz, seed=seed, progress=progress)
     params = {
         "widths": list(widths),
@@ -363,7 +369,8 @@ def room_turn(
     traj = Trajectory(
         t, np.full(n, lo + room * 0.45), np.full(n, lo + room * 0.4), np.angle(np.exp(1j * angle))
     )
-    rig = get_rig("paper-real")
+    nz = noise if noise is not None else Noise(0.05, 0.9, 0.01)
+    rig = _with_noise(get_rig("paper-real"), nz)
     rng = np.random.default_rng(seed + 7919)
     actual = replace(
         rig,
@@ -372,7 +379,6 @@ def room_turn(
             for m in rig.mounts
         ),
     )
-    nz = noise if noise is not None else Noise(0.05, 0.9, 0.01)
     readings = simulate(truth, actual, traj, noise=nz, seed=seed, progress=progress)
     # The recorded poses are those the nominal mounting gives, as a real robot would log.
     sx, sy, st = (a.reshape(-1) for a in rig.sensor_poses(traj.x, traj.y, traj.theta))

@@ -19,7 +19,8 @@ reading z, the correspondence c is "random" (probability p_rand, density 1 / r_m
 - M-step: each cell maximises a_i log m_i + b_i log(1 - p_hit m_i), so
   m_i = min(1, a_i / (p_hit (a_i + b_i))).
 
-EM never decreases the likelihood. At convergence the map is binarised at 0.5 and each
+EM never decreases the likelihood; it starts from the inverse mapper's map (see
+``init``). At convergence the map is binarised at 0.5 and each
 cell's uncertainty is its posterior with every other cell held at that map:
 p(m_i = 1 | Z, m_-i) from the change of sum_t log p(z_t | m) when cell i flips.
 ``occupancy_`` holds this posterior; ``em_map_`` the EM estimate.
@@ -170,8 +171,11 @@ class EMMapper(Mapper):
     sigma : float or None
         Range noise of the model, metres; default the sensor's, at least half a cell and
         the range resolution.
-    init : float
-        Starting occupancy of every touched cell, in (0, 1].
+    init : {"inverse", "uniform"}
+        Starting map: the inverse mapper's map binarised (occupied cells at 0.9, the rest
+        at 0.01) or every touched cell at ``init_value``.
+    init_value : float
+        Starting occupancy for ``init="uniform"``, in (0, 1].
     max_iter : int
         EM iterations at most.
     tol : float
@@ -196,7 +200,8 @@ class EMMapper(Mapper):
         p_rand: float = 0.05,
         p_hit: float = 0.75,
         sigma: float | None = None,
-        init: float = 0.5,
+        init: str = "inverse",
+        init_value: float = 0.5,
         max_iter: int = 100,
         tol: float = 1e-3,
         prior: float = 0.5,
@@ -205,6 +210,7 @@ class EMMapper(Mapper):
         self.p_hit = p_hit
         self.sigma = sigma
         self.init = init
+        self.init_value = init_value
         self.max_iter = max_iter
         self.tol = tol
         self.prior = prior
@@ -212,7 +218,8 @@ class EMMapper(Mapper):
         _checks.number("p_hit", p_hit, 0.0, 1.0, lo_open=True, hi_open=True)
         if sigma is not None:
             _checks.number("sigma", sigma, 0.0, None, lo_open=True)
-        _checks.number("init", init, 0.0, 1.0, lo_open=True)
+        _checks.choice("init", init, ("inverse", "uniform"))
+        _checks.number("init_value", init_value, 0.0, 1.0, lo_open=True)
         _checks.integer("max_iter", max_iter, 1)
         _checks.number("tol", tol, 0.0, None)
         _checks.number("prior", prior, 0.0, 1.0, lo_open=True, hi_open=True)
@@ -231,7 +238,7 @@ class EMMapper(Mapper):
         sigma = model_sigma(self, self.sigma)
         ix = index_readings(self, everything, sigma)
         r_max = self.sensor.r_max
-        m = np.full(ix.n_cells, self.init)
+        m = self._start(everything, ix)
         self.loglik_ = []
         k = 0
         for k in range(1, self.max_iter + 1):
@@ -276,6 +283,22 @@ class EMMapper(Mapper):
         self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))
         self._m = m
         self._index = ix
+
+    def _start(self, readings: Readings, ix: BeamIndex) -> F64:
+        """The starting map.
+
+        In the relaxed model a touched cell at m reflects with probability p_hit * m, so
+        a long beam through many cells at 0.5 is nearly impossible and EM would blame
+        every long or no-echo reading on the random component, a fixed point it never
+        leaves. Starting from a mostly free map avoids that.
+        """
+        if self.init == "uniform":
+            return np.full(ix.n_cells, self.init_value)
+        from .inverse import InverseMapper
+
+        inv = InverseMapper().fit(readings, self.grid, self.sensor).occupancy_.ravel()
+        start = inv[ix.cells]
+        return np.where(np.nan_to_num(start, nan=0.0) >= 0.5, 0.9, 0.01)
 
     @property
     def em_map_(self) -> npt.NDArray[np.float32]:

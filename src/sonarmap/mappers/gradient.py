@@ -61,8 +61,8 @@ class GradientMapper(Mapper):
         Weights of the box regulariser R1 and the tent R2, >= 0 (5, 1).
     solver : {"gd", "pgd", "lbfgs", "ccp"}
         See the module notes.
-    step : float
-        Step size of ``gd`` and initial step of ``pgd``.
+    step : float or None
+        Step of ``gd`` (default 0.02) and initial step of ``pgd`` (default 0.05).
     max_iter : int
         Iteration limit (gradient steps; LP solves for ``ccp``).
     tol : float
@@ -94,10 +94,10 @@ class GradientMapper(Mapper):
         c1: float = 5.0,
         c2: float = 1.0,
         solver: str = "pgd",
-        step: float = 0.02,
+        step: float | None = None,
         max_iter: int = 3000,
         tol: float = 1e-4,
-        patience: int = 100,
+        patience: int = 30,
         no_echo: str = "free",
         dr: float | None = None,
     ) -> None:
@@ -117,7 +117,8 @@ class GradientMapper(Mapper):
         _checks.number("c1", c1, 0.0, None)
         _checks.number("c2", c2, 0.0, None)
         _checks.choice("solver", solver, SOLVERS)
-        _checks.number("step", step, 0.0, None, lo_open=True)
+        if step is not None:
+            _checks.number("step", step, 0.0, None, lo_open=True)
         _checks.integer("max_iter", max_iter, 1)
         _checks.number("tol", tol, 0.0, None)
         _checks.integer("patience", patience, 1)
@@ -192,6 +193,11 @@ def _stalled(history: list[float], tol: float, patience: int) -> bool:
     return best_now > best_then - tol * max(abs(best_then), 1.0)
 
 
+#: Default steps, measured on the doorways and passages scenes: 0.002-0.02 give gd the
+#: same maps; pgd keeps them with 0.05-0.1 and stops soonest at 0.05.
+STEP = {"gd": 0.02, "pgd": 0.05}
+
+
 def _descend(
     p: ForwardProblem, x: F64, m: GradientMapper, progress: Progress | None, projected: bool
 ) -> tuple[F64, int, list[float]]:
@@ -200,6 +206,7 @@ def _descend(
     A subgradient method does not decrease the objective monotonically, so the best
     iterate is kept and the run stops when the best has stalled.
     """
+    step = m.step if m.step is not None else STEP["pgd" if projected else "gd"]
     if projected:
         x = np.clip(x, 0.0, 1.0)
     best, best_x = p.value(x), x.copy()
@@ -207,7 +214,7 @@ def _descend(
     k = 0
     for k in range(1, m.max_iter + 1):
         g = p.grad(x, box=not projected)
-        x = np.clip(x - m.step / np.sqrt(k) * g, 0.0, 1.0) if projected else x - m.step * g
+        x = np.clip(x - step / np.sqrt(k) * g, 0.0, 1.0) if projected else x - step * g
         v = p.value(x)
         history.append(v)
         if v < best:

@@ -1,0 +1,142 @@
+"""Forward-model mappers: their objective, solvers, determinism and parameter checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import ConfigError
+from sonarmap.mappers import make_mapper
+from sonarmap.mappers._forward import ForwardProblem
+from sonarmap.mappers.em import EMMapper
+from sonarmap.mappers.gradient import GradientMapper
+from sonarmap.mappers.stochastic import StochasticMapper
+from sonarmap.readings import Readings
+from sonarmap.scenarios import Scenario, make_scenario
+
+
+@pytest.fixture(scope="module")
+def small() -> Scenario:
+    """A short corridor: few readings, fast to solve every way."""
+    return make_scenario("doorways", size=4.0, corridor_width=1.6, door_widths=(0.8,), speed=0.5)
+
+
+def problem(scene: Scenario) -> ForwardProblem:
+    m = GradientMapper().start(scene.truth.grid, scene.rig)
+    return m.problem(scene.readings)
+
+
+def test_objective_pieces(small: Scenario) -> None:
+    p = problem(small)
+    assert p.n_terms > 0
+    assert p.n_cells > 0
+    # Normalised rows: every term's weights sum to 1.
+    np.testing.assert_allclose(np.asarray(p.W.sum(axis=1)).ravel(), 1.0)
+    # P_free(1) = 1 and P_occ(1) = 0 where X0 < 1, as the notes require.
+    ok = p.X0 < 1
+    vals = p.term_values(np.ones(p.n_terms))
+    np.testing.assert_allclose(vals[ok & ~p.is_occ], 1.0)
+    np.testing.assert_allclose(vals[ok & p.is_occ], 0.0, atol=1e-12)
+    # Continuity at X0.
+    below, above = p.slopes()
+    x0 = p.X0
+    left = p.term_values(x0 - 1e-9)
+    right = p.term_values(x0 + 1e-9)
+    np.testing.assert_allclose(left, right, atol=1e-6)
+    assert np.all(below[~p.is_occ] > 0)
+    assert np.all(above[p.is_occ] < 0)
+
+
+def test_gradient_matches_finite_differences(small: Scenario) -> None:
+    p = problem(small)
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0.05, 0.95, p.n_cells)
+    g = p.grad(x)
+    for j in rng.choice(p.n_cells, 10, replace=False):
+        e = np.zeros(p.n_cells)
+        e[j] = 1e-7
+        fd = (p.value(x + e) - p.value(x - e)) / 2e-7
+        assert g[j] == pytest.approx(fd, rel=1e-3, abs=1e-3)
+
+
+@pytest.mark.parametrize("solver", ["gd", "pgd", "lbfgs", "ccp"])
+def test_every_solver_lowers_the_objective_and_opens_the_door(small: Scenario, solver: str) -> None:
+    m = GradientMapper(solver=solver).fit(small.readings, small.truth.grid, small.rig)
+    start = problem(small).value(np.full(problem(small).n_cells, 0.5))
+    assert m.objective_ < start
+    from sonarmap.metrics import passage_open
+
+    assert passage_open(m.result(), small.passages[0])
+
+
+def test_untouched_cells_stay_unknown(small: Scenario) -> None:
+    occ = make_mapper("gradient").fit(small.readings, small.truth.grid, small.rig).occupancy_
+    p = problem(small)
+    known = np.isfinite(occ).ravel()
+    assert set(np.flatnonzero(known).tolist()) == set(p.cells.tolist())
+
+
+def test_em_likelihood_never_decreases(small: Scenario) -> None:
+    m = EMMapper(max_iter=40, tol=0.0).fit(small.readings, small.truth.grid, small.rig)
+    ll = np.array(m.loglik_)
+    assert len(ll) == 40
+    assert np.all(np.diff(ll) >= -1e-6 * np.abs(ll[:-1]))
+    post = m.occupancy_[np.isfinite(m.occupancy_)]
+    assert np.all((post >= 0) & (post <= 1))
+
+
+def test_stochastic_is_deterministic_with_a_seed(small: Scenario) -> None:
+    def run(seed: int) -> np.ndarray:
+        m = make_mapper("stochastic", seed=seed, schedule="anneal", sweeps=5)
+        return m.fit(small.readings, small.truth.grid, small.rig).occupancy_
+
+    a, b, c = run(1), run(1), run(2)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(np.nan_to_num(a), np.nan_to_num(c))
+
+
+def test_stochastic_presets() -> None:
+    assert StochasticMapper().values() == {
+        "p_rand": 0.05,
+        "p_hit": 0.75,
+        "w_occ": -0.05,
+        "w_border": -0.005,
+    }
+    v = StochasticMapper(preset="thesis002", w_occ=-0.1).values()
+    assert v == {"p_rand": 0.001, "p_hit": 0.35, "w_occ": -0.1, "w_border": -0.05}
+
+
+def test_no_echo_readings_only_clear(small: Scenario) -> None:
+    r = small.readings
+    far = Readings(
+        r.t, r.sensor, r.x, r.y, r.theta, np.full(len(r), small.rig.sensor.r_max), r.names
+    )
+    for method in ("gradient", "stochastic", "em"):
+        occ = make_mapper(method).fit(far, small.truth.grid, small.rig).occupancy_
+        assert np.nanmax(occ) < 0.5, method
+
+
+@pytest.mark.parametrize(
+    ("method", "params", "match"),
+    [
+        ("gradient", {"a1": 1.0}, r"parameter 'a1' must be in \(0.0, 1.0\)"),
+        ("gradient", {"a2": -0.01}, r"parameter 'a2' must be in \(0.0, 1.0\)"),
+        ("gradient", {"c1": -5.0}, r"parameter 'c1' must be in \[0.0, inf\]"),
+        ("gradient", {"solver": "adam"}, r"parameter 'solver' must be one of gd, pgd, lbfgs"),
+        ("gradient", {"max_iter": 0}, r"parameter 'max_iter' must be >= 1"),
+        ("gradient", {"step": 0.0}, r"parameter 'step' must be in \(0.0, inf\]"),
+        ("stochastic", {"p_hit": 1.0}, r"parameter 'p_hit' must be in \(0.0, 1.0\)"),
+        ("stochastic", {"p_rand": 1.0}, r"parameter 'p_rand' must be in \[0.0, 1.0\)"),
+        ("stochastic", {"preset": "thesis999"}, r"parameter 'preset' must be one of"),
+        ("stochastic", {"neighbours": 6}, r"parameter 'neighbours' must be 4 or 8"),
+        ("stochastic", {"t_end": 5.0}, r"parameter 't_end' must be in \(0.0, 2.0\]"),
+        ("stochastic", {"seed": -1}, r"parameter 'seed' must be >= 0"),
+        ("em", {"p_hit": 0.0}, r"parameter 'p_hit' must be in \(0.0, 1.0\)"),
+        ("em", {"init": "guess"}, r"parameter 'init' must be one of inverse, uniform"),
+        ("em", {"init_value": 0.0}, r"parameter 'init_value' must be in \(0.0, 1.0\]"),
+        ("em", {"sigma": -0.1}, r"parameter 'sigma' must be in \(0.0, inf\]"),
+    ],
+)
+def test_parameter_ranges(method: str, params: dict[str, object], match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        make_mapper(method, **params)
