@@ -23,11 +23,21 @@ from rich.table import Table
 
 from sonarmap.grid import Grid
 from sonarmap.mappers import Mapper, make_mapper
+from sonarmap.mappers.gradient import GradientMapper
+from sonarmap.mappers.stochastic import StochasticMapper
 from sonarmap.raster import Footprint, rasterise
 from sonarmap.readings import Readings
 from sonarmap.rig import get_rig
 from sonarmap.scenarios import make_scenario
 from sonarmap.sensors import SensorModel, get_sensor
+
+
+def _si(v: float) -> str:
+    """A rate with a k / M / G prefix."""
+    for factor, prefix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if v >= factor:
+            return f"{v / factor:.2f} {prefix}"
+    return f"{v:.2f}"
 
 
 def best_of(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
@@ -130,35 +140,140 @@ def bench_inverse(repeat: int) -> list[dict[str, Any]]:
     return rows
 
 
+def copy_bandwidth(repeat: int) -> float:
+    """Bytes per second of a streaming copy of 256 MB (read + write counted)."""
+    src = np.ones(32 * 1024 * 1024)
+    dst = np.empty_like(src)
+    t, _ = best_of(lambda: np.copyto(dst, src), max(repeat, 3))
+    return 2 * src.nbytes / t
+
+
+def bench_forward(repeat: int, bandwidth: float) -> list[dict[str, Any]]:
+    rows: list[dict[str, Any]] = []
+    scen = make_scenario("doorways")
+    grid, rig, rd = scen.truth.grid, scen.rig, scen.readings
+    for solver in ("pgd", "gd", "lbfgs"):
+        mapper = make_mapper("gradient", solver=solver)
+
+        def fit(mapper: Mapper = mapper) -> Mapper:
+            return mapper.fit(rd, grid, rig)
+
+        t, _ = best_of(fit, repeat)
+        rows.append(
+            {
+                "benchmark": f"gradient ({solver}) on doorways, 5 cm",
+                "n": len(rd),
+                "entries": 0,
+                "seconds": t,
+                "rate": 1.0 / t,
+                "unit": "maps/s",
+            }
+        )
+    problem = GradientMapper().start(grid, rig).problem(rd)
+    x = np.full(problem.n_cells, 0.5)
+    y = np.ones(problem.n_terms)
+    n_prod = 200
+
+    def products() -> None:
+        for _ in range(n_prod // 2):
+            problem.W @ x
+            problem.WT @ y
+
+    t, _ = best_of(products, repeat)
+    nnz = problem.W.nnz
+    # Per product: CSR values (8 B) and column indices (4 B) per entry, the row pointer,
+    # the gathered input (8 B per entry at worst) and the output vector.
+    moved = 20 * nnz + 8 * (problem.n_terms + problem.n_cells) + 8 * problem.n_terms
+    rate = n_prod / t
+    rows.append(
+        {
+            "benchmark": "gradient sparse products (W x, W^T y)",
+            "n": nnz,
+            "entries": nnz,
+            "seconds": t / n_prod,
+            "rate": rate,
+            "unit": "products/s",
+            "bandwidth_fraction": rate * moved / bandwidth,
+        }
+    )
+    for res in (0.1, 0.05):
+        sc = make_scenario("doorways", resolution=res)
+        sm = make_mapper("stochastic")
+
+        def search(sm: Mapper = sm, sc: Any = sc) -> Mapper:
+            return sm.fit(sc.readings, sc.truth.grid, sc.rig)
+
+        t, fitted = best_of(search, repeat)
+        assert isinstance(fitted, StochasticMapper)
+        assert fitted._index is not None
+        flips = round(fitted.sweeps * fitted._index.n_cells)
+        rows.append(
+            {
+                "benchmark": f"stochastic on doorways, {res * 100:g} cm",
+                "n": flips,
+                "entries": 0,
+                "seconds": t,
+                "rate": flips / t,
+                "unit": "flips/s",
+            }
+        )
+    em = make_mapper("em")
+
+    def run_em() -> Mapper:
+        return em.fit(rd, grid, rig)
+
+    t, _ = best_of(run_em, repeat)
+    rows.append(
+        {
+            "benchmark": "em on doorways, 5 cm",
+            "n": len(rd),
+            "entries": 0,
+            "seconds": t,
+            "rate": 1.0 / t,
+            "unit": "maps/s",
+        }
+    )
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--json", help="Also write the results to this JSON file.")
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
+    bandwidth = copy_bandwidth(args.repeat)
     rows = bench_raster(args.repeat) + bench_inverse(args.repeat)
+    rows += bench_forward(args.repeat, bandwidth)
     table = Table(
         "benchmark",
         "items",
         "cell entries",
         "best time [s]",
         "rate",
-        title=f"sonarmap benchmarks (one core; {platform.processor() or platform.machine()})",
+        title=f"sonarmap benchmarks (one core; {platform.machine()})",
     )
     for row in rows:
         extra = ""
         if "cell_updates_per_s" in row:
-            extra = f" ({row['cell_updates_per_s'] / 1e6:.1f} M cell updates/s)"
+            extra = f" ({_si(row['cell_updates_per_s'])} cell updates/s)"
+        if "bandwidth_fraction" in row:
+            extra = f" ({100 * row['bandwidth_fraction']:.0f} % of copy bandwidth)"
         table.add_row(
             row["benchmark"],
-            str(row["n"]),
-            f"{row['entries']:,}",
-            f"{row['seconds']:.4f}",
-            f"{row['rate'] / 1e6:.2f} M {row['unit']}{extra}",
+            f"{row['n']:,}",
+            f"{row['entries']:,}" if row["entries"] else "-",
+            f"{row['seconds']:.4g}",
+            f"{_si(row['rate'])} {row['unit']}{extra}",
         )
-    Console().print(table)
+    Console(width=150).print(table)
+    Console(width=150).print(f"streaming copy bandwidth: {bandwidth / 1e9:.1f} GB/s")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"machine": platform.platform(), "results": rows}, f, indent=2)
+            json.dump(
+                {"machine": platform.platform(), "copy_bandwidth": bandwidth, "results": rows},
+                f,
+                indent=2,
+            )
 
 
 if __name__ == "__main__":
