@@ -87,7 +87,7 @@ def test_negate_scale_raw_and_colour(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("text", "match"),
     [
-        ("image: m.pgm\nresolution: [\n", "not valid YAML at line"),
+        ("image: m.pgm\nresolution: [\n", r"not valid YAML \(.* at line 3\)"),
         ("image: m.pgm\norigin: [0, 0, 0]\n", "field 'resolution': missing key"),
         ("image: m.pgm\nresolution: -1\norigin: [0, 0, 0]\n", "field 'resolution': must be > 0"),
         ("image: m.pgm\nresolution: 0.1\norigin: [0]\n", "field 'origin': expected"),

@@ -24,7 +24,8 @@ import numpy.typing as npt
 import yaml
 
 from .errors import ConfigError, InputError
-from .sensors import SensorModel, _number, _yaml_problem, get_sensor, sensor_from_dict
+from .io._yaml import read_yaml
+from .sensors import SensorModel, _number, get_sensor, sensor_from_dict
 
 __all__ = ["RIG_PRESETS", "Mount", "Rig", "get_rig", "load_rig", "save_rig"]
 
@@ -159,12 +160,7 @@ def load_rig(path: str | Path) -> Rig:
     p = Path(path)
     if str(path) in RIG_PRESETS and not p.exists():
         return get_rig(str(path))
-    try:
-        data = yaml.safe_load(p.read_text())
-    except OSError as err:
-        raise InputError(f"cannot read rig file ({err.strerror})", path=p) from err
-    except yaml.YAMLError as err:
-        raise InputError(f"not valid YAML ({_yaml_problem(err)})", path=p) from err
+    data = read_yaml(p, "rig file")
     try:
         return rig_from_dict(data, base_dir=p.parent)
     except ConfigError as err:

@@ -426,14 +426,10 @@ def make_scenario(name: str, **params: Any) -> Scenario:
 def load_passages(path: str | Path) -> tuple[Passage, ...]:
     """Passages from a scenario's ``annotations.yaml``."""
     from .errors import InputError
+    from .io._yaml import read_yaml
 
     p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text())
-    except OSError as err:
-        raise InputError(f"cannot read annotations ({err.strerror})", path=p) from err
-    except yaml.YAMLError as err:
-        raise InputError("not valid YAML", path=p) from err
+    data = read_yaml(p, "annotations")
     items = (data or {}).get("passages", []) if isinstance(data, dict) else None
     if not isinstance(items, list):
         raise InputError("expected a list under 'passages'", path=p, field="passages")

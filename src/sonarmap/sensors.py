@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import yaml
 
 from .errors import ConfigError, InputError
 
@@ -457,20 +456,11 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
 
 def load_sensor(path: str | Path) -> SensorModel:
     """Read a sensor model from a YAML file (see :func:`sensor_from_dict`)."""
+    from .io._yaml import read_yaml
+
     p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text())
-    except OSError as err:
-        raise InputError(f"cannot read file ({err.strerror})", path=p) from err
-    except yaml.YAMLError as err:
-        raise InputError(f"not valid YAML ({_yaml_problem(err)})", path=p) from err
+    data = read_yaml(p)
     try:
         return sensor_from_dict(data)
     except ConfigError as err:
         raise InputError(str(err), path=p) from err
-
-
-def _yaml_problem(err: yaml.YAMLError) -> str:
-    mark = getattr(err, "problem_mark", None)
-    problem = getattr(err, "problem", None) or type(err).__name__
-    return f"{problem} at line {mark.line + 1}" if mark is not None else str(problem)

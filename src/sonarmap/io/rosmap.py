@@ -28,6 +28,7 @@ from PIL import Image, UnidentifiedImageError
 from ..errors import InputError
 from ..grid import Grid
 from ._atomic import atomic_outputs
+from ._yaml import read_yaml
 
 __all__ = ["OccupancyMap", "read_map", "write_map"]
 
@@ -103,14 +104,7 @@ def read_map(path: str | Path) -> OccupancyMap:
         values above 100 unknown.
     """
     p = Path(path)
-    try:
-        meta = yaml.safe_load(p.read_text())
-    except OSError as err:
-        raise InputError(f"cannot read map file ({err.strerror})", path=p) from err
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise InputError(f"not valid YAML{where}", path=p) from err
+    meta = read_yaml(p, "map file")
     if not isinstance(meta, Mapping):
         raise InputError("expected a YAML mapping with image, resolution and origin", path=p)
     image_name = _key(meta, "image", p)

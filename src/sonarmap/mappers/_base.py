@@ -84,6 +84,7 @@ class Mapper(ABC):
         """Begin a new map on ``grid`` for readings of ``sensor``."""
         self._grid = grid
         self._sensor = sensor.sensor if isinstance(sensor, Rig) else sensor
+        self._batches: list[Readings] = []
         self._reset()
         return self
 
@@ -169,6 +170,15 @@ class Mapper(ABC):
             yield a, fp
             if progress is not None:
                 progress(b, n)
+
+    def _accumulate(self, readings: Readings) -> Readings:
+        """Keep ``readings`` with the earlier batches and return them all.
+
+        For methods whose objective couples every reading: each partial_fit re-solves
+        over everything seen, warm-started from the current map.
+        """
+        self._batches.append(readings)
+        return Readings.concat(self._batches)
 
     def _check_ranges(self, readings: Readings) -> None:
         r = readings.range

@@ -225,7 +225,6 @@ class EMMapper(Mapper):
         _checks.number("prior", prior, 0.0, 1.0, lo_open=True, hi_open=True)
 
     def _reset(self) -> None:
-        self._batches: list[Readings] = []
         self._index: BeamIndex | None = None
         self._m: F64 | None = None
         self._post: F64 | None = None
@@ -233,12 +232,11 @@ class EMMapper(Mapper):
         self.n_iter_ = 0
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
-        self._batches.append(readings)
-        everything = Readings.concat(self._batches)
+        everything = self._accumulate(readings)
         sigma = model_sigma(self, self.sigma)
         ix = index_readings(self, everything, sigma)
         r_max = self.sensor.r_max
-        m = self._start(everything, ix)
+        m = self._initial_map(everything, ix)
         self.loglik_ = []
         k = 0
         for k in range(1, self.max_iter + 1):
@@ -284,7 +282,7 @@ class EMMapper(Mapper):
         self._m = m
         self._index = ix
 
-    def _start(self, readings: Readings, ix: BeamIndex) -> F64:
+    def _initial_map(self, readings: Readings, ix: BeamIndex) -> F64:
         """The starting map.
 
         In the relaxed model a touched cell at m reflects with probability p_hit * m, so

@@ -129,7 +129,6 @@ class GradientMapper(Mapper):
     # The objective couples all readings, so batches are kept and the map re-solved,
     # warm-started from the previous solution.
     def _reset(self) -> None:
-        self._batches: list[Readings] = []
         self._x: F64 | None = None
         self._cells: npt.NDArray[np.int64] = np.empty(0, np.int64)
         self.objective_ = float("nan")
@@ -137,8 +136,7 @@ class GradientMapper(Mapper):
         self.history_: list[float] = []
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
-        self._batches.append(readings)
-        everything = Readings.concat(self._batches)
+        everything = self._accumulate(readings)
         problem = self.problem(everything)
         x = np.full(problem.n_cells, 0.5)
         if self._x is not None:

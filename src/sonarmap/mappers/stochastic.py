@@ -261,7 +261,6 @@ class StochasticMapper(Mapper):
         return out
 
     def _reset(self) -> None:
-        self._batches: list[Readings] = []
         self._occ: npt.NDArray[np.float64] | None = None
         self._index: BeamIndex | None = None
         self.accepted_ = 0
@@ -270,8 +269,7 @@ class StochasticMapper(Mapper):
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         # The score couples every reading; batches accumulate and the search restarts
         # from the current map.
-        self._batches.append(readings)
-        everything = Readings.concat(self._batches)
+        everything = self._accumulate(readings)
         sigma = model_sigma(self, self.sigma)
         index = index_readings(self, everything, sigma)
         full = np.zeros(self.grid.size, dtype=np.bool_)
