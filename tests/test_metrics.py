@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -61,3 +63,51 @@ def test_grids_must_match() -> None:
     b = OccupancyMap(Grid(0.1, (0, 0), (2, 3)), np.zeros((2, 3), np.float32))
     with pytest.raises(InputError, match="differs from the truth grid"):
         score(a, b)
+
+
+def test_distances_both_ways() -> None:
+    grid = Grid(0.1, (0.0, 0.0), (1, 10))
+    truth = OccupancyMap(grid, np.array([[0, 0, 1, 0, 0, 0, 0, 0, 0, 0]], np.float32))
+    # One recovered obstacle 0.3 m off, the true one missed; the rest observed free.
+    m = OccupancyMap(grid, np.array([[0, 0, 0, 0, 0, 1, 0, 0, 0, np.nan]], np.float32))
+    s = score(truth, m)
+    assert s.dist_to_truth == pytest.approx(0.3)
+    assert s.dist_from_truth == pytest.approx(0.3)
+    assert s.recall == 0.0
+    assert s.recall_all == 0.0
+    assert s.accuracy_all == pytest.approx(0.8)
+
+
+def test_small_obstacle_size(small_passages: Scenario) -> None:
+    from sonarmap.metrics import measure_obstacle
+
+    truth = small_passages.truth
+    for o in small_passages.obstacles:
+        r = measure_obstacle(truth, o)
+        assert r.found
+        assert r.size == pytest.approx(o.size)
+    # Grow one post by a cell each way: its size error is two cells.
+    o = small_passages.obstacles[1]
+    occ = truth.occupancy.copy()
+    xc, yc = truth.grid.all_centres()
+    near = (np.abs(xc - o.centre[0]) <= o.size / 2 + 0.05) & (
+        np.abs(yc - o.centre[1]) <= o.size / 2 + 0.05
+    )
+    occ[near] = 1.0
+    grown = measure_obstacle(OccupancyMap(truth.grid, occ), o)
+    assert grown.size == pytest.approx(o.size + 0.1)
+    empty = OccupancyMap(truth.grid, np.zeros_like(occ))
+    assert not measure_obstacle(empty, o).found
+
+
+def test_annotations_round_trip(tmp_path: Path, small_passages: Scenario) -> None:
+    from sonarmap.scenarios import load_annotations
+
+    small_passages.write(tmp_path)
+    passages, posts = load_annotations(tmp_path / "annotations.yaml")
+    assert [p.name for p in passages] == [p.name for p in small_passages.passages]
+    assert passages[0].width == pytest.approx(small_passages.passages[0].width)
+    assert posts == small_passages.obstacles
+    (tmp_path / "bad.yaml").write_text("passages:\n  - {name: x, a: [0, 0]}\n")
+    with pytest.raises(InputError, match=r"bad.yaml, field 'passages\[0\]': bad passage"):
+        load_annotations(tmp_path / "bad.yaml")

@@ -10,7 +10,7 @@ from .errors import ConfigError, InputError, SonarmapError
 from .grid import Grid
 from .io.rosmap import OccupancyMap, read_map, write_map
 from .mappers import MAPPERS, Mapper, make_mapper
-from .metrics import MapScore, passage_open, score
+from .metrics import MapScore, measure_obstacle, measure_passage, passage_open, score
 from .raster import CellSet, Footprint, beam_cells, rasterise
 from .readings import (
     Readings,
@@ -22,7 +22,14 @@ from .readings import (
     write_trajectory,
 )
 from .rig import Mount, Rig, get_rig, load_rig, save_rig
-from .scenarios import SCENARIOS, Passage, Scenario, load_passages, make_scenario
+from .scenarios import (
+    SCENARIOS,
+    Passage,
+    Scenario,
+    SmallObstacle,
+    load_annotations,
+    make_scenario,
+)
 from .sensors import Noise, Region, SensorModel, get_sensor, load_sensor
 from .simulate import PoseNoise, simulate
 
@@ -48,6 +55,7 @@ __all__ = [
     "Rig",
     "Scenario",
     "SensorModel",
+    "SmallObstacle",
     "SonarmapError",
     "Trajectory",
     "__version__",
@@ -57,11 +65,13 @@ __all__ = [
     "get_sensor",
     "grid_for_readings",
     "iter_readings",
-    "load_passages",
+    "load_annotations",
     "load_rig",
     "load_sensor",
     "make_mapper",
     "make_scenario",
+    "measure_obstacle",
+    "measure_passage",
     "passage_open",
     "rasterise",
     "read_map",

@@ -16,29 +16,47 @@ from scipy import ndimage
 
 from .errors import InputError
 from .io.rosmap import OccupancyMap
-from .scenarios import Passage
+from .scenarios import Passage, SmallObstacle
 
-__all__ = ["MapScore", "PassageResult", "measure_passage", "passage_open", "score"]
+__all__ = [
+    "MapScore",
+    "ObstacleResult",
+    "PassageResult",
+    "measure_obstacle",
+    "measure_passage",
+    "passage_open",
+    "score",
+]
 
 
 @dataclass(frozen=True)
 class MapScore:
-    """Scores of one map against the truth, over the cells the map observed.
+    """Scores of one map against the truth.
 
     Attributes
     ----------
-    accuracy : float
-        Fraction of observed cells classified right.
-    precision, recall, f1, iou : float
-        Of the occupied class (NaN when undefined).
+    accuracy, precision, recall, f1, iou : float
+        Over the cells the map observed (not NaN); the last four of the occupied class
+        (NaN when undefined).
+    accuracy_all, precision_all, recall_all, f1_all, iou_all : float
+        Over the whole map, unknown cells counted as free (what a planner that treats
+        unknown space as free would see).
     unknown : float
         Fraction of all cells left unknown.
-    passages_open : int
-        Truth passages left passable (see :func:`passage_open`).
-    passages : int
-        Number of truth passages scored.
-    passages_detected : int
-        Truth passages whose gap the map shows (see :func:`measure_passage`).
+    dist_to_truth : float
+        Mean distance (metres) from each recovered obstacle cell to the nearest true one.
+    dist_from_truth : float
+        Mean distance from each true obstacle cell the map observed to the nearest
+        recovered obstacle cell.
+    passages, passages_open, passages_detected : int
+        Truth passages; those left passable (:func:`passage_open`); those whose gap the
+        map shows (:func:`measure_passage`).
+    width_error : float
+        Mean absolute error of the recovered widths of detected passages (metres).
+    small_obstacles, small_found : int
+        Annotated small obstacles, and those the map marks (:func:`measure_obstacle`).
+    size_error : float
+        Mean absolute size error of the small obstacles found (metres).
     """
 
     accuracy: float
@@ -46,10 +64,21 @@ class MapScore:
     recall: float
     f1: float
     iou: float
+    accuracy_all: float
+    precision_all: float
+    recall_all: float
+    f1_all: float
+    iou_all: float
     unknown: float
-    passages_open: int
+    dist_to_truth: float
+    dist_from_truth: float
     passages: int
+    passages_open: int
     passages_detected: int
+    width_error: float
+    small_obstacles: int
+    small_found: int
+    size_error: float
 
     def as_dict(self) -> dict[str, float | int]:
         return asdict(self)
@@ -67,10 +96,35 @@ def _check_same_grid(truth: OccupancyMap, m: OccupancyMap) -> None:
         )
 
 
+def _classes(
+    t: npt.NDArray[np.bool_], occ: npt.NDArray[np.bool_], mask: npt.NDArray[np.bool_]
+) -> tuple[float, float, float, float, float]:
+    tp = int(np.sum(occ & t & mask))
+    fp = int(np.sum(occ & ~t & mask))
+    fn = int(np.sum(~occ & t & mask))
+    tn = int(np.sum(~occ & ~t & mask))
+    return (
+        _ratio(tp + tn, tp + tn + fp + fn),
+        _ratio(tp, tp + fp),
+        _ratio(tp, tp + fn),
+        _ratio(2 * tp, 2 * tp + fp + fn),
+        _ratio(tp, tp + fp + fn),
+    )
+
+
+def _mean_distance(src: npt.NDArray[np.bool_], dst: npt.NDArray[np.bool_], h: float) -> float:
+    """Mean distance (metres) from the cells of ``src`` to the nearest cell of ``dst``."""
+    if not src.any() or not dst.any():
+        return math.nan
+    dist = ndimage.distance_transform_edt(~dst) * h
+    return float(np.mean(dist[src]))
+
+
 def score(
     truth: OccupancyMap,
     m: OccupancyMap,
     passages: Sequence[Passage] = (),
+    obstacles: Sequence[SmallObstacle] = (),
     *,
     threshold: float = 0.5,
 ) -> MapScore:
@@ -83,34 +137,36 @@ def score(
     >>> t = OccupancyMap(g, np.array([[1, 0, 0, 1]], dtype=np.float32))
     >>> m = OccupancyMap(g, np.array([[0.9, 0.2, 0.7, np.nan]], dtype=np.float32))
     >>> s = score(t, m)
-    >>> round(s.accuracy, 3), s.precision, s.recall, s.unknown
-    (0.667, 0.5, 1.0, 0.25)
+    >>> round(s.accuracy, 3), s.precision, s.recall, s.unknown, s.recall_all
+    (0.667, 0.5, 1.0, 0.25, 0.5)
     """
     _check_same_grid(truth, m)
     t = np.nan_to_num(truth.occupancy, nan=0.0) >= 0.5
     known = np.isfinite(m.occupancy)
     occ = np.zeros_like(known)
     occ[known] = m.occupancy[known] >= threshold
-    tp = int(np.sum(occ & t & known))
-    fp = int(np.sum(occ & ~t & known))
-    fn = int(np.sum(~occ & t & known))
-    tn = int(np.sum(~occ & ~t & known))
-    precision = _ratio(tp, tp + fp)
-    recall = _ratio(tp, tp + fn)
-    f1 = _ratio(2 * tp, 2 * tp + fp + fn)
-    iou = _ratio(tp, tp + fp + fn)
-    n_open = sum(passage_open(m, p, threshold=threshold) for p in passages)
-    n_detected = sum(measure_passage(m, p, threshold=threshold).detected for p in passages)
+    observed = _classes(t, occ, known)
+    whole = _classes(t, occ, np.ones_like(known))
+    h = m.grid.resolution
+    found = [measure_passage(m, p, threshold=threshold) for p in passages]
+    detected = [r for r in found if r.detected]
+    posts = [measure_obstacle(m, o, threshold=threshold) for o in obstacles]
+    seen = [r for r in posts if r.found]
     return MapScore(
-        accuracy=_ratio(tp + tn, tp + tn + fp + fn),
-        precision=precision,
-        recall=recall,
-        f1=f1,
-        iou=iou,
+        *observed,
+        *whole,
         unknown=float(1.0 - known.mean()),
-        passages_open=n_open,
-        passages=len(passages),
-        passages_detected=n_detected,
+        dist_to_truth=_mean_distance(occ, t, h),
+        dist_from_truth=_mean_distance(t & known, occ, h),
+        passages=len(found),
+        passages_open=sum(r.open for r in found),
+        passages_detected=len(detected),
+        width_error=float(np.mean([abs(r.width - r.true_width) for r in detected]))
+        if detected
+        else math.nan,
+        small_obstacles=len(posts),
+        small_found=len(seen),
+        size_error=float(np.mean([abs(r.size - r.true_size) for r in seen])) if seen else math.nan,
     )
 
 
@@ -231,3 +287,47 @@ def measure_passage(
     width = best if math.isfinite(best) else math.nan
     detected = bool(math.isfinite(best) and best > 0 and best_has_free)
     return PassageResult(p.name, p.width, width, detected, passage_open(m, p, threshold=threshold))
+
+
+@dataclass(frozen=True)
+class ObstacleResult:
+    """What a map shows of one small obstacle.
+
+    Attributes
+    ----------
+    size : float
+        Side of the bounding box of the occupied cells found there (metres), NaN if none.
+    found : bool
+        Some occupied cell lies within half the obstacle's size plus one cell of its centre.
+    """
+
+    name: str
+    true_size: float
+    size: float
+    found: bool
+
+
+def measure_obstacle(
+    m: OccupancyMap, o: SmallObstacle, *, threshold: float = 0.5, reach: float = 0.3
+) -> ObstacleResult:
+    """Recovered size of a small obstacle.
+
+    The occupied cells within ``reach`` metres of the obstacle's edge, 8-connected to a
+    cell within half its size plus one cell of its centre, form the recovered obstacle;
+    its size is the longer side of their bounding box (a wide beam grows small obstacles
+    along the arc, which this measures).
+    """
+    h = m.grid.resolution
+    xc, yc = m.grid.all_centres()
+    d = np.maximum(np.abs(xc - o.centre[0]), np.abs(yc - o.centre[1]))
+    occ = np.nan_to_num(m.occupancy, nan=0.0) >= threshold
+    window = occ & (d <= o.size / 2 + reach)
+    labels, _ = ndimage.label(window, structure=np.ones((3, 3)))
+    core = window & (d <= o.size / 2 + h)
+    keep = set(np.unique(labels[core]).tolist()) - {0}
+    if not keep:
+        return ObstacleResult(o.name, o.size, math.nan, False)
+    cells = np.isin(labels, list(keep))
+    xs, ys = xc[cells], yc[cells]
+    size = max(xs.max() - xs.min(), ys.max() - ys.min()) + h
+    return ObstacleResult(o.name, o.size, float(size), True)

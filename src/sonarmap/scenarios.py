@@ -33,7 +33,14 @@ from .rig import Mount, Rig, get_rig, save_rig
 from .sensors import Noise
 from .simulate import simulate
 
-__all__ = ["SCENARIOS", "Passage", "Scenario", "load_passages", "make_scenario"]
+__all__ = [
+    "SCENARIOS",
+    "Passage",
+    "Scenario",
+    "SmallObstacle",
+    "load_annotations",
+    "make_scenario",
+]
 
 Progress = Callable[[int, int], None]
 
@@ -56,6 +63,15 @@ class Passage:
         return math.dist(self.a, self.b)
 
 
+@dataclass(frozen=True)
+class SmallObstacle:
+    """A small square obstacle: ``centre`` (world, metres) and side ``size`` (metres)."""
+
+    name: str
+    centre: tuple[float, float]
+    size: float
+
+
 @dataclass(frozen=True, eq=False)
 class Scenario:
     """Everything a mapping experiment needs, in memory."""
@@ -67,6 +83,7 @@ class Scenario:
     readings: Readings
     passages: tuple[Passage, ...] = ()
     params: dict[str, Any] = field(default_factory=dict)
+    obstacles: tuple[SmallObstacle, ...] = ()
 
     def write(self, folder: str | Path) -> Path:
         """Write the scenario files into ``folder`` (created if needed)."""
@@ -88,6 +105,9 @@ class Scenario:
                     "width": round(p.width, 6),
                 }
                 for p in self.passages
+            ],
+            "small_obstacles": [
+                {"name": o.name, "centre": list(o.centre), "size": o.size} for o in self.obstacles
             ],
         }
         atomic_write_text(d / "annotations.yaml", yaml.safe_dump(ann, sort_keys=False))
@@ -113,6 +133,17 @@ class _Plan:
 
     def box(self, x0: float, y0: float, x1: float, y1: float) -> None:
         self.occ[self._cells(x0, y0, x1, y1)] = 1.0
+
+    def post(self, name: str, cx: float, cy: float, size: float) -> SmallObstacle:
+        """A square post about (cx, cy), annotated with the cells actually drawn."""
+        rows, cols = self._cells(cx - size / 2, cy - size / 2, cx + size / 2, cy + size / 2)
+        self.occ[rows, cols] = 1.0
+        g = self.grid
+        x0 = g.origin[0] + cols.start * g.resolution
+        x1 = g.origin[0] + cols.stop * g.resolution
+        y1 = g.origin[1] + (g.rows - rows.start) * g.resolution
+        y0 = g.origin[1] + (g.rows - rows.stop) * g.resolution
+        return SmallObstacle(name, ((x0 + x1) / 2, (y0 + y1) / 2), max(x1 - x0, y1 - y0))
 
     def clear(self, x0: float, y0: float, x1: float, y1: float) -> None:
         self.occ[self._cells(x0, y0, x1, y1)] = 0.0
@@ -235,6 +266,7 @@ def passages(
     depth: float = 0.1,
     offset: float = 1.0,
     room: float = 2.0,
+    posts: Sequence[float] = (0.05, 0.1, 0.2, 0.3),
     speed: float = 0.25,
     rate: float = 10.0,
     noise: Noise | None = None,
@@ -247,8 +279,10 @@ def passages(
     ``block`` m long (0.6) and ``depth`` m thick (0.1), in a row parallel to the robot's
     path at ``offset`` m (1.0) to its left, with a room ``room`` m deep (2.0) behind it
     that the sonars can see into through the gaps, and a wall the same distance to the
-    right. The robot drives past the whole row at ``speed`` m/s (0.25) with the
-    ``paper-synthetic`` rig at ``rate`` Hz (10). Exact readings by default.
+    right with square posts of ``posts`` m (0.05, 0.1, 0.2, 0.3) standing 0.6 m to the right
+    of the path, evenly spread along it (annotated as small obstacles). The robot drives
+    past the whole row at ``speed`` m/s (0.25) with the ``paper-synthetic`` rig at ``rate``
+    Hz (10). Exact readings by default.
 
     A gap seen from one side only cannot be confirmed free beyond the near face by a
     wide beam (it always hits a corner first); a room behind it is what lets the oblique
@@ -265,6 +299,8 @@ def passages(
     )
     if not widths or any(w <= 0 for w in widths):
         raise ConfigError("scenario parameter 'widths' must be positive widths")
+    if any(not (0 < p <= 0.4) for p in posts):
+        raise ConfigError("scenario parameter 'posts' must be sizes in (0, 0.4] m")
     wall = 0.1
     length = 1.0 + block + sum(w + block for w in widths) + 1.0
     x_path = wall + offset + 0.2
@@ -286,6 +322,10 @@ def passages(
         end = length if k == len(widths) - 1 else y + block
         plan.box(x_row, y, x_row + depth, end)
         y += block
+    small = tuple(
+        plan.post(f"post{k + 1}", x_path - 0.6, 1.0 + (length - 2.0) * (k + 0.5) / len(posts), p)
+        for k, p in enumerate(posts)
+    )
     truth = plan.done()
     nz = noise if noise is not None else Noise(0.0, 1.0, 0.0)
     rig = _with_noise(get_rig("paper-synthetic"), nz)
@@ -298,6 +338,7 @@ def passages(
         "depth": depth,
         "offset": offset,
         "room": room,
+        "posts": list(posts),
         "speed": speed,
         "rate": rate,
         "p_rand": nz.p_rand,
@@ -305,7 +346,7 @@ def passages(
         "sigma": nz.sigma,
         "seed": seed,
     }
-    return Scenario("passages", truth, rig, traj, readings, tuple(found), params)
+    return Scenario("passages", truth, rig, traj, readings, tuple(found), params, small)
 
 
 def room_turn(
@@ -423,16 +464,20 @@ def make_scenario(name: str, **params: Any) -> Scenario:
     return fn(**params)
 
 
-def load_passages(path: str | Path) -> tuple[Passage, ...]:
-    """Passages from a scenario's ``annotations.yaml``."""
+def load_annotations(path: str | Path) -> tuple[tuple[Passage, ...], tuple[SmallObstacle, ...]]:
+    """Passages and small obstacles from a scenario's ``annotations.yaml``."""
     from .errors import InputError
     from .io._yaml import read_yaml
 
     p = Path(path)
     data = read_yaml(p, "annotations")
-    items = (data or {}).get("passages", []) if isinstance(data, dict) else None
-    if not isinstance(items, list):
-        raise InputError("expected a list under 'passages'", path=p, field="passages")
+    if not isinstance(data, dict):
+        raise InputError("expected a mapping with 'passages' and 'small_obstacles'", path=p)
+    items = data.get("passages") or []
+    posts = data.get("small_obstacles") or []
+    for key, value in (("passages", items), ("small_obstacles", posts)):
+        if not isinstance(value, list):
+            raise InputError(f"expected a list under '{key}'", path=p, field=key)
     out = []
     for i, d in enumerate(items):
         try:
@@ -448,4 +493,16 @@ def load_passages(path: str | Path) -> tuple[Passage, ...]:
             raise InputError(
                 f"bad passage entry ({err!r})", path=p, field=f"passages[{i}]"
             ) from err
-    return tuple(out)
+    small = []
+    for i, d in enumerate(posts):
+        try:
+            small.append(
+                SmallObstacle(
+                    str(d["name"]), (float(d["centre"][0]), float(d["centre"][1])), float(d["size"])
+                )
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as err:
+            raise InputError(
+                f"bad small obstacle entry ({err!r})", path=p, field=f"small_obstacles[{i}]"
+            ) from err
+    return tuple(out), tuple(small)
