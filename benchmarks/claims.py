@@ -21,7 +21,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from sonarmap.cli import TRADITIONAL_INVERSE
+from sonarmap.experiments import TRADITIONAL_INVERSE
 from sonarmap.mappers import make_mapper
 from sonarmap.metrics import measure_passage, score
 from sonarmap.scenarios import Scenario, make_scenario

@@ -25,14 +25,16 @@ from rich.table import Table
 from . import __version__
 from .api import build_map, grid_for_readings
 from .errors import ConfigError, InputError, SonarmapError
+from .experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
 from .io._atomic import atomic_write_text
+from .io._json import dumps as json_dumps
 from .io.rosmap import read_map, write_map
 from .mappers import MAPPERS, parse_params
 from .metrics import MapScore, score
 from .plot import save_map_picture, save_side_by_side
 from .readings import read_readings, read_trajectory, write_readings
 from .rig import load_rig
-from .scenarios import SCENARIOS, make_scenario
+from .scenarios import SCENARIOS, load_annotations, make_scenario
 from .sensors import Noise
 from .simulate import PoseNoise, simulate
 
@@ -252,11 +254,6 @@ def methods_cmd() -> None:
     console.print(table)
 
 
-#: Laser-style log-odds (OctoMap's increments, no fall-off, a one-cell band at 5 cm): the
-#: kind of inverse model the research compares against.
-TRADITIONAL_INVERSE: dict[str, Any] = {"p_occ": 0.7, "p_free": 0.4, "falloff_deg": 0.0, "dr": 0.05}
-
-
 @app.command("demo")
 def demo_cmd(
     out: Annotated[Path, typer.Option("-o", "--out", help="Folder for the results.")] = Path("out"),
@@ -306,6 +303,74 @@ def demo_cmd(
     atomic_write_text(out / "metrics.csv", buf.getvalue())
     console.print(table)
     console.print(f"wrote {picture}, {out / 'metrics.csv'} and maps under {out / 'maps'}")
+
+
+ExperimentName = Enum("ExperimentName", {n.replace("-", "_"): n for n in EXPERIMENTS}, type=str)  # type: ignore[misc]
+
+
+@app.command("experiment")
+def experiment_cmd(
+    name: Annotated[ExperimentName, typer.Argument(help="Which experiment.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Folder for figures and report.")],
+    quick: Annotated[bool, typer.Option(help="A small, fast version.")] = False,
+    seed: Annotated[int, typer.Option(help="Random seed (first of several, where used).")] = 0,
+) -> None:
+    """Run one of the research's experiments: figures, metrics (CSV, JSON), report.html."""
+    with _progress(f"experiment {name.value}") as cb:
+        report = run_experiment(name.value, out, quick=quick, seed=seed, progress=cb)
+    console.print(f"wrote {report} and the figures and metrics beside it")
+
+
+@app.command("compare")
+def compare_cmd(
+    truth: Annotated[Path, typer.Argument(help="Truth map YAML.")],
+    maps: Annotated[list[Path], typer.Argument(help="Map YAML files to score.")],
+    annotations: Annotated[
+        Path | None,
+        typer.Option(
+            help="Passages and small obstacles (default: annotations.yaml beside the truth)."
+        ),
+    ] = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Also write JSON here.")] = None,
+) -> None:
+    """Score maps against a truth map on the same grid."""
+    t = read_map(truth)
+    ann = annotations if annotations is not None else truth.parent / "annotations.yaml"
+    passages, obstacles = load_annotations(ann) if ann.is_file() else ((), ())
+    if annotations is not None and not ann.is_file():
+        raise InputError("no such file", path=ann)
+    rows = []
+    for path in maps:
+        m = read_map(path)
+        try:
+            sc = score(t, m, passages, obstacles)
+        except InputError as err:
+            raise InputError(err.reason, path=path) from err
+        rows.append({"map": str(path), **sc.as_dict()})
+    # The terminal shows the main columns; --json has them all.
+    shown = {
+        "f1": "F1",
+        "precision": "prec",
+        "recall": "recall",
+        "passages_open": "open",
+        "passages_detected": "seen",
+        "width_error": "width err",
+        "size_error": "size err",
+    }
+    table = Table(
+        title=f"against {truth} ({len(passages)} passages, {len(obstacles)} small obstacles)"
+    )
+    table.add_column("map", no_wrap=True)
+    for head in shown.values():
+        table.add_column(head, justify="right")
+    for path, r in zip(maps, rows, strict=True):
+        table.add_row(
+            path.stem, *(f"{r[k]:.2f}" if isinstance(r[k], float) else str(r[k]) for k in shown)
+        )
+    console.print(table)
+    if json_out is not None:
+        atomic_write_text(json_out, json_dumps(rows))
+        console.print(f"wrote {json_out}")
 
 
 @app.callback(invoke_without_command=True)

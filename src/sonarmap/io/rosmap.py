@@ -9,7 +9,9 @@ of their channels, as map_server does.
 
 sonarmap writes ``NAME.yaml``, ``NAME.pgm`` (0 occupied, 254 free, 205 unknown: the
 values map_saver writes) and ``NAME.npy`` (float32 occupancy in [0, 1], NaN where
-unknown, same orientation as the image).
+unknown, same orientation as the image). When reading ``NAME.yaml`` and a ``NAME.npy``
+of the image's shape lies beside it, its exact occupancy is used instead of the
+thresholded image (``use_npy=False`` reads the image only).
 """
 
 from __future__ import annotations
@@ -88,7 +90,7 @@ def _num(value: Any, path: Path, field: str) -> float:
     return v
 
 
-def read_map(path: str | Path) -> OccupancyMap:
+def read_map(path: str | Path, *, use_npy: bool = True) -> OccupancyMap:
     """Read a map_server map (YAML and its image).
 
     Parameters
@@ -150,6 +152,14 @@ def read_map(path: str | Path) -> OccupancyMap:
             if alpha is not None:
                 occ[alpha == 0] = np.nan
     grid = Grid(resolution=resolution, origin=(ox, oy), shape=(value.shape[0], value.shape[1]))
+    exact = p.with_suffix(".npy")
+    if use_npy and exact.is_file():
+        try:
+            arr = np.load(exact, allow_pickle=False)
+        except (OSError, ValueError) as err:
+            raise InputError(f"cannot read occupancy array ({err})", path=exact) from err
+        if arr.shape == value.shape and arr.dtype.kind == "f":
+            return OccupancyMap(grid, arr.astype(np.float32))
     return OccupancyMap(grid, occ.astype(np.float32))
 
 
