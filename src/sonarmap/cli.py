@@ -26,7 +26,7 @@ from . import __version__
 from .api import build_map, grid_for_readings
 from .errors import ConfigError, InputError, SonarmapError
 from .experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
-from .io._atomic import atomic_write_text
+from .io._atomic import atomic_write, atomic_write_text
 from .io._json import dumps as json_dumps
 from .io.rosmap import read_map, write_map
 from .mappers import MAPPERS, parse_params
@@ -37,6 +37,7 @@ from .rig import load_rig
 from .scenarios import SCENARIOS, load_annotations, make_scenario
 from .sensors import Noise
 from .simulate import PoseNoise, simulate
+from .sweep import load_sweep, run_sweep, summarise
 
 app = typer.Typer(
     name="sonarmap",
@@ -371,6 +372,43 @@ def compare_cmd(
     if json_out is not None:
         atomic_write_text(json_out, json_dumps(rows))
         console.print(f"wrote {json_out}")
+
+
+@app.command("sweep")
+def sweep_cmd(
+    config: Annotated[Path, typer.Argument(help="Sweep file (YAML).")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Folder for the results.")],
+    scheduler: Annotated[
+        str | None,
+        typer.Option(help="Address of a running Dask scheduler (default: start a LocalCluster)."),
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(help="Worker processes of the LocalCluster (default: the cores).")
+    ] = None,
+) -> None:
+    """Run a parameter sweep on Dask: results.parquet, results.csv, best.csv."""
+    cfg = load_sweep(config)
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {workers}")
+    n = len(cfg.tasks())
+    with _progress(f"sweep ({n} maps)") as cb:
+        df = run_sweep(cfg, scheduler=scheduler, workers=workers, progress=cb)
+    best = summarise(df, cfg.metrics)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write(out / "results.parquet", lambda tmp: df.to_parquet(tmp, index=False))
+    atomic_write_text(out / "results.csv", df.to_csv(index=False))
+    atomic_write_text(out / "best.csv", best.to_csv(index=False))
+    table = Table(
+        title=f"best parameters over {len(cfg.scenarios)} scenario(s) x {len(cfg.seeds)} seed(s)"
+    )
+    for col in ("method", "metric", "best value", "best parameters"):
+        table.add_column(col, no_wrap=col != "best parameters")
+    for r in best.itertuples():
+        table.add_row(
+            str(r.method), f"{r.metric} ({r.goal})", f"{r.best_value:.3f}", str(r.best_params)
+        )
+    console.print(table)
+    console.print(f"wrote {out / 'results.parquet'}, results.csv and best.csv")
 
 
 @app.callback(invoke_without_command=True)

@@ -323,8 +323,9 @@ def _plot_narrowest(summary: list[dict[str, Any]], path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 4))
     labels = [r["method"] for r in summary]
     mean = np.array([r["narrowest_mean"] for r in summary], dtype=float)
-    lo = mean - np.array([r["narrowest_min"] for r in summary], dtype=float)
-    hi = np.array([r["narrowest_max"] for r in summary], dtype=float) - mean
+    # Clipped: mean - min can come out a hair below zero in floating point.
+    lo = np.clip(mean - np.array([r["narrowest_min"] for r in summary], dtype=float), 0, None)
+    hi = np.clip(np.array([r["narrowest_max"] for r in summary], dtype=float) - mean, 0, None)
     ax.bar(
         labels,
         np.nan_to_num(mean),

@@ -1,0 +1,291 @@
+"""Parameter sweeps over scenarios and seeds on Dask distributed.
+
+A sweep file names scenarios (with their parameters and optional noise), seeds, and per
+method the values to try::
+
+    scenarios:
+      doorways: {}
+      passages: {widths: [0.3, 0.5, 0.7]}
+      passages-noisy: {scenario: passages, noise: {p_rand: 0.05, sigma: 0.02}}
+    seeds: [0, 1]
+    search: grid            # or: random, with samples: N
+    metrics: [f1, width_error]
+    methods:
+      inverse:
+        p_occ: [0.55, 0.6, 0.7]
+        falloff_deg: [0, 15]
+
+A scenario entry is a label; its ``scenario`` key names the kind when the label is not a
+scenario name itself. Every (scenario, seed, method, parameters) is one task; tasks run
+on a Dask cluster (a LocalCluster by default, or an existing scheduler). Results: one row per task with every
+metric of :class:`~sonarmap.metrics.MapScore`; the summary ranks each method's parameter
+sets by each metric's mean over scenarios and seeds.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .errors import ConfigError, InputError
+from .io._yaml import read_yaml
+from .mappers import MAPPERS, make_mapper
+from .metrics import MapScore, score
+from .scenarios import SCENARIOS, make_scenario
+from .sensors import Noise
+
+__all__ = ["SweepConfig", "Task", "load_sweep", "run_sweep", "run_task", "summarise"]
+
+Progress = Callable[[int, int], None]
+
+#: Metrics where smaller is better; for the others larger is better.
+LOWER_IS_BETTER = {"width_error", "size_error", "dist_to_truth", "dist_from_truth", "unknown"}
+METRICS = tuple(f.name for f in fields(MapScore))
+
+
+@dataclass(frozen=True)
+class Task:
+    """One map to build and score."""
+
+    scenario: str
+    scenario_params: tuple[tuple[str, Any], ...]
+    seed: int
+    method: str
+    params: tuple[tuple[str, Any], ...]
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """A parsed sweep file (see the module notes)."""
+
+    scenarios: dict[str, dict[str, Any]]
+    seeds: list[int]
+    methods: dict[str, dict[str, list[Any]]]
+    search: str = "grid"
+    samples: int = 20
+    random_seed: int = 0
+    metrics: list[str] = field(default_factory=lambda: ["f1"])
+
+    def tasks(self) -> list[Task]:
+        """Every task, in a fixed order."""
+        out = []
+        for method, grid in self.methods.items():
+            for params in self._param_sets(grid):
+                for scen, sparams in self.scenarios.items():
+                    for seed in self.seeds:
+                        out.append(
+                            Task(
+                                scen,
+                                tuple(sorted(sparams.items())),
+                                seed,
+                                method,
+                                tuple(sorted(params.items())),
+                            )
+                        )
+        return out
+
+    def _param_sets(self, grid: Mapping[str, list[Any]]) -> list[dict[str, Any]]:
+        keys = list(grid)
+        combos = [
+            dict(zip(keys, vals, strict=True))
+            for vals in itertools.product(*(grid[k] for k in keys))
+        ]
+        if self.search == "random" and len(combos) > self.samples:
+            rng = np.random.default_rng(self.random_seed)
+            pick = rng.choice(len(combos), self.samples, replace=False)
+            combos = [combos[i] for i in sorted(pick.tolist())]
+        return combos
+
+
+def load_sweep(path: str | Path) -> SweepConfig:
+    """Read and check a sweep file; errors name the key and what is allowed."""
+    p = Path(path)
+    data = read_yaml(p, "sweep file")
+    try:
+        return _parse(data)
+    except ConfigError as err:
+        raise InputError(str(err), path=p) from err
+
+
+def _parse(data: Any) -> SweepConfig:
+    if not isinstance(data, Mapping):
+        raise ConfigError("expected a mapping with scenarios, seeds and methods")
+    known = {"scenarios", "seeds", "methods", "search", "samples", "random_seed", "metrics"}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ConfigError(f"unknown key(s) {unknown}; valid: {', '.join(sorted(known))}")
+    for key in ("scenarios", "methods"):
+        if key not in data:
+            raise ConfigError(f"missing key '{key}'")
+    scen = data["scenarios"]
+    if isinstance(scen, list):
+        scen = {name: {} for name in scen}
+    if not isinstance(scen, Mapping) or not scen:
+        raise ConfigError("'scenarios' must list scenario names or map them to parameters")
+    scenarios: dict[str, dict[str, Any]] = {}
+    for name, params in scen.items():
+        params = dict(params or {})
+        kind = params.get("scenario", name)
+        if kind not in SCENARIOS:
+            raise ConfigError(
+                f"scenarios.{name}: unknown scenario '{kind}'; valid: {', '.join(SCENARIOS)}"
+            )
+        params["scenario"] = kind
+        if "noise" in params:
+            n = params["noise"]
+            if not isinstance(n, Mapping) or set(n) - {"p_rand", "p_hit", "sigma"}:
+                raise ConfigError(f"scenarios.{name}.noise: expected p_rand, p_hit, sigma")
+        scenarios[str(name)] = params
+    seeds = data.get("seeds", [0])
+    if (
+        not isinstance(seeds, list)
+        or not seeds
+        or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
+    ):
+        raise ConfigError("'seeds' must be a non-empty list of integers >= 0")
+    meth = data["methods"]
+    if not isinstance(meth, Mapping) or not meth:
+        raise ConfigError("'methods' must map method names to parameter lists")
+    methods: dict[str, dict[str, list[Any]]] = {}
+    for name, grid in meth.items():
+        if name not in MAPPERS:
+            raise ConfigError(
+                f"methods: unknown method '{name}'; valid: {', '.join(sorted(MAPPERS))}"
+            )
+        grid = dict(grid or {})
+        valid = MAPPERS[name].param_names()
+        for key, values in grid.items():
+            if key not in valid:
+                raise ConfigError(
+                    f"methods.{name}: unknown parameter '{key}'; valid: {', '.join(valid)}"
+                )
+            if not isinstance(values, list) or not values:
+                raise ConfigError(f"methods.{name}.{key}: expected a non-empty list of values")
+        for combo in itertools.product(*grid.values()):
+            make_mapper(name, **dict(zip(grid, combo, strict=True)))  # validates ranges
+        methods[str(name)] = grid
+    search = data.get("search", "grid")
+    if search not in ("grid", "random"):
+        raise ConfigError(f"'search' must be grid or random, got {search!r}")
+    samples = data.get("samples", 20)
+    if not isinstance(samples, int) or samples < 1:
+        raise ConfigError(f"'samples' must be an integer >= 1, got {samples!r}")
+    metrics = data.get("metrics", ["f1"])
+    if isinstance(metrics, str):
+        metrics = [metrics]
+    bad = [m for m in metrics if m not in METRICS]
+    if bad:
+        raise ConfigError(f"unknown metric(s) {bad}; valid: {', '.join(METRICS)}")
+    return SweepConfig(
+        scenarios, seeds, methods, search, samples, int(data.get("random_seed", 0)), list(metrics)
+    )
+
+
+def run_task(task: Task) -> dict[str, Any]:
+    """Build one scenario and map and score it (runs on a Dask worker)."""
+    sparams = dict(task.scenario_params)
+    kind = sparams.pop("scenario")
+    noise = sparams.pop("noise", None)
+    if noise is not None:
+        sparams["noise"] = Noise(**{"p_rand": 0.0, "p_hit": 1.0, "sigma": 0.0, **noise})
+    scene = make_scenario(kind, seed=task.seed, **sparams)
+    params = dict(task.params)
+    t0 = time.perf_counter()
+    mapper = make_mapper(task.method, **params)
+    m = mapper.fit(scene.readings, scene.truth.grid, scene.rig).result()
+    seconds = time.perf_counter() - t0
+    s = score(scene.truth, m, scene.passages, scene.obstacles)
+    return {
+        "scenario": task.scenario,
+        "seed": task.seed,
+        "method": task.method,
+        "params": _params_key(params),
+        **{f"param.{k}": v for k, v in params.items()},
+        "seconds": seconds,
+        **s.as_dict(),
+    }
+
+
+def _params_key(params: Mapping[str, Any]) -> str:
+    return ", ".join(f"{k}={params[k]!r}" for k in sorted(params)) or "(defaults)"
+
+
+def run_sweep(
+    config: SweepConfig,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: Progress | None = None,
+) -> pd.DataFrame:
+    """Run every task of ``config`` on Dask; one row per task.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:port``); default a LocalCluster.
+    workers : int, optional
+        Worker processes of the LocalCluster (default: the machine's cores).
+    """
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    tasks = config.tasks()
+    cluster = None
+    try:
+        if scheduler is None:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=None)
+            client = Client(cluster)
+        else:
+            try:
+                client = Client(scheduler, timeout=10)
+            except OSError as err:
+                raise ConfigError(
+                    f"cannot reach the Dask scheduler at {scheduler} ({err})"
+                ) from err
+        with client:
+            futures = client.map(run_task, tasks, pure=False)
+            rows = []
+            for k, fut in enumerate(as_completed(futures)):
+                rows.append(fut.result())
+                if progress is not None:
+                    progress(k + 1, len(tasks))
+    finally:
+        if cluster is not None:
+            cluster.close()
+    df = pd.DataFrame(rows)
+    return df.sort_values(
+        ["method", "params", "scenario", "seed"], kind="stable", ignore_index=True
+    )
+
+
+def summarise(df: pd.DataFrame, metrics: list[str]) -> pd.DataFrame:
+    """Per method and metric, the parameter set with the best mean over scenarios and seeds."""
+    out = []
+    for metric in metrics:
+        mean = df.groupby(["method", "params"])[metric].mean().reset_index()
+        for method, grp in mean.groupby("method"):
+            vals = grp[metric].to_numpy(dtype=float)
+            if np.all(np.isnan(vals)):
+                continue
+            lower = metric in LOWER_IS_BETTER
+            best = int(np.nanargmin(vals) if lower else np.nanargmax(vals))
+            row = grp.iloc[best]
+            default = df[(df["method"] == method)]
+            out.append(
+                {
+                    "method": method,
+                    "metric": metric,
+                    "goal": "min" if lower else "max",
+                    "best_params": row["params"],
+                    "best_value": float(row[metric]),
+                    "worst_value": float(np.nanmax(vals) if lower else np.nanmin(vals)),
+                    "runs": len(default),
+                }
+            )
+    return pd.DataFrame(out)
