@@ -17,9 +17,9 @@ method the values to try::
 
 A scenario entry is a label; its ``scenario`` key names the kind when the label is not a
 scenario name itself. Every (scenario, seed, method, parameters) is one task; tasks run
-on a Dask cluster (a LocalCluster by default, or an existing scheduler). Results: one row per task with every
-metric of :class:`~sonarmap.metrics.MapScore`; the summary ranks each method's parameter
-sets by each metric's mean over scenarios and seeds.
+on a Dask cluster (a LocalCluster by default, or an existing scheduler). Results: one row
+per task with every metric of :class:`~sonarmap.metrics.MapScore`; the summary ranks each
+method's parameter sets by each metric's mean over scenarios and seeds.
 """
 
 from __future__ import annotations
