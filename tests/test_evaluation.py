@@ -1,0 +1,220 @@
+"""Experiments, reports, compare and sweeps."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+from html import unescape
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from sonarmap.cli import main
+from sonarmap.errors import InputError
+from sonarmap.experiments import EXPERIMENTS, METHODS, run_experiment
+from sonarmap.sweep import load_sweep, run_sweep, summarise
+
+
+def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    try:
+        main(args)
+        code = 0
+    except SystemExit as e:
+        code = int(e.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def doorways_report(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("exp") / "doorways"
+    run_experiment("doorways", out, quick=True)
+    return out
+
+
+def test_doorways_experiment_outputs(doorways_report: Path) -> None:
+    d = doorways_report
+    for name in ("report.html", "metrics.csv", "metrics.json", "doorways.png"):
+        assert (d / name).is_file(), name
+    rows = json.loads((d / "metrics.json").read_text())  # strict JSON: no NaN
+    assert [r["method"] for r in rows] == [m.label for m in METHODS]
+    html = (d / "report.html").read_text()
+    assert html.count("<img ") == 1
+    assert "data:image/png;base64," in html
+    assert "tuned inverse" in html
+    assert '"seed": 0' in unescape(html)
+
+
+def test_compare_agrees_with_the_experiment(
+    doorways_report: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from sonarmap.scenarios import make_scenario
+
+    make_scenario("doorways").write(tmp_path / "scene")
+    maps = sorted((doorways_report / "maps").glob("*.yaml"))
+    code, out, err = run(
+        [
+            "compare",
+            str(tmp_path / "scene" / "truth.yaml"),
+            *map(str, maps),
+            "--json",
+            str(tmp_path / "cmp.json"),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    assert "4 passages" in out
+    got = {Path(r["map"]).stem: r for r in json.loads((tmp_path / "cmp.json").read_text())}
+    for r in json.loads((doorways_report / "metrics.json").read_text()):
+        assert got[r["method"]]["f1"] == pytest.approx(r["f1"])
+        assert got[r["method"]]["passages_open"] == r["passages_open"]
+
+
+@pytest.mark.parametrize("name", [n for n in EXPERIMENTS if n != "doorways"])
+def test_other_experiments_quick(name: str, tmp_path: Path) -> None:
+    report = run_experiment(name, tmp_path, quick=True)
+    html = report.read_text()
+    assert html.count("<img ") >= 1
+    assert "<table>" in html
+    assert json.loads((tmp_path / "metrics.json").read_text())
+    if name == "passages":
+        summary = json.loads((tmp_path / "summary.json").read_text())
+        by = {r["method"]: r for r in summary}
+        assert by["inverse"]["ratio_vs_tuned_inverse"] == pytest.approx(1.0)
+        assert by["stochastic"]["narrowest_mean"] < by["inverse"]["narrowest_mean"]
+
+
+def test_unknown_experiment(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    code, _, err = run(["experiment", "magic", "-o", str(tmp_path)], capsys)
+    assert code == 2
+    assert "Invalid value for 'name'" in err
+
+
+SMALL = """
+scenarios:
+  tiny: {scenario: doorways, size: 4.0, corridor_width: 1.6, door_widths: [0.8], speed: 0.5}
+seeds: [0]
+metrics: [f1, width_error]
+methods:
+  inverse: {p_occ: [0.51, 0.6]}
+  counting: {}
+"""
+
+
+def test_sweep_file_errors(tmp_path: Path) -> None:
+    cases = [
+        (
+            "scenarios: {doorways: {}}\nmethods: {inverse: {bogus: [1]}}\n",
+            r"methods.inverse: unknown parameter 'bogus'; valid: p_occ",
+        ),
+        ("scenarios: {doorways: {}}\nmethods: {magic: {}}\n", r"unknown method 'magic'"),
+        ("scenarios: {hall: {}}\nmethods: {inverse: {}}\n", r"scenarios.hall: unknown scenario"),
+        (
+            "scenarios: {doorways: {}}\nmethods: {inverse: {p_occ: [2.0]}}\n",
+            r"parameter 'p_occ' must be in \(0.5, 1.0\)",
+        ),
+        (
+            "scenarios: {doorways: {}}\nmethods: {inverse: {}}\nmetrics: [speed]\n",
+            r"unknown metric\(s\) \['speed'\]",
+        ),
+        ("methods: {inverse: {}}\n", r"missing key 'scenarios'"),
+    ]
+    for text, match in cases:
+        (tmp_path / "s.yaml").write_text(text)
+        with pytest.raises(InputError, match=match):
+            load_sweep(tmp_path / "s.yaml")
+
+
+def test_sweep_on_a_local_cluster_via_cli(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "s.yaml").write_text(SMALL)
+    code, out, err = run(
+        ["sweep", str(tmp_path / "s.yaml"), "-o", str(tmp_path / "res"), "--workers", "1"], capsys
+    )
+    assert code == 0, err
+    df = pd.read_parquet(tmp_path / "res" / "results.parquet")
+    assert len(df) == 3
+    assert set(df["method"]) == {"inverse", "counting"}
+    best = pd.read_csv(tmp_path / "res" / "best.csv")
+    assert set(best["metric"]) == {"f1", "width_error"}
+    assert "best parameters" in out
+
+
+def test_sweep_on_a_scheduler_address(tmp_path: Path) -> None:
+    from dask.distributed import LocalCluster
+
+    (tmp_path / "s.yaml").write_text(SMALL)
+    cfg = load_sweep(tmp_path / "s.yaml")
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
+    ) as cluster:
+        df = run_sweep(cfg, scheduler=cluster.scheduler_address)
+    assert len(df) == 3
+    best = summarise(df, ["f1"])
+    inverse = df[df["method"] == "inverse"]
+    top = inverse.sort_values("f1", kind="stable").iloc[-1]["params"]
+    assert best[best["method"] == "inverse"]["best_params"].item() == top
+
+
+def test_sweep_unreachable_scheduler(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "s.yaml").write_text(SMALL)
+    code, _, err = run(
+        [
+            "sweep",
+            str(tmp_path / "s.yaml"),
+            "-o",
+            str(tmp_path / "r"),
+            "--scheduler",
+            "tcp://127.0.0.1:9",
+        ],
+        capsys,
+    )
+    assert code == 2
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in err
+    assert not (tmp_path / "r").exists()
+
+
+def _browser() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+@pytest.mark.skipif(
+    _browser() is None, reason="no Chromium on this machine (.ci/run installs Debian's chromium)"
+)
+def test_report_in_headless_chromium(doorways_report: Path, tmp_path: Path) -> None:
+    browser = _browser()
+    assert browser is not None
+    cmd = [
+        browser,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={tmp_path / 'profile'}",
+        "--virtual-time-budget=10000",
+        "--dump-dom",
+        (doorways_report / "report.html").resolve().as_uri(),
+    ]
+    proc = subprocess.run(
+        cmd, capture_output=True, text=True, timeout=120, env={**os.environ, "HOME": str(tmp_path)}
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    body = re.search(r"<body([^>]*)>", proc.stdout)
+    assert body is not None, proc.stdout[:500]
+    attrs = dict(re.findall(r'([\w-]+)="([^"]*)"', body.group(1)))
+    assert int(attrs["data-figures"]) >= 1
+    assert attrs["data-figures-loaded"] == attrs["data-figures"]
+    assert int(attrs["data-tables"]) >= 1
