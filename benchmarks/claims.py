@@ -36,7 +36,7 @@ METHODS: list[tuple[str, str, dict[str, Any]]] = [
     ("gradient a2=0.001", "gradient", {"a2": 0.001}),
     ("gradient lbfgs", "gradient", {"solver": "lbfgs"}),
     ("stochastic", "stochastic", {}),
-    ("stochastic anneal", "stochastic", {"schedule": "anneal"}),
+    ("stochastic greedy (thesis)", "stochastic", {"schedule": "greedy"}),
     ("em", "em", {}),
 ]
 
