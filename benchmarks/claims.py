@@ -36,7 +36,7 @@ METHODS: list[tuple[str, str, dict[str, Any]]] = [
     ("gradient a2=0.001", "gradient", {"a2": 0.001}),
     ("gradient lbfgs", "gradient", {"solver": "lbfgs"}),
     ("stochastic", "stochastic", {}),
-    ("stochastic greedy (thesis)", "stochastic", {"schedule": "greedy"}),
+    ("stochastic thesis000 greedy", "stochastic", {"preset": "thesis000", "schedule": "greedy"}),
     ("em", "em", {}),
 ]
 

@@ -98,6 +98,12 @@ def test_stochastic_is_deterministic_with_a_seed(small: Scenario) -> None:
 def test_stochastic_presets() -> None:
     assert StochasticMapper().values() == {
         "p_rand": 0.05,
+        "p_hit": 0.9,
+        "w_occ": -0.05,
+        "w_border": -0.02,
+    }
+    assert StochasticMapper(preset="thesis000").values() == {
+        "p_rand": 0.05,
         "p_hit": 0.75,
         "w_occ": -0.05,
         "w_border": -0.005,
