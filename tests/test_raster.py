@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from sonarmap.errors import ConfigError, InputError
@@ -27,12 +27,13 @@ def reference(
     local = np.c_[dx * c + dy * s, -dx * s + dy * c]
     inside = sensor.beam.contains(local)
     d = np.hypot(dx, dy)
+    tol = 1e-9  # the kernel's inclusive slack: ties go to Omega_occ
     if r >= sensor.r_max:
-        free = inside & (d < sensor.r_max - dr)
+        free = inside & (d < sensor.r_max - dr - tol)
         occ = np.zeros_like(free)
     else:
-        free = inside & (d < r - dr)
-        occ = inside & (d >= r - dr) & (d <= r + dr)
+        free = inside & (d < r - dr - tol)
+        occ = inside & (d >= r - dr - tol) & (d <= r + dr + tol)
     size = sensor.sensitivity(local)
     safe = np.where(size > 0, size, 1.0)
     w = np.where(size > 0, np.minimum(grid.resolution**2 / safe**2, 1.0), 1.0)
@@ -115,6 +116,7 @@ def test_sets_disjoint_inside_beam_and_band(
 
 
 @settings(max_examples=40, deadline=None)
+@example(pose=(0.0, 0.25, 0.0, 0.25), turns=2)  # a centre exactly at r - dr (found by CI)
 @given(pose=poses, turns=st.integers(1, 3))
 def test_rotating_pose_and_world_gives_same_cells(
     pose: tuple[float, float, float, float], turns: int

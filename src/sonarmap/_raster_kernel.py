@@ -8,9 +8,10 @@ import numba as nb
 import numpy as np
 import numpy.typing as npt
 
-# Inclusive slack on half-plane tests (metres): large against rounding (1e-16 relative),
-# small against any cell. It keeps a centre lying on a beam edge inside, whichever way
-# the world is rotated.
+# Inclusive slack on the beam's edges and the band's limits (metres): large against
+# rounding (1e-16 relative), small against any cell. A centre lying on a beam edge is
+# inside, and one on the free / occupied boundary is in Omega_occ, whichever way the
+# world is rotated.
 EDGE_TOL = 1e-9
 
 
@@ -136,8 +137,10 @@ def rasterise_kernel(
         s = math.sin(st[i])
         a_lim = free_lim[i]
         b_lim = occ_hi[i]
-        reach = min(max(a_lim, b_lim), beam_radius)
-        if reach > 0.0:
+        # Rows and spans are taken with the slack too, or a centre exactly at the reach
+        # could lose its whole row to rounding before its own test.
+        reach = min(max(a_lim, b_lim), beam_radius) + EDGE_TOL
+        if reach > EDGE_TOL:
             iy_lo = max(0, math.ceil((y0 - reach - oy) / h - 0.5))
             iy_hi = min(rows - 1, math.floor((y0 + reach - oy) / h - 0.5))
             for iy in range(iy_lo, iy_hi + 1):
@@ -150,7 +153,7 @@ def rasterise_kernel(
                 if c_hi < c_lo:
                     continue
                 for z in range(nz):
-                    zl, zh = _span(zone_planes[z], c, s, x0, y0, yc, zone_radius[z])
+                    zl, zh = _span(zone_planes[z], c, s, x0, y0, yc, zone_radius[z] + EDGE_TOL)
                     zlo[z] = math.ceil((zl - ox) / h - 0.5)
                     zhi[z] = math.floor((zh - ox) / h - 0.5)
                 need = c_hi - c_lo + 1
@@ -169,9 +172,11 @@ def rasterise_kernel(
                 for col in range(c_lo, c_hi + 1):
                     dx = ox + (col + 0.5) * h - x0
                     d = math.sqrt(dx * dx + dy2)
-                    if d < a_lim:
+                    # The same slack as on the beam's edges: a centre within EDGE_TOL of
+                    # a band limit is in the band, however the world is rotated.
+                    if d < a_lim - EDGE_TOL:
                         occ = False
-                    elif d <= b_lim:
+                    elif d <= b_lim + EDGE_TOL:
                         occ = True
                     else:
                         continue

@@ -7,7 +7,9 @@ and a grid, :func:`rasterise` returns, per reading, the cells of
 - Omega_occ: cells of the beam at distance in ``[r - dr, r + dr]``,
 
 as flat arrays with per-reading offsets (CSR layout). A cell belongs to a region when
-its centre does. A reading with ``r >= r_max`` (no echo) has no Omega_occ and its
+its centre does; boundaries are inclusive with a slack of 1e-9 m, and a centre on the
+free / occupied boundary is in Omega_occ, so results do not change when the world and
+the pose are rotated together. A reading with ``r >= r_max`` (no echo) has no Omega_occ and its
 Omega_free reaches ``r_max - dr`` (methods.md, Notation).
 
 The weight is the sensitivity weight ``w0 = min(s / S, 1)`` of methods.md section 2,
