@@ -218,3 +218,77 @@ def test_report_in_headless_chromium(doorways_report: Path, tmp_path: Path) -> N
     assert int(attrs["data-figures"]) >= 1
     assert attrs["data-figures-loaded"] == attrs["data-figures"]
     assert int(attrs["data-tables"]) >= 1
+
+
+def test_passages_experiment_on_a_scene_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from sonarmap.scenarios import make_scenario
+
+    # A scene folder as a user would bring it: written files, not a built-in name.
+    make_scenario("passages", widths=(0.3, 0.7), posts=(0.1,)).write(tmp_path / "mine")
+    (tmp_path / "mine" / "readings.csv").unlink()  # readings come from the trajectory
+    code, _, err = run(
+        [
+            "experiment",
+            "passages",
+            "--quick",
+            "--scene",
+            str(tmp_path / "mine"),
+            "-o",
+            str(tmp_path / "exp"),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    summary = {r["method"]: r for r in json.loads((tmp_path / "exp" / "summary.json").read_text())}
+    assert summary["stochastic"]["passages"] == 2
+    rows = json.loads((tmp_path / "exp" / "metrics.json").read_text())
+    code, _, err = run(
+        [
+            "compare",
+            str(tmp_path / "mine" / "truth.yaml"),
+            *map(str, sorted((tmp_path / "exp" / "maps" / "seed0").glob("*.yaml"))),
+            "--json",
+            str(tmp_path / "cmp.json"),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    got = {Path(r["map"]).stem: r for r in json.loads((tmp_path / "cmp.json").read_text())}
+    for r in rows:
+        assert got[r["method"]]["passages_detected"] == r["passages_detected"]
+        assert got[r["method"]]["size_error"] == pytest.approx(r["size_error"], nan_ok=True)
+
+
+def test_experiment_scene_parameters(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(
+        [
+            "experiment",
+            "passages",
+            "--quick",
+            "--param",
+            "widths=0.3,0.6",
+            "-o",
+            str(tmp_path / "exp"),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    per = json.loads((tmp_path / "exp" / "passages.json").read_text())
+    assert sorted({r["true_width"] for r in per}) == [0.3, 0.6]
+    code, _, err = run(
+        [
+            "experiment",
+            "doorways",
+            "--scene",
+            str(tmp_path),
+            "--param",
+            "size=5",
+            "-o",
+            str(tmp_path / "x"),
+        ],
+        capsys,
+    )
+    assert code == 2
+    assert "either a scene folder or scene parameters" in err

@@ -35,7 +35,7 @@ from .mappers import make_mapper
 from .metrics import measure_passage, score
 from .plot import save_side_by_side
 from .report import Report
-from .scenarios import Scenario, make_scenario
+from .scenarios import Scenario, load_scene, make_scenario
 from .sensors import Noise
 from .simulate import PoseNoise, simulate
 
@@ -74,6 +74,19 @@ class _Run:
     report: Report
     rows: list[dict[str, Any]] = field(default_factory=list)
     params: dict[str, Any] = field(default_factory=dict)
+    #: A user's scene folder (see scenarios.load_scene) instead of the built-in scene.
+    scene: Path | None = None
+    #: Parameters of the built-in scene.
+    scene_params: dict[str, Any] = field(default_factory=dict)
+
+    def make(self, kind: str, seed: int, noise: Noise | None = None, **defaults: Any) -> Scenario:
+        """The experiment's scene: the user's folder, or the built-in one."""
+        if self.scene is not None:
+            return load_scene(self.scene, seed=seed, noise=noise)
+        params = {**defaults, **self.scene_params}
+        if noise is not None:
+            params["noise"] = noise
+        return make_scenario(kind, seed=seed, **params)
 
 
 def _build(spec: MethodSpec, scene: Scenario) -> OccupancyMap:
@@ -151,7 +164,7 @@ def _maps_experiment(
 
 
 def _doorways(run: _Run, quick: bool, seed: int, progress: Progress | None) -> None:
-    scene = make_scenario("doorways", seed=seed)
+    scene = run.make("doorways", seed)
     run.params["scenario"] = scene.params
     run.report.text(
         "The research's synthetic corridor (thesis 000 fig. 4.1): doorways in "
@@ -170,7 +183,7 @@ def _doorways(run: _Run, quick: bool, seed: int, progress: Progress | None) -> N
 
 def _room_turn(run: _Run, quick: bool, seed: int, progress: Progress | None) -> None:
     kwargs: dict[str, Any] = {"duration": 15.0} if quick else {}
-    scene = make_scenario("room-turn", seed=seed, **kwargs)
+    scene = run.make("room-turn", seed, **kwargs)
     run.params["scenario"] = scene.params
     run.report.text(
         "A robot with four front sonars turns in place at uneven speed in a "
@@ -209,10 +222,11 @@ def _passages(run: _Run, quick: bool, seed: int, progress: Progress | None) -> N
     total = len(seeds) * len(METHODS)
     done = 0
     for sd in seeds:
-        scene = make_scenario("passages", widths=widths, noise=noise, seed=sd)
+        scene = run.make("passages", sd, noise, widths=widths)
         run.params.setdefault("scenario", scene.params)
         for spec in METHODS:
             m = _build(spec, scene)
+            write_map(m, run.out / "maps" / f"seed{sd}" / spec.label)
             run.rows.append(_score_row(spec, scene, m, seed=sd))
             for res in (measure_passage(m, p) for p in scene.passages):
                 per.append(
@@ -232,7 +246,7 @@ def _passages(run: _Run, quick: bool, seed: int, progress: Progress | None) -> N
     atomic_write_text(run.out / "passages.json", json_dumps(per))
     atomic_write_text(run.out / "summary.json", json_dumps(summary))
     run.report.figure(
-        _plot_widths(per, [s.label for s in METHODS], widths, run.out / "widths.png"),
+        _plot_widths(per, [s.label for s in METHODS], run.out / "widths.png"),
         "Recovered against true passage width, mean and spread over seeds "
         "(the dashed line is exact).",
     )
@@ -298,9 +312,8 @@ def _passage_summary(per: list[dict[str, Any]], labels: list[str]) -> list[dict[
     return out
 
 
-def _plot_widths(
-    per: list[dict[str, Any]], labels: list[str], widths: Sequence[float], path: Path
-) -> Path:
+def _plot_widths(per: list[dict[str, Any]], labels: list[str], path: Path) -> Path:
+    widths = sorted({r["true_width"] for r in per})
     fig, ax = plt.subplots(figsize=(7, 5))
     for label in labels:
         means, stds = [], []
@@ -340,7 +353,7 @@ def _plot_narrowest(summary: list[dict[str, Any]], path: Path) -> Path:
 
 
 def _noise(run: _Run, quick: bool, seed: int, progress: Progress | None) -> None:
-    base = make_scenario("doorways", seed=seed)
+    base = run.make("doorways", seed)
     levels: dict[str, list[float]] = (
         {"p_rand": [0.0, 0.05], "sigma": [0.0, 0.02], "pose_sigma": [0.0, 0.03]}
         if quick
@@ -436,15 +449,34 @@ def run_experiment(
     quick: bool = False,
     seed: int = 0,
     progress: Progress | None = None,
+    scene: str | Path | None = None,
+    scene_params: dict[str, Any] | None = None,
 ) -> Path:
-    """Run an experiment into folder ``out``; return the path of its ``report.html``."""
+    """Run an experiment into folder ``out``; return the path of its ``report.html``.
+
+    Parameters
+    ----------
+    scene : path, optional
+        A scene folder of one's own (truth.yaml, rig.yaml, trajectory.csv and/or
+        readings.csv, annotations.yaml) used instead of the built-in scene; with a
+        trajectory, the passages experiment simulates each seed's readings from it.
+    scene_params : dict, optional
+        Parameters of the built-in scene (e.g. ``widths`` for passages).
+    """
+    if scene is not None and scene_params:
+        raise ConfigError("give either a scene folder or scene parameters, not both")
     try:
         body = EXPERIMENTS[name]
     except KeyError:
         raise ConfigError(f"unknown experiment '{name}'; valid: {', '.join(EXPERIMENTS)}") from None
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
-    run = _Run(folder, Report(f"sonarmap experiment: {name}"))
+    run = _Run(
+        folder,
+        Report(f"sonarmap experiment: {name}"),
+        scene=Path(scene) if scene is not None else None,
+        scene_params=dict(scene_params or {}),
+    )
     run.params.update(
         {
             "experiment": name,

@@ -39,6 +39,7 @@ __all__ = [
     "Scenario",
     "SmallObstacle",
     "load_annotations",
+    "load_scene",
     "make_scenario",
 ]
 
@@ -506,3 +507,48 @@ def load_annotations(path: str | Path) -> tuple[tuple[Passage, ...], tuple[Small
                 f"bad small obstacle entry ({err!r})", path=p, field=f"small_obstacles[{i}]"
             ) from err
     return tuple(out), tuple(small)
+
+
+def load_scene(folder: str | Path, *, seed: int = 0, noise: Noise | None = None) -> Scenario:
+    """A scene from a folder like those :meth:`Scenario.write` makes, or made by hand.
+
+    The folder holds ``truth.yaml`` (map_server), ``rig.yaml``, and ``readings.csv`` or
+    ``trajectory.csv`` (or both), optionally ``annotations.yaml``. With a trajectory and
+    ``noise`` given, readings are simulated from it with ``seed``; otherwise the
+    recorded ``readings.csv`` is used (simulated from the trajectory with the rig's
+    noise when there is none).
+    """
+    from .errors import InputError
+    from .io.rosmap import read_map
+    from .readings import read_readings, read_trajectory
+    from .rig import load_rig
+
+    d = Path(folder)
+    if not d.is_dir():
+        raise InputError("scene folder not found", path=d)
+    for name in ("truth.yaml", "rig.yaml"):
+        if not (d / name).is_file():
+            raise InputError(f"scene folder lacks {name}", path=d)
+    truth = read_map(d / "truth.yaml")
+    rig = load_rig(d / "rig.yaml")
+    has_traj = (d / "trajectory.csv").is_file()
+    has_readings = (d / "readings.csv").is_file()
+    if not (has_traj or has_readings):
+        raise InputError("scene folder needs readings.csv or trajectory.csv", path=d)
+    traj = read_trajectory(d / "trajectory.csv") if has_traj else None
+    if traj is not None and (noise is not None or not has_readings):
+        nz = noise if noise is not None else rig.sensor.noise
+        rig = replace(rig, sensor=replace(rig.sensor, noise=nz))
+        readings = simulate(truth, rig, traj, noise=nz, seed=seed)
+    else:
+        readings = read_readings(d / "readings.csv", names=rig.names)
+        traj = (
+            traj
+            if traj is not None
+            else Trajectory(readings.t, readings.x, readings.y, readings.theta)
+        )
+    passages: tuple[Passage, ...] = ()
+    obstacles: tuple[SmallObstacle, ...] = ()
+    if (d / "annotations.yaml").is_file():
+        passages, obstacles = load_annotations(d / "annotations.yaml")
+    return Scenario(d.name, truth, rig, traj, readings, passages, {"folder": str(d)}, obstacles)
