@@ -32,8 +32,14 @@ from .io.rosmap import read_map, write_map
 from .mappers import MAPPERS, parse_params
 from .metrics import MapScore, score
 from .plot import save_map_picture, save_side_by_side
-from .readings import read_readings, read_trajectory, write_readings
-from .rig import load_rig
+from .readings import (
+    Readings,
+    read_readings,
+    read_trajectory,
+    write_readings,
+    write_readings_stream,
+)
+from .rig import Rig, load_rig, save_rig
 from .scenarios import SCENARIOS, load_annotations, make_scenario
 from .sensors import Noise
 from .simulate import PoseNoise, simulate
@@ -432,6 +438,85 @@ def sweep_cmd(
         )
     console.print(table)
     console.print(f"wrote {out / 'results.parquet'}, results.csv and best.csv")
+
+
+@app.command("convert")
+def convert_cmd(
+    log: Annotated[Path, typer.Argument(help="CARMEN log (.log or .log.gz) or measurement.txt.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Readings CSV to write.")],
+    fmt: Annotated[str, typer.Option("--format", help="auto, carmen or udacity.")] = "auto",
+    source: Annotated[
+        str,
+        typer.Option(
+            help="CARMEN messages to convert: auto, FLASER, RLASER, ROBOTLASER1 or SONAR."
+        ),
+    ] = "auto",
+    max_range: Annotated[
+        float, typer.Option(help="CARMEN: ranges at or above this (m) are no return.")
+    ] = 80.0,
+    poses: Annotated[
+        Path | None,
+        typer.Option(help="udacity: the poses file (default: poses.txt beside the log)."),
+    ] = None,
+    rig: Annotated[
+        Path | None,
+        typer.Option(help="udacity: rig of the sonars (default: the assumed udacity-8 mounting)."),
+    ] = None,
+    units: Annotated[str, typer.Option(help="udacity: length unit, mm, cm or m.")] = "mm",
+    rig_out: Annotated[
+        Path | None, typer.Option(help="Where to write the rig (default: OUT with .rig.yaml).")
+    ] = None,
+) -> None:
+    """Convert a recorded log into a readings CSV and the rig that describes its sensors."""
+    import time
+
+    from .io.carmen import ConvertSummary, iter_carmen_readings
+    from .io.udacity import read_udacity
+
+    if fmt not in ("auto", "carmen", "udacity"):
+        raise ConfigError(f"--format must be auto, carmen or udacity, got {fmt!r}")
+    kind = fmt
+    if kind == "auto":
+        kind = "udacity" if log.name.startswith("measurement") else "carmen"
+    rig_path = (
+        rig_out
+        if rig_out is not None
+        else out.with_name(out.name.removesuffix(".gz").removesuffix(".csv") + ".rig.yaml")
+    )
+    t0 = time.perf_counter()
+    if kind == "udacity":
+        r = load_rig(rig) if rig is not None else None
+        readings, used = read_udacity(log, poses or log.with_name("poses.txt"), rig=r, units=units)
+        write_readings(readings, out)
+        save_rig(used, rig_path)
+        console.print(f"wrote {len(readings)} readings to {out} and the rig to {rig_path}")
+        return
+    summary = ConvertSummary()
+    rigs: list[Rig] = []
+    with _progress("converting") as cb:
+
+        def chunks() -> Iterator[Readings]:
+            for part, rg in iter_carmen_readings(
+                log,
+                source=source,
+                max_range=max_range,
+                summary=summary,
+                progress=lambda n: cb(n, 0),
+            ):
+                if not rigs:
+                    rigs.append(rg)
+                yield part
+
+        n = write_readings_stream(chunks(), out)
+    save_rig(rigs[0], rig_path)
+    dt = time.perf_counter() - t0
+    counts = ", ".join(f"{k} {v}" for k, v in sorted(summary.counts.items()))
+    skipped = ", ".join(f"{k} {v}" for k, v in sorted(summary.skipped.items())) or "none"
+    console.print(
+        f"read {summary.lines} lines ({counts}; skipped: {skipped}) in {dt:.1f} s, "
+        f"{summary.lines / dt:.0f} lines/s; wrote {n} readings to {out} and the "
+        f"rig to {rig_path}"
+    )
 
 
 @app.callback(invoke_without_command=True)

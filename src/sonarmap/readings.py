@@ -10,8 +10,9 @@ arrays, never the text of a large file.
 
 from __future__ import annotations
 
+import gzip
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -32,6 +33,7 @@ __all__ = [
     "read_readings",
     "read_trajectory",
     "write_readings",
+    "write_readings_stream",
     "write_trajectory",
 ]
 
@@ -355,6 +357,50 @@ def write_readings(readings: Readings, path: str | Path) -> None:
     atomic_write(
         p, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g", compression=compression)
     )
+
+
+def write_readings_stream(chunks: Iterable[Readings], path: str | Path, batch: int = 50_000) -> int:
+    """Write readings arriving in chunks as one CSV (atomically); return how many.
+
+    Memory holds one batch of rows at a time, whatever the length of the stream.
+    """
+    p = Path(path)
+    compression: Literal["gzip"] | None = "gzip" if p.suffix == ".gz" else None
+    total = 0
+
+    def frame(parts: list[Readings]) -> pd.DataFrame:
+        r = Readings.concat(parts)
+        return pd.DataFrame(
+            {
+                "t": r.t,
+                "sensor": np.asarray(r.names, dtype=object)[r.sensor],
+                "x": r.x,
+                "y": r.y,
+                "theta": r.theta,
+                "range": r.range,
+            }
+        )
+
+    def write(tmp: Path) -> None:
+        nonlocal total
+        opener = gzip.open if compression else open
+        with opener(tmp, "wt", newline="") as f:
+            f.write(",".join(READINGS_COLUMNS) + "\n")
+            pending: list[Readings] = []
+            size = 0
+            for chunk in chunks:
+                pending.append(chunk)
+                size += len(chunk)
+                if size >= batch:
+                    frame(pending).to_csv(f, header=False, index=False, float_format="%.9g")
+                    total += size
+                    pending, size = [], 0
+            if pending:
+                frame(pending).to_csv(f, header=False, index=False, float_format="%.9g")
+                total += size
+
+    atomic_write(p, write)
+    return total
 
 
 def write_trajectory(traj: Trajectory, path: str | Path) -> None:

@@ -131,6 +131,11 @@ class Region:
     def __hash__(self) -> int:
         return hash((self.kind, self.radius, self.halfplanes.tobytes()))
 
+    def __repr__(self) -> str:
+        return (
+            f"Region(kind={self.kind!r}, halfplanes={len(self.halfplanes)}, radius={self.radius})"
+        )
+
     def contains(self, points: npt.ArrayLike, tol: float = 1e-9) -> npt.NDArray[np.bool_]:
         """Whether points ``(N, 2)`` of the sensor frame lie in the region (boundary included)."""
         p = np.atleast_2d(np.asarray(points, dtype=np.float64))
