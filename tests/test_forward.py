@@ -146,3 +146,23 @@ def test_no_echo_readings_only_clear(small: Scenario) -> None:
 def test_parameter_ranges(method: str, params: dict[str, object], match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         make_mapper(method, **params)
+
+
+def test_readings_that_touch_no_cell(small: Scenario) -> None:
+    # Readings whose beam lies entirely off the grid, last in the batch and in between.
+    r = small.readings
+    off = Readings(
+        r.t[:3],
+        r.sensor[:3],
+        np.full(3, -50.0),
+        np.full(3, -50.0),
+        r.theta[:3],
+        r.range[:3],
+        r.names,
+    )
+    mixed = Readings.concat([r.take(np.arange(20)), off, r.take(np.arange(20, 40)), off])
+    for method in ("gradient", "stochastic", "em"):
+        occ = make_mapper(method).fit(mixed, small.truth.grid, small.rig).occupancy_
+        assert np.isfinite(occ).any(), method
+    p = GradientMapper().start(small.truth.grid, small.rig).problem(mixed)
+    np.testing.assert_allclose(np.asarray(p.W.sum(axis=1)).ravel(), 1.0)

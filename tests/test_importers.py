@@ -205,3 +205,82 @@ def test_real_udacity_log() -> None:
     r, rig = read_udacity(UDACITY / "measurement.txt", UDACITY / "poses.txt")
     assert len(r) == 413 * 8
     assert np.mean(r.range >= rig.sensor.r_max) == pytest.approx(1 / 3, abs=0.05)
+
+
+def laser_log(tmp_path: Path) -> Path:
+    """A FLASER log of a 6 m x 4 m room, simulated with a 181-beam laser."""
+    from sonarmap.grid import Grid
+    from sonarmap.io.rosmap import OccupancyMap
+    from sonarmap.readings import Trajectory
+    from sonarmap.rig import Mount, Rig
+    from sonarmap.sensors import Noise, Region, SensorModel
+    from sonarmap.simulate import simulate
+
+    grid = Grid(0.05, (0.0, 0.0), (80, 120))
+    occ = np.zeros(grid.shape, np.float32)
+    occ[:2, :] = occ[-2:, :] = 1
+    occ[:, :2] = occ[:, -2:] = 1
+    occ[30:50, 60:62] = 1  # a short wall in the middle
+    truth = OccupancyMap(grid, occ)
+    beam = SensorModel("laser", Region.cone(0.5, 20.0), 0.0, 20.0, 0.01)
+    rig = Rig(beam, tuple(Mount(f"b{i}", 0, 0, -90 + i) for i in range(181)))
+    n = 60
+    t = np.arange(n, dtype=np.float64) * 0.2
+    traj = Trajectory(t, 1.0 + 4.0 * t / t[-1], np.full(n, 2.0), np.zeros(n))
+    r = simulate(truth, rig, traj, noise=Noise(0, 1, 0), seed=0)
+    lines = []
+    for k in range(n):
+        ranges = " ".join(f"{v:.3f}" for v in r.range[k * 181 : (k + 1) * 181])
+        x, y = traj.x[k], traj.y[k]
+        lines.append(f"FLASER 181 {ranges} {x} {y} 0.0 {x} {y} 0.0 {t[k]} h {t[k]}")
+    return write(tmp_path, lines, "room.log.gz")
+
+
+def test_virtual_sonar_and_real_experiment(tmp_path: Path) -> None:
+    from sonarmap.experiments import run_experiment
+    from sonarmap.virtual import default_ring, virtual_sonar
+
+    laser, laser_rig = read_carmen(laser_log(tmp_path))
+    sonar, kept = virtual_sonar(laser, laser_rig, default_ring())
+    # The laser covers -90..90 degrees: the ring's sonars within 75 degrees of the front.
+    assert kept.names == ("s00", "s01", "s02", "s03", "s13", "s14", "s15")
+    # A sonar looking along the heading reads the nearest wall point in its 30-degree cone.
+    front = sonar.range[sonar.sensor == 0]
+    assert 0.1 < front.min() < front.max() <= kept.sensor.r_max
+    report = run_experiment("real", tmp_path / "exp", log=tmp_path / "room.log.gz", resolution=0.1)
+    rows = {
+        r["method"]: r
+        for r in __import__("json").loads((tmp_path / "exp" / "metrics.json").read_text())
+    }
+    assert set(rows) >= {"inverse", "gradient", "stochastic", "em"}
+    assert rows["em"]["f1"] > 0.4
+    assert "laser reference" in report.read_text()
+
+
+@pytest.mark.skipif(
+    not (CARMEN / "intel-corrected.log.gz").is_file(),
+    reason="shared data (../shared/data/carmen) not present",
+)
+def test_real_experiment_on_intel(tmp_path: Path) -> None:
+    from sonarmap.experiments import run_experiment
+
+    run_experiment("real", tmp_path, quick=True, log=CARMEN / "intel-corrected.log.gz")
+    import json
+
+    rows = json.loads((tmp_path / "metrics.json").read_text())
+    assert len(rows) == 6
+    assert all(r["f1"] > 0.2 for r in rows)
+
+
+@pytest.mark.skipif(
+    not (UDACITY / "measurement.txt").is_file(),
+    reason="shared data (../shared/data/udacity-sonar) not present",
+)
+def test_real_experiment_on_udacity(tmp_path: Path) -> None:
+    from sonarmap.experiments import run_experiment
+
+    run_experiment("real", tmp_path, log=UDACITY / "measurement.txt")
+    import json
+
+    agree = json.loads((tmp_path / "agreement.json").read_text())
+    assert all(0.5 < r["inverse"] <= 1.0 for r in agree)

@@ -321,6 +321,7 @@ EXPERIMENT_SCENE = {
     "passages": "passages",
     "room-turn": "room-turn",
     "noise": "doorways",
+    "real": "doorways",
 }
 
 
@@ -341,12 +342,31 @@ def experiment_cmd(
         list[str] | None,
         typer.Option("--param", help="Parameter of the built-in scene, KEY=VALUE, repeatable."),
     ] = None,
+    log: Annotated[
+        Path | None, typer.Option(help="real: a CARMEN log or a udacity measurement.txt.")
+    ] = None,
+    rig: Annotated[
+        Path | None,
+        typer.Option(help="real: the sonar rig (default: a 16-sonar ring for laser logs)."),
+    ] = None,
+    resolution: Annotated[float, typer.Option(help="real: cell size, metres.")] = 0.1,
 ) -> None:
     """Run one of the research's experiments: figures, metrics (CSV, JSON), report.html."""
     params = _scenario_params(EXPERIMENT_SCENE[name.value], _pairs(param, "--param"))
+    if name.value != "real" and (log is not None or rig is not None):
+        raise ConfigError("--log and --rig belong to the 'real' experiment")
     with _progress(f"experiment {name.value}") as cb:
         report = run_experiment(
-            name.value, out, quick=quick, seed=seed, progress=cb, scene=scene, scene_params=params
+            name.value,
+            out,
+            quick=quick,
+            seed=seed,
+            progress=cb,
+            scene=scene,
+            scene_params=params,
+            log=log,
+            rig=rig,
+            resolution=resolution,
         )
     console.print(f"wrote {report} and the figures and metrics beside it")
 

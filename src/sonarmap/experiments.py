@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -78,6 +79,10 @@ class _Run:
     scene: Path | None = None
     #: Parameters of the built-in scene.
     scene_params: dict[str, Any] = field(default_factory=dict)
+    #: For ``real``: the log, the sonar rig (None: the default), the cell size.
+    log: Path | None = None
+    rig: Path | None = None
+    resolution: float = 0.1
 
     def make(self, kind: str, seed: int, noise: Noise | None = None, **defaults: Any) -> Scenario:
         """The experiment's scene: the user's folder, or the built-in one."""
@@ -434,11 +439,163 @@ def _plot_noise(
     return _save_fig(fig, path)
 
 
+#: The laser reference map: the inverse model with laser increments (OctoMap's), the
+#: narrow laser beam, a half-cell band, no-return beams ignored.
+LASER_REFERENCE: dict[str, Any] = {
+    "p_occ": 0.7,
+    "p_free": 0.4,
+    "falloff_deg": 0.0,
+    "no_echo": "ignore",
+}
+
+
+def _real(run: _Run, quick: bool, seed: int, progress: Progress | None) -> None:
+    from .api import grid_for_readings
+    from .io.carmen import ConvertSummary, read_carmen
+    from .io.udacity import read_udacity
+    from .rig import load_rig
+    from .virtual import default_ring, virtual_sonar
+
+    if run.log is None:
+        raise ConfigError("experiment 'real' needs a log (--log)")
+    log = run.log
+    if log.name.startswith("measurement"):
+        rig = load_rig(run.rig) if run.rig is not None else None
+        readings, used = read_udacity(log, log.with_name("poses.txt"), rig=rig)
+        _real_sonar(run, readings, used, f"udacity log {log}", progress)
+        return
+    summary = ConvertSummary()
+    laser, laser_rig = read_carmen(log, summary=summary)
+    if laser_rig.names[0].startswith("sonar"):
+        _real_sonar(run, laser, laser_rig, f"CARMEN sonar log {log}", progress)
+        return
+    if quick:  # the first 200 scans
+        laser = laser.take(np.arange(min(len(laser), 200 * len(laser_rig.mounts))))
+    sonar_rig = load_rig(run.rig) if run.rig is not None else default_ring()
+    sonar, kept = virtual_sonar(laser, laser_rig, sonar_rig, seed=seed)
+    grid = grid_for_readings(sonar, kept, run.resolution)
+    ref_params = {**LASER_REFERENCE, "dr": run.resolution / 2}
+    reference = make_mapper("inverse", **ref_params).fit(laser, grid, laser_rig).result()
+    run.params.update(
+        {
+            "log": str(log),
+            "messages": dict(summary.counts),
+            "skipped": dict(summary.skipped),
+            "laser_readings": len(laser),
+            "sonar_readings": len(sonar),
+            "sonars": list(kept.names),
+            "sonar_rig": kept.to_dict(),
+            "resolution": run.resolution,
+            "laser_reference": ref_params,
+        }
+    )
+    run.report.text(
+        f"Real building from the laser log {log.name}: a virtual ring of {len(kept.mounts)} "
+        "sonars (those of the rig whose beam the laser covers) reads the nearest laser "
+        "return inside each beam; the reference map is the inverse model on the laser "
+        "itself (narrow beams, laser increments). Maps are scored where the reference is "
+        "known."
+    )
+    write_map(reference, run.out / "maps" / "laser-reference")
+    maps: dict[str, OccupancyMap] = {}
+    for k, spec in enumerate(METHODS):
+        mapper = make_mapper(spec.method, **spec.params)
+        t0 = time.perf_counter()
+        maps[spec.label] = mapper.fit(sonar, grid, kept).result()
+        seconds = time.perf_counter() - t0
+        write_map(maps[spec.label], run.out / "maps" / spec.label)
+        sc = score(reference, maps[spec.label]).as_dict()
+        run.rows.append({"method": spec.label, "seconds": seconds, **sc})
+        if progress is not None:
+            progress(k + 1, len(METHODS))
+    fig = save_side_by_side(
+        maps, run.out / "real.png", truth=reference, truth_label="laser reference"
+    )
+    run.report.figure(
+        fig,
+        "Laser reference (first panel) and the sonar-only maps; the "
+        "reference's obstacles outlined in red.",
+    )
+    run.report.table(
+        _short(
+            run.rows,
+            (
+                "method",
+                "seconds",
+                "accuracy",
+                "precision",
+                "recall",
+                "f1",
+                "dist_to_truth",
+                "dist_from_truth",
+                "unknown",
+            ),
+        ),
+        "Sonar-only maps against the laser reference (distances in metres).",
+    )
+
+
+def _real_sonar(run: _Run, readings: Any, rig: Any, what: str, progress: Progress | None) -> None:
+    from .api import grid_for_readings
+    from .mappers.em import EMMapper
+
+    grid = grid_for_readings(readings, rig, run.resolution)
+    run.params.update(
+        {"log": what, "readings": len(readings), "rig": rig.to_dict(), "resolution": run.resolution}
+    )
+    run.report.text(
+        f"Real sonar data ({what}, {len(readings)} readings): no ground truth. "
+        "The maps side by side, how often two methods agree on a cell both "
+        "observed, and the readings the probabilistic model (EM) attributes to "
+        "its random component."
+    )
+    maps: dict[str, OccupancyMap] = {}
+    for k, spec in enumerate(METHODS):
+        mapper = make_mapper(spec.method, **spec.params)
+        t0 = time.perf_counter()
+        mapper.fit(readings, grid, rig)
+        maps[spec.label] = mapper.result()
+        row: dict[str, Any] = {
+            "method": spec.label,
+            "seconds": time.perf_counter() - t0,
+            "known": float(np.isfinite(maps[spec.label].occupancy).mean()),
+            "occupied": float(np.nanmean(maps[spec.label].occupancy >= 0.5)),
+        }
+        if isinstance(mapper, EMMapper):
+            row["outliers"] = int(np.sum(mapper.outlier_prob_ > 0.5))
+            row["outlier_share"] = float(np.mean(mapper.outlier_prob_ > 0.5))
+        run.rows.append(row)
+        write_map(maps[spec.label], run.out / "maps" / spec.label)
+        if progress is not None:
+            progress(k + 1, len(METHODS))
+    labels = list(maps)
+    agree = []
+    for a in labels:
+        row2: dict[str, Any] = {"method": a}
+        for b in labels:
+            both = np.isfinite(maps[a].occupancy) & np.isfinite(maps[b].occupancy)
+            same = (maps[a].occupancy[both] >= 0.5) == (maps[b].occupancy[both] >= 0.5)
+            row2[b] = float(same.mean()) if both.any() else math.nan
+        agree.append(row2)
+    fig = save_side_by_side(maps, run.out / "real.png")
+    run.report.figure(fig, "Maps from the real sonar log; second row binarised at 0.5.")
+    run.report.table(
+        run.rows,
+        "Per method: time, share of cells observed and occupied; for "
+        "em, readings it attributes to the random component (posterior > 0.5).",
+    )
+    run.report.table(
+        agree, "Agreement between methods on the cells both observed (binarised at 0.5)."
+    )
+    atomic_write_text(run.out / "agreement.json", json_dumps(agree))
+
+
 EXPERIMENTS: dict[str, Callable[[_Run, bool, int, Progress | None], None]] = {
     "doorways": _doorways,
     "passages": _passages,
     "room-turn": _room_turn,
     "noise": _noise,
+    "real": _real,
 }
 
 
@@ -451,6 +608,9 @@ def run_experiment(
     progress: Progress | None = None,
     scene: str | Path | None = None,
     scene_params: dict[str, Any] | None = None,
+    log: str | Path | None = None,
+    rig: str | Path | None = None,
+    resolution: float = 0.1,
 ) -> Path:
     """Run an experiment into folder ``out``; return the path of its ``report.html``.
 
@@ -462,6 +622,11 @@ def run_experiment(
         trajectory, the passages experiment simulates each seed's readings from it.
     scene_params : dict, optional
         Parameters of the built-in scene (e.g. ``widths`` for passages).
+    log, rig : path, optional
+        For ``real``: a CARMEN log or a udacity ``measurement.txt``, and the sonar rig
+        (default: :func:`sonarmap.virtual.default_ring` for laser logs).
+    resolution : float
+        Cell size of ``real`` (metres).
     """
     if scene is not None and scene_params:
         raise ConfigError("give either a scene folder or scene parameters, not both")
@@ -476,6 +641,9 @@ def run_experiment(
         Report(f"sonarmap experiment: {name}"),
         scene=Path(scene) if scene is not None else None,
         scene_params=dict(scene_params or {}),
+        log=Path(log) if log is not None else None,
+        rig=Path(rig) if rig is not None else None,
+        resolution=resolution,
     )
     run.params.update(
         {

@@ -42,7 +42,8 @@ class MapScore:
         Over the whole map, unknown cells counted as free (what a planner that treats
         unknown space as free would see).
     unknown : float
-        Fraction of all cells left unknown.
+        Fraction of the scored cells (all of a floor plan; the known ones of a reference
+        map) left unknown.
     dist_to_truth : float
         Mean distance (metres) from each recovered obstacle cell to the nearest true one.
     dist_from_truth : float
@@ -142,11 +143,14 @@ def score(
     """
     _check_same_grid(truth, m)
     t = np.nan_to_num(truth.occupancy, nan=0.0) >= 0.5
-    known = np.isfinite(m.occupancy)
+    # A reference map (e.g. built from a laser) may leave cells unknown: they are not
+    # scored at all. A floor plan knows every cell.
+    scored = np.isfinite(truth.occupancy)
+    known = np.isfinite(m.occupancy) & scored
     occ = np.zeros_like(known)
     occ[known] = m.occupancy[known] >= threshold
     observed = _classes(t, occ, known)
-    whole = _classes(t, occ, np.ones_like(known))
+    whole = _classes(t, occ, scored)
     h = m.grid.resolution
     found = [measure_passage(m, p, threshold=threshold) for p in passages]
     detected = [r for r in found if r.detected]
@@ -155,7 +159,7 @@ def score(
     return MapScore(
         *observed,
         *whole,
-        unknown=float(1.0 - known.mean()),
+        unknown=float(1.0 - known.sum() / max(int(scored.sum()), 1)),
         dist_to_truth=_mean_distance(occ, t, h),
         dist_from_truth=_mean_distance(t & known, occ, h),
         passages=len(found),

@@ -92,15 +92,16 @@ def save_side_by_side(
     *,
     truth: OccupancyMap | None = None,
     binary_row: bool = True,
+    truth_label: str = "truth",
 ) -> Path:
     """Maps side by side (a second row binarised at 0.5) with the truth first, to a PNG."""
-    panels = ([("truth", truth)] if truth is not None else []) + list(maps.items())
+    panels = ([(truth_label, truth)] if truth is not None else []) + list(maps.items())
     rows = 2 if binary_row else 1
     fig, axes = plt.subplots(
         rows, len(panels), figsize=(3.2 * len(panels), 3.4 * rows), squeeze=False
     )
     for j, (name, m) in enumerate(panels):
-        draw_map(axes[0, j], m, truth=None if name == "truth" else truth, title=name)
+        draw_map(axes[0, j], m, truth=None if name == truth_label else truth, title=name)
         if binary_row:
             draw_map(axes[1, j], m, binary=True, title=f"{name} (binarised)")
     fig.tight_layout()

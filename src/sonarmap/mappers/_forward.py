@@ -126,10 +126,10 @@ def _rows(
 ) -> tuple[F64, npt.NDArray[np.int32], npt.NDArray[np.int64], F64]:
     """Normalised weights of the kept readings' cells: data, columns, row offsets, X0."""
     counts = cs.counts
-    sums = (
-        np.add.reduceat(cs.weight.astype(np.float64), cs.offsets[:-1])
-        if len(cs.cells)
-        else np.zeros(cs.n_readings)
+    # Per-reading sums; bincount is right for readings that touch no cell anywhere in the
+    # batch (reduceat is not: it repeats a neighbour's value, or fails at the end).
+    sums = np.bincount(
+        cs.reading_index(), weights=cs.weight.astype(np.float64), minlength=cs.n_readings
     )
     sums = np.where(counts > 0, sums, 0.0)
     use = keep & (counts > 0) & (sums > 0)

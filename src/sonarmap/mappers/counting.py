@@ -46,14 +46,11 @@ class CountingMapper(Mapper):
         self._seen = np.zeros(self.grid.size, dtype=np.int64)
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
+        if self.no_echo == "ignore":
+            readings = readings.take(readings.range < self.sensor.r_max)
         n_cells = self.grid.size
-        for a, fp in self._footprints(readings, dr=self.dr, progress=progress):
-            free_cells = fp.free.cells
-            if self.no_echo == "ignore":
-                rng = readings.range[a : a + fp.free.n_readings]
-                keep = (rng < self.sensor.r_max)[fp.free.reading_index()]
-                free_cells = free_cells[keep]
-            self._seen += np.bincount(free_cells, minlength=n_cells)
+        for _, fp in self._footprints(readings, dr=self.dr, progress=progress):
+            self._seen += np.bincount(fp.free.cells, minlength=n_cells)
             occ = np.bincount(fp.occ.cells, minlength=n_cells)
             self._seen += occ
             self._hits += occ

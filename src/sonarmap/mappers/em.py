@@ -59,8 +59,9 @@ def _e_step(
     p_hit: float,
     sigma: float,
     r_max: float,
-) -> tuple[F64, F64, float]:
-    """Expected hits a and passes b per cell, and the log-likelihood of the data."""
+) -> tuple[F64, F64, float, F64]:
+    """Expected hits a and passes b per cell, the log-likelihood of the data, and each
+    reading's posterior probability of being an outlier."""
     n_cells = m.shape[0]
     hit = np.zeros(n_cells)
     pas = np.zeros(n_cells)
@@ -71,6 +72,7 @@ def _e_step(
     for i in range(z.shape[0]):
         max_band = max(max_band, band_off[i + 1] - band_off[i])
     loge = np.empty(max_band)
+    outlier = np.empty(z.shape[0])
     total_ll = 0.0
     for i in range(z.shape[0]):
         log_t = 0.0
@@ -98,6 +100,7 @@ def _e_step(
         log_z = top + math.log(s)
         total_ll += log_z
         e_rand = math.exp(log_rand - log_z)
+        outlier[i] = e_rand
         e_max = math.exp(log_max - log_z)
         beyond = e_max
         for q in range(nb_ - 1, -1, -1):
@@ -108,7 +111,7 @@ def _e_step(
             beyond += e
         for j in range(free_off[i], free_off[i + 1]):
             pas[free_cell[j]] += 1.0 - e_rand
-    return hit, pas, total_ll
+    return hit, pas, total_ll, outlier
 
 
 @nb.njit(cache=True)
@@ -189,6 +192,8 @@ class EMMapper(Mapper):
         The EM estimate m (flat, NaN where untouched).
     loglik_ : list of float
         Log-likelihood of the data at each iteration (non-decreasing).
+    outlier_prob_ : ndarray
+        Per reading, the posterior probability that the random component caused it.
     n_iter_ : int
     """
 
@@ -230,6 +235,7 @@ class EMMapper(Mapper):
         self._post: F64 | None = None
         self.loglik_: list[float] = []
         self.n_iter_ = 0
+        self.outlier_prob_: F64 = np.empty(0)
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         everything = self._accumulate(readings)
@@ -240,7 +246,7 @@ class EMMapper(Mapper):
         self.loglik_ = []
         k = 0
         for k in range(1, self.max_iter + 1):
-            hit, pas, ll = _e_step(
+            hit, pas, ll, outlier = _e_step(
                 m,
                 ix.free_off,
                 ix.free_cell,
@@ -264,6 +270,7 @@ class EMMapper(Mapper):
             if change <= self.tol:
                 break
         self.n_iter_ = k
+        self.outlier_prob_ = outlier
         occ = m >= 0.5
         arrays = (
             ix.free_off,

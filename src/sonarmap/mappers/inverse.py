@@ -44,7 +44,6 @@ def _apply(
     o_off: npt.NDArray[np.int64],
     o_cell: npt.NDArray[np.int32],
     o_scale: npt.NDArray[np.float32],
-    use_reading: npt.NDArray[np.bool_],
     l_free: float,
     l_occ: float,
     lo: float,
@@ -52,8 +51,6 @@ def _apply(
 ) -> None:
     n = f_off.shape[0] - 1
     for i in range(n):
-        if not use_reading[i]:
-            continue
         for j in range(f_off[i], f_off[i + 1]):
             c = f_cell[j]
             v = logodds[c] + l_free * f_scale[j]
@@ -132,16 +129,15 @@ class InverseMapper(Mapper):
         return np.asarray(np.exp(-0.5 * (bearing / s) ** 2), dtype=np.float32)
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
+        if self.no_echo == "ignore":
+            # Dropped before rasterising: a no-echo beam is the longest there is.
+            readings = readings.take(readings.range < self.sensor.r_max)
         falloff = self.falloff_deg > 0
         l_free, l_occ = _logit(self.p_free), _logit(self.p_occ)
         lo, hi = _logit(self.clamp_min), _logit(self.clamp_max)
-        for a, fp in self._footprints(
+        for _, fp in self._footprints(
             readings, dr=self.dr, with_bearing=falloff, progress=progress
         ):
-            rng = readings.range[a : a + fp.free.n_readings]
-            use = np.ones(len(rng), dtype=np.bool_)
-            if self.no_echo == "ignore":
-                use = rng < self.sensor.r_max
             _apply(
                 self._logodds,
                 self._touched,
@@ -151,7 +147,6 @@ class InverseMapper(Mapper):
                 fp.occ.offsets,
                 fp.occ.cells,
                 self._scale(fp.occ.bearing, len(fp.occ.cells)),
-                use,
                 l_free,
                 l_occ,
                 lo,
