@@ -74,7 +74,7 @@ def test_compare_agrees_with_the_experiment(
         assert got[r["method"]]["passages_open"] == r["passages_open"]
 
 
-@pytest.mark.parametrize("name", [n for n in EXPERIMENTS if n != "doorways"])
+@pytest.mark.parametrize("name", [n for n in EXPERIMENTS if n not in ("doorways", "real")])
 def test_other_experiments_quick(name: str, tmp_path: Path) -> None:
     report = run_experiment(name, tmp_path, quick=True)
     html = report.read_text()
@@ -92,6 +92,12 @@ def test_unknown_experiment(capsys: pytest.CaptureFixture[str], tmp_path: Path) 
     code, _, err = run(["experiment", "magic", "-o", str(tmp_path)], capsys)
     assert code == 2
     assert "Invalid value for 'name'" in err
+    code, _, err = run(["experiment", "real", "-o", str(tmp_path)], capsys)
+    assert code == 2
+    assert "experiment 'real' needs a log (--log)" in err
+    code, _, err = run(["experiment", "doorways", "--log", "x.log", "-o", str(tmp_path)], capsys)
+    assert code == 2
+    assert "--log and --rig belong to the 'real' experiment" in err
 
 
 SMALL = """
