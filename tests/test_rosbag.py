@@ -211,3 +211,14 @@ def test_convert_a_ros2_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
         main(["convert", str(tmp_path / "bag"), "--topic", "/x", "-o", str(tmp_path / "x.csv")])
     assert "no sensor_msgs/Range messages on /x" in capsys.readouterr().err
     assert not (tmp_path / "x.csv").exists()
+
+
+def test_tf_to_another_base_frame(tmp_path: Path) -> None:
+    path = tmp_path / "run.bag"
+    write_bag(path, ros1=True, use_tf=True)
+    with pytest.raises(
+        InputError,
+        match=r"no /tf transform to 'base_footprint' \(/tf has "
+        r"base_link; see --base-frame\)",
+    ):
+        read_bag(path, base_frame="base_footprint")

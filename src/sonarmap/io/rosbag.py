@@ -4,7 +4,8 @@
   topics given; its ``header.frame_id`` names the sensor, ``field_of_view``,
   ``min_range`` and ``max_range`` give the beam. Following REP 117, ``+inf`` or a range
   at or above ``max_range`` is no echo, ``-inf`` an object closer than ``min_range``
-  (read as ``min_range``); NaN readings are skipped and counted.
+  (read as ``min_range``); NaN readings are skipped and counted. A reading whose stamp
+  is unset takes the time the bag recorded it.
 - Robot poses: a ``nav_msgs/Odometry`` topic (the first one, or the one given), or else
   the ``/tf`` transforms from any parent to the base frame (default ``base_link``); the
   pose is interpolated to each reading's stamp (linearly, heading along the shortest
@@ -101,6 +102,7 @@ def read_bag(
     poses: list[tuple[float, float, float, float]] = []
     tf_poses: list[tuple[float, float, float, float]] = []
     static: dict[str, tuple[str, tuple[float, float, float]]] = {}
+    tf_children: set[str] = set()
     try:
         with AnyReader([p], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             conns = reader.connections
@@ -131,13 +133,13 @@ def read_bag(
             for c in conns:
                 if c not in wanted:
                     s.skipped[c.topic] += c.msgcount
-            for conn, _, raw in reader.messages(connections=wanted):
+            for conn, recorded, raw in reader.messages(connections=wanted):
                 msg: Any = reader.deserialize(raw, conn.msgtype)
                 s.topics[conn.topic] += 1
                 if conn.msgtype == RANGE:
                     ranges.append(
                         (
-                            _stamp(msg.header),
+                            _stamp(msg.header) or recorded * 1e-9,  # unset stamp: the record time
                             msg.header.frame_id,
                             float(msg.range),
                             float(msg.min_range),
@@ -162,8 +164,10 @@ def read_bag(
                         parent = tr.header.frame_id.lstrip("/")
                         if conn.topic.endswith("tf_static"):
                             static[child] = (parent, t3)
-                        elif child == base_frame:
-                            tf_poses.append((_stamp(tr.header), *t3))
+                        else:
+                            tf_children.add(child)
+                            if child == base_frame:
+                                tf_poses.append((_stamp(tr.header), *t3))
     except InputError:
         raise
     except Exception as err:  # rosbags signals bad bags with several exception types
@@ -174,7 +178,9 @@ def read_bag(
         poses, s.pose_source = tf_poses, f"/tf to {base_frame}"
     else:
         raise InputError(
-            f"no robot poses: no nav_msgs/Odometry and no /tf transform to '{base_frame}'", path=p
+            f"no robot poses: no nav_msgs/Odometry and no /tf transform to '{base_frame}' "
+            f"(/tf has {', '.join(sorted(tf_children)) or 'no frames'}; see --base-frame)",
+            path=p,
         )
     return _assemble(p, ranges, poses, static, base_frame, rig, s)
 
