@@ -6,15 +6,13 @@ import math
 
 import pytest
 
+from sonarmap.experiments import TRADITIONAL_INVERSE
 from sonarmap.mappers import make_mapper
 from sonarmap.metrics import PassageResult, measure_passage, passage_open
 from sonarmap.scenarios import Scenario, make_scenario
 from sonarmap.sensors import Noise
 
 FORWARD = ("gradient", "stochastic", "em")
-#: Laser-style log-odds (OctoMap's increments, no fall-off, a one-cell band): the kind of
-#: inverse model the research compares against.
-TRADITIONAL = {"p_occ": 0.7, "p_free": 0.4, "falloff_deg": 0.0, "dr": 0.05}
 
 
 def open_doors(scene: Scenario, method: str, **params: object) -> int:
@@ -37,7 +35,7 @@ def ladder() -> Scenario:
 
 
 def test_traditional_inverse_closes_doorways(doorways: Scenario) -> None:
-    assert open_doors(doorways, "inverse", **TRADITIONAL) < len(doorways.passages)
+    assert open_doors(doorways, "inverse", **TRADITIONAL_INVERSE) < len(doorways.passages)
 
 
 @pytest.mark.parametrize("method", FORWARD)

@@ -166,3 +166,17 @@ def test_readings_that_touch_no_cell(small: Scenario) -> None:
         assert np.isfinite(occ).any(), method
     p = GradientMapper().start(small.truth.grid, small.rig).problem(mixed)
     np.testing.assert_allclose(np.asarray(p.W.sum(axis=1)).ravel(), 1.0)
+
+
+@pytest.mark.parametrize("method", ["inverse", "counting", "gradient"])
+def test_ignored_no_echo_readings_leave_the_map_unknown(small: Scenario, method: str) -> None:
+    r = small.readings
+    far = Readings(
+        r.t, r.sensor, r.x, r.y, r.theta, np.full(len(r), small.rig.sensor.r_max), r.names
+    )
+    occ = make_mapper(method, no_echo="ignore").fit(far, small.truth.grid, small.rig).occupancy_
+    assert np.isnan(occ).all()
+    mixed = Readings.concat([r, far])
+    a = make_mapper(method, no_echo="ignore").fit(mixed, small.truth.grid, small.rig)
+    b = make_mapper(method, no_echo="ignore").fit(r, small.truth.grid, small.rig)
+    np.testing.assert_allclose(a.occupancy_, b.occupancy_, equal_nan=True)

@@ -461,9 +461,7 @@ def sweep_cmd(
 
 
 def _log_kind(log: Path) -> str:
-    if log.is_dir() or log.suffix in (".db3", ".mcap"):
-        return "rosbag"
-    if log.suffix == ".bag":
+    if log.is_dir() or log.suffix in (".bag", ".db3", ".mcap"):
         return "rosbag"
     return "udacity" if log.name.startswith("measurement") else "carmen"
 

@@ -174,16 +174,19 @@ def score(
     )
 
 
+def _axes(p: Passage) -> tuple[float, float, float, float]:
+    """Middle of the opening and the unit vector from jamb ``a`` to jamb ``b``."""
+    ax, ay = p.a
+    bx, by = p.b
+    return (ax + bx) / 2, (ay + by) / 2, (bx - ax) / p.width, (by - ay) / p.width
+
+
 def _passage_frame(
     m: OccupancyMap, p: Passage
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     """Each cell centre's coordinate along the opening and across it, from its middle."""
     xc, yc = m.grid.all_centres()
-    ax, ay = p.a
-    bx, by = p.b
-    w = p.width
-    ux, uy = (bx - ax) / w, (by - ay) / w
-    mx, my = (ax + bx) / 2, (ay + by) / 2
+    mx, my, ux, uy = _axes(p)
     along = (xc - mx) * ux + (yc - my) * uy
     across = -(xc - mx) * uy + (yc - my) * ux
     return along, across
@@ -250,11 +253,8 @@ def measure_passage(
     sees an opening from one side only leaves the space behind it unknown.
     """
     h = m.grid.resolution
-    ax, ay = p.a
-    bx, by = p.b
-    ux, uy = (bx - ax) / p.width, (by - ay) / p.width
+    mx, my, ux, uy = _axes(p)
     nx, ny = -uy, ux
-    mx, my = (ax + bx) / 2, (ay + by) / 2
     occ = m.occupancy
     reach = p.width / 2 + search
     steps = math.ceil(reach / h)

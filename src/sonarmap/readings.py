@@ -340,23 +340,7 @@ def read_trajectory(path: str | Path, *, chunk_size: int = DEFAULT_CHUNK) -> Tra
 
 def write_readings(readings: Readings, path: str | Path) -> None:
     """Write readings as CSV (atomically; gzip when the name ends in ``.gz``)."""
-    frame = pd.DataFrame(
-        {
-            "t": readings.t,
-            "sensor": np.asarray(readings.names, dtype=object)[readings.sensor]
-            if len(readings)
-            else np.empty(0, dtype=object),
-            "x": readings.x,
-            "y": readings.y,
-            "theta": readings.theta,
-            "range": readings.range,
-        }
-    )
-    p = Path(path)
-    compression: Literal["gzip"] | None = "gzip" if p.suffix == ".gz" else None
-    atomic_write(
-        p, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.9g", compression=compression)
-    )
+    write_readings_stream([readings], path)
 
 
 def write_readings_stream(chunks: Iterable[Readings], path: str | Path, batch: int = 50_000) -> int:

@@ -171,6 +171,10 @@ class Mapper(ABC):
             if progress is not None:
                 progress(b, n)
 
+    def _echoes(self, readings: Readings) -> Readings:
+        """The readings with an echo (for methods told to ignore no-echo readings)."""
+        return readings.take(readings.range < self.sensor.r_max)
+
     def _accumulate(self, readings: Readings) -> Readings:
         """Keep ``readings`` with the earlier batches and return them all.
 

@@ -131,7 +131,6 @@ def _rows(
     sums = np.bincount(
         cs.reading_index(), weights=cs.weight.astype(np.float64), minlength=cs.n_readings
     )
-    sums = np.where(counts > 0, sums, 0.0)
     use = keep & (counts > 0) & (sums > 0)
     entry_use = np.repeat(use, counts)
     data = cs.weight.astype(np.float64) / np.repeat(np.where(sums > 0, sums, 1.0), counts)

@@ -47,7 +47,7 @@ class CountingMapper(Mapper):
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         if self.no_echo == "ignore":
-            readings = readings.take(readings.range < self.sensor.r_max)
+            readings = self._echoes(readings)
         n_cells = self.grid.size
         for _, fp in self._footprints(readings, dr=self.dr, progress=progress):
             self._seen += np.bincount(fp.free.cells, minlength=n_cells)

@@ -37,7 +37,6 @@ import numpy.typing as npt
 import scipy.optimize as so
 import scipy.sparse as sp
 
-from ..raster import CellSet, Footprint
 from ..readings import Readings
 from . import _checks
 from ._base import Mapper, Progress, register
@@ -148,14 +147,13 @@ class GradientMapper(Mapper):
 
     def problem(self, readings: Readings) -> ForwardProblem:
         """The objective for ``readings`` on the mapper's grid (after :meth:`start`)."""
+        if self.no_echo == "ignore":
+            # A no-echo reading has only an Omega_free term; ignoring it drops the reading.
+            readings = self._echoes(readings)
         fps, echo = [], []
         for a, fp in self._footprints(readings, dr=self.dr):
-            rng = readings.range[a : a + fp.free.n_readings]
-            e = rng < self.sensor.r_max
             fps.append(fp)
-            echo.append(e)
-        if self.no_echo == "ignore":
-            fps = [_drop_free_of_no_echo(fp, e) for fp, e in zip(fps, echo, strict=True)]
+            echo.append(readings.range[a : a + fp.free.n_readings] < self.sensor.r_max)
         pen = Penalties(self.a1, self.a2, self.c1, self.c2)
         return build_problem(fps, echo, self.grid.size, pen)
 
@@ -172,14 +170,6 @@ class GradientMapper(Mapper):
         if self._x is not None:
             out[self._cells] = np.clip(self._x, 0.0, 1.0)
         return out
-
-
-def _drop_free_of_no_echo(fp: Footprint, echo: npt.NDArray[np.bool_]) -> Footprint:
-    keep = np.repeat(echo, fp.free.counts)
-    counts = np.where(echo, fp.free.counts, 0)
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    free = CellSet(offsets, fp.free.cells[keep], fp.free.distance[keep], fp.free.weight[keep])
-    return Footprint(free=free, occ=fp.occ, dr=fp.dr)
 
 
 def _stalled(history: list[float], tol: float, patience: int) -> bool:

@@ -131,7 +131,7 @@ class InverseMapper(Mapper):
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         if self.no_echo == "ignore":
             # Dropped before rasterising: a no-echo beam is the longest there is.
-            readings = readings.take(readings.range < self.sensor.r_max)
+            readings = self._echoes(readings)
         falloff = self.falloff_deg > 0
         l_free, l_occ = _logit(self.p_free), _logit(self.p_occ)
         lo, hi = _logit(self.clamp_min), _logit(self.clamp_max)
