@@ -93,9 +93,10 @@ class ForwardProblem:
         at_x0 = base + below * x0
         return np.where(x0 > X, base + below * X, at_x0 + above * (X - x0))
 
-    def value(self, x: F64) -> float:
-        """The objective S(x)."""
-        X = self.W @ x
+    def value(self, x: F64, X: F64 | None = None) -> float:
+        """The objective S(x); ``X = W x`` when the caller has it already."""
+        if X is None:
+            X = self.W @ x
         p = float(np.sum(self.term_values(X)))
         c1, c2 = self.pen.c1, self.pen.c2
         r1 = c1 * np.where(x > 1, x - 1, np.where(x < 0, -x, 0.0))
@@ -115,9 +116,11 @@ class ForwardProblem:
             g = g + np.where(x > 1, c1, np.where(x < 0, -c1, 0.0))
         return g
 
-    def grad(self, x: F64, *, box: bool = True) -> F64:
-        """A subgradient of S: two sparse products and the regulariser."""
-        X = self.W @ x
+    def grad(self, x: F64, X: F64 | None = None, *, box: bool = True) -> F64:
+        """A subgradient of S: ``W^T P'(W x)`` plus the regulariser; ``X = W x`` when the
+        caller has it already."""
+        if X is None:
+            X = self.W @ x
         return np.asarray(self.WT @ self.term_slopes(X)) + self.reg_grad(x, box=box)
 
 

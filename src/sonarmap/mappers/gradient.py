@@ -197,13 +197,17 @@ def _descend(
     step = m.step if m.step is not None else STEP["pgd" if projected else "gd"]
     if projected:
         x = np.clip(x, 0.0, 1.0)
-    best, best_x = p.value(x), x.copy()
+    # X = W x is kept between the objective and the next subgradient: each step costs
+    # the two sparse products W x and W^T P'(X), not three.
+    X = p.W @ x
+    best, best_x = p.value(x, X), x.copy()
     history = [best]
     k = 0
     for k in range(1, m.max_iter + 1):
-        g = p.grad(x, box=not projected)
+        g = p.grad(x, X, box=not projected)
         x = np.clip(x - step / np.sqrt(k) * g, 0.0, 1.0) if projected else x - step * g
-        v = p.value(x)
+        X = p.W @ x
+        v = p.value(x, X)
         history.append(v)
         if v < best:
             best, best_x = v, x.copy()
