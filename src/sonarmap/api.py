@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -11,10 +12,12 @@ from .errors import ConfigError, InputError
 from .grid import Grid
 from .io.rosmap import OccupancyMap
 from .mappers import make_mapper
-from .readings import Readings
+from .readings import Readings, iter_readings
 from .rig import Rig
+from .selection import Strategy
+from .streaming import ReplayReport, StreamingMapper, replay
 
-__all__ = ["build_map", "grid_for_readings"]
+__all__ = ["build_map", "grid_for_log", "grid_for_readings", "stream_log"]
 
 Progress = Callable[[int, int], None]
 
@@ -36,20 +39,112 @@ def grid_for_readings(
             raise ConfigError(f"bounds must be XMIN YMIN XMAX YMAX, got {list(bounds)}")
         x0, y0, x1, y1 = (float(b) for b in bounds)
         return Grid.from_bounds(x0, y0, x1, y1, resolution)
-    if len(readings) == 0:
+    box = _extent(readings, rig)
+    if box is None:
         raise InputError("no readings to size the map from; give bounds")
+    return _grid_around(box, resolution, margin)
+
+
+def _extent(readings: Readings, rig: Rig) -> tuple[float, float, float, float] | None:
+    """(xmin, ymin, xmax, ymax) of the sensor positions and echo points."""
+    if len(readings) == 0:
+        return None
     echo = readings.range < rig.sensor.r_max
     ex = readings.x[echo] + readings.range[echo] * np.cos(readings.theta[echo])
     ey = readings.y[echo] + readings.range[echo] * np.sin(readings.theta[echo])
     xs = np.concatenate([readings.x, ex])
     ys = np.concatenate([readings.y, ey])
-    return Grid.from_bounds(
-        float(xs.min()) - margin,
-        float(ys.min()) - margin,
-        float(xs.max()) + margin,
-        float(ys.max()) + margin,
-        resolution,
+    return float(xs.min()), float(ys.min()), float(xs.max()), float(ys.max())
+
+
+def _grid_around(box: tuple[float, float, float, float], resolution: float, margin: float) -> Grid:
+    x0, y0, x1, y1 = box
+    return Grid.from_bounds(x0 - margin, y0 - margin, x1 + margin, y1 + margin, resolution)
+
+
+def grid_for_log(
+    path: str | Path,
+    rig: Rig,
+    resolution: float,
+    bounds: Sequence[float] | None = None,
+    *,
+    margin: float = 0.5,
+) -> Grid:
+    """Like :func:`grid_for_readings` for a readings CSV, read chunk by chunk (one pass,
+    memory bounded by the chunk)."""
+    if bounds is not None:
+        return grid_for_readings(Readings.concat([]), rig, resolution, bounds)
+    box: tuple[float, float, float, float] | None = None
+    for chunk in iter_readings(path, names=rig.names):
+        b = _extent(chunk, rig)
+        if b is None:
+            continue
+        box = (
+            b
+            if box is None
+            else (min(box[0], b[0]), min(box[1], b[1]), max(box[2], b[2]), max(box[3], b[3]))
+        )
+    if box is None:
+        raise InputError("no readings (the file has a header only)", path=path)
+    return _grid_around(box, resolution, margin)
+
+
+def stream_log(
+    path: str | Path,
+    rig: Rig,
+    grid: Grid,
+    method: str = "gradient",
+    params: Mapping[str, Any] | None = None,
+    *,
+    strategy: Strategy | str | None = None,
+    effort: int = 1,
+    period: float = 0.25,
+    realtime: bool = False,
+    speed: float = 1.0,
+    snapshot_every: float | None = None,
+    on_snapshot: Callable[[float, StreamingMapper], None] | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> tuple[StreamingMapper, ReplayReport]:
+    """Replay a readings CSV through a streaming map (see :func:`sonarmap.streaming.replay`).
+
+    The file is read in chunks: memory is the streaming state's plus one chunk.
+    """
+    sm = StreamingMapper(method, grid, rig, strategy=strategy, effort=effort, **dict(params or {}))
+
+    def checked() -> Iterator[Readings]:
+        done = 0
+        for chunk in iter_readings(path, names=rig.names):
+            _check_r_min(chunk, rig, offset=done, path=path)
+            done += len(chunk)
+            yield chunk
+
+    rep = replay(
+        checked(),
+        sm,
+        period=period,
+        realtime=realtime,
+        speed=speed,
+        snapshot_every=snapshot_every,
+        on_snapshot=on_snapshot,
+        progress=progress,
     )
+    if rep.n_readings == 0:
+        raise InputError("no readings (the file has a header only)", path=path)
+    return sm, rep
+
+
+def _check_r_min(
+    readings: Readings, rig: Rig, *, offset: int = 0, path: str | Path | None = None
+) -> None:
+    below = readings.range < rig.sensor.r_min - 1e-9
+    if below.any():
+        i = int(np.flatnonzero(below)[0])
+        raise InputError(
+            f"reading {offset + i}: range {readings.range[i]} is below the sensor's r_min "
+            f"({rig.sensor.r_min})",
+            path=path,
+            field="range",
+        )
 
 
 def build_map(
@@ -83,13 +178,6 @@ def build_map(
             f"{', '.join(rig.names)}",
             field="sensor",
         )
-    below = readings.range < rig.sensor.r_min - 1e-9
-    if below.any():
-        i = int(np.flatnonzero(below)[0])
-        raise InputError(
-            f"reading {i}: range {readings.range[i]} is below the sensor's r_min "
-            f"({rig.sensor.r_min})",
-            field="range",
-        )
+    _check_r_min(readings, rig)
     mapper = make_mapper(method, **dict(params or {}))
     return mapper.fit(readings, grid, rig, progress=progress).result()

@@ -23,15 +23,15 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from rich.table import Table
 
 from . import __version__
-from .api import build_map, grid_for_readings
+from .api import build_map, grid_for_log, grid_for_readings, stream_log
 from .errors import ConfigError, InputError, SonarmapError
 from .experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
-from .io._atomic import atomic_write, atomic_write_text
+from .io._atomic import atomic_folder, atomic_write, atomic_write_text
 from .io._json import dumps as json_dumps
-from .io.rosmap import read_map, write_map
+from .io.rosmap import OccupancyMap, read_map, write_map
 from .mappers import MAPPERS, parse_params
 from .metrics import MapScore, score
-from .plot import save_map_picture, save_side_by_side
+from .plot import MapAnimation, save_map_picture, save_side_by_side
 from .readings import (
     Readings,
     read_readings,
@@ -43,6 +43,7 @@ from .rig import Rig, load_rig, save_rig
 from .scenarios import SCENARIOS, load_annotations, make_scenario
 from .sensors import Noise
 from .simulate import PoseNoise, simulate
+from .streaming import DEFAULT_STRATEGY, StreamingMapper
 from .sweep import load_sweep, run_sweep, summarise
 
 app = typer.Typer(
@@ -220,6 +221,141 @@ def map_cmd(
         raise InputError(err.reason, path=readings, field=err.field) from err
     paths = write_map(result, out)
     console.print(f"wrote {', '.join(str(p) for p in paths)}")
+
+
+StreamMethod = Enum(  # type: ignore[misc]
+    "StreamMethod", {n: n for n in sorted(MAPPERS) if MAPPERS[n].streamer is not None}, type=str
+)
+
+
+@app.command("stream")
+def stream_cmd(
+    readings: Annotated[Path, typer.Argument(help="Readings CSV t,sensor,x,y,theta,range.")],
+    rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Folder for the map and pictures.")],
+    method: Annotated[StreamMethod, typer.Option(help="Mapping method.")] = "gradient",  # type: ignore[assignment]
+    window: Annotated[
+        str | None,
+        typer.Option(
+            help="Readings in play: last:N, cell:N, pose:N[:XY_M[:DEG]] or all "
+            "(default: all for inverse, last:1000 for the others)."
+        ),
+    ] = None,
+    realtime: Annotated[
+        bool,
+        typer.Option(
+            "--realtime/--fast",
+            help="Replay at the recorded pace (spare time improves the map) or as fast "
+            "as possible.",
+        ),
+    ] = False,
+    speed: Annotated[float, typer.Option(help="--realtime: log seconds per wall second.")] = 1.0,
+    period: Annotated[float, typer.Option(help="Log seconds per map update.")] = 0.25,
+    effort: Annotated[
+        int, typer.Option(help="Work per update: gradient steps, or flip sweeps (stochastic).")
+    ] = 1,
+    resolution: Annotated[float, typer.Option(help="Cell size, metres.")] = 0.05,
+    bounds: Annotated[
+        tuple[float, float, float, float] | None,
+        typer.Option(help="XMIN YMIN XMAX YMAX in metres (default: a first pass over the log)."),
+    ] = None,
+    like: Annotated[Path | None, typer.Option(help="Use the grid of this map YAML.")] = None,
+    snapshot_every: Annotated[
+        float, typer.Option(help="Log seconds between map snapshots (PNG + animation frame).")
+    ] = 30.0,
+    animation: Annotated[
+        str, typer.Option(help="Animation file in OUT (.gif, or .mp4 with ffmpeg); '' for none.")
+    ] = "stream.gif",
+    truth: Annotated[Path | None, typer.Option(help="Truth map YAML to outline in red.")] = None,
+    param: Annotated[
+        list[str] | None, typer.Option("--param", help="Method parameter KEY=VALUE, repeatable.")
+    ] = None,
+) -> None:
+    """Replay a log through a streaming map: latency, throughput, snapshots, animation.
+
+    Writes OUT/map.yaml (.pgm, .npy), OUT/snapshots/t*.png, the animation and
+    OUT/stream.json with the figures printed.
+    """
+    m = method.value
+    params = parse_params(m, _pairs(param, "--param"))
+    r = load_rig(rig)
+    if like is not None and bounds is not None:
+        raise ConfigError("give either --like or --bounds, not both")
+    grid = (
+        read_map(like).grid if like is not None else grid_for_log(readings, r, resolution, bounds)
+    )
+    t_map = read_map(truth) if truth is not None else None
+    if t_map is not None and t_map.grid != grid:
+        raise ConfigError(f"{truth}: the truth map's grid differs from the stream's; use --like")
+    strategy = window if window is not None else DEFAULT_STRATEGY.get(m)
+    anim = MapAnimation(grid, m) if animation else None
+    with atomic_folder(out) as tmp:
+
+        def snapshot(t: float, sm: StreamingMapper) -> None:
+            occ = sm.occupancy_
+            save_map_picture(
+                OccupancyMap(grid, occ),
+                tmp / "snapshots" / f"t{t:07.1f}.png",
+                truth=t_map,
+                title=f"{m}, t = {t:.1f} s",
+            )
+            if anim is not None:
+                anim.add(t, occ)
+
+        with _progress(f"streaming ({m}, {strategy})") as cb:
+            total = _log_seconds(readings)
+
+            def tick(t: float) -> None:
+                cb(int(t * 10), int(total * 10))
+
+            sm, rep = stream_log(
+                readings,
+                r,
+                grid,
+                m,
+                params,
+                strategy=strategy,
+                effort=effort,
+                period=period,
+                realtime=realtime,
+                speed=speed,
+                snapshot_every=snapshot_every,
+                on_snapshot=snapshot,
+                progress=tick,
+            )
+        write_map(sm.result(), tmp / "map")
+        if anim is not None:
+            anim.save(tmp / animation)
+        summary: dict[str, Any] = {
+            "method": m,
+            "strategy": sm.strategy.spec(),
+            "mode": "realtime" if realtime else "fast",
+            "period_s": period,
+            "effort": effort,
+            "params": params,
+            **rep.summary(),
+        }
+        atomic_write_text(tmp / "stream.json", json_dumps(summary) + "\n")
+    table = Table("figure", "value")
+    for k, v in summary.items():
+        table.add_row(k, str(v))
+    console.print(table)
+    console.print(f"wrote {out}/map.yaml, snapshots, {animation or 'no animation'}, stream.json")
+
+
+def _log_seconds(path: Path) -> float:
+    """Time span of a readings CSV from its first and last data lines (for the progress
+    bar only; a malformed file is reported by the reader)."""
+    try:
+        with open(path, "rb") as f:
+            f.readline()
+            first = f.readline().split(b",")[0]
+            f.seek(0, 2)
+            f.seek(max(0, f.tell() - 4096))
+            last = f.read().splitlines()[-1].split(b",")[0]
+        return max(float(last) - float(first), 1e-9)
+    except (OSError, ValueError, IndexError):
+        return 1.0
 
 
 @app.command("show")

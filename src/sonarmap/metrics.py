@@ -22,6 +22,7 @@ __all__ = [
     "MapScore",
     "ObstacleResult",
     "PassageResult",
+    "agreement",
     "measure_obstacle",
     "measure_passage",
     "passage_open",
@@ -172,6 +173,29 @@ def score(
         small_found=len(seen),
         size_error=float(np.mean([abs(r.size - r.true_size) for r in seen])) if seen else math.nan,
     )
+
+
+def agreement(a: OccupancyMap, b: OccupancyMap, *, threshold: float = 0.5) -> tuple[float, int]:
+    """How often two maps of one grid agree: the fraction of the cells both know (not
+    NaN) that both call occupied (>= ``threshold``) or both free, and the number of
+    those cells.
+
+    Examples
+    --------
+    >>> from sonarmap.grid import Grid
+    >>> g = Grid(1.0, (0.0, 0.0), (1, 4))
+    >>> a = OccupancyMap(g, np.array([[1, 0, 0, np.nan]], dtype=np.float32))
+    >>> b = OccupancyMap(g, np.array([[0.9, 0.2, 0.7, 1.0]], dtype=np.float32))
+    >>> agreement(a, b)
+    (0.6666666666666666, 3)
+    """
+    _check_same_grid(a, b)
+    both = ~np.isnan(a.occupancy) & ~np.isnan(b.occupancy)
+    n = int(both.sum())
+    if n == 0:
+        return float("nan"), 0
+    same = (a.occupancy[both] >= threshold) == (b.occupancy[both] >= threshold)
+    return float(same.mean()), n
 
 
 def _axes(p: Passage) -> tuple[float, float, float, float]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -12,12 +14,16 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 import numpy as np
+import numpy.typing as npt
+from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
 
+from .errors import ConfigError
+from .grid import Grid
 from .io._atomic import atomic_write
 from .io.rosmap import OccupancyMap
 from .readings import Readings
 
-__all__ = ["draw_map", "save_map_picture", "save_side_by_side"]
+__all__ = ["MapAnimation", "draw_map", "save_map_picture", "save_side_by_side"]
 
 _UNKNOWN_RGBA = (0.80, 0.86, 0.93, 1.0)
 
@@ -106,3 +112,72 @@ def save_side_by_side(
             draw_map(axes[1, j], m, binary=True, title=f"{name} (binarised)")
     fig.tight_layout()
     return _save(fig, path)
+
+
+class MapAnimation:
+    """Frames of a map being built, saved as an animated GIF (or MP4 with ffmpeg).
+
+    Each frame is kept as one byte per cell (occupancy in 250 levels, 255 unknown), so a
+    frame of a 400 x 400 map costs 160 kB.
+    """
+
+    def __init__(self, grid: Grid, title: str = "") -> None:
+        self.grid = grid
+        self.title = title
+        self.frames: list[tuple[float, npt.NDArray[np.uint8]]] = []
+
+    def add(self, t: float, occupancy: npt.NDArray[np.float32]) -> None:
+        """Keep the map at log time ``t`` (seconds)."""
+        occ = np.asarray(occupancy, dtype=np.float64).reshape(self.grid.shape)
+        code = np.where(np.isnan(occ), 255, np.round(np.clip(occ, 0, 1) * 250)).astype(np.uint8)
+        self.frames.append((t, code))
+
+    def save(self, path: str | Path, *, fps: int = 4) -> Path:
+        """Write the animation; the format follows the suffix (``.gif``, or ``.mp4``
+        when ffmpeg is installed)."""
+        p = Path(path)
+        suffix = p.suffix.lower()
+        if suffix == ".gif":
+            writer: Any = PillowWriter(fps=fps)
+        elif suffix == ".mp4":
+            if not FFMpegWriter.isAvailable():
+                raise ConfigError(f"{p}: writing .mp4 needs ffmpeg; use a .gif name")
+            writer = FFMpegWriter(fps=fps)
+        else:
+            raise ConfigError(f"{p}: animation must be a .gif or .mp4 file")
+        if not self.frames:
+            raise ConfigError("no frames to animate")
+        cmap = plt.get_cmap("gray_r").with_extremes(bad=_UNKNOWN_RGBA)
+        fig, ax = plt.subplots(figsize=(6, 6))
+
+        def image(code: npt.NDArray[np.uint8]) -> Any:
+            return np.ma.masked_equal(code, 255).astype(np.float64) / 250.0
+
+        im = ax.imshow(
+            image(self.frames[0][1]),
+            cmap=cmap,
+            vmin=0.0,
+            vmax=1.0,
+            extent=self.grid.extent,
+            interpolation="nearest",
+        )
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+
+        def show(i: int) -> list[Any]:
+            t, code = self.frames[i]
+            im.set_data(image(code))
+            ax.set_title(f"{self.title}  t = {t:.0f} s".strip())
+            return [im]
+
+        anim = FuncAnimation(fig, show, frames=len(self.frames), blit=False)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=suffix, dir=p.parent)
+        os.close(fd)
+        try:
+            anim.save(name, writer=writer, dpi=80)
+            os.replace(name, p)
+        finally:
+            plt.close(fig)
+            Path(name).unlink(missing_ok=True)
+        return p

@@ -9,6 +9,8 @@ points across each opening and its true width) to a folder.
   straight up the middle with the ``paper-synthetic`` rig, exact readings.
 - ``passages``: a row of blocks separated by gaps of increasing width beside the robot's
   path (thesis 002, figs 4.9-4.10).
+- ``office``: a 20 m office floor with eight rooms toured for 10 minutes by a 16-sonar
+  ring firing at 20 Hz (192,000 readings): the streaming benchmark's scene.
 - ``room-turn``: a room with a door; the ``paper-real`` rig turns in place at uneven speed,
   with outliers and a roughly known sonar mounting (thesis 000 fig. 4.1, right).
 """
@@ -441,10 +443,133 @@ def room_turn(
     return Scenario("room-turn", truth, rig, traj, readings, (door,), params)
 
 
+def _waypoint_path(
+    points: Sequence[tuple[float, float]], speed: float, rate: float, duration: float
+) -> Trajectory:
+    """Drive a closed polyline at constant speed, heading along it, looping until
+    ``duration`` s have passed; poses at ``rate`` Hz."""
+    pts = np.asarray([*list(points), points[0]], dtype=float)
+    seg = np.diff(pts, axis=0)
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    keep = length > 0
+    pts0, seg, length = pts[:-1][keep], seg[keep], length[keep]
+    start = np.concatenate([[0.0], np.cumsum(length)])
+    n = round(duration * rate)
+    t = np.arange(n) / rate
+    s = (speed * t) % start[-1]
+    k = np.minimum(np.searchsorted(start, s, side="right") - 1, len(length) - 1)
+    f = (s - start[k]) / length[k]
+    x = pts0[k, 0] + f * seg[k, 0]
+    y = pts0[k, 1] + f * seg[k, 1]
+    return Trajectory(t, x, y, np.arctan2(seg[k, 1], seg[k, 0]))
+
+
+def office(
+    *,
+    size: float = 20.0,
+    resolution: float = 0.05,
+    rooms: int = 4,
+    door_widths: Sequence[float] = (1.0, 0.8, 0.9, 1.2, 0.7, 1.0, 0.8, 0.9),
+    duration: float = 600.0,
+    speed: float = 0.5,
+    rate: float = 20.0,
+    noise: Noise | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> Scenario:
+    """An office floor toured by a robot with a ring of 16 sonars: the streaming benchmark.
+
+    Defaults: a ``size`` m square floor (20 m) at ``resolution`` m (5 cm); a corridor 2 m
+    wide across the middle; ``rooms`` rooms (4) on each side, each with a door of
+    ``door_widths`` m onto the corridor (top row left to right, then the bottom row) and
+    a cabinet and a post inside. The ``ring16`` rig (Polaroid sonars) fires every sonar
+    at ``rate`` Hz (20) while the robot drives the corridor and a loop through every room
+    at ``speed`` m/s (0.5) for ``duration`` s (600): 192,000 readings by default.
+    Noise p_rand = 0.01, p_hit = 0.95, sigma = 1 cm.
+    """
+    _check_positive(
+        size=size, resolution=resolution, duration=duration, speed=speed, rate=rate, rooms=rooms
+    )
+    if len(door_widths) != 2 * rooms or any(not (w >= 0.3) for w in door_widths):
+        raise ConfigError(f"scenario parameter 'door_widths' must hold {2 * rooms} widths >= 0.3 m")
+    wall = 0.1
+    room_w = size / rooms
+    if size < 10 or room_w < 3.0 or max(door_widths) > room_w - 1.0:
+        raise ConfigError(f"{rooms} rooms with doors {list(door_widths)} do not fit {size} m")
+    grid = Grid.from_bounds(0.0, 0.0, size, size, resolution)
+    plan = _Plan(grid)
+    plan.border(wall)
+    mid = size / 2
+    y_lo, y_hi = mid - 1.0, mid + 1.0
+    plan.box(0, y_hi, size, y_hi + wall)
+    plan.box(0, y_lo - wall, size, y_lo)
+    found: list[Passage] = []
+    small: list[SmallObstacle] = []
+    centres = [room_w * (i + 0.5) for i in range(rooms)]
+    for k in range(1, rooms):
+        plan.box(room_w * k - wall / 2, y_hi, room_w * k + wall / 2, size)
+        plan.box(room_w * k - wall / 2, 0, room_w * k + wall / 2, y_lo)
+    for side, (y_wall, inward) in enumerate(((y_hi, 1.0), (y_lo - wall, -1.0))):
+        for i, cx in enumerate(centres):
+            w = door_widths[side * rooms + i]
+            plan.clear(cx - w / 2, y_wall, cx + w / 2, y_wall + wall)
+            found.append(
+                Passage(
+                    f"door{side * rooms + i + 1}",
+                    (cx - w / 2, y_wall + wall / 2),
+                    (cx + w / 2, y_wall + wall / 2),
+                    wall,
+                )
+            )
+            # A cabinet against the side wall and a post, clear of the robot's loop.
+            far = mid + inward * (size / 2 - 1.0)
+            x0 = cx - room_w / 2 + wall
+            plan.box(x0, min(far, far - inward * 1.2), x0 + 0.5, max(far, far - inward * 1.2))
+            small.append(plan.post(f"post{side * rooms + i + 1}", cx + room_w / 2 - 0.6, far, 0.15))
+    truth = plan.done()
+    depth = min(3.0, size / 2 - 3.0)
+    points: list[tuple[float, float]] = [(0.8, mid)]
+    for side_sign in (1.0, -1.0):
+        xs = centres if side_sign > 0 else centres[::-1]
+        for cx in xs:
+            y_in = mid + side_sign * (1.0 + 1.0)
+            y_far = mid + side_sign * (1.0 + depth)
+            points += [
+                (cx, mid),
+                (cx, y_in),
+                (cx - room_w / 2 + 1.0, y_in),
+                (cx - room_w / 2 + 1.0, y_far),
+                (cx + room_w / 2 - 1.2, y_far),
+                (cx + room_w / 2 - 1.2, y_in),
+                (cx, y_in),
+                (cx, mid),
+            ]
+        points.append((size - 0.8, mid) if side_sign > 0 else (0.8, mid))
+    traj = _waypoint_path(points, speed, rate, duration)
+    nz = noise if noise is not None else Noise(0.01, 0.95, 0.01)
+    rig = _with_noise(get_rig("ring16"), nz)
+    readings = simulate(truth, rig, traj, noise=nz, seed=seed, chunk_size=2_000, progress=progress)
+    params = {
+        "size": size,
+        "resolution": resolution,
+        "rooms": rooms,
+        "door_widths": list(door_widths),
+        "duration": duration,
+        "speed": speed,
+        "rate": rate,
+        "p_rand": nz.p_rand,
+        "p_hit": nz.p_hit,
+        "sigma": nz.sigma,
+        "seed": seed,
+    }
+    return Scenario("office", truth, rig, traj, readings, tuple(found), params, tuple(small))
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "doorways": doorways,
     "passages": passages,
     "room-turn": room_turn,
+    "office": office,
 }
 
 

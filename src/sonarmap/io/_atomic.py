@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-__all__ = ["atomic_outputs", "atomic_write_text"]
+__all__ = ["atomic_folder", "atomic_outputs", "atomic_write_text"]
 
 
 @contextlib.contextmanager
@@ -51,3 +52,22 @@ def atomic_write(path: Path, writer: Callable[[Path], None]) -> None:
     """Call ``writer(tmp_path)`` and move the result to ``path``."""
     with atomic_outputs(path) as (tmp,):
         writer(tmp)
+
+
+@contextlib.contextmanager
+def atomic_folder(path: Path) -> Iterator[Path]:
+    """Yield a temporary folder beside ``path``; on success move every file written
+    there into ``path`` (created if needed), on an exception delete it all."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    for src in sorted(tmp.rglob("*")):
+        if src.is_file():
+            dst = path / src.relative_to(tmp)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(src, dst)
+    shutil.rmtree(tmp, ignore_errors=True)

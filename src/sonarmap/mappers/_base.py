@@ -5,7 +5,7 @@ from __future__ import annotations
 import inspect
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator, Mapping
-from typing import Any, ClassVar, Self
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 import numpy as np
 import numpy.typing as npt
@@ -17,6 +17,10 @@ from ..raster import Footprint, rasterise
 from ..readings import Readings
 from ..rig import Rig
 from ..sensors import SensorModel
+
+if TYPE_CHECKING:
+    from ..selection import Strategy
+    from ._stream import StreamEngine
 
 __all__ = ["MAPPERS", "Mapper", "NotFittedError", "make_mapper", "parse_params", "register"]
 
@@ -56,6 +60,8 @@ class Mapper(ABC):
     exact_streaming: ClassVar[bool] = False
     #: Readings rasterised at once; bounds the memory of a batch.
     chunk_size: ClassVar[int] = 50_000
+    #: The method's streaming engine over a bounded set of readings, if it has one.
+    streamer: ClassVar[type[StreamEngine] | None] = None
 
     _grid: Grid | None = None
     _sensor: SensorModel | None = None
@@ -107,6 +113,22 @@ class Mapper(ABC):
         self._check_ranges(readings)
         self._add(readings, progress)
         return self
+
+    def stream(
+        self, grid: Grid, sensor: SensorModel | Rig, strategy: Strategy, *, effort: int = 1
+    ) -> StreamEngine:
+        """A streaming map of this method on ``grid``, over the readings ``strategy`` keeps.
+
+        See :mod:`sonarmap.streaming` for the public interface.
+        """
+        if self.streamer is None:
+            have = sorted(n for n, c in MAPPERS.items() if c.streamer is not None)
+            raise ConfigError(
+                f"method '{self.name}' has no streaming mode; methods that stream: "
+                f"{', '.join(have)}"
+            )
+        model = sensor.sensor if isinstance(sensor, Rig) else sensor
+        return self.streamer(self, grid, model, strategy, effort)
 
     @property
     def grid(self) -> Grid:

@@ -78,6 +78,13 @@ def build_index(footprints: list[Footprint], ranges: F64) -> BeamIndex:
     free_flat = np.concatenate(f_cells) if f_cells else np.empty(0, np.int64)
     band_flat = np.concatenate(b_cells) if b_cells else np.empty(0, np.int64)
     band_dist = np.concatenate(b_dist) if b_dist else np.empty(0)
+    return index_arrays(free_flat, f_off, band_flat, band_dist, b_off, ranges)
+
+
+def index_arrays(
+    free_flat: I64, f_off: I64, band_flat: I64, band_dist: F64, b_off: I64, ranges: F64
+) -> BeamIndex:
+    """Index readings given as flat grid cells with CSR offsets (free part, then band)."""
     touched, local = np.unique(np.concatenate([free_flat, band_flat]), return_inverse=True)
     free_local = local[: len(free_flat)].astype(np.int64)
     band_local = local[len(free_flat) :].astype(np.int64)

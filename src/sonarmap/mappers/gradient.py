@@ -32,6 +32,10 @@ Solvers (``solver=``):
 
 from __future__ import annotations
 
+import math
+import time
+
+import numba as nb
 import numpy as np
 import numpy.typing as npt
 import scipy.optimize as so
@@ -41,6 +45,7 @@ from ..readings import Readings
 from . import _checks
 from ._base import Mapper, Progress, register
 from ._forward import ForwardProblem, Penalties, build_problem
+from ._stream import StreamEngine
 
 __all__ = ["GradientMapper"]
 
@@ -312,3 +317,172 @@ def _ccp(
         if moved < 1e-6:
             break
     return x, k, history
+
+
+# -- streaming -----------------------------------------------------------------------
+
+#: A cell's step in streaming is ``step / sqrt(k)`` after its k-th update, with k capped
+#: here so that a cell seen for a long time still follows new evidence.
+STREAM_STEP_CAP = 100
+
+
+@nb.njit(cache=True)
+def _stream_steps(
+    sel: npt.NDArray[np.int64],
+    f_start: npt.NDArray[np.int64],
+    f_len: npt.NDArray[np.int64],
+    o_start: npt.NDArray[np.int64],
+    o_len: npt.NDArray[np.int64],
+    f_sum: F64,
+    o_sum: F64,
+    echo: npt.NDArray[np.bool_],
+    cell: npt.NDArray[np.int32],
+    w: npt.NDArray[np.float32],
+    x: F64,
+    g: F64,
+    mark: npt.NDArray[np.bool_],
+    dirty: npt.NDArray[np.int64],
+    cov: npt.NDArray[np.int32],
+    kcount: npt.NDArray[np.int32],
+    a1: float,
+    a2: float,
+    step: float,
+    k_cap: int,
+    n_steps: int,
+) -> None:
+    """Projected subgradient steps on the marked cells, over the terms of ``sel``.
+
+    The P terms of the offline objective (see ``_forward``) on the box [0, 1]; the
+    gradient reaches only marked cells, all of whose terms are in ``sel``, so their
+    gradient is exact. The concave tent R2 is left out: see :class:`GradientStream`.
+    """
+    for _ in range(n_steps):
+        for s in sel:
+            for part in range(2):
+                if part == 0:
+                    a, n, tot = f_start[s], f_len[s], f_sum[s]
+                else:
+                    if not echo[s]:
+                        continue
+                    a, n, tot = o_start[s], o_len[s], o_sum[s]
+                if n == 0 or tot <= 0.0:
+                    continue
+                big_x = 0.0
+                for j in range(a, a + n):
+                    big_x += w[j] * x[cell[j]]
+                big_x /= tot
+                x0 = 1.0 / tot
+                if part == 0:
+                    below = a1
+                    above = (1.0 - a1 * x0) / (1.0 - x0) if x0 < 1.0 else a1
+                else:
+                    below = -(1.0 - a2 + a2 * x0) / x0
+                    above = -a2
+                if big_x < x0:
+                    slope = below
+                elif big_x > x0:
+                    slope = above
+                else:
+                    continue
+                f = slope / tot
+                for j in range(a, a + n):
+                    c = cell[j]
+                    if mark[c]:
+                        g[c] += f * w[j]
+        for c in dirty:
+            if cov[c] > 0:
+                k = min(kcount[c] + 1, k_cap)
+                kcount[c] = k
+                v = x[c] - step / math.sqrt(k) * g[c]
+                x[c] = min(max(v, 0.0), 1.0)
+            g[c] = 0.0
+
+
+class GradientStream(StreamEngine):
+    """The gradient method over a bounded set of readings.
+
+    Each update adds the entering readings' terms to the objective and drops the leaving
+    ones' (the pool holds each term's cells and weights), then takes ``effort`` projected
+    subgradient steps on the cells those readings touch, warm-started from the current
+    map, against every term in play that touches them. :meth:`improve` takes steps over
+    every term in play. The mapper's ``solver``, ``max_iter``, ``tol`` and ``patience``
+    are for the offline solve and are not used here.
+
+    The stream minimises the P terms on the box [0, 1] without the tent R2 (``c2``).
+    The tent is concave: it pushes each cell towards 0 or 1 on whatever evidence it has
+    when first seen, and a cell at 1 cannot come back, because each later free term
+    pulls it by only ``a1 w0 / sum w0``. Measured on the first minute of the ``office``
+    scene (last:1000, one step per 0.5 s update): with the tent the binarised streaming
+    map agrees with the offline map on 96.0 % of cells (F1 0.13 against the offline
+    0.29); without it on 99.6 % (F1 0.285).
+    """
+
+    def _setup(self) -> None:
+        m = self.mapper
+        assert isinstance(m, GradientMapper)
+        self.dr = m.dr
+        self.x = np.full(self.grid.size, 0.5)
+        self._g = np.zeros(self.grid.size)
+        self._k = np.zeros(self.grid.size, np.int32)
+        self.steps_ = 0
+
+    def _prepare(self, readings: Readings) -> Readings:
+        m = self.mapper
+        assert isinstance(m, GradientMapper)
+        if m.no_echo == "ignore":
+            return readings.take(readings.range < self.sensor.r_max)
+        return readings
+
+    def _run(self, sel: npt.NDArray[np.int64], dirty: npt.NDArray[np.int64], n: int) -> None:
+        m = self.mapper
+        assert isinstance(m, GradientMapper)
+        p = self.pool
+        _stream_steps(
+            sel,
+            p.f_start,
+            p.f_len,
+            p.o_start,
+            p.o_len,
+            p.f_sum,
+            p.o_sum,
+            p.echo,
+            p.cell,
+            p.w,
+            self.x,
+            self._g,
+            self._mark,
+            dirty,
+            self.cov,
+            self._k,
+            m.a1,
+            m.a2,
+            m.step if m.step is not None else STEP["pgd"],
+            STREAM_STEP_CAP,
+            n,
+        )
+        self.steps_ += n
+
+    def _optimise(self, dirty: npt.NDArray[np.int64], box: tuple[int, int, int, int]) -> None:
+        self._run(self.touching_dirty(box), dirty, self.effort)
+
+    def improve(self, budget: float) -> int:
+        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
+        if len(cells) == 0 or budget <= 0:
+            return 0
+        sel = self.pool.alive_slots()
+        self._mark[cells] = True
+        end = time.perf_counter() + budget
+        n = 0
+        while time.perf_counter() < end:
+            self._run(sel, cells, 1)
+            n += 1
+        self._mark[cells] = False
+        return n
+
+    def occupancy(self) -> npt.NDArray[np.float32]:
+        out = self.x.astype(np.float32)
+        out[~self.seen] = np.nan
+        return out
+
+
+GradientMapper.streamer = GradientStream

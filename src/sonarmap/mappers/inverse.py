@@ -23,9 +23,14 @@ import numba as nb
 import numpy as np
 import numpy.typing as npt
 
+from ..errors import ConfigError
+from ..grid import Grid
 from ..readings import Readings
+from ..selection import Strategy
+from ..sensors import SensorModel
 from . import _checks
 from ._base import Mapper, Progress, register
+from ._stream import StreamEngine
 
 __all__ = ["InverseMapper"]
 
@@ -157,3 +162,97 @@ class InverseMapper(Mapper):
         p = 1.0 / (1.0 + np.exp(-self._logodds))
         p[~self._touched] = np.nan
         return np.asarray(p, dtype=np.float32)
+
+
+@nb.njit(cache=True)
+def _sum_increments(
+    slots: npt.NDArray[np.int64],
+    sign: float,
+    f_start: npt.NDArray[np.int64],
+    f_len: npt.NDArray[np.int64],
+    o_start: npt.NDArray[np.int64],
+    o_len: npt.NDArray[np.int64],
+    cell: npt.NDArray[np.int32],
+    total: npt.NDArray[np.float64],
+    l_free: float,
+    l_occ: float,
+) -> None:
+    for s in slots:
+        for j in range(f_start[s], f_start[s] + f_len[s]):
+            total[cell[j]] += sign * l_free
+        for j in range(o_start[s], o_start[s] + o_len[s]):
+            total[cell[j]] += sign * l_occ
+
+
+class InverseStream(StreamEngine):
+    """The inverse model, streamed.
+
+    With the ``all`` strategy every reading is folded in as it comes, exactly as
+    :meth:`InverseMapper.partial_fit` does, and no reading is kept. With a bounded
+    strategy a cell's log-odds are the sum of the increments of the readings in play
+    that touch it -- added as readings enter, subtracted as they leave -- clamped when
+    read; a cell that no reading in play touches keeps its last value. That forgets old
+    evidence, which lets the map follow a changing scene. The fall-off option needs
+    the ``all`` strategy.
+    """
+
+    keeps_readings = False
+
+    def __init__(
+        self, mapper: Mapper, grid: Grid, sensor: SensorModel, strategy: Strategy, effort: int
+    ) -> None:
+        assert isinstance(mapper, InverseMapper)
+        if strategy.bounded and mapper.falloff_deg > 0:
+            raise ConfigError("inverse fall-off streams only with the 'all' strategy")
+        super().__init__(mapper, grid, sensor, strategy, effort)
+        self.dr = mapper.dr
+        self._exact = mapper if not strategy.bounded else None
+        if self._exact is not None:
+            self._exact.start(grid, sensor)
+        self._sum = np.zeros(grid.size)
+        self._shown = np.zeros(grid.size)
+        lo, hi = _logit(mapper.clamp_min), _logit(mapper.clamp_max)
+        self._range = (lo, hi)
+        self._inc = (_logit(mapper.p_free), _logit(mapper.p_occ))
+
+    def _prepare(self, readings: Readings) -> Readings:
+        assert isinstance(self.mapper, InverseMapper)
+        if self.mapper.no_echo == "ignore":
+            return readings.take(readings.range < self.sensor.r_max)
+        return readings
+
+    def add(self, readings: Readings) -> None:
+        if self._exact is None:
+            super().add(readings)
+            return
+        self._exact.partial_fit(readings)
+        self.n_updates += 1
+
+    def _increments(self, slots: npt.NDArray[np.int64], sign: float) -> None:
+        p = self.pool
+        _sum_increments(
+            slots, sign, p.f_start, p.f_len, p.o_start, p.o_len, p.cell, self._sum, *self._inc
+        )
+
+    def _enter(self, new: npt.NDArray[np.int64]) -> None:
+        self._increments(new, 1.0)
+
+    def _leave(self, gone: npt.NDArray[np.int64]) -> None:
+        self._increments(gone, -1.0)
+
+    def _optimise(self, dirty: npt.NDArray[np.int64], box: tuple[int, int, int, int]) -> None:
+        live = dirty[self.cov[dirty] > 0]
+        self._shown[live] = np.clip(self._sum[live], *self._range)
+
+    def occupancy(self) -> npt.NDArray[np.float32]:
+        if self._exact is not None:
+            return self._exact._occupancy()
+        p = 1.0 / (1.0 + np.exp(-self._shown))
+        p[~self.seen] = np.nan
+        return np.asarray(p, dtype=np.float32)
+
+    def nbytes(self) -> int:
+        return super().nbytes() + self._sum.nbytes * 2
+
+
+InverseMapper.streamer = InverseStream

@@ -15,6 +15,7 @@ deterministic for a given ``seed``.
 from __future__ import annotations
 
 import math
+import time
 
 import numba as nb
 import numpy as np
@@ -24,7 +25,8 @@ from ..errors import ConfigError
 from ..readings import Readings
 from . import _checks
 from ._base import Mapper, Progress, register
-from ._thrun import BeamIndex, apply_flip, flip_delta, init_state
+from ._stream import StreamEngine
+from ._thrun import BeamIndex, apply_flip, flip_delta, index_arrays, init_state
 from ._thrun_common import index_readings, model_sigma, scatter
 
 __all__ = ["StochasticMapper"]
@@ -87,6 +89,7 @@ def _search(
     occ: npt.NDArray[np.bool_],
     full: npt.NDArray[np.bool_],
     cells: npt.NDArray[np.int64],
+    cand: npt.NDArray[np.int64],
     rows: int,
     cols: int,
     eight: bool,
@@ -124,9 +127,9 @@ def _search(
     new_ll = np.empty(max(max_deg, 1))
     new_bsum = np.empty(max(max_deg, 1))
     accepted = 0
-    n = cells.shape[0]
+    n = cand.shape[0]
     for k in range(n_flips):
-        c = np.random.randint(0, n)  # noqa: NPY002
+        c = cand[np.random.randint(0, n)]  # noqa: NPY002
         d = flip_delta(
             c,
             occ,
@@ -289,6 +292,7 @@ class StochasticMapper(Mapper):
             occ,
             full,
             index.cells,
+            np.arange(index.n_cells, dtype=np.int64),
             self.grid.rows,
             self.grid.cols,
             self.neighbours == 8,
@@ -323,3 +327,98 @@ class StochasticMapper(Mapper):
         if self._occ is None or self._index is None:
             return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._occ, self.grid.size)
+
+
+class StochasticStream(StreamEngine):
+    """Thrun's model by random flips, over a bounded set of readings.
+
+    Each update indexes the readings in play that touch the cells the entering or
+    leaving readings touch (their footprints are kept, so nothing is rasterised twice)
+    and proposes ``effort`` sweeps of flips over those cells, every reading's
+    likelihood computed over its whole beam from the current map. Flips are kept when
+    the score grows, or with ``p_randomfactor`` (the thesis' rule): annealing from a
+    high temperature would undo the map already built. New cells start free.
+    """
+
+    sort_band = True
+
+    def _setup(self) -> None:
+        m = self.mapper
+        assert isinstance(m, StochasticMapper)
+        m._grid, m._sensor = self.grid, self.sensor
+        self.sigma = model_sigma(m, m.sigma)
+        self.dr = 3.0 * self.sigma
+        self.full = np.zeros(self.grid.size, np.bool_)
+        self.flips_ = 0
+        self._searches = 0
+
+    def _optimise(self, dirty: npt.NDArray[np.int64], box: tuple[int, int, int, int]) -> None:
+        live = dirty[self.cov[dirty] > 0]
+        if len(live) == 0:
+            return
+        sel = self.touching_dirty(box)
+        self._search(sel, live)
+
+    def _search(self, sel: npt.NDArray[np.int64], cells: npt.NDArray[np.int64]) -> None:
+        m = self.mapper
+        assert isinstance(m, StochasticMapper)
+        p = self.pool
+        f_cells, f_off, b_cells, b_dist, b_off = p.gather(sel)
+        index = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[sel])
+        cand = np.searchsorted(index.cells, cells).astype(np.int64)
+        occ = self.full[index.cells].copy()
+        v = m.values()
+        n_flips = self.effort * len(cand)
+        _search(
+            occ,
+            self.full,
+            index.cells,
+            cand,
+            self.grid.rows,
+            self.grid.cols,
+            m.neighbours == 8,
+            index.free_off,
+            index.free_cell,
+            index.band_off,
+            index.band_cell,
+            index.band_dist,
+            index.z,
+            index.cell_off,
+            index.cell_reading,
+            index.cell_kind,
+            v["p_rand"],
+            v["p_hit"],
+            self.sigma,
+            self.sensor.r_max,
+            v["w_occ"],
+            v["w_border"],
+            n_flips,
+            False,
+            m.p_randomfactor,
+            m.t0,
+            m.t_end,
+            # A new stream of random numbers per search, the same for a given seed.
+            m.seed + self._searches,
+        )
+        self._searches += 1
+        self.flips_ += n_flips
+
+    def improve(self, budget: float) -> int:
+        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
+        if len(cells) == 0 or budget <= 0:
+            return 0
+        sel = self.pool.alive_slots()
+        end = time.perf_counter() + budget
+        n = 0
+        while time.perf_counter() < end:
+            self._search(sel, cells)
+            n += 1
+        return n
+
+    def occupancy(self) -> npt.NDArray[np.float32]:
+        out = self.full.astype(np.float32)
+        out[~self.seen] = np.nan
+        return out
+
+
+StochasticMapper.streamer = StochasticStream

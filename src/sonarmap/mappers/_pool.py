@@ -1,0 +1,271 @@
+"""The footprints of the readings in play, for streaming mappers.
+
+Readings enter and leave in any order (a selection strategy decides which leave), so
+each reading gets a *slot*; its Omega_free and Omega_occ entries live in one growing
+arena. Removing a reading marks its entries dead; the arena is compacted when dead
+entries outnumber live ones, so its size stays within twice the live footprint and
+insertion costs O(1) amortised. Nothing here depends on how many readings came before.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+import numpy.typing as npt
+
+from ..raster import Footprint
+
+I64 = npt.NDArray[np.int64]
+I32 = npt.NDArray[np.int32]
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+
+
+@nb.njit(cache=True)
+def _compact(
+    alive: npt.NDArray[np.bool_],
+    f_start: I64,
+    f_len: I64,
+    o_start: I64,
+    o_len: I64,
+    cell: I32,
+    w: F32,
+    dist: F32,
+) -> int:
+    """Move the live slots' entries to the front of the arena, in slot order; new end."""
+    order = np.argsort(f_start)
+    end = 0
+    for s in order:
+        if not alive[s]:
+            continue
+        # A slot's free entries are followed by its occ entries, so one block moves.
+        a = f_start[s]
+        n = f_len[s] + o_len[s]
+        for j in range(n):
+            cell[end + j] = cell[a + j]
+            w[end + j] = w[a + j]
+            dist[end + j] = dist[a + j]
+        f_start[s] = end
+        o_start[s] = end + f_len[s]
+        end += n
+    return end
+
+
+@nb.njit(cache=True)
+def _gather(slots: I64, start: I64, length: I64, cell: I32, dist: F32) -> tuple[I64, I64, F64]:
+    off = np.zeros(slots.shape[0] + 1, np.int64)
+    for i in range(slots.shape[0]):
+        off[i + 1] = off[i] + length[slots[i]]
+    cells = np.empty(off[-1], np.int64)
+    d = np.empty(off[-1], np.float64)
+    for i in range(slots.shape[0]):
+        a = start[slots[i]]
+        for j in range(off[i + 1] - off[i]):
+            cells[off[i] + j] = cell[a + j]
+            d[off[i] + j] = dist[a + j]
+    return cells, off, d
+
+
+class ReadingPool:
+    """Slot-addressed store of rasterised readings.
+
+    Parameters
+    ----------
+    cols : int
+        Columns of the grid (for the per-reading bounding boxes).
+    sort_band : bool
+        Keep each reading's Omega_occ entries sorted by distance (Thrun's model needs it).
+
+    Attributes
+    ----------
+    f_start, f_len, o_start, o_len : ndarray of int64, per slot
+        Where the slot's Omega_free and Omega_occ entries are in the arena.
+    f_sum, o_sum : ndarray of float64, per slot
+        Sum of the sensitivity weights ``w0`` over each part.
+    z : ndarray of float64, per slot
+        Range.
+    echo, alive : ndarray of bool, per slot
+    box : ndarray of int32, shape (slots, 4)
+        Row and column bounds (inclusive) of the cells the reading touches.
+    cell, w, dist : arena arrays
+        Flat cell index, weight ``w0`` and distance of every entry.
+    """
+
+    f_start: I64
+    f_len: I64
+    o_start: I64
+    o_len: I64
+    f_sum: F64
+    o_sum: F64
+    z: F64
+    echo: npt.NDArray[np.bool_]
+    alive: npt.NDArray[np.bool_]
+    box: I32
+
+    def __init__(self, cols: int, *, sort_band: bool = False) -> None:
+        self.cols = cols
+        self.sort_band = sort_band
+        self._grow_slots(256)
+        self.cell = np.empty(1 << 16, np.int32)
+        self.w = np.empty(1 << 16, np.float32)
+        self.dist = np.empty(1 << 16, np.float32)
+        self.end = 0
+        self.dead = 0
+        self._free: list[int] = list(range(255, -1, -1))
+
+    def _grow_slots(self, cap: int) -> None:
+        old = getattr(self, "alive", None)
+        n = 0 if old is None else len(old)
+
+        def grow(name: str, dtype: type, shape: tuple[int, ...] = ()) -> None:
+            arr: npt.NDArray[np.generic] = np.zeros((cap, *shape), dtype)
+            if old is not None:
+                arr[:n] = getattr(self, name)
+            setattr(self, name, arr)
+
+        for name in ("f_start", "f_len", "o_start", "o_len"):
+            grow(name, np.int64)
+        for name in ("f_sum", "o_sum", "z"):
+            grow(name, np.float64)
+        grow("echo", np.bool_)
+        grow("alive", np.bool_)
+        grow("box", np.int32, (4,))
+        if old is not None:
+            self._free.extend(range(cap - 1, n - 1, -1))
+
+    @property
+    def capacity(self) -> int:
+        return len(self.alive)
+
+    @property
+    def n_alive(self) -> int:
+        return self.capacity - len(self._free)
+
+    @property
+    def n_entries(self) -> int:
+        """Live entries."""
+        return self.end - self.dead
+
+    def nbytes(self) -> int:
+        """Memory held by the pool's arrays."""
+        slot: int = sum(
+            int(getattr(self, n).nbytes)
+            for n in ("f_start", "f_len", "o_start", "o_len", "f_sum", "o_sum", "z", "echo")
+        )
+        return slot + self.alive.nbytes + self.box.nbytes + self.cell.nbytes * 3
+
+    def _reserve(self, n: int) -> None:
+        need = self.end + n
+        if need <= len(self.cell):
+            return
+        if self.dead > 0:
+            self.compact()
+            need = self.end + n
+        if need <= len(self.cell):
+            return
+        cap = len(self.cell)
+        while cap < need:
+            cap *= 2
+        for name in ("cell", "w", "dist"):
+            arr = getattr(self, name)
+            new = np.empty(cap, arr.dtype)
+            new[: self.end] = arr[: self.end]
+            setattr(self, name, new)
+
+    def compact(self) -> None:
+        """Drop dead entries from the arena."""
+        self.end = _compact(
+            self.alive,
+            self.f_start,
+            self.f_len,
+            self.o_start,
+            self.o_len,
+            self.cell,
+            self.w,
+            self.dist,
+        )
+        self.dead = 0
+
+    def add(self, fp: Footprint, z: F64, echo: npt.NDArray[np.bool_]) -> I64:
+        """Store a rasterised batch; returns the slot of each reading."""
+        n = fp.free.n_readings
+        while len(self._free) < n:
+            self._grow_slots(2 * self.capacity)
+        slots = np.array([self._free.pop() for _ in range(n)], dtype=np.int64)
+        fc, oc = fp.free.counts, fp.occ.counts
+        total = int(fc.sum() + oc.sum())
+        self._reserve(total)
+        # Each reading's free entries, then its occ entries, consecutively.
+        per = fc + oc
+        start = self.end + np.concatenate([[0], np.cumsum(per)[:-1]]).astype(np.int64)
+        occ_cells, occ_w, occ_d = fp.occ.cells, fp.occ.weight, fp.occ.distance
+        if self.sort_band and len(occ_cells):
+            order = np.lexsort((occ_d, fp.occ.reading_index()))
+            occ_cells, occ_w, occ_d = occ_cells[order], occ_w[order], occ_d[order]
+        f_pos = np.repeat(start - fp.free.offsets[:-1], fc) + np.arange(len(fp.free.cells))
+        o_pos = np.repeat(start + fc - fp.occ.offsets[:-1], oc) + np.arange(len(occ_cells))
+        for pos, cells, w, d in (
+            (f_pos, fp.free.cells, fp.free.weight, fp.free.distance),
+            (o_pos, occ_cells, occ_w, occ_d),
+        ):
+            self.cell[pos] = cells
+            self.w[pos] = w
+            self.dist[pos] = d
+        self.end += total
+        self.f_start[slots] = start
+        self.f_len[slots] = fc
+        self.o_start[slots] = start + fc
+        self.o_len[slots] = oc
+        idx_f = fp.free.reading_index()
+        idx_o = fp.occ.reading_index()
+        self.f_sum[slots] = np.bincount(idx_f, weights=fp.free.weight, minlength=n)
+        self.o_sum[slots] = np.bincount(idx_o, weights=fp.occ.weight, minlength=n)
+        self.z[slots] = z
+        self.echo[slots] = echo
+        self.alive[slots] = True
+        _boxes(slots, self.f_start, self.f_len, self.o_len, self.cell, self.cols, self.box)
+        return slots
+
+    def remove(self, slots: I64) -> None:
+        """Forget readings; their slots are reused."""
+        if len(slots) == 0:
+            return
+        if not self.alive[slots].all():
+            raise RuntimeError("removing a slot that is not in the pool")
+        self.alive[slots] = False
+        self.dead += int((self.f_len[slots] + self.o_len[slots]).sum())
+        self._free.extend(slots.tolist())
+        if self.dead > max(self.end - self.dead, 1 << 16):
+            self.compact()
+
+    def gather(self, slots: I64) -> tuple[I64, I64, I64, F64, I64]:
+        """The slots' entries as CSR: free cells, free offsets, band cells, band
+        distances, band offsets."""
+        f_cells, f_off, _ = _gather(slots, self.f_start, self.f_len, self.cell, self.dist)
+        o_cells, o_off, o_dist = _gather(slots, self.o_start, self.o_len, self.cell, self.dist)
+        return f_cells, f_off, o_cells, o_dist, o_off
+
+    def alive_slots(self) -> I64:
+        return np.flatnonzero(self.alive).astype(np.int64)
+
+
+@nb.njit(cache=True)
+def _boxes(
+    slots: I64, f_start: I64, f_len: I64, o_len: I64, cell: I32, cols: int, box: I32
+) -> None:
+    """Inclusive (row0, row1, col0, col1) of each slot's cells; empty as (max, -1, max, -1)."""
+    for s in slots:
+        r0 = c0 = np.iinfo(np.int32).max
+        r1 = c1 = -1
+        a = f_start[s]
+        for j in range(a, a + f_len[s] + o_len[s]):
+            r = cell[j] // cols
+            c = cell[j] - r * cols
+            r0 = min(r0, r)
+            r1 = max(r1, r)
+            c0 = min(c0, c)
+            c1 = max(c1, c)
+        box[s, 0] = r0
+        box[s, 1] = r1
+        box[s, 2] = c0
+        box[s, 3] = c1

@@ -1,0 +1,219 @@
+"""Streaming engines: a method's map kept up to date over a bounded set of readings.
+
+An engine owns the map over the whole grid, the store of the readings in play
+(:class:`ReadingPool`) and a selection :class:`~sonarmap.selection.Strategy`. Each
+:meth:`StreamEngine.add` rasterises the new readings once, lets the strategy name the
+readings that leave, and re-optimises the map locally: only cells the entering or leaving
+readings touch change, against every reading in play that touches them. A cell that no
+reading in play touches any more keeps its last estimate, so the map remembers what it
+has seen while the objective stays bounded.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING, ClassVar
+
+import numba as nb
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import ConfigError
+from ..grid import Grid
+from ..raster import rasterise
+from ..readings import Readings
+from ..selection import Strategy
+from ..sensors import SensorModel
+from ._pool import ReadingPool
+
+if TYPE_CHECKING:
+    from ._base import Mapper
+
+I64 = npt.NDArray[np.int64]
+I32 = npt.NDArray[np.int32]
+F64 = npt.NDArray[np.float64]
+
+
+@nb.njit(cache=True)
+def touch(
+    slots: I64,
+    sign: int,
+    f_start: I64,
+    f_len: I64,
+    o_len: I64,
+    cell: I32,
+    cov: I32,
+    mark: npt.NDArray[np.bool_],
+    dirty: I64,
+    n_dirty: int,
+) -> int:
+    """Add ``sign`` to the coverage of every cell of ``slots`` and mark the cells dirty
+    (appended to ``dirty`` once each); returns the new number of dirty cells."""
+    for s in slots:
+        a = f_start[s]
+        for j in range(a, a + f_len[s] + o_len[s]):
+            c = cell[j]
+            cov[c] += sign
+            if not mark[c]:
+                mark[c] = True
+                dirty[n_dirty] = c
+                n_dirty += 1
+    return n_dirty
+
+
+@nb.njit(cache=True)
+def touching(
+    alive: npt.NDArray[np.bool_],
+    box: I32,
+    f_start: I64,
+    f_len: I64,
+    o_len: I64,
+    cell: I32,
+    mark: npt.NDArray[np.bool_],
+    r0: int,
+    r1: int,
+    c0: int,
+    c1: int,
+) -> I64:
+    """Slots in play with a cell marked dirty (bounding boxes first, then the cells)."""
+    out = np.empty(alive.shape[0], np.int64)
+    k = 0
+    for s in range(alive.shape[0]):
+        if not alive[s]:
+            continue
+        if box[s, 1] < r0 or box[s, 0] > r1 or box[s, 3] < c0 or box[s, 2] > c1:
+            continue
+        a = f_start[s]
+        for j in range(a, a + f_len[s] + o_len[s]):
+            if mark[cell[j]]:
+                out[k] = s
+                k += 1
+                break
+    return out[:k]
+
+
+class StreamEngine(ABC):
+    """A method's streaming map; see the module notes.
+
+    Parameters
+    ----------
+    mapper : Mapper
+        The method and its parameters.
+    grid : Grid
+        The map grid (fixed for the whole stream).
+    sensor : SensorModel
+        The sonars' model.
+    strategy : Strategy
+        Which readings stay in play.
+    effort : int
+        Work per update, in the method's unit (gradient steps, flip sweeps).
+    """
+
+    #: Whether the engine keeps readings (and so needs a bounded strategy).
+    keeps_readings: ClassVar[bool] = True
+    #: Band half-width to rasterise with; None for the rasteriser's default.
+    dr: float | None = None
+    sort_band: ClassVar[bool] = False
+
+    def __init__(
+        self, mapper: Mapper, grid: Grid, sensor: SensorModel, strategy: Strategy, effort: int
+    ) -> None:
+        if self.keeps_readings and not strategy.bounded:
+            raise ConfigError(
+                f"streaming '{mapper.name}' keeps readings in play; give a bounded strategy "
+                "(last:N, cell:N or pose:N), not 'all'"
+            )
+        if effort < 1:
+            raise ConfigError(f"streaming effort must be >= 1, got {effort}")
+        self.mapper = mapper
+        self.grid = grid
+        self.sensor = sensor
+        self.strategy = strategy
+        self.effort = effort
+        self.pool = ReadingPool(grid.cols, sort_band=self.sort_band)
+        self.cov = np.zeros(grid.size, np.int32)
+        self.seen = np.zeros(grid.size, np.bool_)
+        self._mark = np.zeros(grid.size, np.bool_)
+        self._dirty = np.empty(grid.size, np.int64)
+        self.n_updates = 0
+        strategy.start(grid.size)
+        self._setup()
+
+    # -- for subclasses ------------------------------------------------------------
+
+    def _setup(self) -> None:  # noqa: B027 -- optional
+        """Allocate the method's map."""
+
+    def _enter(self, new: I64) -> None:  # noqa: B027 -- optional
+        """Readings ``new`` have entered the pool."""
+
+    def _leave(self, gone: I64) -> None:  # noqa: B027 -- optional
+        """Readings ``gone`` are about to leave the pool (their entries still readable)."""
+
+    @abstractmethod
+    def _optimise(self, dirty: I64, box: tuple[int, int, int, int]) -> None:
+        """Re-optimise the ``dirty`` cells (marked, coverage updated, inside ``box``)
+        against the readings in play that touch them."""
+
+    @abstractmethod
+    def occupancy(self) -> npt.NDArray[np.float32]:
+        """Flat occupancy in [0, 1], NaN where no reading has been."""
+
+    def improve(self, budget: float) -> int:
+        """Spend up to ``budget`` seconds improving the map over every reading in play;
+        returns the units of work done (0 for methods with nothing to improve)."""
+        return 0
+
+    # -- the update ---------------------------------------------------------------
+
+    def _prepare(self, readings: Readings) -> Readings:
+        """Readings the method uses (e.g. without no-echo readings)."""
+        return readings
+
+    def add(self, readings: Readings) -> None:
+        """Take new readings and update the map around them."""
+        readings = self._prepare(readings)
+        if len(readings) == 0:
+            return
+        fp = rasterise(
+            self.grid,
+            self.sensor,
+            readings.x,
+            readings.y,
+            readings.theta,
+            readings.range,
+            dr=self.dr,
+        )
+        z = np.minimum(readings.range, self.sensor.r_max)
+        p = self.pool
+        new = p.add(fp, z, readings.range < self.sensor.r_max)
+        gone = self.strategy.admit(new, readings, p.f_start, p.f_len + p.o_len, p.cell)
+        n = touch(new, 1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, 0)
+        n = touch(
+            gone, -1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, n
+        )
+        dirty = self._dirty[:n].copy()
+        self.seen[dirty] = True
+        b = p.box[np.concatenate([new, gone])]
+        box = (int(b[:, 0].min()), int(b[:, 1].max()), int(b[:, 2].min()), int(b[:, 3].max()))
+        self._enter(new)
+        self._leave(gone)
+        p.remove(gone)
+        self._optimise(dirty, box)
+        self._mark[dirty] = False
+        self.n_updates += 1
+
+    def touching_dirty(self, box: tuple[int, int, int, int]) -> I64:
+        """Readings in play that touch a dirty cell (call while cells are marked)."""
+        p = self.pool
+        return touching(p.alive, p.box, p.f_start, p.f_len, p.o_len, p.cell, self._mark, *box)
+
+    # -- figures ------------------------------------------------------------------
+
+    @property
+    def n_in_play(self) -> int:
+        return self.pool.n_alive
+
+    def nbytes(self) -> int:
+        """Memory of the engine's state: map, coverage and the readings in play."""
+        return int(self.cov.nbytes + self.seen.nbytes * 2 + self._dirty.nbytes) + self.pool.nbytes()
