@@ -51,6 +51,109 @@ def _span(
 
 
 @nb.njit(cache=True, inline="always")
+def _keep(
+    x: float,
+    y: float,
+    sx: float,
+    sy: float,
+    radius: float,
+    aw: npt.NDArray[np.float64],
+    bw: npt.NDArray[np.float64],
+    cw: npt.NDArray[np.float64],
+    tol: float,
+) -> bool:
+    dx = x - sx
+    dy = y - sy
+    if dx * dx + dy * dy > (radius + tol) * (radius + tol):
+        return False
+    for j in range(aw.shape[0]):  # noqa: SIM110 -- numba compiles loops, not all()
+        if aw[j] * x + bw[j] * y > cw[j] + tol:
+            return False
+    return True
+
+
+@nb.njit(cache=True)
+def _y_extent(
+    planes: npt.NDArray[np.float64],
+    cos_t: float,
+    sin_t: float,
+    sx: float,
+    sy: float,
+    radius: float,
+    aw: npt.NDArray[np.float64],
+    bw: npt.NDArray[np.float64],
+    cw: npt.NDArray[np.float64],
+) -> tuple[float, float]:
+    """y-range of the region (posed at sx, sy, theta) cut by the disk of ``radius``.
+
+    The cut is convex, so its extreme y lies at the disk's top or bottom, where an
+    edge meets the circle, or at a corner of two edges; each candidate counts if it is
+    inside everything else. ``aw``, ``bw``, ``cw`` are scratch space, one per edge.
+    """
+    k = planes.shape[0]
+    for j in range(k):
+        aw[j] = planes[j, 0] * cos_t - planes[j, 1] * sin_t
+        bw[j] = planes[j, 0] * sin_t + planes[j, 1] * cos_t
+        cw[j] = planes[j, 2] + aw[j] * sx + bw[j] * sy
+    tol = 1e-7 * (1.0 + radius)
+    y_lo = math.inf
+    y_hi = -math.inf
+    for y in (sy + radius, sy - radius):
+        if _keep(sx, y, sx, sy, radius, aw, bw, cw, tol):
+            y_lo = min(y_lo, y)
+            y_hi = max(y_hi, y)
+    for j in range(k):
+        norm = math.sqrt(aw[j] * aw[j] + bw[j] * bw[j])
+        if norm < 1e-12:
+            continue
+        # The edge a x + b y = c meets the circle at the foot of the perpendicular
+        # from the centre, plus or minus t along the edge.
+        dist = (cw[j] - aw[j] * sx - bw[j] * sy) / norm
+        if abs(dist) <= radius:
+            fx = sx + aw[j] / norm * dist
+            fy = sy + bw[j] / norm * dist
+            t = math.sqrt(max(radius * radius - dist * dist, 0.0))
+            for sgn in (1.0, -1.0):
+                x = fx - sgn * t * bw[j] / norm
+                y = fy + sgn * t * aw[j] / norm
+                if _keep(x, y, sx, sy, radius, aw, bw, cw, tol):
+                    y_lo = min(y_lo, y)
+                    y_hi = max(y_hi, y)
+        for q in range(j + 1, k):
+            det = aw[j] * bw[q] - aw[q] * bw[j]
+            if abs(det) < 1e-12:
+                continue
+            x = (cw[j] * bw[q] - cw[q] * bw[j]) / det
+            y = (aw[j] * cw[q] - aw[q] * cw[j]) / det
+            if _keep(x, y, sx, sy, radius, aw, bw, cw, tol):
+                y_lo = min(y_lo, y)
+                y_hi = max(y_hi, y)
+    return y_lo, y_hi
+
+
+@nb.njit(cache=True, inline="always")
+def _row_range(
+    planes: npt.NDArray[np.float64],
+    cos_t: float,
+    sin_t: float,
+    sx: float,
+    sy: float,
+    reach: float,
+    oy: float,
+    h: float,
+    rows: int,
+    scratch: npt.NDArray[np.float64],
+) -> tuple[int, int]:
+    """Rows whose centre may lie in the beam, with a cell of margin."""
+    y_lo, y_hi = _y_extent(planes, cos_t, sin_t, sx, sy, reach, scratch[0], scratch[1], scratch[2])
+    if y_hi < y_lo:
+        return 0, -1
+    lo = max(0, math.ceil((max(y_lo, sy - reach) - h - oy) / h - 0.5))
+    hi = min(rows - 1, math.floor((min(y_hi, sy + reach) + h - oy) / h - 0.5))
+    return lo, hi
+
+
+@nb.njit(cache=True, inline="always")
 def _bearing(dx: float, dy: float, cos_t: float, sin_t: float, d: float) -> float:
     """Angle off the beam axis; 0 for a cell centred on the sensor, where it is undefined."""
     if d < EDGE_TOL:
@@ -130,6 +233,7 @@ def rasterise_kernel(
     no = 0
     zlo = np.empty(nz, dtype=np.int64)
     zhi = np.empty(nz, dtype=np.int64)
+    scratch = np.empty((3, beam_planes.shape[0]))
     for i in range(n):
         x0 = sx[i]
         y0 = sy[i]
@@ -141,8 +245,7 @@ def rasterise_kernel(
         # could lose its whole row to rounding before its own test.
         reach = min(max(a_lim, b_lim), beam_radius) + EDGE_TOL
         if reach > EDGE_TOL:
-            iy_lo = max(0, math.ceil((y0 - reach - oy) / h - 0.5))
-            iy_hi = min(rows - 1, math.floor((y0 + reach - oy) / h - 0.5))
+            iy_lo, iy_hi = _row_range(beam_planes, c, s, x0, y0, reach, oy, h, rows, scratch)
             for iy in range(iy_lo, iy_hi + 1):
                 yc = oy + (iy + 0.5) * h
                 lo, hi = _span(beam_planes, c, s, x0, y0, yc, reach)
@@ -213,3 +316,147 @@ def rasterise_kernel(
         o_w[:no].copy(),
         o_b[:no].copy() if with_bearing else o_b,
     )
+
+
+@nb.njit(cache=True, inline="always")
+def _below(ox: float, h: float, col: int, x0: float, dy2: float, lim: float) -> bool:
+    """``sqrt(dx^2 + dy^2) < lim`` exactly as the per-cell test computes it, with the
+    square root taken only near the limit."""
+    dx = ox + (col + 0.5) * h - x0
+    q = dx * dx + dy2
+    if lim <= 0.0:
+        return False
+    l2 = lim * lim
+    if abs(q - l2) > 1e-9 * l2:
+        return q < l2
+    return math.sqrt(q) < lim
+
+
+@nb.njit(cache=True, inline="always")
+def _above(ox: float, h: float, col: int, x0: float, dy2: float, lim: float) -> bool:
+    """``sqrt(dx^2 + dy^2) > lim``, as :func:`_below`."""
+    dx = ox + (col + 0.5) * h - x0
+    q = dx * dx + dy2
+    if lim < 0.0:
+        return True
+    l2 = lim * lim
+    if abs(q - l2) > 1e-9 * l2:
+        return q > l2
+    return math.sqrt(q) > lim
+
+
+@nb.njit(cache=True, inline="always")
+def _bump(
+    values: npt.NDArray[np.float64],
+    touched: npt.NDArray[np.bool_],
+    a: int,
+    b: int,
+    inc: float,
+    lo: float,
+    hi: float,
+) -> None:
+    for k in range(a, b + 1):
+        v = values[k] + inc
+        values[k] = min(max(v, lo), hi)
+        touched[k] = True
+
+
+@nb.njit(cache=True)
+def accumulate_kernel(
+    values: npt.NDArray[np.float64],
+    touched: npt.NDArray[np.bool_],
+    h: float,
+    ox: float,
+    oy: float,
+    rows: int,
+    cols: int,
+    sx: npt.NDArray[np.float64],
+    sy: npt.NDArray[np.float64],
+    st: npt.NDArray[np.float64],
+    free_lim: npt.NDArray[np.float64],
+    occ_hi: npt.NDArray[np.float64],
+    beam_planes: npt.NDArray[np.float64],
+    beam_radius: float,
+    inc_free: float,
+    inc_occ: float,
+    lo: float,
+    hi: float,
+) -> int:
+    """Add ``inc_free`` to the Omega_free cells and ``inc_occ`` to the Omega_occ cells of
+    each reading, in reading order, clamping to [lo, hi] after each addition; returns
+    the number of cell updates.
+
+    The cells are exactly those of :func:`rasterise_kernel` (the same spans and tests),
+    visited as runs: along a row, distance to the sensor is convex, so the free cells
+    (d below a limit) form one run and the occupied cells the rest of the beam's span.
+    Only the run ends are tested cell by cell.
+    """
+    n = sx.shape[0]
+    total = 0
+    scratch = np.empty((3, beam_planes.shape[0]))
+    inv_h = 1.0 / h
+    for i in range(n):
+        x0 = sx[i]
+        y0 = sy[i]
+        c = math.cos(st[i])
+        s = math.sin(st[i])
+        a_lim = free_lim[i] - EDGE_TOL
+        b_lim = occ_hi[i] + EDGE_TOL
+        reach = min(max(free_lim[i], occ_hi[i]), beam_radius) + EDGE_TOL
+        if reach <= EDGE_TOL:
+            continue
+        iy_lo, iy_hi = _row_range(beam_planes, c, s, x0, y0, reach, oy, h, rows, scratch)
+        for iy in range(iy_lo, iy_hi + 1):
+            yc = oy + (iy + 0.5) * h
+            lo_x, hi_x = _span(beam_planes, c, s, x0, y0, yc, reach)
+            if hi_x < lo_x:
+                continue
+            c_lo = max(0, math.ceil((lo_x - ox) / h - 0.5))
+            c_hi = min(cols - 1, math.floor((hi_x - ox) / h - 0.5))
+            if c_hi < c_lo:
+                continue
+            dy = yc - y0
+            base = (rows - 1 - iy) * cols
+            dy2 = dy * dy
+            band = b_lim >= a_lim
+            if band:
+                # The span reaches b_lim plus rounding slack; a cell in that slack is
+                # outside the band, and only the span's end cells can be.
+                while c_lo <= c_hi and _above(ox, h, c_lo, x0, dy2, b_lim):
+                    c_lo += 1
+                while c_hi >= c_lo and _above(ox, h, c_hi, x0, dy2, b_lim):
+                    c_hi -= 1
+                if c_hi < c_lo:
+                    continue
+            # The free run from the chord of the circle d = a_lim; a run end is checked
+            # cell by cell only when a centre lies within rounding of the circle.
+            fl = c_hi + 1
+            fh = c_hi
+            if a_lim > 0.0 and a_lim * a_lim > dy2:
+                half = math.sqrt(a_lim * a_lim - dy2)
+                u = (x0 - half - ox) * inv_h - 0.5
+                v = (x0 + half - ox) * inv_h - 0.5
+                fl = math.ceil(u)
+                fh = math.floor(v)
+                if abs(u - math.floor(u + 0.5)) < 1e-6:
+                    while _below(ox, h, fl - 1, x0, dy2, a_lim):
+                        fl -= 1
+                    while fl <= fh and not _below(ox, h, fl, x0, dy2, a_lim):
+                        fl += 1
+                if abs(v - math.floor(v + 0.5)) < 1e-6:
+                    while _below(ox, h, fh + 1, x0, dy2, a_lim):
+                        fh += 1
+                    while fh >= fl and not _below(ox, h, fh, x0, dy2, a_lim):
+                        fh -= 1
+                fl = max(fl, c_lo)
+                fh = min(fh, c_hi)
+                if fh < fl:
+                    fl = c_hi + 1
+                    fh = c_hi
+            _bump(values, touched, base + fl, base + fh, inc_free, lo, hi)
+            total += fh - fl + 1
+            if band:
+                _bump(values, touched, base + c_lo, base + fl - 1, inc_occ, lo, hi)
+                _bump(values, touched, base + fh + 1, base + c_hi, inc_occ, lo, hi)
+                total += (fl - c_lo) + (c_hi - fh)
+    return total

@@ -24,12 +24,12 @@ import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
 
-from ._raster_kernel import rasterise_kernel
+from ._raster_kernel import accumulate_kernel, rasterise_kernel
 from .errors import ConfigError, InputError
 from .grid import Grid
 from .sensors import Region, SensorModel
 
-__all__ = ["CellSet", "Footprint", "beam_cells", "default_dr", "rasterise"]
+__all__ = ["CellSet", "Footprint", "accumulate", "beam_cells", "default_dr", "rasterise"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -222,6 +222,14 @@ def rasterise(
     ([0, 1, 2], [3])
     """
     sx, sy, st, r = _poses(x, y, theta, ranges)
+    d, free_lim, occ_hi = _limits(grid, sensor, r, dr)
+    f, o = _run(grid, sensor, sx, sy, st, free_lim, occ_hi, with_bearing)
+    return Footprint(free=f, occ=o, dr=d)
+
+
+def _limits(
+    grid: Grid, sensor: SensorModel, r: npt.NDArray[np.float64], dr: float | None
+) -> tuple[float, npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     if (r < 0).any():
         raise InputError("ranges must be >= 0", field="range")
     d = default_dr(grid, sensor) if dr is None else float(dr)
@@ -230,8 +238,70 @@ def rasterise(
     echo = r < sensor.r_max
     free_lim = np.where(echo, r - d, sensor.r_max - d)
     occ_hi = np.where(echo, r + d, -np.inf)
-    f, o = _run(grid, sensor, sx, sy, st, free_lim, occ_hi, with_bearing)
-    return Footprint(free=f, occ=o, dr=d)
+    return d, free_lim, occ_hi
+
+
+def accumulate(
+    grid: Grid,
+    sensor: SensorModel,
+    x: npt.ArrayLike,
+    y: npt.ArrayLike,
+    theta: npt.ArrayLike,
+    ranges: npt.ArrayLike,
+    values: npt.NDArray[np.float64],
+    touched: npt.NDArray[np.bool_],
+    *,
+    inc_free: float,
+    inc_occ: float,
+    clamp: tuple[float, float] = (-np.inf, np.inf),
+    dr: float | None = None,
+) -> int:
+    """Add a constant to the Omega_free and Omega_occ cells of each reading, in place.
+
+    The cells are those :func:`rasterise` gives, but no footprint is stored: each row of
+    a beam is visited as runs of cells. This is the inverse model's insertion.
+
+    Parameters
+    ----------
+    values : ndarray of float64, shape (grid.size,)
+        Flat per-cell values, updated in reading order and clamped to ``clamp`` after
+        each addition.
+    touched : ndarray of bool, shape (grid.size,)
+        Set True for every cell a reading touches.
+    inc_free, inc_occ : float
+        What a reading adds to its free and occupied cells.
+
+    Returns
+    -------
+    int
+        Cell updates made.
+    """
+    sx, sy, st, r = _poses(x, y, theta, ranges)
+    _, free_lim, occ_hi = _limits(grid, sensor, r, dr)
+    if values.shape != (grid.size,) or touched.shape != (grid.size,):
+        raise ConfigError(f"values and touched must have shape ({grid.size},)")
+    return int(
+        accumulate_kernel(
+            values,
+            touched,
+            grid.resolution,
+            grid.origin[0],
+            grid.origin[1],
+            grid.rows,
+            grid.cols,
+            sx,
+            sy,
+            st,
+            free_lim,
+            occ_hi,
+            np.ascontiguousarray(sensor.beam.halfplanes),
+            float(sensor.beam.radius),
+            inc_free,
+            inc_occ,
+            clamp[0],
+            clamp[1],
+        )
+    )
 
 
 def beam_cells(

@@ -25,6 +25,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
+from ..raster import accumulate
 from ..readings import Readings
 from ..selection import Strategy
 from ..sensors import SensorModel
@@ -140,6 +141,28 @@ class InverseMapper(Mapper):
         falloff = self.falloff_deg > 0
         l_free, l_occ = _logit(self.p_free), _logit(self.p_occ)
         lo, hi = _logit(self.clamp_min), _logit(self.clamp_max)
+        if not falloff:
+            # Uniform increments need no stored footprint: the rasteriser's runs.
+            n = len(readings)
+            for a in range(0, n, self.chunk_size):
+                b = min(a + self.chunk_size, n)
+                accumulate(
+                    self.grid,
+                    self.sensor,
+                    readings.x[a:b],
+                    readings.y[a:b],
+                    readings.theta[a:b],
+                    readings.range[a:b],
+                    self._logodds,
+                    self._touched,
+                    inc_free=l_free,
+                    inc_occ=l_occ,
+                    clamp=(lo, hi),
+                    dr=self.dr,
+                )
+                if progress is not None:
+                    progress(b, n)
+            return
         for _, fp in self._footprints(
             readings, dr=self.dr, with_bearing=falloff, progress=progress
         ):
