@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck unit bench clean
+.PHONY: demo test lint typecheck unit bench bench-mrpt clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -29,6 +29,10 @@ test: lint typecheck unit
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run
+
+# Installs MRPT with apt (root) when missing, builds our harness against it and runs it.
+bench-mrpt: $(STAMP)
+	$(BIN)/python -m benchmarks.mrpt.run --install --minutes 10
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache

@@ -1,8 +1,13 @@
-"""Benchmarks of sonarmap's kernels, printed as a table (and written as JSON with --json).
+"""sonarmap's benchmarks, printed as tables (and written as JSON with --json).
 
-Run with ``make bench`` or ``python -m benchmarks.run [--json out.json] [--repeat N]``.
-Numba is pinned to one thread and every kernel is warmed up before timing; each figure
-is the best of ``--repeat`` runs.
+Run everything with ``make bench`` (``python -m benchmarks.run``): the kernels
+(rasteriser, inverse insertion, gradient solvers and sparse products against the copy
+bandwidth, stochastic flips, EM), the streaming ring scenario (``benchmarks/stream.py``),
+the scaling sweeps (``benchmarks/scaling.py``) and, when MRPT is installed, the side by
+side with MRPT (``benchmarks/mrpt/run.py``). ``--skip stream,scaling,mrpt`` leaves parts
+out; ``--quick`` runs short versions (2 minutes of the ring log, smaller sweeps).
+Numba is pinned to one thread and every kernel is warmed up before timing; each kernel
+figure is the best of ``--repeat`` runs.
 """
 
 from __future__ import annotations
@@ -240,7 +245,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--json", help="Also write the results to this JSON file.")
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--skip", default="", help="comma-separated: stream,scaling,mrpt")
+    parser.add_argument("--quick", action="store_true", help="short streaming and sweeps")
     args = parser.parse_args()
+    skip = {s.strip() for s in args.skip.split(",") if s.strip()}
+    bad = skip - {"stream", "scaling", "mrpt"}
+    if bad:
+        parser.error(f"unknown part(s) to skip: {', '.join(sorted(bad))}")
     bandwidth = copy_bandwidth(args.repeat)
     rows = bench_raster(args.repeat) + bench_inverse(args.repeat)
     rows += bench_forward(args.repeat, bandwidth)
@@ -265,15 +276,39 @@ def main() -> None:
             f"{row['seconds']:.4g}",
             f"{_si(row['rate'])} {row['unit']}{extra}",
         )
-    Console(width=150).print(table)
-    Console(width=150).print(f"streaming copy bandwidth: {bandwidth / 1e9:.1f} GB/s")
+    console = Console(width=160)
+    console.print(table)
+    console.print(f"streaming copy bandwidth: {bandwidth / 1e9:.1f} GB/s")
+    out: dict[str, Any] = {
+        "machine": platform.platform(),
+        "cpu": platform.processor(),
+        "copy_bandwidth": bandwidth,
+        "results": rows,
+    }
+    if "stream" not in skip:
+        from benchmarks import stream
+
+        res = stream.run(2.0 if args.quick else 10.0, 1.0 if args.quick else 2.0, bandwidth)
+        stream.print_tables(res, console)
+        out["stream"] = res
+    if "scaling" not in skip:
+        from benchmarks import scaling
+
+        sizes = [6.0, 12.0, 25.0] + ([] if args.quick else [50.0, 100.0])
+        counts = [1_000, 10_000] + ([] if args.quick else [100_000, 1_000_000])
+        res = scaling.sweep(sizes, counts)
+        scaling.print_tables(res, console)
+        out["scaling"] = res
+    if "mrpt" not in skip:
+        from benchmarks.mrpt import run as mrpt
+
+        if mrpt.available():
+            mrpt.main(["--minutes", "2" if args.quick else "10"])
+        else:
+            console.print("MRPT not installed: `make bench-mrpt` installs it and runs that part.")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump(
-                {"machine": platform.platform(), "copy_bandwidth": bandwidth, "results": rows},
-                f,
-                indent=2,
-            )
+            json.dump(out, f, indent=2, default=float)
 
 
 if __name__ == "__main__":

@@ -5,13 +5,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from sonarmap.errors import ConfigError, InputError
 from sonarmap.grid import Grid
-from sonarmap.raster import beam_cells, default_dr, rasterise
+from sonarmap.raster import Footprint, accumulate, beam_cells, default_dr, rasterise
 from sonarmap.sensors import Region, SensorModel, get_sensor
 
 GRID = Grid(resolution=0.1, origin=(-2.0, -2.0), shape=(40, 40))
@@ -205,3 +206,51 @@ def test_default_dr_and_bad_input() -> None:
         rasterise(GRID, sensor, [0.0], [0.0, 1.0], [0.0], [1.0])
     with pytest.raises(ConfigError, match="dr must be a non-negative"):
         rasterise(GRID, sensor, [0.0], [0.0], [0.0], [1.0], dr=-0.1)
+
+
+def _apply_footprint(
+    fp: Footprint, size: int, inc: tuple[float, float], clamp: tuple[float, float]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    """Per reading, add to its free then its occupied cells, clamping: the reference."""
+    values = np.zeros(size)
+    touched = np.zeros(size, dtype=bool)
+    for i in range(fp.free.n_readings):
+        for cells, add in ((fp.free.of(i), inc[0]), (fp.occ.of(i), inc[1])):
+            values[cells] = np.clip(values[cells] + add, *clamp)
+            touched[cells] = True
+    return values, touched
+
+
+@settings(max_examples=60, deadline=None)
+@example(pose=(0.0, 0.25, 0.0, 0.25), aperture=30.0, zoned=False)
+@example(pose=(0.05, 0.05, math.pi / 2, 1.0), aperture=90.0, zoned=False)
+@given(
+    pose=poses,
+    aperture=st.floats(5.0, 170.0),
+    zoned=st.booleans(),
+)
+def test_accumulate_visits_the_rasterisers_cells(
+    pose: tuple[float, float, float, float], aperture: float, zoned: bool
+) -> None:
+    sensor = zoned_sensor() if zoned else cone_sensor(aperture)
+    x, y, th, r = pose
+    # Three readings from nearby poses, so that clamping order matters.
+    xs, ys, ths, rs = [x, x + 0.03, x], [y, y, y - 0.07], [th, th + 0.2, th], [r, r, r * 0.7]
+    fp = rasterise(GRID, sensor, xs, ys, ths, rs)
+    want, want_t = _apply_footprint(fp, GRID.size, (-0.4, 0.9), (-1.0, 1.5))
+    got = np.zeros(GRID.size)
+    got_t = np.zeros(GRID.size, dtype=bool)
+    n = accumulate(
+        GRID, sensor, xs, ys, ths, rs, got, got_t, inc_free=-0.4, inc_occ=0.9, clamp=(-1.0, 1.5)
+    )
+    assert n == fp.n_entries
+    np.testing.assert_array_equal(got_t, want_t)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_accumulate_checks_its_arrays() -> None:
+    s = cone_sensor(30.0)
+    with pytest.raises(ConfigError, match="shape"):
+        accumulate(
+            GRID, s, [0], [0], [0], [1], np.zeros(3), np.zeros(3, bool), inc_free=0, inc_occ=1
+        )

@@ -1,0 +1,407 @@
+"""Streaming: the strategies' bounds, the engines against the offline objective, replay."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.api import build_map
+from sonarmap.cli import main
+from sonarmap.errors import ConfigError
+from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.mappers import GradientMapper, make_mapper
+from sonarmap.mappers._pool import ReadingPool
+from sonarmap.mappers.gradient import STEP, GradientStream, _stream_steps
+from sonarmap.metrics import agreement
+from sonarmap.raster import rasterise
+from sonarmap.readings import Readings, write_readings
+from sonarmap.rig import save_rig
+from sonarmap.scenarios import Scenario, make_scenario
+from sonarmap.selection import (
+    FreshestPerCell,
+    KeepAll,
+    LastN,
+    PoseGrid,
+    parse_strategy,
+)
+from sonarmap.streaming import StreamingMapper, replay, time_batches
+
+
+def _cells_of(sc: Scenario, readings: Readings) -> list[set[int]]:
+    fp = rasterise(
+        sc.truth.grid, sc.rig.sensor, readings.x, readings.y, readings.theta, readings.range
+    )
+    return [set(fp.free.of(i).tolist()) | set(fp.occ.of(i).tolist()) for i in range(len(readings))]
+
+
+# -- strategies ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "kind"),
+    [
+        ("last:5", LastN),
+        ("cell:2", FreshestPerCell),
+        ("pose:3:0.25:45", PoseGrid),
+        ("all", KeepAll),
+    ],
+)
+def test_strategy_text_round_trip(text: str, kind: type) -> None:
+    s = parse_strategy(text)
+    assert isinstance(s, kind)
+    assert parse_strategy(s.spec()).spec() == s.spec()
+
+
+@pytest.mark.parametrize("text", ["last", "last:0", "cell:x", "pose:1:-1", "window:3", "all:2"])
+def test_bad_strategies_are_config_errors(text: str) -> None:
+    with pytest.raises(ConfigError):
+        parse_strategy(text)
+
+
+def test_freshest_per_cell_keeps_exactly_the_readings_some_cell_needs(doorways: Scenario) -> None:
+    """Against a brute-force reading of the rule: a reading is in play iff it is among
+    the N latest readings of at least one of its cells."""
+    r = doorways.readings.take(np.arange(0, 600))
+    n_max = 2
+    sm = StreamingMapper("gradient", doorways.truth.grid, doorways.rig, strategy=f"cell:{n_max}")
+    for a in range(0, len(r), 37):
+        sm.add(r.take(np.arange(a, min(a + 37, len(r)))))
+    cells = _cells_of(doorways, r)
+    latest: dict[int, list[int]] = {}
+    for i, cs in enumerate(cells):
+        for c in cs:
+            latest.setdefault(c, []).append(i)
+    wanted = set()
+    for ids in latest.values():
+        wanted.update(ids[-n_max:])
+    assert sm.n_in_play == len(wanted)
+    # The pool holds exactly those readings' footprints.
+    pool = sm.engine.pool
+    alive = pool.alive_slots()
+    got = sorted(
+        sorted(pool.cell[pool.f_start[s] : pool.f_start[s] + pool.f_len[s] + pool.o_len[s]])
+        for s in alive
+    )
+    want = sorted(sorted(cells[i]) for i in wanted)
+    assert got == want
+
+
+def test_last_n_and_pose_grid_bound_the_readings(doorways: Scenario) -> None:
+    r = doorways.readings
+    for text, bound in (("last:150", 150), ("pose:2:0.5:90", None)):
+        sm = StreamingMapper("gradient", doorways.truth.grid, doorways.rig, strategy=text)
+        for a in range(0, len(r), 50):
+            sm.add(r.take(np.arange(a, min(a + 50, len(r)))))
+            if bound is not None:
+                assert sm.n_in_play <= bound
+        if bound is None:
+            s = sm.strategy
+            assert isinstance(s, PoseGrid)
+            assert sm.n_in_play <= 2 * s.n_bins
+            assert sm.n_in_play < len(r)
+        else:
+            assert sm.n_in_play == bound
+
+
+def test_pool_compaction_keeps_footprints(doorways: Scenario) -> None:
+    r = doorways.readings.take(np.arange(400))
+    g, s = doorways.truth.grid, doorways.rig.sensor
+    fp = rasterise(g, s, r.x, r.y, r.theta, r.range)
+    pool = ReadingPool(g.cols, sort_band=True)
+    slots = pool.add(fp, r.range, r.range < s.r_max)
+    rng = np.random.default_rng(1)
+    gone = rng.choice(slots, 300, replace=False)
+    pool.remove(gone[:150])
+    pool.remove(gone[150:])
+    pool.compact()
+    keep = np.setdiff1d(slots, gone)
+    assert pool.n_alive == len(keep)
+    assert pool.n_entries == pool.end
+    index = {int(sl): i for i, sl in enumerate(slots)}
+    f_cells, f_off, b_cells, b_dist, b_off = pool.gather(keep)
+    for k, sl in enumerate(keep):
+        i = index[int(sl)]
+        assert sorted(f_cells[f_off[k] : f_off[k + 1]]) == sorted(fp.free.of(i).tolist())
+        band = b_dist[b_off[k] : b_off[k + 1]]
+        assert np.all(np.diff(band) >= 0)  # kept sorted by distance
+        assert sorted(b_cells[b_off[k] : b_off[k + 1]]) == sorted(fp.occ.of(i).tolist())
+
+
+# -- engines -----------------------------------------------------------------------------
+
+
+def test_inverse_stream_with_all_readings_is_the_offline_map(doorways: Scenario) -> None:
+    sm = StreamingMapper("inverse", doorways.truth.grid, doorways.rig, strategy="all")
+    replay([doorways.readings], sm, period=0.3)
+    offline = build_map(doorways.readings, doorways.rig, doorways.truth.grid, "inverse")
+    np.testing.assert_array_equal(sm.occupancy_, offline.occupancy)
+
+
+def test_windowed_inverse_sums_the_readings_in_play(doorways: Scenario) -> None:
+    r = doorways.readings
+    n = 120
+    sm = StreamingMapper("inverse", doorways.truth.grid, doorways.rig, strategy=f"last:{n}")
+    replay([r], sm, period=0.5)
+    last = r.take(np.arange(len(r) - n, len(r)))
+    values = np.zeros(doorways.truth.grid.size)
+    touched = np.zeros(doorways.truth.grid.size, bool)
+    mapper = make_mapper("inverse")
+    lf, lo_ = math.log(0.45 / 0.55), math.log(0.51 / 0.49)
+    from sonarmap.raster import accumulate
+
+    accumulate(
+        doorways.truth.grid,
+        doorways.rig.sensor,
+        last.x,
+        last.y,
+        last.theta,
+        last.range,
+        values,
+        touched,
+        inc_free=lf,
+        inc_occ=lo_,
+    )
+    lo, hi = math.log(0.12 / 0.88), math.log(0.97 / 0.03)
+    want = 1 / (1 + np.exp(-np.clip(values, lo, hi)))
+    got = sm.occupancy_.ravel()
+    assert mapper.get_params()["p_free"] == 0.45
+    assert mapper.get_params()["p_occ"] == 0.51
+    np.testing.assert_allclose(got[touched], want[touched], atol=1e-6)
+
+
+def test_gradient_stream_step_is_the_offline_gradient(doorways: Scenario) -> None:
+    """Terms added to the stream give, at the cells they mark, the offline objective's
+    gradient of the P terms: W^T P'(W x)."""
+    g, rig = doorways.truth.grid, doorways.rig
+    r = doorways.readings.take(np.arange(300))
+    mapper = GradientMapper()
+    engine = mapper.stream(g, rig, LastN(10_000))
+    assert isinstance(engine, GradientStream)
+    engine.add(r.take(np.arange(150)))
+    engine.add(r.take(np.arange(150, 300)))
+    problem = mapper.start(g, rig).problem(r)
+    rng = np.random.default_rng(0)
+    x_local = rng.uniform(0.0, 1.0, problem.n_cells)
+    want_g = np.asarray(problem.WT @ problem.term_slopes(problem.W @ x_local))
+    p = engine.pool
+    x = np.full(g.size, 0.5)
+    x[problem.cells] = x_local
+    mark = np.zeros(g.size, bool)
+    mark[problem.cells] = True
+    step = 1e-4
+    _stream_steps(
+        p.alive_slots(),
+        p.f_start,
+        p.f_len,
+        p.o_start,
+        p.o_len,
+        p.f_sum,
+        p.o_sum,
+        p.echo,
+        p.cell,
+        p.w,
+        x,
+        np.zeros(g.size),
+        mark,
+        problem.cells,
+        engine.cov,
+        np.zeros(g.size, np.int32),
+        mapper.a1,
+        mapper.a2,
+        step,
+        100,
+        1,
+    )
+    want_x = np.clip(x_local - step * want_g, 0.0, 1.0)
+    np.testing.assert_allclose(x[problem.cells], want_x, atol=1e-9)
+    assert STEP["pgd"] == 0.05
+
+
+def test_gradient_stream_agrees_with_offline_and_memory_is_bounded(doorways: Scenario) -> None:
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    sm = StreamingMapper("gradient", g, rig, strategy="last:200")
+    rep = replay([r], sm, period=0.5)
+    offline = build_map(r, rig, g, "gradient")
+    agree, n = agreement(sm.result(), offline)
+    assert n > 0.3 * g.size
+    assert agree > 0.97
+    # Streaming the log twice over (a robot driving the corridor again) keeps the state.
+    size_once = rep.max_state_bytes
+    again = Readings.concat(
+        [r, Readings(r.t + r.t[-1] + 1, r.sensor, r.x, r.y, r.theta, r.range, r.names)]
+    )
+    sm2 = StreamingMapper("gradient", g, rig, strategy="last:200")
+    rep2 = replay([again], sm2, period=0.5)
+    assert rep2.max_in_play == rep.max_in_play == 200
+    assert rep2.max_state_bytes <= 1.1 * size_once
+
+
+def test_stochastic_stream_is_deterministic_and_finds_walls(doorways: Scenario) -> None:
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    maps = []
+    for _ in range(2):
+        sm = StreamingMapper("stochastic", g, rig, strategy="last:300", effort=2)
+        replay([r], sm, period=0.5)
+        maps.append(sm.occupancy_)
+    np.testing.assert_array_equal(maps[0], maps[1])
+    truth = np.nan_to_num(doorways.truth.occupancy) >= 0.5
+    found = maps[0] >= 0.5
+    assert (found & truth).sum() > 0.5 * found.sum()
+
+
+def test_streaming_refuses_what_it_cannot_bound(doorways: Scenario) -> None:
+    g, rig = doorways.truth.grid, doorways.rig
+    with pytest.raises(ConfigError, match="no streaming mode"):
+        StreamingMapper("em", g, rig)
+    with pytest.raises(ConfigError, match="bounded strategy"):
+        StreamingMapper("gradient", g, rig, strategy="all")
+    with pytest.raises(ConfigError, match="fall-off"):
+        StreamingMapper("inverse", g, rig, strategy="last:5", falloff_deg=10.0)
+    sm = StreamingMapper("gradient", g, rig)
+    bad = doorways.readings.take(np.arange(3))
+    bad = Readings(
+        bad.t, bad.sensor, bad.x, bad.y, bad.theta, np.array([1.0, np.nan, 1.0]), bad.names
+    )
+    with pytest.raises(ConfigError, match="reading 1"):
+        sm.add(bad)
+
+
+# -- replay ------------------------------------------------------------------------------
+
+
+def test_time_batches_cut_by_log_time(doorways: Scenario) -> None:
+    r = doorways.readings
+    chunks = [r.take(np.arange(a, min(a + 97, len(r)))) for a in range(0, len(r), 97)]
+    batches = list(time_batches(chunks, 0.5))
+    assert sum(len(b) for b in batches) == len(r)
+    t0 = r.t[0]
+    for b in batches:
+        k = np.floor((b.t - t0) / 0.5)
+        assert np.all(k == k[0])
+    assert len({float(np.floor((b.t[0] - t0) / 0.5)) for b in batches}) == len(batches)
+
+
+def test_replay_snapshots_and_realtime_pace(doorways: Scenario) -> None:
+    r = doorways.readings.take(np.flatnonzero(doorways.readings.t < 4.0))
+    sm = StreamingMapper("gradient", doorways.truth.grid, doorways.rig, strategy="last:100")
+    times: list[float] = []
+    rep = replay(
+        [r],
+        sm,
+        period=0.25,
+        realtime=True,
+        speed=8.0,
+        snapshot_every=1.0,
+        on_snapshot=lambda t, s: times.append(t),
+    )
+    span = float(r.t[-1] - r.t[0])
+    assert rep.wall_time >= span / 8.0 - 0.05
+    assert rep.improve_units > 0  # the idle time went into improving the map
+    assert times[0] >= 1.0
+    assert len(times) >= 4
+    assert times[-1] == pytest.approx(span)
+
+
+# -- command line ------------------------------------------------------------------------
+
+
+def _run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    try:
+        main(args)
+        code = 0
+    except SystemExit as e:
+        code = int(e.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_stream_command_writes_map_snapshots_animation(
+    doorways: Scenario, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    doorways.write(tmp_path / "scene")
+    d = tmp_path / "scene"
+    code, out, err = _run(
+        [
+            "stream",
+            str(d / "readings.csv"),
+            "--rig",
+            str(d / "rig.yaml"),
+            "--like",
+            str(d / "truth.yaml"),
+            "--truth",
+            str(d / "truth.yaml"),
+            "-o",
+            str(tmp_path / "out"),
+            "--snapshot-every",
+            "5",
+            "--window",
+            "last:300",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    o = tmp_path / "out"
+    info = json.loads((o / "stream.json").read_text())
+    assert info["readings"] == len(doorways.readings)
+    assert info["strategy"] == "last:300"
+    assert info["latency_p99_ms"] >= info["latency_median_ms"] > 0
+    assert len(list((o / "snapshots").glob("*.png"))) >= 4
+    assert (o / "stream.gif").stat().st_size > 1000
+    assert (o / "map.yaml").exists()
+    assert "realtime_factor" in out
+    assert not list(tmp_path.glob(".out.*"))
+
+
+def test_stream_command_bad_input_leaves_nothing(
+    doorways: Scenario, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    r = doorways.readings
+    write_readings(r, tmp_path / "r.csv")
+    save_rig(doorways.rig, tmp_path / "rig.yaml")
+    lines = (tmp_path / "r.csv").read_text().splitlines()
+    # A bad range far into the file: found while streaming, after snapshots were taken.
+    k = len(lines) - 5
+    fields = lines[k].split(",")
+    fields[-1] = "-1.0"
+    lines[k] = ",".join(fields)
+    (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
+    before = set(tmp_path.iterdir())
+    code, _out, err = _run(
+        [
+            "stream",
+            str(tmp_path / "bad.csv"),
+            "--rig",
+            str(tmp_path / "rig.yaml"),
+            "--bounds",
+            "0",
+            "0",
+            "6",
+            "6",
+            "-o",
+            str(tmp_path / "out"),
+            "--snapshot-every",
+            "2",
+        ],
+        capsys,
+    )
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1
+    assert f"bad.csv:{k + 1}" in err
+    assert "range" in err
+    assert set(tmp_path.iterdir()) == before
+
+
+def test_office_scenario_is_a_ring_tour() -> None:
+    sc = make_scenario("office", duration=2.0)
+    assert len(sc.readings) == 16 * 20 * 2
+    assert len(sc.rig.mounts) == 16
+    assert len(sc.passages) == 8
+    occ = np.nan_to_num(sc.truth.occupancy) >= 0.5
+    i, j = sc.truth.grid.world_to_cell(sc.trajectory.x, sc.trajectory.y)
+    assert not occ[i, j].any()  # the robot never drives through a wall
+    m = OccupancyMap(sc.truth.grid, sc.truth.occupancy)
+    assert m.grid.shape == (400, 400)
