@@ -254,3 +254,45 @@ def test_accumulate_checks_its_arrays() -> None:
         accumulate(
             GRID, s, [0], [0], [0], [1], np.zeros(3), np.zeros(3, bool), inc_free=0, inc_occ=1
         )
+
+
+def test_parallel_accumulate_gives_the_serial_result() -> None:
+    """Row stripes shared between threads: every cell still takes readings in order."""
+    from sonarmap._raster_kernel import accumulate_kernel, accumulate_parallel
+
+    rng = np.random.default_rng(3)
+    n = 400
+    s = cone_sensor(40.0)
+    x, y = rng.uniform(-2, 2, n), rng.uniform(-2, 2, n)
+    th, r = rng.uniform(-4, 4, n), rng.uniform(0, 3.2, n)
+    free_lim = np.where(r < s.r_max, r - 0.05, s.r_max - 0.05)
+    occ_hi = np.where(r < s.r_max, r + 0.05, -np.inf)
+    out = []
+    for parts in (1, 2, 3):
+        v = np.zeros(GRID.size)
+        t = np.zeros(GRID.size, dtype=bool)
+        args = (
+            v,
+            t,
+            GRID.resolution,
+            *GRID.origin,
+            GRID.rows,
+            GRID.cols,
+            x,
+            y,
+            th,
+            free_lim,
+            occ_hi,
+            s.beam.halfplanes,
+            s.beam.radius,
+            -0.3,
+            0.8,
+            -1.0,
+            1.2,
+        )
+        k = accumulate_kernel(*args) if parts == 1 else accumulate_parallel(*args, parts)
+        out.append((k, v, t))
+    for k, v, t in out[1:]:
+        assert k == out[0][0]
+        np.testing.assert_array_equal(v, out[0][1])
+        np.testing.assert_array_equal(t, out[0][2])

@@ -25,8 +25,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
-
+import numba
 import numpy as np
 from rich.console import Console
 from rich.table import Table
@@ -122,7 +121,10 @@ def run_mrpt(exe: Path, sc: Scenario, work: Path, repeat: int) -> tuple[float, O
     return best, OccupancyMap(g, occ)
 
 
-def run_ours(sc: Scenario, repeat: int, **params: Any) -> tuple[float, OccupancyMap]:
+def run_ours(
+    sc: Scenario, repeat: int, threads: int = 1, **params: Any
+) -> tuple[float, OccupancyMap]:
+    numba.set_num_threads(threads)
     mapper = make_mapper("inverse", **params)
     mapper.fit(sc.readings.take(np.arange(min(1000, len(sc.readings)))), sc.truth.grid, sc.rig)
     best = math.inf
@@ -161,12 +163,17 @@ def main(argv: list[str] | None = None) -> int:
     # MRPT's default increments in our terms: free logit(0.35), occupied 3 logit(0.65).
     p_occ = 1 / (1 + math.exp(-3 * math.log(0.65 / 0.35)))
     t_like, m_like = run_ours(sc, args.repeat, p_occ=p_occ, p_free=0.35)
+    cores = int(os.environ.get("NUMBA_NUM_THREADS", os.cpu_count() or 1))
+    entries = [
+        ("MRPT COccupancyGridMap2D (defaults), 1 thread", t_mrpt, m_mrpt),
+        ("sonarmap inverse (defaults), 1 thread", t_ours, m_ours),
+        ("sonarmap inverse (MRPT's increments), 1 thread", t_like, m_like),
+    ]
+    if cores > 1:
+        t_par, m_par = run_ours(sc, args.repeat, threads=cores)
+        entries.append((f"sonarmap inverse (defaults), {cores} threads", t_par, m_par))
     rows: list[dict[str, Any]] = []
-    for name, t, m in (
-        ("MRPT COccupancyGridMap2D (defaults)", t_mrpt, m_mrpt),
-        ("sonarmap inverse (defaults)", t_ours, m_ours),
-        ("sonarmap inverse (MRPT's increments)", t_like, m_like),
-    ):
+    for name, t, m in entries:
         agree, n = agreement(m, m_mrpt)
         rows.append(
             {

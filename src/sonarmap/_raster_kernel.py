@@ -381,6 +381,9 @@ def accumulate_kernel(
     inc_occ: float,
     lo: float,
     hi: float,
+    part: int = 0,
+    parts: int = 1,
+    stripe: int = 8,
 ) -> int:
     """Add ``inc_free`` to the Omega_free cells and ``inc_occ`` to the Omega_occ cells of
     each reading, in reading order, clamping to [lo, hi] after each addition; returns
@@ -390,6 +393,10 @@ def accumulate_kernel(
     visited as runs: along a row, distance to the sensor is convex, so the free cells
     (d below a limit) form one run and the occupied cells the rest of the beam's span.
     Only the run ends are tested cell by cell.
+
+    With ``parts > 1`` only the rows of stripes ``part``, ``part + parts``, ... (stripes
+    of ``stripe`` rows) are updated: parts can run in parallel, and each cell still sees
+    the readings in order.
     """
     n = sx.shape[0]
     total = 0
@@ -407,6 +414,8 @@ def accumulate_kernel(
             continue
         iy_lo, iy_hi = _row_range(beam_planes, c, s, x0, y0, reach, oy, h, rows, scratch)
         for iy in range(iy_lo, iy_hi + 1):
+            if parts > 1 and (iy // stripe) % parts != part:
+                continue
             yc = oy + (iy + 0.5) * h
             lo_x, hi_x = _span(beam_planes, c, s, x0, y0, yc, reach)
             if hi_x < lo_x:
@@ -460,3 +469,55 @@ def accumulate_kernel(
                 _bump(values, touched, base + fh + 1, base + c_hi, inc_occ, lo, hi)
                 total += (fl - c_lo) + (c_hi - fh)
     return total
+
+
+@nb.njit(cache=True, parallel=True)
+def accumulate_parallel(
+    values: npt.NDArray[np.float64],
+    touched: npt.NDArray[np.bool_],
+    h: float,
+    ox: float,
+    oy: float,
+    rows: int,
+    cols: int,
+    sx: npt.NDArray[np.float64],
+    sy: npt.NDArray[np.float64],
+    st: npt.NDArray[np.float64],
+    free_lim: npt.NDArray[np.float64],
+    occ_hi: npt.NDArray[np.float64],
+    beam_planes: npt.NDArray[np.float64],
+    beam_radius: float,
+    inc_free: float,
+    inc_occ: float,
+    lo: float,
+    hi: float,
+    parts: int,
+) -> int:
+    """:func:`accumulate_kernel` split over ``parts`` threads by interleaved row stripes;
+    the result is the same as one thread's."""
+    counts = np.zeros(parts, dtype=np.int64)
+    for p in nb.prange(parts):
+        counts[p] = accumulate_kernel(
+            values,
+            touched,
+            h,
+            ox,
+            oy,
+            rows,
+            cols,
+            sx,
+            sy,
+            st,
+            free_lim,
+            occ_hi,
+            beam_planes,
+            beam_radius,
+            inc_free,
+            inc_occ,
+            lo,
+            hi,
+            p,
+            parts,
+            8,
+        )
+    return int(counts.sum())

@@ -390,10 +390,13 @@ def show_cmd(
 @app.command("methods")
 def methods_cmd() -> None:
     """List mapping methods and their parameters with defaults."""
-    table = Table("method", "parameters (defaults)")
+    table = Table("method", "streams", "parameters (defaults)")
     for name in sorted(MAPPERS):
         cls = MAPPERS[name]
-        table.add_row(name, ", ".join(f"{k}={v!r}" for k, v in cls.param_defaults().items()))
+        streams = DEFAULT_STRATEGY.get(name, "yes") if cls.streamer is not None else "-"
+        table.add_row(
+            name, streams, ", ".join(f"{k}={v!r}" for k, v in cls.param_defaults().items())
+        )
     console.print(table)
 
 

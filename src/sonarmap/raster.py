@@ -20,11 +20,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
 
-from ._raster_kernel import accumulate_kernel, rasterise_kernel
+from ._raster_kernel import accumulate_kernel, accumulate_parallel, rasterise_kernel
 from .errors import ConfigError, InputError
 from .grid import Grid
 from .sensors import Region, SensorModel
@@ -259,7 +260,9 @@ def accumulate(
     """Add a constant to the Omega_free and Omega_occ cells of each reading, in place.
 
     The cells are those :func:`rasterise` gives, but no footprint is stored: each row of
-    a beam is visited as runs of cells. This is the inverse model's insertion.
+    a beam is visited as runs of cells. This is the inverse model's insertion. With more
+    than one numba thread (``NUMBA_NUM_THREADS``) the rows are shared out in interleaved
+    stripes; every cell still takes the readings in order, so the result is the same.
 
     Parameters
     ----------
@@ -280,6 +283,31 @@ def accumulate(
     _, free_lim, occ_hi = _limits(grid, sensor, r, dr)
     if values.shape != (grid.size,) or touched.shape != (grid.size,):
         raise ConfigError(f"values and touched must have shape ({grid.size},)")
+    threads = nb.get_num_threads()
+    if threads > 1 and len(sx) >= 64:
+        return int(
+            accumulate_parallel(
+                values,
+                touched,
+                grid.resolution,
+                grid.origin[0],
+                grid.origin[1],
+                grid.rows,
+                grid.cols,
+                sx,
+                sy,
+                st,
+                free_lim,
+                occ_hi,
+                np.ascontiguousarray(sensor.beam.halfplanes),
+                float(sensor.beam.radius),
+                inc_free,
+                inc_occ,
+                clamp[0],
+                clamp[1],
+                threads,
+            )
+        )
     return int(
         accumulate_kernel(
             values,
