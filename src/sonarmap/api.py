@@ -89,6 +89,10 @@ def grid_for_log(
     return _grid_around(box, resolution, margin)
 
 
+#: CSV rows read at once while streaming: a few seconds of a 16-sonar ring at 20 Hz.
+STREAM_CHUNK = 5_000
+
+
 def stream_log(
     path: str | Path,
     rig: Rig,
@@ -113,7 +117,7 @@ def stream_log(
 
     def checked() -> Iterator[Readings]:
         done = 0
-        for chunk in iter_readings(path, names=rig.names):
+        for chunk in iter_readings(path, names=rig.names, chunk_size=STREAM_CHUNK):
             _check_r_min(chunk, rig, offset=done, path=path)
             done += len(chunk)
             yield chunk
