@@ -129,7 +129,12 @@ class StreamingMapper:
 
 @dataclass
 class ReplayReport:
-    """What a replay measured. Times in seconds; ``latency`` holds every update's."""
+    """What a replay measured. Times in seconds; ``latency`` holds every update's.
+
+    ``max_lag`` (``realtime`` only) is how long after its batch's log time, scaled by
+    the replay speed, the latest update finished; it includes time spent in
+    ``on_snapshot`` (writing pictures makes the map late too).
+    """
 
     n_readings: int = 0
     data_duration: float = 0.0
@@ -255,7 +260,8 @@ def replay(
                 if done == 0:
                     time.sleep(max(0.0, due - time.perf_counter()))
         rep.latency.append(streamer.add(batch))
-        if realtime:
+        if realtime and len(rep.latency) > 1:
+            # How late the map is; the first update, which loads the kernels, aside.
             rep.max_lag = max(
                 rep.max_lag, time.perf_counter() - (wall0 + (due_log - t_first) / speed)
             )
