@@ -85,6 +85,9 @@ def _kth_occupied(
     return out
 
 
+_STAGES = (0.25, 0.5, 1.0)
+
+
 def simulate(
     truth: OccupancyMap,
     rig: Rig,
@@ -151,8 +154,26 @@ def simulate(
     step = max(1, chunk_size) * n_mount
     for a in range(0, total, step):
         b = min(a + step, total)
-        cs = beam_cells(truth.grid, sensor, tx[a:b], ty[a:b], tt[a:b])
-        hit = _kth_occupied(cs.offsets, cs.cells, cs.distance, occupied, misses[a:b])
+        hit = np.full(b - a, -1, dtype=np.int64)
+        todo = np.arange(b - a)
+        # A beam's cost grows with the square of its reach, and most echoes are short:
+        # look for the hit within a quarter, then half, then all of r_max. Cells nearer
+        # than a stage's reach are the same in every stage, so the k-th occupied one,
+        # when found, is the full beam's.
+        for frac in _STAGES:
+            cs = beam_cells(
+                truth.grid,
+                sensor,
+                tx[a:b][todo],
+                ty[a:b][todo],
+                tt[a:b][todo],
+                max_range=sensor.r_max * frac,
+            )
+            found = _kth_occupied(cs.offsets, cs.cells, cs.distance, occupied, misses[a:b][todo])
+            hit[todo] = found
+            todo = todo[found < 0]
+            if len(todo) == 0:
+                break
         got = hit >= 0
         cx, cy = truth.grid.cell_centres(*truth.grid.unravel(hit[got]))
         dist = np.full(b - a, sensor.r_max)
