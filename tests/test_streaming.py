@@ -351,6 +351,7 @@ def test_stream_command_writes_map_snapshots_animation(
     assert info["latency_p99_ms"] >= info["latency_median_ms"] > 0
     assert len(list((o / "snapshots").glob("*.png"))) >= 4
     assert (o / "stream.gif").stat().st_size > 1000
+    assert (o / "stream.gif").stat().st_mode & 0o777 == (o / "map.yaml").stat().st_mode & 0o777
     assert (o / "map.yaml").exists()
     assert "realtime_factor" in out
     assert not list(tmp_path.glob(".out.*"))

@@ -267,6 +267,14 @@ def stream_cmd(
         str, typer.Option(help="Animation file in OUT (.gif, or .mp4 with ffmpeg); '' for none.")
     ] = "stream.gif",
     truth: Annotated[Path | None, typer.Option(help="Truth map YAML to outline in red.")] = None,
+    binary: Annotated[
+        bool | None,
+        typer.Option(
+            "--binary/--no-binary",
+            help="Draw snapshots binarised at 0.5 (default for gradient, whose streaming "
+            "map is not pushed to 0 or 1).",
+        ),
+    ] = None,
     param: Annotated[
         list[str] | None, typer.Option("--param", help="Method parameter KEY=VALUE, repeatable.")
     ] = None,
@@ -288,7 +296,8 @@ def stream_cmd(
     if t_map is not None and t_map.grid != grid:
         raise ConfigError(f"{truth}: the truth map's grid differs from the stream's; use --like")
     strategy = window if window is not None else DEFAULT_STRATEGY.get(m)
-    anim = MapAnimation(grid, m) if animation else None
+    draw_binary = (m == "gradient") if binary is None else binary
+    anim = MapAnimation(grid, m, binary=draw_binary) if animation else None
     with atomic_folder(out) as tmp:
 
         def snapshot(t: float, sm: StreamingMapper) -> None:
@@ -297,6 +306,7 @@ def stream_cmd(
                 OccupancyMap(grid, occ),
                 tmp / "snapshots" / f"t{t:07.1f}.png",
                 truth=t_map,
+                binary=draw_binary,
                 title=f"{m}, t = {t:.1f} s",
             )
             if anim is not None:

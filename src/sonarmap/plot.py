@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -19,7 +17,7 @@ from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
 
 from .errors import ConfigError
 from .grid import Grid
-from .io._atomic import atomic_write
+from .io._atomic import atomic_outputs, atomic_write
 from .io.rosmap import OccupancyMap
 from .readings import Readings
 
@@ -121,14 +119,17 @@ class MapAnimation:
     frame of a 400 x 400 map costs 160 kB.
     """
 
-    def __init__(self, grid: Grid, title: str = "") -> None:
+    def __init__(self, grid: Grid, title: str = "", *, binary: bool = False) -> None:
         self.grid = grid
         self.title = title
+        self.binary = binary
         self.frames: list[tuple[float, npt.NDArray[np.uint8]]] = []
 
     def add(self, t: float, occupancy: npt.NDArray[np.float32]) -> None:
-        """Keep the map at log time ``t`` (seconds)."""
+        """Keep the map at log time ``t`` (seconds), binarised at 0.5 if asked."""
         occ = np.asarray(occupancy, dtype=np.float64).reshape(self.grid.shape)
+        if self.binary:
+            occ = np.where(np.isnan(occ), np.nan, (occ >= 0.5).astype(np.float64))
         code = np.where(np.isnan(occ), 255, np.round(np.clip(occ, 0, 1) * 250)).astype(np.uint8)
         self.frames.append((t, code))
 
@@ -171,13 +172,9 @@ class MapAnimation:
             return [im]
 
         anim = FuncAnimation(fig, show, frames=len(self.frames), blit=False)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        fd, name = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=suffix, dir=p.parent)
-        os.close(fd)
         try:
-            anim.save(name, writer=writer, dpi=80)
-            os.replace(name, p)
+            with atomic_outputs(p, keep_suffix=True) as (tmp,):
+                anim.save(tmp, writer=writer, dpi=80)
         finally:
             plt.close(fig)
-            Path(name).unlink(missing_ok=True)
         return p

@@ -17,16 +17,19 @@ __all__ = ["atomic_folder", "atomic_outputs", "atomic_write_text"]
 
 
 @contextlib.contextmanager
-def atomic_outputs(*paths: Path) -> Iterator[list[Path]]:
+def atomic_outputs(*paths: Path, keep_suffix: bool = False) -> Iterator[list[Path]]:
     """Yield temporary paths for ``paths``; rename them all into place on success.
 
     On an exception the temporary files are removed and no destination is touched.
+    With ``keep_suffix`` the temporary names end like their destinations (for writers
+    that choose the format by the file name).
     """
     temps: list[Path] = []
     try:
         for p in paths:
             p.parent.mkdir(parents=True, exist_ok=True)
-            fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+            suffix = p.suffix if keep_suffix else ".tmp"
+            fd, name = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=suffix, dir=p.parent)
             os.close(fd)
             # mkstemp makes owner-only files; outputs get the usual umask-based mode.
             umask = os.umask(0)
