@@ -283,53 +283,30 @@ def accumulate(
     _, free_lim, occ_hi = _limits(grid, sensor, r, dr)
     if values.shape != (grid.size,) or touched.shape != (grid.size,):
         raise ConfigError(f"values and touched must have shape ({grid.size},)")
+    args = (
+        values,
+        touched,
+        grid.resolution,
+        grid.origin[0],
+        grid.origin[1],
+        grid.rows,
+        grid.cols,
+        sx,
+        sy,
+        st,
+        free_lim,
+        occ_hi,
+        np.ascontiguousarray(sensor.beam.halfplanes),
+        float(sensor.beam.radius),
+        inc_free,
+        inc_occ,
+        clamp[0],
+        clamp[1],
+    )
     threads = nb.get_num_threads()
     if threads > 1 and len(sx) >= 64:
-        return int(
-            accumulate_parallel(
-                values,
-                touched,
-                grid.resolution,
-                grid.origin[0],
-                grid.origin[1],
-                grid.rows,
-                grid.cols,
-                sx,
-                sy,
-                st,
-                free_lim,
-                occ_hi,
-                np.ascontiguousarray(sensor.beam.halfplanes),
-                float(sensor.beam.radius),
-                inc_free,
-                inc_occ,
-                clamp[0],
-                clamp[1],
-                threads,
-            )
-        )
-    return int(
-        accumulate_kernel(
-            values,
-            touched,
-            grid.resolution,
-            grid.origin[0],
-            grid.origin[1],
-            grid.rows,
-            grid.cols,
-            sx,
-            sy,
-            st,
-            free_lim,
-            occ_hi,
-            np.ascontiguousarray(sensor.beam.halfplanes),
-            float(sensor.beam.radius),
-            inc_free,
-            inc_occ,
-            clamp[0],
-            clamp[1],
-        )
-    )
+        return int(accumulate_parallel(*args, threads))
+    return int(accumulate_kernel(*args))
 
 
 def beam_cells(

@@ -286,13 +286,45 @@ class StochasticMapper(Mapper):
         elif self.init == "occupied":
             full[index.cells] = True
         occ = full[index.cells].copy()
-        v = self.values()
         n_flips = round(self.sweeps * index.n_cells)
-        self.accepted_, self.loglik_ = _search(
+        self.accepted_, self.loglik_ = self.search(
+            index,
+            occ,
+            full,
+            np.arange(index.n_cells, dtype=np.int64),
+            sigma,
+            n_flips,
+            anneal=self.schedule == "anneal",
+            seed=self.seed,
+        )
+        if progress is not None:
+            progress(len(everything), len(everything))
+        self._occ = occ.astype(np.float64)
+        self._index = index
+
+    def search(
+        self,
+        index: BeamIndex,
+        occ: npt.NDArray[np.bool_],
+        full: npt.NDArray[np.bool_],
+        cand: npt.NDArray[np.int64],
+        sigma: float,
+        n_flips: int,
+        *,
+        anneal: bool,
+        seed: int,
+    ) -> tuple[int, float]:
+        """Propose ``n_flips`` flips of the ``cand`` cells (local indices) of ``index``.
+
+        ``occ`` (per local cell) and ``full`` (the whole grid) hold the map and are
+        updated in place; returns the flips accepted and the final log-likelihood.
+        """
+        v = self.values()
+        accepted, loglik = _search(
             occ,
             full,
             index.cells,
-            np.arange(index.n_cells, dtype=np.int64),
+            cand,
             self.grid.rows,
             self.grid.cols,
             self.neighbours == 8,
@@ -312,16 +344,13 @@ class StochasticMapper(Mapper):
             v["w_occ"],
             v["w_border"],
             n_flips,
-            self.schedule == "anneal",
+            anneal,
             self.p_randomfactor,
             self.t0,
             self.t_end,
-            self.seed,
+            seed,
         )
-        if progress is not None:
-            progress(len(everything), len(everything))
-        self._occ = occ.astype(np.float64)
-        self._index = index
+        return int(accepted), float(loglik)
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
         if self._occ is None or self._index is None:
@@ -367,38 +396,17 @@ class StochasticStream(StreamEngine):
         index = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[sel])
         cand = np.searchsorted(index.cells, cells).astype(np.int64)
         occ = self.full[index.cells].copy()
-        v = m.values()
         n_flips = self.effort * len(cand)
-        _search(
+        # A new stream of random numbers per search, the same for a given seed.
+        m.search(
+            index,
             occ,
             self.full,
-            index.cells,
             cand,
-            self.grid.rows,
-            self.grid.cols,
-            m.neighbours == 8,
-            index.free_off,
-            index.free_cell,
-            index.band_off,
-            index.band_cell,
-            index.band_dist,
-            index.z,
-            index.cell_off,
-            index.cell_reading,
-            index.cell_kind,
-            v["p_rand"],
-            v["p_hit"],
             self.sigma,
-            self.sensor.r_max,
-            v["w_occ"],
-            v["w_border"],
             n_flips,
-            False,
-            m.p_randomfactor,
-            m.t0,
-            m.t_end,
-            # A new stream of random numbers per search, the same for a given seed.
-            m.seed + self._searches,
+            anneal=False,
+            seed=m.seed + self._searches,
         )
         self._searches += 1
         self.flips_ += n_flips
