@@ -396,6 +396,29 @@ def test_stream_command_bad_input_leaves_nothing(
     assert set(tmp_path.iterdir()) == before
 
 
+def test_stream_command_refuses_an_animation_it_cannot_write(
+    doorways: Scenario, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    write_readings(doorways.readings, tmp_path / "r.csv")
+    save_rig(doorways.rig, tmp_path / "rig.yaml")
+    code, _out, err = _run(
+        [
+            "stream",
+            str(tmp_path / "r.csv"),
+            "--rig",
+            str(tmp_path / "rig.yaml"),
+            "-o",
+            str(tmp_path / "out"),
+            "--animation",
+            "film.avi",
+        ],
+        capsys,
+    )
+    assert code == 2
+    assert f"{tmp_path / 'out' / 'film.avi'}: animation must be a .gif or .mp4" in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_office_scenario_is_a_ring_tour() -> None:
     sc = make_scenario("office", duration=2.0)
     assert len(sc.readings) == 16 * 20 * 2

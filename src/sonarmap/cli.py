@@ -296,6 +296,8 @@ def stream_cmd(
     if t_map is not None and t_map.grid != grid:
         raise ConfigError(f"{truth}: the truth map's grid differs from the stream's; use --like")
     strategy = window if window is not None else DEFAULT_STRATEGY.get(m)
+    if animation:
+        MapAnimation.check_name(out / animation)
     draw_binary = (m == "gradient") if binary is None else binary
     anim = MapAnimation(grid, m, binary=draw_binary) if animation else None
     with atomic_folder(out) as tmp:

@@ -133,19 +133,22 @@ class MapAnimation:
         code = np.where(np.isnan(occ), 255, np.round(np.clip(occ, 0, 1) * 250)).astype(np.uint8)
         self.frames.append((t, code))
 
+    @staticmethod
+    def check_name(path: str | Path) -> None:
+        """Refuse a file name whose format cannot be written here."""
+        p = Path(path)
+        suffix = p.suffix.lower()
+        if suffix == ".mp4" and not FFMpegWriter.isAvailable():
+            raise ConfigError(f"{p}: writing .mp4 needs ffmpeg; use a .gif name")
+        if suffix not in (".gif", ".mp4"):
+            raise ConfigError(f"{p}: animation must be a .gif or .mp4 file")
+
     def save(self, path: str | Path, *, fps: int = 4) -> Path:
         """Write the animation; the format follows the suffix (``.gif``, or ``.mp4``
         when ffmpeg is installed)."""
         p = Path(path)
-        suffix = p.suffix.lower()
-        if suffix == ".gif":
-            writer: Any = PillowWriter(fps=fps)
-        elif suffix == ".mp4":
-            if not FFMpegWriter.isAvailable():
-                raise ConfigError(f"{p}: writing .mp4 needs ffmpeg; use a .gif name")
-            writer = FFMpegWriter(fps=fps)
-        else:
-            raise ConfigError(f"{p}: animation must be a .gif or .mp4 file")
+        self.check_name(p)
+        writer: Any = PillowWriter(fps=fps) if p.suffix.lower() == ".gif" else FFMpegWriter(fps=fps)
         if not self.frames:
             raise ConfigError("no frames to animate")
         cmap = plt.get_cmap("gray_r").with_extremes(bad=_UNKNOWN_RGBA)
