@@ -263,13 +263,19 @@ def _positive_int(kind: str, n: int) -> None:
 
 
 def parse_strategy(text: str) -> Strategy:
-    """A strategy from its text form: ``last:N``, ``cell:N``, ``pose:N[:XY[:DEG]]``, ``all``.
+    """A strategy from its text form: ``last:N`` (or just ``N``), ``cell:N``,
+    ``pose:N[:XY[:DEG]]``, ``all``.
 
     Examples
     --------
     >>> parse_strategy("pose:3:0.25")
     PoseGrid('pose:3:0.25:30')
+    >>> parse_strategy("500")
+    LastN('last:500')
     """
+    if text.strip().isdigit():
+        # A bare count is the sliding window.
+        return LastN(int(text.strip()))
     parts = text.strip().split(":")
     kind, args = parts[0], parts[1:]
     usage = "valid: last:N, cell:N, pose:N[:XY_M[:HEADING_DEG]], all"
