@@ -319,30 +319,18 @@ def rasterise_kernel(
 
 
 @nb.njit(cache=True, inline="always")
-def _below(ox: float, h: float, col: int, x0: float, dy2: float, lim: float) -> bool:
-    """``sqrt(dx^2 + dy^2) < lim`` exactly as the per-cell test computes it, with the
-    square root taken only near the limit."""
-    dx = ox + (col + 0.5) * h - x0
-    q = dx * dx + dy2
-    if lim <= 0.0:
-        return False
-    l2 = lim * lim
-    if abs(q - l2) > 1e-9 * l2:
-        return q < l2
-    return math.sqrt(q) < lim
-
-
-@nb.njit(cache=True, inline="always")
-def _above(ox: float, h: float, col: int, x0: float, dy2: float, lim: float) -> bool:
-    """``sqrt(dx^2 + dy^2) > lim``, as :func:`_below`."""
-    dx = ox + (col + 0.5) * h - x0
-    q = dx * dx + dy2
+def _side(ox: float, h: float, col: int, x0: float, dy2: float, lim: float) -> int:
+    """Sign of ``sqrt(dx^2 + dy^2) - lim`` for the centre of column ``col``, exactly as
+    the per-cell test computes the distance; the square root is taken only near ``lim``."""
     if lim < 0.0:
-        return True
+        return 1
+    dx = ox + (col + 0.5) * h - x0
+    q = dx * dx + dy2
     l2 = lim * lim
     if abs(q - l2) > 1e-9 * l2:
-        return q > l2
-    return math.sqrt(q) > lim
+        return 1 if q > l2 else -1
+    d = math.sqrt(q)
+    return 1 if d > lim else (-1 if d < lim else 0)
 
 
 @nb.njit(cache=True, inline="always")
@@ -415,6 +403,8 @@ def accumulate_kernel(
         reach = min(max(free_lim[i], occ_hi[i]), beam_radius) + EDGE_TOL
         if reach <= EDGE_TOL:
             continue
+        # A no-echo reading has no band: only its free cells are updated.
+        band = b_lim >= a_lim
         iy_lo, iy_hi = _row_range(beam_planes, c, s, x0, y0, reach, oy, h, rows, scratch)
         for iy in range(iy_lo, iy_hi + 1):
             if parts > 1 and (iy // stripe) % parts != part:
@@ -430,13 +420,12 @@ def accumulate_kernel(
             dy = yc - y0
             base = (rows - 1 - iy) * cols
             dy2 = dy * dy
-            band = b_lim >= a_lim
             if band:
                 # The span reaches b_lim plus rounding slack; a cell in that slack is
                 # outside the band, and only the span's end cells can be.
-                while c_lo <= c_hi and _above(ox, h, c_lo, x0, dy2, b_lim):
+                while c_lo <= c_hi and _side(ox, h, c_lo, x0, dy2, b_lim) > 0:
                     c_lo += 1
-                while c_hi >= c_lo and _above(ox, h, c_hi, x0, dy2, b_lim):
+                while c_hi >= c_lo and _side(ox, h, c_hi, x0, dy2, b_lim) > 0:
                     c_hi -= 1
                 if c_hi < c_lo:
                     continue
@@ -451,14 +440,14 @@ def accumulate_kernel(
                 fl = math.ceil(u)
                 fh = math.floor(v)
                 if abs(u - math.floor(u + 0.5)) < 1e-6:
-                    while _below(ox, h, fl - 1, x0, dy2, a_lim):
+                    while _side(ox, h, fl - 1, x0, dy2, a_lim) < 0:
                         fl -= 1
-                    while fl <= fh and not _below(ox, h, fl, x0, dy2, a_lim):
+                    while fl <= fh and _side(ox, h, fl, x0, dy2, a_lim) >= 0:
                         fl += 1
                 if abs(v - math.floor(v + 0.5)) < 1e-6:
-                    while _below(ox, h, fh + 1, x0, dy2, a_lim):
+                    while _side(ox, h, fh + 1, x0, dy2, a_lim) < 0:
                         fh += 1
-                    while fh >= fl and not _below(ox, h, fh, x0, dy2, a_lim):
+                    while fh >= fl and _side(ox, h, fh, x0, dy2, a_lim) >= 0:
                         fh -= 1
                 fl = max(fl, c_lo)
                 fh = min(fh, c_hi)
