@@ -31,6 +31,7 @@ from .errors import ConfigError
 from .grid import Grid
 from .io.rosmap import OccupancyMap
 from .mappers import Mapper, make_mapper
+from .mappers._base import check_ranges
 from .mappers._stream import StreamEngine
 from .readings import Readings
 from .rig import Rig
@@ -96,10 +97,7 @@ class StreamingMapper:
 
     def add(self, readings: Readings) -> float:
         """Take a batch of new readings and update the map; returns the seconds it took."""
-        r = readings.range
-        if np.isnan(r).any() or (r < 0).any():
-            i = int(np.flatnonzero(np.isnan(r) | (r < 0))[0])
-            raise ConfigError(f"reading {self.n_readings + i}: range must be >= 0, got {r[i]}")
+        check_ranges(readings, offset=self.n_readings)
         t0 = time.perf_counter()
         self.engine.add(readings)
         self.n_readings += len(readings)

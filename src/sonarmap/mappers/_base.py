@@ -110,7 +110,7 @@ class Mapper(ABC):
         """Add readings to the map being built."""
         if self._grid is None:
             raise NotFittedError(f"{type(self).__name__}: call start() or fit() first")
-        self._check_ranges(readings)
+        check_ranges(readings)
         self._add(readings, progress)
         return self
 
@@ -206,11 +206,13 @@ class Mapper(ABC):
         self._batches.append(readings)
         return Readings.concat(self._batches)
 
-    def _check_ranges(self, readings: Readings) -> None:
-        r = readings.range
-        if np.isnan(r).any() or (r < 0).any():
-            i = int(np.flatnonzero(np.isnan(r) | (r < 0))[0])
-            raise ConfigError(f"reading {i}: range must be a number >= 0, got {r[i]}")
+
+def check_ranges(readings: Readings, *, offset: int = 0) -> None:
+    """Refuse NaN or negative ranges, naming the first (numbered from ``offset``)."""
+    r = readings.range
+    if np.isnan(r).any() or (r < 0).any():
+        i = int(np.flatnonzero(np.isnan(r) | (r < 0))[0])
+        raise ConfigError(f"reading {offset + i}: range must be a number >= 0, got {r[i]}")
 
 
 def _coerce(value: str, default: Any, key: str) -> Any:

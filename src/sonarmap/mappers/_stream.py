@@ -111,8 +111,6 @@ class StreamEngine(ABC):
 
     #: Whether the engine keeps readings (and so needs a bounded strategy).
     keeps_readings: ClassVar[bool] = True
-    #: Band half-width to rasterise with; None for the rasteriser's default.
-    dr: float | None = None
     sort_band: ClassVar[bool] = False
 
     def __init__(
@@ -130,6 +128,9 @@ class StreamEngine(ABC):
         self.sensor = sensor
         self.strategy = strategy
         self.effort = effort
+        #: Band half-width to rasterise with: the mapper's ``dr`` (None for the
+        #: rasteriser's default); engines of other models set their own in ``_setup``.
+        self.dr: float | None = getattr(mapper, "dr", None)
         self.pool = ReadingPool(grid.cols, sort_band=self.sort_band)
         self.cov = np.zeros(grid.size, np.int32)
         self.seen = np.zeros(grid.size, np.bool_)
@@ -167,7 +168,10 @@ class StreamEngine(ABC):
     # -- the update ---------------------------------------------------------------
 
     def _prepare(self, readings: Readings) -> Readings:
-        """Readings the method uses (e.g. without no-echo readings)."""
+        """The readings the method uses: without no-echo readings when the mapper is
+        told to ignore them (``no_echo="ignore"``), as its offline fit does."""
+        if getattr(self.mapper, "no_echo", "free") == "ignore":
+            return readings.take(readings.range < self.sensor.r_max)
         return readings
 
     def add(self, readings: Readings) -> None:

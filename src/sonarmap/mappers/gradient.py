@@ -420,18 +420,10 @@ class GradientStream(StreamEngine):
     def _setup(self) -> None:
         m = self.mapper
         assert isinstance(m, GradientMapper)
-        self.dr = m.dr
         self.x = np.full(self.grid.size, 0.5)
         self._g = np.zeros(self.grid.size)
         self._k = np.zeros(self.grid.size, np.int32)
         self.steps_ = 0
-
-    def _prepare(self, readings: Readings) -> Readings:
-        m = self.mapper
-        assert isinstance(m, GradientMapper)
-        if m.no_echo == "ignore":
-            return readings.take(readings.range < self.sensor.r_max)
-        return readings
 
     def _run(self, sel: npt.NDArray[np.int64], dirty: npt.NDArray[np.int64], n: int) -> None:
         m = self.mapper

@@ -228,7 +228,6 @@ class InverseStream(StreamEngine):
         if strategy.bounded and mapper.falloff_deg > 0:
             raise ConfigError("inverse fall-off streams only with the 'all' strategy")
         super().__init__(mapper, grid, sensor, strategy, effort)
-        self.dr = mapper.dr
         self._exact = mapper if not strategy.bounded else None
         if self._exact is not None:
             self._exact.start(grid, sensor)
@@ -237,12 +236,6 @@ class InverseStream(StreamEngine):
         lo, hi = _logit(mapper.clamp_min), _logit(mapper.clamp_max)
         self._range = (lo, hi)
         self._inc = (_logit(mapper.p_free), _logit(mapper.p_occ))
-
-    def _prepare(self, readings: Readings) -> Readings:
-        assert isinstance(self.mapper, InverseMapper)
-        if self.mapper.no_echo == "ignore":
-            return readings.take(readings.range < self.sensor.r_max)
-        return readings
 
     def add(self, readings: Readings) -> None:
         if self._exact is None:
