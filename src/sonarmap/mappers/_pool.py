@@ -198,9 +198,11 @@ class ReadingPool:
         # Each reading's free entries, then its occ entries, consecutively.
         per = fc + oc
         start = self.end + np.concatenate([[0], np.cumsum(per)[:-1]]).astype(np.int64)
+        idx_f = fp.free.reading_index()
+        idx_o = fp.occ.reading_index()
         occ_cells, occ_w, occ_d = fp.occ.cells, fp.occ.weight, fp.occ.distance
         if self.sort_band and len(occ_cells):
-            order = np.lexsort((occ_d, fp.occ.reading_index()))
+            order = np.lexsort((occ_d, idx_o))
             occ_cells, occ_w, occ_d = occ_cells[order], occ_w[order], occ_d[order]
         f_pos = np.repeat(start - fp.free.offsets[:-1], fc) + np.arange(len(fp.free.cells))
         o_pos = np.repeat(start + fc - fp.occ.offsets[:-1], oc) + np.arange(len(occ_cells))
@@ -216,8 +218,6 @@ class ReadingPool:
         self.f_len[slots] = fc
         self.o_start[slots] = start + fc
         self.o_len[slots] = oc
-        idx_f = fp.free.reading_index()
-        idx_o = fp.occ.reading_index()
         self.f_sum[slots] = np.bincount(idx_f, weights=fp.free.weight, minlength=n)
         self.o_sum[slots] = np.bincount(idx_o, weights=fp.occ.weight, minlength=n)
         self.z[slots] = z
