@@ -58,7 +58,7 @@ def evaluate(label: str, method: str, params: dict[str, Any], sc: Scenario) -> d
     seconds = time.perf_counter() - t0
     m = mapper.result()
     s = score(sc.truth, m, sc.passages)
-    results = [measure_passage(m, p) for p in sc.passages]
+    results = [measure_passage(sc.truth, m, p) for p in sc.passages]
     detected = [r for r in results if r.detected]
     return {
         "method": label,

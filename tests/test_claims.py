@@ -17,12 +17,12 @@ FORWARD = ("gradient", "stochastic", "em")
 
 def open_doors(scene: Scenario, method: str, **params: object) -> int:
     m = make_mapper(method, **params).fit(scene.readings, scene.truth.grid, scene.rig).result()
-    return sum(passage_open(m, p) for p in scene.passages)
+    return sum(passage_open(scene.truth, m, p) for p in scene.passages)
 
 
 def passages(scene: Scenario, method: str, **params: object) -> list[PassageResult]:
     m = make_mapper(method, **params).fit(scene.readings, scene.truth.grid, scene.rig).result()
-    return [measure_passage(m, p) for p in scene.passages]
+    return [measure_passage(scene.truth, m, p) for p in scene.passages]
 
 
 def narrowest(results: list[PassageResult]) -> float:

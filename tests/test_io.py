@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sonarmap.errors import InputError
+from sonarmap.errors import InputError, OutputError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap, read_map, write_map
 
@@ -33,9 +33,9 @@ def test_round_trip(tmp_path: Path) -> None:
     assert px[0, 1] == 0
     assert px[0, 2] == 205
     assert px[0, 3] == 205
-    # From the image alone, trinary classes survive: occupied > 0.65, free < 0.196.
-    expect = np.where(occ > 0.65, 1.0, np.where(occ < 0.196, 0.0, np.nan))
-    np.testing.assert_array_equal(back.occupancy, expect.astype(np.float32))
+    # From the image alone, with map_server's rules, the map's classes come back.
+    assert back.classes().tolist() == OccupancyMap(grid, occ).classes().tolist()
+    assert back.classes()[1].tolist() == [0, 0, 0, 1, 1]
 
 
 def test_hand_made_map_with_known_origin(tmp_path: Path) -> None:
@@ -121,13 +121,10 @@ def test_wrong_image_mode_and_garbage(tmp_path: Path) -> None:
 
 def test_failed_write_leaves_nothing(tmp_path: Path) -> None:
     grid = Grid(1.0, (0, 0), (1, 2))
-    with pytest.raises(InputError, match="thresholds"):
-        write_map(
-            OccupancyMap(grid, np.zeros((1, 2), np.float32)),
-            tmp_path / "x",
-            occupied_thresh=0.1,
-            free_thresh=0.5,
-        )
-    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "x.pgm").mkdir()  # the image's place is taken: the write fails
+    with pytest.raises(OutputError, match=r"x.pgm: is a directory"):
+        write_map(OccupancyMap(grid, np.zeros((1, 2), np.float32)), tmp_path / "x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.pgm"]
+    assert list((tmp_path / "x.pgm").iterdir()) == []
     with pytest.raises(InputError, match="occupancy values must lie in"):
         OccupancyMap(grid, np.array([[0.0, 2.0]], np.float32))

@@ -550,17 +550,17 @@ def compare_cmd(
         rows.append({"map": str(path), **sc.as_dict()})
     # The terminal shows the main columns; --json has them all.
     shown = {
-        "f1": "F1",
-        "precision": "prec",
-        "recall": "recall",
+        "f1_all": "wall F1",
         "passages_open": "open",
-        "passages_detected": "seen",
+        "passages_detected": "detected",
         "width_error": "width err",
+        "false_openings": "false open.",
+        "passage_f1": "passage F1",
         "size_error": "size err",
     }
-    table = Table(
-        title=f"against {truth} ({len(passages)} passages, {len(obstacles)} small obstacles)"
-    )
+    # The truth's path goes on a line of its own: a table title would wrap it mid-path.
+    console.print(f"against {truth}", soft_wrap=True, markup=False, highlight=False)
+    table = Table(title=f"{len(passages)} passages, {len(obstacles)} small obstacles")
     table.add_column("map", no_wrap=True)
     for head in shown.values():
         table.add_column(head, justify="right")

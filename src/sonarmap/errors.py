@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from os import PathLike
 
-__all__ = ["ConfigError", "InputError", "SonarmapError"]
+__all__ = ["ConfigError", "InputError", "OutputError", "SonarmapError"]
 
 
 class SonarmapError(Exception):
@@ -59,3 +59,20 @@ class InputError(SonarmapError, ValueError):
 
 class ConfigError(SonarmapError, ValueError):
     """Bad configuration: an unknown method or parameter, a value out of its range."""
+
+
+class OutputError(SonarmapError, OSError):
+    """An output that cannot be written: a directory in the way, no permission, no space.
+
+    Parameters
+    ----------
+    message : str
+        What went wrong.
+    path : str or path-like
+        The output.
+    """
+
+    def __init__(self, message: str, *, path: str | PathLike[str]) -> None:
+        self.path = str(path)
+        self.reason = message
+        super().__init__(f"{self.path}: {message}")

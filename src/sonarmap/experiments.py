@@ -233,7 +233,7 @@ def _passages(run: _Run, quick: bool, seed: int, progress: Progress | None) -> N
             m = _build(spec, scene)
             write_map(m, run.out / "maps" / f"seed{sd}" / spec.label)
             run.rows.append(_score_row(spec, scene, m, seed=sd))
-            for res in (measure_passage(m, p) for p in scene.passages):
+            for res in (measure_passage(scene.truth, m, p) for p in scene.passages):
                 per.append(
                     {
                         "method": spec.label,

@@ -1,7 +1,24 @@
 """Map quality against a ground-truth floor plan on the same grid.
 
-Maps are binarised at a threshold (0.5 by default, as the research does): a cell is
-occupied when ``p >= threshold``, free below, unknown when NaN.
+Every cell of a map is occupied, free or unknown (:func:`sonarmap.io.rosmap.classify`:
+above 0.5, below 0.5, NaN or exactly 0.5); the written ``.pgm`` and the pictures use the
+same classes. A truth map is scored where it is known (a floor plan everywhere, a laser
+reference where the laser saw).
+
+What a map must show to be credited with a passage (:func:`measure_passage`):
+
+- *open*: the walls on both sides are there -- at least ``WALL_SHARE`` (75 %) of the
+  first ``JAMB_LENGTH`` (0.3 m, or less where the truth's wall is shorter) of wall next
+  to each jamb, in slices one cell wide across the wall, holds an occupied cell within
+  the wall's thickness plus one cell -- **and** a 4-connected path of non-occupied cells
+  crosses the opening between the jambs, through at least one free cell inside the
+  wall's thickness (the map must have seen the gap, not merely left it unknown);
+- *detected*: open, and the recovered width (the narrowest gap bounded by occupied
+  cells on lines along the opening) within ``max(2 cells, 25 %)`` of the true width.
+
+A *false opening* is a see-through gap in a wall where the truth has wall
+(:func:`false_openings`). The passage score pays for them: passage F1 is
+``2 D / (2 D + M + F)`` with D passages detected, M missed and F false openings.
 """
 
 from __future__ import annotations
@@ -14,20 +31,52 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
+from ._walls_kernel import STEPS, crossings
 from .errors import InputError
-from .io.rosmap import OccupancyMap
+from .io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 from .scenarios import Passage, SmallObstacle
 
 __all__ = [
+    "JAMB_LENGTH",
+    "MAX_WALL_THICKNESS",
+    "WALL_SHARE",
+    "FalseOpening",
     "MapScore",
     "ObstacleResult",
     "PassageResult",
     "agreement",
+    "false_openings",
     "measure_obstacle",
     "measure_passage",
     "passage_open",
     "score",
+    "width_tolerance",
 ]
+
+B = npt.NDArray[np.bool_]
+F = npt.NDArray[np.float64]
+
+#: Length of wall next to each jamb that must be present (metres).
+JAMB_LENGTH = 0.3
+#: Share of that wall, in slices across it, that must hold an occupied cell.
+WALL_SHARE = 0.75
+#: Thickest obstacle a straight crossing of a wall may pass through (metres).
+MAX_WALL_THICKNESS = 1.0
+#: See-through gaps lying wholly within this many cells of an annotated opening widen
+#: that opening (its width error), rather than open a new one.
+JAMB_CELLS = 2
+
+
+def width_tolerance(true_width: float, resolution: float) -> float:
+    """How far a recovered width may be from the truth for a detection (metres):
+    two cells or 25 % of the true width, whichever is larger.
+
+    Examples
+    --------
+    >>> width_tolerance(0.2, 0.05), width_tolerance(1.2, 0.05)
+    (0.1, 0.3)
+    """
+    return max(2.0 * resolution, 0.25 * true_width)
 
 
 @dataclass(frozen=True)
@@ -37,24 +86,29 @@ class MapScore:
     Attributes
     ----------
     accuracy, precision, recall, f1, iou : float
-        Over the cells the map observed (not NaN); the last four of the occupied class
+        Over the cells the map knows (not unknown); the last four of the occupied class
         (NaN when undefined).
     accuracy_all, precision_all, recall_all, f1_all, iou_all : float
-        Over the whole map, unknown cells counted as free (what a planner that treats
-        unknown space as free would see).
+        Over every scored cell, unknown counted as not occupied: a wall the map leaves
+        unknown is missed. ``f1_all`` is the *wall F1* of the tables.
     unknown : float
-        Fraction of the scored cells (all of a floor plan; the known ones of a reference
-        map) left unknown.
+        Fraction of the scored cells the map leaves unknown.
     dist_to_truth : float
         Mean distance (metres) from each recovered obstacle cell to the nearest true one.
     dist_from_truth : float
-        Mean distance from each true obstacle cell the map observed to the nearest
+        Mean distance from each true obstacle cell the map knows to the nearest
         recovered obstacle cell.
     passages, passages_open, passages_detected : int
-        Truth passages; those left passable (:func:`passage_open`); those whose gap the
-        map shows (:func:`measure_passage`).
+        Annotated passages; those open; those detected (see the module notes).
     width_error : float
-        Mean absolute error of the recovered widths of detected passages (metres).
+        Mean absolute error of the recovered widths of the detected passages (metres).
+    false_openings : int
+        See-through gaps in walls where the truth has wall (:func:`false_openings`).
+    false_opening_width : float
+        Their total width along the walls (metres).
+    passage_f1 : float
+        ``2 D / (2 D + M + F)``: detected passages against missed ones and false
+        openings (NaN with neither passages nor false openings).
     small_obstacles, small_found : int
         Annotated small obstacles, and those the map marks (:func:`measure_obstacle`).
     size_error : float
@@ -78,6 +132,9 @@ class MapScore:
     passages_open: int
     passages_detected: int
     width_error: float
+    false_openings: int
+    false_opening_width: float
+    passage_f1: float
     small_obstacles: int
     small_found: int
     size_error: float
@@ -98,9 +155,7 @@ def _check_same_grid(truth: OccupancyMap, m: OccupancyMap) -> None:
         )
 
 
-def _classes(
-    t: npt.NDArray[np.bool_], occ: npt.NDArray[np.bool_], mask: npt.NDArray[np.bool_]
-) -> tuple[float, float, float, float, float]:
+def _classes(t: B, occ: B, mask: B) -> tuple[float, float, float, float, float]:
     tp = int(np.sum(occ & t & mask))
     fp = int(np.sum(occ & ~t & mask))
     fn = int(np.sum(~occ & t & mask))
@@ -114,7 +169,7 @@ def _classes(
     )
 
 
-def _mean_distance(src: npt.NDArray[np.bool_], dst: npt.NDArray[np.bool_], h: float) -> float:
+def _mean_distance(src: B, dst: B, h: float) -> float:
     """Mean distance (metres) from the cells of ``src`` to the nearest cell of ``dst``."""
     if not src.any() or not dst.any():
         return math.nan
@@ -122,13 +177,23 @@ def _mean_distance(src: npt.NDArray[np.bool_], dst: npt.NDArray[np.bool_], h: fl
     return float(np.mean(dist[src]))
 
 
+def passage_f1(detected: int, passages: int, false_openings: int) -> float:
+    """Passage F1: ``2 D / (2 D + M + F)`` (NaN with nothing to score).
+
+    Examples
+    --------
+    >>> passage_f1(3, 4, 0), passage_f1(3, 4, 2), passage_f1(0, 0, 0)
+    (0.8571428571428571, 0.6666666666666666, nan)
+    """
+    missed = passages - detected
+    return _ratio(2 * detected, 2 * detected + missed + false_openings)
+
+
 def score(
     truth: OccupancyMap,
     m: OccupancyMap,
     passages: Sequence[Passage] = (),
     obstacles: Sequence[SmallObstacle] = (),
-    *,
-    threshold: float = 0.5,
 ) -> MapScore:
     """Compare a map with the truth (same grid).
 
@@ -143,25 +208,25 @@ def score(
     (0.667, 0.5, 1.0, 0.25, 0.5)
     """
     _check_same_grid(truth, m)
-    t = np.nan_to_num(truth.occupancy, nan=0.0) >= 0.5
-    # A reference map (e.g. built from a laser) may leave cells unknown: they are not
-    # scored at all. A floor plan knows every cell.
-    scored = np.isfinite(truth.occupancy)
-    known = np.isfinite(m.occupancy) & scored
-    occ = np.zeros_like(known)
-    occ[known] = m.occupancy[known] >= threshold
+    tcls = truth.classes()
+    mcls = m.classes()
+    t = tcls == OCCUPIED
+    scored = tcls != UNKNOWN
+    known = (mcls != UNKNOWN) & scored
+    occ = mcls == OCCUPIED
     observed = _classes(t, occ, known)
     whole = _classes(t, occ, scored)
     h = m.grid.resolution
-    found = [measure_passage(m, p, threshold=threshold) for p in passages]
+    found = [measure_passage(truth, m, p) for p in passages]
     detected = [r for r in found if r.detected]
-    posts = [measure_obstacle(m, o, threshold=threshold) for o in obstacles]
+    holes = false_openings(truth, m, passages)
+    posts = [measure_obstacle(m, o) for o in obstacles]
     seen = [r for r in posts if r.found]
     return MapScore(
         *observed,
         *whole,
         unknown=float(1.0 - known.sum() / max(int(scored.sum()), 1)),
-        dist_to_truth=_mean_distance(occ, t, h),
+        dist_to_truth=_mean_distance(occ & scored, t, h),
         dist_from_truth=_mean_distance(t & known, occ, h),
         passages=len(found),
         passages_open=sum(r.open for r in found),
@@ -169,16 +234,18 @@ def score(
         width_error=float(np.mean([abs(r.width - r.true_width) for r in detected]))
         if detected
         else math.nan,
+        false_openings=len(holes),
+        false_opening_width=float(sum(o.width for o in holes)),
+        passage_f1=passage_f1(len(detected), len(found), len(holes)),
         small_obstacles=len(posts),
         small_found=len(seen),
         size_error=float(np.mean([abs(r.size - r.true_size) for r in seen])) if seen else math.nan,
     )
 
 
-def agreement(a: OccupancyMap, b: OccupancyMap, *, threshold: float = 0.5) -> tuple[float, int]:
-    """How often two maps of one grid agree: the fraction of the cells both know (not
-    NaN) that both call occupied (>= ``threshold``) or both free, and the number of
-    those cells.
+def agreement(a: OccupancyMap, b: OccupancyMap) -> tuple[float, int]:
+    """How often two maps of one grid agree: the fraction of the cells both know that
+    both call occupied or both free, and the number of those cells.
 
     Examples
     --------
@@ -190,12 +257,15 @@ def agreement(a: OccupancyMap, b: OccupancyMap, *, threshold: float = 0.5) -> tu
     (0.6666666666666666, 3)
     """
     _check_same_grid(a, b)
-    both = ~np.isnan(a.occupancy) & ~np.isnan(b.occupancy)
+    ca, cb = a.classes(), b.classes()
+    both = (ca != UNKNOWN) & (cb != UNKNOWN)
     n = int(both.sum())
     if n == 0:
         return float("nan"), 0
-    same = (a.occupancy[both] >= threshold) == (b.occupancy[both] >= threshold)
-    return float(same.mean()), n
+    return float((ca[both] == cb[both]).mean()), n
+
+
+# -- passages ------------------------------------------------------------------------
 
 
 def _axes(p: Passage) -> tuple[float, float, float, float]:
@@ -205,40 +275,13 @@ def _axes(p: Passage) -> tuple[float, float, float, float]:
     return (ax + bx) / 2, (ay + by) / 2, (bx - ax) / p.width, (by - ay) / p.width
 
 
-def _passage_frame(
-    m: OccupancyMap, p: Passage
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+def _passage_frame(m: OccupancyMap, p: Passage) -> tuple[F, F]:
     """Each cell centre's coordinate along the opening and across it, from its middle."""
     xc, yc = m.grid.all_centres()
     mx, my, ux, uy = _axes(p)
     along = (xc - mx) * ux + (yc - my) * uy
     across = -(xc - mx) * uy + (yc - my) * ux
     return along, across
-
-
-def passage_open(
-    m: OccupancyMap, p: Passage, *, threshold: float = 0.5, margin_cells: int = 2
-) -> bool:
-    """Whether the binarised map has a free 4-connected path through a passage.
-
-    The path must stay within the opening (cells whose centres lie strictly between the
-    jambs) and run from ``margin_cells`` cells before the obstacle to as far beyond it.
-    Unknown cells are not free.
-    """
-    h = m.grid.resolution
-    along, across = _passage_frame(m, p)
-    reach = p.depth / 2 + margin_cells * h
-    band = (np.abs(along) < p.width / 2) & (np.abs(across) <= reach)
-    occ = m.occupancy
-    free = band & np.isfinite(occ) & (np.nan_to_num(occ, nan=1.0) < threshold)
-    labels, n = ndimage.label(free)
-    if n == 0:
-        return False
-    near = band & (across <= -reach + h)
-    far = band & (across >= reach - h)
-    a = set(np.unique(labels[near & free]).tolist())
-    b = set(np.unique(labels[far & free]).tolist())
-    return bool((a & b) - {0})
 
 
 @dataclass(frozen=True)
@@ -248,73 +291,224 @@ class PassageResult:
     Attributes
     ----------
     width : float
-        Recovered width in metres (see :func:`measure_passage`); NaN when no line across
-        the passage is bounded by occupied cells on both sides.
-    detected : bool
-        The recovered width is positive and the gap holds at least one observed free cell.
+        Recovered width in metres (the narrowest gap bounded by occupied cells on lines
+        along the opening); NaN when no such line is bounded on both sides.
+    walls : tuple of float
+        Share of the wall next to jamb ``a`` and jamb ``b`` that the map closes.
+    crossed : bool
+        A non-occupied 4-connected path crosses the opening through a free cell.
     open : bool
-        A free 4-connected path runs through the opening (:func:`passage_open`).
+        Both walls present (share >= :data:`WALL_SHARE`) and ``crossed``.
+    detected : bool
+        Open, and ``width`` within :func:`width_tolerance` of ``true_width``.
     """
 
     name: str
     true_width: float
     width: float
-    detected: bool
+    walls: tuple[float, float]
+    crossed: bool
     open: bool
+    detected: bool
 
 
-def measure_passage(
-    m: OccupancyMap, p: Passage, *, threshold: float = 0.5, search: float = 2.0
-) -> PassageResult:
-    """Recovered width of a passage, as the research measures it (thesis 002, fig. 4.10).
+def measure_passage(truth: OccupancyMap, m: OccupancyMap, p: Passage) -> PassageResult:
+    """Whether a map shows a passage open, detected, and how wide (see the module notes).
+
+    Raises
+    ------
+    InputError
+        When the truth has no wall next to a jamb (the annotation does not match it).
+    """
+    _check_same_grid(truth, m)
+    h = m.grid.resolution
+    along, across = _passage_frame(m, p)
+    mcls = m.classes()
+    walls = (
+        _wall_share(truth, mcls, p, along, across, -1.0),
+        _wall_share(truth, mcls, p, along, across, 1.0),
+    )
+    crossed = _crossed(mcls, p, along, across, h)
+    walled = min(walls) >= WALL_SHARE
+    width = _recovered_width(m, mcls, p)
+    is_open = walled and crossed
+    detected = is_open and abs(width - p.width) <= width_tolerance(p.width, h) + 1e-9
+    return PassageResult(p.name, p.width, width, walls, crossed, is_open, bool(detected))
+
+
+def passage_open(truth: OccupancyMap, m: OccupancyMap, p: Passage) -> bool:
+    """Whether a map shows a passage open (:func:`measure_passage`)."""
+    return measure_passage(truth, m, p).open
+
+
+def _wall_share(
+    truth: OccupancyMap,
+    mcls: npt.NDArray[np.int8],
+    p: Passage,
+    along: F,
+    across: F,
+    side: float,
+) -> float:
+    """Share of the truth's wall beside one jamb (``side`` -1: jamb a, +1: jamb b) that
+    the map closes, in slices one cell wide along the wall."""
+    h = truth.grid.resolution
+    length = max(JAMB_LENGTH, 3 * h)
+    beyond = side * along - p.width / 2  # distance past the jamb, along the wall
+    slices = np.floor(beyond / h).astype(np.int64)
+    n = math.ceil(length / h)
+    near = (slices >= 0) & (slices < n)
+    in_wall = near & (np.abs(across) <= p.depth / 2 + h / 2)
+    band = near & (np.abs(across) <= p.depth / 2 + h)
+    tcls = truth.classes()
+    has_wall = np.bincount(slices[in_wall & (tcls == OCCUPIED)], minlength=n)[:n] > 0
+    if not has_wall[0]:
+        raise InputError(
+            f"passage '{p.name}': the truth has no wall next to jamb {'a' if side < 0 else 'b'}"
+        )
+    # The wall runs from the jamb to its first break; beyond it is another opening.
+    run = int(np.argmin(has_wall)) if not has_wall.all() else n
+    closed = np.bincount(slices[band & (mcls == OCCUPIED)], minlength=n)[:run] > 0
+    return float(closed.mean())
+
+
+def _crossed(mcls: npt.NDArray[np.int8], p: Passage, along: F, across: F, h: float) -> bool:
+    """A 4-connected path of non-occupied cells runs through the opening, from two cells
+    before the obstacle to two cells past it, through a free cell within the obstacle."""
+    reach = p.depth / 2 + 2 * h
+    band = (np.abs(along) < p.width / 2) & (np.abs(across) <= reach)
+    passable = band & (mcls != OCCUPIED)
+    labels, n = ndimage.label(passable)
+    if n == 0:
+        return False
+    near = set(np.unique(labels[passable & (across <= -reach + h)]).tolist())
+    far = set(np.unique(labels[passable & (across >= reach - h)]).tolist())
+    throat = passable & (mcls == FREE) & (np.abs(across) <= p.depth / 2)
+    seen = set(np.unique(labels[throat]).tolist())
+    return bool((near & far & seen) - {0})
+
+
+def _recovered_width(m: OccupancyMap, mcls: npt.NDArray[np.int8], p: Passage) -> float:
+    """The narrowest gap bounded by occupied cells on lines along the opening.
 
     Lines parallel to the opening are laid through the obstacle, one per cell across its
-    depth plus one cell either side. On each line, starting at the cell nearest the passage
-    centre, the run of non-occupied cells is followed both ways up to ``search`` metres
-    past the jambs; a line whose run ends at occupied cells on both sides is *bounded* and
-    its gap is the run's length. The recovered width is the narrowest bounded gap (0 when
-    the centre cell is occupied there). Unknown cells do not bound a gap; a sonar that
-    sees an opening from one side only leaves the space behind it unknown.
+    depth plus one cell either side (thesis 002, fig. 4.10). On each line, from the cell
+    nearest the passage centre, the run of non-occupied cells is followed both ways up
+    to 2 m past the jambs; a line whose run ends at occupied cells on both sides gives
+    that run's length (0 when the centre cell is occupied). Unknown cells do not bound a
+    gap: a sonar that sees an opening from one side only leaves the space behind unknown.
     """
     h = m.grid.resolution
     mx, my, ux, uy = _axes(p)
     nx, ny = -uy, ux
-    occ = m.occupancy
-    reach = p.width / 2 + search
+    reach = p.width / 2 + 2.0
     steps = math.ceil(reach / h)
-    # A quarter-cell shift keeps samples off cell boundaries when the gap's centre
-    # lies on one (an even number of cells), where rounding would pick either side.
+    # A quarter-cell shift keeps samples off cell boundaries (where the gap's centre or
+    # the obstacle's mid-line may lie), where rounding would pick either side.
     offsets = np.arange(-steps, steps + 1) * h + h / 4
     n_across = math.ceil((p.depth / 2) / h) + 1
     best = math.inf
-    best_has_free = False
-    for k in range(-n_across, n_across + 1):
-        cx, cy = mx + k * h * nx, my + k * h * ny
+    for k in range(-n_across - 1, n_across + 1):
+        cx, cy = mx + (k + 0.25) * h * nx, my + (k + 0.25) * h * ny
         rows, cols = m.grid.world_to_cell(cx + offsets * ux, cy + offsets * uy)
         inside = m.grid.contains(rows, cols)
-        vals = np.full(len(offsets), np.nan)
-        vals[inside] = occ[rows[inside], cols[inside]]
-        is_occ = np.nan_to_num(vals, nan=0.0) >= threshold
-        is_free = np.isfinite(vals) & ~is_occ
+        is_occ = np.zeros(len(offsets), dtype=np.bool_)
+        is_occ[inside] = mcls[rows[inside], cols[inside]] == OCCUPIED
         c = steps
         if is_occ[c]:
-            gap, has_free = 0.0, False
+            gap = 0.0
         else:
-            left = c
-            while left - 1 >= 0 and not is_occ[left - 1]:
-                left -= 1
-            right = c
-            while right + 1 < len(offsets) and not is_occ[right + 1]:
-                right += 1
-            if left == 0 or right == len(offsets) - 1:
+            walls = np.flatnonzero(is_occ)
+            left = walls[walls < c]
+            right = walls[walls > c]
+            if len(left) == 0 or len(right) == 0:
                 continue  # not bounded on both sides
-            gap = (right - left + 1) * h
-            has_free = bool(is_free[left : right + 1].any())
-        if gap < best:
-            best, best_has_free = gap, has_free
-    width = best if math.isfinite(best) else math.nan
-    detected = bool(math.isfinite(best) and best > 0 and best_has_free)
-    return PassageResult(p.name, p.width, width, detected, passage_open(m, p, threshold=threshold))
+            gap = float(right[0] - left[-1] - 1) * h
+        best = min(best, gap)
+    return best if math.isfinite(best) else math.nan
+
+
+# -- false openings ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FalseOpening:
+    """A see-through gap in a wall where the truth has wall.
+
+    Attributes
+    ----------
+    centre : tuple of float
+        World position (metres) of the gap's middle.
+    width : float
+        Its width along the wall (metres).
+    cells : int
+        Wall cells the map sees through there.
+    """
+
+    centre: tuple[float, float]
+    width: float
+    cells: int
+
+
+def _closure(truth: OccupancyMap, passages: Sequence[Passage]) -> B:
+    """The cells that close every annotated opening, wall to wall."""
+    h = truth.grid.resolution
+    out = np.zeros(truth.grid.shape, dtype=np.bool_)
+    for p in passages:
+        along, across = _passage_frame(truth, p)
+        out |= (np.abs(along) <= p.width / 2 + h) & (np.abs(across) <= p.depth / 2 + h / 2)
+    return out
+
+
+def false_openings(
+    truth: OccupancyMap, m: OccupancyMap, passages: Sequence[Passage] = ()
+) -> list[FalseOpening]:
+    """See-through gaps in walls where the truth has wall.
+
+    The truth's walls are its obstacles between two separate free regions once every
+    annotated opening is closed: a straight line (along a row, a column or a diagonal)
+    from a free cell of one region through at most :data:`MAX_WALL_THICKNESS` of
+    obstacle to a free cell of another *crosses a wall*. (Obstacles that free space goes
+    round, such as posts and cabinets, are not walls; annotate every opening so that the
+    walls beside it are checked.) The map sees through a crossing when it has no
+    occupied cell on it -- nor at the free cells at its two ends, so a wall recovered
+    one cell off is still a wall -- and a free cell among its wall cells (a wall the
+    map left unknown is unseen, not open).
+
+    The wall cells of see-through crossings, 8-connected, form the false openings;
+    one lying wholly within two cells of an annotated opening widens that opening
+    instead (its recovered width shows it). A gap's width is the number of crossing
+    positions it spans: the sum over its cells of one over the wall's thickness there.
+    """
+    _check_same_grid(truth, m)
+    h = truth.grid.resolution
+    tcls = truth.classes()
+    closure = _closure(truth, passages)
+    wall = (tcls == OCCUPIED) & ~closure
+    free = (tcls == FREE) & ~closure
+    region, _ = ndimage.label(free)
+    max_cells = max(1, math.floor(MAX_WALL_THICKNESS / h + 1e-9))
+    _, seen, thickness = crossings(wall, region.astype(np.int32), m.classes(), max_cells, STEPS)
+    labels, n = ndimage.label(seen, structure=np.ones((3, 3)))
+    if n == 0:
+        return []
+    jamb = ndimage.binary_dilation(closure, np.ones((3, 3)), iterations=JAMB_CELLS)
+    xc, yc = truth.grid.all_centres()
+    out = []
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        part = labels[sl] == k
+        if np.all(jamb[sl][part]):
+            continue
+        out.append(
+            FalseOpening(
+                (float(xc[sl][part].mean()), float(yc[sl][part].mean())),
+                float(np.sum(1.0 / thickness[sl][part]) * h),
+                int(part.sum()),
+            )
+        )
+    return out
+
+
+# -- small obstacles -------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -335,9 +529,7 @@ class ObstacleResult:
     found: bool
 
 
-def measure_obstacle(
-    m: OccupancyMap, o: SmallObstacle, *, threshold: float = 0.5, reach: float = 0.3
-) -> ObstacleResult:
+def measure_obstacle(m: OccupancyMap, o: SmallObstacle, *, reach: float = 0.3) -> ObstacleResult:
     """Recovered size of a small obstacle.
 
     The occupied cells within ``reach`` metres of the obstacle's edge, 8-connected to a
@@ -348,7 +540,7 @@ def measure_obstacle(
     h = m.grid.resolution
     xc, yc = m.grid.all_centres()
     d = np.maximum(np.abs(xc - o.centre[0]), np.abs(yc - o.centre[1]))
-    occ = np.nan_to_num(m.occupancy, nan=0.0) >= threshold
+    occ = m.classes() == OCCUPIED
     window = occ & (d <= o.size / 2 + reach)
     labels, _ = ndimage.label(window, structure=np.ones((3, 3)))
     core = window & (d <= o.size / 2 + h)

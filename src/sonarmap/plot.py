@@ -18,12 +18,18 @@ from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
 from .errors import ConfigError
 from .grid import Grid
 from .io._atomic import atomic_outputs, atomic_write
-from .io.rosmap import OccupancyMap
+from .io.rosmap import OCCUPIED, UNKNOWN, OccupancyMap, classify
 from .readings import Readings
 
 __all__ = ["MapAnimation", "draw_map", "save_map_picture", "save_side_by_side"]
 
 _UNKNOWN_RGBA = (0.80, 0.86, 0.93, 1.0)
+
+
+def _classes_as_values(occupancy: npt.NDArray[np.float32]) -> npt.NDArray[np.float64]:
+    """1 occupied, 0 free, NaN unknown: the classes every score uses, for drawing."""
+    cls = classify(occupancy)
+    return np.where(cls == UNKNOWN, np.nan, cls.astype(np.float64))
 
 
 def draw_map(
@@ -43,7 +49,7 @@ def draw_map(
     """
     occ = m.occupancy.astype(np.float64)
     if binary:
-        occ = np.where(np.isnan(occ), np.nan, (occ >= 0.5).astype(np.float64))
+        occ = _classes_as_values(m.occupancy)
     cmap = plt.get_cmap("gray_r").with_extremes(bad=_UNKNOWN_RGBA)
     ax.imshow(
         np.ma.masked_invalid(occ),
@@ -55,7 +61,7 @@ def draw_map(
         origin="upper",
     )
     if truth is not None:
-        t = (np.nan_to_num(truth.occupancy, nan=0.0) >= 0.5).astype(float)
+        t = (truth.classes() == OCCUPIED).astype(float)
         # Sample positions are the cell centres; the 0.5 level then runs along cell edges.
         xc, yc = truth.grid.all_centres()
         ax.contour(xc, yc, t, levels=[0.5], colors="red", linewidths=0.6)
@@ -98,7 +104,7 @@ def save_side_by_side(
     binary_row: bool = True,
     truth_label: str = "truth",
 ) -> Path:
-    """Maps side by side (a second row binarised at 0.5) with the truth first, to a PNG."""
+    """Maps side by side (a second row with their classes) with the truth first, to a PNG."""
     panels = ([(truth_label, truth)] if truth is not None else []) + list(maps.items())
     rows = 2 if binary_row else 1
     fig, axes = plt.subplots(
@@ -126,10 +132,10 @@ class MapAnimation:
         self.frames: list[tuple[float, npt.NDArray[np.uint8]]] = []
 
     def add(self, t: float, occupancy: npt.NDArray[np.float32]) -> None:
-        """Keep the map at log time ``t`` (seconds), binarised at 0.5 if asked."""
+        """Keep the map at log time ``t`` (seconds), as its classes if asked."""
         occ = np.asarray(occupancy, dtype=np.float64).reshape(self.grid.shape)
         if self.binary:
-            occ = np.where(np.isnan(occ), np.nan, (occ >= 0.5).astype(np.float64))
+            occ = _classes_as_values(np.asarray(occ, dtype=np.float32))
         code = np.where(np.isnan(occ), 255, np.round(np.clip(occ, 0, 1) * 250)).astype(np.uint8)
         self.frames.append((t, code))
 

@@ -13,6 +13,8 @@ import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+from ..errors import OutputError
+
 __all__ = ["atomic_folder", "atomic_outputs", "atomic_write_text"]
 
 
@@ -20,16 +22,23 @@ __all__ = ["atomic_folder", "atomic_outputs", "atomic_write_text"]
 def atomic_outputs(*paths: Path, keep_suffix: bool = False) -> Iterator[list[Path]]:
     """Yield temporary paths for ``paths``; rename them all into place on success.
 
-    On an exception the temporary files are removed and no destination is touched.
-    With ``keep_suffix`` the temporary names end like their destinations (for writers
-    that choose the format by the file name).
+    On an exception the temporary files are removed and no destination is touched; a
+    destination that is a directory, or a place that cannot be written, is an
+    :class:`~sonarmap.errors.OutputError` before anything is written. With
+    ``keep_suffix`` the temporary names end like their destinations (for writers that
+    choose the format by the file name).
     """
+    for p in paths:
+        if p.is_dir():
+            raise OutputError("is a directory; give a file name", path=p)
     temps: list[Path] = []
     try:
         for p in paths:
-            p.parent.mkdir(parents=True, exist_ok=True)
+            with _as_output_error(p.parent):
+                p.parent.mkdir(parents=True, exist_ok=True)
             suffix = p.suffix if keep_suffix else ".tmp"
-            fd, name = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=suffix, dir=p.parent)
+            with _as_output_error(p):
+                fd, name = tempfile.mkstemp(prefix=f".{p.stem}.", suffix=suffix, dir=p.parent)
             os.close(fd)
             # mkstemp makes owner-only files; outputs get the usual umask-based mode.
             umask = os.umask(0)
@@ -37,12 +46,24 @@ def atomic_outputs(*paths: Path, keep_suffix: bool = False) -> Iterator[list[Pat
             os.chmod(name, 0o666 & ~umask)
             temps.append(Path(name))
         yield temps
+        for t, p in zip(temps, paths, strict=True):
+            with _as_output_error(p):
+                os.replace(t, p)
     except BaseException:
         for t in temps:
             t.unlink(missing_ok=True)
         raise
-    for t, p in zip(temps, paths, strict=True):
-        os.replace(t, p)
+
+
+@contextlib.contextmanager
+def _as_output_error(path: Path) -> Iterator[None]:
+    """Turn the operating system's refusal to write ``path`` into an OutputError."""
+    try:
+        yield
+    except OSError as err:
+        if isinstance(err, OutputError):
+            raise
+        raise OutputError(f"cannot write ({err.strerror or err})", path=path) from err
 
 
 def atomic_write_text(path: Path, text: str) -> None:

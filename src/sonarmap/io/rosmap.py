@@ -9,9 +9,12 @@ of their channels, as map_server does.
 
 sonarmap writes ``NAME.yaml``, ``NAME.pgm`` (0 occupied, 254 free, 205 unknown: the
 values map_saver writes) and ``NAME.npy`` (float32 occupancy in [0, 1], NaN where
-unknown, same orientation as the image). When reading ``NAME.yaml`` and a ``NAME.npy``
-of the image's shape lies beside it, its exact occupancy is used instead of the
-thresholded image (``use_npy=False`` reads the image only).
+unknown, same orientation as the image). The image holds the map's classes
+(:meth:`OccupancyMap.classes`), the same ones every score and picture uses, and the
+YAML's thresholds are map_saver's, which read those three pixel values back as written.
+When reading ``NAME.yaml`` and a ``NAME.npy`` of the image's shape lies beside it, its
+exact occupancy is used instead of the thresholded image (``use_npy=False`` reads the
+image only).
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from ..grid import Grid
 from ._atomic import atomic_outputs
 from ._yaml import read_yaml
 
-__all__ = ["OccupancyMap", "read_map", "write_map"]
+__all__ = ["FREE", "OCCUPIED", "UNKNOWN", "OccupancyMap", "classify", "read_map", "write_map"]
 
 F32 = npt.NDArray[np.float32]
 
@@ -40,6 +43,34 @@ OCCUPIED_PIXEL = 0
 FREE_PIXEL = 254
 UNKNOWN_PIXEL = 205
 _MODES = ("trinary", "scale", "raw")
+
+#: The three classes of a cell (:func:`classify`).
+OCCUPIED, FREE, UNKNOWN = 1, 0, -1
+
+
+def classify(occupancy: npt.ArrayLike) -> npt.NDArray[np.int8]:
+    """Classes of occupancy values: 1 occupied, 0 free, -1 unknown.
+
+    A cell is occupied when its value is above 0.5, free below, and unknown when NaN or
+    exactly 0.5: a cell the evidence left at even odds (a log-odds sum of 0, a tie of
+    votes, EM's posterior with no term, a forward-model cell no step moved) is no more
+    free than occupied. Every method's values share this boundary: the inverse, counting
+    and EM values are probabilities, the gradient method's cell values are binarised at
+    0.5 as the research does, and the stochastic search's are 0 or 1.
+
+    Examples
+    --------
+    >>> classify(np.array([0.9, 0.5, 0.2, np.nan])).tolist()
+    [1, -1, 0, -1]
+    """
+    occ = np.asarray(occupancy, dtype=np.float64)
+    out = np.full(occ.shape, UNKNOWN, dtype=np.int8)
+    with np.errstate(invalid="ignore"):
+        out[occ > 0.5] = OCCUPIED
+        out[occ < 0.5] = FREE
+    return out
+
+
 _IMAGE_MODES = ("L", "LA", "RGB", "RGBA", "P", "1")
 
 
@@ -67,12 +98,9 @@ class OccupancyMap:
             raise InputError("occupancy values must lie in [0, 1] or be NaN")
         object.__setattr__(self, "occupancy", occ)
 
-    def binary(self, threshold: float = 0.5) -> npt.NDArray[np.int8]:
-        """1 occupied (``p >= threshold``), 0 free, -1 unknown."""
-        out = np.full(self.grid.shape, -1, dtype=np.int8)
-        known = np.isfinite(self.occupancy)
-        out[known] = (self.occupancy[known] >= threshold).astype(np.int8)
-        return out
+    def classes(self) -> npt.NDArray[np.int8]:
+        """Per cell 1 occupied, 0 free, -1 unknown (:func:`classify`)."""
+        return classify(self.occupancy)
 
 
 def _key(d: Mapping[str, Any], key: str, path: Path) -> Any:
@@ -205,26 +233,20 @@ def map_paths(stem: str | Path) -> tuple[Path, Path, Path]:
     return s.with_name(s.name + ".yaml"), s.with_name(s.name + ".pgm"), s.with_name(s.name + ".npy")
 
 
-def to_pixels(
-    occupancy: npt.ArrayLike, occupied_thresh: float = 0.65, free_thresh: float = 0.196
-) -> npt.NDArray[np.uint8]:
-    """Trinary map_saver pixels: 0 where ``p > occupied_thresh``, 254 where ``p < free_thresh``."""
-    occ = np.asarray(occupancy, dtype=np.float64)
-    px = np.full(occ.shape, UNKNOWN_PIXEL, dtype=np.uint8)
-    with np.errstate(invalid="ignore"):
-        px[occ > occupied_thresh] = OCCUPIED_PIXEL
-        px[occ < free_thresh] = FREE_PIXEL
+def to_pixels(occupancy: npt.ArrayLike) -> npt.NDArray[np.uint8]:
+    """Trinary map_saver pixels of the classes: 0 occupied, 254 free, 205 unknown."""
+    cls = classify(occupancy)
+    px = np.full(cls.shape, UNKNOWN_PIXEL, dtype=np.uint8)
+    px[cls == OCCUPIED] = OCCUPIED_PIXEL
+    px[cls == FREE] = FREE_PIXEL
     return px
 
 
-def write_map(
-    m: OccupancyMap,
-    stem: str | Path,
-    *,
-    occupied_thresh: float = 0.65,
-    free_thresh: float = 0.196,
-) -> tuple[Path, Path, Path]:
+def write_map(m: OccupancyMap, stem: str | Path) -> tuple[Path, Path, Path]:
     """Write ``STEM.yaml``, ``STEM.pgm`` and ``STEM.npy`` atomically.
+
+    The image holds the map's classes (:meth:`OccupancyMap.classes`); map_server, reading
+    it with the thresholds written to the YAML, gets those classes back.
 
     Parameters
     ----------
@@ -232,20 +254,12 @@ def write_map(
         The map.
     stem : str or Path
         Output path without suffix.
-    occupied_thresh, free_thresh : float
-        Cells above / below become occupied / free pixels; both are written to the YAML
-        so that map_server reads the classes back unchanged.
 
     Returns
     -------
     tuple of Path
         The three files written.
     """
-    if not (0.0 <= free_thresh < occupied_thresh <= 1.0):
-        raise InputError(
-            f"thresholds need 0 <= free_thresh ({free_thresh}) < "
-            f"occupied_thresh ({occupied_thresh}) <= 1"
-        )
     yaml_path, pgm_path, npy_path = map_paths(stem)
     meta = {
         "image": pgm_path.name,
@@ -257,7 +271,7 @@ def write_map(
         "occupied_thresh": 0.65,
         "free_thresh": 0.196,
     }
-    pixels = to_pixels(m.occupancy, occupied_thresh, free_thresh)
+    pixels = to_pixels(m.occupancy)
     with atomic_outputs(yaml_path, pgm_path, npy_path) as (ty, tp, tn):
         ty.write_text(yaml.safe_dump(meta, sort_keys=False))
         Image.fromarray(pixels).save(tp, format="PPM")
