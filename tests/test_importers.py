@@ -227,7 +227,7 @@ def laser_log(tmp_path: Path) -> Path:
     n = 60
     t = np.arange(n, dtype=np.float64) * 0.2
     traj = Trajectory(t, 1.0 + 4.0 * t / t[-1], np.full(n, 2.0), np.zeros(n))
-    r = simulate(truth, rig, traj, noise=Noise(0, 1, 0), seed=0)
+    r = simulate(truth, rig, traj, model=Noise(0, 1, 0), seed=0)
     lines = []
     for k in range(n):
         ranges = " ".join(f"{v:.3f}" for v in r.range[k * 181 : (k + 1) * 181])

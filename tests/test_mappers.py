@@ -3,25 +3,28 @@
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import pytest
-from scipy import ndimage
 
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
+from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.mappers import MAPPERS, NotFittedError, make_mapper, parse_params
-from sonarmap.metrics import score
+from sonarmap.metrics import agreement
+from sonarmap.raster import beam_cells
 from sonarmap.readings import Readings
 from sonarmap.scenarios import Scenario
 
 
-def visible_faces_found(truth: np.ndarray, occ: np.ndarray) -> float:
-    """Share of true obstacle cells next to observed free space that the map marks
-    occupied within one cell (8-neighbourhood)."""
-    wall = truth >= 0.5
-    free_seen = np.isfinite(occ) & (np.nan_to_num(occ, nan=1.0) < 0.5) & ~wall
-    faces = wall & ndimage.binary_dilation(free_seen)
-    mapped = ndimage.binary_dilation(np.nan_to_num(occ, nan=0.0) >= 0.5, structure=np.ones((3, 3)))
-    return float(np.mean(mapped[faces]))
+def beyond_every_beam(scene: Scenario, margin: float = 0.5) -> npt.NDArray[np.bool_]:
+    """Cells outside every reading's beam cut at its range plus ``margin`` metres: no
+    method's footprint reaches them."""
+    r = scene.readings
+    reach = np.minimum(r.range + margin, scene.rig.sensor.r_max)
+    cs = beam_cells(scene.truth.grid, scene.rig.sensor, r.x, r.y, r.theta, max_range=reach)
+    out = np.ones(scene.truth.grid.size, dtype=np.bool_)
+    out[cs.cells] = False
+    return out.reshape(scene.truth.grid.shape)
 
 
 @pytest.mark.parametrize("method", sorted(MAPPERS))
@@ -38,14 +41,12 @@ def test_contract(method: str, doorways: Scenario) -> None:
     known = occ[np.isfinite(occ)]
     assert known.size > 0
     assert np.all((known >= 0) & (known <= 1))
-    # Cells no beam can reach (outside the corridor rooms' view) stay unknown.
-    assert np.isnan(occ[0, 0])
-    # Walls are found: most wall faces the sonars can see have an obstacle within one
-    # cell in the map (Thrun's model, behind stochastic and em, draws walls seen by few
-    # readings dotted: one occupied cell explains a reading), and the map is right about
-    # most cells it observed.
-    assert visible_faces_found(doorways.truth.occupancy, occ) > 0.75
-    assert score(doorways.truth, mapper.result()).accuracy > 0.8
+    # Cells no beam reaches stay unknown (NaN), and there are such cells here.
+    unreached = beyond_every_beam(doorways)
+    assert unreached.sum() > 100
+    assert np.isnan(occ[unreached]).all()
+    # The map says something of every class (how well is the claims' business).
+    assert {-1, 0, 1} <= set(np.unique(mapper.result().classes()).tolist())
     # Streaming in two halves: exactly one batch's map where the method promises it,
     # otherwise the same cells known and nearly the same binarised map.
     half = len(doorways.readings) // 2
@@ -58,9 +59,11 @@ def test_contract(method: str, doorways: Scenario) -> None:
         np.testing.assert_allclose(got, occ, equal_nan=True, rtol=1e-6)
     else:
         np.testing.assert_array_equal(np.isnan(got), np.isnan(occ))
-        both = np.isfinite(occ)
-        agree = np.mean((got[both] >= 0.5) == (occ[both] >= 0.5))
-        assert agree > 0.97
+        agree, n = agreement(OccupancyMap(grid, got), OccupancyMap(grid, occ))
+        assert n > 0
+        # The stochastic search is no closer to itself: two seeds of one batch agree on
+        # 92 % of the cells here.
+        assert agree > (0.9 if method == "stochastic" else 0.97)
 
 
 @pytest.mark.parametrize("method", sorted(MAPPERS))

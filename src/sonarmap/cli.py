@@ -40,9 +40,8 @@ from .readings import (
     write_readings_stream,
 )
 from .rig import Rig, load_rig, save_rig
-from .scenarios import SCENARIOS, load_annotations, make_scenario
-from .sensors import Noise
-from .simulate import PoseNoise, simulate
+from .scenarios import PAPER_NOISE, SCENARIOS, load_annotations, make_scenario
+from .simulate import MODEL_KINDS, PoseNoise, make_model, simulate
 from .streaming import DEFAULT_STRATEGY, StreamingMapper
 from .sweep import load_sweep, run_sweep, summarise
 
@@ -93,7 +92,7 @@ def _pairs(items: list[str] | None, option: str) -> dict[str, str]:
 
 def _scenario_params(name: str, pairs: dict[str, str]) -> dict[str, Any]:
     sig = inspect.signature(SCENARIOS[name]).parameters
-    valid = [p for p in sig if p not in ("noise", "seed", "progress")]
+    valid = [p for p in sig if p not in ("model", "seed", "progress")]
     out: dict[str, Any] = {}
     for key, value in pairs.items():
         if key not in valid:
@@ -117,6 +116,15 @@ def _scenario_params(name: str, pairs: dict[str, str]) -> dict[str, Any]:
     return out
 
 
+ModelName = Enum("ModelName", {n: n for n in MODEL_KINDS}, type=str)  # type: ignore[misc]
+
+_MODEL_HELP = (
+    "Sonar model: 'acoustic' (rays through a 1 cm plan, a transducer's beam pattern, "
+    "mirror-like walls; see sonarmap.acoustics) or 'thrun' (the research's model on the "
+    "map's cells)."
+)
+
+
 @app.command("scenario")
 def scenario_cmd(
     name: Annotated[ScenarioName, typer.Argument(help="Which scenario.")],
@@ -128,20 +136,31 @@ def scenario_cmd(
             "--param", help="Scenario parameter KEY=VALUE (lists comma-separated), repeatable."
         ),
     ] = None,
-    p_rand: Annotated[float | None, typer.Option(help="Outlier probability.")] = None,
-    p_hit: Annotated[float | None, typer.Option(help="Reflection probability per cell.")] = None,
+    model: Annotated[ModelName, typer.Option(help=_MODEL_HELP)] = "acoustic",  # type: ignore[assignment]
+    p_rand: Annotated[float | None, typer.Option(help="Spurious-reading probability.")] = None,
+    p_hit: Annotated[
+        float | None, typer.Option(help="thrun: reflection probability per cell.")
+    ] = None,
     sigma: Annotated[float | None, typer.Option(help="Range noise, metres.")] = None,
+    sonar_param: Annotated[
+        list[str] | None,
+        typer.Option("--sonar-param", help="acoustic: model parameter KEY=VALUE, repeatable."),
+    ] = None,
 ) -> None:
-    """Write a built-in scenario: truth map, rig, trajectory, readings, annotations."""
+    """Write a built-in scenario: truth map, geometry, rig, trajectory, readings, annotations.
+
+    With --model thrun and no noise given, the noise the research used for the scene.
+    """
     scen = name.value
     params = _scenario_params(scen, _pairs(param, "--param"))
-    if p_rand is not None or p_hit is not None or sigma is not None:
-        base = make_scenario(scen, **params, seed=seed).params
-        params["noise"] = Noise(
-            p_rand if p_rand is not None else base["p_rand"],
-            p_hit if p_hit is not None else base["p_hit"],
-            sigma if sigma is not None else base["sigma"],
-        )
+    params["model"] = make_model(
+        model.value,
+        p_rand=p_rand,
+        p_hit=p_hit,
+        sigma=sigma,
+        base=PAPER_NOISE.get(scen),
+        params=_pairs(sonar_param, "--sonar-param"),
+    )
     with _progress(f"simulating {scen}") as cb:
         s = make_scenario(scen, **params, seed=seed, progress=cb)
     s.write(out)
@@ -150,33 +169,52 @@ def scenario_cmd(
 
 @app.command("simulate")
 def simulate_cmd(
-    map_: Annotated[Path, typer.Option("--map", help="Truth map YAML (map_server format).")],
+    map_: Annotated[
+        Path,
+        typer.Option(
+            "--map", help="Floor plan YAML (map_server format); the finer, the truer the echoes."
+        ),
+    ],
     rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
     trajectory: Annotated[Path, typer.Option(help="Trajectory CSV t,x,y,theta.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="Readings CSV to write.")],
-    p_rand: Annotated[float | None, typer.Option(help="Outlier probability [0, 1].")] = None,
-    p_hit: Annotated[float | None, typer.Option(help="Reflection probability (0, 1].")] = None,
+    model: Annotated[ModelName, typer.Option(help=_MODEL_HELP)] = "acoustic",  # type: ignore[assignment]
+    p_rand: Annotated[
+        float | None, typer.Option(help="Spurious-reading probability [0, 1].")
+    ] = None,
+    p_hit: Annotated[
+        float | None, typer.Option(help="thrun: reflection probability (0, 1].")
+    ] = None,
     sigma: Annotated[float | None, typer.Option(help="Range noise sigma, metres.")] = None,
+    sonar_param: Annotated[
+        list[str] | None,
+        typer.Option("--sonar-param", help="acoustic: model parameter KEY=VALUE, repeatable."),
+    ] = None,
     pose_sigma_xy: Annotated[float, typer.Option(help="Recorded-pose noise, metres.")] = 0.0,
     pose_sigma_theta: Annotated[float, typer.Option(help="Recorded-heading noise, rad.")] = 0.0,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ) -> None:
-    """Simulate sonar readings of a rig driven along a trajectory through a floor plan."""
-    truth = read_map(map_)
+    """Simulate sonar readings of a rig driven along a trajectory through a floor plan.
+
+    With --model thrun, noise not given comes from the rig's sensor file (default none).
+    """
+    world = read_map(map_)
     r = load_rig(rig)
     traj = read_trajectory(trajectory)
-    base = r.sensor.noise
-    noise = Noise(
-        base.p_rand if p_rand is None else p_rand,
-        base.p_hit if p_hit is None else p_hit,
-        base.sigma if sigma is None else sigma,
+    sonar = make_model(
+        model.value,
+        p_rand=p_rand,
+        p_hit=p_hit,
+        sigma=sigma,
+        base=r.sensor.noise,
+        params=_pairs(sonar_param, "--sonar-param"),
     )
     with _progress("simulating") as cb:
         readings = simulate(
-            truth,
+            world,
             r,
             traj,
-            noise=noise,
+            model=sonar,
             pose_noise=PoseNoise(pose_sigma_xy, pose_sigma_theta),
             seed=seed,
             progress=cb,
@@ -415,14 +453,14 @@ def methods_cmd() -> None:
 @app.command("demo")
 def demo_cmd(
     out: Annotated[Path, typer.Option("-o", "--out", help="Folder for the results.")] = Path("out"),
-    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    seed: Annotated[int, typer.Option(help="Seed of the held-out corridor scene.")] = 1000,
 ) -> None:
-    """Run the doorways scenario through every method: maps, a picture, a metrics table."""
-    with _progress("simulating doorways") as cb:
-        s = make_scenario("doorways", seed=seed, progress=cb)
-    s.write(out / "doorways")
-    # The research's baseline (laser-style increments, no fall-off, a one-cell band)
-    # beside every registered method at its defaults.
+    """Map a held-out corridor scene with every method: maps, a picture, a metrics table."""
+    with _progress("simulating corridor") as cb:
+        s = make_scenario("corridor", seed=seed, progress=cb)
+    s.write(out / "corridor")
+    # The research's baseline (laser-style increments, no fall-off) beside every
+    # registered method at its defaults.
     runs: list[tuple[str, str, dict[str, Any]]] = [
         ("inverse-traditional", "inverse", TRADITIONAL_INVERSE)
     ]
@@ -432,18 +470,18 @@ def demo_cmd(
         with _progress(f"mapping ({label})") as cb:
             maps[label] = build_map(s.readings, s.rig, s.truth.grid, name, params, progress=cb)
         write_map(maps[label], out / "maps" / label)
-    picture = save_side_by_side(maps, out / "doorways.png", truth=s.truth)
+    picture = save_side_by_side(maps, out / "corridor.png", truth=s.truth)
     fields = ["method", *(f.name for f in dataclasses.fields(MapScore))]
     # The terminal shows the main columns; metrics.csv has them all.
     shown = {
-        "accuracy": "acc",
-        "precision": "prec",
-        "recall": "recall",
-        "f1": "F1",
+        "f1_all": "wall F1",
         "passages_open": "open",
-        "passages_detected": "seen",
+        "passages_detected": "detected",
+        "false_openings": "false open.",
+        "passage_f1": "passage F1",
+        "width_error": "width err",
     }
-    table = Table(title=f"doorways: maps against the truth ({len(s.passages)} doors)")
+    table = Table(title=f"corridor seed {seed}: maps against the truth ({len(s.passages)} doors)")
     table.add_column("method", no_wrap=True)
     for head in shown.values():
         table.add_column(head, justify="right")
@@ -466,7 +504,7 @@ def demo_cmd(
 ExperimentName = Enum("ExperimentName", {n.replace("-", "_"): n for n in EXPERIMENTS}, type=str)  # type: ignore[misc]
 
 
-#: The built-in scene each experiment uses, whose parameters --param sets.
+#: The research's scene of each experiment (--paper), whose parameters --param sets.
 EXPERIMENT_SCENE = {
     "doorways": "doorways",
     "passages": "passages",
@@ -474,6 +512,8 @@ EXPERIMENT_SCENE = {
     "noise": "doorways",
     "real": "doorways",
 }
+#: The held-out scene family each experiment runs on by default.
+HELD_OUT_SCENE = {"doorways": "corridor", "passages": "gaps", "noise": "corridor"}
 
 
 @app.command("experiment")
@@ -481,12 +521,28 @@ def experiment_cmd(
     name: Annotated[ExperimentName, typer.Argument(help="Which experiment.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="Folder for figures and report.")],
     quick: Annotated[bool, typer.Option(help="A small, fast version.")] = False,
-    seed: Annotated[int, typer.Option(help="Random seed (first of several, where used).")] = 0,
+    seed: Annotated[
+        int | None,
+        typer.Option(help="Seed of the first scene (default: the first held-out seed, 1000)."),
+    ] = None,
+    seeds: Annotated[
+        int | None, typer.Option(help="How many scenes (default: the experiment's own).")
+    ] = None,
+    paper: Annotated[
+        bool,
+        typer.Option(
+            help="The research's own scene read with Thrun's model (a reproduction), "
+            "instead of held-out scenes read by the acoustic sonar."
+        ),
+    ] = False,
+    model: Annotated[
+        ModelName | None, typer.Option(help="Sonar model of the simulated readings.")
+    ] = None,
     scene: Annotated[
         Path | None,
         typer.Option(
             help="A scene folder of your own: truth.yaml, rig.yaml, trajectory.csv and/or "
-            "readings.csv, annotations.yaml."
+            "readings.csv, geometry.yaml, annotations.yaml."
         ),
     ] = None,
     param: Annotated[
@@ -503,15 +559,22 @@ def experiment_cmd(
     resolution: Annotated[float, typer.Option(help="real: cell size, metres.")] = 0.1,
 ) -> None:
     """Run one of the research's experiments: figures, metrics (CSV, JSON), report.html."""
-    params = _scenario_params(EXPERIMENT_SCENE[name.value], _pairs(param, "--param"))
+    family = EXPERIMENT_SCENE[name.value]
+    if not paper and name.value in HELD_OUT_SCENE:
+        family = HELD_OUT_SCENE[name.value]
+    params = _scenario_params(family, _pairs(param, "--param"))
     if name.value != "real" and (log is not None or rig is not None):
         raise ConfigError("--log and --rig belong to the 'real' experiment")
+    sonar = make_model(model.value, base=PAPER_NOISE.get(family)) if model is not None else None
     with _progress(f"experiment {name.value}") as cb:
         report = run_experiment(
             name.value,
             out,
             quick=quick,
             seed=seed,
+            seeds=seeds,
+            paper=paper,
+            model=sonar,
             progress=cb,
             scene=scene,
             scene_params=params,

@@ -113,6 +113,10 @@ class MapScore:
         Annotated small obstacles, and those the map marks (:func:`measure_obstacle`).
     size_error : float
         Mean absolute size error of the small obstacles found (metres).
+    quality : float
+        The mean of wall F1 and passage F1 (wall F1 alone where neither passages nor
+        false openings are scored): what sweeps rank parameters by. Erasing walls lowers
+        both halves, marking everything occupied the second.
     """
 
     accuracy: float
@@ -138,6 +142,7 @@ class MapScore:
     small_obstacles: int
     small_found: int
     size_error: float
+    quality: float
 
     def as_dict(self) -> dict[str, float | int]:
         return asdict(self)
@@ -175,6 +180,12 @@ def _mean_distance(src: B, dst: B, h: float) -> float:
         return math.nan
     dist = ndimage.distance_transform_edt(~dst) * h
     return float(np.mean(dist[src]))
+
+
+def _quality(wall_f1: float, pf1: float) -> float:
+    if math.isnan(pf1):
+        return wall_f1
+    return (0.0 if math.isnan(wall_f1) else wall_f1) / 2 + pf1 / 2
 
 
 def passage_f1(detected: int, passages: int, false_openings: int) -> float:
@@ -222,6 +233,7 @@ def score(
     holes = false_openings(truth, m, passages)
     posts = [measure_obstacle(m, o) for o in obstacles]
     seen = [r for r in posts if r.found]
+    pf1 = passage_f1(len(detected), len(found), len(holes))
     return MapScore(
         *observed,
         *whole,
@@ -236,10 +248,11 @@ def score(
         else math.nan,
         false_openings=len(holes),
         false_opening_width=float(sum(o.width for o in holes)),
-        passage_f1=passage_f1(len(detected), len(found), len(holes)),
+        passage_f1=pf1,
         small_obstacles=len(posts),
         small_found=len(seen),
         size_error=float(np.mean([abs(r.size - r.true_size) for r in seen])) if seen else math.nan,
+        quality=_quality(whole[3], pf1),
     )
 
 

@@ -94,17 +94,15 @@ class Footprint:
 
 
 def default_dr(grid: Grid, sensor: SensorModel) -> float:
-    """Half-width of the Omega_occ band: ``max(h / 2, range resolution, 2 sigma)``.
+    """Half-width of the Omega_occ band: ``max(h / 2, range resolution)``.
 
-    methods.md's Decision was ``max(h, range resolution)``. Measured on the ``doorways``,
-    ``passages`` and ``room-turn`` scenes, the half-cell band raises the F1 of occupied
-    cells of the inverse, counting and gradient maps alike and narrows the passages they
-    detect (see the README); h / 2 is the largest error of a distance measured to a
-    cell centre, and the range resolution bounds what the sensor itself can tell apart.
-    ``sigma`` is the sensor model's range noise: a band narrower than the noise lets the
-    Omega_free of long readings erase the obstacles that shorter ones found.
+    methods.md's Decision was ``max(h, range resolution)``; h / 2 is the largest error
+    of a distance measured to a cell centre, and the range resolution bounds what the
+    sensor itself can tell apart. A mapper that expects more range noise widens its band
+    with its own ``dr`` parameter: the sensor's specification says nothing of the noise
+    in a particular run, and a simulation's true noise is not the mapper's to know.
     """
-    return max(grid.resolution / 2, sensor.range_resolution, 2.0 * sensor.noise.sigma)
+    return max(grid.resolution / 2, sensor.range_resolution)
 
 
 def _pack_zones(
@@ -316,10 +314,11 @@ def beam_cells(
     y: npt.ArrayLike,
     theta: npt.ArrayLike,
     *,
-    max_range: float | None = None,
+    max_range: float | npt.ArrayLike | None = None,
     with_bearing: bool = False,
 ) -> CellSet:
-    """Every cell of the beam within ``max_range`` (default ``r_max``) of each pose.
+    """Every cell of the beam within ``max_range`` (default ``r_max``; one value, or one
+    per pose) of each pose.
 
     Examples
     --------
@@ -331,7 +330,9 @@ def beam_cells(
     [0, 1, 2]
     """
     sx, sy, st = _poses(x, y, theta)
-    lim = sensor.r_max if max_range is None else float(max_range)
     n = len(sx)
-    _, o = _run(grid, sensor, sx, sy, st, np.full(n, -1.0), np.full(n, lim), with_bearing)
+    lim = np.broadcast_to(
+        np.asarray(sensor.r_max if max_range is None else max_range, dtype=np.float64), (n,)
+    )
+    _, o = _run(grid, sensor, sx, sy, st, np.full(n, -1.0), np.ascontiguousarray(lim), with_bearing)
     return o

@@ -1,22 +1,39 @@
 """Built-in scenarios: floor plan, rig, trajectory and simulated readings.
 
-Each scenario writes ``truth.yaml``/``truth.pgm``/``truth.npy``, ``rig.yaml``,
-``trajectory.csv``, ``readings.csv`` and ``annotations.yaml`` (passages: the two jamb
-points across each opening and its true width) to a folder.
+Each scenario writes ``truth.yaml``/``truth.pgm``/``truth.npy`` (the floor plan on the
+mapping grid), ``geometry.yaml``/``geometry.pgm`` (the same plan at 1 cm, what the
+simulated sonar saw), ``rig.yaml`` (the sensor's nominal specification: never the
+simulation's noise), ``trajectory.csv``, ``readings.csv`` and ``annotations.yaml``
+(passages: the two jamb points across each opening; small obstacles) to a folder.
 
-- ``doorways``: the research's synthetic corridor (thesis 000 fig. 4.1, left): a 6 m x 6 m
+Readings come from the acoustic sonar model by default (:mod:`sonarmap.acoustics`);
+``model=Noise(...)`` runs Thrun's model on the map's cells instead, to reproduce the
+papers (``PAPER_NOISE`` holds the noise each paper scene used).
+
+Training families (:mod:`sonarmap.splits`), the research's scenes:
+
+- ``doorways``: the synthetic corridor (thesis 000 fig. 4.1, left): a 6 m x 6 m
   territory, a corridor with doorways into rooms on both sides, the robot driving
-  straight up the middle with the ``paper-synthetic`` rig, exact readings.
+  straight up the middle with the ``paper-synthetic`` rig.
 - ``passages``: a row of blocks separated by gaps of increasing width beside the robot's
   path (thesis 002, figs 4.9-4.10).
-- ``office``: a 20 m office floor with eight rooms toured for 10 minutes by a 16-sonar
-  ring firing at 20 Hz (192,000 readings): the streaming benchmark's scene.
 - ``room-turn``: a room with a door; the ``paper-real`` rig turns in place at uneven speed,
-  with outliers and a roughly known sonar mounting (thesis 000 fig. 4.1, right).
+  with a roughly known sonar mounting (thesis 000 fig. 4.1, right).
+
+Held-out families, drawn from their seed so that no two are alike:
+
+- ``gaps``: a wall of random thickness with gaps of 0.15 to 0.8 m in shuffled order
+  between blocks of random length, off the cell boundaries, a room of random depth
+  behind it and posts on the other side; the robot weaves past.
+- ``corridor``: a corridor of random width and length with doors of random widths at
+  random places on both sides, rooms behind them (some split by walls) with furniture.
+- ``office``: a 20 m office floor with eight rooms toured for 10 minutes by a 16-sonar
+  ring firing at 20 Hz (192,000 readings): also the streaming benchmark's scene.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -26,16 +43,18 @@ from typing import Any
 import numpy as np
 import yaml
 
+from .acoustics import AcousticModel
 from .errors import ConfigError
-from .grid import Grid
+from .floorplan import FloorPlan
 from .io._atomic import atomic_write_text
 from .io.rosmap import OccupancyMap, write_map
 from .readings import Readings, Trajectory, write_readings, write_trajectory
 from .rig import Mount, Rig, get_rig, save_rig
 from .sensors import Noise
-from .simulate import simulate
+from .simulate import SonarModel, simulate
 
 __all__ = [
+    "PAPER_NOISE",
     "SCENARIOS",
     "Passage",
     "Scenario",
@@ -43,9 +62,27 @@ __all__ = [
     "load_annotations",
     "load_scene",
     "make_scenario",
+    "model_from_dict",
+    "model_to_dict",
 ]
 
 Progress = Callable[[int, int], None]
+
+#: Thrun-model noise of the research's scenes, for ``model=PAPER_NOISE[name]``.
+PAPER_NOISE: dict[str, Noise] = {
+    "doorways": Noise(0.0, 1.0, 0.0),
+    "passages": Noise(0.0, 1.0, 0.0),
+    "room-turn": Noise(0.05, 0.9, 0.01),
+    "office": Noise(0.01, 0.95, 0.01),
+    "gaps": Noise(0.0, 1.0, 0.01),
+    "corridor": Noise(0.0, 1.0, 0.01),
+}
+
+#: Widths of the held-out ``gaps`` scenes (metres), shuffled per seed.
+GAP_WIDTHS = (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8)
+
+#: Cell size (metres) of the geometry the acoustic sonar sees.
+GEOMETRY_CELL = 0.01
 
 
 @dataclass(frozen=True)
@@ -77,7 +114,11 @@ class SmallObstacle:
 
 @dataclass(frozen=True, eq=False)
 class Scenario:
-    """Everything a mapping experiment needs, in memory."""
+    """Everything a mapping experiment needs, in memory.
+
+    ``geometry`` is the plan the readings were simulated from (finer than ``truth``),
+    when known.
+    """
 
     name: str
     truth: OccupancyMap
@@ -87,12 +128,15 @@ class Scenario:
     passages: tuple[Passage, ...] = ()
     params: dict[str, Any] = field(default_factory=dict)
     obstacles: tuple[SmallObstacle, ...] = ()
+    geometry: OccupancyMap | None = None
 
     def write(self, folder: str | Path) -> Path:
         """Write the scenario files into ``folder`` (created if needed)."""
         d = Path(folder)
         d.mkdir(parents=True, exist_ok=True)
         write_map(self.truth, d / "truth")
+        if self.geometry is not None:
+            write_map(self.geometry, d / "geometry", exact=False)
         save_rig(self.rig, d / "rig.yaml")
         write_trajectory(self.trajectory, d / "trajectory.csv")
         write_readings(self.readings, d / "readings.csv")
@@ -117,49 +161,31 @@ class Scenario:
         return d
 
 
-class _Plan:
-    """A floor plan being drawn: rectangles of obstacle on an empty grid."""
+def model_to_dict(model: SonarModel) -> dict[str, Any]:
+    """A sonar model as a plain mapping (``kind`` and its parameters).
 
-    def __init__(self, grid: Grid) -> None:
-        self.grid = grid
-        self.occ = np.zeros(grid.shape, dtype=np.float32)
+    Examples
+    --------
+    >>> model_to_dict(Noise(0.05, 0.9, 0.01))
+    {'kind': 'thrun', 'p_rand': 0.05, 'p_hit': 0.9, 'sigma': 0.01}
+    """
+    if isinstance(model, Noise):
+        return {"kind": "thrun", "p_rand": model.p_rand, "p_hit": model.p_hit, "sigma": model.sigma}
+    return {"kind": "acoustic", **model.to_dict()}
 
-    def _cells(self, x0: float, y0: float, x1: float, y1: float) -> tuple[slice, slice]:
-        # Edges snap to the nearest cell boundary, so a 0.8 m gap at 5 cm is 16 cells
-        # whatever the rounding of its coordinates.
-        g = self.grid
-        c0 = max(0, round((x0 - g.origin[0]) / g.resolution))
-        c1 = min(g.cols, round((x1 - g.origin[0]) / g.resolution))
-        i0 = max(0, round((y0 - g.origin[1]) / g.resolution))
-        i1 = min(g.rows, round((y1 - g.origin[1]) / g.resolution))
-        return slice(g.rows - i1, g.rows - i0), slice(c0, c1)
 
-    def box(self, x0: float, y0: float, x1: float, y1: float) -> None:
-        self.occ[self._cells(x0, y0, x1, y1)] = 1.0
-
-    def post(self, name: str, cx: float, cy: float, size: float) -> SmallObstacle:
-        """A square post about (cx, cy), annotated with the cells actually drawn."""
-        rows, cols = self._cells(cx - size / 2, cy - size / 2, cx + size / 2, cy + size / 2)
-        self.occ[rows, cols] = 1.0
-        g = self.grid
-        x0 = g.origin[0] + cols.start * g.resolution
-        x1 = g.origin[0] + cols.stop * g.resolution
-        y1 = g.origin[1] + (g.rows - rows.start) * g.resolution
-        y0 = g.origin[1] + (g.rows - rows.stop) * g.resolution
-        return SmallObstacle(name, ((x0 + x1) / 2, (y0 + y1) / 2), max(x1 - x0, y1 - y0))
-
-    def clear(self, x0: float, y0: float, x1: float, y1: float) -> None:
-        self.occ[self._cells(x0, y0, x1, y1)] = 0.0
-
-    def border(self, t: float) -> None:
-        xmin, xmax, ymin, ymax = self.grid.extent
-        self.box(xmin, ymin, xmax, ymin + t)
-        self.box(xmin, ymax - t, xmax, ymax)
-        self.box(xmin, ymin, xmin + t, ymax)
-        self.box(xmax - t, ymin, xmax, ymax)
-
-    def done(self) -> OccupancyMap:
-        return OccupancyMap(self.grid, self.occ)
+def model_from_dict(d: dict[str, Any], where: str = "model") -> SonarModel:
+    """The inverse of :func:`model_to_dict`; ``kind`` defaults to ``acoustic``."""
+    params = dict(d)
+    kind = params.pop("kind", "acoustic")
+    if kind == "thrun":
+        bad = sorted(set(params) - {"p_rand", "p_hit", "sigma"})
+        if bad:
+            raise ConfigError(f"{where}: unknown parameter(s) {bad}; valid: p_hit, p_rand, sigma")
+        return Noise(**{"p_rand": 0.0, "p_hit": 1.0, "sigma": 0.0, **params})
+    if kind == "acoustic":
+        return AcousticModel.from_dict(params, where)
+    raise ConfigError(f"{where}: kind must be acoustic or thrun, got {kind!r}")
 
 
 def _check_positive(**values: float) -> None:
@@ -168,16 +194,52 @@ def _check_positive(**values: float) -> None:
             raise ConfigError(f"scenario parameter '{k}' must be > 0, got {v}")
 
 
-def _with_noise(rig: Rig, noise: Noise) -> Rig:
-    """The rig with its sensor model stating the simulation's noise, as a calibrated
-    sensor file would: mappers take their default band and model noise from it."""
-    return replace(rig, sensor=replace(rig.sensor, noise=noise))
+def _readings(
+    plan: FloorPlan,
+    truth: OccupancyMap,
+    rig: Rig,
+    traj: Trajectory,
+    model: SonarModel | None,
+    seed: int,
+    progress: Progress | None,
+    **kwargs: Any,
+) -> tuple[Readings, OccupancyMap, SonarModel]:
+    """Simulate the readings: the acoustic sonar sees the plan at 1 cm, Thrun's model
+    the truth's cells. Returns the readings, the geometry used and the model."""
+    model = AcousticModel() if model is None else model
+    world = truth if isinstance(model, Noise) else plan.render(plan.grid(GEOMETRY_CELL))
+    readings = simulate(world, rig, traj, model=model, seed=seed, progress=progress, **kwargs)
+    return readings, world, model
+
+
+def _post(plan: FloorPlan, name: str, cx: float, cy: float, size: float) -> SmallObstacle:
+    plan.box(cx - size / 2, cy - size / 2, cx + size / 2, cy + size / 2)
+    return SmallObstacle(name, (cx, cy), size)
 
 
 def _straight(x: float, y0: float, y1: float, speed: float, rate: float) -> Trajectory:
     n = math.floor((y1 - y0) / speed * rate) + 1
     t = np.arange(n) / rate
     return Trajectory(t, np.full(n, x), y0 + speed * t, np.full(n, math.pi / 2))
+
+
+def _weaving(
+    x: float, y0: float, y1: float, speed: float, rate: float, amplitude: float, period: float
+) -> Trajectory:
+    """Up the line x = ``x`` from y0 to y1, swaying ``amplitude`` m either side every
+    ``period`` m, heading along the path."""
+    n = math.floor((y1 - y0) / speed * rate) + 1
+    t = np.arange(n) / rate
+    y = y0 + speed * t
+    k = 2 * math.pi / period
+    xs = x + amplitude * np.sin(k * (y - y0))
+    heading = np.arctan2(1.0, amplitude * k * np.cos(k * (y - y0)))
+    return Trajectory(t, xs, y, heading)
+
+
+def _record(model: SonarModel, seed: int, **params: Any) -> dict[str, Any]:
+    out = {k: (list(v) if isinstance(v, tuple) else v) for k, v in params.items()}
+    return {**out, "model": model_to_dict(model), "seed": seed}
 
 
 def doorways(
@@ -189,7 +251,7 @@ def doorways(
     door_widths: Sequence[float] = (1.0, 0.8, 0.9, 0.7),
     speed: float = 0.25,
     rate: float = 10.0,
-    noise: Noise | None = None,
+    model: SonarModel | None = None,
     seed: int = 0,
     progress: Progress | None = None,
 ) -> Scenario:
@@ -200,8 +262,8 @@ def doorways(
     on x = size / 2; doorways of ``door_widths`` m (1.0, 0.8, 0.9, 0.7) alternate between
     the left and right corridor walls, evenly spaced along the corridor. The robot drives up
     the corridor centre from y = 0.5 to size - 0.5 at ``speed`` m/s (0.25), all six
-    ``paper-synthetic`` sonars firing at ``rate`` Hz (10). Readings are exact by default
-    (p_rand = 0, p_hit = 1, sigma = 0), as in the research.
+    ``paper-synthetic`` sonars firing at ``rate`` Hz (10). The research's readings were
+    exact: ``model=PAPER_NOISE["doorways"]``.
     """
     _check_positive(
         size=size,
@@ -213,8 +275,7 @@ def doorways(
     )
     if not door_widths or any(w <= 0 for w in door_widths):
         raise ConfigError("scenario parameter 'door_widths' must be positive widths")
-    grid = Grid.from_bounds(0.0, 0.0, size, size, resolution)
-    plan = _Plan(grid)
+    plan = FloorPlan((0.0, 0.0, size, size))
     plan.border(wall)
     cx = size / 2
     xl, xr = cx - corridor_width / 2, cx + corridor_width / 2
@@ -240,25 +301,22 @@ def doorways(
                 wall,
             )
         )
-    truth = plan.done()
-    nz = noise if noise is not None else Noise(0.0, 1.0, 0.0)
-    rig = _with_noise(get_rig("paper-synthetic"), nz)
+    truth = plan.render(plan.grid(resolution))
+    rig = get_rig("paper-synthetic")
     traj = _straight(cx, 0.5, size - 0.5, speed, rate)
-    readings = simulate(truth, rig, traj, noise=nz, seed=seed, progress=progress)
-    params = {
-        "size": size,
-        "resolution": resolution,
-        "corridor_width": corridor_width,
-        "wall": wall,
-        "door_widths": list(door_widths),
-        "speed": speed,
-        "rate": rate,
-        "p_rand": nz.p_rand,
-        "p_hit": nz.p_hit,
-        "sigma": nz.sigma,
-        "seed": seed,
-    }
-    return Scenario("doorways", truth, rig, traj, readings, tuple(passages), params)
+    readings, world, used = _readings(plan, truth, rig, traj, model, seed, progress)
+    params = _record(
+        used,
+        seed,
+        size=size,
+        resolution=resolution,
+        corridor_width=corridor_width,
+        wall=wall,
+        door_widths=door_widths,
+        speed=speed,
+        rate=rate,
+    )
+    return Scenario("doorways", truth, rig, traj, readings, tuple(passages), params, geometry=world)
 
 
 def passages(
@@ -272,7 +330,7 @@ def passages(
     posts: Sequence[float] = (0.05, 0.1, 0.2, 0.3),
     speed: float = 0.25,
     rate: float = 10.0,
-    noise: Noise | None = None,
+    model: SonarModel | None = None,
     seed: int = 0,
     progress: Progress | None = None,
 ) -> Scenario:
@@ -285,7 +343,7 @@ def passages(
     right with square posts of ``posts`` m (0.05, 0.1, 0.2, 0.3) standing 0.6 m to the right
     of the path, evenly spread along it (annotated as small obstacles). The robot drives
     past the whole row at ``speed`` m/s (0.25) with the ``paper-synthetic`` rig at ``rate``
-    Hz (10). Exact readings by default.
+    Hz (10).
 
     A gap seen from one side only cannot be confirmed free beyond the near face by a
     wide beam (it always hits a corner first); a room behind it is what lets the oblique
@@ -309,8 +367,7 @@ def passages(
     x_path = wall + offset + 0.2
     x_row = x_path + offset
     width = x_row + depth + room + wall
-    grid = Grid.from_bounds(0.0, 0.0, width, length, resolution)
-    plan = _Plan(grid)
+    plan = FloorPlan((0.0, 0.0, width, length))
     plan.border(wall)
     plan.box(wall, 0, x_path - offset, length)
     y = 1.0
@@ -326,30 +383,29 @@ def passages(
         plan.box(x_row, y, x_row + depth, end)
         y += block
     small = tuple(
-        plan.post(f"post{k + 1}", x_path - 0.6, 1.0 + (length - 2.0) * (k + 0.5) / len(posts), p)
+        _post(plan, f"post{k + 1}", x_path - 0.6, 1.0 + (length - 2.0) * (k + 0.5) / len(posts), p)
         for k, p in enumerate(posts)
     )
-    truth = plan.done()
-    nz = noise if noise is not None else Noise(0.0, 1.0, 0.0)
-    rig = _with_noise(get_rig("paper-synthetic"), nz)
+    truth = plan.render(plan.grid(resolution))
+    rig = get_rig("paper-synthetic")
     traj = _straight(x_path, 0.5, length - 0.5, speed, rate)
-    readings = simulate(truth, rig, traj, noise=nz, seed=seed, progress=progress)
-    params = {
-        "widths": list(widths),
-        "resolution": resolution,
-        "block": block,
-        "depth": depth,
-        "offset": offset,
-        "room": room,
-        "posts": list(posts),
-        "speed": speed,
-        "rate": rate,
-        "p_rand": nz.p_rand,
-        "p_hit": nz.p_hit,
-        "sigma": nz.sigma,
-        "seed": seed,
-    }
-    return Scenario("passages", truth, rig, traj, readings, tuple(found), params, small)
+    readings, world, used = _readings(plan, truth, rig, traj, model, seed, progress)
+    params = _record(
+        used,
+        seed,
+        widths=widths,
+        resolution=resolution,
+        block=block,
+        depth=depth,
+        offset=offset,
+        room=room,
+        posts=posts,
+        speed=speed,
+        rate=rate,
+    )
+    return Scenario(
+        "passages", truth, rig, traj, readings, tuple(found), params, small, geometry=world
+    )
 
 
 def room_turn(
@@ -360,7 +416,7 @@ def room_turn(
     turns: float = 1.0,
     duration: float = 30.0,
     rate: float = 10.0,
-    noise: Noise | None = None,
+    model: SonarModel | None = None,
     mount_yaw_sigma_deg: float = 2.0,
     seed: int = 0,
     progress: Progress | None = None,
@@ -370,9 +426,9 @@ def room_turn(
     Defaults: a ``room`` m square room (4 m) inside a 6 m territory, a door ``door_width``
     m wide (0.9) in its upper wall; the robot stands off-centre and makes ``turns`` (1)
     turns in ``duration`` s (30), its angular speed varying by a factor of five, the four
-    sonars firing at ``rate`` Hz (10). Noise p_rand = 0.05, p_hit = 0.9, sigma = 1 cm.
-    The readings come from sonars whose yaw differs from the written rig by Gaussian
-    errors of ``mount_yaw_sigma_deg`` degrees (2): the mounting is known only roughly.
+    sonars firing at ``rate`` Hz (10). The readings come from sonars whose yaw differs
+    from the written rig by Gaussian errors of ``mount_yaw_sigma_deg`` degrees (2): the
+    mounting is known only roughly.
     """
     _check_positive(
         room=room,
@@ -390,8 +446,7 @@ def room_turn(
         raise ConfigError(f"door_width {door_width} m does not fit a {room} m room")
     wall = 0.1
     size = room + 2.0
-    grid = Grid.from_bounds(0.0, 0.0, size, size, resolution)
-    plan = _Plan(grid)
+    plan = FloorPlan((0.0, 0.0, size, size))
     plan.border(wall)
     lo, hi = 1.0, 1.0 + room
     plan.box(lo - wall, lo - wall, hi + wall, lo)
@@ -400,7 +455,7 @@ def room_turn(
     plan.box(hi, lo - wall, hi + wall, hi + wall)
     dx = lo + room * 0.55
     plan.clear(dx - door_width / 2, hi, dx + door_width / 2, hi + wall)
-    truth = plan.done()
+    truth = plan.render(plan.grid(resolution))
     door = Passage(
         "door", (dx - door_width / 2, hi + wall / 2), (dx + door_width / 2, hi + wall / 2), wall
     )
@@ -413,8 +468,7 @@ def room_turn(
     traj = Trajectory(
         t, np.full(n, lo + room * 0.45), np.full(n, lo + room * 0.4), np.angle(np.exp(1j * angle))
     )
-    nz = noise if noise is not None else Noise(0.05, 0.9, 0.01)
-    rig = _with_noise(get_rig("paper-real"), nz)
+    rig = get_rig("paper-real")
     rng = np.random.default_rng(seed + 7919)
     actual = replace(
         rig,
@@ -423,24 +477,193 @@ def room_turn(
             for m in rig.mounts
         ),
     )
-    readings = simulate(truth, actual, traj, noise=nz, seed=seed, progress=progress)
+    readings, world, used = _readings(plan, truth, actual, traj, model, seed, progress)
     # The recorded poses are those the nominal mounting gives, as a real robot would log.
     sx, sy, st = (a.reshape(-1) for a in rig.sensor_poses(traj.x, traj.y, traj.theta))
     readings = replace(readings, x=sx, y=sy, theta=st)
-    params = {
-        "room": room,
-        "resolution": resolution,
-        "door_width": door_width,
-        "turns": turns,
-        "duration": duration,
-        "rate": rate,
-        "mount_yaw_sigma_deg": mount_yaw_sigma_deg,
-        "p_rand": nz.p_rand,
-        "p_hit": nz.p_hit,
-        "sigma": nz.sigma,
-        "seed": seed,
-    }
-    return Scenario("room-turn", truth, rig, traj, readings, (door,), params)
+    params = _record(
+        used,
+        seed,
+        room=room,
+        resolution=resolution,
+        door_width=door_width,
+        turns=turns,
+        duration=duration,
+        rate=rate,
+        mount_yaw_sigma_deg=mount_yaw_sigma_deg,
+    )
+    return Scenario("room-turn", truth, rig, traj, readings, (door,), params, geometry=world)
+
+
+def gaps(
+    *,
+    widths: Sequence[float] = GAP_WIDTHS,
+    resolution: float = 0.05,
+    posts: int = 4,
+    rate: float = 10.0,
+    model: SonarModel | None = None,
+    seed: int = 1000,
+    progress: Progress | None = None,
+) -> Scenario:
+    """A held-out passages scene drawn from its seed.
+
+    A wall 6 to 14 cm thick runs beside the robot's path, 0.8 to 1.3 m to its left, with
+    gaps of ``widths`` m (0.15 to 0.8 in 5 cm steps) **in shuffled order** between
+    blocks 0.4 to 0.9 m long; every coordinate is continuous, so walls and gaps fall
+    anywhere relative to the cells. Behind the wall a room 1.5 to 2.5 m deep; to the
+    right, a wall 0.8 to 1.3 m away with ``posts`` posts of 0.1 to 0.3 m standing off
+    it. The ``paper-synthetic`` rig drives past at 0.2 to 0.3 m/s, weaving up to 5 cm
+    either side, firing at ``rate`` Hz.
+    """
+    _check_positive(resolution=resolution, rate=rate)
+    if not widths or any(not (0 < w <= 2.0) for w in widths):
+        raise ConfigError("scenario parameter 'widths' must be widths in (0, 2] m")
+    if posts < 0:
+        raise ConfigError(f"scenario parameter 'posts' must be >= 0, got {posts}")
+    rng = np.random.default_rng([seed, 0x6A95])
+    order = [float(w) for w in rng.permutation(np.asarray(widths, dtype=float))]
+    depth = float(rng.uniform(0.06, 0.14))
+    offset = float(rng.uniform(0.8, 1.3))
+    right = float(rng.uniform(0.8, 1.3))
+    room = float(rng.uniform(1.5, 2.5))
+    speed = float(rng.uniform(0.2, 0.3))
+    blocks = rng.uniform(0.4, 0.9, len(order) + 1)
+    wall = 0.1
+    start = float(rng.uniform(0.8, 1.2))
+    length = start + float(blocks.sum()) + sum(order) + 1.0
+    x_right = wall + float(rng.uniform(0.0, 0.2))
+    x_path = x_right + right
+    x_row = x_path + offset
+    width = x_row + depth + room + wall
+    plan = FloorPlan((0.0, 0.0, width, length))
+    plan.border(wall)
+    plan.box(0.0, 0.0, x_right, length)
+    y = start
+    plan.box(x_row, 0.0, x_row + depth, y + blocks[0])
+    y += blocks[0]
+    found = []
+    for k, w in enumerate(order):
+        found.append(
+            Passage(f"gap{k + 1}", (x_row + depth / 2, y), (x_row + depth / 2, y + w), depth)
+        )
+        y += w
+        end = length if k == len(order) - 1 else y + blocks[k + 1]
+        plan.box(x_row, y, x_row + depth, end)
+        y += blocks[k + 1]
+    small = tuple(
+        _post(
+            plan,
+            f"post{k + 1}",
+            x_right + float(rng.uniform(0.25, 0.4)),
+            1.0 + (length - 2.0) * (k + float(rng.uniform(0.3, 0.7))) / max(posts, 1),
+            round(float(rng.uniform(0.1, 0.3)), 3),
+        )
+        for k in range(posts)
+    )
+    truth = plan.render(plan.grid(resolution))
+    rig = get_rig("paper-synthetic")
+    traj = _weaving(x_path, 0.5, length - 0.5, speed, rate, float(rng.uniform(0.0, 0.05)), 2.0)
+    readings, world, used = _readings(plan, truth, rig, traj, model, seed, progress)
+    params = _record(
+        used,
+        seed,
+        widths=order,
+        resolution=resolution,
+        depth=round(depth, 4),
+        offset=round(offset, 4),
+        room=round(room, 4),
+        speed=round(speed, 4),
+        rate=rate,
+    )
+    return Scenario("gaps", truth, rig, traj, readings, tuple(found), params, small, geometry=world)
+
+
+def corridor(
+    *,
+    resolution: float = 0.05,
+    rate: float = 10.0,
+    model: SonarModel | None = None,
+    seed: int = 1000,
+    progress: Progress | None = None,
+) -> Scenario:
+    """A held-out corridor scene drawn from its seed.
+
+    A corridor 1.6 to 2.4 m wide and 6 to 9 m long with walls 8 to 15 cm thick; two or
+    three doors 0.5 to 1.2 m wide at random places in each wall, rooms 1.5 to 2.5 m
+    deep behind them, split by walls between the doors half of the time, with one or
+    two pieces of furniture (boxes of 0.3 to 0.8 m) in each room away from the doors.
+    The ``paper-synthetic`` rig drives up the corridor at 0.2 to 0.35 m/s, weaving up to
+    15 cm either side, firing at ``rate`` Hz.
+    """
+    _check_positive(resolution=resolution, rate=rate)
+    rng = np.random.default_rng([seed, 0xC0DE])
+    width = float(rng.uniform(1.6, 2.4))
+    length = float(rng.uniform(6.0, 9.0))
+    wall = float(rng.uniform(0.08, 0.15))
+    depth_l, depth_r = (float(v) for v in rng.uniform(1.5, 2.5, 2))
+    border = 0.1
+    x_l = border + depth_l + wall  # the corridor's left wall face
+    x_r = x_l + width
+    total_w = x_r + wall + depth_r + border
+    plan = FloorPlan((0.0, 0.0, total_w, length))
+    plan.border(border)
+    plan.box(x_l - wall, 0.0, x_l, length)
+    plan.box(x_r, 0.0, x_r + wall, length)
+    found: list[Passage] = []
+    for side, (x0, x1, x_far) in enumerate(
+        ((x_l - wall, x_l, border), (x_r, x_r + wall, total_w - border))
+    ):
+        n = int(rng.integers(2, 4))
+        widths = rng.uniform(0.5, 1.2, n)
+        # Doors spread along the wall with at least 0.5 m of wall between them.
+        free = length - 1.6 - float(widths.sum()) - 0.5 * (n - 1)
+        if free < 0:
+            widths *= (length - 1.6 - 0.5 * (n - 1)) / float(widths.sum())
+            free = 0.0
+        cuts = np.sort(rng.uniform(0.0, free, n))
+        y = 0.8
+        spans = []
+        for k in range(n):
+            y0 = y + (cuts[k] - (cuts[k - 1] if k else 0.0))
+            y1 = y0 + float(widths[k])
+            plan.clear(x0, y0, x1, y1)
+            xm = (x0 + x1) / 2
+            found.append(Passage(f"door{len(found) + 1}", (xm, y0), (xm, y1), wall))
+            spans.append((y0, y1))
+            y = y1 + 0.5
+        # Walls between the rooms, halfway between doors, half of the time.
+        lo, hi = (x_far, x0) if side == 0 else (x1, x_far)
+        for (_, a1), (b0, _) in itertools.pairwise(spans):
+            if rng.random() < 0.5:
+                ym = (a1 + b0) / 2
+                plan.box(lo, ym - wall / 2, hi, ym + wall / 2)
+        # Furniture away from the doors: against the far wall.
+        for _ in range(int(rng.integers(1, 3))):
+            size_x, size_y = (float(v) for v in rng.uniform(0.3, 0.8, 2))
+            yc = float(rng.uniform(0.8, length - 0.8))
+            if side == 0:
+                plan.box(lo + 0.05, yc - size_y / 2, lo + 0.05 + size_x, yc + size_y / 2)
+            else:
+                plan.box(hi - 0.05 - size_x, yc - size_y / 2, hi - 0.05, yc + size_y / 2)
+    truth = plan.render(plan.grid(resolution))
+    rig = get_rig("paper-synthetic")
+    speed = float(rng.uniform(0.2, 0.35))
+    traj = _weaving(
+        (x_l + x_r) / 2, 0.5, length - 0.5, speed, rate, float(rng.uniform(0.0, 0.15)), 3.0
+    )
+    readings, world, used = _readings(plan, truth, rig, traj, model, seed, progress)
+    params = _record(
+        used,
+        seed,
+        resolution=resolution,
+        width=round(width, 4),
+        length=round(length, 4),
+        wall=round(wall, 4),
+        door_widths=[round(p.width, 4) for p in found],
+        speed=round(speed, 4),
+        rate=rate,
+    )
+    return Scenario("corridor", truth, rig, traj, readings, tuple(found), params, geometry=world)
 
 
 def _waypoint_path(
@@ -473,8 +696,8 @@ def office(
     duration: float = 600.0,
     speed: float = 0.5,
     rate: float = 20.0,
-    noise: Noise | None = None,
-    seed: int = 0,
+    model: SonarModel | None = None,
+    seed: int = 1000,
     progress: Progress | None = None,
 ) -> Scenario:
     """An office floor toured by a robot with a ring of 16 sonars: the streaming benchmark.
@@ -485,7 +708,6 @@ def office(
     a cabinet and a post inside. The ``ring16`` rig (Polaroid sonars) fires every sonar
     at ``rate`` Hz (20) while the robot drives the corridor and a loop through every room
     at ``speed`` m/s (0.5) for ``duration`` s (600): 192,000 readings by default.
-    Noise p_rand = 0.01, p_hit = 0.95, sigma = 1 cm.
     """
     _check_positive(
         size=size, resolution=resolution, duration=duration, speed=speed, rate=rate, rooms=rooms
@@ -496,8 +718,7 @@ def office(
     room_w = size / rooms
     if size < 10 or room_w < 3.0 or max(door_widths) > room_w - 1.0:
         raise ConfigError(f"{rooms} rooms with doors {list(door_widths)} do not fit {size} m")
-    grid = Grid.from_bounds(0.0, 0.0, size, size, resolution)
-    plan = _Plan(grid)
+    plan = FloorPlan((0.0, 0.0, size, size))
     plan.border(wall)
     mid = size / 2
     y_lo, y_hi = mid - 1.0, mid + 1.0
@@ -525,8 +746,9 @@ def office(
             far = mid + inward * (size / 2 - 1.0)
             x0 = cx - room_w / 2 + wall
             plan.box(x0, min(far, far - inward * 1.2), x0 + 0.5, max(far, far - inward * 1.2))
-            small.append(plan.post(f"post{side * rooms + i + 1}", cx + room_w / 2 - 0.6, far, 0.15))
-    truth = plan.done()
+            name = f"post{side * rooms + i + 1}"
+            small.append(_post(plan, name, cx + room_w / 2 - 0.6, far, 0.15))
+    truth = plan.render(plan.grid(resolution))
     depth = min(3.0, size / 2 - 3.0)
     points: list[tuple[float, float]] = [(0.8, mid)]
     for side_sign in (1.0, -1.0):
@@ -546,29 +768,32 @@ def office(
             ]
         points.append((size - 0.8, mid) if side_sign > 0 else (0.8, mid))
     traj = _waypoint_path(points, speed, rate, duration)
-    nz = noise if noise is not None else Noise(0.01, 0.95, 0.01)
-    rig = _with_noise(get_rig("ring16"), nz)
-    readings = simulate(truth, rig, traj, noise=nz, seed=seed, chunk_size=2_000, progress=progress)
-    params = {
-        "size": size,
-        "resolution": resolution,
-        "rooms": rooms,
-        "door_widths": list(door_widths),
-        "duration": duration,
-        "speed": speed,
-        "rate": rate,
-        "p_rand": nz.p_rand,
-        "p_hit": nz.p_hit,
-        "sigma": nz.sigma,
-        "seed": seed,
-    }
-    return Scenario("office", truth, rig, traj, readings, tuple(found), params, tuple(small))
+    rig = get_rig("ring16")
+    readings, world, used = _readings(
+        plan, truth, rig, traj, model, seed, progress, chunk_size=2_000
+    )
+    params = _record(
+        used,
+        seed,
+        size=size,
+        resolution=resolution,
+        rooms=rooms,
+        door_widths=door_widths,
+        duration=duration,
+        speed=speed,
+        rate=rate,
+    )
+    return Scenario(
+        "office", truth, rig, traj, readings, tuple(found), params, tuple(small), geometry=world
+    )
 
 
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "doorways": doorways,
     "passages": passages,
     "room-turn": room_turn,
+    "gaps": gaps,
+    "corridor": corridor,
     "office": office,
 }
 
@@ -634,14 +859,15 @@ def load_annotations(path: str | Path) -> tuple[tuple[Passage, ...], tuple[Small
     return tuple(out), tuple(small)
 
 
-def load_scene(folder: str | Path, *, seed: int = 0, noise: Noise | None = None) -> Scenario:
+def load_scene(folder: str | Path, *, seed: int = 0, model: SonarModel | None = None) -> Scenario:
     """A scene from a folder like those :meth:`Scenario.write` makes, or made by hand.
 
     The folder holds ``truth.yaml`` (map_server), ``rig.yaml``, and ``readings.csv`` or
-    ``trajectory.csv`` (or both), optionally ``annotations.yaml``. With a trajectory and
-    ``noise`` given, readings are simulated from it with ``seed``; otherwise the
-    recorded ``readings.csv`` is used (simulated from the trajectory with the rig's
-    noise when there is none).
+    ``trajectory.csv`` (or both), optionally ``geometry.yaml`` (a finer plan for the
+    simulated sonar) and ``annotations.yaml``. With a trajectory and ``model`` given,
+    readings are simulated from it with ``seed`` (through ``geometry.yaml`` when there
+    is one, else the truth); otherwise the recorded ``readings.csv`` is used (simulated
+    with the acoustic model when there is none).
     """
     from .errors import InputError
     from .io.rosmap import read_map
@@ -661,10 +887,11 @@ def load_scene(folder: str | Path, *, seed: int = 0, noise: Noise | None = None)
     if not (has_traj or has_readings):
         raise InputError("scene folder needs readings.csv or trajectory.csv", path=d)
     traj = read_trajectory(d / "trajectory.csv") if has_traj else None
-    if traj is not None and (noise is not None or not has_readings):
-        nz = noise if noise is not None else rig.sensor.noise
-        rig = replace(rig, sensor=replace(rig.sensor, noise=nz))
-        readings = simulate(truth, rig, traj, noise=nz, seed=seed)
+    geometry = read_map(d / "geometry.yaml") if (d / "geometry.yaml").is_file() else None
+    if traj is not None and (model is not None or not has_readings):
+        used = AcousticModel() if model is None else model
+        world = truth if isinstance(used, Noise) or geometry is None else geometry
+        readings = simulate(world, rig, traj, model=used, seed=seed)
     else:
         readings = read_readings(d / "readings.csv", names=rig.names)
         traj = (
@@ -676,4 +903,14 @@ def load_scene(folder: str | Path, *, seed: int = 0, noise: Noise | None = None)
     obstacles: tuple[SmallObstacle, ...] = ()
     if (d / "annotations.yaml").is_file():
         passages, obstacles = load_annotations(d / "annotations.yaml")
-    return Scenario(d.name, truth, rig, traj, readings, passages, {"folder": str(d)}, obstacles)
+    return Scenario(
+        d.name,
+        truth,
+        rig,
+        traj,
+        readings,
+        passages,
+        {"folder": str(d)},
+        obstacles,
+        geometry=geometry,
+    )

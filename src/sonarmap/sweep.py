@@ -1,30 +1,36 @@
-"""Parameter sweeps over scenarios and seeds on Dask distributed.
+"""Parameter sweeps over training scenes on Dask distributed.
 
-A sweep file names scenarios (with their parameters and optional noise), seeds, and per
+A sweep file names scenarios (with their parameters and sonar model), seeds, and per
 method the values to try::
 
     scenarios:
       doorways: {}
       passages: {widths: [0.3, 0.5, 0.7]}
-      passages-noisy: {scenario: passages, noise: {p_rand: 0.05, sigma: 0.02}}
+      passages-noisy: {scenario: passages, model: {kind: acoustic, p_rand: 0.05}}
+      passages-paper: {scenario: passages, model: {kind: thrun, sigma: 0.01}}
     seeds: [0, 1]
-    search: grid            # or: random, with samples: N
-    metrics: [f1, width_error]
+    search: grid            # or: random, with samples: N (per method)
+    metrics: [quality, f1_all, passage_f1]
     methods:
       inverse:
         p_occ: [0.55, 0.6, 0.7]
         falloff_deg: [0, 15]
 
 A scenario entry is a label; its ``scenario`` key names the kind when the label is not a
-scenario name itself. Every (scenario, seed, method, parameters) is one task; tasks run
-on a Dask cluster (a LocalCluster by default, or an existing scheduler). Results: one row
-per task with every metric of :class:`~sonarmap.metrics.MapScore`; the summary ranks each
-method's parameter sets by each metric's mean over scenarios and seeds.
+scenario name itself; ``model`` is the sonar model of its readings (default the acoustic
+one; see :func:`sonarmap.scenarios.model_from_dict`). Sweeps tune, so they run on
+training scenes only: held-out families and seeds are refused (:mod:`sonarmap.splits`).
+Every (scenario, seed, method, parameters) is one task; tasks run on a Dask cluster (a
+LocalCluster by default, or an existing scheduler). Results: one row per task with every
+metric of :class:`~sonarmap.metrics.MapScore`; the summary ranks each method's parameter
+sets by each metric's mean over scenarios and seeds. Rank by ``quality`` (wall F1 and
+passage F1 together), which erasing walls cannot win.
 """
 
 from __future__ import annotations
 
 import itertools
+import json
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields
@@ -38,15 +44,23 @@ from .errors import ConfigError, InputError
 from .io._yaml import read_yaml
 from .mappers import MAPPERS, make_mapper
 from .metrics import MapScore, score
-from .scenarios import SCENARIOS, make_scenario
-from .sensors import Noise
+from .scenarios import SCENARIOS, Scenario, make_scenario, model_from_dict
+from .splits import check_training
 
 __all__ = ["SweepConfig", "Task", "load_sweep", "run_sweep", "run_task", "summarise"]
 
 Progress = Callable[[int, int], None]
 
 #: Metrics where smaller is better; for the others larger is better.
-LOWER_IS_BETTER = {"width_error", "size_error", "dist_to_truth", "dist_from_truth", "unknown"}
+LOWER_IS_BETTER = {
+    "width_error",
+    "size_error",
+    "dist_to_truth",
+    "dist_from_truth",
+    "unknown",
+    "false_openings",
+    "false_opening_width",
+}
 METRICS = tuple(f.name for f in fields(MapScore))
 
 
@@ -71,7 +85,9 @@ class SweepConfig:
     search: str = "grid"
     samples: int = 20
     random_seed: int = 0
-    metrics: list[str] = field(default_factory=lambda: ["f1"])
+    metrics: list[str] = field(default_factory=lambda: ["quality"])
+    #: Whether each method's current defaults are a candidate too (besides the samples).
+    include_defaults: bool = True
 
     def tasks(self) -> list[Task]:
         """Every task, in a fixed order."""
@@ -101,6 +117,8 @@ class SweepConfig:
             rng = np.random.default_rng(self.random_seed)
             pick = rng.choice(len(combos), self.samples, replace=False)
             combos = [combos[i] for i in sorted(pick.tolist())]
+        if self.include_defaults and {} not in combos:
+            combos.insert(0, {})
         return combos
 
 
@@ -117,7 +135,16 @@ def load_sweep(path: str | Path) -> SweepConfig:
 def _parse(data: Any) -> SweepConfig:
     if not isinstance(data, Mapping):
         raise ConfigError("expected a mapping with scenarios, seeds and methods")
-    known = {"scenarios", "seeds", "methods", "search", "samples", "random_seed", "metrics"}
+    known = {
+        "scenarios",
+        "seeds",
+        "methods",
+        "search",
+        "samples",
+        "random_seed",
+        "metrics",
+        "include_defaults",
+    }
     unknown = sorted(set(data) - known)
     if unknown:
         raise ConfigError(f"unknown key(s) {unknown}; valid: {', '.join(sorted(known))}")
@@ -138,10 +165,10 @@ def _parse(data: Any) -> SweepConfig:
                 f"scenarios.{name}: unknown scenario '{kind}'; valid: {', '.join(SCENARIOS)}"
             )
         params["scenario"] = kind
-        if "noise" in params:
-            n = params["noise"]
-            if not isinstance(n, Mapping) or set(n) - {"p_rand", "p_hit", "sigma"}:
-                raise ConfigError(f"scenarios.{name}.noise: expected p_rand, p_hit, sigma")
+        if "model" in params:
+            if not isinstance(params["model"], Mapping):
+                raise ConfigError(f"scenarios.{name}.model: expected a mapping with 'kind'")
+            model_from_dict(dict(params["model"]), f"scenarios.{name}.model")  # validates
         scenarios[str(name)] = params
     seeds = data.get("seeds", [0])
     if (
@@ -150,6 +177,9 @@ def _parse(data: Any) -> SweepConfig:
         or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
     ):
         raise ConfigError("'seeds' must be a non-empty list of integers >= 0")
+    for name, params in scenarios.items():
+        for seed in seeds:
+            check_training(params["scenario"], seed, where=f"scenarios.{name}")
     meth = data["methods"]
     if not isinstance(meth, Mapping) or not meth:
         raise ConfigError("'methods' must map method names to parameter lists")
@@ -177,25 +207,48 @@ def _parse(data: Any) -> SweepConfig:
     samples = data.get("samples", 20)
     if not isinstance(samples, int) or samples < 1:
         raise ConfigError(f"'samples' must be an integer >= 1, got {samples!r}")
-    metrics = data.get("metrics", ["f1"])
+    metrics = data.get("metrics", ["quality"])
     if isinstance(metrics, str):
         metrics = [metrics]
     bad = [m for m in metrics if m not in METRICS]
     if bad:
         raise ConfigError(f"unknown metric(s) {bad}; valid: {', '.join(METRICS)}")
+    include = data.get("include_defaults", True)
+    if not isinstance(include, bool):
+        raise ConfigError(f"'include_defaults' must be true or false, got {include!r}")
     return SweepConfig(
-        scenarios, seeds, methods, search, samples, int(data.get("random_seed", 0)), list(metrics)
+        scenarios,
+        seeds,
+        methods,
+        search,
+        samples,
+        int(data.get("random_seed", 0)),
+        list(metrics),
+        include,
     )
 
 
+#: Scenes built by this process, by their description: a worker maps each many times.
+_SCENES: dict[str, Scenario] = {}
+
+
+def _scene(kind: str, sparams: Mapping[str, Any], seed: int) -> Scenario:
+    key = json.dumps([kind, sparams, seed], sort_keys=True, default=str)
+    if key not in _SCENES:
+        if len(_SCENES) >= 16:
+            _SCENES.pop(next(iter(_SCENES)))
+        params = dict(sparams)
+        if "model" in params:
+            params["model"] = model_from_dict(dict(params["model"]))
+        _SCENES[key] = make_scenario(kind, seed=seed, **params)
+    return _SCENES[key]
+
+
 def run_task(task: Task) -> dict[str, Any]:
-    """Build one scenario and map and score it (runs on a Dask worker)."""
+    """Build (or reuse) one scenario, map it and score the map (runs on a Dask worker)."""
     sparams = dict(task.scenario_params)
     kind = sparams.pop("scenario")
-    noise = sparams.pop("noise", None)
-    if noise is not None:
-        sparams["noise"] = Noise(**{"p_rand": 0.0, "p_hit": 1.0, "sigma": 0.0, **noise})
-    scene = make_scenario(kind, seed=task.seed, **sparams)
+    scene = _scene(kind, sparams, task.seed)
     params = dict(task.params)
     t0 = time.perf_counter()
     mapper = make_mapper(task.method, **params)

@@ -242,7 +242,7 @@ def to_pixels(occupancy: npt.ArrayLike) -> npt.NDArray[np.uint8]:
     return px
 
 
-def write_map(m: OccupancyMap, stem: str | Path) -> tuple[Path, Path, Path]:
+def write_map(m: OccupancyMap, stem: str | Path, *, exact: bool = True) -> tuple[Path, ...]:
     """Write ``STEM.yaml``, ``STEM.pgm`` and ``STEM.npy`` atomically.
 
     The image holds the map's classes (:meth:`OccupancyMap.classes`); map_server, reading
@@ -254,11 +254,14 @@ def write_map(m: OccupancyMap, stem: str | Path) -> tuple[Path, Path, Path]:
         The map.
     stem : str or Path
         Output path without suffix.
+    exact : bool
+        Also write the float values (``.npy``); a floor plan, whose classes say all,
+        needs none.
 
     Returns
     -------
     tuple of Path
-        The three files written.
+        The files written.
     """
     yaml_path, pgm_path, npy_path = map_paths(stem)
     meta = {
@@ -272,9 +275,11 @@ def write_map(m: OccupancyMap, stem: str | Path) -> tuple[Path, Path, Path]:
         "free_thresh": 0.196,
     }
     pixels = to_pixels(m.occupancy)
-    with atomic_outputs(yaml_path, pgm_path, npy_path) as (ty, tp, tn):
-        ty.write_text(yaml.safe_dump(meta, sort_keys=False))
-        Image.fromarray(pixels).save(tp, format="PPM")
-        with tn.open("wb") as f:
-            np.save(f, m.occupancy.astype(np.float32), allow_pickle=False)
-    return yaml_path, pgm_path, npy_path
+    paths = (yaml_path, pgm_path, npy_path) if exact else (yaml_path, pgm_path)
+    with atomic_outputs(*paths) as temps:
+        temps[0].write_text(yaml.safe_dump(meta, sort_keys=False))
+        Image.fromarray(pixels).save(temps[1], format="PPM")
+        if exact:
+            with temps[2].open("wb") as f:
+                np.save(f, m.occupancy.astype(np.float32), allow_pickle=False)
+    return paths

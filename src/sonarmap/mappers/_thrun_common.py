@@ -11,12 +11,12 @@ from ._thrun import BeamIndex, build_index
 
 
 def model_sigma(mapper: Mapper, sigma: float | None) -> float:
-    """The model's range noise: given, or the sensor's, at least half a cell and the
-    range resolution (a Gaussian narrower than a cell cannot be told apart on the grid)."""
+    """The model's range noise: given, or half a cell or the sensor's range resolution,
+    whichever is larger (a Gaussian narrower than a cell cannot be told apart on the
+    grid). Never the noise a simulation used: that is not the mapper's to know."""
     if sigma is not None:
         return sigma
-    s = mapper.sensor
-    return max(mapper.grid.resolution / 2, s.range_resolution, s.noise.sigma)
+    return max(mapper.grid.resolution / 2, mapper.sensor.range_resolution)
 
 
 def index_readings(mapper: Mapper, readings: Readings, sigma: float) -> BeamIndex:

@@ -172,8 +172,8 @@ class EMMapper(Mapper):
     p_hit : float
         Reflection probability of an occupied cell, in (0, 1) (0.75, thesis 000).
     sigma : float or None
-        Range noise of the model, metres; default the sensor's, at least half a cell and
-        the range resolution.
+        Range noise of the model, metres; None: half a cell or the sensor's range
+        resolution, whichever is larger.
     init : {"inverse", "uniform"}
         Starting map: the inverse mapper's map binarised (occupied cells at 0.9, the rest
         at 0.01) or every touched cell at ``init_value``.

@@ -88,8 +88,8 @@ class InverseMapper(Mapper):
         A reading with no echo clears its beam up to ``r_max - dr`` (``free``) or is
         skipped (``ignore``).
     dr : float or None
-        Half-width of the Omega_occ band, metres; None uses the rasteriser default
-        ``max(resolution, range resolution)``.
+        Half-width of the Omega_occ band, metres; None uses the rasteriser's default
+        ``max(resolution / 2, range resolution)`` (:func:`sonarmap.raster.default_dr`).
     """
 
     name = "inverse"

@@ -186,8 +186,8 @@ class StochasticMapper(Mapper):
         Weights of the occupied-cell count and of the border term (<= 0 favours free
         space and compact obstacles).
     sigma : float or None
-        Range noise of the model, metres; default the sensor's, at least half a cell and
-        the range resolution.
+        Range noise of the model, metres; None: half a cell or the sensor's range
+        resolution, whichever is larger.
     neighbours : {4, 8}
         Neighbourhood of the border term.
     sweeps : float
