@@ -46,7 +46,11 @@ def test_doorways_experiment_outputs(doorways_report: Path) -> None:
     assert html.count("<img ") == 1
     assert "data:image/png;base64," in html
     assert "tuned inverse" in html
-    assert '"seed": 0' in unescape(html)
+    assert "held-out &#x27;corridor&#x27; scenes, seeds 1000 to 1000" in html
+    assert '"seed": 1000' in unescape(html)
+    assert all(r["seed"] == 1000 for r in rows)
+    summary = json.loads((d / "summary.json").read_text())
+    assert [r["method"] for r in summary] == [m.label for m in METHODS]
 
 
 def test_compare_agrees_with_the_experiment(
@@ -54,24 +58,24 @@ def test_compare_agrees_with_the_experiment(
 ) -> None:
     from sonarmap.scenarios import make_scenario
 
-    make_scenario("doorways").write(tmp_path / "scene")
+    scene = make_scenario("corridor", seed=1000)
+    scene.write(tmp_path / "a-scene-folder-with-a-name-long-enough-to-wrap-a-terminal-title")
+    truth = tmp_path / "a-scene-folder-with-a-name-long-enough-to-wrap-a-terminal-title"
     maps = sorted((doorways_report / "maps").glob("*.yaml"))
     code, out, err = run(
-        [
-            "compare",
-            str(tmp_path / "scene" / "truth.yaml"),
-            *map(str, maps),
-            "--json",
-            str(tmp_path / "cmp.json"),
-        ],
+        ["compare", str(truth / "truth.yaml"), *map(str, maps), "--json", str(tmp_path / "c.json")],
         capsys,
     )
     assert code == 0, err
-    assert "4 passages" in out
-    got = {Path(r["map"]).stem: r for r in json.loads((tmp_path / "cmp.json").read_text())}
+    assert f"{len(scene.passages)} passages, 0 small obstacles" in out
+    got = {Path(r["map"]).stem: r for r in json.loads((tmp_path / "c.json").read_text())}
     for r in json.loads((doorways_report / "metrics.json").read_text()):
-        assert got[r["method"]]["f1"] == pytest.approx(r["f1"])
-        assert got[r["method"]]["passages_open"] == r["passages_open"]
+        g = got[r["method"]]
+        assert g["passages"] == len(scene.passages)
+        for key in ("f1", "f1_all", "passage_f1", "width_error"):
+            assert g[key] == pytest.approx(r[key], nan_ok=True)
+        for key in ("passages_open", "passages_detected", "false_openings"):
+            assert g[key] == r[key]
 
 
 @pytest.mark.parametrize("name", [n for n in EXPERIMENTS if n not in ("doorways", "real")])
@@ -84,8 +88,10 @@ def test_other_experiments_quick(name: str, tmp_path: Path) -> None:
     if name == "passages":
         summary = json.loads((tmp_path / "summary.json").read_text())
         by = {r["method"]: r for r in summary}
-        assert by["inverse"]["ratio_vs_tuned_inverse"] == pytest.approx(1.0)
-        assert by["stochastic"]["narrowest_mean"] < by["inverse"]["narrowest_mean"]
+        assert set(by) == {m.label for m in METHODS}
+        assert all(r["passages"] == 5 for r in summary)  # one quick scene of five gaps
+        per = json.loads((tmp_path / "passages.json").read_text())
+        assert {r["seed"] for r in per} == {1000}
 
 
 def test_unknown_experiment(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
@@ -128,6 +134,18 @@ def test_sweep_file_errors(tmp_path: Path) -> None:
             r"unknown metric\(s\) \['speed'\]",
         ),
         ("methods: {inverse: {}}\n", r"missing key 'scenarios'"),
+        (
+            "scenarios: {gaps: {}}\nmethods: {inverse: {}}\n",
+            r"scenarios.gaps: scene family 'gaps' is held out for testing",
+        ),
+        (
+            "scenarios: {doorways: {}}\nseeds: [0, 1000]\nmethods: {inverse: {}}\n",
+            r"scenarios.doorways: seed 1000 is held out for testing",
+        ),
+        (
+            "scenarios: {d: {scenario: doorways, model: {kind: sonic}}}\nmethods: {inverse: {}}\n",
+            r"scenarios.d.model: kind must be acoustic or thrun",
+        ),
     ]
     for text, match in cases:
         (tmp_path / "s.yaml").write_text(text)
@@ -144,7 +162,8 @@ def test_sweep_on_a_local_cluster_via_cli(
     )
     assert code == 0, err
     df = pd.read_parquet(tmp_path / "res" / "results.parquet")
-    assert len(df) == 3
+    # inverse: its defaults and two settings; counting: its defaults.
+    assert len(df) == 4
     assert set(df["method"]) == {"inverse", "counting"}
     best = pd.read_csv(tmp_path / "res" / "best.csv")
     assert set(best["metric"]) == {"f1", "width_error"}
@@ -160,7 +179,7 @@ def test_sweep_on_a_scheduler_address(tmp_path: Path) -> None:
         n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None
     ) as cluster:
         df = run_sweep(cfg, scheduler=cluster.scheduler_address)
-    assert len(df) == 3
+    assert len(df) == 4
     best = summarise(df, ["f1"])
     inverse = df[df["method"] == "inverse"]
     top = inverse.sort_values("f1", kind="stable").iloc[-1]["params"]

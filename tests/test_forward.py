@@ -12,13 +12,21 @@ from sonarmap.mappers.em import EMMapper
 from sonarmap.mappers.gradient import GradientMapper
 from sonarmap.mappers.stochastic import StochasticMapper
 from sonarmap.readings import Readings
-from sonarmap.scenarios import Scenario, make_scenario
+from sonarmap.scenarios import PAPER_NOISE, Scenario, make_scenario
 
 
 @pytest.fixture(scope="module")
 def small() -> Scenario:
-    """A short corridor: few readings, fast to solve every way."""
-    return make_scenario("doorways", size=4.0, corridor_width=1.6, door_widths=(0.8,), speed=0.5)
+    """A short corridor: few readings, fast to solve every way. Read exactly, with the
+    papers' model: these tests check the solvers, not how good a method's maps are."""
+    return make_scenario(
+        "doorways",
+        size=4.0,
+        corridor_width=1.6,
+        door_widths=(0.8,),
+        speed=0.5,
+        model=PAPER_NOISE["doorways"],
+    )
 
 
 def problem(scene: Scenario) -> ForwardProblem:
@@ -180,3 +188,95 @@ def test_ignored_no_echo_readings_leave_the_map_unknown(small: Scenario, method:
     a = make_mapper(method, no_echo="ignore").fit(mixed, small.truth.grid, small.rig)
     b = make_mapper(method, no_echo="ignore").fit(r, small.truth.grid, small.rig)
     np.testing.assert_allclose(a.occupancy_, b.occupancy_, equal_nan=True)
+
+
+def test_p_free_and_p_occ_at_known_values() -> None:
+    # One free and one occupied term with X0 = 0.25 and the documents' a1 = 0.05,
+    # a2 = 0.01, computed by hand from methods.md section 2:
+    #   b1 = (1 - a1 X0) / (1 - X0) = 1.316667,  b2 = (1 - a2 + a2 X0) / X0 = 3.97.
+    import scipy.sparse as sp
+
+    from sonarmap.mappers._forward import Penalties
+
+    W = sp.csr_matrix(np.eye(2))
+    p = ForwardProblem(
+        W,
+        W.T.tocsr(),
+        np.full(2, 0.25),
+        np.array([False, True]),
+        np.arange(2),
+        Penalties(0.05, 0.01, 5.0, 1.0),
+    )
+    X = np.array([0.1, 0.25, 0.5, 1.0])
+    free = [p.term_values(np.array([x, 0.0]))[0] for x in X]
+    occ = [p.term_values(np.array([0.0, x]))[1] for x in X]
+    np.testing.assert_allclose(free, [0.005, 0.0125, 0.0125 + 1.316667 * 0.25, 1.0], rtol=1e-6)
+    np.testing.assert_allclose(occ, [1 - 0.397, 0.0075, 0.005, 0.0], atol=1e-9)
+    # Swapping a1 and a2 changes both pieces: the values above would not hold.
+    q = ForwardProblem(p.W, p.WT, p.X0, p.is_occ, p.cells, Penalties(0.01, 0.05, 5.0, 1.0))
+    assert q.term_values(np.array([0.1, 0.0]))[0] != pytest.approx(0.005)
+    assert q.term_values(np.array([0.0, 0.5]))[1] != pytest.approx(0.005)
+
+
+def test_stochastic_incremental_score_matches_a_full_recomputation(small: Scenario) -> None:
+    from sonarmap.mappers._thrun import apply_flip, flip_delta, init_state
+
+    m = StochasticMapper(sweeps=5.0).fit(small.readings, small.truth.grid, small.rig)
+    ix = m._index
+    assert ix is not None
+    assert m._occ is not None
+    occ = m._occ >= 0.5
+    v = m.values()
+    sigma = max(small.truth.grid.resolution / 2, small.rig.sensor.range_resolution)
+    args = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)
+    consts = (v["p_rand"], v["p_hit"], sigma, small.rig.sensor.r_max)
+    _, _, ll = init_state(occ, *args, *consts)
+    # The log-likelihood the search kept up flip by flip is the map's, recomputed.
+    assert m.loglik_ == pytest.approx(float(ll.sum()), rel=1e-9, abs=1e-6)
+    # And each flip's predicted change is the change a recomputation sees.
+    rng = np.random.default_rng(0)
+    n_before, bsum, loglik = init_state(occ, *args, *consts)
+    deg = int(np.max(np.diff(ix.cell_off)))
+    new_ll, new_bsum = np.empty(deg), np.empty(deg)
+    for c in rng.choice(ix.n_cells, 40, replace=False):
+        before = float(loglik.sum())
+        d = flip_delta(
+            int(c), occ, n_before, bsum, loglik, new_ll, new_bsum, ix.cell_off,
+            ix.cell_reading, ix.cell_kind, ix.band_off, ix.band_cell, ix.band_dist, ix.z,
+            *consts,
+        )  # fmt: skip
+        apply_flip(
+            int(c), occ, n_before, bsum, loglik, new_ll, new_bsum, ix.cell_off,
+            ix.cell_reading, ix.cell_kind,
+        )  # fmt: skip
+        _, _, fresh = init_state(occ, *args, *consts)
+        assert float(fresh.sum()) - before == pytest.approx(d, abs=1e-7)
+        np.testing.assert_allclose(loglik, fresh, atol=1e-9)
+
+
+def test_stochastic_border_change_matches_a_recomputation() -> None:
+    from sonarmap.mappers.stochastic import _border_delta
+
+    def borders(full: np.ndarray, eight: bool) -> int:
+        g = np.pad(full, 1, constant_values=False)
+        pad = np.pad(np.ones_like(full), 1, constant_values=False)
+        n = np.zeros(full.shape, dtype=np.int64)
+        steps = [(-1, 0), (1, 0), (0, -1), (0, 1)]
+        if eight:
+            steps += [(-1, -1), (-1, 1), (1, -1), (1, 1)]
+        rows, cols = full.shape
+        for dr, dc in steps:
+            nb = g[1 + dr : 1 + dr + rows, 1 + dc : 1 + dc + cols]
+            inside = pad[1 + dr : 1 + dr + rows, 1 + dc : 1 + dc + cols]
+            n += (inside & (nb != full)).astype(np.int64)
+        return int((n**2).sum())
+
+    rng = np.random.default_rng(3)
+    full = rng.random((7, 9)) < 0.4
+    for eight in (False, True):
+        for g in rng.choice(full.size, 25, replace=False):
+            flat = full.ravel().copy()
+            d = _border_delta(int(g), flat, 7, 9, eight)
+            after = flat.copy()
+            after[g] = not after[g]
+            assert d == borders(after.reshape(7, 9), eight) - borders(full, eight)

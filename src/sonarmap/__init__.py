@@ -5,12 +5,22 @@ The main entry points::
     from sonarmap import make_scenario, build_map, read_map, write_map, score
 """
 
+from .acoustics import AcousticModel
 from .api import build_map, grid_for_readings
-from .errors import ConfigError, InputError, SonarmapError
+from .errors import ConfigError, InputError, OutputError, SonarmapError
+from .floorplan import FloorPlan
 from .grid import Grid
-from .io.rosmap import OccupancyMap, read_map, write_map
+from .io.rosmap import OccupancyMap, classify, read_map, write_map
 from .mappers import MAPPERS, Mapper, make_mapper
-from .metrics import MapScore, measure_obstacle, measure_passage, passage_open, score
+from .metrics import (
+    FalseOpening,
+    MapScore,
+    false_openings,
+    measure_obstacle,
+    measure_passage,
+    passage_open,
+    score,
+)
 from .raster import CellSet, Footprint, beam_cells, rasterise
 from .readings import (
     Readings,
@@ -31,15 +41,18 @@ from .scenarios import (
     make_scenario,
 )
 from .sensors import Noise, Region, SensorModel, get_sensor, load_sensor
-from .simulate import PoseNoise, simulate
+from .simulate import PoseNoise, make_model, simulate
 
 __version__ = "0.1.0"
 
 __all__ = [
     "MAPPERS",
     "SCENARIOS",
+    "AcousticModel",
     "CellSet",
     "ConfigError",
+    "FalseOpening",
+    "FloorPlan",
     "Footprint",
     "Grid",
     "InputError",
@@ -48,6 +61,7 @@ __all__ = [
     "Mount",
     "Noise",
     "OccupancyMap",
+    "OutputError",
     "Passage",
     "PoseNoise",
     "Readings",
@@ -61,6 +75,8 @@ __all__ = [
     "__version__",
     "beam_cells",
     "build_map",
+    "classify",
+    "false_openings",
     "get_rig",
     "get_sensor",
     "grid_for_readings",
@@ -69,6 +85,7 @@ __all__ = [
     "load_rig",
     "load_sensor",
     "make_mapper",
+    "make_model",
     "make_scenario",
     "measure_obstacle",
     "measure_passage",

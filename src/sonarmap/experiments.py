@@ -67,9 +67,14 @@ class MethodSpec:
     params: dict[str, Any] = field(default_factory=dict)
 
 
-#: Laser-style log-odds (OctoMap's increments, no fall-off) on the same band as every
-#: other method: the kind of baseline the research compared against.
-TRADITIONAL_INVERSE: dict[str, Any] = {"p_occ": 0.7, "p_free": 0.4, "falloff_deg": 0.0}
+#: Laser-style log-odds (OctoMap's increments, no fall-off, no-echo beams cleared) on the
+#: tuned inverse's band: the kind of baseline the research compared against.
+TRADITIONAL_INVERSE: dict[str, Any] = {
+    "p_occ": 0.7,
+    "p_free": 0.4,
+    "falloff_deg": 0.0,
+    "no_echo": "free",
+}
 
 METHODS: tuple[MethodSpec, ...] = (
     MethodSpec("inverse-traditional", "inverse", TRADITIONAL_INVERSE),
@@ -78,9 +83,9 @@ METHODS: tuple[MethodSpec, ...] = (
     MethodSpec("gradient", "gradient"),
     MethodSpec("stochastic", "stochastic"),
     MethodSpec("em", "em"),
-    # EM's default start is the inverse map; from the neutral start (every cell at 0.5)
-    # for comparison.
-    MethodSpec("em-neutral", "em", {"init": "uniform"}),
+    # EM starts from the neutral map (every cell at 0.5) by default; from the inverse
+    # map, as sonarmap's EM did before tuning, for comparison.
+    MethodSpec("em-inverse-start", "em", {"init": "inverse"}),
 )
 
 #: A passage width counts as reliably detected when it, and every wider one, is
@@ -572,7 +577,7 @@ def _noise(run: _Run, quick: bool, seed: int | None, progress: Progress | None) 
         }
     )
     methods = (
-        [m for m in METHODS if m.label not in ("counting", "em-neutral")]
+        [m for m in METHODS if m.label not in ("counting", "em-inverse-start")]
         if quick
         else list(METHODS)
     )

@@ -3,6 +3,10 @@
 Per cell, ``C`` counts the readings whose beam covers it and ``O`` sums their votes,
 +1 from Omega_occ and -1 from Omega_free; the occupancy is ``(O + C) / (2 C)``, the
 fraction of votes that said "occupied".
+
+Defaults (no-echo readings ignored, a 2.5 cm band): the highest mean quality of its 12
+settings in ``sonarmap sweep sweeps/tune.yaml``, on the training scenes every method was
+tuned on.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ class CountingMapper(Mapper):
     _hits: npt.NDArray[np.int64]
     _seen: npt.NDArray[np.int64]
 
-    def __init__(self, *, no_echo: str = "free", dr: float | None = None) -> None:
+    def __init__(self, *, no_echo: str = "ignore", dr: float | None = 0.025) -> None:
         self.no_echo = no_echo
         self.dr = dr
         _checks.choice("no_echo", no_echo, ("free", "ignore"))

@@ -165,18 +165,24 @@ def _posterior(
 class EMMapper(Mapper):
     """Maximum-likelihood map by EM over the correspondences of Thrun's sonar model.
 
+    Defaults (p_rand 0.1, p_hit 0.75, sigma 0.03, the neutral start) had the highest
+    mean quality (wall F1 and passage F1 together) in ``sonarmap sweep
+    sweeps/tune.yaml``: the defaults before and 60 settings of p_rand, p_hit, sigma,
+    start and prior, on the ten training scenes every method was tuned on (0.410
+    against 0.336 for the previous defaults, which started from the inverse map).
+
     Parameters
     ----------
     p_rand : float
-        Outlier probability, in [0, 1) (0.05, thesis 000).
+        Outlier probability, in [0, 1) (0.1; thesis 000 used 0.05).
     p_hit : float
         Reflection probability of an occupied cell, in (0, 1) (0.75, thesis 000).
     sigma : float or None
-        Range noise of the model, metres; None: half a cell or the sensor's range
+        Range noise of the model, metres (0.03); None: half a cell or the sensor's range
         resolution, whichever is larger.
     init : {"inverse", "uniform"}
-        Starting map: the inverse mapper's map binarised (occupied cells at 0.9, the rest
-        at 0.01) or every touched cell at ``init_value``.
+        Starting map: every touched cell at ``init_value`` (the neutral start, default)
+        or the inverse mapper's map binarised (occupied cells at 0.9, the rest at 0.01).
     init_value : float
         Starting occupancy for ``init="uniform"``, in (0, 1].
     max_iter : int
@@ -202,10 +208,10 @@ class EMMapper(Mapper):
     def __init__(
         self,
         *,
-        p_rand: float = 0.05,
+        p_rand: float = 0.1,
         p_hit: float = 0.75,
-        sigma: float | None = None,
-        init: str = "inverse",
+        sigma: float | None = 0.03,
+        init: str = "uniform",
         init_value: float = 0.5,
         max_iter: int = 100,
         tol: float = 1e-3,
