@@ -23,6 +23,7 @@ A *false opening* is a see-through gap in a wall where the truth has wall
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -401,14 +402,20 @@ def _crossed(mcls: npt.NDArray[np.int8], p: Passage, along: F, across: F, h: flo
 
 
 def _recovered_width(m: OccupancyMap, mcls: npt.NDArray[np.int8], p: Passage) -> float:
-    """The narrowest gap bounded by occupied cells on lines along the opening.
+    """The width of the gap in the map's wall (thesis 002, fig. 4.10).
 
-    Lines parallel to the opening are laid through the obstacle, one per cell across its
-    depth plus one cell either side (thesis 002, fig. 4.10). On each line, from the cell
-    nearest the passage centre, the run of non-occupied cells is followed both ways up
-    to 2 m past the jambs; a line whose run ends at occupied cells on both sides gives
-    that run's length (0 when the centre cell is occupied). Unknown cells do not bound a
-    gap: a sonar that sees an opening from one side only leaves the space behind unknown.
+    Lines parallel to the opening are laid through the obstacle, one per cell across
+    its depth plus one cell either side. A line *holds the wall* when it has at least
+    half as many occupied cells within :data:`JAMB_LENGTH` beyond both jambs (the weaker
+    side counts) as the line that has most; a line in front of the wall, in the free
+    space, does not, so a stray cell there does not narrow the gap. On each line that
+    holds the wall, runs of non-occupied cells bounded by occupied cells on both sides,
+    within 2 m of the opening, are gaps, and the one overlapping the true opening most
+    is the line's (0 when none does). The recovered width is the narrowest of those:
+    where the wall is several cells thick, the passage is as wide as its narrowest
+    section. NaN when no line holds a wall on both sides. Unknown cells do not bound a
+    gap: a sonar that sees an opening from one side only leaves the space behind it
+    unknown.
     """
     h = m.grid.resolution
     mx, my, ux, uy = _axes(p)
@@ -417,27 +424,42 @@ def _recovered_width(m: OccupancyMap, mcls: npt.NDArray[np.int8], p: Passage) ->
     steps = math.ceil(reach / h)
     # A quarter-cell shift keeps samples off cell boundaries (where the gap's centre or
     # the obstacle's mid-line may lie), where rounding would pick either side.
-    offsets = np.arange(-steps, steps + 1) * h + h / 4
+    offsets = np.arange(-steps, steps + 1, dtype=np.float64) * h + h / 4
+    beyond = np.abs(offsets) - p.width / 2
+    jamb = (beyond > 0) & (beyond <= max(JAMB_LENGTH, 3 * h))
     n_across = math.ceil((p.depth / 2) / h) + 1
-    best = math.inf
+    lines: list[tuple[int, npt.NDArray[np.bool_]]] = []
     for k in range(-n_across - 1, n_across + 1):
-        cx, cy = mx + (k + 0.25) * h * nx, my + (k + 0.25) * h * ny
-        rows, cols = m.grid.world_to_cell(cx + offsets * ux, cy + offsets * uy)
+        shift = (k + 0.25) * h
+        rows, cols = m.grid.world_to_cell(
+            mx + shift * nx + offsets * ux, my + shift * ny + offsets * uy
+        )
         inside = m.grid.contains(rows, cols)
         is_occ = np.zeros(len(offsets), dtype=np.bool_)
         is_occ[inside] = mcls[rows[inside], cols[inside]] == OCCUPIED
-        c = steps
-        if is_occ[c]:
-            gap = 0.0
-        else:
-            walls = np.flatnonzero(is_occ)
-            left = walls[walls < c]
-            right = walls[walls > c]
-            if len(left) == 0 or len(right) == 0:
-                continue  # not bounded on both sides
-            gap = float(right[0] - left[-1] - 1) * h
-        best = min(best, gap)
-    return best if math.isfinite(best) else math.nan
+        left = int(np.sum(is_occ & jamb & (offsets < 0)))
+        right = int(np.sum(is_occ & jamb & (offsets > 0)))
+        lines.append((min(left, right), is_occ))
+    most = max(held for held, _ in lines)
+    if most == 0:
+        return math.nan
+    widths = [
+        _gap_on_line(is_occ, offsets, p.width, h) for held, is_occ in lines if 2 * held >= most
+    ]
+    return min(widths)
+
+
+def _gap_on_line(is_occ: npt.NDArray[np.bool_], offsets: F, width: float, h: float) -> float:
+    """Length of the bounded non-occupied run overlapping [-width/2, width/2] most."""
+    walls = np.flatnonzero(is_occ)
+    best, overlap = 0.0, 0.0
+    for a, b in itertools.pairwise(walls):
+        if b - a < 2:
+            continue
+        o = min(offsets[b - 1] + h / 2, width / 2) - max(offsets[a + 1] - h / 2, -width / 2)
+        if o > overlap:
+            overlap, best = o, float(b - a - 1) * h
+    return best
 
 
 # -- false openings ---------------------------------------------------------------------

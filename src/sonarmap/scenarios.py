@@ -79,7 +79,9 @@ PAPER_NOISE: dict[str, Noise] = {
 }
 
 #: Widths of the held-out ``gaps`` scenes (metres), shuffled per seed.
-GAP_WIDTHS = (0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8)
+GAP_WIDTHS = (
+    0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8, 0.9, 1.0, 1.2,
+)  # fmt: skip
 
 #: Cell size (metres) of the geometry the acoustic sonar sees.
 GEOMETRY_CELL = 0.01
@@ -507,13 +509,13 @@ def gaps(
 ) -> Scenario:
     """A held-out passages scene drawn from its seed.
 
-    A wall 6 to 14 cm thick runs beside the robot's path, 0.8 to 1.3 m to its left, with
-    gaps of ``widths`` m (0.15 to 0.8 in 5 cm steps) **in shuffled order** between
-    blocks 0.4 to 0.9 m long; every coordinate is continuous, so walls and gaps fall
-    anywhere relative to the cells. Behind the wall a room 1.5 to 2.5 m deep; to the
-    right, a wall 0.8 to 1.3 m away with ``posts`` posts of 0.1 to 0.3 m standing off
-    it. The ``paper-synthetic`` rig drives past at 0.2 to 0.3 m/s, weaving up to 5 cm
-    either side, firing at ``rate`` Hz.
+    A wall 6 to 14 cm thick runs beside the robot's path, 0.8 to 1.3 m to one side,
+    with gaps of ``widths`` m (0.15 to 0.8 in 5 cm steps, 0.9, 1.0 and 1.2) **in
+    shuffled order** between blocks 0.4 to 0.9 m long; every coordinate is continuous,
+    so walls and gaps fall anywhere relative to the cells. Behind the wall a room 1.5 to
+    2.5 m deep; on the other side, a wall 0.8 to 1.3 m away with ``posts`` posts of 0.1
+    to 0.3 m standing off it. The ``paper-synthetic`` rig drives past at 0.2 to 0.3
+    m/s, weaving up to 5 cm either side, firing at ``rate`` Hz.
     """
     _check_positive(resolution=resolution, rate=rate)
     if not widths or any(not (0 < w <= 2.0) for w in widths):
