@@ -11,6 +11,7 @@ import dataclasses
 import inspect
 import io
 import sys
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import Enum
@@ -61,7 +62,11 @@ MethodName = Enum("MethodName", {n: n for n in sorted(MAPPERS)}, type=str)  # ty
 
 @contextmanager
 def _progress(label: str) -> Iterator[Callable[[int, int], None]]:
-    """A rich progress bar (on stderr, hidden when not a terminal) as a callback."""
+    """A rich progress bar as a callback; when stderr is not a terminal (a log, CI), a
+    plain line every 10 % or 30 s instead."""
+    if not err_console.is_terminal:
+        yield _progress_lines(label)
+        return
     bar = Progress(
         TextColumn(label),
         BarColumn(),
@@ -78,6 +83,21 @@ def _progress(label: str) -> Iterator[Callable[[int, int], None]]:
 
     with bar:
         yield update
+
+
+def _progress_lines(label: str) -> Callable[[int, int], None]:
+    start = time.monotonic()
+    last = {"t": start, "step": -1}
+
+    def update(done: int, total: int) -> None:
+        now = time.monotonic()
+        step = int(10 * done / total) if total else -1
+        if step > last["step"] or now - last["t"] >= 30.0:
+            last["t"], last["step"] = now, step
+            share = f"{done}/{total} ({100 * done / total:.0f} %)" if total else f"{done}"
+            print(f"{label}: {share}, {now - start:.0f} s", file=sys.stderr, flush=True)
+
+    return update
 
 
 def _pairs(items: list[str] | None, option: str) -> dict[str, str]:
@@ -730,7 +750,6 @@ def convert_cmd(
     ] = None,
 ) -> None:
     """Convert a recorded log into a readings CSV and the rig that describes its sensors."""
-    import time
 
     from .io.carmen import ConvertSummary, iter_carmen_readings
     from .io.rosbag import BagSummary, read_bag
