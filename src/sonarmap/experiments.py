@@ -116,10 +116,15 @@ class _Run:
     rig: Path | None = None
     resolution: float = 0.1
 
-    def make(self, kind: str, seed: int, **defaults: Any) -> Scenario:
-        """The experiment's scene: the user's folder, or the built-in one."""
+    def make(self, kind: str, seed: int, *, resimulate: bool = False, **defaults: Any) -> Scenario:
+        """The experiment's scene: the user's folder, or the built-in one. With
+        ``resimulate``, a folder's readings are simulated anew from its trajectory (with
+        the run's sonar model, or the acoustic one) when it has a trajectory."""
         if self.scene is not None:
-            return load_scene(self.scene, seed=seed, model=self.model)
+            model = self.model
+            if model is None and resimulate and (self.scene / "trajectory.csv").is_file():
+                model = AcousticModel()
+            return load_scene(self.scene, seed=seed, model=model)
         params = {**defaults, **self.scene_params}
         if self.model is not None:
             params["model"] = self.model
@@ -386,9 +391,12 @@ def _passages(run: _Run, quick: bool, seed: int | None, progress: Progress | Non
         scenes = [make_scenario("passages", seed=sd, model=model, **params) for sd in seeds]
     else:
         first = seed if seed is not None else (0 if run.scene is not None else HELD_OUT_SEED)
-        seeds = run.seeds(first, 10, quick)
+        recorded = run.scene is not None and not (run.scene / "trajectory.csv").is_file()
+        seeds = [first] if recorded else run.seeds(first, 10, quick)
         kwargs: dict[str, Any] = {"widths": (0.15, 0.3, 0.45, 0.6, 0.8)} if quick else {}
-        scenes = [run.make(family, sd, **({} if run.scene else kwargs)) for sd in seeds]
+        if run.scene is not None:
+            kwargs = {"resimulate": True}
+        scenes = [run.make(family, sd, **kwargs) for sd in seeds]
     run.params.update({"seeds": seeds, "scenarios": [s.params for s in scenes]})
     run.report.text(
         "Gaps of different widths in a thin wall beside the robot's path (thesis 002, "

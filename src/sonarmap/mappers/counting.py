@@ -4,9 +4,9 @@ Per cell, ``C`` counts the readings whose beam covers it and ``O`` sums their vo
 +1 from Omega_occ and -1 from Omega_free; the occupancy is ``(O + C) / (2 C)``, the
 fraction of votes that said "occupied".
 
-Defaults (no-echo readings ignored, a 2.5 cm band): the highest mean quality of its 12
-settings in ``sonarmap sweep sweeps/tune.yaml``, on the training scenes every method was
-tuned on.
+Defaults (no-echo readings ignored, a 2.5 cm band): the highest mean quality (0.220) of
+its 12 settings in ``sonarmap sweep sweeps/tune.yaml``, on the training scenes every
+method was tuned on.
 """
 
 from __future__ import annotations
