@@ -112,7 +112,7 @@ scenarios:
 seeds: [0]
 metrics: [f1, width_error]
 methods:
-  inverse: {p_occ: [0.51, 0.6]}
+  inverse: {p_occ: [0.52, 0.6]}
   counting: {}
 """
 

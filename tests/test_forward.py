@@ -106,9 +106,9 @@ def test_stochastic_is_deterministic_with_a_seed(small: Scenario) -> None:
 def test_stochastic_presets() -> None:
     assert StochasticMapper().values() == {
         "p_rand": 0.05,
-        "p_hit": 0.9,
-        "w_occ": -0.05,
-        "w_border": -0.02,
+        "p_hit": 0.3,
+        "w_occ": 0.0,
+        "w_border": -0.005,
     }
     assert StochasticMapper(preset="thesis000").values() == {
         "p_rand": 0.05,
@@ -127,7 +127,14 @@ def test_no_echo_readings_only_clear(small: Scenario) -> None:
     )
     for method in ("gradient", "stochastic", "em"):
         occ = make_mapper(method).fit(far, small.truth.grid, small.rig).occupancy_
-        assert np.nanmax(occ) < 0.5, method
+        assert not np.any(occ > 0.5), method  # no obstacle from readings that saw none
+        if method != "em":
+            assert np.nanmax(occ) < 0.5, method
+    # EM from the neutral start blames beams that long on its random component (a fixed
+    # point it never leaves), so the cells stay at even odds: unknown. From the inverse
+    # map it clears them.
+    occ = make_mapper("em", init="inverse").fit(far, small.truth.grid, small.rig).occupancy_
+    assert np.nanmax(occ) < 0.5
 
 
 @pytest.mark.parametrize(
@@ -220,6 +227,7 @@ def test_p_free_and_p_occ_at_known_values() -> None:
 
 def test_stochastic_incremental_score_matches_a_full_recomputation(small: Scenario) -> None:
     from sonarmap.mappers._thrun import apply_flip, flip_delta, init_state
+    from sonarmap.mappers._thrun_common import model_sigma
 
     m = StochasticMapper(sweeps=5.0).fit(small.readings, small.truth.grid, small.rig)
     ix = m._index
@@ -227,7 +235,7 @@ def test_stochastic_incremental_score_matches_a_full_recomputation(small: Scenar
     assert m._occ is not None
     occ = m._occ >= 0.5
     v = m.values()
-    sigma = max(small.truth.grid.resolution / 2, small.rig.sensor.range_resolution)
+    sigma = model_sigma(m, m.sigma)
     args = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)
     consts = (v["p_rand"], v["p_hit"], sigma, small.rig.sensor.r_max)
     _, _, ll = init_state(occ, *args, *consts)

@@ -61,9 +61,14 @@ def test_contract(method: str, doorways: Scenario) -> None:
         np.testing.assert_array_equal(np.isnan(got), np.isnan(occ))
         agree, n = agreement(OccupancyMap(grid, got), OccupancyMap(grid, occ))
         assert n > 0
-        # The stochastic search is no closer to itself: two seeds of one batch agree on
-        # 92 % of the cells here.
-        assert agree > (0.9 if method == "stochastic" else 0.97)
+        if method == "stochastic":
+            # A random search is no closer to itself: the two halves' map must agree
+            # with one batch's about as well as another seed's does (70 % here).
+            other = make_mapper(method, seed=1).fit(doorways.readings, grid, doorways.rig)
+            same, _ = agreement(other.result(), OccupancyMap(grid, occ))
+            assert agree > same - 0.05
+        else:
+            assert agree > 0.97
 
 
 @pytest.mark.parametrize("method", sorted(MAPPERS))

@@ -144,12 +144,15 @@ def test_inverse_stream_with_all_readings_is_the_offline_map(doorways: Scenario)
 def test_windowed_inverse_sums_the_readings_in_play(doorways: Scenario) -> None:
     r = doorways.readings
     n = 120
-    sm = StreamingMapper("inverse", doorways.truth.grid, doorways.rig, strategy=f"last:{n}")
+    sm = StreamingMapper(
+        "inverse", doorways.truth.grid, doorways.rig, strategy=f"last:{n}", falloff_deg=0.0
+    )
     replay([r], sm, period=0.5)
     last = r.take(np.arange(len(r) - n, len(r)))
     values = np.zeros(doorways.truth.grid.size)
     touched = np.zeros(doorways.truth.grid.size, bool)
     mapper = make_mapper("inverse")
+    dr = mapper.get_params()["dr"]
     lf, lo_ = math.log(0.45 / 0.55), math.log(0.51 / 0.49)
     from sonarmap.raster import accumulate
 
@@ -164,6 +167,7 @@ def test_windowed_inverse_sums_the_readings_in_play(doorways: Scenario) -> None:
         touched,
         inc_free=lf,
         inc_occ=lo_,
+        dr=dr,
     )
     lo, hi = math.log(0.12 / 0.88), math.log(0.97 / 0.03)
     want = 1 / (1 + np.exp(-np.clip(values, lo, hi)))
@@ -248,9 +252,12 @@ def test_stochastic_stream_is_deterministic_and_finds_walls(doorways: Scenario) 
         replay([r], sm, period=0.5)
         maps.append(sm.occupancy_)
     np.testing.assert_array_equal(maps[0], maps[1])
-    truth = np.nan_to_num(doorways.truth.occupancy) >= 0.5
-    found = maps[0] >= 0.5
-    assert (found & truth).sum() > 0.5 * found.sum()
+    truth = doorways.truth.classes() == 1
+    found = OccupancyMap(g, maps[0]).classes() == 1
+    known = OccupancyMap(g, maps[0]).classes() != -1
+    # Its occupied cells are walls far more often than cells it knows are.
+    share = truth[known].mean()
+    assert (found & truth).sum() > 3 * share * found.sum()
 
 
 def test_streaming_refuses_what_it_cannot_bound(doorways: Scenario) -> None:

@@ -579,6 +579,8 @@ def experiment_cmd(
     resolution: Annotated[float, typer.Option(help="real: cell size, metres.")] = 0.1,
 ) -> None:
     """Run one of the research's experiments: figures, metrics (CSV, JSON), report.html."""
+    if scene is not None and param:
+        raise ConfigError("give either a scene folder or scene parameters, not both")
     family = EXPERIMENT_SCENE[name.value]
     if not paper and name.value in HELD_OUT_SCENE:
         family = HELD_OUT_SCENE[name.value]

@@ -148,15 +148,16 @@ class Scenario:
             "passages": [
                 {
                     "name": p.name,
-                    "a": list(p.a),
-                    "b": list(p.b),
-                    "depth": p.depth,
-                    "width": round(p.width, 6),
+                    "a": [float(v) for v in p.a],
+                    "b": [float(v) for v in p.b],
+                    "depth": float(p.depth),
+                    "width": round(float(p.width), 6),
                 }
                 for p in self.passages
             ],
             "small_obstacles": [
-                {"name": o.name, "centre": list(o.centre), "size": o.size} for o in self.obstacles
+                {"name": o.name, "centre": [float(v) for v in o.centre], "size": float(o.size)}
+                for o in self.obstacles
             ],
         }
         atomic_write_text(d / "annotations.yaml", yaml.safe_dump(ann, sort_keys=False))

@@ -240,7 +240,8 @@ def _coerce(value: str, default: Any, key: str) -> Any:
 
 
 def parse_params(method: str, pairs: Mapping[str, str]) -> dict[str, Any]:
-    """Typed keyword arguments from ``KEY=VALUE`` strings, typed like each default."""
+    """Typed keyword arguments from ``KEY=VALUE`` strings, typed like each default;
+    ``none`` for a parameter that may be None (``float | None``)."""
     cls = _lookup(method)
     defaults = cls.param_defaults()
     bad = sorted(set(pairs) - set(defaults))
@@ -248,7 +249,15 @@ def parse_params(method: str, pairs: Mapping[str, str]) -> dict[str, Any]:
         raise ConfigError(
             f"unknown parameter(s) {bad} for method '{method}'; valid: {', '.join(defaults)}"
         )
-    return {k: _coerce(v, defaults[k], k) for k, v in pairs.items()}
+    sig = inspect.signature(cls.__init__).parameters
+    out: dict[str, Any] = {}
+    for k, v in pairs.items():
+        # Annotations are strings here (postponed evaluation).
+        if v.strip().lower() == "none" and "None" in str(sig[k].annotation):
+            out[k] = None
+        else:
+            out[k] = _coerce(v, defaults[k], k)
+    return out
 
 
 def _lookup(method: str) -> type[Mapper]:

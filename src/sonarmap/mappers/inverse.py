@@ -227,7 +227,10 @@ class InverseStream(StreamEngine):
     ) -> None:
         assert isinstance(mapper, InverseMapper)
         if strategy.bounded and mapper.falloff_deg > 0:
-            raise ConfigError("inverse fall-off streams only with the 'all' strategy")
+            raise ConfigError(
+                "inverse fall-off streams only with the 'all' strategy; for a bounded "
+                "window set falloff_deg=0"
+            )
         super().__init__(mapper, grid, sensor, strategy, effort)
         self._exact = mapper if not strategy.bounded else None
         if self._exact is not None:
