@@ -288,3 +288,16 @@ def test_stochastic_border_change_matches_a_recomputation() -> None:
             after = flat.copy()
             after[g] = not after[g]
             assert d == borders(after.reshape(7, 9), eight) - borders(full, eight)
+
+
+@pytest.mark.parametrize("method", ["gradient", "stochastic", "em"])
+def test_a_problem_too_large_for_memory_is_refused(
+    small: Scenario, method: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import sonarmap.mappers._base as base
+
+    monkeypatch.setattr(base, "MAX_ENTRIES", 10_000)
+    with pytest.raises(
+        ConfigError, match=rf"method '{method}': the first [\d,]+ of [\d,]+ readings"
+    ):
+        make_mapper(method).fit(small.readings, small.truth.grid, small.rig)

@@ -22,11 +22,24 @@ if TYPE_CHECKING:
     from ..selection import Strategy
     from ._stream import StreamEngine
 
-__all__ = ["MAPPERS", "Mapper", "NotFittedError", "make_mapper", "parse_params", "register"]
+__all__ = [
+    "MAPPERS",
+    "MAX_ENTRIES",
+    "Mapper",
+    "NotFittedError",
+    "make_mapper",
+    "parse_params",
+    "register",
+]
 
 Progress = Callable[[int, int], None]
 
 MAPPERS: dict[str, type[Mapper]] = {}
+
+#: Most (reading, cell) pairs a method that keeps every footprint may hold: about 10 GB
+#: with the sparse matrices built from them. Beyond it the map is refused, with what to
+#: do, before memory runs out.
+MAX_ENTRIES = 250_000_000
 
 
 class NotFittedError(SonarmapError, RuntimeError):
@@ -192,6 +205,25 @@ class Mapper(ABC):
             yield a, fp
             if progress is not None:
                 progress(b, n)
+
+    def _kept_footprints(self, readings: Readings, *, dr: float | None) -> list[Footprint]:
+        """Every reading's footprint, for methods whose objective couples them all;
+        refused beyond :data:`MAX_ENTRIES` entries."""
+        out: list[Footprint] = []
+        total = 0
+        for a, fp in self._footprints(readings, dr=dr):
+            total += fp.n_entries
+            if total > MAX_ENTRIES:
+                raise ConfigError(
+                    f"method '{self.name}': the first {a + fp.free.n_readings:,} of "
+                    f"{len(readings):,} readings already touch {total / 1e6:.0f} M cells "
+                    f"(the limit is {MAX_ENTRIES / 1e6:.0f} M, about 10 GB); map fewer "
+                    "readings at once (sonarmap stream keeps a bounded window), use "
+                    "coarser cells, or drop the no-echo readings (no_echo=ignore, where "
+                    "the method has it)"
+                )
+            out.append(fp)
+        return out
 
     def _echoes(self, readings: Readings) -> Readings:
         """The readings with an echo (for methods told to ignore no-echo readings)."""

@@ -21,7 +21,7 @@ def model_sigma(mapper: Mapper, sigma: float | None) -> float:
 
 def index_readings(mapper: Mapper, readings: Readings, sigma: float) -> BeamIndex:
     """Rasterise with a band of 3 sigma and index the result."""
-    fps = [fp for _, fp in mapper._footprints(readings, dr=3.0 * sigma)]
+    fps = mapper._kept_footprints(readings, dr=3.0 * sigma)
     r = np.minimum(readings.range, mapper.sensor.r_max)
     return build_index(fps, np.asarray(r, dtype=np.float64))
 

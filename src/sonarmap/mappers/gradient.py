@@ -32,6 +32,7 @@ Solvers (``solver=``):
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 
@@ -164,10 +165,9 @@ class GradientMapper(Mapper):
         if self.no_echo == "ignore":
             # A no-echo reading has only an Omega_free term; ignoring it drops the reading.
             readings = self._echoes(readings)
-        fps, echo = [], []
-        for a, fp in self._footprints(readings, dr=self.dr):
-            fps.append(fp)
-            echo.append(readings.range[a : a + fp.free.n_readings] < self.sensor.r_max)
+        fps = self._kept_footprints(readings, dr=self.dr)
+        bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
+        echo = [readings.range[a:b] < self.sensor.r_max for a, b in itertools.pairwise(bounds)]
         pen = Penalties(self.a1, self.a2, self.c1, self.c2)
         return build_problem(fps, echo, self.grid.size, pen)
 
