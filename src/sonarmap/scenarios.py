@@ -220,6 +220,30 @@ def _post(plan: FloorPlan, name: str, cx: float, cy: float, size: float) -> Smal
     return SmallObstacle(name, (cx, cy), size)
 
 
+def _gapped_wall(
+    plan: FloorPlan,
+    x: float,
+    depth: float,
+    start: float,
+    widths: Sequence[float],
+    blocks: Sequence[float],
+    length: float,
+) -> list[Passage]:
+    """A wall ``depth`` thick from x to x + depth along y in [0, length], with gaps of
+    ``widths`` between blocks: the first block ends at ``start + blocks[0]``, the last
+    runs to ``length``."""
+    y = start + blocks[0]
+    plan.box(x, 0.0, x + depth, y)
+    found = []
+    for k, w in enumerate(widths):
+        found.append(Passage(f"gap{k + 1}", (x + depth / 2, y), (x + depth / 2, y + w), depth))
+        y += w
+        end = length if k == len(widths) - 1 else y + blocks[k + 1]
+        plan.box(x, y, x + depth, end)
+        y += blocks[k + 1]
+    return found
+
+
 def _straight(x: float, y0: float, y1: float, speed: float, rate: float) -> Trajectory:
     n = math.floor((y1 - y0) / speed * rate) + 1
     t = np.arange(n) / rate
@@ -373,18 +397,7 @@ def passages(
     plan = FloorPlan((0.0, 0.0, width, length))
     plan.border(wall)
     plan.box(wall, 0, x_path - offset, length)
-    y = 1.0
-    plan.box(x_row, 0, x_row + depth, y + block)
-    y += block
-    found = []
-    for k, w in enumerate(widths):
-        found.append(
-            Passage(f"gap{k + 1}", (x_row + depth / 2, y), (x_row + depth / 2, y + w), depth)
-        )
-        y += w
-        end = length if k == len(widths) - 1 else y + block
-        plan.box(x_row, y, x_row + depth, end)
-        y += block
+    found = _gapped_wall(plan, x_row, depth, 1.0, widths, [block] * (len(widths) + 1), length)
     small = tuple(
         _post(plan, f"post{k + 1}", x_path - 0.6, 1.0 + (length - 2.0) * (k + 0.5) / len(posts), p)
         for k, p in enumerate(posts)
@@ -541,18 +554,7 @@ def gaps(
     plan = FloorPlan((0.0, 0.0, width, length))
     plan.border(wall)
     plan.box(0.0, 0.0, x_right, length)
-    y = start
-    plan.box(x_row, 0.0, x_row + depth, y + blocks[0])
-    y += blocks[0]
-    found = []
-    for k, w in enumerate(order):
-        found.append(
-            Passage(f"gap{k + 1}", (x_row + depth / 2, y), (x_row + depth / 2, y + w), depth)
-        )
-        y += w
-        end = length if k == len(order) - 1 else y + blocks[k + 1]
-        plan.box(x_row, y, x_row + depth, end)
-        y += blocks[k + 1]
+    found = _gapped_wall(plan, x_row, depth, start, order, [float(b) for b in blocks], length)
     small = tuple(
         _post(
             plan,
