@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -326,6 +327,38 @@ def test_scenario_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
             ["scenario", "doorways", "-o", "{d}/x", "--param", "colour=3"],
             "unknown parameter 'colour' for scenario 'doorways'",
         ),
+        (
+            ["map", "{d}", "--rig", "{d}/rig.yaml", "--resolution", "0.1", "-o", "{d}/m"],
+            r"is a directory; expected a CSV file",
+        ),
+        (
+            [
+                "map",
+                "{d}/readings.csv",
+                "--rig",
+                "{d}/rig.yaml",
+                "--resolution",
+                "0.1",
+                "--bounds",
+                "0,0,6",
+                "-o",
+                "{d}/m",
+            ],
+            r"--bounds takes 4 numbers \(comma- or space-separated\), got '0,0,6'",
+        ),
+        (
+            [
+                "stream",
+                "{d}/readings.csv",
+                "--rig",
+                "{d}/rig.yaml",
+                "--window",
+                "last:0",
+                "-o",
+                "{d}/st",
+            ],
+            r"strategy 'last' needs a count >= 1, got 0",
+        ),
     ],
 )
 def test_errors_are_one_line_exit_2_no_output(
@@ -358,8 +391,6 @@ def test_errors_are_one_line_exit_2_no_output(
     code, _out, err = run([a.format(d=d) for a in args], capsys)
     assert code == 2
     assert len(err.strip().splitlines()) == 1, err
-    import re
-
     assert re.search(match, err), err
     assert set(d.iterdir()) == before  # nothing written, not even a temporary file
 
@@ -368,7 +399,49 @@ def test_help_and_version(capsys: pytest.CaptureFixture[str]) -> None:
     code, out, _ = run(["--version"], capsys)
     assert code == 0
     assert "sonarmap" in out
+    for args in ([], ["-h"], ["map", "-h"]):
+        code, out, err = run(args, capsys)
+        assert (code, err) == (0, "")
+        assert "Usage: sonarmap" in out
     for cmd in ("scenario", "simulate", "map", "show", "demo", "methods"):
         code, out, _ = run([cmd, "--help"], capsys)
         assert code == 0
         assert "Usage" in out
+
+
+def test_map_tells_what_it_left_out(floor_plan: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Readings out of time order are put in place, a reading far off the grid is named,
+    and bounds may be given with commas."""
+    d = floor_plan
+    args = ["simulate", "--map", f"{d}/plan.yaml", "--rig", f"{d}/rig.yaml"]
+    run([*args, "--trajectory", f"{d}/traj.csv", "-o", f"{d}/r.csv"], capsys)
+    lines = (d / "r.csv").read_text().splitlines()
+    lines[10], lines[20] = lines[20], lines[10]
+    lines.append(lines[-1].split(",")[0] + ",s0,1e9,0,0,1.0")
+    (d / "r.csv").write_text("\n".join(lines) + "\n")
+    code, out, err = run(
+        [
+            "map",
+            f"{d}/r.csv",
+            "--rig",
+            f"{d}/rig.yaml",
+            "--resolution",
+            "0.1",
+            "--bounds",
+            "-1,-1,4,3",
+            "-o",
+            f"{d}/m",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    # Line 11 now holds a reading 0.1 s ahead: the ones after it until then are late.
+    assert re.search(
+        r"put \d+ readings back in time order \(at most 0.1 s late; the first at "
+        r"line 12\)",
+        out,
+    ), out
+    assert "1 of " in out
+    assert "outside the grid and add nothing to the map" in out
+    m = read_map(d / "m.yaml")
+    assert m.grid.shape == (40, 50)

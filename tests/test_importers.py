@@ -14,7 +14,7 @@ from sonarmap.cli import main
 from sonarmap.errors import InputError
 from sonarmap.io.carmen import ConvertSummary, read_carmen
 from sonarmap.io.udacity import read_udacity
-from sonarmap.readings import read_readings
+from sonarmap.readings import TimeOrder, read_readings
 from sonarmap.rig import load_rig
 
 TRAILER = "12.5 host 12.6"
@@ -156,6 +156,33 @@ def test_convert_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     assert "bad.log:2: FLASER message is truncated" in capsys.readouterr().err
     assert not (tmp_path / "bad.csv").exists()
     assert not (tmp_path / "bad.rig.yaml").exists()
+
+
+@pytest.mark.parametrize("prefix", [b"", flaser(3, 1, 0, 0, 0).encode() + b"\n"])
+def test_binary_garbage_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], prefix: bytes
+) -> None:
+    log = tmp_path / "garbage.log"
+    log.write_bytes(prefix + bytes(range(128, 256)) * 40)
+    with pytest.raises(SystemExit) as e:
+        main(["convert", str(log), "-o", str(tmp_path / "g.csv")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "garbage.log: not a text log" in err
+    assert len(err.strip().splitlines()) == 1
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["garbage.log"]
+
+
+def test_convert_writes_time_order(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # The third scan was logged 0.5 s late, as four of the Intel log's are.
+    scans = [flaser(2, 2.0, 0.1 * k, 0, 0, t=1.0 + k) for k in range(5)]
+    scans[2], scans[3] = scans[3], scans[2].replace(" 3.0 host 3.0", " 3.5 host 3.5")
+    log = write(tmp_path, scans, "late.log")
+    main(["convert", str(log), "-o", str(tmp_path / "late.csv")])
+    out = capsys.readouterr().out
+    assert "put 2 readings back in time order (at most 0.5 s late; the first at reading 6" in out
+    r = read_readings(tmp_path / "late.csv", order=TimeOrder(None))  # strictly in order
+    assert r.t.tolist() == [1, 1, 2, 2, 3.5, 3.5, 4, 4, 5, 5]
 
 
 def test_udacity(tmp_path: Path) -> None:

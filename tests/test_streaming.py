@@ -56,9 +56,20 @@ def test_strategy_text_round_trip(text: str, kind: type) -> None:
     assert parse_strategy(s.spec()).spec() == s.spec()
 
 
-@pytest.mark.parametrize("text", ["last", "last:0", "cell:x", "pose:1:-1", "window:3", "all:2"])
-def test_bad_strategies_are_config_errors(text: str) -> None:
-    with pytest.raises(ConfigError):
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("last", "unknown strategy"),
+        ("last:0", "needs a count >= 1, got 0"),
+        ("cell:-2", "needs a count >= 1, got -2"),
+        ("cell:x", "must be numbers"),
+        ("pose:1:-1", "pose bin size must be > 0 m"),
+        ("window:3", "unknown strategy"),
+        ("all:2", "unknown strategy"),
+    ],
+)
+def test_bad_strategies_are_config_errors(text: str, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
         parse_strategy(text)
 
 

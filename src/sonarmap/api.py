@@ -7,17 +7,25 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import ConfigError, InputError
 from .grid import Grid
 from .io.rosmap import OccupancyMap
 from .mappers import make_mapper
-from .readings import Readings, iter_readings
+from .readings import Readings, TimeOrder, iter_readings
 from .rig import Rig
 from .selection import Strategy
 from .streaming import ReplayReport, StreamingMapper, replay
 
-__all__ = ["build_map", "grid_for_log", "grid_for_readings", "stream_log"]
+__all__ = [
+    "build_map",
+    "grid_for_log",
+    "grid_for_readings",
+    "off_grid",
+    "off_grid_note",
+    "stream_log",
+]
 
 Progress = Callable[[int, int], None]
 
@@ -59,7 +67,14 @@ def _extent(readings: Readings, rig: Rig) -> tuple[float, float, float, float] |
 
 def _grid_around(box: tuple[float, float, float, float], resolution: float, margin: float) -> Grid:
     x0, y0, x1, y1 = box
-    return Grid.from_bounds(x0 - margin, y0 - margin, x1 + margin, y1 + margin, resolution)
+    try:
+        return Grid.from_bounds(x0 - margin, y0 - margin, x1 + margin, y1 + margin, resolution)
+    except ConfigError as err:
+        # Usually a few poses far from the rest: say where the data reach and what to do.
+        raise ConfigError(
+            f"{err}: the readings reach x {x0:g} to {x1:g}, y {y0:g} to {y1:g} m; give "
+            "--bounds or --like to map the part you want"
+        ) from err
 
 
 def grid_for_log(
@@ -108,17 +123,31 @@ def stream_log(
     snapshot_every: float | None = None,
     on_snapshot: Callable[[float, StreamingMapper], None] | None = None,
     progress: Callable[[float], None] | None = None,
+    order: TimeOrder | None = None,
+    on_note: Callable[[str], None] | None = None,
 ) -> tuple[StreamingMapper, ReplayReport]:
     """Replay a readings CSV through a streaming map (see :func:`sonarmap.streaming.replay`).
 
-    The file is read in chunks: memory is the streaming state's plus one chunk.
+    The file is read in chunks, in time order (``order``: see
+    :func:`sonarmap.readings.iter_readings`): memory is the streaming state's plus one
+    chunk. ``on_note`` hears, at the end, how many readings fell wholly outside the grid
+    (see :func:`off_grid`).
     """
     sm = StreamingMapper(method, grid, rig, strategy=strategy, effort=effort, **dict(params or {}))
 
+    outside = 0
+    first_outside: Readings | None = None
+
     def checked() -> Iterator[Readings]:
+        nonlocal outside, first_outside
         done = 0
-        for chunk in iter_readings(path, names=rig.names, chunk_size=STREAM_CHUNK):
+        for chunk in iter_readings(path, names=rig.names, chunk_size=STREAM_CHUNK, order=order):
             _check_r_min(chunk, rig, offset=done, path=path)
+            out = off_grid(chunk, rig, grid)
+            if out.any():
+                outside += int(out.sum())
+                if first_outside is None:
+                    first_outside = chunk.take(out)
             done += len(chunk)
             yield chunk
 
@@ -134,6 +163,8 @@ def stream_log(
     )
     if rep.n_readings == 0:
         raise InputError("no readings (the file has a header only)", path=path)
+    if on_note is not None and first_outside is not None:
+        on_note(_off_grid_line(outside, rep.n_readings, rig, first_outside))
     return sm, rep
 
 
@@ -144,11 +175,38 @@ def _check_r_min(
     if below.any():
         i = int(np.flatnonzero(below)[0])
         raise InputError(
-            f"reading {offset + i}: range {readings.range[i]} is below the sensor's r_min "
+            f"reading {offset + i} (t={readings.t[i]:g}): range {readings.range[i]} is below "
+            f"the sensor's r_min "
             f"({rig.sensor.r_min})",
             path=path,
             field="range",
         )
+
+
+def off_grid(readings: Readings, rig: Rig, grid: Grid) -> npt.NDArray[np.bool_]:
+    """Readings whose beam cannot touch ``grid``: the sonar is farther than the sensor's
+    r_max from every cell (they add nothing to a map on that grid)."""
+    x0, x1, y0, y1 = grid.extent
+    dx = np.maximum(np.maximum(x0 - readings.x, readings.x - x1), 0.0)
+    dy = np.maximum(np.maximum(y0 - readings.y, readings.y - y1), 0.0)
+    return np.hypot(dx, dy) > rig.sensor.r_max
+
+
+def off_grid_note(readings: Readings, rig: Rig, grid: Grid) -> str | None:
+    """A line saying how many readings :func:`off_grid` leaves out, or None."""
+    out = off_grid(readings, rig, grid)
+    n = int(out.sum())
+    if n == 0:
+        return None
+    return _off_grid_line(n, len(readings), rig, readings.take(out))
+
+
+def _off_grid_line(n: int, total: int, rig: Rig, outside: Readings) -> str:
+    return (
+        f"{n} of {total} readings are more than r_max ({rig.sensor.r_max:g} m) outside "
+        f"the grid and add nothing to the map (the first at t={outside.t[0]:g}, sonar at "
+        f"x={outside.x[0]:g}, y={outside.y[0]:g})"
+    )
 
 
 def build_map(

@@ -24,7 +24,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from rich.table import Table
 
 from . import __version__
-from .api import build_map, grid_for_log, grid_for_readings, stream_log
+from .api import build_map, grid_for_log, grid_for_readings, off_grid_note, stream_log
 from .errors import ConfigError, InputError, SonarmapError
 from .experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
 from .io._atomic import atomic_folder, atomic_write, atomic_write_text
@@ -34,7 +34,10 @@ from .mappers import MAPPERS, parse_params
 from .metrics import MapScore, score
 from .plot import MapAnimation, save_map_picture, save_side_by_side
 from .readings import (
+    REORDER_WINDOW,
     Readings,
+    TimeOrder,
+    in_time_order,
     read_readings,
     read_trajectory,
     write_readings,
@@ -52,9 +55,11 @@ app = typer.Typer(
     no_args_is_help=True,
     pretty_exceptions_enable=False,
     add_completion=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
 )
-err_console = Console(stderr=True)
-console = Console()
+# soft_wrap: a message is one line in a log however wide the terminal (tables still fit it).
+err_console = Console(stderr=True, soft_wrap=True)
+console = Console(soft_wrap=True)
 
 ScenarioName = Enum("ScenarioName", {n.replace("-", "_"): n for n in SCENARIOS}, type=str)  # type: ignore[misc]
 MethodName = Enum("MethodName", {n: n for n in sorted(MAPPERS)}, type=str)  # type: ignore[misc]
@@ -243,6 +248,23 @@ def simulate_cmd(
     console.print(f"wrote {len(readings)} readings to {out}")
 
 
+ReorderWindow = Annotated[
+    float,
+    typer.Option(
+        "--reorder-window",
+        help="Seconds a reading may come after a later one and still be put back in "
+        "time order; later ones are dropped and counted (0 drops every one out of order).",
+        min=0.0,
+    ),
+]
+
+
+def _say_order(order: TimeOrder) -> None:
+    said = order.message(first_line=2)
+    if said is not None:
+        console.print(f"note: {said}")
+
+
 @app.command("map")
 def map_cmd(
     readings: Annotated[Path, typer.Argument(help="Readings CSV t,sensor,x,y,theta,range.")],
@@ -253,11 +275,15 @@ def map_cmd(
     resolution: Annotated[float | None, typer.Option(help="Cell size, metres.")] = None,
     bounds: Annotated[
         tuple[float, float, float, float] | None,
-        typer.Option(help="XMIN YMIN XMAX YMAX in metres (default: around the data)."),
+        typer.Option(
+            metavar="XMIN YMIN XMAX YMAX",
+            help="Metres, space- or comma-separated (default: around the data).",
+        ),
     ] = None,
     param: Annotated[
         list[str] | None, typer.Option("--param", help="Method parameter KEY=VALUE, repeatable.")
     ] = None,
+    reorder_window: ReorderWindow = REORDER_WINDOW,
 ) -> None:
     """Build an occupancy map from readings; writes OUT.yaml, OUT.pgm and OUT.npy."""
     m = method.value
@@ -265,13 +291,18 @@ def map_cmd(
     r = load_rig(rig)
     if like is not None and (resolution is not None or bounds is not None):
         raise ConfigError("give either --like or --resolution/--bounds, not both")
-    data = read_readings(readings, names=r.names)
+    order = TimeOrder(reorder_window)
+    data = read_readings(readings, names=r.names, order=order)
+    _say_order(order)
     if like is not None:
         grid = read_map(like).grid
     elif resolution is not None:
         grid = grid_for_readings(data, r, resolution, bounds)
     else:
         raise ConfigError("give --like MAP.yaml or --resolution R")
+    said = off_grid_note(data, r, grid)
+    if said is not None:
+        console.print(f"note: {said}")
     try:
         with _progress(f"mapping ({m})") as cb:
             result = build_map(data, r, grid, m, params, progress=cb)
@@ -315,7 +346,10 @@ def stream_cmd(
     resolution: Annotated[float, typer.Option(help="Cell size, metres.")] = 0.05,
     bounds: Annotated[
         tuple[float, float, float, float] | None,
-        typer.Option(help="XMIN YMIN XMAX YMAX in metres (default: a first pass over the log)."),
+        typer.Option(
+            metavar="XMIN YMIN XMAX YMAX",
+            help="Metres, space- or comma-separated (default: a first pass over the log).",
+        ),
     ] = None,
     like: Annotated[Path | None, typer.Option(help="Use the grid of this map YAML.")] = None,
     snapshot_every: Annotated[
@@ -336,6 +370,7 @@ def stream_cmd(
     param: Annotated[
         list[str] | None, typer.Option("--param", help="Method parameter KEY=VALUE, repeatable.")
     ] = None,
+    reorder_window: ReorderWindow = REORDER_WINDOW,
 ) -> None:
     """Replay a log through a streaming map: latency, throughput, snapshots, animation.
 
@@ -357,6 +392,7 @@ def stream_cmd(
     if animation:
         MapAnimation.check_name(out / animation)
     draw_binary = (m == "gradient") if binary is None else binary
+    order = TimeOrder(reorder_window)
     anim = MapAnimation(grid, m, binary=draw_binary) if animation else None
     with atomic_folder(out) as tmp:
 
@@ -392,7 +428,10 @@ def stream_cmd(
                 snapshot_every=snapshot_every,
                 on_snapshot=snapshot,
                 progress=tick,
+                order=order,
+                on_note=lambda said: console.print(f"note: {said}"),
             )
+        _say_order(order)
         write_map(sm.result(), tmp / "map")
         if anim is not None:
             anim.save(tmp / animation)
@@ -403,6 +442,8 @@ def stream_cmd(
             "period_s": period,
             "effort": effort,
             "params": params,
+            "readings_reordered": order.reordered,
+            "readings_dropped_late": order.dropped,
             **rep.summary(),
         }
         atomic_write_text(tmp / "stream.json", json_dumps(summary) + "\n")
@@ -792,6 +833,7 @@ def convert_cmd(
         return
     summary = ConvertSummary()
     rigs: list[Rig] = []
+    order = TimeOrder()
     with _progress("converting") as cb:
 
         def chunks() -> Iterator[Readings]:
@@ -806,7 +848,7 @@ def convert_cmd(
                     rigs.append(rg)
                 yield part
 
-        n = write_readings_stream(chunks(), out)
+        n = write_readings_stream(in_time_order(chunks(), order), out)
     save_rig(rigs[0], rig_path)
     dt = time.perf_counter() - t0
     counts = ", ".join(f"{k} {v}" for k, v in sorted(summary.counts.items()))
@@ -816,6 +858,8 @@ def convert_cmd(
         f"{summary.lines / dt:.0f} lines/s; wrote {n} readings to {out} and the "
         f"rig to {rig_path}"
     )
+    if order.first is not None:
+        console.print(f"note: {order.message()}; the CSV is written in time order")
 
 
 @app.callback(invoke_without_command=True)
@@ -832,10 +876,43 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
+#: Options taking several numbers, which may also be given as one comma-separated word.
+_LIST_OPTIONS = {"--bounds": 4}
+
+
+def _split_lists(args: list[str]) -> list[str]:
+    """``--bounds 0,0,6,6`` (or ``--bounds=0,0,6,6``) as ``--bounds 0 0 6 6``."""
+    out: list[str] = []
+    i = 0
+    while i < len(args):
+        a = args[i]
+        name, eq, value = a.partition("=")
+        if name in _LIST_OPTIONS and (eq or (i + 1 < len(args) and "," in args[i + 1])):
+            if not eq:
+                i += 1
+                value = args[i]
+            values = [v.strip() for v in value.split(",")]
+            if len(values) != _LIST_OPTIONS[name]:
+                raise ConfigError(
+                    f"{name} takes {_LIST_OPTIONS[name]} numbers (comma- or space-separated), "
+                    f"got {value!r}"
+                )
+            out.append(name)
+            out.extend(values)
+        else:
+            out.append(a)
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: every error becomes one line on stderr and exit code 2."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args:
+        # Help for a bare command, as for --help (not a usage error).
+        args = ["--help"]
     try:
-        rv = app(args=argv, prog_name="sonarmap", standalone_mode=False)
+        rv = app(args=_split_lists(args), prog_name="sonarmap", standalone_mode=False)
     except SonarmapError as err:
         _fail(str(err))
     except typer.Abort:

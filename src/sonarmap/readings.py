@@ -23,12 +23,16 @@ import pandas as pd
 
 from .errors import InputError
 from .io._atomic import atomic_write
+from .io._files import need_file
 
 __all__ = [
     "READINGS_COLUMNS",
+    "REORDER_WINDOW",
     "TRAJECTORY_COLUMNS",
     "Readings",
+    "TimeOrder",
     "Trajectory",
+    "in_time_order",
     "iter_readings",
     "read_readings",
     "read_trajectory",
@@ -40,6 +44,9 @@ __all__ = [
 READINGS_COLUMNS = ("t", "sensor", "x", "y", "theta", "range")
 TRAJECTORY_COLUMNS = ("t", "x", "y", "theta")
 DEFAULT_CHUNK = 500_000
+#: Seconds a reading may arrive behind a later one and still be put back in its place:
+#: recorded logs interleave sensors' messages by arrival, a few tenths of a second apart.
+REORDER_WINDOW = 2.0
 
 F64 = npt.NDArray[np.float64]
 
@@ -81,9 +88,9 @@ class Readings:
     def __len__(self) -> int:
         return len(self.t)
 
-    def take(self, index: npt.ArrayLike) -> Readings:
-        """The readings at ``index`` (a boolean mask or integer indices)."""
-        i = np.asarray(index)
+    def take(self, index: npt.ArrayLike | slice) -> Readings:
+        """The readings at ``index`` (a boolean mask, integer indices or a slice)."""
+        i = index if isinstance(index, slice) else np.asarray(index)
         return Readings(
             self.t[i],
             self.sensor[i],
@@ -136,6 +143,104 @@ class Trajectory:
         return len(self.t)
 
 
+@dataclass
+class TimeOrder:
+    """What putting a stream of readings back in time order did.
+
+    Attributes
+    ----------
+    window : float or None
+        How late (seconds behind the latest time seen) a reading may be and still be
+        put in its place; later ones are dropped. None refuses any reading out of order.
+    reordered : int
+        Readings that came after a later one and were put back in place.
+    dropped : int
+        Readings later than ``window``, left out.
+    max_lag : float
+        The most any out-of-order reading was behind (seconds).
+    first : int or None
+        Index in the stream (from 0) of the first reading out of order.
+    """
+
+    window: float | None = REORDER_WINDOW
+    reordered: int = 0
+    dropped: int = 0
+    max_lag: float = 0.0
+    first: int | None = None
+
+    def message(self, first_line: int | None = None) -> str | None:
+        """One line saying what was done, or None when the stream was in order.
+
+        ``first_line`` is the line of the stream's first reading (2 for a CSV with a
+        header), so the first reading out of order is named by its line; without it,
+        by its index.
+        """
+        if self.first is None:
+            return None
+        parts = []
+        if self.reordered:
+            parts.append(f"put {self.reordered} readings back in time order")
+        if self.dropped:
+            parts.append(f"dropped {self.dropped} readings more than {self.window:g} s late")
+        where = (
+            f"line {first_line + self.first}"
+            if first_line is not None
+            else f"reading {self.first} (from 0)"
+        )
+        return f"{'; '.join(parts)} (at most {self.max_lag:.3g} s late; the first at {where})"
+
+
+def in_time_order(chunks: Iterable[Readings], order: TimeOrder | None = None) -> Iterator[Readings]:
+    """Readings in non-decreasing time, from chunks that are almost in order.
+
+    A reading behind the latest time seen by at most ``order.window`` seconds is put
+    back in its place (ties keep their order in the stream); one later than that is
+    dropped, because readings before it may already have been handed on. Memory holds
+    one chunk and the last ``window`` seconds of readings. ``order`` collects the counts.
+    """
+    rep = order if order is not None else TimeOrder()
+    window = rep.window
+    pending: Readings | None = None
+    latest = -np.inf
+    seen = 0
+    for chunk in chunks:
+        n = len(chunk)
+        if n == 0:
+            continue
+        before = np.maximum.accumulate(np.concatenate([[latest], chunk.t[:-1]]))
+        lag = before - chunk.t
+        late = lag > 0
+        if late.any():
+            i = int(np.flatnonzero(late)[0])
+            if window is None:
+                raise InputError(
+                    f"reading {seen + i}: time goes backwards ({chunk.t[i]} after {before[i]})"
+                )
+            if rep.first is None:
+                rep.first = seen + i
+            rep.max_lag = max(rep.max_lag, float(lag[late].max()))
+            drop = lag > window
+            rep.dropped += int(drop.sum())
+            rep.reordered += int((late & ~drop).sum())
+            latest = max(latest, float(before[-1]), float(chunk.t[-1]))
+            chunk = chunk.take(~drop)
+        else:
+            latest = float(chunk.t[-1])
+        seen += n
+        if window is None or window == 0:
+            yield chunk
+            continue
+        merged = chunk if pending is None else Readings.concat([pending, chunk])
+        if np.any(merged.t[1:] < merged.t[:-1]):
+            merged = merged.take(np.argsort(merged.t, kind="stable"))
+        cut = int(np.searchsorted(merged.t, latest - window, side="right"))
+        if cut:
+            yield merged.take(slice(0, cut))
+        pending = merged.take(slice(cut, None))
+    if pending is not None and len(pending):
+        yield pending
+
+
 _TOKENIZE = re.compile(r"Expected (\d+) fields in line (\d+), saw (\d+)")
 
 
@@ -147,8 +252,7 @@ def _chunks(
     Every value is checked: missing fields, non-numbers and non-finite numbers raise
     :class:`InputError` naming the file, line and field.
     """
-    if not path.is_file():
-        raise InputError("no such file", path=path)
+    need_file(path, "CSV file")
     try:
         reader = pd.read_csv(
             path,
@@ -250,9 +354,13 @@ def _check_time(path: Path, t: F64, first_line: int, previous: float) -> None:
 
 
 def iter_readings(
-    path: str | Path, *, names: Sequence[str] | None = None, chunk_size: int = DEFAULT_CHUNK
+    path: str | Path,
+    *,
+    names: Sequence[str] | None = None,
+    chunk_size: int = DEFAULT_CHUNK,
+    order: TimeOrder | None = None,
 ) -> Iterator[Readings]:
-    """Read a readings CSV chunk by chunk.
+    """Read a readings CSV chunk by chunk, in time order.
 
     Parameters
     ----------
@@ -264,11 +372,29 @@ def iter_readings(
         order they first appear.
     chunk_size : int
         Rows per chunk.
+    order : TimeOrder, optional
+        How readings out of time order are handled, and where the counts go (see
+        :func:`in_time_order`): by default a reading up to :data:`REORDER_WINDOW`
+        seconds late is put in place and a later one dropped. ``TimeOrder(None)``
+        refuses the file at the first reading out of order, naming its line.
     """
-    p = Path(path)
+    rep = order if order is not None else TimeOrder()
+    raw = _parse_readings(Path(path), names, chunk_size)
+    if rep.window is not None:
+        yield from in_time_order((r for _, r in raw), rep)
+        return
+    last_t = -np.inf
+    for line, r in raw:
+        _check_time(Path(path), r.t, line, last_t)
+        last_t = float(r.t[-1]) if len(r) else last_t
+        yield r
+
+
+def _parse_readings(
+    p: Path, names: Sequence[str] | None, chunk_size: int
+) -> Iterator[tuple[int, Readings]]:
     known: list[str] = list(names) if names is not None else []
     lookup = {n: i for i, n in enumerate(known)}
-    last_t = -np.inf
     for line, cols in _chunks(p, READINGS_COLUMNS, ("sensor",), chunk_size):
         labels = np.char.strip(cols["sensor"].astype(str))
         uniq, inverse = np.unique(labels, return_inverse=True)
@@ -297,25 +423,29 @@ def iter_readings(
         if len(neg):
             i = int(neg[0])
             raise InputError(f"range is negative ({rng[i]})", path=p, line=line + i, field="range")
-        t = cols["t"].astype(np.float64)
-        _check_time(p, t, line, last_t)
-        last_t = float(t[-1]) if len(t) else last_t
-        yield Readings(
-            t,
-            codes[inverse].astype(np.int32),
-            cols["x"].astype(np.float64),
-            cols["y"].astype(np.float64),
-            cols["theta"].astype(np.float64),
-            rng,
-            tuple(known),
+        yield (
+            line,
+            Readings(
+                cols["t"].astype(np.float64),
+                codes[inverse].astype(np.int32),
+                cols["x"].astype(np.float64),
+                cols["y"].astype(np.float64),
+                cols["theta"].astype(np.float64),
+                rng,
+                tuple(known),
+            ),
         )
 
 
 def read_readings(
-    path: str | Path, *, names: Sequence[str] | None = None, chunk_size: int = DEFAULT_CHUNK
+    path: str | Path,
+    *,
+    names: Sequence[str] | None = None,
+    chunk_size: int = DEFAULT_CHUNK,
+    order: TimeOrder | None = None,
 ) -> Readings:
-    """Read a whole readings CSV (see :func:`iter_readings`)."""
-    parts = list(iter_readings(path, names=names, chunk_size=chunk_size))
+    """Read a whole readings CSV, in time order (see :func:`iter_readings`)."""
+    parts = list(iter_readings(path, names=names, chunk_size=chunk_size, order=order))
     if sum(len(p) for p in parts) == 0:
         raise InputError("no readings (the file has a header only)", path=path)
     return Readings.concat(parts)

@@ -289,6 +289,8 @@ def parse_strategy(text: str) -> Strategy:
         if kind == "pose" and 1 <= len(args) <= 3:
             floats = [float(a) for a in args[1:]]
             return PoseGrid(int(args[0]), *floats)
+    except ConfigError:
+        raise  # a number out of its range: the strategy's own message says which
     except ValueError:
         raise ConfigError(
             f"bad strategy {text!r}: counts and sizes must be numbers; {usage}"

@@ -39,6 +39,7 @@ from ..errors import InputError
 from ..readings import Readings
 from ..rig import Mount, Rig
 from ..sensors import Region, SensorModel
+from ._files import need_file
 
 __all__ = ["CarmenScan", "ConvertSummary", "iter_carmen", "iter_carmen_readings", "read_carmen"]
 
@@ -74,9 +75,24 @@ class ConvertSummary:
 
 
 def _open(path: Path) -> Iterator[str]:
+    """The log's lines; a corrupt or binary file is an InputError naming the last good line."""
     opener = gzip.open if path.suffix == ".gz" else open
-    with opener(path, "rt", encoding="utf-8", errors="strict") as f:
-        yield from f
+    line = 0
+    try:
+        with opener(path, "rt", encoding="utf-8", errors="strict") as f:
+            for line, text in enumerate(f, start=1):  # noqa: B007 - line is read after the loop
+                yield text
+    except (EOFError, gzip.BadGzipFile, zlib.error) as err:
+        raise InputError(
+            f"compressed file is truncated or corrupt after line {line} ({type(err).__name__})",
+            path=path,
+        ) from err
+    except UnicodeDecodeError as err:
+        # Text is decoded a block at a time, so the bad byte is after the last whole line.
+        where = f"after line {line}" if line else "in its first lines"
+        raise InputError(f"not a text log (bytes that are not UTF-8 {where})", path=path) from err
+    except OSError as err:
+        raise InputError(f"cannot read file ({err.strerror or err})", path=path) from err
 
 
 def _floats(tokens: list[str], path: Path, line: int, what: str) -> F64:
@@ -225,42 +241,31 @@ def iter_carmen(
     progress: Callable[[int], None] | None = None,
 ) -> Iterator[CarmenScan]:
     """Range messages of a CARMEN log, in file order; ``summary`` collects the counts."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError("no such file", path=p)
+    p = need_file(path, "CARMEN log")
     s = summary if summary is not None else ConvertSummary()
-    line = 0
-    try:
-        for line, text in enumerate(_open(p), start=1):
-            s.lines = line
-            if progress is not None and line % 2000 == 0:
-                progress(line)
-            tokens = text.split()
-            if not tokens or tokens[0].startswith("#"):
-                continue
-            kind = tokens[0]
-            if kind in ("FLASER", "RLASER"):
-                s.counts[kind] += 1
-                yield _laser(tokens, p, line, rear=kind == "RLASER")
-            elif kind == "ROBOTLASER1":
-                s.counts[kind] += 1
-                yield _robotlaser(tokens, p, line)
-            elif kind == "SONAR":
-                s.counts[kind] += 1
-                yield _sonar(tokens, p, line)
-            elif kind == "ODOM":
-                _need(tokens, 10, p, line)
-                _floats(tokens[1:7], p, line, "odometry")
-                s.counts[kind] += 1
-            else:
-                s.skipped[kind] += 1
-    except (EOFError, gzip.BadGzipFile, zlib.error) as err:
-        raise InputError(
-            f"compressed file is truncated or corrupt after line {line} ({type(err).__name__})",
-            path=p,
-        ) from err
-    except UnicodeDecodeError as err:
-        raise InputError(f"not a text log (bad byte after line {line})", path=p) from err
+    for line, text in enumerate(_open(p), start=1):
+        s.lines = line
+        if progress is not None and line % 2000 == 0:
+            progress(line)
+        tokens = text.split()
+        if not tokens or tokens[0].startswith("#"):
+            continue
+        kind = tokens[0]
+        if kind in ("FLASER", "RLASER"):
+            s.counts[kind] += 1
+            yield _laser(tokens, p, line, rear=kind == "RLASER")
+        elif kind == "ROBOTLASER1":
+            s.counts[kind] += 1
+            yield _robotlaser(tokens, p, line)
+        elif kind == "SONAR":
+            s.counts[kind] += 1
+            yield _sonar(tokens, p, line)
+        elif kind == "ODOM":
+            _need(tokens, 10, p, line)
+            _floats(tokens[1:7], p, line, "odometry")
+            s.counts[kind] += 1
+        else:
+            s.skipped[kind] += 1
 
 
 def _sensor(kind: str, cone: float, max_range: float) -> SensorModel:
@@ -278,17 +283,12 @@ def _choose(path: Path, source: str) -> str:
             raise InputError(f"unknown source '{source}'; valid: auto, {', '.join(SOURCES)}")
         return source
     seen: set[str] = set()
-    try:
-        for text in _open(path):
-            head = text[:12].split(maxsplit=1)
-            if head and head[0] in SOURCES:
-                seen.add(head[0])
-                if head[0] == "SONAR":
-                    break
-    except (EOFError, gzip.BadGzipFile, zlib.error) as err:
-        raise InputError(
-            f"compressed file is truncated or corrupt ({type(err).__name__})", path=path
-        ) from err
+    for text in _open(path):
+        head = text[:12].split(maxsplit=1)
+        if head and head[0] in SOURCES:
+            seen.add(head[0])
+            if head[0] == "SONAR":
+                break
     for kind in ("SONAR", "FLASER", "ROBOTLASER1", "RLASER"):
         if kind in seen:
             return kind
@@ -344,8 +344,7 @@ def iter_carmen_readings(
     p = Path(path)
     if not (math.isfinite(max_range) and max_range > 0):
         raise InputError(f"max_range must be > 0 metres, got {max_range}")
-    if not p.is_file():
-        raise InputError("no such file", path=p)
+    need_file(p, "CARMEN log")
     kind = _choose(p, source)
     rig: Rig | None = None
     s = summary if summary is not None else ConvertSummary()

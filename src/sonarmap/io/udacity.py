@@ -19,6 +19,7 @@ from ..errors import InputError
 from ..readings import Readings
 from ..rig import Mount, Rig
 from ..sensors import Region, SensorModel
+from ._files import need_file
 
 __all__ = ["UNITS", "read_udacity", "udacity_rig"]
 
@@ -35,8 +36,7 @@ def udacity_rig() -> Rig:
 
 
 def _table(path: Path, columns: int, what: str) -> npt.NDArray[np.float64]:
-    if not path.is_file():
-        raise InputError("no such file", path=path)
+    need_file(path, "udacity log file")
     rows = []
     with path.open(encoding="utf-8", errors="strict") as f:
         for line, text in enumerate(f, start=1):
