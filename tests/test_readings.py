@@ -51,7 +51,9 @@ def test_chunks_give_the_same_result(tmp_path: Path) -> None:
     ]
     p = write(tmp_path, "\n".join(rows) + "\n")
     parts = list(iter_readings(p, chunk_size=7))
-    assert len(parts) == 8
+    # Chunks are handed on as soon as no later reading can come before them (2 s).
+    assert len(parts) > 1
+    assert sum(len(x) for x in parts) == 50
     whole = read_readings(p)
     joined = Readings.concat(parts)
     np.testing.assert_array_equal(whole.range, joined.range)

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -324,6 +329,37 @@ def test_replay_snapshots_and_realtime_pace(doorways: Scenario) -> None:
     assert times[-1] == pytest.approx(span)
 
 
+def test_replay_stops_when_asked_and_warns_when_behind(doorways: Scenario) -> None:
+    r = doorways.readings.take(np.flatnonzero(doorways.readings.t < 6.0))
+    sm = StreamingMapper("gradient", doorways.truth.grid, doorways.rig, strategy="last:100")
+    rep = replay([r], sm, period=0.25, stop=lambda: sm.n_readings >= 50)
+    assert rep.interrupted
+    assert 50 <= rep.n_readings < len(r)
+    assert rep.summary()["interrupted"] is True
+    # Slower than the log on purpose: every update waits 0.2 s against 0.25 s of log
+    # at 8x speed, so the lag grows and is reported, then reported again once doubled.
+    warnings: list[str] = []
+    slow = StreamingMapper("gradient", doorways.truth.grid, doorways.rig, strategy="last:100")
+
+    def wait(t: float, s: StreamingMapper) -> None:
+        time.sleep(0.2)
+
+    rep = replay(
+        [r],
+        slow,
+        period=0.25,
+        realtime=True,
+        speed=8.0,
+        snapshot_every=0.25,
+        on_snapshot=wait,
+        on_warning=warnings.append,
+    )
+    assert rep.max_lag > 2.0
+    assert warnings
+    assert warnings[0].startswith("falling behind: the map is ")
+    assert "x real time so far against --speed 8" in warnings[0]
+
+
 # -- command line ------------------------------------------------------------------------
 
 
@@ -447,3 +483,36 @@ def test_office_scenario_is_a_ring_tour() -> None:
     assert not occ[i, j].any()  # the robot never drives through a wall
     m = OccupancyMap(sc.truth.grid, sc.truth.occupancy)
     assert m.grid.shape == (400, 400)
+
+
+def test_ctrl_c_keeps_the_map_so_far(doorways: Scenario, tmp_path: Path) -> None:
+    """Ctrl-C while streaming in real time: snapshots are already in OUT/snapshots, the
+    stream stops cleanly, the map so far is written and the exit code is 130."""
+    doorways.write(tmp_path / "scene")
+    d = tmp_path / "scene"
+    out = tmp_path / "out"
+    args = ["stream", str(d / "readings.csv"), "--rig", str(d / "rig.yaml")]
+    args += ["--like", str(d / "truth.yaml"), "--realtime", "--speed", "1"]
+    args += ["--snapshot-every", "1", "-o", str(out), "--method", "inverse"]
+    code = "import sys; from sonarmap.cli import main; main(sys.argv[1:])"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "COLUMNS": "200"},
+    )
+    deadline = time.monotonic() + 120
+    while not list((out / "snapshots").glob("*.png")) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert list((out / "snapshots").glob("*.png")), "no snapshot appeared while streaming"
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert "interrupted after" in stderr
+    assert "Traceback" not in stderr
+    info = json.loads((out / "stream.json").read_text())
+    assert info["interrupted"] is True
+    assert 0 < info["readings"] < len(doorways.readings)
+    assert (out / "map.yaml").is_file()
+    assert (out / "map.pgm").is_file()

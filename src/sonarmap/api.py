@@ -125,13 +125,17 @@ def stream_log(
     progress: Callable[[float], None] | None = None,
     order: TimeOrder | None = None,
     on_note: Callable[[str], None] | None = None,
+    stop: Callable[[], bool] | None = None,
+    report: ReplayReport | None = None,
+    on_update: Callable[[Readings, StreamingMapper], None] | None = None,
 ) -> tuple[StreamingMapper, ReplayReport]:
     """Replay a readings CSV through a streaming map (see :func:`sonarmap.streaming.replay`).
 
     The file is read in chunks, in time order (``order``: see
     :func:`sonarmap.readings.iter_readings`): memory is the streaming state's plus one
     chunk. ``on_note`` hears, at the end, how many readings fell wholly outside the grid
-    (see :func:`off_grid`).
+    (see :func:`off_grid`), and at once when a realtime replay falls behind; ``stop``,
+    ``report`` and ``on_update`` are passed to :func:`~sonarmap.streaming.replay`.
     """
     sm = StreamingMapper(method, grid, rig, strategy=strategy, effort=effort, **dict(params or {}))
 
@@ -160,8 +164,12 @@ def stream_log(
         snapshot_every=snapshot_every,
         on_snapshot=on_snapshot,
         progress=progress,
+        stop=stop,
+        on_warning=on_note,
+        report=report,
+        on_update=on_update,
     )
-    if rep.n_readings == 0:
+    if rep.n_readings == 0 and not rep.interrupted:
         raise InputError("no readings (the file has a header only)", path=path)
     if on_note is not None and first_outside is not None:
         on_note(_off_grid_line(outside, rep.n_readings, rig, first_outside))

@@ -6,17 +6,21 @@ atomically, so a failed command leaves no partial file.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import inspect
 import io
+import math
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from enum import Enum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Protocol
 
 import typer
 from rich.console import Console
@@ -27,8 +31,9 @@ from . import __version__
 from .api import build_map, grid_for_log, grid_for_readings, off_grid_note, stream_log
 from .errors import ConfigError, InputError, SonarmapError
 from .experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
-from .io._atomic import atomic_folder, atomic_write, atomic_write_text
+from .io._atomic import atomic_folder, atomic_write, atomic_write_text, live_outputs
 from .io._json import dumps as json_dumps
+from .io.record import BagRecorder
 from .io.rosmap import OccupancyMap, read_map, write_map
 from .mappers import MAPPERS, parse_params
 from .metrics import MapScore, score
@@ -46,7 +51,7 @@ from .readings import (
 from .rig import Rig, load_rig, save_rig
 from .scenarios import PAPER_NOISE, SCENARIOS, load_annotations, make_scenario
 from .simulate import MODEL_KINDS, PoseNoise, make_model, simulate
-from .streaming import DEFAULT_STRATEGY, StreamingMapper
+from .streaming import DEFAULT_STRATEGY, ReplayReport, StreamingMapper
 from .sweep import load_sweep, run_sweep, summarise
 
 app = typer.Typer(
@@ -65,15 +70,19 @@ ScenarioName = Enum("ScenarioName", {n.replace("-", "_"): n for n in SCENARIOS},
 MethodName = Enum("MethodName", {n: n for n in sorted(MAPPERS)}, type=str)  # type: ignore[misc]
 
 
+class _Update(Protocol):
+    def __call__(self, done: int, total: int, note: str = "") -> None: ...
+
+
 @contextmanager
-def _progress(label: str) -> Iterator[Callable[[int, int], None]]:
-    """A rich progress bar as a callback; when stderr is not a terminal (a log, CI), a
-    plain line every 10 % or 30 s instead."""
+def _progress(label: str) -> Iterator[_Update]:
+    """A rich progress bar as a callback (``note`` is shown after the label); when
+    stderr is not a terminal (a log, CI), a plain line every 10 % or 30 s instead."""
     if not err_console.is_terminal:
         yield _progress_lines(label)
         return
     bar = Progress(
-        TextColumn(label),
+        TextColumn("{task.description}"),
         BarColumn(),
         TextColumn("{task.completed}/{task.total}"),
         TimeElapsedColumn(),
@@ -83,24 +92,25 @@ def _progress(label: str) -> Iterator[Callable[[int, int], None]]:
     )
     task = bar.add_task(label, total=None)
 
-    def update(done: int, total: int) -> None:
-        bar.update(task, completed=done, total=total)
+    def update(done: int, total: int, note: str = "") -> None:
+        bar.update(task, completed=done, total=total, description=f"{label} {note}".strip())
 
     with bar:
         yield update
 
 
-def _progress_lines(label: str) -> Callable[[int, int], None]:
+def _progress_lines(label: str) -> _Update:
     start = time.monotonic()
     last = {"t": start, "step": -1}
 
-    def update(done: int, total: int) -> None:
+    def update(done: int, total: int, note: str = "") -> None:
         now = time.monotonic()
         step = int(10 * done / total) if total else -1
         if step > last["step"] or now - last["t"] >= 30.0:
             last["t"], last["step"] = now, step
             share = f"{done}/{total} ({100 * done / total:.0f} %)" if total else f"{done}"
-            print(f"{label}: {share}, {now - start:.0f} s", file=sys.stderr, flush=True)
+            extra = f", {note}" if note else ""
+            print(f"{label}: {share}, {now - start:.0f} s{extra}", file=sys.stderr, flush=True)
 
     return update
 
@@ -371,6 +381,18 @@ def stream_cmd(
         list[str] | None, typer.Option("--param", help="Method parameter KEY=VALUE, repeatable.")
     ] = None,
     reorder_window: ReorderWindow = REORDER_WINDOW,
+    bag: Annotated[
+        bool,
+        typer.Option(
+            "--bag/--no-bag",
+            help="Also record the run as a ROS 2 bag in MCAP storage (OUT/bag/): /map, "
+            "/map_occupancy, /sonar/NAME ranges, /tf robot poses; open it in Foxglove or "
+            "'ros2 bag play' it into RViz.",
+        ),
+    ] = False,
+    bag_map_every: Annotated[
+        float, typer.Option(help="--bag: log seconds between map messages.", min=0.01)
+    ] = 1.0,
 ) -> None:
     """Replay a log through a streaming map: latency, throughput, snapshots, animation.
 
@@ -394,25 +416,51 @@ def stream_cmd(
     draw_binary = (m == "gradient") if binary is None else binary
     order = TimeOrder(reorder_window)
     anim = MapAnimation(grid, m, binary=draw_binary) if animation else None
-    with atomic_folder(out) as tmp:
+    stopping = _StopOnInterrupt()
+    report = ReplayReport()
+    with (
+        live_outputs(out / "snapshots") as shots,
+        atomic_folder(out) as tmp,
+        contextlib.ExitStack() as stack,
+    ):
+        rec = stack.enter_context(BagRecorder(tmp / "bag", r)) if bag else None
+        next_map = -math.inf
+
+        def record(batch: Readings, sm: StreamingMapper) -> None:
+            nonlocal next_map
+            if rec is None:
+                return
+            rec.readings(batch)
+            t = float(batch.t[-1])
+            if t >= next_map:
+                rec.map(sm.result(), t)
+                next_map = t + bag_map_every
 
         def snapshot(t: float, sm: StreamingMapper) -> None:
             occ = sm.occupancy_
-            save_map_picture(
-                OccupancyMap(grid, occ),
-                tmp / "snapshots" / f"t{t:07.1f}.png",
-                truth=t_map,
-                binary=draw_binary,
-                title=f"{m}, t = {t:.1f} s",
+            batch = sm.last_batch
+            robot = (float(batch.x.mean()), float(batch.y.mean())) if batch else None
+            # Straight into OUT/snapshots, so they can be watched while the log plays.
+            shots.append(
+                save_map_picture(
+                    OccupancyMap(grid, occ),
+                    out / "snapshots" / f"t{t:07.1f}.png",
+                    truth=t_map,
+                    readings=batch,
+                    r_max=r.sensor.r_max,
+                    robot=robot,
+                    binary=draw_binary,
+                    title=f"{m}, t = {t:.1f} s",
+                )
             )
             if anim is not None:
-                anim.add(t, occ)
+                anim.add(t, occ, robot=robot)
 
-        with _progress(f"streaming ({m}, {strategy})") as cb:
+        with _progress(f"streaming ({m}, {strategy})") as cb, stopping:
             total = _log_seconds(readings)
 
             def tick(t: float) -> None:
-                cb(int(t * 10), int(total * 10))
+                cb(int(t * 10), int(total * 10), f"lag {report.lag:.1f} s" if realtime else "")
 
             sm, rep = stream_log(
                 readings,
@@ -429,9 +477,14 @@ def stream_cmd(
                 on_snapshot=snapshot,
                 progress=tick,
                 order=order,
-                on_note=lambda said: console.print(f"note: {said}"),
+                on_note=lambda said: err_console.print(f"warning: {said}"),
+                stop=stopping.asked,
+                report=report,
+                on_update=record if rec is not None else None,
             )
         _say_order(order)
+        if rec is not None and sm.last_batch is not None:
+            rec.map(sm.result(), float(sm.last_batch.t[-1]))
         write_map(sm.result(), tmp / "map")
         if anim is not None:
             anim.save(tmp / animation)
@@ -451,7 +504,43 @@ def stream_cmd(
     for k, v in summary.items():
         table.add_row(k, str(v))
     console.print(table)
-    console.print(f"wrote {out}/map.yaml, snapshots, {animation or 'no animation'}, stream.json")
+    bag_note = f", bag/ ({rec.n_messages} messages)" if rec is not None else ""
+    console.print(
+        f"wrote {out}/map.yaml, snapshots, {animation or 'no animation'}, stream.json{bag_note}"
+    )
+    if rep.interrupted:
+        err_console.print(
+            f"interrupted after {rep.data_duration:.1f} s of log: kept the map so far in {out}"
+        )
+        raise typer.Exit(130)
+
+
+class _StopOnInterrupt:
+    """While active, the first Ctrl-C asks a long job to stop at its next step (so it
+    can keep what it has); a second one interrupts at once."""
+
+    def __init__(self) -> None:
+        self._asked = False
+        self._previous: Any = None
+
+    def asked(self) -> bool:
+        return self._asked
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self._asked:
+            raise KeyboardInterrupt
+        self._asked = True
+        err_console.print("stopping at the next update (Ctrl-C again to abort)")
+
+    def __enter__(self) -> _StopOnInterrupt:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+            self._previous = None
 
 
 def _log_seconds(path: Path) -> float:

@@ -188,6 +188,10 @@ _HEADINGS = {
     "size_error": "post size error [m]",
     "unknown": "unknown",
     "seconds": "time [s]",
+    "known": "cells known",
+    "occupied": "occupied (of known)",
+    "outliers": "outlier readings",
+    "outlier_share": "outlier share",
 }
 
 
@@ -739,12 +743,12 @@ def _real(run: _Run, quick: bool, seed: int | None, progress: Progress | None) -
         if progress is not None:
             progress(k + 1, len(METHODS))
     fig = save_side_by_side(
-        maps, run.out / "real.png", truth=reference, truth_label="laser reference"
+        maps, run.out / "real.png", truth=reference, truth_label="laser reference", outline=False
     )
     run.report.figure(
         fig,
-        "Laser reference (first panel) and the sonar-only maps; the "
-        "reference's obstacles outlined in red.",
+        "Laser reference (first panel) and the sonar-only maps, with the classes every "
+        "score uses below each.",
     )
     run.report.table(
         _short(
@@ -800,7 +804,10 @@ def _real_sonar(run: _Run, readings: Any, rig: Any, what: str, progress: Progres
     fig = save_side_by_side(maps, run.out / "real.png")
     run.report.figure(fig, "Maps from the real sonar log; second row: their classes.")
     run.report.table(
-        run.rows,
+        _short(
+            run.rows,
+            ("method", "seconds", "known", "occupied", "outliers", "outlier_share"),
+        ),
         "Per method: time, share of cells known and, of those, occupied; for "
         "em, readings it attributes to the random component (posterior > 0.5).",
     )

@@ -14,6 +14,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
 from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
 from .errors import ConfigError
 from .grid import Grid
@@ -32,6 +34,28 @@ def _classes_as_values(occupancy: npt.NDArray[np.float32]) -> npt.NDArray[np.flo
     return np.where(cls == UNKNOWN, np.nan, cls.astype(np.float64))
 
 
+def _class_handles() -> list[Any]:
+    return [
+        Patch(facecolor="black", label="occupied (> 0.5)"),
+        Patch(facecolor="white", edgecolor="0.5", label="free (< 0.5)"),
+        Patch(facecolor=_UNKNOWN_RGBA, label="unknown (no evidence, or 0.5)"),
+    ]
+
+
+def _overlay_handles(*, truth: bool, readings: bool, robot: bool) -> list[Any]:
+    out: list[Any] = []
+    if truth:
+        out.append(Line2D([], [], color="red", lw=1, label="true walls"))
+    if readings:
+        out.append(Line2D([], [], ls="", marker=".", color="tab:blue", label="sonar positions"))
+        out.append(Line2D([], [], ls="", marker="x", color="tab:orange", label="echoes"))
+    if robot:
+        out.append(
+            Line2D([], [], ls="", marker="o", mfc="none", mec="tab:green", mew=1.5, label="robot")
+        )
+    return out
+
+
 def draw_map(
     ax: Any,
     m: OccupancyMap,
@@ -41,17 +65,22 @@ def draw_map(
     r_max: float | None = None,
     binary: bool = False,
     title: str | None = None,
-) -> None:
-    """Draw a map on a matplotlib axes: white free, black occupied, pale blue unknown.
+    robot: tuple[float, float] | None = None,
+    legend: bool = True,
+) -> Any:
+    """Draw a map on a matplotlib axes: grey levels from white (free) to black
+    (occupied), pale blue unknown; with ``binary``, the three classes every score uses.
 
-    With ``truth``, true obstacles are outlined in red; with ``readings``, sensor positions
-    are dots and echoes (ranges below ``r_max``) small crosses.
+    With ``truth``, true obstacles are outlined in red; with ``readings``, sensor
+    positions are dots and echoes (ranges below ``r_max``) small crosses; ``robot`` is
+    marked with a green ring. ``legend`` adds a key below the map and, for grey levels,
+    a colour bar. Returns the image (for a colour bar drawn elsewhere).
     """
     occ = m.occupancy.astype(np.float64)
     if binary:
         occ = _classes_as_values(m.occupancy)
     cmap = plt.get_cmap("gray_r").with_extremes(bad=_UNKNOWN_RGBA)
-    ax.imshow(
+    im = ax.imshow(
         np.ma.masked_invalid(occ),
         cmap=cmap,
         vmin=0.0,
@@ -64,14 +93,17 @@ def draw_map(
         t = (truth.classes() == OCCUPIED).astype(float)
         # Sample positions are the cell centres; the 0.5 level then runs along cell edges.
         xc, yc = truth.grid.all_centres()
-        ax.contour(xc, yc, t, levels=[0.5], colors="red", linewidths=0.6)
-    if readings is not None and len(readings):
+        ax.contour(xc, yc, t, levels=[0.5], colors="red", linewidths=0.5, alpha=0.7)
+    has_readings = readings is not None and len(readings) > 0
+    if readings is not None and has_readings:
         ax.plot(readings.x, readings.y, ".", ms=1.5, color="tab:blue")
         rng = readings.range
         hit = rng < (np.inf if r_max is None else r_max)
         ex = readings.x[hit] + rng[hit] * np.cos(readings.theta[hit])
         ey = readings.y[hit] + rng[hit] * np.sin(readings.theta[hit])
         ax.plot(ex, ey, "x", ms=2, mew=0.5, color="tab:orange")
+    if robot is not None:
+        ax.plot(*robot, "o", ms=9, mfc="none", mec="tab:green", mew=1.5)
     xmin, xmax, ymin, ymax = m.grid.extent
     ax.set_xlim(xmin, xmax)
     ax.set_ylim(ymin, ymax)
@@ -80,6 +112,33 @@ def draw_map(
     ax.set_ylabel("y [m]")
     if title:
         ax.set_title(title)
+    if legend:
+        _add_key(
+            ax,
+            im,
+            binary=binary,
+            extra=_overlay_handles(
+                truth=truth is not None, readings=has_readings, robot=robot is not None
+            ),
+        )
+    return im
+
+
+def _add_key(ax: Any, im: Any, *, binary: bool, extra: list[Any]) -> None:
+    """A key below the map: the classes, or a colour bar for grey levels, and ``extra``."""
+    if binary:
+        handles = _class_handles() + extra
+    else:
+        ax.figure.colorbar(im, ax=ax, shrink=0.7, label="occupancy (0 free, 1 occupied)")
+        handles = [_class_handles()[2], *extra]
+    ax.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.12),
+        ncol=min(3, len(handles)),
+        fontsize="small",
+        frameon=False,
+    )
 
 
 def _save(fig: Any, path: str | Path) -> Path:
@@ -103,18 +162,43 @@ def save_side_by_side(
     truth: OccupancyMap | None = None,
     binary_row: bool = True,
     truth_label: str = "truth",
+    outline: bool = True,
+    columns: int = 4,
 ) -> Path:
-    """Maps side by side (a second row with their classes) with the truth first, to a PNG."""
+    """Maps side by side with the truth first, to a PNG, at most ``columns`` a row; with
+    ``binary_row`` each map's classes (what the scores see) are drawn below it.
+
+    ``outline`` draws the truth's obstacles in red over every map (leave it off where
+    the truth is dense, like a laser reference, and would hide the maps).
+    """
     panels = ([(truth_label, truth)] if truth is not None else []) + list(maps.items())
-    rows = 2 if binary_row else 1
+    cols = max(1, min(columns, len(panels)))
+    bands = -(-len(panels) // cols)
+    per = 2 if binary_row else 1
     fig, axes = plt.subplots(
-        rows, len(panels), figsize=(3.2 * len(panels), 3.4 * rows), squeeze=False
+        bands * per,
+        cols,
+        figsize=(3.6 * cols, 3.4 * bands * per + 0.8),
+        squeeze=False,
+        layout="constrained",
     )
-    for j, (name, m) in enumerate(panels):
-        draw_map(axes[0, j], m, truth=None if name == truth_label else truth, title=name)
+    im = None
+    for k, (name, m) in enumerate(panels):
+        b, j = divmod(k, cols)
+        over = truth if outline and name != truth_label else None
+        im = draw_map(axes[b * per, j], m, truth=over, title=name, legend=False)
         if binary_row:
-            draw_map(axes[1, j], m, binary=True, title=f"{name} (binarised)")
-    fig.tight_layout()
+            draw_map(axes[b * per + 1, j], m, binary=True, title=f"{name}: classes", legend=False)
+    for k in range(len(panels), bands * cols):
+        b, j = divmod(k, cols)
+        for r in range(per):
+            axes[b * per + r, j].set_axis_off()
+    if im is not None:
+        fig.colorbar(im, ax=axes, shrink=0.5, label="occupancy (0 free, 1 occupied)")
+    handles = _class_handles() + _overlay_handles(
+        truth=truth is not None and outline, readings=False, robot=False
+    )
+    fig.legend(handles=handles, loc="outside lower center", ncol=len(handles), frameon=False)
     return _save(fig, path)
 
 
@@ -130,14 +214,22 @@ class MapAnimation:
         self.title = title
         self.binary = binary
         self.frames: list[tuple[float, npt.NDArray[np.uint8]]] = []
+        self.robots: list[tuple[float, float] | None] = []
 
-    def add(self, t: float, occupancy: npt.NDArray[np.float32]) -> None:
-        """Keep the map at log time ``t`` (seconds), as its classes if asked."""
+    def add(
+        self,
+        t: float,
+        occupancy: npt.NDArray[np.float32],
+        robot: tuple[float, float] | None = None,
+    ) -> None:
+        """Keep the map at log time ``t`` (seconds), as its classes if asked, and where
+        the robot is."""
         occ = np.asarray(occupancy, dtype=np.float64).reshape(self.grid.shape)
         if self.binary:
             occ = _classes_as_values(np.asarray(occ, dtype=np.float32))
         code = np.where(np.isnan(occ), 255, np.round(np.clip(occ, 0, 1) * 250)).astype(np.uint8)
         self.frames.append((t, code))
+        self.robots.append(robot)
 
     @staticmethod
     def check_name(path: str | Path) -> None:
@@ -173,12 +265,23 @@ class MapAnimation:
         )
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
+        (marker,) = ax.plot([], [], "o", ms=9, mfc="none", mec="tab:green", mew=1.5)
+        robots = any(r is not None for r in self.robots)
+        _add_key(
+            ax,
+            im,
+            binary=self.binary,
+            extra=_overlay_handles(truth=False, readings=False, robot=robots),
+        )
+        fig.subplots_adjust(bottom=0.2)
 
         def show(i: int) -> list[Any]:
             t, code = self.frames[i]
             im.set_data(image(code))
+            robot = self.robots[i]
+            marker.set_data([robot[0]] if robot else [], [robot[1]] if robot else [])
             ax.set_title(f"{self.title}  t = {t:.0f} s".strip())
-            return [im]
+            return [im, marker]
 
         anim = FuncAnimation(fig, show, frames=len(self.frames), blit=False)
         try:

@@ -43,6 +43,8 @@ window.addEventListener('load', function () {
 
 
 def _cell(v: Any) -> str:
+    if v is None:
+        return "-"  # not measured for this row (e.g. outliers of a method without them)
     if isinstance(v, float):
         return "-" if v != v else f"{v:.3f}"  # NaN prints as a dash
     return html.escape(str(v))

@@ -94,6 +94,8 @@ class StreamingMapper:
         self.mapper = mapper
         self.grid = grid
         self.n_readings = 0
+        #: The latest batch taken (where the robot is now, what it just heard).
+        self.last_batch: Readings | None = None
 
     def add(self, readings: Readings) -> float:
         """Take a batch of new readings and update the map; returns the seconds it took."""
@@ -101,6 +103,7 @@ class StreamingMapper:
         t0 = time.perf_counter()
         self.engine.add(readings)
         self.n_readings += len(readings)
+        self.last_batch = readings
         return time.perf_counter() - t0
 
     def improve(self, budget: float) -> int:
@@ -142,8 +145,12 @@ class ReplayReport:
     max_in_play: int = 0
     max_state_bytes: int = 0
     max_lag: float = 0.0
+    #: How late the latest update finished (``realtime`` only), seconds.
+    lag: float = 0.0
     improve_units: int = 0
     snapshot_time: float = 0.0
+    #: The replay stopped early because ``stop()`` said so.
+    interrupted: bool = False
 
     @property
     def n_updates(self) -> int:
@@ -174,6 +181,7 @@ class ReplayReport:
             "max_lag_ms": round(1e3 * self.max_lag, 3),
             "improve_units": self.improve_units,
             "snapshot_seconds": round(self.snapshot_time, 3),
+            "interrupted": self.interrupted,
         }
 
 
@@ -205,6 +213,10 @@ def time_batches(source: Iterable[Readings], period: float) -> Iterator[Readings
         yield Readings.concat(held)
 
 
+#: Seconds behind the log at which a realtime replay first warns.
+LAG_WARNING = 2.0
+
+
 def replay(
     source: Iterable[Readings],
     streamer: StreamingMapper,
@@ -215,6 +227,10 @@ def replay(
     snapshot_every: float | None = None,
     on_snapshot: Callable[[float, StreamingMapper], None] | None = None,
     progress: Callable[[float], None] | None = None,
+    stop: Callable[[], bool] | None = None,
+    on_warning: Callable[[str], None] | None = None,
+    report: ReplayReport | None = None,
+    on_update: Callable[[Readings, StreamingMapper], None] | None = None,
 ) -> ReplayReport:
     """Play readings through ``streamer``, one update per ``period`` s of log time.
 
@@ -234,17 +250,34 @@ def replay(
         follows the last update.
     progress : callable, optional
         Called with the log time after each update.
+    stop : callable, optional
+        Asked before each update (and while waiting in ``realtime``); when it returns
+        True the replay ends there, the map as it is, and the report says
+        ``interrupted``.
+    on_warning : callable, optional
+        ``realtime``: told, in one line, when the map falls behind the log by more than
+        :data:`LAG_WARNING` seconds, and again each time the lag doubles.
+    report : ReplayReport, optional
+        Filled in as the replay goes (a caller can show ``report.lag`` while it runs);
+        a new one by default.
+    on_update : callable, optional
+        Called with each batch and the streamer after the batch is in the map (to
+        record the run, for instance); its time counts as snapshot time.
     """
     if not (speed > 0):
         raise ConfigError(f"replay speed must be > 0, got {speed}")
     if snapshot_every is not None and not (snapshot_every > 0):
         raise ConfigError(f"snapshot interval must be > 0 s, got {snapshot_every}")
-    rep = ReplayReport()
+    rep = report if report is not None else ReplayReport()
+    warn_at = LAG_WARNING
     t_first: float | None = None
     t_last = 0.0
     next_snap = 0.0
     wall0 = time.perf_counter()
     for batch in time_batches(source, period):
+        if stop is not None and stop():
+            rep.interrupted = True
+            break
         if t_first is None:
             t_first = float(batch.t[0])
             next_snap = t_first + (snapshot_every or 0.0)
@@ -252,21 +285,33 @@ def replay(
         due_log = t_first + (np.floor((batch.t[0] - t_first) / period) + 1) * period
         if realtime:
             due = wall0 + (due_log - t_first) / speed
-            while (left := due - time.perf_counter()) > 0:
-                done = streamer.improve(left)
+            while (left := due - time.perf_counter()) > 0 and not (stop and stop()):
+                done = streamer.improve(min(left, 0.1))
                 rep.improve_units += done
                 if done == 0:
-                    time.sleep(max(0.0, due - time.perf_counter()))
+                    time.sleep(min(0.1, max(0.0, due - time.perf_counter())))
         rep.latency.append(streamer.add(batch))
         if realtime and len(rep.latency) > 1:
             # How late the map is; the first update, which loads the kernels, aside.
-            rep.max_lag = max(
-                rep.max_lag, time.perf_counter() - (wall0 + (due_log - t_first) / speed)
-            )
+            rep.lag = time.perf_counter() - (wall0 + (due_log - t_first) / speed)
+            rep.max_lag = max(rep.max_lag, rep.lag)
+            if rep.lag > warn_at:
+                warn_at = 2 * rep.lag
+                if on_warning is not None:
+                    pace = (due_log - t_first) / (time.perf_counter() - wall0)
+                    on_warning(
+                        f"falling behind: the map is {rep.lag:.1f} s behind the log, "
+                        f"{pace:.2f}x real time so far against --speed {speed:g}; a lower "
+                        "--speed, less --effort or a smaller --window keeps up"
+                    )
         rep.n_readings += len(batch)
         t_last = float(batch.t[-1])
         rep.max_in_play = max(rep.max_in_play, streamer.n_in_play)
         rep.max_state_bytes = max(rep.max_state_bytes, streamer.nbytes())
+        if on_update is not None:
+            t_rec = time.perf_counter()
+            on_update(batch, streamer)
+            rep.snapshot_time += time.perf_counter() - t_rec
         if snapshot_every is not None and on_snapshot is not None and t_last >= next_snap:
             t_snap = time.perf_counter()
             on_snapshot(t_last - t_first, streamer)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from ..errors import OutputError
 
-__all__ = ["atomic_folder", "atomic_outputs", "atomic_write_text"]
+__all__ = ["atomic_folder", "atomic_outputs", "atomic_write_text", "live_outputs"]
 
 
 @contextlib.contextmanager
@@ -82,8 +82,11 @@ def atomic_write(path: Path, writer: Callable[[Path], None]) -> None:
 def atomic_folder(path: Path) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; on success move every file written
     there into ``path`` (created if needed), on an exception delete it all."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    if path.exists() and not path.is_dir():
+        raise OutputError("is a file; give a folder", path=path)
+    with _as_output_error(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:
         yield tmp
     except BaseException:
@@ -95,3 +98,27 @@ def atomic_folder(path: Path) -> Iterator[Path]:
             dst.parent.mkdir(parents=True, exist_ok=True)
             os.replace(src, dst)
     shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def live_outputs(folder: Path) -> Iterator[list[Path]]:
+    """For files a long job writes straight into ``folder`` as it goes, so they can be
+    looked at while it runs (each one written atomically by the job).
+
+    Yields a list to which the job appends every file it writes. If the block raises,
+    those files are removed, and so are the folders this call created, leaving what was
+    there before.
+    """
+    if folder.exists() and not folder.is_dir():
+        raise OutputError("is a file; give a folder", path=folder)
+    created = [d for d in (folder, *folder.parents) if not d.exists()]
+    written: list[Path] = []
+    try:
+        yield written
+    except BaseException:
+        for f in written:
+            f.unlink(missing_ok=True)
+        for d in created:  # deepest first
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        raise
