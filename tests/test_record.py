@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -53,11 +54,11 @@ def test_stream_records_a_bag_the_ros_tools_read(
         assert sum(counts[t] for t in sonars) == len(r)
         assert types["/map"] == "nav_msgs/msg/OccupancyGrid"
         assert counts["/tf_static"] == 1
-        maps = [
+        maps: list[Any] = [
             bag.deserialize(raw, c.msgtype)
             for c, _, raw in bag.messages([c for c in bag.connections if c.topic == "/map"])
         ]
-        ranges = [
+        ranges: list[Any] = [
             bag.deserialize(raw, c.msgtype)
             for c, _, raw in bag.messages([c for c in bag.connections if c.topic in sonars])
         ]

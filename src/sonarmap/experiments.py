@@ -34,7 +34,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .errors import ConfigError
-from .io._atomic import atomic_write, atomic_write_text
+from .io._atomic import atomic_folder, atomic_write, atomic_write_text
 from .io._json import dumps as json_dumps
 from .io.rosmap import OccupancyMap, write_map
 from .mappers import make_mapper
@@ -905,8 +905,13 @@ def run_experiment(
         "parameter sweep on training scenes); 'inverse-traditional' is the laser-style "
         "setting the research compared against, on the same band."
     )
-    folder.mkdir(parents=True, exist_ok=True)
-    body(run, quick, seed, progress)
-    _tables(run)
-    run.report.parameters(run.params)
-    return run.report.write(folder / "report.html")
+    # Everything is written beside the folder and moved in at the end: a run that fails
+    # on its input (or is interrupted) leaves no folder and no partial results.
+    with atomic_folder(folder) as tmp:
+        run.out = tmp
+        body(run, quick, seed, progress)
+        _tables(run)
+        run.report.parameters(run.params)
+        run.report.write(tmp / "report.html")
+    run.out = folder
+    return folder / "report.html"

@@ -19,8 +19,9 @@ reading z, the correspondence c is "random" (probability p_rand, density 1 / r_m
 - M-step: each cell maximises a_i log m_i + b_i log(1 - p_hit m_i), so
   m_i = min(1, a_i / (p_hit (a_i + b_i))).
 
-EM never decreases the likelihood; it starts from the inverse mapper's map (see
-``init``). At convergence the map is binarised at 0.5 and each
+EM never decreases the likelihood; it starts by default from every touched cell at
+0.5 (the papers' neutral start), or from the inverse mapper's map (see ``init``). At
+convergence the map is binarised at 0.5 and each
 cell's uncertainty is its posterior with every other cell held at that map:
 p(m_i = 1 | Z, m_-i) from the change of sum_t log p(z_t | m) when cell i flips.
 ``occupancy_`` holds this posterior; ``em_map_`` the EM estimate.
@@ -298,10 +299,13 @@ class EMMapper(Mapper):
     def _initial_map(self, readings: Readings, ix: BeamIndex) -> F64:
         """The starting map.
 
-        In the relaxed model a touched cell at m reflects with probability p_hit * m, so
-        a long beam through many cells at 0.5 is nearly impossible and EM would blame
-        every long or no-echo reading on the random component, a fixed point it never
-        leaves. Starting from a mostly free map avoids that.
+        ``uniform`` (the default, chosen by the sweep on training scenes): every touched
+        cell at ``init_value``. In the relaxed model a touched cell at m reflects with
+        probability p_hit * m, so a long beam through many cells at 0.5 is unlikely and
+        EM may blame a long or no-echo reading on the random component, leaving the
+        cells it crosses at 0.5 (unknown). ``inverse`` starts from the inverse mapper's
+        map, pushed to nearly free (0.01) and nearly occupied (0.9), which avoids that
+        fixed point; experiments report both starts.
         """
         if self.init == "uniform":
             return np.full(ix.n_cells, self.init_value)

@@ -178,8 +178,8 @@ class StochasticMapper(Mapper):
     Parameters
     ----------
     preset : {"tuned", "thesis000", "thesis002"}
-        Parameter set the unset parameters come from: ``tuned`` (p_rand 0.05, p_hit 0.9,
-        w_occ -0.05, w_border -0.02; see :data:`PRESETS`), thesis 000 (0.05, 0.75, -0.05,
+        Parameter set the unset parameters come from: ``tuned`` (p_rand 0.05, p_hit 0.3,
+        w_occ 0, w_border -0.005; see :data:`PRESETS`), thesis 000 (0.05, 0.75, -0.05,
         -0.005) or thesis 002 (0.001, 0.35, -0.25, -0.05).
     p_rand, p_hit : float or None
         Outlier probability in [0, 1) and per-cell reflection probability in (0, 1).
