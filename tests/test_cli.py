@@ -445,3 +445,18 @@ def test_map_tells_what_it_left_out(floor_plan: Path, capsys: pytest.CaptureFixt
     assert "outside the grid and add nothing to the map" in out
     m = read_map(d / "m.yaml")
     assert m.grid.shape == (40, 50)
+
+
+def test_ctrl_c_is_exit_130_and_leaves_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import sonarmap.cli as cli
+
+    def interrupted(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "make_scenario", interrupted)
+    code, _out, err = run(["scenario", "doorways", "-o", str(tmp_path / "sc")], capsys)
+    assert code == 130
+    assert err.strip() == "sonarmap: interrupted"
+    assert list(tmp_path.iterdir()) == []

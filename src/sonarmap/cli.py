@@ -512,7 +512,8 @@ def stream_cmd(
         err_console.print(
             f"interrupted after {rep.data_duration:.1f} s of log: kept the map so far in {out}"
         )
-        raise typer.Exit(130)
+        # Not typer.Exit: main() would report the interruption a second time.
+        sys.exit(_INTERRUPTED)
 
 
 class _StopOnInterrupt:
@@ -965,6 +966,9 @@ def _fail(message: str) -> None:
     sys.exit(2)
 
 
+#: Exit code of a command stopped by Ctrl-C (128 + SIGINT, as shells report it).
+_INTERRUPTED = 130
+
 #: Options taking several numbers, which may also be given as one comma-separated word.
 _LIST_OPTIONS = {"--bounds": 4}
 
@@ -1015,6 +1019,10 @@ def main(argv: list[str] | None = None) -> None:
         ctx = getattr(err, "ctx", None)
         where = f"{ctx.command_path}: " if ctx is not None else ""
         _fail(where + " ".join(str(fmt()).split()))
+    if rv == _INTERRUPTED:
+        # Typer turns Ctrl-C into this exit code. Outputs are written atomically, so an
+        # interrupted command leaves none behind.
+        err_console.print("sonarmap: interrupted", markup=False, highlight=False)
     if isinstance(rv, int) and rv != 0:
         sys.exit(rv)
 
