@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import gzip
 import re
+from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -200,7 +201,9 @@ def in_time_order(chunks: Iterable[Readings], order: TimeOrder | None = None) ->
     """
     rep = order if order is not None else TimeOrder()
     window = rep.window
-    pending: Readings | None = None
+    # Sorted as a whole; kept as separate chunks so that a stream in order is passed on
+    # without copying, and merged only when a late reading has to be put in place.
+    pending: deque[Readings] = deque()
     latest = -np.inf
     seen = 0
     for chunk in chunks:
@@ -210,6 +213,7 @@ def in_time_order(chunks: Iterable[Readings], order: TimeOrder | None = None) ->
         before = np.maximum.accumulate(np.concatenate([[latest], chunk.t[:-1]]))
         lag = before - chunk.t
         late = lag > 0
+        in_order = True
         if late.any():
             i = int(np.flatnonzero(late)[0])
             if window is None:
@@ -224,21 +228,29 @@ def in_time_order(chunks: Iterable[Readings], order: TimeOrder | None = None) ->
             rep.reordered += int((late & ~drop).sum())
             latest = max(latest, float(before[-1]), float(chunk.t[-1]))
             chunk = chunk.take(~drop)
+            in_order = not (late & ~drop).any()
         else:
             latest = float(chunk.t[-1])
         seen += n
         if window is None or window == 0:
             yield chunk
             continue
-        merged = chunk if pending is None else Readings.concat([pending, chunk])
-        if np.any(merged.t[1:] < merged.t[:-1]):
-            merged = merged.take(np.argsort(merged.t, kind="stable"))
-        cut = int(np.searchsorted(merged.t, latest - window, side="right"))
-        if cut:
-            yield merged.take(slice(0, cut))
-        pending = merged.take(slice(cut, None))
-    if pending is not None and len(pending):
-        yield pending
+        if len(chunk) == 0:
+            continue
+        if in_order:
+            pending.append(chunk)
+        else:
+            merged = Readings.concat([*pending, chunk])
+            pending = deque([merged.take(np.argsort(merged.t, kind="stable"))])
+        watermark = latest - window
+        while pending and pending[0].t[-1] <= watermark:
+            yield pending.popleft()
+        if pending and pending[0].t[0] <= watermark:
+            cut = int(np.searchsorted(pending[0].t, watermark, side="right"))
+            yield pending[0].take(slice(0, cut))
+            pending[0] = pending[0].take(slice(cut, None))
+    if pending:
+        yield Readings.concat(list(pending))
 
 
 _TOKENIZE = re.compile(r"Expected (\d+) fields in line (\d+), saw (\d+)")
