@@ -12,6 +12,7 @@ import dataclasses
 import inspect
 import io
 import math
+import os
 import signal
 import sys
 import threading
@@ -62,9 +63,17 @@ app = typer.Typer(
     add_completion=False,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
-# soft_wrap: a message is one line in a log however wide the terminal (tables still fit it).
-err_console = Console(stderr=True, soft_wrap=True)
-console = Console(soft_wrap=True)
+
+def _console(stderr: bool = False) -> Console:
+    """A console whose messages stay on one line (soft wrap) and whose tables, in a log
+    or a pipe (no terminal, no COLUMNS), get 120 columns instead of rich's 80."""
+    stream = sys.stderr if stderr else sys.stdout
+    piped = not stream.isatty() and "COLUMNS" not in os.environ
+    return Console(stderr=stderr, soft_wrap=True, width=120 if piped else None)
+
+
+err_console = _console(stderr=True)
+console = _console()
 
 ScenarioName = Enum("ScenarioName", {n.replace("-", "_"): n for n in SCENARIOS}, type=str)  # type: ignore[misc]
 MethodName = Enum("MethodName", {n: n for n in sorted(MAPPERS)}, type=str)  # type: ignore[misc]
@@ -635,14 +644,12 @@ def demo_cmd(
     table = Table(title=f"corridor seed {seed}: maps against the truth ({len(s.passages)} doors)")
     table.add_column("method", no_wrap=True)
     for head in shown.values():
-        table.add_column(head, justify="right")
+        table.add_column(head, justify="right", no_wrap=True)
     rows = []
     for name, m in maps.items():
         sc = score(s.truth, m, s.passages).as_dict()
         rows.append({"method": name, **sc})
-        table.add_row(
-            name, *(f"{sc[k]:.2f}" if isinstance(sc[k], float) else str(sc[k]) for k in shown)
-        )
+        table.add_row(name, *(_figure(sc[k]) for k in shown))
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
     writer.writeheader()
@@ -650,6 +657,13 @@ def demo_cmd(
     atomic_write_text(out / "metrics.csv", buf.getvalue())
     console.print(table)
     console.print(f"wrote {picture}, {out / 'metrics.csv'} and maps under {out / 'maps'}")
+
+
+def _figure(v: object) -> str:
+    """A table cell: floats to two decimals, NaN (not measured) as a dash."""
+    if isinstance(v, float):
+        return "-" if math.isnan(v) else f"{v:.2f}"
+    return str(v)
 
 
 ExperimentName = Enum("ExperimentName", {n.replace("-", "_"): n for n in EXPERIMENTS}, type=str)  # type: ignore[misc]
