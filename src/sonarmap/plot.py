@@ -77,6 +77,8 @@ def draw_map(
     a colour bar. Returns the image (for a colour bar drawn elsewhere).
     """
     occ = m.occupancy.astype(np.float64)
+    # Even odds are unknown in every score; drawn so in the grey levels too.
+    occ[occ == 0.5] = np.nan
     if binary:
         occ = _classes_as_values(m.occupancy)
     cmap = plt.get_cmap("gray_r").with_extremes(bad=_UNKNOWN_RGBA)
@@ -224,7 +226,8 @@ class MapAnimation:
     ) -> None:
         """Keep the map at log time ``t`` (seconds), as its classes if asked, and where
         the robot is."""
-        occ = np.asarray(occupancy, dtype=np.float64).reshape(self.grid.shape)
+        occ = np.array(occupancy, dtype=np.float64).reshape(self.grid.shape)
+        occ[occ == 0.5] = np.nan
         if self.binary:
             occ = _classes_as_values(np.asarray(occ, dtype=np.float32))
         code = np.where(np.isnan(occ), 255, np.round(np.clip(occ, 0, 1) * 250)).astype(np.uint8)
