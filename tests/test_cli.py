@@ -460,3 +460,56 @@ def test_ctrl_c_is_exit_130_and_leaves_nothing(
     assert code == 130
     assert err.strip() == "sonarmap: interrupted"
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["map", "{d}/readings.csv", "--rig", "{d}/rig.yaml", "--resolution", "0.1", "-o", "{o}"],
+        ["show", "{d}/plan.yaml", "-o", "{o}.png"],
+        ["scenario", "doorways", "-o", "{o}"],
+        [
+            "simulate",
+            "--map",
+            "{d}/plan.yaml",
+            "--rig",
+            "{d}/rig.yaml",
+            "--trajectory",
+            "{d}/traj.csv",
+            "-o",
+            "{o}.csv",
+        ],
+        ["stream", "{d}/readings.csv", "--rig", "{d}/rig.yaml", "--method", "inverse", "-o", "{o}"],
+        ["demo", "-o", "{o}"],
+    ],
+)
+def test_an_unwritable_output_is_one_line(
+    floor_plan: Path, capsys: pytest.CaptureFixture[str], args: list[str]
+) -> None:
+    """An output under a plain file cannot be created, whoever runs the test (even root)."""
+    d = floor_plan
+    run(
+        [
+            "simulate",
+            "--map",
+            f"{d}/plan.yaml",
+            "--rig",
+            f"{d}/rig.yaml",
+            "--trajectory",
+            f"{d}/traj.csv",
+            "-o",
+            f"{d}/readings.csv",
+        ],
+        capsys,
+    )
+    (d / "blocker").write_text("a file, not a folder\n")
+    before = set(d.rglob("*"))
+    code, _out, err = run([a.format(d=d, o=d / "blocker" / "out") for a in args], capsys)
+    assert code == 2, err
+    assert err.strip().splitlines() == [
+        f"sonarmap: error: {d / 'blocker' / 'out'}{'.png' if args[0] == 'show' else ''}"
+        f"{'.csv' if args[0] == 'simulate' else ''}: cannot write: {d / 'blocker'} is a file, "
+        "not a folder"
+    ], err
+    assert "Traceback" not in err
+    assert set(d.rglob("*")) == before

@@ -32,7 +32,13 @@ from . import __version__
 from .api import build_map, grid_for_log, grid_for_readings, off_grid_note, stream_log
 from .errors import ConfigError, InputError, SonarmapError
 from .experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
-from .io._atomic import atomic_folder, atomic_write, atomic_write_text, live_outputs
+from .io._atomic import (
+    atomic_folder,
+    atomic_write,
+    atomic_write_text,
+    check_writable,
+    live_outputs,
+)
 from .io._json import dumps as json_dumps
 from .io.record import BagRecorder
 from .io.rosmap import OccupancyMap, read_map, write_map
@@ -64,6 +70,7 @@ app = typer.Typer(
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
+
 def _console(stderr: bool = False) -> Console:
     """A console whose messages stay on one line (soft wrap) and whose tables, in a log
     or a pipe (no terminal, no COLUMNS), get 120 columns instead of rich's 80."""
@@ -77,6 +84,12 @@ console = _console()
 
 ScenarioName = Enum("ScenarioName", {n.replace("-", "_"): n for n in SCENARIOS}, type=str)  # type: ignore[misc]
 MethodName = Enum("MethodName", {n: n for n in sorted(MAPPERS)}, type=str)  # type: ignore[misc]
+
+
+def _writable(out: Path) -> Path:
+    """-o: refuse at once an output that cannot be written, before any work."""
+    check_writable(out)
+    return out
 
 
 class _Update(Protocol):
@@ -172,7 +185,9 @@ _MODEL_HELP = (
 @app.command("scenario")
 def scenario_cmd(
     name: Annotated[ScenarioName, typer.Argument(help="Which scenario.")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Folder to write into.")],
+    out: Annotated[
+        Path, typer.Option("-o", "--out", callback=_writable, help="Folder to write into.")
+    ],
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     param: Annotated[
         list[str] | None,
@@ -221,7 +236,9 @@ def simulate_cmd(
     ],
     rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
     trajectory: Annotated[Path, typer.Option(help="Trajectory CSV t,x,y,theta.")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Readings CSV to write.")],
+    out: Annotated[
+        Path, typer.Option("-o", "--out", callback=_writable, help="Readings CSV to write.")
+    ],
     model: Annotated[ModelName, typer.Option(help=_MODEL_HELP)] = "acoustic",  # type: ignore[assignment]
     p_rand: Annotated[
         float | None, typer.Option(help="Spurious-reading probability [0, 1].")
@@ -288,7 +305,10 @@ def _say_order(order: TimeOrder) -> None:
 def map_cmd(
     readings: Annotated[Path, typer.Argument(help="Readings CSV t,sensor,x,y,theta,range.")],
     rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Output stem: writes .yaml/.pgm/.npy")],
+    out: Annotated[
+        Path,
+        typer.Option("-o", "--out", callback=_writable, help="Output stem: writes .yaml/.pgm/.npy"),
+    ],
     method: Annotated[MethodName, typer.Option(help="Mapping method.")] = "inverse",  # type: ignore[assignment]
     like: Annotated[Path | None, typer.Option(help="Use the grid of this map YAML.")] = None,
     resolution: Annotated[float | None, typer.Option(help="Cell size, metres.")] = None,
@@ -340,7 +360,10 @@ StreamMethod = Enum(  # type: ignore[misc]
 def stream_cmd(
     readings: Annotated[Path, typer.Argument(help="Readings CSV t,sensor,x,y,theta,range.")],
     rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Folder for the map and pictures.")],
+    out: Annotated[
+        Path,
+        typer.Option("-o", "--out", callback=_writable, help="Folder for the map and pictures."),
+    ],
     method: Annotated[StreamMethod, typer.Option(help="Mapping method.")] = "gradient",  # type: ignore[assignment]
     window: Annotated[
         str | None,
@@ -571,7 +594,7 @@ def _log_seconds(path: Path) -> float:
 @app.command("show")
 def show_cmd(
     map_: Annotated[Path, typer.Argument(help="Map YAML to draw.")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="PNG to write.")],
+    out: Annotated[Path, typer.Option("-o", "--out", callback=_writable, help="PNG to write.")],
     readings: Annotated[Path | None, typer.Option(help="Readings CSV to overlay.")] = None,
     truth: Annotated[Path | None, typer.Option(help="Truth map YAML to outline in red.")] = None,
     rig: Annotated[
@@ -612,7 +635,9 @@ def methods_cmd() -> None:
 
 @app.command("demo")
 def demo_cmd(
-    out: Annotated[Path, typer.Option("-o", "--out", help="Folder for the results.")] = Path("out"),
+    out: Annotated[
+        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
+    ] = Path("out"),
     seed: Annotated[int, typer.Option(help="Seed of the held-out corridor scene.")] = 1000,
 ) -> None:
     """Map a held-out corridor scene with every method: maps, a picture, a metrics table."""
@@ -684,7 +709,9 @@ HELD_OUT_SCENE = {"doorways": "corridor", "passages": "gaps", "noise": "corridor
 @app.command("experiment")
 def experiment_cmd(
     name: Annotated[ExperimentName, typer.Argument(help="Which experiment.")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Folder for figures and report.")],
+    out: Annotated[
+        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for figures and report.")
+    ],
     quick: Annotated[bool, typer.Option(help="A small, fast version.")] = False,
     seed: Annotated[
         int | None,
@@ -807,7 +834,9 @@ def compare_cmd(
 @app.command("sweep")
 def sweep_cmd(
     config: Annotated[Path, typer.Argument(help="Sweep file (YAML).")],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Folder for the results.")],
+    out: Annotated[
+        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
+    ],
     scheduler: Annotated[
         str | None,
         typer.Option(help="Address of a running Dask scheduler (default: start a LocalCluster)."),
@@ -856,7 +885,9 @@ def convert_cmd(
             "udacity measurement.txt."
         ),
     ],
-    out: Annotated[Path, typer.Option("-o", "--out", help="Readings CSV to write.")],
+    out: Annotated[
+        Path, typer.Option("-o", "--out", callback=_writable, help="Readings CSV to write.")
+    ],
     fmt: Annotated[str, typer.Option("--format", help="auto, carmen, rosbag or udacity.")] = "auto",
     source: Annotated[
         str,

@@ -15,7 +15,26 @@ from pathlib import Path
 
 from ..errors import OutputError
 
-__all__ = ["atomic_folder", "atomic_outputs", "atomic_write_text", "live_outputs"]
+__all__ = [
+    "atomic_folder",
+    "atomic_outputs",
+    "atomic_write_text",
+    "check_writable",
+    "live_outputs",
+]
+
+
+def check_writable(path: Path) -> None:
+    """Refuse, before any work is done, an output that could not be written: the
+    nearest existing folder above it must be a folder this process may write in."""
+    p = Path(path).absolute()
+    for above in p.parents:
+        if above.exists():
+            if not above.is_dir():
+                raise OutputError(f"cannot write: {above} is a file, not a folder", path=path)
+            if not os.access(above, os.W_OK | os.X_OK):
+                raise OutputError(f"cannot write: no permission in {above}", path=path)
+            return
 
 
 @contextlib.contextmanager
@@ -63,6 +82,7 @@ def _as_output_error(path: Path) -> Iterator[None]:
     except OSError as err:
         if isinstance(err, OutputError):
             raise
+        check_writable(path)  # names a file in the way, or a folder without permission
         raise OutputError(f"cannot write ({err.strerror or err})", path=path) from err
 
 
