@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from pathlib import Path
@@ -513,3 +514,26 @@ def test_an_unwritable_output_is_one_line(
     ], err
     assert "Traceback" not in err
     assert set(d.rglob("*")) == before
+
+
+def test_floor_plan_as_a_bare_image(floor_plan: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """simulate, map --like, compare and show take a bare image with --resolution."""
+    d = floor_plan
+    image = ["--resolution", "0.05", "--origin", "-1", "-1"]
+    sim = ["simulate", "--rig", f"{d}/rig.yaml", "--trajectory", f"{d}/traj.csv"]
+    code, _, err = run([*sim, "--map", f"{d}/plan.png", *image, "-o", f"{d}/r.csv"], capsys)
+    assert code == 0, err
+    run([*sim, "--map", f"{d}/plan.yaml", "-o", f"{d}/r2.csv"], capsys)
+    assert (d / "r.csv").read_text() == (d / "r2.csv").read_text()  # the same plan
+    mapping = ["map", f"{d}/r.csv", "--rig", f"{d}/rig.yaml", "--like", f"{d}/plan.png"]
+    code, _, err = run([*mapping, *image, "-o", f"{d}/m"], capsys)
+    assert code == 0, err
+    assert read_map(d / "m.yaml").grid == read_map(d / "plan.yaml").grid
+    code, _, err = run(
+        ["compare", f"{d}/plan.png", f"{d}/m.yaml", *image, "--json", f"{d}/s.json"], capsys
+    )
+    assert code == 0, err
+    assert json.loads((d / "s.json").read_text())[0]["f1_all"] > 0.3
+    code, _, err = run(["show", f"{d}/plan.png", "-o", f"{d}/p.png"], capsys)
+    assert code == 2
+    assert "plan.png: a bare image needs --resolution" in err

@@ -10,7 +10,7 @@ from PIL import Image
 
 from sonarmap.errors import InputError, OutputError
 from sonarmap.grid import Grid
-from sonarmap.io.rosmap import OccupancyMap, read_map, write_map
+from sonarmap.io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap, read_map, write_map
 
 
 def test_round_trip(tmp_path: Path) -> None:
@@ -128,3 +128,27 @@ def test_failed_write_leaves_nothing(tmp_path: Path) -> None:
     assert list((tmp_path / "x.pgm").iterdir()) == []
     with pytest.raises(InputError, match="occupancy values must lie in"):
         OccupancyMap(grid, np.array([[0.0, 2.0]], np.float32))
+
+
+def test_bare_image_maps(tmp_path: Path) -> None:
+    """A floor plan given as a bare image, as the research's simulator took them: dark
+    occupied, light free, mid-grey unknown, at the resolution and origin given."""
+    px = np.full((30, 40), 254, dtype=np.uint8)
+    px[0, :] = 0
+    px[5:8, 10:12] = 205
+    Image.fromarray(px).save(tmp_path / "plan.png")
+    m = read_map(tmp_path / "plan.png", resolution=0.1, origin=(-1.0, 2.0))
+    assert m.grid.shape == (30, 40)
+    assert m.grid.resolution == 0.1
+    assert m.grid.origin == (-1.0, 2.0)
+    cls = m.classes()
+    assert (cls[0] == OCCUPIED).all()
+    assert (cls[5:8, 10:12] == UNKNOWN).all()
+    assert (cls[10:, :] == FREE).all()
+    with pytest.raises(InputError, match=r"plan.png: a bare image needs --resolution"):
+        read_map(tmp_path / "plan.png")
+    with pytest.raises(InputError, match="resolution must be > 0"):
+        read_map(tmp_path / "plan.png", resolution=0.0)
+    write_map(m, tmp_path / "plan")
+    with pytest.raises(InputError, match="a resolution is given only with a bare image"):
+        read_map(tmp_path / "plan.yaml", resolution=0.1)

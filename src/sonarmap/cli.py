@@ -41,7 +41,7 @@ from .io._atomic import (
 )
 from .io._json import dumps as json_dumps
 from .io.record import BagRecorder
-from .io.rosmap import OccupancyMap, read_map, write_map
+from .io.rosmap import IMAGE_SUFFIXES, OccupancyMap, read_map, write_map
 from .mappers import MAPPERS, parse_params
 from .metrics import MapScore, score
 from .plot import MapAnimation, save_map_picture, save_side_by_side
@@ -84,6 +84,29 @@ console = _console()
 
 ScenarioName = Enum("ScenarioName", {n.replace("-", "_"): n for n in SCENARIOS}, type=str)  # type: ignore[misc]
 MethodName = Enum("MethodName", {n: n for n in sorted(MAPPERS)}, type=str)  # type: ignore[misc]
+
+
+ImageResolution = Annotated[
+    float | None,
+    typer.Option(
+        "--resolution",
+        help="Metres per pixel of a map given as a bare image (.png, .pgm, ...), as the "
+        "research's simulator took them (0.1).",
+    ),
+]
+ImageOrigin = Annotated[
+    tuple[float, float],
+    typer.Option(
+        "--origin", metavar="X Y", help="World position of a bare image's lower-left corner."
+    ),
+]
+
+
+def _read_plan(path: Path, resolution: float | None, origin: tuple[float, float]) -> OccupancyMap:
+    """A map from a map_server YAML, or from a bare image with its resolution."""
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        return read_map(path, resolution=resolution, origin=origin)
+    return read_map(path)
 
 
 def _writable(out: Path) -> Path:
@@ -231,7 +254,9 @@ def simulate_cmd(
     map_: Annotated[
         Path,
         typer.Option(
-            "--map", help="Floor plan YAML (map_server format); the finer, the truer the echoes."
+            "--map",
+            help="Floor plan: map_server YAML, or a bare image with --resolution; the finer, "
+            "the truer the echoes.",
         ),
     ],
     rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
@@ -254,12 +279,14 @@ def simulate_cmd(
     pose_sigma_xy: Annotated[float, typer.Option(help="Recorded-pose noise, metres.")] = 0.0,
     pose_sigma_theta: Annotated[float, typer.Option(help="Recorded-heading noise, rad.")] = 0.0,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    resolution: ImageResolution = None,
+    origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
     """Simulate sonar readings of a rig driven along a trajectory through a floor plan.
 
     With --model thrun, noise not given comes from the rig's sensor file (default none).
     """
-    world = read_map(map_)
+    world = _read_plan(map_, resolution, origin)
     r = load_rig(rig)
     traj = read_trajectory(trajectory)
     sonar = make_model(
@@ -323,18 +350,24 @@ def map_cmd(
         list[str] | None, typer.Option("--param", help="Method parameter KEY=VALUE, repeatable.")
     ] = None,
     reorder_window: ReorderWindow = REORDER_WINDOW,
+    origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
-    """Build an occupancy map from readings; writes OUT.yaml, OUT.pgm and OUT.npy."""
+    """Build an occupancy map from readings; writes OUT.yaml, OUT.pgm and OUT.npy.
+
+    --like may be a bare image: --resolution and --origin then place its pixels.
+    """
     m = method.value
     params = parse_params(m, _pairs(param, "--param"))
     r = load_rig(rig)
-    if like is not None and (resolution is not None or bounds is not None):
+    like_image = like is not None and like.suffix.lower() in IMAGE_SUFFIXES
+    if like is not None and (bounds is not None or (resolution is not None and not like_image)):
         raise ConfigError("give either --like or --resolution/--bounds, not both")
     order = TimeOrder(reorder_window)
     data = read_readings(readings, names=r.names, order=order)
     _say_order(order)
     if like is not None:
-        grid = read_map(like).grid
+        # A bare image as --like takes its pixel size from --resolution.
+        grid = _read_plan(like, resolution, origin).grid
     elif resolution is not None:
         grid = grid_for_readings(data, r, resolution, bounds)
     else:
@@ -437,9 +470,11 @@ def stream_cmd(
     if like is not None and bounds is not None:
         raise ConfigError("give either --like or --bounds, not both")
     grid = (
-        read_map(like).grid if like is not None else grid_for_log(readings, r, resolution, bounds)
+        _read_plan(like, resolution, (0.0, 0.0)).grid
+        if like is not None
+        else grid_for_log(readings, r, resolution, bounds)
     )
-    t_map = read_map(truth) if truth is not None else None
+    t_map = _read_plan(truth, resolution, (0.0, 0.0)) if truth is not None else None
     if t_map is not None and t_map.grid != grid:
         raise ConfigError(f"{truth}: the truth map's grid differs from the stream's; use --like")
     strategy = window if window is not None else DEFAULT_STRATEGY.get(m)
@@ -593,7 +628,7 @@ def _log_seconds(path: Path) -> float:
 
 @app.command("show")
 def show_cmd(
-    map_: Annotated[Path, typer.Argument(help="Map YAML to draw.")],
+    map_: Annotated[Path, typer.Argument(help="Map YAML (or bare image) to draw.")],
     out: Annotated[Path, typer.Option("-o", "--out", callback=_writable, help="PNG to write.")],
     readings: Annotated[Path | None, typer.Option(help="Readings CSV to overlay.")] = None,
     truth: Annotated[Path | None, typer.Option(help="Truth map YAML to outline in red.")] = None,
@@ -601,10 +636,12 @@ def show_cmd(
         Path | None,
         typer.Option(help="Rig of the readings: its r_max tells echoes from no-echo readings."),
     ] = None,
+    resolution: ImageResolution = None,
+    origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
     """Draw a map as a PNG, optionally with the truth outlined and readings overlaid."""
-    m = read_map(map_)
-    t = read_map(truth) if truth is not None else None
+    m = _read_plan(map_, resolution, origin)
+    t = _read_plan(truth, resolution, origin) if truth is not None else None
     r = load_rig(rig) if rig is not None else None
     rd = None
     if readings is not None:
@@ -790,16 +827,18 @@ def compare_cmd(
         ),
     ] = None,
     json_out: Annotated[Path | None, typer.Option("--json", help="Also write JSON here.")] = None,
+    resolution: ImageResolution = None,
+    origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
-    """Score maps against a truth map on the same grid."""
-    t = read_map(truth)
+    """Score maps against a truth map on the same grid (YAML, or bare images)."""
+    t = _read_plan(truth, resolution, origin)
     ann = annotations if annotations is not None else truth.parent / "annotations.yaml"
     passages, obstacles = load_annotations(ann) if ann.is_file() else ((), ())
     if annotations is not None and not ann.is_file():
         raise InputError("no such file", path=ann)
     rows = []
     for path in maps:
-        m = read_map(path)
+        m = _read_plan(path, resolution, origin)
         try:
             sc = score(t, m, passages, obstacles)
         except InputError as err:
@@ -822,9 +861,7 @@ def compare_cmd(
     for head in shown.values():
         table.add_column(head, justify="right")
     for path, r in zip(maps, rows, strict=True):
-        table.add_row(
-            path.stem, *(f"{r[k]:.2f}" if isinstance(r[k], float) else str(r[k]) for k in shown)
-        )
+        table.add_row(path.stem, *(_figure(r[k]) for k in shown))
     console.print(table)
     if json_out is not None:
         atomic_write_text(json_out, json_dumps(rows))

@@ -33,6 +33,7 @@ from PIL import Image, UnidentifiedImageError
 from ..errors import InputError
 from ..grid import Grid
 from ._atomic import atomic_outputs
+from ._files import need_file
 from ._yaml import read_yaml
 
 __all__ = ["FREE", "OCCUPIED", "UNKNOWN", "OccupancyMap", "classify", "read_map", "write_map"]
@@ -118,13 +119,34 @@ def _num(value: Any, path: Path, field: str) -> float:
     return v
 
 
-def read_map(path: str | Path, *, use_npy: bool = True) -> OccupancyMap:
-    """Read a map_server map (YAML and its image).
+#: map_server's default thresholds, used where a map does not state its own and written
+#: with every map (so map_server reads our classes back).
+OCCUPIED_THRESH = 0.65
+FREE_THRESH = 0.196
+
+#: Suffixes read as a bare image (a floor plan without its YAML).
+IMAGE_SUFFIXES = (".png", ".pgm", ".bmp", ".jpg", ".jpeg", ".gif", ".tif", ".tiff")
+
+
+def read_map(
+    path: str | Path,
+    *,
+    use_npy: bool = True,
+    resolution: float | None = None,
+    origin: tuple[float, float] = (0.0, 0.0),
+) -> OccupancyMap:
+    """Read a map_server map (YAML and its image), or a bare image.
 
     Parameters
     ----------
     path : str or Path
-        The YAML file.
+        The YAML file; or an image (:data:`IMAGE_SUFFIXES`), read as map_server would
+        read it with the default thresholds (dark occupied, light free, grey unknown) --
+        the research's simulator took its floor plans so, 0.1 m per pixel.
+    resolution : float, optional
+        Metres per pixel of a bare image (required for one; a YAML has its own).
+    origin : (float, float)
+        World position of a bare image's lower-left corner, metres.
 
     Returns
     -------
@@ -133,6 +155,12 @@ def read_map(path: str | Path, *, use_npy: bool = True) -> OccupancyMap:
         cells between the thresholds keep a graded value; in raw mode ``v / 100`` with
         values above 100 unknown.
     """
+    if Path(path).suffix.lower() in IMAGE_SUFFIXES:
+        return _read_bare_image(Path(path), resolution, origin)
+    if resolution is not None:
+        raise InputError(
+            "a resolution is given only with a bare image; the YAML has its own", path=path
+        )
     p = Path(path)
     meta = read_yaml(p, "map file")
     if not isinstance(meta, Mapping):
@@ -152,8 +180,8 @@ def read_map(path: str | Path, *, use_npy: bool = True) -> OccupancyMap:
     negate = meta.get("negate", 0)
     if negate not in (0, 1, True, False):
         raise InputError(f"must be 0 or 1, got {negate!r}", path=p, field="negate")
-    occ_t = _num(meta.get("occupied_thresh", 0.65), p, "occupied_thresh")
-    free_t = _num(meta.get("free_thresh", 0.196), p, "free_thresh")
+    occ_t = _num(meta.get("occupied_thresh", OCCUPIED_THRESH), p, "occupied_thresh")
+    free_t = _num(meta.get("free_thresh", FREE_THRESH), p, "free_thresh")
     if not (0.0 <= free_t < occ_t <= 1.0):
         raise InputError(
             f"thresholds need 0 <= free_thresh ({free_t}) < occupied_thresh ({occ_t}) <= 1",
@@ -189,6 +217,24 @@ def read_map(path: str | Path, *, use_npy: bool = True) -> OccupancyMap:
         if arr.shape == value.shape and arr.dtype.kind == "f":
             return OccupancyMap(grid, arr.astype(np.float32))
     return OccupancyMap(grid, occ.astype(np.float32))
+
+
+def _read_bare_image(
+    path: Path, resolution: float | None, origin: tuple[float, float]
+) -> OccupancyMap:
+    if resolution is None:
+        raise InputError("a bare image needs --resolution (metres per pixel)", path=path)
+    if not (math.isfinite(resolution) and resolution > 0):
+        raise InputError(f"resolution must be > 0 metres per pixel, got {resolution}", path=path)
+    if not all(math.isfinite(v) for v in origin):
+        raise InputError(f"origin must be finite, got {origin}", path=path)
+    value, _ = _read_image(need_file(path, "map image"))
+    prob = (255.0 - value) / 255.0
+    occ = np.full(value.shape, np.nan, dtype=np.float32)
+    occ[prob > OCCUPIED_THRESH] = 1.0
+    occ[prob < FREE_THRESH] = 0.0
+    grid = Grid(resolution=resolution, origin=origin, shape=(value.shape[0], value.shape[1]))
+    return OccupancyMap(grid, occ)
 
 
 def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8] | None]:
@@ -271,8 +317,8 @@ def write_map(m: OccupancyMap, stem: str | Path, *, exact: bool = True) -> tuple
         "origin": [m.grid.origin[0], m.grid.origin[1], 0.0],
         "negate": 0,
         # map_saver's values: they classify 0 / 254 / 205 pixels back as written.
-        "occupied_thresh": 0.65,
-        "free_thresh": 0.196,
+        "occupied_thresh": OCCUPIED_THRESH,
+        "free_thresh": FREE_THRESH,
     }
     pixels = to_pixels(m.occupancy)
     paths = (yaml_path, pgm_path, npy_path) if exact else (yaml_path, pgm_path)
