@@ -23,7 +23,13 @@ from .io._atomic import atomic_outputs, atomic_write
 from .io.rosmap import OCCUPIED, UNKNOWN, OccupancyMap, classify
 from .readings import Readings
 
-__all__ = ["MapAnimation", "draw_map", "save_map_picture", "save_side_by_side"]
+__all__ = [
+    "MapAnimation",
+    "draw_map",
+    "save_fog_picture",
+    "save_map_picture",
+    "save_side_by_side",
+]
 
 _UNKNOWN_RGBA = (0.80, 0.86, 0.93, 1.0)
 
@@ -293,3 +299,59 @@ class MapAnimation:
         finally:
             plt.close(fig)
         return p
+
+
+def save_fog_picture(
+    grid: Grid,
+    free: npt.NDArray[np.bool_],
+    tb: npt.NDArray[np.float64],
+    robots: npt.NDArray[np.float64],
+    path: str | Path,
+    *,
+    radius: float = 1.0,
+    title: str = "",
+) -> Path:
+    """A patrol as the thesis's simulator drew it: obstacles black, fog from white (just
+    seen) to dark grey (longest unseen), robots as circles with a heading segment.
+
+    ``robots`` holds (x, y, heading) per robot; ``tb`` the time since each cell was seen.
+    """
+    from matplotlib.patches import Circle
+
+    fig, ax = plt.subplots(figsize=(7, 7 * grid.rows / max(grid.cols, 1) + 0.8))
+    top = float(tb[free].max()) if free.any() else 0.0
+    shade = np.where(free, tb / top if top > 0 else 0.0, np.nan)
+    cmap = plt.get_cmap("Greys").with_extremes(bad="black")
+    im = ax.imshow(
+        np.ma.masked_invalid(shade * 0.8),
+        cmap=cmap,
+        vmin=0.0,
+        vmax=1.0,
+        extent=grid.extent,
+        interpolation="nearest",
+        origin="upper",
+    )
+    for x, y, th in robots:
+        ax.add_patch(Circle((x, y), radius, fill=False, color="tab:red", lw=1.5))
+        ax.plot([x, x + radius * np.cos(th)], [y, y + radius * np.sin(th)], color="tab:red")
+    ax.set_xlim(grid.extent[0], grid.extent[1])
+    ax.set_ylim(grid.extent[2], grid.extent[3])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    if title:
+        ax.set_title(title)
+    bar = fig.colorbar(im, ax=ax, shrink=0.7, ticks=[0, 0.8])
+    bar.ax.set_yticklabels(["just seen", f"{top:.0f} s unseen"])
+    ax.legend(
+        handles=[
+            Patch(facecolor="black", label="obstacle"),
+            Line2D([], [], ls="", marker="o", mfc="none", mec="tab:red", label="robot"),
+        ],
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.1),
+        ncol=2,
+        fontsize="small",
+        frameon=False,
+    )
+    return _save(fig, path)

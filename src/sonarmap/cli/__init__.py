@@ -28,24 +28,24 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from . import __version__
-from .api import build_map, grid_for_log, grid_for_readings, off_grid_note, stream_log
-from .errors import ConfigError, InputError, SonarmapError
-from .experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
-from .io._atomic import (
+from .. import __version__
+from ..api import build_map, grid_for_log, grid_for_readings, off_grid_note, stream_log
+from ..errors import ConfigError, InputError, SonarmapError
+from ..experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
+from ..io._atomic import (
     atomic_folder,
     atomic_write,
     atomic_write_text,
     check_writable,
     live_outputs,
 )
-from .io._json import dumps as json_dumps
-from .io.record import BagRecorder
-from .io.rosmap import IMAGE_SUFFIXES, OccupancyMap, read_map, write_map
-from .mappers import MAPPERS, parse_params
-from .metrics import MapScore, score
-from .plot import MapAnimation, save_map_picture, save_side_by_side
-from .readings import (
+from ..io._json import dumps as json_dumps
+from ..io.record import BagRecorder
+from ..io.rosmap import IMAGE_SUFFIXES, OccupancyMap, read_map, write_map
+from ..mappers import MAPPERS, parse_params
+from ..metrics import MapScore, score
+from ..plot import MapAnimation, save_map_picture, save_side_by_side
+from ..readings import (
     REORDER_WINDOW,
     Readings,
     TimeOrder,
@@ -55,11 +55,11 @@ from .readings import (
     write_readings,
     write_readings_stream,
 )
-from .rig import Rig, load_rig, save_rig
-from .scenarios import PAPER_NOISE, SCENARIOS, load_annotations, make_scenario
-from .simulate import MODEL_KINDS, PoseNoise, make_model, simulate
-from .streaming import DEFAULT_STRATEGY, ReplayReport, StreamingMapper
-from .sweep import load_sweep, run_sweep, summarise
+from ..rig import Rig, load_rig, save_rig
+from ..scenarios import PAPER_NOISE, SCENARIOS, load_annotations, make_scenario
+from ..simulate import MODEL_KINDS, PoseNoise, make_model, simulate
+from ..streaming import DEFAULT_STRATEGY, ReplayReport, StreamingMapper
+from ..sweep import load_sweep, run_sweep, summarise
 
 app = typer.Typer(
     name="sonarmap",
@@ -966,9 +966,9 @@ def convert_cmd(
 ) -> None:
     """Convert a recorded log into a readings CSV and the rig that describes its sensors."""
 
-    from .io.carmen import ConvertSummary, iter_carmen_readings
-    from .io.rosbag import BagSummary, read_bag
-    from .io.udacity import read_udacity
+    from ..io.carmen import ConvertSummary, iter_carmen_readings
+    from ..io.rosbag import BagSummary, read_bag
+    from ..io.udacity import read_udacity
 
     if fmt not in ("auto", "carmen", "rosbag", "udacity"):
         raise ConfigError(f"--format must be auto, carmen, rosbag or udacity, got {fmt!r}")
@@ -1107,6 +1107,12 @@ def main(argv: list[str] | None = None) -> None:
         err_console.print("sonarmap: interrupted", markup=False, highlight=False)
     if isinstance(rv, int) and rv != 0:
         sys.exit(rv)
+
+
+# Command groups in modules of their own; they use the helpers above.
+from .patrol import patrol_app  # noqa: E402
+
+app.add_typer(patrol_app, name="patrol")
 
 
 if __name__ == "__main__":  # pragma: no cover

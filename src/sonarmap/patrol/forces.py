@@ -1,0 +1,116 @@
+"""The pull of every place on a robot, and the direction the robot chooses.
+
+Place T pulls robot R with F = f(TB_n(T)) * g(L(R, T)) along the first direction of
+the shortest path from R to T; TB_n = TB / MTB in [0, 1]; L in decimetres, as in the
+thesis. The candidate families (docs/patrol.md):
+
+- f1 TB_n, f2 TB_n^2, f3 e^(a TB_n), f4 e^(a TB_n^2), f5 e^(a TB_n^4);
+- g1 1/L, g2 1/L^2, g3 e^(-L/b), g4 e^(-L^2/b^2), g5 e^(-L^4/b^4);
+
+adopted f3 g4 with a = 40, b = 65 dm. Forces are summed in the log domain (the common
+scale of all forces does not change a direction, and e^40 or e^-236 stay finite there).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import ConfigError
+
+__all__ = ["FORCE_F", "FORCE_G", "Force", "choose_direction", "parse_force"]
+
+F64 = npt.NDArray[np.float64]
+
+#: log f(TB_n) for f1..f5 (a the exponent's scale).
+FORCE_F: dict[str, Callable[[F64, float], F64]] = {
+    "f1": lambda t, a: np.log(t),
+    "f2": lambda t, a: 2.0 * np.log(t),
+    "f3": lambda t, a: a * t,
+    "f4": lambda t, a: a * t**2,
+    "f5": lambda t, a: a * t**4,
+}
+#: log g(L) for g1..g5, L in decimetres (b the length scale, decimetres).
+FORCE_G: dict[str, Callable[[F64, float], F64]] = {
+    "g1": lambda length, b: -np.log(length),
+    "g2": lambda length, b: -2.0 * np.log(length),
+    "g3": lambda length, b: -length / b,
+    "g4": lambda length, b: -((length / b) ** 2),
+    "g5": lambda length, b: -((length / b) ** 4),
+}
+
+
+@dataclass(frozen=True)
+class Force:
+    """A force law f x g with its constants (the thesis's adopted f3 g4, a 40, b 65 dm)."""
+
+    f: str = "f3"
+    g: str = "g4"
+    a: float = 40.0
+    b: float = 65.0
+
+    def __post_init__(self) -> None:
+        if self.f not in FORCE_F or self.g not in FORCE_G:
+            raise ConfigError(f"unknown force '{self.f}{self.g}'; valid: f1..f5 with g1..g5")
+        if not (math.isfinite(self.a) and self.a > 0 and math.isfinite(self.b) and self.b > 0):
+            raise ConfigError(f"force constants must be > 0, got a={self.a}, b={self.b}")
+
+    @property
+    def name(self) -> str:
+        return f"{self.f}{self.g}"
+
+    def log_pull(self, tb_n: F64, length_m: F64) -> F64:
+        """log F for normalised fog and path lengths in metres; -inf where there is no
+        pull (TB_n = 0 under f1/f2, or the robot's own cell)."""
+        dm = length_m * 10.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = FORCE_F[self.f](tb_n, self.a) + FORCE_G[self.g](dm, self.b)
+        out = np.where(dm > 0, out, -np.inf)
+        return np.where(np.isnan(out), -np.inf, out)
+
+
+def parse_force(text: str, a: float = 40.0, b: float = 65.0) -> Force:
+    """``f3g4`` -> Force("f3", "g4", a, b)."""
+    m = re.fullmatch(r"\s*(f[1-5])\s*(g[1-5])\s*", text)
+    if m is None:
+        raise ConfigError(f"unknown force {text!r}; expected f1..f5 followed by g1..g5, e.g. f3g4")
+    return Force(m.group(1), m.group(2), a, b)
+
+
+def choose_direction(
+    log_pull: F64, ux: F64, uy: F64, method: str = "mode", sectors: int = 8
+) -> tuple[float, float] | None:
+    """The direction a robot goes: unit (x, y), or None when nothing pulls.
+
+    ``vector``: the sum of all forces. ``mode``: forces are summed per direction sector
+    (``sectors`` equal sectors, the first centred on +x) and the robot goes along the
+    strongest sector, in the direction of the forces' sum within it (with the wave's
+    8 first steps and 8 sectors, exactly that step).
+    """
+    ok = np.isfinite(log_pull)
+    if not ok.any():
+        return None
+    lp = log_pull[ok]
+    w = np.exp(lp - lp.max())
+    x, y = ux[ok], uy[ok]
+    if method == "vector":
+        sx, sy = float(np.dot(w, x)), float(np.dot(w, y))
+    elif method == "mode":
+        angle = np.arctan2(y, x)
+        width = 2 * math.pi / sectors
+        sector = np.floor((angle + width / 2) / width).astype(np.int64) % sectors
+        strength = np.bincount(sector, weights=w, minlength=sectors)
+        best = int(np.argmax(strength))
+        pick = sector == best
+        sx, sy = float(np.dot(w[pick], x[pick])), float(np.dot(w[pick], y[pick]))
+    else:
+        raise ConfigError(f"unknown direction method {method!r}; valid: mode, vector")
+    norm = math.hypot(sx, sy)
+    if norm < 1e-12:
+        return None
+    return sx / norm, sy / norm

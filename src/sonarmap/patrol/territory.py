@@ -1,0 +1,87 @@
+"""The territory a team patrols: a map's free cells, and where a robot's centre may be.
+
+A cell is free by the same classes every map score uses (below 0.5); occupied and
+unknown cells (the grey of a real ROS map) are neither watched nor entered. A robot is a
+disc: its centre may be on a free cell whose distance to the nearest cell that is not
+free is at least the robot's radius (the thesis is silent on how the radius enters the
+map; this is the configuration-space reading of "cannot collide with obstacles").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+
+from ..errors import ConfigError, InputError
+from ..grid import Grid
+from ..io.rosmap import FREE, OccupancyMap
+
+__all__ = ["Territory"]
+
+
+@dataclass(frozen=True, eq=False)
+class Territory:
+    """A patrolled map.
+
+    Attributes
+    ----------
+    grid : Grid
+    free : ndarray of bool, shape grid.shape
+        Cells to watch (the map's free class).
+    clearance : ndarray of float, shape grid.shape
+        Distance in metres from each cell's centre to the nearest cell that is not free
+        (or to the map's edge).
+    """
+
+    grid: Grid
+    free: npt.NDArray[np.bool_]
+    clearance: npt.NDArray[np.float64]
+
+    @classmethod
+    def from_map(cls, m: OccupancyMap, cell: float | None = None) -> Territory:
+        """The territory of a map, optionally on coarser cells of about ``cell`` metres
+        (a whole number of map cells; a coarse cell is free when most of its map cells
+        are). A map with no free cell is an InputError."""
+        free = m.classes() == FREE
+        grid = m.grid
+        if cell is not None:
+            if not (np.isfinite(cell) and cell > 0):
+                raise ConfigError(f"cell size must be > 0 metres, got {cell}")
+            k = max(1, round(cell / grid.resolution))
+            if k > 1:
+                rows = -(-free.shape[0] // k)
+                cols = -(-free.shape[1] // k)
+                padded = np.zeros((rows * k, cols * k))
+                padded[: free.shape[0], : free.shape[1]] = free
+                share = padded.reshape(rows, k, cols, k).mean(axis=(1, 3))
+                free = share > 0.5
+                # Rows are counted from the top: the coarse grid keeps the top edge.
+                top = grid.origin[1] + grid.rows * grid.resolution
+                res = grid.resolution * k
+                grid = Grid(
+                    resolution=res, origin=(grid.origin[0], top - rows * res), shape=(rows, cols)
+                )
+        if not free.any():
+            raise InputError("the map has no free cell to patrol")
+        # The edge counts as an obstacle: pad with a ring of non-free cells.
+        padded = np.pad(free, 1, constant_values=False)
+        # Distance from a free centre to the nearest non-free centre, less half a cell:
+        # the gap to that cell's edge.
+        dist = ndimage.distance_transform_edt(padded)[1:-1, 1:-1] * grid.resolution
+        clearance = np.where(free, dist - 0.5 * grid.resolution, 0.0)
+        return cls(grid, free, clearance)
+
+    def passable(self, radius: float) -> npt.NDArray[np.bool_]:
+        """Cells where the centre of a disc of ``radius`` metres may be."""
+        return self.free & (self.clearance >= radius)
+
+    def cell_of(self, x: npt.ArrayLike, y: npt.ArrayLike) -> tuple[npt.NDArray[np.intp], ...]:
+        """Row and column of world points (not clipped)."""
+        r, c = self.grid.world_to_cell(x, y)
+        return np.asarray(r, np.intp), np.asarray(c, np.intp)
+
+    def inside(self, rows: npt.ArrayLike, cols: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        return self.grid.contains(rows, cols)

@@ -1,0 +1,252 @@
+"""Patrolling (first part): the wave, forces, the collision rule, fog, runs, the command."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from sonarmap.cli import main
+from sonarmap.errors import ConfigError, InputError
+from sonarmap.grid import Grid
+from sonarmap.io.rosmap import OccupancyMap, write_map
+from sonarmap.patrol import (
+    Fog,
+    Force,
+    Holonomic,
+    PatrolConfig,
+    Territory,
+    choose_direction,
+    parse_force,
+    read_starts,
+    run_patrol,
+    wave,
+)
+from sonarmap.patrol.fog import dilate, disc_offsets
+from sonarmap.patrol.paths import STEP_UNITS, STEPS
+
+
+def _graph(passable: np.ndarray) -> coo_matrix:
+    """The wave's graph written out edge by edge, for scipy's Dijkstra."""
+    rows, cols = passable.shape
+    src, dst, w = [], [], []
+    for r in range(rows):
+        for c in range(cols):
+            if not passable[r, c]:
+                continue
+            for k, (dr, dc) in enumerate(STEPS.tolist()):
+                rr, cc = r + dr, c + dc
+                if not (0 <= rr < rows and 0 <= cc < cols and passable[rr, cc]):
+                    continue
+                if k % 2 and not (passable[r, cc] and passable[rr, c]):
+                    continue
+                src.append(r * cols + c)
+                dst.append(rr * cols + cc)
+                w.append(math.sqrt(2) if k % 2 else 1.0)
+    return coo_matrix((w, (src, dst)), shape=(rows * cols, rows * cols))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_wave_is_dijkstra_and_first_steps_lead_there(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    passable = rng.random((30, 40)) > 0.3
+    passable[15, 20] = True
+    dist, first = wave(passable, (15, 20), 0.1)
+    ref = dijkstra(_graph(passable).tocsr(), indices=15 * 40 + 20).reshape(30, 40) * 0.1
+    ref[~passable] = np.inf
+    np.testing.assert_array_equal(np.isfinite(dist), np.isfinite(ref))
+    np.testing.assert_allclose(dist[np.isfinite(ref)], ref[np.isfinite(ref)], atol=1e-9)
+    # The first step of a shortest path is a step the source can take, and the rest of
+    # the path from there is exactly as long as the remainder.
+    from_src = {}
+    for k, (dr, dc) in enumerate(STEPS.tolist()):
+        rr, cc = 15 + dr, 20 + dc
+        if 0 <= rr < 30 and 0 <= cc < 40 and np.isfinite(dist[rr, cc]) and first[rr, cc] == k:
+            from_src[k] = wave(passable, (rr, cc), 0.1)[0]
+    cells = np.argwhere(np.isfinite(dist) & (first >= 0))
+    for r, c in cells[rng.choice(len(cells), 40, replace=False)]:
+        k = int(first[r, c])
+        step = 0.1 * (math.sqrt(2) if k % 2 else 1.0)
+        assert from_src[k][r, c] + step == pytest.approx(dist[r, c])
+
+
+def test_places_beside_walls_still_pull() -> None:
+    """A cell the robot's centre cannot reach is reached by a passable path and a last
+    stretch over free cells; paths between passable cells never leave them."""
+    free = np.ones((10, 10), dtype=bool)
+    passable = free.copy()
+    passable[:, :2] = False  # a strip too near the wall for the robot's centre
+    dist, _first = wave(passable, (5, 5), 1.0, target=free)
+    assert np.isfinite(dist[:, :2]).all()
+    assert dist[5, 0] == pytest.approx(5.0)
+    alone, _ = wave(passable, (5, 5), 1.0)
+    np.testing.assert_array_equal(dist[passable], alone[passable])
+
+
+def test_forces_and_directions() -> None:
+    f = parse_force("f3g4")
+    assert (f.f, f.g, f.a, f.b) == ("f3", "g4", 40.0, 65.0)
+    # log F = a TB_n - (L / b)^2, L in decimetres.
+    lp = f.log_pull(np.array([0.5, 1.0]), np.array([6.5, 13.0]))
+    np.testing.assert_allclose(lp, [20.0 - 1.0, 40.0 - 4.0])  # 65 and 130 dm
+    with pytest.raises(ConfigError, match="unknown force"):
+        parse_force("f6g1")
+    with pytest.raises(ConfigError, match="must be > 0"):
+        Force("f3", "g4", a=0.0)
+    # Three weak pulls east outvote one strong pull north in mode, not in the vector sum.
+    lp = np.log(np.array([1.0, 1.0, 1.0, 2.5]))
+    ux = np.array([1.0, 1.0, 1.0, 0.0])
+    uy = np.array([0.0, 0.0, 0.0, 1.0])
+    assert choose_direction(lp, ux, uy, "mode") == pytest.approx((1.0, 0.0))
+    vx, vy = choose_direction(lp, ux, uy, "vector")  # type: ignore[misc]
+    assert math.atan2(vy, vx) == pytest.approx(math.atan2(2.5, 3.0))
+    assert choose_direction(np.full(3, -np.inf), ux[:3], uy[:3]) is None
+    assert STEP_UNITS[2] == pytest.approx((0.0, 1.0))  # step 2 is north: one row up
+
+
+def _open_field(size: float = 30.0, res: float = 0.5) -> Territory:
+    n = int(size / res)
+    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(n, n))
+    return Territory.from_map(OccupancyMap(g, np.zeros(g.shape, np.float32)))
+
+
+def test_collision_rule_cancels_every_move_that_could_collide() -> None:
+    t = _open_field()
+    passable = t.passable(1.0)
+    rng = np.random.default_rng(0)
+    # Head-on: both moves are cancelled; a third robot far away still moves.
+    team = Holonomic(np.array([10.0, 14.0, 25.0]), np.array([10.0, 10.0, 25.0]), np.zeros(3))
+    moved = team.step([(1.0, 0.0), (-1.0, 0.0), (0.0, -1.0)], passable, t.grid, 0.5, rng)
+    assert moved.tolist() == [False, False, True]
+    assert team.blocked.tolist() == [True, True, False]
+    assert (team.x[0], team.x[1], team.y[2]) == (10.0, 14.0, 25.0 - 2.2)
+    # A move into a robot that stands is cancelled too; into a wall or off the map also.
+    team = Holonomic(np.array([10.0, 13.5]), np.array([10.0, 10.0]), np.zeros(2))
+    moved = team.step([(1.0, 0.0), None], passable, t.grid, 0.5, rng)
+    assert moved.tolist() == [False, False]
+    team = Holonomic(np.array([2.0]), np.array([10.0]), np.zeros(1))
+    assert team.step([(-1.0, 0.0)], passable, t.grid, 0.5, rng).tolist() == [False]
+
+
+def test_blocked_robots_wander_one_step_in_ten() -> None:
+    t = _open_field(60.0)
+    passable = t.passable(1.0)
+    rng = np.random.default_rng(3)
+    wandered = 0
+    trials = 2000
+    for _ in range(trials):
+        team = Holonomic(np.array([30.0]), np.array([30.0]), np.zeros(1))
+        team.blocked[:] = True
+        team.step([None], passable, t.grid, 0.5, rng)  # no pull: only the 10 % rule moves it
+        wandered += int(team.x[0] != 30.0 or team.y[0] != 30.0)
+    share = wandered / trials
+    assert abs(share - 0.1) < 3 * math.sqrt(0.1 * 0.9 / trials)
+
+
+def test_fog_bookkeeping_and_dilation() -> None:
+    g = Grid(resolution=1.0, origin=(0.0, 0.0), shape=(20, 20))
+    watched = np.ones(g.shape, dtype=bool)
+    watched[0, 0] = False
+    fog = Fog(g, watched, start=5.0)
+    assert fog.tb[0, 0] == 0.0
+    assert fog.mtb() == 5.0
+    fog.advance(0.5)
+    disc = disc_offsets(3.0, 1.0)
+    assert len(disc) == 29  # cells within 3 cells of a centre
+    fog.observe([10], [10], disc)
+    assert fog.tb[10, 13] == 0.0
+    assert fog.tb[10, 14] == 5.5
+    assert fog.tb[12, 12] == 0.0  # sqrt(8) m away: inside
+    assert fog.tb[12, 13] == 5.5  # sqrt(13) m away: outside
+    assert fog.mean_tb() == pytest.approx(5.5 * (399 - 29) / 399)
+    rng = np.random.default_rng(0)
+    tb = rng.random((15, 12))
+    np.testing.assert_array_equal(dilate(tb, 2), ndimage.grey_dilation(tb, size=(5, 5)))
+    assert dilate(tb, 0) is tb
+
+
+def test_runs_are_deterministic_and_more_robots_watch_better() -> None:
+    t = _open_field(40.0)
+    cfg = PatrolConfig(duration=300.0, paths="wave")
+    a = run_patrol(t, cfg, robots=2, seed=5)
+    b = run_patrol(t, cfg, robots=2, seed=5)
+    np.testing.assert_array_equal(a.mtb, b.mtb)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    one = run_patrol(t, cfg, robots=1, seed=5).summary()["mean_mtb"]
+    three = run_patrol(t, cfg, robots=3, seed=5).summary()["mean_mtb"]
+    assert three < one
+    s = a.summary()
+    assert 0 < s["mean_mtb"] < 300
+    assert s["worst_idleness"] >= s["mean_mtb"]
+    assert s["steps"] == 600
+
+
+def test_start_files_in_the_thesis_format(tmp_path: Path) -> None:
+    t = _open_field(30.0)
+    (tmp_path / "s.txt").write_text("2\n100 50 0\n200 250 1.57\n")
+    s = read_starts(tmp_path / "s.txt", t)
+    np.testing.assert_allclose(s, [[10.0, 25.0, 0.0], [20.0, 5.0, 1.57]])
+    (tmp_path / "bad.txt").write_text("2\n100 50 0\n200 x 1.57\n")
+    with pytest.raises(InputError, match=r"bad.txt:3: expected 'X Y phi'"):
+        read_starts(tmp_path / "bad.txt", t)
+    (tmp_path / "short.txt").write_text("4\n100 50 0\n")
+    with pytest.raises(InputError, match="says 4 robots but lists 1"):
+        read_starts(tmp_path / "short.txt", t)
+    with pytest.raises(InputError, match="start closer than 2 m"):
+        run_patrol(t, PatrolConfig(duration=1.0), starts=np.array([[10, 10, 0], [11, 10, 0.0]]))
+    with pytest.raises(InputError, match="outside the map"):
+        run_patrol(t, PatrolConfig(duration=1.0), starts=np.array([[-5, 10, 0.0]]))
+
+
+def test_patrol_run_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    g = Grid(resolution=0.1, origin=(0.0, 0.0), shape=(300, 400))
+    occ = np.zeros(g.shape, np.float32)
+    occ[140:160, 100:300] = 1.0  # a wall across the middle
+    write_map(OccupancyMap(g, occ), tmp_path / "plan")
+    (tmp_path / "starts.txt").write_text("2\n50 50 0\n350 250 0\n")
+    out = tmp_path / "run"
+    main(
+        [
+            "patrol",
+            "run",
+            "--map",
+            str(tmp_path / "plan.yaml"),
+            "--starts",
+            str(tmp_path / "starts.txt"),
+            "--duration",
+            "60",
+            "-o",
+            str(out),
+        ]
+    )
+    assert "mean MTB" in capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["steps"] == 120
+    assert summary["params"]["force"] == "f3g4"
+    lines = (out / "metrics.csv").read_text().splitlines()
+    assert lines[0] == "step,t,mtb,mean_tb,dvt"
+    assert len(lines) == 121
+    assert (out / "fog.png").stat().st_size > 1000
+    (tmp_path / "starts.txt").write_text("1\n200 150 0\n")  # inside the wall
+    with pytest.raises(SystemExit) as e:
+        main(
+            [
+                "patrol",
+                "run",
+                "--map",
+                str(tmp_path / "plan.yaml"),
+                "--starts",
+                str(tmp_path / "starts.txt"),
+                "-o",
+                str(tmp_path / "bad"),
+            ]
+        )
+    assert e.value.code == 2
+    assert "robot 1 at (20, 15) m is in or too near an obstacle" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
