@@ -250,3 +250,48 @@ def test_patrol_run_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert e.value.code == 2
     assert "robot 1 at (20, 15) m is in or too near an obstacle" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def test_network_components_with_line_of_sight() -> None:
+    t = _open_field(100.0, 1.0)
+    free = t.free.copy()
+    free[:, 50] = False  # a wall down the middle, x = 50..51 m
+    free[90:, 50] = True  # with a gap near y = 0..10 m
+    x = np.array([10.0, 40.0, 60.0, 45.0, 56.0])
+    y = np.array([50.0, 50.0, 50.0, 5.0, 5.0])
+    from sonarmap.patrol import components
+
+    lab = components("limited", x, y, clear=free, grid=t.grid, r_max=35.0)
+    # 0-1 in range and in sight; 1-2 in range but the wall is between them; 3-4 see each
+    # other through the gap; 1-3 in range (45 m? no: 45.3 m > 35) -> not linked.
+    assert lab[0] == lab[1]
+    assert lab[1] != lab[2]
+    assert lab[3] == lab[4]
+    assert lab[0] != lab[3]
+    assert len(set(components("none", x, y, clear=free, grid=t.grid).tolist())) == 5
+    assert len(set(components("full", x, y, clear=free, grid=t.grid).tolist())) == 1
+
+
+def test_without_a_network_a_robot_knows_only_what_it_saw() -> None:
+    t = _open_field(60.0)
+    starts = np.array([[10.0, 10.0, 0.0], [50.0, 50.0, 0.0]])
+    seen: dict[str, float] = {}
+    for net in ("full", "none"):
+        res = run_patrol(t, PatrolConfig(duration=200.0, network=net), starts=starts, seed=2)
+        seen[net] = res.summary()["mean_mtb"]
+    # Robots that cannot tell each other where they are patrol worse (here 2 robots).
+    assert seen["none"] > seen["full"]
+    with pytest.raises(ConfigError, match="unknown network"):
+        PatrolConfig(network="wifi")
+
+
+@pytest.mark.parametrize("policy", ["random", "reactive", "gravity"])
+def test_baselines_run_on_the_same_simulator(policy: str) -> None:
+    t = _open_field(40.0)
+    starts = np.array([[10.0, 10.0, 0.0], [30.0, 30.0, 0.0]])
+    res = run_patrol(t, PatrolConfig(duration=100.0, policy=policy), starts=starts, seed=1)
+    s = res.summary()
+    assert s["steps"] == 200
+    assert 0 < s["mean_mtb"] <= 100
+    moved = np.hypot(*(res.positions[:, :2] - starts[:, :2]).T)
+    assert (moved > 0).all()  # every robot left its start

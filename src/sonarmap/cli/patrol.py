@@ -41,12 +41,18 @@ def run_cmd(
         Path | None,
         typer.Option(help="Start file: the count, then 'X Y phi' per robot (dm from top-left)."),
     ] = None,
+    policy: Annotated[
+        str, typer.Option(help="potential (the thesis's), random, reactive or gravity.")
+    ] = "potential",
     force: Annotated[str, typer.Option(help="Force law f1..f5 x g1..g5.")] = "f3g4",
     force_a: Annotated[float, typer.Option(help="a of the f family.")] = 40.0,
     force_b: Annotated[float, typer.Option(help="b of the g family, decimetres.")] = 65.0,
     direction: Annotated[str, typer.Option(help="mode or vector.")] = "mode",
     paths: Annotated[str, typer.Option(help="wave, or straight (open space).")] = "wave",
-    network: Annotated[str, typer.Option(help="full (the only one built so far).")] = "full",
+    network: Annotated[
+        str, typer.Option(help="full, limited (--r-max and line of sight) or none.")
+    ] = "full",
+    r_max: Annotated[float, typer.Option(help="limited network: link range, metres.")] = 70.0,
     dilation: Annotated[int, typer.Option(help="Fog dilation wing, cells.")] = 0,
     radius: Annotated[float, typer.Option(help="Robot radius, metres.")] = 1.0,
     speed: Annotated[float, typer.Option(help="Robot speed, m/s.")] = 4.4,
@@ -62,10 +68,12 @@ def run_cmd(
 ) -> None:
     """Patrol a territory; writes metrics.csv, summary.json and fog.png into OUT."""
     config = PatrolConfig(
+        policy=policy,
         force=parse_force(force, force_a, force_b),
         direction=direction,
         paths=paths,
         network=network,
+        r_max=r_max,
         dilation=dilation,
         radius=radius,
         speed=speed,

@@ -9,12 +9,16 @@ falling with the length of the path to it. One module per concept:
 - :mod:`.paths` -- path lengths and first steps (the wave; straight lines in open space);
 - :mod:`.forces` -- the force families f x g and the direction a robot chooses;
 - :mod:`.robots` -- holonomic robots moving with the thesis's collision rule;
+- :mod:`.network` -- who hears whom (full, limited, none), relayed along chains;
+- :mod:`.policies` -- the potential field and the literature's baselines;
 - :mod:`.simulation` -- the step loop and what a run measured.
 """
 
 from .fog import Fog
 from .forces import FORCE_F, FORCE_G, Force, choose_direction, parse_force
+from .network import NETWORKS, components
 from .paths import straight_paths, wave
+from .policies import POLICIES
 from .robots import Holonomic
 from .simulation import PatrolConfig, PatrolResult, read_starts, run_patrol
 from .territory import Territory
@@ -22,6 +26,8 @@ from .territory import Territory
 __all__ = [
     "FORCE_F",
     "FORCE_G",
+    "NETWORKS",
+    "POLICIES",
     "Fog",
     "Force",
     "Holonomic",
@@ -29,6 +35,7 @@ __all__ = [
     "PatrolResult",
     "Territory",
     "choose_direction",
+    "components",
     "parse_force",
     "read_starts",
     "run_patrol",

@@ -4,8 +4,9 @@ Each step of ``dt`` seconds (0.5), every robot finds the path length L and first
 direction to every watched cell (the wave, or straight lines), weighs every cell by
 f(TB_n) g(L), chooses a direction (mode or vector sum) and the team moves by the
 collision rule; then time passes and every robot sees the cells within its vision
-radius. With the full network (the only one so far) every robot knows every robot's
-position, so each robot's own fog is the true fog.
+radius. Each robot keeps its own fog, built from the positions it hears of
+(:mod:`.network`); with the full network every robot's fog is the true fog. The metric
+is always the true fog.
 
 Decisions where the thesis is silent (docs/patrol.md marks them UNCLEAR):
 
@@ -31,8 +32,10 @@ import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
 from .fog import Fog, dilate, disc_offsets
-from .forces import Force, choose_direction
+from .forces import Force
+from .network import NETWORKS, components
 from .paths import STEP_UNITS, straight_paths, wave
+from .policies import POLICIES, choose
 from .robots import Holonomic
 from .territory import Territory
 
@@ -45,11 +48,13 @@ F64 = npt.NDArray[np.float64]
 class PatrolConfig:
     """Every number of a patrol run, with the thesis's defaults."""
 
+    policy: str = "potential"
     force: Force = field(default_factory=Force)
     direction: str = "mode"
     sectors: int = 8
     paths: str = "wave"
     network: str = "full"
+    r_max: float = 70.0
     dilation: int = 0
     radius: float = 1.0
     speed: float = 4.4
@@ -67,8 +72,12 @@ class PatrolConfig:
             raise ConfigError(f"unknown direction {self.direction!r}; valid: mode, vector")
         if self.paths not in ("wave", "straight"):
             raise ConfigError(f"unknown path-finding {self.paths!r}; valid: wave, straight")
-        if self.network != "full":
-            raise ConfigError(f"network {self.network!r} is not built yet; valid: full")
+        if self.policy not in POLICIES:
+            raise ConfigError(f"unknown policy {self.policy!r}; valid: {', '.join(POLICIES)}")
+        if self.network not in NETWORKS:
+            raise ConfigError(f"unknown network {self.network!r}; valid: {', '.join(NETWORKS)}")
+        if not (self.r_max >= 0):
+            raise ConfigError(f"r_max must be >= 0 metres, got {self.r_max}")
         for name in ("radius", "speed", "vision", "dt", "duration", "cell"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -226,7 +235,10 @@ def run_patrol(
         p_random=config.p_random,
     )
     g = territory.grid
-    fog = Fog(g, territory.free, config.start_fog)
+    fog = Fog(g, territory.free, config.start_fog)  # the true fog: the metric
+    # Each robot's own fog; with the full network they are all the true fog.
+    shared = config.network == "full"
+    own = [fog] if shared else [Fog(g, territory.free, config.start_fog) for _ in starts]
     disc = disc_offsets(config.vision, g.resolution)
     rng = np.random.default_rng(seed)
     cx, cy = g.all_centres()
@@ -236,17 +248,31 @@ def run_patrol(
     mtb = np.empty(steps)
     mean_tb = np.empty(steps)
     blocked = np.zeros(len(team), dtype=np.int64)
-    r, c = g.world_to_cell(team.x, team.y)
-    fog.observe(r, c, disc)
+
+    def look() -> None:
+        r, c = g.world_to_cell(team.x, team.y)
+        fog.observe(r, c, disc)
+        if shared:
+            return
+        label = components(
+            config.network, team.x, team.y, clear=territory.free, grid=g, r_max=config.r_max
+        )
+        for i, f in enumerate(own):
+            heard = label == label[i]
+            f.observe(r[heard], c[heard], disc)
+
+    look()
     wall0 = time.perf_counter()
     for k in range(steps):
-        tb = dilate(fog.tb, config.dilation)
-        top = float(tb[watched].max())
-        tb_n = tb / top if top > 0 else np.zeros_like(tb)
         directions: list[tuple[float, float] | None] = []
         r, c = g.world_to_cell(team.x, team.y)
         for i in range(len(team)):
-            if config.paths == "wave":
+            mine = own[0] if shared else own[i]
+            tb = dilate(mine.tb, config.dilation)
+            if config.policy == "random":
+                reach = np.zeros_like(watched)
+                lengths = ux = uy = np.empty(0)
+            elif config.paths == "wave":
                 dist, first = wave(passable, (int(r[i]), int(c[i])), g.resolution, watched)
                 reach = watched & (first >= 0)
                 ux = STEP_UNITS[first[reach], 0]
@@ -255,13 +281,28 @@ def run_patrol(
             else:
                 reach = watched
                 lengths, ux, uy = straight_paths(team.x[i], team.y[i], cx[reach], cy[reach])
-            pull = config.force.log_pull(tb_n[reach], lengths)
-            directions.append(choose_direction(pull, ux, uy, config.direction, config.sectors))
+            directions.append(
+                choose(
+                    config.policy,
+                    force=config.force,
+                    method=config.direction,
+                    sectors=config.sectors,
+                    tb=tb[reach],
+                    lengths=lengths,
+                    ux=ux,
+                    uy=uy,
+                    heading=float(team.heading[i]),
+                    blocked=bool(team.blocked[i]),
+                    rng=rng,
+                )
+            )
         team.step(directions, passable, g, config.dt, rng)
         blocked += team.blocked
         fog.advance(config.dt)
-        r, c = g.world_to_cell(team.x, team.y)
-        fog.observe(r, c, disc)
+        if not shared:
+            for f in own:
+                f.advance(config.dt)
+        look()
         t_out[k] = (k + 1) * config.dt
         mtb[k] = fog.mtb()
         mean_tb[k] = fog.mean_tb()

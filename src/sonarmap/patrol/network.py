@@ -1,0 +1,64 @@
+"""Who hears whom: the team's network and the relaying along chains of robots.
+
+Robots exchange only their current coordinates. ``full``: every robot hears every other.
+``limited``: a direct link needs the two robots within ``r_max`` (70 m) and a straight
+line between them that crosses no obstacle. ``none``: no links. Messages relay along
+chains, so a robot knows the coordinates of every robot in its connected component.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from ..errors import ConfigError
+from ..grid import Grid
+
+__all__ = ["NETWORKS", "components", "line_of_sight"]
+
+NETWORKS = ("full", "limited", "none")
+
+
+def line_of_sight(
+    x0: float, y0: float, x1: float, y1: float, clear: npt.NDArray[np.bool_], grid: Grid
+) -> bool:
+    """No cell that is not ``clear`` on the segment (sampled at half a cell)."""
+    n = max(2, math.ceil(math.hypot(x1 - x0, y1 - y0) / (grid.resolution / 2)) + 1)
+    t = np.linspace(0.0, 1.0, n)
+    r, c = grid.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
+    inside = grid.contains(r, c)
+    return bool(inside.all() and clear[r, c].all())
+
+
+def components(
+    kind: str,
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    *,
+    clear: npt.NDArray[np.bool_],
+    grid: Grid,
+    r_max: float = 70.0,
+) -> npt.NDArray[np.int64]:
+    """The component label of each robot (robots with one label hear each other)."""
+    n = len(x)
+    if kind == "full":
+        return np.zeros(n, dtype=np.int64)
+    if kind == "none":
+        return np.arange(n, dtype=np.int64)
+    if kind != "limited":
+        raise ConfigError(f"unknown network {kind!r}; valid: {', '.join(NETWORKS)}")
+    src, dst = [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            if math.hypot(x[i] - x[j], y[i] - y[j]) <= r_max and line_of_sight(
+                x[i], y[i], x[j], y[j], clear, grid
+            ):
+                src.append(i)
+                dst.append(j)
+    links = coo_matrix((np.ones(len(src)), (src, dst)), shape=(n, n))
+    _, labels = connected_components(links, directed=False)
+    return np.asarray(labels, dtype=np.int64)

@@ -1,0 +1,79 @@
+"""How a robot chooses where to go: the thesis's potential field, and the literature's
+baselines measured on the same simulator and metric.
+
+- ``potential`` (thesis 002): every place pulls with f(TB_n) g(L) along its path's first
+  step; mode or vector sum (:mod:`.forces`).
+- ``random``: a random walk -- keep going straight, take a new random heading when
+  blocked or, each step, with probability ``turn`` (5 %).
+- ``reactive``: the conscientious reactive agent -- head for the place unseen longest
+  (ties to the nearest), along its path's first step.
+- ``gravity`` (Sampaio et al. 2010): every place has a mass growing with its idleness and
+  pulls with mass / L^k (k = 2); the robot follows the vector sum of the pulls.
+
+Each returns a unit direction (x, y) or None (stand).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import ConfigError
+from .forces import Force, choose_direction
+
+__all__ = ["POLICIES", "choose"]
+
+F64 = npt.NDArray[np.float64]
+
+POLICIES = ("potential", "random", "reactive", "gravity")
+#: Per-step chance that the random walk turns while not blocked.
+RANDOM_TURN = 0.05
+#: Exponent of distance in the gravitational pull.
+GRAVITY_K = 2.0
+
+
+def choose(
+    policy: str,
+    *,
+    force: Force,
+    method: str,
+    sectors: int,
+    tb: F64,
+    lengths: F64,
+    ux: F64,
+    uy: F64,
+    heading: float,
+    blocked: bool,
+    rng: np.random.Generator,
+) -> tuple[float, float] | None:
+    """The direction of one robot.
+
+    ``tb`` (seconds unseen), ``lengths`` (metres) and ``ux``, ``uy`` (first-step unit
+    vectors) describe the places the robot can reach, as the robot's own fog has them.
+    """
+    if policy == "random":
+        if blocked or rng.random() < RANDOM_TURN:
+            heading = rng.uniform(-math.pi, math.pi)
+        return math.cos(heading), math.sin(heading)
+    if len(tb) == 0:
+        return None
+    if policy == "potential":
+        top = float(tb.max())
+        tb_n = tb / top if top > 0 else np.zeros_like(tb)
+        return choose_direction(force.log_pull(tb_n, lengths), ux, uy, method, sectors)
+    if policy == "reactive":
+        oldest = tb >= tb.max() - 1e-9
+        away = lengths > 0
+        pick = np.flatnonzero(oldest & away)
+        if len(pick) == 0:
+            return None
+        k = pick[np.argmin(lengths[pick])]
+        return float(ux[k]), float(uy[k])
+    if policy == "gravity":
+        with np.errstate(divide="ignore"):
+            log_pull = np.log(tb) - GRAVITY_K * np.log(lengths)
+        log_pull = np.where(lengths > 0, log_pull, -np.inf)
+        return choose_direction(log_pull, ux, uy, "vector", sectors)
+    raise ConfigError(f"unknown policy {policy!r}; valid: {', '.join(POLICIES)}")
