@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
@@ -221,6 +222,7 @@ def test_patrol_run_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
             str(tmp_path / "starts.txt"),
             "--duration",
             "60",
+            "--animate",
             "-o",
             str(out),
         ]
@@ -233,6 +235,8 @@ def test_patrol_run_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert lines[0] == "step,t,mtb,mean_tb,dvt"
     assert len(lines) == 121
     assert (out / "fog.png").stat().st_size > 1000
+    with Image.open(out / "patrol.gif") as gif:
+        assert gif.n_frames == 120  # one frame a step: fewer than 200 steps
     (tmp_path / "starts.txt").write_text("1\n200 150 0\n")  # inside the wall
     with pytest.raises(SystemExit) as e:
         main(

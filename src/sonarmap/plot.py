@@ -24,6 +24,7 @@ from .io.rosmap import OCCUPIED, UNKNOWN, OccupancyMap, classify
 from .readings import Readings
 
 __all__ = [
+    "FogAnimation",
     "MapAnimation",
     "draw_map",
     "save_fog_picture",
@@ -355,3 +356,67 @@ def save_fog_picture(
         frameon=False,
     )
     return _save(fig, path)
+
+
+class FogAnimation:
+    """Frames of a patrol (the fog as one byte per cell, the robots' poses), saved as an
+    animated GIF (or MP4 with ffmpeg)."""
+
+    def __init__(
+        self, grid: Grid, free: npt.NDArray[np.bool_], *, radius: float = 1.0, title: str = ""
+    ) -> None:
+        self.grid = grid
+        self.free = free
+        self.radius = radius
+        self.title = title
+        self.frames: list[tuple[float, npt.NDArray[np.uint8], npt.NDArray[np.float64]]] = []
+
+    def add(self, t: float, tb: npt.NDArray[np.float64], robots: npt.NDArray[np.float64]) -> None:
+        """Keep the fog at time ``t`` (shaded against its own maximum) and the robots'
+        (x, y, heading)."""
+        top = float(tb[self.free].max()) if self.free.any() else 0.0
+        shade = np.where(self.free, tb / top if top > 0 else 0.0, 1.25)
+        self.frames.append((t, np.round(shade * 200).astype(np.uint8), robots.copy()))
+
+    def save(self, path: str | Path, *, fps: int = 8) -> Path:
+        p = Path(path)
+        MapAnimation.check_name(p)
+        if not self.frames:
+            raise ConfigError("no frames to animate")
+        writer: Any = PillowWriter(fps=fps) if p.suffix.lower() == ".gif" else FFMpegWriter(fps=fps)
+        fig, ax = plt.subplots(figsize=(6, 6 * self.grid.rows / max(self.grid.cols, 1) + 0.6))
+        im = ax.imshow(
+            self.frames[0][1],
+            cmap="Greys",
+            vmin=0,
+            vmax=250,
+            extent=self.grid.extent,
+            interpolation="nearest",
+        )
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        n = len(self.frames[0][2])
+        rings = ax.plot(*([[], []] * n), color="tab:red", lw=1.2)
+        theta = np.linspace(0, 2 * np.pi, 24)
+
+        def show(i: int) -> list[Any]:
+            t, code, robots = self.frames[i]
+            im.set_data(code)
+            for line, (x, y, th) in zip(rings, robots, strict=True):
+                xs = np.concatenate(
+                    [x + self.radius * np.cos(theta), [x, x + 2 * self.radius * np.cos(th)]]
+                )
+                ys = np.concatenate(
+                    [y + self.radius * np.sin(theta), [y, y + 2 * self.radius * np.sin(th)]]
+                )
+                line.set_data(xs, ys)
+            ax.set_title(f"{self.title}  t = {t:.0f} s".strip())
+            return [im, *rings]
+
+        anim = FuncAnimation(fig, show, frames=len(self.frames), blit=False)
+        try:
+            with atomic_outputs(p, keep_suffix=True) as (tmp,):
+                anim.save(tmp, writer=writer, dpi=80)
+        finally:
+            plt.close(fig)
+        return p

@@ -8,12 +8,13 @@ import io
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 
 from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
-from ..patrol import PatrolConfig, Territory, parse_force, read_starts, run_patrol
-from ..plot import save_fog_picture
+from ..patrol import Fog, Holonomic, PatrolConfig, Territory, parse_force, read_starts, run_patrol
+from ..plot import FogAnimation, save_fog_picture
 from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
 
 patrol_app = typer.Typer(
@@ -63,10 +64,13 @@ def run_cmd(
     ] = None,
     cell: Annotated[float, typer.Option(help="Cell of the fog and paths, metres.")] = 0.5,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    animate: Annotated[
+        bool, typer.Option("--animate", help="Also write OUT/patrol.gif (200 frames at most).")
+    ] = False,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
-    """Patrol a territory; writes metrics.csv, summary.json and fog.png into OUT."""
+    """Patrol a territory; writes metrics.csv, summary.json, fog.png (and patrol.gif)."""
     config = PatrolConfig(
         policy=policy,
         force=parse_force(force, force_a, force_b),
@@ -84,8 +88,28 @@ def run_cmd(
     )
     territory = Territory.from_map(_read_plan(map_, resolution, origin), cell=cell)
     start = read_starts(starts, territory) if starts is not None else None
+    anim = FogAnimation(territory.grid, territory.free, radius=radius) if animate else None
+    every = max(1, round(config.duration / config.dt) // 200)
+    frame = {"k": 0}
+
+    def keep(t: float, team: Holonomic, fog: Fog) -> None:
+        frame["k"] += 1
+        if anim is not None and frame["k"] % every == 0:
+            anim.add(t, fog.tb, np.column_stack([team.x, team.y, team.heading]))
+
     with _progress("patrolling") as cb, atomic_folder(out) as tmp:
-        res = run_patrol(territory, config, starts=start, robots=robots, seed=seed, progress=cb)
+        res = run_patrol(
+            territory,
+            config,
+            starts=start,
+            robots=robots,
+            seed=seed,
+            progress=cb,
+            on_step=keep if anim is not None else None,
+        )
+        if anim is not None:
+            anim.title = f"{policy}, {res.summary()['robots']} robots"
+            anim.save(tmp / "patrol.gif")
         buf = io.StringIO()
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(["step", "t", "mtb", "mean_tb", "dvt"])
