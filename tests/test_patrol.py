@@ -299,3 +299,21 @@ def test_baselines_run_on_the_same_simulator(policy: str) -> None:
     assert 0 < s["mean_mtb"] <= 100
     moved = np.hypot(*(res.positions[:, :2] - starts[:, :2]).T)
     assert (moved > 0).all()  # every robot left its start
+
+
+def test_artificial_obstacles_change_nothing_for_one_robot() -> None:
+    t = _open_field(40.0)
+    one = np.array([[20.0, 20.0, 0.0]])
+    runs = [
+        run_patrol(t, PatrolConfig(duration=60.0, crowding=c), starts=one, seed=4)
+        for c in ("none", "obstacles")
+    ]
+    np.testing.assert_array_equal(runs[0].mtb, runs[1].mtb)
+    two = np.array([[15.0, 20.0, 0.0], [25.0, 20.0, 0.0]])
+    runs = [
+        run_patrol(t, PatrolConfig(duration=60.0, crowding=c), starts=two, seed=4)
+        for c in ("none", "obstacles")
+    ]
+    assert not np.array_equal(runs[0].positions, runs[1].positions)
+    with pytest.raises(ConfigError, match="unknown crowding rule"):
+        PatrolConfig(crowding="semaphores")

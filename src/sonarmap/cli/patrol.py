@@ -55,6 +55,10 @@ def run_cmd(
     ] = "full",
     r_max: Annotated[float, typer.Option(help="limited network: link range, metres.")] = 70.0,
     dilation: Annotated[int, typer.Option(help="Fog dilation wing, cells.")] = 0,
+    crowding: Annotated[
+        str, typer.Option(help="none, or obstacles (artificial obstacles around robots).")
+    ] = "none",
+    r_obst: Annotated[float, typer.Option(help="Artificial obstacles' radius, metres.")] = 3.0,
     radius: Annotated[float, typer.Option(help="Robot radius, metres.")] = 1.0,
     speed: Annotated[float, typer.Option(help="Robot speed, m/s.")] = 4.4,
     vision: Annotated[float, typer.Option(help="Vision radius, metres.")] = 10.0,
@@ -79,6 +83,8 @@ def run_cmd(
         network=network,
         r_max=r_max,
         dilation=dilation,
+        crowding=crowding,
+        r_obst=r_obst,
         radius=radius,
         speed=speed,
         vision=vision,

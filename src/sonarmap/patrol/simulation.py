@@ -39,7 +39,11 @@ from .policies import POLICIES, choose
 from .robots import Holonomic
 from .territory import Territory
 
-__all__ = ["PatrolConfig", "PatrolResult", "read_starts", "run_patrol"]
+__all__ = ["CROWDING", "PatrolConfig", "PatrolResult", "read_starts", "run_patrol"]
+
+#: Anti-crowding rules built so far: none, or artificial obstacles (each robot blocks,
+#: on its own path-finding map, a disc of ``r_obst`` around every robot it hears of).
+CROWDING = ("none", "obstacles")
 
 F64 = npt.NDArray[np.float64]
 
@@ -56,6 +60,8 @@ class PatrolConfig:
     network: str = "full"
     r_max: float = 70.0
     dilation: int = 0
+    crowding: str = "none"
+    r_obst: float = 3.0
     radius: float = 1.0
     speed: float = 4.4
     min_separation: float = 2.0
@@ -82,6 +88,12 @@ class PatrolConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be > 0, got {v}")
+        if self.crowding not in CROWDING:
+            raise ConfigError(
+                f"unknown crowding rule {self.crowding!r}; valid: {', '.join(CROWDING)}"
+            )
+        if not (math.isfinite(self.r_obst) and self.r_obst > 0):
+            raise ConfigError(f"r_obst must be > 0 metres, got {self.r_obst}")
         if self.sectors < 1:
             raise ConfigError(f"sectors must be >= 1, got {self.sectors}")
         if self.dilation < 0:
@@ -249,17 +261,40 @@ def run_patrol(
     mean_tb = np.empty(steps)
     blocked = np.zeros(len(team), dtype=np.int64)
 
+    obst = disc_offsets(config.r_obst, g.resolution)
+    label = np.zeros(len(team), dtype=np.int64)
+
     def look() -> None:
+        nonlocal label
         r, c = g.world_to_cell(team.x, team.y)
         fog.observe(r, c, disc)
-        if shared:
-            return
         label = components(
             config.network, team.x, team.y, clear=territory.free, grid=g, r_max=config.r_max
         )
+        if shared:
+            return
         for i, f in enumerate(own):
             heard = label == label[i]
             f.observe(r[heard], c[heard], disc)
+
+    def paths_map(
+        i: int, r: npt.NDArray[np.intp], c: npt.NDArray[np.intp]
+    ) -> npt.NDArray[np.bool_]:
+        """Robot i's path-finding map: with artificial obstacles, the discs around the
+        other robots it hears of are closed (its own cell stays open)."""
+        if config.crowding != "obstacles" or len(team) == 1:
+            return passable
+        mine = passable.copy()
+        nr, nc = mine.shape
+        for j in np.flatnonzero(label == label[i]).tolist():
+            if j == i:
+                continue
+            rr = obst[:, 0] + r[j]
+            cc = obst[:, 1] + c[j]
+            ok = (rr >= 0) & (rr < nr) & (cc >= 0) & (cc < nc)
+            mine[rr[ok], cc[ok]] = False
+        mine[r[i], c[i]] = passable[r[i], c[i]]
+        return mine
 
     look()
     wall0 = time.perf_counter()
@@ -273,7 +308,8 @@ def run_patrol(
                 reach = np.zeros_like(watched)
                 lengths = ux = uy = np.empty(0)
             elif config.paths == "wave":
-                dist, first = wave(passable, (int(r[i]), int(c[i])), g.resolution, watched)
+                here = paths_map(i, r, c)
+                dist, first = wave(here, (int(r[i]), int(c[i])), g.resolution, watched)
                 reach = watched & (first >= 0)
                 ux = STEP_UNITS[first[reach], 0]
                 uy = STEP_UNITS[first[reach], 1]
