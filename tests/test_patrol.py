@@ -317,3 +317,32 @@ def test_artificial_obstacles_change_nothing_for_one_robot() -> None:
     assert not np.array_equal(runs[0].positions, runs[1].positions)
     with pytest.raises(ConfigError, match="unknown crowding rule"):
         PatrolConfig(crowding="semaphores")
+
+
+def test_refinement_penalty_and_direction() -> None:
+    from sonarmap.patrol.refine import obstacle_penalty, refine_direction
+
+    free = np.ones((12, 14), dtype=bool)
+    free[3, 4] = False
+    pen = obstacle_penalty(free, 1.0, window=3.0)
+    # By hand at cell (5, 6): the obstacle (d^2 = 4 + 4) and no map edge within 3 cells.
+    assert pen[5, 6] == pytest.approx(1 / 8)
+    # At a corner the outside of the map counts: every cell of the window off the map.
+    brute = sum(
+        1.0 / (dr * dr + dc * dc)
+        for dr in range(-3, 4)
+        for dc in range(-3, 4)
+        if (dr or dc) and not (0 <= dr < 12 and 0 <= dc < 14 and free[dr, dc])
+    )
+    assert pen[0, 0] == pytest.approx(brute)
+    # Heading along a wall at 1.5 m, the refined direction turns away from it.
+    t = _open_field(40.0)
+    passable = t.passable(1.0)
+    pen = obstacle_penalty(t.free, t.grid.resolution)
+    dx, dy = refine_direction(20.0, 1.6, (1.0, 0.0), pen, passable, t.grid)
+    assert dy > 0
+    assert dx > 0
+    # In the open, far from walls, the direction stays.
+    assert refine_direction(20.0, 20.0, (1.0, 0.0), pen, passable, t.grid) == pytest.approx(
+        (1.0, 0.0), abs=0.05
+    )

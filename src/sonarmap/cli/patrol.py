@@ -59,6 +59,14 @@ def run_cmd(
         str, typer.Option(help="none, or obstacles (artificial obstacles around robots).")
     ] = "none",
     r_obst: Annotated[float, typer.Option(help="Artificial obstacles' radius, metres.")] = 3.0,
+    refine: Annotated[
+        bool,
+        typer.Option(
+            "--refine/--no-refine",
+            help="Direction refinement: head for the least obstacle-crowded point near a "
+            "goal 2.5 m ahead.",
+        ),
+    ] = False,
     radius: Annotated[float, typer.Option(help="Robot radius, metres.")] = 1.0,
     speed: Annotated[float, typer.Option(help="Robot speed, m/s.")] = 4.4,
     vision: Annotated[float, typer.Option(help="Vision radius, metres.")] = 10.0,
@@ -85,6 +93,7 @@ def run_cmd(
         dilation=dilation,
         crowding=crowding,
         r_obst=r_obst,
+        refine=refine,
         radius=radius,
         speed=speed,
         vision=vision,

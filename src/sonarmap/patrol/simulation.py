@@ -36,6 +36,7 @@ from .forces import Force
 from .network import NETWORKS, components
 from .paths import STEP_UNITS, straight_paths, wave
 from .policies import POLICIES, choose
+from .refine import obstacle_penalty, refine_direction
 from .robots import Holonomic
 from .territory import Territory
 
@@ -62,6 +63,10 @@ class PatrolConfig:
     dilation: int = 0
     crowding: str = "none"
     r_obst: float = 3.0
+    refine: bool = False
+    refine_window: float = 10.0
+    refine_goal: float = 2.5
+    refine_side: float = 2.0
     radius: float = 1.0
     speed: float = 4.4
     min_separation: float = 2.0
@@ -262,6 +267,11 @@ def run_patrol(
     blocked = np.zeros(len(team), dtype=np.int64)
 
     obst = disc_offsets(config.r_obst, g.resolution)
+    penalty = (
+        obstacle_penalty(territory.free, g.resolution, config.refine_window)
+        if config.refine
+        else None
+    )
     label = np.zeros(len(team), dtype=np.int64)
 
     def look() -> None:
@@ -332,6 +342,22 @@ def run_patrol(
                     rng=rng,
                 )
             )
+        if penalty is not None:
+            directions = [
+                d
+                if d is None
+                else refine_direction(
+                    float(team.x[i]),
+                    float(team.y[i]),
+                    d,
+                    penalty,
+                    passable,
+                    g,
+                    r_goal=config.refine_goal,
+                    side=config.refine_side,
+                )
+                for i, d in enumerate(directions)
+            ]
         team.step(directions, passable, g, config.dt, rng)
         blocked += team.blocked
         fog.advance(config.dt)
