@@ -316,7 +316,7 @@ def test_artificial_obstacles_change_nothing_for_one_robot() -> None:
     ]
     assert not np.array_equal(runs[0].positions, runs[1].positions)
     with pytest.raises(ConfigError, match="unknown crowding rule"):
-        PatrolConfig(crowding="semaphores")
+        PatrolConfig(crowding="queues")
 
 
 def test_refinement_penalty_and_direction() -> None:
@@ -346,3 +346,45 @@ def test_refinement_penalty_and_direction() -> None:
     assert refine_direction(20.0, 20.0, (1.0, 0.0), pen, passable, t.grid) == pytest.approx(
         (1.0, 0.0), abs=0.05
     )
+
+
+def test_semaphores(tmp_path: Path) -> None:
+    from sonarmap.patrol.semaphores import Semaphores, read_semaphores
+
+    t = _open_field(40.0, 1.0)
+    # A 10 m square in the middle, in dm from the top-left corner (y down).
+    (tmp_path / "sem.txt").write_text("150 150;250 150;250 250;150 250\n")
+    (area,) = read_semaphores(tmp_path / "sem.txt", t.grid)
+    assert area.sum() == 100
+    assert area[20, 20]
+    assert not area[10, 10]
+    (tmp_path / "bad.txt").write_text("150 150;250 150;250 250;150 250\n1 2;3\n")
+    with pytest.raises(InputError, match=r"bad.txt:2: a semaphore needs at least 3"):
+        read_semaphores(tmp_path / "bad.txt", t.grid)
+    sem = Semaphores([area])
+    heard = np.ones(3, dtype=bool)
+    # Robots 0 and 1 enter on the same step: both own it, robot 2 finds it closed.
+    sem.update(np.array([20, 21, 5]), np.array([20, 21, 5]))
+    assert sem.owners[0] == {0, 1}
+    assert sem.closed_for(0, heard) is None
+    closed = sem.closed_for(2, heard)
+    assert closed is not None
+    assert closed.sum() == 100
+    # Not if robot 2 hears of neither owner.
+    assert sem.closed_for(2, np.array([False, False, True])) is None
+    # Robot 2 cannot join later; when both owners leave, it is free again.
+    sem.update(np.array([20, 5, 22]), np.array([20, 5, 22]))
+    assert sem.owners[0] == {0}
+    sem.update(np.array([5, 5, 5]), np.array([6, 7, 8]))
+    assert sem.owners[0] == set()
+    # One robot: semaphores change nothing.
+    one = np.array([[20.0, 20.0, 0.0]])
+    runs = [
+        run_patrol(
+            t, PatrolConfig(duration=40.0, crowding=c), starts=one, seed=4, semaphores=[area]
+        )
+        for c in ("none", "semaphores")
+    ]
+    np.testing.assert_array_equal(runs[0].mtb, runs[1].mtb)
+    with pytest.raises(ConfigError, match="needs a semaphore file"):
+        run_patrol(t, PatrolConfig(duration=1.0, crowding="semaphores"), starts=one)

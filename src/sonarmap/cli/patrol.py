@@ -14,6 +14,7 @@ import typer
 from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
 from ..patrol import Fog, Holonomic, PatrolConfig, Territory, parse_force, read_starts, run_patrol
+from ..patrol.semaphores import read_semaphores
 from ..plot import FogAnimation, save_fog_picture
 from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
 
@@ -56,8 +57,13 @@ def run_cmd(
     r_max: Annotated[float, typer.Option(help="limited network: link range, metres.")] = 70.0,
     dilation: Annotated[int, typer.Option(help="Fog dilation wing, cells.")] = 0,
     crowding: Annotated[
-        str, typer.Option(help="none, or obstacles (artificial obstacles around robots).")
+        str,
+        typer.Option(help="none, obstacles (artificial obstacles around robots) or semaphores."),
     ] = "none",
+    semaphores: Annotated[
+        Path | None,
+        typer.Option(help="Semaphore file: one polygon a line, 'x y;x y;...' in dm."),
+    ] = None,
     r_obst: Annotated[float, typer.Option(help="Artificial obstacles' radius, metres.")] = 3.0,
     refine: Annotated[
         bool,
@@ -103,6 +109,7 @@ def run_cmd(
     )
     territory = Territory.from_map(_read_plan(map_, resolution, origin), cell=cell)
     start = read_starts(starts, territory) if starts is not None else None
+    areas = read_semaphores(semaphores, territory.grid) if semaphores is not None else None
     anim = FogAnimation(territory.grid, territory.free, radius=radius) if animate else None
     every = max(1, round(config.duration / config.dt) // 200)
     frame = {"k": 0}
@@ -121,6 +128,7 @@ def run_cmd(
             seed=seed,
             progress=cb,
             on_step=keep if anim is not None else None,
+            semaphores=areas,
         )
         if anim is not None:
             anim.title = f"{policy}, {res.summary()['robots']} robots"

@@ -38,13 +38,15 @@ from .paths import STEP_UNITS, straight_paths, wave
 from .policies import POLICIES, choose
 from .refine import obstacle_penalty, refine_direction
 from .robots import Holonomic
+from .semaphores import Semaphores
 from .territory import Territory
 
 __all__ = ["CROWDING", "PatrolConfig", "PatrolResult", "read_starts", "run_patrol"]
 
-#: Anti-crowding rules built so far: none, or artificial obstacles (each robot blocks,
-#: on its own path-finding map, a disc of ``r_obst`` around every robot it hears of).
-CROWDING = ("none", "obstacles")
+#: Anti-crowding rules: none; artificial obstacles (each robot blocks, on its own
+#: path-finding map, a disc of ``r_obst`` around every robot it hears of); semaphores
+#: (:mod:`.semaphores`).
+CROWDING = ("none", "obstacles", "semaphores")
 
 F64 = npt.NDArray[np.float64]
 
@@ -226,6 +228,7 @@ def run_patrol(
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
     on_step: Callable[[float, Holonomic, Fog], None] | None = None,
+    semaphores: list[npt.NDArray[np.bool_]] | None = None,
 ) -> PatrolResult:
     """Patrol ``territory`` for ``config.duration`` seconds.
 
@@ -235,7 +238,13 @@ def run_patrol(
         World (x, y, heading) per robot; otherwise ``robots`` random starts (seeded).
     on_step : callable, optional
         Called after every step with the time, the robots and the fog (for pictures).
+    semaphores : list of ndarray of bool, optional
+        The semaphores' cells (:func:`~sonarmap.patrol.semaphores.read_semaphores`);
+        needed by ``crowding="semaphores"``.
     """
+    if config.crowding == "semaphores" and not semaphores:
+        raise ConfigError("crowding 'semaphores' needs a semaphore file (--semaphores)")
+    sems = Semaphores(semaphores or [])
     passable = territory.passable(config.radius)
     if starts is None:
         if robots is None or robots < 1:
@@ -292,6 +301,13 @@ def run_patrol(
     ) -> npt.NDArray[np.bool_]:
         """Robot i's path-finding map: with artificial obstacles, the discs around the
         other robots it hears of are closed (its own cell stays open)."""
+        if config.crowding == "semaphores":
+            closed = sems.closed_for(i, label == label[i])
+            if closed is None:
+                return passable
+            mine = passable & ~closed
+            mine[r[i], c[i]] = passable[r[i], c[i]]
+            return mine
         if config.crowding != "obstacles" or len(team) == 1:
             return passable
         mine = passable.copy()
@@ -360,6 +376,8 @@ def run_patrol(
             ]
         team.step(directions, passable, g, config.dt, rng)
         blocked += team.blocked
+        moved_r, moved_c = g.world_to_cell(team.x, team.y)
+        sems.update(np.asarray(moved_r), np.asarray(moved_c))
         fog.advance(config.dt)
         if not shared:
             for f in own:

@@ -1,0 +1,82 @@
+"""Semaphores against crowding: marked areas (narrow tunnels, small rooms) that one
+robot, or the robots that entered together, may hold at a time.
+
+An empty semaphore is inactive. When robots enter it, their step's entrants own it and
+its area becomes impassable on the path-finding map of every other robot that hears of
+an owner (robots entering on the same step may all stay). It frees itself when its
+owners have left; robots still inside then own it.
+
+File format (the thesis's): one semaphore per line, its polygon's vertices as ``x y``
+pairs separated by ``;`` (no spaces around it), in decimetres from the map's top-left
+corner with y down, e.g. ``953 615;753 551;787 315;1063 97;1181 100;1181 241``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+from matplotlib.path import Path as Polygon
+
+from ..errors import InputError
+from ..grid import Grid
+
+__all__ = ["Semaphores", "read_semaphores"]
+
+
+def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]:
+    """The cells of each semaphore of a file (cell centres inside the polygon)."""
+    p = Path(path)
+    try:
+        lines = p.read_text().splitlines()
+    except OSError as err:
+        raise InputError(f"cannot read semaphore file ({err.strerror or err})", path=p) from err
+    except UnicodeDecodeError as err:
+        raise InputError("semaphore file is not text", path=p) from err
+    top = grid.origin[1] + grid.rows * grid.resolution
+    cx, cy = grid.all_centres()
+    points = np.column_stack([cx.ravel(), cy.ravel()])
+    out = []
+    for number, text in enumerate(lines, start=1):
+        if not text.strip() or text.lstrip().startswith("#"):
+            continue
+        try:
+            xy = [tuple(float(v) for v in pair.split()) for pair in text.strip().split(";")]
+        except ValueError:
+            raise InputError(f"expected 'x y;x y;...', got {text!r}", path=p, line=number) from None
+        if any(len(v) != 2 for v in xy) or len(xy) < 3:
+            raise InputError(
+                f"a semaphore needs at least 3 'x y' vertices, got {text!r}", path=p, line=number
+            )
+        world = np.array([(grid.origin[0] + x / 10.0, top - y / 10.0) for x, y in xy])
+        mask = Polygon(world).contains_points(points).reshape(grid.shape)
+        if not mask.any():
+            raise InputError("the semaphore covers no cell of the map", path=p, line=number)
+        out.append(mask)
+    return out
+
+
+class Semaphores:
+    """The semaphores' state over a run."""
+
+    def __init__(self, areas: list[npt.NDArray[np.bool_]]) -> None:
+        self.areas = areas
+        self.owners: list[set[int]] = [set() for _ in areas]
+
+    def update(self, rows: npt.NDArray[np.intp], cols: npt.NDArray[np.intp]) -> None:
+        """After the robots moved to cells (rows, cols)."""
+        for k, area in enumerate(self.areas):
+            inside = {i for i in range(len(rows)) if area[rows[i], cols[i]]}
+            kept = self.owners[k] & inside
+            self.owners[k] = kept if kept else inside
+
+    def closed_for(self, robot: int, heard: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_] | None:
+        """Cells closed on ``robot``'s path-finding map: the active semaphores it does not
+        own whose owners it hears of (None when there are none)."""
+        out: npt.NDArray[np.bool_] | None = None
+        for k, area in enumerate(self.areas):
+            owners = self.owners[k]
+            if owners and robot not in owners and any(heard[j] for j in owners):
+                out = area.copy() if out is None else (out | area)
+        return out
