@@ -388,3 +388,42 @@ def test_semaphores(tmp_path: Path) -> None:
     np.testing.assert_array_equal(runs[0].mtb, runs[1].mtb)
     with pytest.raises(ConfigError, match="needs a semaphore file"):
         run_patrol(t, PatrolConfig(duration=1.0, crowding="semaphores"), starts=one)
+
+
+def test_settings_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The thesis's setup.json and a YAML of option names; the command line wins."""
+    g = Grid(resolution=0.1, origin=(0.0, 0.0), shape=(300, 300))
+    write_map(OccupancyMap(g, np.zeros(g.shape, np.float32)), tmp_path / "plan")
+    (tmp_path / "starts.txt").write_text("3\n50 50 0\n250 250 0\n50 250 0\n")
+    (tmp_path / "setup.json").write_text(
+        json.dumps(
+            {
+                "map": "plan.yaml",
+                "robot_starting_position": "starts.txt",
+                "robot_number": 2,
+                "worsening_window": 1,
+                "max_model_time": 40,
+                "output_file": "mtb.txt",
+                "log_period_steps": 10,
+            }
+        )
+    )
+    out = tmp_path / "a"
+    main(["patrol", "run", "--config", str(tmp_path / "setup.json"), "-o", str(out)])
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["robots"], summary["steps"], summary["params"]["dilation"]) == (2, 40, 1)
+    rows = (out / "mtb.txt").read_text().split("\n")
+    assert [r.split()[0] for r in rows if r] == ["10", "20", "30", "40"]
+    (tmp_path / "p.yaml").write_text("map: plan.yaml\nrobots: 1\nduration: 30\npolicy: reactive\n")
+    out = tmp_path / "b"
+    main(
+        ["patrol", "run", "--config", str(tmp_path / "p.yaml"), "--duration", "10", "-o", str(out)]
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["steps"], summary["params"]["policy"]) == (20, "reactive")
+    capsys.readouterr()
+    (tmp_path / "bad.yaml").write_text("map: plan.yaml\ncolour: 2\n")
+    with pytest.raises(SystemExit) as e:
+        main(["patrol", "run", "--config", str(tmp_path / "bad.yaml"), "-o", str(tmp_path / "c")])
+    assert e.value.code == 2
+    assert "bad.yaml, field 'colour': unknown option" in capsys.readouterr().err

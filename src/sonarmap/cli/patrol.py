@@ -11,12 +11,49 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
+from ..errors import ConfigError, InputError
 from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
 from ..patrol import Fog, Holonomic, PatrolConfig, Territory, parse_force, read_starts, run_patrol
+from ..patrol.config import read_run_file
 from ..patrol.semaphores import read_semaphores
 from ..plot import FogAnimation, save_fog_picture
 from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
+
+#: setup.json keys with no option of their own.
+SETUP_ONLY = ("steps", "output_file", "log_period_steps")
+
+_TYPES: dict[str, type] = {
+    "robots": int,
+    "steps": int,
+    "dilation": int,
+    "seed": int,
+    "animate": bool,
+    "refine": bool,
+    "policy": str,
+    "force": str,
+    "direction": str,
+    "paths": str,
+    "network": str,
+    "crowding": str,
+}
+
+
+def _coerce(name: str, value: Any, where: Path) -> Any:
+    """A value read from a settings file, as the option's type."""
+    if isinstance(value, Path) or name in ("map_", "starts", "semaphores"):
+        return Path(value)
+    kind = _TYPES.get(name, float)
+    ok = (
+        isinstance(value, bool)
+        if kind is bool
+        else (isinstance(value, kind) and not isinstance(value, bool))
+        or (kind is float and isinstance(value, int) and not isinstance(value, bool))
+    )
+    if not ok:
+        raise InputError(f"expected {kind.__name__}, got {value!r}", path=where, field=name)
+    return value
+
 
 patrol_app = typer.Typer(
     help="Team patrolling with potential fields (thesis 002, chapter 3).",
@@ -27,15 +64,16 @@ patrol_app = typer.Typer(
 
 @patrol_app.command("run")
 def run_cmd(
-    map_: Annotated[
-        Path,
-        typer.Option(
-            "--map", help="Territory: map_server YAML, or a bare image with --resolution."
-        ),
-    ],
+    ctx: typer.Context,
     out: Annotated[
         Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
     ],
+    map_: Annotated[
+        Path | None,
+        typer.Option(
+            "--map", help="Territory: map_server YAML, or a bare image with --resolution."
+        ),
+    ] = None,
     robots: Annotated[
         int | None, typer.Option(help="Robots (random starts, seeded) unless --starts.")
     ] = None,
@@ -87,8 +125,41 @@ def run_cmd(
     ] = False,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
+    config_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--config",
+            help="Settings from the thesis's setup.json or a patrol.yaml of option names; "
+            "options given on the command line win.",
+        ),
+    ] = None,
 ) -> None:
     """Patrol a territory; writes metrics.csv, summary.json, fog.png (and patrol.gif)."""
+    extra: dict[str, Any] = {}
+    if config_file is not None:
+        names = {n for n in ctx.params if n not in ("config_file", "out")}
+        names = {"map" if n == "map_" else n for n in names}
+        for key, value in read_run_file(config_file, names | set(SETUP_ONLY)).items():
+            if key in SETUP_ONLY:
+                extra[key] = value
+                continue
+            name = "map_" if key == "map" else key
+            # By name: typer vendors click, whose ParameterSource is private there.
+            source = ctx.get_parameter_source(name)
+            if source is None or source.name in ("DEFAULT", "DEFAULT_MAP"):
+                ctx.params[name] = _coerce(name, value, config_file)
+        p = ctx.params
+        map_, robots, starts, semaphores = p["map_"], p["robots"], p["starts"], p["semaphores"]
+        policy, force, force_a, force_b = p["policy"], p["force"], p["force_a"], p["force_b"]
+        direction, paths, network, r_max = p["direction"], p["paths"], p["network"], p["r_max"]
+        dilation, crowding, r_obst, refine = p["dilation"], p["crowding"], p["r_obst"], p["refine"]
+        radius, speed, vision, duration = p["radius"], p["speed"], p["vision"], p["duration"]
+        warmup, cell, seed, animate = p["warmup"], p["cell"], p["seed"], p["animate"]
+        resolution = p["resolution"]
+        if "steps" in extra:
+            duration = _coerce("steps", extra["steps"], config_file) * 0.5
+    if map_ is None:
+        raise ConfigError("give the territory: --map, or 'map' in --config")
     config = PatrolConfig(
         policy=policy,
         force=parse_force(force, force_a, force_b),
@@ -109,6 +180,10 @@ def run_cmd(
     )
     territory = Territory.from_map(_read_plan(map_, resolution, origin), cell=cell)
     start = read_starts(starts, territory) if starts is not None else None
+    if start is not None and robots is not None:
+        if robots > len(start):
+            raise ConfigError(f"{robots} robots asked for, the start file has {len(start)}")
+        start = start[:robots]  # robot_number: the first N of the start file
     areas = read_semaphores(semaphores, territory.grid) if semaphores is not None else None
     anim = FogAnimation(territory.grid, territory.free, radius=radius) if animate else None
     every = max(1, round(config.duration / config.dt) // 200)
@@ -139,6 +214,11 @@ def run_cmd(
         for k in range(len(res.t)):
             w.writerow([k + 1, f"{res.t[k]:g}", f"{res.mtb[k]:g}", f"{res.mean_tb[k]:.4g}", 0])
         atomic_write_text(tmp / "metrics.csv", buf.getvalue())
+        if "output_file" in extra:
+            # The thesis's batch output: 'step MTB DVT' every log_period_steps steps.
+            period = max(1, int(extra.get("log_period_steps", 1)))
+            rows = [f"{k + 1} {res.mtb[k]:g} 0" for k in range(len(res.t)) if (k + 1) % period == 0]
+            atomic_write_text(tmp / Path(str(extra["output_file"])).name, "\n".join(rows) + "\n")
         summary: dict[str, Any] = {
             **res.summary(),
             "map": str(map_),
