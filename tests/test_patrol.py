@@ -427,3 +427,32 @@ def test_settings_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
         main(["patrol", "run", "--config", str(tmp_path / "bad.yaml"), "-o", str(tmp_path / "c")])
     assert e.value.code == 2
     assert "bad.yaml, field 'colour': unknown option" in capsys.readouterr().err
+
+
+def test_builtin_maps_are_usable(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from sonarmap.io.rosmap import read_map
+    from sonarmap.patrol.maps import BUILTIN_MAPS
+    from sonarmap.patrol.semaphores import read_semaphores
+
+    main(["patrol", "maps", "-o", str(tmp_path / "maps")])
+    d = tmp_path / "maps"
+    sizes = {
+        "open-field": (100, 88),
+        "fig3-2": (100, 88),
+        "fig3-4": (118, 118),
+        "fig3-10": (240, 159),
+    }
+    for name in BUILTIN_MAPS:
+        m = read_map(d / f"{name}.yaml")
+        assert (m.grid.cols * m.grid.resolution, m.grid.rows * m.grid.resolution) == pytest.approx(
+            sizes[name]
+        )
+        t = Territory.from_map(m, cell=0.5)
+        starts = read_starts(d / f"{name}.starts.txt", t)
+        # Every start is valid for the default robot: one step runs.
+        res = run_patrol(t, PatrolConfig(duration=0.5), starts=starts)
+        assert res.summary()["robots"] == len(starts)
+    areas = read_semaphores(
+        d / "fig3-10.semaphores.txt", Territory.from_map(read_map(d / "fig3-10.yaml")).grid
+    )
+    assert len(areas) >= 5

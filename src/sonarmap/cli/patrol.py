@@ -16,6 +16,7 @@ from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
 from ..patrol import Fog, Holonomic, PatrolConfig, Territory, parse_force, read_starts, run_patrol
 from ..patrol.config import read_run_file
+from ..patrol.maps import write_builtin_maps
 from ..patrol.semaphores import read_semaphores
 from ..plot import FogAnimation, save_fog_picture
 from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
@@ -240,3 +241,16 @@ def run_cmd(
         f"{summary['worst_idleness']:.0f} s, {summary['steps']} steps in "
         f"{summary['wall_seconds']:.1f} s; wrote {out}/metrics.csv, summary.json, fog.png"
     )
+
+
+@patrol_app.command("maps")
+def maps_cmd(
+    out: Annotated[
+        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the maps.")
+    ],
+) -> None:
+    """Write the built-in territories (map_server YAML + PGM at 0.1 m), their start files
+    and semaphore files."""
+    with atomic_folder(out) as tmp:
+        written = write_builtin_maps(tmp)
+    console.print(f"wrote {len(written)} files to {out}: {', '.join(p.name for p in written)}")
