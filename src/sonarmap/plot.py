@@ -293,13 +293,18 @@ class MapAnimation:
             ax.set_title(f"{self.title}  t = {t:.0f} s".strip())
             return [im, marker]
 
-        anim = FuncAnimation(fig, show, frames=len(self.frames), blit=False)
-        try:
-            with atomic_outputs(p, keep_suffix=True) as (tmp,):
-                anim.save(tmp, writer=writer, dpi=80)
-        finally:
-            plt.close(fig)
-        return p
+        return _write_animation(fig, show, len(self.frames), p, writer)
+
+
+def _write_animation(fig: Any, show: Any, frames: int, path: Path, writer: Any) -> Path:
+    """Render ``frames`` frames drawn by ``show(i)`` to ``path`` atomically."""
+    anim = FuncAnimation(fig, show, frames=frames, blit=False)
+    try:
+        with atomic_outputs(path, keep_suffix=True) as (tmp,):
+            anim.save(tmp, writer=writer, dpi=80)
+    finally:
+        plt.close(fig)
+    return path
 
 
 def save_fog_picture(
@@ -413,10 +418,4 @@ class FogAnimation:
             ax.set_title(f"{self.title}  t = {t:.0f} s".strip())
             return [im, *rings]
 
-        anim = FuncAnimation(fig, show, frames=len(self.frames), blit=False)
-        try:
-            with atomic_outputs(p, keep_suffix=True) as (tmp,):
-                anim.save(tmp, writer=writer, dpi=80)
-        finally:
-            plt.close(fig)
-        return p
+        return _write_animation(fig, show, len(self.frames), p, writer)

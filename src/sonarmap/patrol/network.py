@@ -17,6 +17,7 @@ from scipy.sparse.csgraph import connected_components
 
 from ..errors import ConfigError
 from ..grid import Grid
+from .territory import segment_clear
 
 __all__ = ["NETWORKS", "components", "line_of_sight"]
 
@@ -27,11 +28,7 @@ def line_of_sight(
     x0: float, y0: float, x1: float, y1: float, clear: npt.NDArray[np.bool_], grid: Grid
 ) -> bool:
     """No cell that is not ``clear`` on the segment (sampled at half a cell)."""
-    n = max(2, math.ceil(math.hypot(x1 - x0, y1 - y0) / (grid.resolution / 2)) + 1)
-    t = np.linspace(0.0, 1.0, n)
-    r, c = grid.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
-    inside = grid.contains(r, c)
-    return bool(inside.all() and clear[r, c].all())
+    return segment_clear(x0, y0, x1, y1, clear, grid, step=0.5)
 
 
 def components(

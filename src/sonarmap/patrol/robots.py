@@ -22,6 +22,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
+from .territory import segment_clear
 
 __all__ = ["Holonomic"]
 
@@ -91,7 +92,7 @@ class Holonomic:
         ny = self.y + want * dy * step
         moving = want.copy()
         for i in np.flatnonzero(want).tolist():
-            if not _segment_clear(self.x[i], self.y[i], nx[i], ny[i], passable, grid):
+            if not segment_clear(self.x[i], self.y[i], nx[i], ny[i], passable, grid):
                 moving[i] = False
         # Cancel the moves of every robot in a possible collision, until none is left.
         while True:
@@ -113,16 +114,3 @@ def _close_pairs(x: F64, y: F64, sep: float) -> list[tuple[int, int]]:
     d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
     i, j = np.nonzero(np.triu(d < sep - 1e-9, k=1))
     return list(zip(i.tolist(), j.tolist(), strict=True))
-
-
-def _segment_clear(
-    x0: float, y0: float, x1: float, y1: float, passable: npt.NDArray[np.bool_], grid: Grid
-) -> bool:
-    """Every point of the segment lies on a passable cell (sampled at a quarter cell)."""
-    n = max(2, math.ceil(math.hypot(x1 - x0, y1 - y0) / (grid.resolution / 4)) + 1)
-    t = np.linspace(0.0, 1.0, n)
-    r, c = grid.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
-    inside = grid.contains(r, c)
-    if not inside.all():
-        return False
-    return bool(passable[r, c].all())

@@ -9,6 +9,7 @@ map; this is the configuration-space reading of "cannot collide with obstacles")
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,7 +20,25 @@ from ..errors import ConfigError, InputError
 from ..grid import Grid
 from ..io.rosmap import FREE, OccupancyMap
 
-__all__ = ["Territory"]
+__all__ = ["Territory", "segment_clear"]
+
+
+def segment_clear(
+    x0: float,
+    y0: float,
+    x1: float,
+    y1: float,
+    clear: npt.NDArray[np.bool_],
+    grid: Grid,
+    step: float = 0.25,
+) -> bool:
+    """Every point of the segment lies inside the map on a ``clear`` cell (sampled every
+    ``step`` cells)."""
+    n = max(2, math.ceil(math.hypot(x1 - x0, y1 - y0) / (grid.resolution * step)) + 1)
+    t = np.linspace(0.0, 1.0, n)
+    r, c = grid.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
+    inside = grid.contains(r, c)
+    return bool(inside.all() and clear[r, c].all())
 
 
 @dataclass(frozen=True, eq=False)
