@@ -456,3 +456,23 @@ def test_builtin_maps_are_usable(tmp_path: Path, capsys: pytest.CaptureFixture[s
         d / "fig3-10.semaphores.txt", Territory.from_map(read_map(d / "fig3-10.yaml")).grid
     )
     assert len(areas) >= 5
+
+
+def test_line_of_sight_vision() -> None:
+    from sonarmap.patrol.fog import Vision
+
+    clear = np.ones((21, 21), dtype=bool)
+    clear[5:16, 13] = False  # a wall 3 cells east of the robot at (10, 10)
+    disc = Vision(8.0, 1.0)
+    los = Vision(8.0, 1.0, clear)
+    seen_disc = set(zip(*(v.tolist() for v in disc.seen(10, 10)), strict=True))
+    seen_los = set(zip(*(v.tolist() for v in los.seen(10, 10)), strict=True))
+    assert (10, 16) in seen_disc  # behind the wall: the thesis's disc sees through
+    assert (10, 16) not in seen_los
+    assert (10, 13) in seen_los  # the wall's face is seen
+    assert (10, 5) in seen_los  # nothing in the way
+    assert (2, 10) in seen_los
+    assert seen_los < seen_disc
+    t = _open_field(40.0)
+    res = run_patrol(t, PatrolConfig(duration=30.0, line_of_sight=True), robots=2, seed=1)
+    assert res.summary()["steps"] == 60

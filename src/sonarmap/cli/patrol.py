@@ -31,6 +31,7 @@ _TYPES: dict[str, type] = {
     "seed": int,
     "animate": bool,
     "refine": bool,
+    "line_of_sight": bool,
     "policy": str,
     "force": str,
     "direction": str,
@@ -115,6 +116,13 @@ def run_cmd(
     radius: Annotated[float, typer.Option(help="Robot radius, metres.")] = 1.0,
     speed: Annotated[float, typer.Option(help="Robot speed, m/s.")] = 4.4,
     vision: Annotated[float, typer.Option(help="Vision radius, metres.")] = 10.0,
+    line_of_sight: Annotated[
+        bool,
+        typer.Option(
+            "--line-of-sight/--disc",
+            help="Vision blocked by obstacles, or a plain disc (the thesis's).",
+        ),
+    ] = False,
     duration: Annotated[float, typer.Option(help="Simulated seconds.")] = 3600.0,
     warmup: Annotated[
         float | None, typer.Option(help="Seconds left out of the mean MTB (default a fifth).")
@@ -155,6 +163,7 @@ def run_cmd(
         direction, paths, network, r_max = p["direction"], p["paths"], p["network"], p["r_max"]
         dilation, crowding, r_obst, refine = p["dilation"], p["crowding"], p["r_obst"], p["refine"]
         radius, speed, vision, duration = p["radius"], p["speed"], p["vision"], p["duration"]
+        line_of_sight = p["line_of_sight"]
         warmup, cell, seed, animate = p["warmup"], p["cell"], p["seed"], p["animate"]
         resolution = p["resolution"]
         if "steps" in extra:
@@ -175,6 +184,7 @@ def run_cmd(
         radius=radius,
         speed=speed,
         vision=vision,
+        line_of_sight=line_of_sight,
         duration=duration,
         warmup=warmup,
         cell=cell,

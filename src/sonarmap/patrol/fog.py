@@ -25,6 +25,49 @@ def disc_offsets(radius: float, resolution: float) -> npt.NDArray[np.int64]:
     return np.column_stack([dr[inside], dc[inside]]).astype(np.int64)
 
 
+class Vision:
+    """What a robot at a cell sees: every cell of the disc of ``radius`` metres, or with
+    ``line_of_sight`` only those whose centre the straight line from the robot's cell
+    reaches without crossing a cell that is not ``clear`` (sampled every half cell;
+    the seen obstacle's own face is seen)."""
+
+    def __init__(
+        self,
+        radius: float,
+        resolution: float,
+        clear: npt.NDArray[np.bool_] | None = None,
+    ) -> None:
+        self.disc = disc_offsets(radius, resolution)
+        self.clear = clear
+        if clear is not None:
+            # Sample points strictly between the robot's cell and each disc cell.
+            length = np.hypot(self.disc[:, 0], self.disc[:, 1])
+            n = max(1, int(np.ceil(length.max() * 2)))
+            f = (np.arange(1, n) / n)[None, :]
+            self.ray_r = np.rint(self.disc[:, :1] * f).astype(np.int64)
+            self.ray_c = np.rint(self.disc[:, 1:] * f).astype(np.int64)
+
+    def seen(self, r: int, c: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """Rows and columns (inside the map) seen from cell (r, c)."""
+        rows = self.disc[:, 0] + r
+        cols = self.disc[:, 1] + c
+        if self.clear is None:
+            return rows, cols
+        else:
+            nr, nc = self.clear.shape
+            rr = np.clip(self.ray_r + r, 0, nr - 1)
+            cc = np.clip(self.ray_c + c, 0, nc - 1)
+            inside_ray = (self.ray_r + r >= 0) & (self.ray_r + r < nr)
+            inside_ray &= (self.ray_c + c >= 0) & (self.ray_c + c < nc)
+            # A sample on the robot's own cell or the target's own cell does not block.
+            own = ((self.ray_r == 0) & (self.ray_c == 0)) | (
+                (self.ray_r == self.disc[:, :1]) & (self.ray_c == self.disc[:, 1:])
+            )
+            blocked = inside_ray & ~own & ~self.clear[rr, cc]
+            ok = ~blocked.any(axis=1)
+        return rows[ok], cols[ok]
+
+
 def dilate(tb: npt.NDArray[np.float64], wing: int) -> npt.NDArray[np.float64]:
     """TB(x) <- max of TB over the square of half-side ``wing`` cells around x (the
     thesis's fog dilation, so small long-unseen places are not ignored)."""
@@ -59,13 +102,16 @@ class Fog:
         self.tb[self.watched] += dt
 
     def observe(
-        self, rows: npt.ArrayLike, cols: npt.ArrayLike, disc: npt.NDArray[np.int64]
+        self, rows: npt.ArrayLike, cols: npt.ArrayLike, vision: Vision | npt.NDArray[np.int64]
     ) -> None:
-        """Robots at cells (rows, cols) see every cell of ``disc`` around them."""
+        """Robots at cells (rows, cols) see around them: a :class:`Vision`, or a plain
+        disc of cell offsets."""
         nr, nc = self.tb.shape
         for r, c in zip(np.atleast_1d(rows).tolist(), np.atleast_1d(cols).tolist(), strict=True):
-            rr = disc[:, 0] + r
-            cc = disc[:, 1] + c
+            if isinstance(vision, Vision):
+                rr, cc = vision.seen(r, c)
+            else:
+                rr, cc = vision[:, 0] + r, vision[:, 1] + c
             ok = (rr >= 0) & (rr < nr) & (cc >= 0) & (cc < nc)
             self.tb[rr[ok], cc[ok]] = 0.0
 

@@ -31,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
-from .fog import Fog, dilate, disc_offsets
+from .fog import Fog, Vision, dilate, disc_offsets
 from .forces import Force
 from .network import NETWORKS, components
 from .paths import STEP_UNITS, straight_paths, wave
@@ -74,6 +74,7 @@ class PatrolConfig:
     min_separation: float = 2.0
     p_random: float = 0.1
     vision: float = 10.0
+    line_of_sight: bool = False
     dt: float = 0.5
     duration: float = 3600.0
     warmup: float | None = None
@@ -265,7 +266,7 @@ def run_patrol(
     # Each robot's own fog; with the full network they are all the true fog.
     shared = config.network == "full"
     own = [fog] if shared else [Fog(g, territory.free, config.start_fog) for _ in starts]
-    disc = disc_offsets(config.vision, g.resolution)
+    disc = Vision(config.vision, g.resolution, territory.free if config.line_of_sight else None)
     rng = np.random.default_rng(seed)
     cx, cy = g.all_centres()
     watched = territory.free
