@@ -476,3 +476,20 @@ def test_line_of_sight_vision() -> None:
     t = _open_field(40.0)
     res = run_patrol(t, PatrolConfig(duration=30.0, line_of_sight=True), robots=2, seed=1)
     assert res.summary()["steps"] == 60
+
+
+def test_direction_weakening() -> None:
+    from sonarmap.patrol.refine import sector_weakening
+
+    t = _open_field(40.0, 0.5)
+    # 2 m from the west edge: the west sector is weakened to 2 / 5.5, the east is not.
+    w = sector_weakening(2.0, 20.0, t.free, t.grid)
+    assert w[4] == pytest.approx(2.0 / 5.5, abs=0.26 / 5.5)
+    assert w[0] == 1.0
+    # Weakening turns the choice away from a strong pull into the wall.
+    lp = np.log(np.array([1.0, 0.6]))
+    ux, uy = np.array([-1.0, 1.0]), np.array([0.0, 0.0])
+    assert choose_direction(lp, ux, uy, "mode") == pytest.approx((-1.0, 0.0))
+    assert choose_direction(lp, ux, uy, "mode", weights=w) == pytest.approx((1.0, 0.0))
+    res = run_patrol(t, PatrolConfig(duration=20.0, weaken=True), robots=2, seed=1)
+    assert res.summary()["steps"] == 40

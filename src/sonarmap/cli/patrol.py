@@ -32,6 +32,7 @@ _TYPES: dict[str, type] = {
     "animate": bool,
     "refine": bool,
     "line_of_sight": bool,
+    "weaken": bool,
     "policy": str,
     "force": str,
     "direction": str,
@@ -113,6 +114,14 @@ def run_cmd(
             "goal 2.5 m ahead.",
         ),
     ] = False,
+    weaken: Annotated[
+        bool,
+        typer.Option(
+            "--weaken/--no-weaken",
+            help="Direction weakening: sectors scaled by min(1, r / 5.5 m), r the nearest "
+            "obstacle in the sector (mode only).",
+        ),
+    ] = False,
     radius: Annotated[float, typer.Option(help="Robot radius, metres.")] = 1.0,
     speed: Annotated[float, typer.Option(help="Robot speed, m/s.")] = 4.4,
     vision: Annotated[float, typer.Option(help="Vision radius, metres.")] = 10.0,
@@ -162,6 +171,7 @@ def run_cmd(
         policy, force, force_a, force_b = p["policy"], p["force"], p["force_a"], p["force_b"]
         direction, paths, network, r_max = p["direction"], p["paths"], p["network"], p["r_max"]
         dilation, crowding, r_obst, refine = p["dilation"], p["crowding"], p["r_obst"], p["refine"]
+        weaken = p["weaken"]
         radius, speed, vision, duration = p["radius"], p["speed"], p["vision"], p["duration"]
         line_of_sight = p["line_of_sight"]
         warmup, cell, seed, animate = p["warmup"], p["cell"], p["seed"], p["animate"]
@@ -181,6 +191,7 @@ def run_cmd(
         crowding=crowding,
         r_obst=r_obst,
         refine=refine,
+        weaken=weaken,
         radius=radius,
         speed=speed,
         vision=vision,

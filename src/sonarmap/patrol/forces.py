@@ -83,14 +83,20 @@ def parse_force(text: str, a: float = 40.0, b: float = 65.0) -> Force:
 
 
 def choose_direction(
-    log_pull: F64, ux: F64, uy: F64, method: str = "mode", sectors: int = 8
+    log_pull: F64,
+    ux: F64,
+    uy: F64,
+    method: str = "mode",
+    sectors: int = 8,
+    weights: F64 | None = None,
 ) -> tuple[float, float] | None:
     """The direction a robot goes: unit (x, y), or None when nothing pulls.
 
     ``vector``: the sum of all forces. ``mode``: forces are summed per direction sector
     (``sectors`` equal sectors, the first centred on +x) and the robot goes along the
     strongest sector, in the direction of the forces' sum within it (with the wave's
-    8 first steps and 8 sectors, exactly that step).
+    8 first steps and 8 sectors, exactly that step). ``weights`` (mode only) scale each
+    sector's sum (direction weakening).
     """
     ok = np.isfinite(log_pull)
     if not ok.any():
@@ -104,7 +110,9 @@ def choose_direction(
         angle = np.arctan2(y, x)
         width = 2 * math.pi / sectors
         sector = np.floor((angle + width / 2) / width).astype(np.int64) % sectors
-        strength = np.bincount(sector, weights=w, minlength=sectors)
+        strength = np.bincount(sector, weights=w, minlength=sectors).astype(np.float64)
+        if weights is not None:
+            strength = strength * np.asarray(weights, dtype=np.float64)
         best = int(np.argmax(strength))
         pick = sector == best
         sx, sy = float(np.dot(w[pick], x[pick])), float(np.dot(w[pick], y[pick]))

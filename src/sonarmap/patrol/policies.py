@@ -47,11 +47,13 @@ def choose(
     heading: float,
     blocked: bool,
     rng: np.random.Generator,
+    weights: F64 | None = None,
 ) -> tuple[float, float] | None:
     """The direction of one robot.
 
     ``tb`` (seconds unseen), ``lengths`` (metres) and ``ux``, ``uy`` (first-step unit
-    vectors) describe the places the robot can reach, as the robot's own fog has them.
+    vectors) describe the places the robot can reach, as the robot's own fog has them;
+    ``weights`` weaken the potential field's sectors (mode only).
     """
     if policy == "random":
         if blocked or rng.random() < RANDOM_TURN:
@@ -62,7 +64,9 @@ def choose(
     if policy == "potential":
         top = float(tb.max())
         tb_n = tb / top if top > 0 else np.zeros_like(tb)
-        return choose_direction(force.log_pull(tb_n, lengths), ux, uy, method, sectors)
+        return choose_direction(
+            force.log_pull(tb_n, lengths), ux, uy, method, sectors, weights=weights
+        )
     if policy == "reactive":
         oldest = tb >= tb.max() - 1e-9
         away = lengths > 0

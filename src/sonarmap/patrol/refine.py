@@ -1,5 +1,9 @@
 """Local improvements of a chosen direction (thesis 002, the end of chapter 3).
 
+Weakening ("fuzzy" choice): each sector's summed pull is multiplied by min(1, r / R_0),
+r the distance from the robot to the nearest obstacle within the sector (R_0 = 5.5 m),
+so sectors that run into a nearby wall lose weight.
+
 Refinement: put a local goal G at ``r_goal`` metres (2.5) along the chosen direction;
 replace it by the passable point of the square of side ``side`` metres (2) around G
 with the smallest obstacle penalty -- the sum over a window of side 2 ``window`` (10 m)
@@ -18,7 +22,7 @@ from scipy.signal import fftconvolve
 
 from ..grid import Grid
 
-__all__ = ["obstacle_penalty", "refine_direction"]
+__all__ = ["obstacle_penalty", "refine_direction", "sector_weakening"]
 
 
 def obstacle_penalty(
@@ -70,3 +74,32 @@ def refine_direction(
     vx, vy = cx[k] - x, cy[k] - y
     n = math.hypot(vx, vy)
     return (vx / n, vy / n) if n > 1e-9 else direction
+
+
+def sector_weakening(
+    x: float,
+    y: float,
+    free: npt.NDArray[np.bool_],
+    grid: Grid,
+    sectors: int = 8,
+    r0: float = 5.5,
+    rays: int = 5,
+) -> npt.NDArray[np.float64]:
+    """min(1, r / r0) per sector (the first centred on +x), r the distance to the
+    nearest cell that is not free, or the map's edge, along ``rays`` rays across the
+    sector, looked for up to r0."""
+    width = 2 * math.pi / sectors
+    steps = np.arange(1, int(np.ceil(r0 / (grid.resolution / 2))) + 1) * (grid.resolution / 2)
+    out = np.ones(sectors)
+    for k in range(sectors):
+        angles = k * width + (np.arange(rays) + 0.5) / rays * width - width / 2
+        px = x + np.cos(angles)[:, None] * steps[None, :]
+        py = y + np.sin(angles)[:, None] * steps[None, :]
+        r, c = grid.world_to_cell(px, py)
+        inside = grid.contains(r, c)
+        hit = ~inside
+        hit[inside] = ~free[r[inside], c[inside]]
+        if hit.any():
+            first = np.where(hit.any(axis=1), steps[np.argmax(hit, axis=1)], np.inf)
+            out[k] = min(1.0, float(first.min()) / r0)
+    return out

@@ -36,7 +36,7 @@ from .forces import Force
 from .network import NETWORKS, components
 from .paths import STEP_UNITS, straight_paths, wave
 from .policies import POLICIES, choose
-from .refine import obstacle_penalty, refine_direction
+from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .robots import Holonomic
 from .semaphores import Semaphores
 from .territory import Territory
@@ -66,6 +66,8 @@ class PatrolConfig:
     crowding: str = "none"
     r_obst: float = 3.0
     refine: bool = False
+    weaken: bool = False
+    weaken_r0: float = 5.5
     refine_window: float = 10.0
     refine_goal: float = 2.5
     refine_side: float = 2.0
@@ -357,6 +359,16 @@ def run_patrol(
                     heading=float(team.heading[i]),
                     blocked=bool(team.blocked[i]),
                     rng=rng,
+                    weights=sector_weakening(
+                        float(team.x[i]),
+                        float(team.y[i]),
+                        territory.free,
+                        g,
+                        config.sectors,
+                        config.weaken_r0,
+                    )
+                    if config.weaken
+                    else None,
                 )
             )
         if penalty is not None:
