@@ -493,3 +493,20 @@ def test_direction_weakening() -> None:
     assert choose_direction(lp, ux, uy, "mode", weights=w) == pytest.approx((1.0, 0.0))
     res = run_patrol(t, PatrolConfig(duration=20.0, weaken=True), robots=2, seed=1)
     assert res.summary()["steps"] == 40
+
+
+def test_offline_tour_sees_everything_and_cycles() -> None:
+    from sonarmap.patrol.tour import plan_tour
+
+    t = _open_field(60.0, 0.5)
+    passable = t.passable(1.0)
+    tour, length = plan_tour(t, passable, 10.0, (60, 60))
+    cx, cy = t.grid.all_centres()
+    wx, wy = t.grid.cell_centres(tour[:, 0], tour[:, 1])
+    near = np.min(np.hypot(cx[..., None] - wx, cy[..., None] - wy), axis=-1)
+    assert (near[t.free] <= 10.0).all()  # every place within sight of a waypoint
+    assert length > 0
+    res = run_patrol(t, PatrolConfig(duration=400.0, policy="cycle"), robots=2, seed=0)
+    s = res.summary()
+    # Once round, nothing stays unseen for the whole run.
+    assert s["worst_idleness"] < 400.0

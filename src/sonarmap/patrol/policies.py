@@ -9,6 +9,8 @@ baselines measured on the same simulator and metric.
   (ties to the nearest), along its path's first step.
 - ``gravity`` (Sampaio et al. 2010): every place has a mass growing with its idleness and
   pulls with mass / L^k (k = 2); the robot follows the vector sum of the pulls.
+- ``cycle``: the offline reference, robots spread along one tour (:mod:`.tour`); the
+  simulation drives it, since it needs no pull.
 
 Each returns a unit direction (x, y) or None (stand).
 """
@@ -27,7 +29,7 @@ __all__ = ["POLICIES", "choose"]
 
 F64 = npt.NDArray[np.float64]
 
-POLICIES = ("potential", "random", "reactive", "gravity")
+POLICIES = ("potential", "random", "reactive", "gravity", "cycle")
 #: Per-step chance that the random walk turns while not blocked.
 RANDOM_TURN = 0.05
 #: Exponent of distance in the gravitational pull.

@@ -40,6 +40,7 @@ from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .robots import Holonomic
 from .semaphores import Semaphores
 from .territory import Territory
+from .tour import plan_tour
 
 __all__ = ["CROWDING", "PatrolConfig", "PatrolResult", "read_starts", "run_patrol"]
 
@@ -222,6 +223,26 @@ def random_starts(
     raise InputError(f"room for only {len(out)} robots {sep:g} m apart on this map, not {n}")
 
 
+def _follow_tour(
+    i: int,
+    tour: npt.NDArray[np.int64],
+    target: npt.NDArray[np.int64],
+    dist: F64,
+    first: npt.NDArray[np.int8],
+    config: PatrolConfig,
+) -> tuple[float, float] | None:
+    """Robot i's step along the tour: towards its waypoint, the next one once there."""
+    for _ in range(len(tour)):
+        tr, tc = tour[target[i]]
+        # Within one step counts as there: a move of a full step along one of 8
+        # directions could otherwise circle the waypoint for ever.
+        if first[tr, tc] >= 0 and dist[tr, tc] > config.speed * config.dt:
+            k = int(first[tr, tc])
+            return float(STEP_UNITS[k, 0]), float(STEP_UNITS[k, 1])
+        target[i] = (target[i] + 1) % len(tour)
+    return None
+
+
 def run_patrol(
     territory: Territory,
     config: PatrolConfig,
@@ -327,6 +348,13 @@ def run_patrol(
 
     look()
     wall0 = time.perf_counter()
+    r0, c0 = g.world_to_cell(team.x, team.y)
+    tour = np.empty((0, 2), dtype=np.int64)
+    target = np.zeros(len(team), dtype=np.int64)
+    if config.policy == "cycle":
+        tour, _ = plan_tour(territory, passable, config.vision, (int(r0[0]), int(c0[0])))
+        # Robots spread evenly along the tour: robot k joins it at the k-th share.
+        target = (np.arange(len(team)) * len(tour)) // len(team)
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
         r, c = g.world_to_cell(team.x, team.y)
@@ -336,7 +364,7 @@ def run_patrol(
             if config.policy == "random":
                 reach = np.zeros_like(watched)
                 lengths = ux = uy = np.empty(0)
-            elif config.paths == "wave":
+            elif config.paths == "wave" or config.policy == "cycle":
                 here = paths_map(i, r, c)
                 dist, first = wave(here, (int(r[i]), int(c[i])), g.resolution, watched)
                 reach = watched & (first >= 0)
@@ -346,6 +374,9 @@ def run_patrol(
             else:
                 reach = watched
                 lengths, ux, uy = straight_paths(team.x[i], team.y[i], cx[reach], cy[reach])
+            if config.policy == "cycle":
+                directions.append(_follow_tour(i, tour, target, dist, first, config))
+                continue
             directions.append(
                 choose(
                     config.policy,
