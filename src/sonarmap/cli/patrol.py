@@ -85,7 +85,8 @@ def run_cmd(
         typer.Option(help="Start file: the count, then 'X Y phi' per robot (dm from top-left)."),
     ] = None,
     policy: Annotated[
-        str, typer.Option(help="potential (the thesis's), random, reactive or gravity.")
+        str,
+        typer.Option(help="potential (the thesis's), random, reactive, gravity or cycle."),
     ] = "potential",
     force: Annotated[str, typer.Option(help="Force law f1..f5 x g1..g5.")] = "f3g4",
     force_a: Annotated[float, typer.Option(help="a of the f family.")] = 40.0,
