@@ -465,8 +465,8 @@ def test_line_of_sight_vision() -> None:
     clear[5:16, 13] = False  # a wall 3 cells east of the robot at (10, 10)
     disc = Vision(8.0, 1.0)
     los = Vision(8.0, 1.0, clear)
-    seen_disc = set(zip(*(v.tolist() for v in disc.seen(10, 10)), strict=True))
-    seen_los = set(zip(*(v.tolist() for v in los.seen(10, 10)), strict=True))
+    seen_disc = set(zip(*(v.tolist() for v in disc.seen(10, 10, (21, 21))), strict=True))
+    seen_los = set(zip(*(v.tolist() for v in los.seen(10, 10, (21, 21))), strict=True))
     assert (10, 16) in seen_disc  # behind the wall: the thesis's disc sees through
     assert (10, 16) not in seen_los
     assert (10, 13) in seen_los  # the wall's face is seen

@@ -13,7 +13,7 @@ from scipy import ndimage
 
 from ..grid import Grid
 
-__all__ = ["Fog", "dilate", "disc_offsets"]
+__all__ = ["Fog", "Vision", "dilate", "disc_cells", "disc_offsets"]
 
 
 def disc_offsets(radius: float, resolution: float) -> npt.NDArray[np.int64]:
@@ -23,6 +23,17 @@ def disc_offsets(radius: float, resolution: float) -> npt.NDArray[np.int64]:
     dr, dc = np.mgrid[-k : k + 1, -k : k + 1]
     inside = (dr * resolution) ** 2 + (dc * resolution) ** 2 <= radius**2 + 1e-12
     return np.column_stack([dr[inside], dc[inside]]).astype(np.int64)
+
+
+def disc_cells(
+    disc: npt.NDArray[np.int64], r: int, c: int, shape: tuple[int, int]
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """Rows and columns of the ``disc`` offsets around cell (r, c) that lie inside a grid
+    of ``shape``."""
+    rows = disc[:, 0] + r
+    cols = disc[:, 1] + c
+    ok = (rows >= 0) & (rows < shape[0]) & (cols >= 0) & (cols < shape[1])
+    return rows[ok], cols[ok]
 
 
 class Vision:
@@ -47,24 +58,26 @@ class Vision:
             self.ray_r = np.rint(self.disc[:, :1] * f).astype(np.int64)
             self.ray_c = np.rint(self.disc[:, 1:] * f).astype(np.int64)
 
-    def seen(self, r: int, c: int) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-        """Rows and columns (inside the map) seen from cell (r, c)."""
+    def seen(
+        self, r: int, c: int, shape: tuple[int, int]
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """Rows and columns (inside a grid of ``shape``) seen from cell (r, c)."""
+        if self.clear is None:
+            return disc_cells(self.disc, r, c, shape)
+        nr, nc = self.clear.shape
+        rr = np.clip(self.ray_r + r, 0, nr - 1)
+        cc = np.clip(self.ray_c + c, 0, nc - 1)
+        inside_ray = (self.ray_r + r >= 0) & (self.ray_r + r < nr)
+        inside_ray &= (self.ray_c + c >= 0) & (self.ray_c + c < nc)
+        # A sample on the robot's own cell or the target's own cell does not block.
+        own = ((self.ray_r == 0) & (self.ray_c == 0)) | (
+            (self.ray_r == self.disc[:, :1]) & (self.ray_c == self.disc[:, 1:])
+        )
+        blocked = inside_ray & ~own & ~self.clear[rr, cc]
         rows = self.disc[:, 0] + r
         cols = self.disc[:, 1] + c
-        if self.clear is None:
-            return rows, cols
-        else:
-            nr, nc = self.clear.shape
-            rr = np.clip(self.ray_r + r, 0, nr - 1)
-            cc = np.clip(self.ray_c + c, 0, nc - 1)
-            inside_ray = (self.ray_r + r >= 0) & (self.ray_r + r < nr)
-            inside_ray &= (self.ray_c + c >= 0) & (self.ray_c + c < nc)
-            # A sample on the robot's own cell or the target's own cell does not block.
-            own = ((self.ray_r == 0) & (self.ray_c == 0)) | (
-                (self.ray_r == self.disc[:, :1]) & (self.ray_c == self.disc[:, 1:])
-            )
-            blocked = inside_ray & ~own & ~self.clear[rr, cc]
-            ok = ~blocked.any(axis=1)
+        ok = ~blocked.any(axis=1) & (rows >= 0) & (rows < shape[0]) & (cols >= 0)
+        ok &= cols < shape[1]
         return rows[ok], cols[ok]
 
 
@@ -106,14 +119,13 @@ class Fog:
     ) -> None:
         """Robots at cells (rows, cols) see around them: a :class:`Vision`, or a plain
         disc of cell offsets."""
-        nr, nc = self.tb.shape
+        shape = (self.tb.shape[0], self.tb.shape[1])
         for r, c in zip(np.atleast_1d(rows).tolist(), np.atleast_1d(cols).tolist(), strict=True):
             if isinstance(vision, Vision):
-                rr, cc = vision.seen(r, c)
+                rr, cc = vision.seen(r, c, shape)
             else:
-                rr, cc = vision[:, 0] + r, vision[:, 1] + c
-            ok = (rr >= 0) & (rr < nr) & (cc >= 0) & (cc < nc)
-            self.tb[rr[ok], cc[ok]] = 0.0
+                rr, cc = disc_cells(vision, r, c, shape)
+            self.tb[rr, cc] = 0.0
 
     def mtb(self) -> float:
         """Max of TB over the watched cells."""

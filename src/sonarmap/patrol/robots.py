@@ -24,7 +24,7 @@ from ..errors import ConfigError
 from ..grid import Grid
 from .territory import segment_clear
 
-__all__ = ["Holonomic"]
+__all__ = ["Holonomic", "close_pairs"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -62,10 +62,6 @@ class Holonomic:
     def __len__(self) -> int:
         return len(self.x)
 
-    def too_close(self) -> list[tuple[int, int]]:
-        """Pairs of robots nearer than the minimum separation."""
-        return _close_pairs(self.x, self.y, self.min_separation)
-
     def step(
         self,
         directions: list[tuple[float, float] | None],
@@ -98,7 +94,7 @@ class Holonomic:
         while True:
             px = np.where(moving, nx, self.x)
             py = np.where(moving, ny, self.y)
-            pairs = _close_pairs(px, py, self.min_separation)
+            pairs = close_pairs(px, py, self.min_separation)
             culprits = sorted({k for pair in pairs for k in pair if moving[k]})
             if not culprits:
                 break
@@ -110,7 +106,8 @@ class Holonomic:
         return moving
 
 
-def _close_pairs(x: F64, y: F64, sep: float) -> list[tuple[int, int]]:
+def close_pairs(x: F64, y: F64, sep: float) -> list[tuple[int, int]]:
+    """Pairs (i, j), i < j, of points nearer than ``sep`` to each other."""
     d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
     i, j = np.nonzero(np.triu(d < sep - 1e-9, k=1))
     return list(zip(i.tolist(), j.tolist(), strict=True))

@@ -31,13 +31,13 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
-from .fog import Fog, Vision, dilate, disc_offsets
+from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force
 from .network import NETWORKS, components
 from .paths import STEP_UNITS, straight_paths, wave
 from .policies import POLICIES, choose
 from .refine import obstacle_penalty, refine_direction, sector_weakening
-from .robots import Holonomic
+from .robots import Holonomic, close_pairs
 from .semaphores import Semaphores
 from .territory import Territory
 from .tour import plan_tour
@@ -200,11 +200,10 @@ def _check_starts(
             raise InputError(f"{where} is outside the map")
         if not passable[r[i], c[i]]:
             raise InputError(f"{where} is in or too near an obstacle for the robot's radius")
-    d = np.hypot(starts[:, None, 0] - starts[None, :, 0], starts[:, None, 1] - starts[None, :, 1])
-    near = np.argwhere(np.triu(d < sep - 1e-9, k=1))
-    if len(near):
-        a, b = (int(v) + 1 for v in near[0])
-        raise InputError(f"robots {a} and {b} start closer than {sep:g} m")
+    near = close_pairs(starts[:, 0], starts[:, 1], sep)
+    if near:
+        a, b = near[0]
+        raise InputError(f"robots {a + 1} and {b + 1} start closer than {sep:g} m")
 
 
 def random_starts(
@@ -323,26 +322,21 @@ def run_patrol(
     def paths_map(
         i: int, r: npt.NDArray[np.intp], c: npt.NDArray[np.intp]
     ) -> npt.NDArray[np.bool_]:
-        """Robot i's path-finding map: with artificial obstacles, the discs around the
-        other robots it hears of are closed (its own cell stays open)."""
+        """Robot i's path-finding map: the crowding rule closes the active semaphores it
+        does not hold, or discs around the other robots it hears of; its own cell stays
+        open."""
+        heard = label == label[i]
+        closed: npt.NDArray[np.bool_] | None = None
         if config.crowding == "semaphores":
-            closed = sems.closed_for(i, label == label[i])
-            if closed is None:
-                return passable
-            mine = passable & ~closed
-            mine[r[i], c[i]] = passable[r[i], c[i]]
-            return mine
-        if config.crowding != "obstacles" or len(team) == 1:
+            closed = sems.closed_for(i, heard)
+        elif config.crowding == "obstacles" and len(team) > 1:
+            closed = np.zeros_like(passable)
+            for j in np.flatnonzero(heard).tolist():
+                if j != i:
+                    closed[disc_cells(obst, int(r[j]), int(c[j]), closed.shape)] = True
+        if closed is None:
             return passable
-        mine = passable.copy()
-        nr, nc = mine.shape
-        for j in np.flatnonzero(label == label[i]).tolist():
-            if j == i:
-                continue
-            rr = obst[:, 0] + r[j]
-            cc = obst[:, 1] + c[j]
-            ok = (rr >= 0) & (rr < nr) & (cc >= 0) & (cc < nc)
-            mine[rr[ok], cc[ok]] = False
+        mine = passable & ~closed
         mine[r[i], c[i]] = passable[r[i], c[i]]
         return mine
 
@@ -358,9 +352,10 @@ def run_patrol(
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
         r, c = g.world_to_cell(team.x, team.y)
+        # Each fog dilated once a step (with the full network, one for the whole team).
+        fogs = [dilate(f.tb, config.dilation) for f in own]
         for i in range(len(team)):
-            mine = own[0] if shared else own[i]
-            tb = dilate(mine.tb, config.dilation)
+            tb = fogs[0] if shared else fogs[i]
             if config.policy == "random":
                 reach = np.zeros_like(watched)
                 lengths = ux = uy = np.empty(0)
