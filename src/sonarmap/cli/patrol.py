@@ -24,38 +24,39 @@ from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, co
 #: setup.json keys with no option of their own.
 SETUP_ONLY = ("steps", "output_file", "log_period_steps")
 
-_TYPES: dict[str, type] = {
-    "robots": int,
-    "steps": int,
-    "dilation": int,
-    "seed": int,
-    "animate": bool,
-    "refine": bool,
-    "line_of_sight": bool,
-    "weaken": bool,
-    "policy": str,
-    "force": str,
-    "direction": str,
-    "paths": str,
-    "network": str,
-    "crowding": str,
-}
 
-
-def _coerce(name: str, value: Any, where: Path) -> Any:
-    """A value read from a settings file, as the option's type."""
-    if isinstance(value, Path) or name in ("map_", "starts", "semaphores"):
-        return Path(value)
-    kind = _TYPES.get(name, float)
-    ok = (
-        isinstance(value, bool)
-        if kind is bool
-        else (isinstance(value, kind) and not isinstance(value, bool))
-        or (kind is float and isinstance(value, int) and not isinstance(value, bool))
-    )
-    if not ok:
-        raise InputError(f"expected {kind.__name__}, got {value!r}", path=where, field=name)
-    return value
+def _load_settings(ctx: typer.Context, path: Path | None) -> Path | None:
+    """--config (eager): the file's values become the command's defaults, so options
+    given on the command line win; each value is converted by its option's own type."""
+    if path is None:
+        return None
+    params = {("map" if q.name == "map_" else q.name): q for q in ctx.command.params if q.name}
+    names = set(params) - {"config_file", "out", "ctx"}
+    defaults: dict[str, Any] = {}
+    setup: dict[str, Any] = {}
+    for key, value in read_run_file(path, names | set(SETUP_ONLY)).items():
+        if key in SETUP_ONLY:
+            setup[key] = value
+            continue
+        param = params[key]
+        try:
+            defaults[str(param.name)] = param.process_value(ctx, value)
+        except Exception as err:  # click's BadParameter (private in typer's vendored click)
+            fmt = getattr(err, "format_message", None)
+            raise InputError(str(fmt() if fmt else err), path=path, field=key) from None
+    if "steps" in setup:
+        try:
+            steps = int(setup["steps"])
+        except (TypeError, ValueError):
+            raise InputError(
+                f"expected a number of steps, got {setup['steps']!r}",
+                path=path,
+                field="max_model_time",
+            ) from None
+        defaults.setdefault("duration", steps * PatrolConfig().dt)
+    ctx.default_map = {**(ctx.default_map or {}), **defaults}
+    ctx.meta["patrol_setup"] = setup
+    return path
 
 
 patrol_app = typer.Typer(
@@ -148,37 +149,15 @@ def run_cmd(
         Path | None,
         typer.Option(
             "--config",
+            is_eager=True,
+            callback=_load_settings,
             help="Settings from the thesis's setup.json or a patrol.yaml of option names; "
             "options given on the command line win.",
         ),
     ] = None,
 ) -> None:
     """Patrol a territory; writes metrics.csv, summary.json, fog.png (and patrol.gif)."""
-    extra: dict[str, Any] = {}
-    if config_file is not None:
-        names = {n for n in ctx.params if n not in ("config_file", "out")}
-        names = {"map" if n == "map_" else n for n in names}
-        for key, value in read_run_file(config_file, names | set(SETUP_ONLY)).items():
-            if key in SETUP_ONLY:
-                extra[key] = value
-                continue
-            name = "map_" if key == "map" else key
-            # By name: typer vendors click, whose ParameterSource is private there.
-            source = ctx.get_parameter_source(name)
-            if source is None or source.name in ("DEFAULT", "DEFAULT_MAP"):
-                ctx.params[name] = _coerce(name, value, config_file)
-        p = ctx.params
-        map_, robots, starts, semaphores = p["map_"], p["robots"], p["starts"], p["semaphores"]
-        policy, force, force_a, force_b = p["policy"], p["force"], p["force_a"], p["force_b"]
-        direction, paths, network, r_max = p["direction"], p["paths"], p["network"], p["r_max"]
-        dilation, crowding, r_obst, refine = p["dilation"], p["crowding"], p["r_obst"], p["refine"]
-        weaken = p["weaken"]
-        radius, speed, vision, duration = p["radius"], p["speed"], p["vision"], p["duration"]
-        line_of_sight = p["line_of_sight"]
-        warmup, cell, seed, animate = p["warmup"], p["cell"], p["seed"], p["animate"]
-        resolution = p["resolution"]
-        if "steps" in extra:
-            duration = _coerce("steps", extra["steps"], config_file) * 0.5
+    extra: dict[str, Any] = ctx.meta.get("patrol_setup", {})
     if map_ is None:
         raise ConfigError("give the territory: --map, or 'map' in --config")
     config = PatrolConfig(
