@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -31,6 +32,7 @@ from sonarmap.patrol import (
 )
 from sonarmap.patrol.fog import dilate, disc_offsets
 from sonarmap.patrol.paths import STEP_UNITS, STEPS
+from sonarmap.patrol.robots import SPEED_BANDS, Car, arc, band_speed, parse_speed_bands
 
 
 def _graph(passable: np.ndarray) -> coo_matrix:
@@ -510,3 +512,94 @@ def test_offline_tour_sees_everything_and_cycles() -> None:
     s = res.summary()
     # Once round, nothing stays unseen for the whole run.
     assert s["worst_idleness"] < 400.0
+
+
+# --- car-like robots -------------------------------------------------------------
+
+
+def test_speed_rule_bands() -> None:
+    kmh = [band_speed(d) * 3.6 for d in (0.0, 1.99, 2.0, 4.9, 5.0, 7.49, 7.5, 100.0)]
+    assert kmh == pytest.approx([3, 3, 6, 6, 9, 9, 15, 15])
+    assert parse_speed_bands("2:3,5:6,7.5:9,inf:15") == SPEED_BANDS
+    for bad in ("2:3,1:6", "2:0", "2-3", "x:3"):
+        with pytest.raises(ConfigError, match="speed rule"):
+            parse_speed_bands(bad)
+
+
+def test_arc_turns_by_length_over_radius() -> None:
+    px, py, h = arc(0.0, 0.0, 0.0, math.pi * 3.5 / 2, 1 / 3.5, 50)
+    assert h == pytest.approx(math.pi / 2)  # a quarter circle of radius 3.5 m
+    assert (px[-1], py[-1]) == pytest.approx((3.5, 3.5))
+    np.testing.assert_allclose(np.hypot(px, py - 3.5), 3.5)
+    px, py, h = arc(0.0, 0.0, 0.0, -2.0, 0.0, 5)  # straight back
+    assert (px[-1], py[-1], h) == pytest.approx((-2.0, 0.0, 0.0))
+
+
+def _corridor_map(res: float = 0.25) -> Territory:
+    """A 40 x 30 m room with a 4 m wide dead-end corridor leaving it eastwards."""
+    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(int(30 / res), int(70 / res)))
+    occ = np.ones(g.shape, np.float32)
+    occ[:, : int(40 / res)] = 0.0
+    occ[int(13 / res) : int(17 / res), : int(65 / res)] = 0.0
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def test_cars_never_turn_tighter_than_their_radius_and_keep_the_speed_rule() -> None:
+    t = _corridor_map()
+    cfg = PatrolConfig(model="car", duration=400.0, cell=0.25)
+    seen: list[tuple[float, np.ndarray, np.ndarray]] = []
+
+    def keep(time: float, team: object, fog: Fog) -> None:
+        assert isinstance(team, Car)
+        seen.append((time, np.column_stack([team.x, team.y, team.heading]), team.escaping.copy()))
+
+    res = run_patrol(t, cfg, robots=2, seed=1, on_step=keep)
+    for (_, a, _), (_, b, _) in itertools.pairwise(seen):
+        for i in range(len(a)):
+            turn = abs(math.remainder(b[i, 2] - a[i, 2], 2 * math.pi))
+            chord = math.hypot(b[i, 0] - a[i, 0], b[i, 1] - a[i, 1])
+            # An arc of radius R >= 3.5 m turning by `turn` has chord 2 R sin(turn / 2).
+            assert chord >= 2 * 3.5 * math.sin(turn / 2) - 1e-9
+            rr, cc = t.grid.world_to_cell(a[i, 0], a[i, 1])
+            limit = band_speed(float(t.clearance[int(rr), int(cc)])) * 0.5
+            assert chord <= limit + 1e-9  # never faster than the rule allows there
+    s = res.summary()
+    assert s["dvt"] > 0  # the dead-end corridor forces escapes
+    assert len(s["dvt_per_robot"]) == 2
+    assert res.dvt[-1] == pytest.approx(s["dvt"])
+    assert s["mean_mtb"] < 400
+
+
+def test_a_car_escapes_a_dead_end() -> None:
+    t = _corridor_map()
+    passable = t.passable(1.0)
+    rng = np.random.default_rng(0)
+    # Near the end of the corridor, facing the end wall, wanting to go back west.
+    car = Car(np.array([62.5]), np.array([15.0]), np.array([0.0]), clearance=t.clearance)
+    west = (-1.0, 0.0)
+    steps = 0
+    while steps < 200:
+        car.step([west], passable, t.grid, 0.5, rng)
+        steps += 1
+        if not car.escaping[0] and abs(math.remainder(car.heading[0] - math.pi, 2 * math.pi)) < 0.2:
+            break
+    assert steps < 200, "the car never turned round"
+    # It turned round inside the corridor (4 m wide: a three-point turn, not a U-turn).
+    assert 40.0 < car.x[0] < 65.0
+    assert 13.0 < car.y[0] < 17.0
+
+
+def test_holonomic_robots_have_no_dvt_and_one_car_runs_alike_under_all_crowding() -> None:
+    t = _corridor_map(0.5)
+    runs = [
+        run_patrol(t, PatrolConfig(model="car", crowding=c, duration=120.0), robots=1, seed=2)
+        for c in ("none", "obstacles")
+    ]
+    np.testing.assert_array_equal(runs[0].mtb, runs[1].mtb)
+    np.testing.assert_array_equal(runs[0].dvt, runs[1].dvt)
+    hol = run_patrol(t, PatrolConfig(duration=60.0), robots=2, seed=2)
+    assert hol.summary()["dvt"] == 0.0
+    with pytest.raises(ConfigError, match="unknown robot model"):
+        PatrolConfig(model="tank")
+    with pytest.raises(ConfigError, match="turn_radius must be > 0"):
+        PatrolConfig(turn_radius=0.0)

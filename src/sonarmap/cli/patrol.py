@@ -14,9 +14,10 @@ import typer
 from ..errors import ConfigError, InputError
 from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
-from ..patrol import Fog, Holonomic, PatrolConfig, Territory, parse_force, read_starts, run_patrol
+from ..patrol import Fog, PatrolConfig, Territory, parse_force, read_starts, run_patrol
 from ..patrol.config import read_run_file
 from ..patrol.maps import write_builtin_maps
+from ..patrol.robots import Team, parse_speed_bands
 from ..patrol.semaphores import read_semaphores
 from ..plot import FogAnimation, save_fog_picture
 from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
@@ -89,6 +90,13 @@ def run_cmd(
         str,
         typer.Option(help="potential (the thesis's), random, reactive, gravity or cycle."),
     ] = "potential",
+    model: Annotated[
+        str,
+        typer.Option(
+            help="holonomic (4.4 m/s or standing, turns at once) or car (turning radius, "
+            "speed by the nearest obstacle, dead-end escape)."
+        ),
+    ] = "holonomic",
     force: Annotated[str, typer.Option(help="Force law f1..f5 x g1..g5.")] = "f3g4",
     force_a: Annotated[float, typer.Option(help="a of the f family.")] = 40.0,
     force_b: Annotated[float, typer.Option(help="b of the g family, decimetres.")] = 65.0,
@@ -125,7 +133,15 @@ def run_cmd(
         ),
     ] = False,
     radius: Annotated[float, typer.Option(help="Robot radius, metres.")] = 1.0,
-    speed: Annotated[float, typer.Option(help="Robot speed, m/s.")] = 4.4,
+    speed: Annotated[float, typer.Option(help="Holonomic robots' speed, m/s.")] = 4.4,
+    turn_radius: Annotated[float, typer.Option(help="Cars' minimum turning radius, metres.")] = 3.5,
+    speed_bands: Annotated[
+        str,
+        typer.Option(
+            help="Cars' speed rule: 'D:KMH,...', KMH below D metres from the nearest "
+            "obstacle, in order; the last D may be inf.",
+        ),
+    ] = "2:3,5:6,7.5:9,inf:15",
     vision: Annotated[float, typer.Option(help="Vision radius, metres.")] = 10.0,
     line_of_sight: Annotated[
         bool,
@@ -162,6 +178,9 @@ def run_cmd(
         raise ConfigError("give the territory: --map, or 'map' in --config")
     config = PatrolConfig(
         policy=policy,
+        model=model,
+        turn_radius=turn_radius,
+        speed_bands=parse_speed_bands(speed_bands),
         force=parse_force(force, force_a, force_b),
         direction=direction,
         paths=paths,
@@ -191,7 +210,7 @@ def run_cmd(
     every = max(1, round(config.duration / config.dt) // 200)
     frame = {"k": 0}
 
-    def keep(t: float, team: Holonomic, fog: Fog) -> None:
+    def keep(t: float, team: Team, fog: Fog) -> None:
         frame["k"] += 1
         if anim is not None and frame["k"] % every == 0:
             anim.add(t, fog.tb, np.column_stack([team.x, team.y, team.heading]))
@@ -214,12 +233,24 @@ def run_cmd(
         w = csv.writer(buf, lineterminator="\n")
         w.writerow(["step", "t", "mtb", "mean_tb", "dvt"])
         for k in range(len(res.t)):
-            w.writerow([k + 1, f"{res.t[k]:g}", f"{res.mtb[k]:g}", f"{res.mean_tb[k]:.4g}", 0])
+            w.writerow(
+                [
+                    k + 1,
+                    f"{res.t[k]:g}",
+                    f"{res.mtb[k]:g}",
+                    f"{res.mean_tb[k]:.4g}",
+                    f"{res.dvt[k]:.4g}",
+                ]
+            )
         atomic_write_text(tmp / "metrics.csv", buf.getvalue())
         if "output_file" in extra:
             # The thesis's batch output: 'step MTB DVT' every log_period_steps steps.
             period = max(1, int(extra.get("log_period_steps", 1)))
-            rows = [f"{k + 1} {res.mtb[k]:g} 0" for k in range(len(res.t)) if (k + 1) % period == 0]
+            rows = [
+                f"{k + 1} {res.mtb[k]:g} {res.dvt[k]:.4g}"
+                for k in range(len(res.t))
+                if (k + 1) % period == 0
+            ]
             atomic_write_text(tmp / Path(str(extra["output_file"])).name, "\n".join(rows) + "\n")
         summary: dict[str, Any] = {
             **res.summary(),

@@ -1,15 +1,17 @@
-"""Holonomic robots moving with the thesis's collision rule.
+"""Robots moving with the thesis's collision rule: holonomic robots and cars.
 
-A robot is a disc (radius 1 m) that either stands or moves at full speed (4.4 m/s)
-in any direction, turning at once. Each step of dt seconds it goes in a straight line
-along its chosen direction. A move is possible when every point of the segment keeps
-the disc clear of obstacles and inside the map (the territory's passable cells).
-Robots must keep ``min_separation`` (2 m) between centres: if the chosen moves of
-several robots make a collision possible on a step, the moves of all of those robots
-are cancelled for that step (repeated until no possible collision is left, since a
-cancelled robot stays where another may be heading). A robot whose move was cancelled
-is blocked; while blocked, each step it goes in a random direction instead with
-probability ``p_random`` (10 %).
+Every robot is a disc (radius 1 m). A move is possible when every point of its path
+over the step keeps the disc clear of obstacles and inside the map (the territory's
+passable cells). Robots must keep ``min_separation`` (2 m) between centres: if the
+chosen moves of several robots make a collision possible on a step, the moves of all
+of those robots are cancelled for that step (repeated until no possible collision is
+left, since a cancelled robot stays where another may be heading).
+
+- :class:`Holonomic`: stands or moves at full speed (4.4 m/s) in a straight line along
+  its chosen direction, turning at once. While blocked (its move cancelled), each step
+  it goes in a random direction instead with probability ``p_random`` (10 %).
+- :class:`Car`: a car-like robot (turning radius 3.5 m forward and reverse, speed by the
+  nearest obstacle, the dead-end escape instead of random moves).
 """
 
 from __future__ import annotations
@@ -24,14 +26,23 @@ from ..errors import ConfigError
 from ..grid import Grid
 from .territory import segment_clear
 
-__all__ = ["Holonomic", "close_pairs"]
+__all__ = [
+    "SPEED_BANDS",
+    "Car",
+    "Holonomic",
+    "Team",
+    "arc",
+    "band_speed",
+    "cancel_collisions",
+    "close_pairs",
+]
 
 F64 = npt.NDArray[np.float64]
 
 
 @dataclass
-class Holonomic:
-    """The state and motion rules of a team of holonomic robots.
+class Team:
+    """What every team has: positions, headings and who was blocked or is escaping.
 
     Attributes
     ----------
@@ -39,28 +50,54 @@ class Holonomic:
         Positions (metres) and headings (radians) of the robots.
     blocked : ndarray of bool
         Whose move was cancelled on the last step.
+    escaping : ndarray of bool
+        Who is in the dead-end escape mode (cars only).
     """
 
     x: F64
     y: F64
     heading: F64
     radius: float = 1.0
-    speed: float = 4.4
     min_separation: float = 2.0
     p_random: float = 0.1
     blocked: npt.NDArray[np.bool_] = field(init=False)
+    escaping: npt.NDArray[np.bool_] = field(init=False)
 
     def __post_init__(self) -> None:
-        for name in ("radius", "speed", "min_separation"):
+        for name in ("radius", "min_separation"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"robot {name} must be > 0, got {v}")
         if not (0.0 <= self.p_random <= 1.0):
             raise ConfigError(f"p_random must be in [0, 1], got {self.p_random}")
         self.blocked = np.zeros(len(self.x), dtype=bool)
+        self.escaping = np.zeros(len(self.x), dtype=bool)
 
     def __len__(self) -> int:
         return len(self.x)
+
+    def step(
+        self,
+        directions: list[tuple[float, float] | None],
+        passable: npt.NDArray[np.bool_],
+        grid: Grid,
+        dt: float,
+        rng: np.random.Generator,
+    ) -> npt.NDArray[np.bool_]:
+        """Move every robot one step; returns who moved."""
+        raise NotImplementedError
+
+
+@dataclass
+class Holonomic(Team):
+    """Holonomic robots: full ``speed`` (4.4 m/s) along the chosen direction, or stand."""
+
+    speed: float = 4.4
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (math.isfinite(self.speed) and self.speed > 0):
+            raise ConfigError(f"robot speed must be > 0, got {self.speed}")
 
     def step(
         self,
@@ -86,19 +123,11 @@ class Holonomic:
         step = self.speed * dt
         nx = self.x + want * dx * step
         ny = self.y + want * dy * step
-        moving = want.copy()
+        clear = want.copy()
         for i in np.flatnonzero(want).tolist():
             if not segment_clear(self.x[i], self.y[i], nx[i], ny[i], passable, grid):
-                moving[i] = False
-        # Cancel the moves of every robot in a possible collision, until none is left.
-        while True:
-            px = np.where(moving, nx, self.x)
-            py = np.where(moving, ny, self.y)
-            pairs = close_pairs(px, py, self.min_separation)
-            culprits = sorted({k for pair in pairs for k in pair if moving[k]})
-            if not culprits:
-                break
-            moving[culprits] = False
+                clear[i] = False
+        moving = cancel_collisions(self.x, self.y, nx, ny, clear, self.min_separation)
         self.blocked = want & ~moving
         self.x = np.where(moving, nx, self.x)
         self.y = np.where(moving, ny, self.y)
@@ -106,8 +135,222 @@ class Holonomic:
         return moving
 
 
+def cancel_collisions(
+    x: F64, y: F64, nx: F64, ny: F64, moving: npt.NDArray[np.bool_], sep: float
+) -> npt.NDArray[np.bool_]:
+    """Who still moves once the moves of every robot in a possible collision (ending
+    closer than ``sep`` to another robot) are cancelled; repeated until none is left,
+    since a cancelled robot stays where another may be heading."""
+    moving = moving.copy()
+    while True:
+        px = np.where(moving, nx, x)
+        py = np.where(moving, ny, y)
+        pairs = close_pairs(px, py, sep)
+        culprits = sorted({k for pair in pairs for k in pair if moving[k]})
+        if not culprits:
+            return moving
+        moving[culprits] = False
+
+
 def close_pairs(x: F64, y: F64, sep: float) -> list[tuple[int, int]]:
     """Pairs (i, j), i < j, of points nearer than ``sep`` to each other."""
     d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
     i, j = np.nonzero(np.triu(d < sep - 1e-9, k=1))
     return list(zip(i.tolist(), j.tolist(), strict=True))
+
+
+#: The thesis's speed rule for car-like robots: (nearest obstacle closer than this many
+#: metres, speed in km/h), checked in order.
+SPEED_BANDS: tuple[tuple[float, float], ...] = (
+    (2.0, 3.0),
+    (5.0, 6.0),
+    (7.5, 9.0),
+    (math.inf, 15.0),
+)
+
+
+def band_speed(distance: float, bands: tuple[tuple[float, float], ...] = SPEED_BANDS) -> float:
+    """The speed (m/s) the rule gives at ``distance`` metres from the nearest obstacle."""
+    for upper, kmh in bands:
+        if distance < upper:
+            return kmh / 3.6
+    return bands[-1][1] / 3.6
+
+
+def parse_speed_bands(text: str) -> tuple[tuple[float, float], ...]:
+    """``"2:3,5:6,7.5:9,inf:15"`` -> ((2, 3), (5, 6), (7.5, 9), (inf, 15)): a speed in km/h
+    below each distance in metres, distances increasing, speeds > 0."""
+    bands: list[tuple[float, float]] = []
+    for part in text.split(","):
+        try:
+            d, v = (float(x) for x in part.split(":"))
+        except ValueError:
+            raise ConfigError(
+                f"expected 'METRES:KMH' in the speed rule, got {part.strip()!r}"
+            ) from None
+        if not (v > 0 and math.isfinite(v)) or not d > 0:
+            raise ConfigError(f"speed rule: distances and speeds must be > 0, got {part.strip()!r}")
+        if bands and d <= bands[-1][0]:
+            raise ConfigError(f"speed rule: distances must increase, got {text!r}")
+        bands.append((d, v))
+    return tuple(bands)
+
+
+def arc(
+    x: float, y: float, heading: float, length: float, curvature: float, n: int
+) -> tuple[F64, F64, float]:
+    """``n`` points along the arc of signed ``length`` (negative: in reverse) and
+    ``curvature`` (1/m, positive turns left when going forward) from (x, y, heading);
+    returns the points (the first is the start, the last the end) and the end heading."""
+    u = np.linspace(0.0, length, max(2, n))
+    turn = curvature * u
+    if abs(curvature * length) < 1e-12:
+        return x + u * math.cos(heading), y + u * math.sin(heading), heading
+    px = x + (np.sin(heading + turn) - math.sin(heading)) / curvature
+    py = y - (np.cos(heading + turn) - math.cos(heading)) / curvature
+    return px, py, heading + curvature * length
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+@dataclass
+class Car(Team):
+    """Car-like robots: forward and reverse along arcs no tighter than ``turn_radius``
+    (3.5 m), at the speed the rule gives for the distance to the nearest obstacle, with
+    the thesis's dead-end escape.
+
+    A step drives forward along the arc that turns towards the chosen direction as fast
+    as the turning radius allows; if that arc is not clear, the other forward arcs are
+    tried from the nearest curvature out. When no forward arc is clear, or the collision
+    rule cancels the car's move, the car is in a dead end and escapes: it fixes the
+    target heading (the chosen direction of that step), reverses while steering to
+    reduce the heading error; if reversing hits an obstacle it drives forward steering
+    to reduce the error the other way round (a three-point turn), and reverses again
+    when forward is impossible; once the heading is within ``align`` radians of the
+    target the escape ends. A car cancelled by the collision rule while escaping
+    switches gear, and with probability ``p_random`` a step takes a random target
+    heading instead (two cars facing each other in a corridor would otherwise meet
+    again and again). DVT is the share of steps a car spends escaping.
+
+    The body is the same disc as the holonomic robot's (the thesis gives no body for
+    the car); the speed rule reads the distance from the car's centre to the nearest
+    cell that is not free, as the territory's clearance has it.
+    """
+
+    clearance: F64 = field(default_factory=lambda: np.zeros((0, 0)))
+    turn_radius: float = 3.5
+    bands: tuple[tuple[float, float], ...] = SPEED_BANDS
+    align: float = 0.1
+    escaping: npt.NDArray[np.bool_] = field(init=False)
+    goal: F64 = field(init=False)
+    gear: npt.NDArray[np.int64] = field(init=False)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (math.isfinite(self.turn_radius) and self.turn_radius > 0):
+            raise ConfigError(f"turning radius must be > 0 metres, got {self.turn_radius}")
+        if not all(kmh > 0 for _, kmh in self.bands):
+            raise ConfigError("every speed of the speed rule must be > 0")
+        self.escaping = np.zeros(len(self.x), dtype=bool)
+        self.goal = np.zeros(len(self.x))
+        self.gear = -np.ones(len(self.x), dtype=np.int64)
+
+    def speed_of(self, i: int, grid: Grid) -> float:
+        r, c = grid.world_to_cell(self.x[i], self.y[i])
+        if not grid.contains(r, c):
+            return band_speed(0.0, self.bands)
+        return band_speed(float(self.clearance[int(r), int(c)]), self.bands)
+
+    def _try(
+        self,
+        i: int,
+        length: float,
+        curvatures: list[float],
+        passable: npt.NDArray[np.bool_],
+        grid: Grid,
+    ) -> tuple[float, float, float] | None:
+        """The end (x, y, heading) of the first clear arc of ``curvatures``."""
+        n = math.ceil(abs(length) / (grid.resolution * 0.25)) + 1
+        for k in curvatures:
+            px, py, h = arc(
+                float(self.x[i]), float(self.y[i]), float(self.heading[i]), length, k, n
+            )
+            r, c = grid.world_to_cell(px, py)
+            if bool(grid.contains(r, c).all()) and bool(passable[r, c].all()):
+                return float(px[-1]), float(py[-1]), h
+        return None
+
+    def _steer(self, error: float, length: float) -> float:
+        """The curvature that turns by ``error`` over ``length`` metres as far as the
+        turning radius allows (``length`` negative in reverse)."""
+        kmax = 1.0 / self.turn_radius
+        return max(-kmax, min(kmax, error / length))
+
+    def _arcs(self, error: float, length: float) -> list[float]:
+        """The arc that steers towards ``error`` first, then the others from the nearest
+        curvature out (a car takes another arc before giving up a gear)."""
+        kmax = 1.0 / self.turn_radius
+        best = self._steer(error, length)
+        others = [kmax * f for f in (-1.0, -0.5, 0.0, 0.5, 1.0)]
+        return [best, *sorted(others, key=lambda k: abs(k - best))]
+
+    def step(
+        self,
+        directions: list[tuple[float, float] | None],
+        passable: npt.NDArray[np.bool_],
+        grid: Grid,
+        dt: float,
+        rng: np.random.Generator,
+    ) -> npt.NDArray[np.bool_]:
+        n = len(self)
+        want = np.zeros(n, dtype=bool)
+        end = np.column_stack([self.x, self.y, self.heading]).astype(np.float64)
+        for i, d in enumerate(directions):
+            if self.escaping[i] and abs(_wrap(self.goal[i] - self.heading[i])) <= self.align:
+                self.escaping[i] = False
+            if self.escaping[i] and self.blocked[i] and rng.random() < self.p_random:
+                self.goal[i] = rng.uniform(-math.pi, math.pi)
+            if not self.escaping[i] and d is None:
+                continue
+            s = self.speed_of(i, grid) * dt
+            want[i] = True
+            if not self.escaping[i]:
+                assert d is not None
+                error = _wrap(math.atan2(d[1], d[0]) - float(self.heading[i]))
+                move = self._try(i, s, self._arcs(error, s), passable, grid)
+                if move is not None:
+                    end[i] = move
+                    continue
+                self.escaping[i] = True  # a dead end: forward motion is impossible
+                self.goal[i] = math.atan2(d[1], d[0])
+                self.gear[i] = -1
+            error = _wrap(float(self.goal[i] - self.heading[i]))
+            move = None
+            for _ in range(2):
+                length = s * float(self.gear[i])
+                move = self._try(i, length, self._arcs(error, length), passable, grid)
+                if move is not None:
+                    break
+                self.gear[i] = -self.gear[i]
+            if move is None:
+                want[i] = False  # boxed in both ways: stand, still escaping
+            else:
+                end[i] = move
+        moving = cancel_collisions(self.x, self.y, end[:, 0], end[:, 1], want, self.min_separation)
+        self.blocked = want & ~moving
+        for i in np.flatnonzero(self.blocked).tolist():
+            if self.escaping[i]:
+                self.gear[i] = -self.gear[i]
+            else:
+                self.escaping[i] = True
+                d = directions[i]
+                self.goal[i] = math.atan2(d[1], d[0]) if d is not None else self.heading[i]
+                self.gear[i] = -1
+        self.x = np.where(moving, end[:, 0], self.x)
+        self.y = np.where(moving, end[:, 1], self.y)
+        self.heading = np.where(
+            moving, (end[:, 2] + math.pi) % (2 * math.pi) - math.pi, self.heading
+        )
+        return moving

@@ -37,17 +37,19 @@ from .network import NETWORKS, components
 from .paths import STEP_UNITS, straight_paths, wave
 from .policies import POLICIES, choose
 from .refine import obstacle_penalty, refine_direction, sector_weakening
-from .robots import Holonomic, close_pairs
+from .robots import SPEED_BANDS, Car, Holonomic, Team, close_pairs
 from .semaphores import Semaphores
 from .territory import Territory
 from .tour import plan_tour
 
-__all__ = ["CROWDING", "PatrolConfig", "PatrolResult", "read_starts", "run_patrol"]
+__all__ = ["CROWDING", "MODELS", "PatrolConfig", "PatrolResult", "read_starts", "run_patrol"]
 
 #: Anti-crowding rules: none; artificial obstacles (each robot blocks, on its own
 #: path-finding map, a disc of ``r_obst`` around every robot it hears of); semaphores
 #: (:mod:`.semaphores`).
 CROWDING = ("none", "obstacles", "semaphores")
+#: Robot models: holonomic, or car-like (:class:`~sonarmap.patrol.robots.Car`).
+MODELS = ("holonomic", "car")
 
 F64 = npt.NDArray[np.float64]
 
@@ -57,6 +59,7 @@ class PatrolConfig:
     """Every number of a patrol run, with the thesis's defaults."""
 
     policy: str = "potential"
+    model: str = "holonomic"
     force: Force = field(default_factory=Force)
     direction: str = "mode"
     sectors: int = 8
@@ -76,6 +79,9 @@ class PatrolConfig:
     speed: float = 4.4
     min_separation: float = 2.0
     p_random: float = 0.1
+    turn_radius: float = 3.5
+    #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
+    speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
     vision: float = 10.0
     line_of_sight: bool = False
     dt: float = 0.5
@@ -87,6 +93,8 @@ class PatrolConfig:
     def __post_init__(self) -> None:
         if self.direction not in ("mode", "vector"):
             raise ConfigError(f"unknown direction {self.direction!r}; valid: mode, vector")
+        if self.model not in MODELS:
+            raise ConfigError(f"unknown robot model {self.model!r}; valid: {', '.join(MODELS)}")
         if self.paths not in ("wave", "straight"):
             raise ConfigError(f"unknown path-finding {self.paths!r}; valid: wave, straight")
         if self.policy not in POLICIES:
@@ -95,7 +103,7 @@ class PatrolConfig:
             raise ConfigError(f"unknown network {self.network!r}; valid: {', '.join(NETWORKS)}")
         if not (self.r_max >= 0):
             raise ConfigError(f"r_max must be >= 0 metres, got {self.r_max}")
-        for name in ("radius", "speed", "vision", "dt", "duration", "cell"):
+        for name in ("radius", "speed", "vision", "dt", "duration", "cell", "turn_radius"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be > 0, got {v}")
@@ -137,6 +145,14 @@ class PatrolResult:
     blocked_steps: npt.NDArray[np.int64]
     #: TB of every cell at the end.
     final_tb: F64
+    #: Steps each robot spent in the dead-end escape mode (cars only).
+    escape_steps: npt.NDArray[np.int64]
+    #: The team's mean DVT so far, in %, after each step.
+    dvt: F64
+
+    def dvt_per_robot(self) -> F64:
+        """Share of the run each robot spent escaping dead ends, in %."""
+        return 100.0 * self.escape_steps / max(1, len(self.t))
 
     def summary(self) -> dict[str, Any]:
         after = self.t > self.config.warmup_s
@@ -145,7 +161,9 @@ class PatrolResult:
             "mean_mtb_all_steps": float(self.mtb.mean()),
             "worst_idleness": float(self.mtb.max()),
             "mean_idleness": float(self.mean_tb[after].mean()) if after.any() else math.nan,
-            "dvt": 0.0,  # holonomic robots never enter the dead-end escape mode
+            # Holonomic robots never enter the dead-end escape mode: 0 for them.
+            "dvt": float(self.dvt_per_robot().mean()),
+            "dvt_per_robot": [round(float(v), 3) for v in self.dvt_per_robot()],
             "blocked_share": float(self.blocked_steps.sum() / (len(self.t) * len(self.positions))),
             "steps": len(self.t),
             "sim_seconds": float(self.t[-1]) if len(self.t) else 0.0,
@@ -250,7 +268,7 @@ def run_patrol(
     robots: int | None = None,
     seed: int = 0,
     progress: Callable[[int, int], None] | None = None,
-    on_step: Callable[[float, Holonomic, Fog], None] | None = None,
+    on_step: Callable[[float, Team, Fog], None] | None = None,
     semaphores: list[npt.NDArray[np.bool_]] | None = None,
 ) -> PatrolResult:
     """Patrol ``territory`` for ``config.duration`` seconds.
@@ -274,15 +292,29 @@ def run_patrol(
             raise ConfigError("give start positions or a number of robots >= 1")
         starts = random_starts(robots, territory, passable, config.min_separation, seed)
     _check_starts(starts, territory, passable, config.min_separation)
-    team = Holonomic(
-        starts[:, 0].copy(),
-        starts[:, 1].copy(),
-        starts[:, 2].copy(),
-        radius=config.radius,
-        speed=config.speed,
-        min_separation=config.min_separation,
-        p_random=config.p_random,
-    )
+    team: Team
+    if config.model == "car":
+        team = Car(
+            starts[:, 0].copy(),
+            starts[:, 1].copy(),
+            starts[:, 2].copy(),
+            radius=config.radius,
+            min_separation=config.min_separation,
+            p_random=config.p_random,
+            clearance=territory.clearance,
+            turn_radius=config.turn_radius,
+            bands=config.speed_bands,
+        )
+    else:
+        team = Holonomic(
+            starts[:, 0].copy(),
+            starts[:, 1].copy(),
+            starts[:, 2].copy(),
+            radius=config.radius,
+            speed=config.speed,
+            min_separation=config.min_separation,
+            p_random=config.p_random,
+        )
     g = territory.grid
     fog = Fog(g, territory.free, config.start_fog)  # the true fog: the metric
     # Each robot's own fog; with the full network they are all the true fog.
@@ -297,6 +329,8 @@ def run_patrol(
     mtb = np.empty(steps)
     mean_tb = np.empty(steps)
     blocked = np.zeros(len(team), dtype=np.int64)
+    escapes = np.zeros(len(team), dtype=np.int64)
+    dvt = np.empty(steps)
 
     obst = disc_offsets(config.r_obst, g.resolution)
     penalty = (
@@ -415,6 +449,8 @@ def run_patrol(
             ]
         team.step(directions, passable, g, config.dt, rng)
         blocked += team.blocked
+        escapes += team.escaping
+        dvt[k] = 100.0 * escapes.mean() / (k + 1)
         moved_r, moved_c = g.world_to_cell(team.x, team.y)
         sems.update(np.asarray(moved_r), np.asarray(moved_c))
         fog.advance(config.dt)
@@ -438,4 +474,6 @@ def run_patrol(
         time.perf_counter() - wall0,
         blocked,
         fog.tb.copy(),
+        escapes,
+        dvt,
     )
