@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from PIL import Image
 from scipy import ndimage
@@ -30,6 +31,7 @@ from sonarmap.patrol import (
     run_patrol,
     wave,
 )
+from sonarmap.patrol.experiments import run_experiment
 from sonarmap.patrol.fog import dilate, disc_offsets
 from sonarmap.patrol.paths import STEP_UNITS, STEPS
 from sonarmap.patrol.robots import SPEED_BANDS, Car, arc, band_speed, parse_speed_bands
@@ -603,3 +605,27 @@ def test_holonomic_robots_have_no_dvt_and_one_car_runs_alike_under_all_crowding(
         PatrolConfig(model="tank")
     with pytest.raises(ConfigError, match="turn_radius must be > 0"):
         PatrolConfig(turn_radius=0.0)
+
+
+# --- experiments -------------------------------------------------------------------
+
+
+def test_crowding_experiment_writes_its_tables_and_checks_the_one_robot_rule(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "crowding"
+    report = run_experiment("crowding", out, seeds=1, duration=20.0, cell=1.0, workers=1)
+    assert report == out / "report.html"
+    runs = pd.read_csv(out / "runs.csv")
+    assert len(runs) == 15  # 3 rules x 1-5 robots x 1 seed
+    assert set(runs["variant"]) == {"none", "semaphores", "obstacles"}
+    assert (runs["dvt"] >= 0).all()
+    claims = {c["claim"]: c for c in json.loads((out / "claims.json").read_text())}
+    one = claims["one robot runs alike under all three crowding rules"]
+    assert one["verdict"] == "confirmed"
+    html = report.read_text()
+    assert "Table 4" in html
+    assert "632.5" in html  # the thesis's figure beside ours
+    with pytest.raises(ConfigError, match="unknown experiment"):
+        run_experiment("nope", tmp_path / "x")
+    assert not (tmp_path / "x").exists()

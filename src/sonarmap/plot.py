@@ -28,7 +28,9 @@ __all__ = [
     "MapAnimation",
     "draw_map",
     "save_fog_picture",
+    "save_force_tables",
     "save_map_picture",
+    "save_patrol_series",
     "save_side_by_side",
 ]
 
@@ -419,3 +421,72 @@ class FogAnimation:
             return [im, *rings]
 
         return _write_animation(fig, show, len(self.frames), p, writer)
+
+
+def save_force_tables(
+    tables: Mapping[str, npt.NDArray[np.float64]],
+    rows: list[str],
+    cols: list[str],
+    path: str | Path,
+) -> Path:
+    """Tables of mean MTB (seconds) as heat maps side by side, one shared log colour
+    scale, each cell labelled with its value."""
+    finite = np.concatenate([t[np.isfinite(t)] for t in tables.values()])
+    lo, hi = (float(finite.min()), float(finite.max())) if len(finite) else (1.0, 10.0)
+    norm = matplotlib.colors.LogNorm(vmin=max(lo, 1e-3), vmax=max(hi, lo * 1.01))
+    n = len(tables)
+    ncols = min(n, 2)
+    nrows = -(-n // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.6 * ncols, 4.0 * nrows), squeeze=False)
+    im = None
+    for ax, (title, t) in zip(axes.ravel(), tables.items(), strict=False):
+        im = ax.imshow(t, cmap="viridis_r", norm=norm)
+        ax.set_xticks(range(len(cols)), cols)
+        ax.set_yticks(range(len(rows)), rows)
+        ax.set_title(title)
+        for (i, j), v in np.ndenumerate(t):
+            ax.text(
+                j,
+                i,
+                "-" if not np.isfinite(v) else f"{v:.0f}",
+                ha="center",
+                va="center",
+                fontsize=8,
+                color="white" if np.isfinite(v) and norm(v) > 0.55 else "black",
+            )
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    if im is not None:
+        fig.colorbar(im, ax=axes.ravel().tolist(), label="mean MTB [s]", shrink=0.8)
+    return _save(fig, path)
+
+
+def save_patrol_series(table: Any, path: str | Path) -> Path:
+    """Mean MTB against the number of robots, a line per variant and a panel per map;
+    a second row of DVT panels when any run has a DVT (cars). ``table`` is a pandas
+    frame with columns map, variant, robots, mean_mtb, mtb_sd and dvt."""
+    maps = list(dict.fromkeys(table["map"]))
+    with_dvt = bool((table["dvt"] > 0).any())
+    nrows = 2 if with_dvt else 1
+    fig, axes = plt.subplots(
+        nrows, len(maps), figsize=(5.2 * len(maps), 3.6 * nrows), squeeze=False
+    )
+    for k, m in enumerate(maps):
+        sub = table[table["map"] == m]
+        for variant in dict.fromkeys(sub["variant"]):
+            v = sub[sub["variant"] == variant].sort_values("robots")
+            sd = v["mtb_sd"].fillna(0.0)
+            axes[0, k].errorbar(
+                v["robots"], v["mean_mtb"], yerr=sd, marker="o", capsize=3, label=str(variant)
+            )
+            if with_dvt:
+                axes[1, k].plot(v["robots"], v["dvt"], marker="o", label=str(variant))
+        axes[0, k].set_title(str(m))
+        axes[0, k].set_ylabel("mean MTB [s]")
+        axes[0, k].set_xlabel("robots")
+        axes[0, k].legend(fontsize=7)
+        if with_dvt:
+            axes[1, k].set_ylabel("DVT [%]")
+            axes[1, k].set_xlabel("robots")
+    fig.tight_layout()
+    return _save(fig, path)

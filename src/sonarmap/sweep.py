@@ -32,10 +32,10 @@ from __future__ import annotations
 import itertools
 import json
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import pandas as pd
@@ -47,9 +47,19 @@ from .metrics import MapScore, score
 from .scenarios import SCENARIOS, Scenario, make_scenario, model_from_dict
 from .splits import check_training
 
-__all__ = ["SweepConfig", "Task", "load_sweep", "run_sweep", "run_task", "summarise"]
+__all__ = [
+    "SweepConfig",
+    "Task",
+    "load_sweep",
+    "run_on_dask",
+    "run_sweep",
+    "run_task",
+    "summarise",
+]
 
 Progress = Callable[[int, int], None]
+T = TypeVar("T")
+R = TypeVar("R")
 
 #: Metrics where smaller is better; for the others larger is better.
 LOWER_IS_BETTER = {
@@ -270,14 +280,15 @@ def _params_key(params: Mapping[str, Any]) -> str:
     return ", ".join(f"{k}={params[k]!r}" for k in sorted(params)) or "(defaults)"
 
 
-def run_sweep(
-    config: SweepConfig,
+def run_on_dask(
+    fn: Callable[[T], R],
+    tasks: Sequence[T],
     *,
     scheduler: str | None = None,
     workers: int | None = None,
     progress: Progress | None = None,
-) -> pd.DataFrame:
-    """Run every task of ``config`` on Dask; one row per task.
+) -> list[R]:
+    """``fn`` over every task on a Dask cluster, results in completion order.
 
     Parameters
     ----------
@@ -288,7 +299,6 @@ def run_sweep(
     """
     from dask.distributed import Client, LocalCluster, as_completed
 
-    tasks = config.tasks()
     cluster = None
     try:
         if scheduler is None:
@@ -302,15 +312,29 @@ def run_sweep(
                     f"cannot reach the Dask scheduler at {scheduler} ({err})"
                 ) from err
         with client:
-            futures = client.map(run_task, tasks, pure=False)
-            rows = []
+            futures = client.map(fn, list(tasks), pure=False)
+            out: list[R] = []
             for k, fut in enumerate(as_completed(futures)):
-                rows.append(fut.result())
+                out.append(fut.result())
                 if progress is not None:
                     progress(k + 1, len(tasks))
     finally:
         if cluster is not None:
             cluster.close()
+    return out
+
+
+def run_sweep(
+    config: SweepConfig,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: Progress | None = None,
+) -> pd.DataFrame:
+    """Run every task of ``config`` on Dask (:func:`run_on_dask`); one row per task."""
+    rows = run_on_dask(
+        run_task, config.tasks(), scheduler=scheduler, workers=workers, progress=progress
+    )
     df = pd.DataFrame(rows)
     return df.sort_values(
         ["method", "params", "scenario", "seed"], kind="stable", ignore_index=True

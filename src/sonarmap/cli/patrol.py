@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -16,6 +17,7 @@ from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
 from ..patrol import Fog, PatrolConfig, Territory, parse_force, read_starts, run_patrol
 from ..patrol.config import read_run_file
+from ..patrol.experiments import run_experiment
 from ..patrol.maps import write_builtin_maps
 from ..patrol.robots import Team, parse_speed_bands
 from ..patrol.semaphores import read_semaphores
@@ -286,3 +288,56 @@ def maps_cmd(
     with atomic_folder(out) as tmp:
         written = write_builtin_maps(tmp)
     console.print(f"wrote {len(written)} files to {out}: {', '.join(p.name for p in written)}")
+
+
+@patrol_app.command("experiment")
+def experiment_cmd(
+    name: Annotated[
+        str,
+        typer.Argument(
+            help="forces, paths, direction, car, refine, weaken, crowding, dilation, network "
+            "or baselines."
+        ),
+    ],
+    out: Annotated[
+        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
+    ],
+    quick: Annotated[
+        bool,
+        typer.Option("--quick", help="One seed, 300 s runs on 1 m cells: a smoke run."),
+    ] = False,
+    seeds: Annotated[int | None, typer.Option(help="Seeds per setting (default 3).")] = None,
+    duration: Annotated[
+        float | None, typer.Option(help="Simulated seconds per run (default 3600).")
+    ] = None,
+    cell: Annotated[
+        float | None, typer.Option(help="Cell of the fog and paths, metres (default 0.5).")
+    ] = None,
+    scheduler: Annotated[
+        str | None,
+        typer.Option(help="Address of a running Dask scheduler; default a LocalCluster."),
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(help="LocalCluster worker processes (default: the cores).")
+    ] = None,
+) -> None:
+    """Rerun one of the thesis's chapter-3 experiments on the built-in maps: runs.csv,
+    table.csv, claims.json, figures and report.html in OUT."""
+    with _progress(f"patrol experiment {name}") as cb:
+        report = run_experiment(
+            name,
+            out,
+            quick=quick,
+            seeds=seeds,
+            duration=duration,
+            cell=cell,
+            scheduler=scheduler,
+            workers=workers,
+            progress=cb,
+        )
+    claims = json.loads((out / "claims.json").read_text())
+    for c in claims:
+        console.print(
+            f"{c['verdict']}: {c['claim']}: {c['measured']} (thesis: {c['thesis']})", markup=False
+        )
+    console.print(f"wrote {report}")

@@ -13,6 +13,7 @@ corner with y down, e.g. ``953 615;753 551;787 315;1063 97;1181 100;1181 241``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +23,7 @@ from matplotlib.path import Path as Polygon
 from ..errors import InputError
 from ..grid import Grid
 
-__all__ = ["Semaphores", "read_semaphores"]
+__all__ = ["Semaphores", "polygon_cells", "read_semaphores"]
 
 
 def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]:
@@ -34,9 +35,6 @@ def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]
         raise InputError(f"cannot read semaphore file ({err.strerror or err})", path=p) from err
     except UnicodeDecodeError as err:
         raise InputError("semaphore file is not text", path=p) from err
-    top = grid.origin[1] + grid.rows * grid.resolution
-    cx, cy = grid.all_centres()
-    points = np.column_stack([cx.ravel(), cy.ravel()])
     out = []
     for number, text in enumerate(lines, start=1):
         if not text.strip() or text.lstrip().startswith("#"):
@@ -49,12 +47,21 @@ def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]
             raise InputError(
                 f"a semaphore needs at least 3 'x y' vertices, got {text!r}", path=p, line=number
             )
-        world = np.array([(grid.origin[0] + x / 10.0, top - y / 10.0) for x, y in xy])
-        mask = Polygon(world).contains_points(points).reshape(grid.shape)
+        mask = polygon_cells([(v[0], v[1]) for v in xy], grid)
         if not mask.any():
             raise InputError("the semaphore covers no cell of the map", path=p, line=number)
         out.append(mask)
     return out
+
+
+def polygon_cells(vertices_dm: Sequence[tuple[float, float]], grid: Grid) -> npt.NDArray[np.bool_]:
+    """Cells whose centres lie inside a polygon given in decimetres from the map's
+    top-left corner, y down (the thesis's frame)."""
+    top = grid.origin[1] + grid.rows * grid.resolution
+    cx, cy = grid.all_centres()
+    world = np.array([(grid.origin[0] + x / 10.0, top - y / 10.0) for x, y in vertices_dm])
+    inside = Polygon(world).contains_points(np.column_stack([cx.ravel(), cy.ravel()]))
+    return np.asarray(inside.reshape(grid.shape), dtype=bool)
 
 
 class Semaphores:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,7 +42,15 @@ from .semaphores import Semaphores
 from .territory import Territory
 from .tour import plan_tour
 
-__all__ = ["CROWDING", "MODELS", "PatrolConfig", "PatrolResult", "read_starts", "run_patrol"]
+__all__ = [
+    "CROWDING",
+    "MODELS",
+    "PatrolConfig",
+    "PatrolResult",
+    "read_starts",
+    "run_patrol",
+    "starts_from_dm",
+]
 
 #: Anti-crowding rules: none; artificial obstacles (each robot blocks, on its own
 #: path-finding map, a disc of ``r_obst`` around every robot it hears of); semaphores
@@ -149,6 +157,8 @@ class PatrolResult:
     escape_steps: npt.NDArray[np.int64]
     #: The team's mean DVT so far, in %, after each step.
     dvt: F64
+    #: The cells the metric watches (the free cells).
+    watched: npt.NDArray[np.bool_]
 
     def dvt_per_robot(self) -> F64:
         """Share of the run each robot spent escaping dead ends, in %."""
@@ -156,6 +166,7 @@ class PatrolResult:
 
     def summary(self) -> dict[str, Any]:
         after = self.t > self.config.warmup_s
+        end = float(self.t[-1]) if len(self.t) else 0.0
         return {
             "mean_mtb": float(self.mtb[after].mean()) if after.any() else math.nan,
             "mean_mtb_all_steps": float(self.mtb.mean()),
@@ -165,6 +176,11 @@ class PatrolResult:
             "dvt": float(self.dvt_per_robot().mean()),
             "dvt_per_robot": [round(float(v), 3) for v in self.dvt_per_robot()],
             "blocked_share": float(self.blocked_steps.sum() / (len(self.t) * len(self.positions))),
+            # Places no robot has seen yet: while any is left, MTB(t) is the time itself
+            # and the mean MTB says only that the run was too short.
+            "never_seen": float(
+                np.mean(self.final_tb[self.watched] >= self.config.start_fog + end - 1e-9)
+            ),
             "steps": len(self.t),
             "sim_seconds": float(self.t[-1]) if len(self.t) else 0.0,
             "wall_seconds": round(self.wall_seconds, 3),
@@ -195,17 +211,24 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
         raise InputError(f"robot count must be >= 1, got {n}", path=p, line=line)
     if len(body) - 1 < n:
         raise InputError(f"the file says {n} robots but lists {len(body) - 1}", path=p)
-    g = territory.grid
-    top = g.origin[1] + g.rows * g.resolution
-    out = []
+    rows = []
     for line, text in body[1 : n + 1]:
         parts = text.split()
         try:
             xd, yd, phi = (float(v) for v in parts)
         except ValueError:
             raise InputError(f"expected 'X Y phi', got {text!r}", path=p, line=line) from None
-        out.append((g.origin[0] + xd / 10.0, top - yd / 10.0, phi))
-    return np.array(out, dtype=np.float64)
+        rows.append((xd, yd, phi))
+    return starts_from_dm(rows, territory)
+
+
+def starts_from_dm(rows: Sequence[tuple[float, float, float]], territory: Territory) -> F64:
+    """World (x, y, heading) of starts given as ``X Y phi``, X and Y in decimetres from
+    the map's top-left corner (Y down), phi in radians."""
+    g = territory.grid
+    top = g.origin[1] + g.rows * g.resolution
+    out = [(g.origin[0] + xd / 10.0, top - yd / 10.0, phi) for xd, yd, phi in rows]
+    return np.array(out, dtype=np.float64).reshape(-1, 3)
 
 
 def _check_starts(
@@ -476,4 +499,5 @@ def run_patrol(
         fog.tb.copy(),
         escapes,
         dvt,
+        watched,
     )
