@@ -183,9 +183,16 @@ def test_runs_are_deterministic_and_more_robots_watch_better() -> None:
     b = run_patrol(t, cfg, robots=2, seed=5)
     np.testing.assert_array_equal(a.mtb, b.mtb)
     np.testing.assert_array_equal(a.positions, b.positions)
-    one = run_patrol(t, cfg, robots=1, seed=5).summary()["mean_mtb"]
-    three = run_patrol(t, cfg, robots=3, seed=5).summary()["mean_mtb"]
-    assert three < one
+    # On a field much wider than the vision radius (100 x 88 m, as in Tables 2-3) three
+    # robots share the work; on a 40 m field one robot sees nearly all of it already and
+    # more robots mostly get in each other's way.
+    g = Grid(resolution=1.0, origin=(0.0, 0.0), shape=(88, 100))
+    field = Territory.from_map(OccupancyMap(g, np.zeros(g.shape, np.float32)))
+    wide = PatrolConfig(duration=400.0, cell=1.0)
+    for seed in (0, 1):
+        one = run_patrol(field, wide, robots=1, seed=seed).summary()["mean_mtb"]
+        three = run_patrol(field, wide, robots=3, seed=seed).summary()["mean_mtb"]
+        assert three < 0.6 * one
     s = a.summary()
     assert 0 < s["mean_mtb"] < 300
     assert s["worst_idleness"] >= s["mean_mtb"]

@@ -103,7 +103,13 @@ def run_cmd(
     force_a: Annotated[float, typer.Option(help="a of the f family.")] = 40.0,
     force_b: Annotated[float, typer.Option(help="b of the g family, decimetres.")] = 65.0,
     direction: Annotated[str, typer.Option(help="mode or vector.")] = "mode",
-    paths: Annotated[str, typer.Option(help="wave, or straight (open space).")] = "wave",
+    paths: Annotated[
+        str,
+        typer.Option(
+            help="wave (follows crowding's map edits), straight (open space), regions "
+            "(offline rectangles and doors) or marching (fast marching, Euclidean lengths)."
+        ),
+    ] = "wave",
     network: Annotated[
         str, typer.Option(help="full, limited (--r-max and line of sight) or none.")
     ] = "full",

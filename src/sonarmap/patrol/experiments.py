@@ -223,7 +223,11 @@ def _plans() -> dict[str, Plan]:
             "Path-finding on the fig. 3.2 map: the wave, regions and fast marching "
             "(the thesis's results for this are in a lost figure).",
             {**HOLO},
-            {"wave": {"paths": "wave"}, "regions": {"paths": "regions"}},
+            {
+                "wave": {"paths": "wave"},
+                "regions": {"paths": "regions"},
+                "marching": {"paths": "marching"},
+            },
             ["fig3-2"],
             [2, 3, 5],
         ),

@@ -31,12 +31,15 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
+from .finders import PathFinder
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force
+from .marching import Marching
 from .network import NETWORKS, components
 from .paths import STEP_UNITS, straight_paths, wave
 from .policies import POLICIES, choose
 from .refine import obstacle_penalty, refine_direction, sector_weakening
+from .regions import Regions
 from .robots import SPEED_BANDS, Car, Holonomic, Team, close_pairs
 from .semaphores import Semaphores
 from .territory import Territory
@@ -58,6 +61,10 @@ __all__ = [
 CROWDING = ("none", "obstacles", "semaphores")
 #: Robot models: holonomic, or car-like (:class:`~sonarmap.patrol.robots.Car`).
 MODELS = ("holonomic", "car")
+#: Path-finders built once per run for the static map (:mod:`.regions`, :mod:`.marching`).
+FINDERS: dict[str, type[PathFinder]] = {"regions": Regions, "marching": Marching}
+#: Every path-finding: the wave, straight lines (open space) and the static finders.
+PATHS = ("wave", "straight", *FINDERS)
 
 F64 = npt.NDArray[np.float64]
 
@@ -103,8 +110,14 @@ class PatrolConfig:
             raise ConfigError(f"unknown direction {self.direction!r}; valid: mode, vector")
         if self.model not in MODELS:
             raise ConfigError(f"unknown robot model {self.model!r}; valid: {', '.join(MODELS)}")
-        if self.paths not in ("wave", "straight"):
-            raise ConfigError(f"unknown path-finding {self.paths!r}; valid: wave, straight")
+        if self.paths not in PATHS:
+            raise ConfigError(f"unknown path-finding {self.paths!r}; valid: {', '.join(PATHS)}")
+        if self.paths in FINDERS and self.crowding != "none":
+            # Both crowding rules edit each robot's map every step; only the wave follows.
+            raise ConfigError(
+                f"path-finding {self.paths!r} is built once for a static map and cannot "
+                f"follow the map edits of crowding {self.crowding!r}; use the wave"
+            )
         if self.policy not in POLICIES:
             raise ConfigError(f"unknown policy {self.policy!r}; valid: {', '.join(POLICIES)}")
         if self.network not in NETWORKS:
@@ -399,6 +412,9 @@ def run_patrol(
 
     look()
     wall0 = time.perf_counter()
+    finder = (
+        FINDERS[config.paths].build(passable, g.resolution) if config.paths in FINDERS else None
+    )
     r0, c0 = g.world_to_cell(team.x, team.y)
     tour = np.empty((0, 2), dtype=np.int64)
     target = np.zeros(len(team), dtype=np.int64)
@@ -423,9 +439,14 @@ def run_patrol(
                 ux = STEP_UNITS[first[reach], 0]
                 uy = STEP_UNITS[first[reach], 1]
                 lengths = dist[reach]
-            else:
+            elif config.paths == "straight":
                 reach = watched
                 lengths, ux, uy = straight_paths(team.x[i], team.y[i], cx[reach], cy[reach])
+            else:
+                assert finder is not None
+                dist, gx, gy = finder.paths((int(r[i]), int(c[i])), watched)
+                reach = watched & np.isfinite(dist)
+                lengths, ux, uy = dist[reach], gx[reach], gy[reach]
             if config.policy == "cycle":
                 directions.append(_follow_tour(i, tour, target, dist, first, config))
                 continue
