@@ -636,3 +636,85 @@ def test_crowding_experiment_writes_its_tables_and_checks_the_one_robot_rule(
     with pytest.raises(ConfigError, match="unknown experiment"):
         run_experiment("nope", tmp_path / "x")
     assert not (tmp_path / "x").exists()
+
+
+# --- bad input -----------------------------------------------------------------------
+
+
+def _bad_input_files(tmp: Path) -> None:
+    g = Grid(resolution=0.1, origin=(0.0, 0.0), shape=(200, 300))
+    occ = np.zeros(g.shape, np.float32)
+    occ[90:110, 100:200] = 1.0
+    write_map(OccupancyMap(g, occ), tmp / "plan")
+    # A real ROS map of nothing but grey (unknown): nothing to patrol.
+    write_map(OccupancyMap(g, np.full(g.shape, 0.5, np.float32)), tmp / "grey")
+    (tmp / "broken.yaml").write_text("image: nowhere.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    (tmp / "outside.txt").write_text("1\n5000 50 0\n")
+    (tmp / "wall.txt").write_text("1\n150 100 0\n")
+    (tmp / "overlap.txt").write_text("2\n50 50 0\n60 50 0\n")
+    (tmp / "malformed.txt").write_text("2\n50 50 0\n250 oops 0\n")
+    (tmp / "sem.txt").write_text("10 10;20 10;20 20\n10 10;20\n")
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--map", "broken.yaml"], "nowhere.pgm: map image not found"),
+        (["--map", "grey.yaml", "--robots", "1"], "no free cell"),
+        (["--map", "plan.yaml", "--starts", "outside.txt"], "outside the map"),
+        (["--map", "plan.yaml", "--starts", "wall.txt"], "too near an obstacle"),
+        (["--map", "plan.yaml", "--starts", "overlap.txt"], "start closer than 2 m"),
+        (
+            ["--map", "plan.yaml", "--starts", "malformed.txt"],
+            "malformed.txt:3: expected 'X Y phi'",
+        ),
+        (
+            [
+                "--map",
+                "plan.yaml",
+                "--robots",
+                "1",
+                "--crowding",
+                "semaphores",
+                "--semaphores",
+                "sem.txt",
+            ],
+            "sem.txt:2: a semaphore needs at least 3",
+        ),
+        (["--map", "plan.yaml", "--robots", "1", "--force", "f9g1"], "unknown force"),
+        (["--map", "plan.yaml", "--robots", "1", "--radius", "0"], "radius must be > 0"),
+        (["--map", "plan.yaml", "--robots", "1", "--vision", "-3"], "vision must be > 0"),
+        (["--map", "plan.yaml", "--robots", "1", "--speed", "0"], "speed must be > 0"),
+        (["--map", "plan.yaml", "--robots", "1", "--duration", "-1"], "duration must be > 0"),
+        (["--map", "plan.yaml", "--robots", "1", "--turn-radius", "0"], "turn_radius must be > 0"),
+        (["--map", "plan.yaml", "--robots", "1", "--r-obst", "0"], "r_obst must be > 0"),
+        (["--map", "plan.yaml", "--robots", "1", "--model", "tank"], "unknown robot model"),
+        (["--map", "plan.yaml", "--robots", "1", "--speed-bands", "2:3,1:6"], "speed rule"),
+        (
+            [
+                "--map",
+                "plan.yaml",
+                "--robots",
+                "1",
+                "--paths",
+                "regions",
+                "--crowding",
+                "obstacles",
+            ],
+            "cannot follow the map edits",
+        ),
+    ],
+)
+def test_bad_patrol_input_is_one_line_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    _bad_input_files(tmp_path)
+    here = [str(tmp_path / a) if a.endswith((".yaml", ".txt")) else a for a in args]
+    with pytest.raises(SystemExit) as e:
+        # The case's own options come last: they win over the short default duration.
+        main(["patrol", "run", "--duration", "5", *here, "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2
+    assert message in err
+    assert len(err.splitlines()) == 1
+    assert not (tmp_path / "out").exists()
