@@ -7,11 +7,17 @@ falling with the length of the path to it. One module per concept:
 - :mod:`.territory` -- where robots can be (free cells, the robot's radius kept clear);
 - :mod:`.fog` -- time since each place was last seen, and the metrics built on it;
 - :mod:`.paths` -- path lengths and first steps (the wave; straight lines in open space);
+- :mod:`.finders`, :mod:`.regions`, :mod:`.marching` -- the static alternatives to the
+  wave (offline regions with doors; fast marching);
 - :mod:`.forces` -- the force families f x g and the direction a robot chooses;
-- :mod:`.robots` -- holonomic robots moving with the thesis's collision rule;
+- :mod:`.refine` -- direction refinement and weakening;
+- :mod:`.robots` -- holonomic robots and cars, with the thesis's collision rule;
 - :mod:`.network` -- who hears whom (full, limited, none), relayed along chains;
-- :mod:`.policies` -- the potential field and the literature's baselines;
-- :mod:`.simulation` -- the step loop and what a run measured.
+- :mod:`.semaphores` -- marked areas one robot (or one step's entrants) may hold;
+- :mod:`.policies`, :mod:`.tour` -- the potential field and the literature's baselines;
+- :mod:`.maps`, :mod:`.config` -- the built-in territories, the thesis's file formats;
+- :mod:`.simulation` -- the step loop and what a run measured;
+- :mod:`.experiments` -- the thesis's experiments, on Dask.
 """
 
 from .fog import Fog
@@ -19,7 +25,7 @@ from .forces import FORCE_F, FORCE_G, Force, choose_direction, parse_force
 from .network import NETWORKS, components
 from .paths import straight_paths, wave
 from .policies import POLICIES
-from .robots import Holonomic
+from .robots import Car, Holonomic, Team
 from .simulation import PatrolConfig, PatrolResult, read_starts, run_patrol
 from .territory import Territory
 
@@ -28,11 +34,13 @@ __all__ = [
     "FORCE_G",
     "NETWORKS",
     "POLICIES",
+    "Car",
     "Fog",
     "Force",
     "Holonomic",
     "PatrolConfig",
     "PatrolResult",
+    "Team",
     "Territory",
     "choose_direction",
     "components",
