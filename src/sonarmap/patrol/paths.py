@@ -1,13 +1,40 @@
 """Path lengths and first steps from a robot to every place.
 
-- :func:`wave`: the thesis's wave (Lee's algorithm with weights): Dijkstra on the grid's
-  passable cells, 8-connected, steps of one cell and sqrt(2) cells. One wave from the
-  robot gives the length L of the shortest path to every cell and the first step of
-  that path (one of 8 directions). It follows map edits for free: it is recomputed on
-  the current passable mask every step.
+- :func:`wave` (and :class:`Wave`, which keeps its buffers from one call to the next):
+  the thesis's wave (Lee's algorithm with weights): Dijkstra on the grid's passable
+  cells, 8-connected, steps of one cell and sqrt(2) cells. One wave from the robot gives
+  the length L of the shortest path to every cell and the first step of that path (one
+  of 8 directions). It follows map edits for free: it is recomputed on the current
+  passable mask every step.
 - :func:`straight_paths`: straight lines (open space, the thesis's Tables 2-3).
 
 An 8-connected wave overestimates the Euclidean geodesic by up to about 8 %.
+
+The wave is exact Dijkstra with a bucket queue (Dial's algorithm) instead of a heap:
+bucket k holds the cells whose distance lies in [k, k + 1) cells. Every step weighs at
+least one cell, so a cell taken from bucket k only lowers cells into buckets k + 1 and
+k + 2 (a step weighs less than 2 cells): three buckets used as a ring suffice, and when
+bucket k is reached every cell in it already has its final distance, so the order within
+a bucket does not matter. Taking a cell costs O(1) instead of O(log n).
+
+Ties matter: in open space almost every cell has shortest paths starting with either of
+two steps. They are broken by a fixed rule, independent of the order in which cells are
+taken. Each cell gets the set of the first steps of all its shortest paths (the union of
+the sets of its neighbours on a shortest path to it, the start's neighbours having the
+step itself), and its first step is the step of that set closest in direction to the
+straight line from the start to the cell (largest dot product with the bearing; the
+smallest index among equals). In open space that is the nearest of the 8 directions to
+the straight line, as with straight paths. (The former heap kernel kept whichever
+neighbour lowered a cell first, the one nearest the start, so its paths ended with their
+diagonal steps: away from the exact diagonals every first step was east, north, west or
+south.) "On a shortest path" allows a tolerance of :data:`TIE` cells for rounding: a
+length is a + b sqrt(2) with whole a, b, two different such lengths with fewer than
+20,000 diagonal steps differ by more than 2.5e-5 cells, and rounding stays far below
+1e-6 cells, so the tolerance merges true ties only.
+
+With a ``limit``, the wave stops taking cells beyond that length: the cells within get
+exactly the lengths and first steps of the full wave (every shortest path to them runs
+through cells within), the others are left unreached.
 """
 
 from __future__ import annotations
@@ -18,7 +45,7 @@ import numba as nb
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["STEPS", "straight_paths", "wave"]
+__all__ = ["STEPS", "TIE", "Wave", "straight_paths", "wave"]
 
 #: The 8 steps as (row, column) offsets, counter-clockwise from east (+x); rows grow
 #: downwards, so north (+y) is row - 1.
@@ -29,97 +56,270 @@ STEPS = np.array(
 STEP_UNITS = np.array(
     [(math.cos(k * math.pi / 4), math.sin(k * math.pi / 4)) for k in range(8)], dtype=np.float64
 )
+#: Two path lengths closer than this (in cells) are equal: see the module's notes.
+TIE = 1e-6
+
+# Cell code of the wave's padded map for a cell neither passable (2) nor target (1).
+_CLOSED = 0
 
 
 @nb.njit(cache=True)
-def _wave(
-    passable: npt.NDArray[np.bool_],
-    target: npt.NDArray[np.bool_],
-    r0: int,
-    c0: int,
-    steps: npt.NDArray[np.int64],
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int8]]:
+def _fill_codes(
+    passable: npt.NDArray[np.bool_], target: npt.NDArray[np.bool_], code: npt.NDArray[np.uint8]
+) -> None:
+    """Padded codes: 2 passable, 1 target only, 0 neither (and the one-cell border)."""
     rows, cols = passable.shape
-    dist = np.full((rows, cols), np.inf)
-    first = np.full((rows, cols), -1, dtype=np.int8)
-    # A binary heap of (distance, cell) with lazy deletion.
-    cap = 8 * rows * cols + 1
-    hd = np.empty(min(cap, 1 << 26), dtype=np.float64)
-    hc = np.empty(hd.shape[0], dtype=np.int64)
-    size = 0
-    dist[r0, c0] = 0.0
-    hd[0] = 0.0
-    hc[0] = r0 * cols + c0
-    size = 1
-    diag = math.sqrt(2.0)
-    while size > 0:
-        d = hd[0]
-        cell = hc[0]
-        size -= 1
-        # pop: move the last item to the root and sift down
-        if size > 0:
-            ld = hd[size]
-            lc = hc[size]
-            i = 0
-            while True:
-                j = 2 * i + 1
-                if j >= size:
-                    break
-                if j + 1 < size and hd[j + 1] < hd[j]:
-                    j += 1
-                if hd[j] >= ld:
-                    break
-                hd[i] = hd[j]
-                hc[i] = hc[j]
-                i = j
-            hd[i] = ld
-            hc[i] = lc
-        r = cell // cols
-        c = cell % cols
-        if d > dist[r, c]:
-            continue
-        for k in range(8):
-            rr = r + steps[k, 0]
-            cc = c + steps[k, 1]
-            if rr < 0 or rr >= rows or cc < 0 or cc >= cols or not target[rr, cc]:
+    width = cols + 2
+    for r in range(rows):
+        base = (r + 1) * width + 1
+        for c in range(cols):
+            p = passable[r, c]
+            code[base + c] = np.uint8(p) + np.uint8(p or target[r, c])
+
+
+#: Lowest set bit of a byte (0 for 0).
+_LOWEST = np.array([((i & -i).bit_length() - 1) if i else 0 for i in range(256)], dtype=np.int64)
+_S = math.sqrt(0.5)
+#: The 8 steps as world vectors (x, y), diagonals with the same two components exactly,
+#: so that a direction halfway between two steps scores both the same.
+_UNITS = np.array(
+    [(1.0, 0.0), (_S, _S), (0.0, 1.0), (-_S, _S), (-1.0, 0.0), (-_S, -_S), (0.0, -1.0), (_S, -_S)]
+)
+
+
+@nb.njit(cache=True)
+def _dial(
+    code: npt.NDArray[np.uint8],
+    width: int,
+    start: int,
+    resolution: float,
+    limit: float,
+    dist: npt.NDArray[np.float64],
+    first: npt.NDArray[np.uint8],
+    order: npt.NDArray[np.int32],
+    ring: npt.NDArray[np.int32],
+) -> tuple[int, npt.NDArray[np.int32]]:
+    """The wave on padded flat arrays (``dist`` all inf and ``first`` all 255 on entry).
+
+    Fills ``dist`` (metres) and ``first`` for the cells within ``limit`` metres, lists
+    them in ``order`` (in the order taken) and returns their count and the bucket ring
+    (grown if it had to be). Cells beyond ``limit`` are left inf / 255.
+
+    Until a cell is taken, ``first`` holds the set (bit mask) of the first steps of all
+    shortest paths found to it so far; when it is taken the set is final (all its
+    neighbours on shortest paths to it were taken before) and is replaced by the step
+    of the set closest in direction to the cell.
+    """
+    inv = 1.0 / resolution
+    w1 = resolution
+    w2 = resolution * math.sqrt(2.0)
+    tol = TIE * resolution
+    # Flat offsets of the 8 steps and, for the diagonals, of the two cells beside them.
+    step = np.empty(8, dtype=np.int64)
+    side_a = np.zeros(8, dtype=np.int64)
+    side_b = np.zeros(8, dtype=np.int64)
+    for j in range(8):
+        dr = STEPS[j, 0]
+        dc = STEPS[j, 1]
+        step[j] = dr * width + dc
+        side_a[j] = dc
+        side_b[j] = dr * width
+    # Row of a flat index u by a float product instead of a division: (u + 0.5) / width
+    # is at least 0.5 / width away from a whole number, far more than the product's
+    # rounding error (about u * 1e-16 / width).
+    inv_width = 1.0 / width
+    r0 = start // width
+    c0 = start - r0 * width
+    count = np.zeros(3, dtype=np.int64)
+    dist[start] = 0.0
+    ring[0, 0] = start
+    count[0] = 1
+    n = 0
+    k = 0
+    # Bucket of a length x metres: floor(x / resolution), nudged up by TIE so that a
+    # whole number of cells rounded down a little still lands in its own bucket.
+    last = limit * inv + 1.0
+    while count[0] + count[1] + count[2] > 0 and k <= last:
+        slot = k % 3
+        size = count[slot]
+        # Room in the ring for every cell of this bucket lowering all 8 neighbours.
+        need = count[0] + count[1] + count[2] + 8 * size
+        if need > ring.shape[1]:
+            grown = np.empty((3, 2 * need), dtype=np.int32)
+            grown[:, : ring.shape[1]] = ring
+            ring = grown
+        for i in range(size):
+            u = ring[slot, i]
+            d = dist[u]
+            if d > limit:
+                dist[u] = np.inf
+                first[u] = 255
                 continue
-            # Once a path leaves the cells the robot's centre may cross (to reach a place
-            # near a wall), it does not come back: paths between passable cells stay
-            # passable.
-            if passable[rr, cc] and not passable[r, c]:
-                continue
-            if k % 2 == 1:
-                # A diagonal step may not cut the corner of a cell it could not cross.
-                if not target[r, cc] or not target[rr, c]:
-                    continue
-                if passable[rr, cc] and (not passable[r, cc] or not passable[rr, c]):
-                    continue
-                nd = d + diag
+            if int(d * inv + TIE) != k:
+                continue  # lowered into an earlier bucket since, and taken there
+            order[n] = u
+            n += 1
+            mu = first[u]
+            if u == start:
+                mu = 0
+            elif mu & (mu - 1) == 0:
+                first[u] = _LOWEST[mu]
             else:
-                nd = d + 1.0
-            if nd < dist[rr, cc]:
-                dist[rr, cc] = nd
-                first[rr, cc] = k if (r == r0 and c == c0) else first[r, c]
-                if size >= hd.shape[0]:
-                    # The heap is full: grow it (rare; lazy deletion keeps it small).
-                    nh = np.empty(hd.shape[0] * 2, dtype=np.float64)
-                    nc = np.empty(hd.shape[0] * 2, dtype=np.int64)
-                    nh[:size] = hd[:size]
-                    nc[:size] = hc[:size]
-                    hd = nh
-                    hc = nc
-                i = size
-                size += 1
-                while i > 0:
-                    p = (i - 1) // 2
-                    if hd[p] <= nd:
-                        break
-                    hd[i] = hd[p]
-                    hc[i] = hc[p]
-                    i = p
-                hd[i] = nd
-                hc[i] = rr * cols + cc
-    return dist, first
+                # Several first steps: the one closest to the bearing of the cell, the
+                # smallest index among equals.
+                r = int((u + 0.5) * inv_width)
+                dx = float(u - r * width - c0)
+                dy = float(r0 - r)
+                m = mu
+                best = -np.inf
+                pick = 0
+                while m:
+                    j = _LOWEST[m]
+                    m &= m - 1
+                    score = dx * _UNITS[j, 0] + dy * _UNITS[j, 1]
+                    if score > best:
+                        best = score
+                        pick = j
+                first[u] = pick
+            cu = code[u]
+            for j in range(8):
+                v = u + step[j]
+                cv = code[v]
+                # Once a path leaves the cells the robot's centre may cross (to reach a
+                # place near a wall), it does not come back: paths between passable
+                # cells stay passable.
+                if cv == _CLOSED or cv > cu:
+                    continue
+                if j & 1:
+                    # A diagonal step may not cut the corner of a cell it could not
+                    # enter itself.
+                    if code[u + side_a[j]] < cv or code[u + side_b[j]] < cv:
+                        continue
+                    nd = d + w2
+                else:
+                    nd = d + w1
+                od = dist[v]
+                if nd < od + tol:
+                    f = mu if mu else (1 << j)
+                    if nd <= od - tol:
+                        # Shorter: into its bucket, unless already there.
+                        first[v] = f
+                        dist[v] = nd
+                        b = int(nd * inv + TIE)
+                        if od == np.inf or int(od * inv + TIE) != b:
+                            s = b % 3
+                            ring[s, count[s]] = v
+                            count[s] += 1
+                    else:
+                        # As short (rounding aside): more first steps.
+                        first[v] |= f
+                        if nd < od:
+                            dist[v] = nd
+        count[slot] = 0
+        k += 1
+    # Stopped at the limit: clear what is left in the ring beyond it.
+    for s in range(3):
+        for i in range(count[s]):
+            v = ring[s, i]
+            if dist[v] > limit:
+                dist[v] = np.inf
+                first[v] = 255
+    return n, ring
+
+
+@nb.njit(cache=True)
+def _reset(
+    dist: npt.NDArray[np.float64],
+    first: npt.NDArray[np.uint8],
+    order: npt.NDArray[np.int32],
+    n: int,
+) -> None:
+    for i in range(n):
+        dist[order[i]] = np.inf
+        first[order[i]] = 255
+
+
+class Wave:
+    """The wave on grids of one shape, keeping its buffers between calls.
+
+    A call returns views of those buffers: they hold until the next call (copy them to
+    keep them longer). Only the cells the last wave reached are cleared before the next,
+    so a wave cut short by ``limit`` costs about the cells it reaches, plus one pass
+    over the grid to read the passable mask.
+    """
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        rows, cols = shape
+        self.shape = (int(rows), int(cols))
+        self._width = cols + 2
+        size = (rows + 2) * (cols + 2)
+        if size >= 2**31:
+            raise ValueError(f"grid too large for the wave: {shape}")
+        self._code = np.zeros(size, dtype=np.uint8)
+        self._dist = np.full(size, np.inf)
+        self._first = np.full(size, -1, dtype=np.int8)
+        self._order = np.empty(size, dtype=np.int32)
+        self._ring = np.empty((3, max(64, 4 * (rows + cols))), dtype=np.int32)
+        self._n = 0
+
+    def __call__(
+        self,
+        passable: npt.NDArray[np.bool_],
+        start: tuple[int, int],
+        resolution: float,
+        target: npt.NDArray[np.bool_] | None = None,
+        limit: float | None = None,
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int8]]:
+        """As :func:`wave`, into this object's buffers."""
+        if passable.shape != self.shape:
+            raise ValueError(f"a wave for {self.shape} given a map of {passable.shape}")
+        r0, c0 = int(start[0]), int(start[1])
+        if not (0 <= r0 < self.shape[0] and 0 <= c0 < self.shape[1] and passable[r0, c0]):
+            raise ValueError(f"the wave starts in an impassable cell {start}")
+        if limit is not None and not limit >= 0:
+            raise ValueError(f"the wave's limit must be >= 0 metres, got {limit}")
+        if self._n > self._dist.size // 16:
+            self._dist.fill(np.inf)
+            self._first.fill(-1)
+        else:
+            _reset(self._dist, self._first.view(np.uint8), self._order, self._n)
+        self._n = 0
+        ok = np.ascontiguousarray(passable, dtype=np.bool_)
+        tg = ok if target is None else np.ascontiguousarray(target, dtype=np.bool_)
+        if tg.shape != self.shape:
+            raise ValueError(f"a wave for {self.shape} given targets of {tg.shape}")
+        _fill_codes(ok, tg, self._code)
+        self._n, self._ring = _dial(
+            self._code,
+            self._width,
+            (r0 + 1) * self._width + c0 + 1,
+            float(resolution),
+            np.inf if limit is None else float(limit),
+            self._dist,
+            self._first.view(np.uint8),
+            self._order,
+            self._ring,
+        )
+        return self.dist, self.first
+
+    def _inner(self, flat: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:
+        return flat.reshape(self.shape[0] + 2, self._width)[1:-1, 1:-1]
+
+    @property
+    def dist(self) -> npt.NDArray[np.float64]:
+        """Path length (metres) to every cell of the last wave; inf where none."""
+        return self._inner(self._dist)  # type: ignore[return-value]
+
+    @property
+    def first(self) -> npt.NDArray[np.int8]:
+        """First step of the last wave to every cell; -1 at the start and where none."""
+        return self._inner(self._first)  # type: ignore[return-value]
+
+    def reached(self) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+        """Rows and columns of the cells the last wave reached (the start first), in
+        order of path length (within one cell)."""
+        flat = self._order[: self._n].astype(np.intp)
+        return flat // self._width - 1, flat % self._width - 1
 
 
 def wave(
@@ -127,30 +327,33 @@ def wave(
     start: tuple[int, int],
     resolution: float,
     target: npt.NDArray[np.bool_] | None = None,
+    limit: float | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int8]]:
     """Shortest 8-connected path lengths (metres) and first steps from ``start``.
 
     Paths run over ``passable`` cells (where the robot's centre may be). With
-    ``target`` (a superset: the free cells), a cell the centre cannot reach -- beside a
-    wall, in a gap narrower than the robot -- is reached by a passable path and a last
-    stretch over target cells, so it still pulls the robot towards the nearest place
-    from which it can be seen.
+    ``target`` (the free cells; passable cells count as target cells anyway), a cell the
+    centre cannot reach -- beside a wall, in a gap narrower than the robot -- is reached
+    by a passable path and a last stretch over target cells, so it still pulls the robot
+    towards the nearest place from which it can be seen. With ``limit`` (metres), the
+    wave stops there: cells farther away are left as if unreachable (the cells within
+    get exactly the lengths and first steps of the full wave).
+
+    Among several shortest paths, the first step is the one nearest the straight line to
+    the cell (see the module's notes). To run many waves on one grid, a :class:`Wave`
+    reuses its buffers.
 
     Returns
     -------
     dist : ndarray of float64
-        Path length to every cell; ``inf`` where no path exists.
+        Path length to every cell; ``inf`` where no path exists (or beyond ``limit``).
     first : ndarray of int8
         Index into :data:`STEPS` of the path's first step; -1 at the start and where
         no path exists.
+
+    Both are views of arrays one cell larger on every side (not C-contiguous).
     """
-    r0, c0 = start
-    if not passable[r0, c0]:
-        raise ValueError(f"the wave starts in an impassable cell {start}")
-    ok = np.ascontiguousarray(passable)
-    tg = ok if target is None else np.ascontiguousarray(target | passable)
-    dist, first = _wave(ok, tg, int(r0), int(c0), STEPS)
-    return dist * resolution, first
+    return Wave(passable.shape)(passable, start, resolution, target, limit)
 
 
 def straight_paths(

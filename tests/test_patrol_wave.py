@@ -1,0 +1,161 @@
+"""The patrol wave (bucket queue): first steps by the documented tie rule, the early stop
+at a path length, and the reusable :class:`Wave` (``tests/test_patrol.py`` checks the
+lengths against scipy's Dijkstra)."""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Iterator
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from sonarmap.patrol.paths import STEPS, TIE, Wave, wave
+
+_S = math.sqrt(0.5)
+_UNITS = [(1, 0), (_S, _S), (0, 1), (-_S, _S), (-1, 0), (-_S, -_S), (0, -1), (_S, -_S)]
+
+
+def _reference(
+    passable: npt.NDArray[np.bool_],
+    start: tuple[int, int],
+    target: npt.NDArray[np.bool_] | None = None,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int8]]:
+    """The wave written plainly (resolution 1): a heapq Dijkstra over the same steps, then
+    for every cell the set of first steps of all its shortest paths (cells in order of
+    length), and of that set the step closest to the cell's bearing, the smallest index
+    among equals."""
+    tg = passable if target is None else (target | passable)
+    rows, cols = passable.shape
+
+    def steps(r: int, c: int) -> Iterator[tuple[int, int, int, float]]:
+        for k, (dr, dc) in enumerate(STEPS.tolist()):
+            rr, cc = r + dr, c + dc
+            if not (0 <= rr < rows and 0 <= cc < cols and tg[rr, cc]):
+                continue
+            if passable[rr, cc] and not passable[r, c]:
+                continue  # paths do not come back to passable cells
+            if k % 2:
+                if not (tg[r, cc] and tg[rr, c]):
+                    continue
+                if passable[rr, cc] and not (passable[r, cc] and passable[rr, c]):
+                    continue
+            yield k, rr, cc, (math.sqrt(2) if k % 2 else 1.0)
+
+    dist = np.full((rows, cols), np.inf)
+    dist[start] = 0.0
+    heap = [(0.0, start)]
+    while heap:
+        d, (r, c) = heapq.heappop(heap)
+        if d > dist[r, c]:
+            continue
+        for _k, rr, cc, w in steps(r, c):
+            if d + w < dist[rr, cc]:
+                dist[rr, cc] = d + w
+                heapq.heappush(heap, (d + w, (rr, cc)))
+    sets: dict[tuple[int, int], set[int]] = {start: set()}
+    for flat in np.argsort(dist, axis=None, kind="stable").tolist():
+        r, c = divmod(flat, cols)
+        if not np.isfinite(dist[r, c]):
+            break
+        for k, rr, cc, w in steps(r, c):
+            if abs(dist[r, c] + w - dist[rr, cc]) <= TIE:
+                sets.setdefault((rr, cc), set()).update(sets[r, c] or {k})
+    first = np.full((rows, cols), -1, dtype=np.int8)
+    for (r, c), ks in sets.items():
+        if ks:
+            dx, dy = c - start[1], start[0] - r
+            first[r, c] = max(sorted(ks), key=lambda k: dx * _UNITS[k][0] + dy * _UNITS[k][1])
+    return dist, first
+
+
+def _maps(seed: int) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    rng = np.random.default_rng(seed)
+    free = rng.random((30, 40)) > 0.1 * (seed % 4)
+    passable = free & (rng.random(free.shape) > 0.15)
+    passable[15, 20] = True
+    return passable, free
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5])
+@pytest.mark.parametrize("with_target", [False, True])
+def test_first_steps_follow_the_tie_rule(seed: int, with_target: bool) -> None:
+    passable, free = _maps(seed)
+    target = free if with_target else None
+    ref_d, ref_f = _reference(passable, (15, 20), target)
+    dist, first = wave(passable, (15, 20), 0.25, target)
+    np.testing.assert_array_equal(np.isfinite(dist), np.isfinite(ref_d))
+    fin = np.isfinite(ref_d)
+    np.testing.assert_allclose(dist[fin], 0.25 * ref_d[fin], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(first, ref_f)
+
+
+def test_open_field_first_step_is_the_nearest_direction() -> None:
+    """With no obstacle, every shortest path's first step is one of the two steps around
+    the bearing, so the rule picks the step nearest the straight line (as straight
+    paths would)."""
+    rows, cols, r0, c0 = 61, 81, 25, 37
+    w = Wave((rows, cols))
+    size = w._ring.shape[1]
+    dist, first = w(np.ones((rows, cols), dtype=bool), (r0, c0), 0.5)
+    assert w._ring.shape[1] > size  # the wave fronts outgrew the bucket ring
+    r, c = np.mgrid[:rows, :cols]
+    dx, dy = c - c0, r0 - r
+    nearest = np.round(np.arctan2(dy, dx) / (math.pi / 4)).astype(int) % 8
+    nearest[r0, c0] = -1
+    np.testing.assert_array_equal(first, nearest)
+    octile = np.maximum(abs(dx), abs(dy)) + (math.sqrt(2) - 1) * np.minimum(abs(dx), abs(dy))
+    np.testing.assert_allclose(dist, 0.5 * octile, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("with_target", [False, True])
+def test_limit_stops_the_wave_exactly(with_target: bool) -> None:
+    passable, free = _maps(1)
+    target = free if with_target else None
+    dist, first = wave(passable, (15, 20), 0.1, target)
+    for limit in (0.0, 0.05, 0.1, 0.73, 1.5, 2.2, 100.0):
+        d, f = wave(passable, (15, 20), 0.1, target, limit=limit)
+        np.testing.assert_array_equal(d, np.where(dist <= limit, dist, np.inf))
+        np.testing.assert_array_equal(f, np.where(dist <= limit, first, -1))
+    with pytest.raises(ValueError, match="limit"):
+        wave(passable, (15, 20), 0.1, limit=-1.0)
+
+
+def test_wave_object_reuses_its_buffers() -> None:
+    """A Wave gives, call after call (other maps, starts, limits), what a fresh wave
+    gives; reached() lists the reached cells, start first, by path length."""
+    rng = np.random.default_rng(7)
+    w = Wave((30, 40))
+    for i in range(12):
+        passable, free = _maps(i)
+        starts = np.argwhere(passable)
+        start = (int(starts[i * 37 % len(starts), 0]), int(starts[i * 37 % len(starts), 1]))
+        target = free if i % 2 else None
+        limit = None if i % 3 == 0 else float(rng.uniform(0.0, 3.0))
+        d, f = w(passable, start, 0.1, target, limit=limit)
+        d0, f0 = wave(passable, start, 0.1, target, limit=limit)
+        np.testing.assert_array_equal(d, d0)
+        np.testing.assert_array_equal(f, f0)
+        rr, cc = w.reached()
+        assert (rr[0], cc[0]) == start
+        assert len(rr) == np.isfinite(d0).sum()
+        assert np.isfinite(d0[rr, cc]).all()
+        assert (np.diff(d0[rr, cc]) > -0.1 - 1e-9).all()  # by length, within a cell
+    with pytest.raises(ValueError, match="a wave for"):
+        w(np.ones((5, 5), dtype=bool), (1, 1), 0.1)
+    with pytest.raises(ValueError, match="impassable"):
+        w(np.zeros((30, 40), dtype=bool), (1, 1), 0.1)
+
+
+def test_comb_of_corridors() -> None:
+    """Many corridors reached at the same lengths (long wave fronts, many ties)."""
+    passable = np.zeros((50, 81), dtype=bool)
+    passable[0, :] = True
+    passable[:, ::2] = True
+    passable[49, 1::4] = True
+    dist, first = wave(passable, (0, 40), 1.0)
+    ref_d, ref_f = _reference(passable, (0, 40))
+    np.testing.assert_allclose(dist, ref_d, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(first, ref_f)
