@@ -302,7 +302,9 @@ def run_on_dask(
     cluster = None
     try:
         if scheduler is None:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=None)
+            # Port 0: the scheduler's HTTP endpoint takes a free port, so two runs on one
+            # machine do not fight over the default 8787.
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=":0")
             client = Client(cluster)
         else:
             try:
