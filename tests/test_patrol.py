@@ -718,3 +718,24 @@ def test_bad_patrol_input_is_one_line_and_exit_2(
     assert message in err
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_pruned_waves_change_nothing() -> None:
+    """Waves cut where far places can no longer change a robot's choice give the very
+    same run as waves over the whole map."""
+    from sonarmap.patrol.experiments import _territory
+    from sonarmap.patrol.simulation import starts_from_dm
+
+    t, starts = _territory("fig3-4", 1.0)
+    for extra in ({}, {"model": "car", "refine": True, "crowding": "obstacles", "dilation": 1}):
+        runs = [
+            run_patrol(
+                t,
+                PatrolConfig(duration=150.0, cell=1.0, prune=prune, **extra),  # type: ignore[arg-type]
+                starts=starts_from_dm(starts[:3], t),
+            )
+            for prune in (True, False)
+        ]
+        np.testing.assert_array_equal(runs[0].mtb, runs[1].mtb)
+        np.testing.assert_array_equal(runs[0].positions, runs[1].positions)
+        np.testing.assert_array_equal(runs[0].dvt, runs[1].dvt)

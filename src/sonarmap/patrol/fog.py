@@ -95,6 +95,9 @@ def dilate(tb: npt.NDArray[np.float64], wing: int) -> npt.NDArray[np.float64]:
 class Fog:
     """TB over a grid; cells outside ``watched`` stay at 0 and never count.
 
+    Kept as the time each cell was last seen, so that time passing costs nothing and
+    MTB is one pass over the grid (unwatched cells are "last seen" at +inf).
+
     Parameters
     ----------
     grid : Grid
@@ -108,29 +111,47 @@ class Fog:
     def __init__(self, grid: Grid, watched: npt.NDArray[np.bool_], start: float = 0.0) -> None:
         self.grid = grid
         self.watched = watched
-        self.tb = np.where(watched, float(start), 0.0)
+        self.t = 0.0
+        self.last = np.where(watched, -float(start), np.inf)
+        self._n = int(watched.sum())
+        # Sum of ``last`` over the watched cells, kept as cells are seen.
+        self._sum = -float(start) * self._n
+
+    @property
+    def tb(self) -> npt.NDArray[np.float64]:
+        """TB of every cell (0 outside the watched cells): a new array."""
+        return np.where(self.watched, self.t - self.last, 0.0)
+
+    def tb_at(
+        self, rows: npt.NDArray[np.intp], cols: npt.NDArray[np.intp]
+    ) -> npt.NDArray[np.float64]:
+        """TB of watched cells (rows, cols)."""
+        return np.asarray(self.t - self.last[rows, cols], dtype=np.float64)
 
     def advance(self, dt: float) -> None:
         """Time passes: every watched cell's TB grows by ``dt``."""
-        self.tb[self.watched] += dt
+        self.t += dt
 
     def observe(
         self, rows: npt.ArrayLike, cols: npt.ArrayLike, vision: Vision | npt.NDArray[np.int64]
     ) -> None:
         """Robots at cells (rows, cols) see around them: a :class:`Vision`, or a plain
         disc of cell offsets."""
-        shape = (self.tb.shape[0], self.tb.shape[1])
+        shape = (self.last.shape[0], self.last.shape[1])
         for r, c in zip(np.atleast_1d(rows).tolist(), np.atleast_1d(cols).tolist(), strict=True):
             if isinstance(vision, Vision):
                 rr, cc = vision.seen(r, c, shape)
             else:
                 rr, cc = disc_cells(vision, r, c, shape)
-            self.tb[rr, cc] = 0.0
+            keep = self.watched[rr, cc]
+            rr, cc = rr[keep], cc[keep]
+            self._sum += float(np.sum(self.t - self.last[rr, cc]))
+            self.last[rr, cc] = self.t
 
     def mtb(self) -> float:
         """Max of TB over the watched cells."""
-        return float(self.tb[self.watched].max())
+        return self.t - float(self.last.min())
 
     def mean_tb(self) -> float:
         """Mean of TB over the watched cells."""
-        return float(self.tb[self.watched].mean())
+        return self.t - self._sum / self._n

@@ -17,6 +17,7 @@ import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -45,6 +46,11 @@ FORCE_G: dict[str, Callable[[F64, float], F64]] = {
 }
 
 
+#: log of the share of the strongest pull below which the pulls of far places are
+#: dropped (about 1e-18: beneath the resolution of a float64 sum).
+NEGLIGIBLE = -41.5
+
+
 @dataclass(frozen=True)
 class Force:
     """A force law f x g with its constants (the thesis's adopted f3 g4, a 40, b 65 dm)."""
@@ -63,6 +69,23 @@ class Force:
     @property
     def name(self) -> str:
         return f"{self.f}{self.g}"
+
+    def pull_limit(self, best: float, count: int) -> float:
+        """The path length (metres) beyond which ``count`` places together pull less
+        than e^-41.5 (about 1e-18) of the strongest pull found, ``best`` (log): the
+        most a place can pull is f(1) g(L), so places farther than this cannot change
+        a direction. ``inf`` when nothing pulls yet."""
+        if not math.isfinite(best):
+            return math.inf
+        f_max = float(FORCE_F[self.f](np.array([1.0]), self.a)[0])
+        x = best - f_max - math.log(max(count, 1)) + NEGLIGIBLE  # we need log g(L) < x
+        if self.g in ("g1", "g2"):
+            dm = math.exp(min(-x / (1.0 if self.g == "g1" else 2.0), 700.0))
+        elif x >= 0:
+            dm = 0.0
+        else:
+            dm = self.b * {"g3": -x, "g4": math.sqrt(-x), "g5": (-x) ** 0.25}[self.g]
+        return dm / 10.0
 
     def log_pull(self, tb_n: F64, length_m: F64) -> F64:
         """log F for normalised fog and path lengths in metres; -inf where there is no
@@ -89,6 +112,7 @@ def choose_direction(
     method: str = "mode",
     sectors: int = 8,
     weights: F64 | None = None,
+    steps: npt.NDArray[np.integer[Any]] | None = None,
 ) -> tuple[float, float] | None:
     """The direction a robot goes: unit (x, y), or None when nothing pulls.
 
@@ -96,7 +120,9 @@ def choose_direction(
     (``sectors`` equal sectors, the first centred on +x) and the robot goes along the
     strongest sector, in the direction of the forces' sum within it (with the wave's
     8 first steps and 8 sectors, exactly that step). ``weights`` (mode only) scale each
-    sector's sum (direction weakening).
+    sector's sum (direction weakening). ``steps``: the wave's first-step indices
+    (:data:`~sonarmap.patrol.paths.STEPS`) behind ``ux``, ``uy``, which name the sector
+    at once with 8 sectors.
     """
     ok = np.isfinite(log_pull)
     if not ok.any():
@@ -107,9 +133,12 @@ def choose_direction(
     if method == "vector":
         sx, sy = float(np.dot(w, x)), float(np.dot(w, y))
     elif method == "mode":
-        angle = np.arctan2(y, x)
-        width = 2 * math.pi / sectors
-        sector = np.floor((angle + width / 2) / width).astype(np.int64) % sectors
+        if steps is not None and sectors == 8:
+            sector = steps[ok].astype(np.int64)  # the wave's step k lies in sector k
+        else:
+            angle = np.arctan2(y, x)
+            width = 2 * math.pi / sectors
+            sector = np.floor((angle + width / 2) / width).astype(np.int64) % sectors
         strength = np.bincount(sector, weights=w, minlength=sectors).astype(np.float64)
         if weights is not None:
             strength = strength * np.asarray(weights, dtype=np.float64)

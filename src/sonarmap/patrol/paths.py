@@ -261,6 +261,8 @@ class Wave:
         self._order = np.empty(size, dtype=np.int32)
         self._ring = np.empty((3, max(64, 4 * (rows + cols))), dtype=np.int32)
         self._n = 0
+        # The (passable, target) arrays whose codes _code holds.
+        self._held: tuple[object, object] | None = None
 
     def __call__(
         self,
@@ -269,8 +271,16 @@ class Wave:
         resolution: float,
         target: npt.NDArray[np.bool_] | None = None,
         limit: float | None = None,
+        closed: npt.NDArray[np.intp] | None = None,
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int8]]:
-        """As :func:`wave`, into this object's buffers."""
+        """As :func:`wave`, into this object's buffers.
+
+        ``closed`` (row, column pairs, shape (K, 2)) edits the map for this call only:
+        those cells are taken off ``passable`` (they stay targets), as if ``passable``
+        had them False; the start stays open. The codes of ``passable`` and ``target``
+        are kept between calls given the same two arrays (by identity): do not change
+        them in place between calls.
+        """
         if passable.shape != self.shape:
             raise ValueError(f"a wave for {self.shape} given a map of {passable.shape}")
         r0, c0 = int(start[0]), int(start[1])
@@ -284,22 +294,38 @@ class Wave:
         else:
             _reset(self._dist, self._first.view(np.uint8), self._order, self._n)
         self._n = 0
-        ok = np.ascontiguousarray(passable, dtype=np.bool_)
-        tg = ok if target is None else np.ascontiguousarray(target, dtype=np.bool_)
-        if tg.shape != self.shape:
-            raise ValueError(f"a wave for {self.shape} given targets of {tg.shape}")
-        _fill_codes(ok, tg, self._code)
-        self._n, self._ring = _dial(
-            self._code,
-            self._width,
-            (r0 + 1) * self._width + c0 + 1,
-            float(resolution),
-            np.inf if limit is None else float(limit),
-            self._dist,
-            self._first.view(np.uint8),
-            self._order,
-            self._ring,
-        )
+        held = self._held
+        if held is None or held[0] is not passable or held[1] is not target:
+            ok = np.ascontiguousarray(passable, dtype=np.bool_)
+            tg = ok if target is None else np.ascontiguousarray(target, dtype=np.bool_)
+            if tg.shape != self.shape:
+                raise ValueError(f"a wave for {self.shape} given targets of {tg.shape}")
+            _fill_codes(ok, tg, self._code)
+            self._held = (passable, target)
+        start_flat = (r0 + 1) * self._width + c0 + 1
+        edits = np.empty(0, dtype=np.int64)
+        saved = np.empty(0, dtype=np.uint8)
+        if closed is not None and len(closed):
+            rc = np.asarray(closed, dtype=np.int64).reshape(-1, 2)
+            edits = (rc[:, 0] + 1) * self._width + rc[:, 1] + 1
+            edits = edits[edits != start_flat]
+            saved = self._code[edits].copy()
+            self._code[edits] = np.minimum(saved, 1)
+        try:
+            self._n, self._ring = _dial(
+                self._code,
+                self._width,
+                start_flat,
+                float(resolution),
+                np.inf if limit is None else float(limit),
+                self._dist,
+                self._first.view(np.uint8),
+                self._order,
+                self._ring,
+            )
+        finally:
+            # Cells listed twice were saved already edited: restore in reverse order.
+            self._code[edits[::-1]] = saved[::-1]
         return self.dist, self.first
 
     def _inner(self, flat: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:

@@ -18,6 +18,7 @@ Each returns a unit direction (x, y) or None (stand).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -25,7 +26,7 @@ import numpy.typing as npt
 from ..errors import ConfigError
 from .forces import Force, choose_direction
 
-__all__ = ["POLICIES", "choose"]
+__all__ = ["POLICIES", "choose", "normalised"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -34,6 +35,12 @@ POLICIES = ("potential", "random", "reactive", "gravity", "cycle")
 RANDOM_TURN = 0.05
 #: Exponent of distance in the gravitational pull.
 GRAVITY_K = 2.0
+
+
+def normalised(tb: F64, top: float | None = None) -> F64:
+    """TB_n = TB / MTB(t) (``top``; default the largest of ``tb``), 0 when all is seen."""
+    m = float(tb.max()) if top is None and len(tb) else (top or 0.0)
+    return tb / m if m > 0 else np.zeros_like(tb)
 
 
 def choose(
@@ -50,12 +57,17 @@ def choose(
     blocked: bool,
     rng: np.random.Generator,
     weights: F64 | None = None,
+    top: float | None = None,
+    log_pull: F64 | None = None,
+    steps: npt.NDArray[np.integer[Any]] | None = None,
 ) -> tuple[float, float] | None:
     """The direction of one robot.
 
     ``tb`` (seconds unseen), ``lengths`` (metres) and ``ux``, ``uy`` (first-step unit
     vectors) describe the places the robot can reach, as the robot's own fog has them;
-    ``weights`` weaken the potential field's sectors (mode only).
+    ``weights`` weaken the potential field's sectors (mode only). The potential field
+    normalises TB by ``top``, the robot's MTB(t) (default: the largest of ``tb``), and
+    takes its pulls from ``log_pull`` when they were worked out already.
     """
     if policy == "random":
         if blocked or rng.random() < RANDOM_TURN:
@@ -64,11 +76,9 @@ def choose(
     if len(tb) == 0:
         return None
     if policy == "potential":
-        top = float(tb.max())
-        tb_n = tb / top if top > 0 else np.zeros_like(tb)
-        return choose_direction(
-            force.log_pull(tb_n, lengths), ux, uy, method, sectors, weights=weights
-        )
+        if log_pull is None:
+            log_pull = force.log_pull(normalised(tb, top), lengths)
+        return choose_direction(log_pull, ux, uy, method, sectors, weights=weights, steps=steps)
     if policy == "reactive":
         oldest = tb >= tb.max() - 1e-9
         away = lengths > 0

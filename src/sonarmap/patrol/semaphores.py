@@ -69,6 +69,7 @@ class Semaphores:
 
     def __init__(self, areas: list[npt.NDArray[np.bool_]]) -> None:
         self.areas = areas
+        self.cells = [np.argwhere(a) for a in areas]
         self.owners: list[set[int]] = [set() for _ in areas]
 
     def update(self, rows: npt.NDArray[np.intp], cols: npt.NDArray[np.intp]) -> None:
@@ -77,6 +78,15 @@ class Semaphores:
             inside = {i for i in range(len(rows)) if area[rows[i], cols[i]]}
             kept = self.owners[k] & inside
             self.owners[k] = kept if kept else inside
+
+    def closed_cells(self, robot: int, heard: npt.NDArray[np.bool_]) -> npt.NDArray[np.intp]:
+        """As :meth:`closed_for`, as (row, column) pairs (K, 2)."""
+        parts = [
+            self.cells[k]
+            for k, owners in enumerate(self.owners)
+            if owners and robot not in owners and any(heard[j] for j in owners)
+        ]
+        return np.concatenate(parts) if parts else np.empty((0, 2), dtype=np.intp)
 
     def closed_for(self, robot: int, heard: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_] | None:
         """Cells closed on ``robot``'s path-finding map: the active semaphores it does not

@@ -36,8 +36,8 @@ from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force
 from .marching import Marching
 from .network import NETWORKS, components
-from .paths import STEP_UNITS, straight_paths, wave
-from .policies import POLICIES, choose
+from .paths import STEP_UNITS, Wave, straight_paths
+from .policies import POLICIES, choose, normalised
 from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .regions import Regions
 from .robots import SPEED_BANDS, Car, Holonomic, Team, close_pairs
@@ -104,6 +104,10 @@ class PatrolConfig:
     warmup: float | None = None
     start_fog: float = 0.0
     cell: float = 0.5
+    #: Stop each robot's wave where farther places can no longer change its choice
+    #: (:meth:`~sonarmap.patrol.forces.Force.pull_limit`); False runs every wave over
+    #: the whole map. The results are the same either way.
+    prune: bool = True
 
     def __post_init__(self) -> None:
         if self.direction not in ("mode", "vector"):
@@ -389,26 +393,23 @@ def run_patrol(
             heard = label == label[i]
             f.observe(r[heard], c[heard], disc)
 
-    def paths_map(
+    def closed_cells(
         i: int, r: npt.NDArray[np.intp], c: npt.NDArray[np.intp]
-    ) -> npt.NDArray[np.bool_]:
-        """Robot i's path-finding map: the crowding rule closes the active semaphores it
-        does not hold, or discs around the other robots it hears of; its own cell stays
-        open."""
+    ) -> npt.NDArray[np.intp] | None:
+        """Cells closed on robot i's path-finding map, as (row, column) pairs: the
+        crowding rule closes the active semaphores it does not hold, or discs around
+        the other robots it hears of (its own cell stays open)."""
         heard = label == label[i]
-        closed: npt.NDArray[np.bool_] | None = None
         if config.crowding == "semaphores":
-            closed = sems.closed_for(i, heard)
-        elif config.crowding == "obstacles" and len(team) > 1:
-            closed = np.zeros_like(passable)
-            for j in np.flatnonzero(heard).tolist():
-                if j != i:
-                    closed[disc_cells(obst, int(r[j]), int(c[j]), closed.shape)] = True
-        if closed is None:
-            return passable
-        mine = passable & ~closed
-        mine[r[i], c[i]] = passable[r[i], c[i]]
-        return mine
+            return sems.closed_cells(i, heard)
+        if config.crowding == "obstacles" and len(team) > 1:
+            parts = [
+                np.column_stack(disc_cells(obst, int(r[j]), int(c[j]), passable.shape))
+                for j in np.flatnonzero(heard).tolist()
+                if j != i
+            ]
+            return np.concatenate(parts) if parts else None
+        return None
 
     look()
     wall0 = time.perf_counter()
@@ -422,33 +423,71 @@ def run_patrol(
         tour, _ = plan_tour(territory, passable, config.vision, (int(r0[0]), int(c0[0])))
         # Robots spread evenly along the tour: robot k joins it at the k-th share.
         target = (np.arange(len(team)) * len(tour)) // len(team)
+    waver = Wave(passable.shape)
+    n_watched = int(watched.sum())
+    watched_rc = np.nonzero(watched)
+    # Only the potential field's choice can be made from the places near the robot
+    # (see Force.pull_limit); the other policies weigh the whole map.
+    near_only = config.policy == "potential" and config.prune
+    guess = [config.force.pull_limit(0.0, n_watched)] * len(team)
+
+    def tb_of(
+        i: int, rr: npt.NDArray[np.intp], cc: npt.NDArray[np.intp], dilated: list[F64] | None
+    ) -> F64:
+        """Robot i's TB of cells (rows, cols), from its dilated fog when there is one."""
+        j = 0 if shared else i
+        return dilated[j][rr, cc] if dilated is not None else own[j].tb_at(rr, cc)
+
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
         r, c = g.world_to_cell(team.x, team.y)
         # Each fog dilated once a step (with the full network, one for the whole team).
-        fogs = [dilate(f.tb, config.dilation) for f in own]
+        dilated = [dilate(f.tb, config.dilation) for f in own] if config.dilation else None
+        tops = [f.mtb() for f in own]
+
         for i in range(len(team)):
-            tb = fogs[0] if shared else fogs[i]
+            top = tops[0 if shared else i]
+            lp: F64 | None = None
+            step: npt.NDArray[np.int8] | None = None
             if config.policy == "random":
-                reach = np.zeros_like(watched)
-                lengths = ux = uy = np.empty(0)
+                tbv = lengths = ux = uy = np.empty(0)
             elif config.paths == "wave" or config.policy == "cycle":
-                here = paths_map(i, r, c)
-                dist, first = wave(here, (int(r[i]), int(c[i])), g.resolution, watched)
-                reach = watched & (first >= 0)
-                ux = STEP_UNITS[first[reach], 0]
-                uy = STEP_UNITS[first[reach], 1]
-                lengths = dist[reach]
+                start = (int(r[i]), int(c[i]))
+                closed = closed_cells(i, r, c)
+                limit = guess[i] if near_only and math.isfinite(guess[i]) else None
+                while True:
+                    waver(passable, start, g.resolution, watched, limit, closed)
+                    rr, cc = waver.reached()
+                    step = waver.first[rr, cc]
+                    keep = watched[rr, cc] & (step >= 0)
+                    rr, cc, step = rr[keep], cc[keep], step[keep]
+                    lengths = waver.dist[rr, cc]
+                    tbv = tb_of(i, rr, cc, dilated)
+                    if not near_only:
+                        break
+                    lp = config.force.log_pull(normalised(tbv, top), lengths)
+                    best = float(lp.max()) if len(lp) else -math.inf
+                    need = config.force.pull_limit(best, n_watched - len(rr))
+                    # Next step the robot is at most a step away: start from there.
+                    guess[i] = need + 2 * config.speed * config.dt
+                    exhausted = limit is None or not len(lengths) or lengths.max() < limit - 2
+                    if need <= (limit if limit is not None else math.inf) or exhausted:
+                        break
+                    limit = need if math.isfinite(need) else None
+                ux = STEP_UNITS[step, 0]
+                uy = STEP_UNITS[step, 1]
             elif config.paths == "straight":
-                reach = watched
-                lengths, ux, uy = straight_paths(team.x[i], team.y[i], cx[reach], cy[reach])
+                rr, cc = watched_rc
+                tbv = tb_of(i, rr, cc, dilated)
+                lengths, ux, uy = straight_paths(team.x[i], team.y[i], cx[rr, cc], cy[rr, cc])
             else:
                 assert finder is not None
                 dist, gx, gy = finder.paths((int(r[i]), int(c[i])), watched)
-                reach = watched & np.isfinite(dist)
-                lengths, ux, uy = dist[reach], gx[reach], gy[reach]
+                rr, cc = np.nonzero(watched & np.isfinite(dist))
+                tbv = tb_of(i, rr, cc, dilated)
+                lengths, ux, uy = dist[rr, cc], gx[rr, cc], gy[rr, cc]
             if config.policy == "cycle":
-                directions.append(_follow_tour(i, tour, target, dist, first, config))
+                directions.append(_follow_tour(i, tour, target, waver.dist, waver.first, config))
                 continue
             directions.append(
                 choose(
@@ -456,7 +495,7 @@ def run_patrol(
                     force=config.force,
                     method=config.direction,
                     sectors=config.sectors,
-                    tb=tb[reach],
+                    tb=tbv,
                     lengths=lengths,
                     ux=ux,
                     uy=uy,
@@ -473,6 +512,9 @@ def run_patrol(
                     )
                     if config.weaken
                     else None,
+                    top=top,
+                    log_pull=lp,
+                    steps=step,
                 )
             )
         if penalty is not None:
