@@ -1,0 +1,114 @@
+"""The patrol simulator in the thesis's Table 4 setting: how fast, and whether the
+shortcuts change anything.
+
+Setting: the built-in ``fig3-10`` map (240 x 159 m, narrow corridors), 5 car-like
+robots at the map's starts, the wave, direction refinement, artificial obstacles, mode
+direction choice, one core. For each cell size (``--cells``, default the thesis's
+0.1 m and the simulator's default 0.5 m):
+
+- ``x real time``: simulated seconds per wall-clock second over ``--duration`` (1200 s)
+  simulated seconds (the target is 20: one simulated hour in 3 minutes);
+- ``same as whole-map waves``: the first ``--check`` (120) seconds run again with every
+  wave over the whole map (``prune=False``); the MTB, DVT and positions of every step
+  must be identical;
+- mean MTB, DVT and the share never seen, so the two cell sizes can be compared.
+
+Run with ``python -m benchmarks.patrol [--cells 0.1 0.5] [--duration 1200] [--json F]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from typing import Any
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+
+from sonarmap.patrol import PatrolConfig, run_patrol
+from sonarmap.patrol.experiments import _territory
+from sonarmap.patrol.simulation import PatrolResult, starts_from_dm
+
+
+def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolResult, float]:
+    territory, starts = _territory("fig3-10", cell)
+    config = PatrolConfig(
+        model="car",
+        refine=True,
+        crowding="obstacles",
+        direction="mode",
+        paths="wave",
+        duration=duration,
+        cell=cell,
+        prune=prune,
+    )
+    t0 = time.perf_counter()
+    res = run_patrol(territory, config, starts=starts_from_dm(starts[:5], territory), seed=seed)
+    return res, time.perf_counter() - t0
+
+
+def _same(a: PatrolResult, b: PatrolResult) -> bool:
+    return bool(
+        np.array_equal(a.mtb, b.mtb)
+        and np.array_equal(a.dvt, b.dvt)
+        and np.array_equal(a.positions, b.positions)
+    )
+
+
+def measure(cell: float, duration: float, check: float, seed: int) -> dict[str, Any]:
+    """One cell size: speed over ``duration``, identity with whole-map waves over
+    ``check`` seconds."""
+    _run(cell, 5.0, True, seed)  # compile and build the territory before timing
+    res, wall = _run(cell, duration, True, seed)
+    short, _ = _run(cell, check, True, seed)
+    full, full_wall = _run(cell, check, False, seed)
+    s = res.summary()
+    return {
+        "cell_m": cell,
+        "simulated_s": duration,
+        "wall_s": round(res.wall_seconds, 2),
+        "x_real_time": round(duration / res.wall_seconds, 2),
+        "target_met": duration / res.wall_seconds >= 20.0,
+        "same_as_whole_map_waves": _same(short, full),
+        "whole_map_x_real_time": round(check / full.wall_seconds, 2),
+        "mean_mtb": round(s["mean_mtb"], 1),
+        "dvt": round(s["dvt"], 2),
+        "never_seen": round(s["never_seen"], 4),
+        "total_wall_s": round(wall + full_wall, 1),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--cells", type=float, nargs="+", default=[0.1, 0.5])
+    parser.add_argument("--duration", type=float, default=1200.0)
+    parser.add_argument("--check", type=float, default=120.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", help="Also write the rows to this JSON file.")
+    args = parser.parse_args()
+    rows = [measure(c, args.duration, args.check, args.seed) for c in args.cells]
+    head = (
+        f"{'cell':>5} {'x real time':>11} {'target':>7} {'same':>5} {'whole-map x':>11} "
+        f"{'mean MTB':>9} {'DVT %':>6} {'unseen':>7}"
+    )
+    print(f"patrol, Table 4 setting (fig3-10, 5 cars), {platform.processor() or 'cpu'}")
+    print(head)
+    for r in rows:
+        met = "yes" if r["target_met"] else "no"
+        same = "yes" if r["same_as_whole_map_waves"] else "NO"
+        print(
+            f"{r['cell_m']:>5g} {r['x_real_time']:>11.1f} {met:>7} {same:>5} "
+            f"{r['whole_map_x_real_time']:>11.1f} {r['mean_mtb']:>9.1f} {r['dvt']:>6.2f} "
+            f"{r['never_seen']:>7.4f}"
+        )
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()
