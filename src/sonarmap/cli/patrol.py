@@ -103,6 +103,7 @@ def run_cmd(
     force_a: Annotated[float, typer.Option(help="a of the f family.")] = 40.0,
     force_b: Annotated[float, typer.Option(help="b of the g family, decimetres.")] = 65.0,
     direction: Annotated[str, typer.Option(help="mode or vector.")] = "mode",
+    sectors: Annotated[int, typer.Option(help="mode: direction sectors.")] = 8,
     paths: Annotated[
         str,
         typer.Option(
@@ -140,7 +141,25 @@ def run_cmd(
             "obstacle in the sector (mode only).",
         ),
     ] = False,
+    weaken_r0: Annotated[float, typer.Option(help="Weakening's R0, metres.")] = 5.5,
+    refine_window: Annotated[
+        float, typer.Option(help="Refinement's l: half the penalty window, metres.")
+    ] = 10.0,
+    refine_goal: Annotated[
+        float, typer.Option(help="Refinement's R_G: the goal's distance, metres.")
+    ] = 2.5,
+    refine_side: Annotated[
+        float, typer.Option(help="Refinement's r: side of the search square, metres.")
+    ] = 2.0,
     radius: Annotated[float, typer.Option(help="Robot radius, metres.")] = 1.0,
+    min_separation: Annotated[
+        float, typer.Option(help="Least distance between robots' centres, metres.")
+    ] = 2.0,
+    p_random: Annotated[
+        float, typer.Option(help="Chance per step that a blocked robot moves at random.")
+    ] = 0.1,
+    dt: Annotated[float, typer.Option(help="Step, seconds.")] = 0.5,
+    start_fog: Annotated[float, typer.Option(help="TB of every place at the start, s.")] = 0.0,
     speed: Annotated[float, typer.Option(help="Holonomic robots' speed, m/s.")] = 4.4,
     turn_radius: Annotated[float, typer.Option(help="Cars' minimum turning radius, metres.")] = 3.5,
     speed_bands: Annotated[
@@ -191,6 +210,7 @@ def run_cmd(
         speed_bands=parse_speed_bands(speed_bands),
         force=parse_force(force, force_a, force_b),
         direction=direction,
+        sectors=sectors,
         paths=paths,
         network=network,
         r_max=r_max,
@@ -199,7 +219,15 @@ def run_cmd(
         r_obst=r_obst,
         refine=refine,
         weaken=weaken,
+        weaken_r0=weaken_r0,
+        refine_window=refine_window,
+        refine_goal=refine_goal,
+        refine_side=refine_side,
         radius=radius,
+        min_separation=min_separation,
+        p_random=p_random,
+        dt=dt,
+        start_fog=start_fog,
         speed=speed,
         vision=vision,
         line_of_sight=line_of_sight,

@@ -128,7 +128,20 @@ class PatrolConfig:
             raise ConfigError(f"unknown network {self.network!r}; valid: {', '.join(NETWORKS)}")
         if not (self.r_max >= 0):
             raise ConfigError(f"r_max must be >= 0 metres, got {self.r_max}")
-        for name in ("radius", "speed", "vision", "dt", "duration", "cell", "turn_radius"):
+        for name in (
+            "radius",
+            "speed",
+            "vision",
+            "dt",
+            "duration",
+            "cell",
+            "turn_radius",
+            "min_separation",
+            "weaken_r0",
+            "refine_window",
+            "refine_goal",
+            "refine_side",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be > 0, got {v}")
@@ -138,6 +151,10 @@ class PatrolConfig:
             )
         if not (math.isfinite(self.r_obst) and self.r_obst > 0):
             raise ConfigError(f"r_obst must be > 0 metres, got {self.r_obst}")
+        if not (0.0 <= self.p_random <= 1.0):
+            raise ConfigError(f"p_random must be in [0, 1], got {self.p_random}")
+        if not (math.isfinite(self.start_fog) and self.start_fog >= 0):
+            raise ConfigError(f"start_fog must be >= 0 seconds, got {self.start_fog}")
         if self.sectors < 1:
             raise ConfigError(f"sectors must be >= 1, got {self.sectors}")
         if self.dilation < 0:
