@@ -30,12 +30,12 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 
 from sonarmap.patrol import PatrolConfig, run_patrol
-from sonarmap.patrol.experiments import _territory
+from sonarmap.patrol.maps import builtin_territory
 from sonarmap.patrol.simulation import PatrolResult, starts_from_dm
 
 
 def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolResult, float]:
-    territory, starts = _territory("fig3-10", cell)
+    territory, starts = builtin_territory("fig3-10", cell)
     config = PatrolConfig(
         model="car",
         refine=True,

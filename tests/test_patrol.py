@@ -723,10 +723,10 @@ def test_bad_patrol_input_is_one_line_and_exit_2(
 def test_pruned_waves_change_nothing() -> None:
     """Waves cut where far places can no longer change a robot's choice give the very
     same run as waves over the whole map."""
-    from sonarmap.patrol.experiments import _territory
+    from sonarmap.patrol.maps import builtin_territory
     from sonarmap.patrol.simulation import starts_from_dm
 
-    t, starts = _territory("fig3-4", 1.0)
+    t, starts = builtin_territory("fig3-4", 1.0)
     for extra in ({}, {"model": "car", "refine": True, "crowding": "obstacles", "dilation": 1}):
         runs = [
             run_patrol(
@@ -744,10 +744,10 @@ def test_pruned_waves_change_nothing() -> None:
 def test_short_reproduction_of_the_open_field_ordering() -> None:
     """Tables 2-3 in miniature: the adopted f3g4 patrols the open field far better than
     f1g1 (a pull linear in TB_n and 1/L: the thesis's worst, 1476 s against 80.7 s)."""
-    from sonarmap.patrol.experiments import _territory
+    from sonarmap.patrol.maps import builtin_territory
     from sonarmap.patrol.simulation import starts_from_dm
 
-    t, starts = _territory("open-field", 1.0)
+    t, starts = builtin_territory("open-field", 1.0)
     mtb = {}
     for name in ("f3g4", "f1g1"):
         cfg = PatrolConfig(duration=900.0, cell=1.0, paths="straight", force=parse_force(name))

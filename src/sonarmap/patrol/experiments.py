@@ -22,7 +22,6 @@ import itertools
 import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
-from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -35,10 +34,9 @@ from ..io._json import dumps as json_dumps
 from ..report import Report
 from ..sweep import run_on_dask
 from .forces import FORCE_F, FORCE_G, Force
-from .maps import builtin_map
+from .maps import builtin_map, builtin_territory
 from .semaphores import polygon_cells
 from .simulation import PatrolConfig, run_patrol, starts_from_dm
-from .territory import Territory
 
 __all__ = ["EXPERIMENTS", "THESIS_TABLE_2", "THESIS_TABLE_3", "PatrolTask", "run_experiment"]
 
@@ -113,13 +111,6 @@ class PatrolTask:
     extra: tuple[tuple[str, Any], ...] = ()
 
 
-@cache
-def _territory(name: str, cell: float) -> tuple[Territory, list[tuple[float, float, float]]]:
-    m = builtin_map(name)
-    plan = m.plan.render(m.plan.grid(0.1))
-    return Territory.from_map(plan, cell=cell), list(m.starts)
-
-
 def run_task(task: PatrolTask) -> dict[str, Any]:
     """Run one task (on a Dask worker); its row of results."""
     cfg = dict(task.config)
@@ -127,7 +118,7 @@ def run_task(task: PatrolTask) -> dict[str, Any]:
     config = PatrolConfig(**cfg)
     if force is not None:
         config = replace(config, force=Force(*force))
-    territory, starts = _territory(task.map, config.cell)
+    territory, starts = builtin_territory(task.map, config.cell)
     if task.robots > len(starts):
         raise ConfigError(f"map {task.map} has {len(starts)} starts, not {task.robots}")
     semaphores = None

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -23,8 +24,15 @@ import numpy as np
 from ..floorplan import FloorPlan
 from ..io._atomic import atomic_write_text
 from ..io.rosmap import write_map
+from .territory import Territory
 
-__all__ = ["BUILTIN_MAPS", "BuiltinMap", "builtin_map", "write_builtin_maps"]
+__all__ = [
+    "BUILTIN_MAPS",
+    "BuiltinMap",
+    "builtin_map",
+    "builtin_territory",
+    "write_builtin_maps",
+]
 
 #: Metres per pixel of the written maps (the thesis's 10 cm).
 RESOLUTION = 0.1
@@ -108,6 +116,15 @@ BUILTIN_MAPS = {"open-field": _open_field, "fig3-2": _fig32, "fig3-4": _fig34, "
 def builtin_map(name: str) -> BuiltinMap:
     """One of :data:`BUILTIN_MAPS` by name."""
     return BUILTIN_MAPS[name]()
+
+
+@cache
+def builtin_territory(name: str, cell: float) -> tuple[Territory, list[tuple[float, float, float]]]:
+    """A built-in map drawn at 0.1 m as a territory on cells of about ``cell`` metres,
+    with its starts (dm from the top-left, y down, heading); cached per process."""
+    m = builtin_map(name)
+    plan = m.plan.render(m.plan.grid(RESOLUTION))
+    return Territory.from_map(plan, cell=cell), list(m.starts)
 
 
 def write_builtin_maps(folder: Path) -> list[Path]:
