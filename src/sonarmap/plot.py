@@ -481,6 +481,8 @@ def save_patrol_series(table: Any, path: str | Path) -> Path:
             )
             if with_dvt:
                 axes[1, k].plot(v["robots"], v["dvt"], marker="o", label=str(variant))
+        for ax in axes[:, k]:
+            ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(integer=True))
         axes[0, k].set_title(str(m))
         axes[0, k].set_ylabel("mean MTB [s]")
         axes[0, k].set_xlabel("robots")
