@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -124,7 +125,10 @@ def run_cmd(
         Path | None,
         typer.Option(help="Semaphore file: one polygon a line, 'x y;x y;...' in dm."),
     ] = None,
-    r_obst: Annotated[float, typer.Option(help="Artificial obstacles' radius, metres.")] = 3.0,
+    r_obst: Annotated[
+        float | None,
+        typer.Option(help="Artificial obstacles' radius, metres (default 3 x --radius)."),
+    ] = None,
     refine: Annotated[
         bool,
         typer.Option(
@@ -153,8 +157,9 @@ def run_cmd(
     ] = 2.0,
     radius: Annotated[float, typer.Option(help="Robot radius, metres.")] = 1.0,
     min_separation: Annotated[
-        float, typer.Option(help="Least distance between robots' centres, metres.")
-    ] = 2.0,
+        float | None,
+        typer.Option(help="Least distance between robots' centres, m (default 2 x --radius)."),
+    ] = None,
     p_random: Annotated[
         float, typer.Option(help="Chance per step that a blocked robot moves at random.")
     ] = 0.1,
@@ -181,7 +186,10 @@ def run_cmd(
     warmup: Annotated[
         float | None, typer.Option(help="Seconds left out of the mean MTB (default a fifth).")
     ] = None,
-    cell: Annotated[float, typer.Option(help="Cell of the fog and paths, metres.")] = 0.5,
+    cell: Annotated[
+        float | None,
+        typer.Option(help="Cell of the fog and paths, metres (default 0.5, or --radius if less)."),
+    ] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     animate: Annotated[
         bool, typer.Option("--animate", help="Also write OUT/patrol.gif (200 frames at most).")
@@ -216,7 +224,7 @@ def run_cmd(
         r_max=r_max,
         dilation=dilation,
         crowding=crowding,
-        r_obst=r_obst,
+        r_obst=math.nan if r_obst is None else r_obst,
         refine=refine,
         weaken=weaken,
         weaken_r0=weaken_r0,
@@ -224,7 +232,7 @@ def run_cmd(
         refine_goal=refine_goal,
         refine_side=refine_side,
         radius=radius,
-        min_separation=min_separation,
+        min_separation=math.nan if min_separation is None else min_separation,
         p_random=p_random,
         dt=dt,
         start_fog=start_fog,
@@ -233,9 +241,9 @@ def run_cmd(
         line_of_sight=line_of_sight,
         duration=duration,
         warmup=warmup,
-        cell=cell,
+        cell=math.nan if cell is None else cell,
     )
-    territory = Territory.from_map(_read_plan(map_, resolution, origin), cell=cell)
+    territory = Territory.from_map(_read_plan(map_, resolution, origin), cell=config.cell)
     start = read_starts(starts, territory) if starts is not None else None
     if start is not None and robots is not None:
         if robots > len(start):

@@ -49,6 +49,8 @@ FORCE_G: dict[str, Callable[[F64, float], F64]] = {
 #: log of the share of the strongest pull below which the pulls of far places are
 #: dropped (about 1e-18: beneath the resolution of a float64 sum).
 NEGLIGIBLE = -41.5
+#: Relative difference below which two sectors' pulls count as equal.
+TIE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -142,8 +144,16 @@ def choose_direction(
         strength = np.bincount(sector, weights=w, minlength=sectors).astype(np.float64)
         if weights is not None:
             strength = strength * np.asarray(weights, dtype=np.float64)
-        best = int(np.argmax(strength))
+        # Sectors within a relative TIE of the strongest are tied, and the first wins:
+        # on a symmetric map with an even fog, two sectors pull exactly alike and only
+        # rounding would otherwise choose (and choose differently as the sum's order
+        # changes).
+        best = int(np.flatnonzero(strength >= strength.max() * (1.0 - TIE))[0])
         pick = sector == best
+        if steps is not None and sectors == 8:
+            # Every pull in a wave sector points along its step: go exactly that way.
+            k = int(np.flatnonzero(pick)[0])
+            return float(x[k]), float(y[k])
         sx, sy = float(np.dot(w[pick], x[pick])), float(np.dot(w[pick], y[pick]))
     else:
         raise ConfigError(f"unknown direction method {method!r}; valid: mode, vector")

@@ -125,14 +125,39 @@ class Holonomic(Team):
         ny = self.y + want * dy * step
         clear = want.copy()
         for i in np.flatnonzero(want).tolist():
-            if not segment_clear(self.x[i], self.y[i], nx[i], ny[i], passable, grid):
-                clear[i] = False
+            if segment_clear(self.x[i], self.y[i], nx[i], ny[i], passable, grid):
+                continue
+            # Cells are coarser than the thesis's 10 cm, so a robot may stray up to half
+            # a cell off the centre line of its path and clip a wall a centred robot
+            # would pass: then it heads for the centre of the next cell that way.
+            alt = _towards_next_cell(self.x[i], self.y[i], dx[i], dy[i], grid)
+            if alt is not None:
+                ax, ay = alt
+                ex, ey = self.x[i] + ax * step, self.y[i] + ay * step
+                if segment_clear(self.x[i], self.y[i], ex, ey, passable, grid):
+                    nx[i], ny[i], dx[i], dy[i] = ex, ey, ax, ay
+                    continue
+            clear[i] = False
         moving = cancel_collisions(self.x, self.y, nx, ny, clear, self.min_separation)
         self.blocked = want & ~moving
         self.x = np.where(moving, nx, self.x)
         self.y = np.where(moving, ny, self.y)
         self.heading = np.where(moving, np.arctan2(dy, dx), self.heading)
         return moving
+
+
+def _towards_next_cell(
+    x: float, y: float, dx: float, dy: float, grid: Grid
+) -> tuple[float, float] | None:
+    """The unit vector from (x, y) to the centre of the neighbouring cell, of the 8,
+    that lies in direction (dx, dy)."""
+    r, c = grid.world_to_cell(x, y)
+    k = round(math.atan2(dy, dx) / (math.pi / 4)) % 8
+    dr, dc = ((0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1), (1, 0), (1, 1))[k]
+    cx, cy = grid.cell_centres(np.array([int(r) + dr]), np.array([int(c) + dc]))
+    vx, vy = float(cx[0]) - x, float(cy[0]) - y
+    n = math.hypot(vx, vy)
+    return (vx / n, vy / n) if n > 1e-9 else None
 
 
 def cancel_collisions(

@@ -14,8 +14,9 @@ Decisions where the thesis is silent (docs/patrol.md marks them UNCLEAR):
   of MTB(t) over the steps after a warm-up of ``warmup`` seconds (default a fifth of the
   run); the average over every step is reported too;
 - robots start facing +x unless a start file gives headings;
-- paths and fog are on cells of ``cell`` metres (0.5) rather than the thesis's 0.1 m:
-  the wave per robot and step is then 25 times smaller; ``cell=0.1`` is the thesis's.
+- paths and fog are on cells of ``cell`` metres (0.5, or the robot's radius when
+  smaller) rather than the thesis's 0.1 m: the wave per robot and step is then 25 times
+  smaller; ``cell=0.1`` is the thesis's.
 """
 
 from __future__ import annotations
@@ -83,7 +84,8 @@ class PatrolConfig:
     r_max: float = 70.0
     dilation: int = 0
     crowding: str = "none"
-    r_obst: float = 3.0
+    #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
+    r_obst: float = math.nan
     refine: bool = False
     weaken: bool = False
     weaken_r0: float = 5.5
@@ -92,7 +94,8 @@ class PatrolConfig:
     refine_side: float = 2.0
     radius: float = 1.0
     speed: float = 4.4
-    min_separation: float = 2.0
+    #: Least distance between centres; NaN: twice the robot's radius (2 m).
+    min_separation: float = math.nan
     p_random: float = 0.1
     turn_radius: float = 3.5
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
@@ -103,13 +106,23 @@ class PatrolConfig:
     duration: float = 3600.0
     warmup: float | None = None
     start_fog: float = 0.0
-    cell: float = 0.5
+    #: Cell of fog and paths; NaN: 0.5 m, or half the robot's radius when smaller (a
+    #: coarse cell would close doors a small robot passes).
+    cell: float = math.nan
     #: Stop each robot's wave where farther places can no longer change its choice
     #: (:meth:`~sonarmap.patrol.forces.Force.pull_limit`); False runs every wave over
     #: the whole map. The results are the same either way.
     prune: bool = True
 
     def __post_init__(self) -> None:
+        # Lengths left unset follow the robot's size, as the thesis's do (1 m robots,
+        # 2 m apart); a frozen dataclass sets them once, here.
+        if math.isnan(self.min_separation):
+            object.__setattr__(self, "min_separation", 2.0 * self.radius)
+        if math.isnan(self.r_obst):
+            object.__setattr__(self, "r_obst", 3.0 * self.radius)
+        if math.isnan(self.cell):
+            object.__setattr__(self, "cell", min(0.5, self.radius / 2))
         if self.direction not in ("mode", "vector"):
             raise ConfigError(f"unknown direction {self.direction!r}; valid: mode, vector")
         if self.model not in MODELS:

@@ -18,7 +18,7 @@ from scipy import ndimage
 
 from ..errors import ConfigError, InputError
 from ..grid import Grid
-from ..io.rosmap import FREE, OccupancyMap
+from ..io.rosmap import FREE, OCCUPIED, OccupancyMap
 
 __all__ = ["Territory", "segment_clear"]
 
@@ -63,7 +63,8 @@ class Territory:
     def from_map(cls, m: OccupancyMap, cell: float | None = None) -> Territory:
         """The territory of a map, optionally on coarser cells of about ``cell`` metres
         (a whole number of map cells; a coarse cell is free when most of its map cells
-        are). A map with no free cell is an InputError."""
+        are and none is occupied, so thin walls survive). A map with no free cell is an
+        InputError."""
         free = m.classes() == FREE
         grid = m.grid
         if cell is not None:
@@ -73,10 +74,14 @@ class Territory:
             if k > 1:
                 rows = -(-free.shape[0] // k)
                 cols = -(-free.shape[1] // k)
+                classes = m.classes()
                 padded = np.zeros((rows * k, cols * k))
                 padded[: free.shape[0], : free.shape[1]] = free
                 share = padded.reshape(rows, k, cols, k).mean(axis=(1, 3))
-                free = share > 0.5
+                hit = np.zeros((rows * k, cols * k), dtype=bool)
+                hit[: free.shape[0], : free.shape[1]] = classes == OCCUPIED
+                # Any occupied pixel closes the cell: a thin wall must stay a wall.
+                free = (share > 0.5) & ~hit.reshape(rows, k, cols, k).any(axis=(1, 3))
                 # Rows are counted from the top: the coarse grid keeps the top edge.
                 top = grid.origin[1] + grid.rows * grid.resolution
                 res = grid.resolution * k
