@@ -754,3 +754,32 @@ def test_short_reproduction_of_the_open_field_ordering() -> None:
         mtb[name] = run_patrol(t, cfg, starts=starts_from_dm(starts, t)).summary()["mean_mtb"]
     assert mtb["f3g4"] < 0.5 * mtb["f1g1"]
     assert mtb["f3g4"] < 200.0  # the thesis: 80.7 s by vector sum, 90.0 s by mode
+
+
+def test_path_motion_keeps_to_paths_and_to_the_speed() -> None:
+    """With path motion a robot moves along the wave's path (never farther than a step,
+    never into an obstacle); it is refused where there is no wave path to follow."""
+    g = Grid(resolution=0.1, origin=(0.0, 0.0), shape=(120, 200))
+    occ = np.zeros(g.shape, np.float32)
+    occ[58:62, :] = 1.0
+    occ[58:62, 95:105] = 0.0  # one 1 m door between two rooms
+    t = Territory.from_map(OccupancyMap(g, occ))
+    cfg = PatrolConfig(radius=0.25, speed=0.5, vision=3.0, duration=300.0, motion="path")
+    seen: list[np.ndarray] = []
+
+    def keep(time: float, team: object, fog: Fog) -> None:
+        assert isinstance(team, Holonomic)
+        seen.append(np.column_stack([team.x, team.y]))
+
+    res = run_patrol(t, cfg, starts=np.array([[5.0, 3.0, 0.0]]), on_step=keep)
+    moves = np.hypot(*np.diff(np.stack(seen)[:, 0, :], axis=0).T)
+    assert moves.max() <= 0.5 * 0.5 + 1e-9
+    ys = np.stack(seen)[:, 0, 1]
+    assert ys.max() > 6.5  # it went through the door into the other room
+    assert res.summary()["steps"] == 600
+    with pytest.raises(ConfigError, match="motion 'path'"):
+        PatrolConfig(motion="path", model="car")
+    with pytest.raises(ConfigError, match="motion 'path'"):
+        PatrolConfig(motion="path", policy="reactive")
+    with pytest.raises(ConfigError, match="motion 'path'"):
+        PatrolConfig(motion="path", refine=True)

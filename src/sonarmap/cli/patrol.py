@@ -100,6 +100,14 @@ def run_cmd(
             "speed by the nearest obstacle, dead-end escape)."
         ),
     ] = "holonomic",
+    motion: Annotated[
+        str,
+        typer.Option(
+            help="Holonomic robots: straight (a full step along the chosen direction, the "
+            "thesis's) or path (a step along the shortest path to the strongest pull that "
+            "way; for doors narrower than a step)."
+        ),
+    ] = "straight",
     force: Annotated[str, typer.Option(help="Force law f1..f5 x g1..g5.")] = "f3g4",
     force_a: Annotated[float, typer.Option(help="a of the f family.")] = 40.0,
     force_b: Annotated[float, typer.Option(help="b of the g family, decimetres.")] = 65.0,
@@ -214,6 +222,7 @@ def run_cmd(
     config = PatrolConfig(
         policy=policy,
         model=model,
+        motion=motion,
         turn_radius=turn_radius,
         speed_bands=parse_speed_bands(speed_bands),
         force=parse_force(force, force_a, force_b),

@@ -45,7 +45,7 @@ import numba as nb
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["STEPS", "TIE", "Wave", "straight_paths", "wave"]
+__all__ = ["STEPS", "TIE", "Wave", "path_to", "straight_paths", "wave"]
 
 #: The 8 steps as (row, column) offsets, counter-clockwise from east (+x); rows grow
 #: downwards, so north (+y) is row - 1.
@@ -393,3 +393,52 @@ def straight_paths(
         ux = np.where(dist > 0, dx / dist, 0.0)
         uy = np.where(dist > 0, dy / dist, 0.0)
     return dist, ux, uy
+
+
+@nb.njit(cache=True)
+def _back(
+    dist: npt.NDArray[np.float64],
+    r: int,
+    c: int,
+    steps: npt.NDArray[np.int64],
+    resolution: float,
+) -> npt.NDArray[np.int64]:
+    rows, cols = dist.shape
+    out = np.empty((rows * cols, 2), dtype=np.int64)
+    n = 0
+    out[n, 0] = r
+    out[n, 1] = c
+    n += 1
+    diag = math.sqrt(2.0) * resolution
+    while dist[r, c] > 0.0:
+        best = -1
+        best_d = dist[r, c]
+        for k in range(8):
+            rr = r + steps[k, 0]
+            cc = c + steps[k, 1]
+            if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+                continue
+            cost = diag if k % 2 == 1 else resolution
+            # A predecessor on a shortest path: its length plus the step is this one's.
+            if abs(dist[rr, cc] + cost - dist[r, c]) < 1e-6 * resolution and dist[rr, cc] < best_d:
+                best = k
+                best_d = dist[rr, cc]
+        if best < 0:
+            break
+        r += steps[best, 0]
+        c += steps[best, 1]
+        out[n, 0] = r
+        out[n, 1] = c
+        n += 1
+    return out[:n][::-1].copy()
+
+
+def path_to(
+    dist: npt.NDArray[np.float64], target: tuple[int, int], resolution: float
+) -> npt.NDArray[np.int64]:
+    """The cells (K, 2) of a shortest path from the wave's start to ``target``, start
+    first, read back from the wave's lengths ``dist`` (metres)."""
+    r, c = target
+    if not np.isfinite(dist[r, c]):
+        raise ValueError(f"no path to {target}")
+    return _back(np.ascontiguousarray(dist), int(r), int(c), STEPS, float(resolution))

@@ -83,6 +83,7 @@ class Team:
         grid: Grid,
         dt: float,
         rng: np.random.Generator,
+        goals: list[tuple[float, float] | None] | None = None,
     ) -> npt.NDArray[np.bool_]:
         """Move every robot one step; returns who moved."""
         raise NotImplementedError
@@ -106,16 +107,21 @@ class Holonomic(Team):
         grid: Grid,
         dt: float,
         rng: np.random.Generator,
+        goals: list[tuple[float, float] | None] | None = None,
     ) -> npt.NDArray[np.bool_]:
-        """Move every robot one step; returns who moved."""
+        """Move every robot one step; returns who moved. A robot with a point in
+        ``goals`` (path motion) goes straight to it instead of a full step along its
+        direction."""
         n = len(self)
         want = np.zeros(n, dtype=bool)
         dx = np.zeros(n)
         dy = np.zeros(n)
+        goal: list[tuple[float, float] | None] = list(goals) if goals is not None else [None] * n
         for i, d in enumerate(directions):
             if self.blocked[i] and rng.random() < self.p_random:
                 a = rng.uniform(-math.pi, math.pi)
                 d = (math.cos(a), math.sin(a))
+                goal[i] = None
             if d is None:
                 continue
             want[i] = True
@@ -123,6 +129,13 @@ class Holonomic(Team):
         step = self.speed * dt
         nx = self.x + want * dx * step
         ny = self.y + want * dy * step
+        for i, p in enumerate(goal):
+            if p is not None and want[i]:
+                vx, vy = p[0] - self.x[i], p[1] - self.y[i]
+                length = math.hypot(vx, vy)
+                if length > 1e-9:
+                    nx[i], ny[i] = p
+                    dx[i], dy[i] = vx / length, vy / length
         clear = want.copy()
         for i in np.flatnonzero(want).tolist():
             if segment_clear(self.x[i], self.y[i], nx[i], ny[i], passable, grid):
@@ -328,6 +341,7 @@ class Car(Team):
         grid: Grid,
         dt: float,
         rng: np.random.Generator,
+        goals: list[tuple[float, float] | None] | None = None,
     ) -> npt.NDArray[np.bool_]:
         n = len(self)
         want = np.zeros(n, dtype=bool)

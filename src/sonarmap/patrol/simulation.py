@@ -32,18 +32,19 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
+from ..grid import Grid
 from .finders import PathFinder
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force
 from .marching import Marching
 from .network import NETWORKS, components
-from .paths import STEP_UNITS, Wave, straight_paths
+from .paths import STEP_UNITS, Wave, path_to, straight_paths
 from .policies import POLICIES, choose, normalised
 from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .regions import Regions
 from .robots import SPEED_BANDS, Car, Holonomic, Team, close_pairs
 from .semaphores import Semaphores
-from .territory import Territory
+from .territory import Territory, segment_clear
 from .tour import plan_tour
 
 __all__ = [
@@ -62,6 +63,10 @@ __all__ = [
 CROWDING = ("none", "obstacles", "semaphores")
 #: Robot models: holonomic, or car-like (:class:`~sonarmap.patrol.robots.Car`).
 MODELS = ("holonomic", "car")
+#: How a holonomic robot moves: a full step straight along its chosen direction (the
+#: thesis's), or a step along the wave's shortest path towards the strongest pull in
+#: that direction (``path``: no overshooting the narrow bands of door-ways).
+MOTIONS = ("straight", "path")
 #: Path-finders built once per run for the static map (:mod:`.regions`, :mod:`.marching`).
 FINDERS: dict[str, type[PathFinder]] = {"regions": Regions, "marching": Marching}
 #: Every path-finding: the wave, straight lines (open space) and the static finders.
@@ -76,6 +81,7 @@ class PatrolConfig:
 
     policy: str = "potential"
     model: str = "holonomic"
+    motion: str = "straight"
     force: Force = field(default_factory=Force)
     direction: str = "mode"
     sectors: int = 8
@@ -127,6 +133,17 @@ class PatrolConfig:
             raise ConfigError(f"unknown direction {self.direction!r}; valid: mode, vector")
         if self.model not in MODELS:
             raise ConfigError(f"unknown robot model {self.model!r}; valid: {', '.join(MODELS)}")
+        if self.motion not in MOTIONS:
+            raise ConfigError(f"unknown motion {self.motion!r}; valid: {', '.join(MOTIONS)}")
+        if self.motion == "path" and not (
+            self.model == "holonomic" and self.paths == "wave" and self.policy == "potential"
+        ):
+            raise ConfigError(
+                "motion 'path' follows the wave's paths of the potential field with "
+                "holonomic robots (--model holonomic --paths wave --policy potential)"
+            )
+        if self.motion == "path" and self.refine:
+            raise ConfigError("motion 'path' already keeps to the path: drop --refine")
         if self.paths not in PATHS:
             raise ConfigError(f"unknown path-finding {self.paths!r}; valid: {', '.join(PATHS)}")
         if self.paths in FINDERS and self.crowding != "none":
@@ -330,6 +347,48 @@ def _follow_tour(
     return None
 
 
+def _path_goal(
+    team: Team,
+    i: int,
+    direction: tuple[float, float] | None,
+    rr: npt.NDArray[np.intp],
+    cc: npt.NDArray[np.intp],
+    step: npt.NDArray[np.int8],
+    lp: F64,
+    waver: Wave,
+    g: Grid,
+    passable: npt.NDArray[np.bool_],
+    config: PatrolConfig,
+) -> tuple[float, float] | None:
+    """Where robot i gets to in one step along the shortest path to the strongest pull
+    among the places its chosen direction leads to (path motion)."""
+    if direction is None or not len(lp):
+        return None
+    k = round(math.atan2(direction[1], direction[0]) / (math.pi / 4)) % 8
+    mine = np.flatnonzero(step == k)
+    if not len(mine):
+        return None
+    best = mine[int(np.argmax(lp[mine]))]
+    cells = path_to(waver.dist, (int(rr[best]), int(cc[best])), g.resolution)
+    px, py = g.cell_centres(cells[1:, 0], cells[1:, 1])
+    x0, y0 = float(team.x[i]), float(team.y[i])
+    x, y = x0, y0
+    left = config.speed * config.dt
+    # The farthest point a step along the path reaches that the robot can go to in a
+    # straight line (a corner of the path may hide the rest).
+    reach: tuple[float, float] | None = None
+    for qx, qy in zip(px.tolist(), py.tolist(), strict=True):
+        d = math.hypot(qx - x, qy - y)
+        end = (x + (qx - x) * left / d, y + (qy - y) * left / d) if d >= left else (qx, qy)
+        if not segment_clear(x0, y0, end[0], end[1], passable, g):
+            break
+        reach = end
+        if d >= left:
+            break
+        x, y, left = qx, qy, left - d
+    return reach
+
+
 def run_patrol(
     territory: Territory,
     config: PatrolConfig,
@@ -468,8 +527,10 @@ def run_patrol(
         j = 0 if shared else i
         return dilated[j][rr, cc] if dilated is not None else own[j].tb_at(rr, cc)
 
+    along_path = config.motion == "path"
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
+        goals: list[tuple[float, float] | None] = []
         r, c = g.world_to_cell(team.x, team.y)
         # Each fog dilated once a step (with the full network, one for the whole team).
         dilated = [dilate(f.tb, config.dilation) for f in own] if config.dilation else None
@@ -547,6 +608,23 @@ def run_patrol(
                     steps=step,
                 )
             )
+            goals.append(
+                _path_goal(
+                    team,
+                    i,
+                    directions[-1],
+                    rr,
+                    cc,
+                    step,
+                    lp if lp is not None else config.force.log_pull(normalised(tbv, top), lengths),
+                    waver,
+                    g,
+                    passable,
+                    config,
+                )
+                if along_path and step is not None
+                else None
+            )
         if penalty is not None:
             directions = [
                 d
@@ -563,7 +641,7 @@ def run_patrol(
                 )
                 for i, d in enumerate(directions)
             ]
-        team.step(directions, passable, g, config.dt, rng)
+        team.step(directions, passable, g, config.dt, rng, goals if along_path else None)
         blocked += team.blocked
         escapes += team.escaping
         dvt[k] = 100.0 * escapes.mean() / (k + 1)
