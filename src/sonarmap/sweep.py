@@ -299,6 +299,8 @@ def run_on_dask(
     """
     from dask.distributed import Client, LocalCluster, as_completed
 
+    if workers is not None and workers < 1:
+        raise ConfigError(f"workers must be >= 1, got {workers}")
     cluster = None
     try:
         if scheduler is None:

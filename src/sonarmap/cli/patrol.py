@@ -196,7 +196,9 @@ def run_cmd(
     ] = None,
     cell: Annotated[
         float | None,
-        typer.Option(help="Cell of the fog and paths, metres (default 0.5, or --radius if less)."),
+        typer.Option(
+            help="Cell of the fog and paths, metres (default 0.5, or --radius / 2 if less)."
+        ),
     ] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     animate: Annotated[
@@ -254,6 +256,8 @@ def run_cmd(
     )
     territory = Territory.from_map(_read_plan(map_, resolution, origin), cell=config.cell)
     start = read_starts(starts, territory) if starts is not None else None
+    if robots is not None and robots < 1:
+        raise ConfigError(f"robots must be >= 1, got {robots}")
     if start is not None and robots is not None:
         if robots > len(start):
             raise ConfigError(f"{robots} robots asked for, the start file has {len(start)}")

@@ -228,7 +228,14 @@ class Marching:
         dc = (cc - c0).astype(np.float64) + np.zeros((rows, 1))
         straight = np.hypot(dr, dc)
         phi = np.ma.MaskedArray(straight - _RHO, mask=~self.passable)
-        marched = skfmm.distance(phi, dx=1.0)
+        try:
+            marched = skfmm.distance(phi, dx=1.0)
+        except ValueError:
+            # No passable side neighbour: the solver has no contour to start from, and
+            # the robot's cell is all it can reach.
+            alone = np.ones(phi.shape, dtype=bool)
+            alone[r0, c0] = False
+            marched = np.ma.MaskedArray(np.zeros(phi.shape), mask=alone)
         reach = self.passable & ~np.ma.getmaskarray(marched)
         dist = np.where(reach, np.ma.getdata(marched) + _RHO, np.inf)
         seen = in_sight(self.passable, (r0, c0), reach)

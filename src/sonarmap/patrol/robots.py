@@ -24,6 +24,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
+from .paths import STEPS
 from .territory import segment_clear
 
 __all__ = [
@@ -166,7 +167,7 @@ def _towards_next_cell(
     that lies in direction (dx, dy)."""
     r, c = grid.world_to_cell(x, y)
     k = round(math.atan2(dy, dx) / (math.pi / 4)) % 8
-    dr, dc = ((0, 1), (-1, 1), (-1, 0), (-1, -1), (0, -1), (1, -1), (1, 0), (1, 1))[k]
+    dr, dc = (int(v) for v in STEPS[k])
     cx, cy = grid.cell_centres(np.array([int(r) + dr]), np.array([int(c) + dc]))
     vx, vy = float(cx[0]) - x, float(cy[0]) - y
     n = math.hypot(vx, vy)
@@ -345,6 +346,7 @@ class Car(Team):
     ) -> npt.NDArray[np.bool_]:
         n = len(self)
         want = np.zeros(n, dtype=bool)
+        boxed: list[int] = []
         end = np.column_stack([self.x, self.y, self.heading]).astype(np.float64)
         for i, d in enumerate(directions):
             if self.escaping[i] and abs(_wrap(self.goal[i] - self.heading[i])) <= self.align:
@@ -374,10 +376,13 @@ class Car(Team):
                     break
                 self.gear[i] = -self.gear[i]
             if move is None:
-                want[i] = False  # boxed in both ways: stand, still escaping
+                boxed.append(i)  # boxed in both ways: stand, still escaping
             else:
                 end[i] = move
         moving = cancel_collisions(self.x, self.y, end[:, 0], end[:, 1], want, self.min_separation)
+        for i in boxed:
+            moving[i] = False
+        # A boxed-in car counts as blocked, so that its random re-targeting can free it.
         self.blocked = want & ~moving
         for i in np.flatnonzero(self.blocked).tolist():
             if self.escaping[i]:

@@ -14,7 +14,7 @@ Decisions where the thesis is silent (docs/patrol.md marks them UNCLEAR):
   of MTB(t) over the steps after a warm-up of ``warmup`` seconds (default a fifth of the
   run); the average over every step is reported too;
 - robots start facing +x unless a start file gives headings;
-- paths and fog are on cells of ``cell`` metres (0.5, or the robot's radius when
+- paths and fog are on cells of ``cell`` metres (0.5, or half the robot's radius when
   smaller) rather than the thesis's 0.1 m: the wave per robot and step is then 25 times
   smaller; ``cell=0.1`` is the thesis's.
 """
@@ -189,6 +189,10 @@ class PatrolConfig:
             raise ConfigError(f"sectors must be >= 1, got {self.sectors}")
         if self.dilation < 0:
             raise ConfigError(f"dilation must be >= 0 cells, got {self.dilation}")
+        if round(self.duration / self.dt) < 1:
+            raise ConfigError(
+                f"duration {self.duration:g} s is shorter than one step of {self.dt:g} s"
+            )
         if self.warmup is not None and not (0 <= self.warmup < self.duration):
             raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}")
 
@@ -223,6 +227,8 @@ class PatrolResult:
     dvt: F64
     #: The cells the metric watches (the free cells).
     watched: npt.NDArray[np.bool_]
+    #: Share of the watched cells no robot ever saw.
+    unseen: float = 0.0
 
     def dvt_per_robot(self) -> F64:
         """Share of the run each robot spent escaping dead ends, in %."""
@@ -230,7 +236,6 @@ class PatrolResult:
 
     def summary(self) -> dict[str, Any]:
         after = self.t > self.config.warmup_s
-        end = float(self.t[-1]) if len(self.t) else 0.0
         return {
             "mean_mtb": float(self.mtb[after].mean()) if after.any() else math.nan,
             "mean_mtb_all_steps": float(self.mtb.mean()),
@@ -242,9 +247,7 @@ class PatrolResult:
             "blocked_share": float(self.blocked_steps.sum() / (len(self.t) * len(self.positions))),
             # Places no robot has seen yet: while any is left, MTB(t) is the time itself
             # and the mean MTB says only that the run was too short.
-            "never_seen": float(
-                np.mean(self.final_tb[self.watched] >= self.config.start_fog + end - 1e-9)
-            ),
+            "never_seen": self.unseen,
             "steps": len(self.t),
             "sim_seconds": float(self.t[-1]) if len(self.t) else 0.0,
             "wall_seconds": round(self.wall_seconds, 3),
@@ -561,7 +564,11 @@ def run_patrol(
                     need = config.force.pull_limit(best, n_watched - len(rr))
                     # Next step the robot is at most a step away: start from there.
                     guess[i] = need + 2 * config.speed * config.dt
-                    exhausted = limit is None or not len(lengths) or lengths.max() < limit - 2
+                    exhausted = (
+                        limit is None
+                        or not len(lengths)
+                        or lengths.max() < limit - 2 * g.resolution
+                    )
                     if need <= (limit if limit is not None else math.inf) or exhausted:
                         break
                     limit = need if math.isfinite(need) else None
@@ -671,4 +678,5 @@ def run_patrol(
         escapes,
         dvt,
         watched,
+        float(np.mean(fog.last[watched] == -config.start_fog)),
     )
