@@ -9,8 +9,8 @@ direction choice, one core. For each cell size (``--cells``, default the thesis'
 - ``x real time``: simulated seconds per wall-clock second over ``--duration`` (1200 s)
   simulated seconds (the target is 20: one simulated hour in 3 minutes);
 - ``same as whole-map waves``: the first ``--check`` (120) seconds run again with every
-  wave over the whole map (``prune=False``); the MTB, DVT and positions of every step
-  must be identical;
+  wave over the whole map (``prune=False``); the MTB and DVT of every step and the
+  final positions must be identical;
 - mean MTB, DVT and the share never seen, so the two cell sizes can be compared.
 
 Run with ``python -m benchmarks.patrol [--cells 0.1 0.5] [--duration 1200] [--json F]``.

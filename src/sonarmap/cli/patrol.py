@@ -312,6 +312,7 @@ def run_cmd(
         summary: dict[str, Any] = {
             **res.summary(),
             "map": str(map_),
+            "cell_m": territory.grid.resolution,  # the cell used (whole map pixels)
             "seed": seed,
             "params": config.as_dict(),
         }

@@ -404,7 +404,8 @@ def _back(
     resolution: float,
 ) -> npt.NDArray[np.int64]:
     rows, cols = dist.shape
-    out = np.empty((rows * cols, 2), dtype=np.int64)
+    # Every step is at least one cell long: the path has at most L / cell + 1 cells.
+    out = np.empty((int(dist[r, c] / resolution) + 2, 2), dtype=np.int64)
     n = 0
     out[n, 0] = r
     out[n, 1] = c
