@@ -690,6 +690,7 @@ def _bad_input_files(tmp: Path) -> None:
         (["--map", "plan.yaml", "--robots", "1", "--r-obst", "0"], "r_obst must be > 0"),
         (["--map", "plan.yaml", "--robots", "1", "--model", "tank"], "unknown robot model"),
         (["--map", "plan.yaml", "--robots", "1", "--duration", "0.2"], "shorter than one step"),
+        (["--map", "plan.yaml", "--robots", "1", "--seed", "-1"], "seed must be >= 0"),
         (["--map", "plan.yaml", "--starts", "overlap.txt", "--robots", "0"], "robots must be >= 1"),
         (["--map", "plan.yaml", "--robots", "1", "--motion", "path", "--model", "car"], "motion"),
         (["--map", "plan.yaml", "--robots", "1", "--speed-bands", "2:3,1:6"], "speed rule"),

@@ -415,6 +415,8 @@ def run_patrol(
         The semaphores' cells (:func:`~sonarmap.patrol.semaphores.read_semaphores`);
         needed by ``crowding="semaphores"``.
     """
+    if seed < 0:
+        raise ConfigError(f"seed must be >= 0, got {seed}")
     if config.crowding == "semaphores" and not semaphores:
         raise ConfigError("crowding 'semaphores' needs a semaphore file (--semaphores)")
     sems = Semaphores(semaphores or [])
