@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy.stats import spearmanr
 
 from ..errors import ConfigError
 from ..io._atomic import atomic_folder, atomic_write_text
@@ -197,6 +198,11 @@ def _plans() -> dict[str, Plan]:
         for g in FORCE_G
     }
     extra = {k: {"f": k[:2], "g": k[2:4], "direction": k.split()[1]} for k in pairs}
+    networks = {
+        f"{n} {d}": {"network": n, "direction": d}
+        for n in ("full", "limited", "none")
+        for d in ("mode", "vector")
+    }
     return {
         "forces": Plan(
             "forces",
@@ -294,18 +300,11 @@ def _plans() -> dict[str, Plan]:
             "Tables 5-6: full, limited (70 m, line of sight) and no network, mode and "
             "vector sum, refinement on, on the fig. 3.2 and fig. 3.4 maps.",
             {**HOLO, "refine": True},
-            {
-                f"{n} {d}": {"network": n, "direction": d}
-                for n in ("full", "limited", "none")
-                for d in ("mode", "vector")
-            },
+            networks,
             ["fig3-2", "fig3-4"],
             [2, 3, 4],
-            {
-                f"{n} {d}": {"network": n, "direction": d}
-                for n in ("full", "limited", "none")
-                for d in ("mode", "vector")
-            },
+            # The network and direction are columns of the table too.
+            networks,
         ),
         "baselines": Plan(
             "baselines",
@@ -352,9 +351,7 @@ def _value(t: pd.DataFrame, col: str = "mean_mtb", **where: Any) -> float:
 def _forces(t: pd.DataFrame, report: Report) -> list[dict[str, Any]]:
     claims = []
     for direction, thesis in (("vector", THESIS_TABLE_2), ("mode", THESIS_TABLE_3)):
-        ours = np.array(
-            [[_value(t, variant=f"{f}{g} {direction}") for g in FORCE_G] for f in FORCE_F]
-        )
+        ours = _force_grid(t, direction)
         rows = []
         for i, f in enumerate(FORCE_F):
             row: dict[str, Any] = {"f": f}
@@ -396,9 +393,13 @@ def _spearman(a: np.ndarray, b: np.ndarray) -> float:
     ok = np.isfinite(a) & np.isfinite(b)
     if ok.sum() < 3:
         return math.nan
-    ra = pd.Series(a[ok]).rank().to_numpy()
-    rb = pd.Series(b[ok]).rank().to_numpy()
-    return float(np.corrcoef(ra, rb)[0, 1])
+    return float(spearmanr(a[ok], b[ok]).statistic)
+
+
+def _force_grid(t: pd.DataFrame, direction: str) -> np.ndarray:
+    """Mean MTB of every force pair for one direction method, rows f1..f5, columns
+    g1..g5 (the layout of Tables 2-3)."""
+    return np.array([[_value(t, variant=f"{f}{g} {direction}") for g in FORCE_G] for f in FORCE_F])
 
 
 def _decreasing(values: Iterable[float]) -> bool:
@@ -713,10 +714,7 @@ def _figures(name: str, table: pd.DataFrame, folder: Path, report: Report) -> No
     if name == "forces":
         grids = {}
         for direction, thesis in (("vector", THESIS_TABLE_2), ("mode", THESIS_TABLE_3)):
-            ours = np.array(
-                [[_value(table, variant=f"{f}{g} {direction}") for g in FORCE_G] for f in FORCE_F]
-            )
-            grids[f"{direction}, ours"] = ours
+            grids[f"{direction}, ours"] = _force_grid(table, direction)
             grids[f"{direction}, thesis"] = np.array(thesis)
         png = save_force_tables(grids, list(FORCE_F), list(FORCE_G), folder / "forces.png")
         report.figure(png, "Mean MTB of every force pair, ours beside the thesis's (log scale).")

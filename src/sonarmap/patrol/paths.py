@@ -45,7 +45,7 @@ import numba as nb
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["STEPS", "TIE", "Wave", "path_to", "straight_paths", "wave"]
+__all__ = ["STEPS", "TIE", "Wave", "nearest_step", "path_to", "straight_paths", "wave"]
 
 #: The 8 steps as (row, column) offsets, counter-clockwise from east (+x); rows grow
 #: downwards, so north (+y) is row - 1.
@@ -58,6 +58,12 @@ STEP_UNITS = np.array(
 )
 #: Two path lengths closer than this (in cells) are equal: see the module's notes.
 TIE = 1e-6
+
+
+def nearest_step(dx: float, dy: float) -> int:
+    """Index into :data:`STEPS` of the step nearest the world direction (dx, dy)."""
+    return round(math.atan2(dy, dx) / (math.pi / 4)) % 8
+
 
 # Cell code of the wave's padded map for a cell neither passable (2) nor target (1).
 _CLOSED = 0

@@ -24,7 +24,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
-from .paths import STEPS
+from .paths import STEPS, nearest_step
 from .territory import segment_clear
 
 __all__ = [
@@ -166,8 +166,7 @@ def _towards_next_cell(
     """The unit vector from (x, y) to the centre of the neighbouring cell, of the 8,
     that lies in direction (dx, dy)."""
     r, c = grid.world_to_cell(x, y)
-    k = round(math.atan2(dy, dx) / (math.pi / 4)) % 8
-    dr, dc = (int(v) for v in STEPS[k])
+    dr, dc = (int(v) for v in STEPS[nearest_step(dx, dy)])
     cx, cy = grid.cell_centres(np.array([int(r) + dr]), np.array([int(c) + dc]))
     vx, vy = float(cx[0]) - x, float(cy[0]) - y
     n = math.hypot(vx, vy)

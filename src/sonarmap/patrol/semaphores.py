@@ -79,21 +79,23 @@ class Semaphores:
             kept = self.owners[k] & inside
             self.owners[k] = kept if kept else inside
 
-    def closed_cells(self, robot: int, heard: npt.NDArray[np.bool_]) -> npt.NDArray[np.intp]:
-        """As :meth:`closed_for`, as (row, column) pairs (K, 2)."""
-        parts = [
-            self.cells[k]
+    def _closed(self, robot: int, heard: npt.NDArray[np.bool_]) -> list[int]:
+        """The active semaphores ``robot`` does not own whose owners it hears of."""
+        return [
+            k
             for k, owners in enumerate(self.owners)
             if owners and robot not in owners and any(heard[j] for j in owners)
         ]
+
+    def closed_cells(self, robot: int, heard: npt.NDArray[np.bool_]) -> npt.NDArray[np.intp]:
+        """As :meth:`closed_for`, as (row, column) pairs (K, 2)."""
+        parts = [self.cells[k] for k in self._closed(robot, heard)]
         return np.concatenate(parts) if parts else np.empty((0, 2), dtype=np.intp)
 
     def closed_for(self, robot: int, heard: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_] | None:
         """Cells closed on ``robot``'s path-finding map: the active semaphores it does not
         own whose owners it hears of (None when there are none)."""
-        out: npt.NDArray[np.bool_] | None = None
-        for k, area in enumerate(self.areas):
-            owners = self.owners[k]
-            if owners and robot not in owners and any(heard[j] for j in owners):
-                out = area.copy() if out is None else (out | area)
-        return out
+        closed = self._closed(robot, heard)
+        if not closed:
+            return None
+        return np.asarray(np.logical_or.reduce([self.areas[k] for k in closed]), dtype=bool)

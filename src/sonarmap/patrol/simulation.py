@@ -38,7 +38,7 @@ from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force
 from .marching import Marching
 from .network import NETWORKS, components
-from .paths import STEP_UNITS, Wave, path_to, straight_paths
+from .paths import STEP_UNITS, Wave, nearest_step, path_to, straight_paths
 from .policies import POLICIES, choose, normalised
 from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .regions import Regions
@@ -367,7 +367,7 @@ def _path_goal(
     among the places its chosen direction leads to (path motion)."""
     if direction is None or not len(lp):
         return None
-    k = round(math.atan2(direction[1], direction[0]) / (math.pi / 4)) % 8
+    k = nearest_step(*direction)
     mine = np.flatnonzero(step == k)
     if not len(mine):
         return None

@@ -65,7 +65,8 @@ class Territory:
         (a whole number of map cells; a coarse cell is free when most of its map cells
         are and none is occupied, so thin walls survive). A map with no free cell is an
         InputError."""
-        free = m.classes() == FREE
+        classes = m.classes()
+        free = classes == FREE
         grid = m.grid
         if cell is not None:
             if not (np.isfinite(cell) and cell > 0):
@@ -74,7 +75,6 @@ class Territory:
             if k > 1:
                 rows = -(-free.shape[0] // k)
                 cols = -(-free.shape[1] // k)
-                classes = m.classes()
                 padded = np.zeros((rows * k, cols * k))
                 padded[: free.shape[0], : free.shape[1]] = free
                 share = padded.reshape(rows, k, cols, k).mean(axis=(1, 3))
