@@ -33,7 +33,8 @@ from sonarmap.patrol import (
 )
 from sonarmap.patrol.experiments import run_experiment
 from sonarmap.patrol.fog import dilate, disc_offsets
-from sonarmap.patrol.paths import STEP_UNITS, STEPS
+from sonarmap.patrol.forces import sector_pulls, step_direction
+from sonarmap.patrol.paths import STEP_UNITS, STEPS, Wave
 from sonarmap.patrol.robots import SPEED_BANDS, Car, arc, band_speed, parse_speed_bands
 
 
@@ -730,13 +731,21 @@ def test_pruned_waves_change_nothing() -> None:
     from sonarmap.patrol.maps import builtin_territory
     from sonarmap.patrol.simulation import starts_from_dm
 
-    t, starts = builtin_territory("fig3-4", 1.0)
-    for extra in ({}, {"model": "car", "refine": True, "crowding": "obstacles", "dilation": 1}):
+    cars = {"model": "car", "refine": True, "crowding": "obstacles"}
+    for name, cell, seconds, n, extra in (
+        ("fig3-4", 1.0, 150.0, 3, {}),
+        ("fig3-4", 1.0, 150.0, 3, {**cars, "dilation": 1}),
+        ("fig3-4", 1.0, 150.0, 3, {"direction": "vector", "weaken": True}),
+        # The benchmark's setting, long enough for two steps to tie (at 312 s) after
+        # the mode's certified cut had once stopped a wave short.
+        ("fig3-10", 0.5, 400.0, 5, cars),
+    ):
+        t, starts = builtin_territory(name, cell)
         runs = [
             run_patrol(
                 t,
-                PatrolConfig(duration=150.0, cell=1.0, prune=prune, **extra),  # type: ignore[arg-type]
-                starts=starts_from_dm(starts[:3], t),
+                PatrolConfig(duration=seconds, cell=cell, prune=prune, **extra),  # type: ignore[arg-type]
+                starts=starts_from_dm(starts[:n], t),
             )
             for prune in (True, False)
         ]
@@ -787,3 +796,53 @@ def test_path_motion_keeps_to_paths_and_to_the_speed() -> None:
         PatrolConfig(motion="path", policy="reactive")
     with pytest.raises(ConfigError, match="motion 'path'"):
         PatrolConfig(motion="path", refine=True)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_pulls_summed_with_the_wave_match_the_whole_map(seed: int) -> None:
+    """The one-pass pulls (sector_pulls) against pulls over every place worked out
+    apart: the sums cut at Force.pull_limit agree to float64 precision, and the cut
+    that only certifies the mode's choice chooses as the whole map does, ties included
+    (an even fog on an open field pulls two or four steps alike)."""
+    rng = np.random.default_rng(seed)
+    rows, cols, res = 121, 141, 0.25
+    free = rng.random((rows, cols)) > 0.08 if seed % 3 else np.ones((rows, cols), dtype=bool)
+    passable = ndimage.binary_erosion(free, iterations=1) if seed % 3 else free.copy()
+    start = (60, 70)
+    passable[start] = free[start] = True
+    # Seeds 0 and 3: an even fog (ties); the others a fog of random ages with an old patch.
+    last = -np.full((rows, cols), 100.0) if seed % 3 == 0 else -rng.uniform(0, 50, (rows, cols))
+    last[rng.integers(0, rows), :] -= 100.0 * (seed % 3)
+    now, top = 0.0, float((-last[free]).max())
+    force = Force("f3", "g4", 40.0, 65.0) if seed < 4 else Force("f2", "g2", 40.0, 65.0)
+    whole = Wave(free.shape)
+    dist, first = whole(passable, start, res, free)
+    rr, cc = np.nonzero(free & (first >= 0))
+    lp = force.log_pull((now - last[rr, cc]) / top, dist[rr, cc])
+    w = np.exp(lp - lp.max())
+    sums = np.bincount(first[rr, cc].astype(np.int64), weights=w, minlength=8).astype(float)
+    weights = rng.uniform(0.5, 1.0, 8) if seed % 2 else None
+    expected = step_direction(sums, "mode", weights)
+
+    waver = Wave(free.shape)
+    kw = {"last_seen": last, "now": now}
+    cut = sector_pulls(waver, passable, start, res, free, force, top, **kw)  # type: ignore[arg-type]
+    np.testing.assert_allclose(cut, sums, rtol=1e-12, atol=1e-300)
+    chosen = sector_pulls(
+        waver,
+        passable,
+        start,
+        res,
+        free,
+        force,
+        top,
+        certify=True,
+        weights=weights,
+        **kw,  # type: ignore[arg-type]
+    )
+    assert step_direction(chosen, "mode", weights) == expected
+    assert np.isfinite(waver.dist).sum() <= np.isfinite(dist).sum()
+    if seed == 0:
+        assert expected == pytest.approx((1.0, 0.0))  # four steps tie: the first wins
+    with pytest.raises(ValueError, match="either"):
+        sector_pulls(waver, passable, start, res, free, force, top)

@@ -8,6 +8,7 @@ import heapq
 import math
 from collections.abc import Iterator
 
+import numba as nb
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -159,3 +160,47 @@ def test_comb_of_corridors() -> None:
     ref_d, ref_f = _reference(passable, (0, 40))
     np.testing.assert_allclose(dist, ref_d, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(first, ref_f)
+
+
+@nb.njit
+def _scheduled_visit(
+    order: npt.NDArray[np.int32],
+    lo: int,
+    hi: int,
+    dist: npt.NDArray[np.float64],
+    first: npt.NDArray[np.uint8],
+    width: int,
+    ctx: tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], npt.NDArray[np.int64]],
+) -> float:
+    """Counts every cell it is shown and answers the next length of a schedule."""
+    schedule, calls, shown = ctx
+    for i in range(lo, hi):
+        shown[order[i]] += 1
+    told = float(schedule[min(calls[0], len(schedule) - 1)])
+    calls[0] += 1
+    return told
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_a_visitor_sees_each_cell_once_and_its_limit_may_rise_and_fall(seed: int) -> None:
+    """Whatever lengths a visitor answers, and in whatever order, the wave shows it every
+    cell it takes exactly once, with the full wave's length and first step, and takes
+    every cell no farther than the visitor's last answer."""
+    rng = np.random.default_rng(seed)
+    passable, free = _maps(seed)
+    target = free if seed % 2 else None
+    full_d, full_f = wave(passable, (15, 20), 0.1, target)
+    schedule = rng.uniform(0.0, 2.5, size=40)
+    calls = np.zeros(1, dtype=np.int64)
+    w = Wave(passable.shape)
+    shown = np.zeros(w._dist.size, dtype=np.int64)
+    d, f = w(passable, (15, 20), 0.1, target, visit=(_scheduled_visit, (schedule, calls, shown)))
+    told = schedule[min(int(calls[0]), len(schedule)) - 1]
+    reached = np.isfinite(d)
+    np.testing.assert_array_equal(d[reached], full_d[reached])
+    np.testing.assert_array_equal(f[reached], full_f[reached])
+    assert reached[full_d <= told].all()
+    assert reached.sum() < np.isfinite(full_d).sum()  # the schedule did stop it early
+    counts = w._inner(shown)
+    assert set(np.unique(counts[reached]).tolist()) == {1}
+    assert not counts[~reached].any()

@@ -15,35 +15,64 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numba as nb
 import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError
+from .paths import STEP_UNITS, Wave
 
-__all__ = ["FORCE_F", "FORCE_G", "Force", "choose_direction", "parse_force"]
+__all__ = [
+    "FORCE_F",
+    "FORCE_G",
+    "Force",
+    "choose_direction",
+    "parse_force",
+    "sector_pulls",
+    "step_direction",
+]
 
 F64 = npt.NDArray[np.float64]
 
-#: log f(TB_n) for f1..f5 (a the exponent's scale).
-FORCE_F: dict[str, Callable[[F64, float], F64]] = {
-    "f1": lambda t, a: np.log(t),
-    "f2": lambda t, a: 2.0 * np.log(t),
-    "f3": lambda t, a: a * t,
-    "f4": lambda t, a: a * t**2,
-    "f5": lambda t, a: a * t**4,
-}
-#: log g(L) for g1..g5, L in decimetres (b the length scale, decimetres).
-FORCE_G: dict[str, Callable[[F64, float], F64]] = {
-    "g1": lambda length, b: -np.log(length),
-    "g2": lambda length, b: -2.0 * np.log(length),
-    "g3": lambda length, b: -length / b,
-    "g4": lambda length, b: -((length / b) ** 2),
-    "g5": lambda length, b: -((length / b) ** 4),
-}
+#: The families of f (of TB_n, scale a) and g (of L in decimetres, scale b).
+FORCE_F = ("f1", "f2", "f3", "f4", "f5")
+FORCE_G = ("g1", "g2", "g3", "g4", "g5")
+
+
+@nb.njit(cache=True)
+def _log_f(code: int, t: float, a: float) -> float:
+    """log f_code(TB_n = t); -inf where f is 0."""
+    if code <= 2:
+        return code * math.log(t) if t > 0 else -np.inf
+    if code == 3:
+        return a * t
+    t2 = t * t
+    return a * t2 if code == 4 else a * (t2 * t2)
+
+
+@nb.njit(cache=True)
+def _log_g(code: int, dm: float, b: float) -> float:
+    """log g_code(L = dm decimetres)."""
+    if code <= 2:
+        return -code * math.log(dm)
+    x = dm / b
+    if code == 3:
+        return -x
+    x2 = x * x
+    return -x2 if code == 4 else -(x2 * x2)
+
+
+@nb.njit(cache=True)
+def _log_pull_array(fcode: int, gcode: int, a: float, b: float, tb_n: F64, length_m: F64) -> F64:
+    out = np.empty(tb_n.shape[0])
+    for i in range(tb_n.shape[0]):
+        dm = length_m[i] * 10.0
+        v = _log_f(fcode, tb_n[i], a) + _log_g(gcode, dm, b) if dm > 0 else -np.inf
+        out[i] = v if v == v else -np.inf
+    return out
 
 
 #: log of the share of the strongest pull below which the pulls of far places are
@@ -51,6 +80,106 @@ FORCE_G: dict[str, Callable[[F64, float], F64]] = {
 NEGLIGIBLE = -41.5
 #: Relative difference below which two sectors' pulls count as equal.
 TIE = 1e-9
+
+
+@nb.njit(cache=True)
+def _pull_limit(
+    fcode: int,
+    gcode: int,
+    a: float,
+    b: float,
+    best: float,
+    count: float,
+    share: float = NEGLIGIBLE,
+) -> float:
+    """See :meth:`Force.pull_limit`; ``share`` the log of the remaining places' allowed
+    total pull relative to ``best``."""
+    if not (best > -np.inf and best < np.inf):
+        return np.inf
+    f_max = _log_f(fcode, 1.0, a)
+    x = best - f_max - math.log(max(count, 1.0)) + share  # we need log g(L) < x
+    if gcode <= 2:
+        dm = math.exp(min(-x / gcode, 700.0))
+    elif x >= 0:
+        dm = 0.0
+    elif gcode == 3:
+        dm = b * -x
+    elif gcode == 4:
+        dm = b * math.sqrt(-x)
+    else:
+        dm = b * math.sqrt(math.sqrt(-x))
+    return dm / 10.0
+
+
+#: What :func:`sector_pulls` gathers: [0] the strongest log pull so far, [1:9] each
+#: wave step's summed pull relative to it, [9] the watched cells taken.
+_BEST, _SUMS, _TAKEN = 0, 1, 9
+#: The visitor's numbers: TB = [0] + [1] x source, f and g codes, a, b, MTB, watched
+#: cells, prune (0/1), certify the mode's choice (0/1), the 8 steps' weights.
+_ALPHA, _BETA, _F, _G, _A, _B, _TOP, _COUNT, _PRUNE, _CERTIFY, _WEIGHTS = range(11)
+
+
+@nb.njit(cache=True)
+def _pull_visit(
+    order: npt.NDArray[np.int32],
+    lo: int,
+    hi: int,
+    dist: F64,
+    first: npt.NDArray[np.uint8],
+    width: int,
+    ctx: Any,
+) -> float:
+    """The wave's visitor summing pulls by first step (see :func:`sector_pulls`)."""
+    tb_src, watched, p, acc = ctx
+    alpha, beta, top = p[_ALPHA], p[_BETA], p[_TOP]
+    fcode, gcode, a, b = int(p[_F]), int(p[_G]), p[_A], p[_B]
+    inv_top = 1.0 / top if top > 0 else 0.0
+    best = acc[_BEST]
+    taken = acc[_TAKEN]
+    sums = acc[_SUMS : _SUMS + 8].copy()
+    inv_width = 1.0 / width
+    for i in range(lo, hi):
+        u = order[i]
+        step = first[u]
+        if step > 7:
+            continue  # the start
+        # Row by a float product, as in the wave (exact for these sizes).
+        r = int((u + 0.5) * inv_width)
+        c = u - r * width - 1
+        r -= 1
+        if not watched[r, c]:
+            continue
+        taken += 1.0
+        t = alpha + beta * tb_src[r, c]
+        lp = _log_f(fcode, t * inv_top, a) + _log_g(gcode, dist[u] * 10.0, b)
+        if not lp > -np.inf:
+            continue
+        if lp > best:
+            # A new strongest pull: every sum so far relative to it instead.
+            if best > -np.inf:
+                scale = math.exp(best - lp)
+                for j in range(8):
+                    sums[j] *= scale
+            best = lp
+        sums[step] += math.exp(lp - best)
+    acc[_BEST] = best
+    acc[_TAKEN] = taken
+    acc[_SUMS : _SUMS + 8] = sums
+    if p[_PRUNE] == 0.0:
+        return np.inf
+    share = NEGLIGIBLE
+    if p[_CERTIFY] != 0.0:
+        # The mode's choice cannot change once the places left could not lift any other
+        # step's weighted sum to within TIE of the chosen one's, even all together (a
+        # weight is at most 1).
+        w = sums * p[_WEIGHTS : _WEIGHTS + 8]
+        k = int(np.argmax(w))
+        top_w = w[k] * (1.0 - TIE)
+        w[k] = -np.inf
+        gap = top_w - w.max()
+        if gap > 0.0:
+            share = max(share, math.log(gap))
+    return _pull_limit(fcode, gcode, a, b, best, p[_COUNT] - taken, share)
 
 
 @dataclass(frozen=True)
@@ -77,26 +206,19 @@ class Force:
         than e^-41.5 (about 1e-18) of the strongest pull found, ``best`` (log): the
         most a place can pull is f(1) g(L), so places farther than this cannot change
         a direction. ``inf`` when nothing pulls yet."""
-        if not math.isfinite(best):
-            return math.inf
-        f_max = float(FORCE_F[self.f](np.array([1.0]), self.a)[0])
-        x = best - f_max - math.log(max(count, 1)) + NEGLIGIBLE  # we need log g(L) < x
-        if self.g in ("g1", "g2"):
-            dm = math.exp(min(-x / (1.0 if self.g == "g1" else 2.0), 700.0))
-        elif x >= 0:
-            dm = 0.0
-        else:
-            dm = self.b * {"g3": -x, "g4": math.sqrt(-x), "g5": (-x) ** 0.25}[self.g]
-        return dm / 10.0
+        return float(_pull_limit(self.codes[0], self.codes[1], self.a, self.b, best, count))
+
+    @property
+    def codes(self) -> tuple[int, int]:
+        """The numbers of f and g (1..5)."""
+        return int(self.f[1]), int(self.g[1])
 
     def log_pull(self, tb_n: F64, length_m: F64) -> F64:
         """log F for normalised fog and path lengths in metres; -inf where there is no
         pull (TB_n = 0 under f1/f2, or the robot's own cell)."""
-        dm = length_m * 10.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out = FORCE_F[self.f](tb_n, self.a) + FORCE_G[self.g](dm, self.b)
-        out = np.where(dm > 0, out, -np.inf)
-        return np.where(np.isnan(out), -np.inf, out)
+        tb_n = np.ascontiguousarray(tb_n, dtype=np.float64)
+        length_m = np.ascontiguousarray(length_m, dtype=np.float64)
+        return _log_pull_array(*self.codes, self.a, self.b, tb_n, length_m)
 
 
 def parse_force(text: str, a: float = 40.0, b: float = 65.0) -> Force:
@@ -123,41 +245,118 @@ def choose_direction(
     strongest sector, in the direction of the forces' sum within it (with the wave's
     8 first steps and 8 sectors, exactly that step). ``weights`` (mode only) scale each
     sector's sum (direction weakening). ``steps``: the wave's first-step indices
-    (:data:`~sonarmap.patrol.paths.STEPS`) behind ``ux``, ``uy``, which name the sector
-    at once with 8 sectors.
+    (:data:`~sonarmap.patrol.paths.STEPS`) behind ``ux``, ``uy`` (which must then be
+    the steps' unit vectors): the pulls are summed per step at once
+    (:func:`step_direction`).
     """
+    if method not in ("mode", "vector"):
+        raise ConfigError(f"unknown direction method {method!r}; valid: mode, vector")
     ok = np.isfinite(log_pull)
     if not ok.any():
         return None
     lp = log_pull[ok]
     w = np.exp(lp - lp.max())
+    if steps is not None and (sectors == 8 or method == "vector"):
+        sums = np.bincount(steps[ok], weights=w, minlength=8).astype(np.float64)
+        return step_direction(sums, method, weights)
     x, y = ux[ok], uy[ok]
     if method == "vector":
         sx, sy = float(np.dot(w, x)), float(np.dot(w, y))
-    elif method == "mode":
-        if steps is not None and sectors == 8:
-            sector = steps[ok].astype(np.int64)  # the wave's step k lies in sector k
-        else:
-            angle = np.arctan2(y, x)
-            width = 2 * math.pi / sectors
-            sector = np.floor((angle + width / 2) / width).astype(np.int64) % sectors
-        strength = np.bincount(sector, weights=w, minlength=sectors).astype(np.float64)
-        if weights is not None:
-            strength = strength * np.asarray(weights, dtype=np.float64)
-        # Sectors within a relative TIE of the strongest are tied, and the first wins:
-        # on a symmetric map with an even fog, two sectors pull exactly alike and only
-        # rounding would otherwise choose (and choose differently as the sum's order
-        # changes).
-        best = int(np.flatnonzero(strength >= strength.max() * (1.0 - TIE))[0])
-        pick = sector == best
-        if steps is not None and sectors == 8:
-            # Every pull in a wave sector points along its step: go exactly that way.
-            k = int(np.flatnonzero(pick)[0])
-            return float(x[k]), float(y[k])
-        sx, sy = float(np.dot(w[pick], x[pick])), float(np.dot(w[pick], y[pick]))
     else:
-        raise ConfigError(f"unknown direction method {method!r}; valid: mode, vector")
+        angle = np.arctan2(y, x)
+        width = 2 * math.pi / sectors
+        sector = np.floor((angle + width / 2) / width).astype(np.int64) % sectors
+        sums = np.bincount(sector, weights=w, minlength=sectors).astype(np.float64)
+        strength = _weaken(sums, weights)
+        pick = sector == _strongest(strength)
+        sx, sy = float(np.dot(w[pick], x[pick])), float(np.dot(w[pick], y[pick]))
+    return _unit(sx, sy)
+
+
+def _weaken(strength: F64, weights: F64 | None) -> F64:
+    out = np.asarray(strength, dtype=np.float64)
+    return out if weights is None else out * np.asarray(weights, dtype=np.float64)
+
+
+def _strongest(strength: F64) -> int:
+    # Sectors within a relative TIE of the strongest are tied, and the first wins: on a
+    # symmetric map with an even fog, two sectors pull exactly alike and only rounding
+    # would otherwise choose (and choose differently as the sum's order changes).
+    return int(np.flatnonzero(strength >= strength.max() * (1.0 - TIE))[0])
+
+
+def _unit(sx: float, sy: float) -> tuple[float, float] | None:
     norm = math.hypot(sx, sy)
     if norm < 1e-12:
         return None
     return sx / norm, sy / norm
+
+
+def step_direction(
+    strength: F64, method: str = "mode", weights: F64 | None = None
+) -> tuple[float, float] | None:
+    """The direction from the pulls summed per wave step (``strength``, 8 values in the
+    order of :data:`~sonarmap.patrol.paths.STEPS`): ``mode`` goes exactly along the
+    strongest step (after ``weights``), ``vector`` along the sum of all; None when
+    nothing pulls."""
+    if not strength.max() > 0:
+        return None
+    if method == "mode":
+        k = _strongest(_weaken(strength, weights))
+        return float(STEP_UNITS[k, 0]), float(STEP_UNITS[k, 1])
+    return _unit(float(strength @ STEP_UNITS[:, 0]), float(strength @ STEP_UNITS[:, 1]))
+
+
+def sector_pulls(
+    waver: Wave,
+    passable: npt.NDArray[np.bool_],
+    start: tuple[int, int],
+    resolution: float,
+    watched: npt.NDArray[np.bool_],
+    force: Force,
+    top: float,
+    *,
+    tb: F64 | None = None,
+    last_seen: F64 | None = None,
+    now: float = 0.0,
+    closed: npt.NDArray[np.intp] | None = None,
+    prune: bool = True,
+    n_watched: int | None = None,
+    certify: bool = False,
+    weights: F64 | None = None,
+) -> F64:
+    """The pulls of the ``watched`` places on a robot at ``start``, summed per first
+    step of their waves' paths, in one pass with the wave.
+
+    The places' TB is ``tb`` or ``now - last_seen``, normalised by ``top`` (the robot's
+    MTB). With ``prune``, the wave stops at :meth:`Force.pull_limit` of the strongest
+    pull found so far and the places not yet taken: the sums are then those of the
+    whole map to float64 precision; with ``certify`` too, it stops as soon as the places
+    left could not change the ``mode`` choice of :func:`step_direction` (with
+    ``weights``): the choice is then that of the whole map, the sums not quite.
+    ``closed`` edits the map as in :class:`Wave`;
+    ``waver`` is left holding the wave. ``n_watched``: ``watched.sum()``, when known.
+
+    Returns
+    -------
+    ndarray (8,)
+        Summed pull per step, relative to the strongest single pull (all 0 when nothing
+        pulls), for :func:`step_direction`.
+    """
+    if (tb is None) == (last_seen is None):
+        raise ValueError("give either tb or last_seen")
+    alpha, beta, src = (0.0, 1.0, tb) if tb is not None else (now, -1.0, last_seen)
+    assert src is not None
+    count = int(watched.sum()) if n_watched is None else n_watched
+    w = np.ones(8) if weights is None else np.asarray(weights, dtype=np.float64)
+    if w.shape != (8,) or not (np.all(w >= 0) and np.all(w <= 1)):
+        raise ValueError("weights: 8 values in [0, 1]")
+    params = np.array(
+        [alpha, beta, *force.codes, force.a, force.b, top, count, prune, certify, *w],
+        dtype=np.float64,
+    )
+    acc = np.zeros(10)
+    acc[_BEST] = -np.inf
+    ctx = (np.ascontiguousarray(src, dtype=np.float64), watched, params, acc)
+    waver(passable, start, resolution, watched, None, closed, visit=(_pull_visit, ctx))
+    return acc[_SUMS : _SUMS + 8].copy()

@@ -40,12 +40,22 @@ through cells within), the others are left unreached.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba as nb
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["STEPS", "TIE", "Wave", "nearest_step", "path_to", "straight_paths", "wave"]
+__all__ = [
+    "STEPS",
+    "TIE",
+    "Wave",
+    "nearest_step",
+    "no_visit",
+    "path_to",
+    "straight_paths",
+    "wave",
+]
 
 #: The 8 steps as (row, column) offsets, counter-clockwise from east (+x); rows grow
 #: downwards, so north (+y) is row - 1.
@@ -104,12 +114,20 @@ def _dial(
     first: npt.NDArray[np.uint8],
     order: npt.NDArray[np.int32],
     ring: npt.NDArray[np.int32],
+    visit: Any,
+    ctx: Any,
 ) -> tuple[int, npt.NDArray[np.int32]]:
     """The wave on padded flat arrays (``dist`` all inf and ``first`` all 255 on entry).
 
     Fills ``dist`` (metres) and ``first`` for the cells within ``limit`` metres, lists
     them in ``order`` (in the order taken) and returns their count and the bucket ring
     (grown if it had to be). Cells beyond ``limit`` are left inf / 255.
+
+    After each bucket, ``visit(order, lo, hi, dist, first, width, ctx)`` (a jitted
+    function) sees the cells just taken, ``order[lo:hi]``, with their final lengths and
+    first steps, and returns a length (metres): the wave stops before the next bucket
+    if every cell left is farther than that. A visitor can so stop the wave as soon as
+    what it gathers shows that farther cells no longer matter.
 
     Until a cell is taken, ``first`` holds the set (bit mask) of the first steps of all
     shortest paths found to it so far; when it is taken the set is final (all its
@@ -145,7 +163,13 @@ def _dial(
     # Bucket of a length x metres: floor(x / resolution), nudged up by TIE so that a
     # whole number of cells rounded down a little still lands in its own bucket.
     last = limit * inv + 1.0
+    # The visitor's latest limit. It may rise as well as fall, so it stops the wave only
+    # between buckets, when every cell left is farther: a later, higher limit must not
+    # find cells dropped for an earlier, lower one.
+    told = np.inf
     while count[0] + count[1] + count[2] > 0 and k <= last:
+        if (k - TIE) * resolution > told:
+            break
         slot = k % 3
         size = count[slot]
         # Room in the ring for every cell of this bucket lowering all 8 neighbours.
@@ -154,6 +178,7 @@ def _dial(
             grown = np.empty((3, 2 * need), dtype=np.int32)
             grown[:, : ring.shape[1]] = ring
             ring = grown
+        lo = n
         for i in range(size):
             u = ring[slot, i]
             d = dist[u]
@@ -223,14 +248,32 @@ def _dial(
                             dist[v] = nd
         count[slot] = 0
         k += 1
-    # Stopped at the limit: clear what is left in the ring beyond it.
+        if n > lo:
+            told = visit(order, lo, n, dist, first, width, ctx)
+    # Stopped: clear what is left in the ring untaken (beyond the limit, or in bucket k
+    # or later; entries of cells since taken in an earlier bucket stay).
     for s in range(3):
         for i in range(count[s]):
             v = ring[s, i]
-            if dist[v] > limit:
+            d = dist[v]
+            if d < np.inf and (d > limit or int(d * inv + TIE) >= k):
                 dist[v] = np.inf
                 first[v] = 255
     return n, ring
+
+
+@nb.njit(cache=True)
+def no_visit(
+    order: npt.NDArray[np.int32],
+    lo: int,
+    hi: int,
+    dist: npt.NDArray[np.float64],
+    first: npt.NDArray[np.uint8],
+    width: int,
+    ctx: Any,
+) -> float:
+    """The plain wave's visitor: sees nothing, sets no limit."""
+    return np.inf
 
 
 @nb.njit(cache=True)
@@ -278,8 +321,14 @@ class Wave:
         target: npt.NDArray[np.bool_] | None = None,
         limit: float | None = None,
         closed: npt.NDArray[np.intp] | None = None,
+        visit: tuple[Any, Any] | None = None,
     ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int8]]:
         """As :func:`wave`, into this object's buffers.
+
+        ``visit`` (a jitted function and its context, see :func:`no_visit`) sees the
+        cells bucket by bucket as they are taken and may stop the wave early (e.g.
+        :func:`~sonarmap.patrol.forces.sector_pulls`). Cells are given as indices into
+        the padded grid, one cell wider on every side: row ``u // width - 1``.
 
         ``closed`` (row, column pairs, shape (K, 2)) edits the map for this call only:
         those cells are taken off ``passable`` (they stay targets), as if ``passable``
@@ -328,6 +377,7 @@ class Wave:
                 self._first.view(np.uint8),
                 self._order,
                 self._ring,
+                *(visit if visit is not None else (no_visit, ())),
             )
         finally:
             # Cells listed twice were saved already edited: restore in reverse order.

@@ -35,7 +35,7 @@ from ..errors import ConfigError, InputError
 from ..grid import Grid
 from .finders import PathFinder
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
-from .forces import Force
+from .forces import Force, sector_pulls, step_direction
 from .marching import Marching
 from .network import NETWORKS, components
 from .paths import STEP_UNITS, Wave, nearest_step, path_to, straight_paths
@@ -116,8 +116,9 @@ class PatrolConfig:
     #: coarse cell would close doors a small robot passes).
     cell: float = math.nan
     #: Stop each robot's wave where farther places can no longer change its choice
-    #: (:meth:`~sonarmap.patrol.forces.Force.pull_limit`); False runs every wave over
-    #: the whole map. The results are the same either way.
+    #: (:func:`~sonarmap.patrol.forces.sector_pulls`: their pulls together fall below
+    #: float64 precision, or, for the mode's choice, below the lead of the strongest
+    #: step); False runs every wave over the whole map. The runs are the same either way.
     prune: bool = True
 
     def __post_init__(self) -> None:
@@ -520,10 +521,13 @@ def run_patrol(
     waver = Wave(passable.shape)
     n_watched = int(watched.sum())
     watched_rc = np.nonzero(watched)
-    # Only the potential field's choice can be made from the places near the robot
-    # (see Force.pull_limit); the other policies weigh the whole map.
-    near_only = config.policy == "potential" and config.prune
-    guess = [config.force.pull_limit(0.0, n_watched)] * len(team)
+    # The potential field's pulls summed per wave step in one pass with the wave give
+    # its direction at once, unless the path motion or other sectors need every place.
+    direct = (
+        config.policy == "potential"
+        and config.motion == "straight"
+        and (config.sectors == 8 or config.direction == "vector")
+    )
 
     def tb_of(
         i: int, rr: npt.NDArray[np.intp], cc: npt.NDArray[np.intp], dilated: list[F64] | None
@@ -543,37 +547,59 @@ def run_patrol(
 
         for i in range(len(team)):
             top = tops[0 if shared else i]
-            lp: F64 | None = None
+            weights = (
+                sector_weakening(
+                    float(team.x[i]),
+                    float(team.y[i]),
+                    territory.free,
+                    g,
+                    config.sectors,
+                    config.weaken_r0,
+                )
+                if config.weaken
+                else None
+            )
             step: npt.NDArray[np.int8] | None = None
             if config.policy == "random":
                 tbv = lengths = ux = uy = np.empty(0)
             elif config.paths == "wave" or config.policy == "cycle":
                 start = (int(r[i]), int(c[i]))
                 closed = closed_cells(i, r, c)
-                limit = guess[i] if near_only and math.isfinite(guess[i]) else None
-                while True:
-                    waver(passable, start, g.resolution, watched, limit, closed)
-                    rr, cc = waver.reached()
-                    step = waver.first[rr, cc]
-                    keep = watched[rr, cc] & (step >= 0)
-                    rr, cc, step = rr[keep], cc[keep], step[keep]
-                    lengths = waver.dist[rr, cc]
-                    tbv = tb_of(i, rr, cc, dilated)
-                    if not near_only:
-                        break
-                    lp = config.force.log_pull(normalised(tbv, top), lengths)
-                    best = float(lp.max()) if len(lp) else -math.inf
-                    need = config.force.pull_limit(best, n_watched - len(rr))
-                    # Next step the robot is at most a step away: start from there.
-                    guess[i] = need + 2 * config.speed * config.dt
-                    exhausted = (
-                        limit is None
-                        or not len(lengths)
-                        or lengths.max() < limit - 2 * g.resolution
+                if config.policy == "potential":
+                    # Only the places near the robot can change its choice (see
+                    # Force.pull_limit): the wave stops there unless told not to.
+                    j = 0 if shared else i
+                    strength = sector_pulls(
+                        waver,
+                        passable,
+                        start,
+                        g.resolution,
+                        watched,
+                        config.force,
+                        top,
+                        closed=closed,
+                        prune=config.prune,
+                        n_watched=n_watched,
+                        certify=direct and config.direction == "mode",
+                        weights=weights,
+                        **(
+                            {"tb": dilated[j]}
+                            if dilated is not None
+                            else {"last_seen": own[j].last, "now": own[j].t}
+                        ),
                     )
-                    if need <= (limit if limit is not None else math.inf) or exhausted:
-                        break
-                    limit = need if math.isfinite(need) else None
+                    if direct:
+                        directions.append(step_direction(strength, config.direction, weights))
+                        goals.append(None)
+                        continue
+                else:
+                    waver(passable, start, g.resolution, watched, None, closed)
+                rr, cc = waver.reached()
+                step = waver.first[rr, cc]
+                keep = watched[rr, cc] & (step >= 0)
+                rr, cc, step = rr[keep], cc[keep], step[keep]
+                lengths = waver.dist[rr, cc]
+                tbv = tb_of(i, rr, cc, dilated)
                 ux = STEP_UNITS[step, 0]
                 uy = STEP_UNITS[step, 1]
             elif config.paths == "straight":
@@ -602,18 +628,8 @@ def run_patrol(
                     heading=float(team.heading[i]),
                     blocked=bool(team.blocked[i]),
                     rng=rng,
-                    weights=sector_weakening(
-                        float(team.x[i]),
-                        float(team.y[i]),
-                        territory.free,
-                        g,
-                        config.sectors,
-                        config.weaken_r0,
-                    )
-                    if config.weaken
-                    else None,
+                    weights=weights,
                     top=top,
-                    log_pull=lp,
                     steps=step,
                 )
             )
@@ -625,7 +641,7 @@ def run_patrol(
                     rr,
                     cc,
                     step,
-                    lp if lp is not None else config.force.log_pull(normalised(tbv, top), lengths),
+                    config.force.log_pull(normalised(tbv, top), lengths),
                     waver,
                     g,
                     passable,
