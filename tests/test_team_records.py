@@ -29,9 +29,9 @@ from sonarmap.team.records import (
 def _pose(n: int = 20, seed: int = 0) -> Pose:
     rng = np.random.default_rng(seed)
     lm = Landmarks(
-        rng.normal(size=(n, 3)),
-        rng.integers(0, 256, (n, 128)),
-        rng.uniform(0, 1, n),
+        rng.normal(size=(n, 3)).astype(np.float32),
+        rng.integers(0, 256, (n, 128)).astype(np.uint8),
+        rng.uniform(0, 1, n).astype(np.float32),
         rng.uniform(0, 100, n),
         np.arange(n),
     )
