@@ -111,3 +111,13 @@ def test_garbage_is_rejected() -> None:
     for data in (b"", b"\xc1", b"\x92\x01\x02", msgpack.packb([1, 2])):
         with pytest.raises(RecordError):
             decode(data)
+
+
+def test_an_empty_landmark_set_keeps_its_descriptor_length() -> None:
+    e = Landmarks.empty(64)
+    assert e.descriptors.shape == (0, 64)
+    assert e.take(np.zeros(0, dtype=bool)).descriptors.shape == (0, 64)
+    p = _pose()
+    q = decode(encode(p.with_landmarks(p.landmarks.take(np.zeros(20, dtype=bool)))))
+    assert isinstance(q, Pose)
+    assert q.landmarks.descriptors.shape == (0, 128)

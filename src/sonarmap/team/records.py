@@ -118,7 +118,10 @@ class Landmarks:
     def __post_init__(self) -> None:
         self.points = np.asarray(self.points, dtype=np.float32).reshape(-1, 3)
         n = len(self.points)
-        self.descriptors = np.asarray(self.descriptors, dtype=np.uint8).reshape(n, -1)
+        desc = np.asarray(self.descriptors, dtype=np.uint8)
+        # reshape(0, -1) is ambiguous: an empty set keeps its descriptor length.
+        dim = desc.shape[-1] if desc.ndim == 2 else (desc.size // n if n else 128)
+        self.descriptors = desc.reshape(n, dim)
         self.reliability = np.asarray(self.reliability, dtype=np.float32).reshape(n)
         self.stamp = np.asarray(self.stamp, dtype=np.float64).reshape(n)
         self.ids = np.asarray(self.ids, dtype=np.int64).reshape(n)
