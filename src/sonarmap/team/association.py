@@ -681,8 +681,12 @@ def associate(
         stats.accepted += 1
         stats.inlier_matches += len(best.inliers)
         order = best.inliers[np.argsort(m.new[best.inliers], kind="stable")]
-        cov = _covariance(m, best, good, params)
         x, y, t = (float(v) for v in best.transform)
+        # Estimated with x, y in a's frame; records keep covariances in the frame of
+        # the relative pose's end, b (gtsam's Pose2 tangent space): rotate by R(-t).
+        c, s = math.cos(t), math.sin(t)
+        turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        cov = turn @ _covariance(m, best, good, params) @ turn.T
         closures.append(
             ClosureEdge(
                 a=cand.uid,

@@ -11,6 +11,8 @@ Conventions (shared by every module of :mod:`sonarmap.team`):
   y to the left, z up; landmarks are 3-D points in that frame.
 - A pose UID is ``robot << 40 | counter`` (:func:`make_uid`): unique in the team with
   no coordination, and the robot that made a pose is read back from its UID.
+- A covariance of a transform (3 x 3 over x, y, theta) is expressed in the frame of
+  the transform's end (pose B's frame): the tangent space gtsam's ``Pose2`` uses.
 - A local occupancy map is stored as int8 log-odds (scaled by :data:`LOGODDS_SCALE`),
   0 unknown, on a square grid centred on the pose's origin, in the pose's frame.
 
