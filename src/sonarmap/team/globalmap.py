@@ -616,6 +616,26 @@ def _correlate_all(
     return out
 
 
+def _weigh(
+    m: tuple[float, F64, int, int],
+    grid: Grid,
+    centroid: F64,
+    guess: tuple[float, float, float],
+    sigma: tuple[float, float],
+) -> tuple[float, F64, int, int]:
+    """One heading's correlation map times the Gaussian belief in the guess."""
+    theta, corr, roff, coff = m
+    expected = _rot(guess[2]) @ centroid + np.asarray(guess[:2], dtype=np.float64)
+    x, _ = grid.cell_centres(0, np.arange(corr.shape[1]) - coff)
+    _, y = grid.cell_centres(np.arange(corr.shape[0]) - roff, 0)
+    turn = math.remainder(theta - guess[2], 2 * math.pi)
+    w = np.exp(
+        -((y[:, None] - expected[1]) ** 2 + (x[None, :] - expected[0]) ** 2) / (2 * sigma[0] ** 2)
+        - turn**2 / (2 * sigma[1] ** 2)
+    )
+    return theta, corr * w, roff, coff
+
+
 def _peaks(
     maps: list[tuple[float, F64, int, int]],
     grid: Grid,
@@ -704,6 +724,8 @@ def align_to_prior(
     shrink: float = 0.6,
     max_points: int = 4000,
     seed: int = 0,
+    guess: tuple[float, float, float] | None = None,
+    guess_sigma: tuple[float, float] = (3.0, math.radians(30.0)),
 ) -> Alignment:
     """Align the built map (robot's global frame) to the prior map.
 
@@ -746,6 +768,13 @@ def align_to_prior(
         most this many.
     seed : int
         Of the particle filter's random generator.
+    guess : (x, y, theta), optional
+        What the robot believes the transform is (e.g. from a roughly known start).
+        Each heading's correlation is then weighed by a Gaussian of the centroid's
+        landing point and the heading about the guess (``guess_sigma``: metres,
+        radians; 3 m and 30 degrees), so that a partial map of one of several alike
+        rooms goes to the room the robot is in. Without it every alignment is equally
+        likely, as the thesis has it.
 
     Returns
     -------
@@ -778,6 +807,8 @@ def align_to_prior(
     field_ = _DistanceField(prior, reach)
     near = np.maximum(0.0, 1.0 - field_.dist / reach)
     maps = _correlate_all(pts, near, prior.grid, angles)
+    if guess is not None:
+        maps = [_weigh(m, prior.grid, centroid, guess, guess_sigma) for m in maps]
     hyps = _peaks(maps, prior.grid, centroid, n_best, nms_distance, nms_angle)
 
     # Particles carry (where the centroid lands, heading): a heading change then
