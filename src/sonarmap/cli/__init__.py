@@ -1114,6 +1114,10 @@ from .patrol import patrol_app  # noqa: E402
 
 app.add_typer(patrol_app, name="patrol")
 
+from .team import team_app  # noqa: E402
+
+app.add_typer(team_app, name="team")
+
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -1,0 +1,478 @@
+"""One robot's mission, end to end: drive a route through the simulated world, make a
+pose every metre or so (stereo landmarks and a local sonar map), associate it with the
+store, keep the store under its memory bounds, optimise the pose graph in batches, fuse
+and align the global map, and score every estimate against the simulation's truth.
+
+Decisions where the thesis is silent:
+
+- **Frames.** The robot knows its start in the prior map only roughly (``start_error``:
+  1 m and 10 degrees, drawn with the seed); its global frame is its odometry frame
+  started there. The alignment to the prior map must find the rest.
+- **When a pose is made**: after ``pose_every`` metres (1.0) or ``pose_turn`` radians
+  (0.5) of odometry since the last pose.
+- **The local map** of a pose is built by a sonarmap mapper (``mapper``: the inverse
+  model) from the sonar readings taken since the previous pose, placed in the pose's
+  frame by odometry, on a square of ``local_size`` metres (6) at ``local_resolution``
+  (0.1 m).
+- **Odometry edges** carry the odometry model's covariance and the hard bound top
+  speed x elapsed time (``max_speed``, 1.0 m/s: twice the route's speed).
+- **Association** is tried against every pose in the store, each with the prior of the
+  current estimates and the same hard bound.
+- **Scores.** ATE is the RMS position error over the poses after the best rigid 2-D fit
+  to the truth (so it measures the trajectory's shape, not its frame); a closure is
+  correct when its transform is within ``correct_xy`` (0.3 m) and ``correct_theta``
+  (5 degrees) of the true one; recall counts the (new, stored) pairs that truly shared
+  at least ``n_min`` landmarks when the new pose was associated.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from ..api import build_map
+from ..errors import ConfigError, InputError
+from ..grid import Grid
+from ..io.rosmap import OccupancyMap
+from ..metrics import score
+from ..readings import Readings
+from ..rig import Rig, get_rig
+from .association import AssociationParams, Prior, associate, estimate_planar
+from .globalmap import (
+    Alignment,
+    GraphResult,
+    align_to_prior,
+    fuse_local_maps,
+    grid_around,
+    optimise_graph,
+)
+from .records import ClosureEdge, LocalMap, OdometryEdge, Pose, compose, invert, make_uid
+from .regions import cut_regions, region_of
+from .store import RobotStore, StoreParams
+from .world import World, make_world, observe, odometry, patrol_route, sonar_readings
+
+__all__ = ["MissionConfig", "MissionResult", "run_mission"]
+
+F64 = npt.NDArray[np.float64]
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    """Every number of a mission (see the module's notes for the choices)."""
+
+    duration: float = 600.0
+    pose_every: float = 1.0
+    pose_turn: float = 0.5
+    local_size: float = 6.0
+    local_resolution: float = 0.1
+    map_resolution: float = 0.1
+    mapper: str = "inverse"
+    max_speed: float = 1.0
+    start_error: tuple[float, float] = (1.0, math.radians(10.0))
+    batch: int = 25
+    correct_xy: float = 0.3
+    correct_theta: float = math.radians(5.0)
+    rig: str = "ring16"
+    seed: int = 0
+    store: StoreParams = field(default_factory=StoreParams)
+    association: AssociationParams = field(default_factory=AssociationParams)
+
+    def __post_init__(self) -> None:
+        for name in ("duration", "pose_every", "pose_turn", "local_size", "local_resolution"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{name} must be > 0, got {v}")
+        if self.batch < 1:
+            raise ConfigError(f"batch must be >= 1, got {self.batch}")
+        if self.seed < 0:
+            raise ConfigError(f"seed must be >= 0, got {self.seed}")
+
+
+@dataclass
+class MissionResult:
+    """What a mission made and measured."""
+
+    config: MissionConfig
+    summary: dict[str, Any]
+    global_map: OccupancyMap
+    store: RobotStore
+    graph: GraphResult
+    alignment: Alignment
+    truth: dict[int, F64]
+    odometry_poses: dict[int, F64]
+    bytes_per_pose: list[int]
+
+
+def _compose_many(a: F64, b: F64) -> F64:
+    """Row-wise a (+) b of (N, 3) transforms (a may be one row)."""
+    a = np.broadcast_to(a, b.shape)
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    return np.column_stack(
+        [
+            a[:, 0] + c * b[:, 0] - s * b[:, 1],
+            a[:, 1] + s * b[:, 0] + c * b[:, 1],
+            np.remainder(a[:, 2] + b[:, 2] + np.pi, 2 * np.pi) - np.pi,
+        ]
+    )
+
+
+def _invert_many(a: F64) -> F64:
+    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
+    return np.column_stack([-(c * a[:, 0] + s * a[:, 1]), s * a[:, 0] - c * a[:, 1], -a[:, 2]])
+
+
+def _sonar_in_pose_frame(
+    readings: Readings, steps: npt.NDArray[np.intp], true: F64, odo: F64, k: int
+) -> Readings:
+    """The readings (taken at route steps ``steps``), their sonar poses put in the frame
+    of the pose made at step ``k`` as the robot knows them: by odometry. A reading's
+    mount on the robot is invert(true pose) (+) its world sonar pose; the robot places it
+    at invert(odo_k) (+) odo_i (+) mount."""
+    world = np.column_stack([readings.x, readings.y, readings.theta])
+    mount = _compose_many(_invert_many(true[steps]), world)
+    rel = _compose_many(_invert_many(odo[k : k + 1])[0], odo[steps])
+    local = _compose_many(rel, mount)
+    return Readings(
+        readings.t,
+        readings.sensor,
+        local[:, 0],
+        local[:, 1],
+        local[:, 2],
+        readings.range,
+        readings.names,
+    )
+
+
+def _local_map(readings: Readings, rig: Rig, config: MissionConfig) -> LocalMap | None:
+    """The pose's local map from its readings (in its frame), by the configured mapper."""
+    if len(readings) == 0:
+        return None
+    n = max(2, round(config.local_size / config.local_resolution))
+    h = n * config.local_resolution / 2
+    grid = Grid(config.local_resolution, (-h, -h), (n, n))
+    m = build_map(readings, rig, grid, config.mapper)
+    p = np.clip(np.nan_to_num(m.occupancy.astype(np.float64), nan=0.5), 0.01, 0.99)
+    return LocalMap.from_logodds(np.log(p / (1 - p)), config.local_resolution)
+
+
+def _odometry_covariance(odo: F64, j: int, k: int, noise: dict[str, float]) -> F64:
+    """Covariance of the odometry between route steps j and k, from the odometry
+    model's own noise (its bias counted as noise: the robot does not know it)."""
+    d = np.diff(odo[j : k + 1, 1:3], axis=0)
+    s = float(np.hypot(d[:, 0], d[:, 1]).sum())
+    turn = float(np.abs(np.diff(np.unwrap(odo[j : k + 1, 3]))).sum())
+    var_xy = noise["sigma_xy"] ** 2 * s + 1e-6
+    var_t = (
+        noise["sigma_theta"] ** 2 * turn
+        + noise["sigma_theta_dist"] ** 2 * s
+        + (noise["bias_theta"] * s) ** 2
+        + 1e-8
+    )
+    return np.diag([var_xy, var_xy, var_t])
+
+
+#: The odometry model's noise (:func:`~sonarmap.team.world.odometry`'s defaults).
+ODOMETRY_NOISE = {
+    "sigma_xy": 0.02,
+    "sigma_theta": 0.01,
+    "sigma_theta_dist": 0.002,
+    "bias_theta": 0.003,
+}
+
+
+def _rigid_ate(est: F64, true: F64) -> float:
+    """RMS position error after the best rigid 2-D fit of ``est`` onto ``true``."""
+    if len(est) < 2:
+        return float("nan")
+    tf = estimate_planar(
+        np.column_stack([true, np.zeros(len(true))]), np.column_stack([est, np.zeros(len(est))])
+    )
+    c, s = math.cos(tf[2]), math.sin(tf[2])
+    moved = est @ np.array([[c, s], [-s, c]]) + tf[:2]
+    return float(np.sqrt(np.mean(np.sum((moved - true) ** 2, axis=1))))
+
+
+def _origin(uid: int, truth: dict[int, F64], poses: dict[int, Pose]) -> int | None:
+    """The made pose whose frame a pose has (a merged pose keeps its first pose's)."""
+    while uid not in truth:
+        p = poses.get(uid)
+        if p is None or not p.merged_from:
+            return None
+        uid = p.merged_from[0]
+    return uid
+
+
+def _closure_correct(c: ClosureEdge, ta: F64, tb: F64, config: MissionConfig) -> bool:
+    true = compose(invert(ta), tb)
+    err = np.asarray(c.transform) - true
+    return bool(
+        math.hypot(err[0], err[1]) <= config.correct_xy
+        and abs(math.remainder(err[2], 2 * math.pi)) <= config.correct_theta
+    )
+
+
+def _optimise(store: RobotStore) -> GraphResult:
+    """One batch of the global map: optimise, move every pose's estimate, drop the
+    closures the result finds inconsistent."""
+    graph = optimise_graph(store.local.poses, store.local.edges, store.closures)
+    for uid, est in graph.estimates.items():
+        store.local.poses[uid].estimate = np.asarray(est, dtype=np.float64)
+    store.closures = graph.consistent_closures(store.closures)
+    return graph
+
+
+def run_mission(
+    plan: OccupancyMap,
+    config: MissionConfig | None = None,
+    *,
+    prior: OccupancyMap | None = None,
+    route: F64 | None = None,
+    world: World | None = None,
+    robot: int = 0,
+    progress: Progress | None = None,
+) -> MissionResult:
+    """Run robot ``robot``'s mission on the floor ``plan``.
+
+    The prior map is the plan unless ``prior`` is given; ``world`` (landmarks) is made
+    from the seed unless given; ``route`` (T, 4: t, x, y, theta) replaces the patrol
+    route (random waypoints drawn from the seed and the robot's number).
+    """
+    cfg = MissionConfig() if config is None else config
+    prior = plan if prior is None else prior
+    if not (plan.classes() == 0).any() or not (prior.classes() == 0).any():
+        raise InputError("the map has no free cell", field="map")
+    wall0 = time.perf_counter()
+    world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
+    seed = cfg.seed + 7919 * robot
+    true = patrol_route(plan, cfg.duration, seed=seed) if route is None else route
+    true = np.asarray(true, dtype=np.float64)
+    true = true[true[:, 0] <= true[0, 0] + cfg.duration]
+    odo, _ = odometry(true, seed=seed + 1, **ODOMETRY_NOISE)
+    rig = get_rig(cfg.rig)
+    readings = sonar_readings(plan, true, rig=rig, seed=seed + 2)
+    step_of = np.clip(np.searchsorted(true[:, 0], readings.t), 0, len(true) - 1)
+    labels = cut_regions(prior.classes() == 0, prior.grid.resolution)
+
+    # The robot's start as it believes it: the true one off by start_error.
+    rng = np.random.default_rng(seed + 3)
+    off = np.array([*rng.normal(0, cfg.start_error[0], 2), rng.normal(0, cfg.start_error[1])])
+    start_true = true[0, 1:4]
+    start_believed = start_true + off
+    # Prior frame = A_true (+) robot frame.
+    a_true = compose(start_true, invert(start_believed))
+
+    def believed(k: int) -> F64:
+        return compose(start_believed, compose(invert(odo[0, 1:4]), odo[k, 1:4]))
+
+    store = RobotStore(robot, cfg.store)
+    truth: dict[int, F64] = {}
+    odo_poses: dict[int, F64] = {}
+    all_made: dict[int, Pose] = {}
+    bytes_per_pose: list[int] = []
+    n_true_pairs = 0
+    n_correct = 0
+    n_closures = 0
+    n_found = 0
+    wrong: list[dict[str, Any]] = []
+    stage_removed: dict[str, list[int]] = {}
+    assoc_seconds: list[float] = []
+    graph: GraphResult | None = None
+    prev_k: int | None = None
+    prev_uid: int | None = None
+    counter = 0
+    for k in range(len(true)):
+        if progress is not None:
+            progress(k + 1, len(true))
+        if prev_k is not None:
+            d = odo[k, 1:3] - odo[prev_k, 1:3]
+            turn = abs(math.remainder(odo[k, 3] - odo[prev_k, 3], 2 * math.pi))
+            if (
+                math.hypot(d[0], d[1]) < cfg.pose_every
+                and turn < cfg.pose_turn
+                and k < len(true) - 1
+            ):
+                continue
+        t = float(true[k, 0])
+        uid = make_uid(robot, counter)
+        counter += 1
+        if prev_uid is not None and prev_uid in store.local.poses:
+            assert prev_k is not None
+            step = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
+            estimate = compose(store.local.poses[prev_uid].estimate, step)
+        else:
+            estimate = believed(k)
+        lo = -1 if prev_k is None else prev_k
+        mine = np.flatnonzero((step_of > lo) & (step_of <= k))
+        local = _local_map(
+            _sonar_in_pose_frame(readings.take(mine), step_of[mine], true[:, 1:4], odo[:, 1:4], k),
+            rig,
+            cfg,
+        )
+        landmarks = observe(world, true[k, 1:4], t, seed=seed)
+        region = region_of(labels, prior.grid, float(estimate[0]), float(estimate[1]))
+        pose = Pose(uid, t, region, estimate, landmarks, local)
+        truth[uid] = true[k, 1:4].copy()
+        odo_poses[uid] = believed(k)
+        all_made[uid] = pose
+
+        edge = None
+        if prev_uid is not None and prev_uid in store.local.poses:
+            assert prev_k is not None
+            step = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
+            cov = _odometry_covariance(odo, prev_k, k, ODOMETRY_NOISE)
+            edge = OdometryEdge(
+                prev_uid,
+                uid,
+                (float(step[0]), float(step[1]), float(step[2])),
+                tuple(float(v) for v in cov.ravel()),
+                cfg.max_speed * (t - float(true[prev_k, 0])) + 0.05,
+            )
+        stored = list(store.local.poses.values())
+        priors = {
+            p.uid: Prior((0.0, 0.0, 0.0), cfg.max_speed * (t - p.time) + 0.05) for p in stored
+        }
+        t0 = time.perf_counter()
+        closures, stats = associate(pose, stored, priors, cfg.association)
+        assoc_seconds.append(time.perf_counter() - t0)
+        for stage, (_, matches) in stats.removed().items():
+            stage_removed.setdefault(stage, []).append(matches)
+        ids = set(landmarks.ids[landmarks.ids >= 0].tolist())
+        overlapping = {
+            p.uid
+            for p in stored
+            if len(ids & set(p.landmarks.ids[p.landmarks.ids >= 0].tolist()))
+            >= cfg.association.n_min
+        }
+        n_true_pairs += len(overlapping)
+        for c in closures:
+            oa = _origin(c.a, truth, all_made)
+            right = oa is not None and _closure_correct(c, truth[oa], truth[uid], cfg)
+            if not right and oa is not None:
+                err = np.asarray(c.transform) - compose(invert(truth[oa]), truth[uid])
+                wrong.append(
+                    {
+                        "a": c.a,
+                        "b": c.b,
+                        "inliers": c.inliers,
+                        "error_m": round(math.hypot(err[0], err[1]), 3),
+                        "error_deg": round(
+                            math.degrees(abs(math.remainder(err[2], 2 * math.pi))), 2
+                        ),
+                    }
+                )
+            n_closures += 1
+            n_correct += right
+            n_found += right and c.a in overlapping
+        store.add_own_pose(pose, edge, closures, t)
+        for p in store.local.poses.values():
+            all_made.setdefault(p.uid, p)
+        bytes_per_pose.append(store.bytes())
+        prev_k, prev_uid = k, uid
+        if counter % cfg.batch == 0:
+            graph = _optimise(store)
+    t_batch = time.perf_counter()
+    graph = _optimise(store)
+    built = fuse_local_maps(
+        store.local.poses,
+        graph.estimates,
+        grid_around(graph.estimates, cfg.local_size / 2, cfg.map_resolution, margin=1.0),
+    )
+    batch_seconds = time.perf_counter() - t_batch
+    # The robot believes its frame is the prior's (it started where it thinks).
+    alignment = align_to_prior(built, prior, seed=cfg.seed, guess=(0.0, 0.0, 0.0))
+    a = np.asarray(alignment.transform, dtype=np.float64)
+
+    kept = {u: _origin(u, truth, all_made) for u in store.local.poses}
+    uids = [u for u, o in kept.items() if o is not None]
+    est = np.array([graph.estimates[u] for u in uids])
+    tru = np.array([truth[kept[u]] for u in uids])  # type: ignore[index]
+    odo_est = np.array([odo_poses[kept[u]] for u in uids])  # type: ignore[index]
+    # How far the found alignment puts the robot's poses from where the true one would.
+    placed = _compose_many(a, est)
+    should = _compose_many(a_true, est)
+    align_m = float(np.mean(np.hypot(*(placed[:, :2] - should[:, :2]).T)))
+    align_deg = math.degrees(abs(math.remainder(a[2] - a_true[2], 2 * math.pi)))
+
+    # The map in the plan's frame, by the found alignment, against its bounds: the same
+    # readings mapped at the true poses and at the odometry poses (given the true start).
+    in_prior = {u: _compose_many(a, graph.estimates[u][None, :])[0] for u in store.local.poses}
+    global_map = fuse_local_maps(store.local.poses, in_prior, plan.grid)
+    true_posed = build_map(readings, rig, plan.grid, cfg.mapper)
+    odo_world = _compose_many(
+        a_true,
+        _compose_many(
+            start_believed,
+            _compose_many(_invert_many(odo[:1, 1:4])[0], odo[step_of, 1:4]),
+        ),
+    )
+    mount = _compose_many(
+        _invert_many(true[step_of, 1:4]),
+        np.column_stack([readings.x, readings.y, readings.theta]),
+    )
+    odo_sonar = _compose_many(odo_world, mount)
+    odo_posed = build_map(
+        Readings(
+            readings.t,
+            readings.sensor,
+            odo_sonar[:, 0],
+            odo_sonar[:, 1],
+            odo_sonar[:, 2],
+            readings.range,
+            readings.names,
+        ),
+        rig,
+        plan.grid,
+        cfg.mapper,
+    )
+    assoc = np.array(assoc_seconds)
+    summary: dict[str, Any] = {
+        "robot": robot,
+        "store_bytes_peak": int(store.peak_bytes),
+        "store_bytes_final": int(store.bytes()),
+        "local_bytes_peak": int(store.peak_local_bytes),
+        "poses": len(store.local.poses),
+        "poses_made": counter,
+        "landmarks": int(sum(len(p.landmarks) for p in store.local.poses.values())),
+        "closures": len(store.closures),
+        "regions": int(labels.max()) + 1,
+        "regions_used": len({p.region for p in store.local.poses.values()}),
+        "association_precision": n_correct / n_closures if n_closures else float("nan"),
+        "association_recall": n_found / n_true_pairs if n_true_pairs else float("nan"),
+        "closures_found": n_closures,
+        "closures_correct": n_correct,
+        "closures_wrong": wrong,
+        "true_pairs": n_true_pairs,
+        "association_removed_matches": {k: int(sum(v)) for k, v in stage_removed.items()},
+        "closures_rejected_by_graph": len(graph.inconsistent),
+        "ate_m": _rigid_ate(est[:, :2], tru[:, :2]),
+        "ate_odometry_m": _rigid_ate(odo_est[:, :2], tru[:, :2]),
+        "map_f1": score(plan, global_map).f1_all,
+        "map_f1_true_poses": score(plan, true_posed).f1_all,
+        "map_f1_odometry_poses": score(plan, odo_posed).f1_all,
+        "alignment_error_m": align_m,
+        "alignment_error_deg": align_deg,
+        "alignment_score_m": float(alignment.score),
+        "association_ms_median": float(np.median(assoc) * 1e3) if len(assoc) else float("nan"),
+        "association_ms_p99": float(np.percentile(assoc, 99) * 1e3) if len(assoc) else float("nan"),
+        "pose_interval_s": float(cfg.duration / max(counter, 1)),
+        "global_map_batch_s": batch_seconds,
+        "sim_seconds": float(true[-1, 0] - true[0, 0]),
+        "wall_seconds": time.perf_counter() - wall0,
+        "seed": cfg.seed,
+        "parameters": _parameters(cfg),
+    }
+    return MissionResult(
+        cfg, summary, global_map, store, graph, alignment, truth, odo_poses, bytes_per_pose
+    )
+
+
+def _parameters(cfg: MissionConfig) -> dict[str, Any]:
+    d = asdict(cfg)
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}

@@ -1,0 +1,1017 @@
+"""One robot's long-term store (thesis 002, sections 2.2-2.3): its own pose graph, one
+layer per robot it received data from, its loop closures, and the algorithms that keep
+the whole bounded: time stamps, reliabilities, pose compression and region compression
+(deletion and merging of poses).
+
+The thesis gives the formulas but no values; every value here is a choice, named in
+:class:`StoreParams`. Kernel densities are unnormalised sums of Gaussians (each point
+counts itself, so a density is >= 1 at a stored point), cut at four sigma.
+
+Memory is the msgpack size of the records (:func:`records.size_of`). A region's bytes
+are those of its poses plus the odometry edges that end (``b``) at one of them, so the
+regions of a layer add up to the layer.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Collection, Iterable, Sequence
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+import numpy.typing as npt
+from scipy.ndimage import map_coordinates
+from scipy.spatial import cKDTree
+
+from sonarmap.errors import ConfigError, InputError
+from sonarmap.team.records import (
+    ClosureEdge,
+    Landmarks,
+    LocalMap,
+    OdometryEdge,
+    Pose,
+    compose,
+    invert,
+    make_uid,
+    robot_of,
+    size_of,
+)
+
+__all__ = [
+    "MERGE_COUNTER_BASE",
+    "Layer",
+    "Patch",
+    "RobotStore",
+    "StoreParams",
+    "compress_for_sending",
+    "compress_pose",
+    "kernel_density",
+    "utility",
+]
+
+F64 = npt.NDArray[np.float64]
+Index = npt.NDArray[np.intp]
+Transform = tuple[float, float, float]
+
+#: Merged poses take UID counters from here up, so they never collide with the
+#: counters (from 0) the robot gives the poses it makes.
+MERGE_COUNTER_BASE = 1 << 39
+#: Bytes of a pose's encoding that change with its landmark count besides the rows
+#: themselves: five arrays, each with a bin header (2-5 bytes) and a shape entry (1-5).
+_HEADER_SLACK = 40
+#: Kernel densities ignore points farther than this many sigmas (weight < 3.4e-4).
+_KERNEL_CUTOFF = 4.0
+
+
+@dataclass(frozen=True)
+class StoreParams:
+    """Parameters of a robot's store; the thesis names them but gives no values.
+
+    Attributes
+    ----------
+    pose_limit : int
+        M_pose, bytes: a larger pose loses landmarks. 16384 (about 90 SIFT landmarks
+        besides a small local map).
+    region_limit : int
+        M_r, bytes of one region of the local layer (poses and the odometry edges ending
+        at them). 131072 (eight full poses).
+    a, g, s : float
+        The utility's phi(t, r) = a exp(-g t^2 (1 - r)^2 / s^2): scale 1, gain 1 and time
+        scale 600 s (a landmark of reliability 0 keeps 1/e of its value after ten
+        minutes; one of reliability 0.9 after 100 minutes).
+    landmark_sigma : float
+        Kernel width (m) of landmark densities (utility and reliability decay): 0.5.
+    pose_sigma : float
+        Kernel width (m) of pose densities (region compression), over the poses'
+        estimated positions: 2.0.
+    beta : float or None
+        The reliability decay r <- r / (1 + beta d). None (default): chosen per new pose
+        as (L - 1) / (the new pose's largest density at its own landmarks), so a landmark
+        where the new pose's landmarks are densest decays by L and one where it has none
+        keeps its reliability (the thesis ties beta to the landmark counts).
+    decay_cap : float
+        L >= 1: 1 + beta d is clipped to L, so one update divides a reliability by at
+        most L. 2.0.
+    fov : float
+        The camera's horizontal field of view, degrees: 90.
+    camera_range : float
+        Metres (3-D distance) within which a landmark could have been seen: 8.
+    merge_radius : float
+        Two poses merge only if their closure puts them closer than this (m): 1.0.
+    merge_min_inliers : int
+        N_l, the inliers a closure needs for a merge: 20.
+    merge_max_std : float
+        Largest standard deviation (m, largest axis of the x-y covariance) of a closure
+        used for a merge: 0.1.
+    merge_max_angle_std : float
+        Largest standard deviation (rad) of its angle: 0.05.
+    descriptor_dim : int
+        Descriptor bytes, used only to check that ``pose_limit`` holds one landmark: 128.
+    """
+
+    pose_limit: int = 16_384
+    region_limit: int = 131_072
+    a: float = 1.0
+    g: float = 1.0
+    s: float = 600.0
+    landmark_sigma: float = 0.5
+    pose_sigma: float = 2.0
+    beta: float | None = None
+    decay_cap: float = 2.0
+    fov: float = 90.0
+    camera_range: float = 8.0
+    merge_radius: float = 1.0
+    merge_min_inliers: int = 20
+    merge_max_std: float = 0.1
+    merge_max_angle_std: float = 0.05
+    descriptor_dim: int = 128
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if v is None and f.name == "beta":
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"store: {f.name} must be a finite number, got {v!r}")
+            if v < 0 or (v == 0 and f.name not in ("a", "g", "beta")):
+                raise ConfigError(f"store: {f.name} must be > 0, got {v}")
+        for name in ("pose_limit", "region_limit", "merge_min_inliers", "descriptor_dim"):
+            if not isinstance(getattr(self, name), int):
+                raise ConfigError(f"store: {name} must be an integer")
+        if self.decay_cap < 1:
+            raise ConfigError(f"store: decay_cap (L) must be >= 1, got {self.decay_cap}")
+        if self.fov > 360:
+            raise ConfigError(f"store: fov must be <= 360 degrees, got {self.fov}")
+        one = _one_landmark_bytes(self.descriptor_dim)
+        if self.pose_limit < one:
+            raise ConfigError(
+                f"store: pose_limit {self.pose_limit} B is below the size of a pose with one "
+                f"landmark ({one} B)"
+            )
+        if self.region_limit < self.pose_limit:
+            raise ConfigError(
+                f"store: region_limit {self.region_limit} B is below pose_limit {self.pose_limit} B"
+            )
+
+
+def _one_landmark_bytes(dim: int) -> int:
+    """Bytes of the largest-UID pose with one landmark and no local map."""
+    lm = Landmarks(
+        np.zeros((1, 3), dtype=np.float32),
+        np.zeros((1, dim), dtype=np.uint8),
+        np.full(1, 0.5, dtype=np.float32),
+        np.zeros(1),
+        np.full(1, -1, dtype=np.int64),
+    )
+    return size_of(Pose(make_uid(2**23 - 1, 2**40 - 1), 0.0, 2**31 - 1, np.zeros(3), lm))
+
+
+# --- densities and utility ------------------------------------------------------------
+
+
+def kernel_density(at: npt.ArrayLike, points: npt.ArrayLike, sigma: float) -> F64:
+    """Unnormalised Gaussian kernel density of ``points`` at each row of ``at``.
+
+    Parameters
+    ----------
+    at : array (m, k)
+        Where to evaluate.
+    points : array (n, k)
+        The kernels' centres.
+    sigma : float
+        Kernel width.
+
+    Returns
+    -------
+    ndarray (m,)
+        sum_j exp(-|at_i - points_j|^2 / (2 sigma^2)) over points within four sigma.
+    """
+    q = np.asarray(at, dtype=np.float64)
+    p = np.asarray(points, dtype=np.float64)
+    if len(q) == 0 or len(p) == 0:
+        return np.zeros(len(q))
+    pairs = cKDTree(q).sparse_distance_matrix(
+        cKDTree(p), _KERNEL_CUTOFF * sigma, output_type="ndarray"
+    )
+    w = np.exp(-(pairs["v"] ** 2) / (2.0 * sigma**2))
+    return np.bincount(pairs["i"], weights=w, minlength=len(q)).astype(np.float64)
+
+
+def utility(landmarks: Landmarks, now: float, params: StoreParams) -> F64:
+    """U = phi(t, r) / d of each landmark (thesis eq. 2.3).
+
+    phi = a exp(-g t^2 (1 - r)^2 / s^2) with t = now - stamp (a stamp in the future, from
+    another robot's clock, counts as age 0) and d the landmarks' own kernel density at
+    the landmark (>= 1: it counts itself).
+    """
+    t = np.maximum(now - landmarks.stamp, 0.0)
+    r = landmarks.reliability.astype(np.float64)
+    phi = params.a * np.exp(-params.g * (t * (1.0 - r)) ** 2 / params.s**2)
+    d = kernel_density(landmarks.points, landmarks.points, params.landmark_sigma)
+    return np.asarray(phi / np.maximum(d, 1.0), dtype=np.float64)
+
+
+def _row_bytes(lm: Landmarks) -> int:
+    return int(
+        lm.points.itemsize * 3
+        + lm.descriptors.shape[1] * lm.descriptors.itemsize
+        + lm.reliability.itemsize
+        + lm.stamp.itemsize
+        + lm.ids.itemsize
+    )
+
+
+def compress_pose(pose: Pose, limit: int, now: float, params: StoreParams) -> tuple[Pose, Index]:
+    """Thesis 2.3 pose compression: drop the landmarks of lowest utility until the pose's
+    encoding fits in ``limit`` bytes.
+
+    Landmarks go in batches: each batch is the fewest the byte count proves necessary
+    (excess minus the header slack, over the bytes of one landmark row), so the pose
+    never loses more than it must; utilities are recomputed between batches, since
+    densities change as landmarks go.
+
+    Returns
+    -------
+    pose : Pose
+        The pose itself if it fits, else a copy with fewer landmarks.
+    kept : ndarray of int
+        Indices (into the original landmarks) of those kept, in order.
+
+    Raises
+    ------
+    ConfigError
+        If not even one landmark fits (the pose's local map alone is too big).
+    """
+    lm = pose.landmarks
+    kept: Index = np.arange(len(lm), dtype=np.intp)
+    size = size_of(pose)
+    if size <= limit:
+        return pose, kept
+    one = size_of(pose.with_landmarks(lm.take(kept[:1])))
+    if len(lm) == 0 or one > limit:
+        raise ConfigError(
+            f"store: pose_limit {limit} B is below pose {pose.uid}'s size with at most one "
+            f"landmark ({one} B)"
+        )
+    per = _row_bytes(lm)
+    current = pose
+    while size > limit:
+        cur = current.landmarks
+        k = min(max(1, math.ceil((size - limit - _HEADER_SLACK) / per)), len(cur) - 1)
+        order = np.argsort(utility(cur, now, params), kind="stable")
+        keep = np.ones(len(cur), dtype=bool)
+        keep[order[:k]] = False
+        kept = kept[keep]
+        current = pose.with_landmarks(cur.take(keep))
+        size = size_of(current)
+    return current, kept
+
+
+# --- transforms with covariances ------------------------------------------------------
+
+
+def _compose_cov(a: Transform, ca: F64, b: Transform, cb: F64) -> F64:
+    """First-order covariance of compose(a, b) for independent a and b."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    ja = np.array([[1.0, 0.0, -s * b[0] - c * b[1]], [0.0, 1.0, c * b[0] - s * b[1]], [0, 0, 1]])
+    jb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return np.asarray(ja @ ca @ ja.T + jb @ cb @ jb.T, dtype=np.float64)
+
+
+def _invert_cov(a: Transform, ca: F64) -> F64:
+    c, s = math.cos(a[2]), math.sin(a[2])
+    x, y = a[0], a[1]
+    j = np.array([[-c, -s, s * x - c * y], [s, -c, c * x + s * y], [0.0, 0.0, -1.0]])
+    return np.asarray(j @ ca @ j.T, dtype=np.float64)
+
+
+def _tf(v: Iterable[float]) -> Transform:
+    x, y, t = (float(u) for u in v)
+    return (x, y, t)
+
+
+def _cov_tuple(c: F64) -> tuple[float, ...]:
+    return tuple(float(v) for v in c.reshape(9))
+
+
+def _reframe(
+    a: int,
+    b: int,
+    transform: Transform,
+    cov: F64,
+    old: int,
+    new: int,
+    where: Transform,
+) -> tuple[int, int, Transform, F64]:
+    """An edge (a, b, transform of b in a) after pose ``old`` became part of ``new``,
+    whose frame holds old's frame at ``where`` (taken as exact)."""
+    zero = np.zeros((3, 3))
+    if a == old:
+        a = new
+        cov = _compose_cov(where, zero, transform, cov)
+        transform = _tf(compose(where, transform))
+    if b == old:
+        b = new
+        back = _tf(invert(where))
+        cov = _compose_cov(transform, cov, back, zero)
+        transform = _tf(compose(transform, back))
+    return a, b, transform, cov
+
+
+def _to_frame(points: npt.NDArray[np.float32], where: Transform) -> npt.NDArray[np.float64]:
+    """Points of a frame held at ``where`` in another frame, expressed in that other."""
+    c, s = math.cos(where[2]), math.sin(where[2])
+    p = points.astype(np.float64)
+    out = p.copy()
+    out[:, 0] = c * p[:, 0] - s * p[:, 1] + where[0]
+    out[:, 1] = s * p[:, 0] + c * p[:, 1] + where[1]
+    return out
+
+
+# --- layers ---------------------------------------------------------------------------
+
+
+@dataclass
+class Patch:
+    """One region of one layer: its time stamp, the short id list (UIDs of the layer's
+    poses in the region) and the full id list (what the source had at the stamp, kept
+    by the limited-network exchange; equal to the short list in the local layer).
+    A patch nobody has sent yet has stamp -inf."""
+
+    stamp: float = -math.inf
+    short: set[int] = field(default_factory=set)
+    full: set[int] = field(default_factory=set)
+
+
+class _Sizes:
+    """Encoded sizes of records, remembered per object (records are replaced, not
+    edited, when their size can change)."""
+
+    def __init__(self) -> None:
+        self._cache: dict[int, tuple[object, int]] = {}
+
+    def of(self, record: Pose | OdometryEdge | ClosureEdge) -> int:
+        hit = self._cache.get(id(record))
+        if hit is not None and hit[0] is record:
+            return hit[1]
+        n = size_of(record)
+        self._cache[id(record)] = (record, n)
+        return n
+
+    def total(self, records: Iterable[Pose | OdometryEdge | ClosureEdge]) -> int:
+        """Sum of sizes; forgets records no longer passed."""
+        old, self._cache = self._cache, {}
+        n = 0
+        for r in records:
+            hit = old.get(id(r))
+            size = hit[1] if hit is not None and hit[0] is r else size_of(r)
+            self._cache[id(r)] = (r, size)
+            n += size
+        return n
+
+
+class Layer:
+    """One robot's pose graph as another robot (or itself) stores it.
+
+    Change it through the methods, which keep the patches' id lists right.
+
+    Parameters
+    ----------
+    source : int
+        The robot that made the layer's poses.
+    own : bool
+        True for a robot's local layer: its full id lists follow the short ones and a
+        patch's stamp is the time it last changed.
+
+    Attributes
+    ----------
+    poses : dict of int to Pose
+    edges : list of OdometryEdge
+    patches : dict of int to Patch
+        By region id.
+    """
+
+    def __init__(self, source: int, *, own: bool = False) -> None:
+        self.source = source
+        self.own = own
+        self.poses: dict[int, Pose] = {}
+        self.edges: list[OdometryEdge] = []
+        self.patches: dict[int, Patch] = {}
+        self._pose_sizes = _Sizes()
+        self._edge_sizes = _Sizes()
+
+    def patch(self, region: int) -> Patch:
+        """The region's patch, created empty if new."""
+        return self.patches.setdefault(region, Patch())
+
+    def put_pose(self, pose: Pose, now: float | None = None) -> None:
+        """Add a pose, or replace the one with its UID."""
+        self.poses[pose.uid] = pose
+        patch = self.patch(pose.region)
+        patch.short.add(pose.uid)
+        if self.own:
+            patch.full.add(pose.uid)
+            if now is not None:
+                patch.stamp = now
+
+    def remove_pose(self, uid: int, now: float | None = None) -> Pose:
+        """Remove a pose and every odometry edge touching it."""
+        pose = self.poses.pop(uid)
+        patch = self.patch(pose.region)
+        patch.short.discard(uid)
+        if self.own:
+            patch.full.discard(uid)
+            if now is not None:
+                patch.stamp = now
+        self.edges = [e for e in self.edges if uid not in (e.a, e.b)]
+        return pose
+
+    def add_edge(self, edge: OdometryEdge) -> None:
+        """Add an odometry edge unless the same edge is there."""
+        if edge not in self.edges:
+            self.edges.append(edge)
+
+    def edges_of(self, uid: int) -> list[OdometryEdge]:
+        return [e for e in self.edges if uid in (e.a, e.b)]
+
+    def pose_bytes(self, uid: int) -> int:
+        return self._pose_sizes.of(self.poses[uid])
+
+    def bytes(self) -> int:
+        """Encoded size of all poses and edges (the layer's memory figure)."""
+        return self._pose_sizes.total(self.poses.values()) + self._edge_sizes.total(self.edges)
+
+    def region_bytes(self, region: int) -> int:
+        """Bytes of the region's poses and of the edges ending at them."""
+        uids = self.patches[region].short if region in self.patches else set()
+        n = sum(self.pose_bytes(u) for u in uids)
+        return n + sum(self._edge_sizes.of(e) for e in self.edges if e.b in uids)
+
+
+# --- merging --------------------------------------------------------------------------
+
+
+def _merge_maps(mp: LocalMap | None, mq: LocalMap | None, where: Transform) -> LocalMap | None:
+    """Q's local map resampled (nearest cell) into P's grid, Q's frame held at ``where``
+    in P's, and added to P's: log-odds summed and clipped, 0 (unknown) where both are.
+    The grid stays P's (merged poses are close), so Q's cells outside it are lost; with
+    no map in P, Q's grid size and resolution are used, centred on P's origin."""
+    if mq is None:
+        return mp
+    grid = mp if mp is not None else LocalMap(np.zeros_like(mq.logodds), mq.resolution)
+    n, res = grid.size, grid.resolution
+    c = (n - 1) / 2.0
+    rows, cols = np.mgrid[0:n, 0:n].astype(np.float64)
+    dx = (cols - c) * res - where[0]
+    dy = (c - rows) * res - where[1]
+    ct, st = math.cos(where[2]), math.sin(where[2])
+    xq, yq = ct * dx + st * dy, -st * dx + ct * dy
+    cq = (mq.size - 1) / 2.0
+    coords = np.stack([cq - yq / mq.resolution, xq / mq.resolution + cq])
+    moved = map_coordinates(
+        mq.logodds.astype(np.int16), coords, order=0, mode="constant", cval=0
+    ).astype(np.int16)
+    out = np.clip(grid.logodds.astype(np.int16) + moved, -127, 127).astype(np.int8)
+    return LocalMap(out, res)
+
+
+def _unique_pairs(matches: Sequence[tuple[int, int]], na: int, nb: int) -> tuple[Index, Index]:
+    """Valid match pairs, each landmark in at most one (the first)."""
+    seen_a: set[int] = set()
+    seen_b: set[int] = set()
+    ia: list[int] = []
+    ib: list[int] = []
+    for i, j in matches:
+        if 0 <= i < na and 0 <= j < nb and i not in seen_a and j not in seen_b:
+            seen_a.add(i)
+            seen_b.add(j)
+            ia.append(i)
+            ib.append(j)
+    return np.array(ia, dtype=np.intp), np.array(ib, dtype=np.intp)
+
+
+def _combine(r1: npt.ArrayLike, r2: npt.ArrayLike) -> F64:
+    """Reliability of two independent confirmations: 1 - (1 - r1)(1 - r2)."""
+    a = np.asarray(r1, dtype=np.float64)
+    b = np.asarray(r2, dtype=np.float64)
+    return np.asarray(1.0 - (1.0 - a) * (1.0 - b), dtype=np.float64)
+
+
+@dataclass
+class _MergePlan:
+    """A merge worked out but not applied: P (closure.a) and Q (closure.b) into ``pose``
+    in P's frame; ``p_index`` / ``q_index`` give each of their landmarks' index in it
+    (-1: gone)."""
+
+    closure: ClosureEdge
+    pose: Pose
+    p_index: Index
+    q_index: Index
+    freed: int
+    lost_utility: float
+
+
+def _plan_merge(
+    p: Pose, q: Pose, closure: ClosureEdge, uid: int, now: float, params: StoreParams
+) -> _MergePlan:
+    where = _tf(closure.transform)
+    lp, lq = p.landmarks, q.landmarks
+    ip, jq = _unique_pairs(closure.matches, len(lp), len(lq))
+    q_pts = _to_frame(lq.points, where)
+    pts = lp.points.astype(np.float64)
+    pts[ip] = (pts[ip] + q_pts[jq]) / 2.0
+    desc = lp.descriptors.copy()
+    desc[ip] = ((lp.descriptors[ip].astype(np.uint16) + lq.descriptors[jq] + 1) // 2).astype(
+        np.uint8
+    )
+    rel = lp.reliability.astype(np.float64)
+    rel[ip] = _combine(rel[ip], lq.reliability[jq])
+    stamp = lp.stamp.copy()
+    stamp[ip] = np.maximum(stamp[ip], lq.stamp[jq])
+    ids = lp.ids.copy()
+    ids[ip] = np.where(ids[ip] >= 0, ids[ip], lq.ids[jq])
+    rest = np.ones(len(lq), dtype=bool)
+    rest[jq] = False
+    moved = lq.take(rest)
+    moved.points = q_pts[rest].astype(np.float32)
+    landmarks = Landmarks.concat(
+        [Landmarks(pts.astype(np.float32), desc, rel.astype(np.float32), stamp, ids), moved]
+    )
+    merged = Pose(
+        uid,
+        max(p.time, q.time),
+        p.region,
+        p.estimate.copy(),
+        landmarks,
+        _merge_maps(p.local_map, q.local_map, where),
+        (p.uid, q.uid),
+    )
+    u_merged = utility(landmarks, now, params)
+    compressed, kept = compress_pose(merged, params.pose_limit, now, params)
+    final = np.full(len(landmarks), -1, dtype=np.intp)
+    final[kept] = np.arange(len(kept))
+    q_index = np.empty(len(lq), dtype=np.intp)
+    q_index[jq] = final[ip]
+    q_index[rest] = final[len(lp) + np.arange(int(rest.sum()))]
+    dropped = np.ones(len(landmarks), dtype=bool)
+    dropped[kept] = False
+    lost = float(utility(lq, now, params)[jq].sum() + u_merged[dropped].sum())
+    freed = size_of(p) + size_of(q) - size_of(compressed)
+    return _MergePlan(closure, compressed, final[: len(lp)], q_index, freed, lost)
+
+
+def _efficiency(freed: int, density: float, lost: float) -> float:
+    """E = M / (d sum U) (thesis eq. 2.4); infinite when nothing is lost."""
+    cost = density * lost
+    return math.inf if cost <= 0 else freed / cost
+
+
+# --- the store ------------------------------------------------------------------------
+
+
+class RobotStore:
+    """A robot's stores: local layer, received layers and closures (thesis 2.2-2.3).
+
+    Parameters
+    ----------
+    robot : int
+        The owner.
+    params : StoreParams, optional
+
+    Attributes
+    ----------
+    local : Layer
+        The robot's own poses; only it changes them.
+    received : dict of int to Layer
+        By source robot; changed only in landmark time stamps (and by the exchange).
+    closures : list of ClosureEdge
+        Never exchanged. Their ``matches`` follow the poses' landmarks through
+        compression and merging.
+    peak_bytes, peak_local_bytes : int
+        The largest :meth:`bytes` and ``local.bytes()`` seen, measured once a new pose
+        is compressed (step 5) and before its region is, and again after.
+    """
+
+    def __init__(self, robot: int, params: StoreParams | None = None) -> None:
+        self.robot = robot
+        self.params = params if params is not None else StoreParams()
+        self.local = Layer(robot, own=True)
+        self.received: dict[int, Layer] = {}
+        self.closures: list[ClosureEdge] = []
+        self.peak_bytes = 0
+        self.peak_local_bytes = 0
+        self._closure_sizes = _Sizes()
+        self._merges = 0
+        self._newest: int | None = None
+
+    # accounting
+
+    def bytes(self) -> int:
+        """All the robot stores: layers and closures."""
+        n = self.local.bytes() + sum(layer.bytes() for layer in self.received.values())
+        return n + self._closure_sizes.total(self.closures)
+
+    def _note_peak(self) -> None:
+        self.peak_local_bytes = max(self.peak_local_bytes, self.local.bytes())
+        self.peak_bytes = max(self.peak_bytes, self.bytes())
+
+    def _holders(self, uid: int) -> list[Layer]:
+        layers = [self.local, *self.received.values()]
+        return [layer for layer in layers if uid in layer.poses]
+
+    # adding poses
+
+    def add_own_pose(
+        self,
+        pose: Pose,
+        odometry_edge: OdometryEdge | None,
+        closures: Sequence[ClosureEdge],
+        now: float,
+    ) -> None:
+        """A new pose of this robot, with the closures association found for it.
+
+        (1) The pose and its odometry edge into the local layer; (2) the closures into
+        the closure store; (3) time stamps; (4) reliabilities (closures between two own
+        poses); (5) pose compression, then compression of its region. The new pose is
+        kept whole by region compression until the next one arrives: the next odometry
+        edge starts from it.
+        """
+        if robot_of(pose.uid) != self.robot:
+            raise InputError(f"pose {pose.uid} is robot {pose.robot}'s", field="uid")
+        if pose.uid in self.local.poses:
+            raise InputError(f"pose {pose.uid} is already stored", field="uid")
+        if odometry_edge is not None and (
+            odometry_edge.b != pose.uid or odometry_edge.a not in self.local.poses
+        ):
+            raise InputError(
+                f"odometry edge {odometry_edge.a} -> {odometry_edge.b} must run from a "
+                f"stored pose to the new pose {pose.uid}",
+                field="odometry_edge",
+            )
+        self.local.put_pose(pose, now)
+        if odometry_edge is not None:
+            self.local.add_edge(odometry_edge)
+        self.closures.extend(closures)
+        self._update_stamps(closures)
+        for c in closures:
+            self._update_reliability(c, pose.uid)
+        self._newest = pose.uid
+        stored = self.local.poses[pose.uid]
+        compressed, kept = compress_pose(stored, self.params.pose_limit, now, self.params)
+        if compressed is not stored:
+            self.local.put_pose(compressed, now)
+            self._rewrite_closures(pose.uid, pose.uid, self._index_map(len(stored.landmarks), kept))
+        self._note_peak()
+        self.compress_region(pose.region, now)
+        self._note_peak()
+
+    def add_received_pose(
+        self,
+        source: int,
+        pose: Pose,
+        odometry_edges: Sequence[OdometryEdge],
+        closures: Sequence[ClosureEdge],
+        now: float,
+    ) -> None:
+        """A pose of robot ``source``, received: into its layer with its odometry edges,
+        closures stored, time stamps updated; no reliability changes and no compression
+        (received data are not ours to change)."""
+        if source == self.robot or robot_of(pose.uid) != source:
+            raise InputError(
+                f"pose {pose.uid} of robot {pose.robot} cannot join received layer {source} "
+                f"of robot {self.robot}",
+                field="source",
+            )
+        layer = self.received.setdefault(source, Layer(source))
+        if pose.uid in layer.poses:
+            raise InputError(f"pose {pose.uid} is already stored", field="uid")
+        layer.put_pose(pose)
+        for e in odometry_edges:
+            layer.add_edge(e)
+        self.closures.extend(closures)
+        self._update_stamps(closures)
+        self._note_peak()
+
+    # time stamps and reliabilities
+
+    def _update_stamps(self, closures: Sequence[ClosureEdge]) -> None:
+        """Every landmark in a matched pair, in every layer holding its pose, takes the
+        largest stamp among the landmarks matched to it, directly or through others
+        (max, not sum: no double counting)."""
+        parent: dict[tuple[int, int], tuple[int, int]] = {}
+
+        def find(k: tuple[int, int]) -> tuple[int, int]:
+            while parent.setdefault(k, k) != k:
+                parent[k] = parent[parent[k]]
+                k = parent[k]
+            return k
+
+        for c in closures:
+            ha, hb = self._holders(c.a), self._holders(c.b)
+            if not ha or not hb:
+                continue
+            ia, ib = _unique_pairs(
+                c.matches, len(ha[0].poses[c.a].landmarks), len(hb[0].poses[c.b].landmarks)
+            )
+            for i, j in zip(ia.tolist(), ib.tolist(), strict=True):
+                parent[find((c.a, i))] = find((c.b, j))
+        groups: dict[tuple[int, int], list[tuple[int, int]]] = {}
+        for k in list(parent):
+            groups.setdefault(find(k), []).append(k)
+        updates: dict[int, dict[int, float]] = {}
+        for members in groups.values():
+            top = max(
+                float(layer.poses[uid].landmarks.stamp[i])
+                for uid, i in members
+                for layer in self._holders(uid)
+            )
+            for uid, i in members:
+                updates.setdefault(uid, {})[i] = top
+        for uid, new in updates.items():
+            idx = np.fromiter(new, dtype=np.intp, count=len(new))
+            val = np.fromiter(new.values(), dtype=np.float64, count=len(new))
+            for layer in self._holders(uid):
+                p = layer.poses[uid]
+                if np.array_equal(p.landmarks.stamp[idx], val):
+                    continue
+                stamp = p.landmarks.stamp.copy()
+                stamp[idx] = val
+                layer.poses[uid] = p.with_landmarks(replace(p.landmarks, stamp=stamp))
+
+    def _update_reliability(self, c: ClosureEdge, new_uid: int) -> None:
+        """Reliabilities after a closure between two of our own poses (thesis 2.3.1):
+        matched pairs both become 1 - (1 - r1)(1 - r2); an unmatched landmark X of the
+        old pose that the new pose's camera could have seen is divided by
+        min(1 + beta d, L), d the new pose's landmark density at X."""
+        poses = self.local.poses
+        if robot_of(c.a) != self.robot or robot_of(c.b) != self.robot or c.a == c.b:
+            return
+        if c.a not in poses or c.b not in poses:
+            return
+        old, new, where = c.a, c.b, _tf(c.transform)
+        pairs = [(i, j) for i, j in c.matches]
+        if c.a == new_uid:
+            old, new, where = c.b, c.a, _tf(invert(where))
+            pairs = [(j, i) for i, j in pairs]
+        lo, ln = poses[old].landmarks, poses[new].landmarks
+        io, jn = _unique_pairs(pairs, len(lo), len(ln))
+        r_old = lo.reliability.astype(np.float64)
+        r_new = ln.reliability.astype(np.float64)
+        both = _combine(r_old[io], r_new[jn])
+        unmatched = np.ones(len(lo), dtype=bool)
+        unmatched[io] = False
+        cand = np.flatnonzero(unmatched)
+        seen = _to_frame(lo.points[cand], _tf(invert(where)))
+        visible = self._visible(seen)
+        cand, seen = cand[visible], seen[visible]
+        d = kernel_density(seen, ln.points, self.params.landmark_sigma)
+        L = self.params.decay_cap
+        beta = self.params.beta
+        if beta is None:
+            own = kernel_density(ln.points, ln.points, self.params.landmark_sigma)
+            beta = (L - 1.0) / float(own.max()) if len(own) else 0.0
+        r_old[cand] /= np.minimum(1.0 + beta * d, L)
+        r_old[io] = both
+        r_new[jn] = both
+        for uid, lm, r in ((old, lo, r_old), (new, ln, r_new)):
+            self.local.poses[uid] = poses[uid].with_landmarks(
+                replace(lm, reliability=np.clip(r, 0.0, 1.0).astype(np.float32))
+            )
+
+    def _visible(self, points: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+        """Points (a pose's frame) within the camera's horizontal field of view (x
+        forward) and range."""
+        bearing = np.abs(np.arctan2(points[:, 1], points[:, 0]))
+        near = np.linalg.norm(points, axis=1) <= self.params.camera_range
+        return np.asarray((bearing <= math.radians(self.params.fov) / 2.0) & near)
+
+    # closures and edges under compression
+
+    @staticmethod
+    def _index_map(n: int, kept: Index) -> Index:
+        out = np.full(n, -1, dtype=np.intp)
+        out[kept] = np.arange(len(kept))
+        return out
+
+    def _rewrite_closures(
+        self, old: int, new: int, index: Index, where: Transform = (0.0, 0.0, 0.0)
+    ) -> None:
+        """Closures touching pose ``old`` moved to ``new`` (old's frame at ``where`` in
+        it, old's landmark i at new's index[i]); pairs whose landmark went are dropped,
+        and so are closures that now join a pose to itself."""
+        out: list[ClosureEdge] = []
+        for c in self.closures:
+            if old not in (c.a, c.b):
+                out.append(c)
+                continue
+            a, b, tf, cov = _reframe(c.a, c.b, _tf(c.transform), c.cov(), old, new, where)
+            if a == b:
+                continue
+
+            def moved(k: int, side: int) -> int:
+                if side != old:
+                    return k
+                return int(index[k]) if 0 <= k < len(index) else -1
+
+            pairs = ((moved(i, c.a), moved(j, c.b)) for i, j in c.matches)
+            matches = tuple((i, j) for i, j in pairs if i >= 0 and j >= 0)
+            cov_t = _cov_tuple(cov)
+            out.append(replace(c, a=a, b=b, transform=tf, covariance=cov_t, matches=matches))
+        self.closures = out
+
+    # region compression
+
+    def delete_pose(self, uid: int, now: float) -> set[int]:
+        """Delete a local pose (region compression). Its odometry neighbours, ordered by
+        time, are chained by edges composed through it, so the graph stays connected;
+        its closures go. Returns the regions whose edges changed."""
+        layer = self.local
+        links: dict[int, tuple[Transform, F64, float, float]] = {}
+        for e in layer.edges_of(uid):
+            other = e.b if e.a == uid else e.a
+            if other in links or other not in layer.poses:
+                continue
+            tf, cov = _tf(e.transform), e.cov()
+            if e.b == uid:
+                tf, cov = _tf(invert(tf)), _invert_cov(tf, cov)
+            links[other] = (tf, cov, e.max_distance, e.max_turn)
+        layer.remove_pose(uid, now)
+        if uid == self._newest:
+            self._newest = None
+        self.closures = [c for c in self.closures if uid not in (c.a, c.b)]
+        order = sorted(links, key=lambda n: (layer.poses[n].time, n))
+        touched: set[int] = set()
+        for n1, n2 in itertools.pairwise(order):
+            t1, c1, d1, a1 = links[n1]
+            t2, c2, d2, a2 = links[n2]
+            back = _tf(invert(t1))
+            cov = _compose_cov(back, _invert_cov(t1, c1), t2, c2)
+            layer.add_edge(
+                OdometryEdge(
+                    n1, n2, _tf(compose(back, t2)), _cov_tuple(cov), d1 + d2, min(math.pi, a1 + a2)
+                )
+            )
+            touched.add(layer.poses[n2].region)
+        return touched
+
+    def merge_poses(self, closure: ClosureEdge, now: float) -> int:
+        """Merge closure.a and closure.b into a new pose in a's frame (thesis 2.3.2);
+        its UID is returned. Edges and closures follow; the merged pose is compressed
+        if it exceeds the pose limit."""
+        if closure.a == closure.b or not {closure.a, closure.b} <= set(self.local.poses):
+            raise InputError(
+                f"closure {closure.a} - {closure.b} does not join two local poses",
+                field="closure",
+            )
+        p, q = self.local.poses[closure.a], self.local.poses[closure.b]
+        uid = make_uid(self.robot, MERGE_COUNTER_BASE + self._merges)
+        plan = _plan_merge(p, q, closure, uid, now, self.params)
+        self._apply_merge(plan, now)
+        return uid
+
+    def _apply_merge(self, plan: _MergePlan, now: float) -> None:
+        c, uid = plan.closure, plan.pose.uid
+        self._merges += 1
+        layer = self.local
+        edges = layer.edges_of(c.a) + layer.edges_of(c.b)
+        layer.remove_pose(c.a, now)
+        layer.remove_pose(c.b, now)
+        layer.put_pose(plan.pose, now)
+        if self._newest in (c.a, c.b):
+            self._newest = uid
+        where = _tf(c.transform)
+        for e in edges:
+            a, b, tf, cov = _reframe(e.a, e.b, _tf(e.transform), e.cov(), c.a, uid, (0, 0, 0))
+            a, b, tf, cov = _reframe(a, b, tf, cov, c.b, uid, where)
+            if a != b:
+                layer.add_edge(replace(e, a=a, b=b, transform=tf, covariance=_cov_tuple(cov)))
+        self._rewrite_closures(c.a, uid, plan.p_index)
+        self._rewrite_closures(c.b, uid, plan.q_index, where)
+
+    def _mergeable(self, c: ClosureEdge, region: int) -> bool:
+        poses = self.local.poses
+        if c.a == c.b or c.a not in poses or c.b not in poses or self._newest in (c.a, c.b):
+            return False
+        if poses[c.a].region != region or poses[c.b].region != region:
+            return False
+        cov = c.cov()
+        xy_std = math.sqrt(max(0.0, float(np.linalg.eigvalsh(cov[:2, :2]).max())))
+        return (
+            c.inliers >= self.params.merge_min_inliers
+            and math.hypot(c.transform[0], c.transform[1]) < self.params.merge_radius
+            and xy_std <= self.params.merge_max_std
+            and math.sqrt(max(0.0, cov[2, 2])) <= self.params.merge_max_angle_std
+        )
+
+    def compress_region(self, region: int, now: float) -> None:
+        """Thesis 2.3.2 region compression of the local layer: while the region exceeds
+        ``region_limit``, apply the deletion or merge of best efficiency
+        E = M / (d sum U). Regions that gain an edge from a deletion are checked too."""
+        todo = {region}
+        while todo:
+            r = min(todo)
+            todo.discard(r)
+            todo |= self._compress_one(r, now)
+
+    def _compress_one(self, region: int, now: float) -> set[int]:
+        layer, params = self.local, self.params
+        lost: dict[int, float] = {}
+        plans: dict[tuple[int, int], _MergePlan] = {}
+        touched: set[int] = set()
+        while layer.region_bytes(region) > params.region_limit:
+            uids = sorted(layer.patches[region].short)
+            where = np.array([layer.poses[u].estimate[:2] for u in uids])
+            density = dict(zip(uids, kernel_density(where, where, params.pose_sigma), strict=True))
+            best: tuple[float, int, int, _MergePlan | None] | None = None
+            for u in uids:
+                if u == self._newest:
+                    continue
+                if u not in lost:
+                    lost[u] = float(utility(layer.poses[u].landmarks, now, params).sum())
+                e = _efficiency(layer.pose_bytes(u), density[u], lost[u])
+                # Ties: deletion before merging, then the oldest UID.
+                if best is None or (e, 1, -u) > best[:3]:
+                    best = (e, 1, -u, None)
+            for key, c in self._merge_candidates(region).items():
+                if key not in plans:
+                    uid = make_uid(self.robot, MERGE_COUNTER_BASE + self._merges)
+                    p, q = layer.poses[c.a], layer.poses[c.b]
+                    plans[key] = _plan_merge(p, q, c, uid, now, params)
+                plan = plans[key]
+                if plan.freed <= 0:
+                    continue
+                e = _efficiency(plan.freed, density[c.a], plan.lost_utility)
+                if best is None or (e, 0, -c.a) > best[:3]:
+                    best = (e, 0, -c.a, plan)
+            if best is None:
+                break
+            if best[3] is None:
+                touched |= self.delete_pose(-best[2], now)
+            else:
+                plans.clear()  # the UIDs planned ahead are now taken
+                self._apply_merge(best[3], now)
+        touched.discard(region)
+        return touched
+
+    def _merge_candidates(self, region: int) -> dict[tuple[int, int], ClosureEdge]:
+        """The best mergeable closure (most inliers, then least error) of each pair."""
+        out: dict[tuple[int, int], ClosureEdge] = {}
+        for c in self.closures:
+            if not self._mergeable(c, region):
+                continue
+            key = (min(c.a, c.b), max(c.a, c.b))
+            have = out.get(key)
+            if have is None or (c.inliers, -c.error) > (have.inliers, -have.error):
+                out[key] = c
+        return out
+
+
+def compress_for_sending(
+    layer: Layer,
+    region: int | Collection[int],
+    cap_bytes: int,
+    now: float,
+    *,
+    params: StoreParams | None = None,
+    uids: Collection[int] | None = None,
+) -> list[int]:
+    """The poses of ``region`` (one or several) to send within ``cap_bytes`` (poses'
+    bytes; edges are not counted): deletion-only region compression, dropping the pose
+    of best E = M / (d sum U) until the rest fits (a merge would make a UID the
+    receiver does not know).
+
+    Parameters
+    ----------
+    layer : Layer
+    region : int or collection of int
+    cap_bytes : int
+        T, the reply's cap.
+    now : float
+        Mission time, for the landmarks' ages.
+    params : StoreParams, optional
+        Utility constants and pose kernel width.
+    uids : collection of int, optional
+        Only these poses are candidates (e.g. those the receiver lacks).
+
+    Returns
+    -------
+    list of int
+        UIDs to send, by pose time then UID.
+    """
+    params = params if params is not None else StoreParams()
+    regions = {region} if isinstance(region, int) else set(region)
+    cand = sorted(
+        u for u, p in layer.poses.items() if p.region in regions and (uids is None or u in uids)
+    )
+    sizes = np.array([layer.pose_bytes(u) for u in cand], dtype=np.float64)
+    lost = np.array([utility(layer.poses[u].landmarks, now, params).sum() for u in cand])
+    keep = np.ones(len(cand), dtype=bool)
+    while keep.any() and sizes[keep].sum() > cap_bytes:
+        idx = np.flatnonzero(keep)
+        where = np.array([layer.poses[cand[i]].estimate[:2] for i in idx])
+        d = kernel_density(where, where, params.pose_sigma)
+        e = [_efficiency(int(sizes[i]), float(d[k]), float(lost[i])) for k, i in enumerate(idx)]
+        keep[idx[int(np.argmax(e))]] = False
+    chosen = [cand[i] for i in np.flatnonzero(keep)]
+    return sorted(chosen, key=lambda u: (layer.poses[u].time, u))
