@@ -90,7 +90,7 @@ def _check_bounds(pose_limit: int, region_limit: int) -> StoreParams:
     try:
         return StoreParams(pose_limit=pose_limit, region_limit=region_limit)
     except ConfigError as e:
-        option = "--pose-limit" if "pose_limit" in str(e) else "--region-limit"
+        option = "--pose-limit" if str(e).startswith("store: pose_limit") else "--region-limit"
         raise ConfigError(f"{option}: {str(e).removeprefix('store: ')}") from None
 
 

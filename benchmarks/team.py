@@ -1,0 +1,93 @@
+"""One robot's long-term store as the mission grows: memory, association, trajectory,
+map, and the time each new pose and each global-map batch take.
+
+The office floor plan (20 x 20 m, 8 rooms), one robot patrolling for ``--base`` seconds
+(300) times each of ``--scales`` (1 4 10), the store at its default bounds. For each
+length: the peak and final store bytes (the bound is flat within 10 % when the peaks of
+the 4x and 10x missions are within 10 % of each other's), association precision and
+recall, ATE of the optimised graph and of odometry, the map's wall F1 beside the maps
+built from the same readings at the true and at the odometry poses, the alignment error,
+the association time per pose (median, p99) against the time between poses, and the
+final global-map batch (optimise + fuse).
+
+Run with ``python -m benchmarks.team [--base 300] [--scales 1 4 10] [--json F]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from typing import Any
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+from sonarmap.scenarios import office
+from sonarmap.sensors import Noise
+from sonarmap.team.mission import MissionConfig, run_mission
+
+KEYS = (
+    "store_bytes_peak",
+    "store_bytes_final",
+    "poses",
+    "poses_made",
+    "landmarks",
+    "closures",
+    "association_precision",
+    "association_recall",
+    "ate_m",
+    "ate_odometry_m",
+    "map_f1",
+    "map_f1_true_poses",
+    "map_f1_odometry_poses",
+    "alignment_error_m",
+    "alignment_error_deg",
+    "association_ms_median",
+    "association_ms_p99",
+    "pose_interval_s",
+    "global_map_batch_s",
+    "wall_seconds",
+)
+
+
+def measure(base: float, scales: list[float], seed: int) -> list[dict[str, Any]]:
+    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    rows = []
+    for k in scales:
+        s = run_mission(plan, MissionConfig(duration=base * k, seed=seed)).summary
+        rows.append({"scale": k, "duration_s": base * k, **{key: s[key] for key in KEYS}})
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--base", type=float, default=300.0)
+    parser.add_argument("--scales", type=float, nargs="+", default=[1.0, 4.0, 10.0])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", help="Also write the rows to this JSON file.")
+    args = parser.parse_args()
+    rows = measure(args.base, args.scales, args.seed)
+    print("team store, office plan, one robot")
+    for r in rows:
+        print(
+            f"x{r['scale']:g} ({r['duration_s']:.0f} s): peak {r['store_bytes_peak']} B, "
+            f"final {r['store_bytes_final']} B, poses {r['poses']}/{r['poses_made']}, "
+            f"precision {r['association_precision']:.3f}, recall {r['association_recall']:.3f}, "
+            f"ATE {r['ate_m']:.3f} m (odometry {r['ate_odometry_m']:.3f} m), "
+            f"map F1 {r['map_f1']:.3f} (true poses {r['map_f1_true_poses']:.3f}, odometry "
+            f"{r['map_f1_odometry_poses']:.3f}), alignment {r['alignment_error_m']:.2f} m "
+            f"{r['alignment_error_deg']:.1f} deg, association {r['association_ms_median']:.0f} ms "
+            f"median / {r['association_ms_p99']:.0f} ms p99 per pose every "
+            f"{r['pose_interval_s']:.1f} s, batch {r['global_map_batch_s']:.2f} s, "
+            f"wall {r['wall_seconds']:.0f} s"
+        )
+    if len(rows) >= 2:
+        peaks = [r["store_bytes_peak"] for r in rows[1:]]
+        print(f"peaks beyond the first within {100 * (max(peaks) / min(peaks) - 1):.1f} %")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()

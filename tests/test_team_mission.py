@@ -1,0 +1,115 @@
+"""One robot's mission end to end, and the ``sonarmap team`` commands (short runs; the
+long ones are in ``benchmarks/team.py``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.cli import main
+from sonarmap.io.rosmap import OccupancyMap, write_map
+from sonarmap.scenarios import office
+from sonarmap.sensors import Noise
+from sonarmap.team.mission import MissionConfig, run_mission
+from sonarmap.team.store import StoreParams
+
+
+@pytest.fixture(scope="module")
+def plan() -> OccupancyMap:
+    return office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+
+
+@pytest.fixture(scope="module")
+def mission(plan: OccupancyMap) -> dict[str, object]:
+    cfg = MissionConfig(duration=150.0, seed=1, store=StoreParams(region_limit=60_000))
+    r = run_mission(plan, cfg)
+    return {"summary": r.summary, "result": r}
+
+
+def test_a_mission_beats_odometry_and_keeps_its_bounds(mission: dict[str, object]) -> None:
+    s = mission["summary"]
+    assert isinstance(s, dict)
+    # The optimised trajectory beats dead reckoning, associations are mostly right.
+    assert s["ate_m"] < 0.5 * s["ate_odometry_m"]
+    assert s["association_precision"] >= 0.95
+    assert 0.2 < s["association_recall"] <= 1.0
+    assert s["closures"] > 0
+    # Memory: every region within M_r (plus the protected newest pose), the peak
+    # within regions x M_r plus the closures' bytes.
+    r = mission["result"]
+    store = r.store  # type: ignore[attr-defined]
+    for region in store.local.patches:
+        assert store.local.region_bytes(region) <= 60_000 + StoreParams().pose_limit
+    assert s["poses"] < s["poses_made"]  # compression removed or merged some
+    # The map lands on the plan: better than the odometry-posed map cannot be
+    # promised on 150 s, but the alignment must put it within a metre.
+    assert s["alignment_error_m"] < 1.0
+    assert 0.0 < s["map_f1"] <= s["map_f1_true_poses"] + 0.05
+
+
+def test_missions_are_deterministic(plan: OccupancyMap, mission: dict[str, object]) -> None:
+    cfg = MissionConfig(duration=150.0, seed=1, store=StoreParams(region_limit=60_000))
+    again = run_mission(plan, cfg).summary
+    s = mission["summary"]
+    assert isinstance(s, dict)
+    for key in ("ate_m", "closures", "store_bytes_peak", "map_f1", "association_precision"):
+        assert again[key] == s[key]
+
+
+def test_team_commands_write_their_outputs(tmp_path: Path, plan: OccupancyMap) -> None:
+    write_map(plan, tmp_path / "plan")
+    main(["team", "world", "--map", str(tmp_path / "plan.yaml"), "--duration", "40",
+          "-o", str(tmp_path / "w")])  # fmt: skip
+    assert (tmp_path / "w" / "landmarks.csv").exists()
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--world", str(tmp_path / "w"),
+          "--duration", "40", "-o", str(tmp_path / "out")])  # fmt: skip
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    robot = s["robots"][0]
+    for key in ("store_bytes_peak", "store_bytes_final", "poses", "landmarks", "closures"):
+        assert robot[key] >= 0
+    for key in ("association_precision", "association_recall", "ate_m", "ate_odometry_m",
+                "map_f1", "alignment_error_m", "alignment_error_deg"):  # fmt: skip
+        assert key in s
+    for name in ("map.yaml", "map.pgm", "map.npy", "graph.png", "memory.csv"):
+        assert (tmp_path / "out" / name).stat().st_size > 0
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--pose-limit", "100"], "--pose-limit"),
+        (["--pose-limit", "20000", "--region-limit", "10000"], "--region-limit"),
+        (["--robots", "0"], "--robots"),
+        (["--duration", "-5"], "--duration"),
+        (["--route", "route.csv"], "route.csv"),
+        (["--world", "nowhere"], "world"),
+        (["--map", "empty.yaml"], "no free cell"),
+        (["--map", "missing.yaml"], "missing.yaml"),
+    ],
+)
+def test_bad_team_input_is_one_line_and_exit_2(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    plan: OccupancyMap,
+    args: list[str],
+    message: str,
+) -> None:
+    write_map(plan, tmp_path / "plan")
+    write_map(
+        OccupancyMap(plan.grid, np.ones(plan.grid.shape, dtype=np.float32)), tmp_path / "empty"
+    )
+    (tmp_path / "route.csv").write_text("t,x,y,theta\n0,1,1,0\n0.5,1.2,x,0\n")
+    here = [
+        str(tmp_path / a) if a.endswith((".yaml", ".csv")) or a == "nowhere" else a for a in args
+    ]
+    with pytest.raises(SystemExit) as e:
+        main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "20", *here,
+              "-o", str(tmp_path / "out")])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2
+    assert message in err
+    assert len(err.splitlines()) == 1
+    assert not (tmp_path / "out").exists()
