@@ -19,6 +19,7 @@ from ..io._json import dumps as json_dumps
 from ..io.rosmap import write_map
 from ..team.globalmap import plot_pose_graph
 from ..team.mission import MissionConfig, MissionResult, run_mission
+from ..team.records import compose
 from ..team.store import StoreParams
 from ..team.world import load_world, make_world, patrol_route, read_route, save_world
 from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
@@ -176,12 +177,7 @@ def run_cmd(
         for r in results:
             name = "map" if robots == 1 else f"map_robot{r.summary['robot']}"
             write_map(r.global_map, tmp / name)
-            a = np.asarray(r.alignment.transform, dtype=np.float64)
-            c, s = math.cos(a[2]), math.sin(a[2])
-            placed = {
-                u: np.array([a[0] + c * e[0] - s * e[1], a[1] + s * e[0] + c * e[1], e[2] + a[2]])
-                for u, e in r.graph.estimates.items()
-            }
+            placed = {u: compose(r.alignment.transform, e) for u, e in r.graph.estimates.items()}
             plot_pose_graph(
                 plan,
                 placed,

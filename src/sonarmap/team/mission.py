@@ -114,35 +114,13 @@ class MissionResult:
     bytes_per_pose: list[int]
 
 
-def _compose_many(a: F64, b: F64) -> F64:
-    """Row-wise a (+) b of (N, 3) transforms (a may be one row)."""
-    a = np.broadcast_to(a, b.shape)
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.column_stack(
-        [
-            a[:, 0] + c * b[:, 0] - s * b[:, 1],
-            a[:, 1] + s * b[:, 0] + c * b[:, 1],
-            np.remainder(a[:, 2] + b[:, 2] + np.pi, 2 * np.pi) - np.pi,
-        ]
-    )
-
-
-def _invert_many(a: F64) -> F64:
-    c, s = np.cos(a[:, 2]), np.sin(a[:, 2])
-    return np.column_stack([-(c * a[:, 0] + s * a[:, 1]), s * a[:, 0] - c * a[:, 1], -a[:, 2]])
-
-
 def _sonar_in_pose_frame(
-    readings: Readings, steps: npt.NDArray[np.intp], true: F64, odo: F64, k: int
+    readings: Readings, mounts: F64, steps: npt.NDArray[np.intp], odo: F64, k: int
 ) -> Readings:
-    """The readings (taken at route steps ``steps``), their sonar poses put in the frame
-    of the pose made at step ``k`` as the robot knows them: by odometry. A reading's
-    mount on the robot is invert(true pose) (+) its world sonar pose; the robot places it
-    at invert(odo_k) (+) odo_i (+) mount."""
-    world = np.column_stack([readings.x, readings.y, readings.theta])
-    mount = _compose_many(_invert_many(true[steps]), world)
-    rel = _compose_many(_invert_many(odo[k : k + 1])[0], odo[steps])
-    local = _compose_many(rel, mount)
+    """The readings (taken at route steps ``steps``, from sonars at ``mounts`` on the
+    robot), their sonar poses put in the frame of the pose made at step ``k`` as the
+    robot knows them: at invert(odo_k) (+) odo_i (+) mount."""
+    local = compose(compose(invert(odo[k]), odo[steps]), mounts)
     return Readings(
         readings.t,
         readings.sensor,
@@ -262,6 +240,10 @@ def run_mission(
     rig = get_rig(cfg.rig)
     readings = sonar_readings(plan, true, rig=rig, seed=seed + 2)
     step_of = np.clip(np.searchsorted(true[:, 0], readings.t), 0, len(true) - 1)
+    # Each reading's sonar pose on the robot: invert(true robot pose) (+) world sonar pose.
+    mounts = compose(
+        invert(true[step_of, 1:4]), np.column_stack([readings.x, readings.y, readings.theta])
+    )
     labels = cut_regions(prior.classes() == 0, prior.grid.resolution)
 
     # The robot's start as it believes it: the true one off by start_error.
@@ -272,7 +254,7 @@ def run_mission(
     # Prior frame = A_true (+) robot frame.
     a_true = compose(start_true, invert(start_believed))
 
-    def believed(k: int) -> F64:
+    def believed(k: int | npt.NDArray[np.intp]) -> F64:
         return compose(start_believed, compose(invert(odo[0, 1:4]), odo[k, 1:4]))
 
     store = RobotStore(robot, cfg.store)
@@ -306,16 +288,17 @@ def run_mission(
         t = float(true[k, 0])
         uid = make_uid(robot, counter)
         counter += 1
+        # The odometry since the previous pose, which the store keeps until this one.
+        step = None
+        estimate = believed(k)
         if prev_uid is not None and prev_uid in store.local.poses:
             assert prev_k is not None
             step = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
             estimate = compose(store.local.poses[prev_uid].estimate, step)
-        else:
-            estimate = believed(k)
         lo = -1 if prev_k is None else prev_k
         mine = np.flatnonzero((step_of > lo) & (step_of <= k))
         local = _local_map(
-            _sonar_in_pose_frame(readings.take(mine), step_of[mine], true[:, 1:4], odo[:, 1:4], k),
+            _sonar_in_pose_frame(readings.take(mine), mounts[mine], step_of[mine], odo[:, 1:4], k),
             rig,
             cfg,
         )
@@ -327,9 +310,9 @@ def run_mission(
         all_made[uid] = pose
 
         edge = None
-        if prev_uid is not None and prev_uid in store.local.poses:
+        if step is not None:
             assert prev_k is not None
-            step = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
+            assert prev_uid is not None
             cov = _odometry_covariance(odo, prev_k, k, ODOMETRY_NOISE)
             edge = OdometryEdge(
                 prev_uid,
@@ -399,28 +382,20 @@ def run_mission(
     tru = np.array([truth[kept[u]] for u in uids])  # type: ignore[index]
     odo_est = np.array([odo_poses[kept[u]] for u in uids])  # type: ignore[index]
     # How far the found alignment puts the robot's poses from where the true one would.
-    placed = _compose_many(a, est)
-    should = _compose_many(a_true, est)
+    placed = compose(a, est)
+    should = compose(a_true, est)
     align_m = float(np.mean(np.hypot(*(placed[:, :2] - should[:, :2]).T)))
     align_deg = math.degrees(abs(math.remainder(a[2] - a_true[2], 2 * math.pi)))
 
     # The map in the plan's frame, by the found alignment, against its bounds: the same
     # readings mapped at the true poses and at the odometry poses (given the true start).
-    in_prior = {u: _compose_many(a, graph.estimates[u][None, :])[0] for u in store.local.poses}
+    in_prior = {u: compose(a, graph.estimates[u]) for u in store.local.poses}
     global_map = fuse_local_maps(store.local.poses, in_prior, plan.grid)
     true_posed = build_map(readings, rig, plan.grid, cfg.mapper)
-    odo_world = _compose_many(
-        a_true,
-        _compose_many(
-            start_believed,
-            _compose_many(_invert_many(odo[:1, 1:4])[0], odo[step_of, 1:4]),
-        ),
+    odo_world = compose(
+        a_true, compose(start_believed, compose(invert(odo[0, 1:4]), odo[step_of, 1:4]))
     )
-    mount = _compose_many(
-        _invert_many(true[step_of, 1:4]),
-        np.column_stack([readings.x, readings.y, readings.theta]),
-    )
-    odo_sonar = _compose_many(odo_world, mount)
+    odo_sonar = compose(odo_world, mounts)
     odo_posed = build_map(
         Readings(
             readings.t,

@@ -76,20 +76,34 @@ def robot_of(uid: int) -> int:
     return uid >> _UID_SHIFT
 
 
-def compose(a: F64 | tuple[float, float, float], b: F64 | tuple[float, float, float]) -> F64:
-    """a (+) b: the transform b, given in a's frame, expressed in a's parent frame."""
-    ax, ay, at = (float(v) for v in a)
-    bx, by, bt = (float(v) for v in b)
-    c, s = math.cos(at), math.sin(at)
-    t = math.remainder(at + bt, 2 * math.pi)
-    return np.array([ax + c * bx - s * by, ay + s * bx + c * by, t])
+def _wrap(t: F64) -> F64:
+    """Angles into [-pi, pi], as math.remainder(t, 2 pi) does (ties to even)."""
+    return t - 2 * np.pi * np.round(t / (2 * np.pi))
 
 
-def invert(a: F64 | tuple[float, float, float]) -> F64:
-    """The inverse transform: compose(a, invert(a)) is the identity."""
-    x, y, t = (float(v) for v in a)
-    c, s = math.cos(t), math.sin(t)
-    return np.array([-(c * x + s * y), s * x - c * y, math.remainder(-t, 2 * math.pi)])
+def compose(a: npt.ArrayLike, b: npt.ArrayLike) -> F64:
+    """a (+) b: the transform b, given in a's frame, expressed in a's parent frame.
+
+    Each of ``a`` and ``b`` is one transform (3,) or rows of them (N, 3); one
+    transform is composed with every row of the other."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack(
+        [
+            a[..., 0] + c * b[..., 0] - s * b[..., 1],
+            a[..., 1] + s * b[..., 0] + c * b[..., 1],
+            _wrap(a[..., 2] + b[..., 2]),
+        ],
+        axis=-1,
+    )
+
+
+def invert(a: npt.ArrayLike) -> F64:
+    """The inverse transform (of each row): compose(a, invert(a)) is the identity."""
+    a = np.asarray(a, dtype=np.float64)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    x, y = a[..., 0], a[..., 1]
+    return np.stack([-(c * x + s * y), s * x - c * y, _wrap(-a[..., 2])], axis=-1)
 
 
 @dataclass
