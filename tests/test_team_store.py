@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import gtsam
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -483,3 +484,34 @@ def test_compress_for_sending_keeps_the_fresh_reliable_pose() -> None:
 def test_bad_params_name_the_field(kwargs: dict[str, float], name: str) -> None:
     with pytest.raises(ConfigError, match=rf"\b{name}\b"):
         StoreParams(**kwargs)  # type: ignore[arg-type]
+
+
+def _log_right(t: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """Right-perturbation error of samples ``t`` (N, 3) around ``mean``, through gtsam."""
+    m = gtsam.Pose2(*mean)
+    return np.array([gtsam.Pose2.Logmap(m.between(gtsam.Pose2(*row))) for row in t])
+
+
+def _sample_right(
+    mean: tuple[float, float, float], cov: np.ndarray, n: int, rng: np.random.Generator
+) -> np.ndarray:
+    m = gtsam.Pose2(*mean)
+    xi = rng.multivariate_normal(np.zeros(3), cov, size=n)
+    out = [m.compose(gtsam.Pose2.Expmap(v)) for v in xi]
+    return np.array([[p.x(), p.y(), p.theta()] for p in out])
+
+
+def test_covariances_propagate_in_the_end_frame_as_gtsam_takes_them() -> None:
+    from sonarmap.team.store import _compose_cov, _invert_cov
+
+    rng = np.random.default_rng(5)
+    a, b = (1.0, 2.0, 0.7), (3.0, -1.0, -1.2)
+    ca = np.diag([0.01, 0.02, 0.003])
+    cb = np.diag([0.005, 0.001, 0.004])
+    sa = _sample_right(a, ca, 20000, rng)
+    sb = _sample_right(b, cb, 20000, rng)
+    mean = compose(np.asarray(a), np.asarray(b))
+    err = _log_right(compose(sa, sb), mean)
+    np.testing.assert_allclose(np.cov(err.T), _compose_cov(a, ca, b, cb), atol=2e-3, rtol=0.1)
+    err = _log_right(invert(sa), invert(np.asarray(a)))
+    np.testing.assert_allclose(np.cov(err.T), _invert_cov(a, ca), atol=2e-3, rtol=0.1)

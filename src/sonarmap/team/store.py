@@ -271,18 +271,26 @@ def compress_pose(pose: Pose, limit: int, now: float, params: StoreParams) -> tu
 # --- transforms with covariances ------------------------------------------------------
 
 
+def _adjoint(t: Transform) -> F64:
+    """SE(2) adjoint of ``t`` (tangent order x, y, theta, as gtsam's Pose2)."""
+    c, s = math.cos(t[2]), math.sin(t[2])
+    return np.array([[c, -s, t[1]], [s, c, -t[0]], [0.0, 0.0, 1.0]])
+
+
 def _compose_cov(a: Transform, ca: F64, b: Transform, cb: F64) -> F64:
-    """First-order covariance of compose(a, b) for independent a and b."""
-    c, s = math.cos(a[2]), math.sin(a[2])
-    ja = np.array([[1.0, 0.0, -s * b[0] - c * b[1]], [0.0, 1.0, c * b[0] - s * b[1]], [0, 0, 1]])
-    jb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return np.asarray(ja @ ca @ ja.T + jb @ cb @ jb.T, dtype=np.float64)
+    """First-order covariance of compose(a, b) for independent a and b.
+
+    Every covariance here is in the frame of its transform's end (a perturbation on
+    the right, as gtsam's BetweenFactor takes it): a's error reaches the end of b
+    through the adjoint of b's inverse.
+    """
+    j = _adjoint(_tf(invert(np.asarray(b, dtype=np.float64))))
+    return np.asarray(j @ ca @ j.T + cb, dtype=np.float64)
 
 
 def _invert_cov(a: Transform, ca: F64) -> F64:
-    c, s = math.cos(a[2]), math.sin(a[2])
-    x, y = a[0], a[1]
-    j = np.array([[-c, -s, s * x - c * y], [s, -c, c * x + s * y], [0.0, 0.0, -1.0]])
+    """First-order covariance of invert(a), in the inverse's end frame (a's start)."""
+    j = _adjoint(a)
     return np.asarray(j @ ca @ j.T, dtype=np.float64)
 
 
