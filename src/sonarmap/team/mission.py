@@ -13,7 +13,12 @@ Decisions where the thesis is silent:
 - **The local map** of a pose is built by a sonarmap mapper (``mapper``: the inverse
   model) from the sonar readings taken since the previous pose, placed in the pose's
   frame by odometry, on a square of ``local_size`` metres (6) at ``local_resolution``
-  (0.1 m).
+  (0.1 m). Only readings up to ``mapping_range`` (3 m) are used, and the inverse model
+  takes ``mapper_params`` (p_occ 0.6, p_free 0.45): on four seeded training buildings
+  (:func:`~sonarmap.floorplan.random_building` seeds 0-3, 300 s patrols, the 16-sonar
+  ring) this scored a mean wall F1 of 0.31 at the true poses, against 0.05 for the
+  mapper's own defaults, whose long specular no-echo misses and weak ``p_occ`` erase
+  the walls (48 settings of p_occ, p_free and range, and the counting model, tried).
 - **Odometry edges** carry the odometry model's covariance and the hard bound top
   speed x elapsed time (``max_speed``, 1.0 m/s: twice the route's speed).
 - **Association** is tried against every pose in the store, each with the prior of the
@@ -74,6 +79,8 @@ class MissionConfig:
     local_resolution: float = 0.1
     map_resolution: float = 0.1
     mapper: str = "inverse"
+    mapper_params: dict[str, Any] = field(default_factory=lambda: {"p_occ": 0.6, "p_free": 0.45})
+    mapping_range: float = 3.0
     max_speed: float = 1.0
     start_error: tuple[float, float] = (1.0, math.radians(10.0))
     batch: int = 25
@@ -89,7 +96,14 @@ class MissionConfig:
     association: AssociationParams = field(default_factory=lambda: AssociationParams(n_min=10))
 
     def __post_init__(self) -> None:
-        for name in ("duration", "pose_every", "pose_turn", "local_size", "local_resolution"):
+        for name in (
+            "duration",
+            "pose_every",
+            "pose_turn",
+            "local_size",
+            "local_resolution",
+            "mapping_range",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be > 0, got {v}")
@@ -139,7 +153,7 @@ def _local_map(readings: Readings, rig: Rig, config: MissionConfig) -> LocalMap 
     n = max(2, round(config.local_size / config.local_resolution))
     h = n * config.local_resolution / 2
     grid = Grid(config.local_resolution, (-h, -h), (n, n))
-    m = build_map(readings, rig, grid, config.mapper)
+    m = build_map(readings, rig, grid, config.mapper, config.mapper_params)
     p = np.clip(np.nan_to_num(m.occupancy.astype(np.float64), nan=0.5), 0.01, 0.99)
     return LocalMap.from_logodds(np.log(p / (1 - p)), config.local_resolution)
 
@@ -239,6 +253,7 @@ def run_mission(
     odo, _ = odometry(true, seed=seed + 1, **ODOMETRY_NOISE)
     rig = get_rig(cfg.rig)
     readings = sonar_readings(plan, true, rig=rig, seed=seed + 2)
+    readings = readings.take(np.flatnonzero(readings.range <= cfg.mapping_range))
     step_of = np.clip(np.searchsorted(true[:, 0], readings.t), 0, len(true) - 1)
     # Each reading's sonar pose on the robot: invert(true robot pose) (+) world sonar pose.
     mounts = compose(
@@ -391,7 +406,7 @@ def run_mission(
     # readings mapped at the true poses and at the odometry poses (given the true start).
     in_prior = {u: compose(a, graph.estimates[u]) for u in store.local.poses}
     global_map = fuse_local_maps(store.local.poses, in_prior, plan.grid)
-    true_posed = build_map(readings, rig, plan.grid, cfg.mapper)
+    true_posed = build_map(readings, rig, plan.grid, cfg.mapper, cfg.mapper_params)
     odo_world = compose(
         a_true, compose(start_believed, compose(invert(odo[0, 1:4]), odo[step_of, 1:4]))
     )
@@ -409,6 +424,7 @@ def run_mission(
         rig,
         plan.grid,
         cfg.mapper,
+        cfg.mapper_params,
     )
     assoc = np.array(assoc_seconds)
     summary: dict[str, Any] = {
