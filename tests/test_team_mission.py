@@ -65,7 +65,7 @@ def test_team_commands_write_their_outputs(tmp_path: Path, plan: OccupancyMap) -
           "-o", str(tmp_path / "w")])  # fmt: skip
     assert (tmp_path / "w" / "landmarks.csv").exists()
     main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--world", str(tmp_path / "w"),
-          "--duration", "40", "-o", str(tmp_path / "out")])  # fmt: skip
+          "--duration", "40", "-o", str(tmp_path / "out"), "--animate"])  # fmt: skip
     s = json.loads((tmp_path / "out" / "summary.json").read_text())
     robot = s["robots"][0]
     for key in ("store_bytes_peak", "store_bytes_final", "poses", "landmarks", "closures"):
@@ -73,8 +73,29 @@ def test_team_commands_write_their_outputs(tmp_path: Path, plan: OccupancyMap) -
     for key in ("association_precision", "association_recall", "ate_m", "ate_odometry_m",
                 "map_f1", "alignment_error_m", "alignment_error_deg"):  # fmt: skip
         assert key in s
-    for name in ("map.yaml", "map.pgm", "map.npy", "graph.png", "memory.csv"):
+    for name in ("map.yaml", "map.pgm", "map.npy", "graph.png", "memory.csv", "mission.gif"):
         assert (tmp_path / "out" / name).stat().st_size > 0
+    from PIL import Image
+
+    with Image.open(tmp_path / "out" / "mission.gif") as gif:
+        assert gif.n_frames == robot["poses_made"]
+
+
+def test_the_stage_table_accounts_for_every_candidate(mission: dict[str, object]) -> None:
+    s = mission["summary"]
+    assert isinstance(s, dict)
+    st = s["association_stages"]
+    # Each stage gets what the one before kept; the last keeps the closures found.
+    order = ["votes", "bounds", "ransac", "accepted"]
+    for a, b in zip(order, order[1:], strict=False):
+        assert st[b]["in"] == st[a]["in"] - st[a]["removed"]
+    assert st["accepted"]["in"] - st["accepted"]["removed"] == s["closures_found"]
+    assert st["graph"]["in"] == s["closures_found"]
+    # Voting does the bulk of the work; RANSAC leaves no candidate that shares too few
+    # landmarks, or precision could not be what it is.
+    assert st["votes"]["removed"] > 0.5 * st["votes"]["in"]
+    assert st["ransac"]["kept_false"] <= 0.05 * (st["ransac"]["in"] - st["ransac"]["removed"])
+    assert 0 <= st["graph"]["removed_true"] <= st["graph"]["removed"]
 
 
 @pytest.mark.parametrize(

@@ -198,6 +198,9 @@ class AssociationStats:
         Inliers of the poses RANSAC accepted.
     inlier_matches : int
         Inliers of the closures.
+    kept : dict of str to tuple of int
+        The UIDs each stage kept (``"votes"``, ``"bounds"``, ``"ransac"``,
+        ``"accepted"``), so a caller that knows the truth can say whom a stage removed.
     """
 
     candidates: int = 0
@@ -211,6 +214,7 @@ class AssociationStats:
     putative_matches: int = 0
     ransac_matches: int = 0
     inlier_matches: int = 0
+    kept: dict[str, tuple[int, ...]] = field(default_factory=dict)
 
     def removed(self) -> dict[str, tuple[int, int]]:
         """Per stage, ``(poses removed, matches removed)``.
@@ -663,6 +667,9 @@ def associate(
     ]
     stats.after_bounds = len(in_view)
     stats.vote_matches_after_bounds = int(pairs[in_view].sum())
+    stats.kept["votes"] = tuple(stored[i].uid for i in kept)
+    stats.kept["bounds"] = tuple(stored[i].uid for i in in_view)
+    after_ransac: list[int] = []
 
     closures: list[ClosureEdge] = []
     for i in in_view:
@@ -675,6 +682,7 @@ def associate(
             continue
         stats.after_ransac += 1
         stats.ransac_matches += len(best.inliers)
+        after_ransac.append(cand.uid)
         prior = priors.get(cand.uid)
         if prior is not None and _contradicts(prior, best.transform):
             continue
@@ -698,4 +706,6 @@ def associate(
                 matches=tuple((int(m.old[k]), int(m.new[k])) for k in order),
             )
         )
+    stats.kept["ransac"] = tuple(after_ransac)
+    stats.kept["accepted"] = tuple(c.a for c in closures)
     return closures, stats

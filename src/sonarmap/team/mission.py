@@ -28,6 +28,13 @@ Decisions where the thesis is silent:
   correct when its transform is within ``correct_xy`` (0.3 m) and ``correct_theta``
   (5 degrees) of the true one; recall counts the (new, stored) pairs that truly shared
   at least ``n_min`` landmarks when the new pose was associated.
+- **What each stage removes** (``association_stages``): for voting, the odometry
+  pre-check, RANSAC and the bound check of its transform (``accepted``), the candidate
+  poses it was given (``in``), removed, removed although truly overlapping
+  (``removed_true``: the stage's cost in recall) and kept although not
+  (``kept_false``: what the later stages must still remove). For ``graph``, the closures
+  accepted, those the optimised graph found inconsistent, how many of them were correct,
+  and the wrong closures left in the store at the end.
 """
 
 from __future__ import annotations
@@ -48,6 +55,7 @@ from ..io.rosmap import OccupancyMap
 from ..metrics import score
 from ..readings import Readings
 from ..rig import Rig, get_rig
+from .animation import Frame
 from .association import AssociationParams, Prior, associate, estimate_planar
 from .globalmap import (
     Alignment,
@@ -126,6 +134,7 @@ class MissionResult:
     truth: dict[int, F64]
     odometry_poses: dict[int, F64]
     bytes_per_pose: list[int]
+    frames: list[Frame] = field(default_factory=list)
 
 
 def _sonar_in_pose_frame(
@@ -214,14 +223,20 @@ def _closure_correct(c: ClosureEdge, ta: F64, tb: F64, config: MissionConfig) ->
     )
 
 
-def _optimise(store: RobotStore) -> GraphResult:
+#: The stages of association, then the graph's consistency check, as reported.
+STAGES = ("votes", "bounds", "ransac", "accepted", "graph")
+
+
+def _optimise(store: RobotStore) -> tuple[GraphResult, list[ClosureEdge]]:
     """One batch of the global map: optimise, move every pose's estimate, drop the
-    closures the result finds inconsistent."""
+    closures the result finds inconsistent (returned)."""
     graph = optimise_graph(store.local.poses, store.local.edges, store.closures)
     for uid, est in graph.estimates.items():
         store.local.poses[uid].estimate = np.asarray(est, dtype=np.float64)
-    store.closures = graph.consistent_closures(store.closures)
-    return graph
+    kept = graph.consistent_closures(store.closures)
+    dropped = [c for c in store.closures if c not in kept]
+    store.closures = kept
+    return graph, dropped
 
 
 def run_mission(
@@ -233,12 +248,14 @@ def run_mission(
     world: World | None = None,
     robot: int = 0,
     progress: Progress | None = None,
+    record: bool = False,
 ) -> MissionResult:
     """Run robot ``robot``'s mission on the floor ``plan``.
 
     The prior map is the plan unless ``prior`` is given; ``world`` (landmarks) is made
     from the seed unless given; ``route`` (T, 4: t, x, y, theta) replaces the patrol
-    route (random waypoints drawn from the seed and the robot's number).
+    route (random waypoints drawn from the seed and the robot's number). ``record``
+    keeps a :class:`~sonarmap.team.animation.Frame` per pose made, for an animation.
     """
     cfg = MissionConfig() if config is None else config
     prior = plan if prior is None else prior
@@ -277,12 +294,26 @@ def run_mission(
     odo_poses: dict[int, F64] = {}
     all_made: dict[int, Pose] = {}
     bytes_per_pose: list[int] = []
+    frames: list[Frame] = []
     n_true_pairs = 0
     n_correct = 0
     n_closures = 0
     n_found = 0
     wrong: list[dict[str, Any]] = []
     stage_removed: dict[str, list[int]] = {}
+    stages = {k: {"in": 0, "removed": 0, "removed_true": 0, "kept_false": 0} for k in STAGES}
+    graph_dropped: dict[tuple[int, int], bool] = {}
+
+    def correct(c: ClosureEdge) -> bool:
+        oa, ob = _origin(c.a, truth, all_made), _origin(c.b, truth, all_made)
+        return oa is not None and ob is not None and _closure_correct(c, truth[oa], truth[ob], cfg)
+
+    def batch() -> GraphResult:
+        graph, dropped = _optimise(store)
+        for c in dropped:
+            graph_dropped[(c.a, c.b)] = correct(c)
+        return graph
+
     assoc_seconds: list[float] = []
     graph: GraphResult | None = None
     prev_k: int | None = None
@@ -353,9 +384,18 @@ def run_mission(
             >= cfg.association.n_min
         }
         n_true_pairs += len(overlapping)
+        before = {p.uid for p in stored if p.uid != uid}
+        for stage in STAGES[:-1]:
+            after = set(stats.kept[stage])
+            row = stages[stage]
+            row["in"] += len(before)
+            row["removed"] += len(before - after)
+            row["removed_true"] += len((before - after) & overlapping)
+            row["kept_false"] += len(after - overlapping)
+            before = after
         for c in closures:
+            right = correct(c)
             oa = _origin(c.a, truth, all_made)
-            right = oa is not None and _closure_correct(c, truth[oa], truth[uid], cfg)
             if not right and oa is not None:
                 err = np.asarray(c.transform) - compose(invert(truth[oa]), truth[uid])
                 wrong.append(
@@ -376,17 +416,25 @@ def run_mission(
         for p in store.local.poses.values():
             all_made.setdefault(p.uid, p)
         bytes_per_pose.append(store.bytes())
+        if record:
+            frames.append(_frame(store, t, true[k, 1:3], believed(k)[:2], bytes_per_pose[-1]))
         prev_k, prev_uid = k, uid
         if counter % cfg.batch == 0:
-            graph = _optimise(store)
+            graph = batch()
     t_batch = time.perf_counter()
-    graph = _optimise(store)
+    graph = batch()
     built = fuse_local_maps(
         store.local.poses,
         graph.estimates,
         grid_around(graph.estimates, cfg.local_size / 2, cfg.map_resolution, margin=1.0),
     )
     batch_seconds = time.perf_counter() - t_batch
+    stages["graph"] = {
+        "in": n_closures,
+        "removed": len(graph_dropped),
+        "removed_true": sum(graph_dropped.values()),
+        "kept_false": sum(not correct(c) for c in store.closures),
+    }
     # The robot believes its frame is the prior's (it started where it thinks).
     alignment = align_to_prior(built, prior, seed=cfg.seed, guess=(0.0, 0.0, 0.0))
     a = np.asarray(alignment.transform, dtype=np.float64)
@@ -445,6 +493,7 @@ def run_mission(
         "closures_wrong": wrong,
         "true_pairs": n_true_pairs,
         "association_removed_matches": {k: int(sum(v)) for k, v in stage_removed.items()},
+        "association_stages": stages,
         "closures_rejected_by_graph": len(graph.inconsistent),
         "ate_m": _rigid_ate(est[:, :2], tru[:, :2]),
         "ate_odometry_m": _rigid_ate(odo_est[:, :2], tru[:, :2]),
@@ -464,7 +513,20 @@ def run_mission(
         "parameters": _parameters(cfg),
     }
     return MissionResult(
-        cfg, summary, global_map, store, graph, alignment, truth, odo_poses, bytes_per_pose
+        cfg, summary, global_map, store, graph, alignment, truth, odo_poses, bytes_per_pose, frames
+    )
+
+
+def _frame(store: RobotStore, t: float, truth: F64, odometry: F64, size: int) -> Frame:
+    poses = store.local.poses
+    est = np.array([p.estimate[:2] for p in poses.values()]).reshape(-1, 2)
+    seg = [
+        (*poses[c.a].estimate[:2], *poses[c.b].estimate[:2])
+        for c in store.closures
+        if c.a in poses and c.b in poses
+    ]
+    return Frame(
+        t, truth.copy(), odometry.copy(), est, np.array(seg, dtype=np.float64).reshape(-1, 4), size
     )
 
 
