@@ -17,6 +17,7 @@ from ..errors import ConfigError
 from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
 from ..io.rosmap import write_map
+from ..team.animation import save_mission_animation
 from ..team.globalmap import plot_pose_graph
 from ..team.mission import MissionConfig, MissionResult, run_mission
 from ..team.records import compose
@@ -139,6 +140,12 @@ def run_cmd(
     seed: SeedOption = 0,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
+    animate: Annotated[
+        bool,
+        typer.Option(
+            "--animate", help="Also write mission.gif: truth, odometry, kept poses, closures."
+        ),
+    ] = False,
 ) -> None:
     """One mission per robot: store, association, memory bounds, global map, scores."""
     if robots < 1:
@@ -169,6 +176,7 @@ def run_cmd(
                     world=world,
                     robot=robot,
                     progress=partial(_tick, update, f"robot {robot}"),
+                    record=animate,
                 )
             )
     with atomic_folder(out) as tmp:
@@ -188,6 +196,15 @@ def run_cmd(
                 title=f"robot {r.summary['robot']}: ATE {r.summary['ate_m']:.2f} m "
                 f"(odometry {r.summary['ate_odometry_m']:.2f} m)",
             )
+            if animate:
+                suffix = "" if robots == 1 else f"_robot{r.summary['robot']}"
+                save_mission_animation(
+                    r.frames,
+                    plan,
+                    r.alignment.transform,
+                    tmp / f"mission{suffix}.gif",
+                    title=f"robot {r.summary['robot']}",
+                )
     s0 = _summary(results)
     console.print(
         f"precision {s0['association_precision']:.3f}, recall {s0['association_recall']:.3f}, "
