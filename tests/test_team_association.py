@@ -318,7 +318,9 @@ def test_new_pose_in_store_and_empty_poses(pair: tuple[Pose, Pose]) -> None:
     empty = Pose(make_uid(5, 0), 0.0, 0, np.zeros(3), lm)
     edges, stats = associate(empty, [a])
     assert edges == []
-    assert stats == AssociationStats(candidates=1)
+    none: tuple[int, ...] = ()
+    kept = dict.fromkeys(("votes", "bounds", "ransac", "accepted"), none)
+    assert stats == AssociationStats(candidates=1, kept=kept)
 
 
 def test_bad_input_and_config(pair: tuple[Pose, Pose]) -> None:

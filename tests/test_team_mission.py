@@ -3,6 +3,7 @@ long ones are in ``benchmarks/team.py``)."""
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -87,7 +88,7 @@ def test_the_stage_table_accounts_for_every_candidate(mission: dict[str, object]
     st = s["association_stages"]
     # Each stage gets what the one before kept; the last keeps the closures found.
     order = ["votes", "bounds", "ransac", "accepted"]
-    for a, b in zip(order, order[1:], strict=False):
+    for a, b in itertools.pairwise(order):
         assert st[b]["in"] == st[a]["in"] - st[a]["removed"]
     assert st["accepted"]["in"] - st["accepted"]["removed"] == s["closures_found"]
     assert st["graph"]["in"] == s["closures_found"]
