@@ -502,7 +502,8 @@ def _sample_right(
 
 
 def test_covariances_propagate_in_the_end_frame_as_gtsam_takes_them() -> None:
-    from sonarmap.team.store import _compose_cov, _invert_cov
+    from sonarmap.team.records import compose_covariance as _compose_cov
+    from sonarmap.team.records import invert_covariance as _invert_cov
 
     rng = np.random.default_rng(5)
     a, b = (1.0, 2.0, 0.7), (3.0, -1.0, -1.2)

@@ -32,7 +32,9 @@ from sonarmap.team.records import (
     OdometryEdge,
     Pose,
     compose,
+    compose_covariance,
     invert,
+    invert_covariance,
     make_uid,
     robot_of,
     size_of,
@@ -271,29 +273,6 @@ def compress_pose(pose: Pose, limit: int, now: float, params: StoreParams) -> tu
 # --- transforms with covariances ------------------------------------------------------
 
 
-def _adjoint(t: Transform) -> F64:
-    """SE(2) adjoint of ``t`` (tangent order x, y, theta, as gtsam's Pose2)."""
-    c, s = math.cos(t[2]), math.sin(t[2])
-    return np.array([[c, -s, t[1]], [s, c, -t[0]], [0.0, 0.0, 1.0]])
-
-
-def _compose_cov(a: Transform, ca: F64, b: Transform, cb: F64) -> F64:
-    """First-order covariance of compose(a, b) for independent a and b.
-
-    Every covariance here is in the frame of its transform's end (a perturbation on
-    the right, as gtsam's BetweenFactor takes it): a's error reaches the end of b
-    through the adjoint of b's inverse.
-    """
-    j = _adjoint(_tf(invert(np.asarray(b, dtype=np.float64))))
-    return np.asarray(j @ ca @ j.T + cb, dtype=np.float64)
-
-
-def _invert_cov(a: Transform, ca: F64) -> F64:
-    """First-order covariance of invert(a), in the inverse's end frame (a's start)."""
-    j = _adjoint(a)
-    return np.asarray(j @ ca @ j.T, dtype=np.float64)
-
-
 def _tf(v: Iterable[float]) -> Transform:
     x, y, t = (float(u) for u in v)
     return (x, y, t)
@@ -317,12 +296,12 @@ def _reframe(
     zero = np.zeros((3, 3))
     if a == old:
         a = new
-        cov = _compose_cov(where, zero, transform, cov)
+        cov = compose_covariance(where, zero, transform, cov)
         transform = _tf(compose(where, transform))
     if b == old:
         b = new
         back = _tf(invert(where))
-        cov = _compose_cov(transform, cov, back, zero)
+        cov = compose_covariance(transform, cov, back, zero)
         transform = _tf(compose(transform, back))
     return a, b, transform, cov
 
@@ -842,7 +821,7 @@ class RobotStore:
                 continue
             tf, cov = _tf(e.transform), e.cov()
             if e.b == uid:
-                tf, cov = _tf(invert(tf)), _invert_cov(tf, cov)
+                tf, cov = _tf(invert(tf)), invert_covariance(tf, cov)
             links[other] = (tf, cov, e.max_distance, e.max_turn)
         layer.remove_pose(uid, now)
         if uid == self._newest:
@@ -854,7 +833,7 @@ class RobotStore:
             t1, c1, d1, a1 = links[n1]
             t2, c2, d2, a2 = links[n2]
             back = _tf(invert(t1))
-            cov = _compose_cov(back, _invert_cov(t1, c1), t2, c2)
+            cov = compose_covariance(back, invert_covariance(t1, c1), t2, c2)
             layer.add_edge(
                 OdometryEdge(
                     n1, n2, _tf(compose(back, t2)), _cov_tuple(cov), d1 + d2, min(math.pi, a1 + a2)
