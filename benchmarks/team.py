@@ -10,7 +10,13 @@ built from the same readings at the true and at the odometry poses, the alignmen
 the association time per pose (median, p99) against the time between poses, and the
 final global-map batch (optimise + fuse).
 
-Run with ``python -m benchmarks.team [--base 300] [--scales 1 4 10] [--json F]``.
+``--plan building:N`` takes :func:`~sonarmap.floorplan.random_building` seed N
+instead (seeds 0-3 chose the local mapper's settings, so report on others). The
+stages table says what voting, the odometry pre-check, RANSAC, the gate on RANSAC's
+transform and the graph removed.
+
+Run with ``python -m benchmarks.team [--base 300] [--scales 1 4 10] [--plan office]
+[--json F]``.
 """
 
 from __future__ import annotations
@@ -22,6 +28,8 @@ from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
+from sonarmap.floorplan import random_building
+from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
 from sonarmap.team.mission import MissionConfig, run_mission
@@ -34,7 +42,9 @@ KEYS = (
     "landmarks",
     "closures",
     "association_precision",
+    "association_precision_landmarks",
     "association_recall",
+    "association_stages",
     "ate_m",
     "ate_odometry_m",
     "map_f1",
@@ -50,8 +60,18 @@ KEYS = (
 )
 
 
-def measure(base: float, scales: list[float], seed: int) -> list[dict[str, Any]]:
-    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+def _plan(name: str) -> OccupancyMap:
+    if name == "office":
+        return office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    kind, _, seed = name.partition(":")
+    if kind != "building" or not seed.isdigit():
+        raise SystemExit(f"--plan: 'office' or 'building:SEED', got {name!r}")
+    fp = random_building(seed=int(seed))
+    return fp.render(fp.grid(0.1))
+
+
+def measure(base: float, scales: list[float], seed: int, plan_name: str) -> list[dict[str, Any]]:
+    plan = _plan(plan_name)
     rows = []
     for k in scales:
         s = run_mission(plan, MissionConfig(duration=base * k, seed=seed)).summary
@@ -64,15 +84,17 @@ def main() -> None:
     parser.add_argument("--base", type=float, default=300.0)
     parser.add_argument("--scales", type=float, nargs="+", default=[1.0, 4.0, 10.0])
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--plan", default="office", help="office, or building:SEED")
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
     args = parser.parse_args()
-    rows = measure(args.base, args.scales, args.seed)
-    print("team store, office plan, one robot")
+    rows = measure(args.base, args.scales, args.seed, args.plan)
+    print(f"team store, {args.plan} plan, one robot")
     for r in rows:
         print(
             f"x{r['scale']:g} ({r['duration_s']:.0f} s): peak {r['store_bytes_peak']} B, "
             f"final {r['store_bytes_final']} B, poses {r['poses']}/{r['poses_made']}, "
-            f"precision {r['association_precision']:.3f}, recall {r['association_recall']:.3f}, "
+            f"precision {r['association_precision']:.3f} (same landmarks "
+            f"{r['association_precision_landmarks']:.3f}), recall {r['association_recall']:.3f}, "
             f"ATE {r['ate_m']:.3f} m (odometry {r['ate_odometry_m']:.3f} m), "
             f"map F1 {r['map_f1']:.3f} (true poses {r['map_f1_true_poses']:.3f}, odometry "
             f"{r['map_f1_odometry_poses']:.3f}), alignment {r['alignment_error_m']:.2f} m "
@@ -81,6 +103,13 @@ def main() -> None:
             f"{r['pose_interval_s']:.1f} s, batch {r['global_map_batch_s']:.2f} s, "
             f"wall {r['wall_seconds']:.0f} s"
         )
+    print("stage: in / removed / removed true / kept false")
+    for r in rows:
+        for stage, v in r["association_stages"].items():
+            print(
+                f"x{r['scale']:g} {stage}: {v['in']} / {v['removed']} / {v['removed_true']} "
+                f"/ {v['kept_false']}"
+            )
     if len(rows) >= 2:
         peaks = [r["store_bytes_peak"] for r in rows[1:]]
         print(f"peaks beyond the first within {100 * (max(peaks) / min(peaks) - 1):.1f} %")
