@@ -45,6 +45,7 @@ KEYS = (
     "association_precision_landmarks",
     "association_recall",
     "association_stages",
+    "changing_landmarks",
     "ate_m",
     "ate_odometry_m",
     "map_f1",

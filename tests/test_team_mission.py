@@ -51,6 +51,16 @@ def test_a_mission_beats_odometry_and_keeps_its_bounds(mission: dict[str, object
     assert 0.0 < s["map_f1"] <= s["map_f1_true_poses"] + 0.05
 
 
+def test_vanished_landmarks_lose_reliability(mission: dict[str, object]) -> None:
+    # Whether they also leave the store first is measured on longer missions
+    # (benchmarks/team.py): on this 150 s one they do not yet (0.60 kept against 0.56).
+    s = mission["summary"]
+    assert isinstance(s, dict)
+    ch = s["changing_landmarks"]
+    assert ch["reliability_vanished"] < ch["reliability_present"] - 0.05
+    assert 0.0 < ch["kept_vanished"] <= 1.0
+
+
 def test_missions_are_deterministic(plan: OccupancyMap, mission: dict[str, object]) -> None:
     cfg = MissionConfig(duration=150.0, seed=1, store=StoreParams(region_limit=60_000))
     again = run_mission(plan, cfg).summary

@@ -240,6 +240,65 @@ def _origin(uid: int, truth: dict[int, F64], poses: dict[int, Pose]) -> int | No
     return uid
 
 
+def _changes(
+    world: World, store: RobotStore, made: dict[int, Pose], truth: dict[int, F64], now: float
+) -> dict[str, float]:
+    """How the store treats landmarks that vanished during the mission.
+
+    ``reliability_vanished`` / ``reliability_present``: mean reliability in the final
+    store of landmarks whose true landmark had vanished by the end, and of the others.
+    ``kept_vanished`` / ``kept_present``: of the landmark observations made at poses
+    before each landmark vanished (for the present ones: before the median vanishing
+    time), the share still in the store at the end: lower for the vanished ones means
+    they leave first.
+    """
+    gone = world.died <= now
+    rel: dict[bool, list[float]] = {True: [], False: []}
+    kept: set[tuple[int, int]] = set()
+    for p in store.local.poses.values():
+        ids = p.landmarks.ids
+        for i, r in zip(
+            ids[ids >= 0].tolist(), p.landmarks.reliability[ids >= 0].tolist(), strict=True
+        ):
+            rel[bool(gone[i])].append(r)
+            kept.add((p.uid, i))
+    cut = float(np.median(world.died[gone])) if gone.any() else now
+    seen = {True: 0, False: 0}
+    still = {True: 0, False: 0}
+    heirs = _heirs(store, made)
+    for uid in truth:
+        p = made[uid]
+        ids = p.landmarks.ids
+        for i in ids[ids >= 0].tolist():
+            v = bool(gone[i])
+            if p.time >= (world.died[i] if v else cut):
+                continue
+            seen[v] += 1
+            # A merged pose keeps its landmarks under a new UID: count it by identity.
+            still[v] += any((u, i) in kept for u in heirs.get(uid, ()))
+    nan = float("nan")
+    return {
+        "reliability_vanished": float(np.mean(rel[True])) if rel[True] else nan,
+        "reliability_present": float(np.mean(rel[False])) if rel[False] else nan,
+        "kept_vanished": still[True] / seen[True] if seen[True] else nan,
+        "kept_present": still[False] / seen[False] if seen[False] else nan,
+    }
+
+
+def _heirs(store: RobotStore, made: dict[int, Pose]) -> dict[int, list[int]]:
+    """For each pose ever made, the stored poses that hold it: itself, or the merged
+    poses it went into (through merges of merges)."""
+    out: dict[int, list[int]] = {}
+    for p in store.local.poses.values():
+        todo = [p.uid]
+        while todo:
+            u = todo.pop()
+            out.setdefault(u, []).append(p.uid)
+            q = made.get(u)
+            todo += list(q.merged_from) if q is not None else []
+    return out
+
+
 def _same_landmarks(c: ClosureEdge, a: Pose | None, b: Pose) -> bool:
     """Whether most of a closure's inliers pair the same true landmark."""
     if a is None or not c.matches:
@@ -548,6 +607,7 @@ def run_mission(
         cfg.mapper_params,
     )
     assoc = np.array(assoc_seconds)
+    changes = _changes(world, store, all_made, truth, float(true[-1, 0]))
     summary: dict[str, Any] = {
         "robot": robot,
         "store_bytes_peak": int(store.peak_bytes),
@@ -570,6 +630,7 @@ def run_mission(
         "true_pairs": n_true_pairs,
         "association_removed_matches": {k: int(sum(v)) for k, v in stage_removed.items()},
         "association_stages": stages,
+        "changing_landmarks": changes,
         "closures_rejected_by_graph": len(graph.inconsistent),
         "ate_m": _rigid_ate(est[:, :2], tru[:, :2]),
         "ate_odometry_m": _rigid_ate(odo_est[:, :2], tru[:, :2]),
