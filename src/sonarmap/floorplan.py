@@ -107,7 +107,7 @@ def random_building(
     >>> bool((a.occupancy == b.occupancy).all()), 0.03 < float(a.occupancy.mean()) < 0.2
     (True, True)
     """
-    if not (width >= 2 * min_room and height >= min_room and min_room > 2 * door[1] / 2):
+    if not (width >= 2 * min_room and height >= min_room and min_room > door[1]):
         raise ConfigError(f"a {width} x {height} m building cannot hold rooms of {min_room} m")
     rng = np.random.default_rng(seed)
     plan = FloorPlan((0.0, 0.0, width, height))

@@ -97,7 +97,7 @@ def save_mission_animation(
         raise ConfigError(f"max_frames must be >= 1, got {max_frames}")
     a = np.asarray(transform, dtype=np.float64)
     pick = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round())
-    chosen = [frames[int(i)] for i in pick]
+    chosen = pick.astype(int).tolist()
     truth = np.array([f.truth for f in frames])
     odo = _placed(a, np.array([f.odometry for f in frames]))
     writer: Any = PillowWriter(fps=fps) if p.suffix.lower() == ".gif" else FFMpegWriter(fps=fps)
@@ -117,27 +117,23 @@ def save_mission_animation(
     ax.set_ylabel("y [m]")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=3, fontsize="small")
     fig.subplots_adjust(bottom=0.18)
-    index = {id(f): i for i, f in enumerate(frames)}
 
     def show(k: int) -> list[Any]:
-        f = chosen[k]
-        upto = index[id(f)] + 1
+        i = chosen[k]
+        f = frames[i]
+        upto = i + 1
         true_line.set_data(truth[:upto, 0], truth[:upto, 1])
         odo_line.set_data(odo[:upto, 0], odo[:upto, 1])
         est = _placed(a, f.estimates)
         kept.set_data(est[:, 0], est[:, 1])
         robot.set_data([f.truth[0]], [f.truth[1]])
-        if len(f.closures):
-            ends = np.concatenate(
-                [_placed(a, f.closures[:, :2]), _placed(a, f.closures[:, 2:])], axis=1
-            )
-            # NaN breaks the one line into separate segments.
-            seg = np.column_stack([ends, np.full(len(ends), np.nan), np.full(len(ends), np.nan)])
-            xs = seg[:, [0, 2, 4]].ravel()
-            ys = seg[:, [1, 3, 5]].ravel()
-            links.set_data(xs, ys)
-        else:
-            links.set_data([], [])
+        p0, p1 = _placed(a, f.closures[:, :2]), _placed(a, f.closures[:, 2:])
+        # A NaN after each segment breaks the one line into separate segments.
+        gap = np.full(len(p0), np.nan)
+        links.set_data(
+            np.column_stack([p0[:, 0], p1[:, 0], gap]).ravel(),
+            np.column_stack([p0[:, 1], p1[:, 1], gap]).ravel(),
+        )
         ax.set_title(
             f"{title}  t = {f.t:.0f} s, {len(f.estimates)} poses kept, "
             f"{len(f.closures)} closures, {f.store_bytes / 1e3:.0f} kB".strip(),

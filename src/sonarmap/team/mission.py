@@ -354,9 +354,8 @@ def _optimise(store: RobotStore) -> tuple[GraphResult, list[ClosureEdge]]:
     graph = optimise_graph(store.local.poses, store.local.edges, store.closures)
     for uid, est in graph.estimates.items():
         store.local.poses[uid].estimate = np.asarray(est, dtype=np.float64)
-    kept = graph.consistent_closures(store.closures)
-    dropped = [c for c in store.closures if c not in kept]
-    store.closures = kept
+    dropped = [store.closures[i] for i in graph.inconsistent]
+    store.closures = graph.consistent_closures(store.closures)
     return graph, dropped
 
 
