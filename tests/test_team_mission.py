@@ -145,3 +145,33 @@ def test_bad_team_input_is_one_line_and_exit_2(
     assert message in err
     assert len(err.splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_precision_by_landmarks_counts_only_closures_pairing_the_same_landmarks() -> None:
+    from sonarmap.team.mission import _same_landmarks
+    from sonarmap.team.records import ClosureEdge, Landmarks, Pose
+
+    def pose(uid: int, ids: list[int]) -> Pose:
+        n = len(ids)
+        lm = Landmarks(
+            np.zeros((n, 3), np.float32),
+            np.zeros((n, 8), np.uint8),
+            np.full(n, 0.5, np.float32),
+            np.zeros(n),
+            np.array(ids, np.int64),
+        )
+        return Pose(uid, 0.0, 0, np.zeros(3), lm)
+
+    a, b = pose(1, [5, 6, 7, -1]), pose(2, [7, 6, 5, -1])
+    cov = tuple(np.eye(3).ravel().tolist())
+
+    def closure(matches: tuple[tuple[int, int], ...]) -> ClosureEdge:
+        return ClosureEdge(1, 2, (0.0, 0.0, 0.0), cov, len(matches), 0.0, matches)
+
+    assert _same_landmarks(closure(((0, 2), (1, 1), (2, 0))), a, b)
+    # Two of three pair different landmarks: a wrong place, however good its transform.
+    assert not _same_landmarks(closure(((0, 0), (1, 1), (2, 2))), a, b)
+    # Landmarks the simulation does not know (-1) never count as the same.
+    assert not _same_landmarks(closure(((3, 3), (3, 3), (1, 1))), a, b)
+    assert not _same_landmarks(closure(((0, 2),)), None, b)
+    assert not _same_landmarks(closure(()), a, b)
