@@ -39,7 +39,8 @@ Decisions where the thesis is silent:
   than the tolerance counts here, not there); recall counts the (new, stored) pairs
   that truly shared at least ``n_min`` landmarks when the new pose was associated.
 - **What each stage removes** (``association_stages``): for voting, the odometry
-  pre-check, RANSAC and the bound check of its transform (``accepted``), the candidate
+  pre-check, RANSAC and the checks of its refitted transform (``accepted``: the odometry
+  bound and the gate, and the certainty limits), the candidate
   poses it was given (``in``), removed, removed although truly overlapping
   (``removed_true``: the stage's cost in recall) and kept although not
   (``kept_false``: what the later stages must still remove). For ``graph``, the closures
@@ -116,11 +117,18 @@ class MissionConfig:
     rig: str = "ring16"
     seed: int = 0
     store: StoreParams = field(default_factory=StoreParams)
-    #: Association as :class:`AssociationParams`, but 10 inliers for a closure instead
-    #: of 8: on the office plan (seeds 0 and 1, 300 s) 8 gave precision 0.97-0.986 (the
-    #: wrong closures had 8-9 inliers and were 0.3-0.7 m off), 10 gave 0.992-0.996 at a
-    #: recall of 0.40-0.44 instead of 0.53.
-    association: AssociationParams = field(default_factory=lambda: AssociationParams(n_min=10))
+    #: Association as :class:`AssociationParams`, but a closure is refused when its
+    #: refit puts the new pose less surely than half the scoring tolerance: standard
+    #: deviations of 0.15 m (worst direction) and 2.5 degrees. Chosen on training plans
+    #: (office and random buildings 0-4, 600 s, mission seed 0): without the limits the
+    #: stereo-weighted refit alone gave precision 0.9975-1.0, and the wrong closures had
+    #: 0.19-0.38 m and 0.75-4.7 degrees of standard deviation, where 99 % of the right
+    #: ones were under 0.15-0.29 m; with them, 0.999-1.0 at recall 0.27-0.49.
+    association: AssociationParams = field(
+        default_factory=lambda: AssociationParams(
+            max_sigma_xy=0.15, max_sigma_theta=math.radians(2.5)
+        )
+    )
     #: The odometry gate: a candidate's closure must put the new pose within
     #: ``gate_floor`` m + ``gate_sigmas`` standard deviations of where the current
     #: estimates put it (and its heading within ``gate_turn_floor`` rad + as many sigmas),
