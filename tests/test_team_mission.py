@@ -59,6 +59,13 @@ def test_vanished_landmarks_lose_reliability(mission: dict[str, object]) -> None
     ch = s["changing_landmarks"]
     assert ch["reliability_vanished"] < ch["reliability_present"] - 0.05
     assert 0.0 < ch["kept_vanished"] <= 1.0
+    # Association keeps closing loops after the median change, and rightly.
+    assert 0.0 < ch["change_time_s"] < 150.0
+    after = ch["association_after"]
+    assert after["closures"] > 0
+    assert after["precision"] >= 0.95
+    assert after["recall"] > 0.1
+    assert ch["association_before"]["closures"] + after["closures"] == s["closures_found"]
 
 
 def test_missions_are_deterministic(plan: OccupancyMap, mission: dict[str, object]) -> None:

@@ -38,6 +38,10 @@ Decisions where the thesis is silent:
   (``association_precision_landmarks``: a right place with a transform off by more
   than the tolerance counts here, not there); recall counts the (new, stored) pairs
   that truly shared at least ``n_min`` landmarks when the new pose was associated.
+- **After the world changed** (``changing_landmarks``): association's precision and
+  recall on the poses made before and after the median time of the changes
+  (``association_before`` / ``association_after``), besides the reliabilities of
+  vanished and present landmarks and the share of each still kept.
 - **What each stage removes** (``association_stages``): for voting, the odometry
   pre-check, RANSAC and the checks of its refitted transform (``accepted``: the odometry
   bound and the gate, and the certainty limits), the candidate
@@ -352,6 +356,9 @@ def _priors(
     return out
 
 
+#: The two halves of a mission association is scored on apart: before and after the
+#: median time of the world's changes.
+HALVES = ("before", "after")
 #: The stages of association, then the graph's consistency check, as reported.
 STAGES = ("votes", "bounds", "ransac", "accepted", "graph")
 
@@ -443,6 +450,14 @@ def run_mission(
             graph_dropped[(c.a, c.b)] = correct(c)
         return graph
 
+    # Association before and after the world changed: split at the median time of
+    # the changes (vanishing, appearing, moving) that happen during the mission.
+    end = float(true[-1, 0])
+    events = np.concatenate([world.died, world.moved_at, world.born[world.born > 0]])
+    events = events[events <= end]
+    t_change = float(np.median(events)) if len(events) else end
+    by_half = {h: {"closures": 0, "correct": 0, "true_pairs": 0, "found": 0} for h in HALVES}
+
     assoc_seconds: list[float] = []
     graph: GraphResult | None = None
     drift = np.zeros((3, 3))
@@ -522,6 +537,8 @@ def run_mission(
             >= cfg.association.n_min
         }
         n_true_pairs += len(overlapping)
+        half = by_half[HALVES[int(t >= t_change)]]
+        half["true_pairs"] += len(overlapping)
         before = {p.uid for p in stored if p.uid != uid}
         for stage in STAGES[:-1]:
             after = set(stats.kept[stage])
@@ -551,6 +568,9 @@ def run_mission(
             n_closures += 1
             n_correct += right
             n_found += right and c.a in overlapping
+            half["closures"] += 1
+            half["correct"] += right
+            half["found"] += right and c.a in overlapping
         store.add_own_pose(pose, edge, closures, t)
         for p in store.local.poses.values():
             all_made.setdefault(p.uid, p)
@@ -614,7 +634,14 @@ def run_mission(
         cfg.mapper_params,
     )
     assoc = np.array(assoc_seconds)
-    changes = _changes(world, store, all_made, truth, float(true[-1, 0]))
+    changes: dict[str, Any] = dict(_changes(world, store, all_made, truth, end))
+    changes["change_time_s"] = t_change
+    for h, row in by_half.items():
+        changes[f"association_{h}"] = {
+            "closures": row["closures"],
+            "precision": row["correct"] / row["closures"] if row["closures"] else float("nan"),
+            "recall": row["found"] / row["true_pairs"] if row["true_pairs"] else float("nan"),
+        }
     summary: dict[str, Any] = {
         "robot": robot,
         "store_bytes_peak": int(store.peak_bytes),
