@@ -11,7 +11,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from sonarmap.errors import ConfigError
+from sonarmap.errors import ConfigError, InputError
 from sonarmap.team.records import (
     ClosureEdge,
     Landmarks,
@@ -298,6 +298,32 @@ def test_closures_with_received_poses_change_no_reliability() -> None:
     for layer in (store.local, store.received[1]):
         for p in layer.poses.values():
             assert np.all(p.landmarks.reliability == np.float32(0.5))
+
+
+def test_removing_a_received_pose_takes_its_edges_and_closures() -> None:
+    store = RobotStore(0, BIG)
+    mine = make_pose(0, 0, make_landmarks(np.zeros((3, 3))))
+    store.add_own_pose(mine, None, [], now=0.0)
+    p, q, r = (
+        make_pose(1, k, make_landmarks(np.zeros((3, 3))), estimate=(k, 0, 0)) for k in range(3)
+    )
+    store.add_received_pose(1, p, [], [], now=1.0)
+    store.add_received_pose(1, q, [odometry(p, q)], [closure(mine, q, [])], now=1.0)
+    store.add_received_pose(1, r, [odometry(q, r)], [closure(mine, r, [])], now=1.0)
+    layer = store.received[1]
+    layer.patches[0].stamp, layer.patches[0].full = 5.0, {p.uid, q.uid, r.uid}
+    assert store.remove_received_pose(1, q.uid) is q
+    assert set(layer.poses) == {p.uid, r.uid}
+    assert layer.edges == []
+    assert [(c.a, c.b) for c in store.closures] == [(mine.uid, r.uid)]
+    assert layer.patches[0].short == {p.uid, r.uid}
+    assert layer.patches[0].full == {p.uid, q.uid, r.uid}  # what the source had at 5.0
+    assert layer.patches[0].stamp == 5.0
+    assert set(store.local.poses) == {mine.uid}
+    with pytest.raises(InputError, match=r"pose \d+ is not in received layer 1"):
+        store.remove_received_pose(1, q.uid)
+    with pytest.raises(InputError, match="not in received layer 0"):
+        store.remove_received_pose(0, mine.uid)  # never the local layer
 
 
 def test_time_stamps_take_the_max_in_every_layer() -> None:

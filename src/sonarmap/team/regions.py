@@ -39,7 +39,7 @@ from scipy import ndimage
 from ..errors import ConfigError
 from ..grid import Grid
 
-__all__ = ["clearance", "cut_regions", "region_of", "region_sizes"]
+__all__ = ["clearance", "cut_regions", "region_adjacency", "region_of", "region_sizes"]
 
 I32 = npt.NDArray[np.int32]
 Mask = npt.NDArray[np.bool_]
@@ -318,3 +318,39 @@ def region_of(labels: I32, grid: Grid, x: float, y: float) -> int:
         raise ValueError("the map has no region")
     k = int(np.argmin((rows - r) ** 2 + (cols - c) ** 2))
     return int(labels[rows[k], cols[k]])
+
+
+def region_adjacency(labels: I32) -> dict[int, set[int]]:
+    """Which regions touch: two regions are adjacent when a cell of one shares a side
+    with a cell of the other (4-neighbour contact; a corner alone does not count).
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (rows, cols)
+        Regions 0..K-1, negative elsewhere (as :func:`cut_regions` gives).
+
+    Returns
+    -------
+    dict of int to set of int
+        Every region present, each with the set of its neighbours (empty for one that
+        touches no other); symmetric.
+
+    Examples
+    --------
+    >>> labels = np.array([[0, 0, 1], [2, -1, 1], [2, 3, 3]], dtype=np.int32)
+    >>> region_adjacency(labels)
+    {0: {1, 2}, 1: {0, 3}, 2: {0, 3}, 3: {1, 2}}
+    """
+    lab = np.asarray(labels)
+    if lab.ndim != 2 or not np.issubdtype(lab.dtype, np.integer):
+        raise ValueError(f"labels must be a 2-D integer array, got {lab.dtype} {lab.shape}")
+    out: dict[int, set[int]] = {int(r): set() for r in np.unique(lab[lab >= 0])}
+    for a, b in ((lab[:, :-1], lab[:, 1:]), (lab[:-1, :], lab[1:, :])):
+        touch = (a >= 0) & (b >= 0) & (a != b)
+        if not touch.any():
+            continue
+        pairs = np.unique(np.stack([a[touch], b[touch]], axis=1), axis=0)
+        for i, j in pairs.tolist():
+            out[int(i)].add(int(j))
+            out[int(j)].add(int(i))
+    return out

@@ -680,6 +680,25 @@ class RobotStore:
         self._update_stamps(closures)
         self._note_peak()
 
+    def remove_received_pose(self, source: int, uid: int) -> Pose:
+        """Remove a pose of received layer ``source`` (the exchange: its source no longer
+        has it) with the odometry edges and the closures touching it. The patch keeps its
+        stamp and full id list; the short list loses the UID.
+
+        Raises
+        ------
+        InputError
+            If the layer or the pose is not stored.
+        """
+        layer = self.received.get(source)
+        if source == self.robot or layer is None or uid not in layer.poses:
+            raise InputError(
+                f"pose {uid} is not in received layer {source} of robot {self.robot}", field="uid"
+            )
+        pose = layer.remove_pose(uid)
+        self.closures = [c for c in self.closures if uid not in (c.a, c.b)]
+        return pose
+
     # time stamps and reliabilities
 
     def _update_stamps(self, closures: Sequence[ClosureEdge]) -> None:

@@ -1,0 +1,1288 @@
+"""The exchange of poses between robots' stores (thesis 002, section 2.4): the
+good-network and the limited-network protocols over a :class:`~.transport.Transport`.
+
+Three kinds of message, each a msgpack map (never pickle) in a transport envelope:
+
+``"advert"``
+    The sender's table of patch stamps: ``(source, region) -> (stamp, held)`` for every
+    patch it holds (its own local patches and its received ones), ``held`` the number of
+    poses it has of that patch. Sent to every peer each ``advert_every`` seconds, so the
+    others know who is newest.
+``"request"``
+    A set of one-patch requests ``(source, region, requester's stamp, short list)``; in
+    the limited mode also the requester's full list, and all patches of one request
+    belong to one source and are adjacent regions.
+``"answer"``
+    Per requested patch: the answerer's stamp, its short (good mode) or full (limited
+    mode) list when it is newer, the poses sent and the odometry edges attached, poses
+    and edges as their records' own msgpack encodings (:func:`.records.encode`).
+
+Every body is decoded strictly: every field type- and range-checked, UIDs checked to be
+the source's, poses to lie in their patch's region; a bad body is rejected as a whole
+(logged on ``sonarmap.team.exchange``, counted in ``stats.rejected`` by reason), and
+nothing of it is applied. A valid answer is applied patch by patch, each patch whole,
+so a peer that vanishes mid-exchange leaves nothing half-applied: its request times out
+and is sent again, to it or another holder.
+
+Choices where the thesis is silent (each is documented where it is made):
+
+- The source's stamp. A local patch's stamp is the time it last changed; that is what
+  the source advertises. It answers with ``now`` (the thesis) as the stamp, and if its
+  patch changes at the very instant of an answer, later adverts carry a stamp just above
+  the one handed out, so the change is never hidden by an equal stamp.
+- Whom to ask. The source when it is a live peer (its advert heard within
+  ``peer_timeout`` and the transport can reach it), comparing our stamp with the one it
+  advertises; else the live peer advertising the newest stamp (ties: more poses held,
+  then the lowest robot id). Comparing against the source's own advert, not against
+  other holders' "now" stamps, keeps holders from re-asking each other forever.
+- A patch whose full list names poses we lack (the limited mode's capped answers) is
+  asked for again, from the source or the peers that hold most; a peer whose answer
+  added nothing is not asked again until its advert or our patch changes.
+- "Attached odometry edges": the answerer sends every edge touching a pose of the patch
+  it answers for (not only the poses sent), so that the edges a source adds when it
+  deletes a pose (chaining its neighbours) reach holders that already had both ends.
+  The receiver keeps only edges whose two poses it holds; an edge to a pose still
+  missing comes again with that pose.
+- A patch the answerer has nothing newer for is answered by an empty entry, so the
+  requester stops waiting at once instead of at the timeout.
+- Limited mode, answerer older: after offering its poses, it adopts the requester's
+  full list and stamp and drops its poses missing from that list (they were deleted at
+  the source), so that its short list stays within its full list.
+- Good mode: a patch whose full list (the answerer's short list) names poses we lack
+  (an answer raced with a deletion) is asked for with no stamp, so that any holder sends
+  what is missing.
+
+Everything is deterministic: time comes from the caller's ``now``, iteration orders are
+sorted, request ids count from 0.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import msgpack
+
+from ..errors import ConfigError, InputError
+from .records import ClosureEdge, OdometryEdge, Pose, RecordError, decode, encode, robot_of
+from .store import Layer, Patch, RobotStore, compress_for_sending
+from .transport import ROBOT_LIMIT, Message, SimTransport, Transport, ZmqTransport
+
+__all__ = [
+    "KINDS",
+    "MODES",
+    "Advert",
+    "AdvertEntry",
+    "Answer",
+    "ExchangeError",
+    "ExchangeParams",
+    "ExchangeStats",
+    "Exchanger",
+    "PatchAnswer",
+    "PatchRequest",
+    "Request",
+    "decode_advert",
+    "decode_answer",
+    "decode_request",
+    "encode_advert",
+    "encode_answer",
+    "encode_request",
+]
+
+logger = logging.getLogger("sonarmap.team.exchange")
+
+#: Message kinds, the transport envelope's ``kind``.
+KINDS = ("advert", "request", "answer")
+#: The two protocols.
+MODES = ("good", "limited")
+#: The bodies' version, field ``v``.
+VERSION = 1
+_UID_LIMIT = 2**63
+_REGION_LIMIT = 2**31
+_ID_LIMIT = 2**63
+#: Patches one request may name at most (whatever the sender's ``max_patches``).
+_MAX_PATCHES = 4096
+#: Bytes of a transport's envelope around a body, at most (map keys, ints, kind).
+_ENVELOPE_SLACK = 128
+
+PatchKey = tuple[int, int]
+OnReceived = Callable[[int, Pose], Sequence[ClosureEdge]]
+
+
+class ExchangeError(InputError):
+    """A message body that is not valid; ``code`` is the short reason (the stats key)."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+# --- parameters and counters ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ExchangeParams:
+    """How a robot exchanges; the thesis gives no values, so every default is our choice.
+
+    Attributes
+    ----------
+    mode : str
+        ``"good"`` (a good network: whole patches) or ``"limited"`` (answers capped at
+        ``cap_bytes``, full id lists kept). Default ``"good"``.
+    cap_bytes : int
+        T, bytes of poses one limited-mode answer may carry (edges are not counted):
+        65536, four poses at the store's default ``pose_limit``.
+    advert_every : float
+        Seconds between adverts: 5.
+    request_every : float
+        Seconds between rounds of requests: 1.
+    max_patches : int
+        Patches one request names at most: 8.
+    request_timeout : float
+        Seconds after which an unanswered request is forgotten, so its patches can be
+        asked for again (a lost message is retried): 10.
+    peer_timeout : float
+        Seconds an advert is trusted; a peer not heard from for longer is not asked:
+        30 (six adverts). At least ``advert_every``.
+    max_outstanding : int
+        Requests awaiting an answer at most, so that a robot far behind does not flood
+        the network: 8.
+    """
+
+    mode: str = "good"
+    cap_bytes: int = 65_536
+    advert_every: float = 5.0
+    request_every: float = 1.0
+    max_patches: int = 8
+    request_timeout: float = 10.0
+    peer_timeout: float = 30.0
+    max_outstanding: int = 8
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(
+                f"exchange: mode must be one of {', '.join(MODES)}, got {self.mode!r}"
+            )
+        for f in fields(self):
+            if f.name == "mode":
+                continue
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"exchange: {f.name} must be a finite number, got {v!r}")
+            if v <= 0:
+                raise ConfigError(f"exchange: {f.name} must be > 0, got {v}")
+        for name in ("cap_bytes", "max_patches", "max_outstanding"):
+            if not isinstance(getattr(self, name), int):
+                raise ConfigError(
+                    f"exchange: {name} must be an integer, got {getattr(self, name)!r}"
+                )
+        if self.peer_timeout < self.advert_every:
+            raise ConfigError(
+                f"exchange: peer_timeout {self.peer_timeout} s is below advert_every "
+                f"{self.advert_every} s (every peer would be forgotten between adverts)"
+            )
+
+
+@dataclass
+class ExchangeStats:
+    """An exchanger's counters. Bytes are message bodies (the transport adds its
+    envelope); a message counts as sent when the transport took it.
+
+    Attributes
+    ----------
+    bytes_sent, bytes_received, messages_sent, messages_received : int
+    poses_sent : int
+        Poses in the answers sent.
+    poses_received : int
+        Poses in the valid answers received.
+    poses_added, poses_deleted : int
+        Poses the exchange put into or took out of the received layers.
+    requests_sent : int
+    retries : int
+        Patches asked for again after their request timed out.
+    stale : int
+        Answer entries not applied because the patch had meanwhile become newer.
+    refused : int
+        Messages the transport would not take (no route, too large, closed).
+    rejected : Counter
+        Messages rejected, by reason (``"truncated"``, ``"type"``, ``"unsolicited"``...).
+    """
+
+    bytes_sent: int = 0
+    bytes_received: int = 0
+    messages_sent: int = 0
+    messages_received: int = 0
+    poses_sent: int = 0
+    poses_received: int = 0
+    poses_added: int = 0
+    poses_deleted: int = 0
+    requests_sent: int = 0
+    retries: int = 0
+    stale: int = 0
+    refused: int = 0
+    rejected: Counter[str] = field(default_factory=Counter)
+
+
+# --- messages -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AdvertEntry:
+    """One patch its sender holds: its stamp and how many poses of it the sender has."""
+
+    source: int
+    region: int
+    stamp: float
+    held: int
+
+
+@dataclass(frozen=True)
+class Advert:
+    """The sender's table of patch stamps, by (source, region)."""
+
+    entries: tuple[AdvertEntry, ...]
+
+
+@dataclass(frozen=True)
+class PatchRequest:
+    """One patch asked for: the requester's stamp (None if it has none) and short list;
+    in the limited mode also its full list (None in the good mode)."""
+
+    source: int
+    region: int
+    stamp: float | None
+    short: frozenset[int]
+    full: frozenset[int] | None = None
+
+
+@dataclass(frozen=True)
+class Request:
+    """A request: an id the answer echoes, the protocol, the patches."""
+
+    id: int
+    mode: str
+    patches: tuple[PatchRequest, ...]
+
+
+@dataclass(frozen=True)
+class PatchAnswer:
+    """The answer for one patch.
+
+    Good mode: ``stamp`` and ``short`` (the answerer's short list) when the answerer is
+    the source or newer, else all None and no poses. Limited mode: ``stamp`` and
+    ``full`` when the answerer is newer, else None; ``short`` is always None. ``poses``
+    and ``edges`` are what was sent.
+    """
+
+    source: int
+    region: int
+    stamp: float | None
+    short: frozenset[int] | None
+    full: frozenset[int] | None
+    poses: tuple[Pose, ...] = ()
+    edges: tuple[OdometryEdge, ...] = ()
+
+
+@dataclass(frozen=True)
+class Answer:
+    """An answer (possibly one of several messages) to request ``id``."""
+
+    id: int
+    mode: str
+    patches: tuple[PatchAnswer, ...]
+
+
+def _pack(d: Mapping[str, Any]) -> bytes:
+    return bytes(msgpack.packb(d, use_bin_type=True))
+
+
+def _ids(s: Collection[int] | None) -> list[int] | None:
+    return None if s is None else sorted(int(u) for u in s)
+
+
+def _stamp_out(s: float | None) -> float | None:
+    return None if s is None else float(s)
+
+
+def encode_advert(advert: Advert) -> bytes:
+    """An advert's body."""
+    rows = [[e.source, e.region, float(e.stamp), e.held] for e in advert.entries]
+    return _pack({"v": VERSION, "patches": rows})
+
+
+def _request_dict(p: PatchRequest) -> dict[str, Any]:
+    return {
+        "src": p.source,
+        "r": p.region,
+        "s": _stamp_out(p.stamp),
+        "short": _ids(p.short),
+        "full": _ids(p.full),
+    }
+
+
+def encode_request(request: Request) -> bytes:
+    """A request's body."""
+    return _pack(
+        {
+            "v": VERSION,
+            "id": request.id,
+            "mode": request.mode,
+            "patches": [_request_dict(p) for p in request.patches],
+        }
+    )
+
+
+def _answer_dict(
+    p: PatchAnswer, poses: Sequence[bytes] | None = None, edges: Sequence[bytes] | None = None
+) -> dict[str, Any]:
+    return {
+        "src": p.source,
+        "r": p.region,
+        "s": _stamp_out(p.stamp),
+        "short": _ids(p.short),
+        "full": _ids(p.full),
+        "poses": list(poses) if poses is not None else [encode(q) for q in p.poses],
+        "edges": list(edges) if edges is not None else [encode(e) for e in p.edges],
+    }
+
+
+def encode_answer(answer: Answer) -> bytes:
+    """An answer's body."""
+    return _pack(
+        {
+            "v": VERSION,
+            "id": answer.id,
+            "mode": answer.mode,
+            "patches": [_answer_dict(p) for p in answer.patches],
+        }
+    )
+
+
+# --- strict decoding ----------------------------------------------------------------------
+
+
+def _unpack(body: bytes) -> dict[str, Any]:
+    if not isinstance(body, bytes):
+        raise ExchangeError("type", f"body: bytes expected, got {type(body).__name__}")
+    n = len(body)
+    try:
+        # No length field may claim more than the body holds.
+        d = msgpack.unpackb(
+            body,
+            raw=False,
+            strict_map_key=True,
+            use_list=True,
+            max_bin_len=n,
+            max_str_len=n,
+            max_array_len=n,
+            max_map_len=n,
+            max_ext_len=0,
+        )
+    except msgpack.ExtraData:
+        raise ExchangeError("trailing", "bytes after the body") from None
+    except msgpack.OutOfData:
+        raise ExchangeError("truncated", "the body ends early") from None
+    except (ValueError, TypeError, msgpack.UnpackException) as e:
+        if "incomplete" in str(e):
+            raise ExchangeError("truncated", "the body ends early") from None
+        raise ExchangeError("msgpack", f"not msgpack: {e}") from None
+    if not isinstance(d, dict):
+        raise ExchangeError("not_map", f"body: a map expected, got {type(d).__name__}")
+    return d
+
+
+def _keys(d: Mapping[str, Any], keys: Collection[str], where: str) -> None:
+    if set(d) != set(keys):
+        missing, extra = sorted(set(keys) - set(d)), sorted(set(d) - set(keys))
+        raise ExchangeError("keys", f"{where}: missing {missing}, unexpected {extra}")
+
+
+def _int(v: Any, where: str, limit: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ExchangeError("type", f"{where}: {type(v).__name__} where int expected")
+    if not 0 <= v < limit:
+        raise ExchangeError("range", f"{where}: {v} not in [0, {limit})")
+    return v
+
+
+def _stamp(v: Any, where: str, *, optional: bool) -> float | None:
+    if v is None and optional:
+        return None
+    if not isinstance(v, float):
+        raise ExchangeError("type", f"{where}: {type(v).__name__} where float expected")
+    if not math.isfinite(v):
+        raise ExchangeError("range", f"{where}: {v} is not finite")
+    return v
+
+
+def _list(v: Any, where: str) -> list[Any]:
+    if not isinstance(v, list):
+        raise ExchangeError("type", f"{where}: {type(v).__name__} where list expected")
+    return v
+
+
+def _uid_set(v: Any, source: int, where: str, *, optional: bool) -> frozenset[int] | None:
+    if v is None and optional:
+        return None
+    uids = [_int(u, where, _UID_LIMIT) for u in _list(v, where)]
+    out = frozenset(uids)
+    if len(out) != len(uids):
+        raise ExchangeError("duplicate", f"{where}: a UID is listed twice")
+    bad = sorted(u for u in out if robot_of(u) != source)
+    if bad:
+        raise ExchangeError("inconsistent", f"{where}: pose {bad[0]} is not robot {source}'s")
+    return out
+
+
+def _version(d: Mapping[str, Any]) -> None:
+    v = d["v"]
+    if isinstance(v, bool) or not isinstance(v, int) or v != VERSION:
+        raise ExchangeError("version", f"version {v!r}, expected {VERSION}")
+
+
+def _mode(v: Any) -> str:
+    if not isinstance(v, str):
+        raise ExchangeError("type", f"mode: {type(v).__name__} where str expected")
+    if v not in MODES:
+        raise ExchangeError("range", f"mode {v!r} is not one of {', '.join(MODES)}")
+    return v
+
+
+def _region(v: Any, where: str, regions: Collection[int] | None) -> int:
+    r = _int(v, where, _REGION_LIMIT)
+    if regions is not None and r not in regions:
+        raise ExchangeError("range", f"{where}: region {r} is not on the prior map")
+    return r
+
+
+def _unique_keys(keys: Sequence[PatchKey], where: str) -> None:
+    if len(set(keys)) != len(keys):
+        raise ExchangeError("duplicate", f"{where}: a patch is named twice")
+
+
+def decode_advert(body: bytes, *, regions: Collection[int] | None = None) -> Advert:
+    """The advert in ``body``; :class:`ExchangeError` if it is not a valid one.
+
+    ``regions``, if given, are the prior map's regions: any other is out of range."""
+    d = _unpack(body)
+    _keys(d, ("v", "patches"), "advert")
+    _version(d)
+    rows = _list(d["patches"], "advert.patches")
+    entries: list[AdvertEntry] = []
+    for i, row in enumerate(rows):
+        where = f"advert.patches[{i}]"
+        if not isinstance(row, list) or len(row) != 4:
+            raise ExchangeError("type", f"{where}: [source, region, stamp, held] expected")
+        src = _int(row[0], f"{where}.source", ROBOT_LIMIT)
+        region = _region(row[1], f"{where}.region", regions)
+        stamp = _stamp(row[2], f"{where}.stamp", optional=False)
+        assert stamp is not None
+        held = _int(row[3], f"{where}.held", _UID_LIMIT)
+        entries.append(AdvertEntry(src, region, stamp, held))
+    _unique_keys([(e.source, e.region) for e in entries], "advert")
+    return Advert(tuple(entries))
+
+
+def _connected(regions: Sequence[int], adjacency: Mapping[int, Collection[int]]) -> bool:
+    todo, seen = [regions[0]], {regions[0]}
+    wanted = set(regions)
+    while todo:
+        r = todo.pop()
+        for n in adjacency.get(r, ()):
+            if n in wanted and n not in seen:
+                seen.add(n)
+                todo.append(n)
+    return seen == wanted
+
+
+def decode_request(
+    body: bytes,
+    *,
+    regions: Collection[int] | None = None,
+    adjacency: Mapping[int, Collection[int]] | None = None,
+) -> Request:
+    """The request in ``body``; :class:`ExchangeError` if it is not a valid one.
+
+    Checked besides types and ranges: UIDs are the source's, no patch twice, the good
+    mode sends no full list and the limited mode one including the short list; a
+    limited request names one source and (with ``adjacency``) adjacent regions."""
+    d = _unpack(body)
+    _keys(d, ("v", "id", "mode", "patches"), "request")
+    _version(d)
+    rid = _int(d["id"], "request.id", _ID_LIMIT)
+    mode = _mode(d["mode"])
+    rows = _list(d["patches"], "request.patches")
+    if not 0 < len(rows) <= _MAX_PATCHES:
+        raise ExchangeError("range", f"request: {len(rows)} patches, 1..{_MAX_PATCHES} allowed")
+    patches: list[PatchRequest] = []
+    for i, row in enumerate(rows):
+        where = f"request.patches[{i}]"
+        if not isinstance(row, dict):
+            raise ExchangeError("type", f"{where}: a map expected")
+        _keys(row, ("src", "r", "s", "short", "full"), where)
+        src = _int(row["src"], f"{where}.src", ROBOT_LIMIT)
+        region = _region(row["r"], f"{where}.r", regions)
+        stamp = _stamp(row["s"], f"{where}.s", optional=True)
+        short = _uid_set(row["short"], src, f"{where}.short", optional=False)
+        assert short is not None
+        full = _uid_set(row["full"], src, f"{where}.full", optional=mode == "good")
+        if mode == "good" and full is not None:
+            raise ExchangeError("inconsistent", f"{where}.full: no full list in the good mode")
+        if full is not None and not short <= full:
+            raise ExchangeError("inconsistent", f"{where}: the short list is not in the full one")
+        patches.append(PatchRequest(src, region, stamp, short, full))
+    _unique_keys([(p.source, p.region) for p in patches], "request")
+    if mode == "limited":
+        if len({p.source for p in patches}) != 1:
+            raise ExchangeError("inconsistent", "request: a limited request names one source")
+        if adjacency is not None and not _connected([p.region for p in patches], adjacency):
+            raise ExchangeError("adjacency", "request: the regions are not adjacent")
+    return Request(rid, mode, tuple(patches))
+
+
+def _record(data: Any, kind: type[Pose] | type[OdometryEdge], where: str) -> Any:
+    if not isinstance(data, bytes):
+        raise ExchangeError("type", f"{where}: {type(data).__name__} where bytes expected")
+    try:
+        rec = decode(data)
+    except RecordError as e:
+        raise ExchangeError("record", f"{where}: {e}") from None
+    if not isinstance(rec, kind):
+        raise ExchangeError("record", f"{where}: a {type(rec).__name__} where {kind.__name__}")
+    return rec
+
+
+def _answer_entry(row: Any, mode: str, where: str, regions: Collection[int] | None) -> PatchAnswer:
+    if not isinstance(row, dict):
+        raise ExchangeError("type", f"{where}: a map expected")
+    _keys(row, ("src", "r", "s", "short", "full", "poses", "edges"), where)
+    src = _int(row["src"], f"{where}.src", ROBOT_LIMIT)
+    region = _region(row["r"], f"{where}.r", regions)
+    stamp = _stamp(row["s"], f"{where}.s", optional=True)
+    short = _uid_set(row["short"], src, f"{where}.short", optional=True)
+    full = _uid_set(row["full"], src, f"{where}.full", optional=True)
+    poses: list[Pose] = [
+        _record(p, Pose, f"{where}.poses[{k}]")
+        for k, p in enumerate(_list(row["poses"], f"{where}.poses"))
+    ]
+    edges: list[OdometryEdge] = [
+        _record(e, OdometryEdge, f"{where}.edges[{k}]")
+        for k, e in enumerate(_list(row["edges"], f"{where}.edges"))
+    ]
+    for p in poses:
+        if robot_of(p.uid) != src or p.region != region:
+            raise ExchangeError(
+                "inconsistent", f"{where}: pose {p.uid} is not of robot {src} in region {region}"
+            )
+    for e in edges:
+        if robot_of(e.a) != src or robot_of(e.b) != src:
+            raise ExchangeError("inconsistent", f"{where}: edge {e.a} -> {e.b} is not {src}'s")
+    # What each mode may carry.
+    if mode == "good":
+        if full is not None or (stamp is None) != (short is None):
+            raise ExchangeError("inconsistent", f"{where}: a good answer has stamp and short list")
+        listed = short
+    else:
+        if short is not None or (stamp is None) != (full is None):
+            raise ExchangeError(
+                "inconsistent", f"{where}: a limited answer has stamp and full list"
+            )
+        listed = full
+    if stamp is None and mode == "good" and (poses or edges):
+        raise ExchangeError("inconsistent", f"{where}: poses without a stamp")
+    if listed is not None:
+        extra = sorted(p.uid for p in poses if p.uid not in listed)
+        if extra:
+            raise ExchangeError("inconsistent", f"{where}: pose {extra[0]} is not in its list")
+    return PatchAnswer(src, region, stamp, short, full, tuple(poses), tuple(edges))
+
+
+def decode_answer(body: bytes, *, regions: Collection[int] | None = None) -> Answer:
+    """The answer in ``body``; :class:`ExchangeError` if it is not a valid one.
+
+    Checked besides types and ranges: every pose and edge decodes as its record, is the
+    patch's source's and (a pose) lies in the patch's region; no pose twice; each mode
+    carries what it may (see :class:`PatchAnswer`) and sent poses are in the list sent."""
+    d = _unpack(body)
+    _keys(d, ("v", "id", "mode", "patches"), "answer")
+    _version(d)
+    rid = _int(d["id"], "answer.id", _ID_LIMIT)
+    mode = _mode(d["mode"])
+    rows = _list(d["patches"], "answer.patches")
+    if len(rows) > _MAX_PATCHES:
+        raise ExchangeError("range", f"answer: {len(rows)} patches, at most {_MAX_PATCHES}")
+    patches = tuple(
+        _answer_entry(row, mode, f"answer.patches[{i}]", regions) for i, row in enumerate(rows)
+    )
+    _unique_keys([(p.source, p.region) for p in patches], "answer")
+    uids = [q.uid for p in patches for q in p.poses]
+    if len(set(uids)) != len(uids):
+        raise ExchangeError("duplicate", "answer: a pose is sent twice")
+    return Answer(rid, mode, patches)
+
+
+# --- the exchanger ------------------------------------------------------------------------
+
+
+@dataclass
+class _Pending:
+    """A request sent and not wholly answered: the patches still awaited."""
+
+    peer: int
+    patches: set[PatchKey]
+    sent: float
+    deadline: float
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """How a limited-mode answerer treats one requested patch."""
+
+    request: PatchRequest
+    case: str  # "none", "older", "newer" or "equal"
+    stamp: float | None = None
+    offer: set[int] = field(default_factory=set)
+    listed: set[int] = field(default_factory=set)
+    adopt_stamp: float | None = None
+    adopt_full: frozenset[int] | None = None
+
+
+@dataclass(frozen=True)
+class _Out:
+    """An answer entry ready to send: its wire map and byte size."""
+
+    row: dict[str, Any]
+    size: int
+    poses: int
+
+
+def _default_peers(transport: Transport) -> Callable[[], Iterable[int]]:
+    if isinstance(transport, SimTransport):
+        hub, robot = transport.hub, transport.robot
+        return lambda: hub.network.reachable(robot)
+    if isinstance(transport, ZmqTransport):
+        return lambda: sorted(transport.peers)
+    raise ConfigError(
+        f"exchange: cannot tell the peers of a {type(transport).__name__}; pass peers="
+    )
+
+
+class Exchanger:
+    """One robot's side of the exchange: answers requests, advertises its patches and
+    asks its peers for the patches they have newer.
+
+    Parameters
+    ----------
+    store : RobotStore
+        The robot's store. The exchange changes only its received layers and closures
+        (never the local layer).
+    transport : Transport
+        The robot's transport; the exchanger reads all its messages.
+    params : ExchangeParams
+    adjacency : mapping of int to collection of int, optional
+        The prior map's regions and their neighbours (:func:`.regions.region_adjacency`).
+        Needed for limited-mode requests of several patches (without it each covers one
+        patch); it also bounds the regions a message may name.
+    on_received : callable, optional
+        ``on_received(source, pose) -> closures``, called for each received pose before
+        it enters the store (association; the mission passes it); the closures go to
+        the store with the pose. Its exceptions are not caught.
+    peers : callable, optional
+        ``peers() -> robot ids`` the transport can reach now. Default: the simulated
+        network's :meth:`~.network.SimNetwork.reachable`, or a ZeroMQ transport's peers.
+
+    Attributes
+    ----------
+    stats : ExchangeStats
+    """
+
+    def __init__(
+        self,
+        store: RobotStore,
+        transport: Transport,
+        params: ExchangeParams | None = None,
+        *,
+        adjacency: Mapping[int, Collection[int]] | None = None,
+        on_received: OnReceived | None = None,
+        peers: Callable[[], Iterable[int]] | None = None,
+    ) -> None:
+        if transport.robot != store.robot:
+            raise ConfigError(
+                f"exchange: the store is robot {store.robot}'s, the transport robot "
+                f"{transport.robot}'s"
+            )
+        self.store = store
+        self.transport = transport
+        self.params = params if params is not None else ExchangeParams()
+        self.adjacency: dict[int, frozenset[int]] | None = (
+            None
+            if adjacency is None
+            else {int(r): frozenset(int(n) for n in ns) for r, ns in adjacency.items()}
+        )
+        self.on_received = on_received
+        self.stats = ExchangeStats()
+        self._peers = peers if peers is not None else _default_peers(transport)
+        self._now = -math.inf
+        self._next_advert = -math.inf
+        self._next_request = -math.inf
+        self._adverts: dict[int, tuple[float, dict[PatchKey, AdvertEntry]]] = {}
+        self._pending: dict[int, _Pending] = {}
+        self._expired: dict[int, _Pending] = {}
+        self._waiting: dict[PatchKey, int] = {}
+        self._timed_out: set[PatchKey] = set()
+        self._futile: dict[tuple[int, int, int], tuple[object, ...]] = {}
+        self._handed: dict[int, tuple[float, frozenset[int]]] = {}
+        self._next_id = 0
+
+    @property
+    def robot(self) -> int:
+        return self.store.robot
+
+    @property
+    def outstanding(self) -> dict[int, tuple[int, list[PatchKey]]]:
+        """Requests awaiting an answer: id -> (peer, patches still awaited)."""
+        return {i: (p.peer, sorted(p.patches)) for i, p in sorted(self._pending.items())}
+
+    # --- the loop ------------------------------------------------------------------------
+
+    def step(self, now: float, wanted_regions: Sequence[int] | None = None) -> None:
+        """Handle every message received, then advertise and request when due.
+
+        Parameters
+        ----------
+        now : float
+            Mission time, seconds; never decreasing.
+        wanted_regions : sequence of int, optional
+            Regions the robot visits next, most urgent first: their patches are asked
+            for before the others.
+        """
+        if isinstance(now, bool) or not isinstance(now, (int, float)) or not math.isfinite(now):
+            raise InputError(f"exchange: now must be a finite time, got {now!r}", field="now")
+        if now < self._now:
+            raise InputError(f"exchange: time goes back from {self._now} to {now}", field="now")
+        wanted = [int(r) for r in (wanted_regions or ())]
+        self._now = float(now)
+        for msg in self.transport.poll(0.0):
+            self._handle(msg, self._now)
+        self._expire(self._now)
+        if self._now >= self._next_advert:
+            self._advertise(self._now)
+            self._next_advert = self._now + self.params.advert_every
+        if self._now >= self._next_request:
+            self._request(self._now, wanted)
+            self._next_request = self._now + self.params.request_every
+
+    # --- sending -------------------------------------------------------------------------
+
+    def _send(self, dst: int, kind: str, body: bytes) -> bool:
+        if not self.transport.send(dst, body, kind=kind):
+            self.stats.refused += 1
+            return False
+        self.stats.messages_sent += 1
+        self.stats.bytes_sent += len(body)
+        return True
+
+    def _live(self, now: float) -> dict[int, dict[PatchKey, AdvertEntry]]:
+        """Peers reachable now whose advert is fresh, with their tables."""
+        reach = set(self._peers())
+        return {
+            p: table
+            for p, (at, table) in sorted(self._adverts.items())
+            if p in reach and now - at <= self.params.peer_timeout
+        }
+
+    # --- stamps of the local layer --------------------------------------------------------
+
+    def _own_stamp(self, region: int) -> float:
+        """The stamp the source advertises for a local patch: the time it last changed,
+        or just above the last stamp it handed out if it changed at that very time."""
+        patch = self.store.local.patches[region]
+        stamp = patch.stamp
+        handed = self._handed.get(region)
+        if handed is not None and stamp <= handed[0] and handed[1] != frozenset(patch.short):
+            stamp = math.nextafter(handed[0], math.inf)
+        return stamp
+
+    def _source_stamp(self, region: int, now: float) -> float:
+        """The stamp the source answers with (``now``, thesis), remembered with the list."""
+        patch = self.store.local.patches.get(region)
+        if patch is None:
+            return now
+        stamp = max(now, self._own_stamp(region))
+        self._handed[region] = (stamp, frozenset(patch.short))
+        return stamp
+
+    # --- adverts -------------------------------------------------------------------------
+
+    def advert(self) -> Advert:
+        """This robot's table: every local patch (its stamp as the source) and every
+        received patch with a stamp, sorted by (source, region)."""
+        rows: list[AdvertEntry] = []
+        for r in sorted(self.store.local.patches):
+            stamp = self._own_stamp(r)
+            if math.isfinite(stamp):
+                rows.append(
+                    AdvertEntry(self.robot, r, stamp, len(self.store.local.patches[r].short))
+                )
+        for src in sorted(self.store.received):
+            layer = self.store.received[src]
+            for r in sorted(layer.patches):
+                p = layer.patches[r]
+                if math.isfinite(p.stamp):
+                    rows.append(AdvertEntry(src, r, p.stamp, len(p.short)))
+        return Advert(tuple(rows))
+
+    def _advertise(self, now: float) -> None:
+        body = encode_advert(self.advert())
+        for peer in sorted(set(self._peers()) - {self.robot}):
+            self._send(peer, "advert", body)
+
+    # --- requests ------------------------------------------------------------------------
+
+    def _layer(self, source: int) -> Layer | None:
+        return self.store.received.get(source)
+
+    def _held(self, key: PatchKey) -> Patch | None:
+        layer = self._layer(key[0])
+        return None if layer is None else layer.patches.get(key[1])
+
+    def _our_stamp(self, key: PatchKey) -> float | None:
+        p = self._held(key)
+        return p.stamp if p is not None and math.isfinite(p.stamp) else None
+
+    def _incomplete(self, key: PatchKey) -> bool:
+        p = self._held(key)
+        return p is not None and not p.full <= p.short
+
+    def _futile_state(
+        self, peer: int, key: PatchKey, entry: AdvertEntry | None
+    ) -> tuple[object, ...]:
+        p = self._held(key)
+        mine = (None, 0, 0) if p is None else (p.stamp, len(p.short), len(p.full))
+        return (entry, *mine)
+
+    def _choose(
+        self, key: PatchKey, live: Mapping[int, Mapping[PatchKey, AdvertEntry]]
+    ) -> int | None:
+        """The peer to ask for patch ``key``, or None if no one has anything for us."""
+        ours = self._our_stamp(key)
+        src = key[0]
+        if src in live:
+            entry = live[src].get(key)
+            if entry is None:
+                return None
+            if ours is None or entry.stamp > ours:
+                return src
+            if self._incomplete(key) and self._futile.get((src, *key)) != self._futile_state(
+                src, key, entry
+            ):
+                return src
+            return None
+        holders = sorted(
+            ((t[key], p) for p, t in live.items() if key in t and p != self.robot),
+            key=lambda ep: (-ep[0].stamp, -ep[0].held, ep[1]),
+        )
+        if not holders:
+            return None
+        best, peer = holders[0]
+        if ours is None or best.stamp > ours:
+            return peer
+        if self._incomplete(key):
+            for entry, peer in sorted(holders, key=lambda ep: (-ep[0].held, -ep[0].stamp, ep[1])):
+                if entry.held > 0 and self._futile.get((peer, *key)) != self._futile_state(
+                    peer, key, entry
+                ):
+                    return peer
+        return None
+
+    def _patch_request(self, key: PatchKey) -> PatchRequest:
+        p = self._held(key)
+        short = frozenset() if p is None else frozenset(p.short)
+        stamp = self._our_stamp(key)
+        if self.params.mode == "good":
+            if self._incomplete(key):
+                stamp = None  # any holder sends what we lack
+            return PatchRequest(key[0], key[1], stamp, short)
+        full = frozenset() if p is None else frozenset(p.full | p.short)
+        return PatchRequest(key[0], key[1], stamp, short, full)
+
+    def _request(self, now: float, wanted: Sequence[int]) -> None:
+        live = self._live(now)
+        keys: set[PatchKey] = set()
+        for table in live.values():
+            keys.update(k for k in table if k[0] != self.robot)
+        rank: dict[int, int] = {}
+        for i, r in enumerate(wanted):
+            rank.setdefault(r, i)
+        order = sorted(keys, key=lambda k: (rank.get(k[1], len(rank)), k[0], k[1]))
+        chosen: dict[PatchKey, int] = {}
+        for k in order:
+            if k in self._waiting:
+                continue
+            peer = self._choose(k, live)
+            if peer is not None:
+                chosen[k] = peer
+        groups = self._group(order, chosen)
+        for peer, group in groups:
+            if len(self._pending) >= self.params.max_outstanding:
+                break
+            self._send_request(peer, group, now)
+
+    def _group(
+        self, order: Sequence[PatchKey], chosen: Mapping[PatchKey, int]
+    ) -> list[tuple[int, list[PatchKey]]]:
+        """Requests in priority order: good mode, patches by peer up to ``max_patches``;
+        limited mode, connected sets of adjacent patches of one source and one peer."""
+        cap = self.params.max_patches
+        out: list[tuple[int, list[PatchKey]]] = []
+        if self.params.mode == "good":
+            open_: dict[int, list[PatchKey]] = {}
+            for k in order:
+                if k not in chosen:
+                    continue
+                peer = chosen[k]
+                group = open_.get(peer)
+                if group is None or len(group) >= cap:
+                    group = open_[peer] = []
+                    out.append((peer, group))
+                group.append(k)
+            return out
+        done: set[PatchKey] = set()
+        for k in order:
+            if k not in chosen or k in done:
+                continue
+            peer, src = chosen[k], k[0]
+            group, todo = [k], [k]
+            done.add(k)
+            while todo and len(group) < cap and self.adjacency is not None:
+                r = todo.pop(0)
+                for n in sorted(self.adjacency.get(r[1], ())):
+                    nk = (src, n)
+                    if nk in chosen and nk not in done and chosen[nk] == peer and len(group) < cap:
+                        done.add(nk)
+                        group.append(nk)
+                        todo.append(nk)
+            out.append((peer, group))
+        return out
+
+    def _send_request(self, peer: int, keys: list[PatchKey], now: float) -> None:
+        rid = self._next_id
+        self._next_id += 1
+        req = Request(rid, self.params.mode, tuple(self._patch_request(k) for k in keys))
+        if not self._send(peer, "request", encode_request(req)):
+            return
+        self.stats.requests_sent += 1
+        self.stats.retries += sum(1 for k in keys if k in self._timed_out)
+        self._timed_out.difference_update(keys)
+        self._pending[rid] = _Pending(peer, set(keys), now, now + self.params.request_timeout)
+        for k in keys:
+            self._waiting[k] = rid
+
+    def _expire(self, now: float) -> None:
+        for rid in [i for i, p in sorted(self._pending.items()) if p.deadline <= now]:
+            p = self._pending.pop(rid)
+            for k in p.patches:
+                if self._waiting.get(k) == rid:
+                    del self._waiting[k]
+            self._timed_out.update(p.patches)
+            self._expired[rid] = p
+        # A late answer is still welcome for another timeout; then it is unsolicited.
+        for rid in [
+            i for i, p in self._expired.items() if p.deadline + self.params.request_timeout <= now
+        ]:
+            del self._expired[rid]
+
+    # --- receiving -----------------------------------------------------------------------
+
+    def _handle(self, msg: Message, now: float) -> None:
+        body = msg.payload
+        self.stats.messages_received += 1
+        self.stats.bytes_received += len(body)
+        regions = None if self.adjacency is None else self.adjacency.keys()
+        try:
+            if msg.kind == "advert":
+                advert = decode_advert(body, regions=regions)
+                table = {(e.source, e.region): e for e in advert.entries}
+                self._adverts[msg.src] = (now, table)
+            elif msg.kind == "request":
+                request = decode_request(body, regions=regions, adjacency=self.adjacency)
+                self._answer(msg.src, request, now)
+            elif msg.kind == "answer":
+                answer = decode_answer(body, regions=regions)
+                self._take(msg.src, answer, now)
+            else:
+                raise ExchangeError("kind", f"unknown kind {msg.kind!r}")
+        except ExchangeError as e:
+            self.stats.rejected[e.code] += 1
+            logger.warning(
+                "robot %d rejected a %r from robot %d (%s): %s",
+                self.robot,
+                msg.kind[:16],
+                msg.src,
+                e.code,
+                e.reason,
+            )
+
+    # --- answering -----------------------------------------------------------------------
+
+    def _answer(self, peer: int, request: Request, now: float) -> None:
+        """Answer a validated request (each mode by its rules), then send it."""
+        if request.mode != self.params.mode:
+            raise ExchangeError("mode", f"a {request.mode} request to a {self.params.mode} robot")
+        if any(p.source == peer for p in request.patches):
+            raise ExchangeError("own", f"robot {peer} asks for its own poses")
+        if self.params.mode == "good":
+            outs = [self._good_entry(p, now) for p in request.patches]
+        else:
+            outs = self._limited_entries(request.patches, now)
+        self._send_answer(peer, request, outs)
+
+    def _patch_of(self, source: int, region: int) -> tuple[Layer | None, Patch | None]:
+        layer = self.store.local if source == self.robot else self.store.received.get(source)
+        patch = None if layer is None else layer.patches.get(region)
+        if patch is not None and source != self.robot and not math.isfinite(patch.stamp):
+            patch = None
+        return layer, patch
+
+    @staticmethod
+    def _empty(p: PatchRequest) -> _Out:
+        row = _answer_dict(PatchAnswer(p.source, p.region, None, None, None), [], [])
+        return _Out(row, len(_pack(row)), 0)
+
+    def _entry(
+        self,
+        layer: Layer,
+        p: PatchRequest,
+        stamp: float | None,
+        short: Collection[int] | None,
+        full: Collection[int] | None,
+        send: Sequence[int],
+        patch_uids: Collection[int],
+    ) -> _Out:
+        poses = [encode(layer.poses[u]) for u in send]
+        edges = sorted(
+            {e for e in layer.edges if e.a in patch_uids or e.b in patch_uids},
+            key=lambda e: (e.a, e.b),
+        )
+        row = {
+            "src": p.source,
+            "r": p.region,
+            "s": _stamp_out(stamp),
+            "short": _ids(short),
+            "full": _ids(full),
+            "poses": poses,
+            "edges": [encode(e) for e in edges],
+        }
+        return _Out(row, len(_pack(row)), len(poses))
+
+    def _good_entry(self, p: PatchRequest, now: float) -> _Out:
+        """Good network: nothing if we are not the source and not newer; else the poses
+        of the patch the requester lacks, our short list and our stamp."""
+        layer, patch = self._patch_of(p.source, p.region)
+        source = p.source == self.robot
+        if layer is None or (patch is None and not source):
+            return self._empty(p)
+        short = set() if patch is None else set(patch.short)
+        if source:
+            stamp = self._source_stamp(p.region, now)
+        else:
+            assert patch is not None
+            stamp = patch.stamp
+            if p.stamp is not None and stamp <= p.stamp:
+                return self._empty(p)
+        send = sorted(short - p.short, key=lambda u: (layer.poses[u].time, u))
+        return self._entry(layer, p, stamp, short, None, send, short)
+
+    def _limited_entries(self, patches: Sequence[PatchRequest], now: float) -> list[_Out]:
+        """Limited network: per patch by stamps (ours older: offer what the requester's
+        full list names and it lacks, then adopt its full list; newer: our full list and
+        stamp and the short-list poses it lacks; equal: those poses), then the subset of
+        best efficiency within ``cap_bytes``."""
+        src = patches[0].source
+        source = src == self.robot
+        layer = self.store.local if source else self.store.received.get(src)
+        if layer is None:
+            return [self._empty(p) for p in patches]
+        plans: list[_Plan] = []
+        for p in patches:
+            assert p.full is not None  # decode_request: a limited request has full lists
+            _, patch = self._patch_of(src, p.region)
+            if patch is None and not source:
+                plans.append(_Plan(p, "none"))
+                continue
+            short = set() if patch is None else set(patch.short)
+            if source:
+                stamp = self._source_stamp(p.region, now)
+                full = set(short)
+            else:
+                assert patch is not None
+                stamp, full = patch.stamp, set(patch.full | patch.short)
+            if not source and p.stamp is not None and stamp < p.stamp:
+                offer = (short & p.full) - p.short
+                plans.append(_Plan(p, "older", None, offer, short & p.full, p.stamp, p.full))
+            elif p.stamp is None or stamp != p.stamp:
+                plans.append(_Plan(p, "newer", stamp, short - p.short, full))
+            else:
+                plans.append(_Plan(p, "equal", None, short - p.short, short))
+        offered = set().union(*(q.offer for q in plans))
+        chosen = set(
+            compress_for_sending(
+                layer,
+                sorted({p.region for p in patches}),
+                self.params.cap_bytes,
+                now,
+                params=self.store.params,
+                uids=offered,
+            )
+        )
+        outs: list[_Out] = []
+        for q in plans:
+            if q.case == "none":
+                outs.append(self._empty(q.request))
+                continue
+            send = sorted(q.offer & chosen, key=lambda u: (layer.poses[u].time, u))
+            keep = {u for u in q.listed if u in layer.poses}
+            full_out = q.listed if q.case == "newer" else None
+            outs.append(self._entry(layer, q.request, q.stamp, None, full_out, send, keep))
+        # Older than the requester: adopt its full list and stamp, after the answer is
+        # built (the poses offered are in that list, so none of them goes).
+        for q in plans:
+            if q.adopt_stamp is not None and q.adopt_full is not None:
+                self._adopt(src, q.request.region, q.adopt_stamp, q.adopt_full)
+        return outs
+
+    def _adopt(self, source: int, region: int, stamp: float, full: Collection[int]) -> None:
+        layer = self.store.received[source]
+        patch = layer.patches[region]
+        for u in sorted(patch.short - set(full)):
+            self.store.remove_received_pose(source, u)
+            self.stats.poses_deleted += 1
+        patch.full = set(full)
+        patch.stamp = stamp
+
+    def _send_answer(self, peer: int, request: Request, outs: Sequence[_Out]) -> None:
+        """Pack the entries into as few messages as the transport takes; an entry too
+        large for any message is not sent (the requester times out)."""
+        budget = self.transport.max_message - _ENVELOPE_SLACK
+        head = len(_pack({"v": VERSION, "id": request.id, "mode": request.mode, "patches": []}))
+        batches: list[list[_Out]] = []
+        size = budget
+        for o in outs:
+            if head + 5 + o.size > budget:
+                logger.warning(
+                    "robot %d cannot answer patch (%d, %d) to robot %d: %d bytes > %d",
+                    self.robot,
+                    o.row["src"],
+                    o.row["r"],
+                    peer,
+                    o.size,
+                    budget,
+                )
+                self.stats.refused += 1
+                continue
+            if size + o.size > budget:
+                batches.append([])
+                size = head + 5
+            batches[-1].append(o)
+            size += o.size
+        for batch in batches:
+            body = _pack(
+                {
+                    "v": VERSION,
+                    "id": request.id,
+                    "mode": request.mode,
+                    "patches": [o.row for o in batch],
+                }
+            )
+            if self._send(peer, "answer", body):
+                self.stats.poses_sent += sum(o.poses for o in batch)
+
+    # --- taking answers ------------------------------------------------------------------
+
+    def _take(self, peer: int, answer: Answer, now: float) -> None:
+        """Check an answer against our request and our state, then apply it."""
+        if answer.mode != self.params.mode:
+            raise ExchangeError("mode", f"a {answer.mode} answer to a {self.params.mode} robot")
+        pending = self._pending.get(answer.id) or self._expired.get(answer.id)
+        if pending is None or pending.peer != peer:
+            raise ExchangeError("unsolicited", f"no request {answer.id} to robot {peer} awaits")
+        for e in answer.patches:
+            if e.source == self.robot:
+                raise ExchangeError("own", f"robot {peer} sends us our own poses")
+            if (e.source, e.region) not in pending.patches:
+                raise ExchangeError(
+                    "unsolicited",
+                    f"patch ({e.source}, {e.region}) not awaited from request {answer.id}",
+                )
+        self.stats.poses_received += sum(len(e.poses) for e in answer.patches)
+        advert = self._adverts.get(peer, (0.0, {}))[1]
+        changed = False
+        for e in answer.patches:
+            key = (e.source, e.region)
+            pending.patches.discard(key)
+            if self._waiting.get(key) == answer.id:
+                del self._waiting[key]
+            changed = self._apply(e, now) or changed
+        # A peer whose answer brought nothing is not asked for these patches again until
+        # its advert or our patch changes (a capped answer spent on sibling patches is
+        # not a futile one).
+        for e in answer.patches:
+            key = (e.source, e.region)
+            if changed:
+                self._futile.pop((peer, *key), None)
+            else:
+                self._futile[(peer, *key)] = self._futile_state(peer, key, advert.get(key))
+        if not pending.patches:
+            self._pending.pop(answer.id, None)
+            self._expired.pop(answer.id, None)
+
+    def _apply(self, e: PatchAnswer, now: float) -> bool:
+        """Apply one patch's answer (whole); True if the store changed."""
+        layer = self.store.received.get(e.source)
+        patch = None if layer is None else layer.patches.get(e.region)
+        current = patch.stamp if patch is not None else -math.inf
+        listed = e.short if self.params.mode == "good" else e.full
+        if e.stamp is None and not e.poses:
+            return False
+        if e.stamp is not None and e.stamp < current:
+            # The patch became newer meanwhile (another answer came first).
+            self.stats.stale += 1
+            if self.params.mode == "good":
+                return False
+            e = PatchAnswer(e.source, e.region, None, None, None, e.poses, e.edges)
+            listed = None
+        if e.stamp is None and (patch is None or not patch.full):
+            return False  # poses offered against a full list we do not have
+        if layer is None:
+            layer = self.store.received.setdefault(e.source, Layer(e.source))
+        patch = layer.patch(e.region)
+        changed = False
+        if e.stamp is not None and listed is not None:
+            for u in sorted(patch.short - listed):
+                self.store.remove_received_pose(e.source, u)
+                self.stats.poses_deleted += 1
+            changed = changed or patch.stamp != e.stamp or patch.full != set(listed)
+            patch.stamp = e.stamp
+            patch.full = set(listed)
+        for pose in sorted(e.poses, key=lambda q: (q.time, q.uid)):
+            if pose.uid in layer.poses or pose.uid not in patch.full:
+                continue
+            closures = [] if self.on_received is None else list(self.on_received(e.source, pose))
+            held = set(layer.poses) | {pose.uid}
+            edges = [
+                x
+                for x in e.edges
+                if pose.uid in (x.a, x.b) and x.a in held and x.b in held and x not in layer.edges
+            ]
+            self.store.add_received_pose(e.source, pose, edges, closures, now)
+            self.stats.poses_added += 1
+            changed = True
+        for x in e.edges:
+            if x.a in layer.poses and x.b in layer.poses and x not in layer.edges:
+                layer.add_edge(x)
+                changed = True
+        return changed
