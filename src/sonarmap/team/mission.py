@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -71,7 +71,13 @@ from ..metrics import score
 from ..readings import Readings
 from ..rig import Rig, get_rig
 from .animation import Frame
-from .association import AssociationParams, Prior, associate, estimate_planar
+from .association import (
+    AssociationParams,
+    AssociationStats,
+    Prior,
+    associate,
+    estimate_planar,
+)
 from .globalmap import (
     Alignment,
     GraphResult,
@@ -94,7 +100,7 @@ from .regions import cut_regions, region_of
 from .store import RobotStore, StoreParams
 from .world import World, make_world, observe, odometry, patrol_route, sonar_readings
 
-__all__ = ["MissionConfig", "MissionResult", "run_mission"]
+__all__ = ["MissionConfig", "MissionResult", "RobotAgent", "run_mission"]
 
 F64 = npt.NDArray[np.float64]
 Progress = Callable[[int, int], None]
@@ -242,7 +248,7 @@ def _rigid_ate(est: F64, true: F64) -> float:
     return float(np.sqrt(np.mean(np.sum((moved - true) ** 2, axis=1))))
 
 
-def _origin(uid: int, truth: dict[int, F64], poses: dict[int, Pose]) -> int | None:
+def _origin(uid: int, truth: Mapping[int, F64], poses: Mapping[int, Pose]) -> int | None:
     """The made pose whose frame a pose has (a merged pose keeps its first pose's)."""
     while uid not in truth:
         p = poses.get(uid)
@@ -260,9 +266,10 @@ def _changes(
     ``reliability_vanished`` / ``reliability_present``: mean reliability in the final
     store of landmarks whose true landmark had vanished by the end, and of the others.
     ``kept_vanished`` / ``kept_present``: of the landmark observations made at poses
-    before each landmark vanished (for the present ones: before the median vanishing
-    time), the share still in the store at the end: lower for the vanished ones means
-    they leave first.
+    before the median vanishing time, the share still in the store at the end: lower
+    for the vanished ones means they leave first. One window for both, because the
+    store keeps recent poses longer: a window running to each landmark's own vanishing
+    would credit late-vanishing landmarks with recent observations.
     """
     gone = world.died <= now
     rel: dict[bool, list[float]] = {True: [], False: []}
@@ -283,7 +290,7 @@ def _changes(
         ids = p.landmarks.ids
         for i in ids[ids >= 0].tolist():
             v = bool(gone[i])
-            if p.time >= (world.died[i] if v else cut):
+            if p.time >= cut:
                 continue
             seen[v] += 1
             # A merged pose keeps its landmarks under a new UID: count it by identity.
@@ -366,12 +373,558 @@ STAGES = ("votes", "bounds", "ransac", "accepted", "graph")
 def _optimise(store: RobotStore) -> tuple[GraphResult, list[ClosureEdge]]:
     """One batch of the global map: optimise, move every pose's estimate, drop the
     closures the result finds inconsistent (returned)."""
-    graph = optimise_graph(store.local.poses, store.local.edges, store.closures)
+    if not store.received:
+        # Started from the current estimates, which closures keep near the truth:
+        # chained odometry drifts metres over an hour, and from there GNC rejected
+        # hundreds of correct closures (building 7, 6000 s: ATE 3.17 m; 0.04 m so).
+        graph = optimise_graph(
+            store.local.poses, store.local.edges, store.closures, initial="estimates"
+        )
+    else:
+        # Every layer's poses; our oldest pose holds the frame (the default anchor is
+        # the oldest of all, which may be another robot's).
+        poses = dict(store.local.poses)
+        edges = list(store.local.edges)
+        for source in sorted(store.received):
+            poses.update(store.received[source].poses)
+            edges.extend(store.received[source].edges)
+        own = store.local.poses.values()
+        anchor = min(own, key=lambda p: (p.time, p.uid)).uid if own else None
+        graph = optimise_graph(poses, edges, store.closures, anchor=anchor)
     for uid, est in graph.estimates.items():
-        store.local.poses[uid].estimate = np.asarray(est, dtype=np.float64)
+        # Received poses are not ours to change: only our own estimates move.
+        if uid in store.local.poses:
+            store.local.poses[uid].estimate = np.asarray(est, dtype=np.float64)
     dropped = [store.closures[i] for i in graph.inconsistent]
     store.closures = graph.consistent_closures(store.closures)
     return graph, dropped
+
+
+class RobotAgent:
+    """One robot's mission, one route step at a time: the robot logic of
+    :func:`run_mission`, and the truth bookkeeping that scores it.
+
+    The agent makes its poses (:meth:`step`), associates each one with every pose its
+    store holds (its own and those received from other robots), optimises the pose
+    graph every ``batch`` poses, associates the poses other robots send it
+    (:meth:`receive`, an :class:`~sonarmap.team.exchange.Exchanger`'s ``on_received``)
+    and, at the end, fuses, aligns and scores the global map (:meth:`finish`).
+
+    Parameters
+    ----------
+    plan : OccupancyMap
+        The floor the robot drives (the simulation's truth).
+    config : MissionConfig, optional
+    prior : OccupancyMap, optional
+        The prior map; the plan unless given.
+    route : ndarray (T, 4), optional
+        ``t, x, y, theta``; replaces the patrol route drawn from the seed and ``robot``.
+    world : World, optional
+        The landmarks; made from the seed unless given.
+    robot : int
+        The robot's id: its UIDs' source and its seeds.
+    record : bool
+        Keep a :class:`~sonarmap.team.animation.Frame` per pose made.
+
+    Attributes
+    ----------
+    store : RobotStore
+    truth : dict of int to ndarray
+        The true pose (x, y, theta) of each pose the robot made, by UID.
+    made : dict of int to Pose
+        Every pose the robot made or merged, by UID.
+    peers_truth, peers_made : mapping
+        Where :meth:`receive` and the scoring look up other robots' poses; default the
+        agent's own dicts (a team passes views over every robot's).
+    route : ndarray (T, 4)
+        The true route, cut to the mission's duration.
+    region_of_step : ndarray of int (T,)
+        The prior map's region of each route step's true position.
+    k : int
+        The next route step :meth:`step` processes.
+    """
+
+    def __init__(
+        self,
+        plan: OccupancyMap,
+        config: MissionConfig | None = None,
+        *,
+        prior: OccupancyMap | None = None,
+        route: F64 | None = None,
+        world: World | None = None,
+        robot: int = 0,
+        record: bool = False,
+    ) -> None:
+        cfg = MissionConfig() if config is None else config
+        prior = plan if prior is None else prior
+        if not (plan.classes() == 0).any() or not (prior.classes() == 0).any():
+            raise InputError("the map has no free cell", field="map")
+        self.wall0 = time.perf_counter()
+        self.cfg = cfg
+        self.plan = plan
+        self.prior = prior
+        self.robot = robot
+        self.record = record
+        world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
+        self.world = world
+        self.seed = cfg.seed + 7919 * robot
+        seed = self.seed
+        true = patrol_route(plan, cfg.duration, seed=seed) if route is None else route
+        true = np.asarray(true, dtype=np.float64)
+        true = true[true[:, 0] <= true[0, 0] + cfg.duration]
+        self.route = true
+        odo, _ = odometry(true, seed=seed + 1, **ODOMETRY_NOISE)
+        self.odo = odo
+        self.rig = get_rig(cfg.rig)
+        readings = sonar_readings(plan, true, rig=self.rig, seed=seed + 2)
+        readings = readings.take(np.flatnonzero(readings.range <= cfg.mapping_range))
+        self.readings = readings
+        self.step_of = np.clip(np.searchsorted(true[:, 0], readings.t), 0, len(true) - 1)
+        # Each reading's sonar pose on the robot: invert(true robot pose) (+) world sonar pose.
+        self.mounts = compose(
+            invert(true[self.step_of, 1:4]),
+            np.column_stack([readings.x, readings.y, readings.theta]),
+        )
+        self.labels = cut_regions(prior.classes() == 0, prior.grid.resolution)
+        self.region_of_step: npt.NDArray[np.intp] = np.array(
+            [region_of(self.labels, prior.grid, float(x), float(y)) for x, y in true[:, 1:3]],
+            dtype=np.intp,
+        ).reshape(-1)
+
+        # The robot's start as it believes it: the true one off by start_error.
+        rng = np.random.default_rng(seed + 3)
+        off = np.array([*rng.normal(0, cfg.start_error[0], 2), rng.normal(0, cfg.start_error[1])])
+        start_true = true[0, 1:4]
+        self.start_believed = start_true + off
+        # Prior frame = A_true (+) robot frame.
+        self.a_true = compose(start_true, invert(self.start_believed))
+
+        self.store = RobotStore(robot, cfg.store)
+        self.truth: dict[int, F64] = {}
+        self.odo_poses: dict[int, F64] = {}
+        self.made: dict[int, Pose] = {}
+        self.peers_truth: Mapping[int, F64] = self.truth
+        self.peers_made: Mapping[int, Pose] = self.made
+        self.bytes_per_pose: list[int] = []
+        self.frames: list[Frame] = []
+        self.n_true_pairs = 0
+        self.n_correct = 0
+        self.n_closures = 0
+        self.n_found = 0
+        self.n_same_place = 0
+        self.received_closures = 0
+        self.received_correct = 0
+        self.wrong: list[dict[str, Any]] = []
+        self.stage_removed: dict[str, list[int]] = {}
+        self.stages = {
+            s: {"in": 0, "removed": 0, "removed_true": 0, "kept_false": 0} for s in STAGES
+        }
+        self.graph_dropped: dict[tuple[int, int], bool] = {}
+
+        # Association before and after the world changed: split at the median time of
+        # the changes (vanishing, appearing, moving) that happen during the mission.
+        self.end = float(true[-1, 0])
+        events = np.concatenate([world.died, world.moved_at, world.born[world.born > 0]])
+        events = events[events <= self.end]
+        self.t_change = float(np.median(events)) if len(events) else self.end
+        self.by_half = {
+            h: {"closures": 0, "correct": 0, "true_pairs": 0, "found": 0} for h in HALVES
+        }
+        self.assoc_seconds: list[float] = []
+        self.graph: GraphResult | None = None
+        self.drift = np.zeros((3, 3))
+        self.prev_k: int | None = None
+        self.prev_uid: int | None = None
+        self.counter = 0
+        self.k = 0
+
+    # --- queries -------------------------------------------------------------------------
+
+    @property
+    def steps(self) -> int:
+        """Route steps of the mission."""
+        return len(self.route)
+
+    @property
+    def done(self) -> bool:
+        """Whether every route step has been processed."""
+        return self.k >= len(self.route)
+
+    def time_of(self, k: int) -> float:
+        """Mission time of route step ``k`` (clipped to the route)."""
+        return float(self.route[min(max(k, 0), len(self.route) - 1), 0])
+
+    def position(self) -> F64:
+        """The robot's true (x, y) at its last processed step (its start before any)."""
+        return np.asarray(self.route[max(self.k - 1, 0), 1:3], dtype=np.float64)
+
+    def wanted_regions(self, horizon: float) -> list[int]:
+        """The regions the route visits in the next ``horizon`` seconds, in the order of
+        their first visit, the current one first."""
+        k = max(self.k - 1, 0)
+        t = self.route[:, 0]
+        last = int(np.searchsorted(t, t[k] + horizon, side="right"))
+        seen: dict[int, None] = {}
+        for r in self.region_of_step[k:last].tolist():
+            seen.setdefault(int(r), None)
+        return list(seen)
+
+    def stored_pose(self, uid: int) -> Pose | None:
+        """The pose ``uid`` from whichever of the store's layers holds it."""
+        p = self.store.local.poses.get(uid)
+        if p is not None:
+            return p
+        for layer in self.store.received.values():
+            p = layer.poses.get(uid)
+            if p is not None:
+                return p
+        return None
+
+    def all_poses(self) -> dict[int, Pose]:
+        """Every pose the store holds: the local layer's, then each received layer's."""
+        if not self.store.received:
+            return self.store.local.poses
+        out = dict(self.store.local.poses)
+        for source in sorted(self.store.received):
+            out.update(self.store.received[source].poses)
+        return out
+
+    def _candidates(self) -> list[Pose]:
+        out = list(self.store.local.poses.values())
+        for source in sorted(self.store.received):
+            out.extend(self.store.received[source].poses.values())
+        return out
+
+    def believed(self, k: int | npt.NDArray[np.intp]) -> F64:
+        """The robot's belief of route step ``k``'s pose: dead reckoning from its start."""
+        return compose(self.start_believed, compose(invert(self.odo[0, 1:4]), self.odo[k, 1:4]))
+
+    def _origin_any(self, uid: int) -> int | None:
+        o = _origin(uid, self.truth, self.made)
+        if o is None and self.peers_truth is not self.truth:
+            o = _origin(uid, self.peers_truth, self.peers_made)
+        return o
+
+    def _true_of(self, uid: int) -> F64:
+        return self.truth[uid] if uid in self.truth else self.peers_truth[uid]
+
+    def correct(self, c: ClosureEdge) -> bool:
+        """Whether a closure's transform is within the tolerance of the true one."""
+        oa, ob = self._origin_any(c.a), self._origin_any(c.b)
+        return (
+            oa is not None
+            and ob is not None
+            and _closure_correct(c, self._true_of(oa), self._true_of(ob), self.cfg)
+        )
+
+    # --- the robot -----------------------------------------------------------------------
+
+    def batch(self) -> GraphResult:
+        """One batch of the global map (every layer's poses, our oldest the anchor),
+        noting the closures the graph drops."""
+        graph, dropped = _optimise(self.store)
+        for c in dropped:
+            self.graph_dropped[(c.a, c.b)] = self.correct(c)
+        self.graph = graph
+        return graph
+
+    def advance_to(self, t: float) -> int:
+        """Process every route step up to mission time ``t``; the poses made."""
+        n = 0
+        while not self.done and self.route[self.k, 0] <= t:
+            n += self.step() is not None
+        return n
+
+    def step(self) -> Pose | None:
+        """Process route step :attr:`k` and move on: the pose made there, if one is."""
+        k = self.k
+        self.k += 1
+        cfg, odo, true, store = self.cfg, self.odo, self.route, self.store
+        prev_k, prev_uid = self.prev_k, self.prev_uid
+        if prev_k is not None:
+            d = odo[k, 1:3] - odo[prev_k, 1:3]
+            turn = abs(math.remainder(odo[k, 3] - odo[prev_k, 3], 2 * math.pi))
+            if (
+                math.hypot(d[0], d[1]) < cfg.pose_every
+                and turn < cfg.pose_turn
+                and k < len(true) - 1
+            ):
+                return None
+        t = float(true[k, 0])
+        uid = make_uid(self.robot, self.counter)
+        self.counter += 1
+        # The odometry since the previous pose, which the store keeps until this one.
+        step = None
+        estimate = self.believed(k)
+        if prev_uid is not None and prev_uid in store.local.poses:
+            assert prev_k is not None
+            step = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
+            estimate = compose(store.local.poses[prev_uid].estimate, step)
+        lo = -1 if prev_k is None else prev_k
+        step_of = self.step_of
+        mine = np.flatnonzero((step_of > lo) & (step_of <= k))
+        local = _local_map(
+            _sonar_in_pose_frame(
+                self.readings.take(mine), self.mounts[mine], step_of[mine], odo[:, 1:4], k
+            ),
+            self.rig,
+            cfg,
+        )
+        landmarks = observe(self.world, true[k, 1:4], t, seed=self.seed)
+        region = region_of(self.labels, self.prior.grid, float(estimate[0]), float(estimate[1]))
+        pose = Pose(uid, t, region, estimate, landmarks, local)
+        self.truth[uid] = true[k, 1:4].copy()
+        self.odo_poses[uid] = self.believed(k)
+        self.made[uid] = pose
+
+        edge = None
+        if step is not None:
+            assert prev_k is not None
+            assert prev_uid is not None
+            cov = _odometry_covariance(odo, prev_k, k, ODOMETRY_NOISE)
+            edge = OdometryEdge(
+                prev_uid,
+                uid,
+                (float(step[0]), float(step[1]), float(step[2])),
+                tuple(float(v) for v in cov.ravel()),
+                cfg.max_speed * (t - float(true[prev_k, 0])) + 0.05,
+            )
+        if edge is not None:
+            assert step is not None
+            assert prev_uid is not None
+            self.drift = compose_covariance(
+                store.local.poses[prev_uid].estimate, self.drift, step, edge.cov()
+            )
+        own = list(store.local.poses.values())
+        stored = self._candidates()
+        t0 = time.perf_counter()
+        # Received poses have no odometry link to ours: no prior, only the hard checks.
+        priors = _priors(own, estimate, t, self.drift, cfg)
+        closures, stats = associate(pose, stored, priors, cfg.association)
+        mine_closures = [c for c in closures if c.a in store.local.poses]
+        if mine_closures:
+            best = max(mine_closures, key=lambda c: c.inliers)
+            pose.estimate = compose(store.local.poses[best.a].estimate, best.transform)
+            self.drift = best.cov() + CANDIDATE_COV
+        self.assoc_seconds.append(time.perf_counter() - t0)
+        self._score_association(pose, stored, closures, stats, t)
+        store.add_own_pose(pose, edge, closures, t)
+        for p in store.local.poses.values():
+            self.made.setdefault(p.uid, p)
+        self.bytes_per_pose.append(store.bytes())
+        if self.record:
+            self.frames.append(
+                _frame(store, t, true[k, 1:3], self.believed(k)[:2], self.bytes_per_pose[-1])
+            )
+        self.prev_k, self.prev_uid = k, uid
+        if self.counter % cfg.batch == 0:
+            self.batch()
+        return pose
+
+    def _score_association(
+        self,
+        pose: Pose,
+        stored: list[Pose],
+        closures: list[ClosureEdge],
+        stats: AssociationStats,
+        t: float,
+    ) -> None:
+        cfg, uid, landmarks = self.cfg, pose.uid, pose.landmarks
+        for stage, (_, matches) in stats.removed().items():
+            self.stage_removed.setdefault(stage, []).append(matches)
+        ids = set(landmarks.ids[landmarks.ids >= 0].tolist())
+        overlapping = {
+            p.uid
+            for p in stored
+            if len(ids & set(p.landmarks.ids[p.landmarks.ids >= 0].tolist()))
+            >= cfg.association.n_min
+        }
+        self.n_true_pairs += len(overlapping)
+        half = self.by_half[HALVES[int(t >= self.t_change)]]
+        half["true_pairs"] += len(overlapping)
+        before = {p.uid for p in stored if p.uid != uid}
+        for stage in STAGES[:-1]:
+            after = set(stats.kept[stage])
+            row = self.stages[stage]
+            row["in"] += len(before)
+            row["removed"] += len(before - after)
+            row["removed_true"] += len((before - after) & overlapping)
+            row["kept_false"] += len(after - overlapping)
+            before = after
+        for c in closures:
+            self.n_same_place += _same_landmarks(c, self.stored_pose(c.a), pose)
+            right = self.correct(c)
+            oa = self._origin_any(c.a)
+            if not right and oa is not None:
+                err = np.asarray(c.transform) - compose(invert(self._true_of(oa)), self.truth[uid])
+                self.wrong.append(
+                    {
+                        "a": c.a,
+                        "b": c.b,
+                        "inliers": c.inliers,
+                        "error_m": round(math.hypot(err[0], err[1]), 3),
+                        "error_deg": round(
+                            math.degrees(abs(math.remainder(err[2], 2 * math.pi))), 2
+                        ),
+                    }
+                )
+            self.n_closures += 1
+            self.n_correct += right
+            self.n_found += right and c.a in overlapping
+            half["closures"] += 1
+            half["correct"] += right
+            half["found"] += right and c.a in overlapping
+
+    def receive(self, source: int, pose: Pose) -> list[ClosureEdge]:
+        """Associate a pose received from robot ``source`` with every pose the store
+        holds, without priors (its estimate is in its source's frame, with no odometry
+        link to ours). The closures are returned for the store to keep with the pose
+        (:meth:`RobotStore.add_received_pose`); the caller adds it. Counted in
+        ``received_closures`` / ``received_correct``, not in the own poses' scores."""
+        stored = [p for p in self._candidates() if p.uid != pose.uid]
+        closures, _ = associate(pose, stored, None, self.cfg.association)
+        self.received_closures += len(closures)
+        self.received_correct += sum(self.correct(c) for c in closures)
+        return closures
+
+    def run(self, progress: Progress | None = None) -> None:
+        """Process the rest of the route, alone."""
+        n = len(self.route)
+        while not self.done:
+            if progress is not None:
+                progress(self.k + 1, n)
+            self.step()
+
+    # --- the end -------------------------------------------------------------------------
+
+    def finish(self) -> MissionResult:
+        """The last batch, the global map from every layer, its alignment to the prior,
+        and the scores (:func:`run_mission`'s summary)."""
+        cfg, store, truth, odo = self.cfg, self.store, self.truth, self.odo
+        plan, rig, readings, step_of = self.plan, self.rig, self.readings, self.step_of
+        t_batch = time.perf_counter()
+        graph = self.batch()
+        poses = self.all_poses()
+        built = fuse_local_maps(
+            poses,
+            graph.estimates,
+            grid_around(graph.estimates, cfg.local_size / 2, cfg.map_resolution, margin=1.0),
+        )
+        batch_seconds = time.perf_counter() - t_batch
+        stages = self.stages
+        stages["graph"] = {
+            "in": self.n_closures,
+            "removed": len(self.graph_dropped),
+            "removed_true": sum(self.graph_dropped.values()),
+            "kept_false": sum(not self.correct(c) for c in store.closures),
+        }
+        # The robot believes its frame is the prior's (it started where it thinks).
+        alignment = align_to_prior(built, self.prior, seed=cfg.seed, guess=(0.0, 0.0, 0.0))
+        a = np.asarray(alignment.transform, dtype=np.float64)
+        a_true = self.a_true
+
+        kept = {u: _origin(u, truth, self.made) for u in store.local.poses}
+        uids = [u for u, o in kept.items() if o is not None]
+        est = np.array([graph.estimates[u] for u in uids])
+        tru = np.array([truth[kept[u]] for u in uids])  # type: ignore[index]
+        odo_est = np.array([self.odo_poses[kept[u]] for u in uids])  # type: ignore[index]
+        # How far the found alignment puts the robot's poses from where the true one would.
+        placed = compose(a, est)
+        should = compose(a_true, est)
+        align_m = float(np.mean(np.hypot(*(placed[:, :2] - should[:, :2]).T)))
+        align_deg = math.degrees(abs(math.remainder(a[2] - a_true[2], 2 * math.pi)))
+
+        # The map in the plan's frame, by the found alignment, against its bounds: the
+        # same readings mapped at the true poses and at the odometry poses (given the
+        # true start).
+        in_prior = {u: compose(a, graph.estimates[u]) for u in poses if u in graph.estimates}
+        global_map = fuse_local_maps(poses, in_prior, plan.grid)
+        true_posed = build_map(readings, rig, plan.grid, cfg.mapper, cfg.mapper_params)
+        odo_world = compose(
+            a_true,
+            compose(self.start_believed, compose(invert(odo[0, 1:4]), odo[step_of, 1:4])),
+        )
+        odo_sonar = compose(odo_world, self.mounts)
+        odo_posed = build_map(
+            Readings(
+                readings.t,
+                readings.sensor,
+                odo_sonar[:, 0],
+                odo_sonar[:, 1],
+                odo_sonar[:, 2],
+                readings.range,
+                readings.names,
+            ),
+            rig,
+            plan.grid,
+            cfg.mapper,
+            cfg.mapper_params,
+        )
+        assoc = np.array(self.assoc_seconds)
+        changes: dict[str, Any] = dict(_changes(self.world, store, self.made, truth, self.end))
+        changes["change_time_s"] = self.t_change
+        for h, row in self.by_half.items():
+            changes[f"association_{h}"] = {
+                "closures": row["closures"],
+                "precision": row["correct"] / row["closures"] if row["closures"] else math.nan,
+                "recall": row["found"] / row["true_pairs"] if row["true_pairs"] else math.nan,
+            }
+        n_closures, counter, labels = self.n_closures, self.counter, self.labels
+        summary: dict[str, Any] = {
+            "robot": self.robot,
+            "store_bytes_peak": int(store.peak_bytes),
+            "store_bytes_final": int(store.bytes()),
+            "local_bytes_peak": int(store.peak_local_bytes),
+            "poses": len(store.local.poses),
+            "poses_made": counter,
+            "landmarks": int(sum(len(p.landmarks) for p in store.local.poses.values())),
+            "closures": len(store.closures),
+            "regions": int(labels.max()) + 1,
+            "regions_used": len({p.region for p in store.local.poses.values()}),
+            "association_precision": self.n_correct / n_closures if n_closures else math.nan,
+            "association_recall": self.n_found / self.n_true_pairs
+            if self.n_true_pairs
+            else math.nan,
+            "association_precision_landmarks": self.n_same_place / n_closures
+            if n_closures
+            else math.nan,
+            "closures_found": n_closures,
+            "closures_correct": self.n_correct,
+            "closures_wrong": self.wrong,
+            "true_pairs": self.n_true_pairs,
+            "association_removed_matches": {k: int(sum(v)) for k, v in self.stage_removed.items()},
+            "association_stages": stages,
+            "changing_landmarks": changes,
+            "closures_rejected_by_graph": len(graph.inconsistent),
+            "ate_m": _rigid_ate(est[:, :2], tru[:, :2]),
+            "ate_odometry_m": _rigid_ate(odo_est[:, :2], tru[:, :2]),
+            "map_f1": score(plan, global_map).f1_all,
+            "map_f1_true_poses": score(plan, true_posed).f1_all,
+            "map_f1_odometry_poses": score(plan, odo_posed).f1_all,
+            "alignment_error_m": align_m,
+            "alignment_error_deg": align_deg,
+            "alignment_score_m": float(alignment.score),
+            "association_ms_median": float(np.median(assoc) * 1e3) if len(assoc) else math.nan,
+            "association_ms_p99": float(np.percentile(assoc, 99) * 1e3) if len(assoc) else math.nan,
+            "pose_interval_s": float(cfg.duration / max(counter, 1)),
+            "global_map_batch_s": batch_seconds,
+            "sim_seconds": float(self.route[-1, 0] - self.route[0, 0]),
+            "wall_seconds": time.perf_counter() - self.wall0,
+            "seed": cfg.seed,
+            "parameters": _parameters(cfg),
+        }
+        return MissionResult(
+            cfg,
+            summary,
+            global_map,
+            store,
+            graph,
+            alignment,
+            truth,
+            self.odo_poses,
+            self.bytes_per_pose,
+            self.frames,
+        )
 
 
 def run_mission(
@@ -391,301 +944,13 @@ def run_mission(
     from the seed unless given; ``route`` (T, 4: t, x, y, theta) replaces the patrol
     route (random waypoints drawn from the seed and the robot's number). ``record``
     keeps a :class:`~sonarmap.team.animation.Frame` per pose made, for an animation.
+    A thin loop over a :class:`RobotAgent`.
     """
-    cfg = MissionConfig() if config is None else config
-    prior = plan if prior is None else prior
-    if not (plan.classes() == 0).any() or not (prior.classes() == 0).any():
-        raise InputError("the map has no free cell", field="map")
-    wall0 = time.perf_counter()
-    world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
-    seed = cfg.seed + 7919 * robot
-    true = patrol_route(plan, cfg.duration, seed=seed) if route is None else route
-    true = np.asarray(true, dtype=np.float64)
-    true = true[true[:, 0] <= true[0, 0] + cfg.duration]
-    odo, _ = odometry(true, seed=seed + 1, **ODOMETRY_NOISE)
-    rig = get_rig(cfg.rig)
-    readings = sonar_readings(plan, true, rig=rig, seed=seed + 2)
-    readings = readings.take(np.flatnonzero(readings.range <= cfg.mapping_range))
-    step_of = np.clip(np.searchsorted(true[:, 0], readings.t), 0, len(true) - 1)
-    # Each reading's sonar pose on the robot: invert(true robot pose) (+) world sonar pose.
-    mounts = compose(
-        invert(true[step_of, 1:4]), np.column_stack([readings.x, readings.y, readings.theta])
+    agent = RobotAgent(
+        plan, config, prior=prior, route=route, world=world, robot=robot, record=record
     )
-    labels = cut_regions(prior.classes() == 0, prior.grid.resolution)
-
-    # The robot's start as it believes it: the true one off by start_error.
-    rng = np.random.default_rng(seed + 3)
-    off = np.array([*rng.normal(0, cfg.start_error[0], 2), rng.normal(0, cfg.start_error[1])])
-    start_true = true[0, 1:4]
-    start_believed = start_true + off
-    # Prior frame = A_true (+) robot frame.
-    a_true = compose(start_true, invert(start_believed))
-
-    def believed(k: int | npt.NDArray[np.intp]) -> F64:
-        return compose(start_believed, compose(invert(odo[0, 1:4]), odo[k, 1:4]))
-
-    store = RobotStore(robot, cfg.store)
-    truth: dict[int, F64] = {}
-    odo_poses: dict[int, F64] = {}
-    all_made: dict[int, Pose] = {}
-    bytes_per_pose: list[int] = []
-    frames: list[Frame] = []
-    n_true_pairs = 0
-    n_correct = 0
-    n_closures = 0
-    n_found = 0
-    n_same_place = 0
-    wrong: list[dict[str, Any]] = []
-    stage_removed: dict[str, list[int]] = {}
-    stages = {k: {"in": 0, "removed": 0, "removed_true": 0, "kept_false": 0} for k in STAGES}
-    graph_dropped: dict[tuple[int, int], bool] = {}
-
-    def correct(c: ClosureEdge) -> bool:
-        oa, ob = _origin(c.a, truth, all_made), _origin(c.b, truth, all_made)
-        return oa is not None and ob is not None and _closure_correct(c, truth[oa], truth[ob], cfg)
-
-    def batch() -> GraphResult:
-        graph, dropped = _optimise(store)
-        for c in dropped:
-            graph_dropped[(c.a, c.b)] = correct(c)
-        return graph
-
-    # Association before and after the world changed: split at the median time of
-    # the changes (vanishing, appearing, moving) that happen during the mission.
-    end = float(true[-1, 0])
-    events = np.concatenate([world.died, world.moved_at, world.born[world.born > 0]])
-    events = events[events <= end]
-    t_change = float(np.median(events)) if len(events) else end
-    by_half = {h: {"closures": 0, "correct": 0, "true_pairs": 0, "found": 0} for h in HALVES}
-
-    assoc_seconds: list[float] = []
-    graph: GraphResult | None = None
-    drift = np.zeros((3, 3))
-    prev_k: int | None = None
-    prev_uid: int | None = None
-    counter = 0
-    for k in range(len(true)):
-        if progress is not None:
-            progress(k + 1, len(true))
-        if prev_k is not None:
-            d = odo[k, 1:3] - odo[prev_k, 1:3]
-            turn = abs(math.remainder(odo[k, 3] - odo[prev_k, 3], 2 * math.pi))
-            if (
-                math.hypot(d[0], d[1]) < cfg.pose_every
-                and turn < cfg.pose_turn
-                and k < len(true) - 1
-            ):
-                continue
-        t = float(true[k, 0])
-        uid = make_uid(robot, counter)
-        counter += 1
-        # The odometry since the previous pose, which the store keeps until this one.
-        step = None
-        estimate = believed(k)
-        if prev_uid is not None and prev_uid in store.local.poses:
-            assert prev_k is not None
-            step = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
-            estimate = compose(store.local.poses[prev_uid].estimate, step)
-        lo = -1 if prev_k is None else prev_k
-        mine = np.flatnonzero((step_of > lo) & (step_of <= k))
-        local = _local_map(
-            _sonar_in_pose_frame(readings.take(mine), mounts[mine], step_of[mine], odo[:, 1:4], k),
-            rig,
-            cfg,
-        )
-        landmarks = observe(world, true[k, 1:4], t, seed=seed)
-        region = region_of(labels, prior.grid, float(estimate[0]), float(estimate[1]))
-        pose = Pose(uid, t, region, estimate, landmarks, local)
-        truth[uid] = true[k, 1:4].copy()
-        odo_poses[uid] = believed(k)
-        all_made[uid] = pose
-
-        edge = None
-        if step is not None:
-            assert prev_k is not None
-            assert prev_uid is not None
-            cov = _odometry_covariance(odo, prev_k, k, ODOMETRY_NOISE)
-            edge = OdometryEdge(
-                prev_uid,
-                uid,
-                (float(step[0]), float(step[1]), float(step[2])),
-                tuple(float(v) for v in cov.ravel()),
-                cfg.max_speed * (t - float(true[prev_k, 0])) + 0.05,
-            )
-        if edge is not None:
-            assert step is not None
-            assert prev_uid is not None
-            drift = compose_covariance(
-                store.local.poses[prev_uid].estimate, drift, step, edge.cov()
-            )
-        stored = list(store.local.poses.values())
-        t0 = time.perf_counter()
-        priors = _priors(stored, estimate, t, drift, cfg)
-        closures, stats = associate(pose, stored, priors, cfg.association)
-        if closures:
-            best = max(closures, key=lambda c: c.inliers)
-            pose.estimate = compose(store.local.poses[best.a].estimate, best.transform)
-            drift = best.cov() + CANDIDATE_COV
-        assoc_seconds.append(time.perf_counter() - t0)
-        for stage, (_, matches) in stats.removed().items():
-            stage_removed.setdefault(stage, []).append(matches)
-        ids = set(landmarks.ids[landmarks.ids >= 0].tolist())
-        overlapping = {
-            p.uid
-            for p in stored
-            if len(ids & set(p.landmarks.ids[p.landmarks.ids >= 0].tolist()))
-            >= cfg.association.n_min
-        }
-        n_true_pairs += len(overlapping)
-        half = by_half[HALVES[int(t >= t_change)]]
-        half["true_pairs"] += len(overlapping)
-        before = {p.uid for p in stored if p.uid != uid}
-        for stage in STAGES[:-1]:
-            after = set(stats.kept[stage])
-            row = stages[stage]
-            row["in"] += len(before)
-            row["removed"] += len(before - after)
-            row["removed_true"] += len((before - after) & overlapping)
-            row["kept_false"] += len(after - overlapping)
-            before = after
-        for c in closures:
-            n_same_place += _same_landmarks(c, store.local.poses.get(c.a), pose)
-            right = correct(c)
-            oa = _origin(c.a, truth, all_made)
-            if not right and oa is not None:
-                err = np.asarray(c.transform) - compose(invert(truth[oa]), truth[uid])
-                wrong.append(
-                    {
-                        "a": c.a,
-                        "b": c.b,
-                        "inliers": c.inliers,
-                        "error_m": round(math.hypot(err[0], err[1]), 3),
-                        "error_deg": round(
-                            math.degrees(abs(math.remainder(err[2], 2 * math.pi))), 2
-                        ),
-                    }
-                )
-            n_closures += 1
-            n_correct += right
-            n_found += right and c.a in overlapping
-            half["closures"] += 1
-            half["correct"] += right
-            half["found"] += right and c.a in overlapping
-        store.add_own_pose(pose, edge, closures, t)
-        for p in store.local.poses.values():
-            all_made.setdefault(p.uid, p)
-        bytes_per_pose.append(store.bytes())
-        if record:
-            frames.append(_frame(store, t, true[k, 1:3], believed(k)[:2], bytes_per_pose[-1]))
-        prev_k, prev_uid = k, uid
-        if counter % cfg.batch == 0:
-            graph = batch()
-    t_batch = time.perf_counter()
-    graph = batch()
-    built = fuse_local_maps(
-        store.local.poses,
-        graph.estimates,
-        grid_around(graph.estimates, cfg.local_size / 2, cfg.map_resolution, margin=1.0),
-    )
-    batch_seconds = time.perf_counter() - t_batch
-    stages["graph"] = {
-        "in": n_closures,
-        "removed": len(graph_dropped),
-        "removed_true": sum(graph_dropped.values()),
-        "kept_false": sum(not correct(c) for c in store.closures),
-    }
-    # The robot believes its frame is the prior's (it started where it thinks).
-    alignment = align_to_prior(built, prior, seed=cfg.seed, guess=(0.0, 0.0, 0.0))
-    a = np.asarray(alignment.transform, dtype=np.float64)
-
-    kept = {u: _origin(u, truth, all_made) for u in store.local.poses}
-    uids = [u for u, o in kept.items() if o is not None]
-    est = np.array([graph.estimates[u] for u in uids])
-    tru = np.array([truth[kept[u]] for u in uids])  # type: ignore[index]
-    odo_est = np.array([odo_poses[kept[u]] for u in uids])  # type: ignore[index]
-    # How far the found alignment puts the robot's poses from where the true one would.
-    placed = compose(a, est)
-    should = compose(a_true, est)
-    align_m = float(np.mean(np.hypot(*(placed[:, :2] - should[:, :2]).T)))
-    align_deg = math.degrees(abs(math.remainder(a[2] - a_true[2], 2 * math.pi)))
-
-    # The map in the plan's frame, by the found alignment, against its bounds: the same
-    # readings mapped at the true poses and at the odometry poses (given the true start).
-    in_prior = {u: compose(a, graph.estimates[u]) for u in store.local.poses}
-    global_map = fuse_local_maps(store.local.poses, in_prior, plan.grid)
-    true_posed = build_map(readings, rig, plan.grid, cfg.mapper, cfg.mapper_params)
-    odo_world = compose(
-        a_true, compose(start_believed, compose(invert(odo[0, 1:4]), odo[step_of, 1:4]))
-    )
-    odo_sonar = compose(odo_world, mounts)
-    odo_posed = build_map(
-        Readings(
-            readings.t,
-            readings.sensor,
-            odo_sonar[:, 0],
-            odo_sonar[:, 1],
-            odo_sonar[:, 2],
-            readings.range,
-            readings.names,
-        ),
-        rig,
-        plan.grid,
-        cfg.mapper,
-        cfg.mapper_params,
-    )
-    assoc = np.array(assoc_seconds)
-    changes: dict[str, Any] = dict(_changes(world, store, all_made, truth, end))
-    changes["change_time_s"] = t_change
-    for h, row in by_half.items():
-        changes[f"association_{h}"] = {
-            "closures": row["closures"],
-            "precision": row["correct"] / row["closures"] if row["closures"] else float("nan"),
-            "recall": row["found"] / row["true_pairs"] if row["true_pairs"] else float("nan"),
-        }
-    summary: dict[str, Any] = {
-        "robot": robot,
-        "store_bytes_peak": int(store.peak_bytes),
-        "store_bytes_final": int(store.bytes()),
-        "local_bytes_peak": int(store.peak_local_bytes),
-        "poses": len(store.local.poses),
-        "poses_made": counter,
-        "landmarks": int(sum(len(p.landmarks) for p in store.local.poses.values())),
-        "closures": len(store.closures),
-        "regions": int(labels.max()) + 1,
-        "regions_used": len({p.region for p in store.local.poses.values()}),
-        "association_precision": n_correct / n_closures if n_closures else float("nan"),
-        "association_recall": n_found / n_true_pairs if n_true_pairs else float("nan"),
-        "association_precision_landmarks": n_same_place / n_closures
-        if n_closures
-        else float("nan"),
-        "closures_found": n_closures,
-        "closures_correct": n_correct,
-        "closures_wrong": wrong,
-        "true_pairs": n_true_pairs,
-        "association_removed_matches": {k: int(sum(v)) for k, v in stage_removed.items()},
-        "association_stages": stages,
-        "changing_landmarks": changes,
-        "closures_rejected_by_graph": len(graph.inconsistent),
-        "ate_m": _rigid_ate(est[:, :2], tru[:, :2]),
-        "ate_odometry_m": _rigid_ate(odo_est[:, :2], tru[:, :2]),
-        "map_f1": score(plan, global_map).f1_all,
-        "map_f1_true_poses": score(plan, true_posed).f1_all,
-        "map_f1_odometry_poses": score(plan, odo_posed).f1_all,
-        "alignment_error_m": align_m,
-        "alignment_error_deg": align_deg,
-        "alignment_score_m": float(alignment.score),
-        "association_ms_median": float(np.median(assoc) * 1e3) if len(assoc) else float("nan"),
-        "association_ms_p99": float(np.percentile(assoc, 99) * 1e3) if len(assoc) else float("nan"),
-        "pose_interval_s": float(cfg.duration / max(counter, 1)),
-        "global_map_batch_s": batch_seconds,
-        "sim_seconds": float(true[-1, 0] - true[0, 0]),
-        "wall_seconds": time.perf_counter() - wall0,
-        "seed": cfg.seed,
-        "parameters": _parameters(cfg),
-    }
-    return MissionResult(
-        cfg, summary, global_map, store, graph, alignment, truth, odo_poses, bytes_per_pose, frames
-    )
+    agent.run(progress)
+    return agent.finish()
 
 
 def _frame(store: RobotStore, t: float, truth: F64, odometry: F64, size: int) -> Frame:

@@ -1,0 +1,231 @@
+"""A team's mission in simulation: N robots (:class:`~.mission.RobotAgent`) driving
+their own routes on a common clock, exchanging poses (:class:`~.exchange.Exchanger`)
+over a simulated network (:class:`~.network.SimNetwork` through a
+:class:`~.transport.SimHub`), each building its global map from all its layers.
+
+Choices where the thesis is silent:
+
+- **One world, own routes.** The robots share the world's landmarks (made from the
+  mission seed); robot ``i`` drives the patrol route drawn from ``seed + 7919 i`` and
+  its sensors are seeded alike (as :func:`~.mission.run_mission` does for ``robot=i``).
+  ``seed`` of :func:`run_team` seeds the network (losses, jitter, capacity).
+- **The clock.** Ticks are the union of the routes' time stamps. At each tick every
+  robot first processes its route steps up to it (poses made, associated, stored), then
+  the hub moves to the tick with the robots' true positions, then each exchanger steps,
+  in robot order.
+- **Wanted regions.** A robot asks first for the patches of the regions its route
+  visits in the next ``lookahead`` seconds (30), in the order of their first visit:
+  the patroller knows its next moves (thesis l.1863-1872).
+- **Quiet network.** After the routes end, the robots stand still and keep exchanging
+  until no exchanger has added or deleted a pose for ``quiet`` seconds (default two
+  adverts and two request rounds) and none awaits an answer, or ``settle`` seconds
+  (120) have passed. ``identical_maps`` is judged then: do all robots hold the same
+  pose UIDs (own and received layers together).
+- **Bytes per robot-minute**: message bodies sent during the routes (not the quiet
+  phase), over the robots and the routes' minutes.
+"""
+
+from __future__ import annotations
+
+from collections import ChainMap
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from ..io.rosmap import OccupancyMap
+from .exchange import ExchangeParams, Exchanger
+from .mission import MissionConfig, MissionResult, RobotAgent
+from .network import NetworkParams, SimNetwork
+from .records import Pose
+from .regions import region_adjacency
+from .store import RobotStore
+from .transport import SimHub
+from .world import World, make_world
+
+__all__ = ["TeamResult", "held_uids", "run_team"]
+
+F64 = npt.NDArray[np.float64]
+Progress = Callable[[int, int], None]
+
+
+@dataclass
+class TeamResult:
+    """What a team's mission made and measured.
+
+    Attributes
+    ----------
+    summary : dict
+        ``robots`` (one dict per robot: :func:`~.mission.run_mission`'s summary plus
+        ``bytes_sent``, ``bytes_received``, ``messages``, ``messages_received``,
+        ``poses_local``, ``poses_received``, ``received_closures``,
+        ``received_closures_correct``) and the team's ``duplicate_poses``,
+        ``identical_maps``, ``bytes_per_robot_minute``, ``settle_seconds``,
+        ``settled``, ``robots_n``, ``network`` and ``exchange``.
+    robots : list of MissionResult
+        Each robot's result, by robot id.
+    exchangers : list of Exchanger
+    network : SimNetwork
+    held : list of set of int
+        The pose UIDs each robot held (all layers) once the network was quiet.
+    """
+
+    summary: dict[str, Any]
+    robots: list[MissionResult]
+    exchangers: list[Exchanger]
+    network: SimNetwork
+    held: list[set[int]] = field(default_factory=list)
+
+
+def held_uids(store: RobotStore) -> tuple[set[int], int]:
+    """The pose UIDs a store holds in any layer, and how many it holds more than once."""
+    seen: set[int] = set()
+    twice = 0
+    layers = [store.local, *(store.received[s] for s in sorted(store.received))]
+    for layer in layers:
+        for uid in layer.poses:
+            if uid in seen:
+                twice += 1
+            seen.add(uid)
+    return seen, twice
+
+
+def _changes(exchangers: list[Exchanger]) -> int:
+    return sum(e.stats.poses_added + e.stats.poses_deleted for e in exchangers)
+
+
+def run_team(
+    plan: OccupancyMap,
+    cfg: MissionConfig,
+    robots: int,
+    *,
+    network: NetworkParams,
+    exchange: ExchangeParams,
+    seed: int,
+    progress: Progress | None = None,
+    world: World | None = None,
+    lookahead: float = 30.0,
+    quiet: float | None = None,
+    settle: float = 120.0,
+) -> TeamResult:
+    """Run ``robots`` robots' missions together, exchanging over a simulated network.
+
+    Parameters
+    ----------
+    plan : OccupancyMap
+        The floor (also the prior map).
+    cfg : MissionConfig
+        Every robot's mission settings; robot ``i`` seeds its route and sensors from
+        ``cfg.seed + 7919 i``.
+    robots : int
+        Robots in the team (ids 0 .. robots - 1), >= 1.
+    network : NetworkParams
+    exchange : ExchangeParams
+    seed : int
+        The network's seed.
+    progress : callable, optional
+        ``progress(tick, ticks)`` after each tick of the routes.
+    world : World, optional
+        The landmarks; made from ``cfg.seed`` unless given.
+    lookahead : float
+        Seconds of its route ahead whose regions a robot asks for first.
+    quiet : float, optional
+        Seconds without an added or deleted pose after which the network counts as
+        quiet; default 2 ``advert_every`` + 2 ``request_every``.
+    settle : float
+        Seconds of exchange at most after the routes end.
+
+    Returns
+    -------
+    TeamResult
+    """
+    if isinstance(robots, bool) or not isinstance(robots, int) or robots < 1:
+        raise ValueError(f"robots must be an int >= 1, got {robots!r}")
+    quiet = 2 * exchange.advert_every + 2 * exchange.request_every if quiet is None else quiet
+    world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
+    agents = [RobotAgent(plan, cfg, world=world, robot=i) for i in range(robots)]
+    truth: ChainMap[int, F64] = ChainMap(*(a.truth for a in agents))
+    made: ChainMap[int, Pose] = ChainMap(*(a.made for a in agents))
+    for a in agents:
+        a.peers_truth = truth
+        a.peers_made = made
+    free = plan.classes() == 0
+    net = SimNetwork(network, robots, seed=seed, clear=free, grid=plan.grid)
+    times = np.unique(np.concatenate([a.route[:, 0] for a in agents]))
+    hub = SimHub(net, t0=float(times[0]))
+    adjacency = region_adjacency(agents[0].labels)
+    exchangers = [
+        Exchanger(
+            a.store,
+            hub.transport(a.robot),
+            exchange,
+            adjacency=adjacency,
+            on_received=a.receive,
+        )
+        for a in agents
+    ]
+
+    def tick(t: float, wanted: bool) -> None:
+        hub.advance(t)
+        hub.update(np.array([a.position() for a in agents]))
+        for a, e in zip(agents, exchangers, strict=True):
+            e.step(t, a.wanted_regions(lookahead) if wanted else None)
+
+    for i, t in enumerate(times.tolist()):
+        for a in agents:
+            a.advance_to(t)
+        tick(t, wanted=True)
+        if progress is not None:
+            progress(i + 1, len(times))
+    end = float(times[-1])
+    sent_in_mission = [e.stats.bytes_sent for e in exchangers]
+
+    # The network's quiet phase: robots still, exchanging until nothing changes.
+    dt = float(np.median(np.diff(times))) if len(times) > 1 else exchange.request_every
+    t, last_change, count = end, end, _changes(exchangers)
+    settled = False
+    while t < end + settle:
+        t = t + dt
+        tick(t, wanted=False)
+        now = _changes(exchangers)
+        if now != count or any(e.outstanding for e in exchangers):
+            count, last_change = now, t
+        elif t - last_change >= quiet:
+            settled = True
+            break
+
+    held = [held_uids(a.store) for a in agents]
+    identical = all(h[0] == held[0][0] for h in held)
+    results = [a.finish() for a in agents]
+    rows: list[dict[str, Any]] = []
+    for a, e, r in zip(agents, exchangers, results, strict=True):
+        row = dict(r.summary)
+        row.update(
+            {
+                "bytes_sent": e.stats.bytes_sent,
+                "bytes_received": e.stats.bytes_received,
+                "messages": e.stats.messages_sent,
+                "messages_received": e.stats.messages_received,
+                "poses_local": len(a.store.local.poses),
+                "poses_received": sum(len(x.poses) for x in a.store.received.values()),
+                "received_closures": a.received_closures,
+                "received_closures_correct": a.received_correct,
+            }
+        )
+        rows.append(row)
+    minutes = max(end - float(times[0]), 1e-9) / 60.0
+    summary: dict[str, Any] = {
+        "robots": rows,
+        "robots_n": robots,
+        "duplicate_poses": sum(h[1] for h in held),
+        "identical_maps": identical,
+        "bytes_per_robot_minute": sum(sent_in_mission) / robots / minutes,
+        "settle_seconds": t - end,
+        "settled": settled,
+        "network": asdict(network),
+        "exchange": asdict(exchange),
+        "seed": seed,
+    }
+    return TeamResult(summary, results, exchangers, net, [h[0] for h in held])
