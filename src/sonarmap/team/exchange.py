@@ -68,7 +68,17 @@ from typing import Any
 import msgpack
 
 from ..errors import ConfigError, InputError
-from .records import ClosureEdge, OdometryEdge, Pose, RecordError, decode, encode, robot_of
+from .records import (
+    ClosureEdge,
+    OdometryEdge,
+    Pose,
+    RecordError,
+    UnpackError,
+    decode,
+    encode,
+    robot_of,
+    unpack_strict,
+)
 from .store import Layer, Patch, RobotStore, compress_for_sending
 from .transport import ROBOT_LIMIT, Message, SimTransport, Transport, ZmqTransport
 
@@ -365,31 +375,19 @@ def encode_answer(answer: Answer) -> bytes:
 # --- strict decoding ----------------------------------------------------------------------
 
 
+#: What a body that is not one whole msgpack object is told, by reason.
+_BODY_DETAIL = {"trailing": "bytes after the body", "truncated": "the body ends early"}
+
+
 def _unpack(body: bytes) -> dict[str, Any]:
     if not isinstance(body, bytes):
         raise ExchangeError("type", f"body: bytes expected, got {type(body).__name__}")
     n = len(body)
     try:
         # No length field may claim more than the body holds.
-        d = msgpack.unpackb(
-            body,
-            raw=False,
-            strict_map_key=True,
-            use_list=True,
-            max_bin_len=n,
-            max_str_len=n,
-            max_array_len=n,
-            max_map_len=n,
-            max_ext_len=0,
-        )
-    except msgpack.ExtraData:
-        raise ExchangeError("trailing", "bytes after the body") from None
-    except msgpack.OutOfData:
-        raise ExchangeError("truncated", "the body ends early") from None
-    except (ValueError, TypeError, msgpack.UnpackException) as e:
-        if "incomplete" in str(e):
-            raise ExchangeError("truncated", "the body ends early") from None
-        raise ExchangeError("msgpack", f"not msgpack: {e}") from None
+        d = unpack_strict(body, max_bin=n, max_str=n, max_array=n, max_map=n)
+    except UnpackError as e:
+        raise ExchangeError(e.reason, _BODY_DETAIL.get(e.reason, str(e))) from None
     if not isinstance(d, dict):
         raise ExchangeError("not_map", f"body: a map expected, got {type(d).__name__}")
     return d

@@ -41,6 +41,7 @@ __all__ = [
     "OdometryEdge",
     "Pose",
     "RecordError",
+    "UnpackError",
     "compose",
     "compose_covariance",
     "decode",
@@ -50,6 +51,7 @@ __all__ = [
     "make_uid",
     "robot_of",
     "size_of",
+    "unpack_strict",
 ]
 
 F32 = npt.NDArray[np.float32]
@@ -64,6 +66,42 @@ VERSION = 1
 
 class RecordError(ValueError):
     """A record that cannot be decoded or is inconsistent; the message names the field."""
+
+
+class UnpackError(ValueError):
+    """Bytes that are not one whole msgpack object; ``reason`` is ``"trailing"``,
+    ``"truncated"`` or ``"msgpack"``."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        self.reason = reason
+        super().__init__(detail)
+
+
+def unpack_strict(data: bytes, *, max_bin: int, max_str: int, max_array: int, max_map: int) -> Any:
+    """One msgpack object from ``data``, nothing before or after it, with no length
+    field claiming more than the given limits (so a forged length cannot allocate
+    beyond the message); :class:`UnpackError` otherwise. Extension types are refused."""
+    try:
+        return msgpack.unpackb(
+            data,
+            raw=False,
+            strict_map_key=True,
+            use_list=True,
+            max_bin_len=max_bin,
+            max_str_len=max_str,
+            max_array_len=max_array,
+            max_map_len=max_map,
+            max_ext_len=0,
+        )
+    except msgpack.ExtraData:
+        raise UnpackError("trailing", "bytes after the object") from None
+    except msgpack.OutOfData:
+        raise UnpackError("truncated", "the data end early") from None
+    except (ValueError, TypeError, msgpack.UnpackException) as e:
+        # msgpack's C unpacker reports short data as a plain ValueError.
+        if "incomplete" in str(e):
+            raise UnpackError("truncated", "the data end early") from None
+        raise UnpackError("msgpack", f"not msgpack: {e}") from None
 
 
 def make_uid(robot: int, counter: int) -> int:

@@ -41,6 +41,7 @@ import zmq
 
 from ..errors import ConfigError, InputError
 from .network import Delivery, SimNetwork
+from .records import UnpackError, unpack_strict
 
 __all__ = [
     "DEFAULT_MAX_MESSAGE",
@@ -99,32 +100,27 @@ def encode_envelope(src: int, dst: int, seq: int, kind: str, body: bytes) -> byt
     return bytes(msgpack.packb(d, use_bin_type=True))
 
 
+#: What a frame that is not one whole msgpack object is told, by reason.
+_ENVELOPE_DETAIL = {
+    "trailing": "bytes after the envelope",
+    "truncated": "the frame ends inside the envelope",
+}
+
+
 def decode_envelope(data: bytes, *, max_message: int = DEFAULT_MAX_MESSAGE) -> Message:
     """The message in ``data``; :class:`EnvelopeError` if it is not a valid envelope."""
     if len(data) > max_message:
         raise EnvelopeError("oversized", f"{len(data)} bytes > max_message {max_message}")
     try:
-        # Each limit caps what one length field may claim: no allocation beyond the frame.
-        d = msgpack.unpackb(
+        d = unpack_strict(
             data,
-            raw=False,
-            strict_map_key=True,
-            use_list=True,
-            max_bin_len=max_message,
-            max_str_len=max(_KIND_MAX, 16),
-            max_array_len=16,
-            max_map_len=16,
-            max_ext_len=0,
+            max_bin=max_message,
+            max_str=max(_KIND_MAX, 16),
+            max_array=16,
+            max_map=16,
         )
-    except msgpack.ExtraData:
-        raise EnvelopeError("trailing", "bytes after the envelope") from None
-    except msgpack.OutOfData:
-        raise EnvelopeError("truncated", "the frame ends inside the envelope") from None
-    except (ValueError, TypeError, msgpack.UnpackException) as e:
-        # msgpack's C unpacker reports a short frame as a plain ValueError.
-        if "incomplete" in str(e):
-            raise EnvelopeError("truncated", "the frame ends inside the envelope") from None
-        raise EnvelopeError("msgpack", f"not msgpack: {e}") from None
+    except UnpackError as e:
+        raise EnvelopeError(e.reason, _ENVELOPE_DETAIL.get(e.reason, str(e))) from None
     if not isinstance(d, dict):
         raise EnvelopeError("not_map", f"a map expected, got {type(d).__name__}")
     if set(d) != _KEYS:
