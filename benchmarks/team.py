@@ -16,7 +16,7 @@ stages table says what voting, the odometry pre-check, RANSAC, the gate on RANSA
 transform and the graph removed.
 
 Run with ``python -m benchmarks.team [--base 300] [--scales 1 4 10] [--plan office]
-[--json F]``.
+[--json F] [--plot F.png]``.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 from sonarmap.floorplan import random_building
 from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.plot import save_memory_series
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
 from sonarmap.team.mission import MissionConfig, run_mission
@@ -38,6 +39,8 @@ from sonarmap.team.store import StoreParams
 KEYS = (
     "store_bytes_peak",
     "local_bytes_peak",
+    "local_bytes_bound",
+    "closure_bytes_final",
     "regions",
     "regions_used",
     "store_bytes_final",
@@ -75,13 +78,19 @@ def _plan(name: str) -> OccupancyMap:
     return fp.render(fp.grid(0.1))
 
 
-def measure(base: float, scales: list[float], seed: int, plan_name: str) -> list[dict[str, Any]]:
+def measure(
+    base: float, scales: list[float], seed: int, plan_name: str
+) -> tuple[list[dict[str, Any]], dict[str, list[int]]]:
+    """The summary rows, one per length, and each length's local-layer bytes per pose."""
     plan = _plan(plan_name)
     rows = []
+    series = {}
     for k in scales:
-        s = run_mission(plan, MissionConfig(duration=base * k, seed=seed)).summary
+        r = run_mission(plan, MissionConfig(duration=base * k, seed=seed))
+        s = r.summary
         rows.append({"scale": k, "duration_s": base * k, **{key: s[key] for key in KEYS}})
-    return rows
+        series[f"x{k:g} ({base * k:.0f} s)"] = r.local_bytes_per_pose
+    return rows, series
 
 
 #: The map quality the bounded store must keep at every length: wall F1 of the fused
@@ -127,6 +136,12 @@ def targets(rows: list[dict[str, Any]]) -> list[tuple[str, bool]]:
             ),
         )
     )
+    out.append(
+        (
+            "local layer's peak within its configured bound (every region full)",
+            all(r["local_bytes_peak"] <= r["local_bytes_bound"] for r in rows),
+        )
+    )
     if len(rows) >= 3:
         peaks = [r["store_bytes_peak"] for r in rows[1:]]
         spread = max(peaks) / min(peaks) - 1
@@ -146,13 +161,18 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--plan", default="office", help="office, or building:SEED")
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
+    parser.add_argument(
+        "--plot", help="Also draw the local layer's bytes over each mission to this PNG."
+    )
     args = parser.parse_args()
-    rows = measure(args.base, args.scales, args.seed, args.plan)
+    rows, series = measure(args.base, args.scales, args.seed, args.plan)
     print(f"team store, {args.plan} plan, one robot")
     for r in rows:
         print(
             f"x{r['scale']:g} ({r['duration_s']:.0f} s): peak {r['store_bytes_peak']} B "
-            f"(local {r['local_bytes_peak']} B, {r['regions_used']}/{r['regions']} regions), "
+            f"(local {r['local_bytes_peak']} B, {r['regions_used']}/{r['regions']} regions, "
+            f"{100 * r['local_bytes_peak'] / r['local_bytes_bound']:.0f} % of its bound; "
+            f"closures {r['closure_bytes_final']} B), "
             f"final {r['store_bytes_final']} B, poses {r['poses']}/{r['poses_made']}, "
             f"precision {r['association_precision']:.3f} (same landmarks "
             f"{r['association_precision_landmarks']:.3f}), recall {r['association_recall']:.3f}, "
@@ -188,6 +208,13 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=2)
+    if args.plot:
+        save_memory_series(
+            series,
+            args.plot,
+            interval=rows[0]["pose_interval_s"],
+            bound=rows[-1]["local_bytes_bound"],
+        )
 
 
 if __name__ == "__main__":

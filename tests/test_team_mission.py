@@ -44,6 +44,9 @@ def test_a_mission_beats_odometry_and_keeps_its_bounds(mission: dict[str, object
     store = r.store  # type: ignore[attr-defined]
     for region in store.local.patches:
         assert store.local.region_bytes(region) <= 60_000 + StoreParams().pose_limit
+    assert s["local_bytes_bound"] == s["regions"] * 60_000 + StoreParams().pose_limit
+    assert s["local_bytes_peak"] <= s["local_bytes_bound"]
+    assert s["store_bytes_final"] == store.local.bytes() + s["closure_bytes_final"]
     assert s["poses"] < s["poses_made"]  # compression removed or merged some
     # The map lands on the plan: better than the odometry-posed map cannot be
     # promised on 150 s, but the alignment must put it within a metre.

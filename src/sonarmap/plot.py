@@ -492,3 +492,39 @@ def save_patrol_series(table: Any, path: str | Path) -> Path:
             axes[1, k].set_xlabel("robots")
     fig.tight_layout()
     return _save(fig, path)
+
+
+def save_memory_series(
+    series: Mapping[str, npt.ArrayLike],
+    path: str | Path,
+    *,
+    interval: float,
+    bound: float | None = None,
+    ylabel: str = "local layer [MB]",
+) -> Path:
+    """Bytes after each pose, a line per robot, with the configured bound as a dashed
+    line: the picture of memory that stops growing.
+
+    Parameters
+    ----------
+    series : mapping of str to array of int
+        Bytes after each pose made, by robot label.
+    path : str or Path
+    interval : float
+        Seconds between poses (the x axis is mission time).
+    bound : float, optional
+        The configured bound of what ``series`` measures, bytes.
+    ylabel : str
+    """
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    for label, values in series.items():
+        v = np.asarray(values, dtype=np.float64)
+        ax.plot(np.arange(1, len(v) + 1) * interval, v / 1e6, lw=1.0, label=label)
+    if bound is not None:
+        ax.axhline(bound / 1e6, color="black", ls="--", lw=1.0, label="bound")
+    ax.set_xlabel("mission time [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(bottom=0.0)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, path)

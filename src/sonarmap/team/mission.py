@@ -179,6 +179,8 @@ class MissionResult:
     odometry_poses: dict[int, F64]
     bytes_per_pose: list[int]
     frames: list[Frame] = field(default_factory=list)
+    #: The local layer's bytes after each pose (``bytes_per_pose`` is the whole store).
+    local_bytes_per_pose: list[int] = field(default_factory=list)
 
 
 def _sonar_in_pose_frame(
@@ -506,6 +508,7 @@ class RobotAgent:
         self.peers_truth: Mapping[int, F64] = self.truth
         self.peers_made: Mapping[int, Pose] = self.made
         self.bytes_per_pose: list[int] = []
+        self.local_bytes_per_pose: list[int] = []
         self.frames: list[Frame] = []
         self.n_true_pairs = 0
         self.n_correct = 0
@@ -712,6 +715,7 @@ class RobotAgent:
         for p in store.local.poses.values():
             self.made.setdefault(p.uid, p)
         self.bytes_per_pose.append(store.bytes())
+        self.local_bytes_per_pose.append(store.local.bytes())
         if self.record:
             self.frames.append(
                 _frame(store, t, true[k, 1:3], self.believed(k)[:2], self.bytes_per_pose[-1])
@@ -875,6 +879,12 @@ class RobotAgent:
             "store_bytes_peak": int(store.peak_bytes),
             "store_bytes_final": int(store.bytes()),
             "local_bytes_peak": int(store.peak_local_bytes),
+            # The configured bound of the local layer: every region of the prior full,
+            # plus the newest pose, which region compression never removes.
+            "local_bytes_bound": int(
+                (int(labels.max()) + 1) * store.params.region_limit + store.params.pose_limit
+            ),
+            "closure_bytes_final": int(store.closure_bytes()),
             "poses": len(store.local.poses),
             "poses_made": counter,
             "landmarks": int(sum(len(p.landmarks) for p in store.local.poses.values())),
@@ -924,6 +934,7 @@ class RobotAgent:
             self.odo_poses,
             self.bytes_per_pose,
             self.frames,
+            self.local_bytes_per_pose,
         )
 
 

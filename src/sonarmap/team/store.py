@@ -597,7 +597,11 @@ class RobotStore:
     def bytes(self) -> int:
         """All the robot stores: layers and closures."""
         n = self.local.bytes() + sum(layer.bytes() for layer in self.received.values())
-        return n + self._closure_sizes.total(self.closures)
+        return n + self.closure_bytes()
+
+    def closure_bytes(self) -> int:
+        """The closure store's encoded bytes."""
+        return self._closure_sizes.total(self.closures)
 
     def _note_peak(self) -> None:
         self.peak_local_bytes = max(self.peak_local_bytes, self.local.bytes())
