@@ -92,6 +92,11 @@ def test_other_experiments_quick(name: str, tmp_path: Path) -> None:
         assert all(r["passages"] == 5 for r in summary)  # one quick scene of five gaps
         per = json.loads((tmp_path / "passages.json").read_text())
         assert {r["seed"] for r in per} == {1000}
+    if name == "boxes":  # thesis 002's two maps, its stochastic set among the methods
+        rows = json.loads((tmp_path / "metrics.json").read_text())
+        assert {r["map"] for r in rows} == {"layout1", "layout2"}
+        assert "stochastic-thesis002" in {r["method"] for r in rows}
+        assert (tmp_path / "boxes-layout2.png").is_file()
 
 
 def test_unknown_experiment(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

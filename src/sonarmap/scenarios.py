@@ -19,6 +19,8 @@ Training families (:mod:`sonarmap.splits`), the research's scenes:
   path (thesis 002, figs 4.9-4.10).
 - ``room-turn``: a room with a door; the ``paper-real`` rig turns in place at uneven speed,
   with a roughly known sonar mounting (thesis 000 fig. 4.1, right).
+- ``boxes``: a corridor between two rows of boxes, in two layouts (thesis 002 section
+  4.4.2, the stochastic method's experiment).
 
 Held-out families, drawn from their seed so that no two are alike:
 
@@ -76,6 +78,8 @@ PAPER_NOISE: dict[str, Noise] = {
     "office": Noise(0.01, 0.95, 0.01),
     "gaps": Noise(0.0, 1.0, 0.01),
     "corridor": Noise(0.0, 1.0, 0.01),
+    # Thesis 002's probabilistic model (set (4.5)); it gives no range noise.
+    "boxes": Noise(0.001, 0.35, 0.01),
 }
 
 #: Widths of the held-out ``gaps`` scenes (metres), shuffled per seed.
@@ -793,6 +797,101 @@ def office(
     )
 
 
+#: The two box layouts of :func:`boxes`: per row (left, right) the boxes as (length
+#: along the corridor, depth across it) in metres, with the gaps between them.
+BOX_LAYOUTS: dict[int, dict[str, tuple[tuple[tuple[float, float], ...], tuple[float, ...]]]] = {
+    # Equal boxes evenly spaced, the rows facing each other.
+    1: {
+        "left": (((0.6, 0.6),) * 6, (0.5,) * 5),
+        "right": (((0.6, 0.6),) * 6, (0.5,) * 5),
+    },
+    # Boxes of several sizes and gaps, the rows out of step.
+    2: {
+        "left": (
+            ((0.4, 0.4), (0.8, 0.5), (0.5, 0.8), (0.3, 0.3), (0.7, 0.6), (0.6, 0.4)),
+            (0.6, 0.35, 0.8, 0.45, 0.5),
+        ),
+        "right": (
+            ((0.7, 0.7), (0.4, 0.6), (0.9, 0.4), (0.5, 0.5), (0.3, 0.8)),
+            (0.4, 0.7, 0.3, 0.9),
+        ),
+    },
+}
+
+
+def boxes(
+    *,
+    layout: int = 1,
+    resolution: float = 0.1,
+    corridor: float = 2.0,
+    room: float = 1.2,
+    speed: float = 0.25,
+    rate: float = 10.0,
+    model: SonarModel | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> Scenario:
+    """A corridor between two rows of boxes (thesis 002, section 4.4.2, fig. 4.4).
+
+    The thesis tested its stochastic method on two synthetic maps whose readings came
+    from its probabilistic sonar model, the robot driving along a corridor between
+    series of boxes with three sonars on each side; it does not give their sizes. Here
+    ``layout`` 1 has two facing rows of six 0.6 m boxes 0.5 m apart, ``layout`` 2 rows of
+    boxes of different sizes (0.3 to 0.9 m) and gaps (0.3 to 0.9 m), out of step
+    (:data:`BOX_LAYOUTS`). The rows' inner faces are ``corridor`` m apart (2.0), with
+    ``room`` m (1.2) of floor behind each before the outer wall; cells of ``resolution``
+    m (0.1, the stochastic method's cell in thesis 000). The ``paper-synthetic`` robot
+    drives up the middle at ``speed`` m/s (0.25), firing at ``rate`` Hz (10). The gaps
+    between neighbouring boxes are annotated as passages; ``PAPER_NOISE["boxes"]`` is
+    thesis 002's model (p_rand 0.001, p_hit 0.35) with 1 cm of range noise.
+    """
+    _check_positive(resolution=resolution, corridor=corridor, room=room, speed=speed, rate=rate)
+    if layout not in BOX_LAYOUTS:
+        raise ConfigError(
+            f"scenario parameter 'layout' must be one of {', '.join(map(str, BOX_LAYOUTS))}, "
+            f"got {layout!r}"
+        )
+    wall = 0.1
+    rows = BOX_LAYOUTS[layout]
+    deepest = max(d for sizes, _ in rows.values() for _, d in sizes)
+    runs = [sum(a for a, _ in sizes) + sum(gaps) for sizes, gaps in rows.values()]
+    length = max(runs) + 2.0
+    width = 2 * (wall + room + deepest) + corridor
+    cx = width / 2
+    plan = FloorPlan((0.0, 0.0, width, length))
+    plan.border(wall)
+    found = []
+    for side, (sizes, gaps) in rows.items():
+        sign = -1.0 if side == "left" else 1.0
+        face = cx + sign * corridor / 2
+        # The right row starts half a gap later, so in layout 2 the rows are out of step.
+        y = 1.0 if side == "left" else 1.0 + 0.5 * (gaps[0] if layout == 2 else 0.0)
+        for k, (along, depth) in enumerate(sizes):
+            plan.box(min(face, face + sign * depth), y, max(face, face + sign * depth), y + along)
+            y += along
+            if k < len(gaps):
+                # The jambs on the mid-line of the shallower neighbour.
+                d = min(depth, sizes[k + 1][1])
+                xm = face + sign * d / 2
+                found.append(Passage(f"{side}-gap{k + 1}", (xm, y), (xm, y + gaps[k]), d))
+                y += gaps[k]
+    truth = plan.render(plan.grid(resolution))
+    rig = get_rig("paper-synthetic")
+    traj = _straight(cx, 0.5, length - 0.5, speed, rate)
+    readings, world, used = _readings(plan, truth, rig, traj, model, seed, progress)
+    params = _record(
+        used,
+        seed,
+        layout=layout,
+        resolution=resolution,
+        corridor=corridor,
+        room=room,
+        speed=speed,
+        rate=rate,
+    )
+    return Scenario("boxes", truth, rig, traj, readings, tuple(found), params, geometry=world)
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "doorways": doorways,
     "passages": passages,
@@ -800,6 +899,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "gaps": gaps,
     "corridor": corridor,
     "office": office,
+    "boxes": boxes,
 }
 
 
@@ -864,28 +964,42 @@ def load_annotations(path: str | Path) -> tuple[tuple[Passage, ...], tuple[Small
     return tuple(out), tuple(small)
 
 
-def load_scene(folder: str | Path, *, seed: int = 0, model: SonarModel | None = None) -> Scenario:
+def load_scene(
+    folder: str | Path,
+    *,
+    seed: int = 0,
+    model: SonarModel | None = None,
+    resolution: float | None = None,
+    origin: tuple[float, float] = (0.0, 0.0),
+) -> Scenario:
     """A scene from a folder like those :meth:`Scenario.write` makes, or made by hand.
 
-    The folder holds ``truth.yaml`` (map_server), ``rig.yaml``, and ``readings.csv`` or
-    ``trajectory.csv`` (or both), optionally ``geometry.yaml`` (a finer plan for the
+    The folder holds ``truth.yaml`` (map_server) or a bare black-and-white image
+    ``truth.png`` (or another image suffix) placed by ``resolution`` (metres per pixel)
+    and ``origin`` (its lower-left corner, metres), ``rig.yaml``, and ``readings.csv``
+    or ``trajectory.csv`` (or both), optionally ``geometry.yaml`` (a finer plan for the
     simulated sonar) and ``annotations.yaml``. With a trajectory and ``model`` given,
     readings are simulated from it with ``seed`` (through ``geometry.yaml`` when there
     is one, else the truth); otherwise the recorded ``readings.csv`` is used (simulated
     with the acoustic model when there is none).
     """
     from .errors import InputError
-    from .io.rosmap import read_map
+    from .io.rosmap import IMAGE_SUFFIXES, read_map
     from .readings import read_readings, read_trajectory
     from .rig import load_rig
 
     d = Path(folder)
     if not d.is_dir():
         raise InputError("scene folder not found", path=d)
-    for name in ("truth.yaml", "rig.yaml"):
-        if not (d / name).is_file():
-            raise InputError(f"scene folder lacks {name}", path=d)
-    truth = read_map(d / "truth.yaml")
+    images = [d / f"truth{suffix}" for suffix in IMAGE_SUFFIXES if (d / f"truth{suffix}").is_file()]
+    if not (d / "truth.yaml").is_file() and not images:
+        raise InputError("scene folder lacks truth.yaml (or a bare image truth.png)", path=d)
+    if not (d / "rig.yaml").is_file():
+        raise InputError("scene folder lacks rig.yaml", path=d)
+    if (d / "truth.yaml").is_file():
+        truth = read_map(d / "truth.yaml")
+    else:
+        truth = read_map(images[0], resolution=resolution, origin=origin)
     rig = load_rig(d / "rig.yaml")
     has_traj = (d / "trajectory.csv").is_file()
     has_readings = (d / "readings.csv").is_file()

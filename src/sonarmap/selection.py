@@ -10,10 +10,13 @@ objective holds a bounded set of them. A strategy sees each reading as it is adm
     per cell, the N freshest readings whose beam holds it; a reading leaves when it is
     no longer among the N freshest of any of its cells. This bounds the cost of a step
     at a cell by N readings;
-``pose:N[:XY[:DEG]]``
+``pose:N[:XY[:DEG]][:median]``
     a grid over sensor pose -- x and y in bins of XY m (0.5), heading in bins of DEG
     degrees (30) -- keeping the N freshest readings per bin, at a scale that does not
-    depend on the map's;
+    depend on the map's; with ``median``, the "filtered readings" variant of thesis 000
+    (section 2.3, which leaves the filter open): per bin, the N readings whose ranges
+    lie nearest the median range of the bin's last 3N readings, so that a lone
+    spurious range leaves first and readings from one pose cannot all repeat it;
 ``all``
     every reading stays (only for methods that keep no readings, such as ``inverse``).
 
@@ -207,22 +210,52 @@ class FreshestPerCell(Strategy):
         return f"cell:{self.n}"
 
 
-class PoseGrid(Strategy):
-    """The ``n`` freshest readings per bin of sensor pose (x, y, heading)."""
+#: How a pose bin chooses its readings: the freshest, or those nearest the median range.
+POSE_FILTERS = ("freshest", "median")
 
-    def __init__(self, n: int, xy: float = 0.5, heading_deg: float = 30.0) -> None:
+
+class PoseGrid(Strategy):
+    """``n`` readings per bin of sensor pose (x, y, heading): the freshest, or (with
+    ``keep="median"``) those whose ranges agree best with the bin's recent median.
+
+    With ``median`` each bin remembers the ranges of its last ``3 n`` readings. A new
+    reading joins those in play; while more than ``n`` are in play, the one farthest
+    from the median of the remembered ranges leaves (the older of a tie), and a reading
+    older than the last ``3 n`` leaves in any case, so the map follows a change.
+
+    Examples
+    --------
+    One bin, two readings kept: the 1 m range among 2 m ones is the one that leaves.
+
+    >>> from sonarmap.readings import Readings
+    >>> g = PoseGrid(2, keep="median")
+    >>> z = np.zeros(4)
+    >>> r = Readings(z, np.zeros(4, np.int32), z, z, z, np.array([2.0, 1, 2, 2]), ("s",))
+    >>> e = np.zeros(4, np.int64)
+    >>> g.admit(np.arange(4), r, e, e, np.zeros(0, np.int32)).tolist()
+    [1, 0]
+    """
+
+    def __init__(
+        self, n: int, xy: float = 0.5, heading_deg: float = 30.0, keep: str = "freshest"
+    ) -> None:
         _positive_int("pose", n)
         if not (math.isfinite(xy) and xy > 0):
             raise ConfigError(f"pose bin size must be > 0 m, got {xy}")
         if not (math.isfinite(heading_deg) and 0 < heading_deg <= 360):
             raise ConfigError(f"pose heading bin must be in (0, 360] degrees, got {heading_deg}")
+        if keep not in POSE_FILTERS:
+            raise ConfigError(f"pose filter must be one of {', '.join(POSE_FILTERS)}, got {keep!r}")
         self.n = n
         self.xy = xy
         self.heading_deg = heading_deg
+        self.keep = keep
         self._bins: dict[tuple[int, int, int], deque[int]] = {}
+        self._filtered: dict[tuple[int, int, int], _MedianBin] = {}
 
     def start(self, n_cells: int) -> None:
         self._bins = {}
+        self._filtered = {}
 
     def admit(
         self,
@@ -238,9 +271,15 @@ class PoseGrid(Strategy):
         ih = np.floor(np.mod(np.degrees(readings.theta), 360.0) / (360.0 / n_h)).astype(np.int64)
         ih = np.minimum(ih, n_h - 1)
         out: list[int] = []
-        for key, s in zip(
-            zip(ix.tolist(), iy.tolist(), ih.tolist(), strict=True), slots.tolist(), strict=True
-        ):
+        keys = zip(ix.tolist(), iy.tolist(), ih.tolist(), strict=True)
+        if self.keep == "median":
+            for key, s, r in zip(keys, slots.tolist(), readings.range.tolist(), strict=True):
+                b = self._filtered.get(key)
+                if b is None:
+                    b = self._filtered[key] = _MedianBin(self.n)
+                out.extend(b.add(s, r))
+            return np.asarray(out, dtype=np.int64)
+        for key, s in zip(keys, slots.tolist(), strict=True):
             q = self._bins.get(key)
             if q is None:
                 q = self._bins[key] = deque()
@@ -251,10 +290,39 @@ class PoseGrid(Strategy):
 
     @property
     def n_bins(self) -> int:
-        return len(self._bins)
+        return len(self._filtered) if self.keep == "median" else len(self._bins)
 
     def spec(self) -> str:
-        return f"pose:{self.n}:{self.xy:g}:{self.heading_deg:g}"
+        tail = ":median" if self.keep == "median" else ""
+        return f"pose:{self.n}:{self.xy:g}:{self.heading_deg:g}{tail}"
+
+
+class _MedianBin:
+    """One pose bin of the ``median`` filter (see :class:`PoseGrid`)."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.window = 3 * n
+        self.ranges: deque[float] = deque(maxlen=self.window)
+        #: In play: (slot, range, arrival number in this bin).
+        self.live: list[tuple[int, float, int]] = []
+        self.count = 0
+
+    def add(self, slot: int, r: float) -> list[int]:
+        """Take a reading; return the slots that leave."""
+        self.ranges.append(r)
+        self.live.append((slot, r, self.count))
+        self.count += 1
+        oldest = self.count - self.window
+        gone = [s for s, _, k in self.live if k < oldest]
+        self.live = [e for e in self.live if e[2] >= oldest]
+        if len(self.live) > self.n:
+            med = float(np.median(np.fromiter(self.ranges, np.float64)))
+            # Farthest from the median first; of equals, the oldest.
+            self.live.sort(key=lambda e: (-abs(e[1] - med), e[2]))
+            gone += [s for s, _, _ in self.live[: len(self.live) - self.n]]
+            self.live = self.live[len(self.live) - self.n :]
+        return gone
 
 
 def _positive_int(kind: str, n: int) -> None:
@@ -264,12 +332,14 @@ def _positive_int(kind: str, n: int) -> None:
 
 def parse_strategy(text: str) -> Strategy:
     """A strategy from its text form: ``last:N`` (or just ``N``), ``cell:N``,
-    ``pose:N[:XY[:DEG]]``, ``all``.
+    ``pose:N[:XY[:DEG]][:median]``, ``all``.
 
     Examples
     --------
     >>> parse_strategy("pose:3:0.25")
     PoseGrid('pose:3:0.25:30')
+    >>> parse_strategy("pose:3:median")
+    PoseGrid('pose:3:0.5:30:median')
     >>> parse_strategy("500")
     LastN('last:500')
     """
@@ -278,7 +348,7 @@ def parse_strategy(text: str) -> Strategy:
         return LastN(int(text.strip()))
     parts = text.strip().split(":")
     kind, args = parts[0], parts[1:]
-    usage = "valid: last:N, cell:N, pose:N[:XY_M[:HEADING_DEG]], all"
+    usage = "valid: last:N, cell:N, pose:N[:XY_M[:HEADING_DEG]][:median], all"
     try:
         if kind == "all" and not args:
             return KeepAll()
@@ -286,9 +356,14 @@ def parse_strategy(text: str) -> Strategy:
             return LastN(int(args[0]))
         if kind == "cell" and len(args) == 1:
             return FreshestPerCell(int(args[0]))
-        if kind == "pose" and 1 <= len(args) <= 3:
-            floats = [float(a) for a in args[1:]]
-            return PoseGrid(int(args[0]), *floats)
+        if kind == "pose" and len(args) >= 1:
+            keep = "freshest"
+            if args[-1].strip() in POSE_FILTERS:
+                keep = args.pop().strip()
+            if 1 <= len(args) <= 3:
+                xy = float(args[1]) if len(args) > 1 else 0.5
+                heading = float(args[2]) if len(args) > 2 else 30.0
+                return PoseGrid(int(args[0]), xy, heading, keep=keep)
     except ConfigError:
         raise  # a number out of its range: the strategy's own message says which
     except ValueError:

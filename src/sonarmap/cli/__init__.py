@@ -311,6 +311,16 @@ def simulate_cmd(
     console.print(f"wrote {len(readings)} readings to {out}")
 
 
+MethodPreset = Annotated[
+    str | None,
+    typer.Option(
+        "--preset",
+        help="A named parameter set of the method (see 'sonarmap methods'), e.g. "
+        "thesis002; --param overrides its values.",
+    ),
+]
+
+
 ReorderWindow = Annotated[
     float,
     typer.Option(
@@ -349,6 +359,7 @@ def map_cmd(
     param: Annotated[
         list[str] | None, typer.Option("--param", help="Method parameter KEY=VALUE, repeatable.")
     ] = None,
+    preset: MethodPreset = None,
     reorder_window: ReorderWindow = REORDER_WINDOW,
     origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
@@ -357,7 +368,7 @@ def map_cmd(
     --like may be a bare image: --resolution and --origin then place its pixels.
     """
     m = method.value
-    params = parse_params(m, _pairs(param, "--param"))
+    params = parse_params(m, _pairs(param, "--param"), preset=preset)
     r = load_rig(rig)
     like_image = like is not None and like.suffix.lower() in IMAGE_SUFFIXES
     if like is not None and (bounds is not None or (resolution is not None and not like_image)):
@@ -401,7 +412,7 @@ def stream_cmd(
     window: Annotated[
         str | None,
         typer.Option(
-            help="Readings in play: last:N, cell:N, pose:N[:XY_M[:DEG]] or all "
+            help="Readings in play: last:N, cell:N, pose:N[:XY_M[:DEG]][:median] or all "
             "(default: all for inverse, last:1000 for the others)."
         ),
     ] = None,
@@ -445,6 +456,7 @@ def stream_cmd(
     param: Annotated[
         list[str] | None, typer.Option("--param", help="Method parameter KEY=VALUE, repeatable.")
     ] = None,
+    preset: MethodPreset = None,
     reorder_window: ReorderWindow = REORDER_WINDOW,
     bag: Annotated[
         bool,
@@ -458,23 +470,25 @@ def stream_cmd(
     bag_map_every: Annotated[
         float, typer.Option(help="--bag: log seconds between map messages.", min=0.01)
     ] = 1.0,
+    origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
     """Replay a log through a streaming map: latency, throughput, snapshots, animation.
 
-    Writes OUT/map.yaml (.pgm, .npy), OUT/snapshots/t*.png, the animation and
+    --like and --truth may be bare images: --resolution and --origin then place their
+    pixels. Writes OUT/map.yaml (.pgm, .npy), OUT/snapshots/t*.png, the animation and
     OUT/stream.json with the figures printed.
     """
     m = method.value
-    params = parse_params(m, _pairs(param, "--param"))
+    params = parse_params(m, _pairs(param, "--param"), preset=preset)
     r = load_rig(rig)
     if like is not None and bounds is not None:
         raise ConfigError("give either --like or --bounds, not both")
     grid = (
-        _read_plan(like, resolution, (0.0, 0.0)).grid
+        _read_plan(like, resolution, origin).grid
         if like is not None
         else grid_for_log(readings, r, resolution, bounds)
     )
-    t_map = _read_plan(truth, resolution, (0.0, 0.0)) if truth is not None else None
+    t_map = _read_plan(truth, resolution, origin) if truth is not None else None
     if t_map is not None and t_map.grid != grid:
         raise ConfigError(f"{truth}: the truth map's grid differs from the stream's; use --like")
     strategy = window if window is not None else DEFAULT_STRATEGY.get(m)
@@ -659,13 +673,20 @@ def show_cmd(
 
 @app.command("methods")
 def methods_cmd() -> None:
-    """List mapping methods and their parameters with defaults."""
-    table = Table("method", "streams", "parameters (defaults)")
+    """List mapping methods, their parameters with defaults, and their presets (--preset)."""
+    table = Table("method", "streams", "parameters (defaults)", "presets (--preset)")
     for name in sorted(MAPPERS):
         cls = MAPPERS[name]
         streams = DEFAULT_STRATEGY.get(name, "yes") if cls.streamer is not None else "-"
+        presets = "; ".join(
+            f"{p}: " + ", ".join(f"{k}={v!r}" for k, v in values.items())
+            for p, values in cls.presets.items()
+        )
         table.add_row(
-            name, streams, ", ".join(f"{k}={v!r}" for k, v in cls.param_defaults().items())
+            name,
+            streams,
+            ", ".join(f"{k}={v!r}" for k, v in cls.param_defaults().items()),
+            presets or "-",
         )
     console.print(table)
 
@@ -738,6 +759,7 @@ EXPERIMENT_SCENE = {
     "room-turn": "room-turn",
     "noise": "doorways",
     "real": "doorways",
+    "boxes": "boxes",
 }
 #: The held-out scene family each experiment runs on by default.
 HELD_OUT_SCENE = {"doorways": "corridor", "passages": "gaps", "noise": "corridor"}
@@ -785,7 +807,14 @@ def experiment_cmd(
         Path | None,
         typer.Option(help="real: the sonar rig (default: a 16-sonar ring for laser logs)."),
     ] = None,
-    resolution: Annotated[float, typer.Option(help="real: cell size, metres.")] = 0.1,
+    resolution: Annotated[
+        float | None,
+        typer.Option(
+            help="real: cell size, metres (0.1). --scene whose truth is a bare image "
+            "(truth.png): its metres per pixel."
+        ),
+    ] = None,
+    origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
     """Run one of the research's experiments: figures, metrics (CSV, JSON), report.html."""
     if scene is not None and param:
@@ -811,7 +840,9 @@ def experiment_cmd(
             scene_params=params,
             log=log,
             rig=rig,
-            resolution=resolution,
+            resolution=resolution if resolution is not None else 0.1,
+            truth_resolution=resolution,
+            truth_origin=origin,
         )
     console.print(f"wrote {report} and the figures and metrics beside it")
 

@@ -5,7 +5,15 @@ Adding a method is adding one module here with a :func:`register`-ed subclass of
 """
 
 from . import counting, em, gradient, inverse, stochastic
-from ._base import MAPPERS, Mapper, NotFittedError, make_mapper, parse_params, register
+from ._base import (
+    MAPPERS,
+    Mapper,
+    NotFittedError,
+    make_mapper,
+    parse_params,
+    preset_params,
+    register,
+)
 from .counting import CountingMapper
 from .em import EMMapper
 from .gradient import GradientMapper
@@ -27,6 +35,7 @@ __all__ = [
     "inverse",
     "make_mapper",
     "parse_params",
+    "preset_params",
     "register",
     "stochastic",
 ]

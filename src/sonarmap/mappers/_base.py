@@ -29,6 +29,7 @@ __all__ = [
     "NotFittedError",
     "make_mapper",
     "parse_params",
+    "preset_params",
     "register",
 ]
 
@@ -75,6 +76,9 @@ class Mapper(ABC):
     chunk_size: ClassVar[int] = 50_000
     #: The method's streaming engine over a bounded set of readings, if it has one.
     streamer: ClassVar[type[StreamEngine] | None] = None
+    #: Named parameter sets (``--preset NAME``): keyword arguments that replace the
+    #: defaults they name; parameters given explicitly override them in turn.
+    presets: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
 
     _grid: Grid | None = None
     _sensor: SensorModel | None = None
@@ -102,7 +106,7 @@ class Mapper(ABC):
     def start(self, grid: Grid, sensor: SensorModel | Rig) -> Self:
         """Begin a new map on ``grid`` for readings of ``sensor``."""
         self._grid = grid
-        self._sensor = sensor.sensor if isinstance(sensor, Rig) else sensor
+        self._sensor = self._model(sensor.sensor if isinstance(sensor, Rig) else sensor)
         self._batches: list[Readings] = []
         self._reset()
         return self
@@ -140,8 +144,12 @@ class Mapper(ABC):
                 f"method '{self.name}' has no streaming mode; methods that stream: "
                 f"{', '.join(have)}"
             )
-        model = sensor.sensor if isinstance(sensor, Rig) else sensor
+        model = self._model(sensor.sensor if isinstance(sensor, Rig) else sensor)
         return self.streamer(self, grid, model, strategy, effort)
+
+    def _model(self, sensor: SensorModel) -> SensorModel:
+        """The sensor as the method models it (a method may, say, cap its range)."""
+        return sensor
 
     @property
     def grid(self) -> Grid:
@@ -271,10 +279,30 @@ def _coerce(value: str, default: Any, key: str) -> Any:
     return value
 
 
-def parse_params(method: str, pairs: Mapping[str, str]) -> dict[str, Any]:
-    """Typed keyword arguments from ``KEY=VALUE`` strings, typed like each default;
-    ``none`` for a parameter that may be None (``float | None``)."""
+def preset_params(method: str, preset: str) -> dict[str, Any]:
+    """The keyword arguments of one of a method's named parameter sets.
+
+    Examples
+    --------
+    >>> preset_params("gradient", "thesis002")
+    {'a1': 0.05, 'a2': 0.001, 'c1': 10.0, 'c2': 1.0}
+    """
     cls = _lookup(method)
+    if preset not in cls.presets:
+        have = ", ".join(cls.presets) if cls.presets else "none"
+        raise ConfigError(f"unknown preset '{preset}' for method '{method}'; valid: {have}")
+    return dict(cls.presets[preset])
+
+
+def parse_params(
+    method: str, pairs: Mapping[str, str], *, preset: str | None = None
+) -> dict[str, Any]:
+    """Typed keyword arguments from ``KEY=VALUE`` strings, typed like each default;
+    ``none`` for a parameter that may be None (``float | None``). With ``preset``, the
+    preset's parameters first, those given in ``pairs`` overriding them."""
+    cls = _lookup(method)
+    if preset is not None:
+        return {**preset_params(method, preset), **parse_params(method, pairs)}
     defaults = cls.param_defaults()
     bad = sorted(set(pairs) - set(defaults))
     if bad:

@@ -6,7 +6,10 @@ weights ``w = w0 / sum(w0)`` and threshold ``X0 = 1 / sum(w0)``. With ``X = W x`
 
     S(x) = sum_free P_free(X) + sum_occ P_occ(X) + sum_cells R1(x) + R2(x)
 
-Derivatives at the kinks (X0, 0, 0.5, 1) are 0 by convention.
+R2 is the tent ``c2 (0.5 - |x - 0.5|)`` on [0, 1] (thesis 000), or, for reproducing
+paper 001 and thesis 002 as printed, ``c2 |x - 0.5|`` on [0, 1] (``r2="abs"``), which
+pulls towards 0.5 instead of away from it. Derivatives at the kinks (X0, 0, 0.5, 1) are
+0 by convention.
 """
 
 from __future__ import annotations
@@ -22,14 +25,20 @@ from ..raster import CellSet, Footprint
 F64 = npt.NDArray[np.float64]
 
 
+#: Forms of R2: the tent (the default) and the printed absolute value.
+R2_FORMS = ("tent", "abs")
+
+
 @dataclass(frozen=True)
 class Penalties:
-    """The model's constants: P slopes ``a1``, ``a2`` and regulariser weights ``c1``, ``c2``."""
+    """The model's constants: P slopes ``a1``, ``a2``, regulariser weights ``c1``, ``c2``
+    and the form of R2 (one of :data:`R2_FORMS`)."""
 
     a1: float
     a2: float
     c1: float
     c2: float
+    r2: str = "tent"
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,7 +109,9 @@ class ForwardProblem:
         p = float(np.sum(self.term_values(X)))
         c1, c2 = self.pen.c1, self.pen.c2
         r1 = c1 * np.where(x > 1, x - 1, np.where(x < 0, -x, 0.0))
-        r2 = c2 * np.where((x >= 0) & (x <= 1), 0.5 - np.abs(x - 0.5), 0.0)
+        dev = np.abs(x - 0.5)
+        shape = dev if self.pen.r2 == "abs" else 0.5 - dev
+        r2 = c2 * np.where((x >= 0) & (x <= 1), shape, 0.0)
         return p + float(np.sum(r1) + np.sum(r2))
 
     def term_slopes(self, X: F64) -> F64:
@@ -111,7 +122,9 @@ class ForwardProblem:
     def reg_grad(self, x: F64, *, box: bool = True) -> F64:
         """R1'(x) + R2'(x), 0 at the kinks; without R1 when ``box`` is False."""
         c1, c2 = self.pen.c1, self.pen.c2
-        g = np.where((x > 0) & (x < 0.5), c2, np.where((x > 0.5) & (x < 1), -c2, 0.0))
+        # The tent rises towards 0.5, the absolute value falls towards it.
+        up = -c2 if self.pen.r2 == "abs" else c2
+        g = np.where((x > 0) & (x < 0.5), up, np.where((x > 0.5) & (x < 1), -up, 0.0))
         if box:
             g = g + np.where(x > 1, c1, np.where(x < 0, -c1, 0.0))
         return g

@@ -27,7 +27,13 @@ Solvers (``solver=``):
 ``ccp``
     The convex-concave procedure: R2 is replaced by its linearisation at the current point,
     the remaining piecewise-linear convex problem is solved exactly as a linear programme
-    (HiGHS), until the point stops moving. Each step cannot increase S.
+    (HiGHS), until the point stops moving. Each step cannot increase S. With the printed
+    ``r2="abs"`` the whole objective is convex and the first LP is the exact optimum.
+
+Named parameter sets (:data:`PRESETS`, ``--preset``): ``thesis000`` (a1 0.05, a2 0.01,
+c1 5, c2 1: paper 001, thesis 000 and thesis 002's synthetic passages) and ``thesis002``
+(c1 10, c2 1, a1 0.05, a2 0.001: thesis 002 section 4.5.2). They set the model's
+constants only; the solver, the tent and the band stay sonarmap's.
 """
 
 from __future__ import annotations
@@ -45,13 +51,19 @@ import scipy.sparse as sp
 from ..readings import Readings
 from . import _checks
 from ._base import Mapper, Progress, register
-from ._forward import ForwardProblem, Penalties, build_problem
+from ._forward import R2_FORMS, ForwardProblem, Penalties, build_problem
 from ._stream import StreamEngine
 
 __all__ = ["GradientMapper"]
 
 F64 = npt.NDArray[np.float64]
 SOLVERS = ("gd", "pgd", "lbfgs", "ccp")
+
+#: The documents' parameter sets (see the module notes).
+PRESETS: dict[str, dict[str, float]] = {
+    "thesis000": {"a1": 0.05, "a2": 0.01, "c1": 5.0, "c2": 1.0},
+    "thesis002": {"a1": 0.05, "a2": 0.001, "c1": 10.0, "c2": 1.0},
+}
 
 
 @register
@@ -73,6 +85,10 @@ class GradientMapper(Mapper):
     c1, c2 : float
         Weights of the box regulariser R1 and the tent R2, >= 0 (10, 0.3; the
         documents' 5, 1).
+    r2 : {"tent", "abs"}
+        Form of R2: the tent ``c2 (0.5 - |x - 0.5|)`` (default, thesis 000), or
+        ``c2 |x - 0.5|`` as paper 001 and thesis 002 print it, which pulls cells
+        towards 0.5 rather than away (for reproduction). Streaming leaves R2 out either way.
     solver : {"gd", "pgd", "lbfgs", "ccp"}
         See the module notes.
     step : float or None
@@ -99,6 +115,7 @@ class GradientMapper(Mapper):
     """
 
     name = "gradient"
+    presets = PRESETS
 
     def __init__(
         self,
@@ -107,6 +124,7 @@ class GradientMapper(Mapper):
         a2: float = 0.03,
         c1: float = 10.0,
         c2: float = 0.3,
+        r2: str = "tent",
         solver: str = "pgd",
         step: float | None = None,
         max_iter: int = 300,
@@ -119,6 +137,7 @@ class GradientMapper(Mapper):
         self.a2 = a2
         self.c1 = c1
         self.c2 = c2
+        self.r2 = r2
         self.solver = solver
         self.step = step
         self.max_iter = max_iter
@@ -130,6 +149,7 @@ class GradientMapper(Mapper):
         _checks.number("a2", a2, 0.0, 1.0, lo_open=True, hi_open=True)
         _checks.number("c1", c1, 0.0, None)
         _checks.number("c2", c2, 0.0, None)
+        _checks.choice("r2", r2, R2_FORMS)
         _checks.choice("solver", solver, SOLVERS)
         if step is not None:
             _checks.number("step", step, 0.0, None, lo_open=True)
@@ -168,7 +188,7 @@ class GradientMapper(Mapper):
         fps = self._kept_footprints(readings, dr=self.dr)
         bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
         echo = [readings.range[a:b] < self.sensor.r_max for a, b in itertools.pairwise(bounds)]
-        pen = Penalties(self.a1, self.a2, self.c1, self.c2)
+        pen = Penalties(self.a1, self.a2, self.c1, self.c2, self.r2)
         return build_problem(fps, echo, self.grid.size, pen)
 
     def _solve(
@@ -257,7 +277,8 @@ def _lbfgs(
 ) -> tuple[F64, int, list[float]]:
     below, above = p.slopes()
     base = np.where(p.is_occ, 1.0, 0.0)
-    c2 = m.c2
+    # The absolute value's kink smoothed like the tent's, with the opposite sign.
+    c2 = -m.c2 if m.r2 == "abs" else m.c2
     history = [p.value(x)]
     total = 0
     for rnd, kappa in enumerate((0.5, 0.15, 0.03)):
@@ -298,22 +319,31 @@ def _ccp(
     base = np.where(p.is_occ, 1.0, 0.0)
     at_x0 = base + below * p.X0
     n, t = p.n_cells, p.n_terms
+    convex = m.r2 == "abs"
+    # The printed R2 is convex: c2 |x - 0.5| becomes c2 s with s >= +-(x - 0.5), n more
+    # variables and 2n more rows, so the LP holds the whole objective.
+    s_n = n if convex else 0
     eye = sp.identity(t, format="csr")
+    none = sp.csr_matrix((t, s_n))
     # t_r >= base_r + below_r X_r  and  t_r >= at_x0_r + above_r (X_r - X0_r)
-    A = sp.vstack(
-        [
-            sp.hstack([sp.diags(below) @ p.W, -eye]),
-            sp.hstack([sp.diags(above) @ p.W, -eye]),
-        ]
-    ).tocsr()
-    b = np.concatenate([-base, -(at_x0 - above * p.X0)])
-    bounds = [(0.0, 1.0)] * n + [(None, None)] * t
+    rows = [
+        sp.hstack([sp.diags(below) @ p.W, -eye, none]),
+        sp.hstack([sp.diags(above) @ p.W, -eye, none]),
+    ]
+    b_parts = [-base, -(at_x0 - above * p.X0)]
+    if convex:
+        one, zero = sp.identity(n, format="csr"), sp.csr_matrix((n, t))
+        rows += [sp.hstack([one, zero, -one]), sp.hstack([-one, zero, -one])]
+        b_parts += [np.full(n, 0.5), np.full(n, -0.5)]
+    A = sp.vstack(rows).tocsr()
+    b = np.concatenate(b_parts)
+    bounds = [(0.0, 1.0)] * n + [(None, None)] * t + [(0.0, None)] * s_n
     x = np.clip(x, 0.0, 1.0)
     history = [p.value(x)]
     k = 0
     for k in range(1, min(m.max_iter, 30) + 1):
-        g = p.reg_grad(x, box=False)
-        c = np.concatenate([g, np.ones(t)])
+        g = np.zeros(n) if convex else p.reg_grad(x, box=False)
+        c = np.concatenate([g, np.ones(t), np.full(s_n, m.c2)])
         res = so.linprog(c, A_ub=A, b_ub=b, bounds=bounds, method="highs")
         if res.status != 0:
             break

@@ -14,8 +14,10 @@ deterministic for a given ``seed``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -23,6 +25,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..readings import Readings
+from ..sensors import SensorModel
 from . import _checks
 from ._base import Mapper, Progress, register
 from ._stream import StreamEngine
@@ -41,6 +44,15 @@ PRESETS: dict[str, dict[str, float]] = {
     "tuned": {"p_rand": 0.05, "p_hit": 0.3, "w_occ": 0.0, "w_border": -0.005},
     "thesis000": {"p_rand": 0.05, "p_hit": 0.75, "w_occ": -0.05, "w_border": -0.005},
     "thesis002": {"p_rand": 0.001, "p_hit": 0.35, "w_occ": -0.25, "w_border": -0.05},
+}
+
+#: The method's named parameter sets (``--preset``), as printed: thesis 000's weights
+#: with its rule of never keeping a worse flip (p_randomfactor 0); thesis 002's weights
+#: (section 4.4.2, set (4.5)) with its range limit R_max = 3.5 m and its border count
+#: over cell edges (4 neighbours). What they leave unset stays sonarmap's.
+METHOD_PRESETS: dict[str, dict[str, Any]] = {
+    "thesis000": {**PRESETS["thesis000"], "schedule": "greedy", "p_randomfactor": 0.0},
+    "thesis002": {**PRESETS["thesis002"], "r_max": 3.5, "neighbours": 4},
 }
 
 
@@ -180,7 +192,9 @@ class StochasticMapper(Mapper):
     preset : {"tuned", "thesis000", "thesis002"}
         Parameter set the unset parameters come from: ``tuned`` (p_rand 0.05, p_hit 0.3,
         w_occ 0, w_border -0.005; see :data:`PRESETS`), thesis 000 (0.05, 0.75, -0.05,
-        -0.005) or thesis 002 (0.001, 0.35, -0.25, -0.05).
+        -0.005) or thesis 002 (0.001, 0.35, -0.25, -0.05). The method's presets
+        (:data:`METHOD_PRESETS`, ``--preset`` on the command line) set these weights and
+        the rest of each document's set (thesis 002: ``r_max`` 3.5, 4 neighbours).
     p_rand, p_hit : float or None
         Outlier probability in [0, 1) and per-cell reflection probability in (0, 1).
     w_occ, w_border : float or None
@@ -189,6 +203,9 @@ class StochasticMapper(Mapper):
     sigma : float or None
         Range noise of the model, metres (0.08); None: half a cell or the sensor's range
         resolution, whichever is larger.
+    r_max : float or None
+        Range limit of the model, metres: readings at or beyond it count as no echo
+        (their beam free up to it); None (default): the sensor's. Thesis 002 used 3.5.
     neighbours : {4, 8}
         Neighbourhood of the border term (8).
     sweeps : float
@@ -209,6 +226,7 @@ class StochasticMapper(Mapper):
     """
 
     name = "stochastic"
+    presets = METHOD_PRESETS
 
     def __init__(
         self,
@@ -219,6 +237,7 @@ class StochasticMapper(Mapper):
         w_occ: float | None = None,
         w_border: float | None = None,
         sigma: float | None = 0.08,
+        r_max: float | None = None,
         neighbours: int = 8,
         sweeps: float = 30.0,
         schedule: str = "anneal",
@@ -234,6 +253,7 @@ class StochasticMapper(Mapper):
         self.w_occ = w_occ
         self.w_border = w_border
         self.sigma = sigma
+        self.r_max = r_max
         self.neighbours = neighbours
         self.sweeps = sweeps
         self.schedule = schedule
@@ -250,6 +270,8 @@ class StochasticMapper(Mapper):
         _checks.number("w_border", v["w_border"])
         if sigma is not None:
             _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+        if r_max is not None:
+            _checks.number("r_max", r_max, 0.0, None, lo_open=True)
         if neighbours not in (4, 8):
             raise ConfigError(f"parameter 'neighbours' must be 4 or 8, got {neighbours!r}")
         _checks.number("sweeps", sweeps, 0.0, None)
@@ -259,6 +281,16 @@ class StochasticMapper(Mapper):
         _checks.number("t_end", t_end, 0.0, t0, lo_open=True)
         _checks.choice("init", init, ("free", "occupied"))
         _checks.integer("seed", seed, 0)
+
+    def _model(self, sensor: SensorModel) -> SensorModel:
+        if self.r_max is None or self.r_max >= sensor.r_max:
+            return sensor
+        if self.r_max <= sensor.r_min:
+            raise ConfigError(
+                f"parameter 'r_max' ({self.r_max} m) must exceed the sensor's r_min "
+                f"({sensor.r_min} m)"
+            )
+        return dataclasses.replace(sensor, r_max=self.r_max)
 
     def values(self) -> dict[str, float]:
         """The model weights in force: the preset's, overridden by those given."""
