@@ -82,7 +82,9 @@ def test_unknown_parameter_is_named(method: str) -> None:
 def test_unknown_method_lists_valid() -> None:
     with pytest.raises(
         ConfigError,
-        match="unknown method 'magic'; valid: counting, em, gradient, inverse, stochastic",
+        match=(
+            "unknown method 'magic'; valid: counting, em, em-thrun, gradient, inverse, stochastic"
+        ),
     ):
         make_mapper("magic")
 

@@ -87,6 +87,8 @@ METHODS: tuple[MethodSpec, ...] = (
     # EM starts from the neutral map (every cell at 0.5) by default; from the inverse
     # map, as sonarmap's EM did before tuning, for comparison.
     MethodSpec("em-inverse-start", "em", {"init": "inverse"}),
+    # Thrun 2003's EM over a binary map, beside ``em``'s relaxed model.
+    MethodSpec("em-thrun", "em-thrun"),
 )
 
 #: A passage width counts as reliably detected when it, and every wider one, is

@@ -4,7 +4,7 @@ Adding a method is adding one module here with a :func:`register`-ed subclass of
 :class:`Mapper`, and importing it below.
 """
 
-from . import counting, em, gradient, inverse, stochastic
+from . import counting, em, em_thrun, gradient, inverse, stochastic
 from ._base import (
     MAPPERS,
     Mapper,
@@ -16,6 +16,7 @@ from ._base import (
 )
 from .counting import CountingMapper
 from .em import EMMapper
+from .em_thrun import ThrunEMMapper
 from .gradient import GradientMapper
 from .inverse import InverseMapper
 from .stochastic import StochasticMapper
@@ -29,8 +30,10 @@ __all__ = [
     "Mapper",
     "NotFittedError",
     "StochasticMapper",
+    "ThrunEMMapper",
     "counting",
     "em",
+    "em_thrun",
     "gradient",
     "inverse",
     "make_mapper",

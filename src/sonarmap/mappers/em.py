@@ -1,4 +1,9 @@
-"""Expectation maximisation with Thrun's forward sonar model (after Thrun 2003).
+"""Expectation maximisation with Thrun's forward sonar model (after Thrun 2003): ``em``.
+
+sonarmap's own *relaxed* variant: each cell holds a continuous m_i in [0, 1] and
+reflects with probability p_hit * m_i. Thrun 2003's EM over a *binary* map, where
+every occupied cell reflects with probability p_hit, is ``em-thrun``
+(:mod:`.em_thrun`); the two share the sonar model's code (:mod:`._thrun`).
 
 The reference peer of the forward-model methods: the same probabilistic sonar model
 as ``stochastic`` (methods.md sections 3-4), the map found by EM over the
@@ -110,8 +115,11 @@ def _e_step(
             pas[band_cell[j]] += beyond
             hit[band_cell[j]] += e
             beyond += e
+        # ``beyond`` now holds the posterior of every non-random cause, summed from its
+        # terms: ``1 - e_rand`` would round to 0 when chance explains the reading almost
+        # surely, and the free part would never learn it is free (a false fixed point).
         for j in range(free_off[i], free_off[i + 1]):
-            pas[free_cell[j]] += 1.0 - e_rand
+            pas[free_cell[j]] += beyond
     return hit, pas, total_ll, outlier
 
 
@@ -164,7 +172,8 @@ def _posterior(
 
 @register
 class EMMapper(Mapper):
-    """Maximum-likelihood map by EM over the correspondences of Thrun's sonar model.
+    """Maximum-likelihood map by EM over the correspondences of Thrun's sonar model,
+    relaxed to a continuous map (``em``); Thrun 2003's binary map is ``em-thrun``.
 
     Defaults (p_rand 0.1, p_hit 0.75, sigma 0.03, the neutral start) had the highest
     mean quality (wall F1 and passage F1 together) in ``sonarmap sweep
@@ -302,10 +311,10 @@ class EMMapper(Mapper):
         ``uniform`` (the default, chosen by the sweep on training scenes): every touched
         cell at ``init_value``. In the relaxed model a touched cell at m reflects with
         probability p_hit * m, so a long beam through many cells at 0.5 is unlikely and
-        EM may blame a long or no-echo reading on the random component, leaving the
-        cells it crosses at 0.5 (unknown). ``inverse`` starts from the inverse mapper's
-        map, pushed to nearly free (0.01) and nearly occupied (0.9), which avoids that
-        fixed point; experiments report both starts.
+        the first E-step blames it on the random component almost surely; the tiny rest
+        still tells the M-step which cells the beam crossed, and they clear.
+        ``inverse`` starts from the inverse mapper's map, pushed to nearly free (0.01)
+        and nearly occupied (0.9); experiments report both starts.
         """
         if self.init == "uniform":
             return np.full(ix.n_cells, self.init_value)

@@ -1,0 +1,358 @@
+"""Thrun 2003's EM over a binary map (methods.md section 4): ``em-thrun``.
+
+Not to be confused with ``em`` (:mod:`.em`), sonarmap's own *relaxed* model, in which
+cell i reflects with probability p_hit * m_i for a continuous m_i in [0, 1]. Here, as
+in S. Thrun, "Learning occupancy grid maps with forward sensor models" (Autonomous
+Robots 15(2), 2003), the map is binary and every occupied cell reflects with
+probability p_hit: the sonar model of methods.md section 3, shared with ``stochastic``
+through :mod:`._thrun`.
+
+The latent variable of reading z_t is its cause c_t: "random" (probability p_rand,
+density 1 / r_max), "occupied cell j of the band" (probability
+(1 - p_rand) p_hit (1 - p_hit)^(occupied cells nearer than j), density N(z_t; d_j,
+sigma)) or "max range" (probability (1 - p_rand) (1 - p_hit)^(occupied cells in the
+beam), density N(z_t; r_max, sigma)).
+
+- E-step: the posterior e_t(c) of every reading's cause under the current map. From it,
+  the expected complete-data log-likelihood Q(m) = sum_t sum_c e_t(c) log p(z_t, c | m)
+  and the data log-likelihood L(m) = sum_t log p(z_t | m) = Q(m) + H(e), H the
+  entropy of the posteriors (``expected_loglik_`` and ``loglik_``).
+- M-step: hill climbing over the binary map, one cell at a time in a fixed order. A
+  cell flips when that raises the expected log-likelihood plus the posteriors' entropy
+  with the causes of the readings whose beam holds it re-estimated for the flipped map
+  -- which is L itself. Those are the only readings a flip changes, so each flip is an
+  exact partial E-step followed by a partial M-step (the incremental EM of Neal and
+  Hinton, 1998), and L never falls. Held fixed instead, the causes would forbid every
+  useful flip: a free cell is nobody's cause, so occupying it only adds the pass-through
+  cost log(1 - p_hit) of the readings whose beam it lies in, and freeing a cell that a
+  reading is credited to makes that reading impossible (log 0): the binary map would
+  never leave its start. (Only the opening of the paper's text could be read when this
+  was written; the model, the E-step, the flipping M-step and the final per-cell
+  posterior follow the paper's description, the incremental form is our reading.)
+- A sweep that flips no cell ends the search (or ``max_iter`` sweeps). Then, as in the
+  paper, each cell's uncertainty: its posterior with every other cell held at the
+  final map, p(m_i = 1 | Z, m_-i), from the change of L when cell i flips and the
+  prior odds ``prior``. ``occupancy_`` holds it; ``binary_map_`` the EM map itself.
+
+The search is deterministic: the same readings give the same map. ``partial_fit``
+re-solves over every reading given so far, from the start.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+import numpy.typing as npt
+
+from ..readings import Readings
+from . import _checks
+from ._base import Mapper, Progress, register
+from ._thrun import BeamIndex, apply_flip, flip_delta, init_state
+from ._thrun_common import index_readings, model_sigma, scatter
+from .em import _posterior
+
+__all__ = ["ThrunEMMapper"]
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+B = npt.NDArray[np.bool_]
+
+#: Smallest gain of L (nats) for which a cell flips: float round-off in the incremental
+#: bookkeeping must not make two states of a cell trade places forever.
+MIN_GAIN = 1e-9
+
+
+@nb.njit(cache=True)
+def _e_step(
+    occ: B,
+    free_off: I64,
+    free_cell: I64,
+    band_off: I64,
+    band_cell: I64,
+    band_dist: F64,
+    z: F64,
+    p_rand: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+) -> tuple[float, float, F64]:
+    """Expected complete-data log-likelihood Q, data log-likelihood L, and each
+    reading's posterior probability of being random, under the binary map ``occ``."""
+    log_norm = -math.log(sigma * math.sqrt(2.0 * math.pi))
+    log_rand = math.log(p_rand / r_max)
+    log_keep = math.log(1.0 - p_rand)
+    log_hit = math.log(p_hit)
+    log_miss = math.log(1.0 - p_hit)
+    n = z.shape[0]
+    max_band = 1
+    for i in range(n):
+        max_band = max(max_band, band_off[i + 1] - band_off[i])
+    # Log joint p(z_t, c | m) of each cause: random, the band's cells, max range.
+    lj = np.empty(max_band + 2)
+    outlier = np.empty(n)
+    q_total = 0.0
+    l_total = 0.0
+    for i in range(n):
+        passed = 0
+        for j in range(free_off[i], free_off[i + 1]):
+            if occ[free_cell[j]]:
+                passed += 1
+        k = 0
+        lj[k] = log_rand
+        k += 1
+        for j in range(band_off[i], band_off[i + 1]):
+            if occ[band_cell[j]]:
+                u = (z[i] - band_dist[j]) / sigma
+                lj[k] = log_keep + passed * log_miss + log_hit + log_norm - 0.5 * u * u
+                k += 1
+                passed += 1
+        u = (z[i] - r_max) / sigma
+        lj[k] = log_keep + passed * log_miss + log_norm - 0.5 * u * u
+        k += 1
+        top = lj[0]
+        for q in range(1, k):
+            top = max(top, lj[q])
+        s = 0.0
+        for q in range(k):
+            s += math.exp(lj[q] - top)
+        log_z = top + math.log(s)
+        l_total += log_z
+        for q in range(k):
+            e = math.exp(lj[q] - log_z)
+            # A cause with posterior 0 adds nothing, even where its log joint is -inf.
+            if e > 0.0:
+                q_total += e * lj[q]
+        outlier[i] = math.exp(lj[0] - log_z)
+    return q_total, l_total, outlier
+
+
+@nb.njit(cache=True)
+def _m_step(
+    occ: B,
+    n_before: I64,
+    bsum: F64,
+    loglik: F64,
+    cell_off: I64,
+    cell_reading: I64,
+    cell_kind: npt.NDArray[np.int8],
+    band_off: I64,
+    band_cell: I64,
+    band_dist: F64,
+    z: F64,
+    p_rand: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+) -> int:
+    """One hill-climbing sweep over the cells in index order; returns the flips made."""
+    max_deg = 1
+    for c in range(occ.shape[0]):
+        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
+    new_ll = np.empty(max_deg)
+    new_b = np.empty(max_deg)
+    flips = 0
+    for c in range(occ.shape[0]):
+        gain = flip_delta(
+            c,
+            occ,
+            n_before,
+            bsum,
+            loglik,
+            new_ll,
+            new_b,
+            cell_off,
+            cell_reading,
+            cell_kind,
+            band_off,
+            band_cell,
+            band_dist,
+            z,
+            p_rand,
+            p_hit,
+            sigma,
+            r_max,
+        )
+        if gain > MIN_GAIN:
+            apply_flip(
+                c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading, cell_kind
+            )
+            flips += 1
+    return flips
+
+
+@register
+class ThrunEMMapper(Mapper):
+    """Thrun 2003's EM over a binary map (``em-thrun``); ``em`` is the relaxed variant.
+
+    Each occupied cell reflects with probability ``p_hit``; EM alternates the posterior
+    of every reading's cause (E-step) with hill climbing over the binary map (M-step),
+    then gives each cell its posterior with the rest of the map held fixed. See the
+    module docstring for the derivation.
+
+    The defaults are ``em``'s tuned model parameters, so that the two differ only in
+    the map (binary against relaxed) and the search; the start from an empty map is the
+    one the literature's MAP hill climbing uses.
+
+    Parameters
+    ----------
+    p_rand : float
+        Outlier probability, in (0, 1) (0.1). Zero is refused: a binary map must be
+        able to call an unexplainable reading random.
+    p_hit : float
+        Reflection probability of an occupied cell, in (0, 1) (0.75, thesis 000).
+    sigma : float or None
+        Range noise of the model, metres (0.03); None: half a cell or the sensor's range
+        resolution, whichever is larger.
+    init : {"free", "inverse"}
+        Starting map: every cell free (default), or the inverse mapper's map binarised
+        at 0.5.
+    max_iter : int
+        EM iterations (E-step plus one M-step sweep) at most (50).
+    prior : float
+        Prior occupancy probability used for the final per-cell posterior, in (0, 1)
+        (0.5).
+
+    Attributes
+    ----------
+    binary_map_ : ndarray of float32, shape ``grid.shape``
+        The EM map: 1 occupied, 0 free, NaN where no beam reached.
+    loglik_ : list of float
+        Data log-likelihood L at each E-step, the last after the final M-step
+        (non-decreasing).
+    expected_loglik_ : list of float
+        Expected complete-data log-likelihood Q at each E-step.
+    flips_ : list of int
+        Cells flipped by each M-step sweep.
+    outlier_prob_ : ndarray of float64, shape (n_readings,)
+        Per reading, the posterior probability that the random component caused it.
+    n_iter_ : int
+        M-step sweeps run.
+
+    Examples
+    --------
+    >>> from sonarmap.grid import Grid
+    >>> from sonarmap.readings import Readings
+    >>> from sonarmap.rig import get_rig
+    >>> import numpy as np
+    >>> z = np.zeros(4)
+    >>> r = Readings(np.arange(4.0), np.zeros(4, np.int32), z, z, z, np.full(4, 1.0), ("s",))
+    >>> grid = Grid(resolution=0.1, origin=(-0.5, -1.0), shape=(20, 20))
+    >>> m = ThrunEMMapper().fit(r, grid, get_rig("paper-synthetic").sensor)
+    >>> bool(np.nanmax(m.binary_map_) == 1.0), m.loglik_[-1] >= m.loglik_[0]
+    (True, True)
+    """
+
+    name = "em-thrun"
+
+    def __init__(
+        self,
+        *,
+        p_rand: float = 0.1,
+        p_hit: float = 0.75,
+        sigma: float | None = 0.03,
+        init: str = "free",
+        max_iter: int = 50,
+        prior: float = 0.5,
+    ) -> None:
+        self.p_rand = p_rand
+        self.p_hit = p_hit
+        self.sigma = sigma
+        self.init = init
+        self.max_iter = max_iter
+        self.prior = prior
+        _checks.number("p_rand", p_rand, 0.0, 1.0, lo_open=True, hi_open=True)
+        _checks.number("p_hit", p_hit, 0.0, 1.0, lo_open=True, hi_open=True)
+        if sigma is not None:
+            _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+        _checks.choice("init", init, ("free", "inverse"))
+        _checks.integer("max_iter", max_iter, 1)
+        _checks.number("prior", prior, 0.0, 1.0, lo_open=True, hi_open=True)
+
+    def _reset(self) -> None:
+        self._index: BeamIndex | None = None
+        self._occ: B | None = None
+        self._post: F64 | None = None
+        self.loglik_: list[float] = []
+        self.expected_loglik_: list[float] = []
+        self.flips_: list[int] = []
+        self.n_iter_ = 0
+        self.outlier_prob_: F64 = np.empty(0)
+
+    def _add(self, readings: Readings, progress: Progress | None) -> None:
+        everything = self._accumulate(readings)
+        sigma = model_sigma(self, self.sigma)
+        ix = index_readings(self, everything, sigma)
+        r_max = self.sensor.r_max
+        occ = self._initial_map(everything, ix)
+        model = (self.p_rand, self.p_hit, sigma, r_max)
+        beams = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)
+        n_before, bsum, loglik = init_state(occ, *beams, *model)
+        self.loglik_, self.expected_loglik_, self.flips_ = [], [], []
+        k = 0
+        for k in range(1, self.max_iter + 1):
+            q, ll, _ = _e_step(occ, *beams, *model)
+            self.expected_loglik_.append(q)
+            self.loglik_.append(ll)
+            flips = _m_step(
+                occ,
+                n_before,
+                bsum,
+                loglik,
+                ix.cell_off,
+                ix.cell_reading,
+                ix.cell_kind,
+                ix.band_off,
+                ix.band_cell,
+                ix.band_dist,
+                ix.z,
+                *model,
+            )
+            self.flips_.append(flips)
+            if progress is not None:
+                progress(k, self.max_iter)
+            if flips == 0:
+                break
+        q, ll, outlier = _e_step(occ, *beams, *model)
+        self.expected_loglik_.append(q)
+        self.loglik_.append(ll)
+        self.n_iter_ = k
+        self.outlier_prob_ = outlier
+        arrays = (
+            ix.free_off,
+            ix.free_cell,
+            ix.band_off,
+            ix.band_cell,
+            ix.band_dist,
+            ix.cell_off,
+            ix.cell_reading,
+            ix.cell_kind,
+            ix.z,
+        )
+        log_odds = _posterior(occ, arrays, *model)
+        log_odds += math.log(self.prior / (1.0 - self.prior))
+        self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))
+        self._occ = occ
+        self._index = ix
+
+    def _initial_map(self, readings: Readings, ix: BeamIndex) -> B:
+        """Every touched cell free, or the inverse mapper's map binarised at 0.5."""
+        if self.init == "free":
+            return np.zeros(ix.n_cells, dtype=np.bool_)
+        from .inverse import InverseMapper
+
+        inv = InverseMapper().fit(readings, self.grid, self.sensor).occupancy_.ravel()
+        return np.asarray(np.nan_to_num(inv[ix.cells], nan=0.0) > 0.5, dtype=np.bool_)
+
+    @property
+    def binary_map_(self) -> npt.NDArray[np.float32]:
+        if self._index is None or self._occ is None:
+            return np.full(self.grid.shape, np.nan, dtype=np.float32)
+        values = self._occ.astype(np.float64)
+        return scatter(self._index, values, self.grid.size).reshape(self.grid.shape)
+
+    def _occupancy(self) -> npt.NDArray[np.float32]:
+        if self._index is None or self._post is None:
+            return np.full(self.grid.size, np.nan, dtype=np.float32)
+        return scatter(self._index, self._post, self.grid.size)
