@@ -16,11 +16,15 @@ import typer
 from ..errors import ConfigError
 from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
-from ..io.rosmap import write_map
+from ..io.rosmap import OccupancyMap, write_map
 from ..team.animation import save_mission_animation
-from ..team.globalmap import plot_pose_graph
+from ..team.exchange import PROTOCOLS, ExchangeParams
+from ..team.globalmap import plot_pose_graph, plot_team
 from ..team.mission import MissionConfig, MissionResult, run_mission
+from ..team.network import NetworkParams
+from ..team.patrolling import patrol_routes
 from ..team.records import compose
+from ..team.simulation import TeamResult, run_team
 from ..team.store import StoreParams
 from ..team.world import load_world, make_world, patrol_route, read_route, save_world
 from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
@@ -117,12 +121,126 @@ def _memory_csv(results: list[MissionResult]) -> str:
     return buf.getvalue()
 
 
+#: Link models of ``--network``.
+NETWORK_KINDS = ("full", "limited", "none")
+#: Transports of ``--transport``.
+TRANSPORTS = ("sim", "zmq")
+
+
+def _network_params(network: str, bandwidth: float | None, loss: float) -> NetworkParams:
+    if network not in NETWORK_KINDS:
+        raise ConfigError(f"--network must be one of {', '.join(NETWORK_KINDS)}, got {network!r}")
+    if bandwidth is not None and not (math.isfinite(bandwidth) and bandwidth > 0):
+        raise ConfigError(f"--bandwidth must be > 0 bytes/s, got {bandwidth}")
+    if not (0.0 <= loss <= 1.0):
+        raise ConfigError(f"--loss must be a probability in [0, 1], got {loss}")
+    return NetworkParams(kind=network, bandwidth=bandwidth, loss=loss)
+
+
+def _exchange_params(exchange: str | None, cap: int, network: str) -> ExchangeParams:
+    # A link that may break or be slow is what the limited protocol was designed for.
+    mode = exchange if exchange is not None else ("good" if network == "full" else "limited")
+    if mode not in PROTOCOLS:
+        raise ConfigError(f"--exchange must be one of {', '.join(PROTOCOLS)}, got {mode!r}")
+    if cap < 1:
+        raise ConfigError(f"--cap must be >= 1 byte, got {cap}")
+    return ExchangeParams(mode=mode, cap_bytes=cap)
+
+
+def _run_zmq_team(
+    out: Path,
+    plan: OccupancyMap,
+    config: MissionConfig,
+    robots: int,
+    network: NetworkParams,
+    exchange: ExchangeParams,
+    seed: int,
+    progress: Any,
+) -> dict[str, Any]:
+    """The team as local ZeroMQ processes (:func:`sonarmap.team.node.run_zmq_team`):
+    the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json``."""
+    # Imported here: the node module pulls in the process machinery only zmq needs.
+    from ..team.node import run_zmq_team
+
+    with atomic_folder(out) as tmp:
+        result = run_zmq_team(
+            plan,
+            config,
+            robots,
+            network=network,
+            exchange=exchange,
+            seed=seed,
+            progress=progress,
+            folder=tmp / "nodes",
+        )
+        atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
+    return result.summary
+
+
+def _write_robot(
+    tmp: Path, plan: OccupancyMap, r: MissionResult, suffix: str, animate: bool
+) -> None:
+    """One robot's map, graph picture and (``animate``) animation, named with ``suffix``."""
+    robot = r.summary["robot"]
+    write_map(r.global_map, tmp / f"map{suffix}")
+    placed = {u: compose(r.alignment.transform, e) for u, e in r.graph.estimates.items()}
+    plot_pose_graph(
+        plan,
+        placed,
+        r.store.local.edges,
+        r.store.closures,
+        tmp / f"graph{suffix}.png",
+        truth={u: t for u, t in r.truth.items() if u in placed},
+        title=f"robot {robot}: ATE {r.summary['ate_m']:.2f} m "
+        f"(odometry {r.summary['ate_odometry_m']:.2f} m)",
+    )
+    if animate:
+        save_mission_animation(
+            r.frames,
+            plan,
+            r.alignment.transform,
+            tmp / f"mission{suffix}.gif",
+            title=f"robot {robot}",
+        )
+
+
+def _write_team(out: Path, plan: OccupancyMap, team: TeamResult, animate: bool) -> dict[str, Any]:
+    """Every output of a team's run, written at once; the summary written."""
+    summary = _summary(team.robots)
+    summary.update(team.summary)
+    with atomic_folder(out) as tmp:
+        atomic_write_text(tmp / "summary.json", json_dumps(summary))
+        atomic_write_text(tmp / "memory.csv", _memory_csv(team.robots))
+        for r in team.robots:
+            _write_robot(tmp, plan, r, f"_robot{r.summary['robot']}", animate)
+        if team.central is not None:
+            write_map(team.central.global_map, tmp / "map_central")
+        graphs = []
+        for r in team.robots:
+            own = {u: e for u, e in r.graph.estimates.items() if u in r.store.local.poses}
+            placed = {u: compose(r.alignment.transform, e) for u, e in own.items()}
+            graphs.append((f"robot {r.summary['robot']}", placed, r.store.local.edges))
+        plot_team(
+            plan,
+            graphs,
+            tmp / "team.png",
+            title=f"{len(team.robots)} robots, {team.summary['network']['kind']} network, "
+            f"{team.summary['exchange']['mode']} exchange: team F1 "
+            f"{team.summary['map_f1_team']:.3f}",
+        )
+    return summary
+
+
 @team_app.command("run")
 def run_cmd(
     out: OutOption,
     map_: MapOption,
     robots: Annotated[
-        int, typer.Option("--robots", help="Robots, each with its own store (no exchange yet).")
+        int,
+        typer.Option(
+            "--robots",
+            help="Robots, each with its own store; two or more exchange their poses.",
+        ),
     ] = 1,
     duration: DurationOption = 600.0,
     route: Annotated[
@@ -146,14 +264,58 @@ def run_cmd(
             "--animate", help="Also write mission.gif: truth, odometry, kept poses, closures."
         ),
     ] = False,
+    network: Annotated[
+        str, typer.Option("--network", help="Links: full, limited (range, line of sight), none.")
+    ] = "full",
+    bandwidth: Annotated[
+        float | None,
+        typer.Option("--bandwidth", help="Bytes/s of each link (default: unlimited)."),
+    ] = None,
+    loss: Annotated[
+        float, typer.Option("--loss", help="Probability a message is lost on one hop.")
+    ] = 0.0,
+    exchange: Annotated[
+        str | None,
+        typer.Option(
+            "--exchange",
+            help="Protocol: good, limited, or naive (every new pose to everyone). "
+            "Default: good on a full network, limited otherwise.",
+        ),
+    ] = None,
+    cap: Annotated[
+        int, typer.Option("--cap", help="T: bytes of poses one limited-protocol answer carries.")
+    ] = ExchangeParams().cap_bytes,
+    transport: Annotated[
+        str, typer.Option("--transport", help="sim (simulated network) or zmq (processes).")
+    ] = "sim",
+    patrol: Annotated[
+        bool,
+        typer.Option("--patrol", help="Drive the robots by the potential-field patroller."),
+    ] = False,
 ) -> None:
-    """One mission per robot: store, association, memory bounds, global map, scores."""
+    """One mission per robot: store, association, memory bounds, global map, scores.
+
+    Two or more robots run as a team exchanging their poses over the simulated network;
+    summary.json then adds the exchange's figures per robot and the team's, with the
+    central upper bound ``map_f1_central``. ``--transport zmq`` runs the team as local
+    processes (:func:`sonarmap.team.node.run_zmq_team`)."""
     if robots < 1:
         raise ConfigError(f"--robots must be >= 1, got {robots}")
     if not (math.isfinite(duration) and duration > 0):
         raise ConfigError(f"--duration must be > 0, got {duration}")
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
+    net = _network_params(network, bandwidth, loss)
+    protocol = _exchange_params(exchange, cap, network)
+    if transport not in TRANSPORTS:
+        raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")
+    if patrol and route is not None:
+        raise ConfigError("--patrol drives every robot: drop --route")
+    if transport == "zmq" and (patrol or route is not None or world_dir is not None or animate):
+        raise ConfigError(
+            "--transport zmq: the nodes drive their own seeded routes; --patrol, --route, "
+            "--world and --animate are --transport sim's"
+        )
     store = _check_bounds(pose_limit, region_limit)
     plan = _read_plan(map_, resolution, origin)
     world = None
@@ -165,6 +327,42 @@ def run_cmd(
     if route is not None:
         routes[0] = read_route(route)
     config = MissionConfig(duration=duration, seed=seed, store=store)
+    if patrol:
+        # The patrol replaces any route, a saved world's included.
+        patrolled, _ = patrol_routes(plan, robots, duration, seed=seed)
+        routes = dict(enumerate(patrolled))
+    if transport == "zmq":
+        # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
+        with _progress("team") as update:
+            tick = partial(_tick, update, f"{robots} nodes")
+            s = _run_zmq_team(out, plan, config, robots, net, protocol, seed, tick)
+        console.print(
+            f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute, "
+            f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}: {out}"
+        )
+        return
+    if robots > 1:
+        team_args: dict[str, Any] = {
+            "network": net,
+            "exchange": protocol,
+            "seed": seed,
+            "world": world,
+            "routes": [routes.get(i) for i in range(robots)],
+            "central": True,
+            "record": animate,
+        }
+        with _progress("team") as update:
+            team_args["progress"] = partial(_tick, update, f"{robots} robots")
+            team = run_team(plan, config, robots, **team_args)
+        s = _write_team(out, plan, team, animate)
+        convergence = s["convergence_s"]
+        console.print(
+            f"team F1 {s['map_f1_team']:.3f} (central {s['map_f1_central']:.3f}), "
+            f"{s['bytes_per_robot_minute']:.0f} B per robot-minute, "
+            f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}, "
+            f"converged {'never' if convergence is None else f'{convergence:.1f} s'}: {out}"
+        )
+        return
     results = []
     with _progress("mission") as update:
         for robot in range(robots):
@@ -183,31 +381,103 @@ def run_cmd(
         atomic_write_text(tmp / "summary.json", json_dumps(_summary(results)))
         atomic_write_text(tmp / "memory.csv", _memory_csv(results))
         for r in results:
-            name = "map" if robots == 1 else f"map_robot{r.summary['robot']}"
-            write_map(r.global_map, tmp / name)
-            placed = {u: compose(r.alignment.transform, e) for u, e in r.graph.estimates.items()}
-            plot_pose_graph(
-                plan,
-                placed,
-                r.store.local.edges,
-                r.store.closures,
-                tmp / ("graph.png" if robots == 1 else f"graph_robot{r.summary['robot']}.png"),
-                truth={u: t for u, t in r.truth.items() if u in placed},
-                title=f"robot {r.summary['robot']}: ATE {r.summary['ate_m']:.2f} m "
-                f"(odometry {r.summary['ate_odometry_m']:.2f} m)",
-            )
-            if animate:
-                suffix = "" if robots == 1 else f"_robot{r.summary['robot']}"
-                save_mission_animation(
-                    r.frames,
-                    plan,
-                    r.alignment.transform,
-                    tmp / f"mission{suffix}.gif",
-                    title=f"robot {r.summary['robot']}",
-                )
+            _write_robot(tmp, plan, r, "", animate)
     s0 = _summary(results)
     console.print(
         f"precision {s0['association_precision']:.3f}, recall {s0['association_recall']:.3f}, "
         f"ATE {s0['ate_m']:.3f} m (odometry {s0['ate_odometry_m']:.3f} m), "
         f"map F1 {s0['map_f1']:.3f}, peak store {s0['store_bytes_peak']} B: {out}"
+    )
+
+
+@team_app.command("node")
+def node_cmd(
+    out: OutOption,
+    map_: MapOption,
+    robot: Annotated[int, typer.Option("--id", help="This robot's id, in 0..N-1.")],
+    listen: Annotated[str, typer.Option("--listen", help="tcp://HOST:PORT this node listens on.")],
+    peers: Annotated[
+        str,
+        typer.Option(
+            "--peers",
+            help="The other robots' listen addresses, comma-separated: ID=ADDRESS each, "
+            "or bare addresses for the ids 0..N-1 other than --id, in order.",
+        ),
+    ] = "",
+    duration: DurationOption = 600.0,
+    seed: SeedOption = 0,
+    state: Annotated[
+        Path | None,
+        typer.Option("--state", help="Checkpoint folder; a node started on one resumes."),
+    ] = None,
+    pose_limit: Annotated[
+        int, typer.Option("--pose-limit", help="M_pose: bytes a pose may take.")
+    ] = StoreParams().pose_limit,
+    region_limit: Annotated[
+        int, typer.Option("--region-limit", help="M_r: bytes a region may take.")
+    ] = StoreParams().region_limit,
+    exchange: Annotated[
+        list[str] | None,
+        typer.Option("--exchange", help="An exchange setting KEY=VALUE (repeatable)."),
+    ] = None,
+    lookahead: Annotated[
+        float, typer.Option("--lookahead", help="Seconds of route whose regions come first.")
+    ] = 30.0,
+    quiet: Annotated[
+        float | None, typer.Option("--quiet", help="Seconds without change that end it.")
+    ] = None,
+    settle: Annotated[
+        float, typer.Option("--settle", help="Seconds of exchange at most after the routes.")
+    ] = 120.0,
+    wait_timeout: Annotated[
+        float, typer.Option("--wait-timeout", help="Wall seconds to wait for a silent peer.")
+    ] = 300.0,
+    checkpoint_every: Annotated[
+        float, typer.Option("--checkpoint-every", help="Wall seconds between checkpoints.")
+    ] = 5.0,
+    routes_dir: Annotated[
+        Path | None,
+        typer.Option(
+            "--routes", help="Folder of every robot's route, robotK.npy (t, x, y, theta)."
+        ),
+    ] = None,
+    resolution: ImageResolution = None,
+    origin: ImageOrigin = (0.0, 0.0),
+) -> None:
+    """One robot of a team over ZeroMQ (TCP), on the team's lock-step clock: the same
+    results as 'team run' on a full network; killed and started again on its --state
+    folder, it resumes."""
+    from ..team.node import LockstepParams, load_routes, parse_exchange, parse_peers, run_node
+
+    if not (math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"--duration must be > 0, got {duration}")
+    if seed < 0:
+        raise ConfigError(f"--seed must be >= 0, got {seed}")
+    store = _check_bounds(pose_limit, region_limit)
+    timing = LockstepParams(wait_timeout=wait_timeout, checkpoint_every=checkpoint_every)
+    ex = parse_exchange(exchange or [])
+    peer_map = parse_peers(peers, robot)
+    given = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
+    plan = _read_plan(map_, resolution, origin)
+    config = MissionConfig(duration=duration, seed=seed, store=store)
+    with _progress(f"robot {robot}") as update:
+        s = run_node(
+            plan,
+            config,
+            robot,
+            listen,
+            peer_map,
+            out=out,
+            exchange=ex,
+            state_dir=state,
+            lookahead=lookahead,
+            quiet=quiet,
+            settle=settle,
+            timing=timing,
+            progress=partial(_tick, update, "ticks"),
+            routes=given,
+        )
+    console.print(
+        f"robot {robot}: {s['row']['poses_local']} own poses, {len(s['held'])} held, "
+        f"{s['ticks']} ticks, {s['restarts']} restarts: {out}"
     )

@@ -103,7 +103,11 @@ _UNITS = np.array(
 )
 
 
-@nb.njit(cache=True)
+# Not cached: its visitor argument is a jitted function, whose type never matches the
+# one an earlier process pickled, so every process appended an entry to the on-disk
+# index and, once one was there, saving it failed ("underlying object has vanished"):
+# every fresh process calling the wave crashed (team nodes, a second CLI run).
+@nb.njit
 def _dial(
     code: npt.NDArray[np.uint8],
     width: int,

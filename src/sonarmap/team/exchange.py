@@ -85,6 +85,7 @@ from .transport import ROBOT_LIMIT, Message, SimTransport, Transport, ZmqTranspo
 __all__ = [
     "KINDS",
     "MODES",
+    "PROTOCOLS",
     "Advert",
     "AdvertEntry",
     "Answer",
@@ -107,8 +108,11 @@ logger = logging.getLogger("sonarmap.team.exchange")
 
 #: Message kinds, the transport envelope's ``kind``.
 KINDS = ("advert", "request", "answer")
-#: The two protocols.
+#: The two protocols (the modes messages may carry).
 MODES = ("good", "limited")
+#: What :attr:`ExchangeParams.mode` may be: the two protocols, or the naive baseline that
+#: :class:`~.naive.NaiveExchanger` runs (it has its own messages).
+PROTOCOLS = (*MODES, "naive")
 #: The bodies' version, field ``v``.
 VERSION = 1
 _UID_LIMIT = 2**63
@@ -142,7 +146,9 @@ class ExchangeParams:
     ----------
     mode : str
         ``"good"`` (a good network: whole patches) or ``"limited"`` (answers capped at
-        ``cap_bytes``, full id lists kept). Default ``"good"``.
+        ``cap_bytes``, full id lists kept); ``"naive"`` is the baseline of
+        :class:`~.naive.NaiveExchanger` (every new pose to everyone), not this module's.
+        Default ``"good"``.
     cap_bytes : int
         T, bytes of poses one limited-mode answer may carry (edges are not counted):
         65536, four poses at the store's default ``pose_limit``.
@@ -173,9 +179,9 @@ class ExchangeParams:
     max_outstanding: int = 8
 
     def __post_init__(self) -> None:
-        if self.mode not in MODES:
+        if self.mode not in PROTOCOLS:
             raise ConfigError(
-                f"exchange: mode must be one of {', '.join(MODES)}, got {self.mode!r}"
+                f"exchange: mode must be one of {', '.join(PROTOCOLS)}, got {self.mode!r}"
             )
         for f in fields(self):
             if f.name == "mode":
@@ -712,6 +718,11 @@ class Exchanger:
             raise ConfigError(
                 f"exchange: the store is robot {store.robot}'s, the transport robot "
                 f"{transport.robot}'s"
+            )
+        if params is not None and params.mode not in MODES:
+            raise ConfigError(
+                f"exchange: mode {params.mode!r} is not a protocol of Exchanger "
+                "(the naive baseline is naive.NaiveExchanger; naive.make_exchanger picks)"
             )
         self.store = store
         self.transport = transport

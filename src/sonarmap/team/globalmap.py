@@ -13,7 +13,8 @@ Three steps, each a function over plain records:
    the prior map by FFT correlation over all rotations and shifts, the ``n_best``
    hypotheses refined by a particle filter.
 
-:func:`plot_pose_graph` draws the graph over the prior map.
+:func:`plot_pose_graph` draws the graph over the prior map; :func:`plot_team` draws a
+team's graphs, one colour per robot.
 
 Transforms follow :mod:`sonarmap.team.records`: ``(x, y, theta)`` maps a frame's
 coordinates into its parent's, ``p_parent = R(theta) p + (x, y)``.
@@ -54,6 +55,7 @@ __all__ = [
     "grid_around",
     "optimise_graph",
     "plot_pose_graph",
+    "plot_team",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -898,6 +900,55 @@ def plot_pose_graph(
     ax.plot([], [], color="orange", label="closures")
     if bad:
         ax.plot([], [], color="red", ls="--", label="rejected closures")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    if title:
+        ax.set_title(title)
+    ax.legend(loc="upper right", fontsize="small")
+    p = Path(path)
+    atomic_write(p, lambda tmp: fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png"))
+    plt.close(fig)
+    return p
+
+
+def plot_team(
+    prior: OccupancyMap | None,
+    robots: Sequence[tuple[str, Estimates, Sequence[OdometryEdge]]],
+    path: str | Path,
+    *,
+    title: str = "",
+) -> Path:
+    """Draw several robots' pose graphs over the prior map, one colour each; save a PNG.
+
+    Parameters
+    ----------
+    prior : OccupancyMap, optional
+        Drawn in grey, as by :func:`plot_pose_graph`.
+    robots : sequence of (label, estimates, odometry edges)
+        Each robot's poses (in the prior's frame) and the edges between them.
+    path : str or Path
+        The PNG written.
+    title : str
+        Axes title.
+
+    Returns
+    -------
+    Path
+    """
+    fig, ax = plt.subplots(figsize=(7, 7))
+    if prior is not None:
+        occ = np.where(np.isnan(prior.occupancy), 0.25, prior.occupancy)
+        ax.imshow(1.0 - occ, cmap="gray", vmin=0, vmax=1, extent=prior.grid.extent, origin="upper")
+    colours = plt.get_cmap("tab10")
+    for k, (label, estimates, odometry) in enumerate(robots):
+        colour = colours(k % 10)
+        est = {u: _estimate_array(v, u) for u, v in estimates.items()}
+        for e in odometry:
+            if e.a in est and e.b in est:
+                ax.plot(*np.column_stack([est[e.a][:2], est[e.b][:2]]), color=colour, lw=0.8)
+        xy = np.array([v[:2] for v in est.values()]).reshape(-1, 2)
+        ax.plot(xy[:, 0], xy[:, 1], ".", color=colour, ms=4, label=label)
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")

@@ -6,8 +6,10 @@ over a simulated network (:class:`~.network.SimNetwork` through a
 Choices where the thesis is silent:
 
 - **One world, own routes.** The robots share the world's landmarks (made from the
-  mission seed); robot ``i`` drives the patrol route drawn from ``seed + 7919 i`` and
-  its sensors are seeded alike (as :func:`~.mission.run_mission` does for ``robot=i``).
+  mission seed); robot ``i`` drives the patrol route drawn from ``seed + 7919 i``, or
+  the route given to it (``routes``: e.g. the potential-field patroller's,
+  :mod:`.patrolling`), and its sensors are seeded alike (as
+  :func:`~.mission.run_mission` does for ``robot=i``).
   ``seed`` of :func:`run_team` seeds the network (losses, jitter, capacity).
 - **The clock.** Ticks are the union of the routes' time stamps. At each tick every
   robot first processes its route steps up to it (poses made, associated, stored), then
@@ -21,14 +23,26 @@ Choices where the thesis is silent:
   adverts and two request rounds) and none awaits an answer, or ``settle`` seconds
   (120) have passed. ``identical_maps`` is judged then: do all robots hold the same
   pose UIDs (own and received layers together).
+- **Convergence** (``convergence_s``): seconds from the end of the routes to the last
+  pose added or deleted, once the network was quiet and, when every pair of robots is
+  linked (``full``), every robot held every pose (``identical_maps``); None (JSON
+  null) when that never happened within ``settle`` seconds. 0: nothing was left to
+  exchange when the routes ended.
+- **Protocols**: ``exchange.mode`` ``"good"`` or ``"limited"`` runs the thesis's
+  :class:`~.exchange.Exchanger`, ``"naive"`` the baseline
+  :class:`~.naive.NaiveExchanger`.
+- **Team map** (``map_f1_team``): the mean of the robots' global-map F1. With
+  ``central``, ``map_f1_central`` is the upper bound of :func:`~.central.central_map`
+  over the same missions' data.
 - **Bytes per robot-minute**: message bodies sent during the routes (not the quiet
   phase), over the robots and the routes' minutes.
 """
 
 from __future__ import annotations
 
+import math
 from collections import ChainMap
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -36,8 +50,10 @@ import numpy as np
 import numpy.typing as npt
 
 from ..io.rosmap import OccupancyMap
+from .central import CentralResult, central_map
 from .exchange import ExchangeParams, Exchanger
 from .mission import MissionConfig, MissionResult, RobotAgent
+from .naive import NaiveExchanger, make_exchanger
 from .network import NetworkParams, SimNetwork
 from .records import Pose
 from .regions import region_adjacency
@@ -62,21 +78,25 @@ class TeamResult:
         ``bytes_sent``, ``bytes_received``, ``messages``, ``messages_received``,
         ``poses_local``, ``poses_received``, ``received_closures``,
         ``received_closures_correct``) and the team's ``duplicate_poses``,
-        ``identical_maps``, ``bytes_per_robot_minute``, ``settle_seconds``,
-        ``settled``, ``robots_n``, ``network`` and ``exchange``.
+        ``identical_maps``, ``convergence_s``, ``bytes_per_robot_minute``,
+        ``map_f1_team``, ``map_f1_central`` (None unless asked for),
+        ``settle_seconds``, ``settled``, ``robots_n``, ``network`` and ``exchange``.
     robots : list of MissionResult
         Each robot's result, by robot id.
-    exchangers : list of Exchanger
+    exchangers : list of Exchanger or NaiveExchanger
     network : SimNetwork
     held : list of set of int
         The pose UIDs each robot held (all layers) once the network was quiet.
+    central : CentralResult, optional
+        The central upper bound, when asked for.
     """
 
     summary: dict[str, Any]
     robots: list[MissionResult]
-    exchangers: list[Exchanger]
+    exchangers: list[Exchanger | NaiveExchanger]
     network: SimNetwork
     held: list[set[int]] = field(default_factory=list)
+    central: CentralResult | None = None
 
 
 def held_uids(store: RobotStore) -> tuple[set[int], int]:
@@ -92,7 +112,7 @@ def held_uids(store: RobotStore) -> tuple[set[int], int]:
     return seen, twice
 
 
-def _changes(exchangers: list[Exchanger]) -> int:
+def _changes(exchangers: list[Exchanger | NaiveExchanger]) -> int:
     return sum(e.stats.poses_added + e.stats.poses_deleted for e in exchangers)
 
 
@@ -109,6 +129,9 @@ def run_team(
     lookahead: float = 30.0,
     quiet: float | None = None,
     settle: float = 120.0,
+    routes: Sequence[F64 | None] | None = None,
+    central: bool = False,
+    record: bool = False,
 ) -> TeamResult:
     """Run ``robots`` robots' missions together, exchanging over a simulated network.
 
@@ -136,6 +159,14 @@ def run_team(
         quiet; default 2 ``advert_every`` + 2 ``request_every``.
     settle : float
         Seconds of exchange at most after the routes end.
+    routes : sequence of ndarray (T, 4) or None, optional
+        One per robot: ``t, x, y, theta`` replacing its random-waypoint route (None
+        keeps it).
+    central : bool
+        Also build the central upper bound (:func:`~.central.central_map`; it costs
+        about one robot's mission more).
+    record : bool
+        Each robot keeps a frame per pose made, for an animation.
 
     Returns
     -------
@@ -143,9 +174,21 @@ def run_team(
     """
     if isinstance(robots, bool) or not isinstance(robots, int) or robots < 1:
         raise ValueError(f"robots must be an int >= 1, got {robots!r}")
+    if routes is not None and len(routes) != robots:
+        raise ValueError(f"routes: {len(routes)} given for {robots} robots")
     quiet = 2 * exchange.advert_every + 2 * exchange.request_every if quiet is None else quiet
     world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
-    agents = [RobotAgent(plan, cfg, world=world, robot=i) for i in range(robots)]
+    agents = [
+        RobotAgent(
+            plan,
+            cfg,
+            world=world,
+            robot=i,
+            route=None if routes is None else routes[i],
+            record=record,
+        )
+        for i in range(robots)
+    ]
     truth: ChainMap[int, F64] = ChainMap(*(a.truth for a in agents))
     made: ChainMap[int, Pose] = ChainMap(*(a.made for a in agents))
     for a in agents:
@@ -157,7 +200,7 @@ def run_team(
     hub = SimHub(net, t0=float(times[0]))
     adjacency = region_adjacency(agents[0].labels)
     exchangers = [
-        Exchanger(
+        make_exchanger(
             a.store,
             hub.transport(a.robot),
             exchange,
@@ -198,6 +241,7 @@ def run_team(
 
     held = [held_uids(a.store) for a in agents]
     identical = all(h[0] == held[0][0] for h in held)
+    converged = settled and (identical or network.kind != "full")
     results = [a.finish() for a in agents]
     rows: list[dict[str, Any]] = []
     for a, e, r in zip(agents, exchangers, results, strict=True):
@@ -216,16 +260,22 @@ def run_team(
         )
         rows.append(row)
     minutes = max(end - float(times[0]), 1e-9) / 60.0
+    f1 = [float(r["map_f1"]) for r in rows if not math.isnan(float(r["map_f1"]))]
+    bound = central_map(agents, seed=cfg.seed) if central else None
     summary: dict[str, Any] = {
         "robots": rows,
         "robots_n": robots,
         "duplicate_poses": sum(h[1] for h in held),
         "identical_maps": identical,
+        "convergence_s": last_change - end if converged else None,
         "bytes_per_robot_minute": sum(sent_in_mission) / robots / minutes,
+        "map_f1_team": float(np.mean(f1)) if f1 else math.nan,
+        "map_f1_central": None if bound is None else bound.summary["map_f1"],
+        "central": None if bound is None else bound.summary,
         "settle_seconds": t - end,
         "settled": settled,
         "network": asdict(network),
         "exchange": asdict(exchange),
         "seed": seed,
     }
-    return TeamResult(summary, results, exchangers, net, [h[0] for h in held])
+    return TeamResult(summary, results, exchangers, net, [h[0] for h in held], bound)

@@ -1,0 +1,235 @@
+"""A team's exchange against its claims (issue 15): bandwidth, double counting, identical
+maps, and the team's map against the central upper bound.
+
+``--robots`` robots (3) patrol random waypoints on the office floor plan (or
+``--plan building:N``) for ``--duration`` seconds (300), every one mapping with sonars
+and stereo landmarks and exchanging over the simulated network
+(:func:`sonarmap.team.simulation.run_team`). Settings:
+
+- networks ``full``, ``limited`` (70 m range with line of sight) and ``none``; on the
+  first two each protocol: the thesis's ``good`` and ``limited`` (cap T = ``--caps``'
+  first value) and the ``naive`` baseline (every new pose to everyone); on ``none``
+  nothing is exchanged, whatever the protocol, so one run;
+- on the full network, the limited protocol as its cap T shrinks (``--caps``: 64k, 16k,
+  4k, 1k, 256 bytes);
+- the central upper bound (:func:`sonarmap.team.central.central_map`: one graph and map
+  from every pose every robot made), once: the robots' data are the same in every
+  setting.
+
+Per setting: bytes per robot-minute (message bodies sent while the robots drive) and
+their share of the naive baseline's on the same network, ``map_f1_team`` (the mean of
+the robots' global-map wall F1), duplicate poses, identical pose sets after the network
+was quiet, the seconds that took. Then the issue's targets, each ``holds`` or
+``FAILS``. Nothing here is tuned to make a target hold.
+
+Run with ``python -m benchmarks.team_exchange [--plan office] [--robots 3]
+[--duration 300] [--caps 65536 16384 4096 1024 256] [--jobs 2] [--plot FILE]
+[--json FILE]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+from benchmarks.team import _plan
+from sonarmap.team.exchange import ExchangeParams
+from sonarmap.team.mission import MissionConfig
+from sonarmap.team.network import NetworkParams
+from sonarmap.team.simulation import run_team
+
+#: The goal of the issue: the team's F1 within this of the central bound...
+F1_GAP = 0.05
+#: ...at no more than this share of the naive baseline's bytes.
+BYTES_SHARE = 0.2
+
+
+def _one(
+    plan_name: str, robots: int, duration: float, seed: int, setting: dict[str, Any]
+) -> dict[str, Any]:
+    """One team run; its summary's figures and the setting."""
+    t0 = time.perf_counter()
+    s = run_team(
+        _plan(plan_name),
+        MissionConfig(duration=duration, seed=seed),
+        robots,
+        network=NetworkParams(kind=setting["network"]),
+        exchange=ExchangeParams(mode=setting["mode"], cap_bytes=setting["cap"]),
+        seed=seed,
+        central=setting.get("central", False),
+    ).summary
+    keys = (
+        "bytes_per_robot_minute",
+        "map_f1_team",
+        "map_f1_central",
+        "central",
+        "duplicate_poses",
+        "identical_maps",
+        "convergence_s",
+        "settled",
+        "settle_seconds",
+    )
+    row = {**setting, **{k: s[k] for k in keys}}
+    row["poses_local"] = sum(r["poses_local"] for r in s["robots"])
+    row["poses_received"] = sum(r["poses_received"] for r in s["robots"])
+    row["wall_s"] = time.perf_counter() - t0
+    return row
+
+
+def settings(caps: list[int]) -> list[dict[str, Any]]:
+    """Every run, the first the one that also builds the central bound."""
+    out: list[dict[str, Any]] = []
+    for network in ("full", "limited"):
+        for mode in ("good", "limited", "naive"):
+            out.append({"network": network, "mode": mode, "cap": caps[0], "curve": False})
+    out[0]["central"] = True
+    out.append({"network": "none", "mode": "good", "cap": caps[0], "curve": False})
+    for cap in caps[1:]:
+        out.append({"network": "full", "mode": "limited", "cap": cap, "curve": True})
+    return out
+
+
+def measure(
+    plan_name: str, robots: int, duration: float, seed: int, caps: list[int], jobs: int
+) -> list[dict[str, Any]]:
+    todo = settings(caps)
+    if jobs <= 1:
+        return [_one(plan_name, robots, duration, seed, s) for s in todo]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(_one, plan_name, robots, duration, seed, s) for s in todo]
+        return [f.result() for f in futures]
+
+
+def _naive(rows: list[dict[str, Any]], network: str) -> float:
+    return next(
+        float(r["bytes_per_robot_minute"])
+        for r in rows
+        if r["network"] == network and r["mode"] == "naive" and not r["curve"]
+    )
+
+
+def targets(rows: list[dict[str, Any]], central: float) -> list[tuple[str, bool]]:
+    """The issue's targets, each with whether these rows meet it."""
+    naive = _naive(rows, "full")
+    full = [r for r in rows if r["network"] == "full"]
+    good_enough = [
+        r
+        for r in full
+        if r["map_f1_team"] >= central - F1_GAP
+        and r["bytes_per_robot_minute"] <= BYTES_SHARE * naive
+    ]
+    best = ", ".join(f"{r['mode']} T={r['cap']}" for r in good_enough) or "none"
+    limited = [r for r in full if r["mode"] == "limited"]
+    starved = ", ".join(str(r["cap"]) for r in limited if not r["identical_maps"]) or "none"
+    return [
+        (
+            "0 duplicate poses in every robot's graph in every setting",
+            all(r["duplicate_poses"] == 0 for r in rows),
+        ),
+        (
+            "identical pose sets on every robot with full connectivity, good protocol "
+            "(the thesis's claim)",
+            all(r["identical_maps"] for r in full if r["mode"] == "good"),
+        ),
+        (
+            f"the same with the limited protocol at every cap T (caps that do not: {starved})",
+            all(r["identical_maps"] for r in limited),
+        ),
+        (
+            f"team F1 within {F1_GAP} of central at <= {100 * BYTES_SHARE:.0f} % of naive's "
+            f"bytes on the full network (settings that do: {best})",
+            bool(good_enough),
+        ),
+    ]
+
+
+def _plot(rows: list[dict[str, Any]], central: float, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    curve = sorted(
+        (r for r in rows if r["network"] == "full" and r["mode"] == "limited"),
+        key=lambda r: -r["cap"],
+    )
+    naive = _naive(rows, "full")
+    fig, ax = plt.subplots(figsize=(6, 4))
+    caps = [r["cap"] for r in curve]
+    ax.plot(caps, [r["map_f1_team"] for r in curve], "o-", label="team F1 (limited protocol)")
+    ax.axhline(central, color="green", ls="--", label="central bound")
+    ax.axhline(central - F1_GAP, color="green", ls=":", label=f"central - {F1_GAP}")
+    ax.set_xscale("log")
+    ax.set_xlabel("cap T (bytes per answer)")
+    ax.set_ylabel("wall F1")
+    ax2 = ax.twinx()
+    ax2.plot(caps, [100 * r["bytes_per_robot_minute"] / naive for r in curve], "s-", color="grey")
+    ax2.axhline(100 * BYTES_SHARE, color="grey", ls=":")
+    ax2.set_ylabel("bytes, % of naive (grey)")
+    ax.legend(loc="lower right", fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--plan", default="office", help="office, or building:SEED")
+    parser.add_argument("--robots", type=int, default=3)
+    parser.add_argument("--duration", type=float, default=300.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--caps", type=int, nargs="+", default=[65536, 16384, 4096, 1024, 256])
+    parser.add_argument("--jobs", type=int, default=2, help="Runs at once (processes).")
+    parser.add_argument("--plot", help="Also draw the cap curve to this PNG.")
+    parser.add_argument("--json", help="Also write the rows to this JSON file.")
+    args = parser.parse_args()
+    if args.robots < 2:
+        raise SystemExit(f"--robots: a team needs >= 2 robots, got {args.robots}")
+    _plan(args.plan)  # a bad --plan fails before any run
+    t0 = time.perf_counter()
+    rows = measure(args.plan, args.robots, args.duration, args.seed, args.caps, args.jobs)
+    wall = time.perf_counter() - t0
+    c = rows[0]["central"]
+    central = float(rows[0]["map_f1_central"])
+    print(
+        f"team exchange, {args.plan} plan, {args.robots} robots, {args.duration:.0f} s, "
+        f"seed {args.seed}"
+    )
+    print(
+        f"central bound: map F1 {central:.3f} from {c['poses']} poses, {c['closures']} "
+        f"closures ({c['closures_correct']} correct, {c['closures_rejected_by_graph']} "
+        f"rejected by the graph), ATE {c['ate_m']:.3f} m, {c['wall_seconds']:.0f} s"
+    )
+    print("network  protocol  cap T: B/robot-min (% naive), team F1 (- central), dup, identical,")
+    print("          converged s, poses local/received, wall s")
+    for r in rows:
+        naive = _naive(rows, r["network"]) if r["network"] != "none" else math.nan
+        share = 100 * r["bytes_per_robot_minute"] / naive if naive else math.nan
+        conv = r["convergence_s"]
+        print(
+            f"{r['network']:8} {r['mode']:8} {r['cap']:6d}: {r['bytes_per_robot_minute']:9.0f} "
+            f"({share:5.1f} %), F1 {r['map_f1_team']:.3f} ({r['map_f1_team'] - central:+.3f}), "
+            f"dup {r['duplicate_poses']}, identical {r['identical_maps']}, converged "
+            f"{'never' if conv is None else f'{conv:.1f}'}, poses {r['poses_local']}/"
+            f"{r['poses_received']}, {r['wall_s']:.0f} s"
+        )
+    print("targets:")
+    for name, ok in targets(rows, central):
+        print(f"  {'holds' if ok else 'FAILS'}: {name}")
+    print(f"wall {wall:.0f} s with {args.jobs} job(s)")
+    if args.plot:
+        _plot(rows, central, args.plot)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()

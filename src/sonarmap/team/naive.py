@@ -1,0 +1,239 @@
+"""The naive baseline of the exchange (issue 15): every robot sends each new pose of its
+local layer, once, to every robot it can reach. The bandwidth figures of the thesis's
+protocols (:mod:`.exchange`) are measured against it.
+
+One kind of message, ``"pose"``: a msgpack map ``{"v": 1, "pose": bytes, "edges":
+[bytes, ...]}``, the pose and the odometry edges touching it in the sender's local layer
+as their records' own encodings (:func:`.records.encode`), so its bytes compare with the
+protocols' answers, which carry the same records. It goes through the same transport
+and network.
+
+Choices (the issue names the baseline, not its details):
+
+- **New pose**: a UID that appears in the sender's local layer (made, or made by a
+  merge), sent at the sender's first :meth:`NaiveExchanger.step` after, as stored then
+  (after pose compression: the robot keeps nothing bigger). Deletions are never sent:
+  a receiver keeps every pose it got, so its store is not bounded by the thesis's
+  limits, and its pose set differs from the source's once the source deletes or merges.
+- **Everyone** is every robot the transport can reach at that step; one it cannot reach
+  then never gets the pose (no retries, no store-and-forward), and a lost message is
+  lost for good.
+- **Receiving**: a pose already held is ignored (duplicates are impossible by
+  construction); otherwise it is associated (``on_received``) and put in its source's
+  received layer with the edges whose two poses are held.
+
+Every body is decoded strictly as :mod:`.exchange` decodes its own: a bad body is
+rejected whole, logged on ``sonarmap.team.naive`` and counted in ``stats.rejected`` by
+reason.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+
+from ..errors import ConfigError, InputError
+from .exchange import (
+    VERSION,
+    ExchangeError,
+    ExchangeParams,
+    Exchanger,
+    ExchangeStats,
+    OnReceived,
+    _default_peers,
+    _keys,
+    _list,
+    _pack,
+    _record,
+    _unpack,
+    _version,
+)
+from .records import OdometryEdge, Pose, encode, robot_of
+from .store import RobotStore
+from .transport import Message, Transport
+
+__all__ = [
+    "KIND",
+    "NaiveExchanger",
+    "decode_pose_message",
+    "encode_pose_message",
+    "make_exchanger",
+]
+
+logger = logging.getLogger("sonarmap.team.naive")
+
+#: The transport envelope's ``kind`` of the baseline's one message.
+KIND = "pose"
+
+
+def encode_pose_message(pose: Pose, edges: Sequence[OdometryEdge]) -> bytes:
+    """The body carrying ``pose`` and ``edges``."""
+    return _pack({"v": VERSION, "pose": encode(pose), "edges": [encode(e) for e in edges]})
+
+
+def decode_pose_message(
+    body: bytes, source: int, *, regions: Collection[int] | None = None
+) -> tuple[Pose, list[OdometryEdge]]:
+    """The pose and edges in ``body`` from robot ``source``.
+
+    Raises
+    ------
+    ExchangeError
+        If the body is not a valid one: bad msgpack or fields, a record that does not
+        decode, a pose or edge that is not ``source``'s, a pose outside ``regions``.
+    """
+    d = _unpack(body)
+    _keys(d, ("v", "pose", "edges"), "pose message")
+    _version(d)
+    pose: Pose = _record(d["pose"], Pose, "pose message.pose")
+    edges: list[OdometryEdge] = [
+        _record(e, OdometryEdge, f"pose message.edges[{k}]")
+        for k, e in enumerate(_list(d["edges"], "pose message.edges"))
+    ]
+    if robot_of(pose.uid) != source:
+        raise ExchangeError("inconsistent", f"pose {pose.uid} is not robot {source}'s")
+    if regions is not None and pose.region not in regions:
+        raise ExchangeError("range", f"pose {pose.uid}: region {pose.region} is not on the map")
+    for e in edges:
+        if robot_of(e.a) != source or robot_of(e.b) != source:
+            raise ExchangeError("inconsistent", f"edge {e.a} -> {e.b} is not {source}'s")
+    return pose, edges
+
+
+class NaiveExchanger:
+    """One robot's side of the naive baseline, with :class:`~.exchange.Exchanger`'s
+    interface (:meth:`step`, ``stats``, ``outstanding``).
+
+    Parameters
+    ----------
+    store : RobotStore
+        The robot's store; only its received layers and closures change.
+    transport : Transport
+    params : ExchangeParams, optional
+        Only ``mode`` is read, and must be ``"naive"``; default so.
+    adjacency : mapping of int to collection of int, optional
+        The prior map's regions: a received pose in another is rejected.
+    on_received : callable, optional
+        ``on_received(source, pose) -> closures`` for each pose before it is stored.
+    peers : callable, optional
+        ``peers() -> robot ids`` reachable now; default as the Exchanger's.
+
+    Attributes
+    ----------
+    stats : ExchangeStats
+        ``poses_sent`` counts a pose once per robot it went to.
+    """
+
+    def __init__(
+        self,
+        store: RobotStore,
+        transport: Transport,
+        params: ExchangeParams | None = None,
+        *,
+        adjacency: Mapping[int, Collection[int]] | None = None,
+        on_received: OnReceived | None = None,
+        peers: Callable[[], Iterable[int]] | None = None,
+    ) -> None:
+        if transport.robot != store.robot:
+            raise ConfigError(
+                f"exchange: the store is robot {store.robot}'s, the transport robot "
+                f"{transport.robot}'s"
+            )
+        self.params = params if params is not None else ExchangeParams(mode="naive")
+        if self.params.mode != "naive":
+            raise ConfigError(f"exchange: NaiveExchanger runs mode 'naive', not {params!r}")
+        self.store = store
+        self.transport = transport
+        self.regions = None if adjacency is None else frozenset(int(r) for r in adjacency)
+        self.on_received = on_received
+        self.stats = ExchangeStats()
+        self._peers = peers if peers is not None else _default_peers(transport)
+        self._now = -math.inf
+        self._sent: set[int] = set()
+
+    @property
+    def robot(self) -> int:
+        return self.store.robot
+
+    @property
+    def outstanding(self) -> dict[int, tuple[int, list[tuple[int, int]]]]:
+        """Always empty: the baseline never waits for an answer."""
+        return {}
+
+    def step(self, now: float, wanted_regions: Sequence[int] | None = None) -> None:
+        """Take every pose received, then send each new local pose to every reachable
+        robot. ``wanted_regions`` is ignored (the baseline sends everything)."""
+        if isinstance(now, bool) or not isinstance(now, (int, float)) or not math.isfinite(now):
+            raise InputError(f"exchange: now must be a finite time, got {now!r}", field="now")
+        if now < self._now:
+            raise InputError(f"exchange: time goes back from {self._now} to {now}", field="now")
+        self._now = float(now)
+        for msg in self.transport.poll(0.0):
+            self._handle(msg, self._now)
+        local = self.store.local
+        new = sorted(
+            (u for u in local.poses if u not in self._sent),
+            key=lambda u: (local.poses[u].time, u),
+        )
+        if not new:
+            return
+        peers = sorted(set(self._peers()) - {self.robot})
+        for uid in new:
+            self._sent.add(uid)
+            body = encode_pose_message(local.poses[uid], local.edges_of(uid))
+            for peer in peers:
+                if self._send(peer, body):
+                    self.stats.poses_sent += 1
+
+    def _send(self, dst: int, body: bytes) -> bool:
+        if not self.transport.send(dst, body, kind=KIND):
+            self.stats.refused += 1
+            return False
+        self.stats.messages_sent += 1
+        self.stats.bytes_sent += len(body)
+        return True
+
+    def _handle(self, msg: Message, now: float) -> None:
+        self.stats.messages_received += 1
+        self.stats.bytes_received += len(msg.payload)
+        try:
+            if msg.kind != KIND:
+                raise ExchangeError("kind", f"unknown kind {msg.kind!r}")
+            if msg.src == self.robot:
+                raise ExchangeError("own", "a pose message from ourselves")
+            pose, edges = decode_pose_message(msg.payload, msg.src, regions=self.regions)
+        except ExchangeError as e:
+            self.stats.rejected[e.code] += 1
+            logger.warning(
+                "robot %d rejected a %r from robot %d (%s): %s",
+                self.robot,
+                msg.kind[:16],
+                msg.src,
+                e.code,
+                e.reason,
+            )
+            return
+        self.stats.poses_received += 1
+        layer = self.store.received.get(msg.src)
+        if layer is not None and pose.uid in layer.poses:
+            return
+        closures = [] if self.on_received is None else list(self.on_received(msg.src, pose))
+        held = ({pose.uid} if layer is None else set(layer.poses)) | {pose.uid}
+        keep = [e for e in edges if e.a in held and e.b in held]
+        self.store.add_received_pose(msg.src, pose, keep, closures, now)
+        self.stats.poses_added += 1
+
+
+def make_exchanger(
+    store: RobotStore,
+    transport: Transport,
+    params: ExchangeParams,
+    *,
+    adjacency: Mapping[int, Collection[int]] | None = None,
+    on_received: OnReceived | None = None,
+    peers: Callable[[], Iterable[int]] | None = None,
+) -> Exchanger | NaiveExchanger:
+    """The exchanger ``params.mode`` names: the thesis's protocols or the baseline."""
+    kind = NaiveExchanger if params.mode == "naive" else Exchanger
+    return kind(store, transport, params, adjacency=adjacency, on_received=on_received, peers=peers)

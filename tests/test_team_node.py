@@ -1,0 +1,284 @@
+"""A team over ZeroMQ: one process per robot on loopback, against the simulated team."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import pytest
+
+from sonarmap.cli import main
+from sonarmap.errors import ConfigError
+from sonarmap.io.rosmap import OccupancyMap, write_map
+from sonarmap.scenarios import office
+from sonarmap.sensors import Noise
+from sonarmap.team.exchange import ExchangeParams
+from sonarmap.team.mission import MissionConfig
+from sonarmap.team.network import NetworkParams
+from sonarmap.team.node import (
+    LockstepParams,
+    ZmqTeamResult,
+    _Link,
+    parse_exchange,
+    parse_peers,
+    run_zmq_team,
+    store_digest,
+)
+from sonarmap.team.simulation import TeamResult, run_team
+from sonarmap.team.store import StoreParams
+from sonarmap.team.transport import ZmqTransport
+
+#: Summary keys measured on the wall clock: they differ between identical runs.
+WALL = {"wall_seconds", "association_ms_median", "association_ms_p99", "global_map_batch_s"}
+#: 20 s of mission with regions of two poses: every robot compresses, so its own store
+#: depends on what it received and when.
+CONFIG = MissionConfig(duration=20.0, seed=1, store=StoreParams(region_limit=32_768))
+
+
+@pytest.fixture(scope="module")
+def plan() -> OccupancyMap:
+    return office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+
+
+@pytest.fixture(scope="module")
+def simulated(plan: OccupancyMap) -> TeamResult:
+    return run_team(
+        plan, CONFIG, 3, network=NetworkParams(kind="full"), exchange=ExchangeParams(), seed=3
+    )
+
+
+#: The tick (of 40 on the routes, then about 28 quiet ones) robot 1 is killed after.
+KILL_AT = 25
+
+
+def _tick_of(state: Path) -> int:
+    """The tick a node's checkpoint resumes at (-1 if none yet)."""
+    try:
+        return int(msgpack.unpackb(state.read_bytes())["clock"]["next"])
+    except FileNotFoundError:
+        return -1
+
+
+@pytest.fixture(scope="module")
+def killed(plan: OccupancyMap, tmp_path_factory: pytest.TempPathFactory) -> ZmqTeamResult:
+    """Three node processes; robot 1 is killed (SIGKILL) once it has checkpointed, and
+    the launcher starts it again on its state."""
+    folder = tmp_path_factory.mktemp("zmq")
+    out: dict[str, Any] = {}
+
+    def team() -> None:
+        try:
+            out["result"] = run_zmq_team(
+                plan,
+                CONFIG,
+                3,
+                exchange=ExchangeParams(),
+                seed=3,
+                folder=folder,
+                timing=LockstepParams(checkpoint_every=0.2, wait_timeout=240.0),
+                timeout=400.0,
+            )
+        except Exception as e:  # handed to the test thread
+            out["error"] = e
+
+    runner = threading.Thread(target=team)
+    runner.start()
+    state = folder / "robot1.state" / "state.msgpack"
+    deadline = time.monotonic() + 300.0
+    while _tick_of(state) < KILL_AT and runner.is_alive() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    if runner.is_alive():
+        os.kill(int((folder / "robot1.pid").read_text()), signal.SIGKILL)
+    runner.join()
+    if "error" in out:
+        raise out["error"]
+    result: ZmqTeamResult = out["result"]
+    return result
+
+
+def test_zmq_team_gives_the_simulated_teams_results(
+    killed: ZmqTeamResult, simulated: TeamResult
+) -> None:
+    z, s = killed.summary, simulated.summary
+    assert killed.held == simulated.held
+    assert z["store_digests"] == [store_digest(r.store) for r in simulated.robots]
+    for zr, sr in zip(z["robots"], s["robots"], strict=True):
+        assert {k: v for k, v in zr.items() if k not in WALL} == {
+            k: v for k, v in sr.items() if k not in WALL and k in zr
+        }
+    for key in ("duplicate_poses", "identical_maps", "settle_seconds", "settled"):
+        assert z[key] == s[key], key
+    assert z["bytes_per_robot_minute"] == pytest.approx(s["bytes_per_robot_minute"])
+    # Compression ran, so the stores depended on the exchange's timing.
+    assert any(r["poses_local"] < r["poses_made"] for r in z["robots"])
+
+
+def test_a_killed_node_resumes_without_losing_or_duplicating_poses(
+    killed: ZmqTeamResult, simulated: TeamResult
+) -> None:
+    assert killed.summary["restarts"] == [0, 1, 0]
+    assert killed.summary["duplicate_poses"] == 0
+    assert killed.summary["identical_maps"] is True
+    # Every robot holds every own pose of every robot: none lost, none twice.
+    own = set().union(*(r.store.local.poses for r in simulated.robots))
+    assert all(h == own for h in killed.held)
+    log = (killed.folder / "robot1.log").read_text()
+    resumed = int(log.split("resumes at tick ")[1].split()[0])
+    assert KILL_AT <= resumed < killed.nodes[1]["ticks"]
+
+
+def _link(robot: int) -> tuple[_Link, ZmqTransport]:
+    peer_t = ZmqTransport(1 - robot, "tcp://127.0.0.1:0")
+    t = ZmqTransport(robot, "tcp://127.0.0.1:0", {1 - robot: peer_t.address})
+    peer_t.connect(robot, t.address)
+    return _Link(t, [1 - robot], LockstepParams()), peer_t
+
+
+def _pump_until(link: _Link, test: Any) -> None:
+    deadline = time.monotonic() + 30.0
+    while not test() and time.monotonic() < deadline:
+        link.pump(0.05)
+
+
+def _send(peer: ZmqTransport, dst: int, body: bytes, kind: str) -> None:
+    deadline = time.monotonic() + 30.0
+    while not peer.send(dst, body, kind) and time.monotonic() < deadline:
+        time.sleep(0.02)
+
+
+def test_bad_frames_are_rejected_and_logged_and_good_ones_still_taken(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    link, peer = _link(0)
+    try:
+        bad = [
+            (b"\x93\x01", "lock"),  # truncated msgpack
+            (msgpack.packb({"q": 0, "t": 0, "k": "advert"}), "lock"),  # a key missing
+            (msgpack.packb({"q": -1, "t": 0, "k": "advert", "b": b""}), "lock"),
+            (msgpack.packb({"q": 0, "t": 0, "k": "nonsense", "b": b""}), "lock"),
+            (msgpack.packb({"q": 0, "t": 0, "k": "done", "b": b"junk"}), "lock"),
+            (msgpack.packb({"q": 10**9, "t": 0, "k": "advert", "b": b""}), "lock"),
+            (msgpack.packb({"next": "x", "ack": 0}), "hello"),
+            (b"", "gossip"),
+        ]
+        with caplog.at_level(logging.WARNING, logger="sonarmap.team.node"):
+            for body, kind in bad:
+                _send(peer, 0, bytes(body), kind)
+            _pump_until(link, lambda: link.rejected >= len(bad))
+        assert link.rejected == len(bad)
+        assert sum("rejected a frame from robot 1" in r.message for r in caplog.records) == 8
+        # Nothing was taken, and the next good frame is.
+        assert link.next_q[1] == 0
+        good = msgpack.packb({"q": 0, "t": 0, "k": "advert", "b": b"x"})
+        _send(peer, 0, bytes(good), "lock")
+        _pump_until(link, lambda: link.next_q[1] == 1)
+        assert [f.body for f in link.inbox[1]] == [b"x"]
+    finally:
+        link.zmq.close()
+        peer.close()
+
+
+def test_frames_out_of_order_or_twice_are_taken_once_in_order() -> None:
+    link, peer = _link(1)
+    try:
+        frames = [(2, "request"), (0, "advert"), (0, "advert"), (1, "done"), (2, "request")]
+        for q, k in frames:
+            body = b"" if k != "done" else msgpack.packb({"ch": 3, "out": False, "ack": 0})
+            _send(peer, 1, bytes(msgpack.packb({"q": q, "t": 4, "k": k, "b": body})), "lock")
+        _pump_until(link, lambda: link.next_q[0] == 3)
+        assert [f.q for f in link.inbox[0]] == [0, 2]
+        assert link.done[0] == 4
+        assert link.markers[0][4] == (3, False)
+    finally:
+        link.zmq.close()
+        peer.close()
+
+
+def _node_cli(plan_yaml: Path, out: Path, *args: str) -> list[str]:
+    return [
+        "team",
+        "node",
+        "--map",
+        str(plan_yaml),
+        "--duration",
+        "5",
+        "-o",
+        str(out),
+        *args,
+    ]
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["--id", "0", "--listen", "udp://127.0.0.1:5"], "not a tcp://HOST:PORT address"),
+        (["--id", "0", "--listen", "tcp://192.0.2.1:5555"], "cannot listen on"),
+        (
+            ["--id", "0", "--listen", "tcp://127.0.0.1:0", "--peers", "1=tcp://127.0.0.1"],
+            "not a tcp://HOST:PORT address",
+        ),
+        (["--id", "0", "--listen", "tcp://127.0.0.1:0", "--peers", "2=tcp://a:1"], "0..N-1"),
+    ],
+)
+def test_a_bad_address_fails_with_one_line(
+    plan: OccupancyMap,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    args: list[str],
+    expected: str,
+) -> None:
+    write_map(plan, tmp_path / "plan")
+    with pytest.raises(SystemExit) as e:
+        main(_node_cli(tmp_path / "plan.yaml", tmp_path / "out", *args))
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert expected in err
+
+
+def test_an_unreachable_peer_fails_with_one_line(
+    plan: OccupancyMap, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    write_map(plan, tmp_path / "plan")
+    silent = ZmqTransport(5, "tcp://127.0.0.1:0")  # a port nobody answers on
+    address = silent.address
+    silent.close()
+    args = ["--id", "1", "--listen", "tcp://127.0.0.1:0", "--peers", f"0={address}"]
+    with pytest.raises(SystemExit) as e:
+        main(_node_cli(tmp_path / "plan.yaml", tmp_path / "out", *args, "--wait-timeout", "1"))
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "peer robot 0" in err
+    assert "sent nothing for 1 s" in err
+    assert not (tmp_path / "out" / "summary.json").exists()
+
+
+def test_peers_and_exchange_options() -> None:
+    assert parse_peers("tcp://a:1,tcp://b:2", 1) == {0: "tcp://a:1", 2: "tcp://b:2"}
+    assert parse_peers("2=tcp://b:2, 0=tcp://a:1", 1) == {2: "tcp://b:2", 0: "tcp://a:1"}
+    with pytest.raises(ConfigError, match="twice"):
+        parse_peers("0=tcp://a:1,0=tcp://b:2", 1)
+    with pytest.raises(ConfigError, match="ID=ADDRESS"):
+        parse_peers("0=tcp://a:1,tcp://b:2", 1)
+    ex = parse_exchange(["mode=limited", "cap_bytes=1000", "advert_every=2.5"])
+    assert (ex.mode, ex.cap_bytes, ex.advert_every) == ("limited", 1000, 2.5)
+    with pytest.raises(ConfigError, match="KEY=VALUE"):
+        parse_exchange(["speed=3"])
+    with pytest.raises(ConfigError, match="int expected"):
+        parse_exchange(["cap_bytes=lots"])
+    with pytest.raises(ConfigError, match="zmq transport runs good and limited"):
+        parse_exchange(["mode=naive"])
+
+
+def test_the_launcher_refuses_a_simulated_network(plan: OccupancyMap) -> None:
+    with pytest.raises(ConfigError, match="real network"):
+        run_zmq_team(plan, CONFIG, 2, network=NetworkParams(kind="full", loss=0.1))
+    with pytest.raises(ConfigError, match="duration, seed, pose_limit"):
+        run_zmq_team(plan, MissionConfig(duration=5.0, batch=3), 2)

@@ -1,0 +1,151 @@
+"""``sonarmap team run`` with a team (exchange, central bound, patrol routes), the naive
+baseline and the patroller's routes (short runs)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonarmap.cli import main
+from sonarmap.io.rosmap import OccupancyMap, write_map
+from sonarmap.patrol.simulation import random_starts, run_patrol
+from sonarmap.patrol.territory import Territory
+from sonarmap.scenarios import office
+from sonarmap.sensors import Noise
+from sonarmap.team.exchange import ExchangeError, ExchangeParams
+from sonarmap.team.mission import MissionConfig
+from sonarmap.team.naive import decode_pose_message, encode_pose_message
+from sonarmap.team.network import NetworkParams
+from sonarmap.team.patrolling import patrol_config, patrol_routes
+from sonarmap.team.records import Landmarks, Pose, encode, make_uid
+from sonarmap.team.simulation import TeamResult, run_team
+
+
+@pytest.fixture(scope="module")
+def plan() -> OccupancyMap:
+    return office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+
+
+def test_a_patrolling_team_run_writes_the_team_summary(tmp_path: Path, plan: OccupancyMap) -> None:
+    write_map(plan, tmp_path / "plan")
+    out = tmp_path / "out"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--robots", "2",
+          "--duration", "30", "--patrol", "-o", str(out)])  # fmt: skip
+    s = json.loads((out / "summary.json").read_text())
+    assert s["robots_n"] == 2
+    assert s["duplicate_poses"] == 0
+    assert s["identical_maps"] is True  # full network, good protocol by default
+    assert s["exchange"]["mode"] == "good"
+    assert s["convergence_s"] is not None
+    assert s["convergence_s"] >= 0
+    assert s["bytes_per_robot_minute"] > 0
+    assert 0 < s["map_f1_central"] <= 1
+    assert s["map_f1_team"] == pytest.approx(np.mean([r["map_f1"] for r in s["robots"]]))
+    for key in ("ate_m", "map_f1", "association_precision"):
+        assert key in s
+    for row in s["robots"]:
+        for key in ("bytes_sent", "bytes_received", "messages", "poses_local", "poses_received"):
+            assert row[key] > 0
+    for name in ("team.png", "map_central.yaml", "map_robot1.yaml", "graph_robot0.png"):
+        assert (out / name).stat().st_size > 0
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--robots", "0"], "--robots"),
+        (["--loss", "1.5"], "--loss"),
+        (["--network", "mesh"], "--network"),
+        (["--exchange", "gossip"], "--exchange"),
+        (["--cap", "0"], "--cap"),
+        (["--bandwidth", "-1"], "--bandwidth"),
+        (["--transport", "pigeon"], "--transport"),
+        (["--patrol", "--route", "r.csv"], "--patrol"),
+    ],
+)
+def test_bad_team_options_are_one_line_and_exit_2(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str
+) -> None:
+    with pytest.raises(SystemExit) as e:
+        main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--robots", "2",
+              "--duration", "20", *args, "-o", str(tmp_path / "out")])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2
+    assert message in err
+    assert len(err.splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
+def test_patrol_routes_follow_the_patrollers_trajectories(plan: OccupancyMap) -> None:
+    routes, _ = patrol_routes(plan, 2, 30.0, seed=4)
+    cfg = patrol_config(30.0)
+    territory = Territory.from_map(plan, cell=cfg.cell)
+    starts = random_starts(2, territory, territory.passable(cfg.radius), cfg.min_separation, 4)
+    seen: list[np.ndarray] = []
+    run_patrol(
+        territory,
+        cfg,
+        starts=starts,
+        seed=4,
+        on_step=lambda t, team, fog: seen.append(np.column_stack([team.x, team.y])),
+    )
+    free = plan.classes() == 0
+    for i, r in enumerate(routes):
+        assert r.shape == (61, 4)
+        np.testing.assert_allclose(r[:, 0], np.arange(61) * 0.5)
+        np.testing.assert_array_equal(r[0, 1:3], starts[i, :2])
+        np.testing.assert_array_equal(r[1:, 1:3], np.array([s[i] for s in seen]))
+        rows, cols = plan.grid.world_to_cell(r[:, 1], r[:, 2])
+        assert free[rows, cols].all()
+        # The heading is that of the last move.
+        d = np.diff(r[:, 1:3], axis=0)
+        moved = np.hypot(d[:, 0], d[:, 1]) > 0
+        assert moved.sum() > 10
+        np.testing.assert_allclose(
+            r[1:, 3][moved], np.arctan2(d[moved, 1], d[moved, 0]), atol=1e-12
+        )
+
+
+def _team(plan: OccupancyMap, exchange: ExchangeParams, routes: list[np.ndarray]) -> TeamResult:
+    return run_team(
+        plan,
+        MissionConfig(duration=20.0, seed=1),
+        2,
+        network=NetworkParams(kind="full"),
+        exchange=exchange,
+        seed=3,
+        routes=routes,
+    )
+
+
+def test_the_naive_baseline_sends_every_new_pose_to_everyone(plan: OccupancyMap) -> None:
+    routes, _ = patrol_routes(plan, 2, 20.0, seed=1)
+    naive = _team(plan, ExchangeParams(mode="naive"), routes)
+    for i, (r, e) in enumerate(zip(naive.robots, naive.exchangers, strict=True)):
+        # The robots drove the routes given.
+        on_route = {tuple(p) for p in routes[i][:, 1:3].tolist()}
+        assert {tuple(t[:2].tolist()) for t in r.truth.values()} <= on_route
+        other = naive.robots[1 - i].store.received[i].poses
+        assert set(other) >= set(r.store.local.poses)
+        # One message per pose and peer, nothing else, each the pose's whole record.
+        assert len(other) == e.stats.poses_sent == e.stats.messages_sent
+        assert len(other) >= len(r.store.local.poses)
+        assert e.stats.bytes_sent >= sum(len(encode(p)) for p in other.values())
+    assert naive.summary["duplicate_poses"] == 0
+
+
+def test_naive_messages_are_checked_whole() -> None:
+    lm = Landmarks.empty(8)
+    pose = Pose(make_uid(1, 0), 0.0, 0, np.zeros(3), lm)
+    body = encode_pose_message(pose, [])
+    assert decode_pose_message(body, 1)[0].uid == pose.uid
+    with pytest.raises(ExchangeError, match="not robot 2's"):
+        decode_pose_message(body, 2)
+    with pytest.raises(ExchangeError) as e:
+        decode_pose_message(body[:-3], 1)
+    assert e.value.code == "truncated"
+    with pytest.raises(ExchangeError, match="region"):
+        decode_pose_message(body, 1, regions={5})
