@@ -18,6 +18,7 @@ import pytest
 from sonarmap.errors import ConfigError, InputError
 from sonarmap.grid import Grid
 from sonarmap.team.exchange import (
+    VERSION,
     Advert,
     AdvertEntry,
     Answer,
@@ -40,6 +41,7 @@ from sonarmap.team.records import (
     OdometryEdge,
     Pose,
     compose,
+    decode,
     encode,
     invert,
     make_uid,
@@ -634,7 +636,17 @@ def _good_entry(b: RobotStore, ks: Sequence[int], region: int = 0) -> dict[str, 
 
 
 def _answer(rid: int, *rows: dict[str, Any], **top: Any) -> bytes:
-    return _pack({"v": 1, "id": rid, "mode": "good", "patches": list(rows), **top})
+    return _pack({"v": VERSION, "id": rid, "mode": "good", "patches": list(rows), **top})
+
+
+def _request_body(drop: Sequence[str] = (), **changes: Any) -> bytes:
+    """A good request for robot 2's region 0 with its one patch's fields changed, and
+    those named in ``drop`` left out."""
+    d = msgpack.unpackb(
+        encode_request(Request(0, "good", (PatchRequest(2, 0, None, frozenset()),)))
+    )
+    row = {k: v for k, v in {**d["patches"][0], **changes}.items() if k not in drop}
+    return _pack({**d, "patches": [row]})
 
 
 def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
@@ -648,9 +660,9 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
         "truncated": ("answer", good[:-40], "truncated"),
         "trailing": ("answer", good + b"\x00", "trailing"),
         "not a map": ("answer", _pack([1, 2, 3]), "not_map"),
-        "missing key": ("answer", _pack({"v": 1, "id": rid, "mode": "good"}), "keys"),
+        "missing key": ("answer", _pack({"v": VERSION, "id": rid, "mode": "good"}), "keys"),
         "extra key": ("answer", _answer(rid, entry, pickle=b"cos\nsystem"), "keys"),
-        "version": ("answer", _answer(rid, entry, v=2), "version"),
+        "version": ("answer", _answer(rid, entry, v=VERSION + 1), "version"),
         "id as str": ("answer", _answer(rid, entry, id=str(rid)), "type"),
         "stamp as int": ("answer", _answer(rid, {**entry, "s": 2}), "type"),
         "stamp nan": ("answer", _answer(rid, {**entry, "s": math.nan}), "range"),
@@ -700,12 +712,20 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
             ),
             "own",
         ),
-        "advert row short": ("advert", _pack({"v": 1, "patches": [[1, 0, 2.0]]}), "type"),
-        "advert stamp inf": ("advert", _pack({"v": 1, "patches": [[1, 0, math.inf, 1]]}), "range"),
-        "advert twice": ("advert", _pack({"v": 1, "patches": [[1, 0, 1.0, 1]] * 2}), "duplicate"),
+        "advert row short": ("advert", _pack({"v": VERSION, "patches": [[1, 0, 2.0]]}), "type"),
+        "advert stamp inf": (
+            "advert",
+            _pack({"v": VERSION, "patches": [[1, 0, math.inf, 1]]}),
+            "range",
+        ),
+        "advert twice": (
+            "advert",
+            _pack({"v": VERSION, "patches": [[1, 0, 1.0, 1]] * 2}),
+            "duplicate",
+        ),
         "request no patches": (
             "request",
-            _pack({"v": 1, "id": 0, "mode": "good", "patches": []}),
+            _pack({"v": VERSION, "id": 0, "mode": "good", "patches": []}),
             "range",
         ),
         "request full in good": (
@@ -727,6 +747,9 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
             ),
             "mode",
         ),
+        "request digest short": ("request", _request_body(e=b"\x00" * 7), "range"),
+        "request digest as str": ("request", _request_body(e="0" * 8), "type"),
+        "request without digest": ("request", _request_body(drop=("e",)), "keys"),
         "unknown kind": ("gossip", good, "kind"),
     }
 
@@ -790,6 +813,86 @@ def test_an_answer_older_than_the_patch_is_not_applied(
     assert not ex.stats.rejected
     assert snapshot(a) == before
     assert not ex.outstanding
+
+
+# --- what answers carry, and when patches are asked for -----------------------------------
+
+
+def _answer_rows(bodies: Sequence[bytes]) -> list[dict[str, Any]]:
+    return [row for body in bodies for row in msgpack.unpackb(body, raw=False)["patches"]]
+
+
+@pytest.mark.parametrize("mode", ["good", "limited"])
+def test_answers_do_not_repeat_the_edges_the_requester_holds(mode: str) -> None:
+    a, b = own_store(0, [0]), own_store(1, [0, 0, 0, 0])
+    team = Team([a, b], mode=mode, cap_bytes=10**6)
+    team.run(6)
+    assert converged(team)
+    answers = record_sends(team.transports[1])
+    new = add_own(b, 4, 0, team.hub.now)
+    team.run(4)
+    assert converged(team)
+    rows = [r for r in _answer_rows(answers) if r["poses"]]
+    assert len(rows) == 1
+    # Only the new pose's edge, not the patch's four.
+    (edge,) = [decode(e) for e in rows[0]["edges"]]
+    assert isinstance(edge, OdometryEdge)
+    assert edge.b == new.uid
+    assert {(e.a, e.b) for e in a.received[1].edges} == {(e.a, e.b) for e in b.local.edges}
+
+
+@pytest.mark.parametrize("regions", [[0, 0, 0, 0], [0, 1, 2, 2]], ids=["one", "three"])
+def test_a_chaining_edge_reaches_a_requester_holding_both_ends(regions: list[int]) -> None:
+    a, b = own_store(0, [3]), own_store(1, regions)
+    team = Team([a, b])
+    team.run(6)
+    assert converged(team)
+    first, gone, last = make_uid(1, 0), make_uid(1, 1), make_uid(1, 2)
+    b.delete_pose(gone, team.hub.now)  # chains first -> last, maybe across regions
+    assert any((e.a, e.b) == (first, last) for e in b.local.edges)
+    answers = record_sends(team.transports[1])
+    team.run(6)
+    assert converged(team)
+    assert {(e.a, e.b) for e in a.received[1].edges} == {(e.a, e.b) for e in b.local.edges}
+    assert all(not r["poses"] for r in _answer_rows(answers))  # edges came without poses
+    check_consistent(a)
+
+
+def test_refresh_delays_patches_not_wanted_and_the_quiet_network_converges() -> None:
+    a, b = own_store(0, [0]), own_store(1, [1, 2])
+    team = Team([a, b], refresh=20.0)
+    team.run(4, wanted=[0])
+    assert converged(team)  # never asked for: at once
+    asked: dict[int, int] = defaultdict(int)
+    requests = record_sends(team.transports[0], ("request",))
+    for k in range(10):  # B maps regions 1 and 2, one pose a second in each
+        add_own(b, 10 + 2 * k, 1, team.hub.now)
+        add_own(b, 11 + 2 * k, 2, team.hub.now)
+        team.run(2, wanted=[0, 2])  # A heads for region 2, not 1
+    for body in requests:
+        for p in decode_request(body).patches:
+            asked[p.region] += 1
+    assert asked[1] <= 1  # once per refresh at most
+    assert asked[2] >= 8  # wanted: each time it is newer
+    assert uids(a.received[1]) != uids(b.local)
+    team.run(4)  # no plan any more (None): everything newer at once
+    assert converged(team)
+    check_consistent(a)
+
+
+def test_limited_mode_below_one_pose_stops_asking_and_sends_no_edges() -> None:
+    a, b = own_store(0, [0]), own_store(1, [0, 0, 1, 1])
+    team = Team([a, b], mode="limited", cap_bytes=16, backoff=30.0)
+    answers = record_sends(team.transports[1])
+    team.run(10)
+    first = team.ex[0].stats.requests_sent
+    assert not a.received.get(1) or not a.received[1].poses  # nothing fits under T
+    assert a.received[1].patches[0].full == b.local.patches[0].short  # but the lists came
+    team.run(40)  # 20 s: neither side changes, so nobody asks again
+    assert team.ex[0].stats.requests_sent == first <= 4
+    assert all(not r["poses"] and not r["edges"] for r in _answer_rows(answers))
+    team.run(30)  # after the backoff, asked again once
+    assert first < team.ex[0].stats.requests_sent <= first + 2
 
 
 # --- losses and vanishing peers -----------------------------------------------------------

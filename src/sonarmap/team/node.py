@@ -697,6 +697,8 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "timed_out": sorted([list(k) for k in e._timed_out]),
         "futile": [[list(k), _futile_entry(v[0]), *v[1:]] for k, v in e._futile.items()],
         "handed": [[r, s, sorted(u)] for r, (s, u) in e._handed.items()],
+        "fetched": [[k[0], k[1], t] for k, t in e._fetched.items()],
+        "starved": [[k[0], k[1], t] for k, t in e._starved.items()],
         "next_id": e._next_id,
         "stats": stats,
         "rejected": dict(e.stats.rejected),
@@ -720,6 +722,9 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
         key = (int(k[0]), int(k[1]), int(k[2]))
         e._futile[key] = (_entry_from(entry), *rest)
     e._handed = {int(r): (float(s), frozenset(int(u) for u in us)) for r, s, us in d["handed"]}
+    # A state saved before the refresh policy has neither: nothing fetched, nothing starved.
+    e._fetched = {(int(a), int(b)): float(t) for a, b, t in d.get("fetched", [])}
+    e._starved = {(int(a), int(b)): float(t) for a, b, t in d.get("starved", [])}
     e._next_id = int(d["next_id"])
     for name, v in d["stats"].items():
         setattr(e.stats, name, v)

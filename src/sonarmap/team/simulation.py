@@ -17,7 +17,9 @@ Choices where the thesis is silent:
   in robot order.
 - **Wanted regions.** A robot asks first for the patches of the regions its route
   visits in the next ``lookahead`` seconds (30), in the order of their first visit:
-  the patroller knows its next moves (thesis l.1863-1872).
+  the patroller knows its next moves (thesis l.1863-1872). Those it asks for as soon
+  as a peer has them newer, the others at most every ``exchange.refresh`` seconds;
+  in the quiet phase (no route, no wanted regions) every newer patch at once.
 - **Quiet network.** After the routes end, the robots stand still and keep exchanging
   until no exchanger has added or deleted a pose for ``quiet`` seconds (default two
   adverts and two request rounds) and none awaits an answer, or ``settle`` seconds

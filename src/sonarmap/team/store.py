@@ -834,8 +834,9 @@ class RobotStore:
 
     def delete_pose(self, uid: int, now: float) -> set[int]:
         """Delete a local pose (region compression). Its odometry neighbours, ordered by
-        time, are chained by edges composed through it, so the graph stays connected;
-        its closures go. Returns the regions whose edges changed."""
+        time, are chained by edges composed through it, so the graph stays connected,
+        and the patches of their ends are stamped ``now`` (they changed); its closures
+        go. Returns the regions whose edges changed."""
         layer = self.local
         links: dict[int, tuple[Transform, F64, float, float]] = {}
         for e in layer.edges_of(uid):
@@ -862,6 +863,10 @@ class RobotStore:
                     n1, n2, _tf(compose(back, t2)), _cov_tuple(cov), d1 + d2, min(math.pi, a1 + a2)
                 )
             )
+            # The patches of both ends changed (a new edge): their new stamps tell the
+            # holders to ask again, and the edge reaches them with the answer.
+            for n in (n1, n2):
+                layer.patch(layer.poses[n].region).stamp = now
             touched.add(layer.poses[n2].region)
         return touched
 
