@@ -72,6 +72,7 @@ def _one(
         "central",
         "duplicate_poses",
         "identical_maps",
+        "map_agreement",
         "convergence_s",
         "settled",
         "settle_seconds",
@@ -216,7 +217,8 @@ def main() -> None:
         print(
             f"{r['network']:8} {r['mode']:8} {r['cap']:6d}: {r['bytes_per_robot_minute']:9.0f} "
             f"({share:5.1f} %), F1 {r['map_f1_team']:.3f} ({r['map_f1_team'] - central:+.3f}), "
-            f"dup {r['duplicate_poses']}, identical {r['identical_maps']}, converged "
+            f"dup {r['duplicate_poses']}, identical {r['identical_maps']} (maps agree on "
+            f"{100 * r['map_agreement']:.1f} %), converged "
             f"{'never' if conv is None else f'{conv:.1f}'}, poses {r['poses_local']}/"
             f"{r['poses_received']}, {r['wall_s']:.0f} s"
         )

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import pytest
 
 from sonarmap.io.rosmap import OccupancyMap
@@ -13,7 +14,7 @@ from sonarmap.sensors import Noise
 from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams
-from sonarmap.team.simulation import TeamResult, held_uids, run_team
+from sonarmap.team.simulation import TeamResult, held_uids, map_agreement, run_team
 
 #: Summary keys measured on the wall clock: they differ between identical runs.
 WALL = {"wall_seconds", "association_ms_median", "association_ms_p99", "global_map_batch_s"}
@@ -55,6 +56,8 @@ def test_a_full_network_gives_every_robot_every_local_store(full: TeamResult) ->
                 assert set(a.received[j].poses) == set(b.local.poses)
     assert s["duplicate_poses"] == 0
     assert s["identical_maps"] is True
+    # The same poses, closures found apart: the maps agree on nearly every known cell.
+    assert 0.9 <= s["map_agreement"] <= 1.0
     assert s["settled"] is True
     assert s["bytes_per_robot_minute"] > 0
     rows = s["robots"]
@@ -91,6 +94,18 @@ def test_no_network_exchanges_nothing(plan: OccupancyMap) -> None:
     assert s["bytes_per_robot_minute"] == 0
     assert s["duplicate_poses"] == 0
     assert s["identical_maps"] is False
+    # Each robot mapped only its own route.
+    assert s["map_agreement"] < 0.9
+
+
+def test_map_agreement_counts_known_cells_only(plan: OccupancyMap) -> None:
+    unknown = OccupancyMap(plan.grid, np.full_like(plan.occupancy, np.nan))
+    assert map_agreement([plan, plan]) == 1.0
+    assert map_agreement([plan]) == 1.0
+    assert map_agreement([plan, unknown]) == 0.0
+    flipped = OccupancyMap(plan.grid, np.where(plan.classes() == 1, 0.0, plan.occupancy))
+    share = np.mean(plan.classes()[plan.classes() >= 0] == 0)
+    assert map_agreement([plan, flipped, plan]) == pytest.approx(share)
 
 
 def test_a_team_is_deterministic(plan: OccupancyMap) -> None:

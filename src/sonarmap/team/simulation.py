@@ -24,7 +24,10 @@ Choices where the thesis is silent:
   until no exchanger has added or deleted a pose for ``quiet`` seconds (default two
   adverts and two request rounds) and none awaits an answer, or ``settle`` seconds
   (120) have passed. ``identical_maps`` is judged then: do all robots hold the same
-  pose UIDs (own and received layers together).
+  pose UIDs (own and received layers together). The global maps built from them still
+  differ a little, since each robot found its own closures (the closure store is never
+  exchanged): ``map_agreement`` is the least, over pairs of robots, share of cells
+  known in either map that both maps give the same class (free, occupied, unknown).
 - **Convergence** (``convergence_s``): seconds from the end of the routes to the last
   pose added or deleted, once the network was quiet and, when every pair of robots is
   linked (``full``), every robot held every pose (``identical_maps``); None (JSON
@@ -63,7 +66,7 @@ from .store import RobotStore
 from .transport import SimHub
 from .world import World, make_world
 
-__all__ = ["TeamResult", "held_uids", "run_team"]
+__all__ = ["TeamResult", "held_uids", "map_agreement", "run_team"]
 
 F64 = npt.NDArray[np.float64]
 Progress = Callable[[int, int], None]
@@ -112,6 +115,21 @@ def held_uids(store: RobotStore) -> tuple[set[int], int]:
                 twice += 1
             seen.add(uid)
     return seen, twice
+
+
+def map_agreement(maps: Sequence[OccupancyMap]) -> float:
+    """The least, over pairs of maps on one grid, share of the cells known (free or
+    occupied) in either map that both give the same class; 1.0 for fewer than two maps
+    or when no cell is known."""
+    classes = [m.classes() for m in maps]
+    worst = 1.0
+    for i in range(len(classes)):
+        for j in range(i + 1, len(classes)):
+            a, b = classes[i], classes[j]
+            known = (a >= 0) | (b >= 0)
+            if known.any():
+                worst = min(worst, float(np.mean(a[known] == b[known])))
+    return worst
 
 
 def _changes(exchangers: list[Exchanger | NaiveExchanger]) -> int:
@@ -269,6 +287,7 @@ def run_team(
         "robots_n": robots,
         "duplicate_poses": sum(h[1] for h in held),
         "identical_maps": identical,
+        "map_agreement": map_agreement([r.global_map for r in results]),
         "convergence_s": last_change - end if converged else None,
         "bytes_per_robot_minute": sum(sent_in_mission) / robots / minutes,
         "map_f1_team": float(np.mean(f1)) if f1 else math.nan,
