@@ -10,10 +10,17 @@ R2 is the tent ``c2 (0.5 - |x - 0.5|)`` on [0, 1] (thesis 000), or, for reproduc
 paper 001 and thesis 002 as printed, ``c2 |x - 0.5|`` on [0, 1] (``r2="abs"``), which
 pulls towards 0.5 instead of away from it. Derivatives at the kinks (X0, 0, 0.5, 1) are
 0 by convention.
+
+Robust form (``GradientMapper(robust=tau)``): every term t carries a weight v_t (1 in the
+plain model), so ``S_v(x) = sum_t v_t P_t(X_t) + R``. The weights are re-estimated from
+residuals, as in iteratively reweighted least squares, with the saturating penalty
+``rho(r) = tau r / (tau + r)`` (bounded by tau) and its weight ``v = rho'(r) =
+tau^2 / (tau + r)^2``; see :func:`robust_weights` for the residuals.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,6 +72,10 @@ class ForwardProblem:
     is_occ: npt.NDArray[np.bool_]
     cells: npt.NDArray[np.int64]
     pen: Penalties
+    #: Per-term weight v_t (None: every term weighs 1, the plain model).
+    v: F64 | None = None
+    #: Index of each term's reading in the readings the problem was built from.
+    reading: npt.NDArray[np.int64] | None = None
 
     @property
     def n_terms(self) -> int:
@@ -92,13 +103,20 @@ class ForwardProblem:
         b2 = (1.0 - a2 + a2 * x0) / x0
         below = np.where(self.is_occ, -b2, a1)
         above = np.where(self.is_occ, -a2, b1)
+        if self.v is not None:
+            below, above = below * self.v, above * self.v
         return below, above
 
+    def bases(self) -> F64:
+        """Each term's value at X = 0: 1 for an occ term, 0 for a free one (times v_t)."""
+        base = np.where(self.is_occ, 1.0, 0.0)
+        return base if self.v is None else base * self.v
+
     def term_values(self, X: F64) -> F64:
-        """P_free or P_occ of each term."""
+        """P_free or P_occ of each term (times v_t)."""
         below, above = self.slopes()
         x0 = self.X0
-        base = np.where(self.is_occ, 1.0, 0.0)
+        base = self.bases()
         at_x0 = base + below * x0
         return np.where(x0 > X, base + below * X, at_x0 + above * (X - x0))
 
@@ -137,10 +155,128 @@ class ForwardProblem:
         return np.asarray(self.WT @ self.term_slopes(X)) + self.reg_grad(x, box=box)
 
 
+#: Which terms the robust form reweights: only Omega_occ terms (a short reading that
+#: nothing else supports), or free terms as well (a long reading through a wall).
+ROBUST_TERMS = ("occ", "both")
+
+
+def robust_weights(
+    p: ForwardProblem, x: F64, tau: float, terms: str = "occ", support: float = 3.0
+) -> F64:
+    """Per-term weights ``v_t = tau^2 / (tau + r_t)^2`` from the residuals at ``x``.
+
+    The residual of an occ term is leave-one-out: how unexplained its reading would be
+    if it had no say. Its own P cannot flag it: at any minimiser of the plain model an
+    occ term is explained (one detectable obstacle in Omega_occ costs each free term
+    crossing it only ``a1 X0``). So each cell of its band is judged by the *other*
+    readings: a cell is supported when the other occ terms covering it detect it
+    enough, ``sum_s v_s w0_si >= support`` (w0 = s / S in [0, 1], so ``support`` is
+    about how many other bands see the cell), and keeps its value; a cell not
+    supported that some Omega_free covers is seen through, and is taken as 0; a cell
+    no other term touches keeps its value. Then
+    ``r_t = P_occ(X_t over the kept cells)`` (before weighting), in [0, 1]: a lone
+    reading that others see through gets r = 1, a wall reading that neighbouring
+    readings' bands share gets r near 0. A free term's residual is its own
+    ``P_free(X_t)`` (with ``terms="both"``; otherwise its weight stays 1).
+
+    Parameters
+    ----------
+    p : ForwardProblem
+        The problem with the current weights (``p.v``; None for all ones).
+    x : ndarray, shape (cells,)
+        The current map over ``p.cells``.
+    tau : float
+        Scale of the saturating penalty, > 0: a residual of tau halves a term's cost
+        relative to the plain model and quarters its pull.
+    terms : {"occ", "both"}
+        Which terms are reweighted.
+    support : float
+        Other bands' detectability that makes a cell supported (>= 0).
+
+    Returns
+    -------
+    ndarray, shape (terms,)
+        The new weights, in (0, 1].
+    """
+    W = p.W
+    v = np.ones(p.n_terms) if p.v is None else p.v
+    row = np.repeat(np.arange(p.n_terms), np.diff(W.indptr))
+    col = W.indices
+    occ_entry = p.is_occ[row]
+    # Per cell: the weight of the occ terms that cover it (counted once each, a term
+    # at full weight counting 1), and whether any Omega_free covers it.
+    w0 = W.data / p.X0[row]
+    mine = np.where(occ_entry, v[row] * w0, 0.0)
+    detect = np.bincount(col, weights=mine, minlength=p.n_cells)
+    seen_free = np.bincount(col[~occ_entry], minlength=p.n_cells) > 0
+    others = detect[col] - mine
+    emptied = occ_entry & (others < support) & seen_free[col]
+    X_loo = np.asarray(
+        np.bincount(row, weights=W.data * x[col] * ~emptied, minlength=p.n_terms),
+        dtype=np.float64,
+    )
+    plain = ForwardProblem(W=p.W, WT=p.WT, X0=p.X0, is_occ=p.is_occ, cells=p.cells, pen=p.pen)
+    r = np.where(p.is_occ, plain.term_values(X_loo), plain.term_values(W @ x))
+    r = np.clip(r, 0.0, 1.0)
+    out = tau * tau / (tau + r) ** 2
+    if terms == "occ":
+        out = np.where(p.is_occ, out, 1.0)
+    return np.asarray(out, dtype=np.float64)
+
+
+def robust_cost(r: F64, tau: float) -> F64:
+    """``rho(r) = tau r / (tau + r)``: the saturating penalty the weights come from."""
+    return np.asarray(tau * r / (tau + r), dtype=np.float64)
+
+
+#: Heading bin of :func:`correlation_weights`, radians: readings whose sonar points
+#: within about this of each other's direction (besides sharing a position bin) repeat
+#: each other.
+CORRELATED_ANGLE = math.radians(10.0)
+
+
+def correlation_weights(
+    sensor: npt.NDArray[np.int32],
+    x: F64,
+    y: F64,
+    theta: F64,
+    rng: F64,
+    cell: float,
+    angle: float = CORRELATED_ANGLE,
+) -> F64:
+    """Per-reading weight ``1 / n`` with n the readings that repeat it (Konolige 1997).
+
+    Readings repeat each other when they come from the same sonar, from poses in the
+    same bin (``cell`` metres in x and y, ``angle`` radians in heading) and with ranges
+    in the same ``cell``-metre bin: n such readings then count as one. Bins, not
+    distances, keep it one pass and deterministic (two readings astride a bin edge are
+    not grouped).
+
+    Examples
+    --------
+    >>> z = np.zeros(3)
+    >>> correlation_weights(np.zeros(3, np.int32), z, z, z, np.array([1.0, 1.01, 2.0]), 0.05)
+    array([0.5, 0.5, 1. ])
+    """
+    keys = np.stack(
+        [
+            sensor.astype(np.int64),
+            np.floor(x / cell).astype(np.int64),
+            np.floor(y / cell).astype(np.int64),
+            np.floor(np.mod(theta, 2 * math.pi) / angle).astype(np.int64),
+            np.floor(rng / cell).astype(np.int64),
+        ],
+        axis=1,
+    )
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    return np.asarray(1.0 / counts[inverse.ravel()], dtype=np.float64)
+
+
 def _rows(
     cs: CellSet, keep: npt.NDArray[np.bool_]
-) -> tuple[F64, npt.NDArray[np.int32], npt.NDArray[np.int64], F64]:
-    """Normalised weights of the kept readings' cells: data, columns, row offsets, X0."""
+) -> tuple[F64, npt.NDArray[np.int32], npt.NDArray[np.int64], F64, npt.NDArray[np.int64]]:
+    """Normalised weights of the kept readings' cells: data, columns, row offsets, X0,
+    and which readings (of the batch) the rows are."""
     counts = cs.counts
     # Per-reading sums; bincount is right for readings that touch no cell anywhere in the
     # batch (reduceat is not: it repeats a neighbour's value, or fails at the end).
@@ -152,7 +288,7 @@ def _rows(
     data = cs.weight.astype(np.float64) / np.repeat(np.where(sums > 0, sums, 1.0), counts)
     cols = cs.cells[entry_use]
     offsets = np.concatenate([[0], np.cumsum(counts[use])]).astype(np.int64)
-    return data[entry_use], cols, offsets, 1.0 / sums[use]
+    return data[entry_use], cols, offsets, 1.0 / sums[use], np.flatnonzero(use).astype(np.int64)
 
 
 def build_problem(
@@ -179,14 +315,18 @@ def build_problem(
     parts_o: list[npt.NDArray[np.int64]] = []
     x0s: list[F64] = []
     occ_flags: list[npt.NDArray[np.bool_]] = []
+    which: list[npt.NDArray[np.int64]] = []
+    first = 0
     for fp, e in zip(footprints, echo, strict=True):
         for cs, keep, flag in ((fp.free, np.ones_like(e), False), (fp.occ, e, True)):
-            d, c, o, x0 = _rows(cs, keep)
+            d, c, o, x0, idx = _rows(cs, keep)
+            which.append(idx + first)
             parts_d.append(d)
             parts_c.append(c)
             parts_o.append(o)
             x0s.append(x0)
             occ_flags.append(np.full(len(x0), flag))
+        first += fp.free.n_readings
     # Free terms first, then occ terms, each in reading order.
     order = [i for i in range(len(parts_d)) if not occ_flags[i].any()] + [
         i for i in range(len(parts_d)) if occ_flags[i].any()
@@ -201,9 +341,16 @@ def build_problem(
     indptr = np.concatenate(offs)
     X0 = np.concatenate([x0s[i] for i in order]) if order else np.empty(0)
     is_occ = np.concatenate([occ_flags[i] for i in order]) if order else np.empty(0, bool)
+    reading = np.concatenate([which[i] for i in order]) if order else np.empty(0, np.int64)
     touched, local = np.unique(cols, return_inverse=True)
     W = sp.csr_matrix((data, local.astype(np.int32), indptr), shape=(len(X0), len(touched)))
     W.sum_duplicates()
     return ForwardProblem(
-        W=W, WT=W.T.tocsr(), X0=X0, is_occ=is_occ, cells=touched.astype(np.int64), pen=pen
+        W=W,
+        WT=W.T.tocsr(),
+        X0=X0,
+        is_occ=is_occ,
+        cells=touched.astype(np.int64),
+        pen=pen,
+        reading=reading,
     )
