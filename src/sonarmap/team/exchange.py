@@ -738,6 +738,22 @@ class _Out:
     poses: int
 
 
+def _check_pair(store: RobotStore, transport: Transport) -> None:
+    """An exchanger's store and transport must be one robot's."""
+    if transport.robot != store.robot:
+        raise ConfigError(
+            f"exchange: the store is robot {store.robot}'s, the transport robot {transport.robot}'s"
+        )
+
+
+def _check_time(now: object, last: float) -> None:
+    """An exchanger's clock: a finite time, never before the ``last`` step's."""
+    if isinstance(now, bool) or not isinstance(now, (int, float)) or not math.isfinite(now):
+        raise InputError(f"exchange: now must be a finite time, got {now!r}", field="now")
+    if now < last:
+        raise InputError(f"exchange: time goes back from {last} to {now}", field="now")
+
+
 def _default_peers(transport: Transport) -> Callable[[], Iterable[int]]:
     if isinstance(transport, SimTransport):
         hub, robot = transport.hub, transport.robot
@@ -788,11 +804,7 @@ class Exchanger:
         on_received: OnReceived | None = None,
         peers: Callable[[], Iterable[int]] | None = None,
     ) -> None:
-        if transport.robot != store.robot:
-            raise ConfigError(
-                f"exchange: the store is robot {store.robot}'s, the transport robot "
-                f"{transport.robot}'s"
-            )
+        _check_pair(store, transport)
         if params is not None and params.mode not in MODES:
             raise ConfigError(
                 f"exchange: mode {params.mode!r} is not a protocol of Exchanger "
@@ -849,10 +861,7 @@ class Exchanger:
             most every ``refresh`` seconds. None (no patrol plan, e.g. the quiet network
             after a mission): every patch as soon as a peer has it newer.
         """
-        if isinstance(now, bool) or not isinstance(now, (int, float)) or not math.isfinite(now):
-            raise InputError(f"exchange: now must be a finite time, got {now!r}", field="now")
-        if now < self._now:
-            raise InputError(f"exchange: time goes back from {self._now} to {now}", field="now")
+        _check_time(now, self._now)
         wanted = None if wanted_regions is None else [int(r) for r in wanted_regions]
         self._now = float(now)
         for msg in self.transport.poll(0.0):

@@ -33,7 +33,7 @@ import logging
 import math
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError
 from .exchange import (
     VERSION,
     ExchangeError,
@@ -41,6 +41,8 @@ from .exchange import (
     Exchanger,
     ExchangeStats,
     OnReceived,
+    _check_pair,
+    _check_time,
     _default_peers,
     _keys,
     _list,
@@ -135,11 +137,7 @@ class NaiveExchanger:
         on_received: OnReceived | None = None,
         peers: Callable[[], Iterable[int]] | None = None,
     ) -> None:
-        if transport.robot != store.robot:
-            raise ConfigError(
-                f"exchange: the store is robot {store.robot}'s, the transport robot "
-                f"{transport.robot}'s"
-            )
+        _check_pair(store, transport)
         self.params = params if params is not None else ExchangeParams(mode="naive")
         if self.params.mode != "naive":
             raise ConfigError(f"exchange: NaiveExchanger runs mode 'naive', not {params!r}")
@@ -164,10 +162,7 @@ class NaiveExchanger:
     def step(self, now: float, wanted_regions: Sequence[int] | None = None) -> None:
         """Take every pose received, then send each new local pose to every reachable
         robot. ``wanted_regions`` is ignored (the baseline sends everything)."""
-        if isinstance(now, bool) or not isinstance(now, (int, float)) or not math.isfinite(now):
-            raise InputError(f"exchange: now must be a finite time, got {now!r}", field="now")
-        if now < self._now:
-            raise InputError(f"exchange: time goes back from {self._now} to {now}", field="now")
+        _check_time(now, self._now)
         self._now = float(now)
         for msg in self.transport.poll(0.0):
             self._handle(msg, self._now)
