@@ -844,6 +844,30 @@ def align_to_prior(
 # --- picture ---------------------------------------------------------------------------------
 
 
+def _axes_over(prior: OccupancyMap | None) -> tuple[Any, Any]:
+    """A square figure with the prior map in grey (white free, black occupied, light
+    grey unknown) under what is drawn next."""
+    fig, ax = plt.subplots(figsize=(7, 7))
+    if prior is not None:
+        occ = np.where(np.isnan(prior.occupancy), 0.25, prior.occupancy)
+        ax.imshow(1.0 - occ, cmap="gray", vmin=0, vmax=1, extent=prior.grid.extent, origin="upper")
+    return fig, ax
+
+
+def _save_axes(fig: Any, ax: Any, title: str, path: str | Path) -> Path:
+    """Label the axes in metres, add the title and legend, write the PNG atomically."""
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    if title:
+        ax.set_title(title)
+    ax.legend(loc="upper right", fontsize="small")
+    p = Path(path)
+    atomic_write(p, lambda tmp: fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png"))
+    plt.close(fig)
+    return p
+
+
 def plot_pose_graph(
     prior: OccupancyMap | None,
     estimates: Estimates,
@@ -881,10 +905,7 @@ def plot_pose_graph(
     """
     est = {u: _estimate_array(v, u) for u, v in estimates.items()}
     bad = set(rejected)
-    fig, ax = plt.subplots(figsize=(7, 7))
-    if prior is not None:
-        occ = np.where(np.isnan(prior.occupancy), 0.25, prior.occupancy)
-        ax.imshow(1.0 - occ, cmap="gray", vmin=0, vmax=1, extent=prior.grid.extent, origin="upper")
+    fig, ax = _axes_over(prior)
     for e in odometry:
         if e.a in est and e.b in est:
             ax.plot(*np.column_stack([est[e.a][:2], est[e.b][:2]]), color="#4a6fa5", lw=1)
@@ -900,16 +921,7 @@ def plot_pose_graph(
     ax.plot([], [], color="orange", label="closures")
     if bad:
         ax.plot([], [], color="red", ls="--", label="rejected closures")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    if title:
-        ax.set_title(title)
-    ax.legend(loc="upper right", fontsize="small")
-    p = Path(path)
-    atomic_write(p, lambda tmp: fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png"))
-    plt.close(fig)
-    return p
+    return _save_axes(fig, ax, title, path)
 
 
 def plot_team(
@@ -936,10 +948,7 @@ def plot_team(
     -------
     Path
     """
-    fig, ax = plt.subplots(figsize=(7, 7))
-    if prior is not None:
-        occ = np.where(np.isnan(prior.occupancy), 0.25, prior.occupancy)
-        ax.imshow(1.0 - occ, cmap="gray", vmin=0, vmax=1, extent=prior.grid.extent, origin="upper")
+    fig, ax = _axes_over(prior)
     colours = plt.get_cmap("tab10")
     for k, (label, estimates, odometry) in enumerate(robots):
         colour = colours(k % 10)
@@ -949,13 +958,4 @@ def plot_team(
                 ax.plot(*np.column_stack([est[e.a][:2], est[e.b][:2]]), color=colour, lw=0.8)
         xy = np.array([v[:2] for v in est.values()]).reshape(-1, 2)
         ax.plot(xy[:, 0], xy[:, 1], ".", color=colour, ms=4, label=label)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    if title:
-        ax.set_title(title)
-    ax.legend(loc="upper right", fontsize="small")
-    p = Path(path)
-    atomic_write(p, lambda tmp: fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png"))
-    plt.close(fig)
-    return p
+    return _save_axes(fig, ax, title, path)
