@@ -43,6 +43,14 @@ OutOption = Annotated[
 ]
 SeedOption = Annotated[int, typer.Option("--seed", help="Seed of everything random.")]
 DurationOption = Annotated[float, typer.Option("--duration", help="Mission length, seconds.")]
+#: The store's defaults, shown by --help.
+STORE_DEFAULTS = StoreParams()
+PoseLimitOption = Annotated[
+    int, typer.Option("--pose-limit", help="M_pose: bytes a pose may take.")
+]
+RegionLimitOption = Annotated[
+    int, typer.Option("--region-limit", help="M_r: bytes a region may take.")
+]
 
 #: Summary figures averaged over the robots at the top level of summary.json.
 MEAN_KEYS = (
@@ -249,12 +257,8 @@ def run_cmd(
     world_dir: Annotated[
         Path | None, typer.Option("--world", help="A folder made by 'team world'.")
     ] = None,
-    pose_limit: Annotated[
-        int, typer.Option("--pose-limit", help="M_pose: bytes a pose may take.")
-    ] = StoreParams().pose_limit,
-    region_limit: Annotated[
-        int, typer.Option("--region-limit", help="M_r: bytes a region may take.")
-    ] = StoreParams().region_limit,
+    pose_limit: PoseLimitOption = STORE_DEFAULTS.pose_limit,
+    region_limit: RegionLimitOption = STORE_DEFAULTS.region_limit,
     seed: SeedOption = 0,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
@@ -410,12 +414,8 @@ def node_cmd(
         Path | None,
         typer.Option("--state", help="Checkpoint folder; a node started on one resumes."),
     ] = None,
-    pose_limit: Annotated[
-        int, typer.Option("--pose-limit", help="M_pose: bytes a pose may take.")
-    ] = StoreParams().pose_limit,
-    region_limit: Annotated[
-        int, typer.Option("--region-limit", help="M_r: bytes a region may take.")
-    ] = StoreParams().region_limit,
+    pose_limit: PoseLimitOption = STORE_DEFAULTS.pose_limit,
+    region_limit: RegionLimitOption = STORE_DEFAULTS.region_limit,
     exchange: Annotated[
         list[str] | None,
         typer.Option("--exchange", help="An exchange setting KEY=VALUE (repeatable)."),
