@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import math
+import zlib
 from collections import defaultdict
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -18,6 +19,7 @@ import pytest
 from sonarmap.errors import ConfigError, InputError
 from sonarmap.grid import Grid
 from sonarmap.team.exchange import (
+    MAX_INFLATED,
     VERSION,
     Advert,
     AdvertEntry,
@@ -384,7 +386,7 @@ def test_a_deletion_at_the_source_removes_the_pose_its_edges_and_closures(mode: 
 def _pose_bytes_per_answer(bodies: Sequence[bytes]) -> list[int]:
     out = []
     for body in bodies:
-        d = msgpack.unpackb(body, raw=False)
+        d = msgpack.unpackb(zlib.decompress(body), raw=False)
         out.append(sum(len(p) for row in d["patches"] for p in row["poses"]))
     return out
 
@@ -413,6 +415,39 @@ def test_limited_answers_respect_the_cap_and_converge_over_rounds() -> None:
     assert sum(1 for s in sizes if s > one) > 0  # answers do carry two poses
     assert len([s for s in sizes if s > 0]) >= 12 // 2
     check_consistent(b)
+
+
+def test_a_budget_bounds_the_answers_a_robot_brings_in() -> None:
+    def received_by_b(budget: float, steps: int) -> tuple[int, RobotStore]:
+        a = own_store(0, [0] * 8 + [1] * 8 + [2] * 8, n=20)
+        b = own_store(1, [1])
+        team = Team(
+            [a, b],
+            mode="limited",
+            cap_bytes=2 * a.local.pose_bytes(make_uid(0, 0)),
+            adjacency={0: {1}, 1: {0, 2}, 2: {1}},
+            budget=budget,
+        )
+        bodies = record_sends(team.transports[0])
+        team.run(steps)
+        return sum(len(x) for x in bodies), b
+
+    budget, steps = 1500.0, 20  # 10 s
+    free, b_free = received_by_b(0.0, steps)
+    paced, b_paced = received_by_b(budget, steps)
+    cap = 2 * b_free.received[0].pose_bytes(make_uid(0, 0))
+    # The balance starts full (one cap) and grows at the budget; one answer (at most the
+    # cap, plus lists and edges) may overdraw it.
+    assert paced <= budget * steps * DT + 2 * cap + 2048
+    assert paced < free / 2
+    assert 0 < len(b_paced.received[0].poses) < len(b_free.received[0].poses)
+    check_consistent(b_paced)
+
+
+def test_a_budget_must_be_a_rate() -> None:
+    for bad in (-1.0, math.nan, math.inf):
+        with pytest.raises(ConfigError, match="budget"):
+            ExchangeParams(budget=bad)
 
 
 def test_limited_requests_cover_adjacent_patches_of_one_source() -> None:
@@ -598,7 +633,7 @@ def test_the_source_is_asked_when_reachable_else_the_newest_holder() -> None:
 
 
 def _pack(d: object) -> bytes:
-    return bytes(msgpack.packb(d, use_bin_type=True))
+    return zlib.compress(bytes(msgpack.packb(d, use_bin_type=True)))
 
 
 @pytest.fixture
@@ -643,7 +678,9 @@ def _request_body(drop: Sequence[str] = (), **changes: Any) -> bytes:
     """A good request for robot 2's region 0 with its one patch's fields changed, and
     those named in ``drop`` left out."""
     d = msgpack.unpackb(
-        encode_request(Request(0, "good", (PatchRequest(2, 0, None, frozenset()),)))
+        zlib.decompress(
+            encode_request(Request(0, "good", (PatchRequest(2, 0, None, frozenset()),)))
+        )
     )
     row = {k: v for k, v in {**d["patches"][0], **changes}.items() if k not in drop}
     return _pack({**d, "patches": [row]})
@@ -656,7 +693,9 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
     wrong_region = pose(1, 7, 1, 0.0)
     a_pose = pose(0, 5, 0, 0.0)
     return {
-        "not msgpack": ("answer", b"\xc1garbage", "msgpack"),
+        "not deflated": ("answer", b"\xc1garbage", "deflate"),
+        "not msgpack": ("answer", zlib.compress(b"\xc1garbage"), "msgpack"),
+        "zlib bomb": ("answer", zlib.compress(bytes(MAX_INFLATED + 1), 9), "oversized"),
         "truncated": ("answer", good[:-40], "truncated"),
         "trailing": ("answer", good + b"\x00", "trailing"),
         "not a map": ("answer", _pack([1, 2, 3]), "not_map"),
@@ -819,7 +858,11 @@ def test_an_answer_older_than_the_patch_is_not_applied(
 
 
 def _answer_rows(bodies: Sequence[bytes]) -> list[dict[str, Any]]:
-    return [row for body in bodies for row in msgpack.unpackb(body, raw=False)["patches"]]
+    return [
+        row
+        for body in bodies
+        for row in msgpack.unpackb(zlib.decompress(body), raw=False)["patches"]
+    ]
 
 
 @pytest.mark.parametrize("mode", ["good", "limited"])
@@ -921,7 +964,7 @@ def test_a_peer_vanishing_mid_answer_leaves_the_store_whole() -> None:
     hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
     ta = hub.transport(0)
     # B's messages are small: its answer leaves in several parts, one patch each.
-    tb = hub.transport(1, max_message=5000)
+    tb = hub.transport(1, max_message=3000)
     params = ExchangeParams(**FAST)  # type: ignore[arg-type]
     ea, eb = Exchanger(a, ta, params), Exchanger(b, tb, params)
     parts: list[bytes] = []
@@ -942,7 +985,7 @@ def test_a_peer_vanishing_mid_answer_leaves_the_store_whole() -> None:
     hub.step(DT)
     ea.step(hub.now)
     assert len(parts) >= 2
-    assert [r["r"] for r in msgpack.unpackb(parts[0], raw=False)["patches"]] == [0]
+    assert [r["r"] for r in msgpack.unpackb(zlib.decompress(parts[0]), raw=False)["patches"]] == [0]
     layer = a.received[1]
     assert set(layer.poses) == set(b.local.patches[0].short)  # the first part, whole
     assert all(p.short == p.full for p in layer.patches.values())

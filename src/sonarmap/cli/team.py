@@ -145,14 +145,18 @@ def _network_params(network: str, bandwidth: float | None, loss: float) -> Netwo
     return NetworkParams(kind=network, bandwidth=bandwidth, loss=loss)
 
 
-def _exchange_params(exchange: str | None, cap: int, network: str) -> ExchangeParams:
+def _exchange_params(
+    exchange: str | None, cap: int, network: str, budget: float = 0.0
+) -> ExchangeParams:
     # A link that may break or be slow is what the limited protocol was designed for.
     mode = exchange if exchange is not None else ("good" if network == "full" else "limited")
     if mode not in PROTOCOLS:
         raise ConfigError(f"--exchange must be one of {', '.join(PROTOCOLS)}, got {mode!r}")
     if cap < 1:
         raise ConfigError(f"--cap must be >= 1 byte, got {cap}")
-    return ExchangeParams(mode=mode, cap_bytes=cap)
+    if not (math.isfinite(budget) and budget >= 0):
+        raise ConfigError(f"--budget must be >= 0 bytes/s, got {budget}")
+    return ExchangeParams(mode=mode, cap_bytes=cap, budget=budget)
 
 
 def _run_zmq_team(
@@ -289,6 +293,13 @@ def run_cmd(
     cap: Annotated[
         int, typer.Option("--cap", help="T: bytes of poses one limited-protocol answer carries.")
     ] = ExchangeParams().cap_bytes,
+    budget: Annotated[
+        float,
+        typer.Option(
+            "--budget",
+            help="Bytes/s of answers each robot lets its requests bring in (0: no budget).",
+        ),
+    ] = 0.0,
     transport: Annotated[
         str, typer.Option("--transport", help="sim (simulated network) or zmq (processes).")
     ] = "sim",
@@ -310,7 +321,7 @@ def run_cmd(
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
     net = _network_params(network, bandwidth, loss)
-    protocol = _exchange_params(exchange, cap, network)
+    protocol = _exchange_params(exchange, cap, network, budget)
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")
     if patrol and route is not None:

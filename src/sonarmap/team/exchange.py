@@ -1,7 +1,9 @@
 """The exchange of poses between robots' stores (thesis 002, section 2.4): the
 good-network and the limited-network protocols over a :class:`~.transport.Transport`.
 
-Three kinds of message, each a msgpack map (never pickle) in a transport envelope:
+Three kinds of message, each a msgpack map (never pickle), deflated with zlib, in a
+transport envelope (a pose's local map is mostly unknown cells and shrinks about eight
+times; its landmarks' descriptors hardly shrink):
 
 ``"advert"``
     The sender's table of patch stamps: ``(source, region) -> (stamp, held)`` for every
@@ -90,6 +92,7 @@ import hashlib
 import logging
 import math
 import struct
+import zlib
 from collections import Counter
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
@@ -144,8 +147,12 @@ MODES = ("good", "limited")
 #: What :attr:`ExchangeParams.mode` may be: the two protocols, or the naive baseline that
 #: :class:`~.naive.NaiveExchanger` runs (it has its own messages).
 PROTOCOLS = (*MODES, "naive")
-#: The bodies' version, field ``v`` (2: requests carry an edge digest per patch).
-VERSION = 2
+#: The bodies' version, field ``v`` (2: requests carry an edge digest per patch; 3: bodies
+#: are deflated).
+VERSION = 3
+#: Bytes a body may inflate to at most; a deflated body that would grow past it (a zlib
+#: bomb) is refused before it is expanded.
+MAX_INFLATED = 64 << 20
 #: Bytes of an edge digest (:func:`edge_digest`).
 DIGEST_BYTES = 8
 _UID_LIMIT = 2**63
@@ -212,6 +219,16 @@ class ExchangeParams:
     backoff : float
         Seconds after which a peer whose answer for a patch changed nothing is asked
         for it again though neither its advert nor our patch changed: 120.
+    budget : float
+        Bytes per second of answers this robot lets its requests bring in, so that the
+        exchange keeps to a known share of the network; 0 (default): no budget. The
+        robot keeps a balance that grows at ``budget`` up to ``cap_bytes`` and pays for
+        each answer it receives (the body as it came), and it sends a request only
+        while the balance exceeds ``cap_bytes`` for each request still awaiting an
+        answer. Its answers thus average at most ``budget`` bytes per second plus one
+        answer. The regions it visits next are asked for first, and a limited-mode
+        answer carries the poses of best E (the thesis's deletion-only compression),
+        so a small budget buys the poses that matter most first.
     """
 
     mode: str = "good"
@@ -224,6 +241,7 @@ class ExchangeParams:
     max_outstanding: int = 8
     refresh: float = 30.0
     backoff: float = 120.0
+    budget: float = 0.0
 
     def __post_init__(self) -> None:
         if self.mode not in PROTOCOLS:
@@ -236,8 +254,10 @@ class ExchangeParams:
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ConfigError(f"exchange: {f.name} must be a finite number, got {v!r}")
-            if v <= 0:
-                raise ConfigError(f"exchange: {f.name} must be > 0, got {v}")
+            may_be_0 = f.name == "budget"
+            if v < 0 or (v == 0 and not may_be_0):
+                bound = ">= 0" if may_be_0 else "> 0"
+                raise ConfigError(f"exchange: {f.name} must be {bound}, got {v}")
         for name in ("cap_bytes", "max_patches", "max_outstanding"):
             if not isinstance(getattr(self, name), int):
                 raise ConfigError(
@@ -380,7 +400,7 @@ class Answer:
 
 
 def _pack(d: Mapping[str, Any]) -> bytes:
-    return bytes(msgpack.packb(d, use_bin_type=True))
+    return zlib.compress(bytes(msgpack.packb(d, use_bin_type=True)), 6)
 
 
 def _ids(s: Collection[int] | None) -> list[int] | None:
@@ -453,9 +473,25 @@ def encode_answer(answer: Answer) -> bytes:
 _BODY_DETAIL = {"trailing": "bytes after the body", "truncated": "the body ends early"}
 
 
+def _inflate(body: bytes) -> bytes:
+    z = zlib.decompressobj()
+    try:
+        out = z.decompress(body, MAX_INFLATED)
+    except zlib.error as e:
+        raise ExchangeError("deflate", f"body: not a zlib stream ({e})") from None
+    if z.unconsumed_tail:
+        raise ExchangeError("oversized", f"body: inflates past {MAX_INFLATED} bytes")
+    if not z.eof:
+        raise ExchangeError("truncated", _BODY_DETAIL["truncated"])
+    if z.unused_data:
+        raise ExchangeError("trailing", _BODY_DETAIL["trailing"])
+    return out
+
+
 def _unpack(body: bytes) -> dict[str, Any]:
     if not isinstance(body, bytes):
         raise ExchangeError("type", f"body: bytes expected, got {type(body).__name__}")
+    body = _inflate(body)
     n = len(body)
     try:
         # No length field may claim more than the body holds.
@@ -836,6 +872,9 @@ class Exchanger:
         self._fetched: dict[PatchKey, float] = {}
         self._starved: dict[PatchKey, float] = {}
         self._next_id = 0
+        # The budget's balance (bytes) and when it was last topped up.
+        self._balance = float(self.params.cap_bytes)
+        self._balance_at = -math.inf
 
     @property
     def robot(self) -> int:
@@ -1052,9 +1091,20 @@ class Exchanger:
                 chosen[k] = peer
         groups = self._group(order, chosen)
         for peer, group in groups:
-            if len(self._pending) >= self.params.max_outstanding:
+            if len(self._pending) >= self.params.max_outstanding or not self._affordable(now):
                 break
             self._send_request(peer, group, now)
+
+    def _affordable(self, now: float) -> bool:
+        """Whether the budget allows one more request now (always without a budget)."""
+        budget = self.params.budget
+        if budget == 0:
+            return True
+        cap = float(self.params.cap_bytes)
+        if math.isfinite(self._balance_at):
+            self._balance = min(cap, self._balance + budget * (now - self._balance_at))
+        self._balance_at = now
+        return self._balance > cap * len(self._pending)
 
     def _group(
         self, order: Sequence[PatchKey], chosen: Mapping[PatchKey, int]
@@ -1137,6 +1187,8 @@ class Exchanger:
                 request = decode_request(body, regions=regions, adjacency=self.adjacency)
                 self._answer(msg.src, request, now)
             elif msg.kind == "answer":
+                # Paid for before it is checked: a rejected answer used the link too.
+                self._balance -= len(body)
                 answer = decode_answer(body, regions=regions)
                 self._take(msg.src, answer, now)
             else:

@@ -83,9 +83,11 @@ class TeamResult:
         ``bytes_sent``, ``bytes_received``, ``messages``, ``messages_received``,
         ``poses_local``, ``poses_received``, ``received_closures``,
         ``received_closures_correct``) and the team's ``duplicate_poses``,
-        ``identical_maps``, ``convergence_s``, ``bytes_per_robot_minute``,
-        ``map_f1_team``, ``map_f1_central`` (None unless asked for),
-        ``settle_seconds``, ``settled``, ``robots_n``, ``network`` and ``exchange``.
+        ``identical_maps``, ``convergence_s``, ``bytes_per_robot_minute``
+        (message bodies sent while the robots drive), ``bytes_per_robot_minute_all``
+        (with the quiet phase's, over the same minutes), ``map_f1_team``,
+        ``map_f1_central`` (None unless asked for), ``settle_seconds``, ``settled``,
+        ``robots_n``, ``network`` and ``exchange``.
     robots : list of MissionResult
         Each robot's result, by robot id.
     exchangers : list of Exchanger or NaiveExchanger
@@ -290,6 +292,11 @@ def run_team(
         "map_agreement": map_agreement([r.global_map for r in results]),
         "convergence_s": last_change - end if converged else None,
         "bytes_per_robot_minute": sum(sent_in_mission) / robots / minutes,
+        # The quiet phase's bytes too, still per minute of mission: the maps are scored
+        # after it, so a protocol that defers its sending must pay for it here.
+        "bytes_per_robot_minute_all": sum(e.stats.bytes_sent for e in exchangers)
+        / robots
+        / minutes,
         "map_f1_team": float(np.mean(f1)) if f1 else math.nan,
         "map_f1_central": None if bound is None else bound.summary["map_f1"],
         "central": None if bound is None else bound.summary,
