@@ -11,19 +11,23 @@ and stereo landmarks and exchanging over the simulated network
   first value) and the ``naive`` baseline (every new pose to everyone); on ``none``
   nothing is exchanged, whatever the protocol, so one run;
 - on the full network, the limited protocol as its cap T shrinks (``--caps``: 64k, 16k,
-  4k, 1k, 256 bytes);
+  4k, 1k, 256 bytes), and at the first cap with a budget per robot (``--budgets``:
+  2000, 1000, 500 bytes/s of answers, :attr:`~sonarmap.team.exchange.ExchangeParams.budget`);
 - the central upper bound (:func:`sonarmap.team.central.central_map`: one graph and map
   from every pose every robot made), once: the robots' data are the same in every
   setting.
 
-Per setting: bytes per robot-minute (message bodies sent while the robots drive) and
-their share of the naive baseline's on the same network, ``map_f1_team`` (the mean of
+Per setting: bytes per robot-minute (message bodies, deflated as sent, while the robots
+drive and in the quiet phase after, over the minutes of driving: the maps are scored
+after the quiet phase, so a protocol that defers its sending pays for it) and their
+share of the naive baseline's on the same network, ``map_f1_team`` (the mean of
 the robots' global-map wall F1), duplicate poses, identical pose sets after the network
 was quiet, the seconds that took. Then the issue's targets, each ``holds`` or
 ``FAILS``. Nothing here is tuned to make a target hold.
 
 Run with ``python -m benchmarks.team_exchange [--plan office] [--robots 3]
-[--duration 300] [--caps 65536 16384 4096 1024 256] [--jobs 2] [--plot FILE]
+[--duration 300] [--caps 65536 16384 4096 1024 256] [--budgets 2000 1000 500]
+[--jobs 2] [--plot FILE]
 [--json FILE]``.
 """
 
@@ -61,12 +65,15 @@ def _one(
         MissionConfig(duration=duration, seed=seed),
         robots,
         network=NetworkParams(kind=setting["network"]),
-        exchange=ExchangeParams(mode=setting["mode"], cap_bytes=setting["cap"]),
+        exchange=ExchangeParams(
+            mode=setting["mode"], cap_bytes=setting["cap"], budget=setting["budget"]
+        ),
         seed=seed,
         central=setting.get("central", False),
     ).summary
     keys = (
         "bytes_per_robot_minute",
+        "bytes_per_robot_minute_all",
         "map_f1_team",
         "map_f1_central",
         "central",
@@ -84,23 +91,34 @@ def _one(
     return row
 
 
-def settings(caps: list[int]) -> list[dict[str, Any]]:
+def settings(caps: list[int], budgets: list[float]) -> list[dict[str, Any]]:
     """Every run, the first the one that also builds the central bound."""
     out: list[dict[str, Any]] = []
+    plain = {"cap": caps[0], "budget": 0.0, "curve": False}
     for network in ("full", "limited"):
         for mode in ("good", "limited", "naive"):
-            out.append({"network": network, "mode": mode, "cap": caps[0], "curve": False})
+            out.append({"network": network, "mode": mode, **plain})
     out[0]["central"] = True
-    out.append({"network": "none", "mode": "good", "cap": caps[0], "curve": False})
+    out.append({"network": "none", "mode": "good", **plain})
     for cap in caps[1:]:
-        out.append({"network": "full", "mode": "limited", "cap": cap, "curve": True})
+        out.append({"network": "full", "mode": "limited", "cap": cap, "budget": 0.0, "curve": True})
+    for b in budgets:
+        out.append(
+            {"network": "full", "mode": "limited", "cap": caps[0], "budget": b, "curve": True}
+        )
     return out
 
 
 def measure(
-    plan_name: str, robots: int, duration: float, seed: int, caps: list[int], jobs: int
+    plan_name: str,
+    robots: int,
+    duration: float,
+    seed: int,
+    caps: list[int],
+    budgets: list[float],
+    jobs: int,
 ) -> list[dict[str, Any]]:
-    todo = settings(caps)
+    todo = settings(caps, budgets)
     if jobs <= 1:
         return [_one(plan_name, robots, duration, seed, s) for s in todo]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
@@ -110,7 +128,7 @@ def measure(
 
 def _naive(rows: list[dict[str, Any]], network: str) -> float:
     return next(
-        float(r["bytes_per_robot_minute"])
+        float(r["bytes_per_robot_minute_all"])
         for r in rows
         if r["network"] == network and r["mode"] == "naive" and not r["curve"]
     )
@@ -124,10 +142,11 @@ def targets(rows: list[dict[str, Any]], central: float) -> list[tuple[str, bool]
         r
         for r in full
         if r["map_f1_team"] >= central - F1_GAP
-        and r["bytes_per_robot_minute"] <= BYTES_SHARE * naive
+        and r["bytes_per_robot_minute_all"] <= BYTES_SHARE * naive
     ]
-    best = ", ".join(f"{r['mode']} T={r['cap']}" for r in good_enough) or "none"
-    limited = [r for r in full if r["mode"] == "limited"]
+    best = ", ".join(_name(r) for r in good_enough) or "none"
+    # A budget leaves poses behind by design; identical sets are asked of the caps alone.
+    limited = [r for r in full if r["mode"] == "limited" and not r["budget"]]
     starved = ", ".join(str(r["cap"]) for r in limited if not r["identical_maps"]) or "none"
     return [
         (
@@ -151,29 +170,38 @@ def targets(rows: list[dict[str, Any]], central: float) -> list[tuple[str, bool]
     ]
 
 
+def _name(r: dict[str, Any]) -> str:
+    if r["mode"] != "limited":
+        return str(r["mode"])
+    budget = f", {r['budget']:.0f} B/s" if r["budget"] else ""
+    return f"limited T={r['cap']}{budget}"
+
+
 def _plot(rows: list[dict[str, Any]], central: float, path: str) -> None:
+    """Team F1 against bytes (% of naive) for every setting on the full network, and
+    the robots alone at 0 bytes."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    curve = sorted(
-        (r for r in rows if r["network"] == "full" and r["mode"] == "limited"),
-        key=lambda r: -r["cap"],
-    )
     naive = _naive(rows, "full")
-    fig, ax = plt.subplots(figsize=(6, 4))
-    caps = [r["cap"] for r in curve]
-    ax.plot(caps, [r["map_f1_team"] for r in curve], "o-", label="team F1 (limited protocol)")
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    marks = {"good": "o", "limited": "s", "naive": "^"}
+    for r in rows:
+        if r["network"] not in ("full", "none"):
+            continue
+        x = 0.0 if r["network"] == "none" else 100 * r["bytes_per_robot_minute_all"] / naive
+        label = "no network" if r["network"] == "none" else _name(r)
+        ax.plot(x, r["map_f1_team"], marks.get(r["mode"], "o"), color="black")
+        ax.annotate(
+            label, (x, r["map_f1_team"]), fontsize=6, xytext=(3, 3), textcoords="offset points"
+        )
     ax.axhline(central, color="green", ls="--", label="central bound")
     ax.axhline(central - F1_GAP, color="green", ls=":", label=f"central - {F1_GAP}")
-    ax.set_xscale("log")
-    ax.set_xlabel("cap T (bytes per answer)")
-    ax.set_ylabel("wall F1")
-    ax2 = ax.twinx()
-    ax2.plot(caps, [100 * r["bytes_per_robot_minute"] / naive for r in curve], "s-", color="grey")
-    ax2.axhline(100 * BYTES_SHARE, color="grey", ls=":")
-    ax2.set_ylabel("bytes, % of naive (grey)")
+    ax.axvline(100 * BYTES_SHARE, color="grey", ls=":", label=f"{100 * BYTES_SHARE:.0f} % of naive")
+    ax.set_xlabel("bytes per robot-minute, % of the naive baseline's")
+    ax.set_ylabel("team wall F1")
     ax.legend(loc="lower right", fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -187,6 +215,9 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=300.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--caps", type=int, nargs="+", default=[65536, 16384, 4096, 1024, 256])
+    parser.add_argument(
+        "--budgets", type=float, nargs="*", default=[2000.0, 1000.0, 500.0], help="Bytes/s."
+    )
     parser.add_argument("--jobs", type=int, default=2, help="Runs at once (processes).")
     parser.add_argument("--plot", help="Also draw the cap curve to this PNG.")
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
@@ -195,7 +226,9 @@ def main() -> None:
         raise SystemExit(f"--robots: a team needs >= 2 robots, got {args.robots}")
     _plan(args.plan)  # a bad --plan fails before any run
     t0 = time.perf_counter()
-    rows = measure(args.plan, args.robots, args.duration, args.seed, args.caps, args.jobs)
+    rows = measure(
+        args.plan, args.robots, args.duration, args.seed, args.caps, args.budgets, args.jobs
+    )
     wall = time.perf_counter() - t0
     c = rows[0]["central"]
     central = float(rows[0]["map_f1_central"])
@@ -208,14 +241,16 @@ def main() -> None:
         f"closures ({c['closures_correct']} correct, {c['closures_rejected_by_graph']} "
         f"rejected by the graph), ATE {c['ate_m']:.3f} m, {c['wall_seconds']:.0f} s"
     )
-    print("network  protocol  cap T: B/robot-min (% naive), team F1 (- central), dup, identical,")
+    print("network  protocol  cap T  budget: B/robot-min (% naive), team F1 (- central), dup,")
+    print("          identical,")
     print("          converged s, poses local/received, wall s")
     for r in rows:
         naive = _naive(rows, r["network"]) if r["network"] != "none" else math.nan
-        share = 100 * r["bytes_per_robot_minute"] / naive if naive else math.nan
+        share = 100 * r["bytes_per_robot_minute_all"] / naive if naive else math.nan
         conv = r["convergence_s"]
         print(
-            f"{r['network']:8} {r['mode']:8} {r['cap']:6d}: {r['bytes_per_robot_minute']:9.0f} "
+            f"{r['network']:8} {r['mode']:8} {r['cap']:6d} {r['budget']:6.0f}: "
+            f"{r['bytes_per_robot_minute_all']:9.0f} "
             f"({share:5.1f} %), F1 {r['map_f1_team']:.3f} ({r['map_f1_team'] - central:+.3f}), "
             f"dup {r['duplicate_poses']}, identical {r['identical_maps']} (maps agree on "
             f"{100 * r['map_agreement']:.1f} %), converged "
