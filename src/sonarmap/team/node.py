@@ -111,7 +111,7 @@ from .records import (
     unpack_strict,
 )
 from .regions import region_adjacency
-from .simulation import held_uids
+from .simulation import held_uids, map_agreement
 from .store import Layer, Patch, RobotStore, StoreParams
 from .transport import DEFAULT_MAX_MESSAGE, Message, Transport, ZmqTransport
 from .world import make_world, odometry, patrol_route
@@ -1475,13 +1475,21 @@ def _team_summary(
     settled = all(bool(n["settled"]) for n in nodes)
     f1 = [float(n["row"]["map_f1"]) for n in nodes if n["row"]["map_f1"] is not None]
     minutes = max(float(nodes[0]["route_seconds"]), 1e-9) / 60.0
+    maps = [where / f"robot{i}" / "map.yaml" for i in range(robots)]
+    agreement = (
+        map_agreement([read_map(m) for m in maps]) if all(m.exists() for m in maps) else None
+    )
     summary: dict[str, Any] = {
         "robots": [n["row"] for n in nodes],
         "robots_n": robots,
         "duplicate_poses": sum(int(n["duplicates"]) for n in nodes),
         "identical_maps": identical,
+        "map_agreement": agreement,
         "convergence_s": float(nodes[0]["last_change_s"]) if settled and identical else None,
         "bytes_per_robot_minute": sum(int(n["bytes_sent_mission"]) for n in nodes)
+        / robots
+        / minutes,
+        "bytes_per_robot_minute_all": sum(int(n["row"]["bytes_sent"]) for n in nodes)
         / robots
         / minutes,
         "map_f1_team": float(np.mean(f1)) if f1 else math.nan,
