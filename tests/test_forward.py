@@ -130,6 +130,7 @@ def test_no_echo_readings_only_clear(small: Scenario) -> None:
     # surely, so the M-step never heard that the beam crossed them.
     for method, params in [
         ("gradient", {}),
+        ("gradient", {"init": "inverse"}),
         ("stochastic", {}),
         ("em", {}),
         ("em", {"init": "inverse"}),
@@ -137,6 +138,18 @@ def test_no_echo_readings_only_clear(small: Scenario) -> None:
     ]:
         occ = make_mapper(method, **params).fit(far, small.truth.grid, small.rig).occupancy_
         assert np.nanmax(occ) < 0.5, method  # no obstacle from readings that saw none
+
+
+def test_gradient_starts_from_the_inverse_map_when_asked(small: Scenario) -> None:
+    inv = make_mapper("inverse").fit(small.readings, small.truth.grid, small.rig).occupancy_
+    known = np.isfinite(inv)
+    gaps = {}
+    for init in ("uniform", "inverse"):
+        # One step, one round: the map is still about where it started.
+        g = GradientMapper(init=init, max_iter=1, robust=0.0)
+        occ = g.fit(small.readings, small.truth.grid, small.rig).occupancy_
+        gaps[init] = float(np.mean(np.abs(np.nan_to_num(occ[known], nan=0.5) - inv[known])))
+    assert gaps["inverse"] < gaps["uniform"] / 2
 
 
 @pytest.mark.parametrize(
@@ -148,6 +161,7 @@ def test_no_echo_readings_only_clear(small: Scenario) -> None:
         ("gradient", {"solver": "adam"}, r"parameter 'solver' must be one of gd, pgd, lbfgs"),
         ("gradient", {"max_iter": 0}, r"parameter 'max_iter' must be >= 1"),
         ("gradient", {"step": 0.0}, r"parameter 'step' must be in \(0.0, inf\]"),
+        ("gradient", {"init": "guess"}, r"parameter 'init' must be one of uniform, inverse"),
         ("stochastic", {"p_hit": 1.0}, r"parameter 'p_hit' must be in \(0.0, 1.0\)"),
         ("stochastic", {"p_rand": 1.0}, r"parameter 'p_rand' must be in \[0.0, 1.0\)"),
         ("stochastic", {"preset": "thesis999"}, r"parameter 'preset' must be one of"),

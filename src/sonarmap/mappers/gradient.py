@@ -152,6 +152,11 @@ class GradientMapper(Mapper):
         1 / n, so a burst from one pose counts as one reading (see
         :func:`~sonarmap.mappers._forward.correlation_weights`), scaled so that the
         weights' mean is 1; the robust form's weights multiply these.
+    init : {"uniform", "inverse"}
+        Where the offline solve starts: every cell at 0.5, the papers' neutral start
+        (default), or the inverse mapper's map at its defaults (0.5 where it has no
+        evidence), so the descent refines a map that already places the walls. The
+        robust form's rounds restart from the same map. Streaming starts at 0.5.
 
     Attributes
     ----------
@@ -190,6 +195,7 @@ class GradientMapper(Mapper):
         robust_rounds: int = 2,
         robust_support: float = 3.0,
         correlated: float = 0.0,
+        init: str = "uniform",
     ) -> None:
         self.a1 = a1
         self.a2 = a2
@@ -208,6 +214,7 @@ class GradientMapper(Mapper):
         self.robust_rounds = robust_rounds
         self.robust_support = robust_support
         self.correlated = correlated
+        self.init = init
         _checks.number("a1", a1, 0.0, 1.0, lo_open=True, hi_open=True)
         _checks.number("a2", a2, 0.0, 1.0, lo_open=True, hi_open=True)
         _checks.number("c1", c1, 0.0, None)
@@ -227,6 +234,7 @@ class GradientMapper(Mapper):
         _checks.integer("robust_rounds", robust_rounds, 1)
         _checks.number("robust_support", robust_support, 0.0, None)
         _checks.number("correlated", correlated, 0.0, None)
+        _checks.choice("init", init, ("uniform", "inverse"))
 
     # The objective couples all readings, so batches are kept and the map re-solved,
     # warm-started from the previous solution.
@@ -238,13 +246,23 @@ class GradientMapper(Mapper):
         self.history_: list[float] = []
         self.term_weights_: F64 = np.empty(0)
 
+    def _initial_map(self, readings: Readings, cells: npt.NDArray[np.int64]) -> F64:
+        """The start of the solve at ``cells`` (see ``init``)."""
+        if self.init == "uniform":
+            return np.full(len(cells), 0.5)
+        from .inverse import InverseMapper
+
+        inv = InverseMapper().fit(readings, self.grid, self.sensor).occupancy_.ravel()
+        return np.nan_to_num(inv[cells].astype(np.float64), nan=0.5)
+
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         everything = self._accumulate(readings)
         problem = self.problem(everything)
-        x = np.full(problem.n_cells, 0.5)
+        x = self._initial_map(everything, problem.cells)
         if self._x is not None:
             old = dict(zip(self._cells.tolist(), self._x.tolist(), strict=True))
-            x = np.array([old.get(c, 0.5) for c in problem.cells.tolist()])
+            pairs = zip(problem.cells.tolist(), x.tolist(), strict=True)
+            x = np.array([old.get(c, v) for c, v in pairs])
         start = x
         x, self.n_iter_, self.history_ = self._solve(problem, start, progress)
         prior = np.ones(problem.n_terms) if problem.v is None else problem.v
