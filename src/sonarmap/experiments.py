@@ -82,6 +82,9 @@ METHODS: tuple[MethodSpec, ...] = (
     MethodSpec("inverse", "inverse"),
     MethodSpec("counting", "counting"),
     MethodSpec("gradient", "gradient"),
+    # The papers start the descent from the neutral map; from the inverse map too, to
+    # see whether the start is what the forward model lacks.
+    MethodSpec("gradient-inverse-start", "gradient", {"init": "inverse"}),
     MethodSpec("stochastic", "stochastic"),
     MethodSpec("em", "em"),
     # EM starts from the neutral map (every cell at 0.5) by default; from the inverse
