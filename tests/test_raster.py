@@ -256,9 +256,11 @@ def test_accumulate_checks_its_arrays() -> None:
         )
 
 
-def test_parallel_accumulate_gives_the_serial_result() -> None:
+@pytest.mark.parametrize("falloff", [0.0, math.radians(20.0)])
+def test_parallel_accumulate_gives_the_serial_result(falloff: float) -> None:
     """Row stripes shared between threads: every cell still takes readings in order."""
     from sonarmap._raster_kernel import accumulate_kernel, accumulate_parallel
+    from sonarmap.raster import falloff_fit
 
     rng = np.random.default_rng(3)
     n = 400
@@ -267,6 +269,8 @@ def test_parallel_accumulate_gives_the_serial_result() -> None:
     th, r = rng.uniform(-4, 4, n), rng.uniform(0, 3.2, n)
     free_lim = np.where(r < s.r_max, r - 0.05, s.r_max - 0.05)
     occ_hi = np.where(r < s.r_max, r + 0.05, -np.inf)
+    coef = falloff_fit(s, falloff)[1]
+    assert (len(coef) > 0) == (falloff > 0)
     out = []
     for parts in (1, 2, 3):
         v = np.zeros(GRID.size)
@@ -289,6 +293,8 @@ def test_parallel_accumulate_gives_the_serial_result() -> None:
             0.8,
             -1.0,
             1.2,
+            falloff,
+            coef,
         )
         k = accumulate_kernel(*args) if parts == 1 else accumulate_parallel(*args, parts)
         out.append((k, v, t))

@@ -1,12 +1,16 @@
-"""The numba kernel behind :mod:`sonarmap.raster` (private)."""
+"""The numba kernels behind :mod:`sonarmap.raster` (private)."""
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba as nb
 import numpy as np
 import numpy.typing as npt
+from llvmlite import ir  # type: ignore[import-untyped]
+from numba.core import types
+from numba.extending import intrinsic
 
 # Inclusive slack on the beam's edges and the band's limits (metres): large against
 # rounding (1e-16 relative), small against any cell. A centre lying on a beam edge is
@@ -318,38 +322,227 @@ def rasterise_kernel(
     )
 
 
-@nb.njit(cache=True, inline="always")
-def _side(ox: float, h: float, col: int, x0: float, dy2: float, lim: float) -> int:
-    """Sign of ``sqrt(dx^2 + dy^2) - lim`` for the centre of column ``col``, exactly as
-    the per-cell test computes the distance; the square root is taken only near ``lim``."""
-    if lim < 0.0:
-        return 1
-    dx = ox + (col + 0.5) * h - x0
-    q = dx * dx + dy2
-    l2 = lim * lim
-    if abs(q - l2) > 1e-9 * l2:
-        return 1 if q > l2 else -1
-    d = math.sqrt(q)
-    return 1 if d > lim else (-1 if d < lim else 0)
+# Cells the insertion kernel updates at once (one AVX-512 vector of float64, two AVX2
+# ones). Numba's loop vectoriser leaves scalar whatever does not fill several vectors,
+# and most rows of a beam hold a few dozen cells; blocks with masked loads and stores
+# vectorise every row whole.
+LANES = 8
+
+# The insertion kernel's row parameters, in this order (see _update_blocks).
+_ROW_PARAMS = (
+    "ox",
+    "h",
+    "x0",
+    "dy",
+    "cos",
+    "sin",
+    "inc_free",
+    "inc_occ",
+    "lo",
+    "hi",
+    "f_thr",
+    "o_thr",
+)
+
+# A row this close to the sensor (metres) is weighted cell by cell: there a centre may
+# lie nearer than EDGE_TOL (angle 0 by convention), or well outside the beam's angles
+# yet within EDGE_TOL of its edges.
+ROW_TOL = 1e-5
 
 
-@nb.njit(cache=True, inline="always")
-def _bump(
+def _splat(builder: Any, x: Any) -> Any:
+    vec = ir.VectorType(x.type, LANES)
+    undef = ir.Constant(vec, ir.Undefined)
+    zeros = ir.Constant(ir.VectorType(ir.IntType(32), LANES), [0] * LANES)
+    return builder.shuffle_vector(
+        builder.insert_element(undef, x, ir.Constant(ir.IntType(32), 0)), undef, zeros
+    )
+
+
+def _declare(builder: Any, name: str, ret: Any, args: list[Any]) -> Any:
+    fn = builder.module.globals.get(name)
+    return fn if fn is not None else ir.Function(builder.module, ir.FunctionType(ret, args), name)
+
+
+def _masked(builder: Any, op: str, vec: Any, ptr: Any, suffix: str) -> Any:
+    """llvm.masked.load / llvm.masked.store for ``vec`` through ``ptr``."""
+    # LLVM names the pointer type in the intrinsic: p0 when pointers are opaque (LLVM
+    # 15 on), p0v8f64 and the like with llvmlite's older typed pointers.
+    pname = "p0" if str(ptr.type) == "ptr" else "p0" + suffix
+    mask = ir.VectorType(ir.IntType(1), LANES)
+    i32 = ir.IntType(32)
+    if op == "load":
+        return _declare(
+            builder, f"llvm.masked.load.{suffix}.{pname}", vec, [ptr.type, i32, mask, vec]
+        )
+    return _declare(
+        builder, f"llvm.masked.store.{suffix}.{pname}", ir.VoidType(), [vec, ptr.type, i32, mask]
+    )
+
+
+def _blocks_intrinsic(
+    typingctx: Any,
+    values: Any,
+    touched: Any,
+    base: Any,
+    col_from: Any,
+    col_to: Any,
+    params: Any,
+    coef: Any,
+) -> Any:
+    """Update cells ``base + col_from .. base + col_to`` of one row, LANES at a time.
+
+    ``params`` holds the row's values named in _ROW_PARAMS. A cell is free if its
+    distance d to the sensor is below ``f_thr``, occupied if d <= ``o_thr`` (the
+    rasteriser's test, computed the same way), otherwise left alone. ``coef`` is empty
+    for uniform increments; otherwise both increments are scaled by the polynomial with
+    these coefficients (lowest first) in u = tan^2 of the cell's angle off the axis.
+    Returns the number of cells updated.
+    """
+    # Flat contiguous arrays only: the blocks address them as base + column.
+    for arr, dtype in ((values, types.float64), (touched, types.boolean)):
+        if not (isinstance(arr, types.Array) and arr.dtype == dtype and arr.ndim == 1):
+            return None
+        if arr.layout != "C":
+            return None
+    if len(params) != len(_ROW_PARAMS):
+        return None
+    ncoef = len(coef)
+    sig = types.int64(values, touched, base, col_from, col_to, params, coef)
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        vals, tch, base, col_from, col_to, params, coef = args
+        f64 = ir.DoubleType()
+        i64 = ir.IntType(64)
+        i32 = ir.IntType(32)
+        vd = ir.VectorType(f64, LANES)
+        vi = ir.VectorType(i64, LANES)
+        vb = ir.VectorType(ir.IntType(8), LANES)
+        bits = ir.IntType(LANES)
+        # Contraction into fused multiply-adds, where the machine has them, for the
+        # fall-off only: it changes the last bit of the weight, never the cells.
+        fma = ("contract",)
+        p = {n: builder.extract_value(params, k) for k, n in enumerate(_ROW_PARAMS)}
+        s = {n: _splat(builder, v) for n, v in p.items()}
+        dy2 = _splat(builder, builder.fmul(p["dy"], p["dy"]))
+        dy_s = _splat(builder, builder.fmul(p["dy"], p["sin"]))
+        dy_c = _splat(builder, builder.fmul(p["dy"], p["cos"]))
+        coefs = [_splat(builder, builder.extract_value(coef, j)) for j in range(ncoef)]
+        zero = _splat(builder, ir.Constant(f64, 0.0))
+        half = _splat(builder, ir.Constant(f64, 0.5))
+        sqrt = _declare(builder, f"llvm.sqrt.v{LANES}f64", vd, [vd])
+        ctpop = _declare(builder, f"llvm.ctpop.i{LANES}", bits, [bits])
+        varr = context.make_array(signature.args[0])(context, builder, vals)
+        tarr = context.make_array(signature.args[1])(context, builder, tch)
+
+        lanes_f = ir.Constant(vd, [float(k) for k in range(LANES)])
+        first_f = builder.fadd(_splat(builder, builder.sitofp(col_from, f64)), lanes_f)
+        first_i = builder.add(_splat(builder, col_from), ir.Constant(vi, list(range(LANES))))
+        entry = builder.block
+        head = builder.append_basic_block("blocks.head")
+        body = builder.append_basic_block("blocks.body")
+        done = builder.append_basic_block("blocks.done")
+        builder.branch(head)
+        builder.position_at_end(head)
+        col = builder.phi(i64)
+        col_f = builder.phi(vd)
+        col_i = builder.phi(vi)
+        count = builder.phi(i64)
+        col.add_incoming(col_from, entry)
+        col_f.add_incoming(first_f, entry)
+        col_i.add_incoming(first_i, entry)
+        count.add_incoming(ir.Constant(i64, 0), entry)
+        builder.cbranch(builder.icmp_signed("<=", col, col_to), body, done)
+
+        builder.position_at_end(body)
+        # The rasteriser's distance, operation for operation: a centre decides alike.
+        dx = builder.fsub(
+            builder.fadd(s["ox"], builder.fmul(builder.fadd(col_f, half), s["h"])), s["x0"]
+        )
+        d = builder.call(sqrt, [builder.fadd(builder.fmul(dx, dx), dy2)])
+        in_row = builder.icmp_signed("<=", col_i, _splat(builder, col_to))
+        free = builder.fcmp_ordered("<", d, s["f_thr"])
+        occ = builder.fcmp_ordered("<=", d, s["o_thr"])
+        update = builder.and_(in_row, builder.or_(free, occ))
+        inc = builder.select(free, s["inc_free"], s["inc_occ"])
+        if ncoef:
+            along = builder.fadd(builder.fmul(dx, s["cos"], flags=fma), dy_s, flags=fma)
+            across = builder.fsub(dy_c, builder.fmul(dx, s["sin"], flags=fma), flags=fma)
+            q = builder.fdiv(across, along)
+            u = builder.fmul(q, q)
+            w = coefs[-1]
+            for c in reversed(coefs[:-1]):
+                w = builder.fadd(builder.fmul(w, u, flags=fma), c, flags=fma)
+            inc = builder.fmul(inc, w)
+        at = builder.add(base, col)
+        vptr = builder.bitcast(builder.gep(varr.data, [at]), vd.as_pointer())
+        tptr = builder.bitcast(builder.gep(tarr.data, [at]), vb.as_pointer())
+        # Masked lanes are neither read nor written: a block may pass the row's end,
+        # even the grid's, and rows stay private to the thread that owns them.
+        old = builder.call(
+            _masked(builder, "load", vd, vptr, f"v{LANES}f64"),
+            [vptr, ir.Constant(i32, 8), in_row, zero],
+        )
+        v = builder.fadd(old, inc)
+        v = builder.select(builder.fcmp_ordered(">", v, s["lo"]), v, s["lo"])
+        v = builder.select(builder.fcmp_ordered("<", v, s["hi"]), v, s["hi"])
+        builder.call(
+            _masked(builder, "store", vd, vptr, f"v{LANES}f64"),
+            [v, vptr, ir.Constant(i32, 8), update],
+        )
+        builder.call(
+            _masked(builder, "store", vb, tptr, f"v{LANES}i8"),
+            [ir.Constant(vb, [1] * LANES), tptr, ir.Constant(i32, 1), update],
+        )
+        n = builder.zext(builder.call(ctpop, [builder.bitcast(update, bits)]), i64)
+        col.add_incoming(builder.add(col, ir.Constant(i64, LANES)), body)
+        col_f.add_incoming(builder.fadd(col_f, _splat(builder, ir.Constant(f64, LANES))), body)
+        col_i.add_incoming(builder.add(col_i, _splat(builder, ir.Constant(i64, LANES))), body)
+        count.add_incoming(builder.add(count, n), body)
+        builder.branch(head)
+
+        builder.position_at_end(done)
+        return count
+
+    return sig, codegen
+
+
+# Typed as Any: numba's intrinsic wrapper takes the arguments after typingctx.
+_update_blocks: Any = intrinsic(_blocks_intrinsic)
+
+
+@nb.njit(cache=True)
+def _update_cells(
     values: npt.NDArray[np.float64],
     touched: npt.NDArray[np.bool_],
-    a: int,
-    b: int,
-    inc: float,
-    lo: float,
-    hi: float,
-) -> None:
-    # A local view and a slice fill compile to tighter loops than indexing the grid.
-    seg = values[a : b + 1]
-    for k in range(seg.shape[0]):
-        v = seg[k] + inc
+    base: int,
+    col_from: int,
+    col_to: int,
+    params: tuple[float, ...],
+    sigma: float,
+) -> int:
+    """:func:`_update_blocks` one cell at a time, with the fall-off weight (standard
+    deviation ``sigma``, radians; 0 for none) computed exactly from each cell's angle."""
+    ox, h, x0, dy, c, s, inc_free, inc_occ, lo, hi, f_thr, o_thr = params
+    n = 0
+    for col in range(col_from, col_to + 1):
+        dx = ox + (col + 0.5) * h - x0
+        d = math.sqrt(dx * dx + dy * dy)
+        if d < f_thr:
+            inc = inc_free
+        elif d <= o_thr:
+            inc = inc_occ
+        else:
+            continue
+        if sigma > 0.0:
+            b = _bearing(dx, dy, c, s, d) / sigma
+            inc *= math.exp(-0.5 * b * b)
+        v = values[base + col] + inc
         v = v if v > lo else lo
-        seg[k] = v if v < hi else hi
-    touched[a : b + 1] = True
+        values[base + col] = v if v < hi else hi
+        touched[base + col] = True
+        n += 1
+    return n
 
 
 @nb.njit(cache=True)
@@ -372,6 +565,8 @@ def accumulate_kernel(
     inc_occ: float,
     lo: float,
     hi: float,
+    sigma: float,
+    coef: tuple[float, ...],
     part: int = 0,
     parts: int = 1,
     stripe: int = 8,
@@ -380,10 +575,14 @@ def accumulate_kernel(
     each reading, in reading order, clamping to [lo, hi] after each addition; returns
     the number of cell updates.
 
-    The cells are exactly those of :func:`rasterise_kernel` (the same spans and tests),
-    visited as runs: along a row, distance to the sensor is convex, so the free cells
-    (d below a limit) form one run and the occupied cells the rest of the beam's span.
-    Only the run ends are tested cell by cell.
+    The cells are exactly those of :func:`rasterise_kernel`: the same rows and spans, and
+    the same distance test, made LANES cells at a time (:func:`_update_blocks`).
+
+    With ``sigma > 0`` both increments are scaled by ``exp(-b^2 / (2 sigma^2))``, b the
+    cell's angle off the beam axis (the rasteriser's bearing). ``coef`` is a polynomial
+    in u = tan^2 b that gives that weight over all the beam's angles (its caller fits
+    it, :func:`sonarmap.raster.falloff_fit`); rows within ROW_TOL of the sensor, and all
+    rows when ``coef`` is empty, are weighted cell by cell with atan2 and exp.
 
     With ``parts > 1`` only the rows of stripes ``part``, ``part + parts``, ... (stripes
     of ``stripe`` rows) are updated: parts can run in parallel, and each cell still sees
@@ -392,19 +591,17 @@ def accumulate_kernel(
     n = sx.shape[0]
     total = 0
     scratch = np.empty((3, beam_planes.shape[0]))
-    inv_h = 1.0 / h
     for i in range(n):
         x0 = sx[i]
         y0 = sy[i]
         c = math.cos(st[i])
         s = math.sin(st[i])
-        a_lim = free_lim[i] - EDGE_TOL
-        b_lim = occ_hi[i] + EDGE_TOL
+        # The rasteriser's band limits with its slack; a no-echo reading has no band.
+        f_thr = free_lim[i] - EDGE_TOL
+        o_thr = occ_hi[i] + EDGE_TOL
         reach = min(max(free_lim[i], occ_hi[i]), beam_radius) + EDGE_TOL
         if reach <= EDGE_TOL:
             continue
-        # A no-echo reading has no band: only its free cells are updated.
-        band = b_lim >= a_lim
         iy_lo, iy_hi = _row_range(beam_planes, c, s, x0, y0, reach, oy, h, rows, scratch)
         for iy in range(iy_lo, iy_hi + 1):
             if parts > 1 and (iy // stripe) % parts != part:
@@ -419,47 +616,13 @@ def accumulate_kernel(
                 continue
             dy = yc - y0
             base = (rows - 1 - iy) * cols
-            dy2 = dy * dy
-            if band:
-                # The span reaches b_lim plus rounding slack; a cell in that slack is
-                # outside the band, and only the span's end cells can be.
-                while c_lo <= c_hi and _side(ox, h, c_lo, x0, dy2, b_lim) > 0:
-                    c_lo += 1
-                while c_hi >= c_lo and _side(ox, h, c_hi, x0, dy2, b_lim) > 0:
-                    c_hi -= 1
-                if c_hi < c_lo:
-                    continue
-            # The free run from the chord of the circle d = a_lim; a run end is checked
-            # cell by cell only when a centre lies within rounding of the circle.
-            fl = c_hi + 1
-            fh = c_hi
-            if a_lim > 0.0 and a_lim * a_lim > dy2:
-                half = math.sqrt(a_lim * a_lim - dy2)
-                u = (x0 - half - ox) * inv_h - 0.5
-                v = (x0 + half - ox) * inv_h - 0.5
-                fl = math.ceil(u)
-                fh = math.floor(v)
-                if abs(u - math.floor(u + 0.5)) < 1e-6:
-                    while _side(ox, h, fl - 1, x0, dy2, a_lim) < 0:
-                        fl -= 1
-                    while fl <= fh and _side(ox, h, fl, x0, dy2, a_lim) >= 0:
-                        fl += 1
-                if abs(v - math.floor(v + 0.5)) < 1e-6:
-                    while _side(ox, h, fh + 1, x0, dy2, a_lim) < 0:
-                        fh += 1
-                    while fh >= fl and _side(ox, h, fh, x0, dy2, a_lim) >= 0:
-                        fh -= 1
-                fl = max(fl, c_lo)
-                fh = min(fh, c_hi)
-                if fh < fl:
-                    fl = c_hi + 1
-                    fh = c_hi
-            _bump(values, touched, base + fl, base + fh, inc_free, lo, hi)
-            total += fh - fl + 1
-            if band:
-                _bump(values, touched, base + c_lo, base + fl - 1, inc_occ, lo, hi)
-                _bump(values, touched, base + fh + 1, base + c_hi, inc_occ, lo, hi)
-                total += (fl - c_lo) + (c_hi - fh)
+            params = (ox, h, x0, dy, c, s, inc_free, inc_occ, lo, hi, f_thr, o_thr)
+            if sigma <= 0.0:
+                total += _update_blocks(values, touched, base, c_lo, c_hi, params, ())
+            elif len(coef) > 0 and abs(dy) > ROW_TOL:
+                total += _update_blocks(values, touched, base, c_lo, c_hi, params, coef)
+            else:
+                total += _update_cells(values, touched, base, c_lo, c_hi, params, sigma)
     return total
 
 
@@ -483,6 +646,8 @@ def accumulate_parallel(
     inc_occ: float,
     lo: float,
     hi: float,
+    sigma: float,
+    coef: tuple[float, ...],
     parts: int,
 ) -> int:
     """:func:`accumulate_kernel` split over ``parts`` threads by interleaved row stripes;
@@ -508,6 +673,8 @@ def accumulate_parallel(
             inc_occ,
             lo,
             hi,
+            sigma,
+            coef,
             p,
             parts,
             8,

@@ -41,35 +41,6 @@ def _logit(p: float) -> float:
     return math.log(p / (1.0 - p))
 
 
-@nb.njit(cache=True)
-def _apply(
-    logodds: npt.NDArray[np.float64],
-    touched: npt.NDArray[np.bool_],
-    f_off: npt.NDArray[np.int64],
-    f_cell: npt.NDArray[np.int32],
-    f_scale: npt.NDArray[np.float32],
-    o_off: npt.NDArray[np.int64],
-    o_cell: npt.NDArray[np.int32],
-    o_scale: npt.NDArray[np.float32],
-    l_free: float,
-    l_occ: float,
-    lo: float,
-    hi: float,
-) -> None:
-    n = f_off.shape[0] - 1
-    for i in range(n):
-        for j in range(f_off[i], f_off[i + 1]):
-            c = f_cell[j]
-            v = logodds[c] + l_free * f_scale[j]
-            logodds[c] = min(max(v, lo), hi)
-            touched[c] = True
-        for j in range(o_off[i], o_off[i + 1]):
-            c = o_cell[j]
-            v = logodds[c] + l_occ * o_scale[j]
-            logodds[c] = min(max(v, lo), hi)
-            touched[c] = True
-
-
 @register
 class InverseMapper(Mapper):
     """Log-odds occupancy grid with an inverse sonar model.
@@ -129,58 +100,34 @@ class InverseMapper(Mapper):
         self._logodds = np.zeros(self.grid.size, dtype=np.float64)
         self._touched = np.zeros(self.grid.size, dtype=np.bool_)
 
-    def _scale(self, bearing: npt.NDArray[np.float32] | None, n: int) -> npt.NDArray[np.float32]:
-        if bearing is None:
-            return np.ones(n, dtype=np.float32)
-        s = math.radians(self.falloff_deg)
-        return np.asarray(np.exp(-0.5 * (bearing / s) ** 2), dtype=np.float32)
-
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         if self.no_echo == "ignore":
-            # Dropped before rasterising: a no-echo beam is the longest there is.
+            # Dropped before inserting: a no-echo beam is the longest there is.
             readings = self._echoes(readings)
-        falloff = self.falloff_deg > 0
         l_free, l_occ = _logit(self.p_free), _logit(self.p_occ)
         lo, hi = _logit(self.clamp_min), _logit(self.clamp_max)
-        if not falloff:
-            # Uniform increments need no stored footprint: the rasteriser's runs.
-            n = len(readings)
-            for a in range(0, n, self.chunk_size):
-                b = min(a + self.chunk_size, n)
-                accumulate(
-                    self.grid,
-                    self.sensor,
-                    readings.x[a:b],
-                    readings.y[a:b],
-                    readings.theta[a:b],
-                    readings.range[a:b],
-                    self._logodds,
-                    self._touched,
-                    inc_free=l_free,
-                    inc_occ=l_occ,
-                    clamp=(lo, hi),
-                    dr=self.dr,
-                )
-                if progress is not None:
-                    progress(b, n)
-            return
-        for _, fp in self._footprints(
-            readings, dr=self.dr, with_bearing=falloff, progress=progress
-        ):
-            _apply(
+        # Nothing is stored per reading, fall-off or not: the insertion kernel weighs
+        # each cell by its angle off the axis as it visits it.
+        n = len(readings)
+        for a in range(0, n, self.chunk_size):
+            b = min(a + self.chunk_size, n)
+            accumulate(
+                self.grid,
+                self.sensor,
+                readings.x[a:b],
+                readings.y[a:b],
+                readings.theta[a:b],
+                readings.range[a:b],
                 self._logodds,
                 self._touched,
-                fp.free.offsets,
-                fp.free.cells,
-                self._scale(fp.free.bearing, len(fp.free.cells)),
-                fp.occ.offsets,
-                fp.occ.cells,
-                self._scale(fp.occ.bearing, len(fp.occ.cells)),
-                l_free,
-                l_occ,
-                lo,
-                hi,
+                inc_free=l_free,
+                inc_occ=l_occ,
+                clamp=(lo, hi),
+                dr=self.dr,
+                falloff=math.radians(self.falloff_deg),
             )
+            if progress is not None:
+                progress(b, n)
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
         p = 1.0 / (1.0 + np.exp(-self._logodds))
