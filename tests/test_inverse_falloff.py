@@ -16,6 +16,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from conftest import cone_sensor, poses, zoned_sensor
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
@@ -66,32 +67,6 @@ def reference(
             values[cells] = np.clip(values[cells] + add * w, *clamp)
             touched[cells] = True
     return (values, touched), fp.n_entries
-
-
-def cone_sensor(aperture: float) -> SensorModel:
-    return SensorModel(
-        "cone", Region.cone(aperture, 3.0), r_min=0.0, r_max=3.0, range_resolution=0.02
-    )
-
-
-def zoned_sensor() -> SensorModel:
-    return SensorModel(
-        "zoned",
-        Region.polygon([[0.0, 0.0], [2.5, -1.0], [3.0, 0.0], [2.5, 1.0]]),
-        r_min=0.0,
-        r_max=3.0,
-        range_resolution=0.02,
-        min_size=0.2,
-        zones=((Region.polygon([[0.0, 0.0], [1.5, -0.3], [1.5, 0.3]]), 0.05),),
-    )
-
-
-poses = st.tuples(
-    st.floats(-2.5, 2.5),
-    st.floats(-2.5, 2.5),
-    st.floats(-math.pi, math.pi),
-    st.floats(0.0, 3.5),
-)
 
 
 @settings(max_examples=80, deadline=None)
@@ -224,33 +199,27 @@ def test_falloff_fit_gives_up_on_wide_beams_and_no_falloff() -> None:
     assert falloff_fit(cone_sensor(170.0), math.radians(20.0)) == (0.0, ())
     assert falloff_fit(get_sensor("polaroid-6500"), 0.0) == (0.0, ())
     assert falloff_fit(get_sensor("polaroid-6500"), math.radians(20.0))[1]
+
+    def one_reading(values: npt.NDArray[np.float64], falloff: float = 0.0) -> None:
+        touched = np.zeros(GRID.size, bool)
+        accumulate(
+            GRID,
+            cone_sensor(30.0),
+            [0],
+            [0],
+            [0],
+            [1],
+            values,
+            touched,
+            inc_free=-1,
+            inc_occ=1,
+            falloff=falloff,
+        )
+
     with pytest.raises(ConfigError, match="contiguous"):
-        accumulate(
-            GRID,
-            cone_sensor(30.0),
-            [0],
-            [0],
-            [0],
-            [1],
-            np.zeros(2 * GRID.size)[::2],
-            np.zeros(GRID.size, bool),
-            inc_free=-1,
-            inc_occ=1,
-        )
+        one_reading(np.zeros(2 * GRID.size)[::2])
     with pytest.raises(ConfigError, match="falloff"):
-        accumulate(
-            GRID,
-            cone_sensor(30.0),
-            [0],
-            [0],
-            [0],
-            [1],
-            np.zeros(GRID.size),
-            np.zeros(GRID.size, bool),
-            inc_free=-1,
-            inc_occ=1,
-            falloff=-0.1,
-        )
+        one_reading(np.zeros(GRID.size), falloff=-0.1)
 
 
 def _logit(p: float) -> float:

@@ -10,6 +10,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from conftest import cone_sensor, poses, zoned_sensor
 from sonarmap.errors import ConfigError, InputError
 from sonarmap.grid import Grid
 from sonarmap.raster import Footprint, accumulate, beam_cells, default_dr, rasterise
@@ -40,32 +41,6 @@ def reference(
     w = np.where(size > 0, np.minimum(grid.resolution**2 / safe**2, 1.0), 1.0)
     weights = {int(i): float(w[i]) for i in np.flatnonzero(inside)}
     return set(np.flatnonzero(free).tolist()), set(np.flatnonzero(occ).tolist()), weights
-
-
-def cone_sensor(aperture: float) -> SensorModel:
-    return SensorModel(
-        "cone", Region.cone(aperture, 3.0), r_min=0.0, r_max=3.0, range_resolution=0.02
-    )
-
-
-def zoned_sensor() -> SensorModel:
-    return SensorModel(
-        "zoned",
-        Region.polygon([[0.0, 0.0], [2.5, -1.0], [3.0, 0.0], [2.5, 1.0]]),
-        r_min=0.0,
-        r_max=3.0,
-        range_resolution=0.02,
-        min_size=0.2,
-        zones=((Region.polygon([[0.0, 0.0], [1.5, -0.3], [1.5, 0.3]]), 0.05),),
-    )
-
-
-poses = st.tuples(
-    st.floats(-2.5, 2.5),
-    st.floats(-2.5, 2.5),
-    st.floats(-math.pi, math.pi),
-    st.floats(0.0, 3.5),
-)
 
 
 @settings(max_examples=60, deadline=None)

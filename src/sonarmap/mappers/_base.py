@@ -197,20 +197,30 @@ class Mapper(ABC):
         progress: Progress | None = None,
     ) -> Iterator[tuple[int, Footprint]]:
         """Rasterise readings chunk by chunk; yields (index of first reading, footprint)."""
+        for a, r in self._chunks(readings, progress):
+            yield (
+                a,
+                rasterise(
+                    self.grid,
+                    self.sensor,
+                    r.x,
+                    r.y,
+                    r.theta,
+                    r.range,
+                    dr=dr,
+                    with_bearing=with_bearing,
+                ),
+            )
+
+    def _chunks(
+        self, readings: Readings, progress: Progress | None = None
+    ) -> Iterator[tuple[int, Readings]]:
+        """``chunk_size`` readings at a time, with the index of the first; ``progress``
+        hears of each chunk once the caller is done with it."""
         n = len(readings)
         for a in range(0, n, self.chunk_size):
             b = min(a + self.chunk_size, n)
-            fp = rasterise(
-                self.grid,
-                self.sensor,
-                readings.x[a:b],
-                readings.y[a:b],
-                readings.theta[a:b],
-                readings.range[a:b],
-                dr=dr,
-                with_bearing=with_bearing,
-            )
-            yield a, fp
+            yield a, readings.take(slice(a, b))
             if progress is not None:
                 progress(b, n)
 

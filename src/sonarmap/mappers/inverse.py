@@ -108,16 +108,14 @@ class InverseMapper(Mapper):
         lo, hi = _logit(self.clamp_min), _logit(self.clamp_max)
         # Nothing is stored per reading, fall-off or not: the insertion kernel weighs
         # each cell by its angle off the axis as it visits it.
-        n = len(readings)
-        for a in range(0, n, self.chunk_size):
-            b = min(a + self.chunk_size, n)
+        for _, r in self._chunks(readings, progress):
             accumulate(
                 self.grid,
                 self.sensor,
-                readings.x[a:b],
-                readings.y[a:b],
-                readings.theta[a:b],
-                readings.range[a:b],
+                r.x,
+                r.y,
+                r.theta,
+                r.range,
                 self._logodds,
                 self._touched,
                 inc_free=l_free,
@@ -126,8 +124,6 @@ class InverseMapper(Mapper):
                 dr=self.dr,
                 falloff=math.radians(self.falloff_deg),
             )
-            if progress is not None:
-                progress(b, n)
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
         p = 1.0 / (1.0 + np.exp(-self._logodds))
