@@ -28,13 +28,12 @@ from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from sonarmap.floorplan import random_building
+from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.plot import save_memory_series
-from sonarmap.scenarios import office
-from sonarmap.sensors import Noise
 from sonarmap.team.mission import MissionConfig, run_mission
 from sonarmap.team.store import StoreParams
+from sonarmap.team.world import builtin_plan
 
 KEYS = (
     "store_bytes_peak",
@@ -69,13 +68,10 @@ KEYS = (
 
 
 def _plan(name: str) -> OccupancyMap:
-    if name == "office":
-        return office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
-    kind, _, seed = name.partition(":")
-    if kind != "building" or not seed.isdigit():
-        raise SystemExit(f"--plan: 'office' or 'building:SEED', got {name!r}")
-    fp = random_building(seed=int(seed))
-    return fp.render(fp.grid(0.1))
+    try:
+        return builtin_plan(name)
+    except ConfigError as e:
+        raise SystemExit(f"--plan: {e}") from None
 
 
 def measure(

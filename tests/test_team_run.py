@@ -22,6 +22,7 @@ from sonarmap.team.network import NetworkParams
 from sonarmap.team.patrolling import patrol_config, patrol_routes
 from sonarmap.team.records import Landmarks, Pose, encode, make_uid
 from sonarmap.team.simulation import TeamResult, run_team
+from sonarmap.team.world import builtin_plan
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +63,7 @@ def test_a_patrolling_team_run_writes_the_team_summary(tmp_path: Path, plan: Occ
         (["--exchange", "gossip"], "--exchange"),
         (["--cap", "0"], "--cap"),
         (["--bandwidth", "-1"], "--bandwidth"),
+        (["--budget", "-1"], "--budget"),
         (["--transport", "pigeon"], "--transport"),
         (["--patrol", "--route", "r.csv"], "--patrol"),
     ],
@@ -76,6 +78,22 @@ def test_bad_team_options_are_one_line_and_exit_2(
     assert e.value.code == 2
     assert message in err
     assert len(err.splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
+def test_built_in_plans_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    office = builtin_plan("office")
+    assert office.grid.shape == (200, 200)
+    assert (office.classes() == 1).any()
+    assert (office.classes() == 0).any()
+    a, b = builtin_plan("building:7"), builtin_plan("building:7")
+    np.testing.assert_array_equal(a.classes(), b.classes())
+    assert not np.array_equal(a.classes(), builtin_plan("building:8").classes())
+    with pytest.raises(SystemExit) as e:
+        main(["team", "run", "--map", "building:x", "--duration", "20",
+              "-o", str(tmp_path / "out")])  # fmt: skip
+    assert e.value.code == 2
+    assert "no built-in plan 'building:x'" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
 

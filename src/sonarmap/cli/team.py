@@ -26,7 +26,14 @@ from ..team.patrolling import patrol_routes
 from ..team.records import compose
 from ..team.simulation import TeamResult, run_team
 from ..team.store import StoreParams
-from ..team.world import load_world, make_world, patrol_route, read_route, save_world
+from ..team.world import (
+    builtin_plan,
+    load_world,
+    make_world,
+    patrol_route,
+    read_route,
+    save_world,
+)
 from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
 
 team_app = typer.Typer(
@@ -36,7 +43,12 @@ team_app = typer.Typer(
 )
 
 MapOption = Annotated[
-    Path, typer.Option("--map", help="Floor plan: map_server YAML, or an image with --resolution.")
+    Path,
+    typer.Option(
+        "--map",
+        help="Floor plan: map_server YAML, an image with --resolution, or a built-in plan "
+        "by name: office, building:SEED.",
+    ),
 ]
 OutOption = Annotated[
     Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
@@ -66,6 +78,14 @@ MEAN_KEYS = (
 )
 
 
+def _team_plan(path: Path, resolution: float | None, origin: tuple[float, float]) -> OccupancyMap:
+    """``--map``: a file, or, when no such file exists, a built-in plan's name."""
+    name = str(path)
+    if not path.exists() and (name == "office" or name.startswith("building:")):
+        return builtin_plan(name)
+    return _read_plan(path, resolution, origin)
+
+
 @team_app.command("world")
 def world_cmd(
     out: OutOption,
@@ -82,14 +102,14 @@ def world_cmd(
     ] = 0.1,
 ) -> None:
     """Make a mission's world: landmarks with their changes, a patrol route, the truth."""
-    plan = _read_plan(map_, resolution, origin)
+    plan = _team_plan(map_, resolution, origin)
     world = make_world(
         plan,
         seed=seed,
         duration=duration,
         texture_share=texture_share,
         change_share=change_share,
-        plan_path=map_.resolve(),
+        plan_path=map_.resolve() if map_.exists() else None,
     )
     route = patrol_route(plan, duration, seed=seed)
     save_world(world, route, out)
@@ -332,7 +352,7 @@ def run_cmd(
             "--world and --animate are --transport sim's"
         )
     store = _check_bounds(pose_limit, region_limit)
-    plan = _read_plan(map_, resolution, origin)
+    plan = _team_plan(map_, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
     if world_dir is not None:
@@ -469,7 +489,7 @@ def node_cmd(
     ex = parse_exchange(exchange or [])
     peer_map = parse_peers(peers, robot)
     given = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
-    plan = _read_plan(map_, resolution, origin)
+    plan = _team_plan(map_, resolution, origin)
     config = MissionConfig(duration=duration, seed=seed, store=store)
     with _progress(f"robot {robot}") as update:
         s = run_node(

@@ -42,6 +42,7 @@ import yaml
 from scipy import ndimage
 
 from ..errors import ConfigError, InputError
+from ..floorplan import random_building
 from ..grid import Grid
 from ..io._atomic import atomic_folder
 from ..io._files import need_file
@@ -51,13 +52,17 @@ from ..patrol.paths import Wave, path_to
 from ..patrol.territory import Territory, segment_clear
 from ..readings import Readings, Trajectory
 from ..rig import Rig, get_rig
+from ..scenarios import office
+from ..sensors import Noise
 from ..simulate import SonarModel, simulate
 from .records import Landmarks
 
 __all__ = [
+    "BUILTIN_PLANS",
     "LANDMARK_COLUMNS",
     "ROUTE_COLUMNS",
     "World",
+    "builtin_plan",
     "load_world",
     "make_world",
     "observe",
@@ -159,6 +164,29 @@ class World:
 
 
 # --- landmarks --------------------------------------------------------------------------
+
+
+#: The floor plans known by name (:func:`builtin_plan`).
+BUILTIN_PLANS = ("office", "building:SEED")
+
+
+def builtin_plan(name: str) -> OccupancyMap:
+    """A built-in floor plan at 10 cm: ``"office"`` (20 m x 20 m, eight rooms off a
+    corridor, :func:`~sonarmap.scenarios.office`) or ``"building:SEED"`` (a random
+    building, :func:`~sonarmap.floorplan.random_building` of that seed).
+
+    Raises
+    ------
+    ConfigError
+        Any other name.
+    """
+    if name == "office":
+        return office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    kind, _, seed = name.partition(":")
+    if kind != "building" or not seed.isdigit():
+        raise ConfigError(f"no built-in plan {name!r}: {' or '.join(BUILTIN_PLANS)}")
+    fp = random_building(seed=int(seed))
+    return fp.render(fp.grid(0.1))
 
 
 def _faces(plan: OccupancyMap) -> tuple[F64, F64, F64]:
