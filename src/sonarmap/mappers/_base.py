@@ -193,24 +193,11 @@ class Mapper(ABC):
         readings: Readings,
         *,
         dr: float | None = None,
-        with_bearing: bool = False,
         progress: Progress | None = None,
     ) -> Iterator[tuple[int, Footprint]]:
         """Rasterise readings chunk by chunk; yields (index of first reading, footprint)."""
         for a, r in self._chunks(readings, progress):
-            yield (
-                a,
-                rasterise(
-                    self.grid,
-                    self.sensor,
-                    r.x,
-                    r.y,
-                    r.theta,
-                    r.range,
-                    dr=dr,
-                    with_bearing=with_bearing,
-                ),
-            )
+            yield a, rasterise(self.grid, self.sensor, r.x, r.y, r.theta, r.range, dr=dr)
 
     def _chunks(
         self, readings: Readings, progress: Progress | None = None
