@@ -224,11 +224,11 @@ class ExchangeParams:
         exchange keeps to a known share of the network; 0 (default): no budget. The
         robot keeps a balance that grows at ``budget`` up to ``cap_bytes`` and pays for
         each answer it receives (the body as it came), and it sends a request only
-        while the balance exceeds ``cap_bytes`` for each request still awaiting an
-        answer. Its answers thus average at most ``budget`` bytes per second plus one
-        answer. The regions it visits next are asked for first, and a limited-mode
-        answer carries the poses of best E (the thesis's deletion-only compression),
-        so a small budget buys the poses that matter most first.
+        while the balance is positive and no request awaits an answer. Its answers thus
+        average at most ``budget`` bytes per second plus one answer. The regions it
+        visits next are asked for first, and a limited-mode answer carries the poses of
+        best E (the thesis's deletion-only compression), so a small budget buys the
+        poses that matter most first.
     """
 
     mode: str = "good"
@@ -1104,7 +1104,9 @@ class Exchanger:
         if math.isfinite(self._balance_at):
             self._balance = min(cap, self._balance + budget * (now - self._balance_at))
         self._balance_at = now
-        return self._balance > cap * len(self._pending)
+        # The balance never exceeds the cap, so one request awaiting an answer (which
+        # may cost a cap) is all the budget allows at a time.
+        return not self._pending and self._balance > 0
 
     def _group(
         self, order: Sequence[PatchKey], chosen: Mapping[PatchKey, int]
