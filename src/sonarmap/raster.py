@@ -3,14 +3,17 @@
 Every mapper and the simulator take their geometry from here. For a batch of readings
 and a grid, :func:`rasterise` returns, per reading, the cells of
 
-- Omega_free: cells of the beam nearer than ``r - dr``, and
-- Omega_occ: cells of the beam at distance in ``[r - dr, r + dr]``,
+- Omega_free: cells of the beam nearer than ``r + offset - dr``, and
+- Omega_occ: cells of the beam at distance in ``[r + offset - dr, r + offset + dr]``,
 
 as flat arrays with per-reading offsets (CSR layout). A cell belongs to a region when
 its centre does; boundaries are inclusive with a slack of 1e-9 m, and a centre on the
 free / occupied boundary is in Omega_occ, so results do not change when the world and
-the pose are rotated together. A reading with ``r >= r_max`` (no echo) has no Omega_occ and its
-Omega_free reaches ``r_max - dr`` (methods.md, Notation).
+the pose are rotated together. The ``offset`` (0 unless asked for) moves the band
+behind the echo: a cell is occupied when its centre is inside an obstacle, so the
+first occupied cell behind a surface heard at r has its centre between r and about
+r + h, not around r (the mappers' ``band_offset``). A reading with ``r >= r_max`` (no
+echo) has no Omega_occ and its Omega_free reaches ``r_max - dr`` (methods.md, Notation).
 
 The weight is the sensitivity weight ``w0 = min(s / S, 1)`` of methods.md section 2,
 ``s`` the cell area and ``S`` the smallest detectable obstacle area at the cell centre.
@@ -196,6 +199,7 @@ def rasterise(
     ranges: npt.ArrayLike,
     *,
     dr: float | None = None,
+    offset: float = 0.0,
     with_bearing: bool = False,
 ) -> Footprint:
     """Omega_free and Omega_occ of each reading.
@@ -212,6 +216,8 @@ def rasterise(
         Measured ranges (metres); ``>= sensor.r_max`` means no echo.
     dr : float, optional
         Half-width of the Omega_occ band; default :func:`default_dr`.
+    offset : float
+        How far behind the range the band's centre lies, metres (>= 0; default 0).
     with_bearing : bool
         Also return each cell's angle off the beam axis.
 
@@ -231,22 +237,29 @@ def rasterise(
     ([0, 1, 2], [3])
     """
     sx, sy, st, r = _poses(x, y, theta, ranges)
-    d, free_lim, occ_hi = _limits(grid, sensor, r, dr)
+    d, free_lim, occ_hi = _limits(grid, sensor, r, dr, offset)
     f, o = _run(grid, sensor, sx, sy, st, free_lim, occ_hi, with_bearing)
     return Footprint(free=f, occ=o, dr=d)
 
 
 def _limits(
-    grid: Grid, sensor: SensorModel, r: npt.NDArray[np.float64], dr: float | None
+    grid: Grid,
+    sensor: SensorModel,
+    r: npt.NDArray[np.float64],
+    dr: float | None,
+    offset: float = 0.0,
 ) -> tuple[float, npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     if (r < 0).any():
         raise InputError("ranges must be >= 0", field="range")
     d = default_dr(grid, sensor) if dr is None else float(dr)
     if not (np.isfinite(d) and d >= 0):
         raise ConfigError(f"dr must be a non-negative number of metres, got {dr}")
+    if not (math.isfinite(offset) and offset >= 0):
+        raise ConfigError(f"the band offset must be a non-negative number of metres, got {offset}")
     echo = r < sensor.r_max
-    free_lim = np.where(echo, r - d, sensor.r_max - d)
-    occ_hi = np.where(echo, r + d, -np.inf)
+    # A no-echo reading has no band to move: its free region ends at r_max - dr.
+    free_lim = np.where(echo, r + offset - d, sensor.r_max - d)
+    occ_hi = np.where(echo, r + offset + d, -np.inf)
     return d, free_lim, occ_hi
 
 
@@ -264,6 +277,7 @@ def accumulate(
     inc_occ: float,
     clamp: tuple[float, float] = (-np.inf, np.inf),
     dr: float | None = None,
+    offset: float = 0.0,
     falloff: float = 0.0,
 ) -> int:
     """Add to the Omega_free and Omega_occ cells of each reading, in place.
@@ -291,6 +305,8 @@ def accumulate(
         Set True for every cell a reading touches.
     inc_free, inc_occ : float
         What a reading adds to its free and occupied cells.
+    dr, offset : float
+        The band, as for :func:`rasterise`.
     falloff : float
         Standard deviation (radians) of the Gaussian fall-off of both increments with
         the angle off the axis; 0 adds them uniformly.
@@ -301,7 +317,7 @@ def accumulate(
         Cell updates made.
     """
     sx, sy, st, r = _poses(x, y, theta, ranges)
-    _, free_lim, occ_hi = _limits(grid, sensor, r, dr)
+    _, free_lim, occ_hi = _limits(grid, sensor, r, dr, offset)
     if values.shape != (grid.size,) or touched.shape != (grid.size,):
         raise ConfigError(f"values and touched must have shape ({grid.size},)")
     if not (values.flags.c_contiguous and touched.flags.c_contiguous):

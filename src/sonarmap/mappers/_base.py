@@ -193,11 +193,13 @@ class Mapper(ABC):
         readings: Readings,
         *,
         dr: float | None = None,
+        offset: float = 0.0,
         progress: Progress | None = None,
     ) -> Iterator[tuple[int, Footprint]]:
         """Rasterise readings chunk by chunk; yields (index of first reading, footprint)."""
         for a, r in self._chunks(readings, progress):
-            yield a, rasterise(self.grid, self.sensor, r.x, r.y, r.theta, r.range, dr=dr)
+            fp = rasterise(self.grid, self.sensor, r.x, r.y, r.theta, r.range, dr=dr, offset=offset)
+            yield a, fp
 
     def _chunks(
         self, readings: Readings, progress: Progress | None = None
@@ -211,12 +213,14 @@ class Mapper(ABC):
             if progress is not None:
                 progress(b, n)
 
-    def _kept_footprints(self, readings: Readings, *, dr: float | None) -> list[Footprint]:
+    def _kept_footprints(
+        self, readings: Readings, *, dr: float | None, offset: float = 0.0
+    ) -> list[Footprint]:
         """Every reading's footprint, for methods whose objective couples them all;
         refused beyond :data:`MAX_ENTRIES` entries."""
         out: list[Footprint] = []
         total = 0
-        for a, fp in self._footprints(readings, dr=dr):
+        for a, fp in self._footprints(readings, dr=dr, offset=offset):
             total += fp.n_entries
             if total > MAX_ENTRIES:
                 raise ConfigError(

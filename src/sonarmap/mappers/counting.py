@@ -31,6 +31,9 @@ class CountingMapper(Mapper):
         A reading with no echo votes "free" over its beam up to ``r_max - dr`` or is skipped.
     dr : float or None
         Half-width of the Omega_occ band, metres; None uses the rasteriser default.
+    band_offset : float
+        How far behind the echo the Omega_occ band's centre lies, metres (>= 0; 0);
+        see :mod:`sonarmap.raster` for why.
     """
 
     name = "counting"
@@ -38,12 +41,16 @@ class CountingMapper(Mapper):
     _hits: npt.NDArray[np.int64]
     _seen: npt.NDArray[np.int64]
 
-    def __init__(self, *, no_echo: str = "ignore", dr: float | None = 0.025) -> None:
+    def __init__(
+        self, *, no_echo: str = "ignore", dr: float | None = 0.025, band_offset: float = 0.0
+    ) -> None:
         self.no_echo = no_echo
         self.dr = dr
+        self.band_offset = band_offset
         _checks.choice("no_echo", no_echo, ("free", "ignore"))
         if dr is not None:
             _checks.number("dr", dr, 0.0, None)
+        _checks.number("band_offset", band_offset, 0.0, None)
 
     def _reset(self) -> None:
         self._hits = np.zeros(self.grid.size, dtype=np.int64)
@@ -53,7 +60,9 @@ class CountingMapper(Mapper):
         if self.no_echo == "ignore":
             readings = self._echoes(readings)
         n_cells = self.grid.size
-        for _, fp in self._footprints(readings, dr=self.dr, progress=progress):
+        for _, fp in self._footprints(
+            readings, dr=self.dr, offset=self.band_offset, progress=progress
+        ):
             self._seen += np.bincount(fp.free.cells, minlength=n_cells)
             occ = np.bincount(fp.occ.cells, minlength=n_cells)
             self._seen += occ

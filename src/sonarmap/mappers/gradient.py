@@ -121,6 +121,9 @@ class GradientMapper(Mapper):
         Whether no-echo readings contribute Omega_free terms (``free``).
     dr : float or None
         Half-width of the Omega_occ band, metres; None (default): the rasteriser's.
+    band_offset : float
+        How far behind the echo the Omega_occ band's centre lies, metres (>= 0; 0);
+        see :mod:`sonarmap.raster` for why.
     robust : float
         Scale tau of the robust form, >= 0 (0.03); 0 is the plain model. With tau > 0
         the map is solved, then ``robust_rounds`` times each term's weight is set to
@@ -190,6 +193,7 @@ class GradientMapper(Mapper):
         patience: int = 100,
         no_echo: str = "free",
         dr: float | None = None,
+        band_offset: float = 0.0,
         robust: float = 0.03,
         robust_terms: str = "both",
         robust_rounds: int = 2,
@@ -209,6 +213,7 @@ class GradientMapper(Mapper):
         self.patience = patience
         self.no_echo = no_echo
         self.dr = dr
+        self.band_offset = band_offset
         self.robust = robust
         self.robust_terms = robust_terms
         self.robust_rounds = robust_rounds
@@ -229,6 +234,7 @@ class GradientMapper(Mapper):
         _checks.choice("no_echo", no_echo, ("free", "ignore"))
         if dr is not None:
             _checks.number("dr", dr, 0.0, None)
+        _checks.number("band_offset", band_offset, 0.0, None)
         _checks.number("robust", robust, 0.0, None)
         _checks.choice("robust_terms", robust_terms, ROBUST_TERMS)
         _checks.integer("robust_rounds", robust_rounds, 1)
@@ -286,7 +292,7 @@ class GradientMapper(Mapper):
         if self.no_echo == "ignore":
             # A no-echo reading has only an Omega_free term; ignoring it drops the reading.
             readings = self._echoes(readings)
-        fps = self._kept_footprints(readings, dr=self.dr)
+        fps = self._kept_footprints(readings, dr=self.dr, offset=self.band_offset)
         bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
         echo = [readings.range[a:b] < self.sensor.r_max for a, b in itertools.pairwise(bounds)]
         pen = Penalties(self.a1, self.a2, self.c1, self.c2, self.r2)

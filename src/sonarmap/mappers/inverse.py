@@ -62,6 +62,9 @@ class InverseMapper(Mapper):
     dr : float or None
         Half-width of the Omega_occ band, metres; None uses the rasteriser's default
         ``max(resolution / 2, range resolution)`` (:func:`sonarmap.raster.default_dr`).
+    band_offset : float
+        How far behind the echo the Omega_occ band's centre lies, metres (>= 0; 0);
+        see :mod:`sonarmap.raster` for why.
     """
 
     name = "inverse"
@@ -79,6 +82,7 @@ class InverseMapper(Mapper):
         falloff_deg: float = 20.0,
         no_echo: str = "ignore",
         dr: float | None = 0.05,
+        band_offset: float = 0.0,
     ) -> None:
         self.p_occ = p_occ
         self.p_free = p_free
@@ -87,6 +91,7 @@ class InverseMapper(Mapper):
         self.falloff_deg = falloff_deg
         self.no_echo = no_echo
         self.dr = dr
+        self.band_offset = band_offset
         _checks.number("p_occ", p_occ, 0.5, 1.0, lo_open=True, hi_open=True)
         _checks.number("p_free", p_free, 0.0, 0.5, lo_open=True, hi_open=True)
         _checks.number("clamp_min", clamp_min, 0.0, 0.5, lo_open=True, hi_open=True)
@@ -95,6 +100,7 @@ class InverseMapper(Mapper):
         _checks.choice("no_echo", no_echo, ("free", "ignore"))
         if dr is not None:
             _checks.number("dr", dr, 0.0, None)
+        _checks.number("band_offset", band_offset, 0.0, None)
 
     def _reset(self) -> None:
         self._logodds = np.zeros(self.grid.size, dtype=np.float64)
@@ -122,6 +128,7 @@ class InverseMapper(Mapper):
                 inc_occ=l_occ,
                 clamp=(lo, hi),
                 dr=self.dr,
+                offset=self.band_offset,
                 falloff=math.radians(self.falloff_deg),
             )
 
