@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -79,7 +82,10 @@ def test_band_at_the_surface_is_half_the_time_the_free_cell() -> None:
     assert 0.4 * len(faces) <= hits[0.0] <= 0.6 * len(faces)
 
 
-@pytest.mark.parametrize("method", ["inverse", "counting", "gradient"])
+METHODS = ["inverse", "counting", "gradient", "em", "em-thrun", "stochastic"]
+
+
+@pytest.mark.parametrize("method", METHODS)
 def test_mappers_take_and_check_the_offset(method: str) -> None:
     assert make_mapper(method).get_params()["band_offset"] == 0.0
     assert make_mapper(method, band_offset=0.025).get_params()["band_offset"] == 0.025
@@ -94,17 +100,38 @@ def test_rasteriser_refuses_a_bad_offset() -> None:
             rasterise(GRID, s, [0.0], [0.0], [0.0], [1.0], offset=bad)
 
 
-def test_streaming_rasterises_with_the_mappers_offset(doorways: Scenario) -> None:
+@pytest.mark.parametrize("method", ["inverse", "gradient", "stochastic"])
+def test_streaming_takes_the_mappers_offset(doorways: Scenario, method: str) -> None:
     from sonarmap.streaming import StreamingMapper
 
     g, rig = doorways.truth.grid, doorways.rig
-    r = doorways.readings.take(np.arange(40))
-    r = r.take(r.range < rig.sensor.r_max)
-    covered = {}
-    for offset in (0.0, 0.05):
-        sm = StreamingMapper("gradient", g, rig, strategy="last:1000", band_offset=offset)
-        sm.add(r)
-        covered[offset] = set(np.flatnonzero(sm.engine.cov > 0).tolist())
-        fp = rasterise(g, rig.sensor, r.x, r.y, r.theta, r.range, offset=offset)
-        assert covered[offset] == set(fp.free.cells.tolist()) | set(fp.occ.cells.tolist())
-    assert covered[0.0] != covered[0.05]
+    r = doorways.readings.take(np.arange(300))
+    echo = r.range < rig.sensor.r_max - 0.1
+    longer = dataclasses.replace(r, range=np.where(echo, r.range + 0.03, r.range))
+    maps = []
+    for readings, offset in ((r, 0.03), (longer, 0.0), (r, 0.0)):
+        extra: dict[str, Any] = {"falloff_deg": 0.0} if method == "inverse" else {}
+        sm = StreamingMapper(method, g, rig, strategy="last:1000", band_offset=offset, **extra)
+        for k in range(0, len(readings), 100):
+            sm.add(readings.take(np.arange(k, min(k + 100, len(readings)))))
+        maps.append(np.nan_to_num(sm.occupancy_, nan=-1.0))
+    np.testing.assert_allclose(maps[0], maps[1], atol=1e-5)
+    assert not np.allclose(maps[0], maps[2])
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_an_offset_map_is_the_map_of_echoes_heard_that_much_further(
+    doorways: Scenario, method: str
+) -> None:
+    # Every model compares a range with the distances of the cells that could have
+    # caused it; moving the band by the offset is hearing each echo that much further.
+    g, rig = doorways.truth.grid, doorways.rig
+    r = doorways.readings.take(np.arange(400))
+    echo = r.range < rig.sensor.r_max - 0.1
+    longer = dataclasses.replace(r, range=np.where(echo, r.range + 0.03, r.range))
+    fast = {"max_iter": 30} if method == "gradient" else {}
+    moved = make_mapper(method, band_offset=0.03, **fast).fit(r, g, rig).result()
+    heard = make_mapper(method, **fast).fit(longer, g, rig).result()
+    np.testing.assert_allclose(moved.occupancy, heard.occupancy, atol=1e-5)
+    plain = make_mapper(method, **fast).fit(r, g, rig).result()
+    assert not np.allclose(np.nan_to_num(plain.occupancy), np.nan_to_num(moved.occupancy))

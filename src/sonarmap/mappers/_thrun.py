@@ -68,12 +68,13 @@ class BeamIndex:
         return len(self.cells)
 
 
-def build_index(footprints: list[Footprint], ranges: F64) -> BeamIndex:
-    """Index footprints rasterised with ``dr = 3 sigma``."""
+def build_index(footprints: list[Footprint], ranges: F64, offset: float = 0.0) -> BeamIndex:
+    """Index footprints rasterised with ``dr = 3 sigma`` (and ``offset``: each band
+    cell's distance is taken ``offset`` nearer, where the surface it stands for is)."""
     f_cells = [fp.free.cells.astype(np.int64) for fp in footprints]
     f_off = _join_offsets([fp.free.offsets for fp in footprints])
     b_cells = [fp.occ.cells.astype(np.int64) for fp in footprints]
-    b_dist = [fp.occ.distance.astype(np.float64) for fp in footprints]
+    b_dist = [fp.occ.distance.astype(np.float64) - offset for fp in footprints]
     b_off = _join_offsets([fp.occ.offsets for fp in footprints])
     free_flat = np.concatenate(f_cells) if f_cells else np.empty(0, np.int64)
     band_flat = np.concatenate(b_cells) if b_cells else np.empty(0, np.int64)

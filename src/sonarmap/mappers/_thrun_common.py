@@ -20,10 +20,13 @@ def model_sigma(mapper: Mapper, sigma: float | None) -> float:
 
 
 def index_readings(mapper: Mapper, readings: Readings, sigma: float) -> BeamIndex:
-    """Rasterise with a band of 3 sigma and index the result."""
-    fps = mapper._kept_footprints(readings, dr=3.0 * sigma)
+    """Rasterise with a band of 3 sigma about the range moved by the mapper's
+    ``band_offset``, and index the result (a cell at distance d then stands for a
+    surface at d - offset)."""
+    offset: float = getattr(mapper, "band_offset", 0.0)
+    fps = mapper._kept_footprints(readings, dr=3.0 * sigma, offset=offset)
     r = np.minimum(readings.range, mapper.sensor.r_max)
-    return build_index(fps, np.asarray(r, dtype=np.float64))
+    return build_index(fps, np.asarray(r, dtype=np.float64), offset)
 
 
 def scatter(

@@ -190,6 +190,9 @@ class EMMapper(Mapper):
     sigma : float or None
         Range noise of the model, metres (0.03); None: half a cell or the sensor's range
         resolution, whichever is larger.
+    band_offset : float
+        How far behind the echo the surface's cells lie, metres (>= 0; 0): a cell at
+        distance d explains a range of d - offset; see :mod:`sonarmap.raster` for why.
     init : {"inverse", "uniform"}
         Starting map: every touched cell at ``init_value`` (the neutral start, default)
         or the inverse mapper's map binarised (occupied cells at 0.9, the rest at 0.01).
@@ -221,6 +224,7 @@ class EMMapper(Mapper):
         p_rand: float = 0.1,
         p_hit: float = 0.75,
         sigma: float | None = 0.03,
+        band_offset: float = 0.0,
         init: str = "uniform",
         init_value: float = 0.5,
         max_iter: int = 100,
@@ -230,6 +234,7 @@ class EMMapper(Mapper):
         self.p_rand = p_rand
         self.p_hit = p_hit
         self.sigma = sigma
+        self.band_offset = band_offset
         self.init = init
         self.init_value = init_value
         self.max_iter = max_iter
@@ -239,6 +244,7 @@ class EMMapper(Mapper):
         _checks.number("p_hit", p_hit, 0.0, 1.0, lo_open=True, hi_open=True)
         if sigma is not None:
             _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+        _checks.number("band_offset", band_offset, 0.0, None)
         _checks.choice("init", init, ("inverse", "uniform"))
         _checks.number("init_value", init_value, 0.0, 1.0, lo_open=True)
         _checks.integer("max_iter", max_iter, 1)

@@ -205,6 +205,9 @@ class ThrunEMMapper(Mapper):
     sigma : float or None
         Range noise of the model, metres (0.03); None: half a cell or the sensor's range
         resolution, whichever is larger.
+    band_offset : float
+        How far behind the echo the surface's cells lie, metres (>= 0; 0): a cell at
+        distance d explains a range of d - offset; see :mod:`sonarmap.raster` for why.
     init : {"free", "inverse"}
         Starting map: every cell free (default), or the inverse mapper's map binarised
         at 0.5.
@@ -252,6 +255,7 @@ class ThrunEMMapper(Mapper):
         p_rand: float = 0.1,
         p_hit: float = 0.75,
         sigma: float | None = 0.03,
+        band_offset: float = 0.0,
         init: str = "free",
         max_iter: int = 50,
         prior: float = 0.5,
@@ -259,6 +263,7 @@ class ThrunEMMapper(Mapper):
         self.p_rand = p_rand
         self.p_hit = p_hit
         self.sigma = sigma
+        self.band_offset = band_offset
         self.init = init
         self.max_iter = max_iter
         self.prior = prior
@@ -266,6 +271,7 @@ class ThrunEMMapper(Mapper):
         _checks.number("p_hit", p_hit, 0.0, 1.0, lo_open=True, hi_open=True)
         if sigma is not None:
             _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+        _checks.number("band_offset", band_offset, 0.0, None)
         _checks.choice("init", init, ("free", "inverse"))
         _checks.integer("max_iter", max_iter, 1)
         _checks.number("prior", prior, 0.0, 1.0, lo_open=True, hi_open=True)

@@ -203,6 +203,9 @@ class StochasticMapper(Mapper):
     sigma : float or None
         Range noise of the model, metres (0.08); None: half a cell or the sensor's range
         resolution, whichever is larger.
+    band_offset : float
+        How far behind the echo the surface's cells lie, metres (>= 0; 0): a cell at
+        distance d explains a range of d - offset; see :mod:`sonarmap.raster` for why.
     r_max : float or None
         Range limit of the model, metres: readings at or beyond it count as no echo
         (their beam free up to it); None (default): the sensor's. Thesis 002 used 3.5.
@@ -237,6 +240,7 @@ class StochasticMapper(Mapper):
         w_occ: float | None = None,
         w_border: float | None = None,
         sigma: float | None = 0.08,
+        band_offset: float = 0.0,
         r_max: float | None = None,
         neighbours: int = 8,
         sweeps: float = 30.0,
@@ -253,6 +257,7 @@ class StochasticMapper(Mapper):
         self.w_occ = w_occ
         self.w_border = w_border
         self.sigma = sigma
+        self.band_offset = band_offset
         self.r_max = r_max
         self.neighbours = neighbours
         self.sweeps = sweeps
@@ -270,6 +275,7 @@ class StochasticMapper(Mapper):
         _checks.number("w_border", v["w_border"])
         if sigma is not None:
             _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+        _checks.number("band_offset", band_offset, 0.0, None)
         if r_max is not None:
             _checks.number("r_max", r_max, 0.0, None, lo_open=True)
         if neighbours not in (4, 8):
@@ -426,6 +432,8 @@ class StochasticStream(StreamEngine):
         assert isinstance(m, StochasticMapper)
         p = self.pool
         f_cells, f_off, b_cells, b_dist, b_off = p.gather(sel)
+        # The pool holds the rasteriser's distances; the model's are the surfaces'.
+        b_dist = b_dist - self.offset
         index = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[sel])
         cand = np.searchsorted(index.cells, cells).astype(np.int64)
         occ = self.full[index.cells].copy()
