@@ -12,8 +12,11 @@ On held-out ``gaps`` scenes (``--seeds``, from 1000), the plain deterministic mo
 3. **Gaps.** The change of S, split the same way, when one gap of the true map is
    closed (its cells set to 1) and nothing else changes.
 
+``--param K=V`` sets the model's constants (the defaults otherwise): the constants before
+the band offset were ``--param a1=0.2 --param c2=0.3 --param band_offset=0``.
+
 Run with ``python -m benchmarks.objective_trace [--seeds 1000 1001 1002] [--offset
-0.025] [--ccp]``.
+0.025] [--ccp] [--param K=V ...]``.
 """
 
 from __future__ import annotations
@@ -73,16 +76,17 @@ def band_share(sc: Scenario, sensor_mapper: GradientMapper, offset: float) -> fl
     return float(np.mean(held > 0))
 
 
-def trace(seed: int, offset: float, ccp: bool) -> None:
+def trace(seed: int, offset: float, ccp: bool, model: dict[str, float]) -> None:
     sc = make_scenario("gaps", seed=seed)
     g = sc.truth.grid
-    base = GradientMapper(robust=0.0)
+    base = GradientMapper(robust=0.0, **model)  # type: ignore[arg-type]
     base.start(g, sc.rig)
     p = base.problem(sc.readings)
     print(f"gaps seed {seed}: {p.n_terms} terms ({int(p.is_occ.sum())} occ), {p.n_cells} cells")
     solves = list(SOLVES) + ([("ccp", {"solver": "ccp", "max_iter": 30})] if ccp else [])
     for name, params in solves:
-        m = GradientMapper(robust=0.0, **params).fit(sc.readings, g, sc.rig)  # type: ignore[arg-type]
+        kw = {**model, **params}
+        m = GradientMapper(robust=0.0, **kw).fit(sc.readings, g, sc.rig)  # type: ignore[arg-type]
         s = score(sc.truth, m.result(), sc.passages)
         extra = (
             f" | detected {s.passages_detected}/{s.passages}, false openings "
@@ -93,7 +97,7 @@ def trace(seed: int, offset: float, ccp: bool) -> None:
     parts = split(p, truth)
     unexplained = int(np.sum(p.term_values(p.W @ truth)[p.is_occ] >= 1.0 - 1e-9))
     print(_row("the true map", parts, f" | {unexplained} occ terms with nothing in the band"))
-    for off in sorted({0.0, offset}):
+    for off in sorted({0.0, offset, base._band_offset(g)}):
         print(
             f"  echoes whose band holds a true obstacle cell, band moved {off:.4f} m: "
             f"{band_share(sc, base, off):.1%}"
@@ -122,9 +126,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1000, 1001, 1002])
     ap.add_argument("--offset", type=float, default=0.025)
     ap.add_argument("--ccp", action="store_true", help="also the convex-concave procedure (slow)")
+    ap.add_argument("--param", action="append", default=[], metavar="K=V")
     a = ap.parse_args(argv)
+    model = {k: float(v) for k, v in (p.split("=", 1) for p in a.param)}
+    print(f"model constants: {GradientMapper(robust=0.0, **model).get_params()}")  # type: ignore[arg-type]
     for seed in a.seeds:
-        trace(seed, a.offset, a.ccp)
+        trace(seed, a.offset, a.ccp, model)
 
 
 if __name__ == "__main__":

@@ -104,13 +104,16 @@ def test_tuned_inverse_beats_the_traditional_setting(
 
 
 @pytest.mark.parametrize("family", FAMILIES)
-def test_em_detects_more_than_the_tuned_inverse_with_fewer_false_openings(
+def test_em_detects_as_many_as_the_tuned_inverse_with_fewer_false_openings(
     both: dict[str, dict[str, Result]], family: str
 ) -> None:
+    # Before the band offset EM found twice the inverse's passages with half its false
+    # openings; the inverse gained more from the offset (full runs: gaps 45 against 23,
+    # corridors 14 against 13), and these scenes show as many on gaps (5 and 5).
     em, inv = both[family]["em"], both[family]["inverse"]
-    assert em.n_detected >= 2 * inv.n_detected
-    assert sum(em.false_openings) < sum(inv.false_openings) / 2
-    assert em.mean(em.passage_f1) > inv.mean(inv.passage_f1) + 0.1
+    assert em.n_detected >= inv.n_detected
+    assert sum(em.false_openings) < sum(inv.false_openings)
+    assert em.mean(em.passage_f1) > inv.mean(inv.passage_f1) + 0.03
 
 
 @pytest.mark.parametrize("family", FAMILIES)

@@ -117,7 +117,7 @@ scenarios:
 seeds: [0]
 metrics: [f1, width_error]
 methods:
-  inverse: {p_occ: [0.52, 0.6]}
+  inverse: {p_occ: [0.55, 0.6]}
   counting: {}
 """
 

@@ -53,10 +53,11 @@ def reference(
     clamp: tuple[float, float],
     falloff: float,
     dr: float | None = None,
+    offset: float = 0.0,
 ) -> tuple[Values, int]:
     """Per reading, its weighted increments on its free then its occupied cells."""
     xs, ys, ths, rs = poses
-    fp = rasterise(grid, sensor, xs, ys, ths, rs, dr=dr)
+    fp = rasterise(grid, sensor, xs, ys, ths, rs, dr=dr, offset=offset)
     values = np.zeros(grid.size)
     touched = np.zeros(grid.size, dtype=bool)
     for i in range(len(xs)):
@@ -245,6 +246,7 @@ def reference_map(mapper: InverseMapper, readings: Readings, grid: Grid, rig: Ri
         (_logit(mapper.clamp_min), _logit(mapper.clamp_max)),
         math.radians(mapper.falloff_deg),
         dr=mapper.dr,
+        offset=mapper._band_offset(grid),
     )
     return values, touched
 

@@ -134,8 +134,15 @@ def test_inverse_update_rule_and_clamping() -> None:
     sensor = SensorModel("pencil", Region.cone(2.0, 2.0), 0.0, 2.0, 0.05)
     rig = Rig(sensor, (Mount("s", 0, 0, 0),))
     grid = Grid(0.1, (0.0, 0.0), (11, 20))
+    # The band centred on the echo, so that the cell at 1.0 m is the occupied one.
     m = make_mapper(
-        "inverse", p_occ=0.7, p_free=0.4, falloff_deg=0.0, clamp_min=0.2, clamp_max=0.9
+        "inverse",
+        p_occ=0.7,
+        p_free=0.4,
+        falloff_deg=0.0,
+        clamp_min=0.2,
+        clamp_max=0.9,
+        band_offset=0.0,
     ).start(grid, rig)
     m.partial_fit(one_reading(1.0))
     occ = m.occupancy_
@@ -162,7 +169,7 @@ def test_counting_votes() -> None:
     sensor = SensorModel("pencil", Region.cone(2.0, 2.0), 0.0, 2.0, 0.05)
     rig = Rig(sensor, (Mount("s", 0, 0, 0),))
     grid = Grid(0.1, (0.0, 0.0), (11, 20))
-    m = make_mapper("counting").start(grid, rig)
+    m = make_mapper("counting", band_offset=0.0).start(grid, rig)
     m.partial_fit(one_reading(1.0))
     m.partial_fit(one_reading(1.0))
     m.partial_fit(one_reading(0.5))

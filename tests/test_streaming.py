@@ -36,9 +36,15 @@ from sonarmap.selection import (
 from sonarmap.streaming import StreamingMapper, replay, time_batches
 
 
-def _cells_of(sc: Scenario, readings: Readings) -> list[set[int]]:
+def _cells_of(sc: Scenario, readings: Readings, offset: float = 0.0) -> list[set[int]]:
     fp = rasterise(
-        sc.truth.grid, sc.rig.sensor, readings.x, readings.y, readings.theta, readings.range
+        sc.truth.grid,
+        sc.rig.sensor,
+        readings.x,
+        readings.y,
+        readings.theta,
+        readings.range,
+        offset=offset,
     )
     return [set(fp.free.of(i).tolist()) | set(fp.occ.of(i).tolist()) for i in range(len(readings))]
 
@@ -86,7 +92,7 @@ def test_freshest_per_cell_keeps_exactly_the_readings_some_cell_needs(doorways: 
     sm = StreamingMapper("gradient", doorways.truth.grid, doorways.rig, strategy=f"cell:{n_max}")
     for a in range(0, len(r), 37):
         sm.add(r.take(np.arange(a, min(a + 37, len(r)))))
-    cells = _cells_of(doorways, r)
+    cells = _cells_of(doorways, r, sm.engine.offset)
     latest: dict[int, list[int]] = {}
     for i, cs in enumerate(cells):
         for c in cs:
@@ -169,7 +175,8 @@ def test_windowed_inverse_sums_the_readings_in_play(doorways: Scenario) -> None:
     touched = np.zeros(doorways.truth.grid.size, bool)
     mapper = make_mapper("inverse")
     dr = mapper.get_params()["dr"]
-    lf, lo_ = math.log(0.45 / 0.55), math.log(0.51 / 0.49)
+    offset = mapper._band_offset(doorways.truth.grid)
+    lf, lo_ = math.log(0.48 / 0.52), math.log(0.52 / 0.48)
     from sonarmap.raster import accumulate
 
     accumulate(
@@ -184,12 +191,14 @@ def test_windowed_inverse_sums_the_readings_in_play(doorways: Scenario) -> None:
         inc_free=lf,
         inc_occ=lo_,
         dr=dr,
+        offset=offset,
     )
     lo, hi = math.log(0.12 / 0.88), math.log(0.97 / 0.03)
     want = 1 / (1 + np.exp(-np.clip(values, lo, hi)))
     got = sm.occupancy_.ravel()
-    assert mapper.get_params()["p_free"] == 0.45
-    assert mapper.get_params()["p_occ"] == 0.51
+    assert mapper.get_params()["p_free"] == 0.48
+    assert mapper.get_params()["p_occ"] == 0.52
+    assert offset == pytest.approx(0.0375)
     np.testing.assert_allclose(got[touched], want[touched], atol=1e-6)
 
 

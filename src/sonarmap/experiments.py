@@ -69,12 +69,15 @@ class MethodSpec:
 
 
 #: Laser-style log-odds (OctoMap's increments, no fall-off, no-echo beams cleared) on the
-#: tuned inverse's band: the kind of baseline the research compared against.
+#: 5 cm band centred on the echo that the tuned inverse had before the band offset: the
+#: kind of baseline the research compared against.
 TRADITIONAL_INVERSE: dict[str, Any] = {
     "p_occ": 0.7,
     "p_free": 0.4,
     "falloff_deg": 0.0,
     "no_echo": "free",
+    "dr": 0.05,
+    "band_offset": 0.0,
 }
 
 METHODS: tuple[MethodSpec, ...] = (
@@ -694,6 +697,8 @@ LASER_REFERENCE: dict[str, Any] = {
     "p_free": 0.4,
     "falloff_deg": 0.0,
     "no_echo": "ignore",
+    # The reference stays as it was measured with: band centred on the echo.
+    "band_offset": 0.0,
 }
 
 

@@ -79,6 +79,10 @@ class Mapper(ABC):
     #: Named parameter sets (``--preset NAME``): keyword arguments that replace the
     #: defaults they name; parameters given explicitly override them in turn.
     presets: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
+    #: Where the band sits behind the echo when ``band_offset`` is None, in cells: the
+    #: first occupied cell behind a surface lies up to a cell behind it, so the best
+    #: offset on the training scenes scales with the cell (see :mod:`sonarmap.raster`).
+    offset_cells: ClassVar[float] = 0.0
 
     _grid: Grid | None = None
     _sensor: SensorModel | None = None
@@ -187,6 +191,12 @@ class Mapper(ABC):
     @abstractmethod
     def _occupancy(self) -> npt.NDArray[np.float32]:
         """Flat occupancy, NaN where unknown."""
+
+    def _band_offset(self, grid: Grid) -> float:
+        """The band's offset behind the echo in metres: ``band_offset`` when given,
+        else :attr:`offset_cells` cells of ``grid``."""
+        given: float | None = getattr(self, "band_offset", None)
+        return float(given) if given is not None else self.offset_cells * grid.resolution
 
     def _footprints(
         self,

@@ -23,7 +23,7 @@ def index_readings(mapper: Mapper, readings: Readings, sigma: float) -> BeamInde
     """Rasterise with a band of 3 sigma about the range moved by the mapper's
     ``band_offset``, and index the result (a cell at distance d then stands for a
     surface at d - offset)."""
-    offset: float = getattr(mapper, "band_offset", 0.0)
+    offset = mapper._band_offset(mapper.grid)
     fps = mapper._kept_footprints(readings, dr=3.0 * sigma, offset=offset)
     r = np.minimum(readings.range, mapper.sensor.r_max)
     return build_index(fps, np.asarray(r, dtype=np.float64), offset)

@@ -8,12 +8,15 @@ OctoMap, with its clamping bounds [0.12, 0.97].
 
 The increments are not OctoMap's laser values (0.7 / 0.4): with a wide beam, the
 occupied arc of one reading covers many free cells, and strong occupied increments
-paint the space in front of walls. The defaults (p_occ 0.51, p_free 0.45, a 20-degree
-Gaussian fall-off off the axis, no-echo readings ignored, a 5 cm band) had the highest
-mean quality (wall F1 and passage F1 together) in ``sonarmap sweep sweeps/tune.yaml``:
-its defaults and 60 settings of p_occ, p_free, fall-off, no-echo handling and band, on
-the ten training scenes every method was tuned on (0.204; the runner-up 0.185). A
-sonar's no-echo readings are mostly beams a smooth wall mirrored away, not free space.
+paint the space in front of walls. The defaults (p_occ 0.52, p_free 0.48, a 10-degree
+Gaussian fall-off off the axis, no-echo readings ignored, the rasteriser's band moved
+0.75 of a cell behind the echo) had the highest mean quality (wall F1 and passage F1
+together) in ``sonarmap sweep sweeps/band.yaml``: the defaults before it and 60
+settings of the band's offset and half-width, p_occ, p_free and fall-off, on the ten
+training scenes every method was tuned on (0.309; the runner-up 0.297; the defaults
+before, from ``sweeps/tune.yaml``, 0.204); at 10 cm cells the best offset was 7.5 cm,
+0.75 of a cell again. A sonar's no-echo readings are mostly beams
+a smooth wall mirrored away, not free space.
 """
 
 from __future__ import annotations
@@ -55,19 +58,20 @@ class InverseMapper(Mapper):
         Occupancy clamping bounds, ``0 < clamp_min < 0.5 < clamp_max < 1``.
     falloff_deg : float
         Standard deviation (degrees) of a Gaussian fall-off of both increments with the angle
-        off the beam axis (20); 0 applies them uniformly over the beam.
+        off the beam axis (10); 0 applies them uniformly over the beam.
     no_echo : {"free", "ignore"}
         A reading with no echo clears its beam up to ``r_max - dr`` (``free``) or is
         skipped (``ignore``).
     dr : float or None
         Half-width of the Omega_occ band, metres; None uses the rasteriser's default
         ``max(resolution / 2, range resolution)`` (:func:`sonarmap.raster.default_dr`).
-    band_offset : float
-        How far behind the echo the Omega_occ band's centre lies, metres (>= 0; 0);
-        see :mod:`sonarmap.raster` for why.
+    band_offset : float or None
+        How far behind the echo the Omega_occ band's centre lies, metres (>= 0); None
+        (default): 0.75 of a cell. See :mod:`sonarmap.raster` for why.
     """
 
     name = "inverse"
+    offset_cells = 0.75
     exact_streaming = True
     _logodds: npt.NDArray[np.float64]
     _touched: npt.NDArray[np.bool_]
@@ -75,14 +79,14 @@ class InverseMapper(Mapper):
     def __init__(
         self,
         *,
-        p_occ: float = 0.51,
-        p_free: float = 0.45,
+        p_occ: float = 0.52,
+        p_free: float = 0.48,
         clamp_min: float = 0.12,
         clamp_max: float = 0.97,
-        falloff_deg: float = 20.0,
+        falloff_deg: float = 10.0,
         no_echo: str = "ignore",
-        dr: float | None = 0.05,
-        band_offset: float = 0.0,
+        dr: float | None = None,
+        band_offset: float | None = None,
     ) -> None:
         self.p_occ = p_occ
         self.p_free = p_free
@@ -100,7 +104,8 @@ class InverseMapper(Mapper):
         _checks.choice("no_echo", no_echo, ("free", "ignore"))
         if dr is not None:
             _checks.number("dr", dr, 0.0, None)
-        _checks.number("band_offset", band_offset, 0.0, None)
+        if band_offset is not None:
+            _checks.number("band_offset", band_offset, 0.0, None)
 
     def _reset(self) -> None:
         self._logodds = np.zeros(self.grid.size, dtype=np.float64)
@@ -128,7 +133,7 @@ class InverseMapper(Mapper):
                 inc_occ=l_occ,
                 clamp=(lo, hi),
                 dr=self.dr,
-                offset=self.band_offset,
+                offset=self._band_offset(self.grid),
                 falloff=math.radians(self.falloff_deg),
             )
 
