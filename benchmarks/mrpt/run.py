@@ -172,9 +172,10 @@ def main(argv: list[str] | None = None) -> int:
     p_occ = 1 / (1 + math.exp(-3 * math.log(0.65 / 0.35)))
     t_like, m_like = run_ours(sc, args.repeat, p_occ=p_occ, p_free=0.35, falloff_deg=0.0)
     cores = int(os.environ.get("NUMBA_NUM_THREADS", os.cpu_count() or 1))
+    fall = make_mapper("inverse").get_params()["falloff_deg"]
     entries = [
         ("MRPT COccupancyGridMap2D (defaults), 1 thread", t_mrpt, m_mrpt),
-        ("sonarmap inverse (defaults: 20-degree fall-off), 1 thread", t_ours, m_ours),
+        (f"sonarmap inverse (defaults: {fall:g}-degree fall-off), 1 thread", t_ours, m_ours),
         ("sonarmap inverse (no fall-off), 1 thread", t_flat, m_flat),
         ("sonarmap inverse (MRPT's increments, no fall-off), 1 thread", t_like, m_like),
     ]
