@@ -295,8 +295,8 @@ def preset_params(method: str, preset: str) -> dict[str, Any]:
 
     Examples
     --------
-    >>> preset_params("gradient", "thesis002")
-    {'a1': 0.05, 'a2': 0.001, 'c1': 10.0, 'c2': 1.0, 'robust': 0.0}
+    >>> preset_params("gradient", "thesis002")["c2"]
+    1.0
     """
     cls = _lookup(method)
     if preset not in cls.presets:
