@@ -74,18 +74,30 @@ def build_index(footprints: list[Footprint], ranges: F64, offset: float = 0.0) -
     f_cells = [fp.free.cells.astype(np.int64) for fp in footprints]
     f_off = _join_offsets([fp.free.offsets for fp in footprints])
     b_cells = [fp.occ.cells.astype(np.int64) for fp in footprints]
-    b_dist = [fp.occ.distance.astype(np.float64) - offset for fp in footprints]
+    b_dist = [fp.occ.distance.astype(np.float64) for fp in footprints]
     b_off = _join_offsets([fp.occ.offsets for fp in footprints])
     free_flat = np.concatenate(f_cells) if f_cells else np.empty(0, np.int64)
     band_flat = np.concatenate(b_cells) if b_cells else np.empty(0, np.int64)
     band_dist = np.concatenate(b_dist) if b_dist else np.empty(0)
-    return index_arrays(free_flat, f_off, band_flat, band_dist, b_off, ranges)
+    return index_arrays(free_flat, f_off, band_flat, band_dist, b_off, ranges, offset)
 
 
 def index_arrays(
-    free_flat: I64, f_off: I64, band_flat: I64, band_dist: F64, b_off: I64, ranges: F64
+    free_flat: I64,
+    f_off: I64,
+    band_flat: I64,
+    band_dist: F64,
+    b_off: I64,
+    ranges: F64,
+    offset: float = 0.0,
 ) -> BeamIndex:
-    """Index readings given as flat grid cells with CSR offsets (free part, then band)."""
+    """Index readings given as flat grid cells with CSR offsets (free part, then band).
+
+    ``band_dist`` are the rasteriser's distances of the band cells; a band rasterised
+    ``offset`` behind the echo has each cell stand for a surface ``offset`` nearer, and
+    the index keeps that surface distance.
+    """
+    band_dist = band_dist - offset
     touched, local = np.unique(np.concatenate([free_flat, band_flat]), return_inverse=True)
     free_local = local[: len(free_flat)].astype(np.int64)
     band_local = local[len(free_flat) :].astype(np.int64)

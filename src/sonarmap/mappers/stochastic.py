@@ -443,9 +443,7 @@ class StochasticStream(StreamEngine):
         assert isinstance(m, StochasticMapper)
         p = self.pool
         f_cells, f_off, b_cells, b_dist, b_off = p.gather(sel)
-        # The pool holds the rasteriser's distances; the model's are the surfaces'.
-        b_dist = b_dist - self.offset
-        index = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[sel])
+        index = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[sel], self.offset)
         cand = np.searchsorted(index.cells, cells).astype(np.int64)
         occ = self.full[index.cells].copy()
         n_flips = self.effort * len(cand)
