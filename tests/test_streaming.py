@@ -153,6 +153,30 @@ def test_pool_compaction_keeps_footprints(doorways: Scenario) -> None:
         assert sorted(b_cells[b_off[k] : b_off[k + 1]]) == sorted(fp.occ.of(i).tolist())
 
 
+def test_pool_sums_and_boxes_follow_each_reading(doorways: Scenario) -> None:
+    # Three batches, with removals between, so slots are reused and entries land after
+    # dead ones: each slot's weight sums and bounding box are its own reading's.
+    r = doorways.readings.take(np.arange(600))
+    g, s = doorways.truth.grid, doorways.rig.sensor
+    pool = ReadingPool(g.cols)
+    for a in (0, 200, 400):
+        part = r.take(np.arange(a, a + 200))
+        fp = rasterise(g, s, part.x, part.y, part.theta, part.range)
+        slots = pool.add(fp, part.range, part.range < s.r_max)
+        for i, sl in enumerate(slots):
+            free, occ = fp.free, fp.occ
+            fw = free.weight[free.offsets[i] : free.offsets[i + 1]]
+            ow = occ.weight[occ.offsets[i] : occ.offsets[i + 1]]
+            assert pool.f_sum[sl] == pytest.approx(float(fw.sum(dtype=np.float64)), rel=1e-12)
+            assert pool.o_sum[sl] == pytest.approx(float(ow.sum(dtype=np.float64)), rel=1e-12)
+            cells = np.concatenate([free.of(i), occ.of(i)])
+            rows, cols = np.divmod(cells, g.cols)
+            want = [rows.min(), rows.max(), cols.min(), cols.max()] if len(cells) else None
+            if want is not None:
+                assert pool.box[sl].tolist() == want
+        pool.remove(slots[::3])
+
+
 # -- engines -----------------------------------------------------------------------------
 
 

@@ -192,38 +192,41 @@ class ReadingPool:
         while len(self._free) < n:
             self._grow_slots(2 * self.capacity)
         slots = np.array([self._free.pop() for _ in range(n)], dtype=np.int64)
-        fc, oc = fp.free.counts, fp.occ.counts
-        total = int(fc.sum() + oc.sum())
+        total = int(fp.free.offsets[-1] - fp.free.offsets[0])
+        total += int(fp.occ.offsets[-1] - fp.occ.offsets[0])
         self._reserve(total)
-        # Each reading's free entries, then its occ entries, consecutively.
-        per = fc + oc
-        start = self.end + np.concatenate([[0], np.cumsum(per)[:-1]]).astype(np.int64)
-        idx_f = fp.free.reading_index()
-        idx_o = fp.occ.reading_index()
         occ_cells, occ_w, occ_d = fp.occ.cells, fp.occ.weight, fp.occ.distance
         if self.sort_band and len(occ_cells):
-            order = np.lexsort((occ_d, idx_o))
+            # Within each reading by distance; the readings keep their order, so the
+            # offsets still hold.
+            order = np.lexsort((occ_d, fp.occ.reading_index()))
             occ_cells, occ_w, occ_d = occ_cells[order], occ_w[order], occ_d[order]
-        f_pos = np.repeat(start - fp.free.offsets[:-1], fc) + np.arange(len(fp.free.cells))
-        o_pos = np.repeat(start + fc - fp.occ.offsets[:-1], oc) + np.arange(len(occ_cells))
-        for pos, cells, w, d in (
-            (f_pos, fp.free.cells, fp.free.weight, fp.free.distance),
-            (o_pos, occ_cells, occ_w, occ_d),
-        ):
-            self.cell[pos] = cells
-            self.w[pos] = w
-            self.dist[pos] = d
-        self.end += total
-        self.f_start[slots] = start
-        self.f_len[slots] = fc
-        self.o_start[slots] = start + fc
-        self.o_len[slots] = oc
-        self.f_sum[slots] = np.bincount(idx_f, weights=fp.free.weight, minlength=n)
-        self.o_sum[slots] = np.bincount(idx_o, weights=fp.occ.weight, minlength=n)
+        self.end = _insert(
+            slots,
+            self.end,
+            fp.free.offsets,
+            fp.free.cells,
+            fp.free.weight,
+            fp.free.distance,
+            fp.occ.offsets,
+            occ_cells,
+            occ_w,
+            occ_d,
+            self.cols,
+            self.cell,
+            self.w,
+            self.dist,
+            self.f_start,
+            self.f_len,
+            self.o_start,
+            self.o_len,
+            self.f_sum,
+            self.o_sum,
+            self.box,
+        )
         self.z[slots] = z
         self.echo[slots] = echo
         self.alive[slots] = True
-        _boxes(slots, self.f_start, self.f_len, self.o_len, self.cell, self.cols, self.box)
         return slots
 
     def remove(self, slots: I64) -> None:
@@ -250,22 +253,70 @@ class ReadingPool:
 
 
 @nb.njit(cache=True)
-def _boxes(
-    slots: I64, f_start: I64, f_len: I64, o_len: I64, cell: I32, cols: int, box: I32
-) -> None:
-    """Inclusive (row0, row1, col0, col1) of each slot's cells; empty as (max, -1, max, -1)."""
-    for s in slots:
-        r0 = c0 = np.iinfo(np.int32).max
+def _insert(
+    slots: I64,
+    end: int,
+    f_off: I64,
+    f_cells: I32,
+    f_w: F32,
+    f_d: F32,
+    o_off: I64,
+    o_cells: I32,
+    o_w: F32,
+    o_d: F32,
+    cols: int,
+    cell: I32,
+    w: F32,
+    dist: F32,
+    f_start: I64,
+    f_len: I64,
+    o_start: I64,
+    o_len: I64,
+    f_sum: F64,
+    o_sum: F64,
+    box: I32,
+) -> int:
+    """Append each reading's free entries, then its occ entries, at ``end``; fill the
+    slots' starts, lengths, weight sums and inclusive (row0, row1, col0, col1) boxes
+    (empty as (max, -1, max, -1)); returns the new end.
+
+    One pass, because the batch's entries are written once and read back never: done
+    with whole-array numpy steps it was a fifth of a streaming update."""
+    big = np.iinfo(np.int32).max
+    pos = end
+    for i in range(slots.shape[0]):
+        s = slots[i]
+        r0 = c0 = big
         r1 = c1 = -1
-        a = f_start[s]
-        for j in range(a, a + f_len[s] + o_len[s]):
-            r = cell[j] // cols
-            c = cell[j] - r * cols
-            r0 = min(r0, r)
-            r1 = max(r1, r)
-            c0 = min(c0, c)
-            c1 = max(c1, c)
+        for part in range(2):
+            if part == 0:
+                a, b, src_c, src_w, src_d = f_off[i], f_off[i + 1], f_cells, f_w, f_d
+                f_start[s] = pos
+                f_len[s] = b - a
+            else:
+                a, b, src_c, src_w, src_d = o_off[i], o_off[i + 1], o_cells, o_w, o_d
+                o_start[s] = pos
+                o_len[s] = b - a
+            tot = 0.0
+            for j in range(a, b):
+                c = src_c[j]
+                cell[pos] = c
+                w[pos] = src_w[j]
+                dist[pos] = src_d[j]
+                tot += src_w[j]
+                pos += 1
+                r = c // cols
+                k = c - r * cols
+                r0 = min(r0, r)
+                r1 = max(r1, r)
+                c0 = min(c0, k)
+                c1 = max(c1, k)
+            if part == 0:
+                f_sum[s] = tot
+            else:
+                o_sum[s] = tot
         box[s, 0] = r0
         box[s, 1] = r1
         box[s, 2] = c0
         box[s, 3] = c1
+    return pos
