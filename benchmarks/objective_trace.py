@@ -30,6 +30,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 import numpy.typing as npt
 
+from sonarmap.errors import ConfigError
 from sonarmap.mappers._forward import ForwardProblem
 from sonarmap.mappers.gradient import GradientMapper
 from sonarmap.metrics import score
@@ -121,15 +122,30 @@ def trace(seed: int, offset: float, ccp: bool, model: dict[str, float]) -> None:
         )
 
 
+def _constant(text: str) -> tuple[str, float]:
+    """One ``--param K=V``; argparse turns the ValueError into a one-line usage error."""
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected K=V")
+    try:
+        return key, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number") from None
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1000, 1001, 1002])
     ap.add_argument("--offset", type=float, default=0.025)
     ap.add_argument("--ccp", action="store_true", help="also the convex-concave procedure (slow)")
-    ap.add_argument("--param", action="append", default=[], metavar="K=V")
+    ap.add_argument("--param", action="append", default=[], metavar="K=V", type=_constant)
     a = ap.parse_args(argv)
-    model = {k: float(v) for k, v in (p.split("=", 1) for p in a.param)}
-    print(f"model constants: {GradientMapper(robust=0.0, **model).get_params()}")  # type: ignore[arg-type]
+    model = dict(a.param)
+    try:
+        mapper = GradientMapper(robust=0.0, **model)
+    except (TypeError, ConfigError) as e:
+        ap.error(f"--param: {e}")
+    print(f"model constants: {mapper.get_params()}")
     for seed in a.seeds:
         trace(seed, a.offset, a.ccp, model)
 
