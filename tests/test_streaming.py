@@ -171,9 +171,8 @@ def test_pool_sums_and_boxes_follow_each_reading(doorways: Scenario) -> None:
             assert pool.o_sum[sl] == pytest.approx(float(ow.sum(dtype=np.float64)), rel=1e-12)
             cells = np.concatenate([free.of(i), occ.of(i)])
             rows, cols = np.divmod(cells, g.cols)
-            want = [rows.min(), rows.max(), cols.min(), cols.max()] if len(cells) else None
-            if want is not None:
-                assert pool.box[sl].tolist() == want
+            if len(cells):
+                assert pool.box[sl].tolist() == [rows.min(), rows.max(), cols.min(), cols.max()]
         pool.remove(slots[::3])
 
 
