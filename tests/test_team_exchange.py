@@ -1029,3 +1029,117 @@ def test_the_exchanger_checks_its_inputs() -> None:
         ex.step(1.0)
     with pytest.raises(InputError, match="field 'now'"):
         ex.step(math.nan)
+
+
+# --- the lean exchange: a hold on young poses, landmarks only on anchors ----------------------
+
+
+def _answered(bodies: Sequence[bytes]) -> list[Pose]:
+    return [p for b in bodies for e in decode_answer(b).patches for p in e.poses]
+
+
+@pytest.mark.parametrize("mode", ["good", "limited"])
+def test_a_hold_keeps_young_poses_home_until_they_age_or_the_mission_ends(mode: str) -> None:
+    a = own_store(0, [0, 0, 1])  # poses made at 0, 1 and 2 s
+    b = own_store(1, [2], t0=0.5)
+    team = Team([a, b], mode=mode, cap_bytes=10**6, hold=10.0)
+    before = snapshot(a)[2]
+    team.run(8)  # to 4 s: nothing of a's is 10 s old
+    assert uids(b.received.get(0)) == uids(a.received.get(1)) == set()
+    team.run(20)  # to 14 s
+    assert uids(b.received[0]) == uids(a.local)
+    assert {(e.a, e.b) for e in b.received[0].edges} == {(e.a, e.b) for e in a.local.edges}
+    young = add_own(a, 3, 1, team.hub.now)
+    team.run(6)
+    assert young.uid not in uids(b.received[0])
+    team.ex[0].finish()  # the mission is over: everything goes, however young
+    team.run(6)
+    assert uids(b.received[0]) == uids(a.local)
+    assert snapshot(a)[2][0] == {**before[0], young.uid: encode(young)}
+    for s in (a, b):
+        check_consistent(s)
+    assert all(not ex.stats.rejected for ex in team.ex)
+
+
+def test_a_pose_deleted_within_its_hold_never_travels_and_deletions_still_do() -> None:
+    a = own_store(0, [0, 1, 0, 0])
+    b = own_store(1, [2])
+    team = Team([a, b], hold=5.0)
+    answers = record_sends(team.transports[0])
+    team.run(20)  # to 10 s: all four out
+    assert uids(b.received[0]) == uids(a.local)
+    brief = add_own(a, 4, 0, team.hub.now)
+    team.run(2)
+    a.delete_pose(brief.uid, team.hub.now)  # region compression, within the hold
+    # And an old, published pose, alone in its region: the edge chaining its neighbours
+    # changes region 0 only.
+    a.delete_pose(make_uid(0, 1), team.hub.now)
+    team.run(16)
+    assert brief.uid not in {p.uid for p in _answered(answers)}
+    assert uids(b.received[0]) == uids(a.local)  # the old one's deletion reached b
+    # The edge that chains around the deleted pose came too.
+    assert {(e.a, e.b) for e in b.received[0].edges} == {(e.a, e.b) for e in a.local.edges}
+    check_consistent(b)
+
+
+def test_without_a_hold_a_pose_travels_at_once() -> None:
+    a, b = own_store(0, [0]), own_store(1, [1])
+    team = Team([a, b])
+    team.run(4)
+    assert uids(b.received[0]) == uids(a.local)
+
+
+@pytest.mark.parametrize("mode", ["good", "limited"])
+def test_only_anchors_travel_with_their_landmarks(mode: str) -> None:
+    a = own_store(0, [0] * 10, n=30)
+    b = own_store(1, [1])
+    lean = Team([a, b], mode=mode, cap_bytes=10**6, anchor_every=4)
+    before = snapshot(a)[2]
+    sent = record_sends(lean.transports[0])
+    lean.run(10)
+    got = b.received[0].poses
+    assert set(got) == uids(a.local)
+    for u, p in got.items():
+        anchor = (u & ((1 << 40) - 1)) % 4 == 0
+        assert len(p.landmarks) == (30 if anchor else 0)
+        assert np.array_equal(p.local_map is None, a.local.poses[u].local_map is None)
+        assert np.array_equal(p.estimate, a.local.poses[u].estimate)
+    assert sum(1 for u in got if len(got[u].landmarks)) == 3  # counters 0, 4 and 8
+    assert snapshot(a)[2] == before  # the source's own poses keep their landmarks
+    # The same exchange with every pose whole costs several times the bytes.
+    a2, b2 = own_store(0, [0] * 10, n=30), own_store(1, [1])
+    whole = Team([a2, b2], mode=mode, cap_bytes=10**6)
+    sent2 = record_sends(whole.transports[0])
+    whole.run(10)
+    assert sum(map(len, sent)) < 0.5 * sum(map(len, sent2))
+
+
+def test_merged_poses_are_always_anchors() -> None:
+    from sonarmap.team.exchange import is_anchor
+
+    p = pose(0, 3, 0, 0.0)
+    assert not is_anchor(p, 2)
+    p.merged_from = (make_uid(0, 1), make_uid(0, 2))
+    assert is_anchor(p, 2)
+    assert is_anchor(p, 1000)
+
+
+def test_the_limited_cap_counts_poses_as_they_travel() -> None:
+    # Poses of about 4 kB each, 140 bytes or so without their landmarks; T = 2 kB.
+    def run(anchor_every: int) -> set[int]:
+        a, b = own_store(0, [0] * 6, n=30), own_store(1, [1])
+        team = Team([a, b], mode="limited", cap_bytes=2000, anchor_every=anchor_every)
+        team.run(12)
+        return uids(b.received.get(0))
+
+    assert run(1) == set()  # starved: no whole pose fits
+    got = run(1000)  # only counter 0 is an anchor, and it does not fit either
+    assert got == {make_uid(0, k) for k in range(1, 6)}
+
+
+@pytest.mark.parametrize(
+    "bad", [{"anchor_every": 0}, {"anchor_every": 2.5}, {"hold": -1.0}, {"hold": math.inf}]
+)
+def test_bad_lean_settings_are_refused(bad: dict[str, Any]) -> None:
+    with pytest.raises(ConfigError):
+        ExchangeParams(**bad)

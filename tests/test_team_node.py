@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import msgpack
+import numpy as np
 import pytest
 
 from sonarmap.cli import main
@@ -18,21 +19,24 @@ from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap, write_map
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
-from sonarmap.team.exchange import ExchangeParams
+from sonarmap.team.exchange import ExchangeParams, Exchanger
 from sonarmap.team.mission import MissionConfig
-from sonarmap.team.network import NetworkParams
+from sonarmap.team.network import NetworkParams, SimNetwork
 from sonarmap.team.node import (
     LockstepParams,
     ZmqTeamResult,
+    _exchanger_into,
+    _exchanger_state,
     _Link,
     parse_exchange,
     parse_peers,
     run_zmq_team,
     store_digest,
 )
+from sonarmap.team.records import Landmarks, Pose, make_uid
 from sonarmap.team.simulation import TeamResult, run_team
-from sonarmap.team.store import StoreParams
-from sonarmap.team.transport import ZmqTransport
+from sonarmap.team.store import RobotStore, StoreParams
+from sonarmap.team.transport import SimHub, ZmqTransport
 
 #: Summary keys measured on the wall clock: they differ between identical runs.
 WALL = {"wall_seconds", "association_ms_median", "association_ms_p99", "global_map_batch_s"}
@@ -285,3 +289,32 @@ def test_the_launcher_refuses_a_simulated_network(plan: OccupancyMap) -> None:
         run_zmq_team(plan, CONFIG, 2, network=NetworkParams(kind="full", loss=0.1))
     with pytest.raises(ConfigError, match="duration, seed, pose_limit"):
         run_zmq_team(plan, MissionConfig(duration=5.0, batch=3), 2)
+
+
+def test_a_checkpoint_keeps_the_hold_and_what_it_let_out() -> None:
+
+    from sonarmap.team.exchange import Exchanger
+    from sonarmap.team.store import RobotStore
+
+    def exchanger() -> tuple[Exchanger, RobotStore]:
+        store = RobotStore(0)
+        for k in range(3):
+            p = Pose(make_uid(0, k), float(k), k % 2, np.zeros(3), Landmarks.empty())
+            store.add_own_pose(p, None, [], float(k))
+        hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
+        return Exchanger(store, hub.transport(0), ExchangeParams(hold=1.5)), store
+
+    e, _ = exchanger()
+    e.step(3.0)  # poses 0 and 1 are out, pose 2 is held
+    state = msgpack.unpackb(msgpack.packb(_exchanger_state(e)), raw=False)
+    back, _ = exchanger()
+    _exchanger_into(back, state)
+    assert back._published is not None
+    assert e._published is not None
+    assert set(back._published.poses) == set(e._published.poses) == {make_uid(0, 0), make_uid(0, 1)}
+    assert back.advert() == e.advert()
+    e.finish()
+    state = msgpack.unpackb(msgpack.packb(_exchanger_state(e)), raw=False)
+    _exchanger_into(back, state)
+    back.step(3.5)
+    assert set(back._published.poses) == {make_uid(0, k) for k in range(3)}

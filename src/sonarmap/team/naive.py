@@ -160,6 +160,9 @@ class NaiveExchanger:
         """Always empty: the baseline never waits for an answer."""
         return {}
 
+    def finish(self) -> None:
+        """The mission is over; the baseline holds nothing back, so nothing changes."""
+
     def step(self, now: float, wanted_regions: Sequence[int] | None = None) -> None:
         """Take every pose received, then send each new local pose to every reachable
         robot. ``wanted_regions`` is ignored (the baseline sends everything)."""

@@ -700,6 +700,8 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "fetched": [[k[0], k[1], t] for k, t in e._fetched.items()],
         "starved": [[k[0], k[1], t] for k, t in e._starved.items()],
         "next_id": e._next_id,
+        "published": None if e._published is None else _layer_state(e._published),
+        "finished": e._finished,
         "stats": stats,
         "rejected": dict(e.stats.rejected),
     }
@@ -726,6 +728,10 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
     e._fetched = {(int(a), int(b)): float(t) for a, b, t in d.get("fetched", [])}
     e._starved = {(int(a), int(b)): float(t) for a, b, t in d.get("starved", [])}
     e._next_id = int(d["next_id"])
+    # A state saved before the hold existed has neither: nothing held back.
+    pub = d.get("published")
+    e._published = None if pub is None else _layer_from(pub, own=True)
+    e._finished = bool(d.get("finished", False))
     for name, v in d["stats"].items():
         setattr(e.stats, name, v)
     e.stats.rejected.clear()
@@ -1012,6 +1018,7 @@ class _Node:
                     self.progress(n + 1, T)
             else:
                 t = clock.t + dt
+                self.exchanger.finish()
                 self._slot(n, t, None)
                 now, outstanding = self._team(n)
                 clock.t = t

@@ -44,6 +44,7 @@ __all__ = [
     "UnpackError",
     "compose",
     "compose_covariance",
+    "counter_of",
     "decode",
     "encode",
     "invert",
@@ -109,6 +110,11 @@ def make_uid(robot: int, counter: int) -> int:
     if not (0 <= robot < 2**23 and 0 <= counter < 2**_UID_SHIFT):
         raise ValueError(f"robot {robot} or counter {counter} out of range")
     return (robot << _UID_SHIFT) | counter
+
+
+def counter_of(uid: int) -> int:
+    """The counter of pose ``uid`` (:func:`make_uid`) among its robot's poses."""
+    return uid & ((1 << _UID_SHIFT) - 1)
 
 
 def robot_of(uid: int) -> int:

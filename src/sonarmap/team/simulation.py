@@ -246,6 +246,8 @@ def run_team(
             progress(i + 1, len(times))
     end = float(times[-1])
     sent_in_mission = [e.stats.bytes_sent for e in exchangers]
+    for e in exchangers:
+        e.finish()
 
     # The network's quiet phase: robots still, exchanging until nothing changes.
     dt = float(np.median(np.diff(times))) if len(times) > 1 else exchange.request_every

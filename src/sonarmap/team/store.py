@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Collection, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -990,6 +990,7 @@ def compress_for_sending(
     *,
     params: StoreParams | None = None,
     uids: Collection[int] | None = None,
+    size: Callable[[int], int] | None = None,
 ) -> list[int]:
     """The poses of ``region`` (one or several) to send within ``cap_bytes`` (poses'
     bytes; edges are not counted): deletion-only region compression, dropping the pose
@@ -1008,6 +1009,8 @@ def compress_for_sending(
         Utility constants and pose kernel width.
     uids : collection of int, optional
         Only these poses are candidates (e.g. those the receiver lacks).
+    size : callable, optional
+        ``size(uid)``: a pose's bytes as it will travel; default its stored bytes.
 
     Returns
     -------
@@ -1019,7 +1022,8 @@ def compress_for_sending(
     cand = sorted(
         u for u, p in layer.poses.items() if p.region in regions and (uids is None or u in uids)
     )
-    sizes = np.array([layer.pose_bytes(u) for u in cand], dtype=np.float64)
+    bytes_of = layer.pose_bytes if size is None else size
+    sizes = np.array([bytes_of(u) for u in cand], dtype=np.float64)
     lost = np.array([utility(layer.poses[u].landmarks, now, params).sum() for u in cand])
     keep = np.ones(len(cand), dtype=bool)
     while keep.any() and sizes[keep].sum() > cap_bytes:
