@@ -786,9 +786,9 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
             ),
             "mode",
         ),
-        "request digest short": ("request", _request_body(e=b"\x00" * 7), "range"),
-        "request digest as str": ("request", _request_body(e="0" * 8), "type"),
-        "request without digest": ("request", _request_body(drop=("e",)), "keys"),
+        "request fingerprints cut": ("request", _request_body(e=b"\x00" * 7), "range"),
+        "request fingerprints as str": ("request", _request_body(e="0" * 8), "type"),
+        "request without fingerprints": ("request", _request_body(drop=("e",)), "keys"),
         "unknown kind": ("gossip", good, "kind"),
     }
 
@@ -1143,3 +1143,28 @@ def test_the_limited_cap_counts_poses_as_they_travel() -> None:
 def test_bad_lean_settings_are_refused(bad: dict[str, Any]) -> None:
     with pytest.raises(ConfigError):
         ExchangeParams(**bad)
+
+
+def test_an_answer_carries_only_the_edges_the_requester_lacks() -> None:
+    a = own_store(0, [0] * 8)
+    b = own_store(1, [1])
+    team = Team([a, b])
+    team.run(6)
+    assert uids(b.received[0]) == uids(a.local)
+    answers = record_sends(team.transports[0])
+    a.delete_pose(make_uid(0, 3), team.hub.now)  # chains poses 2 and 4 by a new edge
+    team.run(6)
+    sent = [e for body in answers for p in decode_answer(body).patches for e in p.edges]
+    chained = {(e.a, e.b) for e in a.local.edges} - {(e.a, e.b) for e in b.received[0].edges}
+    assert chained == set()  # b has the new edge...
+    assert [(e.a, e.b) for e in sent] == [(make_uid(0, 2), make_uid(0, 4))]  # ...and no other
+
+
+def test_edge_fingerprints_ignore_order_and_tell_remade_edges_apart() -> None:
+    from sonarmap.team.exchange import edge_fingerprint, edge_fingerprints
+
+    p, q, r = pose(0, 0, 0, 0.0), pose(0, 1, 0, 1.0), pose(0, 2, 0, 2.0)
+    e1, e2 = odometry(p, q), odometry(q, r)
+    assert edge_fingerprints([e1, e2]) == edge_fingerprints([e2, e1, e2])
+    remade = OdometryEdge(e1.a, e1.b, (e1.transform[0] + 1e-9, *e1.transform[1:]), COV, 10.0)
+    assert edge_fingerprint(remade) != edge_fingerprint(e1)
