@@ -110,6 +110,15 @@ class StoreParams:
         Largest standard deviation (rad) of its angle: 0.05.
     descriptor_dim : int
         Descriptor bytes, used only to check that ``pose_limit`` holds one landmark: 128.
+    fold : bool
+        When region compression deletes a pose, add its local map to the newest pose's
+        (resampled into the newest's frame by the two estimates; the newest keeps its
+        grid, so cells outside it are lost) instead of losing all of it. The thesis
+        deletes a pose's map with it; each pose's map holds only the readings since the
+        pose before, so a deletion leaves a hole in the map where no other pose saw.
+        The newest pose is the one whose arrival triggered the compression, so no other
+        robot holds it yet and every copy of a pose stays what its source made.
+        False (default): the thesis's deletion.
     """
 
     pose_limit: int = 16_384
@@ -128,9 +137,14 @@ class StoreParams:
     merge_max_std: float = 0.1
     merge_max_angle_std: float = 0.05
     descriptor_dim: int = 128
+    fold: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.fold, bool):
+            raise ConfigError(f"store: fold must be true or false, got {self.fold!r}")
         for f in fields(self):
+            if f.name == "fold":
+                continue
             v = getattr(self, f.name)
             if v is None and f.name == "beta":
                 continue
@@ -870,6 +884,19 @@ class RobotStore:
             touched.add(layer.poses[n2].region)
         return touched
 
+    def _fold(self, uid: int, now: float) -> None:
+        """Add local pose ``uid``'s map to the newest pose's (``StoreParams.fold``)."""
+        layer, newest = self.local, self._newest
+        if newest is None or newest == uid or newest not in layer.poses:
+            return
+        gone, keep = layer.poses[uid], layer.poses[newest]
+        if gone.local_map is None:
+            return
+        where = _tf(compose(invert(keep.estimate), gone.estimate))
+        layer.put_pose(
+            replace(keep, local_map=_merge_maps(keep.local_map, gone.local_map, where)), now
+        )
+
     def merge_poses(self, closure: ClosureEdge, now: float) -> int:
         """Merge closure.a and closure.b into a new pose in a's frame (thesis 2.3.2);
         its UID is returned. Edges and closures follow; the merged pose is compressed
@@ -962,6 +989,8 @@ class RobotStore:
             if best is None:
                 break
             if best[3] is None:
+                if params.fold:
+                    self._fold(-best[2], now)
                 touched |= self.delete_pose(-best[2], now)
             else:
                 plans.clear()  # the UIDs planned ahead are now taken
