@@ -505,6 +505,7 @@ def test_compress_for_sending_keeps_the_fresh_reliable_pose() -> None:
         ({"fov": 400.0}, "fov"),
         ({"merge_min_inliers": 2.5}, "merge_min_inliers"),
         ({"s": math.nan}, "s"),
+        ({"fold": 1}, "fold"),
     ],
 )
 def test_bad_params_name_the_field(kwargs: dict[str, float], name: str) -> None:
@@ -542,3 +543,42 @@ def test_covariances_propagate_in_the_end_frame_as_gtsam_takes_them() -> None:
     np.testing.assert_allclose(np.cov(err.T), _compose_cov(a, ca, b, cb), atol=2e-3, rtol=0.1)
     err = _log_right(invert(sa), invert(np.asarray(a)))
     np.testing.assert_allclose(np.cov(err.T), _invert_cov(a, ca), atol=2e-3, rtol=0.1)
+
+
+def _square_map(cells: list[tuple[int, int]], value: int = 60) -> LocalMap:
+    lo = np.zeros((21, 21), dtype=np.int8)
+    for r, c in cells:
+        lo[r, c] = value
+    return LocalMap(lo, 0.1)
+
+
+@pytest.mark.parametrize("fold", [False, True])
+def test_a_deleted_poses_map_folds_into_the_newest(fold: bool) -> None:
+    # Two poses in region 0 fill it; the third (newest) makes the store delete one.
+    params = StoreParams(pose_limit=1000, region_limit=2500, fold=fold)  # poses of 944 B
+    store = RobotStore(0, params)
+    lm = make_landmarks(np.zeros((1, 3)))
+    # Pose 0's map marks the cell 0.5 m ahead of it (row 10, column 15); pose 2 sits
+    # 0.3 m ahead of pose 0, so that cell is 0.2 m ahead of pose 2: column 12.
+    maps = [_square_map([(10, 15)]), _square_map([(3, 3)]), _square_map([])]
+    xs = [0.0, 0.1, 0.3]
+    poses = [
+        make_pose(0, k, lm, estimate=(xs[k], 0.0, 0.0), time=float(k), local_map=maps[k])
+        for k in range(3)
+    ]
+    store.add_own_pose(poses[0], None, [], 0.0)
+    store.add_own_pose(poses[1], odometry(poses[0], poses[1]), [], 1.0)
+    store.add_own_pose(poses[2], odometry(poses[1], poses[2]), [], 2.0)
+    gone = {p.uid for p in poses} - set(store.local.poses)
+    assert len(gone) == 1  # the region held only two
+    newest = store.local.poses[poses[2].uid].local_map
+    assert newest is not None
+    if not fold:
+        assert not newest.logodds.any()  # the thesis's deletion: the map goes with it
+        return
+    if poses[0].uid in gone:
+        assert newest.logodds[10, 12] == 60
+        assert np.count_nonzero(newest.logodds) == 1
+    else:  # pose 1's cell (3, 3) lies 0.2 m left of pose 2's square: (3, 1)
+        assert newest.logodds[3, 1] == 60
+        assert np.count_nonzero(newest.logodds) == 1

@@ -63,6 +63,13 @@ PoseLimitOption = Annotated[
 RegionLimitOption = Annotated[
     int, typer.Option("--region-limit", help="M_r: bytes a region may take.")
 ]
+FoldOption = Annotated[
+    bool,
+    typer.Option(
+        "--fold/--no-fold",
+        help="A pose region compression deletes leaves its local map to the newest pose.",
+    ),
+]
 
 #: Summary figures averaged over the robots at the top level of summary.json.
 MEAN_KEYS = (
@@ -120,9 +127,9 @@ def _tick(update: Any, note: str, done: int, total: int) -> None:
     update(done, total, note)
 
 
-def _check_bounds(pose_limit: int, region_limit: int) -> StoreParams:
+def _check_bounds(pose_limit: int, region_limit: int, fold: bool = False) -> StoreParams:
     try:
-        return StoreParams(pose_limit=pose_limit, region_limit=region_limit)
+        return StoreParams(pose_limit=pose_limit, region_limit=region_limit, fold=fold)
     except ConfigError as e:
         option = "--pose-limit" if str(e).startswith("store: pose_limit") else "--region-limit"
         raise ConfigError(f"{option}: {str(e).removeprefix('store: ')}") from None
@@ -166,7 +173,12 @@ def _network_params(network: str, bandwidth: float | None, loss: float) -> Netwo
 
 
 def _exchange_params(
-    exchange: str | None, cap: int, network: str, budget: float = 0.0
+    exchange: str | None,
+    cap: int,
+    network: str,
+    budget: float = 0.0,
+    anchors: int = 1,
+    hold: float = 0.0,
 ) -> ExchangeParams:
     # A link that may break or be slow is what the limited protocol was designed for.
     mode = exchange if exchange is not None else ("good" if network == "full" else "limited")
@@ -176,7 +188,11 @@ def _exchange_params(
         raise ConfigError(f"--cap must be >= 1 byte, got {cap}")
     if not (math.isfinite(budget) and budget >= 0):
         raise ConfigError(f"--budget must be >= 0 bytes/s, got {budget}")
-    return ExchangeParams(mode=mode, cap_bytes=cap, budget=budget)
+    if anchors < 1:
+        raise ConfigError(f"--anchors must be >= 1, got {anchors}")
+    if not (math.isfinite(hold) and hold >= 0):
+        raise ConfigError(f"--hold must be >= 0 seconds, got {hold}")
+    return ExchangeParams(mode=mode, cap_bytes=cap, budget=budget, anchor_every=anchors, hold=hold)
 
 
 def _run_zmq_team(
@@ -320,6 +336,21 @@ def run_cmd(
             help="Bytes/s of answers each robot lets its requests bring in (0: no budget).",
         ),
     ] = 0.0,
+    anchors: Annotated[
+        int,
+        typer.Option(
+            "--anchors",
+            help="K: landmarks travel only with every K-th pose a robot made and merged "
+            "poses (1: every pose whole, as the thesis stores it).",
+        ),
+    ] = ExchangeParams().anchor_every,
+    hold: Annotated[
+        float,
+        typer.Option(
+            "--hold", help="Seconds a robot keeps a new pose to itself before offering it."
+        ),
+    ] = ExchangeParams().hold,
+    fold: FoldOption = STORE_DEFAULTS.fold,
     transport: Annotated[
         str, typer.Option("--transport", help="sim (simulated network) or zmq (processes).")
     ] = "sim",
@@ -341,7 +372,7 @@ def run_cmd(
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
     net = _network_params(network, bandwidth, loss)
-    protocol = _exchange_params(exchange, cap, network, budget)
+    protocol = _exchange_params(exchange, cap, network, budget, anchors, hold)
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")
     if patrol and route is not None:
@@ -351,7 +382,7 @@ def run_cmd(
             "--transport zmq: the nodes drive their own seeded routes; --patrol, --route, "
             "--world and --animate are --transport sim's"
         )
-    store = _check_bounds(pose_limit, region_limit)
+    store = _check_bounds(pose_limit, region_limit, fold)
     plan = _team_plan(map_, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
@@ -447,6 +478,7 @@ def node_cmd(
     ] = None,
     pose_limit: PoseLimitOption = STORE_DEFAULTS.pose_limit,
     region_limit: RegionLimitOption = STORE_DEFAULTS.region_limit,
+    fold: FoldOption = STORE_DEFAULTS.fold,
     exchange: Annotated[
         list[str] | None,
         typer.Option("--exchange", help="An exchange setting KEY=VALUE (repeatable)."),
@@ -484,7 +516,7 @@ def node_cmd(
         raise ConfigError(f"--duration must be > 0, got {duration}")
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
-    store = _check_bounds(pose_limit, region_limit)
+    store = _check_bounds(pose_limit, region_limit, fold)
     timing = LockstepParams(wait_timeout=wait_timeout, checkpoint_every=checkpoint_every)
     ex = parse_exchange(exchange or [])
     peer_map = parse_peers(peers, robot)

@@ -1235,12 +1235,16 @@ def _node_args(
     base = MissionConfig(
         duration=cfg.duration,
         seed=cfg.seed,
-        store=StoreParams(pose_limit=cfg.store.pose_limit, region_limit=cfg.store.region_limit),
+        store=StoreParams(
+            pose_limit=cfg.store.pose_limit,
+            region_limit=cfg.store.region_limit,
+            fold=cfg.store.fold,
+        ),
     )
     if base != cfg:
         raise ConfigError(
-            "run_zmq_team: the nodes take only the mission's duration, seed, pose_limit and "
-            "region_limit; other MissionConfig settings differ from their defaults"
+            "run_zmq_team: the nodes take only the mission's duration, seed, pose_limit, "
+            "region_limit and fold; other MissionConfig settings differ from their defaults"
         )
     args = [
         "--duration",
@@ -1251,6 +1255,7 @@ def _node_args(
         str(cfg.store.pose_limit),
         "--region-limit",
         str(cfg.store.region_limit),
+        "--fold" if cfg.store.fold else "--no-fold",
         "--lookahead",
         repr(float(lookahead)),
         "--settle",

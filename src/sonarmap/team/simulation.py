@@ -83,7 +83,9 @@ class TeamResult:
         ``bytes_sent``, ``bytes_received``, ``messages``, ``messages_received``,
         ``poses_local``, ``poses_received``, ``received_closures``,
         ``received_closures_correct``) and the team's ``duplicate_poses``,
-        ``identical_maps``, ``convergence_s``, ``bytes_per_robot_minute``
+        ``identical_maps``, ``held_share_at_routes_end`` (the mean share of the other
+        robots' poses each robot held when the routes ended: what a ``hold`` keeps
+        back), ``convergence_s``, ``bytes_per_robot_minute``
         (message bodies sent while the robots drive), ``bytes_per_robot_minute_all``
         (with the quiet phase's, over the same minutes), ``map_f1_team``,
         ``map_f1_central`` (None unless asked for), ``settle_seconds``, ``settled``,
@@ -132,6 +134,17 @@ def map_agreement(maps: Sequence[OccupancyMap]) -> float:
             if known.any():
                 worst = min(worst, float(np.mean(a[known] == b[known])))
     return worst
+
+
+def _held_share(agents: Sequence[RobotAgent]) -> float:
+    """The mean, over robots, of the share of the other robots' own poses (as they are
+    now) that the robot holds: how far behind the team's exchange is (1: not at all)."""
+    shares = []
+    for a in agents:
+        others = set().union(*(b.store.local.poses for b in agents if b is not a))
+        if others:
+            shares.append(len(others & held_uids(a.store)[0]) / len(others))
+    return float(np.mean(shares)) if shares else 1.0
 
 
 def _changes(exchangers: list[Exchanger | NaiveExchanger]) -> int:
@@ -246,6 +259,7 @@ def run_team(
             progress(i + 1, len(times))
     end = float(times[-1])
     sent_in_mission = [e.stats.bytes_sent for e in exchangers]
+    held_at_end = _held_share(agents)
     for e in exchangers:
         e.finish()
 
@@ -299,6 +313,7 @@ def run_team(
         "bytes_per_robot_minute_all": sum(e.stats.bytes_sent for e in exchangers)
         / robots
         / minutes,
+        "held_share_at_routes_end": held_at_end,
         "map_f1_team": float(np.mean(f1)) if f1 else math.nan,
         "map_f1_central": None if bound is None else bound.summary["map_f1"],
         "central": None if bound is None else bound.summary,
