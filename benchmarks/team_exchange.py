@@ -13,21 +13,30 @@ and stereo landmarks and exchanging over the simulated network
 - on the full network, the limited protocol as its cap T shrinks (``--caps``: 64k, 16k,
   4k, 1k, 256 bytes), and at the first cap with a budget per robot (``--budgets``:
   2000, 1000, 500 bytes/s of answers, :attr:`~sonarmap.team.exchange.ExchangeParams.budget`);
+- on the full network, the good protocol with a store that folds a deleted pose's map
+  into the newest pose (``--fold``), and lean settings (``--lean K:HOLD``, each also
+  folding): landmarks only on every K-th pose
+  (:attr:`~sonarmap.team.exchange.ExchangeParams.anchor_every`) and own poses offered
+  once HOLD seconds old (:attr:`~sonarmap.team.exchange.ExchangeParams.hold`);
 - the central upper bound (:func:`sonarmap.team.central.central_map`: one graph and map
   from every pose every robot made), once: the robots' data are the same in every
   setting.
+
+``--groups`` picks which of these run: ``main`` (the three networks with every
+protocol), ``caps``, ``budgets`` and ``lean`` (the fold and lean rows); all by default.
 
 Per setting: bytes per robot-minute (message bodies, deflated as sent, while the robots
 drive and in the quiet phase after, over the minutes of driving: the maps are scored
 after the quiet phase, so a protocol that defers its sending pays for it) and their
 share of the naive baseline's on the same network, ``map_f1_team`` (the mean of
 the robots' global-map wall F1), duplicate poses, identical pose sets after the network
-was quiet, the seconds that took. Then the issue's targets, each ``holds`` or
+was quiet, the seconds that took, and the share of the other robots' poses a robot held
+when the routes ended (what a hold keeps back). Then the issue's targets, each ``holds`` or
 ``FAILS``. Nothing here is tuned to make a target hold.
 
 Run with ``python -m benchmarks.team_exchange [--plan office] [--robots 3]
 [--duration 300] [--caps 65536 16384 4096 1024 256] [--budgets 2000 1000 500]
-[--jobs 2] [--plot FILE]
+[--lean 4:30 8:30 8:60 8:120] [--groups main caps budgets lean] [--jobs 2] [--plot FILE]
 [--json FILE]``.
 """
 
@@ -48,6 +57,7 @@ from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams
 from sonarmap.team.simulation import run_team
+from sonarmap.team.store import StoreParams
 
 #: The goal of the issue: the team's F1 within this of the central bound...
 F1_GAP = 0.05
@@ -62,11 +72,17 @@ def _one(
     t0 = time.perf_counter()
     s = run_team(
         _plan(plan_name),
-        MissionConfig(duration=duration, seed=seed),
+        MissionConfig(
+            duration=duration, seed=seed, store=StoreParams(fold=setting.get("fold", False))
+        ),
         robots,
         network=NetworkParams(kind=setting["network"]),
         exchange=ExchangeParams(
-            mode=setting["mode"], cap_bytes=setting["cap"], budget=setting["budget"]
+            mode=setting["mode"],
+            cap_bytes=setting["cap"],
+            budget=setting["budget"],
+            anchor_every=setting.get("anchors", 1),
+            hold=setting.get("hold", 0.0),
         ),
         seed=seed,
         central=setting.get("central", False),
@@ -83,6 +99,7 @@ def _one(
         "convergence_s",
         "settled",
         "settle_seconds",
+        "held_share_at_routes_end",
     )
     row = {**setting, **{k: s[k] for k in keys}}
     row["poses_local"] = sum(r["poses_local"] for r in s["robots"])
@@ -91,21 +108,50 @@ def _one(
     return row
 
 
-def settings(caps: list[int], budgets: list[float]) -> list[dict[str, Any]]:
-    """Every run, the first the one that also builds the central bound."""
+GROUPS = ("main", "caps", "budgets", "lean")
+
+
+def settings(
+    caps: list[int],
+    budgets: list[float],
+    lean: list[tuple[int, float]] | None = None,
+    groups: tuple[str, ...] = GROUPS,
+) -> list[dict[str, Any]]:
+    """Every run, the first the one that also builds the central bound (the full
+    network's naive baseline is always run: shares are of its bytes)."""
     out: list[dict[str, Any]] = []
     plain = {"cap": caps[0], "budget": 0.0, "curve": False}
     for network in ("full", "limited"):
         for mode in ("good", "limited", "naive"):
-            out.append({"network": network, "mode": mode, **plain})
+            if "main" in groups or (network, mode) == ("full", "naive"):
+                out.append({"network": network, "mode": mode, **plain})
     out[0]["central"] = True
-    out.append({"network": "none", "mode": "good", **plain})
-    for cap in caps[1:]:
-        out.append({"network": "full", "mode": "limited", "cap": cap, "budget": 0.0, "curve": True})
-    for b in budgets:
-        out.append(
-            {"network": "full", "mode": "limited", "cap": caps[0], "budget": b, "curve": True}
-        )
+    if "main" in groups:
+        out.append({"network": "none", "mode": "good", **plain})
+    if "caps" in groups:
+        for cap in caps[1:]:
+            out.append(
+                {"network": "full", "mode": "limited", "cap": cap, "budget": 0.0, "curve": True}
+            )
+    if "budgets" in groups:
+        for b in budgets:
+            out.append(
+                {"network": "full", "mode": "limited", "cap": caps[0], "budget": b, "curve": True}
+            )
+    if "lean" in groups:
+        out.append({"network": "full", "mode": "good", **plain, "curve": True, "fold": True})
+        for k, hold in lean or []:
+            out.append(
+                {
+                    "network": "full",
+                    "mode": "good",
+                    **plain,
+                    "curve": True,
+                    "fold": True,
+                    "anchors": k,
+                    "hold": hold,
+                }
+            )
     return out
 
 
@@ -117,8 +163,10 @@ def measure(
     caps: list[int],
     budgets: list[float],
     jobs: int,
+    lean: list[tuple[int, float]] | None = None,
+    groups: tuple[str, ...] = GROUPS,
 ) -> list[dict[str, Any]]:
-    todo = settings(caps, budgets)
+    todo = settings(caps, budgets, lean, groups)
     if jobs <= 1:
         return [_one(plan_name, robots, duration, seed, s) for s in todo]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
@@ -171,10 +219,26 @@ def targets(rows: list[dict[str, Any]], central: float) -> list[tuple[str, bool]
 
 
 def _name(r: dict[str, Any]) -> str:
+    fold = ", fold" if r.get("fold") else ""
+    if r.get("anchors", 1) > 1 or r.get("hold", 0.0) > 0:
+        return (
+            f"{r['mode']}, anchors 1/{r.get('anchors', 1)}, hold {r.get('hold', 0.0):.0f} s{fold}"
+        )
     if r["mode"] != "limited":
-        return str(r["mode"])
+        return f"{r['mode']}{fold}"
     budget = f", {r['budget']:.0f} B/s" if r["budget"] else ""
-    return f"limited T={r['cap']}{budget}"
+    return f"limited T={r['cap']}{budget}{fold}"
+
+
+def _lean(text: str) -> tuple[int, float]:
+    k, sep, hold = text.partition(":")
+    try:
+        out = (int(k), float(hold))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"K:HOLD expected (e.g. 8:30), got {text!r}") from None
+    if not sep or out[0] < 1 or not (math.isfinite(out[1]) and out[1] >= 0):
+        raise argparse.ArgumentTypeError(f"K >= 1 and HOLD >= 0 expected, got {text!r}")
+    return out
 
 
 def _plot(rows: list[dict[str, Any]], central: float, path: str) -> None:
@@ -218,6 +282,14 @@ def main() -> None:
     parser.add_argument(
         "--budgets", type=float, nargs="*", default=[2000.0, 1000.0, 500.0], help="Bytes/s."
     )
+    parser.add_argument(
+        "--lean",
+        type=_lean,
+        nargs="*",
+        default=[(4, 30.0), (8, 30.0), (8, 60.0), (8, 120.0)],
+        help="K:HOLD, landmarks on every K-th pose, poses offered HOLD s old.",
+    )
+    parser.add_argument("--groups", nargs="+", choices=GROUPS, default=list(GROUPS))
     parser.add_argument("--jobs", type=int, default=2, help="Runs at once (processes).")
     parser.add_argument("--plot", help="Also draw the cap curve to this PNG.")
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
@@ -227,7 +299,15 @@ def main() -> None:
     _plan(args.plan)  # a bad --plan fails before any run
     t0 = time.perf_counter()
     rows = measure(
-        args.plan, args.robots, args.duration, args.seed, args.caps, args.budgets, args.jobs
+        args.plan,
+        args.robots,
+        args.duration,
+        args.seed,
+        args.caps,
+        args.budgets,
+        args.jobs,
+        args.lean,
+        tuple(args.groups),
     )
     wall = time.perf_counter() - t0
     c = rows[0]["central"]
@@ -241,21 +321,24 @@ def main() -> None:
         f"closures ({c['closures_correct']} correct, {c['closures_rejected_by_graph']} "
         f"rejected by the graph), ATE {c['ate_m']:.3f} m, {c['wall_seconds']:.0f} s"
     )
-    print("network  protocol  cap T  budget: B/robot-min (% naive), team F1 (- central), dup,")
-    print("          identical,")
-    print("          converged s, poses local/received, wall s")
+    print("network  setting: B/robot-min (% naive), team F1 (- central), dup, identical,")
+    print("          converged s, poses local/received, held at the routes' end, wall s")
     for r in rows:
-        naive = _naive(rows, r["network"]) if r["network"] != "none" else math.nan
+        has_naive = r["network"] != "none" and any(
+            x["network"] == r["network"] and x["mode"] == "naive" for x in rows
+        )
+        naive = _naive(rows, r["network"]) if has_naive else math.nan
         share = 100 * r["bytes_per_robot_minute_all"] / naive if naive else math.nan
         conv = r["convergence_s"]
         print(
-            f"{r['network']:8} {r['mode']:8} {r['cap']:6d} {r['budget']:6.0f}: "
+            f"{r['network']:8} {_name(r)}: "
             f"{r['bytes_per_robot_minute_all']:9.0f} "
             f"({share:5.1f} %), F1 {r['map_f1_team']:.3f} ({r['map_f1_team'] - central:+.3f}), "
             f"dup {r['duplicate_poses']}, identical {r['identical_maps']} (maps agree on "
             f"{100 * r['map_agreement']:.1f} %), converged "
             f"{'never' if conv is None else f'{conv:.1f}'}, poses {r['poses_local']}/"
-            f"{r['poses_received']}, {r['wall_s']:.0f} s"
+            f"{r['poses_received']}, held {100 * r['held_share_at_routes_end']:.0f} %, "
+            f"{r['wall_s']:.0f} s"
         )
     print("targets:")
     for name, ok in targets(rows, central):
