@@ -260,6 +260,9 @@ def test_a_broken_link_drops_what_waits_on_it() -> None:
     net.send(20.0, 0, 1, b"w" * 100)
     (d,) = net.deliver(30.0)
     assert d.arrived == pytest.approx(21.0)
+    # They met twice and parted once, each counted at both robots.
+    assert net.stats.links_made.tolist() == [2, 2]
+    assert net.stats.links_broken.tolist() == [1, 1]
 
 
 def test_a_relay_with_no_way_on_drops_the_message() -> None:

@@ -67,6 +67,8 @@ def test_a_patrolling_team_run_writes_the_team_summary(tmp_path: Path, plan: Occ
         (["--anchors", "0"], "--anchors"),
         (["--hold", "-5"], "--hold"),
         (["--hold", "nan"], "--hold"),
+        (["--range", "0", "--network", "limited"], "--range"),
+        (["--range", "10"], "--range"),
         (["--transport", "pigeon"], "--transport"),
         (["--patrol", "--route", "r.csv"], "--patrol"),
     ],

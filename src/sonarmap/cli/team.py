@@ -162,14 +162,22 @@ NETWORK_KINDS = ("full", "limited", "none")
 TRANSPORTS = ("sim", "zmq")
 
 
-def _network_params(network: str, bandwidth: float | None, loss: float) -> NetworkParams:
+def _network_params(
+    network: str, bandwidth: float | None, loss: float, reach: float | None = None
+) -> NetworkParams:
     if network not in NETWORK_KINDS:
         raise ConfigError(f"--network must be one of {', '.join(NETWORK_KINDS)}, got {network!r}")
     if bandwidth is not None and not (math.isfinite(bandwidth) and bandwidth > 0):
         raise ConfigError(f"--bandwidth must be > 0 bytes/s, got {bandwidth}")
     if not (0.0 <= loss <= 1.0):
         raise ConfigError(f"--loss must be a probability in [0, 1], got {loss}")
-    return NetworkParams(kind=network, bandwidth=bandwidth, loss=loss)
+    if reach is None:
+        return NetworkParams(kind=network, bandwidth=bandwidth, loss=loss)
+    if not (math.isfinite(reach) and reach > 0):
+        raise ConfigError(f"--range must be > 0 metres, got {reach}")
+    if network != "limited":
+        raise ConfigError(f"--range is the limited network's; --network is {network}")
+    return NetworkParams(kind=network, bandwidth=bandwidth, loss=loss, r_max=reach)
 
 
 def _exchange_params(
@@ -318,6 +326,13 @@ def run_cmd(
     loss: Annotated[
         float, typer.Option("--loss", help="Probability a message is lost on one hop.")
     ] = 0.0,
+    reach: Annotated[
+        float | None,
+        typer.Option(
+            "--range",
+            help="Metres a limited network's link reaches with line of sight (default 70).",
+        ),
+    ] = None,
     exchange: Annotated[
         str | None,
         typer.Option(
@@ -371,7 +386,7 @@ def run_cmd(
         raise ConfigError(f"--duration must be > 0, got {duration}")
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
-    net = _network_params(network, bandwidth, loss)
+    net = _network_params(network, bandwidth, loss, reach)
     protocol = _exchange_params(exchange, cap, network, budget, anchors, hold)
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")

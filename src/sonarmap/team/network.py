@@ -174,7 +174,9 @@ class Delivery:
 @dataclass
 class NetworkStats:
     """Counters per robot, arrays (N,) of int64. Drops are charged to the message's
-    source; ``bytes_relayed`` to the robot that forwarded."""
+    source; ``bytes_relayed`` to the robot that forwarded; ``links_made`` and
+    ``links_broken`` count the direct links that came up (the first ones included) and
+    went down at the robot: how often it met and parted from another."""
 
     bytes_sent: I64
     bytes_received: I64
@@ -185,6 +187,8 @@ class NetworkStats:
     dropped_unroutable: I64
     dropped_link_broken: I64
     dropped_oversized: I64
+    links_made: I64
+    links_broken: I64
 
     @classmethod
     def zeros(cls, n: int) -> NetworkStats:
@@ -372,6 +376,8 @@ class SimNetwork:
 
     def _set_links(self, adj: Bools) -> None:
         """New links from now on: drop what waits on broken ones, reroute."""
+        self.stats.links_made += (adj & ~self._adj).sum(axis=1)
+        self.stats.links_broken += (self._adj & ~adj).sum(axis=1)
         for key in [k for k in self._links if not adj[k]]:
             for msg in self._links.pop(key).queued:
                 self._drop(msg, self.stats.dropped_link_broken)

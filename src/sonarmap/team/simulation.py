@@ -83,9 +83,10 @@ class TeamResult:
         ``bytes_sent``, ``bytes_received``, ``messages``, ``messages_received``,
         ``poses_local``, ``poses_received``, ``received_closures``,
         ``received_closures_correct``) and the team's ``duplicate_poses``,
-        ``identical_maps``, ``held_share_at_routes_end`` (the mean share of the other
-        robots' poses each robot held when the routes ended: what a ``hold`` keeps
-        back), ``convergence_s``, ``bytes_per_robot_minute``
+        ``identical_maps``, ``meetings`` and ``partings`` (direct links that came up,
+        the first ones included, and went down), ``held_share_at_routes_end`` (the
+        mean share of the other robots' poses each robot held when the routes ended:
+        what a ``hold`` keeps back), ``convergence_s``, ``bytes_per_robot_minute``
         (message bodies sent while the robots drive), ``bytes_per_robot_minute_all``
         (with the quiet phase's, over the same minutes), ``map_f1_team``,
         ``map_f1_central`` (None unless asked for), ``settle_seconds``, ``settled``,
@@ -294,6 +295,8 @@ def run_team(
                 "poses_received": sum(len(x.poses) for x in a.store.received.values()),
                 "received_closures": a.received_closures,
                 "received_closures_correct": a.received_correct,
+                "links_made": int(net.stats.links_made[a.robot]),
+                "links_broken": int(net.stats.links_broken[a.robot]),
             }
         )
         rows.append(row)
@@ -305,6 +308,9 @@ def run_team(
         "robots_n": robots,
         "duplicate_poses": sum(h[1] for h in held),
         "identical_maps": identical,
+        # Each link has two ends, each counted at its robot.
+        "meetings": int(net.stats.links_made.sum()) // 2,
+        "partings": int(net.stats.links_broken.sum()) // 2,
         "map_agreement": map_agreement([r.global_map for r in results]),
         "convergence_s": last_change - end if converged else None,
         "bytes_per_robot_minute": sum(sent_in_mission) / robots / minutes,
