@@ -65,20 +65,24 @@ def correlation_weights(
     return np.asarray(1.0 / counts[inverse.ravel()], dtype=np.float64)
 
 
-def reading_weights(readings: Readings, cell: float) -> F64:
+def reading_weights(readings: Readings, cell: float, r_max: float) -> F64:
     """:func:`correlation_weights` of ``readings`` with ``cell``-metre bins, scaled to
     mean 1 (empty for no readings).
 
+    A no-echo reading may carry any range from ``r_max`` up (``inf`` included); all
+    say the same, so they are binned at ``r_max``.
+
     Examples
     --------
-    >>> z = np.zeros(3)
-    >>> r = Readings(z, np.zeros(3, np.int32), z, z, z, np.array([1.0, 1.0, 3.0]), ("s",))
-    >>> reading_weights(r, 0.05)
+    >>> z = np.zeros(4)
+    >>> r = Readings(z, np.zeros(4, np.int32), z, z, z, np.array([1.0, 1.0, 3.0, np.inf]), ("s",))
+    >>> reading_weights(r, 0.05, 3.0)
+    array([1., 1., 1., 1.])
+    >>> reading_weights(r.take([0, 1, 2]), 0.05, 3.0)
     array([0.75, 0.75, 1.5 ])
     """
     if len(readings) == 0:
         return np.empty(0)
-    w = correlation_weights(
-        readings.sensor, readings.x, readings.y, readings.theta, readings.range, cell
-    )
+    rng = np.minimum(readings.range, r_max)
+    w = correlation_weights(readings.sensor, readings.x, readings.y, readings.theta, rng, cell)
     return np.asarray(w / w.mean(), dtype=np.float64)

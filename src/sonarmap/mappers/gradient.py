@@ -315,7 +315,7 @@ class GradientMapper(Mapper):
         if self.correlated > 0 and problem.reading is not None:
             # Scaled to mean 1: 1 / n alone weakens every term against the unscaled
             # R2, and walls lose to the tent (training quality 0.14 at 10 cm bins).
-            c = reading_weights(readings, self.correlated)
+            c = reading_weights(readings, self.correlated, self.sensor.r_max)
             problem = dataclasses.replace(problem, v=c[problem.reading])
         return problem
 
