@@ -5,13 +5,21 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
+import numpy.typing as npt
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from sonarmap.errors import ConfigError
+from sonarmap.grid import Grid
+from sonarmap.mappers import InverseMapper
 from sonarmap.mappers._correlated import correlation_weights, reading_weights
+from sonarmap.raster import accumulate, rasterise
 from sonarmap.readings import Readings
+from sonarmap.rig import Mount, Rig
+from sonarmap.sensors import Region, SensorModel
 
 
 def readings_at(
@@ -89,3 +97,95 @@ def test_no_echo_readings_bin_at_r_max() -> None:
     r = readings_at([0.0] * 3, [0.0] * 3, [0.0] * 3, [3.0, 3.7, math.inf], [0] * 3)
     np.testing.assert_array_equal(reading_weights(r, 0.05, 3.0), [1.0, 1.0, 1.0])
     assert len(reading_weights(r.take(slice(0, 0)), 0.05, 3.0)) == 0
+
+
+# -- a burst from one place and a lone reading from another -----------------------------
+
+#: 1/8 m cells and poses on multiples of them: the lone reading's footprint is the
+#: burst's moved by whole cells, bit for bit.
+GRID = Grid(resolution=0.125, origin=(0.0, 0.0), shape=(40, 40))
+SENSOR = SensorModel("cone", Region.cone(30.0, 3.0), r_min=0.0, r_max=3.0, range_resolution=0.02)
+RIG = Rig(SENSOR, (Mount("s", 0.0, 0.0, 0.0),))
+N_BURST = 6
+#: The lone reading's pose is the burst's moved by this many rows (2 m down the map).
+SHIFT = 16
+
+
+def burst_and_lone(n: int = N_BURST, rng: float = 2.0) -> Readings:
+    """n equal readings from (0.5, 2.5) looking along +x, then one from (0.5, 0.5)."""
+    y = [2.5] * n + [0.5]
+    return readings_at([0.5] * (n + 1), y, [0.0] * (n + 1), [rng] * (n + 1), [0] * (n + 1))
+
+
+def burst_rows() -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """Flat cells of the burst's footprint, and the same cells moved onto the lone's."""
+    fp = rasterise(GRID, SENSOR, [0.5], [2.5], [0.0], [2.0], offset=0.75 * GRID.resolution)
+    cells = np.concatenate([fp.free.cells, fp.occ.cells]).astype(np.int64)
+    assert len(cells) > 50
+    return cells, cells + SHIFT * GRID.cols
+
+
+def test_inverse_burst_weighs_what_the_lone_reading_does() -> None:
+    """Each of the burst's n log-odds updates is scaled by 1 / n (times the common mean-1
+    scale): over its footprint it adds what the lone reading adds over its own. Off, it
+    adds n times as much."""
+    burst, lone = burst_rows()
+    on = InverseMapper(correlated=0.05).fit(burst_and_lone(), GRID, RIG)
+    off = InverseMapper().fit(burst_and_lone(), GRID, RIG)
+    logit_on = on._logodds
+    np.testing.assert_allclose(logit_on[burst], logit_on[lone], rtol=1e-12)
+    assert np.abs(logit_on[lone]).min() > 0
+    np.testing.assert_allclose(off._logodds[burst], N_BURST * off._logodds[lone], rtol=1e-12)
+    # The scale: weights 1 / n and 1 with mean 1 are s / n and s, s = (n + 1) / 2.
+    np.testing.assert_allclose(logit_on[lone], (N_BURST + 1) / 2 * off._logodds[lone])
+
+
+def test_inverse_partial_fit_still_gives_one_fits_map() -> None:
+    """The burst's readings arrive in two batches, the second completing the bin: the
+    first batch's updates are weighted again once it is known."""
+    r = burst_and_lone()
+    one = InverseMapper(correlated=0.05).fit(r, GRID, RIG)
+    two = InverseMapper(correlated=0.05).start(GRID, RIG)
+    two.partial_fit(r.take(slice(0, 2)))
+    two.partial_fit(r.take(slice(2, None)))
+    np.testing.assert_array_equal(two.occupancy_, one.occupancy_)
+
+
+@pytest.mark.parametrize("parts", [1, 2, 3])
+def test_weighted_insertion_scales_each_readings_update(parts: int) -> None:
+    """The kernel with per-reading weights against the reference: rasterise, then per
+    reading add its weight times the increments and clamp; serial and in row stripes."""
+    rng = np.random.default_rng(7)
+    n = 200
+    x, y = rng.uniform(0.5, 4.5, n), rng.uniform(0.5, 4.5, n)
+    th, r = rng.uniform(-4, 4, n), rng.uniform(0.2, 3.3, n)
+    w = rng.uniform(0.0, 3.0, n)
+    inc, clamp = (-0.3, 0.7), (-1.0, 1.2)
+    fp = rasterise(GRID, SENSOR, x, y, th, r)
+    want = np.zeros(GRID.size)
+    for i in range(n):
+        for cells, v in ((fp.free.of(i), inc[0]), (fp.occ.of(i), inc[1])):
+            want[cells] = np.clip(want[cells] + w[i] * v, *clamp)
+    got = np.zeros(GRID.size)
+    touched = np.zeros(GRID.size, dtype=np.bool_)
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(parts, numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+    try:
+        k = accumulate(
+            GRID, SENSOR, x, y, th, r, got, touched,
+            inc_free=inc[0], inc_occ=inc[1], clamp=clamp, weights=w,
+        )  # fmt: skip
+    finally:
+        numba.set_num_threads(before)
+    assert k == fp.n_entries
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_bad_insertion_weights_are_refused() -> None:
+    v, t = np.zeros(GRID.size), np.zeros(GRID.size, np.bool_)
+    for bad in ([1.0], [1.0, -1.0], [1.0, np.nan]):
+        with pytest.raises(ConfigError, match="weights must be 2 finite numbers >= 0"):
+            accumulate(
+                GRID, SENSOR, [1, 1], [1, 1], [0, 0], [1, 1], v, t,
+                inc_free=-0.1, inc_occ=0.1, weights=bad,
+            )  # fmt: skip
