@@ -14,11 +14,12 @@ from hypothesis import strategies as st
 
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
-from sonarmap.mappers import InverseMapper
+from sonarmap.mappers import MAPPERS, InverseMapper, make_mapper
 from sonarmap.mappers._correlated import correlation_weights, reading_weights
 from sonarmap.raster import accumulate, rasterise
 from sonarmap.readings import Readings
 from sonarmap.rig import Mount, Rig
+from sonarmap.selection import LastN
 from sonarmap.sensors import Region, SensorModel
 
 
@@ -189,3 +190,21 @@ def test_bad_insertion_weights_are_refused() -> None:
                 GRID, SENSOR, [1, 1], [1, 1], [0, 0], [1, 1], v, t,
                 inc_free=-0.1, inc_occ=0.1, weights=bad,
             )  # fmt: skip
+
+
+STREAMING = sorted(
+    n for n, c in MAPPERS.items() if c.streamer is not None and "correlated" in c.param_names()
+)
+
+
+@pytest.mark.parametrize("method", STREAMING)
+def test_streaming_refuses_correlated_readings(method: str) -> None:
+    """A weight depends on readings still to come: no streaming engine can keep it."""
+    # The inverse fall-off needs the 'all' strategy, which the others refuse.
+    params = {"falloff_deg": 0.0} if method == "inverse" else {}
+    assert make_mapper(method, **params).stream(GRID, RIG, LastN(100)) is not None
+    with pytest.raises(
+        ConfigError,
+        match=f"streaming '{method}' cannot down-weight correlated readings .*; set correlated=0",
+    ):
+        make_mapper(method, correlated=0.05, **params).stream(GRID, RIG, LastN(100))

@@ -167,7 +167,8 @@ class GradientMapper(Mapper):
         (and 10-degree heading bin) with ranges in the same c-metre bin each weigh
         1 / n, so a burst from one pose counts as one reading (see
         :func:`~sonarmap.mappers._correlated.correlation_weights`), scaled so that the
-        weights' mean is 1; the robust form's weights multiply these.
+        weights' mean is 1; the robust form's weights multiply these. Offline only:
+        streaming refuses it (see :mod:`sonarmap.mappers._stream`).
     init : {"uniform", "inverse"}
         Where the offline solve starts: every cell at 0.5, the papers' neutral start
         (default), or the inverse mapper's map at its defaults (0.5 where it has no
