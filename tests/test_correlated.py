@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
-from sonarmap.mappers import MAPPERS, InverseMapper, make_mapper
+from sonarmap.mappers import MAPPERS, CountingMapper, InverseMapper, make_mapper
 from sonarmap.mappers._correlated import correlation_weights, reading_weights
 from sonarmap.raster import accumulate, rasterise
 from sonarmap.readings import Readings
@@ -208,3 +208,33 @@ def test_streaming_refuses_correlated_readings(method: str) -> None:
         match=f"streaming '{method}' cannot down-weight correlated readings .*; set correlated=0",
     ):
         make_mapper(method, correlated=0.05, **params).stream(GRID, RIG, LastN(100))
+
+
+def test_counting_burst_casts_one_vote() -> None:
+    """Where the burst's band meets the free part of the lone reading (taken 0.5 m
+    further along, hearing an echo 0.5 m beyond the burst's), a cell gets n "occupied"
+    votes and one "free": n / (n + 1) plain, one against one with the burst
+    down-weighted."""
+    y = [2.5] * (N_BURST + 1)
+    r = readings_at(
+        [0.5] * N_BURST + [1.0],
+        y,
+        [0.0] * (N_BURST + 1),
+        [2.0] * N_BURST + [2.0],
+        [0] * (N_BURST + 1),
+    )
+    m = CountingMapper()
+    both = m.start(GRID, RIG)._band_offset(GRID)
+    burst = rasterise(GRID, SENSOR, [0.5], [2.5], [0.0], [2.0], dr=m.dr, offset=both)
+    lone = rasterise(GRID, SENSOR, [1.0], [2.5], [0.0], [2.0], dr=m.dr, offset=both)
+    cells = np.intersect1d(burst.occ.cells, lone.free.cells)
+    assert len(cells) > 0
+    off = CountingMapper().fit(r, GRID, RIG).occupancy_.ravel()
+    on = CountingMapper(correlated=0.05).fit(r, GRID, RIG).occupancy_.ravel()
+    np.testing.assert_allclose(off[cells], N_BURST / (N_BURST + 1), rtol=1e-6)
+    np.testing.assert_allclose(on[cells], 0.5, rtol=1e-6)
+    # Split anywhere, partial_fit recounts: one fit's map.
+    two = CountingMapper(correlated=0.05).start(GRID, RIG)
+    two.partial_fit(r.take(slice(0, 3)))
+    two.partial_fit(r.take(slice(3, None)))
+    np.testing.assert_array_equal(two.occupancy_.ravel(), on)
