@@ -14,7 +14,15 @@ from hypothesis import strategies as st
 
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
-from sonarmap.mappers import MAPPERS, CountingMapper, InverseMapper, make_mapper
+from sonarmap.mappers import (
+    MAPPERS,
+    CountingMapper,
+    EMMapper,
+    InverseMapper,
+    StochasticMapper,
+    ThrunEMMapper,
+    make_mapper,
+)
 from sonarmap.mappers._correlated import correlation_weights, reading_weights
 from sonarmap.raster import accumulate, rasterise
 from sonarmap.readings import Readings
@@ -238,3 +246,102 @@ def test_counting_burst_casts_one_vote() -> None:
     two.partial_fit(r.take(slice(0, 3)))
     two.partial_fit(r.take(slice(3, None)))
     np.testing.assert_array_equal(two.occupancy_.ravel(), on)
+
+
+def cross_view(n: int) -> Readings:
+    """n equal readings from (0.5, 2.5) looking along +x, hearing a wall at 2 m, then
+    one from (2.5, 1.0) looking along +y whose beam crosses that wall's place and hears
+    an echo 2.5 m away."""
+    x, y = [0.5] * n + [2.5], [2.5] * n + [1.0]
+    return readings_at(x, y, [0.0] * n + [math.pi / 2], [2.0] * n + [2.5], [0] * (n + 1))
+
+
+#: The mean-1 scale of weights 1 / n (the burst's) and 1 (the lone reading's).
+SCALE = (N_BURST + 1) / 2
+
+
+@pytest.mark.parametrize("cls", [EMMapper, ThrunEMMapper])
+def test_em_burst_counts_as_one_reading(cls: type[EMMapper | ThrunEMMapper]) -> None:
+    """Weighted, the burst and the lone reading are the burst's reading and the lone one
+    taken once each, every log-likelihood times the mean-1 scale: EM finds the same map
+    (its ratio of expected hits to passes, or the sign of each flip's gain, does not see
+    the scale), the log-likelihood is the scale times as large, and so are the final
+    posterior's log-odds. Plain, the burst outvotes the lone reading."""
+    on = cls(correlated=0.05).fit(cross_view(N_BURST), GRID, RIG)
+    once = cls().fit(cross_view(1), GRID, RIG)
+    plain = cls().fit(cross_view(N_BURST), GRID, RIG)
+
+    def estimate(m: EMMapper | ThrunEMMapper) -> npt.NDArray[np.float32]:
+        return m.em_map_ if isinstance(m, EMMapper) else m.binary_map_
+
+    np.testing.assert_allclose(estimate(on), estimate(once), rtol=0, atol=1e-6)
+    assert np.nanmax(np.abs(estimate(plain) - estimate(once))) > 0.5
+    assert on.loglik_[-1] == pytest.approx(SCALE * once.loglik_[-1], rel=1e-12)
+    assert on._post is not None
+    assert once._post is not None
+    log_odds = np.log(once._post / (1.0 - once._post))
+    assert np.abs(log_odds).max() > 1.0
+    np.testing.assert_allclose(on._post, 1.0 / (1.0 + np.exp(-SCALE * log_odds)), rtol=1e-9)
+
+
+def test_stochastic_burst_counts_as_one_reading() -> None:
+    """With no shape terms and only improving flips kept, the search's decisions do not
+    see a common scale of the log-likelihood: weighted, the burst and the lone reading
+    give the map of each taken once (the same cells are proposed in the same order), and
+    plain, the burst outvotes the lone reading."""
+
+    def fit(n: int, correlated: float = 0.0) -> StochasticMapper:
+        m = StochasticMapper(
+            schedule="greedy", p_randomfactor=0.0, w_occ=0.0, w_border=0.0, correlated=correlated
+        )
+        return m.fit(cross_view(n), GRID, RIG)
+
+    on, once, plain = fit(N_BURST, 0.05), fit(1), fit(N_BURST)
+    np.testing.assert_array_equal(on.occupancy_, once.occupancy_)
+    assert not np.array_equal(plain.occupancy_, once.occupancy_, equal_nan=True)
+    assert on.loglik_ == pytest.approx(SCALE * once.loglik_, rel=1e-12)
+
+
+# -- every method ------------------------------------------------------------------------
+
+
+def scattered(n: int = 40) -> Readings:
+    """Readings from n different poses, no two in one bin of any size used here."""
+    rng = np.random.default_rng(11)
+    x, y = rng.uniform(0.5, 4.5, n), rng.uniform(0.5, 4.5, n)
+    th, r = rng.uniform(-math.pi, math.pi, n), rng.uniform(0.3, 3.2, n)
+    return readings_at(x.tolist(), y.tolist(), th.tolist(), r.tolist(), [0] * n)
+
+
+def test_every_method_takes_the_option() -> None:
+    assert all("correlated" in cls.param_names() for cls in MAPPERS.values())
+    assert all(cls.param_defaults()["correlated"] == 0.0 for cls in MAPPERS.values())
+
+
+@pytest.mark.parametrize("method", sorted(MAPPERS))
+def test_unit_weights_change_no_bit(method: str) -> None:
+    """When no two readings repeat each other every weight is exactly 1, and the
+    weighted path gives the unweighted map bit for bit (weights multiply; nothing else
+    changes)."""
+    r = scattered()
+    assert (reading_weights(r, 0.05, SENSOR.r_max) == 1.0).all()
+    off = make_mapper(method).fit(r, GRID, RIG)
+    on = make_mapper(method, correlated=0.05).fit(r, GRID, RIG)
+    assert np.isfinite(off.occupancy_).sum() > 100
+    np.testing.assert_array_equal(on.occupancy_, off.occupancy_)
+
+
+@pytest.mark.parametrize("method", sorted(MAPPERS))
+@pytest.mark.parametrize(
+    ("value", "match"),
+    [
+        (-0.1, r"parameter 'correlated' must be in \[0.0, inf\], got -0.1"),
+        (math.nan, r"parameter 'correlated' must be a finite number, got nan"),
+        (math.inf, r"parameter 'correlated' must be a finite number, got inf"),
+        ("0.1", r"parameter 'correlated' must be a finite number, got '0.1'"),
+        (True, r"parameter 'correlated' must be a finite number, got True"),
+    ],
+)
+def test_bad_values_are_refused(method: str, value: object, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        make_mapper(method, correlated=value)
