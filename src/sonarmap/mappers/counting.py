@@ -38,14 +38,16 @@ class CountingMapper(Mapper):
         How far behind the echo the Omega_occ band's centre lies, metres (>= 0); None
         (default): 0.75 of a cell. See :mod:`sonarmap.raster` for why.
     correlated : float
-        Down-weighting of correlated readings (Konolige 1997), metres; 0 (default) is
-        off. With c > 0 the n readings of one sonar from poses in the same c-metre bin
-        (and 10-degree heading bin) with ranges in the same c-metre bin each weigh
-        1 / n (see :func:`~sonarmap.mappers._correlated.correlation_weights`), and a
-        cell's occupancy is the weighted fraction of "occupied" votes: a burst from one
-        pose casts one vote. A weight depends on readings that come later, so
-        :meth:`partial_fit` then keeps the readings and recounts all of them (still
-        exactly one fit's map).
+        Down-weighting of correlated readings (Konolige 1997), metres; 0 (default) is off.
+        With c > 0 the n readings of one sonar from poses in the same c-metre bin (and
+        10-degree heading bin) with ranges in the same c-metre bin each weigh 1 / n (see
+        :func:`~sonarmap.mappers._correlated.correlation_weights`), and a cell's occupancy
+        is the weighted fraction of "occupied" votes: a burst from one pose casts one vote.
+        A weight depends on readings that come later, so :meth:`partial_fit` then keeps the
+        readings and recounts all of them (still exactly one fit's map). Off by default: in
+        ``sonarmap sweep sweeps/correlated.yaml`` (bins of 2, 5, 10 and 20 cm, the ten
+        training scenes) no bin size beat off (quality 0.293; 2 cm 0.292, 5 cm 0.289,
+        10 to 20 cm 0.18-0.19).
     """
 
     name = "counting"

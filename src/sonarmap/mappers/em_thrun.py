@@ -231,12 +231,14 @@ class ThrunEMMapper(Mapper):
         Prior occupancy probability used for the final per-cell posterior, in (0, 1)
         (0.5).
     correlated : float
-        Down-weighting of correlated readings (Konolige 1997), metres; 0 (default) is
-        off. With c > 0 the n readings of one sonar from poses in the same c-metre bin
-        (and 10-degree heading bin) with ranges in the same c-metre bin each weigh
-        1 / n (see :func:`~sonarmap.mappers._correlated.correlation_weights`), scaled
-        to mean 1, and every sum over readings -- L, Q, a flip's gain in the M-step and
-        the final posterior -- counts reading t's term w_t times.
+        Down-weighting of correlated readings (Konolige 1997), metres; 0 (default) is off.
+        With c > 0 the n readings of one sonar from poses in the same c-metre bin (and
+        10-degree heading bin) with ranges in the same c-metre bin each weigh 1 / n (see
+        :func:`~sonarmap.mappers._correlated.correlation_weights`), scaled to mean 1, and
+        every sum over readings (L, Q, a flip's gain in the M-step and the final posterior)
+        counts reading t's term w_t times. Off by default: in ``sonarmap sweep
+        sweeps/correlated.yaml`` (bins of 2, 5, 10 and 20 cm, the ten training scenes) every
+        setting scored 0.481-0.484, off 0.483: a tie.
 
     Attributes
     ----------

@@ -162,13 +162,16 @@ class GradientMapper(Mapper):
         in the leave-one-out residual: the sum over the other occ terms covering it of
         ``v_s w0`` (w0 = s / S in [0, 1], so about how many other bands see the cell) (3).
     correlated : float
-        Down-weighting of correlated readings (Konolige 1997), metres; 0 (default) is
-        off. With c > 0 the n readings of one sonar from poses in the same c-metre bin
-        (and 10-degree heading bin) with ranges in the same c-metre bin each weigh
-        1 / n, so a burst from one pose counts as one reading (see
+        Down-weighting of correlated readings (Konolige 1997), metres; 0 (default) is off.
+        With c > 0 the n readings of one sonar from poses in the same c-metre bin (and
+        10-degree heading bin) with ranges in the same c-metre bin each weigh 1 / n, so a
+        burst from one pose counts as one reading (see
         :func:`~sonarmap.mappers._correlated.correlation_weights`), scaled so that the
         weights' mean is 1; the robust form's weights multiply these. Offline only:
-        streaming refuses it (see :mod:`sonarmap.mappers._stream`).
+        streaming refuses it (see :mod:`sonarmap.mappers._stream`). Off by default: in
+        ``sonarmap sweep sweeps/correlated.yaml`` (bins of 2, 5, 10 and 20 cm, the ten
+        training scenes) 2 cm tied with off (quality 0.358 both), 5 cm scored 0.315 and
+        10-20 cm 0.21.
     init : {"uniform", "inverse"}
         Where the offline solve starts: every cell at 0.5, the papers' neutral start
         (default), or the inverse mapper's map at its defaults (0.5 where it has no

@@ -70,15 +70,17 @@ class InverseMapper(Mapper):
         How far behind the echo the Omega_occ band's centre lies, metres (>= 0); None
         (default): 0.75 of a cell. See :mod:`sonarmap.raster` for why.
     correlated : float
-        Down-weighting of correlated readings (Konolige 1997), metres; 0 (default) is
-        off. With c > 0 the n readings of one sonar from poses in the same c-metre bin
-        (and 10-degree heading bin) with ranges in the same c-metre bin each weigh
-        1 / n (see :func:`~sonarmap.mappers._correlated.correlation_weights`), scaled
-        to mean 1 over the readings used, and each reading's log-odds update is its
-        weight times ``logit(p_free)`` or ``logit(p_occ)``. A weight depends on
-        readings that come later, so :meth:`partial_fit` then keeps the readings and
-        rebuilds the map from all of them (still exactly one fit's map), and streaming
-        refuses it.
+        Down-weighting of correlated readings (Konolige 1997), metres; 0 (default) is off.
+        With c > 0 the n readings of one sonar from poses in the same c-metre bin (and
+        10-degree heading bin) with ranges in the same c-metre bin each weigh 1 / n (see
+        :func:`~sonarmap.mappers._correlated.correlation_weights`), scaled to mean 1 over
+        the readings used, and each reading's log-odds update is its weight times
+        ``logit(p_free)`` or ``logit(p_occ)``. A weight depends on readings that come later,
+        so :meth:`partial_fit` then keeps the readings and rebuilds the map from all of them
+        (still exactly one fit's map), and streaming refuses it. Off by default: in
+        ``sonarmap sweep sweeps/correlated.yaml`` (bins of 2, 5, 10 and 20 cm, the ten
+        training scenes) 2 cm tied with off (quality 0.309 both), 5 cm scored 0.289 and
+        10-20 cm 0.18-0.21.
     """
 
     name = "inverse"
