@@ -570,6 +570,7 @@ def accumulate_kernel(
     part: int = 0,
     parts: int = 1,
     stripe: int = 8,
+    weight: npt.NDArray[np.float64] | None = None,
 ) -> int:
     """Add ``inc_free`` to the Omega_free cells and ``inc_occ`` to the Omega_occ cells of
     each reading, in reading order, clamping to [lo, hi] after each addition; returns
@@ -587,6 +588,10 @@ def accumulate_kernel(
     With ``parts > 1`` only the rows of stripes ``part``, ``part + parts``, ... (stripes
     of ``stripe`` rows) are updated: parts can run in parallel, and each cell still sees
     the readings in order.
+
+    With ``weight`` (one per reading) reading i's increments are ``weight[i]`` times
+    ``inc_free`` and ``inc_occ``. Without it (None) numba compiles the branch away: the
+    unweighted insertion runs the code it ran before weights existed.
     """
     n = sx.shape[0]
     total = 0
@@ -596,6 +601,11 @@ def accumulate_kernel(
         y0 = sy[i]
         c = math.cos(st[i])
         s = math.sin(st[i])
+        inc_f = inc_free
+        inc_o = inc_occ
+        if weight is not None:
+            inc_f = inc_free * weight[i]
+            inc_o = inc_occ * weight[i]
         # The rasteriser's band limits with its slack; a no-echo reading has no band.
         f_thr = free_lim[i] - EDGE_TOL
         o_thr = occ_hi[i] + EDGE_TOL
@@ -616,7 +626,7 @@ def accumulate_kernel(
                 continue
             dy = yc - y0
             base = (rows - 1 - iy) * cols
-            params = (ox, h, x0, dy, c, s, inc_free, inc_occ, lo, hi, f_thr, o_thr)
+            params = (ox, h, x0, dy, c, s, inc_f, inc_o, lo, hi, f_thr, o_thr)
             if sigma <= 0.0:
                 total += _update_blocks(values, touched, base, c_lo, c_hi, params, ())
             elif len(coef) > 0 and abs(dy) > ROW_TOL:
@@ -649,6 +659,7 @@ def accumulate_parallel(
     sigma: float,
     coef: tuple[float, ...],
     parts: int,
+    weight: npt.NDArray[np.float64] | None = None,
 ) -> int:
     """:func:`accumulate_kernel` split over ``parts`` threads by interleaved row stripes;
     the result is the same as one thread's."""
@@ -678,5 +689,6 @@ def accumulate_parallel(
             p,
             parts,
             8,
+            weight,
         )
     return int(counts.sum())

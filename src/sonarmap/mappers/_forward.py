@@ -20,7 +20,6 @@ tau^2 / (tau + r)^2``; see :func:`robust_weights` for the residuals.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -227,49 +226,6 @@ def robust_weights(
 def robust_cost(r: F64, tau: float) -> F64:
     """``rho(r) = tau r / (tau + r)``: the saturating penalty the weights come from."""
     return np.asarray(tau * r / (tau + r), dtype=np.float64)
-
-
-#: Heading bin of :func:`correlation_weights`, radians: readings whose sonar points
-#: within about this of each other's direction (besides sharing a position bin) repeat
-#: each other.
-CORRELATED_ANGLE = math.radians(10.0)
-
-
-def correlation_weights(
-    sensor: npt.NDArray[np.int32],
-    x: F64,
-    y: F64,
-    theta: F64,
-    rng: F64,
-    cell: float,
-    angle: float = CORRELATED_ANGLE,
-) -> F64:
-    """Per-reading weight ``1 / n`` with n the readings that repeat it (Konolige 1997).
-
-    Readings repeat each other when they come from the same sonar, from poses in the
-    same bin (``cell`` metres in x and y, ``angle`` radians in heading) and with ranges
-    in the same ``cell``-metre bin: n such readings then count as one. Bins, not
-    distances, keep it one pass and deterministic (two readings astride a bin edge are
-    not grouped).
-
-    Examples
-    --------
-    >>> z = np.zeros(3)
-    >>> correlation_weights(np.zeros(3, np.int32), z, z, z, np.array([1.0, 1.01, 2.0]), 0.05)
-    array([0.5, 0.5, 1. ])
-    """
-    keys = np.stack(
-        [
-            sensor.astype(np.int64),
-            np.floor(x / cell).astype(np.int64),
-            np.floor(y / cell).astype(np.int64),
-            np.floor(np.mod(theta, 2 * math.pi) / angle).astype(np.int64),
-            np.floor(rng / cell).astype(np.int64),
-        ],
-        axis=1,
-    )
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    return np.asarray(1.0 / counts[inverse.ravel()], dtype=np.float64)
 
 
 def _rows(

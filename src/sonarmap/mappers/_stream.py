@@ -7,6 +7,11 @@ readings that leave, and re-optimises the map locally: only cells the entering o
 readings touch change, against every reading in play that touches them. A cell that no
 reading in play touches any more keeps its last estimate, so the map remembers what it
 has seen while the objective stays bounded.
+
+No engine down-weights correlated readings (the mappers' ``correlated``): a reading's
+weight depends on every reading that repeats it, including readings not yet come and
+readings that have left the window, so each update would re-weight, and re-fold, readings
+throughout the pool. Engines refuse ``correlated > 0`` rather than ignore it.
 """
 
 from __future__ import annotations
@@ -116,6 +121,11 @@ class StreamEngine(ABC):
     def __init__(
         self, mapper: Mapper, grid: Grid, sensor: SensorModel, strategy: Strategy, effort: int
     ) -> None:
+        if getattr(mapper, "correlated", 0.0) > 0:
+            raise ConfigError(
+                f"streaming '{mapper.name}' cannot down-weight correlated readings (a "
+                "reading's weight depends on readings still to come); set correlated=0"
+            )
         if self.keeps_readings and not strategy.bounded:
             raise ConfigError(
                 f"streaming '{mapper.name}' keeps readings in play; give a bounded strategy "

@@ -237,9 +237,13 @@ def flip_delta(
     p_hit: float,
     sigma: float,
     r_max: float,
+    weight: F64 | None = None,
 ) -> float:
     """Change of sum_t log p(z_t | m) if cell ``c`` flips; the readings' new values go to
-    ``new_ll`` and ``new_bsum`` (aligned with the cell's index entries)."""
+    ``new_ll`` and ``new_bsum`` (aligned with the cell's index entries).
+
+    With ``weight`` (one per reading) the change of ``sum_t weight_t log p(z_t | m)``;
+    None compiles to the unweighted sum."""
     delta = 0.0
     step = -1 if occ[c] else 1
     for e in range(cell_off[c], cell_off[c + 1]):
@@ -254,7 +258,10 @@ def flip_delta(
             )
             ll = loglik_of(n_before[i], new_bsum[k], p_rand, p_hit, r_max)
         new_ll[k] = ll
-        delta += ll - loglik[i]
+        d = ll - loglik[i]
+        if weight is not None:
+            d *= weight[i]
+        delta += d
     return delta
 
 

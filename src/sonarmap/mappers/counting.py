@@ -19,6 +19,7 @@ import numpy.typing as npt
 from ..readings import Readings
 from . import _checks
 from ._base import Mapper, Progress, register
+from ._correlated import reading_weights
 
 __all__ = ["CountingMapper"]
 
@@ -36,39 +37,76 @@ class CountingMapper(Mapper):
     band_offset : float or None
         How far behind the echo the Omega_occ band's centre lies, metres (>= 0); None
         (default): 0.75 of a cell. See :mod:`sonarmap.raster` for why.
+    correlated : float
+        Down-weighting of correlated readings (Konolige 1997), metres; 0 (default) is off.
+        With c > 0 the n readings of one sonar from poses in the same c-metre bin (and
+        10-degree heading bin) with ranges in the same c-metre bin each weigh 1 / n (see
+        :func:`~sonarmap.mappers._correlated.correlation_weights`), and a cell's occupancy
+        is the weighted fraction of "occupied" votes: a burst from one pose casts one vote.
+        A weight depends on readings that come later, so :meth:`partial_fit` then keeps the
+        readings and recounts all of them (still exactly one fit's map). Off by default: in
+        ``sonarmap sweep sweeps/correlated.yaml`` (bins of 2, 5, 10 and 20 cm, the ten
+        training scenes) no bin size beat off (quality 0.293; 2 cm 0.292, 5 cm 0.289,
+        10 to 20 cm 0.18-0.19).
     """
 
     name = "counting"
     offset_cells = 0.75
     exact_streaming = True
-    _hits: npt.NDArray[np.int64]
-    _seen: npt.NDArray[np.int64]
+    # Vote totals; float, so that weighted votes add up in the same arrays (whole
+    # counts stay exact up to 2**53).
+    _hits: npt.NDArray[np.float64]
+    _seen: npt.NDArray[np.float64]
 
     def __init__(
-        self, *, no_echo: str = "ignore", dr: float | None = 0.025, band_offset: float | None = None
+        self,
+        *,
+        no_echo: str = "ignore",
+        dr: float | None = 0.025,
+        band_offset: float | None = None,
+        correlated: float = 0.0,
     ) -> None:
         self.no_echo = no_echo
         self.dr = dr
         self.band_offset = band_offset
+        self.correlated = correlated
         _checks.choice("no_echo", no_echo, ("free", "ignore"))
         if dr is not None:
             _checks.number("dr", dr, 0.0, None)
         if band_offset is not None:
             _checks.number("band_offset", band_offset, 0.0, None)
+        _checks.number("correlated", correlated, 0.0, None)
 
     def _reset(self) -> None:
-        self._hits = np.zeros(self.grid.size, dtype=np.int64)
-        self._seen = np.zeros(self.grid.size, dtype=np.int64)
+        self._hits = np.zeros(self.grid.size, dtype=np.float64)
+        self._seen = np.zeros(self.grid.size, dtype=np.float64)
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
+        if self.correlated > 0:
+            # A reading's weight depends on the readings that repeat it, later ones
+            # too: every reading so far is counted again, so that partial_fit still
+            # gives one fit's map.
+            readings = self._accumulate(readings)
+            self._reset()
         if self.no_echo == "ignore":
             readings = self._echoes(readings)
+        weights = None
+        if self.correlated > 0:
+            # The occupancy is a ratio of weighted votes, so any common scale cancels;
+            # mean 1 keeps the totals in units of readings.
+            weights = reading_weights(readings, self.correlated, self.sensor.r_max)
         n_cells = self.grid.size
-        for _, fp in self._footprints(
+        for a, fp in self._footprints(
             readings, dr=self.dr, offset=self._band_offset(self.grid), progress=progress
         ):
-            self._seen += np.bincount(fp.free.cells, minlength=n_cells)
-            occ = np.bincount(fp.occ.cells, minlength=n_cells)
+            if weights is None:
+                self._seen += np.bincount(fp.free.cells, minlength=n_cells)
+                occ = np.bincount(fp.occ.cells, minlength=n_cells)
+            else:
+                w = weights[a : a + fp.free.n_readings]
+                wf, wo = np.repeat(w, fp.free.counts), np.repeat(w, fp.occ.counts)
+                self._seen += np.bincount(fp.free.cells, weights=wf, minlength=n_cells)
+                occ = np.bincount(fp.occ.cells, weights=wo, minlength=n_cells)
             self._seen += occ
             self._hits += occ
 
