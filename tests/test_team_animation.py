@@ -1,5 +1,5 @@
 """The team's animation: frames sampled by ``run_team(record=True)``, drawn by
-``save_team_animation`` (short runs)."""
+``save_team_animation``, written by ``team run --animate`` (short runs)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,9 @@ import numpy.typing as npt
 import pytest
 from PIL import Image, ImageSequence
 
+from sonarmap.cli import main
 from sonarmap.errors import ConfigError
-from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.io.rosmap import OccupancyMap, write_map
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
 from sonarmap.team.animation import TeamFrame, save_team_animation
@@ -173,3 +174,14 @@ def test_save_team_animation_refuses_what_it_cannot_write(
     with pytest.raises(ValueError, match="max_frames"):
         _run(plan, NetworkParams(), max_frames=1)
     assert not list(tmp_path.iterdir())
+
+
+def test_team_run_animate_writes_team_gif(tmp_path: Path, plan: OccupancyMap) -> None:
+    write_map(plan, tmp_path / "plan")
+    out = tmp_path / "out"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--robots", "2",
+          "--duration", "6", "--animate", "-o", str(out)])  # fmt: skip
+    with Image.open(out / "team.gif") as gif:
+        assert getattr(gif, "n_frames", 1) > 1
+    for robot in (0, 1):
+        assert (out / f"mission_robot{robot}.gif").stat().st_size > 0
