@@ -291,7 +291,10 @@ def _write_team(out: Path, plan: OccupancyMap, team: TeamResult, animate: bool) 
             names = ["team.gif", "team.mp4"] if mp4_available() else ["team.gif"]
             for name in names:
                 save_team_animation(
-                    plan, team.team_frames, tmp / name, title=f"{len(team.robots)} robots, {kind}"
+                    plan,
+                    team.team_frames,
+                    tmp / name,
+                    title=f"{len(team.robots)} robots, {kind} network",
                 )
     return summary
 

@@ -243,7 +243,7 @@ def save_team_animation(
     fps : int
         Frames a second of the animation.
     title : str
-        Put before the mission time.
+        Put before the mission time, e.g. ``"3 robots, limited network"``.
 
     Returns
     -------
@@ -339,11 +339,11 @@ def save_team_animation(
             rects[i].set_width(held / others if others else 0.0)
             counts[i].set_text(f"{held} / {others}")
         phase = "driving" if f.driving else "quiet phase"
-        head.set_text(
-            f"{title}  t = {f.t:.0f} s ({phase}), {len(f.links)} "
-            f"link{'' if len(f.links) == 1 else 's'}, "
-            f"team sent {_amount(f.bytes_sent)}".strip()
+        moment = (
+            f"t = {f.t:.0f} s ({phase}), {len(f.links)} link{'' if len(f.links) == 1 else 's'}, "
+            f"team sent {_amount(f.bytes_sent)}"
         )
+        head.set_text(f"{title}: {moment}" if title else moment)
         return [links, *trails, *markers, *names, *rects, *counts, head]
 
     return _write_animation(fig, show, len(frames), p, writer)
