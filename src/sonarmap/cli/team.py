@@ -17,7 +17,7 @@ from ..errors import ConfigError
 from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
 from ..io.rosmap import OccupancyMap, write_map
-from ..team.animation import save_mission_animation
+from ..team.animation import mp4_available, save_mission_animation, save_team_animation
 from ..team.exchange import PROTOCOLS, ExchangeParams
 from ..team.globalmap import plot_pose_graph, plot_team
 from ..team.mission import MissionConfig, MissionResult, run_mission
@@ -261,7 +261,9 @@ def _write_robot(
 
 
 def _write_team(out: Path, plan: OccupancyMap, team: TeamResult, animate: bool) -> dict[str, Any]:
-    """Every output of a team's run, written at once; the summary written."""
+    """Every output of a team's run, written at once; the summary written. With
+    ``animate``, each robot's mission.gif and the team's team.gif (and team.mp4 where
+    ffmpeg is installed)."""
     summary = _summary(team.robots)
     summary.update(team.summary)
     with atomic_folder(out) as tmp:
@@ -284,6 +286,16 @@ def _write_team(out: Path, plan: OccupancyMap, team: TeamResult, animate: bool) 
             f"{team.summary['exchange']['mode']} exchange: team F1 "
             f"{team.summary['map_f1_team']:.3f}",
         )
+        if animate and team.team_frames:
+            kind = team.summary["network"]["kind"]
+            names = ["team.gif", "team.mp4"] if mp4_available() else ["team.gif"]
+            for name in names:
+                save_team_animation(
+                    plan,
+                    team.team_frames,
+                    tmp / name,
+                    title=f"{len(team.robots)} robots, {kind} network",
+                )
     return summary
 
 
@@ -313,7 +325,9 @@ def run_cmd(
     animate: Annotated[
         bool,
         typer.Option(
-            "--animate", help="Also write mission.gif: truth, odometry, kept poses, closures."
+            "--animate",
+            help="Also write mission.gif: truth, odometry, kept poses, closures; with two "
+            "or more robots team.gif too: positions, links, poses held from the others.",
         ),
     ] = False,
     network: Annotated[

@@ -41,6 +41,13 @@ Choices where the thesis is silent:
   over the same missions' data.
 - **Bytes per robot-minute**: message bodies sent during the routes (not the quiet
   phase), over the robots and the routes' minutes.
+- **Team frames** (``record``): a :class:`~.animation.TeamFrame` after the tick that
+  reaches each multiple of ``frame_every`` seconds (2) from the first tick on, and after
+  the last tick, through the routes and the quiet phase, which is short (``settle`` at
+  most) and shows the last poses arriving while the robots stand still. The cadence
+  widens so that the routes and ``settle`` together give at most ``max_frames`` (300)
+  frames: a 600 s mission keeps one about every 2.4 s. Past ``max_frames`` the last
+  frame is replaced, so the final state is always kept.
 """
 
 from __future__ import annotations
@@ -55,6 +62,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..io.rosmap import OccupancyMap
+from .animation import TeamFrame
 from .central import CentralResult, central_map
 from .exchange import ExchangeParams, Exchanger
 from .mission import MissionConfig, MissionResult, RobotAgent
@@ -99,6 +107,8 @@ class TeamResult:
         The pose UIDs each robot held (all layers) once the network was quiet.
     central : CentralResult, optional
         The central upper bound, when asked for.
+    team_frames : list of TeamFrame
+        The team sampled at a regular cadence of mission time, when recorded.
     """
 
     summary: dict[str, Any]
@@ -107,6 +117,7 @@ class TeamResult:
     network: SimNetwork
     held: list[set[int]] = field(default_factory=list)
     central: CentralResult | None = None
+    team_frames: list[TeamFrame] = field(default_factory=list)
 
 
 def held_uids(store: RobotStore) -> tuple[set[int], int]:
@@ -137,15 +148,67 @@ def map_agreement(maps: Sequence[OccupancyMap]) -> float:
     return worst
 
 
+def _held_counts(agents: Sequence[RobotAgent]) -> list[tuple[int, int]]:
+    """Per robot, how many of the other robots' own poses (as they are now) it holds,
+    and how many those are."""
+    out = []
+    for a in agents:
+        others = set().union(*(b.store.local.poses for b in agents if b is not a))
+        out.append((len(others & held_uids(a.store)[0]), len(others)))
+    return out
+
+
 def _held_share(agents: Sequence[RobotAgent]) -> float:
     """The mean, over robots, of the share of the other robots' own poses (as they are
     now) that the robot holds: how far behind the team's exchange is (1: not at all)."""
-    shares = []
-    for a in agents:
-        others = set().union(*(b.store.local.poses for b in agents if b is not a))
-        if others:
-            shares.append(len(others & held_uids(a.store)[0]) / len(others))
+    shares = [held / others for held, others in _held_counts(agents) if others]
     return float(np.mean(shares)) if shares else 1.0
+
+
+class _Recorder:
+    """Samples the team every ``interval`` seconds of mission time from ``t0`` on, at
+    most ``limit`` frames (see the module's notes)."""
+
+    def __init__(
+        self,
+        agents: Sequence[RobotAgent],
+        exchangers: Sequence[Exchanger | NaiveExchanger],
+        net: SimNetwork,
+        t0: float,
+        interval: float,
+        limit: int,
+    ) -> None:
+        self.agents = agents
+        self.exchangers = exchangers
+        self.net = net
+        self.t0 = t0
+        self.interval = interval
+        self.limit = limit
+        self.due = t0
+        self.frames: list[TeamFrame] = []
+
+    def sample(self, t: float, *, driving: bool, last: bool = False) -> None:
+        """Keep the team as it is after the tick at ``t`` if a frame is due, or if
+        ``last`` and the frame at ``t`` is not kept yet."""
+        if t < self.due and not (last and (not self.frames or self.frames[-1].t < t)):
+            return
+        # The next multiple of the interval after t: a tick that skips one (ticks
+        # sparser than the cadence) does not make the frames bunch up after it.
+        self.due = self.t0 + (math.floor((t - self.t0) / self.interval) + 1) * self.interval
+        counts = np.array(_held_counts(self.agents), dtype=np.int64).reshape(-1, 2)
+        frame = TeamFrame(
+            t=t,
+            driving=driving,
+            positions=np.array([a.position() for a in self.agents], dtype=np.float64),
+            links=self.net.links(),
+            held=counts[:, 0].copy(),
+            others=counts[:, 1].copy(),
+            bytes_sent=sum(e.stats.bytes_sent for e in self.exchangers),
+        )
+        if len(self.frames) >= self.limit:
+            self.frames[-1] = frame
+        else:
+            self.frames.append(frame)
 
 
 def _changes(exchangers: list[Exchanger | NaiveExchanger]) -> int:
@@ -168,6 +231,8 @@ def run_team(
     routes: Sequence[F64 | None] | None = None,
     central: bool = False,
     record: bool = False,
+    frame_every: float = 2.0,
+    max_frames: int = 300,
 ) -> TeamResult:
     """Run ``robots`` robots' missions together, exchanging over a simulated network.
 
@@ -202,7 +267,13 @@ def run_team(
         Also build the central upper bound (:func:`~.central.central_map`; it costs
         about one robot's mission more).
     record : bool
-        Each robot keeps a frame per pose made, for an animation.
+        Each robot keeps a frame per pose made, and the team a
+        :class:`~.animation.TeamFrame` every ``frame_every`` seconds of mission time
+        (``team_frames``), for animations.
+    frame_every : float
+        Seconds of mission time between two team frames at least (> 0).
+    max_frames : int
+        Team frames at most (>= 2); the cadence widens to keep to it.
 
     Returns
     -------
@@ -212,6 +283,10 @@ def run_team(
         raise ValueError(f"robots must be an int >= 1, got {robots!r}")
     if routes is not None and len(routes) != robots:
         raise ValueError(f"routes: {len(routes)} given for {robots} robots")
+    if not (math.isfinite(frame_every) and frame_every > 0):
+        raise ValueError(f"frame_every must be > 0 seconds, got {frame_every}")
+    if isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 2:
+        raise ValueError(f"max_frames must be an int >= 2, got {max_frames!r}")
     quiet = 2 * exchange.advert_every + 2 * exchange.request_every if quiet is None else quiet
     world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
     agents = [
@@ -246,11 +321,24 @@ def run_team(
         for a in agents
     ]
 
+    # The routes and the longest quiet phase, shared out among the frames.
+    span = float(times[-1] - times[0]) + settle
+    recorder = _Recorder(
+        agents,
+        exchangers,
+        net,
+        float(times[0]),
+        max(frame_every, span / (max_frames - 1)),
+        max_frames,
+    )
+
     def tick(t: float, wanted: bool) -> None:
         hub.advance(t)
         hub.update(np.array([a.position() for a in agents]))
         for a, e in zip(agents, exchangers, strict=True):
             e.step(t, a.wanted_regions(lookahead) if wanted else None)
+        if record:
+            recorder.sample(t, driving=wanted)
 
     for i, t in enumerate(times.tolist()):
         for a in agents:
@@ -277,6 +365,8 @@ def run_team(
         elif t - last_change >= quiet:
             settled = True
             break
+    if record:
+        recorder.sample(t, driving=t <= end, last=True)
 
     held = [held_uids(a.store) for a in agents]
     identical = all(h[0] == held[0][0] for h in held)
@@ -329,4 +419,6 @@ def run_team(
         "exchange": asdict(exchange),
         "seed": seed,
     }
-    return TeamResult(summary, results, exchangers, net, [h[0] for h in held], bound)
+    return TeamResult(
+        summary, results, exchangers, net, [h[0] for h in held], bound, recorder.frames
+    )
