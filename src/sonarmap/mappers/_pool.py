@@ -5,6 +5,14 @@ each reading gets a *slot*; its Omega_free and Omega_occ entries live in one gro
 arena. Removing a reading marks its entries dead; the arena is compacted when dead
 entries outnumber live ones, so its size stays within twice the live footprint and
 insertion costs O(1) amortised. Nothing here depends on how many readings came before.
+
+On request (``spans=True``) the pool also keeps each part as *spans*: maximal runs of
+entries whose cells follow each other (``c, c + 1, ...``) with one weight. The
+rasteriser lists a beam row by row, so a span is most of a row of the beam (44 cells on
+average on the office ring); a pass over a footprint's spans reads its cells' values as
+contiguous slices instead of one cell index per entry, which lets numba vectorise it.
+The spans hold the entries in arena order, so a sum over them takes the terms in the
+same order as a sum over the entries, to the bit.
 """
 
 from __future__ import annotations
@@ -31,10 +39,20 @@ def _compact(
     cell: I32,
     w: F32,
     dist: F32,
-) -> int:
-    """Move the live slots' entries to the front of the arena, in slot order; new end."""
+    fs_start: I64,
+    fs_len: I64,
+    os_start: I64,
+    os_len: I64,
+    sp_cell: I32,
+    sp_len: I32,
+    sp_w: F32,
+) -> tuple[int, int]:
+    """Move the live slots' entries (and spans, when kept: ``sp_cell`` not empty) to the
+    front of their arenas, in arena order; the new ends."""
     order = np.argsort(f_start)
+    spans = sp_cell.shape[0] > 0
     end = 0
+    sp_end = 0
     for s in order:
         if not alive[s]:
             continue
@@ -48,7 +66,19 @@ def _compact(
         f_start[s] = end
         o_start[s] = end + f_len[s]
         end += n
-    return end
+        if spans:
+            # Spans were written in the entries' order, so sorting by entry start
+            # sorts them too and no block moves past a live one.
+            a = fs_start[s]
+            n = fs_len[s] + os_len[s]
+            for j in range(n):
+                sp_cell[sp_end + j] = sp_cell[a + j]
+                sp_len[sp_end + j] = sp_len[a + j]
+                sp_w[sp_end + j] = sp_w[a + j]
+            fs_start[s] = sp_end
+            os_start[s] = sp_end + fs_len[s]
+            sp_end += n
+    return end, sp_end
 
 
 @nb.njit(cache=True)
@@ -75,11 +105,16 @@ class ReadingPool:
         Columns of the grid (for the per-reading bounding boxes).
     sort_band : bool
         Keep each reading's Omega_occ entries sorted by distance (Thrun's model needs it).
+    spans : bool
+        Also keep each part as spans of consecutive cells of one weight (see the module
+        notes).
 
     Attributes
     ----------
     f_start, f_len, o_start, o_len : ndarray of int64, per slot
         Where the slot's Omega_free and Omega_occ entries are in the arena.
+    fs_start, fs_len, os_start, os_len : ndarray of int64, per slot
+        Where the slot's free and occ spans are in the span arena (with ``spans``).
     f_sum, o_sum : ndarray of float64, per slot
         Sum of the sensitivity weights ``w0`` over each part.
     z : ndarray of float64, per slot
@@ -89,12 +124,19 @@ class ReadingPool:
         Row and column bounds (inclusive) of the cells the reading touches.
     cell, w, dist : arena arrays
         Flat cell index, weight ``w0`` and distance of every entry.
+    sp_cell, sp_len, sp_w : span arena arrays
+        First cell, number of cells and weight ``w0`` of every span (empty without
+        ``spans``).
     """
 
     f_start: I64
     f_len: I64
     o_start: I64
     o_len: I64
+    fs_start: I64
+    fs_len: I64
+    os_start: I64
+    os_len: I64
     f_sum: F64
     o_sum: F64
     z: F64
@@ -102,15 +144,21 @@ class ReadingPool:
     alive: npt.NDArray[np.bool_]
     box: I32
 
-    def __init__(self, cols: int, *, sort_band: bool = False) -> None:
+    def __init__(self, cols: int, *, sort_band: bool = False, spans: bool = False) -> None:
         self.cols = cols
         self.sort_band = sort_band
+        self.spans = spans
         self._grow_slots(256)
         self.cell = np.empty(1 << 16, np.int32)
         self.w = np.empty(1 << 16, np.float32)
         self.dist = np.empty(1 << 16, np.float32)
         self.end = 0
         self.dead = 0
+        n_spans = 1 << 12 if spans else 0
+        self.sp_cell = np.empty(n_spans, np.int32)
+        self.sp_len = np.empty(n_spans, np.int32)
+        self.sp_w = np.empty(n_spans, np.float32)
+        self.sp_end = 0
         self._free: list[int] = list(range(255, -1, -1))
 
     def _grow_slots(self, cap: int) -> None:
@@ -124,6 +172,8 @@ class ReadingPool:
             setattr(self, name, arr)
 
         for name in ("f_start", "f_len", "o_start", "o_len"):
+            grow(name, np.int64)
+        for name in ("fs_start", "fs_len", "os_start", "os_len"):
             grow(name, np.int64)
         for name in ("f_sum", "o_sum", "z"):
             grow(name, np.float64)
@@ -148,33 +198,42 @@ class ReadingPool:
 
     def nbytes(self) -> int:
         """Memory held by the pool's arrays."""
-        slot: int = sum(
-            int(getattr(self, n).nbytes)
-            for n in ("f_start", "f_len", "o_start", "o_len", "f_sum", "o_sum", "z", "echo")
-        )
-        return slot + self.alive.nbytes + self.box.nbytes + self.cell.nbytes * 3
+        names = ["f_start", "f_len", "o_start", "o_len", "f_sum", "o_sum", "z", "echo"]
+        if self.spans:
+            names += ["fs_start", "fs_len", "os_start", "os_len"]
+        slot: int = sum(int(getattr(self, n).nbytes) for n in names)
+        spans = self.sp_cell.nbytes + self.sp_len.nbytes + self.sp_w.nbytes
+        return slot + self.alive.nbytes + self.box.nbytes + self.cell.nbytes * 3 + spans
+
+    def _fits(self, n: int) -> bool:
+        # A batch of n entries makes at most n spans.
+        spans_fit = not self.spans or self.sp_end + n <= len(self.sp_cell)
+        return self.end + n <= len(self.cell) and spans_fit
+
+    def _grow(self, names: tuple[str, ...], end: int, need: int) -> None:
+        cap = len(getattr(self, names[0]))
+        if need <= cap:
+            return
+        while cap < need:
+            cap *= 2
+        for name in names:
+            arr = getattr(self, name)
+            new = np.empty(cap, arr.dtype)
+            new[:end] = arr[:end]
+            setattr(self, name, new)
 
     def _reserve(self, n: int) -> None:
-        need = self.end + n
-        if need <= len(self.cell):
+        if self._fits(n):
             return
         if self.dead > 0:
             self.compact()
-            need = self.end + n
-        if need <= len(self.cell):
-            return
-        cap = len(self.cell)
-        while cap < need:
-            cap *= 2
-        for name in ("cell", "w", "dist"):
-            arr = getattr(self, name)
-            new = np.empty(cap, arr.dtype)
-            new[: self.end] = arr[: self.end]
-            setattr(self, name, new)
+        self._grow(("cell", "w", "dist"), self.end, self.end + n)
+        if self.spans:
+            self._grow(("sp_cell", "sp_len", "sp_w"), self.sp_end, self.sp_end + n)
 
     def compact(self) -> None:
-        """Drop dead entries from the arena."""
-        self.end = _compact(
+        """Drop dead entries (and spans) from the arenas."""
+        self.end, sp_end = _compact(
             self.alive,
             self.f_start,
             self.f_len,
@@ -183,7 +242,16 @@ class ReadingPool:
             self.cell,
             self.w,
             self.dist,
+            self.fs_start,
+            self.fs_len,
+            self.os_start,
+            self.os_len,
+            self.sp_cell,
+            self.sp_len,
+            self.sp_w,
         )
+        if self.spans:
+            self.sp_end = sp_end
         self.dead = 0
 
     def add(self, fp: Footprint, z: F64, echo: npt.NDArray[np.bool_]) -> I64:
@@ -201,9 +269,10 @@ class ReadingPool:
             # offsets still hold.
             order = np.lexsort((occ_d, fp.occ.reading_index()))
             occ_cells, occ_w, occ_d = occ_cells[order], occ_w[order], occ_d[order]
-        self.end = _insert(
+        self.end, self.sp_end = _insert(
             slots,
             self.end,
+            self.sp_end,
             fp.free.offsets,
             fp.free.cells,
             fp.free.weight,
@@ -223,6 +292,13 @@ class ReadingPool:
             self.f_sum,
             self.o_sum,
             self.box,
+            self.fs_start,
+            self.fs_len,
+            self.os_start,
+            self.os_len,
+            self.sp_cell,
+            self.sp_len,
+            self.sp_w,
         )
         self.z[slots] = z
         self.echo[slots] = echo
@@ -256,6 +332,7 @@ class ReadingPool:
 def _insert(
     slots: I64,
     end: int,
+    sp_end: int,
     f_off: I64,
     f_cells: I32,
     f_w: F32,
@@ -275,15 +352,25 @@ def _insert(
     f_sum: F64,
     o_sum: F64,
     box: I32,
-) -> int:
+    fs_start: I64,
+    fs_len: I64,
+    os_start: I64,
+    os_len: I64,
+    sp_cell: I32,
+    sp_len: I32,
+    sp_w: F32,
+) -> tuple[int, int]:
     """Append each reading's free entries, then its occ entries, at ``end``; fill the
     slots' starts, lengths, weight sums and inclusive (row0, row1, col0, col1) boxes
-    (empty as (max, -1, max, -1)); returns the new end.
+    (empty as (max, -1, max, -1)). With spans kept (``sp_cell`` not empty), also append
+    each part's spans at ``sp_end``. Returns the new ends.
 
     One pass, because the batch's entries are written once and read back never: done
     with whole-array numpy steps it was a fifth of a streaming update."""
     big = np.iinfo(np.int32).max
+    spans = sp_cell.shape[0] > 0
     pos = end
+    sp = sp_end
     for i in range(slots.shape[0]):
         s = slots[i]
         r0 = c0 = big
@@ -298,6 +385,7 @@ def _insert(
                 o_start[s] = pos
                 o_len[s] = b - a
             tot = 0.0
+            sp0 = sp
             for j in range(a, b):
                 c = src_c[j]
                 cell[pos] = c
@@ -305,6 +393,15 @@ def _insert(
                 dist[pos] = src_d[j]
                 tot += src_w[j]
                 pos += 1
+                if spans:
+                    last = sp - 1
+                    if sp > sp0 and c == sp_cell[last] + sp_len[last] and src_w[j] == sp_w[last]:
+                        sp_len[last] += 1
+                    else:
+                        sp_cell[sp] = c
+                        sp_len[sp] = 1
+                        sp_w[sp] = src_w[j]
+                        sp += 1
                 r = c // cols
                 k = c - r * cols
                 r0 = min(r0, r)
@@ -313,10 +410,14 @@ def _insert(
                 c1 = max(c1, k)
             if part == 0:
                 f_sum[s] = tot
+                fs_start[s] = sp0
+                fs_len[s] = sp - sp0
             else:
                 o_sum[s] = tot
+                os_start[s] = sp0
+                os_len[s] = sp - sp0
         box[s, 0] = r0
         box[s, 1] = r1
         box[s, 2] = c0
         box[s, 3] = c1
-    return pos
+    return pos, sp

@@ -112,6 +112,8 @@ class StreamEngine(ABC):
     #: Whether the engine keeps readings (and so needs a bounded strategy).
     keeps_readings: ClassVar[bool] = True
     sort_band: ClassVar[bool] = False
+    #: Whether the pool keeps the footprints as spans too (see :class:`ReadingPool`).
+    spans: ClassVar[bool] = False
 
     def __init__(
         self, mapper: Mapper, grid: Grid, sensor: SensorModel, strategy: Strategy, effort: int
@@ -132,7 +134,7 @@ class StreamEngine(ABC):
         #: rasteriser's default); engines of other models set their own in ``_setup``.
         self.dr: float | None = getattr(mapper, "dr", None)
         self.offset = mapper._band_offset(grid)
-        self.pool = ReadingPool(grid.cols, sort_band=self.sort_band)
+        self.pool = ReadingPool(grid.cols, sort_band=self.sort_band, spans=self.spans)
         self.cov = np.zeros(grid.size, np.int32)
         self.seen = np.zeros(grid.size, np.bool_)
         self._mark = np.zeros(grid.size, np.bool_)
