@@ -1,12 +1,16 @@
-"""The streaming gradient's kernels against the entry-by-entry loops they replace.
+"""The streaming gradient's kernels against the entry-by-entry loops they replaced.
 
-The pool's spans are a faster layout of the same entries, in the same order.
+The pool's spans and the step over them are a faster layout of the same arithmetic:
+every sum takes its terms in the same order, so the maps must agree to the bit, not to
+a tolerance. The reference step below is the kernel the spans replaced, kept here as
+the definition.
 """
 
 from __future__ import annotations
 
 import math
 
+import numba as nb
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -14,9 +18,83 @@ import pytest
 from conftest import zoned_sensor
 from sonarmap.grid import Grid
 from sonarmap.mappers._pool import ReadingPool
+from sonarmap.mappers.gradient import (
+    STREAM_STEP_CAP,
+    _stream_steps,
+    _term_sums,
+    stream_step_sizes,
+)
 from sonarmap.raster import rasterise
 
 I64 = npt.NDArray[np.int64]
+F64 = npt.NDArray[np.float64]
+
+
+@nb.njit(cache=True)
+def _entry_steps(
+    sel: I64,
+    f_start: I64,
+    f_len: I64,
+    o_start: I64,
+    o_len: I64,
+    f_sum: F64,
+    o_sum: F64,
+    echo: npt.NDArray[np.bool_],
+    cell: npt.NDArray[np.int32],
+    w: npt.NDArray[np.float32],
+    x: F64,
+    g: F64,
+    mark: npt.NDArray[np.bool_],
+    dirty: I64,
+    cov: npt.NDArray[np.int32],
+    kcount: npt.NDArray[np.int32],
+    a1: float,
+    a2: float,
+    step: float,
+    k_cap: int,
+    n_steps: int,
+) -> None:
+    """The streaming step entry by entry, as it was before the spans."""
+    for _ in range(n_steps):
+        for s in sel:
+            for part in range(2):
+                if part == 0:
+                    a, n, tot = f_start[s], f_len[s], f_sum[s]
+                else:
+                    if not echo[s]:
+                        continue
+                    a, n, tot = o_start[s], o_len[s], o_sum[s]
+                if n == 0 or tot <= 0.0:
+                    continue
+                big_x = 0.0
+                for j in range(a, a + n):
+                    big_x += w[j] * x[cell[j]]
+                big_x /= tot
+                x0 = 1.0 / tot
+                if part == 0:
+                    below = a1
+                    above = (1.0 - a1 * x0) / (1.0 - x0) if x0 < 1.0 else a1
+                else:
+                    below = -(1.0 - a2 + a2 * x0) / x0
+                    above = -a2
+                if big_x < x0:
+                    slope = below
+                elif big_x > x0:
+                    slope = above
+                else:
+                    continue
+                f = slope / tot
+                for j in range(a, a + n):
+                    c = cell[j]
+                    if mark[c]:
+                        g[c] += f * w[j]
+        for c in dirty:
+            if cov[c] > 0:
+                k = min(kcount[c] + 1, k_cap)
+                kcount[c] = k
+                v = x[c] - step / math.sqrt(k) * g[c]
+                x[c] = min(max(v, 0.0), 1.0)
+            g[c] = 0.0
 
 
 GRID = Grid(resolution=0.05, origin=(-3.0, -3.0), shape=(120, 120))
@@ -74,3 +152,113 @@ def test_spans_are_the_entries_in_order(seed: int) -> None:
                 assert not (follows and pool.sp_w[q] == pool.sp_w[q - 1])
     # The zone's weight splits some spans.
     assert len(np.unique(pool.sp_w[: pool.sp_end])) > 1
+
+
+def test_term_sums_are_the_sums_in_order() -> None:
+    rng = np.random.default_rng(3)
+    n_cells = 5000
+    # Terms of 0 to 400 entries in spans of 1 to 60 cells, weights of a few sizes (and
+    # values of the map that make products round), the map with exact 0s and 1s.
+    lengths = rng.integers(1, 61, 3000).astype(np.int32)
+    sp_cell = rng.integers(0, n_cells - 60, 3000).astype(np.int32)
+    sp_w = rng.choice(np.array([1.0, 0.3, 1e-3, 0.77], np.float32), 3000)
+    x = rng.uniform(0.0, 1.0, n_cells)
+    x[rng.random(n_cells) < 0.3] = 0.0
+    x[rng.random(n_cells) < 0.1] = 1.0
+    t_spans = rng.integers(0, 12, 211)
+    t_start = np.concatenate([[0], np.cumsum(t_spans)[:-1]]).astype(np.int64)
+    t_len = np.array([lengths[a : a + n].sum() for a, n in zip(t_start, t_spans, strict=True)])
+    order = np.argsort(t_len).astype(np.int64)
+    out = np.full(len(t_len), np.nan)
+    _term_sums(
+        t_start, t_spans, t_len, order, sp_cell, lengths, sp_w, x, out, np.empty(8 * t_len.max())
+    )
+    for t in range(len(t_len)):
+        want = 0.0
+        for q in range(t_start[t], t_start[t] + t_spans[t]):
+            for c in range(sp_cell[q], sp_cell[q] + lengths[q]):
+                want += float(sp_w[q]) * x[c]
+        assert np.float64(want).view(np.int64) == out[t].view(np.int64)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("n_steps", [1, 3])
+def test_stream_steps_are_the_entry_by_entry_steps(seed: int, n_steps: int) -> None:
+    """The same x, step counts and (zero) gradient buffer, bit for bit, as the loop
+    over entries, on marked sets of every size and maps with cells at the bounds."""
+    pool = _pool(seed)
+    rng = np.random.default_rng(seed + 10)
+    cov = np.zeros(GRID.size, np.int32)
+    for s in pool.alive_slots():
+        np.add.at(cov, pool.cell[pool.f_start[s] : pool.f_start[s] + pool.f_len[s]], 1)
+        np.add.at(cov, pool.cell[pool.o_start[s] : pool.o_start[s] + pool.o_len[s]], 1)
+    covered = np.flatnonzero(cov > 0)
+    for share in (0.05, 0.5, 1.0):
+        dirty = rng.choice(covered, int(share * len(covered)), replace=False).astype(np.int64)
+        # A cell no reading covers any more may be dirty too (a reading just left).
+        dirty = np.concatenate([dirty, np.flatnonzero(cov == 0)[:50]])
+        mark = np.zeros(GRID.size, np.bool_)
+        mark[dirty] = True
+        sel = pool.alive_slots()
+        x = rng.uniform(0.0, 1.0, GRID.size)
+        x[rng.random(GRID.size) < 0.2] = 0.0
+        x[rng.random(GRID.size) < 0.05] = 1.0
+        k = rng.integers(0, STREAM_STEP_CAP + 5, GRID.size).astype(np.int32)
+        a1, a2, step = 0.3, 0.03, 0.05
+        x_start = x.copy()
+        x_ref, k_ref, g_ref = x.copy(), k.copy(), np.zeros(GRID.size)
+        _entry_steps(
+            sel,
+            pool.f_start,
+            pool.f_len,
+            pool.o_start,
+            pool.o_len,
+            pool.f_sum,
+            pool.o_sum,
+            pool.echo,
+            pool.cell,
+            pool.w,
+            x_ref,
+            g_ref,
+            mark,
+            dirty,
+            cov,
+            k_ref,
+            a1,
+            a2,
+            step,
+            STREAM_STEP_CAP,
+            n_steps,
+        )
+        g = np.zeros(GRID.size)
+        _stream_steps(
+            sel,
+            pool.fs_start,
+            pool.fs_len,
+            pool.os_start,
+            pool.os_len,
+            pool.f_len,
+            pool.o_len,
+            pool.f_sum,
+            pool.o_sum,
+            pool.echo,
+            pool.sp_cell,
+            pool.sp_len,
+            pool.sp_w,
+            x,
+            g,
+            mark,
+            dirty,
+            cov,
+            k,
+            a1,
+            a2,
+            stream_step_sizes(step),
+            n_steps,
+        )
+        # The steps moved most of the covered dirty cells (the test is not of a no-op).
+        live = dirty[cov[dirty] > 0]
+        assert np.mean(x_ref[live] != x_start[live]) > 0.5
+        np.testing.assert_array_equal(x.view(np.int64), x_ref.view(np.int64))
+        np.testing.assert_array_equal(k, k_ref)
+        np.testing.assert_array_equal(g.view(np.int64), g_ref.view(np.int64))

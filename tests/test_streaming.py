@@ -20,7 +20,7 @@ from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.mappers import GradientMapper, make_mapper
 from sonarmap.mappers._pool import ReadingPool
-from sonarmap.mappers.gradient import STEP, GradientStream, _stream_steps
+from sonarmap.mappers.gradient import STEP, GradientStream, _stream_steps, stream_step_sizes
 from sonarmap.metrics import agreement
 from sonarmap.raster import rasterise
 from sonarmap.readings import Readings, write_readings
@@ -247,15 +247,18 @@ def test_gradient_stream_step_is_the_offline_gradient(doorways: Scenario) -> Non
     step = 1e-4
     _stream_steps(
         p.alive_slots(),
-        p.f_start,
+        p.fs_start,
+        p.fs_len,
+        p.os_start,
+        p.os_len,
         p.f_len,
-        p.o_start,
         p.o_len,
         p.f_sum,
         p.o_sum,
         p.echo,
-        p.cell,
-        p.w,
+        p.sp_cell,
+        p.sp_len,
+        p.sp_w,
         x,
         np.zeros(g.size),
         mark,
@@ -264,8 +267,7 @@ def test_gradient_stream_step_is_the_offline_gradient(doorways: Scenario) -> Non
         np.zeros(g.size, np.int32),
         mapper.a1,
         mapper.a2,
-        step,
-        100,
+        stream_step_sizes(step),
         1,
     )
     want_x = np.clip(x_local - step * want_g, 0.0, 1.0)
