@@ -62,6 +62,40 @@ def touch(
 
 
 @nb.njit(cache=True)
+def touch_spans(
+    slots: I64,
+    sign: int,
+    fs_start: I64,
+    fs_len: I64,
+    os_len: I64,
+    sp_cell: I32,
+    sp_len: I32,
+    cov: I32,
+    mark: npt.NDArray[np.bool_],
+    dirty: I64,
+    n_dirty: int,
+) -> int:
+    """:func:`touch` through the pool's spans: the same coverage, and the same dirty
+    cells in the same order (a slot's spans hold its entries in order), with the
+    coverage of a span added as one vectorised slice."""
+    for s in slots:
+        a = fs_start[s]
+        for q in range(a, a + fs_len[s] + os_len[s]):
+            c0 = sp_cell[q]
+            n = sp_len[q]
+            cs = cov[c0 : c0 + n]
+            for i in range(n):
+                cs[i] += sign
+            ms = mark[c0 : c0 + n]
+            for i in range(n):
+                if not ms[i]:
+                    ms[i] = True
+                    dirty[n_dirty] = c0 + i
+                    n_dirty += 1
+    return n_dirty
+
+
+@nb.njit(cache=True)
 def touching(
     alive: npt.NDArray[np.bool_],
     box: I32,
@@ -196,10 +230,8 @@ class StreamEngine(ABC):
         p = self.pool
         new = p.add(fp, z, readings.range < self.sensor.r_max)
         gone = self.strategy.admit(new, readings, p.f_start, p.f_len + p.o_len, p.cell)
-        n = touch(new, 1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, 0)
-        n = touch(
-            gone, -1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, n
-        )
+        n = self._touch(new, 1, 0)
+        n = self._touch(gone, -1, n)
         dirty = self._dirty[:n].copy()
         self.seen[dirty] = True
         b = p.box[np.concatenate([new, gone])]
@@ -210,6 +242,35 @@ class StreamEngine(ABC):
         self._optimise(dirty, box)
         self._mark[dirty] = False
         self.n_updates += 1
+
+    def _touch(self, slots: I64, sign: int, n_dirty: int) -> int:
+        p = self.pool
+        if p.spans:
+            return touch_spans(
+                slots,
+                sign,
+                p.fs_start,
+                p.fs_len,
+                p.os_len,
+                p.sp_cell,
+                p.sp_len,
+                self.cov,
+                self._mark,
+                self._dirty,
+                n_dirty,
+            )
+        return touch(
+            slots,
+            sign,
+            p.f_start,
+            p.f_len,
+            p.o_len,
+            p.cell,
+            self.cov,
+            self._mark,
+            self._dirty,
+            n_dirty,
+        )
 
     def touching_dirty(self, box: tuple[int, int, int, int]) -> I64:
         """Readings in play that touch a dirty cell (call while cells are marked)."""
