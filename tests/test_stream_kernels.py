@@ -100,30 +100,36 @@ def _entry_steps(
 GRID = Grid(resolution=0.05, origin=(-3.0, -3.0), shape=(120, 120))
 
 
-def _batch(rng: np.random.Generator, n: int, pool: ReadingPool) -> I64:
+def _batch(rng: np.random.Generator, n: int, pools: tuple[ReadingPool, ...]) -> I64:
     """Rasterise n random readings of a sensor with a zone (two weights, so spans also
-    break where the weight changes) into the pool; a fifth have no echo."""
+    break where the weight changes) into each pool; a fifth have no echo."""
     sensor = zoned_sensor()
     x, y = rng.uniform(-2.5, 2.5, (2, n))
     theta = rng.uniform(-math.pi, math.pi, n)
     r = rng.uniform(0.1, 3.2, n)
     r[rng.random(n) < 0.2] = sensor.r_max
     fp = rasterise(GRID, sensor, x, y, theta, r, offset=0.025)
-    return pool.add(fp, np.minimum(r, sensor.r_max), r < sensor.r_max)
+    slots = [pool.add(fp, np.minimum(r, sensor.r_max), r < sensor.r_max) for pool in pools]
+    for other in slots[1:]:
+        np.testing.assert_array_equal(other, slots[0])
+    return slots[0]
 
 
-def _pool(seed: int) -> ReadingPool:
-    """A pool after adds, removals in any order, slot reuse and compactions."""
+def _pools(seed: int) -> tuple[ReadingPool, ReadingPool]:
+    """The same readings in a pool of entries and one of spans, after adds, removals in
+    any order, slot reuse and compactions (not at the same moments in both: the span
+    arena fills up on its own)."""
     rng = np.random.default_rng(seed)
-    pool = ReadingPool(GRID.cols, spans=True)
-    live = _batch(rng, 60, pool)
+    pools = (ReadingPool(GRID.cols), ReadingPool(GRID.cols, spans=True))
+    live = _batch(rng, 60, pools)
     for _ in range(4):
         gone = rng.choice(live, len(live) // 3, replace=False)
-        pool.remove(gone)
-        live = np.concatenate([np.setdiff1d(live, gone), _batch(rng, 30, pool)])
+        for pool in pools:
+            pool.remove(gone)
+        live = np.concatenate([np.setdiff1d(live, gone), _batch(rng, 30, pools)])
         if rng.random() < 0.5:
-            pool.compact()
-    return pool
+            pools[int(rng.integers(2))].compact()
+    return pools
 
 
 def _parts(pool: ReadingPool, s: int) -> list[tuple[int, int, int, int]]:
@@ -135,21 +141,27 @@ def _parts(pool: ReadingPool, s: int) -> list[tuple[int, int, int, int]]:
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_spans_are_the_entries_in_order(seed: int) -> None:
-    pool = _pool(seed)
+    entries, pool = _pools(seed)
+    np.testing.assert_array_equal(pool.alive, entries.alive)
+    assert len(pool.w) == len(pool.dist) == 0
     for s in pool.alive_slots():
-        for a, n, sa, sn in _parts(pool, int(s)):
+        for (a, n, _, _), (pa, pn, sa, sn) in zip(
+            _parts(entries, int(s)), _parts(pool, int(s)), strict=True
+        ):
             cells = [
                 c
                 for q in range(sa, sa + sn)
                 for c in range(pool.sp_cell[q], pool.sp_cell[q] + pool.sp_len[q])
             ]
             weights = np.repeat(pool.sp_w[sa : sa + sn], pool.sp_len[sa : sa + sn])
-            assert cells == pool.cell[a : a + n].tolist()
-            np.testing.assert_array_equal(weights, pool.w[a : a + n])
+            assert cells == entries.cell[a : a + n].tolist() == pool.cell[pa : pa + pn].tolist()
+            np.testing.assert_array_equal(weights, entries.w[a : a + n])
             # Maximal: a span never continues the one before it.
             for q in range(sa + 1, sa + sn):
                 follows = pool.sp_cell[q] == pool.sp_cell[q - 1] + pool.sp_len[q - 1]
                 assert not (follows and pool.sp_w[q] == pool.sp_w[q - 1])
+        for name in ("f_sum", "o_sum", "box", "echo"):
+            np.testing.assert_array_equal(getattr(pool, name)[s], getattr(entries, name)[s])
     # The zone's weight splits some spans.
     assert len(np.unique(pool.sp_w[: pool.sp_end])) > 1
 
@@ -186,7 +198,7 @@ def test_term_sums_are_the_sums_in_order() -> None:
 def test_stream_steps_are_the_entry_by_entry_steps(seed: int, n_steps: int) -> None:
     """The same x, step counts and (zero) gradient buffer, bit for bit, as the loop
     over entries, on marked sets of every size and maps with cells at the bounds."""
-    pool = _pool(seed)
+    entries, pool = _pools(seed)
     rng = np.random.default_rng(seed + 10)
     cov = np.zeros(GRID.size, np.int32)
     for s in pool.alive_slots():
@@ -209,15 +221,15 @@ def test_stream_steps_are_the_entry_by_entry_steps(seed: int, n_steps: int) -> N
         x_ref, k_ref, g_ref = x.copy(), k.copy(), np.zeros(GRID.size)
         _entry_steps(
             sel,
-            pool.f_start,
-            pool.f_len,
-            pool.o_start,
-            pool.o_len,
-            pool.f_sum,
-            pool.o_sum,
-            pool.echo,
-            pool.cell,
-            pool.w,
+            entries.f_start,
+            entries.f_len,
+            entries.o_start,
+            entries.o_len,
+            entries.f_sum,
+            entries.o_sum,
+            entries.echo,
+            entries.cell,
+            entries.w,
             x_ref,
             g_ref,
             mark,

@@ -12,7 +12,10 @@ rasteriser lists a beam row by row, so a span is most of a row of the beam (44 c
 average on the office ring); a pass over a footprint's spans reads its cells' values as
 contiguous slices instead of one cell index per entry, which lets numba vectorise it.
 The spans hold the entries in arena order, so a sum over them takes the terms in the
-same order as a sum over the entries, to the bit.
+same order as a sum over the entries, to the bit. A pool with spans keeps only the
+cells entry by entry (the strategies and the search for readings touching a cell read
+them): the weights are in the spans, and the engines that use spans have no use for
+distances. That is a third of the arena that insertion writes and compaction moves.
 """
 
 from __future__ import annotations
@@ -27,6 +30,16 @@ I64 = npt.NDArray[np.int64]
 I32 = npt.NDArray[np.int32]
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
+
+
+@nb.njit(cache=True)
+def _move(a: npt.NDArray[np.generic], src: int, dst: int, n: int) -> None:
+    """Move ``a[src:src + n]`` down to ``a[dst:dst + n]`` (``dst <= src``)."""
+    to = a[dst : dst + n]
+    frm = a[src : src + n]
+    # Front to back, so an overlap is safe; numba vectorises it when there is none.
+    for j in range(n):
+        to[j] = frm[j]
 
 
 @nb.njit(cache=True)
@@ -48,7 +61,8 @@ def _compact(
     sp_w: F32,
 ) -> tuple[int, int]:
     """Move the live slots' entries (and spans, when kept: ``sp_cell`` not empty) to the
-    front of their arenas, in arena order; the new ends."""
+    front of their arenas, in arena order; the new ends. ``w`` and ``dist`` are empty
+    when the pool keeps spans."""
     order = np.argsort(f_start)
     spans = sp_cell.shape[0] > 0
     end = 0
@@ -59,10 +73,10 @@ def _compact(
         # A slot's free entries are followed by its occ entries, so one block moves.
         a = f_start[s]
         n = f_len[s] + o_len[s]
-        for j in range(n):
-            cell[end + j] = cell[a + j]
-            w[end + j] = w[a + j]
-            dist[end + j] = dist[a + j]
+        _move(cell, a, end, n)
+        if not spans:
+            _move(w, a, end, n)
+            _move(dist, a, end, n)
         f_start[s] = end
         o_start[s] = end + f_len[s]
         end += n
@@ -71,10 +85,9 @@ def _compact(
             # sorts them too and no block moves past a live one.
             a = fs_start[s]
             n = fs_len[s] + os_len[s]
-            for j in range(n):
-                sp_cell[sp_end + j] = sp_cell[a + j]
-                sp_len[sp_end + j] = sp_len[a + j]
-                sp_w[sp_end + j] = sp_w[a + j]
+            _move(sp_cell, a, sp_end, n)
+            _move(sp_len, a, sp_end, n)
+            _move(sp_w, a, sp_end, n)
             fs_start[s] = sp_end
             os_start[s] = sp_end + fs_len[s]
             sp_end += n
@@ -106,8 +119,8 @@ class ReadingPool:
     sort_band : bool
         Keep each reading's Omega_occ entries sorted by distance (Thrun's model needs it).
     spans : bool
-        Also keep each part as spans of consecutive cells of one weight (see the module
-        notes).
+        Keep each part as spans of consecutive cells of one weight, and of the entries
+        only their cells (see the module notes).
 
     Attributes
     ----------
@@ -123,7 +136,8 @@ class ReadingPool:
     box : ndarray of int32, shape (slots, 4)
         Row and column bounds (inclusive) of the cells the reading touches.
     cell, w, dist : arena arrays
-        Flat cell index, weight ``w0`` and distance of every entry.
+        Flat cell index, weight ``w0`` and distance of every entry (``w`` and ``dist``
+        empty with ``spans``).
     sp_cell, sp_len, sp_w : span arena arrays
         First cell, number of cells and weight ``w0`` of every span (empty without
         ``spans``).
@@ -150,8 +164,8 @@ class ReadingPool:
         self.spans = spans
         self._grow_slots(256)
         self.cell = np.empty(1 << 16, np.int32)
-        self.w = np.empty(1 << 16, np.float32)
-        self.dist = np.empty(1 << 16, np.float32)
+        self.w = np.empty(0 if spans else 1 << 16, np.float32)
+        self.dist = np.empty(0 if spans else 1 << 16, np.float32)
         self.end = 0
         self.dead = 0
         n_spans = 1 << 12 if spans else 0
@@ -202,8 +216,10 @@ class ReadingPool:
         if self.spans:
             names += ["fs_start", "fs_len", "os_start", "os_len"]
         slot: int = sum(int(getattr(self, n).nbytes) for n in names)
-        spans = self.sp_cell.nbytes + self.sp_len.nbytes + self.sp_w.nbytes
-        return slot + self.alive.nbytes + self.box.nbytes + self.cell.nbytes * 3 + spans
+        arenas = sum(
+            int(getattr(self, n).nbytes) for n in ("cell", "w", "dist", "sp_cell", "sp_len", "sp_w")
+        )
+        return slot + self.alive.nbytes + self.box.nbytes + arenas
 
     def _fits(self, n: int) -> bool:
         # A batch of n entries makes at most n spans.
@@ -227,9 +243,11 @@ class ReadingPool:
             return
         if self.dead > 0:
             self.compact()
-        self._grow(("cell", "w", "dist"), self.end, self.end + n)
         if self.spans:
+            self._grow(("cell",), self.end, self.end + n)
             self._grow(("sp_cell", "sp_len", "sp_w"), self.sp_end, self.sp_end + n)
+        else:
+            self._grow(("cell", "w", "dist"), self.end, self.end + n)
 
     def compact(self) -> None:
         """Drop dead entries (and spans) from the arenas."""
@@ -319,7 +337,9 @@ class ReadingPool:
 
     def gather(self, slots: I64) -> tuple[I64, I64, I64, F64, I64]:
         """The slots' entries as CSR: free cells, free offsets, band cells, band
-        distances, band offsets."""
+        distances, band offsets (not for a pool with spans, which keeps no distances)."""
+        if self.spans:
+            raise RuntimeError("a pool with spans keeps no distances to gather")
         f_cells, f_off, _ = _gather(slots, self.f_start, self.f_len, self.cell, self.dist)
         o_cells, o_off, o_dist = _gather(slots, self.o_start, self.o_len, self.cell, self.dist)
         return f_cells, f_off, o_cells, o_dist, o_off
@@ -362,8 +382,9 @@ def _insert(
 ) -> tuple[int, int]:
     """Append each reading's free entries, then its occ entries, at ``end``; fill the
     slots' starts, lengths, weight sums and inclusive (row0, row1, col0, col1) boxes
-    (empty as (max, -1, max, -1)). With spans kept (``sp_cell`` not empty), also append
-    each part's spans at ``sp_end``. Returns the new ends.
+    (empty as (max, -1, max, -1)). With spans kept (``sp_cell`` not empty), append
+    each part's spans at ``sp_end`` and of the entries only their cells. Returns the new
+    ends.
 
     Compiled, because done with whole-array numpy steps it was a fifth of a streaming
     update; part by part, in short loops over slices that numba compiles tightly (one
@@ -390,14 +411,16 @@ def _insert(
             n = b - a
             cs = src_c[a:b]
             ws = src_w[a:b]
-            ds = src_d[a:b]
             to_c = cell[pos : pos + n]
-            to_w = w[pos : pos + n]
-            to_d = dist[pos : pos + n]
             for j in range(n):
                 to_c[j] = cs[j]
-                to_w[j] = ws[j]
-                to_d[j] = ds[j]
+            if not spans:
+                ds = src_d[a:b]
+                to_w = w[pos : pos + n]
+                to_d = dist[pos : pos + n]
+                for j in range(n):
+                    to_w[j] = ws[j]
+                    to_d[j] = ds[j]
             pos += n
             tot = 0.0
             for j in range(n):
