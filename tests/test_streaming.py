@@ -269,6 +269,9 @@ def test_gradient_stream_step_is_the_offline_gradient(doorways: Scenario) -> Non
         mapper.a2,
         stream_step_sizes(step),
         1,
+        np.zeros((p.capacity, 2)),
+        np.full((p.capacity, 2), -np.inf),
+        np.zeros(1),
     )
     want_x = np.clip(x_local - step * want_g, 0.0, 1.0)
     np.testing.assert_allclose(x[problem.cells], want_x, atol=1e-9)
