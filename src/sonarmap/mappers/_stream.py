@@ -62,7 +62,7 @@ def touch(
 
 
 @nb.njit(cache=True)
-def touch_spans(
+def cover_spans(
     slots: I64,
     sign: int,
     fs_start: I64,
@@ -72,27 +72,20 @@ def touch_spans(
     sp_len: I32,
     cov: I32,
     mark: npt.NDArray[np.bool_],
-    dirty: I64,
-    n_dirty: int,
-) -> int:
-    """:func:`touch` through the pool's spans: the same coverage, and the same dirty
-    cells in the same order (a slot's spans hold its entries in order), with the
-    coverage of a span added as one vectorised slice."""
+) -> None:
+    """Add ``sign`` to the coverage of every cell of ``slots`` and mark the cells, a
+    span (one vectorised slice) at a time; unlike :func:`touch`, the marked cells are
+    not listed (the caller reads them off the marks, in grid order)."""
     for s in slots:
         a = fs_start[s]
         for q in range(a, a + fs_len[s] + os_len[s]):
             c0 = sp_cell[q]
             n = sp_len[q]
             cs = cov[c0 : c0 + n]
-            for i in range(n):
-                cs[i] += sign
             ms = mark[c0 : c0 + n]
             for i in range(n):
-                if not ms[i]:
-                    ms[i] = True
-                    dirty[n_dirty] = c0 + i
-                    n_dirty += 1
-    return n_dirty
+                cs[i] += sign
+                ms[i] = True
 
 
 @nb.njit(cache=True)
@@ -230,12 +223,9 @@ class StreamEngine(ABC):
         p = self.pool
         new = p.add(fp, z, readings.range < self.sensor.r_max)
         gone = self.strategy.admit(new, readings, p.f_start, p.f_len + p.o_len, p.cell)
-        n = self._touch(new, 1, 0)
-        n = self._touch(gone, -1, n)
-        dirty = self._dirty[:n].copy()
-        self.seen[dirty] = True
         b = p.box[np.concatenate([new, gone])]
         box = (int(b[:, 0].min()), int(b[:, 1].max()), int(b[:, 2].min()), int(b[:, 3].max()))
+        dirty = self._touch(new, gone, box)
         self._enter(new)
         self._leave(gone)
         p.remove(gone)
@@ -243,34 +233,37 @@ class StreamEngine(ABC):
         self._mark[dirty] = False
         self.n_updates += 1
 
-    def _touch(self, slots: I64, sign: int, n_dirty: int) -> int:
+    def _touch(self, new: I64, gone: I64, box: tuple[int, int, int, int]) -> I64:
+        """Count the readings ``new`` in the coverage and ``gone`` out of it, mark the
+        cells they touch (all inside ``box``) dirty and seen; the dirty cells."""
         p = self.pool
         if p.spans:
-            return touch_spans(
-                slots,
-                sign,
-                p.fs_start,
-                p.fs_len,
-                p.os_len,
-                p.sp_cell,
-                p.sp_len,
-                self.cov,
-                self._mark,
-                self._dirty,
-                n_dirty,
-            )
-        return touch(
-            slots,
-            sign,
-            p.f_start,
-            p.f_len,
-            p.o_len,
-            p.cell,
-            self.cov,
-            self._mark,
-            self._dirty,
-            n_dirty,
+            for slots, sign in ((new, 1), (gone, -1)):
+                cover_spans(
+                    slots,
+                    sign,
+                    p.fs_start,
+                    p.fs_len,
+                    p.os_len,
+                    p.sp_cell,
+                    p.sp_len,
+                    self.cov,
+                    self._mark,
+                )
+            # The rows of the box hold every marked cell: listed in grid order, which
+            # is as good as any to the engines that keep spans (their cells' steps do
+            # not depend on each other) and reads the marks off in one vectorised pass.
+            lo, hi = max(box[0], 0) * self.grid.cols, (box[1] + 1) * self.grid.cols
+            window = self._mark[lo:hi]
+            self.seen[lo:hi] |= window
+            return np.flatnonzero(window).astype(np.int64) + lo
+        n = touch(new, 1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, 0)
+        n = touch(
+            gone, -1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, n
         )
+        dirty = self._dirty[:n].copy()
+        self.seen[dirty] = True
+        return dirty
 
     def touching_dirty(self, box: tuple[int, int, int, int]) -> I64:
         """Readings in play that touch a dirty cell (call while cells are marked)."""
