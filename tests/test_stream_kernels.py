@@ -278,7 +278,6 @@ def test_stream_steps_are_the_entry_by_entry_steps(seed: int, n_steps: int, step
             pool.sp_w,
             x,
             g,
-            mark,
             dirty,
             cov,
             k,
@@ -313,6 +312,8 @@ class _EntryStream(GradientStream):
         m = self.mapper
         assert isinstance(m, GradientMapper)
         p = self.pool
+        # The entry-by-entry step gathers the gradient of the marked cells only.
+        self._mark[dirty] = True
         _entry_steps(
             sel,
             p.f_start,
@@ -336,6 +337,7 @@ class _EntryStream(GradientStream):
             STREAM_STEP_CAP,
             n,
         )
+        self._mark[dirty] = False
 
 
 def _check_known(engine: GradientStream) -> None:

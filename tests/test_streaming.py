@@ -226,7 +226,7 @@ def test_windowed_inverse_sums_the_readings_in_play(doorways: Scenario) -> None:
 
 
 def test_gradient_stream_step_is_the_offline_gradient(doorways: Scenario) -> None:
-    """Terms added to the stream give, at the cells they mark, the offline objective's
+    """Terms added to the stream give, at the cells they step, the offline objective's
     gradient of the P terms: W^T P'(W x)."""
     g, rig = doorways.truth.grid, doorways.rig
     r = doorways.readings.take(np.arange(300))
@@ -242,8 +242,6 @@ def test_gradient_stream_step_is_the_offline_gradient(doorways: Scenario) -> Non
     p = engine.pool
     x = np.full(g.size, 0.5)
     x[problem.cells] = x_local
-    mark = np.zeros(g.size, bool)
-    mark[problem.cells] = True
     step = 1e-4
     _stream_steps(
         p.alive_slots(),
@@ -261,7 +259,6 @@ def test_gradient_stream_step_is_the_offline_gradient(doorways: Scenario) -> Non
         p.sp_w,
         x,
         np.zeros(g.size),
-        mark,
         problem.cells,
         engine.cov,
         np.zeros(g.size, np.int32),

@@ -588,7 +588,6 @@ def _stream_steps(
     sp_w: npt.NDArray[np.float32],
     x: F64,
     g: F64,
-    mark: npt.NDArray[np.bool_],
     dirty: npt.NDArray[np.int64],
     cov: npt.NDArray[np.int32],
     kcount: npt.NDArray[np.int32],
@@ -600,19 +599,18 @@ def _stream_steps(
     known_at: F64,
     drift: F64,
 ) -> None:
-    """Projected subgradient steps on the marked cells, over the terms of ``sel``.
+    """Projected subgradient steps on the cells ``dirty``, over the terms of ``sel``.
 
-    The P terms of the offline objective (see ``_forward``) on the box [0, 1]; the
-    gradient reaches only marked cells, all of whose terms are in ``sel``, so their
-    gradient is exact. The concave tent R2 is left out: see :class:`GradientStream`.
-    A cell's k-th step (k counted in ``kcount``, capped at the length of ``steps``) is
-    ``steps[k - 1]`` times its gradient. The cells of the marked set are ``dirty``, and
-    only they: a cell's gradient is gathered in ``g`` and zeroed after its step.
+    The P terms of the offline objective (see ``_forward``) on the box [0, 1]; every
+    term touching a cell of ``dirty`` is in ``sel``, so the gradient there is exact.
+    The concave tent R2 is left out: see :class:`GradientStream`. A cell's k-th step
+    (k counted in ``kcount``, capped at the length of ``steps``) is ``steps[k - 1]``
+    times its gradient.
 
     The terms are read as the pool's spans (free then occ entries of each slot, in
     arena order), so both passes over a term go through slices of the map: its value
-    ``X = W x`` by :func:`_term_sums`, its gradient into ``g``, which numba vectorises
-    (an unmarked cell gains +0.0, so ``g`` stays zero there).
+    ``X = W x`` by :func:`_term_sums`, its gradient into ``g``, which numba vectorises.
+    ``g`` is zero on entry and on return.
 
     A term's gradient needs of X only which side of X0 it lies on, and X is a mean of
     the map weighted by w >= 0, so it moves by at most the largest move of any cell.
@@ -672,6 +670,8 @@ def _stream_steps(
             for t in due[:n_due]:
                 known[t_slot[t], t_part[t]] = big[t] / t_tot[t]
                 known_at[t_slot[t], t_part[t]] = drift[0]
+        lo = g.shape[0]
+        hi = 0
         for t in range(n_terms):
             tot = t_tot[t]
             big_x = known[t_slot[t], t_part[t]]
@@ -691,11 +691,13 @@ def _stream_steps(
             f = slope / tot
             for q in range(t_start[t], t_start[t] + t_spans[t]):
                 fw = f * np.float64(sp_w[q])
+                c0 = sp_cell[q]
                 n = sp_len[q]
-                gs = g[sp_cell[q] : sp_cell[q] + n]
-                ms = mark[sp_cell[q] : sp_cell[q] + n]
+                lo = min(lo, c0)
+                hi = max(hi, c0 + n)
+                gs = g[c0 : c0 + n]
                 for i in range(n):
-                    gs[i] += fw if ms[i] else 0.0
+                    gs[i] += fw
         largest = 0.0
         for c in dirty:
             if cov[c] > 0:
@@ -705,8 +707,10 @@ def _stream_steps(
                 v = min(max(v, 0.0), 1.0)
                 largest = max(largest, abs(v - x[c]))
                 x[c] = v
-            g[c] = 0.0
         drift[0] += largest
+        # Unmarked cells gathered gradient too (testing the mark for every entry cost
+        # more than this); nothing reads it, and all of it goes.
+        g[lo:hi] = 0.0
 
 
 def stream_step_sizes(step: float, k_cap: int = STREAM_STEP_CAP) -> F64:
@@ -778,7 +782,6 @@ class GradientStream(StreamEngine):
             p.sp_w,
             self.x,
             self._g,
-            self._mark,
             dirty,
             self.cov,
             self._k,
@@ -800,13 +803,11 @@ class GradientStream(StreamEngine):
         if len(cells) == 0 or budget <= 0:
             return 0
         sel = self.pool.alive_slots()
-        self._mark[cells] = True
         end = time.perf_counter() + budget
         n = 0
         while time.perf_counter() < end:
             self._run(sel, cells, 1)
             n += 1
-        self._mark[cells] = False
         return n
 
     def occupancy(self) -> npt.NDArray[np.float32]:
