@@ -616,10 +616,11 @@ def _stream_steps(
     the map weighted by w >= 0, so it moves by at most the largest move of any cell.
     ``known[s, part]`` keeps the X last summed for each slot's free (0) and occ (1)
     term, ``known_at[s, part]`` the value then of ``drift[0]``, the running total of
-    every step's largest move (-inf: nothing known, as for a reading just entered).
-    While X was farther from X0 than the moves since, plus an allowance for the
-    rounding of two sums of n products (4 (n + 4) eps, above their error bound) and
-    of the totals, the side is the one a new sum would give, and the known X stands in
+    every step's largest move, rounded up (-inf: nothing known, as for a reading just
+    entered). While X was farther from X0 than the moves since (with 1e-6 of them to
+    spare for the rounding of the moves, their total and the weights' total) plus an
+    allowance for the rounding of two sums of n products (4 (n + 4) eps, above their
+    error bound), the side is the one a new sum would give, and the known X stands in
     for it. Otherwise the term is summed again. Either way the slopes, and so the map,
     are the ones summing every term at every step gives, to the bit. On the office
     ring a term's X lies 0.3-0.5 from X0 and the map moves by 0.005 an update, so most
@@ -707,9 +708,12 @@ def _stream_steps(
                 v = min(max(v, 0.0), 1.0)
                 largest = max(largest, abs(v - x[c]))
                 x[c] = v
-        drift[0] += largest
-        # Unmarked cells gathered gradient too (testing the mark for every entry cost
-        # more than this); nothing reads it, and all of it goes.
+        # Rounded up, so that a difference of two totals never falls short of the
+        # moves between them, however long the stream (the subtraction of two totals
+        # is then off by at most its own rounding, which the 1e-6 above covers).
+        drift[0] = (drift[0] + largest) * (1.0 + 2.0 * EPS)
+        # Cells outside ``dirty`` gathered gradient too (testing each entry's cell
+        # cost more than clearing the range); nothing reads it, and it is cleared.
         g[lo:hi] = 0.0
 
 
