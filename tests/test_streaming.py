@@ -20,7 +20,7 @@ from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.mappers import GradientMapper, make_mapper
 from sonarmap.mappers._pool import ReadingPool
-from sonarmap.mappers.gradient import STEP, GradientStream, _stream_steps
+from sonarmap.mappers.gradient import STEP, GradientStream, _stream_steps, stream_step_sizes
 from sonarmap.metrics import agreement
 from sonarmap.raster import rasterise
 from sonarmap.readings import Readings, write_readings
@@ -226,7 +226,7 @@ def test_windowed_inverse_sums_the_readings_in_play(doorways: Scenario) -> None:
 
 
 def test_gradient_stream_step_is_the_offline_gradient(doorways: Scenario) -> None:
-    """Terms added to the stream give, at the cells they mark, the offline objective's
+    """Terms added to the stream give, at the cells they step, the offline objective's
     gradient of the P terms: W^T P'(W x)."""
     g, rig = doorways.truth.grid, doorways.rig
     r = doorways.readings.take(np.arange(300))
@@ -242,31 +242,33 @@ def test_gradient_stream_step_is_the_offline_gradient(doorways: Scenario) -> Non
     p = engine.pool
     x = np.full(g.size, 0.5)
     x[problem.cells] = x_local
-    mark = np.zeros(g.size, bool)
-    mark[problem.cells] = True
     step = 1e-4
     _stream_steps(
         p.alive_slots(),
-        p.f_start,
+        p.fs_start,
+        p.fs_len,
+        p.os_start,
+        p.os_len,
         p.f_len,
-        p.o_start,
         p.o_len,
         p.f_sum,
         p.o_sum,
         p.echo,
-        p.cell,
-        p.w,
+        p.sp_cell,
+        p.sp_len,
+        p.sp_w,
         x,
         np.zeros(g.size),
-        mark,
         problem.cells,
         engine.cov,
         np.zeros(g.size, np.int32),
         mapper.a1,
         mapper.a2,
-        step,
-        100,
+        stream_step_sizes(step),
         1,
+        np.zeros((p.capacity, 2)),
+        np.full((p.capacity, 2), -np.inf),
+        np.zeros(1),
     )
     want_x = np.clip(x_local - step * want_g, 0.0, 1.0)
     np.testing.assert_allclose(x[problem.cells], want_x, atol=1e-9)

@@ -162,9 +162,16 @@ def _run(
     with_bearing: bool,
 ) -> tuple[CellSet, CellSet]:
     zp, zr, zw, bw = _pack_zones(sensor, grid.resolution**2)
-    # A first guess at the output size saves most re-allocations.
+    # A first guess at the output size saves most re-allocations, but too large a guess
+    # is dear as well: 0.6 r^2 per beam was three times the cells of the office ring's
+    # 15-degree cones and made the rasteriser twice as slow. A beam's centres within
+    # `reach` lie in the sector of its widest angle off the axis, so that sector's area
+    # and a cell along its edges bound them (save rounding, which the kernel absorbs).
+    h = grid.resolution
+    half = _region_half_angle(sensor.beam)
     reach = np.minimum(np.maximum(free_lim, occ_hi), sensor.beam.radius).clip(0.0)
-    capacity = int(min(np.sum(reach**2) / grid.resolution**2 * 0.6, 2e8)) + 1024
+    guess = np.sum(half * reach**2) / h**2 + np.sum((2.0 + 2.0 * half) * reach) / h
+    capacity = int(min(guess, 2e8)) + 1024
     out = rasterise_kernel(
         grid.resolution,
         grid.origin[0],
@@ -384,8 +391,14 @@ def _beam_half_angle(sensor: SensorModel) -> float:
     The beam is convex: seen from a sensor outside it or on its edge, its extreme
     directions pass through a corner, where two edges meet or an edge meets the disk.
     """
-    planes = np.asarray(sensor.beam.halfplanes, dtype=np.float64)
-    radius = float(sensor.beam.radius)
+    return _region_half_angle(sensor.beam)
+
+
+@functools.lru_cache(maxsize=64)
+def _region_half_angle(beam: Region) -> float:
+    # Cached: the rasteriser sizes its output with it on every call.
+    planes = np.asarray(beam.halfplanes, dtype=np.float64)
+    radius = float(beam.radius)
     normals, offsets = planes[:, :2], planes[:, 2]
     if np.all(offsets > 1e-12):
         return math.pi

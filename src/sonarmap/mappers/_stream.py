@@ -67,6 +67,33 @@ def touch(
 
 
 @nb.njit(cache=True)
+def cover_spans(
+    slots: I64,
+    sign: int,
+    fs_start: I64,
+    fs_len: I64,
+    os_len: I64,
+    sp_cell: I32,
+    sp_len: I32,
+    cov: I32,
+    mark: npt.NDArray[np.bool_],
+) -> None:
+    """Add ``sign`` to the coverage of every cell of ``slots`` and mark the cells, a
+    span (one vectorised slice) at a time; unlike :func:`touch`, the marked cells are
+    not listed (the caller reads them off the marks, in grid order)."""
+    for s in slots:
+        a = fs_start[s]
+        for q in range(a, a + fs_len[s] + os_len[s]):
+            c0 = sp_cell[q]
+            n = sp_len[q]
+            cs = cov[c0 : c0 + n]
+            ms = mark[c0 : c0 + n]
+            for i in range(n):
+                cs[i] += sign
+                ms[i] = True
+
+
+@nb.njit(cache=True)
 def touching(
     alive: npt.NDArray[np.bool_],
     box: I32,
@@ -117,6 +144,8 @@ class StreamEngine(ABC):
     #: Whether the engine keeps readings (and so needs a bounded strategy).
     keeps_readings: ClassVar[bool] = True
     sort_band: ClassVar[bool] = False
+    #: Whether the pool keeps the footprints as spans too (see :class:`ReadingPool`).
+    spans: ClassVar[bool] = False
 
     def __init__(
         self, mapper: Mapper, grid: Grid, sensor: SensorModel, strategy: Strategy, effort: int
@@ -142,7 +171,7 @@ class StreamEngine(ABC):
         #: rasteriser's default); engines of other models set their own in ``_setup``.
         self.dr: float | None = getattr(mapper, "dr", None)
         self.offset = mapper._band_offset(grid)
-        self.pool = ReadingPool(grid.cols, sort_band=self.sort_band)
+        self.pool = ReadingPool(grid.cols, sort_band=self.sort_band, spans=self.spans)
         self.cov = np.zeros(grid.size, np.int32)
         self.seen = np.zeros(grid.size, np.bool_)
         self._mark = np.zeros(grid.size, np.bool_)
@@ -204,20 +233,47 @@ class StreamEngine(ABC):
         p = self.pool
         new = p.add(fp, z, readings.range < self.sensor.r_max)
         gone = self.strategy.admit(new, readings, p.f_start, p.f_len + p.o_len, p.cell)
-        n = touch(new, 1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, 0)
-        n = touch(
-            gone, -1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, n
-        )
-        dirty = self._dirty[:n].copy()
-        self.seen[dirty] = True
         b = p.box[np.concatenate([new, gone])]
         box = (int(b[:, 0].min()), int(b[:, 1].max()), int(b[:, 2].min()), int(b[:, 3].max()))
+        dirty = self._touch(new, gone, box)
         self._enter(new)
         self._leave(gone)
         p.remove(gone)
         self._optimise(dirty, box)
         self._mark[dirty] = False
         self.n_updates += 1
+
+    def _touch(self, new: I64, gone: I64, box: tuple[int, int, int, int]) -> I64:
+        """Count the readings ``new`` in the coverage and ``gone`` out of it, mark the
+        cells they touch (all inside ``box``) dirty and seen; the dirty cells."""
+        p = self.pool
+        if p.spans:
+            for slots, sign in ((new, 1), (gone, -1)):
+                cover_spans(
+                    slots,
+                    sign,
+                    p.fs_start,
+                    p.fs_len,
+                    p.os_len,
+                    p.sp_cell,
+                    p.sp_len,
+                    self.cov,
+                    self._mark,
+                )
+            # The rows of the box hold every marked cell: listed in grid order, which
+            # is as good as any to the engines that keep spans (their cells' steps do
+            # not depend on each other) and reads the marks off in one vectorised pass.
+            lo, hi = max(box[0], 0) * self.grid.cols, (box[1] + 1) * self.grid.cols
+            window = self._mark[lo:hi]
+            self.seen[lo:hi] |= window
+            return np.flatnonzero(window).astype(np.int64) + lo
+        n = touch(new, 1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, 0)
+        n = touch(
+            gone, -1, p.f_start, p.f_len, p.o_len, p.cell, self.cov, self._mark, self._dirty, n
+        )
+        dirty = self._dirty[:n].copy()
+        self.seen[dirty] = True
+        return dirty
 
     def touching_dirty(self, box: tuple[int, int, int, int]) -> I64:
         """Readings in play that touch a dirty cell (call while cells are marked)."""
