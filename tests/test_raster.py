@@ -277,3 +277,46 @@ def test_parallel_accumulate_gives_the_serial_result(falloff: float) -> None:
         assert k == out[0][0]
         np.testing.assert_array_equal(v, out[0][1])
         np.testing.assert_array_equal(t, out[0][2])
+
+
+def test_accumulate_decides_centres_on_a_threshold_as_the_rasteriser() -> None:
+    """Band limits within a few ulps of a centre's distance: the insertion compares
+    squared distances and takes the root only near a threshold, and must still decide
+    every such centre as the rasteriser's root does."""
+    sensor = cone_sensor(30.0)
+    dr = 0.05
+    x0, y0 = 0.0, 0.05  # on the centre row of cells at y = 0.05
+    d = abs(GRID.origin[0] + (30 + 0.5) * GRID.resolution - x0)  # the centre at x = 1.05
+    step = math.ulp(d)
+    tol = 1e-9  # the rasteriser's EDGE_TOL
+    ranges = [d + tol + dr + k * step for k in range(-40, 41)]  # free limit at the centre
+    ranges += [d - tol - dr + k * step for k in range(-40, 41)]  # occupied limit there
+    n = len(ranges)
+    xs, ys, ths = [x0] * n, [y0] * n, [0.0] * n
+    fp = rasterise(GRID, sensor, xs, ys, ths, ranges, dr=dr)
+    free_here = {
+        i
+        for i in range(n)
+        if ((GRID.rows - 1 - 20) * GRID.cols + 30) in set(fp.free.of(i).tolist())
+    }
+    assert 0 < len(free_here) < 81, "the ranges must straddle the free limit at the centre"
+    want, want_t = _apply_footprint(fp, GRID.size, (-0.4, 0.9), (-50.0, 50.0))
+    got = np.zeros(GRID.size)
+    got_t = np.zeros(GRID.size, dtype=bool)
+    count = accumulate(
+        GRID,
+        sensor,
+        xs,
+        ys,
+        ths,
+        ranges,
+        got,
+        got_t,
+        inc_free=-0.4,
+        inc_occ=0.9,
+        clamp=(-50.0, 50.0),
+        dr=dr,
+    )
+    assert count == fp.n_entries
+    np.testing.assert_array_equal(got_t, want_t)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)

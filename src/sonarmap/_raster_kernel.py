@@ -328,6 +328,11 @@ def rasterise_kernel(
 # vectorise every row whole.
 LANES = 8
 
+# Relative margin around a threshold's square inside which the insertion kernel takes
+# the square root to compare a distance: sixteen machine epsilons cover the rounding of
+# the square, of the margin and of the correctly rounded root with room to spare.
+SQRT_SLACK = 16 * 2.0**-52
+
 # The insertion kernel's row parameters, in this order (see _update_blocks).
 _ROW_PARAMS = (
     "ox",
@@ -387,10 +392,14 @@ def _blocks_intrinsic(
     base: Any,
     col_from: Any,
     col_to: Any,
+    col_end: Any,
     params: Any,
     coef: Any,
 ) -> Any:
     """Update cells ``base + col_from .. base + col_to`` of one row, LANES at a time.
+
+    ``col_end`` is the row's last column in the grid: a block that ends by it is read
+    and written whole, one that passes it through masks.
 
     ``params`` holds the row's values named in _ROW_PARAMS. A cell is free if its
     distance d to the sensor is below ``f_thr``, occupied if d <= ``o_thr`` (the
@@ -408,10 +417,10 @@ def _blocks_intrinsic(
     if len(params) != len(_ROW_PARAMS):
         return None
     ncoef = len(coef)
-    sig = types.int64(values, touched, base, col_from, col_to, params, coef)
+    sig = types.int64(values, touched, base, col_from, col_to, col_end, params, coef)
 
     def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        vals, tch, base, col_from, col_to, params, coef = args
+        vals, tch, base, col_from, col_to, col_end, params, coef = args
         f64 = ir.DoubleType()
         i64 = ir.IntType(64)
         i32 = ir.IntType(32)
@@ -431,6 +440,23 @@ def _blocks_intrinsic(
         zero = _splat(builder, ir.Constant(f64, 0.0))
         half = _splat(builder, ir.Constant(f64, 0.5))
         sqrt = _declare(builder, f"llvm.sqrt.v{LANES}f64", vd, [vd])
+
+        def band(t: Any) -> tuple[Any, Any]:
+            # Squared distances below the first bound have sqrt(d2) < t once rounded,
+            # those at or above the second sqrt(d2) > t; between, the root decides. A
+            # threshold <= 0 (or NaN) admits no centre: both bounds below any d2.
+            t2 = builder.fmul(t, t)
+            pos = builder.fcmp_ordered(">", t, ir.Constant(f64, 0.0))
+            lo2 = builder.fmul(t2, ir.Constant(f64, 1.0 - SQRT_SLACK))
+            hi2 = builder.fmul(t2, ir.Constant(f64, 1.0 + SQRT_SLACK))
+            none = ir.Constant(f64, -1.0)
+            return (
+                _splat(builder, builder.select(pos, lo2, none)),
+                _splat(builder, builder.select(pos, hi2, none)),
+            )
+
+        f_band = band(p["f_thr"])
+        o_band = band(p["o_thr"])
         ctpop = _declare(builder, f"llvm.ctpop.i{LANES}", bits, [bits])
         varr = context.make_array(signature.args[0])(context, builder, vals)
         tarr = context.make_array(signature.args[1])(context, builder, tch)
@@ -459,10 +485,38 @@ def _blocks_intrinsic(
         dx = builder.fsub(
             builder.fadd(s["ox"], builder.fmul(builder.fadd(col_f, half), s["h"])), s["x0"]
         )
-        d = builder.call(sqrt, [builder.fadd(builder.fmul(dx, dx), dy2)])
+        d2 = builder.fadd(builder.fmul(dx, dx), dy2)
         in_row = builder.icmp_signed("<=", col_i, _splat(builder, col_to))
-        free = builder.fcmp_ordered("<", d, s["f_thr"])
-        occ = builder.fcmp_ordered("<=", d, s["o_thr"])
+        # The square root is the block's slowest step on AVX2 (vsqrtpd), and only a
+        # centre within a few ulps of a threshold's square needs it to decide alike.
+        near = builder.or_(
+            builder.and_(
+                builder.fcmp_ordered(">", d2, f_band[0]), builder.fcmp_ordered("<", d2, f_band[1])
+            ),
+            builder.and_(
+                builder.fcmp_ordered(">", d2, o_band[0]), builder.fcmp_ordered("<", d2, o_band[1])
+            ),
+        )
+        near = builder.bitcast(builder.and_(near, in_row), bits)
+        free_s = builder.fcmp_ordered("<", d2, f_band[1])
+        occ_s = builder.fcmp_ordered("<", d2, o_band[1])
+        sure = builder.block
+        exact = builder.append_basic_block("blocks.exact")
+        decide = builder.append_basic_block("blocks.decide")
+        builder.cbranch(builder.icmp_unsigned("!=", near, ir.Constant(bits, 0)), exact, decide)
+        builder.position_at_end(exact)
+        d = builder.call(sqrt, [d2])
+        free_x = builder.fcmp_ordered("<", d, s["f_thr"])
+        occ_x = builder.fcmp_ordered("<=", d, s["o_thr"])
+        builder.branch(decide)
+        builder.position_at_end(decide)
+        mask = ir.VectorType(ir.IntType(1), LANES)
+        free = builder.phi(mask)
+        free.add_incoming(free_s, sure)
+        free.add_incoming(free_x, exact)
+        occ = builder.phi(mask)
+        occ.add_incoming(occ_s, sure)
+        occ.add_incoming(occ_x, exact)
         update = builder.and_(in_row, builder.or_(free, occ))
         inc = builder.select(free, s["inc_free"], s["inc_occ"])
         if ncoef:
@@ -477,28 +531,51 @@ def _blocks_intrinsic(
         at = builder.add(base, col)
         vptr = builder.bitcast(builder.gep(varr.data, [at]), vd.as_pointer())
         tptr = builder.bitcast(builder.gep(tarr.data, [at]), vb.as_pointer())
-        # Masked lanes are neither read nor written: a block may pass the row's end,
-        # even the grid's, and rows stay private to the thread that owns them.
+
+        def clamp(v: Any) -> Any:
+            v = builder.select(builder.fcmp_ordered(">", v, s["lo"]), v, s["lo"])
+            return builder.select(builder.fcmp_ordered("<", v, s["hi"]), v, s["hi"])
+
+        whole = builder.append_basic_block("blocks.whole")
+        edge = builder.append_basic_block("blocks.edge")
+        latch = builder.append_basic_block("blocks.latch")
+        last = builder.add(col, ir.Constant(i64, LANES - 1))
+        builder.cbranch(builder.icmp_signed("<=", last, col_end), whole, edge)
+
+        # A block inside the grid's row is read and written whole, its lanes off the
+        # span written back unchanged: the row is this thread's alone. Masked stores
+        # are slow without AVX-512 (a byte-masked one becomes eight branches), and most
+        # blocks of a beam's row lie inside the grid.
+        builder.position_at_end(whole)
+        old = builder.load(vptr, align=8)
+        builder.store(builder.select(update, clamp(builder.fadd(old, inc)), old), vptr, align=8)
+        flags = builder.load(tptr, align=1)
+        builder.store(builder.or_(flags, builder.zext(update, vb)), tptr, align=1)
+        builder.branch(latch)
+
+        # A block passing the grid's edge: masked lanes are neither read nor written,
+        # so nothing beyond the row (another thread's, or past the array) is touched.
+        builder.position_at_end(edge)
         old = builder.call(
             _masked(builder, "load", vd, vptr, f"v{LANES}f64"),
             [vptr, ir.Constant(i32, 8), in_row, zero],
         )
-        v = builder.fadd(old, inc)
-        v = builder.select(builder.fcmp_ordered(">", v, s["lo"]), v, s["lo"])
-        v = builder.select(builder.fcmp_ordered("<", v, s["hi"]), v, s["hi"])
         builder.call(
             _masked(builder, "store", vd, vptr, f"v{LANES}f64"),
-            [v, vptr, ir.Constant(i32, 8), update],
+            [clamp(builder.fadd(old, inc)), vptr, ir.Constant(i32, 8), update],
         )
         builder.call(
             _masked(builder, "store", vb, tptr, f"v{LANES}i8"),
             [ir.Constant(vb, [1] * LANES), tptr, ir.Constant(i32, 1), update],
         )
+        builder.branch(latch)
+
+        builder.position_at_end(latch)
         n = builder.zext(builder.call(ctpop, [builder.bitcast(update, bits)]), i64)
-        col.add_incoming(builder.add(col, ir.Constant(i64, LANES)), body)
-        col_f.add_incoming(builder.fadd(col_f, _splat(builder, ir.Constant(f64, LANES))), body)
-        col_i.add_incoming(builder.add(col_i, _splat(builder, ir.Constant(i64, LANES))), body)
-        count.add_incoming(builder.add(count, n), body)
+        col.add_incoming(builder.add(col, ir.Constant(i64, LANES)), latch)
+        col_f.add_incoming(builder.fadd(col_f, _splat(builder, ir.Constant(f64, LANES))), latch)
+        col_i.add_incoming(builder.add(col_i, _splat(builder, ir.Constant(i64, LANES))), latch)
+        count.add_incoming(builder.add(count, n), latch)
         builder.branch(head)
 
         builder.position_at_end(done)
@@ -628,9 +705,9 @@ def accumulate_kernel(
             base = (rows - 1 - iy) * cols
             params = (ox, h, x0, dy, c, s, inc_f, inc_o, lo, hi, f_thr, o_thr)
             if sigma <= 0.0:
-                total += _update_blocks(values, touched, base, c_lo, c_hi, params, ())
+                total += _update_blocks(values, touched, base, c_lo, c_hi, cols - 1, params, ())
             elif len(coef) > 0 and abs(dy) > ROW_TOL:
-                total += _update_blocks(values, touched, base, c_lo, c_hi, params, coef)
+                total += _update_blocks(values, touched, base, c_lo, c_hi, cols - 1, params, coef)
             else:
                 total += _update_cells(values, touched, base, c_lo, c_hi, params, sigma)
     return total
