@@ -324,8 +324,8 @@ def rasterise_kernel(
 
 # Cells the insertion kernel updates at once (one AVX-512 vector of float64, two AVX2
 # ones). Numba's loop vectoriser leaves scalar whatever does not fill several vectors,
-# and most rows of a beam hold a few dozen cells; blocks with masked loads and stores
-# vectorise every row whole.
+# and most rows of a beam hold a few dozen cells; blocks of LANES cells vectorise every
+# row whole (read and written whole inside the grid, through masks at its edge).
 LANES = 8
 
 # Relative margin around a threshold's square inside which the insertion kernel takes
