@@ -18,12 +18,20 @@ and stereo landmarks and exchanging over the simulated network
   folding): landmarks only on every K-th pose
   (:attr:`~sonarmap.team.exchange.ExchangeParams.anchor_every`) and own poses offered
   once HOLD seconds old (:attr:`~sonarmap.team.exchange.ExchangeParams.hold`);
+- quantised (``--quantised BITS:STEP``, 4:4): the good protocol (folding) and the naive
+  baseline with descriptors of BITS bits and local maps on a log-odds grid of STEP as
+  they travel (:attr:`~sonarmap.team.exchange.ExchangeParams.descriptor_bits`,
+  :attr:`~sonarmap.team.exchange.ExchangeParams.map_step`); a lean setting may add the
+  same (``--lean K:HOLD:BITS:STEP``). A quantised row's share is of the exact naive
+  baseline's bytes (the one the issue names), and is also printed against the naive
+  baseline quantised alike, when that row ran;
 - the central upper bound (:func:`sonarmap.team.central.central_map`: one graph and map
   from every pose every robot made), once: the robots' data are the same in every
   setting.
 
 ``--groups`` picks which of these run: ``main`` (the three networks with every
-protocol), ``caps``, ``budgets`` and ``lean`` (the fold and lean rows); all by default.
+protocol), ``caps``, ``budgets``, ``lean`` (the fold and lean rows) and ``quantised``;
+all by default.
 
 Per setting: bytes per robot-minute (message bodies, deflated as sent, while the robots
 drive and in the quiet phase after, over the minutes of driving: the maps are scored
@@ -36,7 +44,8 @@ when the routes ended (what a hold keeps back). Then the issue's targets, each `
 
 Run with ``python -m benchmarks.team_exchange [--plan office] [--robots 3]
 [--duration 300] [--caps 65536 16384 4096 1024 256] [--budgets 2000 1000 500]
-[--lean 4:30 8:30 8:60 8:120] [--groups main caps budgets lean] [--jobs 2] [--plot FILE]
+[--lean 4:30 8:30 8:60 8:120] [--quantised 4:4]
+[--groups main caps budgets lean quantised] [--jobs 2] [--plot FILE]
 [--json FILE]``.
 """
 
@@ -83,6 +92,8 @@ def _one(
             budget=setting["budget"],
             anchor_every=setting.get("anchors", 1),
             hold=setting.get("hold", 0.0),
+            descriptor_bits=setting.get("bits", 8),
+            map_step=setting.get("step", 1),
         ),
         seed=seed,
         central=setting.get("central", False),
@@ -108,14 +119,18 @@ def _one(
     return row
 
 
-GROUPS = ("main", "caps", "budgets", "lean")
+GROUPS = ("main", "caps", "budgets", "lean", "quantised")
+
+#: A lean setting: landmarks on every K-th pose, a hold (s), descriptor bits, map step.
+Lean = tuple[int, float, int, int]
 
 
 def settings(
     caps: list[int],
     budgets: list[float],
-    lean: list[tuple[int, float]] | None = None,
+    lean: list[Lean] | None = None,
     groups: tuple[str, ...] = GROUPS,
+    quantised: tuple[int, int] = (4, 4),
 ) -> list[dict[str, Any]]:
     """Every run, the first the one that also builds the central bound (the full
     network's naive baseline is always run: shares are of its bytes)."""
@@ -140,7 +155,7 @@ def settings(
             )
     if "lean" in groups:
         out.append({"network": "full", "mode": "good", **plain, "curve": True, "fold": True})
-        for k, hold in lean or []:
+        for k, hold, bits, step in lean or []:
             out.append(
                 {
                     "network": "full",
@@ -150,6 +165,24 @@ def settings(
                     "fold": True,
                     "anchors": k,
                     "hold": hold,
+                    "bits": bits,
+                    "step": step,
+                }
+            )
+    if "quantised" in groups:
+        # The baseline sending what the protocol sends quantised: the saving that is the
+        # quantisation's alone, beside the protocol's.
+        bits, step = quantised
+        for mode, fold in (("good", True), ("naive", False)):
+            out.append(
+                {
+                    "network": "full",
+                    "mode": mode,
+                    **plain,
+                    "curve": True,
+                    "fold": fold,
+                    "bits": bits,
+                    "step": step,
                 }
             )
     return out
@@ -163,10 +196,11 @@ def measure(
     caps: list[int],
     budgets: list[float],
     jobs: int,
-    lean: list[tuple[int, float]] | None = None,
+    lean: list[Lean] | None = None,
     groups: tuple[str, ...] = GROUPS,
+    quantised: tuple[int, int] = (4, 4),
 ) -> list[dict[str, Any]]:
-    todo = settings(caps, budgets, lean, groups)
+    todo = settings(caps, budgets, lean, groups, quantised)
     if jobs <= 1:
         return [_one(plan_name, robots, duration, seed, s) for s in todo]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
@@ -180,6 +214,22 @@ def _naive(rows: list[dict[str, Any]], network: str) -> float:
         for r in rows
         if r["network"] == network and r["mode"] == "naive" and not r["curve"]
     )
+
+
+def _naive_alike(rows: list[dict[str, Any]], r: dict[str, Any]) -> float | None:
+    """The bytes of the full network's naive baseline quantised as ``r`` is, if ``r`` is
+    quantised and that row was run."""
+    q = (r.get("bits", 8), r.get("step", 1))
+    if q == (8, 1):
+        return None
+    for x in rows:
+        if (
+            x["mode"] == "naive"
+            and x["network"] == "full"
+            and (x.get("bits", 8), x.get("step", 1)) == q
+        ):
+            return float(x["bytes_per_robot_minute_all"])
+    return None
 
 
 def targets(rows: list[dict[str, Any]], central: float) -> list[tuple[str, bool]]:
@@ -196,6 +246,25 @@ def targets(rows: list[dict[str, Any]], central: float) -> list[tuple[str, bool]
     # A budget leaves poses behind by design; identical sets are asked of the caps alone.
     limited = [r for r in full if r["mode"] == "limited" and not r["budget"]]
     starved = ", ".join(str(r["cap"]) for r in limited if not r["identical_maps"]) or "none"
+    alike = [
+        r
+        for r in full
+        if r["mode"] != "naive" and (naive_alike := _naive_alike(rows, r)) is not None
+        if r["map_f1_team"] >= central - F1_GAP
+        and r["bytes_per_robot_minute_all"] <= BYTES_SHARE * naive_alike
+    ]
+    ran_alike = any(_naive_alike(rows, r) is not None for r in full if r["mode"] != "naive")
+    against_alike = (
+        [
+            (
+                "the same against the naive baseline quantised alike (settings that do: "
+                f"{', '.join(_name(r) for r in alike) or 'none'})",
+                bool(alike),
+            )
+        ]
+        if ran_alike
+        else []
+    )
     return [
         (
             "0 duplicate poses in every robot's graph in every setting",
@@ -215,11 +284,14 @@ def targets(rows: list[dict[str, Any]], central: float) -> list[tuple[str, bool]
             f"bytes on the full network (settings that do: {best})",
             bool(good_enough),
         ),
+        *against_alike,
     ]
 
 
 def _name(r: dict[str, Any]) -> str:
     fold = ", fold" if r.get("fold") else ""
+    if r.get("bits", 8) < 8 or r.get("step", 1) > 1:
+        fold += f", {r.get('bits', 8)}-bit descriptors, map step {r.get('step', 1)}"
     if r.get("anchors", 1) > 1 or r.get("hold", 0.0) > 0:
         return (
             f"{r['mode']}, anchors 1/{r.get('anchors', 1)}, hold {r.get('hold', 0.0):.0f} s{fold}"
@@ -230,15 +302,31 @@ def _name(r: dict[str, Any]) -> str:
     return f"limited T={r['cap']}{budget}{fold}"
 
 
-def _lean(text: str) -> tuple[int, float]:
-    k, sep, hold = text.partition(":")
+def _lean(text: str) -> Lean:
+    parts = text.split(":")
     try:
-        out = (int(k), float(hold))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"K:HOLD expected (e.g. 8:30), got {text!r}") from None
-    if not sep or out[0] < 1 or not (math.isfinite(out[1]) and out[1] >= 0):
-        raise argparse.ArgumentTypeError(f"K >= 1 and HOLD >= 0 expected, got {text!r}")
-    return out
+        k, hold = int(parts[0]), float(parts[1])
+        bits, step = (int(parts[2]), int(parts[3])) if len(parts) == 4 else (8, 1)
+    except (ValueError, IndexError):
+        raise argparse.ArgumentTypeError(
+            f"K:HOLD or K:HOLD:BITS:STEP expected (e.g. 8:30 or 8:30:4:4), got {text!r}"
+        ) from None
+    if (
+        len(parts) not in (2, 4)
+        or k < 1
+        or not (math.isfinite(hold) and hold >= 0)
+        or not 1 <= bits <= 8
+        or not 1 <= step <= 64
+    ):
+        raise argparse.ArgumentTypeError(
+            f"K >= 1, HOLD >= 0, BITS in 1..8 and STEP in 1..64 expected, got {text!r}"
+        )
+    return k, hold, bits, step
+
+
+def _quantised(text: str) -> tuple[int, int]:
+    bits, step = _lean(f"1:0:{text}")[2:]
+    return bits, step
 
 
 def _plot(rows: list[dict[str, Any]], central: float, path: str) -> None:
@@ -286,8 +374,16 @@ def main() -> None:
         "--lean",
         type=_lean,
         nargs="*",
-        default=[(4, 30.0), (8, 30.0), (8, 60.0), (8, 120.0)],
-        help="K:HOLD, landmarks on every K-th pose, poses offered HOLD s old.",
+        default=[(4, 30.0, 8, 1), (8, 30.0, 8, 1), (8, 60.0, 8, 1), (8, 120.0, 8, 1)],
+        help="K:HOLD[:BITS:STEP], landmarks on every K-th pose, poses offered HOLD s old, "
+        "descriptors of BITS bits and local maps on a log-odds grid of STEP as they travel.",
+    )
+    parser.add_argument(
+        "--quantised",
+        type=_quantised,
+        default=(4, 4),
+        help="BITS:STEP of the quantised group's rows (the good protocol and the naive "
+        "baseline, both quantised so).",
     )
     parser.add_argument("--groups", nargs="+", choices=GROUPS, default=list(GROUPS))
     parser.add_argument("--jobs", type=int, default=2, help="Runs at once (processes).")
@@ -308,6 +404,7 @@ def main() -> None:
         args.jobs,
         args.lean,
         tuple(args.groups),
+        args.quantised,
     )
     wall = time.perf_counter() - t0
     c = rows[0]["central"]
@@ -330,6 +427,10 @@ def main() -> None:
         naive = _naive(rows, r["network"]) if has_naive else math.nan
         share = 100 * r["bytes_per_robot_minute_all"] / naive if naive else math.nan
         conv = r["convergence_s"]
+        alike = _naive_alike(rows, r)
+        if alike is not None and r["mode"] != "naive":
+            like = 100 * r["bytes_per_robot_minute_all"] / alike
+            print(f"         ({like:.1f} % of the naive baseline quantised alike)")
         print(
             f"{r['network']:8} {_name(r)}: "
             f"{r['bytes_per_robot_minute_all']:9.0f} "

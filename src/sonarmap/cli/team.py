@@ -187,6 +187,8 @@ def _exchange_params(
     budget: float = 0.0,
     anchors: int = 1,
     hold: float = 0.0,
+    descriptor_bits: int = 8,
+    map_step: int = 1,
 ) -> ExchangeParams:
     # A link that may break or be slow is what the limited protocol was designed for.
     mode = exchange if exchange is not None else ("good" if network == "full" else "limited")
@@ -200,7 +202,19 @@ def _exchange_params(
         raise ConfigError(f"--anchors must be >= 1, got {anchors}")
     if not (math.isfinite(hold) and hold >= 0):
         raise ConfigError(f"--hold must be >= 0 seconds, got {hold}")
-    return ExchangeParams(mode=mode, cap_bytes=cap, budget=budget, anchor_every=anchors, hold=hold)
+    if not 1 <= descriptor_bits <= 8:
+        raise ConfigError(f"--descriptor-bits must be in 1..8, got {descriptor_bits}")
+    if not 1 <= map_step <= 64:
+        raise ConfigError(f"--map-step must be in 1..64, got {map_step}")
+    return ExchangeParams(
+        mode=mode,
+        cap_bytes=cap,
+        budget=budget,
+        anchor_every=anchors,
+        hold=hold,
+        descriptor_bits=descriptor_bits,
+        map_step=map_step,
+    )
 
 
 def _run_zmq_team(
@@ -379,6 +393,21 @@ def run_cmd(
             "--hold", help="Seconds a robot keeps a new pose to itself before offering it."
         ),
     ] = ExchangeParams().hold,
+    descriptor_bits: Annotated[
+        int,
+        typer.Option(
+            "--descriptor-bits",
+            help="Bits each landmark descriptor byte keeps as it travels (8: exact).",
+        ),
+    ] = ExchangeParams().descriptor_bits,
+    map_step: Annotated[
+        int,
+        typer.Option(
+            "--map-step",
+            help="Grid, in scaled log-odds units, local maps are rounded to as they "
+            "travel (1: exact).",
+        ),
+    ] = ExchangeParams().map_step,
     fold: FoldOption = STORE_DEFAULTS.fold,
     transport: Annotated[
         str, typer.Option("--transport", help="sim (simulated network) or zmq (processes).")
@@ -401,7 +430,9 @@ def run_cmd(
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
     net = _network_params(network, bandwidth, loss, reach)
-    protocol = _exchange_params(exchange, cap, network, budget, anchors, hold)
+    protocol = _exchange_params(
+        exchange, cap, network, budget, anchors, hold, descriptor_bits, map_step
+    )
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")
     if patrol and route is not None:

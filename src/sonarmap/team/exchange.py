@@ -104,6 +104,7 @@ import msgpack
 import numpy as np
 
 from ..errors import ConfigError, InputError
+from .quantise import check_quantisation, quantise_pose
 from .records import (
     ClosureEdge,
     OdometryEdge,
@@ -255,6 +256,15 @@ class ExchangeParams:
         least ``hold`` seconds old and the odometry edges between them. 0 (default):
         every pose as soon as it is made. On the office (3 robots, 300 s) 28 % of the
         pose bytes the good protocol sent were of poses deleted before the end.
+    descriptor_bits : int
+        Bits each landmark descriptor byte keeps as it travels (1..8); below 8 the
+        landmarks' points and reliabilities also travel in float16 and their stamps in
+        float32 (:func:`.quantise.quantise_pose`). 8 (default): exact. What a robot
+        stores of its own poses stays exact; what it receives is what travelled.
+    map_step : int
+        The grid (scaled log-odds units, 1..64) a local map's values of at least that
+        magnitude are rounded to as they travel (:func:`.quantise.quantise_logodds`).
+        1 (default): exact.
     """
 
     mode: str = "good"
@@ -270,6 +280,8 @@ class ExchangeParams:
     budget: float = 0.0
     anchor_every: int = 1
     hold: float = 0.0
+    descriptor_bits: int = 8
+    map_step: int = 1
 
     def __post_init__(self) -> None:
         if self.mode not in PROTOCOLS:
@@ -291,6 +303,7 @@ class ExchangeParams:
                 raise ConfigError(
                     f"exchange: {name} must be an integer, got {getattr(self, name)!r}"
                 )
+        check_quantisation(self.descriptor_bits, self.map_step)
         if self.peer_timeout < self.advert_every:
             raise ConfigError(
                 f"exchange: peer_timeout {self.peer_timeout} s is below advert_every "
@@ -1047,12 +1060,12 @@ class Exchanger:
                     pub.patch(pub.poses[u].region).stamp = now
 
     def _wire(self, pose: Pose) -> Pose:
-        """The pose as it travels: whole if it is an anchor (``anchor_every``), else
-        without its landmarks."""
+        """The pose as it travels: with its landmarks only if it is an anchor
+        (``anchor_every``), quantised as ``descriptor_bits`` and ``map_step`` say."""
         k = self.params.anchor_every
-        if k == 1 or len(pose.landmarks) == 0 or is_anchor(pose, k):
-            return pose
-        return pose.with_landmarks(pose.landmarks.take(np.zeros(0, dtype=np.intp)))
+        if k > 1 and len(pose.landmarks) and not is_anchor(pose, k):
+            pose = pose.with_landmarks(pose.landmarks.take(np.zeros(0, dtype=np.intp)))
+        return quantise_pose(pose, self.params.descriptor_bits, self.params.map_step)
 
     # --- stamps of the local layer --------------------------------------------------------
 

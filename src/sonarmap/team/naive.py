@@ -19,6 +19,9 @@ Choices (the issue names the baseline, not its details):
 - **Everyone** is every robot the transport can reach at that step; one it cannot reach
   then never gets the pose (no retries, no store-and-forward), and a lost message is
   lost for good.
+- **Quantised** only if its params say so (``descriptor_bits``, ``map_step``, as the
+  protocols quantise): by default the baseline sends the records exact, as stored;
+  with the protocols' quantisation it shows what that alone saves.
 - **Receiving**: a pose already held is ignored (duplicates are impossible by
   construction); otherwise it is associated (``on_received``) and put in its source's
   received layer with the edges whose two poses are held.
@@ -52,6 +55,7 @@ from .exchange import (
     _unpack,
     _version,
 )
+from .quantise import quantise_pose
 from .records import OdometryEdge, Pose, encode, robot_of
 from .store import RobotStore
 from .transport import Message, Transport
@@ -114,7 +118,8 @@ class NaiveExchanger:
         The robot's store; only its received layers and closures change.
     transport : Transport
     params : ExchangeParams, optional
-        Only ``mode`` is read, and must be ``"naive"``; default so.
+        ``mode`` must be ``"naive"`` (the default); ``descriptor_bits`` and ``map_step``
+        quantise what is sent; nothing else is read.
     adjacency : mapping of int to collection of int, optional
         The prior map's regions: a received pose in another is rejected.
     on_received : callable, optional
@@ -180,7 +185,10 @@ class NaiveExchanger:
         peers = sorted(set(self._peers()) - {self.robot})
         for uid in new:
             self._sent.add(uid)
-            body = encode_pose_message(local.poses[uid], local.edges_of(uid))
+            pose = quantise_pose(
+                local.poses[uid], self.params.descriptor_bits, self.params.map_step
+            )
+            body = encode_pose_message(pose, local.edges_of(uid))
             for peer in peers:
                 if self._send(peer, body):
                     self.stats.poses_sent += 1

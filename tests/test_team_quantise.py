@@ -1,0 +1,155 @@
+"""Poses travelling quantised (issue 15's bandwidth goal): the error bounds, idempotence
+(a relay forwards the bytes it got), what stays exact, and the exchange and the naive
+baseline sending quantised poses while the sources keep theirs exact."""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sonarmap.errors import ConfigError
+from sonarmap.team.exchange import ExchangeParams
+from sonarmap.team.naive import NaiveExchanger
+from sonarmap.team.network import NetworkParams, SimNetwork
+from sonarmap.team.quantise import (
+    check_quantisation,
+    quantise_descriptors,
+    quantise_logodds,
+    quantise_pose,
+)
+from sonarmap.team.records import LocalMap, Pose, encode, make_uid
+from sonarmap.team.store import RobotStore
+from sonarmap.team.transport import SimHub
+from test_team_exchange import (
+    BIG,
+    _chain,
+    converged,
+    landmarks,
+    odometry,
+    record_sends,
+    uids,
+)
+
+
+def _local_map(seed: int) -> LocalMap:
+    rng = np.random.default_rng(seed)
+    lo = rng.choice(np.array([0, 0, -3, -6, -9, -12, -15, 20, 33, 127, -128]), (40, 40))
+    return LocalMap(lo.astype(np.int8), 0.1)
+
+
+def _store(robot: int, regions: Sequence[int], t0: float = 0.0) -> RobotStore:
+    """Like the exchange tests' own stores, with 30 landmarks and a local map a pose."""
+    store = RobotStore(robot, BIG)
+    last: Pose | None = None
+    for k, r in enumerate(regions):
+        est = np.array([float(k), 3.0 * robot, 0.0])
+        seed = 1000 * robot + k
+        p = Pose(make_uid(robot, k), t0 + k, r, est, landmarks(30, seed), _local_map(seed))
+        store.add_own_pose(p, None if last is None else odometry(last, p), [], t0 + k)
+        last = p
+    return store
+
+
+def test_descriptors_keep_their_high_bits_within_half_a_step() -> None:
+    d = np.arange(256, dtype=np.uint8)
+    for bits in range(1, 8):
+        q = quantise_descriptors(d, bits)
+        step = 2 ** (8 - bits)
+        assert q.dtype == np.uint8
+        assert np.abs(q.astype(int) - d.astype(int)).max() <= step // 2
+        assert len(np.unique(q)) == 2**bits
+        assert np.array_equal(quantise_descriptors(q, bits), q)
+    assert quantise_descriptors(d, 8) is d
+
+
+def test_logodds_keep_weak_evidence_and_round_the_strong() -> None:
+    lo = np.arange(-128, 128, dtype=np.int16).astype(np.int8)
+    for step in (2, 4, 8, 16, 64):
+        q = quantise_logodds(lo, step).astype(int)
+        x = lo.astype(int)
+        weak = np.abs(x) < step
+        assert np.array_equal(q[weak], x[weak])  # unknown stays unknown, weak exact
+        assert np.all(np.sign(q) == np.sign(x))  # never flips or erases evidence
+        assert np.all(q[~weak] % step == 0)
+        # Half a step at most, up to the largest multiple of step <= 127; beyond, that.
+        top = 127 // step * step
+        assert np.abs(q - x)[np.abs(x) <= top].max() <= step // 2
+        assert np.array_equal(np.abs(q[np.abs(x) > top]), np.full((np.abs(x) > top).sum(), top))
+        assert q.max() <= 127
+        assert q.min() >= -127
+        assert np.array_equal(quantise_logodds(q.astype(np.int8), step), q)
+    assert quantise_logodds(lo, 1) is lo
+
+
+def test_a_quantised_pose_keeps_its_identity_and_quantises_once() -> None:
+    p = Pose(make_uid(2, 7), 12.5, 3, np.array([1.0, 2.0, 0.3]), landmarks(30, 5), _local_map(5))
+    q = quantise_pose(p, 4, 4)
+    assert (q.uid, q.time, q.region, q.merged_from) == (p.uid, p.time, p.region, p.merged_from)
+    assert np.array_equal(q.estimate, p.estimate)
+    assert np.array_equal(q.landmarks.ids, p.landmarks.ids)
+    assert np.abs(q.landmarks.points - p.landmarks.points).max() < 0.004  # points < 5 m
+    assert np.abs(q.landmarks.descriptors.astype(int) - p.landmarks.descriptors).max() <= 8
+    assert q.local_map is not None
+    assert p.local_map is not None
+    assert np.array_equal(q.local_map.logodds != 0, p.local_map.logodds != 0)
+    assert encode(quantise_pose(q, 4, 4)) == encode(q)
+    assert encode(quantise_pose(q, 8, 1)) == encode(q)
+    assert quantise_pose(p, 8, 1) is p
+    # What shrinks is the deflated body: the uniform descriptors, by about half.
+    exact, small = (len(zlib.compress(encode(x), 6)) for x in (p, q))
+    assert small < 0.7 * exact
+
+
+@pytest.mark.parametrize(("bits", "step"), [(0, 1), (9, 1), (4, 0), (4, 65), (2.5, 1), (True, 1)])
+def test_bad_quantisation_is_refused(bits: Any, step: Any) -> None:
+    with pytest.raises(ConfigError, match=r"descriptor_bits|map_step"):
+        check_quantisation(bits, step)
+    with pytest.raises(ConfigError):
+        ExchangeParams(descriptor_bits=bits, map_step=step)
+
+
+@pytest.mark.parametrize("mode", ["good", "limited"])
+def test_poses_travel_quantised_and_a_relay_forwards_what_it_got(mode: str) -> None:
+    def run(**q: Any) -> tuple[list[RobotStore], int]:
+        stores = [_store(r, [0, 1, 1, r], t0=0.1 * r) for r in range(3)]
+        team = _chain(stores, mode=mode, cap_bytes=10**6, **q)
+        sent = [record_sends(t) for t in team.transports]
+        team.run(14)
+        assert converged(team)
+        return stores, sum(len(b) for s in sent for b in s)
+
+    exact_stores, exact_bytes = run()
+    stores, quantised_bytes = run(descriptor_bits=4, map_step=4)
+    a, b, c = stores
+    assert uids(c.received[0]) == uids(a.local)
+    for u, own in a.local.poses.items():
+        travelled = encode(quantise_pose(own, 4, 4))
+        assert encode(b.received[0].poses[u]) == travelled
+        assert encode(c.received[0].poses[u]) == travelled  # through b, unchanged
+        assert encode(own) == encode(exact_stores[0].local.poses[u])  # the source's exact
+    assert quantised_bytes < 0.75 * exact_bytes
+
+
+def test_the_naive_baseline_quantises_only_when_asked() -> None:
+    def run(**q: Any) -> tuple[RobotStore, RobotStore, int]:
+        a, b = _store(0, [0, 0, 1]), _store(1, [1])
+        hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2, seed=0))
+        ts = [hub.transport(0), hub.transport(1)]
+        params = ExchangeParams(mode="naive", **q)
+        ex = [NaiveExchanger(s, t, params) for s, t in zip((a, b), ts, strict=True)]
+        for _ in range(4):
+            hub.step(0.5)
+            for e in ex:
+                e.step(hub.now)
+        return a, b, ex[0].stats.bytes_sent
+
+    a, b, exact = run()
+    assert all(encode(b.received[0].poses[u]) == encode(p) for u, p in a.local.poses.items())
+    a, b, small = run(descriptor_bits=4)
+    for u, p in a.local.poses.items():
+        assert encode(b.received[0].poses[u]) == encode(quantise_pose(p, 4, 1))
+    assert small < 0.75 * exact
