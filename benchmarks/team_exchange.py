@@ -18,11 +18,11 @@ and stereo landmarks and exchanging over the simulated network
   folding): landmarks only on every K-th pose
   (:attr:`~sonarmap.team.exchange.ExchangeParams.anchor_every`) and own poses offered
   once HOLD seconds old (:attr:`~sonarmap.team.exchange.ExchangeParams.hold`);
-- quantised (``--quantised BITS:STEP``, 4:4): the good protocol (folding) and the naive
-  baseline with descriptors of BITS bits and local maps on a log-odds grid of STEP as
-  they travel (:attr:`~sonarmap.team.exchange.ExchangeParams.descriptor_bits`,
-  :attr:`~sonarmap.team.exchange.ExchangeParams.map_step`); a lean setting may add the
-  same (``--lean K:HOLD:BITS:STEP``). A quantised row's share is of the exact naive
+- quantised (``--quantised BITS:T``, 3:1): the good protocol (folding) and the naive
+  baseline with descriptors of BITS bits and, if T is 1, ternary local maps as they
+  travel (:attr:`~sonarmap.team.exchange.ExchangeParams.descriptor_bits`,
+  :attr:`~sonarmap.team.exchange.ExchangeParams.ternary_maps`); a lean setting may add
+  the same (``--lean K:HOLD:BITS:T``). A quantised row's share is of the exact naive
   baseline's bytes (the one the issue names), and is also printed against the naive
   baseline quantised alike, when that row ran;
 - the central upper bound (:func:`sonarmap.team.central.central_map`: one graph and map
@@ -44,7 +44,7 @@ when the routes ended (what a hold keeps back). Then the issue's targets, each `
 
 Run with ``python -m benchmarks.team_exchange [--plan office] [--robots 3]
 [--duration 300] [--caps 65536 16384 4096 1024 256] [--budgets 2000 1000 500]
-[--lean 4:30 8:30 8:60 8:120] [--quantised 4:4]
+[--lean 4:30 8:30 8:60 8:120] [--quantised 3:1]
 [--groups main caps budgets lean quantised] [--jobs 2] [--plot FILE]
 [--json FILE]``.
 """
@@ -93,7 +93,7 @@ def _one(
             anchor_every=setting.get("anchors", 1),
             hold=setting.get("hold", 0.0),
             descriptor_bits=setting.get("bits", 8),
-            map_step=setting.get("step", 1),
+            ternary_maps=setting.get("ternary", False),
         ),
         seed=seed,
         central=setting.get("central", False),
@@ -121,8 +121,8 @@ def _one(
 
 GROUPS = ("main", "caps", "budgets", "lean", "quantised")
 
-#: A lean setting: landmarks on every K-th pose, a hold (s), descriptor bits, map step.
-Lean = tuple[int, float, int, int]
+#: A lean setting: landmarks on every K-th pose, a hold (s), descriptor bits, ternary maps.
+Lean = tuple[int, float, int, bool]
 
 
 def settings(
@@ -130,7 +130,7 @@ def settings(
     budgets: list[float],
     lean: list[Lean] | None = None,
     groups: tuple[str, ...] = GROUPS,
-    quantised: tuple[int, int] = (4, 4),
+    quantised: tuple[int, bool] = (3, True),
 ) -> list[dict[str, Any]]:
     """Every run, the first the one that also builds the central bound (the full
     network's naive baseline is always run: shares are of its bytes)."""
@@ -155,7 +155,7 @@ def settings(
             )
     if "lean" in groups:
         out.append({"network": "full", "mode": "good", **plain, "curve": True, "fold": True})
-        for k, hold, bits, step in lean or []:
+        for k, hold, bits, ternary in lean or []:
             out.append(
                 {
                     "network": "full",
@@ -166,13 +166,13 @@ def settings(
                     "anchors": k,
                     "hold": hold,
                     "bits": bits,
-                    "step": step,
+                    "ternary": ternary,
                 }
             )
     if "quantised" in groups:
         # The baseline sending what the protocol sends quantised: the saving that is the
         # quantisation's alone, beside the protocol's.
-        bits, step = quantised
+        bits, ternary = quantised
         for mode, fold in (("good", True), ("naive", False)):
             out.append(
                 {
@@ -182,7 +182,7 @@ def settings(
                     "curve": True,
                     "fold": fold,
                     "bits": bits,
-                    "step": step,
+                    "ternary": ternary,
                 }
             )
     return out
@@ -198,7 +198,7 @@ def measure(
     jobs: int,
     lean: list[Lean] | None = None,
     groups: tuple[str, ...] = GROUPS,
-    quantised: tuple[int, int] = (4, 4),
+    quantised: tuple[int, bool] = (3, True),
 ) -> list[dict[str, Any]]:
     todo = settings(caps, budgets, lean, groups, quantised)
     if jobs <= 1:
@@ -219,14 +219,14 @@ def _naive(rows: list[dict[str, Any]], network: str) -> float:
 def _naive_alike(rows: list[dict[str, Any]], r: dict[str, Any]) -> float | None:
     """The bytes of the full network's naive baseline quantised as ``r`` is, if ``r`` is
     quantised and that row was run."""
-    q = (r.get("bits", 8), r.get("step", 1))
-    if q == (8, 1):
+    q = (r.get("bits", 8), r.get("ternary", False))
+    if q == (8, False):
         return None
     for x in rows:
         if (
             x["mode"] == "naive"
             and x["network"] == "full"
-            and (x.get("bits", 8), x.get("step", 1)) == q
+            and (x.get("bits", 8), x.get("ternary", False)) == q
         ):
             return float(x["bytes_per_robot_minute_all"])
     return None
@@ -290,8 +290,10 @@ def targets(rows: list[dict[str, Any]], central: float) -> list[tuple[str, bool]
 
 def _name(r: dict[str, Any]) -> str:
     fold = ", fold" if r.get("fold") else ""
-    if r.get("bits", 8) < 8 or r.get("step", 1) > 1:
-        fold += f", {r.get('bits', 8)}-bit descriptors, map step {r.get('step', 1)}"
+    if r.get("bits", 8) < 8:
+        fold += f", {r['bits']}-bit descriptors"
+    if r.get("ternary"):
+        fold += ", ternary maps"
     if r.get("anchors", 1) > 1 or r.get("hold", 0.0) > 0:
         return (
             f"{r['mode']}, anchors 1/{r.get('anchors', 1)}, hold {r.get('hold', 0.0):.0f} s{fold}"
@@ -306,27 +308,27 @@ def _lean(text: str) -> Lean:
     parts = text.split(":")
     try:
         k, hold = int(parts[0]), float(parts[1])
-        bits, step = (int(parts[2]), int(parts[3])) if len(parts) == 4 else (8, 1)
+        bits, ternary = (int(parts[2]), int(parts[3])) if len(parts) == 4 else (8, 0)
     except (ValueError, IndexError):
         raise argparse.ArgumentTypeError(
-            f"K:HOLD or K:HOLD:BITS:STEP expected (e.g. 8:30 or 8:30:4:4), got {text!r}"
+            f"K:HOLD or K:HOLD:BITS:T expected (e.g. 8:30 or 8:30:3:1), got {text!r}"
         ) from None
     if (
         len(parts) not in (2, 4)
         or k < 1
         or not (math.isfinite(hold) and hold >= 0)
         or not 1 <= bits <= 8
-        or not 1 <= step <= 64
+        or ternary not in (0, 1)
     ):
         raise argparse.ArgumentTypeError(
-            f"K >= 1, HOLD >= 0, BITS in 1..8 and STEP in 1..64 expected, got {text!r}"
+            f"K >= 1, HOLD >= 0, BITS in 1..8 and T 0 or 1 expected, got {text!r}"
         )
-    return k, hold, bits, step
+    return k, hold, bits, bool(ternary)
 
 
-def _quantised(text: str) -> tuple[int, int]:
-    bits, step = _lean(f"1:0:{text}")[2:]
-    return bits, step
+def _quantised(text: str) -> tuple[int, bool]:
+    bits, ternary = _lean(f"1:0:{text}")[2:]
+    return bits, ternary
 
 
 def _plot(rows: list[dict[str, Any]], central: float, path: str) -> None:
@@ -374,15 +376,20 @@ def main() -> None:
         "--lean",
         type=_lean,
         nargs="*",
-        default=[(4, 30.0, 8, 1), (8, 30.0, 8, 1), (8, 60.0, 8, 1), (8, 120.0, 8, 1)],
-        help="K:HOLD[:BITS:STEP], landmarks on every K-th pose, poses offered HOLD s old, "
-        "descriptors of BITS bits and local maps on a log-odds grid of STEP as they travel.",
+        default=[
+            (4, 30.0, 8, False),
+            (8, 30.0, 8, False),
+            (8, 60.0, 8, False),
+            (8, 120.0, 8, False),
+        ],
+        help="K:HOLD[:BITS:T], landmarks on every K-th pose, poses offered HOLD s old, "
+        "descriptors of BITS bits and (T = 1) ternary local maps as they travel.",
     )
     parser.add_argument(
         "--quantised",
         type=_quantised,
-        default=(4, 4),
-        help="BITS:STEP of the quantised group's rows (the good protocol and the naive "
+        default=(3, True),
+        help="BITS:T of the quantised group's rows (the good protocol and the naive "
         "baseline, both quantised so).",
     )
     parser.add_argument("--groups", nargs="+", choices=GROUPS, default=list(GROUPS))

@@ -282,6 +282,11 @@ def test_peers_and_exchange_options() -> None:
         parse_exchange(["cap_bytes=lots"])
     with pytest.raises(ConfigError, match="zmq transport runs good and limited"):
         parse_exchange(["mode=naive"])
+    # The launcher writes booleans as Python prints them; bool("False") would be True.
+    assert parse_exchange(["ternary_maps=False"]).ternary_maps is False
+    assert parse_exchange(["ternary_maps=true", "descriptor_bits=3"]).ternary_maps is True
+    with pytest.raises(ConfigError, match="bool expected"):
+        parse_exchange(["ternary_maps=maybe"])
 
 
 def test_the_launcher_refuses_a_simulated_network(plan: OccupancyMap) -> None:

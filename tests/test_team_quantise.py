@@ -18,8 +18,8 @@ from sonarmap.team.network import NetworkParams, SimNetwork
 from sonarmap.team.quantise import (
     check_quantisation,
     quantise_descriptors,
-    quantise_logodds,
     quantise_pose,
+    ternary_logodds,
 )
 from sonarmap.team.records import LocalMap, Pose, encode, make_uid
 from sonarmap.team.store import RobotStore
@@ -66,28 +66,23 @@ def test_descriptors_keep_their_high_bits_within_half_a_step() -> None:
     assert quantise_descriptors(d, 8) is d
 
 
-def test_logodds_keep_weak_evidence_and_round_the_strong() -> None:
-    lo = np.arange(-128, 128, dtype=np.int16).astype(np.int8)
-    for step in (2, 4, 8, 16, 64):
-        q = quantise_logodds(lo, step).astype(int)
-        x = lo.astype(int)
-        weak = np.abs(x) < step
-        assert np.array_equal(q[weak], x[weak])  # unknown stays unknown, weak exact
-        assert np.all(np.sign(q) == np.sign(x))  # never flips or erases evidence
-        assert np.all(q[~weak] % step == 0)
-        # Half a step at most, up to the largest multiple of step <= 127; beyond, that.
-        top = 127 // step * step
-        assert np.abs(q - x)[np.abs(x) <= top].max() <= step // 2
-        assert np.array_equal(np.abs(q[np.abs(x) > top]), np.full((np.abs(x) > top).sum(), top))
-        assert q.max() <= 127
-        assert q.min() >= -127
-        assert np.array_equal(quantise_logodds(q.astype(np.int8), step), q)
-    assert quantise_logodds(lo, 1) is lo
+def test_ternary_maps_keep_each_cells_class_and_each_class_total() -> None:
+    lo = np.array([[0, -3, -6, -9], [-12, 20, 33, 0], [127, -128, 1, -1]], dtype=np.int8)
+    t = ternary_logodds(lo)
+    assert t.dtype == np.int8
+    assert np.array_equal(np.sign(t), np.sign(lo))  # unknown, free, occupied exact
+    free, occ = lo < 0, lo > 0
+    assert set(t[free].tolist()) == {round(np.abs(lo[free].astype(int)).mean()) * -1}
+    assert set(t[occ].tolist()) == {round(lo[occ].astype(int).mean())}
+    assert np.array_equal(ternary_logodds(t), t)
+    weak = np.array([[0, 1], [-1, 0]], dtype=np.int8)
+    assert np.array_equal(ternary_logodds(weak), weak)  # at least one unit: still known
+    assert not ternary_logodds(np.zeros((3, 3), dtype=np.int8)).any()
 
 
 def test_a_quantised_pose_keeps_its_identity_and_quantises_once() -> None:
     p = Pose(make_uid(2, 7), 12.5, 3, np.array([1.0, 2.0, 0.3]), landmarks(30, 5), _local_map(5))
-    q = quantise_pose(p, 4, 4)
+    q = quantise_pose(p, 4, True)
     assert (q.uid, q.time, q.region, q.merged_from) == (p.uid, p.time, p.region, p.merged_from)
     assert np.array_equal(q.estimate, p.estimate)
     assert np.array_equal(q.landmarks.ids, p.landmarks.ids)
@@ -96,20 +91,22 @@ def test_a_quantised_pose_keeps_its_identity_and_quantises_once() -> None:
     assert q.local_map is not None
     assert p.local_map is not None
     assert np.array_equal(q.local_map.logodds != 0, p.local_map.logodds != 0)
-    assert encode(quantise_pose(q, 4, 4)) == encode(q)
-    assert encode(quantise_pose(q, 8, 1)) == encode(q)
-    assert quantise_pose(p, 8, 1) is p
+    assert encode(quantise_pose(q, 4, True)) == encode(q)
+    assert encode(quantise_pose(q, 8, False)) == encode(q)
+    assert quantise_pose(p, 8, False) is p
     # What shrinks is the deflated body: the uniform descriptors, by about half.
     exact, small = (len(zlib.compress(encode(x), 6)) for x in (p, q))
     assert small < 0.7 * exact
 
 
-@pytest.mark.parametrize(("bits", "step"), [(0, 1), (9, 1), (4, 0), (4, 65), (2.5, 1), (True, 1)])
-def test_bad_quantisation_is_refused(bits: Any, step: Any) -> None:
-    with pytest.raises(ConfigError, match=r"descriptor_bits|map_step"):
-        check_quantisation(bits, step)
+@pytest.mark.parametrize(
+    ("bits", "ternary"), [(0, False), (9, False), (2.5, False), (True, False), (4, 1), (4, "no")]
+)
+def test_bad_quantisation_is_refused(bits: Any, ternary: Any) -> None:
+    with pytest.raises(ConfigError, match=r"descriptor_bits|ternary_maps"):
+        check_quantisation(bits, ternary)
     with pytest.raises(ConfigError):
-        ExchangeParams(descriptor_bits=bits, map_step=step)
+        ExchangeParams(descriptor_bits=bits, ternary_maps=ternary)
 
 
 @pytest.mark.parametrize("mode", ["good", "limited"])
@@ -123,11 +120,11 @@ def test_poses_travel_quantised_and_a_relay_forwards_what_it_got(mode: str) -> N
         return stores, sum(len(b) for s in sent for b in s)
 
     exact_stores, exact_bytes = run()
-    stores, quantised_bytes = run(descriptor_bits=4, map_step=4)
+    stores, quantised_bytes = run(descriptor_bits=4, ternary_maps=True)
     a, b, c = stores
     assert uids(c.received[0]) == uids(a.local)
     for u, own in a.local.poses.items():
-        travelled = encode(quantise_pose(own, 4, 4))
+        travelled = encode(quantise_pose(own, 4, True))
         assert encode(b.received[0].poses[u]) == travelled
         assert encode(c.received[0].poses[u]) == travelled  # through b, unchanged
         assert encode(own) == encode(exact_stores[0].local.poses[u])  # the source's exact
@@ -151,5 +148,5 @@ def test_the_naive_baseline_quantises_only_when_asked() -> None:
     assert all(encode(b.received[0].poses[u]) == encode(p) for u, p in a.local.poses.items())
     a, b, small = run(descriptor_bits=4)
     for u, p in a.local.poses.items():
-        assert encode(b.received[0].poses[u]) == encode(quantise_pose(p, 4, 1))
+        assert encode(b.received[0].poses[u]) == encode(quantise_pose(p, 4, False))
     assert small < 0.75 * exact

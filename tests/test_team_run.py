@@ -69,7 +69,6 @@ def test_a_patrolling_team_run_writes_the_team_summary(tmp_path: Path, plan: Occ
         (["--hold", "nan"], "--hold"),
         (["--descriptor-bits", "0"], "--descriptor-bits"),
         (["--descriptor-bits", "9"], "--descriptor-bits"),
-        (["--map-step", "0"], "--map-step"),
         (["--range", "0", "--network", "limited"], "--range"),
         (["--range", "10"], "--range"),
         (["--transport", "pigeon"], "--transport"),

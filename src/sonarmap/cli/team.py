@@ -188,7 +188,7 @@ def _exchange_params(
     anchors: int = 1,
     hold: float = 0.0,
     descriptor_bits: int = 8,
-    map_step: int = 1,
+    ternary_maps: bool = False,
 ) -> ExchangeParams:
     # A link that may break or be slow is what the limited protocol was designed for.
     mode = exchange if exchange is not None else ("good" if network == "full" else "limited")
@@ -204,8 +204,6 @@ def _exchange_params(
         raise ConfigError(f"--hold must be >= 0 seconds, got {hold}")
     if not 1 <= descriptor_bits <= 8:
         raise ConfigError(f"--descriptor-bits must be in 1..8, got {descriptor_bits}")
-    if not 1 <= map_step <= 64:
-        raise ConfigError(f"--map-step must be in 1..64, got {map_step}")
     return ExchangeParams(
         mode=mode,
         cap_bytes=cap,
@@ -213,7 +211,7 @@ def _exchange_params(
         anchor_every=anchors,
         hold=hold,
         descriptor_bits=descriptor_bits,
-        map_step=map_step,
+        ternary_maps=ternary_maps,
     )
 
 
@@ -400,14 +398,14 @@ def run_cmd(
             help="Bits each landmark descriptor byte keeps as it travels (8: exact).",
         ),
     ] = ExchangeParams().descriptor_bits,
-    map_step: Annotated[
-        int,
+    ternary_maps: Annotated[
+        bool,
         typer.Option(
-            "--map-step",
-            help="Grid, in scaled log-odds units, local maps are rounded to as they "
-            "travel (1: exact).",
+            "--ternary-maps",
+            help="Local maps travel as free / occupied / unknown, each class at its mean "
+            "log-odds in that map.",
         ),
-    ] = ExchangeParams().map_step,
+    ] = ExchangeParams().ternary_maps,
     fold: FoldOption = STORE_DEFAULTS.fold,
     transport: Annotated[
         str, typer.Option("--transport", help="sim (simulated network) or zmq (processes).")
@@ -431,7 +429,7 @@ def run_cmd(
         raise ConfigError(f"--seed must be >= 0, got {seed}")
     net = _network_params(network, bandwidth, loss, reach)
     protocol = _exchange_params(
-        exchange, cap, network, budget, anchors, hold, descriptor_bits, map_step
+        exchange, cap, network, budget, anchors, hold, descriptor_bits, ternary_maps
     )
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")

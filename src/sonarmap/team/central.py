@@ -58,6 +58,7 @@ from .mission import (
     _odometry_covariance,
     _rigid_ate,
 )
+from .quantise import check_quantisation, quantise_pose
 from .records import ClosureEdge, OdometryEdge, Pose, compose, invert
 from .world import observe
 
@@ -127,7 +128,13 @@ def _odometry_edges(agent: RobotAgent, poses: Sequence[Pose]) -> list[OdometryEd
     return out
 
 
-def central_map(agents: Sequence[RobotAgent], *, seed: int | None = None) -> CentralResult:
+def central_map(
+    agents: Sequence[RobotAgent],
+    *,
+    seed: int | None = None,
+    descriptor_bits: int = 8,
+    ternary_maps: bool = False,
+) -> CentralResult:
     """The central upper bound over the data of ``agents`` (after their missions).
 
     Parameters
@@ -138,6 +145,10 @@ def central_map(agents: Sequence[RobotAgent], *, seed: int | None = None) -> Cen
         prior map and the plan the map is scored on) are used.
     seed : int, optional
         The alignment's seed; default the first robot's mission seed.
+    descriptor_bits, ternary_maps
+        Build the bound from every pose quantised as it would travel
+        (:func:`~.quantise.quantise_pose`): what the quantisation alone costs the map.
+        Default exact.
 
     Returns
     -------
@@ -148,7 +159,10 @@ def central_map(agents: Sequence[RobotAgent], *, seed: int | None = None) -> Cen
     wall0 = time.perf_counter()
     lead = agents[0]
     cfg, plan, prior = lead.cfg, lead.plan, lead.prior
-    by_robot = [_raw_poses(a) for a in agents]
+    check_quantisation(descriptor_bits, ternary_maps)
+    by_robot = [
+        [quantise_pose(p, descriptor_bits, ternary_maps) for p in _raw_poses(a)] for a in agents
+    ]
     poses = {p.uid: p for ps in by_robot for p in ps}
     edges = [e for a, ps in zip(agents, by_robot, strict=True) for e in _odometry_edges(a, ps)]
     truth = {u: t for a in agents for u, t in a.truth.items()}

@@ -261,10 +261,10 @@ class ExchangeParams:
         landmarks' points and reliabilities also travel in float16 and their stamps in
         float32 (:func:`.quantise.quantise_pose`). 8 (default): exact. What a robot
         stores of its own poses stays exact; what it receives is what travelled.
-    map_step : int
-        The grid (scaled log-odds units, 1..64) a local map's values of at least that
-        magnitude are rounded to as they travel (:func:`.quantise.quantise_logodds`).
-        1 (default): exact.
+    ternary_maps : bool
+        Local maps travel as free, occupied and unknown, each class at its mean
+        log-odds in that map (:func:`.quantise.ternary_logodds`). False (default):
+        exact.
     """
 
     mode: str = "good"
@@ -281,7 +281,7 @@ class ExchangeParams:
     anchor_every: int = 1
     hold: float = 0.0
     descriptor_bits: int = 8
-    map_step: int = 1
+    ternary_maps: bool = False
 
     def __post_init__(self) -> None:
         if self.mode not in PROTOCOLS:
@@ -289,7 +289,7 @@ class ExchangeParams:
                 f"exchange: mode must be one of {', '.join(PROTOCOLS)}, got {self.mode!r}"
             )
         for f in fields(self):
-            if f.name == "mode":
+            if f.name in ("mode", "ternary_maps"):
                 continue
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -303,7 +303,7 @@ class ExchangeParams:
                 raise ConfigError(
                     f"exchange: {name} must be an integer, got {getattr(self, name)!r}"
                 )
-        check_quantisation(self.descriptor_bits, self.map_step)
+        check_quantisation(self.descriptor_bits, self.ternary_maps)
         if self.peer_timeout < self.advert_every:
             raise ConfigError(
                 f"exchange: peer_timeout {self.peer_timeout} s is below advert_every "
@@ -1061,11 +1061,11 @@ class Exchanger:
 
     def _wire(self, pose: Pose) -> Pose:
         """The pose as it travels: with its landmarks only if it is an anchor
-        (``anchor_every``), quantised as ``descriptor_bits`` and ``map_step`` say."""
+        (``anchor_every``), quantised as ``descriptor_bits`` and ``ternary_maps`` say."""
         k = self.params.anchor_every
         if k > 1 and len(pose.landmarks) and not is_anchor(pose, k):
             pose = pose.with_landmarks(pose.landmarks.take(np.zeros(0, dtype=np.intp)))
-        return quantise_pose(pose, self.params.descriptor_bits, self.params.map_step)
+        return quantise_pose(pose, self.params.descriptor_bits, self.params.ternary_maps)
 
     # --- stamps of the local layer --------------------------------------------------------
 

@@ -19,7 +19,7 @@ Choices (the issue names the baseline, not its details):
 - **Everyone** is every robot the transport can reach at that step; one it cannot reach
   then never gets the pose (no retries, no store-and-forward), and a lost message is
   lost for good.
-- **Quantised** only if its params say so (``descriptor_bits``, ``map_step``, as the
+- **Quantised** only if its params say so (``descriptor_bits``, ``ternary_maps``, as the
   protocols quantise): by default the baseline sends the records exact, as stored;
   with the protocols' quantisation it shows what that alone saves.
 - **Receiving**: a pose already held is ignored (duplicates are impossible by
@@ -118,7 +118,7 @@ class NaiveExchanger:
         The robot's store; only its received layers and closures change.
     transport : Transport
     params : ExchangeParams, optional
-        ``mode`` must be ``"naive"`` (the default); ``descriptor_bits`` and ``map_step``
+        ``mode`` must be ``"naive"`` (the default); ``descriptor_bits`` and ``ternary_maps``
         quantise what is sent; nothing else is read.
     adjacency : mapping of int to collection of int, optional
         The prior map's regions: a received pose in another is rejected.
@@ -186,7 +186,7 @@ class NaiveExchanger:
         for uid in new:
             self._sent.add(uid)
             pose = quantise_pose(
-                local.poses[uid], self.params.descriptor_bits, self.params.map_step
+                local.poses[uid], self.params.descriptor_bits, self.params.ternary_maps
             )
             body = encode_pose_message(pose, local.edges_of(uid))
             for peer in peers:

@@ -200,6 +200,16 @@ def parse_peers(text: str, robot: int) -> dict[int, str]:
     return out
 
 
+def _parse_bool(text: str) -> bool:
+    """``true``/``false`` (any case) or ``1``/``0``; ValueError otherwise."""
+    low = text.lower()
+    if low in ("true", "1"):
+        return True
+    if low in ("false", "0"):
+        return False
+    raise ValueError(text)
+
+
 def parse_exchange(items: Sequence[str]) -> ExchangeParams:
     """``--exchange KEY=VALUE`` items as :class:`ExchangeParams` (the others default)."""
     kinds = {f.name: type(getattr(ExchangeParams(), f.name)) for f in fields(ExchangeParams)}
@@ -212,7 +222,7 @@ def parse_exchange(items: Sequence[str]) -> ExchangeParams:
                 f"--exchange expects KEY=VALUE with KEY one of {', '.join(kinds)}, got {item!r}"
             )
         try:
-            values[key] = kinds[key](value)
+            values[key] = _parse_bool(value) if kinds[key] is bool else kinds[key](value)
         except ValueError:
             raise ConfigError(
                 f"--exchange {key}: {kinds[key].__name__} expected, got {value!r}"

@@ -1,22 +1,24 @@
 """The lossy form a pose may travel in (issue 15's bandwidth goal): coarser descriptors,
-half-precision landmark geometry and coarser local-map log-odds.
+half-precision landmark geometry and ternary local maps.
 
 The records keep their fields and dtypes, so a quantised pose encodes and decodes
 exactly as any other (:func:`.records.encode`); what shrinks is the deflated message,
-because the quantised values carry fewer distinct bytes. A deflated stream of 4-bit
-descriptors in uint8 costs about half the bytes of the exact ones. The same holds for
-float32 points that are exact in float16 (their low mantissa bytes are zeros) and for
-log-odds on a coarser grid.
+because the quantised values carry fewer distinct bytes: 3-bit descriptors kept in
+uint8 deflate to about 3/8 of the exact ones, float32 points exact in float16 have zero
+low mantissa bytes, and a ternary map is a known mask and a sign.
 
 Every function is idempotent: a quantised pose quantised again is unchanged, so a relay
 that forwards what it received sends the very bytes the source sent, and every holder
 of a pose holds the same values.
 
-Measured on 49 poses of one robot (office, 120 s; deflated as one answer): 4-bit
-descriptors with float16 geometry take 68 % of the exact bytes; adding a log-odds step
-of 4, 64 %; of 8, 61 %. The synthetic descriptors are uniform bytes, which deflate cannot
-shrink; real SIFT descriptors are mostly small values and deflate better exact, so the
-saving on real data would be smaller.
+Measured on 49 poses of one robot (office, 120 s, seed 0; deflated as one answer), as a
+share of the exact bytes: descriptors of 4, 3 and 2 bits 68 %, 55 % and 47 %; with
+ternary maps 60 %, 48 % and 40 %; the poses without landmarks 12.8 %, with ternary maps
+6.1 %. The simulation's descriptors are uniform bytes, which deflate cannot shrink; real
+SIFT descriptors are mostly small values and deflate better exact, so the saving on
+real data would be smaller. The central map of that team (3 robots, 300 s) from poses
+quantised so scores wall F1 .498 exact, .505 / .502 / .496 with 4 / 3 / 2-bit
+descriptors and .500 with ternary maps (``python -m benchmarks.team_quantise``).
 """
 
 from __future__ import annotations
@@ -27,18 +29,20 @@ import numpy.typing as npt
 from ..errors import ConfigError
 from .records import Landmarks, LocalMap, Pose
 
-__all__ = ["check_quantisation", "quantise_descriptors", "quantise_logodds", "quantise_pose"]
+__all__ = ["check_quantisation", "quantise_descriptors", "quantise_pose", "ternary_logodds"]
 
 #: Magnitudes float16 holds with room to round.
 _HALF_MAX = 60000.0
 
 
-def check_quantisation(descriptor_bits: int, map_step: int) -> None:
-    """:class:`~sonarmap.errors.ConfigError` unless ``1 <= descriptor_bits <= 8`` and
-    ``1 <= map_step <= 64``, both integers."""
-    for name, v, hi in (("descriptor_bits", descriptor_bits, 8), ("map_step", map_step, 64)):
-        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= hi:
-            raise ConfigError(f"exchange: {name} must be an integer in 1..{hi}, got {v!r}")
+def check_quantisation(descriptor_bits: int, ternary_maps: bool) -> None:
+    """:class:`~sonarmap.errors.ConfigError` unless ``descriptor_bits`` is an integer
+    in 1..8 and ``ternary_maps`` a bool."""
+    v = descriptor_bits
+    if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 8:
+        raise ConfigError(f"exchange: descriptor_bits must be an integer in 1..8, got {v!r}")
+    if not isinstance(ternary_maps, bool):
+        raise ConfigError(f"exchange: ternary_maps must be true or false, got {ternary_maps!r}")
 
 
 def quantise_descriptors(desc: npt.NDArray[np.uint8], bits: int) -> npt.NDArray[np.uint8]:
@@ -62,38 +66,38 @@ def quantise_descriptors(desc: npt.NDArray[np.uint8], bits: int) -> npt.NDArray[
     return np.asarray(high | (1 << (drop - 1)), dtype=np.uint8)
 
 
-def quantise_logodds(logodds: npt.NDArray[np.int8], step: int) -> npt.NDArray[np.int8]:
-    """Scaled log-odds on a grid of ``step``: values of magnitude ``step`` or more to
-    the nearest multiple (halves away from zero, at most the largest multiple <= 127);
-    smaller ones kept as they are.
+def ternary_logodds(logodds: npt.NDArray[np.int8]) -> npt.NDArray[np.int8]:
+    """A local map reduced to free, occupied and unknown: every free cell (negative
+    log-odds) carries the mean of the map's free values, every occupied cell the mean of
+    its occupied values (rounded, at least 1 unit), unknown cells stay 0.
 
-    The weak evidence of one reading (a few units) stays exact, so a cell is never made
-    unknown or given evidence it did not have; the strong values, which a map's
-    classes barely depend on, lose at most ``step / 2`` units.
+    Which cells are known and their class are exact, and so is the map's total evidence
+    of each class up to rounding; what is lost is how it is spread over the cells.
 
     Parameters
     ----------
     logodds : ndarray of int8
-    step : int
-        1..64; 1 returns ``logodds`` unchanged.
+
+    Returns
+    -------
+    ndarray of int8, the shape of ``logodds``.
     """
-    if step <= 1:
-        return logodds
     lo = logodds.astype(np.int16)
-    mag = np.abs(lo)
-    top = (127 // step) * step
-    rounded = np.minimum((mag + step // 2) // step * step, top)
-    out = np.where(mag >= step, np.sign(lo) * rounded, lo)
+    out = np.zeros_like(lo)
+    for side in (lo < 0, lo > 0):
+        if side.any():
+            mag = max(1, int(np.rint(np.abs(lo[side]).mean())))
+            out[side] = np.sign(lo[side]) * mag
     return np.asarray(out, dtype=np.int8)
 
 
-def quantise_pose(pose: Pose, descriptor_bits: int, map_step: int) -> Pose:
+def quantise_pose(pose: Pose, descriptor_bits: int, ternary_maps: bool) -> Pose:
     """The pose as it travels quantised.
 
     With ``descriptor_bits < 8`` its landmarks get descriptors of that many bits
     (:func:`quantise_descriptors`), points and reliabilities rounded to float16 (under
     8 mm at 16 m from the pose) and stamps to float32 (under 1 ms in a day's mission).
-    With ``map_step > 1`` its local map's log-odds go through :func:`quantise_logodds`.
+    With ``ternary_maps`` its local map goes through :func:`ternary_logodds`.
     UID, time, region, estimate, landmark identities and merge history are exact. A
     pose with nothing to quantise is returned as it is.
     """
@@ -110,8 +114,8 @@ def quantise_pose(pose: Pose, descriptor_bits: int, map_step: int) -> Pose:
             lm.ids,
         )
     local = pose.local_map
-    if map_step > 1 and local is not None:
-        local = LocalMap(quantise_logodds(local.logodds, map_step), local.resolution)
+    if ternary_maps and local is not None:
+        local = LocalMap(ternary_logodds(local.logodds), local.resolution)
     if landmarks is lm and local is pose.local_map:
         return pose
     return Pose(pose.uid, pose.time, pose.region, pose.estimate, landmarks, local, pose.merged_from)

@@ -109,6 +109,9 @@ class TeamResult:
         The central upper bound, when asked for.
     team_frames : list of TeamFrame
         The team sampled at a regular cadence of mission time, when recorded.
+    agents : list of RobotAgent
+        The robots after their routes, by robot id (what :func:`~.central.central_map`
+        builds its bound from).
     """
 
     summary: dict[str, Any]
@@ -118,6 +121,7 @@ class TeamResult:
     held: list[set[int]] = field(default_factory=list)
     central: CentralResult | None = None
     team_frames: list[TeamFrame] = field(default_factory=list)
+    agents: list[RobotAgent] = field(default_factory=list)
 
 
 def held_uids(store: RobotStore) -> tuple[set[int], int]:
@@ -420,5 +424,5 @@ def run_team(
         "seed": seed,
     }
     return TeamResult(
-        summary, results, exchangers, net, [h[0] for h in held], bound, recorder.frames
+        summary, results, exchangers, net, [h[0] for h in held], bound, recorder.frames, agents
     )
