@@ -434,10 +434,6 @@ def main() -> None:
         naive = _naive(rows, r["network"]) if has_naive else math.nan
         share = 100 * r["bytes_per_robot_minute_all"] / naive if naive else math.nan
         conv = r["convergence_s"]
-        alike = _naive_alike(rows, r)
-        if alike is not None and r["mode"] != "naive":
-            like = 100 * r["bytes_per_robot_minute_all"] / alike
-            print(f"         ({like:.1f} % of the naive baseline quantised alike)")
         print(
             f"{r['network']:8} {_name(r)}: "
             f"{r['bytes_per_robot_minute_all']:9.0f} "
@@ -448,6 +444,10 @@ def main() -> None:
             f"{r['poses_received']}, held {100 * r['held_share_at_routes_end']:.0f} %, "
             f"{r['wall_s']:.0f} s"
         )
+        alike = _naive_alike(rows, r)
+        if alike is not None and r["mode"] != "naive":
+            like = 100 * r["bytes_per_robot_minute_all"] / alike
+            print(f"         ({like:.1f} % of the naive baseline quantised alike)")
     print("targets:")
     for name, ok in targets(rows, central):
         print(f"  {'holds' if ok else 'FAILS'}: {name}")

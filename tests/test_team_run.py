@@ -54,6 +54,20 @@ def test_a_patrolling_team_run_writes_the_team_summary(tmp_path: Path, plan: Occ
         assert (out / name).stat().st_size > 0
 
 
+def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap) -> None:
+    write_map(plan, tmp_path / "plan")
+    out = tmp_path / "out"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--robots", "2",
+          "--duration", "40", "--lean", "-o", str(out)])  # fmt: skip
+    s = json.loads((out / "summary.json").read_text())
+    ex = s["exchange"]
+    assert (ex["anchor_every"], ex["hold"]) == (8, 30.0)
+    assert (ex["descriptor_bits"], ex["ternary_maps"]) == (3, True)
+    assert s["duplicate_poses"] == 0
+    assert s["identical_maps"] is True  # everything is published when the routes end
+    assert all(r["poses_received"] > 0 for r in s["robots"])
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -68,6 +82,8 @@ def test_a_patrolling_team_run_writes_the_team_summary(tmp_path: Path, plan: Occ
         (["--hold", "-5"], "--hold"),
         (["--hold", "nan"], "--hold"),
         (["--descriptor-bits", "0"], "--descriptor-bits"),
+        (["--lean", "--anchors", "4"], "--lean"),
+        (["--lean", "--fold"], "--lean"),
         (["--descriptor-bits", "9"], "--descriptor-bits"),
         (["--range", "0", "--network", "limited"], "--range"),
         (["--range", "10"], "--range"),

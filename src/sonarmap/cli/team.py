@@ -18,7 +18,7 @@ from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
 from ..io.rosmap import OccupancyMap, write_map
 from ..team.animation import mp4_available, save_mission_animation, save_team_animation
-from ..team.exchange import PROTOCOLS, ExchangeParams
+from ..team.exchange import LEAN, PROTOCOLS, ExchangeParams
 from ..team.globalmap import plot_pose_graph, plot_team
 from ..team.mission import MissionConfig, MissionResult, run_mission
 from ..team.network import NetworkParams
@@ -407,6 +407,14 @@ def run_cmd(
         ),
     ] = ExchangeParams().ternary_maps,
     fold: FoldOption = STORE_DEFAULTS.fold,
+    lean: Annotated[
+        bool,
+        typer.Option(
+            "--lean",
+            help="The measured lean exchange: --anchors 8 --hold 30 --descriptor-bits 3 "
+            "--ternary-maps --fold.",
+        ),
+    ] = False,
     transport: Annotated[
         str, typer.Option("--transport", help="sim (simulated network) or zmq (processes).")
     ] = "sim",
@@ -428,6 +436,21 @@ def run_cmd(
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
     net = _network_params(network, bandwidth, loss, reach)
+    if lean:
+        defaults = ExchangeParams()
+        if (anchors, hold, descriptor_bits, ternary_maps, fold) != (
+            defaults.anchor_every,
+            defaults.hold,
+            defaults.descriptor_bits,
+            defaults.ternary_maps,
+            STORE_DEFAULTS.fold,
+        ):
+            raise ConfigError(
+                "--lean sets --anchors, --hold, --descriptor-bits, --ternary-maps and "
+                "--fold: drop them or drop --lean"
+            )
+        anchors, hold = LEAN.anchor_every, LEAN.hold
+        descriptor_bits, ternary_maps, fold = LEAN.descriptor_bits, LEAN.ternary_maps, True
     protocol = _exchange_params(
         exchange, cap, network, budget, anchors, hold, descriptor_bits, ternary_maps
     )
