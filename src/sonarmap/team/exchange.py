@@ -342,6 +342,8 @@ class ExchangeStats:
         Messages the transport would not take (no route, too large, closed).
     rejected : Counter
         Messages rejected, by reason (``"truncated"``, ``"type"``, ``"unsolicited"``...).
+    bytes_by_kind : Counter
+        ``bytes_sent`` split by message kind (``"advert"``, ``"request"``, ``"answer"``).
     """
 
     bytes_sent: int = 0
@@ -357,6 +359,7 @@ class ExchangeStats:
     stale: int = 0
     refused: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
+    bytes_by_kind: Counter[str] = field(default_factory=Counter)
 
 
 @functools.lru_cache(maxsize=1 << 16)
@@ -1021,6 +1024,7 @@ class Exchanger:
             return False
         self.stats.messages_sent += 1
         self.stats.bytes_sent += len(body)
+        self.stats.bytes_by_kind[kind] += len(body)
         return True
 
     def _live(self, now: float) -> dict[int, dict[PatchKey, AdvertEntry]]:

@@ -199,6 +199,7 @@ class NaiveExchanger:
             return False
         self.stats.messages_sent += 1
         self.stats.bytes_sent += len(body)
+        self.stats.bytes_by_kind[KIND] += len(body)
         return True
 
     def _handle(self, msg: Message, now: float) -> None:

@@ -693,7 +693,8 @@ def _pending_from(v: Any) -> _Pending:
 
 
 def _exchanger_state(e: Exchanger) -> dict[str, Any]:
-    stats = {f.name: getattr(e.stats, f.name) for f in fields(e.stats) if f.name != "rejected"}
+    counters = ("rejected", "bytes_by_kind")
+    stats = {f.name: getattr(e.stats, f.name) for f in fields(e.stats) if f.name not in counters}
     return {
         "now": e._now,
         "next_advert": e._next_advert,
@@ -714,6 +715,7 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "finished": e._finished,
         "stats": stats,
         "rejected": dict(e.stats.rejected),
+        "bytes_by_kind": dict(e.stats.bytes_by_kind),
     }
 
 
@@ -746,6 +748,9 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
         setattr(e.stats, name, v)
     e.stats.rejected.clear()
     e.stats.rejected.update({str(k): int(v) for k, v in d["rejected"].items()})
+    e.stats.bytes_by_kind.clear()
+    # A state saved before the split by kind has none.
+    e.stats.bytes_by_kind.update({str(k): int(v) for k, v in d.get("bytes_by_kind", {}).items()})
 
 
 def store_digest(store: RobotStore) -> str:
@@ -1050,6 +1055,7 @@ class _Node:
         row.update(
             {
                 "bytes_sent": e.stats.bytes_sent,
+                "bytes_by_kind": dict(sorted(e.stats.bytes_by_kind.items())),
                 "bytes_received": e.stats.bytes_received,
                 "messages": e.stats.messages_sent,
                 "messages_received": e.stats.messages_received,

@@ -88,7 +88,8 @@ class TeamResult:
     ----------
     summary : dict
         ``robots`` (one dict per robot: :func:`~.mission.run_mission`'s summary plus
-        ``bytes_sent``, ``bytes_received``, ``messages``, ``messages_received``,
+        ``bytes_sent`` (and ``bytes_by_kind``), ``bytes_received``, ``messages``,
+        ``messages_received``,
         ``poses_local``, ``poses_received``, ``received_closures``,
         ``received_closures_correct``) and the team's ``duplicate_poses``,
         ``identical_maps``, ``meetings`` and ``partings`` (direct links that came up,
@@ -382,6 +383,7 @@ def run_team(
         row.update(
             {
                 "bytes_sent": e.stats.bytes_sent,
+                "bytes_by_kind": dict(sorted(e.stats.bytes_by_kind.items())),
                 "bytes_received": e.stats.bytes_received,
                 "messages": e.stats.messages_sent,
                 "messages_received": e.stats.messages_received,
