@@ -445,7 +445,7 @@ def main() -> None:
             f"{r['wall_s']:.0f} s"
         )
         alike = _naive_alike(rows, r)
-        if alike is not None and r["mode"] != "naive":
+        if alike and r["mode"] != "naive":
             like = 100 * r["bytes_per_robot_minute_all"] / alike
             print(f"         ({like:.1f} % of the naive baseline quantised alike)")
     print("targets:")

@@ -6,7 +6,8 @@ robots' data do not depend on it), then the central upper bound
 quantised as it would travel (``--settings BITS:T``: descriptors of BITS bits, ternary
 local maps if T is 1; ``8:0`` is exact). Per setting: the bound's wall F1, and the
 deflated bytes of all the poses (as one stream, as an answer carries them) as a share of
-the exact poses', with and without their landmarks.
+the exact poses' bytes, and the same of the poses stripped of their landmarks (still a
+share of the exact poses' bytes with landmarks).
 
 Run with ``python -m benchmarks.team_quantise [--plan office] [--robots 3]
 [--duration 300] [--seed 0] [--settings 8:0 4:0 3:0 2:0 8:1 3:1]``.
@@ -71,7 +72,7 @@ def main() -> None:
         f"seed {args.seed}: {len(poses)} poses, {exact} B deflated ({exact_bare} B without "
         f"landmarks); mission {time.perf_counter() - t0:.0f} s"
     )
-    print("setting: central wall F1, bytes % of exact (without landmarks), wall s")
+    print("setting: central wall F1, bytes % of exact (without landmarks, % of exact), wall s")
     for bits, ternary in args.settings:
         t1 = time.perf_counter()
         bound = central_map(team.agents, seed=args.seed, descriptor_bits=bits, ternary_maps=ternary)

@@ -19,7 +19,7 @@ from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap, write_map
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
-from sonarmap.team.exchange import ExchangeParams, Exchanger
+from sonarmap.team.exchange import LEAN, ExchangeParams, Exchanger
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams, SimNetwork
 from sonarmap.team.node import (
@@ -28,6 +28,7 @@ from sonarmap.team.node import (
     _exchanger_into,
     _exchanger_state,
     _Link,
+    _node_args,
     parse_exchange,
     parse_peers,
     run_zmq_team,
@@ -287,6 +288,10 @@ def test_peers_and_exchange_options() -> None:
     assert parse_exchange(["ternary_maps=true", "descriptor_bits=3"]).ternary_maps is True
     with pytest.raises(ConfigError, match="bool expected"):
         parse_exchange(["ternary_maps=maybe"])
+    # What the launcher writes is what a node reads back, the lean settings included.
+    args = _node_args(CONFIG, LEAN, 30.0, None, 120.0, LockstepParams())
+    items = [args[i + 1] for i, a in enumerate(args) if a == "--exchange"]
+    assert parse_exchange(items) == LEAN
 
 
 def test_the_launcher_refuses_a_simulated_network(plan: OccupancyMap) -> None:
@@ -318,6 +323,9 @@ def test_a_checkpoint_keeps_the_hold_and_what_it_let_out() -> None:
     assert e._published is not None
     assert set(back._published.poses) == set(e._published.poses) == {make_uid(0, 0), make_uid(0, 1)}
     assert back.advert() == e.advert()
+    assert e.stats.bytes_by_kind["advert"] > 0
+    assert back.stats.bytes_by_kind == e.stats.bytes_by_kind
+    back.stats.bytes_by_kind["advert"] += 1  # still a Counter after the round trip
     e.finish()
     state = msgpack.unpackb(msgpack.packb(_exchanger_state(e)), raw=False)
     _exchanger_into(back, state)

@@ -70,7 +70,7 @@ def test_ternary_maps_keep_each_cells_class_and_each_class_total() -> None:
     lo = np.array([[0, -3, -6, -9], [-12, 20, 33, 0], [127, -128, 1, -1]], dtype=np.int8)
     t = ternary_logodds(lo)
     assert t.dtype == np.int8
-    assert np.array_equal(np.sign(t), np.sign(lo))  # unknown, free, occupied exact
+    assert np.array_equal(np.sign(t), np.sign(lo))  # what is known, and its class, is kept
     free, occ = lo < 0, lo > 0
     assert set(t[free].tolist()) == {round(np.abs(lo[free].astype(int)).mean()) * -1}
     assert set(t[occ].tolist()) == {round(lo[occ].astype(int).mean())}
@@ -94,6 +94,11 @@ def test_a_quantised_pose_keeps_its_identity_and_quantises_once() -> None:
     assert encode(quantise_pose(q, 4, True)) == encode(q)
     assert encode(quantise_pose(q, 8, False)) == encode(q)
     assert quantise_pose(p, 8, False) is p
+    far = p.with_landmarks(landmarks(30, 5))
+    far.landmarks.points[0, 0] = 1e5  # beyond float16: the points stay float32
+    assert np.array_equal(quantise_pose(far, 4, False).landmarks.points, far.landmarks.points)
+    assert np.abs(q.landmarks.stamp - p.landmarks.stamp).max() < 1e-3
+    assert np.abs(q.landmarks.reliability - p.landmarks.reliability).max() < 1e-3
     # What shrinks is the deflated body: the uniform descriptors, by about half.
     exact, small = (len(zlib.compress(encode(x), 6)) for x in (p, q))
     assert small < 0.7 * exact
@@ -117,6 +122,9 @@ def test_poses_travel_quantised_and_a_relay_forwards_what_it_got(mode: str) -> N
         sent = [record_sends(t) for t in team.transports]
         team.run(14)
         assert converged(team)
+        for ex in team.ex:
+            assert sum(ex.stats.bytes_by_kind.values()) == ex.stats.bytes_sent
+            assert ex.stats.bytes_by_kind["answer"] == sum(map(len, sent[team.ex.index(ex)]))
         return stores, sum(len(b) for s in sent for b in s)
 
     exact_stores, exact_bytes = run()
@@ -126,8 +134,9 @@ def test_poses_travel_quantised_and_a_relay_forwards_what_it_got(mode: str) -> N
     for u, own in a.local.poses.items():
         travelled = encode(quantise_pose(own, 4, True))
         assert encode(b.received[0].poses[u]) == travelled
-        assert encode(c.received[0].poses[u]) == travelled  # through b, unchanged
-        assert encode(own) == encode(exact_stores[0].local.poses[u])  # the source's exact
+        assert encode(c.received[0].poses[u]) == travelled  # c never heard a: b forwarded it
+        # Quantising what travels leaves the source's own poses alone.
+        assert encode(own) == encode(exact_stores[0].local.poses[u])
     assert quantised_bytes < 0.75 * exact_bytes
 
 

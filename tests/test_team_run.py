@@ -84,6 +84,8 @@ def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap
         (["--descriptor-bits", "0"], "--descriptor-bits"),
         (["--lean", "--anchors", "4"], "--lean"),
         (["--lean", "--fold"], "--lean"),
+        (["--lean", "--anchors", "1"], "--anchors"),  # a default given is still given
+        (["--lean", "--exchange", "naive"], "--lean"),
         (["--descriptor-bits", "9"], "--descriptor-bits"),
         (["--range", "0", "--network", "limited"], "--range"),
         (["--range", "10"], "--range"),

@@ -313,6 +313,7 @@ def _write_team(out: Path, plan: OccupancyMap, team: TeamResult, animate: bool) 
 
 @team_app.command("run")
 def run_cmd(
+    ctx: typer.Context,
     out: OutOption,
     map_: MapOption,
     robots: Annotated[
@@ -437,18 +438,25 @@ def run_cmd(
         raise ConfigError(f"--seed must be >= 0, got {seed}")
     net = _network_params(network, bandwidth, loss, reach)
     if lean:
-        defaults = ExchangeParams()
-        if (anchors, hold, descriptor_bits, ternary_maps, fold) != (
-            defaults.anchor_every,
-            defaults.hold,
-            defaults.descriptor_bits,
-            defaults.ternary_maps,
-            STORE_DEFAULTS.fold,
-        ):
-            raise ConfigError(
-                "--lean sets --anchors, --hold, --descriptor-bits, --ternary-maps and "
-                "--fold: drop them or drop --lean"
+        # Given at all, even at its default value, an option would be silently overridden.
+        given = [
+            flag
+            for name, flag in (
+                ("anchors", "--anchors"),
+                ("hold", "--hold"),
+                ("descriptor_bits", "--descriptor-bits"),
+                ("ternary_maps", "--ternary-maps"),
+                ("fold", "--fold/--no-fold"),
             )
+            if getattr(ctx.get_parameter_source(name), "name", "DEFAULT") != "DEFAULT"
+        ]
+        if given:
+            raise ConfigError(
+                f"--lean sets --anchors, --hold, --descriptor-bits, --ternary-maps and "
+                f"--fold: drop {', '.join(given)} or drop --lean"
+            )
+        if exchange == "naive":
+            raise ConfigError("--lean is for the protocols; the naive baseline sends every pose")
         anchors, hold = LEAN.anchor_every, LEAN.hold
         descriptor_bits, ternary_maps, fold = LEAN.descriptor_bits, LEAN.ternary_maps, True
     protocol = _exchange_params(

@@ -145,7 +145,7 @@ def central_map(
         prior map and the plan the map is scored on) are used.
     seed : int, optional
         The alignment's seed; default the first robot's mission seed.
-    descriptor_bits, ternary_maps
+    descriptor_bits, ternary_maps : int, bool
         Build the bound from every pose quantised as it would travel
         (:func:`~.quantise.quantise_pose`): what the quantisation alone costs the map.
         Default exact.

@@ -344,7 +344,8 @@ class ExchangeStats:
     rejected : Counter
         Messages rejected, by reason (``"truncated"``, ``"type"``, ``"unsolicited"``...).
     bytes_by_kind : Counter
-        ``bytes_sent`` split by message kind (``"advert"``, ``"request"``, ``"answer"``).
+        ``bytes_sent`` split by message kind (``"advert"``, ``"request"``, ``"answer"``;
+        the naive baseline's ``"pose"``).
     """
 
     bytes_sent: int = 0
