@@ -364,6 +364,12 @@ class ExchangeStats:
     rejected: Counter[str] = field(default_factory=Counter)
     bytes_by_kind: Counter[str] = field(default_factory=Counter)
 
+    def count_sent(self, kind: str, size: int) -> None:
+        """Count one message of ``kind`` and ``size`` body bytes the transport took."""
+        self.messages_sent += 1
+        self.bytes_sent += size
+        self.bytes_by_kind[kind] += size
+
 
 @functools.lru_cache(maxsize=1 << 16)
 def _fingerprint(a: int, b: int, transform: tuple[float, float, float]) -> bytes:
@@ -1025,9 +1031,7 @@ class Exchanger:
         if not self.transport.send(dst, body, kind=kind):
             self.stats.refused += 1
             return False
-        self.stats.messages_sent += 1
-        self.stats.bytes_sent += len(body)
-        self.stats.bytes_by_kind[kind] += len(body)
+        self.stats.count_sent(kind, len(body))
         return True
 
     def _live(self, now: float) -> dict[int, dict[PatchKey, AdvertEntry]]:

@@ -197,9 +197,7 @@ class NaiveExchanger:
         if not self.transport.send(dst, body, kind=KIND):
             self.stats.refused += 1
             return False
-        self.stats.messages_sent += 1
-        self.stats.bytes_sent += len(body)
-        self.stats.bytes_by_kind[KIND] += len(body)
+        self.stats.count_sent(KIND, len(body))
         return True
 
     def _handle(self, msg: Message, now: float) -> None:
