@@ -305,30 +305,29 @@ def _name(r: dict[str, Any]) -> str:
 
 
 def _lean(text: str) -> Lean:
-    parts = text.split(":")
+    k_text, sep, rest = text.partition(":")
+    hold_text, _, tail = rest.partition(":")
     try:
-        k, hold = int(parts[0]), float(parts[1])
-        bits, ternary = (int(parts[2]), int(parts[3])) if len(parts) == 4 else (8, 0)
-    except (ValueError, IndexError):
+        k, hold = int(k_text), float(hold_text)
+    except ValueError:
         raise argparse.ArgumentTypeError(
             f"K:HOLD or K:HOLD:BITS:T expected (e.g. 8:30 or 8:30:3:1), got {text!r}"
         ) from None
-    if (
-        len(parts) not in (2, 4)
-        or k < 1
-        or not (math.isfinite(hold) and hold >= 0)
-        or not 1 <= bits <= 8
-        or ternary not in (0, 1)
-    ):
-        raise argparse.ArgumentTypeError(
-            f"K >= 1, HOLD >= 0, BITS in 1..8 and T 0 or 1 expected, got {text!r}"
-        )
-    return k, hold, bits, bool(ternary)
+    if not sep or k < 1 or not (math.isfinite(hold) and hold >= 0):
+        raise argparse.ArgumentTypeError(f"K >= 1 and HOLD >= 0 expected, got {text!r}")
+    bits, ternary = _quantised(tail) if tail else (8, False)
+    return k, hold, bits, ternary
 
 
 def _quantised(text: str) -> tuple[int, bool]:
-    bits, ternary = _lean(f"1:0:{text}")[2:]
-    return bits, ternary
+    bits_text, sep, t_text = text.partition(":")
+    try:
+        bits, ternary = int(bits_text), int(t_text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"BITS:T expected (e.g. 3:1), got {text!r}") from None
+    if not sep or not 1 <= bits <= 8 or ternary not in (0, 1):
+        raise argparse.ArgumentTypeError(f"BITS in 1..8 and T 0 or 1 expected, got {text!r}")
+    return bits, bool(ternary)
 
 
 def _plot(rows: list[dict[str, Any]], central: float, path: str) -> None:
