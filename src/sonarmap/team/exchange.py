@@ -9,7 +9,10 @@ times; its landmarks' descriptors hardly shrink):
     The sender's table of patch stamps: ``(source, region) -> (stamp, held)`` for every
     patch it holds (its own local patches and its received ones), ``held`` the number of
     poses it has of that patch. Sent to every peer each ``advert_every`` seconds, so the
-    others know who is newest.
+    others know who is newest: whole every ``full_advert_every`` seconds and to a peer
+    newly in reach; in between, a *delta* (the key ``gone`` present) carries only the
+    rows that changed since the last whole table sent to that peer and the patches
+    dropped since. Deltas are cumulative, so a lost one is made good by the next.
 ``"request"``
     A set of one-patch requests ``(source, region, requester's stamp, short list, edge
     fingerprints)``; in the limited mode also the requester's full list, and all
@@ -205,6 +208,13 @@ class ExchangeParams:
         65536, four poses at the store's default ``pose_limit``.
     advert_every : float
         Seconds between adverts: 5.
+    full_advert_every : float
+        Seconds at least between two whole adverts to a peer; the adverts between carry
+        only the rows changed since the last whole one (a *delta*), and a peer newly in
+        reach gets a whole one. 0: every advert whole. Default 30, the ``peer_timeout``:
+        a row lost with a delta and a whole advert stays stale for at most that long,
+        as long as a peer that stops advertising is trusted. On building 7 (4 robots,
+        300 s, the lean exchange) adverts averaged 32 rows and were 13 % of the bytes.
     request_every : float
         Seconds between rounds of requests: 1.
     max_patches : int
@@ -271,6 +281,7 @@ class ExchangeParams:
     mode: str = "good"
     cap_bytes: int = 65_536
     advert_every: float = 5.0
+    full_advert_every: float = 30.0
     request_every: float = 1.0
     max_patches: int = 8
     request_timeout: float = 10.0
@@ -295,7 +306,7 @@ class ExchangeParams:
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ConfigError(f"exchange: {f.name} must be a finite number, got {v!r}")
-            may_be_0 = f.name in ("budget", "hold")
+            may_be_0 = f.name in ("budget", "hold", "full_advert_every")
             if v < 0 or (v == 0 and not may_be_0):
                 bound = ">= 0" if may_be_0 else "> 0"
                 raise ConfigError(f"exchange: {f.name} must be {bound}, got {v}")
@@ -417,9 +428,13 @@ class AdvertEntry:
 
 @dataclass(frozen=True)
 class Advert:
-    """The sender's table of patch stamps, by (source, region)."""
+    """The sender's table of patch stamps, by (source, region): whole, or (``delta``)
+    the rows that changed since the last whole table the sender sent to this peer and
+    the patches it has dropped since (``gone``)."""
 
     entries: tuple[AdvertEntry, ...]
+    delta: bool = False
+    gone: tuple[PatchKey, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -489,7 +504,12 @@ def _stamp_out(s: float | None) -> float | None:
 def encode_advert(advert: Advert) -> bytes:
     """An advert's body."""
     rows = [[e.source, e.region, float(e.stamp), e.held] for e in advert.entries]
-    return _pack({"v": VERSION, "patches": rows})
+    d: dict[str, Any] = {"v": VERSION, "patches": rows}
+    if advert.delta:
+        d["gone"] = [[s, r] for s, r in advert.gone]
+    elif advert.gone:
+        raise ValueError("a whole advert has no gone patches")
+    return _pack(d)
 
 
 def _request_dict(p: PatchRequest) -> dict[str, Any]:
@@ -652,8 +672,15 @@ def decode_advert(body: bytes, *, regions: Collection[int] | None = None) -> Adv
 
     ``regions``, if given, are the prior map's regions: any other is out of range."""
     d = _unpack(body)
-    _keys(d, ("v", "patches"), "advert")
+    delta = "gone" in d
+    _keys(d, ("v", "patches", "gone") if delta else ("v", "patches"), "advert")
     _version(d)
+    gone: list[PatchKey] = []
+    for i, row in enumerate(_list(d["gone"], "advert.gone") if delta else []):
+        where = f"advert.gone[{i}]"
+        if not isinstance(row, list) or len(row) != 2:
+            raise ExchangeError("type", f"{where}: [source, region] expected")
+        gone.append((_int(row[0], f"{where}.source", ROBOT_LIMIT), _region(row[1], where, regions)))
     rows = _list(d["patches"], "advert.patches")
     entries: list[AdvertEntry] = []
     for i, row in enumerate(rows):
@@ -666,8 +693,21 @@ def decode_advert(body: bytes, *, regions: Collection[int] | None = None) -> Adv
         assert stamp is not None
         held = _int(row[3], f"{where}.held", _UID_LIMIT)
         entries.append(AdvertEntry(src, region, stamp, held))
-    _unique_keys([(e.source, e.region) for e in entries], "advert")
-    return Advert(tuple(entries))
+    _unique_keys([(e.source, e.region) for e in entries] + gone, "advert")
+    return Advert(tuple(entries), delta, tuple(gone))
+
+
+def _delta_body(
+    told: Mapping[PatchKey, AdvertEntry], table: Mapping[PatchKey, AdvertEntry]
+) -> bytes | None:
+    """The delta advert from the table ``told`` to ``table``; None when it would list at
+    least half as many rows as the whole table (the whole one then costs little more
+    and refreshes the peer's base)."""
+    changed = tuple(e for k, e in table.items() if told.get(k) != e)
+    gone = tuple(k for k in told if k not in table)
+    if 2 * (len(changed) + len(gone)) >= max(1, len(table)):
+        return None
+    return encode_advert(Advert(changed, delta=True, gone=gone))
 
 
 def _connected(regions: Sequence[int], adjacency: Mapping[int, Collection[int]]) -> bool:
@@ -957,6 +997,12 @@ class Exchanger:
         self._next_advert = -math.inf
         self._next_request = -math.inf
         self._adverts: dict[int, tuple[float, dict[PatchKey, AdvertEntry]]] = {}
+        # Per peer, the last whole table heard from it; the last whole table sent to
+        # it and when; the peers in reach at the last advert (one not there gets a
+        # whole table).
+        self._whole: dict[int, dict[PatchKey, AdvertEntry]] = {}
+        self._told: dict[int, tuple[float, dict[PatchKey, AdvertEntry]]] = {}
+        self._in_reach: frozenset[int] = frozenset()
         self._pending: dict[int, _Pending] = {}
         self._expired: dict[int, _Pending] = {}
         self._waiting: dict[PatchKey, int] = {}
@@ -1127,9 +1173,28 @@ class Exchanger:
         return Advert(tuple(rows))
 
     def _advertise(self, now: float) -> None:
-        body = encode_advert(self.advert())
-        for peer in sorted(set(self._peers()) - {self.robot}):
-            self._send(peer, "advert", body)
+        """Send each peer in reach the table, whole or as a delta (``full_advert_every``)."""
+        rows = self.advert().entries
+        table = {(e.source, e.region): e for e in rows}
+        whole = encode_advert(Advert(rows))
+        deltas: dict[float, bytes | None] = {}
+        peers = sorted(set(self._peers()) - {self.robot})
+        for peer in peers:
+            told = self._told.get(peer)
+            body = None
+            if (
+                told is not None
+                and peer in self._in_reach
+                and now - told[0] < self.params.full_advert_every
+            ):
+                if told[0] not in deltas:
+                    deltas[told[0]] = _delta_body(told[1], table)
+                body = deltas[told[0]]
+            if body is not None:
+                self._send(peer, "advert", body)
+            elif self._send(peer, "advert", whole):
+                self._told[peer] = (now, table)
+        self._in_reach = frozenset(peers)
 
     # --- requests ------------------------------------------------------------------------
 
@@ -1337,6 +1402,16 @@ class Exchanger:
             if msg.kind == "advert":
                 advert = decode_advert(body, regions=regions)
                 table = {(e.source, e.region): e for e in advert.entries}
+                if advert.delta:
+                    # Over the last whole table heard from the peer: if the whole one
+                    # this delta follows was lost, some rows are stale, never wrong.
+                    held = dict(self._whole.get(msg.src, {}))
+                    for key in advert.gone:
+                        held.pop(key, None)
+                    held.update(table)
+                    table = held
+                else:
+                    self._whole[msg.src] = table
                 self._adverts[msg.src] = (now, table)
             elif msg.kind == "request":
                 request = decode_request(body, regions=regions, adjacency=self.adjacency)

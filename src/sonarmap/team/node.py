@@ -95,6 +95,7 @@ from .exchange import (
     AdvertEntry,
     ExchangeParams,
     Exchanger,
+    PatchKey,
     _Pending,
 )
 from .mission import ODOMETRY_NOISE, MissionConfig, RobotAgent
@@ -692,6 +693,11 @@ def _pending_from(v: Any) -> _Pending:
     return _Pending(int(v[0]), {(int(a), int(b)) for a, b in v[1]}, float(v[2]), float(v[3]))
 
 
+def _table_from(rows: Sequence[Any]) -> dict[PatchKey, AdvertEntry]:
+    entries = [x for x in (_entry_from(r) for r in rows) if x is not None]
+    return {(x.source, x.region): x for x in entries}
+
+
 def _exchanger_state(e: Exchanger) -> dict[str, Any]:
     counters = ("rejected", "bytes_by_kind")
     stats = {f.name: getattr(e.stats, f.name) for f in fields(e.stats) if f.name not in counters}
@@ -702,6 +708,11 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "adverts": [
             [p, at, [_entry(x) for x in table.values()]] for p, (at, table) in e._adverts.items()
         ],
+        "whole": [[p, [_entry(x) for x in table.values()]] for p, table in e._whole.items()],
+        "told": [
+            [p, at, [_entry(x) for x in table.values()]] for p, (at, table) in e._told.items()
+        ],
+        "in_reach": sorted(e._in_reach),
         "pending": [[i, _pending_state(p)] for i, p in e._pending.items()],
         "expired": [[i, _pending_state(p)] for i, p in e._expired.items()],
         "waiting": [[k[0], k[1], i] for k, i in e._waiting.items()],
@@ -723,10 +734,11 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
     e._now = float(d["now"])
     e._next_advert = float(d["next_advert"])
     e._next_request = float(d["next_request"])
-    e._adverts = {}
-    for p, at, rows in d["adverts"]:
-        entries = [x for x in (_entry_from(r) for r in rows) if x is not None]
-        e._adverts[int(p)] = (float(at), {(x.source, x.region): x for x in entries})
+    e._adverts = {int(p): (float(at), _table_from(rows)) for p, at, rows in d["adverts"]}
+    # A state saved before delta adverts has none of these: whole tables to everyone.
+    e._whole = {int(p): _table_from(rows) for p, rows in d.get("whole", [])}
+    e._told = {int(p): (float(at), _table_from(rows)) for p, at, rows in d.get("told", [])}
+    e._in_reach = frozenset(int(p) for p in d.get("in_reach", []))
     e._pending = {int(i): _pending_from(v) for i, v in d["pending"]}
     e._expired = {int(i): _pending_from(v) for i, v in d["expired"]}
     e._waiting = {(int(a), int(b)): int(i) for a, b, i in d["waiting"]}

@@ -1,0 +1,206 @@
+"""Delta adverts (``ExchangeParams.full_advert_every``): between whole tables a peer is
+sent only the rows changed since the last whole one; the receiver's table follows the
+sender's, a lost advert leaves rows stale but never wrong, and a peer newly in reach
+gets the whole table."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pytest
+
+from sonarmap.team.exchange import (
+    VERSION,
+    Advert,
+    AdvertEntry,
+    ExchangeError,
+    ExchangeParams,
+    Exchanger,
+    PatchKey,
+    _pack,
+    _unpack,
+    decode_advert,
+    encode_advert,
+)
+from sonarmap.team.network import NetworkParams, SimNetwork
+from sonarmap.team.transport import Message, SimHub
+from test_team_exchange import FAST, add_own, own_store
+
+
+def table_of(ex: Exchanger) -> dict[PatchKey, AdvertEntry]:
+    return {(e.source, e.region): e for e in ex.advert().entries}
+
+
+def test_a_delta_round_trips_and_a_whole_advert_has_nothing_gone() -> None:
+    delta = Advert((AdvertEntry(1, 3, 2.5, 4),), delta=True, gone=((2, 0), (1, 5)))
+    assert decode_advert(encode_advert(delta)) == delta
+    empty = Advert((), delta=True)
+    assert decode_advert(encode_advert(empty)) == empty
+    whole = Advert((AdvertEntry(1, 3, 2.5, 4),))
+    assert decode_advert(encode_advert(whole)) == whole
+    assert "gone" not in _unpack(encode_advert(whole))
+    with pytest.raises(ValueError, match="gone"):
+        encode_advert(Advert((), gone=((1, 0),)))
+
+
+@pytest.mark.parametrize(
+    ("gone", "regions", "code"),
+    [
+        ([[1]], None, "type"),
+        ("x", None, "type"),
+        ([[1, -1]], None, "range"),
+        ([[1, 9]], {0, 1}, "range"),
+        ([[1, 0]], None, "duplicate"),  # the same patch both changed and gone
+        ([[2, 0], [2, 0]], None, "duplicate"),
+    ],
+)
+def test_a_bad_delta_is_rejected_by_reason(
+    gone: object, regions: set[int] | None, code: str
+) -> None:
+    body = _pack({"v": VERSION, "patches": [[1, 0, 1.0, 2]], "gone": gone})
+    with pytest.raises(ExchangeError) as e:
+        decode_advert(body, regions=regions)
+    assert e.value.code == code
+
+
+def _pair(
+    full_every: float, reach: Callable[[], set[int]] | None = None
+) -> tuple[Exchanger, Exchanger, SimHub]:
+    hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
+    params = ExchangeParams(**FAST, full_advert_every=full_every)  # type: ignore[arg-type]
+    a = Exchanger(own_store(0, list(range(10))), hub.transport(0), params, peers=reach)
+    b = Exchanger(own_store(1, [0]), hub.transport(1), params)
+    return a, b, hub
+
+
+def _adverts(to: Exchanger) -> list[Message]:
+    return [m for m in to.transport.poll() if m.kind == "advert"]
+
+
+def test_the_receiver_follows_the_table_through_deltas() -> None:
+    a, b, hub = _pair(full_every=30.0)
+    kinds = []
+    for k in range(2, 12):
+        t = float(k)
+        add_own(a.store, 10 + k, k % 2, t)
+        a.step(t)
+        hub.step(t + 0.1)
+        for m in _adverts(b):
+            kinds.append("gone" in _unpack(m.payload))
+            b._handle(m, t + 0.1)
+        assert b._adverts[0][1] == table_of(a)
+    # One whole table, then deltas: two patches of ten change.
+    assert kinds[0] is False
+    assert all(kinds[1:]), kinds
+    assert a.stats.bytes_by_kind["advert"] > 0
+
+
+def test_with_full_advert_every_0_every_advert_is_whole() -> None:
+    a, b, hub = _pair(full_every=0.0)
+    for k in range(2, 6):
+        add_own(a.store, 10 + k, 0, float(k))
+        a.step(float(k))
+        hub.step(k + 0.1)
+        assert all("gone" not in _unpack(m.payload) for m in _adverts(b))
+
+
+def test_a_lost_whole_advert_leaves_rows_stale_not_wrong_until_the_next() -> None:
+    a, b, hub = _pair(full_every=4.0)
+    history: dict[PatchKey, list[AdvertEntry]] = {}
+    a.step(1.0)
+    hub.step(1.1)
+    lost = _adverts(b)  # the first whole table never arrives
+    assert len(lost) == 1
+    assert "gone" not in _unpack(lost[0].payload)
+    whole_again = False
+    for k in range(2, 8):
+        t = float(k)
+        add_own(a.store, 10 + k, 2 + k % 2, t)
+        a.step(t)
+        for key, e in table_of(a).items():
+            history.setdefault(key, []).append(e)
+        hub.step(t + 0.1)
+        for m in _adverts(b):
+            whole_again |= "gone" not in _unpack(m.payload)
+            b._handle(m, t + 0.1)
+        held = b._adverts[0][1]
+        # Every row b holds is one a advertised at some time.
+        assert all(e in history[key] for key, e in held.items())
+        if whole_again:
+            assert held == table_of(a)
+    assert whole_again
+    # Before the whole table came again, b lacked a's patches that did not change.
+    assert (0, 0) in b._adverts[0][1]
+
+
+def test_a_peer_newly_in_reach_gets_the_whole_table() -> None:
+    reach = {1}
+    a, b, hub = _pair(full_every=100.0, reach=lambda: reach)
+    whole = []
+    for k in range(2, 8):
+        reach = set() if k == 4 else {1}
+        add_own(a.store, 10 + k, 0, float(k))
+        a.step(float(k))
+        hub.step(k + 0.1)
+        whole += ["gone" not in _unpack(m.payload) for m in _adverts(b)]
+    # k = 2 whole, 3 delta, 4 out of reach, 5 whole again, 6 and 7 deltas.
+    assert whole == [True, False, True, False, False]
+
+
+def _deliver(a: Exchanger, b: Exchanger, hub: SimHub, t: float) -> list[Message]:
+    a.step(t)
+    hub.step(t + 0.1)
+    got = _adverts(b)
+    for m in got:
+        b._handle(m, t + 0.1)
+    return got
+
+
+def test_a_dropped_patch_is_listed_gone_and_leaves_the_receivers_table() -> None:
+    a, b, hub = _pair(full_every=30.0)
+    some = b.store.local.poses[min(b.store.local.poses)]
+    # A patch in the whole table, dropped later: listed gone.
+    a.store.add_received_pose(1, some, [], [], 0.5)
+    a.store.received[1].patches[0].stamp = 0.5
+    _deliver(a, b, hub, 1.0)
+    assert (1, 0) in b._adverts[0][1]
+    del a.store.received[1]
+    (m,) = _deliver(a, b, hub, 2.0)
+    assert _unpack(m.payload)["gone"] == [[1, 0]]
+    assert b._adverts[0][1] == table_of(a)
+    # A patch that came with a delta and was dropped before the next: not gone (the
+    # whole table never had it), and still not in the receiver's table.
+    a.store.add_received_pose(1, some, [], [], 2.5)
+    a.store.received[1].patches[0].stamp = 2.5
+    _deliver(a, b, hub, 3.0)
+    assert (1, 0) in b._adverts[0][1]
+    del a.store.received[1]
+    (m,) = _deliver(a, b, hub, 4.0)
+    assert "gone" in _unpack(m.payload)
+    assert b._adverts[0][1] == table_of(a)
+
+
+def test_a_checkpoint_keeps_both_sides_bases() -> None:
+    import msgpack
+
+    from sonarmap.team.node import _exchanger_into, _exchanger_state
+
+    a, b, hub = _pair(full_every=30.0)
+    _deliver(a, b, hub, 1.0)
+    _deliver(b, a, hub, 1.0)
+    for e in (a, b):
+        state = msgpack.unpackb(msgpack.packb(_exchanger_state(e)), raw=False)
+        back = Exchanger(e.store, e.transport, e.params)
+        _exchanger_into(back, state)
+        assert back._whole == e._whole
+        assert back._told == e._told
+        assert back._in_reach == e._in_reach
+        assert back._told  # each sent a whole table, each heard one
+        assert back._whole
+    # A restarted sender goes on with deltas against the table its peer holds.
+    back = Exchanger(a.store, a.transport, a.params)
+    _exchanger_into(back, msgpack.unpackb(msgpack.packb(_exchanger_state(a)), raw=False))
+    add_own(a.store, 20, 3, 1.5)
+    (m,) = _deliver(back, b, hub, 2.0)
+    assert "gone" in _unpack(m.payload)
+    assert b._adverts[0][1] == table_of(back)
