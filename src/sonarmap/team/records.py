@@ -293,6 +293,18 @@ class Pose:
         return replace(self, landmarks=landmarks)
 
 
+#: Magnitudes float32 holds; a value beyond stays float64 (none an odometry edge has).
+_F32_MAX = 3.0e38
+
+
+def _f32_tuple(values: tuple[float, ...]) -> tuple[float, ...]:
+    """The values rounded to float32, as Python floats (beyond its range: unchanged)."""
+    a = np.asarray(values, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        r = np.where(np.abs(a) < _F32_MAX, a.astype(np.float32), a)
+    return tuple(float(v) for v in r)
+
+
 @dataclass(frozen=True)
 class OdometryEdge:
     """Wheel odometry from pose ``a`` to pose ``b``: ``transform`` of b in a's frame,
@@ -305,6 +317,14 @@ class OdometryEdge:
     covariance: tuple[float, ...]
     max_distance: float
     max_turn: float = math.pi
+
+    def __post_init__(self) -> None:
+        # Held to float32 (odometry is known to far coarser than its 1e-7 relative step):
+        # a float64 exact in float32 ends in zero bytes, which deflate removes, so an
+        # edge travels in about 30 % fewer bytes. Rounding twice changes nothing, so
+        # every copy of an edge, and its fingerprint, is the same.
+        object.__setattr__(self, "transform", _f32_tuple(self.transform))
+        object.__setattr__(self, "covariance", _f32_tuple(self.covariance))
 
     def cov(self) -> F64:
         return np.array(self.covariance, dtype=np.float64).reshape(3, 3)
