@@ -32,32 +32,38 @@ def table_of(ex: Exchanger) -> dict[PatchKey, AdvertEntry]:
 
 
 def test_a_delta_round_trips_and_a_whole_advert_has_nothing_gone() -> None:
-    delta = Advert((AdvertEntry(1, 3, 2.5, 4),), delta=True, gone=((2, 0), (1, 5)))
+    delta = Advert((AdvertEntry(1, 3, 2.5, 4),), True, ((2, 0), (1, 5)), t=7.0, base=5.0)
     assert decode_advert(encode_advert(delta)) == delta
-    empty = Advert((), delta=True)
+    empty = Advert((), delta=True, t=7.0, base=7.0)
     assert decode_advert(encode_advert(empty)) == empty
-    whole = Advert((AdvertEntry(1, 3, 2.5, 4),))
-    assert decode_advert(encode_advert(whole)) == whole
-    assert "gone" not in _unpack(encode_advert(whole))
+    for whole in (Advert((AdvertEntry(1, 3, 2.5, 4),)), Advert((), t=3.0)):
+        assert decode_advert(encode_advert(whole)) == whole
+        assert "gone" not in _unpack(encode_advert(whole))
     with pytest.raises(ValueError, match="gone"):
         encode_advert(Advert((), gone=((1, 0),)))
+    with pytest.raises(ValueError, match="send time"):
+        encode_advert(Advert((), delta=True, t=1.0))
 
 
 @pytest.mark.parametrize(
-    ("gone", "regions", "code"),
+    ("gone", "regions", "times", "code"),
     [
-        ([[1]], None, "type"),
-        ("x", None, "type"),
-        ([[1, -1]], None, "range"),
-        ([[1, 9]], {0, 1}, "range"),
-        ([[1, 0]], None, "duplicate"),  # the same patch both changed and gone
-        ([[2, 0], [2, 0]], None, "duplicate"),
+        ([[1]], None, {}, "type"),
+        ("x", None, {}, "type"),
+        ([[1, -1]], None, {}, "range"),
+        ([[1, 9]], {0, 1}, {}, "range"),
+        ([[1, 0]], None, {}, "duplicate"),  # the same patch both changed and gone
+        ([[2, 0], [2, 0]], None, {}, "duplicate"),
+        ([], None, {"base": 3.5}, "inconsistent"),  # its base sent after it
+        ([], None, {"t": None}, "type"),
+        ([], None, {"base": float("inf")}, "range"),
     ],
 )
 def test_a_bad_delta_is_rejected_by_reason(
-    gone: object, regions: set[int] | None, code: str
+    gone: object, regions: set[int] | None, times: dict[str, object], code: str
 ) -> None:
-    body = _pack({"v": VERSION, "patches": [[1, 0, 1.0, 2]], "gone": gone})
+    d = {"v": VERSION, "t": 3.0, "base": 1.0, "patches": [[1, 0, 1.0, 2]], "gone": gone}
+    body = _pack({**d, **times})
     with pytest.raises(ExchangeError) as e:
         decode_advert(body, regions=regions)
     assert e.value.code == code
@@ -193,6 +199,7 @@ def test_a_checkpoint_keeps_both_sides_bases() -> None:
         back = Exchanger(e.store, e.transport, e.params)
         _exchanger_into(back, state)
         assert back._whole == e._whole
+        assert back._heard == e._heard
         assert back._told == e._told
         assert back._in_reach == e._in_reach
         assert back._told  # each sent a whole table, each heard one
@@ -204,3 +211,62 @@ def test_a_checkpoint_keeps_both_sides_bases() -> None:
     (m,) = _deliver(back, b, hub, 2.0)
     assert "gone" in _unpack(m.payload)
     assert b._adverts[0][1] == table_of(back)
+
+
+def test_a_delta_missing_its_times_is_rejected() -> None:
+    body = _pack({"v": VERSION, "patches": [], "gone": []})
+    with pytest.raises(ExchangeError) as e:
+        decode_advert(body)
+    assert e.value.code == "keys"
+
+
+def test_a_lost_whole_table_never_brings_back_a_dropped_patch() -> None:
+    a, b, hub = _pair(full_every=3.0)
+    some = b.store.local.poses[min(b.store.local.poses)]
+    a.store.add_received_pose(1, some, [], [], 0.5)
+    a.store.received[1].patches[0].stamp = 0.5
+    _deliver(a, b, hub, 1.0)
+    del a.store.received[1]
+    (m,) = _deliver(a, b, hub, 2.0)
+    assert (1, 0) not in b._adverts[0][1]
+    # The next whole table (t = 4) is lost; the deltas after it follow that one.
+    a.step(4.0)
+    hub.step(4.1)
+    (lost,) = _adverts(b)
+    assert "gone" not in _unpack(lost.payload)
+    for t in (5.0, 6.0):
+        add_own(a.store, 30 + int(t), 4, t)
+        (m,) = _deliver(a, b, hub, t)
+        assert "gone" in _unpack(m.payload)
+        held = b._adverts[0][1]
+        assert (1, 0) not in held
+        assert held[(0, 4)] == table_of(a)[(0, 4)]
+    _deliver(a, b, hub, 7.0)
+    assert b._adverts[0][1] == table_of(a)
+
+
+def test_an_advert_older_than_one_heard_is_ignored() -> None:
+    a, b, hub = _pair(full_every=30.0)
+    a.step(1.0)
+    add_own(a.store, 40, 5, 1.5)
+    a.step(2.0)
+    hub.step(2.1)
+    first, second = _adverts(b)
+    b._handle(second, 2.1)  # a delta overtook the whole table it follows
+    b._handle(first, 2.1)
+    assert b.stats.stale_adverts == 1
+    assert b._adverts[0][1][(0, 5)] == table_of(a)[(0, 5)]
+    # A delta applied over our copy: its rows are the newest, the rest as held.
+    assert b._adverts[0][1] == {k: e for k, e in table_of(a).items() if k == (0, 5)}
+
+
+def test_a_refused_advert_makes_the_next_one_whole() -> None:
+    a, b, hub = _pair(full_every=30.0)
+    _deliver(a, b, hub, 1.0)
+    send = a.transport.send
+    a.transport.send = lambda *args, **kwargs: False  # type: ignore[method-assign]
+    a.step(2.0)
+    a.transport.send = send  # type: ignore[method-assign]
+    assert a.stats.refused == 1
+    (m,) = _deliver(a, b, hub, 3.0)
+    assert "gone" not in _unpack(m.payload)

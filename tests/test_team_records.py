@@ -121,3 +121,18 @@ def test_an_empty_landmark_set_keeps_its_descriptor_length() -> None:
     q = decode(encode(p.with_landmarks(p.landmarks.take(np.zeros(20, dtype=bool)))))
     assert isinstance(q, Pose)
     assert q.landmarks.descriptors.shape == (0, 128)
+
+
+def test_odometry_edges_hold_float32_values_and_keep_symmetry() -> None:
+    c = np.array([[1e-4, 1e-6, 2e-7], [1e-6 * (1 + 1e-13), 2e-4, 0.0], [2e-7, 0.0, 1e-5]])
+    e = OdometryEdge(1, 2, (0.1, -0.2, 3.0), tuple(c.ravel()), 1.0)
+    assert all(float(np.float32(v)) == v for v in (*e.transform, *e.covariance))
+    assert (e.cov() == e.cov().T).all()  # equal but for float64 rounding: made equal
+    assert OdometryEdge(1, 2, e.transform, e.covariance, 1.0) == e  # rounding twice: same
+    assert decode(encode(e)) == e
+    c[0, 1] = 5e-6  # truly asymmetric: left for the graph to refuse
+    m = OdometryEdge(1, 2, (0, 0, 0), tuple(c.ravel()), 1.0).cov()
+    assert m[0, 1] != m[1, 0]
+    odd = OdometryEdge(1, 2, (math.nan, math.inf, 1e39), (1.0,) * 9, 1.0)
+    assert math.isnan(odd.transform[0])
+    assert odd.transform[1:] == (math.inf, 1e39)

@@ -11,8 +11,9 @@ times; its landmarks' descriptors hardly shrink):
     poses it has of that patch. Sent to every peer each ``advert_every`` seconds, so the
     others know who is newest: whole every ``full_advert_every`` seconds and to a peer
     newly in reach; in between, a *delta* (the key ``gone`` present) carries only the
-    rows that changed since the last whole table sent to that peer and the patches
-    dropped since. Deltas are cumulative, so a lost one is made good by the next.
+    rows that changed since the last whole table sent to that peer (``base``, its send
+    time ``t``) and the patches dropped since. Deltas are cumulative, so a lost one is
+    made good by the next; an advert older than one already heard is ignored.
 ``"request"``
     A set of one-patch requests ``(source, region, requester's stamp, short list, edge
     fingerprints)``; in the limited mode also the requester's full list, and all
@@ -160,8 +161,9 @@ MODES = ("good", "limited")
 #: :class:`~.naive.NaiveExchanger` runs (it has its own messages).
 PROTOCOLS = (*MODES, "naive")
 #: The bodies' version, field ``v`` (2: requests carry an edge digest per patch; 3: bodies
-#: are deflated; 4: edge fingerprints instead of the digest).
-VERSION = 4
+#: are deflated; 4: edge fingerprints instead of the digest; 5: delta adverts, adverts
+#: stamped with their send time, odometry edges in float32).
+VERSION = 5
 #: Bytes a body may inflate to at most; a deflated body that would grow past it (a zlib
 #: bomb) is refused before it is expanded.
 MAX_INFLATED = 64 << 20
@@ -210,11 +212,15 @@ class ExchangeParams:
         Seconds between adverts: 5.
     full_advert_every : float
         Seconds at least between two whole adverts to a peer; the adverts between carry
-        only the rows changed since the last whole one (a *delta*), and a peer newly in
-        reach gets a whole one. 0: every advert whole. Default 30, the ``peer_timeout``:
-        a row lost with a delta and a whole advert stays stale for at most that long,
-        as long as a peer that stops advertising is trusted. On building 7 (4 robots,
-        300 s, the lean exchange) adverts averaged 32 rows and were 13 % of the bytes.
+        only the rows changed since the last whole one (a *delta*), and a peer the last
+        round's advert did not reach gets a whole one. 0: every advert whole. Default
+        30, the ``peer_timeout``: a receiver that missed a whole advert may hold rows
+        stale until the next one, each lost whole advert adding that long, about as
+        long as a peer that stops advertising is trusted. With the lean exchange
+        (``LEAN``; 300 s) adverts of 32 rows on average were 13 % of the bytes on
+        building 7 (4 robots); deltas took the exchange there from 25.2 % to 23.7 %
+        of the naive baseline's bytes, and on building 8 (3 robots) from 23.2 % to
+        22.2 %, with the same maps (``benchmarks.team_exchange``).
     request_every : float
         Seconds between rounds of requests: 1.
     max_patches : int
@@ -351,6 +357,8 @@ class ExchangeStats:
         Patches asked for again after their request timed out.
     stale : int
         Answer entries not applied because the patch had meanwhile become newer.
+    stale_adverts : int
+        Adverts ignored because one sent later had already arrived.
     refused : int
         Messages the transport would not take (no route, too large, closed).
     rejected : Counter
@@ -371,6 +379,7 @@ class ExchangeStats:
     requests_sent: int = 0
     retries: int = 0
     stale: int = 0
+    stale_adverts: int = 0
     refused: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     bytes_by_kind: Counter[str] = field(default_factory=Counter)
@@ -429,12 +438,15 @@ class AdvertEntry:
 @dataclass(frozen=True)
 class Advert:
     """The sender's table of patch stamps, by (source, region): whole, or (``delta``)
-    the rows that changed since the last whole table the sender sent to this peer and
-    the patches it has dropped since (``gone``)."""
+    the rows that changed since the whole table the sender sent to this peer at time
+    ``base`` and the patches it has dropped since (``gone``). ``t``: when the sender
+    sent it (None: unordered, always taken; a delta has both times)."""
 
     entries: tuple[AdvertEntry, ...]
     delta: bool = False
     gone: tuple[PatchKey, ...] = ()
+    t: float | None = None
+    base: float | None = None
 
 
 @dataclass(frozen=True)
@@ -505,10 +517,15 @@ def encode_advert(advert: Advert) -> bytes:
     """An advert's body."""
     rows = [[e.source, e.region, float(e.stamp), e.held] for e in advert.entries]
     d: dict[str, Any] = {"v": VERSION, "patches": rows}
+    if advert.t is not None:
+        d["t"] = float(advert.t)
     if advert.delta:
+        if advert.t is None or advert.base is None:
+            raise ValueError("a delta advert has its send time and its base's")
+        d["base"] = float(advert.base)
         d["gone"] = [[s, r] for s, r in advert.gone]
-    elif advert.gone:
-        raise ValueError("a whole advert has no gone patches")
+    elif advert.gone or advert.base is not None:
+        raise ValueError("a whole advert has no gone patches and no base")
     return _pack(d)
 
 
@@ -673,14 +690,26 @@ def decode_advert(body: bytes, *, regions: Collection[int] | None = None) -> Adv
     ``regions``, if given, are the prior map's regions: any other is out of range."""
     d = _unpack(body)
     delta = "gone" in d
-    _keys(d, ("v", "patches", "gone") if delta else ("v", "patches"), "advert")
+    if delta:
+        _keys(d, ("v", "t", "base", "patches", "gone"), "advert")
+    else:
+        _keys(d, ("v", "t", "patches") if "t" in d else ("v", "patches"), "advert")
     _version(d)
+    t = _stamp(d.get("t"), "advert.t", optional=not delta)
+    base = _stamp(d.get("base"), "advert.base", optional=not delta)
+    if base is not None and t is not None and base > t:
+        raise ExchangeError("inconsistent", f"advert: base {base} after its send time {t}")
     gone: list[PatchKey] = []
     for i, row in enumerate(_list(d["gone"], "advert.gone") if delta else []):
         where = f"advert.gone[{i}]"
         if not isinstance(row, list) or len(row) != 2:
             raise ExchangeError("type", f"{where}: [source, region] expected")
-        gone.append((_int(row[0], f"{where}.source", ROBOT_LIMIT), _region(row[1], where, regions)))
+        gone.append(
+            (
+                _int(row[0], f"{where}.source", ROBOT_LIMIT),
+                _region(row[1], f"{where}.region", regions),
+            )
+        )
     rows = _list(d["patches"], "advert.patches")
     entries: list[AdvertEntry] = []
     for i, row in enumerate(rows):
@@ -694,20 +723,23 @@ def decode_advert(body: bytes, *, regions: Collection[int] | None = None) -> Adv
         held = _int(row[3], f"{where}.held", _UID_LIMIT)
         entries.append(AdvertEntry(src, region, stamp, held))
     _unique_keys([(e.source, e.region) for e in entries] + gone, "advert")
-    return Advert(tuple(entries), delta, tuple(gone))
+    return Advert(tuple(entries), delta, tuple(gone), t, base)
 
 
 def _delta_body(
-    told: Mapping[PatchKey, AdvertEntry], table: Mapping[PatchKey, AdvertEntry]
+    told: tuple[float, Mapping[PatchKey, AdvertEntry]],
+    table: Mapping[PatchKey, AdvertEntry],
+    now: float,
 ) -> bytes | None:
-    """The delta advert from the table ``told`` to ``table``; None when it would list at
-    least half as many rows as the whole table (the whole one then costs little more
-    and refreshes the peer's base)."""
-    changed = tuple(e for k, e in table.items() if told.get(k) != e)
-    gone = tuple(k for k in told if k not in table)
+    """The delta advert sent at ``now`` from the whole table ``told`` (its send time,
+    its rows) to ``table``; None when it would list at least half as many rows as the
+    whole table (the whole one then costs little more and refreshes the peer's base)."""
+    base, rows = told
+    changed = tuple(e for k, e in table.items() if rows.get(k) != e)
+    gone = tuple(k for k in rows if k not in table)
     if 2 * (len(changed) + len(gone)) >= max(1, len(table)):
         return None
-    return encode_advert(Advert(changed, delta=True, gone=gone))
+    return encode_advert(Advert(changed, delta=True, gone=gone, t=now, base=base))
 
 
 def _connected(regions: Sequence[int], adjacency: Mapping[int, Collection[int]]) -> bool:
@@ -997,10 +1029,11 @@ class Exchanger:
         self._next_advert = -math.inf
         self._next_request = -math.inf
         self._adverts: dict[int, tuple[float, dict[PatchKey, AdvertEntry]]] = {}
-        # Per peer, the last whole table heard from it; the last whole table sent to
-        # it and when; the peers in reach at the last advert (one not there gets a
-        # whole table).
-        self._whole: dict[int, dict[PatchKey, AdvertEntry]] = {}
+        # Per peer: the send time of the newest advert heard from it and the last whole
+        # table heard (its send time and rows); the last whole table sent to it and
+        # when. The peers an advert reached at the last round (another gets a whole).
+        self._heard: dict[int, float] = {}
+        self._whole: dict[int, tuple[float, dict[PatchKey, AdvertEntry]]] = {}
         self._told: dict[int, tuple[float, dict[PatchKey, AdvertEntry]]] = {}
         self._in_reach: frozenset[int] = frozenset()
         self._pending: dict[int, _Pending] = {}
@@ -1176,10 +1209,10 @@ class Exchanger:
         """Send each peer in reach the table, whole or as a delta (``full_advert_every``)."""
         rows = self.advert().entries
         table = {(e.source, e.region): e for e in rows}
-        whole = encode_advert(Advert(rows))
+        whole = encode_advert(Advert(rows, t=now))
         deltas: dict[float, bytes | None] = {}
-        peers = sorted(set(self._peers()) - {self.robot})
-        for peer in peers:
+        reached = set()
+        for peer in sorted(set(self._peers()) - {self.robot}):
             told = self._told.get(peer)
             body = None
             if (
@@ -1188,13 +1221,15 @@ class Exchanger:
                 and now - told[0] < self.params.full_advert_every
             ):
                 if told[0] not in deltas:
-                    deltas[told[0]] = _delta_body(told[1], table)
+                    deltas[told[0]] = _delta_body(told, table, now)
                 body = deltas[told[0]]
             if body is not None:
-                self._send(peer, "advert", body)
+                if self._send(peer, "advert", body):
+                    reached.add(peer)
             elif self._send(peer, "advert", whole):
                 self._told[peer] = (now, table)
-        self._in_reach = frozenset(peers)
+                reached.add(peer)
+        self._in_reach = frozenset(reached)
 
     # --- requests ------------------------------------------------------------------------
 
@@ -1400,19 +1435,7 @@ class Exchanger:
         regions = None if self.adjacency is None else self.adjacency.keys()
         try:
             if msg.kind == "advert":
-                advert = decode_advert(body, regions=regions)
-                table = {(e.source, e.region): e for e in advert.entries}
-                if advert.delta:
-                    # Over the last whole table heard from the peer: if the whole one
-                    # this delta follows was lost, some rows are stale, never wrong.
-                    held = dict(self._whole.get(msg.src, {}))
-                    for key in advert.gone:
-                        held.pop(key, None)
-                    held.update(table)
-                    table = held
-                else:
-                    self._whole[msg.src] = table
-                self._adverts[msg.src] = (now, table)
+                self._take_advert(msg.src, decode_advert(body, regions=regions), now)
             elif msg.kind == "request":
                 request = decode_request(body, regions=regions, adjacency=self.adjacency)
                 self._answer(msg.src, request, now)
@@ -1433,6 +1456,34 @@ class Exchanger:
                 e.code,
                 e.reason,
             )
+
+    def _take_advert(self, peer: int, advert: Advert, now: float) -> None:
+        """Bring our copy of the peer's table up to ``advert``. One sent before an
+        advert already heard (delayed, reordered) is ignored. A delta goes over the
+        whole table it follows if we heard that one; else over our copy, whose rows it
+        does not name may then stay stale (never older than we held) until the next
+        whole table."""
+        t = advert.t
+        if t is not None:
+            if t <= self._heard.get(peer, -math.inf):
+                self.stats.stale_adverts += 1
+                return
+            self._heard[peer] = t
+        table = {(e.source, e.region): e for e in advert.entries}
+        if advert.delta:
+            whole = self._whole.get(peer)
+            if whole is not None and whole[0] == advert.base:
+                base = whole[1]
+            else:
+                base = self._adverts.get(peer, (now, {}))[1]
+            held = dict(base)
+            for key in advert.gone:
+                held.pop(key, None)
+            held.update(table)
+            table = held
+        else:
+            self._whole[peer] = (-math.inf if t is None else t, table)
+        self._adverts[peer] = (now, table)
 
     # --- answering -----------------------------------------------------------------------
 

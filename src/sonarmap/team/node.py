@@ -708,7 +708,10 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "adverts": [
             [p, at, [_entry(x) for x in table.values()]] for p, (at, table) in e._adverts.items()
         ],
-        "whole": [[p, [_entry(x) for x in table.values()]] for p, table in e._whole.items()],
+        "heard": [[p, t] for p, t in e._heard.items()],
+        "whole": [
+            [p, t, [_entry(x) for x in table.values()]] for p, (t, table) in e._whole.items()
+        ],
         "told": [
             [p, at, [_entry(x) for x in table.values()]] for p, (at, table) in e._told.items()
         ],
@@ -736,7 +739,8 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
     e._next_request = float(d["next_request"])
     e._adverts = {int(p): (float(at), _table_from(rows)) for p, at, rows in d["adverts"]}
     # A state saved before delta adverts has none of these: whole tables to everyone.
-    e._whole = {int(p): _table_from(rows) for p, rows in d.get("whole", [])}
+    e._heard = {int(p): float(t) for p, t in d.get("heard", [])}
+    e._whole = {int(p): (float(t), _table_from(rows)) for p, t, rows in d.get("whole", [])}
     e._told = {int(p): (float(at), _table_from(rows)) for p, at, rows in d.get("told", [])}
     e._in_reach = frozenset(int(p) for p in d.get("in_reach", []))
     e._pending = {int(i): _pending_from(v) for i, v in d["pending"]}

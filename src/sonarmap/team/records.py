@@ -324,7 +324,14 @@ class OdometryEdge:
         # edge travels in about 30 % fewer bytes. Rounding twice changes nothing, so
         # every copy of an edge, and its fingerprint, is the same.
         object.__setattr__(self, "transform", _f32_tuple(self.transform))
-        object.__setattr__(self, "covariance", _f32_tuple(self.covariance))
+        cov = np.asarray(self.covariance, dtype=np.float64)
+        if cov.shape == (9,):
+            # Entries equal but for float64 rounding must not round apart in float32
+            # (the graph checks symmetry); a truly asymmetric one is left to be refused.
+            m = cov.reshape(3, 3)
+            with np.errstate(invalid="ignore", over="ignore"):
+                cov = np.where(np.isclose(m, m.T, rtol=1e-9, atol=0.0), (m + m.T) / 2, m)
+        object.__setattr__(self, "covariance", _f32_tuple(tuple(cov.ravel().tolist())))
 
     def cov(self) -> F64:
         return np.array(self.covariance, dtype=np.float64).reshape(3, 3)
