@@ -30,6 +30,8 @@ from sonarmap.team.exchange import (
     PatchAnswer,
     PatchRequest,
     Request,
+    _inflate,
+    decode_advert,
     decode_answer,
     decode_request,
     encode_advert,
@@ -386,7 +388,7 @@ def test_a_deletion_at_the_source_removes_the_pose_its_edges_and_closures(mode: 
 def _pose_bytes_per_answer(bodies: Sequence[bytes]) -> list[int]:
     out = []
     for body in bodies:
-        d = msgpack.unpackb(zlib.decompress(body), raw=False)
+        d = msgpack.unpackb(_inflate(body), raw=False)
         out.append(sum(len(p) for row in d["patches"] for p in row["poses"]))
     return out
 
@@ -678,9 +680,7 @@ def _request_body(drop: Sequence[str] = (), **changes: Any) -> bytes:
     """A good request for robot 2's region 0 with its one patch's fields changed, and
     those named in ``drop`` left out."""
     d = msgpack.unpackb(
-        zlib.decompress(
-            encode_request(Request(0, "good", (PatchRequest(2, 0, None, frozenset()),)))
-        )
+        _inflate(encode_request(Request(0, "good", (PatchRequest(2, 0, None, frozenset()),))))
     )
     row = {k: v for k, v in {**d["patches"][0], **changes}.items() if k not in drop}
     return _pack({**d, "patches": [row]})
@@ -858,11 +858,7 @@ def test_an_answer_older_than_the_patch_is_not_applied(
 
 
 def _answer_rows(bodies: Sequence[bytes]) -> list[dict[str, Any]]:
-    return [
-        row
-        for body in bodies
-        for row in msgpack.unpackb(zlib.decompress(body), raw=False)["patches"]
-    ]
+    return [row for body in bodies for row in msgpack.unpackb(_inflate(body), raw=False)["patches"]]
 
 
 @pytest.mark.parametrize("mode", ["good", "limited"])
@@ -985,7 +981,7 @@ def test_a_peer_vanishing_mid_answer_leaves_the_store_whole() -> None:
     hub.step(DT)
     ea.step(hub.now)
     assert len(parts) >= 2
-    assert [r["r"] for r in msgpack.unpackb(zlib.decompress(parts[0]), raw=False)["patches"]] == [0]
+    assert [r["r"] for r in msgpack.unpackb(_inflate(parts[0]), raw=False)["patches"]] == [0]
     layer = a.received[1]
     assert set(layer.poses) == set(b.local.patches[0].short)  # the first part, whole
     assert all(p.short == p.full for p in layer.patches.values())
@@ -1168,3 +1164,13 @@ def test_edge_fingerprints_ignore_order_and_tell_remade_edges_apart() -> None:
     assert edge_fingerprints([e1, e2]) == edge_fingerprints([e2, e1, e2])
     remade = OdometryEdge(e1.a, e1.b, (e1.transform[0] + 1e-5, *e1.transform[1:]), COV, 10.0)
     assert edge_fingerprint(remade) != edge_fingerprint(e1)
+
+
+def test_bodies_are_deflated_with_the_preset_dictionary() -> None:
+    advert = Advert((AdvertEntry(1, 0, 2.0, 2), AdvertEntry(2, 3, 4.0, 1)), t=5.0)
+    body = encode_advert(advert)
+    plain = zlib.compress(msgpack.packb(msgpack.unpackb(_inflate(body)), use_bin_type=True), 6)
+    assert len(body) < len(plain)
+    with pytest.raises(zlib.error):
+        zlib.decompress(body)  # a reader without the dictionary cannot inflate it
+    assert decode_advert(plain) == decode_advert(body) == advert
