@@ -162,12 +162,16 @@ def _deliver(a: Exchanger, b: Exchanger, hub: SimHub, t: float) -> list[Message]
     return got
 
 
+def _hold_b_patch(a: Exchanger, b: Exchanger, t: float) -> None:
+    """a receives one of b's poses at ``t``: a holds patch (1, 0)."""
+    a.store.add_received_pose(1, b.store.local.poses[min(b.store.local.poses)], [], [], t)
+    a.store.received[1].patches[0].stamp = t
+
+
 def test_a_dropped_patch_is_listed_gone_and_leaves_the_receivers_table() -> None:
     a, b, hub = _pair(full_every=30.0)
-    some = b.store.local.poses[min(b.store.local.poses)]
     # A patch in the whole table, dropped later: listed gone.
-    a.store.add_received_pose(1, some, [], [], 0.5)
-    a.store.received[1].patches[0].stamp = 0.5
+    _hold_b_patch(a, b, 0.5)
     _deliver(a, b, hub, 1.0)
     assert (1, 0) in b._adverts[0][1]
     del a.store.received[1]
@@ -176,8 +180,7 @@ def test_a_dropped_patch_is_listed_gone_and_leaves_the_receivers_table() -> None
     assert b._adverts[0][1] == table_of(a)
     # A patch that came with a delta and was dropped before the next: not gone (the
     # whole table never had it), and still not in the receiver's table.
-    a.store.add_received_pose(1, some, [], [], 2.5)
-    a.store.received[1].patches[0].stamp = 2.5
+    _hold_b_patch(a, b, 2.5)
     _deliver(a, b, hub, 3.0)
     assert (1, 0) in b._adverts[0][1]
     del a.store.received[1]
@@ -222,9 +225,7 @@ def test_a_delta_missing_its_times_is_rejected() -> None:
 
 def test_a_lost_whole_table_never_brings_back_a_dropped_patch() -> None:
     a, b, hub = _pair(full_every=3.0)
-    some = b.store.local.poses[min(b.store.local.poses)]
-    a.store.add_received_pose(1, some, [], [], 0.5)
-    a.store.received[1].patches[0].stamp = 0.5
+    _hold_b_patch(a, b, 0.5)
     _deliver(a, b, hub, 1.0)
     del a.store.received[1]
     (m,) = _deliver(a, b, hub, 2.0)
