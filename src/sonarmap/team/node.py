@@ -693,6 +693,13 @@ def _pending_from(v: Any) -> _Pending:
     return _Pending(int(v[0]), {(int(a), int(b)) for a, b in v[1]}, float(v[2]), float(v[3]))
 
 
+def _tables_state(
+    tables: Mapping[int, tuple[float, Mapping[PatchKey, AdvertEntry]]],
+) -> list[list[Any]]:
+    """Per peer, a time and an advert table as ``[peer, time, rows]`` (:func:`_table_from`)."""
+    return [[p, t, [_entry(x) for x in table.values()]] for p, (t, table) in tables.items()]
+
+
 def _table_from(rows: Sequence[Any]) -> dict[PatchKey, AdvertEntry]:
     entries = [x for x in (_entry_from(r) for r in rows) if x is not None]
     return {(x.source, x.region): x for x in entries}
@@ -705,16 +712,10 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "now": e._now,
         "next_advert": e._next_advert,
         "next_request": e._next_request,
-        "adverts": [
-            [p, at, [_entry(x) for x in table.values()]] for p, (at, table) in e._adverts.items()
-        ],
+        "adverts": _tables_state(e._adverts),
         "heard": [[p, t] for p, t in e._heard.items()],
-        "whole": [
-            [p, t, [_entry(x) for x in table.values()]] for p, (t, table) in e._whole.items()
-        ],
-        "told": [
-            [p, at, [_entry(x) for x in table.values()]] for p, (at, table) in e._told.items()
-        ],
+        "whole": _tables_state(e._whole),
+        "told": _tables_state(e._told),
         "in_reach": sorted(e._in_reach),
         "pending": [[i, _pending_state(p)] for i, p in e._pending.items()],
         "expired": [[i, _pending_state(p)] for i, p in e._expired.items()],

@@ -297,9 +297,9 @@ class Pose:
 _F32_MAX = 3.0e38
 
 
-def _f32_tuple(values: tuple[float, ...]) -> tuple[float, ...]:
+def _f32_tuple(values: npt.ArrayLike) -> tuple[float, ...]:
     """The values rounded to float32, as Python floats (beyond its range: unchanged)."""
-    a = np.asarray(values, dtype=np.float64)
+    a = np.asarray(values, dtype=np.float64).ravel()
     with np.errstate(over="ignore", invalid="ignore"):
         r = np.where(np.abs(a) < _F32_MAX, a.astype(np.float32), a)
     return tuple(float(v) for v in r)
@@ -328,10 +328,12 @@ class OdometryEdge:
         if cov.shape == (9,):
             # Entries equal but for float64 rounding must not round apart in float32
             # (the graph checks symmetry); a truly asymmetric one is left to be refused.
+            # The test is symmetric in the pair, so both entries of a pair change or neither.
             m = cov.reshape(3, 3)
             with np.errstate(invalid="ignore", over="ignore"):
-                cov = np.where(np.isclose(m, m.T, rtol=1e-9, atol=0.0), (m + m.T) / 2, m)
-        object.__setattr__(self, "covariance", _f32_tuple(tuple(cov.ravel().tolist())))
+                near = np.abs(m - m.T) <= 1e-9 * np.maximum(np.abs(m), np.abs(m.T))
+                cov = np.where(near, (m + m.T) / 2, m)
+        object.__setattr__(self, "covariance", _f32_tuple(cov))
 
     def cov(self) -> F64:
         return np.array(self.covariance, dtype=np.float64).reshape(3, 3)
