@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import logging
 import math
-import zlib
+import struct
 from collections import defaultdict
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -15,12 +15,14 @@ from typing import Any
 import msgpack
 import numpy as np
 import pytest
+import zstandard
 
 from sonarmap.errors import ConfigError, InputError
 from sonarmap.grid import Grid
 from sonarmap.team.exchange import (
     MAX_INFLATED,
     VERSION,
+    ZSTD_LEVEL,
     Advert,
     AdvertEntry,
     Answer,
@@ -634,8 +636,20 @@ def test_the_source_is_asked_when_reachable_else_the_newest_holder() -> None:
 # --- bad bodies ------------------------------------------------------------------------------
 
 
+def _zstd(raw: bytes, **options: Any) -> bytes:
+    """A zstd frame of ``raw`` made without the preset dictionary (which any reader takes)."""
+    return zstandard.ZstdCompressor(**options).compress(raw)
+
+
 def _pack(d: object) -> bytes:
-    return zlib.compress(bytes(msgpack.packb(d, use_bin_type=True)))
+    return _zstd(bytes(msgpack.packb(d, use_bin_type=True)))
+
+
+def _lying_frame() -> bytes:
+    """A frame of 1 MiB of zeros whose header says it holds 100 bytes."""
+    frame = _zstd(bytes(1 << 20))
+    at = frame.index(struct.pack("<I", 1 << 20), 4)
+    return frame[:at] + struct.pack("<I", 100) + frame[at + 4 :]
 
 
 @pytest.fixture
@@ -693,9 +707,11 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
     wrong_region = pose(1, 7, 1, 0.0)
     a_pose = pose(0, 5, 0, 0.0)
     return {
-        "not deflated": ("answer", b"\xc1garbage", "deflate"),
-        "not msgpack": ("answer", zlib.compress(b"\xc1garbage"), "msgpack"),
-        "zlib bomb": ("answer", zlib.compress(bytes(MAX_INFLATED + 1), 9), "oversized"),
+        "not zstd": ("answer", b"\xc1garbage", "zstd"),
+        "not msgpack": ("answer", _zstd(b"\xc1garbage"), "msgpack"),
+        "zstd bomb": ("answer", _zstd(bytes(MAX_INFLATED + 1), level=19), "oversized"),
+        "size not stated": ("answer", _zstd(b"\x80", write_content_size=False), "zstd"),
+        "size understated": ("answer", _lying_frame(), "zstd"),
         "truncated": ("answer", good[:-40], "truncated"),
         "trailing": ("answer", good + b"\x00", "trailing"),
         "not a map": ("answer", _pack([1, 2, 3]), "not_map"),
@@ -1166,11 +1182,11 @@ def test_edge_fingerprints_ignore_order_and_tell_remade_edges_apart() -> None:
     assert edge_fingerprint(remade) != edge_fingerprint(e1)
 
 
-def test_bodies_are_deflated_with_the_preset_dictionary() -> None:
+def test_bodies_are_compressed_with_the_preset_dictionary() -> None:
     advert = Advert((AdvertEntry(1, 0, 2.0, 2), AdvertEntry(2, 3, 4.0, 1)), t=5.0)
     body = encode_advert(advert)
-    plain = zlib.compress(msgpack.packb(msgpack.unpackb(_inflate(body)), use_bin_type=True), 6)
+    plain = _zstd(_inflate(body), level=ZSTD_LEVEL)
     assert len(body) < len(plain)
-    with pytest.raises(zlib.error):
-        zlib.decompress(body)  # a reader without the dictionary cannot inflate it
+    with pytest.raises(zstandard.ZstdError):
+        zstandard.ZstdDecompressor().decompress(body)  # a reader without the dictionary
     assert decode_advert(plain) == decode_advert(body) == advert

@@ -1,10 +1,10 @@
 """The exchange of poses between robots' stores (thesis 002, section 2.4): the
 good-network and the limited-network protocols over a :class:`~.transport.Transport`.
 
-Three kinds of message, each a msgpack map (never pickle), deflated with zlib and a
-preset dictionary (:data:`PRESET_DICTIONARY`), in a transport envelope (a pose's local
-map is mostly unknown cells and shrinks about eight times; its landmarks' descriptors
-hardly shrink):
+Three kinds of message, each a msgpack map (never pickle), compressed as one zstd frame
+with a preset dictionary (:data:`PRESET_DICTIONARY`), in a transport envelope (a pose's
+local map is mostly unknown cells and shrinks about eight times; its landmarks'
+descriptors hardly shrink):
 
 ``"advert"``
     The sender's table of patch stamps: ``(source, region) -> (stamp, held)`` for every
@@ -99,7 +99,7 @@ import hashlib
 import logging
 import math
 import struct
-import zlib
+import threading
 from collections import Counter
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
@@ -107,6 +107,7 @@ from typing import Any
 
 import msgpack
 import numpy as np
+import zstandard
 
 from ..errors import ConfigError, InputError
 from .quantise import check_quantisation, quantise_pose
@@ -166,10 +167,11 @@ MODES = ("good", "limited")
 PROTOCOLS = (*MODES, "naive")
 #: The bodies' version, field ``v`` (2: requests carry an edge digest per patch; 3: bodies
 #: are deflated; 4: edge fingerprints instead of the digest; 5: delta adverts, adverts
-#: stamped with their send time, odometry edges in float32, a preset deflate dictionary).
-VERSION = 5
-#: Bytes a body may inflate to at most; a deflated body that would grow past it (a zlib
-#: bomb) is refused before it is expanded.
+#: stamped with their send time, odometry edges in float32, a preset deflate dictionary;
+#: 6: zstd instead of deflate, with the same dictionary).
+VERSION = 6
+#: Bytes a body may expand to at most; a compressed body that would grow past it (a
+#: decompression bomb) is refused before it is expanded.
 MAX_INFLATED = 64 << 20
 #: Bytes of an edge's fingerprint (:func:`edge_fingerprints`).
 FINGERPRINT_BYTES = 4
@@ -546,9 +548,39 @@ def _preset_dictionary() -> bytes:
 PRESET_DICTIONARY = _preset_dictionary()
 
 
+#: zstd's level for every body. Measured on the bodies of 120 s runs on the office (3
+#: robots, full network, seed 1) against deflate at level 6 with the same dictionary:
+#: level 19 sent 12.5 % fewer bytes for the lean exchange (answers 14 %; adverts grew 7 %)
+#: and 4.2 % fewer for the naive baseline; level 12, 7.4 % and 3.7 %. 19 costs about
+#: 1.5 ms per body.
+ZSTD_LEVEL = 19
+_ZSTD_DICT = zstandard.ZstdCompressionDict(
+    PRESET_DICTIONARY, dict_type=zstandard.DICT_TYPE_RAWCONTENT
+)
+# A zstd context must not be shared between threads, and exchangers may run in several
+# (a Dask worker's, a caller's).
+_codecs = threading.local()
+
+
+def _compressor() -> zstandard.ZstdCompressor:
+    c: zstandard.ZstdCompressor | None = getattr(_codecs, "compressor", None)
+    if c is None:
+        c = _codecs.compressor = zstandard.ZstdCompressor(
+            level=ZSTD_LEVEL, dict_data=_ZSTD_DICT, write_checksum=False
+        )
+    return c
+
+
+def _decompressor() -> zstandard.ZstdDecompressor:
+    d: zstandard.ZstdDecompressor | None = getattr(_codecs, "decompressor", None)
+    if d is None:
+        d = _codecs.decompressor = zstandard.ZstdDecompressor(dict_data=_ZSTD_DICT)
+    return d
+
+
 def _pack(d: Mapping[str, Any]) -> bytes:
-    z = zlib.compressobj(6, zdict=PRESET_DICTIONARY)
-    return z.compress(bytes(msgpack.packb(d, use_bin_type=True))) + z.flush()
+    # The frame states its content size, which _inflate checks before expanding it.
+    return _compressor().compress(bytes(msgpack.packb(d, use_bin_type=True)))
 
 
 def _ids(s: Collection[int] | None) -> list[int] | None:
@@ -632,14 +664,21 @@ _BODY_DETAIL = {"trailing": "bytes after the body", "truncated": "the body ends 
 
 
 def _inflate(body: bytes) -> bytes:
-    """The inflated body (a stream made without the preset dictionary inflates too)."""
-    z = zlib.decompressobj(zdict=PRESET_DICTIONARY)
+    """The body expanded: one zstd frame that states its size, nothing after it."""
     try:
-        out = z.decompress(body, MAX_INFLATED)
-    except zlib.error as e:
-        raise ExchangeError("deflate", f"body: not a zlib stream ({e})") from None
-    if z.unconsumed_tail:
-        raise ExchangeError("oversized", f"body: inflates past {MAX_INFLATED} bytes")
+        size = zstandard.frame_content_size(body)
+    except zstandard.ZstdError as e:
+        raise ExchangeError("zstd", f"body: not a zstd frame ({e})") from None
+    if size < 0:
+        raise ExchangeError("zstd", "body: the zstd frame does not state its size")
+    if size > MAX_INFLATED:
+        raise ExchangeError("oversized", f"body: expands to {size} bytes, past {MAX_INFLATED}")
+    z = _decompressor().decompressobj()
+    try:
+        # zstd stops, rather than writes, past the size the frame states.
+        out = z.decompress(body)
+    except zstandard.ZstdError as e:
+        raise ExchangeError("zstd", f"body: a bad zstd frame ({e})") from None
     if not z.eof:
         raise ExchangeError("truncated", _BODY_DETAIL["truncated"])
     if z.unused_data:

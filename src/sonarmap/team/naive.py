@@ -3,7 +3,7 @@ local layer, once, to every robot it can reach. The bandwidth figures of the the
 protocols (:mod:`.exchange`) are measured against it.
 
 One kind of message, ``"pose"``: a msgpack map ``{"v": VERSION, "pose": bytes,
-"edges": [bytes, ...]}``, deflated as :mod:`.exchange` deflates its own bodies: the
+"edges": [bytes, ...]}``, compressed as :mod:`.exchange` compresses its own bodies: the
 pose and the odometry edges touching it in the sender's local layer as their records'
 own encodings (:func:`.records.encode`), so its bytes compare with the
 protocols' answers, which carry the same records. It goes through the same transport
