@@ -320,7 +320,7 @@ class OdometryEdge:
 
     def __post_init__(self) -> None:
         # Held to float32 (odometry is known to far coarser than its 1e-7 relative step):
-        # a float64 exact in float32 ends in zero bytes, which deflate removes, so an
+        # a float64 exact in float32 ends in zero bytes, which compression removes, so an
         # edge travels in about 30 % fewer bytes. Rounding twice changes nothing, so
         # every copy of an edge, and its fingerprint, is the same.
         object.__setattr__(self, "transform", _f32_tuple(self.transform))
