@@ -338,11 +338,11 @@ class ExchangeParams:
 #: The lean exchange's settings (``team run --lean``, with the store's ``fold``): landmarks
 #: on every 8th pose, poses offered once 30 s old, 3-bit descriptors and ternary maps,
 #: chosen on the office (3 robots, 300 s, seed 0: 18.6 % of the naive baseline's bytes at
-#: 0.040 F1 below the central bound before delta adverts, float32 edges and the preset
-#: dictionary, 16.8 % after). With those (``benchmarks.team_exchange``; README): building
-#: 7 (4 robots) 21.9 % at -0.025, building 8 (3) 20.6 % at -0.063, both examined; held
-#: out, building 11 (3) 19.8 % at -0.008, the issue's goal (<= 20 % within 0.05) held,
-#: and building 12 (5) 20.7 % at -0.034, failed.
+#: 0.040 F1 below the central bound before delta adverts, float32 edges, the preset
+#: dictionary and zstd; 15.5 % after). With those (``benchmarks.team_exchange``; README):
+#: building 7 (4 robots) 20.3 % at -0.025, building 8 (3) 19.1 % at -0.063, both examined;
+#: held out, building 11 (3) 18.4 % at -0.008 and building 12 (5) 19.2 % at -0.034, the
+#: issue's goal (<= 20 % within 0.05) held, and building 13 (4) 18.0 % at -0.074, failed.
 LEAN = ExchangeParams(anchor_every=8, hold=30.0, descriptor_bits=3, ternary_maps=True)
 
 
