@@ -22,9 +22,11 @@ and stereo landmarks and exchanging over the simulated network
   baseline with descriptors of BITS bits and, if T is 1, ternary local maps as they
   travel (:attr:`~sonarmap.team.exchange.ExchangeParams.descriptor_bits`,
   :attr:`~sonarmap.team.exchange.ExchangeParams.ternary_maps`); a lean setting may add
-  the same (``--lean K:HOLD:BITS:T``). A quantised row's share is of the exact naive
-  baseline's bytes (the one the issue names), and is also printed against the naive
-  baseline quantised alike, when that row ran;
+  the same (``--lean K:HOLD:BITS:T``), and anchors also where loops close
+  (``--lean K:HOLD:BITS:T:L`` with L 1,
+  :attr:`~sonarmap.team.exchange.ExchangeParams.loop_anchors`). A quantised row's
+  share is of the exact naive baseline's bytes (the one the issue names), and is also
+  printed against the naive baseline quantised alike, when that row ran;
 - the central upper bound (:func:`sonarmap.team.central.central_map`: one graph and map
   from every pose every robot made), once: the robots' data are the same in every
   setting.
@@ -94,6 +96,7 @@ def _one(
             hold=setting.get("hold", 0.0),
             descriptor_bits=setting.get("bits", 8),
             ternary_maps=setting.get("ternary", False),
+            loop_anchors=setting.get("loops", False),
         ),
         seed=seed,
         central=setting.get("central", False),
@@ -121,8 +124,9 @@ def _one(
 
 GROUPS = ("main", "caps", "budgets", "lean", "quantised")
 
-#: A lean setting: landmarks on every K-th pose, a hold (s), descriptor bits, ternary maps.
-Lean = tuple[int, float, int, bool]
+#: A lean setting: landmarks on every K-th pose, a hold (s), descriptor bits, ternary maps,
+#: loop anchors.
+Lean = tuple[int, float, int, bool, bool]
 
 
 def settings(
@@ -155,7 +159,7 @@ def settings(
             )
     if "lean" in groups:
         out.append({"network": "full", "mode": "good", **plain, "curve": True, "fold": True})
-        for k, hold, bits, ternary in lean or []:
+        for k, hold, bits, ternary, loops in lean or []:
             out.append(
                 {
                     "network": "full",
@@ -167,6 +171,7 @@ def settings(
                     "hold": hold,
                     "bits": bits,
                     "ternary": ternary,
+                    "loops": loops,
                 }
             )
     if "quantised" in groups:
@@ -295,8 +300,10 @@ def _name(r: dict[str, Any]) -> str:
     if r.get("ternary"):
         fold += ", ternary maps"
     if r.get("anchors", 1) > 1 or r.get("hold", 0.0) > 0:
+        loops = " + loops" if r.get("loops") else ""
         return (
-            f"{r['mode']}, anchors 1/{r.get('anchors', 1)}, hold {r.get('hold', 0.0):.0f} s{fold}"
+            f"{r['mode']}, anchors 1/{r.get('anchors', 1)}{loops}, "
+            f"hold {r.get('hold', 0.0):.0f} s{fold}"
         )
     if r["mode"] != "limited":
         return f"{r['mode']}{fold}"
@@ -311,12 +318,19 @@ def _lean(text: str) -> Lean:
         k, hold = int(k_text), float(hold_text)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"K:HOLD or K:HOLD:BITS:T expected (e.g. 8:30 or 8:30:3:1), got {text!r}"
+            f"K:HOLD, K:HOLD:BITS:T or K:HOLD:BITS:T:L expected (e.g. 8:30 or 8:30:3:1:1), "
+            f"got {text!r}"
         ) from None
     if not sep or k < 1 or not (math.isfinite(hold) and hold >= 0):
         raise argparse.ArgumentTypeError(f"K >= 1 and HOLD >= 0 expected, got {text!r}")
-    bits, ternary = _quantised(tail) if tail else (8, False)
-    return k, hold, bits, ternary
+    quant, loops = tail, False
+    if tail.count(":") == 2:
+        quant, _, loops_text = tail.rpartition(":")
+        if loops_text not in ("0", "1"):
+            raise argparse.ArgumentTypeError(f"L must be 0 or 1, got {text!r}")
+        loops = loops_text == "1"
+    bits, ternary = _quantised(quant) if quant else (8, False)
+    return k, hold, bits, ternary, loops
 
 
 def _quantised(text: str) -> tuple[int, bool]:
@@ -376,13 +390,14 @@ def main() -> None:
         type=_lean,
         nargs="*",
         default=[
-            (4, 30.0, 8, False),
-            (8, 30.0, 8, False),
-            (8, 60.0, 8, False),
-            (8, 120.0, 8, False),
+            (4, 30.0, 8, False, False),
+            (8, 30.0, 8, False, False),
+            (8, 60.0, 8, False, False),
+            (8, 120.0, 8, False, False),
         ],
-        help="K:HOLD[:BITS:T], landmarks on every K-th pose, poses offered HOLD s old, "
-        "descriptors of BITS bits and (T = 1) ternary local maps as they travel.",
+        help="K:HOLD[:BITS:T[:L]], landmarks on every K-th pose (and, L = 1, where loops "
+        "close), poses offered HOLD s old, descriptors of BITS bits and (T = 1) ternary "
+        "local maps as they travel.",
     )
     parser.add_argument(
         "--quantised",

@@ -85,6 +85,8 @@ def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap
         (["--lean", "--anchors", "4"], "--lean"),
         (["--lean", "--fold"], "--lean"),
         (["--lean", "--anchors", "1"], "--anchors"),  # a default given is still given
+        (["--lean", "--loop-anchors"], "--loop-anchors"),
+        (["--loop-anchors"], "--anchors K > 1"),
         (["--lean", "--exchange", "naive"], "--lean"),
         (["--descriptor-bits", "9"], "--descriptor-bits"),
         (["--range", "0", "--network", "limited"], "--range"),

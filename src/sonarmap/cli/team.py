@@ -189,6 +189,7 @@ def _exchange_params(
     hold: float = 0.0,
     descriptor_bits: int = 8,
     ternary_maps: bool = False,
+    loop_anchors: bool = False,
 ) -> ExchangeParams:
     # A link that may break or be slow is what the limited protocol was designed for.
     mode = exchange if exchange is not None else ("good" if network == "full" else "limited")
@@ -200,6 +201,8 @@ def _exchange_params(
         raise ConfigError(f"--budget must be >= 0 bytes/s, got {budget}")
     if anchors < 1:
         raise ConfigError(f"--anchors must be >= 1, got {anchors}")
+    if loop_anchors and anchors == 1:
+        raise ConfigError("--loop-anchors chooses among poses sent bare: give --anchors K > 1")
     if not (math.isfinite(hold) and hold >= 0):
         raise ConfigError(f"--hold must be >= 0 seconds, got {hold}")
     if not 1 <= descriptor_bits <= 8:
@@ -212,6 +215,7 @@ def _exchange_params(
         hold=hold,
         descriptor_bits=descriptor_bits,
         ternary_maps=ternary_maps,
+        loop_anchors=loop_anchors,
     )
 
 
@@ -386,6 +390,14 @@ def run_cmd(
             "poses (1: every pose whole, as the thesis stores it).",
         ),
     ] = ExchangeParams().anchor_every,
+    loop_anchors: Annotated[
+        bool,
+        typer.Option(
+            "--loop-anchors",
+            help="With --anchors K: also send whole every pose that closed a loop with an "
+            "older anchor or met another robot's pose, so that receivers can close it too.",
+        ),
+    ] = ExchangeParams().loop_anchors,
     hold: Annotated[
         float,
         typer.Option(
@@ -443,6 +455,7 @@ def run_cmd(
             flag
             for name, flag in (
                 ("anchors", "--anchors"),
+                ("loop_anchors", "--loop-anchors"),
                 ("hold", "--hold"),
                 ("descriptor_bits", "--descriptor-bits"),
                 ("ternary_maps", "--ternary-maps"),
@@ -452,15 +465,15 @@ def run_cmd(
         ]
         if given:
             raise ConfigError(
-                f"--lean sets --anchors, --hold, --descriptor-bits, --ternary-maps and "
-                f"--fold: drop {', '.join(given)} or drop --lean"
+                f"--lean sets --anchors, --loop-anchors, --hold, --descriptor-bits, "
+                f"--ternary-maps and --fold: drop {', '.join(given)} or drop --lean"
             )
         if exchange == "naive":
             raise ConfigError("--lean is for the protocols; the naive baseline sends every pose")
-        anchors, hold = LEAN.anchor_every, LEAN.hold
+        anchors, hold, loop_anchors = LEAN.anchor_every, LEAN.hold, LEAN.loop_anchors
         descriptor_bits, ternary_maps, fold = LEAN.descriptor_bits, LEAN.ternary_maps, True
     protocol = _exchange_params(
-        exchange, cap, network, budget, anchors, hold, descriptor_bits, ternary_maps
+        exchange, cap, network, budget, anchors, hold, descriptor_bits, ternary_maps, loop_anchors
     )
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")

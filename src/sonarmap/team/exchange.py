@@ -110,6 +110,7 @@ import numpy as np
 import zstandard
 
 from ..errors import ConfigError, InputError
+from .anchors import AnchorChooser, is_anchor
 from .quantise import check_quantisation, quantise_pose
 from .records import (
     ClosureEdge,
@@ -119,7 +120,6 @@ from .records import (
     Pose,
     RecordError,
     UnpackError,
-    counter_of,
     decode,
     encode,
     make_uid,
@@ -270,6 +270,11 @@ class ExchangeParams:
         anchors, the odometry edges carrying them to the poses between. 1 (default):
         every pose whole, as the thesis stores it. A pose's landmarks are about four
         fifths of its deflated bytes (office, 300 s: 2.36 of 2.96 MB of poses sent).
+    loop_anchors : bool
+        Also make an anchor of every own pose that, when it was made, closed a loop with
+        an older anchor or with another robot's pose (:class:`.anchors.AnchorChooser`),
+        so that receivers can close it too. False (default): the anchors are every
+        ``anchor_every``-th pose and the merged ones (:func:`.anchors.is_anchor`).
     hold : float
         Seconds a robot keeps a new own pose to itself before it offers the pose to
         its peers (COVINS sends keyframes once final): a pose its store deletes or
@@ -303,6 +308,7 @@ class ExchangeParams:
     backoff: float = 120.0
     budget: float = 0.0
     anchor_every: int = 1
+    loop_anchors: bool = False
     hold: float = 0.0
     descriptor_bits: int = 8
     ternary_maps: bool = False
@@ -313,7 +319,7 @@ class ExchangeParams:
                 f"exchange: mode must be one of {', '.join(PROTOCOLS)}, got {self.mode!r}"
             )
         for f in fields(self):
-            if f.name in ("mode", "ternary_maps"):
+            if f.name in ("mode", "ternary_maps", "loop_anchors"):
                 continue
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -328,6 +334,10 @@ class ExchangeParams:
                     f"exchange: {name} must be an integer, got {getattr(self, name)!r}"
                 )
         check_quantisation(self.descriptor_bits, self.ternary_maps)
+        if not isinstance(self.loop_anchors, bool):
+            raise ConfigError(
+                f"exchange: loop_anchors must be true or false, got {self.loop_anchors!r}"
+            )
         if self.peer_timeout < self.advert_every:
             raise ConfigError(
                 f"exchange: peer_timeout {self.peer_timeout} s is below advert_every "
@@ -1011,23 +1021,6 @@ class _Out:
     poses: int
 
 
-def is_anchor(pose: Pose, every: int) -> bool:
-    """Whether ``pose`` travels with its landmarks when only every ``every``-th does
-    (:attr:`ExchangeParams.anchor_every`): merged poses always (a robot's densest
-    record of a place it came back to), the others by their UID's counter, so that the
-    anchors are spread along the robot's path and every holder agrees on them.
-
-    Examples
-    --------
-    >>> from sonarmap.team.records import Landmarks, make_uid
-    >>> def pose(n):
-    ...     return Pose(make_uid(1, n), 0.0, 0, np.zeros(3), Landmarks.empty())
-    >>> is_anchor(pose(16), 8), is_anchor(pose(17), 8), is_anchor(pose(17), 1)
-    (True, False, True)
-    """
-    return every <= 1 or bool(pose.merged_from) or counter_of(pose.uid) % every == 0
-
-
 def _check_pair(store: RobotStore, transport: Transport) -> None:
     """An exchanger's store and transport must be one robot's."""
     if transport.robot != store.robot:
@@ -1140,6 +1133,13 @@ class Exchanger:
         # kept by _publish; finish() ends the hold.
         self._published = Layer(self.robot, own=True) if self.params.hold > 0 else None
         self._finished = False
+        # Anchors where loops close (ExchangeParams.loop_anchors), decided as own poses
+        # appear.
+        self._chooser = (
+            AnchorChooser(self.robot, every=self.params.anchor_every)
+            if self.params.loop_anchors and self.params.anchor_every > 1
+            else None
+        )
 
     @property
     def robot(self) -> int:
@@ -1179,6 +1179,8 @@ class Exchanger:
         _check_time(now, self._now)
         wanted = None if wanted_regions is None else [int(r) for r in wanted_regions]
         self._now = float(now)
+        if self._chooser is not None:
+            self._chooser.update(self.store)
         self._publish(self._now)
         for msg in self.transport.poll(0.0):
             self._handle(msg, self._now)
@@ -1244,12 +1246,26 @@ class Exchanger:
                     pub.patch(pub.poses[u].region).stamp = now
 
     def _wire(self, pose: Pose) -> Pose:
-        """The pose as it travels: with its landmarks only if it is an anchor
-        (``anchor_every``), quantised as ``descriptor_bits`` and ``ternary_maps`` say."""
-        k = self.params.anchor_every
-        if k > 1 and len(pose.landmarks) and not is_anchor(pose, k):
+        """The pose as it travels: an own pose with its landmarks only if it is an
+        anchor (``anchor_every``, ``loop_anchors``), quantised as ``descriptor_bits``
+        and ``ternary_maps`` say. A received pose goes on as its source sent it."""
+        if (
+            self.params.anchor_every > 1
+            and len(pose.landmarks)
+            and robot_of(pose.uid) == self.robot
+            and not self._travels_whole(pose)
+        ):
             pose = pose.with_landmarks(pose.landmarks.take(np.zeros(0, dtype=np.intp)))
         return quantise_pose(pose, self.params.descriptor_bits, self.params.ternary_maps)
+
+    def _travels_whole(self, pose: Pose) -> bool:
+        """Whether an own pose is an anchor."""
+        chooser = self._chooser
+        if chooser is None:
+            return is_anchor(pose, self.params.anchor_every)
+        if chooser.pending([pose.uid]):
+            chooser.update(self.store)
+        return chooser.travels_whole(pose)
 
     # --- stamps of the local layer --------------------------------------------------------
 

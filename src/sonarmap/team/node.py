@@ -728,6 +728,7 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "next_id": e._next_id,
         "published": None if e._published is None else _layer_state(e._published),
         "finished": e._finished,
+        "anchors": None if e._chooser is None else e._chooser.state(),
         "stats": stats,
         "rejected": dict(e.stats.rejected),
         "bytes_by_kind": dict(e.stats.bytes_by_kind),
@@ -761,6 +762,9 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
     pub = d.get("published")
     e._published = None if pub is None else _layer_from(pub, own=True)
     e._finished = bool(d.get("finished", False))
+    # A state saved before keyframe anchors has none: the chooser starts afresh.
+    if e._chooser is not None and d.get("anchors") is not None:
+        e._chooser.restore(d["anchors"])
     for name, v in d["stats"].items():
         setattr(e.stats, name, v)
     e.stats.rejected.clear()
