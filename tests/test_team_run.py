@@ -197,3 +197,63 @@ def test_naive_messages_are_checked_whole() -> None:
     assert e.value.code == "truncated"
     with pytest.raises(ExchangeError, match="region"):
         decode_pose_message(body, 1, regions={5})
+
+
+def test_every_run_reports_its_share_of_the_naive_baselines_bytes(plan: OccupancyMap) -> None:
+    routes, _ = patrol_routes(plan, 2, 20.0, seed=1)
+    naive = _team(plan, ExchangeParams(mode="naive"), routes).summary
+    assert naive["share_of_naive"] == 1.0
+    assert naive["naive_bytes_per_robot_minute"] == naive["bytes_per_robot_minute_all"]
+    good = _team(plan, ExchangeParams(), routes).summary
+    estimate = good["naive_bytes_per_robot_minute"]
+    # The same routes and poses: the estimate is the baseline's bytes up to the estimates
+    # the robots' other closures move, a few per cent.
+    assert estimate == pytest.approx(naive["bytes_per_robot_minute_all"], rel=0.05)
+    assert good["share_of_naive"] == pytest.approx(good["bytes_per_robot_minute_all"] / estimate)
+
+
+def test_the_naive_meter_prices_what_the_baseline_sends() -> None:
+    from sonarmap.team.naive import NaiveExchanger, NaiveMeter
+    from sonarmap.team.network import SimNetwork
+    from sonarmap.team.records import OdometryEdge
+    from sonarmap.team.store import RobotStore
+    from sonarmap.team.transport import SimHub
+
+    stores = [RobotStore(r) for r in range(3)]
+    meter = NaiveMeter(stores[0])
+    hub = SimHub(SimNetwork(NetworkParams(kind="full"), 3))
+    ex = [NaiveExchanger(s, hub.transport(s.robot)) for s in stores]
+    cov = tuple(float(v) for v in np.eye(3).ravel() * 1e-4)
+    for k in range(5):
+        pose = Pose(make_uid(0, k), float(k), 0, np.array([k, 0.0, 0.0]), Landmarks.empty(8))
+        edge = None if k == 0 else OdometryEdge(make_uid(0, k - 1), pose.uid, (1.0, 0, 0), cov, 5.0)
+        stores[0].add_own_pose(pose, edge, [], float(k))
+        hub.step(0.5)
+        for e in ex:
+            e.step(hub.now)
+        meter.step(2)
+    assert meter.poses == 5
+    assert meter.bytes == ex[0].stats.bytes_sent > 0
+    assert ex[0].stats.poses_sent == 10
+
+
+def test_the_naive_meter_prices_a_folded_pose_with_its_map_as_made() -> None:
+    from dataclasses import replace
+
+    from sonarmap.team.naive import NaiveMeter
+    from sonarmap.team.records import LocalMap
+    from sonarmap.team.store import RobotStore
+
+    store = RobotStore(0)
+    small = LocalMap(np.zeros((20, 20), dtype=np.int8), 0.1)
+    made = Pose(make_uid(0, 0), 0.0, 0, np.zeros(3), Landmarks.empty(8), small)
+    store.add_own_pose(made, None, [], 0.0)
+    rng = np.random.default_rng(0)
+    folded = LocalMap(rng.integers(-100, 100, (20, 20)).astype(np.int8), 0.1)
+    store.local.put_pose(replace(made, local_map=folded), 0.0)  # as a fold leaves it
+    plain, as_made = NaiveMeter(store), NaiveMeter(store, {made.uid: made})
+    plain.step(1)
+    as_made.step(1)
+    assert as_made.bytes == len(encode_pose_message(made, []))
+    assert plain.bytes == len(encode_pose_message(store.local.poses[made.uid], []))
+    assert plain.bytes > as_made.bytes + 200

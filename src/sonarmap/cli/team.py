@@ -180,6 +180,13 @@ def _network_params(
     return NetworkParams(kind=network, bandwidth=bandwidth, loss=loss, r_max=reach)
 
 
+def _share(s: dict[str, Any]) -> str:
+    share = s.get("share_of_naive")
+    if share is None or s["exchange"]["mode"] == "naive":
+        return ""
+    return f" ({100 * share:.1f} % of the naive baseline's, quiet phase included)"
+
+
 def _exchange_params(
     exchange: str | None,
     cap: int,
@@ -526,7 +533,7 @@ def run_cmd(
         convergence = s["convergence_s"]
         console.print(
             f"team F1 {s['map_f1_team']:.3f} (central {s['map_f1_central']:.3f}), "
-            f"{s['bytes_per_robot_minute']:.0f} B per robot-minute, "
+            f"{s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}, "
             f"converged {'never' if convergence is None else f'{convergence:.1f} s'}: {out}"
         )

@@ -36,6 +36,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+from dataclasses import replace
 
 from ..errors import ConfigError
 from .exchange import (
@@ -63,6 +64,7 @@ from .transport import Message, Transport
 __all__ = [
     "KIND",
     "NaiveExchanger",
+    "NaiveMeter",
     "decode_pose_message",
     "encode_pose_message",
     "make_exchanger",
@@ -72,6 +74,64 @@ logger = logging.getLogger("sonarmap.team.naive")
 
 #: The transport envelope's ``kind`` of the baseline's one message.
 KIND = "pose"
+
+
+def _new_poses(store: RobotStore, sent: Collection[int]) -> list[int]:
+    """The local poses not sent yet, oldest first: what the baseline sends at a step."""
+    local = store.local
+    return sorted((u for u in local.poses if u not in sent), key=lambda u: (local.poses[u].time, u))
+
+
+class NaiveMeter:
+    """The bytes the naive baseline (exact records) would send for one robot, measured
+    beside another protocol on the same mission, so that one run reports its share of
+    the baseline's bytes.
+
+    At each :meth:`step` every local pose not seen before is priced as the baseline's
+    message for it (:func:`encode_pose_message`, the pose and its odometry edges as
+    stored then) times the robots reachable then, as :class:`NaiveExchanger` sends it.
+    It is an estimate of a baseline run, not one: the routes and the poses made are the
+    same, but a baseline run's robots receive other poses, find other closures and so
+    hold slightly other estimates, and its messages meet the network's caps and losses
+    (the meter counts what the baseline would offer).
+
+    Parameters
+    ----------
+    store : RobotStore
+        The robot's store (read only).
+    made : mapping of int to Pose, optional
+        For a store that folds deleted poses' maps into the newest pose
+        (``StoreParams.fold``): the poses as they were made, by UID. A pose found there
+        is priced with its local map as made, since the baseline's store (the thesis's)
+        does not fold; a folded map costs a few per cent more (office and building 8,
+        ``--lean``: 4 %).
+
+    Attributes
+    ----------
+    bytes : int
+        Bytes the baseline would have sent so far.
+    poses : int
+        Poses priced so far.
+    """
+
+    def __init__(self, store: RobotStore, made: Mapping[int, Pose] | None = None) -> None:
+        self.store = store
+        self.made = made
+        self.bytes = 0
+        self.poses = 0
+        self._seen: set[int] = set()
+
+    def step(self, peers: int) -> None:
+        """Price the poses new since the last step, each sent to ``peers`` robots."""
+        local = self.store.local
+        for uid in _new_poses(self.store, self._seen):
+            self._seen.add(uid)
+            self.poses += 1
+            pose = local.poses[uid]
+            first = None if self.made is None else self.made.get(uid)
+            if first is not None and first is not pose:
+                pose = replace(pose, local_map=first.local_map)
+            self.bytes += peers * len(encode_pose_message(pose, local.edges_of(uid)))
 
 
 def encode_pose_message(pose: Pose, edges: Sequence[OdometryEdge]) -> bytes:
@@ -176,10 +236,7 @@ class NaiveExchanger:
         for msg in self.transport.poll(0.0):
             self._handle(msg, self._now)
         local = self.store.local
-        new = sorted(
-            (u for u in local.poses if u not in self._sent),
-            key=lambda u: (local.poses[u].time, u),
-        )
+        new = _new_poses(self.store, self._sent)
         if not new:
             return
         peers = sorted(set(self._peers()) - {self.robot})

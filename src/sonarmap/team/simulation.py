@@ -66,7 +66,7 @@ from .animation import TeamFrame
 from .central import CentralResult, central_map
 from .exchange import ExchangeParams, Exchanger
 from .mission import MissionConfig, MissionResult, RobotAgent
-from .naive import NaiveExchanger, make_exchanger
+from .naive import NaiveExchanger, NaiveMeter, make_exchanger
 from .network import NetworkParams, SimNetwork
 from .records import Pose
 from .regions import region_adjacency
@@ -97,7 +97,10 @@ class TeamResult:
         mean share of the other robots' poses each robot held when the routes ended:
         what a ``hold`` keeps back), ``convergence_s``, ``bytes_per_robot_minute``
         (message bodies sent while the robots drive), ``bytes_per_robot_minute_all``
-        (with the quiet phase's, over the same minutes), ``map_f1_team``,
+        (with the quiet phase's, over the same minutes), ``naive_bytes_per_robot_minute``
+        (what the naive baseline would have sent on the same mission,
+        :class:`~.naive.NaiveMeter`; a naive run's own bytes when the baseline runs),
+        ``share_of_naive`` (``bytes_per_robot_minute_all`` over it), ``map_f1_team``,
         ``map_f1_central`` (None unless asked for), ``settle_seconds``, ``settled``,
         ``robots_n``, ``network`` and ``exchange``.
     robots : list of MissionResult
@@ -337,11 +340,21 @@ def run_team(
         max_frames,
     )
 
+    # The naive baseline's bytes on the same mission, for the share of them we send.
+    fold = cfg.store.fold
+    meters = (
+        [NaiveMeter(a.store, a.made if fold else None) for a in agents]
+        if exchange.mode != "naive"
+        else []
+    )
+
     def tick(t: float, wanted: bool) -> None:
         hub.advance(t)
         hub.update(np.array([a.position() for a in agents]))
         for a, e in zip(agents, exchangers, strict=True):
             e.step(t, a.wanted_regions(lookahead) if wanted else None)
+        for a, m in zip(agents, meters, strict=False):
+            m.step(len(set(net.reachable(a.robot)) - {a.robot}))
         if record:
             recorder.sample(t, driving=wanted)
 
@@ -398,6 +411,8 @@ def run_team(
         rows.append(row)
     minutes = max(end - float(times[0]), 1e-9) / 60.0
     f1 = [float(r["map_f1"]) for r in rows if not math.isnan(float(r["map_f1"]))]
+    sent_all = sum(e.stats.bytes_sent for e in exchangers) / robots / minutes
+    naive = sum(m.bytes for m in meters) / robots / minutes if meters else sent_all
     bound = central_map(agents, seed=cfg.seed) if central else None
     summary: dict[str, Any] = {
         "robots": rows,
@@ -412,9 +427,9 @@ def run_team(
         "bytes_per_robot_minute": sum(sent_in_mission) / robots / minutes,
         # The quiet phase's bytes too, still per minute of mission: the maps are scored
         # after it, so a protocol that defers its sending must pay for it here.
-        "bytes_per_robot_minute_all": sum(e.stats.bytes_sent for e in exchangers)
-        / robots
-        / minutes,
+        "bytes_per_robot_minute_all": sent_all,
+        "naive_bytes_per_robot_minute": naive,
+        "share_of_naive": sent_all / naive if naive > 0 else None,
         "held_share_at_routes_end": held_at_end,
         "map_f1_team": float(np.mean(f1)) if f1 else math.nan,
         "map_f1_central": None if bound is None else bound.summary["map_f1"],
