@@ -119,8 +119,15 @@ def test_zmq_team_gives_the_simulated_teams_results(
         }
     for key in ("duplicate_poses", "identical_maps", "settle_seconds", "settled"):
         assert z[key] == s[key], key
-    for key in ("bytes_per_robot_minute", "bytes_per_robot_minute_all"):
+    # The naive baseline's bytes too: robot 1's meter came through its restart.
+    for key in (
+        "bytes_per_robot_minute",
+        "bytes_per_robot_minute_all",
+        "naive_bytes_per_robot_minute",
+        "share_of_naive",
+    ):
         assert z[key] == pytest.approx(s[key]), key
+    assert 0 < z["share_of_naive"] < 2
     # Read back from the maps the nodes wrote.
     assert z["map_agreement"] == pytest.approx(s["map_agreement"], abs=0.01)
     # Compression ran, so the stores depended on the exchange's timing.

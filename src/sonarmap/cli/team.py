@@ -512,7 +512,7 @@ def run_cmd(
             tick = partial(_tick, update, f"{robots} nodes")
             s = _run_zmq_team(out, plan, config, robots, net, protocol, seed, tick)
         console.print(
-            f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute, "
+            f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}: {out}"
         )
         return

@@ -37,6 +37,7 @@ import logging
 import math
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import replace
+from typing import Any
 
 from ..errors import ConfigError
 from .exchange import (
@@ -120,6 +121,16 @@ class NaiveMeter:
         self.bytes = 0
         self.poses = 0
         self._seen: set[int] = set()
+
+    def state(self) -> dict[str, Any]:
+        """What a checkpoint keeps (:meth:`restore` reads it)."""
+        return {"bytes": self.bytes, "poses": self.poses, "seen": sorted(self._seen)}
+
+    def restore(self, state: Mapping[str, Any]) -> None:
+        """Take back a :meth:`state`."""
+        self.bytes = int(state["bytes"])
+        self.poses = int(state["poses"])
+        self._seen = {int(u) for u in state["seen"]}
 
     def step(self, peers: int) -> None:
         """Price the poses new since the last step, each sent to ``peers`` robots."""

@@ -99,6 +99,7 @@ from .exchange import (
     _Pending,
 )
 from .mission import ODOMETRY_NOISE, MissionConfig, RobotAgent
+from .naive import NaiveMeter
 from .network import NetworkParams
 from .records import (
     ClosureEdge,
@@ -919,6 +920,8 @@ class _Node:
             on_received=self._received,
             peers=lambda: list(self.others),
         )
+        # What the naive baseline would send: the share of it the team reports.
+        self.meter = NaiveMeter(agent.store, agent.made if cfg.store.fold else None)
         self.link = _Link(self.zmq, self.others, self.timing)
         self.clock = _Clock()
         self.fingerprint = _fingerprint(plan, cfg, robot, ids, self.exchange, routes)
@@ -945,6 +948,7 @@ class _Node:
             state["store"] = _store_state(self.agent.store)
             state["agent"] = _agent_state(self.agent)
             state["exchanger"] = _exchanger_state(self.exchanger)
+            state["meter"] = self.meter.state()
             state["received_merged"] = [encode(p) for p in self.received_merged.values()]
         data = _pack(state)
         acked = dict(self.link.next_q)
@@ -980,6 +984,9 @@ class _Node:
                 _store_into(self.agent.store, s["store"])
                 _agent_into(self.agent, s["agent"])
                 _exchanger_into(self.exchanger, s["exchanger"])
+                # A state saved before the meter has none: it counts from here.
+                if "meter" in s:
+                    self.meter.restore(s["meter"])
                 for b in s["received_merged"]:
                     p = _record(b, Pose)
                     self.received_merged[p.uid] = p
@@ -1012,6 +1019,7 @@ class _Node:
             Message(j, self.robot, f.body, f.q, f.kind) for _, j, f in link.take(need)
         ]
         self.exchanger.step(t, wanted)
+        self.meter.step(len(self.others))
         out, self.inner.outbox = self.inner.outbox, []
         for dst, kind, body in out:
             link.send(dst, n, kind, body)
@@ -1093,6 +1101,7 @@ class _Node:
             "held": sorted(held),
             "duplicates": twice,
             "bytes_sent_mission": self.clock.sent,
+            "naive_bytes": self.meter.bytes,
             "route_seconds": float(times[-1] - times[0]),
             "settle_seconds": self.clock.t - float(times[-1]),
             "settled": self.clock.settled,
@@ -1229,8 +1238,9 @@ class ZmqTeamResult:
     ----------
     summary : dict
         run_team's summary keys (``robots`` rows, ``duplicate_poses``,
-        ``identical_maps``, ``bytes_per_robot_minute``, ``settle_seconds``,
-        ``settled``, ``robots_n``, ``network``, ``exchange``, ``seed``) and
+        ``identical_maps``, ``bytes_per_robot_minute``, ``naive_bytes_per_robot_minute``,
+        ``share_of_naive``, ``settle_seconds``, ``settled``, ``robots_n``, ``network``,
+        ``exchange``, ``seed``) and
         ``transport`` ("zmq"), ``wall_seconds``, ``restarts`` (per robot) and
         ``store_digests`` (per robot, :func:`store_digest`).
     held : list of set of int
@@ -1524,6 +1534,13 @@ def _team_summary(
     settled = all(bool(n["settled"]) for n in nodes)
     f1 = [float(n["row"]["map_f1"]) for n in nodes if n["row"]["map_f1"] is not None]
     minutes = max(float(nodes[0]["route_seconds"]), 1e-9) / 60.0
+    sent_all = sum(int(n["row"]["bytes_sent"]) for n in nodes) / robots / minutes
+    # Nodes of a release before the meter report none.
+    naive = (
+        sum(int(n["naive_bytes"]) for n in nodes) / robots / minutes
+        if all("naive_bytes" in n for n in nodes)
+        else None
+    )
     maps = [where / f"robot{i}" / "map.yaml" for i in range(robots)]
     agreement = (
         map_agreement([read_map(m) for m in maps]) if all(m.exists() for m in maps) else None
@@ -1538,9 +1555,9 @@ def _team_summary(
         "bytes_per_robot_minute": sum(int(n["bytes_sent_mission"]) for n in nodes)
         / robots
         / minutes,
-        "bytes_per_robot_minute_all": sum(int(n["row"]["bytes_sent"]) for n in nodes)
-        / robots
-        / minutes,
+        "bytes_per_robot_minute_all": sent_all,
+        "naive_bytes_per_robot_minute": naive,
+        "share_of_naive": sent_all / naive if naive else None,
         "map_f1_team": float(np.mean(f1)) if f1 else math.nan,
         # The central bound needs every robot's data in one process: 'team run --transport sim'.
         "map_f1_central": None,
