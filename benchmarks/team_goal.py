@@ -22,13 +22,14 @@ import argparse
 import json
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
 
 from benchmarks.team import _plan
 from benchmarks.team_exchange import BYTES_SHARE, F1_GAP
+from sonarmap.errors import ConfigError
 from sonarmap.team.exchange import LEAN, ExchangeParams
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams
@@ -69,8 +70,7 @@ def _one(
 def _setting(args: argparse.Namespace) -> tuple[ExchangeParams, bool]:
     if args.lean:
         return LEAN, True
-    ex = replace(
-        ExchangeParams(),
+    ex = ExchangeParams(
         anchor_every=args.anchors,
         loop_anchors=args.loop_anchors,
         hold=args.hold,
@@ -99,7 +99,10 @@ def main() -> None:
     if args.robots < 2:
         raise SystemExit(f"--robots: a team needs >= 2 robots, got {args.robots}")
     _plan(args.plan)  # a bad --plan fails before any run
-    ex, fold = _setting(args)
+    try:
+        ex, fold = _setting(args)
+    except ConfigError as e:
+        raise SystemExit(f"team_goal: {e}") from None
     todo = [(args.plan, args.robots, args.duration, s, ex, fold) for s in args.seeds]
     t0 = time.perf_counter()
     if args.jobs <= 1:

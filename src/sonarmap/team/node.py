@@ -763,7 +763,7 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
     pub = d.get("published")
     e._published = None if pub is None else _layer_from(pub, own=True)
     e._finished = bool(d.get("finished", False))
-    # A state saved before keyframe anchors has none: the chooser starts afresh.
+    # A state saved before loop anchors has none: the chooser starts afresh.
     if e._chooser is not None and d.get("anchors") is not None:
         e._chooser.restore(d["anchors"])
     for name, v in d["stats"].items():
