@@ -11,7 +11,7 @@ Usage::
 
     python -m benchmarks.team_goal --plan building:8 --robots 3 --seeds 0 1 2 [--lean]
         [--anchors K] [--loop-anchors] [--hold S] [--descriptor-bits B] [--ternary-maps]
-        [--fold] [--duration 300] [--jobs 2] [--json FILE]
+        [--fold] [--merge-on-closure N] [--duration 300] [--jobs 2] [--json FILE]
 
 Prints one line per seed (F1, central, gap, share, holds) and the means.
 """
@@ -30,7 +30,7 @@ import numpy as np
 from benchmarks.team import _plan
 from benchmarks.team_exchange import BYTES_SHARE, F1_GAP
 from sonarmap.errors import ConfigError
-from sonarmap.team.exchange import LEAN, ExchangeParams
+from sonarmap.team.exchange import LEAN, LEAN_MERGE_ON_CLOSURE, ExchangeParams
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams
 from sonarmap.team.simulation import run_team
@@ -38,13 +38,13 @@ from sonarmap.team.store import StoreParams
 
 
 def _one(
-    plan_name: str, robots: int, duration: float, seed: int, ex: ExchangeParams, fold: bool
+    plan_name: str, robots: int, duration: float, seed: int, ex: ExchangeParams, store: StoreParams
 ) -> dict[str, Any]:
     """One seed's run and its verdict."""
     t0 = time.perf_counter()
     s = run_team(
         _plan(plan_name),
-        MissionConfig(duration=duration, seed=seed, store=StoreParams(fold=fold)),
+        MissionConfig(duration=duration, seed=seed, store=store),
         robots,
         network=NetworkParams(kind="full"),
         exchange=ex,
@@ -67,9 +67,13 @@ def _one(
     }
 
 
-def _setting(args: argparse.Namespace) -> tuple[ExchangeParams, bool]:
+def _setting(args: argparse.Namespace) -> tuple[ExchangeParams, StoreParams]:
+    merge = args.merge_on_closure
+    if merge is None:
+        merge = LEAN_MERGE_ON_CLOSURE if args.lean else 0
+    store = StoreParams(fold=args.fold or args.lean, merge_on_closure=merge)
     if args.lean:
-        return LEAN, True
+        return LEAN, store
     ex = ExchangeParams(
         anchor_every=args.anchors,
         loop_anchors=args.loop_anchors,
@@ -77,7 +81,7 @@ def _setting(args: argparse.Namespace) -> tuple[ExchangeParams, bool]:
         descriptor_bits=args.descriptor_bits,
         ternary_maps=args.ternary_maps,
     )
-    return ex, args.fold
+    return ex, store
 
 
 def main() -> None:
@@ -86,13 +90,23 @@ def main() -> None:
     parser.add_argument("--robots", type=int, default=3)
     parser.add_argument("--duration", type=float, default=300.0)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--lean", action="store_true", help="exchange.LEAN with folding")
+    parser.add_argument(
+        "--lean", action="store_true", help="exchange.LEAN with folding and merging"
+    )
     parser.add_argument("--anchors", type=int, default=1)
     parser.add_argument("--loop-anchors", action="store_true")
     parser.add_argument("--hold", type=float, default=0.0)
     parser.add_argument("--descriptor-bits", type=int, default=8)
     parser.add_argument("--ternary-maps", action="store_true")
     parser.add_argument("--fold", action="store_true")
+    parser.add_argument(
+        "--merge-on-closure",
+        type=int,
+        default=None,
+        metavar="N",
+        help="Merge two own poses at every closure with >= N inliers (0: off; default 0, "
+        "or exchange.LEAN_MERGE_ON_CLOSURE with --lean).",
+    )
     parser.add_argument("--jobs", type=int, default=2, help="Seeds at once (processes).")
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
     args = parser.parse_args()
@@ -100,10 +114,10 @@ def main() -> None:
         raise SystemExit(f"--robots: a team needs >= 2 robots, got {args.robots}")
     _plan(args.plan)  # a bad --plan fails before any run
     try:
-        ex, fold = _setting(args)
+        ex, store = _setting(args)
     except ConfigError as e:
         raise SystemExit(f"team_goal: {e}") from None
-    todo = [(args.plan, args.robots, args.duration, s, ex, fold) for s in args.seeds]
+    todo = [(args.plan, args.robots, args.duration, s, ex, store) for s in args.seeds]
     t0 = time.perf_counter()
     if args.jobs <= 1:
         rows = [_one(*t) for t in todo]
@@ -114,7 +128,8 @@ def main() -> None:
     changed = ", ".join(f"{k}={v}" for k, v in asdict(ex).items() if v != default[k])
     print(
         f"bandwidth goal, {args.plan} plan, {args.robots} robots, {args.duration:.0f} s, "
-        f"full network, fold {fold}, exchange: {changed or 'defaults'}"
+        f"full network, fold {store.fold}, merge on closure {store.merge_on_closure}, "
+        f"exchange: {changed or 'defaults'}"
     )
     for r in rows:
         print(
@@ -135,7 +150,7 @@ def main() -> None:
     )
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"exchange": asdict(ex), "fold": fold, "rows": rows}, f, indent=1)
+            json.dump({"exchange": asdict(ex), "store": asdict(store), "rows": rows}, f, indent=1)
 
 
 if __name__ == "__main__":

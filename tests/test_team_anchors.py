@@ -35,6 +35,21 @@ def test_every_kth_pose_is_an_anchor_without_loops() -> None:
     assert ch.decided == 9
 
 
+def test_merged_poses_go_by_their_counter_when_merges_are_common() -> None:
+    from sonarmap.team.anchors import is_anchor
+    from sonarmap.team.records import Landmarks, Pose
+
+    def merged(m: int) -> Pose:
+        uid = make_uid(0, MERGE_COUNTER_BASE + m)
+        return Pose(uid, 0.0, 0, np.zeros(3), Landmarks.empty(), None, (1, 2))
+
+    assert is_anchor(merged(3), 8)
+    assert is_anchor(merged(0), 8)
+    assert not is_anchor(merged(3), 8, merged_whole=False)
+    assert is_anchor(merged(16), 8, merged_whole=False)
+    assert is_anchor(merged(3), 1, merged_whole=False)
+
+
 def test_a_return_to_an_old_anchor_makes_an_anchor() -> None:
     ch = AnchorChooser(0, every=4)
     loops = [

@@ -63,6 +63,7 @@ def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap
     ex = s["exchange"]
     assert (ex["anchor_every"], ex["hold"]) == (8, 30.0)
     assert (ex["descriptor_bits"], ex["ternary_maps"]) == (3, True)
+    assert s["robots"][0]["parameters"]["store"]["merge_on_closure"] == 8
     assert s["duplicate_poses"] == 0
     assert s["identical_maps"] is True  # everything is published when the routes end
     assert all(r["poses_received"] > 0 for r in s["robots"])
@@ -86,6 +87,8 @@ def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap
         (["--lean", "--fold"], "--lean"),
         (["--lean", "--anchors", "1"], "--anchors"),  # a default given is still given
         (["--lean", "--loop-anchors"], "--loop-anchors"),
+        (["--lean", "--merge-on-closure", "0"], "--merge-on-closure"),
+        (["--merge-on-closure", "-1"], "--merge-on-closure"),
         (["--loop-anchors"], "--anchors K > 1"),
         (["--lean", "--exchange", "naive"], "--lean"),
         (["--descriptor-bits", "9"], "--descriptor-bits"),
@@ -257,3 +260,23 @@ def test_the_naive_meter_prices_a_folded_pose_with_its_map_as_made() -> None:
     assert as_made.bytes == len(encode_pose_message(made, []))
     assert plain.bytes == len(encode_pose_message(store.local.poses[made.uid], []))
     assert plain.bytes > as_made.bytes + 200
+
+
+def test_the_naive_meter_leaves_out_poses_merged_at_closures() -> None:
+    from sonarmap.team.naive import NaiveMeter
+    from sonarmap.team.store import RobotStore
+
+    store = RobotStore(0)
+    meter, strict = NaiveMeter(store), NaiveMeter(store, merged=False)
+    made = [Pose(make_uid(0, k), float(k), 0, np.zeros(3), Landmarks.empty(8)) for k in range(2)]
+    for p in made:
+        store.add_own_pose(p, None, [], p.time)
+    merged = Pose(make_uid(0, 1 << 39), 2.0, 0, np.zeros(3), Landmarks.empty(8), None, (0, 1))
+    store.local.put_pose(merged, 2.0)
+    for m in (meter, strict):
+        m.step(1)
+    # The baseline's store merges only under compression: it sends the two made poses.
+    assert strict.poses == 2
+    assert strict.bytes == sum(len(encode_pose_message(p, [])) for p in made)
+    assert meter.poses == 3
+    assert meter.bytes == strict.bytes + len(encode_pose_message(merged, []))

@@ -439,6 +439,46 @@ def test_region_compression_merges_a_close_well_matched_pair() -> None:
     assert [pp.merged_from for pp in merged] == [(p.uid, q.uid)]
 
 
+@pytest.mark.parametrize(("need", "merges"), [(0, False), (25, True), (26, False)])
+def test_merge_on_closure_merges_a_reliable_pair_at_once(need: int, merges: bool) -> None:
+    # The region is far under its limit, so only the eager rule can merge: P-Q has 25
+    # inliers; Q-X joins the newest pose, which stays until the next one comes.
+    store, p, q, x, _ = merge_scene(replace(BIG, merge_on_closure=need))
+    merged = [pp for pp in store.local.poses.values() if pp.merged_from]
+    if not merges:
+        assert merged == []
+        assert set(store.local.poses) == {p.uid, q.uid, x.uid}
+        return
+    (m,) = merged
+    assert m.merged_from == (p.uid, q.uid)
+    assert set(store.local.poses) == {m.uid, x.uid}
+    # The loop is in the layer now: the edge Q -> X runs from the merged pose.
+    (edge,) = store.local.edges
+    assert (edge.a, edge.b) == (m.uid, x.uid)
+    np.testing.assert_allclose(compose(m.estimate, edge.transform), x.estimate, atol=1e-9)
+    assert store.merge_reliable(3.0) == []  # nothing left to merge
+
+
+def test_merge_on_closure_leaves_the_newest_pose_until_the_next() -> None:
+    # X is 1.9 m from the merged pose's frame: a wider radius lets them merge.
+    store, _p, _q, x, _ = merge_scene(replace(BIG, merge_on_closure=25, merge_radius=3.0))
+    (m,) = [pp for pp in store.local.poses.values() if pp.merged_from]
+    assert x.uid in store.local.poses
+    y = make_pose(
+        0,
+        3,
+        make_landmarks(np.zeros((3, 3)), seed=3),
+        estimate=tuple(compose(x.estimate, (1.0, 0.0, 0.0))),
+        time=3.0,
+    )
+    store.add_own_pose(y, odometry(x, y), [], now=3.0)
+    # X is no longer the newest, so its closure with the merged pose merges them.
+    assert x.uid not in store.local.poses
+    (m2,) = [pp for pp in store.local.poses.values() if pp.merged_from and pp.uid != m.uid]
+    assert m2.merged_from == (m.uid, x.uid)
+    assert set(store.local.poses) == {m2.uid, y.uid}
+
+
 def test_deleting_a_pose_chains_its_neighbours() -> None:
     store, p, q, x, _ = merge_scene(BIG)
     store.delete_pose(q.uid, now=3.0)
@@ -506,6 +546,8 @@ def test_compress_for_sending_keeps_the_fresh_reliable_pose() -> None:
         ({"merge_min_inliers": 2.5}, "merge_min_inliers"),
         ({"s": math.nan}, "s"),
         ({"fold": 1}, "fold"),
+        ({"merge_on_closure": -1}, "merge_on_closure"),
+        ({"merge_on_closure": 8.5}, "merge_on_closure"),
     ],
 )
 def test_bad_params_name_the_field(kwargs: dict[str, float], name: str) -> None:

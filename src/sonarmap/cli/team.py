@@ -18,7 +18,7 @@ from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
 from ..io.rosmap import OccupancyMap, write_map
 from ..team.animation import mp4_available, save_mission_animation, save_team_animation
-from ..team.exchange import LEAN, PROTOCOLS, ExchangeParams
+from ..team.exchange import LEAN, LEAN_MERGE_ON_CLOSURE, PROTOCOLS, ExchangeParams
 from ..team.globalmap import plot_pose_graph, plot_team
 from ..team.mission import MissionConfig, MissionResult, run_mission
 from ..team.network import NetworkParams
@@ -68,6 +68,15 @@ FoldOption = Annotated[
     typer.Option(
         "--fold/--no-fold",
         help="A pose region compression deletes leaves its local map to the newest pose.",
+    ),
+]
+MergeOption = Annotated[
+    int,
+    typer.Option(
+        "--merge-on-closure",
+        metavar="N",
+        help="Merge two own poses as soon as a closure with >= N inliers joins them, so "
+        "that the loop travels in the exchanged layer (0: only under region compression).",
     ),
 ]
 
@@ -127,11 +136,25 @@ def _tick(update: Any, note: str, done: int, total: int) -> None:
     update(done, total, note)
 
 
-def _check_bounds(pose_limit: int, region_limit: int, fold: bool = False) -> StoreParams:
+def _check_bounds(
+    pose_limit: int, region_limit: int, fold: bool = False, merge_on_closure: int = 0
+) -> StoreParams:
     try:
-        return StoreParams(pose_limit=pose_limit, region_limit=region_limit, fold=fold)
+        return StoreParams(
+            pose_limit=pose_limit,
+            region_limit=region_limit,
+            fold=fold,
+            merge_on_closure=merge_on_closure,
+        )
     except ConfigError as e:
-        option = "--pose-limit" if str(e).startswith("store: pose_limit") else "--region-limit"
+        text = str(e)
+        option = (
+            "--pose-limit"
+            if text.startswith("store: pose_limit")
+            else "--merge-on-closure"
+            if text.startswith("store: merge_on_closure")
+            else "--region-limit"
+        )
         raise ConfigError(f"{option}: {str(e).removeprefix('store: ')}") from None
 
 
@@ -427,12 +450,13 @@ def run_cmd(
         ),
     ] = ExchangeParams().ternary_maps,
     fold: FoldOption = STORE_DEFAULTS.fold,
+    merge_on_closure: MergeOption = STORE_DEFAULTS.merge_on_closure,
     lean: Annotated[
         bool,
         typer.Option(
             "--lean",
             help="The measured lean exchange: --anchors 8 --hold 30 --descriptor-bits 3 "
-            "--ternary-maps --fold.",
+            "--ternary-maps --fold --merge-on-closure 8.",
         ),
     ] = False,
     transport: Annotated[
@@ -467,18 +491,21 @@ def run_cmd(
                 ("descriptor_bits", "--descriptor-bits"),
                 ("ternary_maps", "--ternary-maps"),
                 ("fold", "--fold/--no-fold"),
+                ("merge_on_closure", "--merge-on-closure"),
             )
             if getattr(ctx.get_parameter_source(name), "name", "DEFAULT") != "DEFAULT"
         ]
         if given:
             raise ConfigError(
                 f"--lean sets --anchors, --loop-anchors, --hold, --descriptor-bits, "
-                f"--ternary-maps and --fold: drop {', '.join(given)} or drop --lean"
+                f"--ternary-maps, --fold and --merge-on-closure: drop {', '.join(given)} "
+                f"or drop --lean"
             )
         if exchange == "naive":
             raise ConfigError("--lean is for the protocols; the naive baseline sends every pose")
         anchors, hold, loop_anchors = LEAN.anchor_every, LEAN.hold, LEAN.loop_anchors
         descriptor_bits, ternary_maps, fold = LEAN.descriptor_bits, LEAN.ternary_maps, True
+        merge_on_closure = LEAN_MERGE_ON_CLOSURE
     protocol = _exchange_params(
         exchange, cap, network, budget, anchors, hold, descriptor_bits, ternary_maps, loop_anchors
     )
@@ -491,7 +518,7 @@ def run_cmd(
             "--transport zmq: the nodes drive their own seeded routes; --patrol, --route, "
             "--world and --animate are --transport sim's"
         )
-    store = _check_bounds(pose_limit, region_limit, fold)
+    store = _check_bounds(pose_limit, region_limit, fold, merge_on_closure)
     plan = _team_plan(map_, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
@@ -588,6 +615,7 @@ def node_cmd(
     pose_limit: PoseLimitOption = STORE_DEFAULTS.pose_limit,
     region_limit: RegionLimitOption = STORE_DEFAULTS.region_limit,
     fold: FoldOption = STORE_DEFAULTS.fold,
+    merge_on_closure: MergeOption = STORE_DEFAULTS.merge_on_closure,
     exchange: Annotated[
         list[str] | None,
         typer.Option("--exchange", help="An exchange setting KEY=VALUE (repeatable)."),
@@ -625,7 +653,7 @@ def node_cmd(
         raise ConfigError(f"--duration must be > 0, got {duration}")
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
-    store = _check_bounds(pose_limit, region_limit, fold)
+    store = _check_bounds(pose_limit, region_limit, fold, merge_on_closure)
     timing = LockstepParams(wait_timeout=wait_timeout, checkpoint_every=checkpoint_every)
     ex = parse_exchange(exchange or [])
     peer_map = parse_peers(peers, robot)

@@ -921,7 +921,11 @@ class _Node:
             peers=lambda: list(self.others),
         )
         # What the naive baseline would send: the share of it the team reports.
-        self.meter = NaiveMeter(agent.store, agent.made if cfg.store.fold else None)
+        self.meter = NaiveMeter(
+            agent.store,
+            agent.made if cfg.store.fold else None,
+            merged=not cfg.store.merge_on_closure,
+        )
         self.link = _Link(self.zmq, self.others, self.timing)
         self.clock = _Clock()
         self.fingerprint = _fingerprint(plan, cfg, robot, ids, self.exchange, routes)
@@ -1286,12 +1290,14 @@ def _node_args(
             pose_limit=cfg.store.pose_limit,
             region_limit=cfg.store.region_limit,
             fold=cfg.store.fold,
+            merge_on_closure=cfg.store.merge_on_closure,
         ),
     )
     if base != cfg:
         raise ConfigError(
             "run_zmq_team: the nodes take only the mission's duration, seed, pose_limit, "
-            "region_limit and fold; other MissionConfig settings differ from their defaults"
+            "region_limit, fold and merge_on_closure; other MissionConfig settings differ "
+            "from their defaults"
         )
     args = [
         "--duration",
@@ -1303,6 +1309,8 @@ def _node_args(
         "--region-limit",
         str(cfg.store.region_limit),
         "--fold" if cfg.store.fold else "--no-fold",
+        "--merge-on-closure",
+        str(cfg.store.merge_on_closure),
         "--lookahead",
         repr(float(lookahead)),
         "--settle",

@@ -343,7 +343,10 @@ def run_team(
     # The naive baseline's bytes on the same mission, for the share of them we send.
     fold = cfg.store.fold
     meters = (
-        [NaiveMeter(a.store, a.made if fold else None) for a in agents]
+        [
+            NaiveMeter(a.store, a.made if fold else None, merged=not cfg.store.merge_on_closure)
+            for a in agents
+        ]
         if exchange.mode != "naive"
         else []
     )

@@ -110,6 +110,15 @@ class StoreParams:
         Largest standard deviation (rad) of its angle: 0.05.
     descriptor_dim : int
         Descriptor bytes, used only to check that ``pose_limit`` holds one landmark: 128.
+    merge_on_closure : int
+        0 (default): poses merge only when region compression picks a merge (thesis
+        2.3.2). N > 0: besides, two own poses merge as soon as a closure joins them with
+        at least N inliers and the other merge conditions hold (``merge_radius``,
+        ``merge_max_std``, ``merge_max_angle_std``, one region, neither the newest).
+        The closure store is never exchanged, so another robot holding the two poses
+        sees the loop only if it finds the closure again from their landmarks; a merge
+        puts the loop into the local layer itself, which is exchanged (the edges of
+        both poses now meet at the merged one).
     fold : bool
         When region compression deletes a pose, add its local map to the newest pose's
         (resampled into the newest's frame by the two estimates; the newest keeps its
@@ -137,6 +146,7 @@ class StoreParams:
     merge_max_std: float = 0.1
     merge_max_angle_std: float = 0.05
     descriptor_dim: int = 128
+    merge_on_closure: int = 0
     fold: bool = False
 
     def __post_init__(self) -> None:
@@ -150,9 +160,15 @@ class StoreParams:
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ConfigError(f"store: {f.name} must be a finite number, got {v!r}")
-            if v < 0 or (v == 0 and f.name not in ("a", "g", "beta")):
+            if v < 0 or (v == 0 and f.name not in ("a", "g", "beta", "merge_on_closure")):
                 raise ConfigError(f"store: {f.name} must be > 0, got {v}")
-        for name in ("pose_limit", "region_limit", "merge_min_inliers", "descriptor_dim"):
+        for name in (
+            "pose_limit",
+            "region_limit",
+            "merge_min_inliers",
+            "merge_on_closure",
+            "descriptor_dim",
+        ):
             if not isinstance(getattr(self, name), int):
                 raise ConfigError(f"store: {name} must be an integer")
         if self.decay_cap < 1:
@@ -669,7 +685,34 @@ class RobotStore:
             self._rewrite_closures(pose.uid, pose.uid, self._index_map(len(stored.landmarks), kept))
         self._note_peak()
         self.compress_region(pose.region, now)
+        if self.params.merge_on_closure:
+            self.merge_reliable(now)
         self._note_peak()
+
+    def merge_reliable(self, now: float) -> list[int]:
+        """Merge every pair of own poses a reliable closure joins
+        (``StoreParams.merge_on_closure``), the best closure first (most inliers, then
+        least error, then the oldest poses), until none is left; the merged UIDs are
+        returned. A merged pose may merge again with a third pose."""
+        out: list[int] = []
+        need = self.params.merge_on_closure
+        poses = self.local.poses
+        while True:
+            best: ClosureEdge | None = None
+            for c in self.closures:
+                if c.inliers < need or c.a not in poses:
+                    continue
+                if not self._mergeable(c, poses[c.a].region, need):
+                    continue
+                if best is None or (c.inliers, -c.error, -min(c.a, c.b)) > (
+                    best.inliers,
+                    -best.error,
+                    -min(best.a, best.b),
+                ):
+                    best = c
+            if best is None:
+                return out
+            out.append(self.merge_poses(best, now))
 
     def add_received_pose(
         self,
@@ -931,7 +974,7 @@ class RobotStore:
         self._rewrite_closures(c.a, uid, plan.p_index)
         self._rewrite_closures(c.b, uid, plan.q_index, where)
 
-    def _mergeable(self, c: ClosureEdge, region: int) -> bool:
+    def _mergeable(self, c: ClosureEdge, region: int, min_inliers: int | None = None) -> bool:
         poses = self.local.poses
         if c.a == c.b or c.a not in poses or c.b not in poses or self._newest in (c.a, c.b):
             return False
@@ -940,7 +983,7 @@ class RobotStore:
         cov = c.cov()
         xy_std = math.sqrt(max(0.0, float(np.linalg.eigvalsh(cov[:2, :2]).max())))
         return (
-            c.inliers >= self.params.merge_min_inliers
+            c.inliers >= (self.params.merge_min_inliers if min_inliers is None else min_inliers)
             and math.hypot(c.transform[0], c.transform[1]) < self.params.merge_radius
             and xy_std <= self.params.merge_max_std
             and math.sqrt(max(0.0, cov[2, 2])) <= self.params.merge_max_angle_std
