@@ -10,8 +10,8 @@ setting is judged on the mean and on how many seeds hold, not on one seed.
 Usage::
 
     python -m benchmarks.team_goal --plan building:8 --robots 3 --seeds 0 1 2 [--lean]
-        [--anchors K] [--loop-anchors] [--hold S] [--descriptor-bits B] [--ternary-maps]
-        [--fold] [--merge-on-closure N] [--duration 300] [--jobs 2] [--json FILE]
+        [--anchors K] [--loop-anchors] [--anchor-share S] [--hold S] [--descriptor-bits B]
+        [--ternary-maps] [--fold] [--merge-on-closure N] [--duration 300] [--jobs 2] [--json FILE]
 
 Prints one line per seed (F1, central, gap, share, holds) and the means.
 """
@@ -77,6 +77,7 @@ def _setting(args: argparse.Namespace) -> tuple[ExchangeParams, StoreParams]:
     ex = ExchangeParams(
         anchor_every=args.anchors,
         loop_anchors=args.loop_anchors,
+        anchor_share=args.anchor_share,
         hold=args.hold,
         descriptor_bits=args.descriptor_bits,
         ternary_maps=args.ternary_maps,
@@ -95,6 +96,13 @@ def main() -> None:
     )
     parser.add_argument("--anchors", type=int, default=1)
     parser.add_argument("--loop-anchors", action="store_true")
+    parser.add_argument(
+        "--anchor-share",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="Byte target of the anchors (ExchangeParams.anchor_share; 0: off).",
+    )
     parser.add_argument("--hold", type=float, default=0.0)
     parser.add_argument("--descriptor-bits", type=int, default=8)
     parser.add_argument("--ternary-maps", action="store_true")

@@ -158,3 +158,65 @@ def test_a_checkpoint_keeps_the_anchors_chosen() -> None:
     back.step(2.0)
     assert back._chooser is not None
     assert chosen(back._chooser) == [0, 4, 5, 8, 10]
+
+
+@pytest.mark.parametrize(
+    ("naive", "want"),
+    [
+        (0.0, [0, 4, 8]),  # nothing to spend: the anchors by counter only
+        (1e12, list(range(12))),  # far under the target: every pose whole
+    ],
+)
+def test_the_byte_target_adds_whole_poses_while_under_it(naive: float, want: list[int]) -> None:
+    stores = [_source(), RobotStore(1, BIG)]
+    hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
+    params = ExchangeParams(**FAST, anchor_every=4, anchor_share=0.2)  # type: ignore[arg-type]
+    exs = [Exchanger(s, hub.transport(s.robot), params, naive_bytes=lambda: naive) for s in stores]
+    for _ in range(16):
+        hub.step(DT)
+        for ex in exs:
+            ex.step(hub.now)
+    got = stores[1].received[0].poses
+    assert set(got) == set(stores[0].local.poses)
+    assert sorted(counter_of(u) for u, p in got.items() if len(p.landmarks)) == want
+
+
+def test_the_byte_target_decides_each_pose_once_and_keeps_it_in_a_checkpoint() -> None:
+    import msgpack
+
+    from sonarmap.team.node import _exchanger_into, _exchanger_state
+
+    spent = [1e12]
+    hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
+    params = ExchangeParams(anchor_every=4, anchor_share=0.5)
+    e = Exchanger(_source(), hub.transport(0), params, naive_bytes=lambda: spent[0])
+    p1, p2 = (e.store.local.poses[own(k)] for k in (1, 2))
+    assert e._travels_whole(p1)
+    spent[0] = 0.0  # over the target from now on
+    assert e._travels_whole(p1)  # decided
+    assert not e._travels_whole(p2)
+    state = msgpack.unpackb(msgpack.packb(_exchanger_state(e)), strict_map_key=False)
+    hub2 = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
+    fresh = Exchanger(_source(), hub2.transport(0), params, naive_bytes=lambda: 1e12)
+    _exchanger_into(fresh, state)
+    assert fresh._travels_whole(p1)
+    assert not fresh._travels_whole(p2)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"anchor_every": 4, "anchor_share": 1.5}, "anchor_share"),
+        ({"anchor_every": 4, "anchor_share": -0.1}, "anchor_share"),
+        ({"anchor_share": 0.2}, "anchor_every > 1"),
+    ],
+)
+def test_bad_byte_targets_are_refused(kwargs: dict[str, float], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        ExchangeParams(**kwargs)  # type: ignore[arg-type]
+
+
+def test_a_byte_target_needs_the_baselines_bytes() -> None:
+    hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
+    with pytest.raises(ConfigError, match="naive_bytes"):
+        Exchanger(RobotStore(0), hub.transport(0), ExchangeParams(anchor_every=4, anchor_share=0.2))

@@ -220,6 +220,7 @@ def _exchange_params(
     descriptor_bits: int = 8,
     ternary_maps: bool = False,
     loop_anchors: bool = False,
+    anchor_share: float = 0.0,
 ) -> ExchangeParams:
     # A link that may break or be slow is what the limited protocol was designed for.
     mode = exchange if exchange is not None else ("good" if network == "full" else "limited")
@@ -235,6 +236,10 @@ def _exchange_params(
         raise ConfigError("--loop-anchors chooses among poses sent bare: give --anchors K > 1")
     if not (math.isfinite(hold) and hold >= 0):
         raise ConfigError(f"--hold must be >= 0 seconds, got {hold}")
+    if not (math.isfinite(anchor_share) and 0 <= anchor_share <= 1):
+        raise ConfigError(f"--anchor-share must be in [0, 1], got {anchor_share}")
+    if anchor_share > 0 and anchors == 1:
+        raise ConfigError("--anchor-share chooses among poses sent bare: give --anchors K > 1")
     if not 1 <= descriptor_bits <= 8:
         raise ConfigError(f"--descriptor-bits must be in 1..8, got {descriptor_bits}")
     return ExchangeParams(
@@ -246,6 +251,7 @@ def _exchange_params(
         descriptor_bits=descriptor_bits,
         ternary_maps=ternary_maps,
         loop_anchors=loop_anchors,
+        anchor_share=anchor_share,
     )
 
 
@@ -428,6 +434,15 @@ def run_cmd(
             "older anchor or met another robot's pose, so that receivers can close it too.",
         ),
     ] = ExchangeParams().loop_anchors,
+    anchor_share: Annotated[
+        float,
+        typer.Option(
+            "--anchor-share",
+            metavar="S",
+            help="With --anchors K: also send a pose whole while the robot has sent less "
+            "than S times what the naive baseline would have (0: off).",
+        ),
+    ] = ExchangeParams().anchor_share,
     hold: Annotated[
         float,
         typer.Option(
@@ -487,6 +502,7 @@ def run_cmd(
             for name, flag in (
                 ("anchors", "--anchors"),
                 ("loop_anchors", "--loop-anchors"),
+                ("anchor_share", "--anchor-share"),
                 ("hold", "--hold"),
                 ("descriptor_bits", "--descriptor-bits"),
                 ("ternary_maps", "--ternary-maps"),
@@ -497,17 +513,27 @@ def run_cmd(
         ]
         if given:
             raise ConfigError(
-                f"--lean sets --anchors, --loop-anchors, --hold, --descriptor-bits, "
-                f"--ternary-maps, --fold and --merge-on-closure: drop {', '.join(given)} "
-                f"or drop --lean"
+                f"--lean sets --anchors, --loop-anchors, --anchor-share, --hold, "
+                f"--descriptor-bits, --ternary-maps, --fold and --merge-on-closure: "
+                f"drop {', '.join(given)} or drop --lean"
             )
         if exchange == "naive":
             raise ConfigError("--lean is for the protocols; the naive baseline sends every pose")
         anchors, hold, loop_anchors = LEAN.anchor_every, LEAN.hold, LEAN.loop_anchors
+        anchor_share = LEAN.anchor_share
         descriptor_bits, ternary_maps, fold = LEAN.descriptor_bits, LEAN.ternary_maps, True
         merge_on_closure = LEAN_MERGE_ON_CLOSURE
     protocol = _exchange_params(
-        exchange, cap, network, budget, anchors, hold, descriptor_bits, ternary_maps, loop_anchors
+        exchange,
+        cap,
+        network,
+        budget,
+        anchors,
+        hold,
+        descriptor_bits,
+        ternary_maps,
+        loop_anchors,
+        anchor_share,
     )
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")

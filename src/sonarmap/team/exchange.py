@@ -275,6 +275,16 @@ class ExchangeParams:
         an older anchor or with another robot's pose (:class:`.anchors.AnchorChooser`),
         so that receivers can close it too. False (default): the anchors are every
         ``anchor_every``-th pose and the merged ones (:func:`.anchors.is_anchor`).
+    anchor_share : float
+        A byte target for anchors: besides the anchors above, an own pose travels whole
+        when, the first time it is prepared to travel, this robot has sent less than
+        ``anchor_share`` times what the naive baseline would have sent by then on the
+        same mission (the ``naive_bytes`` an :class:`Exchanger` is given, in the team
+        run :class:`.naive.NaiveMeter`). Each pose is decided once, so every holder
+        gets the same copy. A fixed ``anchor_every`` spends a different share on each
+        floor plan (the office 14 %, building 8 20 % at k = 8), so a sparse ``k`` with
+        a share target lets the plans with bytes to spare buy landmarks. 0 (default):
+        off. Needs ``anchor_every`` > 1.
     hold : float
         Seconds a robot keeps a new own pose to itself before it offers the pose to
         its peers (COVINS sends keyframes once final): a pose its store deletes or
@@ -309,6 +319,7 @@ class ExchangeParams:
     budget: float = 0.0
     anchor_every: int = 1
     loop_anchors: bool = False
+    anchor_share: float = 0.0
     hold: float = 0.0
     descriptor_bits: int = 8
     ternary_maps: bool = False
@@ -324,7 +335,7 @@ class ExchangeParams:
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ConfigError(f"exchange: {f.name} must be a finite number, got {v!r}")
-            may_be_0 = f.name in ("budget", "hold", "full_advert_every")
+            may_be_0 = f.name in ("budget", "hold", "full_advert_every", "anchor_share")
             if v < 0 or (v == 0 and not may_be_0):
                 bound = ">= 0" if may_be_0 else "> 0"
                 raise ConfigError(f"exchange: {f.name} must be {bound}, got {v}")
@@ -334,6 +345,12 @@ class ExchangeParams:
                     f"exchange: {name} must be an integer, got {getattr(self, name)!r}"
                 )
         check_quantisation(self.descriptor_bits, self.ternary_maps)
+        if self.anchor_share > 1:
+            raise ConfigError(f"exchange: anchor_share must be <= 1, got {self.anchor_share}")
+        if self.anchor_share > 0 and self.anchor_every == 1:
+            raise ConfigError(
+                "exchange: anchor_share needs anchor_every > 1 (with 1 every pose travels whole)"
+            )
         if not isinstance(self.loop_anchors, bool):
             raise ConfigError(
                 f"exchange: loop_anchors must be true or false, got {self.loop_anchors!r}"
@@ -1092,6 +1109,7 @@ class Exchanger:
         adjacency: Mapping[int, Collection[int]] | None = None,
         on_received: OnReceived | None = None,
         peers: Callable[[], Iterable[int]] | None = None,
+        naive_bytes: Callable[[], float] | None = None,
     ) -> None:
         _check_pair(store, transport)
         if params is not None and params.mode not in MODES:
@@ -1146,6 +1164,13 @@ class Exchanger:
             if self.params.loop_anchors and self.params.anchor_every > 1
             else None
         )
+        # Own poses the byte target (ExchangeParams.anchor_share) has decided: whole or not.
+        if self.params.anchor_share > 0 and naive_bytes is None:
+            raise ConfigError(
+                "exchange: anchor_share needs the naive baseline's bytes (naive_bytes)"
+            )
+        self._naive_bytes = naive_bytes
+        self._by_share: dict[int, bool] = {}
 
     @property
     def robot(self) -> int:
@@ -1268,14 +1293,22 @@ class Exchanger:
         """Whether an own pose is an anchor."""
         chooser = self._chooser
         if chooser is None:
-            return is_anchor(
+            whole = is_anchor(
                 pose,
                 self.params.anchor_every,
                 merged_whole=not self.store.params.merge_on_closure,
             )
-        if chooser.pending([pose.uid]):
-            chooser.update(self.store)
-        return chooser.travels_whole(pose)
+        else:
+            if chooser.pending([pose.uid]):
+                chooser.update(self.store)
+            whole = chooser.travels_whole(pose)
+        if whole or self._naive_bytes is None or self.params.anchor_share <= 0:
+            return whole
+        decided = self._by_share.get(pose.uid)
+        if decided is None:
+            target = self.params.anchor_share * self._naive_bytes()
+            decided = self._by_share[pose.uid] = self.stats.bytes_sent < target
+        return decided
 
     # --- stamps of the local layer --------------------------------------------------------
 

@@ -318,7 +318,20 @@ def make_exchanger(
     adjacency: Mapping[int, Collection[int]] | None = None,
     on_received: OnReceived | None = None,
     peers: Callable[[], Iterable[int]] | None = None,
+    naive_bytes: Callable[[], float] | None = None,
 ) -> Exchanger | NaiveExchanger:
-    """The exchanger ``params.mode`` names: the thesis's protocols or the baseline."""
-    kind = NaiveExchanger if params.mode == "naive" else Exchanger
-    return kind(store, transport, params, adjacency=adjacency, on_received=on_received, peers=peers)
+    """The exchanger ``params.mode`` names: the thesis's protocols or the baseline
+    (``naive_bytes``: the protocols' byte target, ``ExchangeParams.anchor_share``)."""
+    if params.mode == "naive":
+        return NaiveExchanger(
+            store, transport, params, adjacency=adjacency, on_received=on_received, peers=peers
+        )
+    return Exchanger(
+        store,
+        transport,
+        params,
+        adjacency=adjacency,
+        on_received=on_received,
+        peers=peers,
+        naive_bytes=naive_bytes,
+    )

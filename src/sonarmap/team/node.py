@@ -730,6 +730,7 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "published": None if e._published is None else _layer_state(e._published),
         "finished": e._finished,
         "anchors": None if e._chooser is None else e._chooser.state(),
+        "by_share": [[u, w] for u, w in sorted(e._by_share.items())],
         "stats": stats,
         "rejected": dict(e.stats.rejected),
         "bytes_by_kind": dict(e.stats.bytes_by_kind),
@@ -766,6 +767,8 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
     # A state saved before loop anchors has none: the chooser starts afresh.
     if e._chooser is not None and d.get("anchors") is not None:
         e._chooser.restore(d["anchors"])
+    # A state saved before the byte target has none: nothing decided yet.
+    e._by_share = {int(u): bool(w) for u, w in d.get("by_share", [])}
     for name, v in d["stats"].items():
         setattr(e.stats, name, v)
     e.stats.rejected.clear()
@@ -912,6 +915,13 @@ class _Node:
         agent.peers_truth = ChainMap(agent.truth, others_truth)
         agent.peers_made = ChainMap(agent.made, self.received_merged)
         self.inner = _Inner(robot, self.others, max_message)
+        # What the naive baseline would send: the share of it the team reports, and the
+        # byte target of ExchangeParams.anchor_share.
+        self.meter = NaiveMeter(
+            agent.store,
+            agent.made if cfg.store.fold else None,
+            merged=not cfg.store.merge_on_closure,
+        )
         self.exchanger = Exchanger(
             agent.store,
             self.inner,
@@ -919,12 +929,7 @@ class _Node:
             adjacency=region_adjacency(agent.labels),
             on_received=self._received,
             peers=lambda: list(self.others),
-        )
-        # What the naive baseline would send: the share of it the team reports.
-        self.meter = NaiveMeter(
-            agent.store,
-            agent.made if cfg.store.fold else None,
-            merged=not cfg.store.merge_on_closure,
+            naive_bytes=lambda: float(self.meter.bytes),
         )
         self.link = _Link(self.zmq, self.others, self.timing)
         self.clock = _Clock()

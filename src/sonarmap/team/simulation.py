@@ -219,6 +219,11 @@ class _Recorder:
             self.frames.append(frame)
 
 
+def _bytes_of(meter: NaiveMeter) -> Callable[[], float]:
+    """What ``meter`` has priced so far, read when called."""
+    return lambda: float(meter.bytes)
+
+
 def _changes(exchangers: list[Exchanger | NaiveExchanger]) -> int:
     return sum(e.stats.poses_added + e.stats.poses_deleted for e in exchangers)
 
@@ -318,6 +323,17 @@ def run_team(
     times = np.unique(np.concatenate([a.route[:, 0] for a in agents]))
     hub = SimHub(net, t0=float(times[0]))
     adjacency = region_adjacency(agents[0].labels)
+    # The naive baseline's bytes on the same mission, for the share of them we send (and
+    # the byte target of ExchangeParams.anchor_share).
+    fold = cfg.store.fold
+    meters = (
+        [
+            NaiveMeter(a.store, a.made if fold else None, merged=not cfg.store.merge_on_closure)
+            for a in agents
+        ]
+        if exchange.mode != "naive"
+        else []
+    )
     exchangers = [
         make_exchanger(
             a.store,
@@ -325,8 +341,9 @@ def run_team(
             exchange,
             adjacency=adjacency,
             on_received=a.receive,
+            naive_bytes=_bytes_of(meters[i]) if meters else None,
         )
-        for a in agents
+        for i, a in enumerate(agents)
     ]
 
     # The routes and the longest quiet phase, shared out among the frames.
@@ -338,17 +355,6 @@ def run_team(
         float(times[0]),
         max(frame_every, span / (max_frames - 1)),
         max_frames,
-    )
-
-    # The naive baseline's bytes on the same mission, for the share of them we send.
-    fold = cfg.store.fold
-    meters = (
-        [
-            NaiveMeter(a.store, a.made if fold else None, merged=not cfg.store.merge_on_closure)
-            for a in agents
-        ]
-        if exchange.mode != "naive"
-        else []
     )
 
     def tick(t: float, wanted: bool) -> None:
