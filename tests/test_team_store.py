@@ -448,6 +448,7 @@ def test_merge_on_closure_merges_a_reliable_pair_at_once(need: int, merges: bool
     if not merges:
         assert merged == []
         assert set(store.local.poses) == {p.uid, q.uid, x.uid}
+        assert store.merge_reliable(3.0) == []  # asked directly, still by the option
         return
     (m,) = merged
     assert m.merged_from == (p.uid, q.uid)

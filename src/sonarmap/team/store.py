@@ -693,11 +693,12 @@ class RobotStore:
         """Merge every pair of own poses a reliable closure joins
         (``StoreParams.merge_on_closure``), the best closure first (most inliers, then
         least error, then the oldest poses), until none is left; the merged UIDs are
-        returned. A merged pose may merge again with a third pose."""
+        returned. A merged pose may merge again with a third pose. Nothing when the
+        option is off (0)."""
         out: list[int] = []
         need = self.params.merge_on_closure
         poses = self.local.poses
-        while True:
+        while need > 0:
             best: ClosureEdge | None = None
             for c in self.closures:
                 if c.inliers < need or c.a not in poses:
@@ -711,8 +712,9 @@ class RobotStore:
                 ):
                     best = c
             if best is None:
-                return out
+                break
             out.append(self.merge_poses(best, now))
+        return out
 
     def add_received_pose(
         self,
