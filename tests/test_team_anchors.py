@@ -220,3 +220,16 @@ def test_a_byte_target_needs_the_baselines_bytes() -> None:
     hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
     with pytest.raises(ConfigError, match="naive_bytes"):
         Exchanger(RobotStore(0), hub.transport(0), ExchangeParams(anchor_every=4, anchor_share=0.2))
+
+
+def test_the_byte_target_follows_the_baseline_a_hold_behind() -> None:
+    # With a 5 s hold nothing is offered in the first 5 s, while the baseline would
+    # already have sent: the target counts the baseline as it was 5 s before.
+    hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
+    params = ExchangeParams(anchor_every=4, anchor_share=0.5, hold=5.0)
+    e = Exchanger(_source(), hub.transport(0), params, naive_bytes=lambda: 1e12)
+    e.step(0.0)
+    e.step(3.0)
+    assert not e._travels_whole(e.store.local.poses[own(1)])
+    e.step(6.0)
+    assert e._travels_whole(e.store.local.poses[own(2)])

@@ -100,7 +100,7 @@ import logging
 import math
 import struct
 import threading
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -1171,6 +1171,11 @@ class Exchanger:
             )
         self._naive_bytes = naive_bytes
         self._by_share: dict[int, bool] = {}
+        # (time, naive bytes) at each step over the last ``hold`` seconds: a held pose is
+        # offered ``hold`` seconds after the baseline would have sent it, so the target
+        # follows the baseline that far behind (else every pose of the first minute,
+        # when nothing has been offered yet, would go whole).
+        self._naive_log: deque[tuple[float, float]] = deque()
 
     @property
     def robot(self) -> int:
@@ -1212,6 +1217,11 @@ class Exchanger:
         self._now = float(now)
         if self._chooser is not None:
             self._chooser.update(self.store)
+        if self._naive_bytes is not None and self.params.anchor_share > 0:
+            log = self._naive_log
+            log.append((self._now, self._naive_bytes()))
+            while len(log) > 1 and log[1][0] <= self._now - self.params.hold:
+                log.popleft()
         self._publish(self._now)
         for msg in self.transport.poll(0.0):
             self._handle(msg, self._now)
@@ -1306,9 +1316,18 @@ class Exchanger:
             return whole
         decided = self._by_share.get(pose.uid)
         if decided is None:
-            target = self.params.anchor_share * self._naive_bytes()
+            target = self.params.anchor_share * self._naive_behind()
             decided = self._by_share[pose.uid] = self.stats.bytes_sent < target
         return decided
+
+    def _naive_behind(self) -> float:
+        """The naive baseline's bytes ``hold`` seconds ago (all of them once the hold
+        has ended), for the byte target."""
+        assert self._naive_bytes is not None
+        if self._finished or self.params.hold <= 0:
+            return self._naive_bytes()
+        log = self._naive_log
+        return log[0][1] if log and log[0][0] <= self._now - self.params.hold else 0.0
 
     # --- stamps of the local layer --------------------------------------------------------
 

@@ -75,7 +75,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections import ChainMap
+from collections import ChainMap, deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -731,6 +731,7 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "finished": e._finished,
         "anchors": None if e._chooser is None else e._chooser.state(),
         "by_share": [[u, w] for u, w in sorted(e._by_share.items())],
+        "naive_log": [list(x) for x in e._naive_log],
         "stats": stats,
         "rejected": dict(e.stats.rejected),
         "bytes_by_kind": dict(e.stats.bytes_by_kind),
@@ -769,6 +770,7 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
         e._chooser.restore(d["anchors"])
     # A state saved before the byte target has none: nothing decided yet.
     e._by_share = {int(u): bool(w) for u, w in d.get("by_share", [])}
+    e._naive_log = deque((float(t), float(b)) for t, b in d.get("naive_log", []))
     for name, v in d["stats"].items():
         setattr(e.stats, name, v)
     e.stats.rejected.clear()
