@@ -61,7 +61,7 @@ def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap
           "--duration", "40", "--lean", "-o", str(out)])  # fmt: skip
     s = json.loads((out / "summary.json").read_text())
     ex = s["exchange"]
-    assert (ex["anchor_every"], ex["hold"]) == (8, 30.0)
+    assert (ex["anchor_every"], ex["anchor_share"], ex["hold"]) == (12, 0.15, 30.0)
     assert (ex["descriptor_bits"], ex["ternary_maps"]) == (3, True)
     assert s["robots"][0]["parameters"]["store"]["merge_on_closure"] == 8
     assert s["duplicate_poses"] == 0

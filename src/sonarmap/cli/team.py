@@ -470,8 +470,8 @@ def run_cmd(
         bool,
         typer.Option(
             "--lean",
-            help="The measured lean exchange: --anchors 8 --hold 30 --descriptor-bits 3 "
-            "--ternary-maps --fold --merge-on-closure 8.",
+            help="The measured lean exchange: --anchors 12 --anchor-share 0.15 --hold 30 "
+            "--descriptor-bits 3 --ternary-maps --fold --merge-on-closure 8.",
         ),
     ] = False,
     transport: Annotated[
