@@ -994,6 +994,11 @@ class _Node:
             if not s["finished"]:
                 _store_into(self.agent.store, s["store"])
                 _agent_into(self.agent, s["agent"])
+                # The restored agent has a new dict of the poses it made: the meter and
+                # the view over every robot's poses must look at that one.
+                if self.meter.made is not None:
+                    self.meter.made = self.agent.made
+                self.agent.peers_made = ChainMap(self.agent.made, self.received_merged)
                 _exchanger_into(self.exchanger, s["exchanger"])
                 # A state saved before the meter has none: it counts from here.
                 if "meter" in s:
