@@ -1318,7 +1318,7 @@ class Exchanger:
             if chooser.pending([pose.uid]):
                 chooser.update(self.store)
             whole = chooser.travels_whole(pose)
-        if whole or self._naive_bytes is None or self.params.anchor_share <= 0:
+        if whole or self.params.anchor_share <= 0:
             return whole
         decided = self._by_share.get(pose.uid)
         if decided is None:

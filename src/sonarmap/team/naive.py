@@ -106,9 +106,9 @@ class NaiveMeter:
         is priced with its local map as made, since the baseline's store (the thesis's)
         does not fold; a folded map costs a few per cent more (office and building 8,
         ``--lean``: 4 %).
-    merged : bool
-        Price merged poses too (default). False for a store that merges at every
-        reliable closure (``StoreParams.merge_on_closure``): the baseline's store merges
+    merged : bool, optional
+        Price merged poses too. Default: unless the store merges at every reliable
+        closure (``StoreParams.merge_on_closure``), since the baseline's store merges
         only under region compression, so it would have sent the poses as made and
         none of those merges (building 8, 3 robots, seed 0: pricing them put the
         baseline 39 % above a real baseline run).
@@ -122,11 +122,15 @@ class NaiveMeter:
     """
 
     def __init__(
-        self, store: RobotStore, made: Mapping[int, Pose] | None = None, *, merged: bool = True
+        self,
+        store: RobotStore,
+        made: Mapping[int, Pose] | None = None,
+        *,
+        merged: bool | None = None,
     ) -> None:
         self.store = store
         self.made = made
-        self.merged = merged
+        self.merged = not store.params.merge_on_closure if merged is None else merged
         self.bytes = 0
         self.poses = 0
         self._seen: set[int] = set()

@@ -919,11 +919,7 @@ class _Node:
         self.inner = _Inner(robot, self.others, max_message)
         # What the naive baseline would send: the share of it the team reports, and the
         # byte target of ExchangeParams.anchor_share.
-        self.meter = NaiveMeter(
-            agent.store,
-            agent.made if cfg.store.fold else None,
-            merged=not cfg.store.merge_on_closure,
-        )
+        self.meter = NaiveMeter(agent.store, agent.made if cfg.store.fold else None)
         self.exchanger = Exchanger(
             agent.store,
             self.inner,

@@ -327,10 +327,7 @@ def run_team(
     # the byte target of ExchangeParams.anchor_share).
     fold = cfg.store.fold
     meters = (
-        [
-            NaiveMeter(a.store, a.made if fold else None, merged=not cfg.store.merge_on_closure)
-            for a in agents
-        ]
+        [NaiveMeter(a.store, a.made if fold else None) for a in agents]
         if exchange.mode != "naive"
         else []
     )
