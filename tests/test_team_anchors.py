@@ -233,3 +233,18 @@ def test_the_byte_target_follows_the_baseline_a_hold_behind() -> None:
     assert not e._travels_whole(e.store.local.poses[own(1)])
     e.step(6.0)
     assert e._travels_whole(e.store.local.poses[own(2)])
+
+
+def test_the_byte_target_adds_nothing_after_the_mission() -> None:
+    # Far under the target, a pose decided during the mission goes whole; one first
+    # prepared after finish() goes by its counter only, however much is left to spend.
+    hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
+    params = ExchangeParams(anchor_every=4, anchor_share=0.5)
+    e = Exchanger(_source(), hub.transport(0), params, naive_bytes=lambda: 1e12)
+    e.step(0.0)
+    assert e._travels_whole(e.store.local.poses[own(1)])
+    e.finish()
+    e.step(1.0)
+    assert not e._travels_whole(e.store.local.poses[own(2)])
+    assert e._travels_whole(e.store.local.poses[own(1)])  # decided before: kept
+    assert e._travels_whole(e.store.local.poses[own(4)])  # an anchor by its counter
