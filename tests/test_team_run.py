@@ -63,6 +63,7 @@ def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap
     ex = s["exchange"]
     assert (ex["anchor_every"], ex["anchor_share"], ex["hold"]) == (12, 0.15, 30.0)
     assert (ex["descriptor_bits"], ex["ternary_maps"]) == (3, True)
+    assert (ex["advert_every"], ex["full_advert_every"]) == (10.0, 60.0)
     assert s["robots"][0]["parameters"]["store"]["merge_on_closure"] == 8
     assert s["duplicate_poses"] == 0
     assert s["identical_maps"] is True  # everything is published when the routes end

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Annotated, Any
@@ -471,7 +472,8 @@ def run_cmd(
         typer.Option(
             "--lean",
             help="The measured lean exchange: --anchors 12 --anchor-share 0.15 --hold 30 "
-            "--descriptor-bits 3 --ternary-maps --fold --merge-on-closure 8.",
+            "--descriptor-bits 3 --ternary-maps --fold --merge-on-closure 8, and adverts "
+            "every 10 s (whole every 60 s).",
         ),
     ] = False,
     transport: Annotated[
@@ -535,6 +537,10 @@ def run_cmd(
         loop_anchors,
         anchor_share,
     )
+    if lean:
+        protocol = replace(
+            protocol, advert_every=LEAN.advert_every, full_advert_every=LEAN.full_advert_every
+        )
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")
     if patrol and route is not None:
