@@ -3,6 +3,8 @@ exchange carrying them (loop anchors on the source, relays forwarding poses as r
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 
@@ -235,16 +237,37 @@ def test_the_byte_target_follows_the_baseline_a_hold_behind() -> None:
     assert e._travels_whole(e.store.local.poses[own(2)])
 
 
-def test_the_byte_target_adds_nothing_after_the_mission() -> None:
-    # Far under the target, a pose decided during the mission goes whole; one first
-    # prepared after finish() goes by its counter only, however much is left to spend.
+def _finished_exchanger(naive: Callable[[], float]) -> Exchanger:
+    """Robot 0's exchanger with a byte target, its pose 1 decided during the mission."""
     hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
     params = ExchangeParams(anchor_every=4, anchor_share=0.5)
-    e = Exchanger(_source(), hub.transport(0), params, naive_bytes=lambda: 1e12)
+    e = Exchanger(_source(), hub.transport(0), params, naive_bytes=naive)
     e.step(0.0)
     assert e._travels_whole(e.store.local.poses[own(1)])
     e.finish()
     e.step(1.0)
-    assert not e._travels_whole(e.store.local.poses[own(2)])
+    return e
+
+
+def test_after_the_mission_the_byte_target_still_spends_what_it_has() -> None:
+    e = _finished_exchanger(lambda: 1e12)
+    assert all(e._travels_whole(e.store.local.poses[own(k)]) for k in (1, 2, 3, 4))
+    assert e._end_spent > 0
+
+
+def test_after_the_mission_each_whole_pose_counts_at_once() -> None:
+    # The last hold's poses are decided in one batch before any is sent. With room for
+    # one pose's landmarks, the first goes whole and the next bare, though nothing more
+    # has been sent between the two decisions.
+    cost = _finished_exchanger(lambda: 1e12)
+    p2, p3 = (cost.store.local.poses[own(k)] for k in (2, 3))
+    assert cost._travels_whole(p2)
+    one = cost._end_spent
+    room = [1e12]
+    e = _finished_exchanger(lambda: room[0])
+    room[0] = (e.stats.bytes_sent + 1.5 * one) / e.params.anchor_share
+    assert e._travels_whole(p2)
+    assert e._end_spent == one
+    assert not e._travels_whole(p3)
     assert e._travels_whole(e.store.local.poses[own(1)])  # decided before: kept
     assert e._travels_whole(e.store.local.poses[own(4)])  # an anchor by its counter

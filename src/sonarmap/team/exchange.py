@@ -282,13 +282,13 @@ class ExchangeParams:
         same mission (the ``naive_bytes`` an :class:`Exchanger` is given, in the team
         run :class:`.naive.NaiveMeter`), as it was ``hold`` seconds before, since a
         held pose is offered that much later. Each pose is decided once, so every
-        holder gets the same copy. After :meth:`Exchanger.finish` no pose is added
-        (the last hold's poses are offered in one batch). The end of the mission
-        (those poses, bare, and the quiet phase) comes on top, so a run ends above
-        the target. A fixed ``anchor_every`` spends a different share on each floor
-        plan (the office 14 %, building 8 20 % at k = 8), so a sparse ``k`` with a
-        share target lets the plans with bytes to spare buy landmarks. 0 (default):
-        off. Needs ``anchor_every`` > 1.
+        holder gets the same copy. After :meth:`Exchanger.finish` the last hold's
+        poses, offered in one batch, are made whole only as far as their landmarks'
+        bytes to every live peer fit under the target. The quiet phase and the bare
+        poses come on top, so a run ends above the target. A fixed ``anchor_every``
+        spends a different share on each floor plan (the office 14 %, building 8 20 %
+        at k = 8), so a sparse ``k`` with a share target lets the plans with bytes to
+        spare buy landmarks. 0 (default): off. Needs ``anchor_every`` > 1.
     hold : float
         Seconds a robot keeps a new own pose to itself before it offers the pose to
         its peers (COVINS sends keyframes once final): a pose its store deletes or
@@ -1191,6 +1191,9 @@ class Exchanger:
         # follows the baseline that far behind (else every pose of the first minute,
         # when nothing has been offered yet, would go whole).
         self._naive_log: deque[tuple[float, float]] = deque()
+        # Bytes the byte target has committed since finish(): the end's poses are decided
+        # in a batch before any of them is sent, so each whole one counts at once.
+        self._end_spent = 0.0
 
     @property
     def robot(self) -> int:
@@ -1331,18 +1334,36 @@ class Exchanger:
             return whole
         decided = self._by_share.get(pose.uid)
         if decided is None:
-            # The poses offered at the mission's end go in one batch, all decided against
-            # one figure of bytes sent, so under the target every one would go whole (the
-            # office: 3-5 % of naive's bytes on the last hold's poses): the target is for
-            # the mission only.
-            target = 0.0 if self._finished else self.params.anchor_share * self._naive_behind()
-            decided = self._by_share[pose.uid] = self.stats.bytes_sent < target
+            target = self.params.anchor_share * self._naive_behind()
+            if self._finished:
+                decided = self._end_whole(pose, target)
+            else:
+                decided = self.stats.bytes_sent < target
+            self._by_share[pose.uid] = decided
         return decided
 
+    def _end_whole(self, pose: Pose, target: float) -> bool:
+        """The byte target after :meth:`finish`: the last hold's poses are offered in one
+        batch, all decided against one figure of bytes sent, so under the target every
+        one would go whole (the office: 3-5 % of naive's bytes). Each pose made whole
+        here counts at once, its landmarks' bytes times the live peers, until sent and
+        after (so the end spends at most the target)."""
+        bare = pose.with_landmarks(pose.landmarks.take(np.zeros(0, dtype=np.intp)))
+        bits, ternary = self.params.descriptor_bits, self.params.ternary_maps
+        extra = len(_pack({"p": encode(quantise_pose(pose, bits, ternary))})) - len(
+            _pack({"p": encode(quantise_pose(bare, bits, ternary))})
+        )
+        cost = extra * max(1, len(self._live(self._now)))
+        if self.stats.bytes_sent + self._end_spent + cost > target:
+            return False
+        self._end_spent += cost
+        return True
+
     def _naive_behind(self) -> float:
-        """The naive baseline's bytes ``hold`` seconds ago, for the byte target."""
+        """The naive baseline's bytes ``hold`` seconds ago (all of them once the hold
+        has ended), for the byte target."""
         assert self._naive_bytes is not None
-        if self.params.hold <= 0:
+        if self._finished or self.params.hold <= 0:
             return self._naive_bytes()
         log = self._naive_log
         return log[0][1] if log and log[0][0] <= self._now - self.params.hold else 0.0

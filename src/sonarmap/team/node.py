@@ -732,6 +732,7 @@ def _exchanger_state(e: Exchanger) -> dict[str, Any]:
         "anchors": None if e._chooser is None else e._chooser.state(),
         "by_share": [[u, w] for u, w in sorted(e._by_share.items())],
         "naive_log": [list(x) for x in e._naive_log],
+        "end_spent": e._end_spent,
         "stats": stats,
         "rejected": dict(e.stats.rejected),
         "bytes_by_kind": dict(e.stats.bytes_by_kind),
@@ -771,6 +772,7 @@ def _exchanger_into(e: Exchanger, d: Mapping[str, Any]) -> None:
     # A state saved before the byte target has none: nothing decided yet.
     e._by_share = {int(u): bool(w) for u, w in d.get("by_share", [])}
     e._naive_log = deque((float(t), float(b)) for t, b in d.get("naive_log", []))
+    e._end_spent = float(d.get("end_spent", 0.0))
     for name, v in d["stats"].items():
         setattr(e.stats, name, v)
     e.stats.rejected.clear()
