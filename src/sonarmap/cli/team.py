@@ -521,10 +521,7 @@ def run_cmd(
             )
         if exchange == "naive":
             raise ConfigError("--lean is for the protocols; the naive baseline sends every pose")
-        anchors, hold, loop_anchors = LEAN.anchor_every, LEAN.hold, LEAN.loop_anchors
-        anchor_share = LEAN.anchor_share
-        descriptor_bits, ternary_maps, fold = LEAN.descriptor_bits, LEAN.ternary_maps, True
-        merge_on_closure = LEAN_MERGE_ON_CLOSURE
+        fold, merge_on_closure = True, LEAN_MERGE_ON_CLOSURE
     protocol = _exchange_params(
         exchange,
         cap,
@@ -538,8 +535,9 @@ def run_cmd(
         anchor_share,
     )
     if lean:
+        # All of LEAN but what the network and the options above still choose.
         protocol = replace(
-            protocol, advert_every=LEAN.advert_every, full_advert_every=LEAN.full_advert_every
+            LEAN, mode=protocol.mode, cap_bytes=protocol.cap_bytes, budget=protocol.budget
         )
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")

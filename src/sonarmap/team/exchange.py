@@ -632,6 +632,11 @@ def _pack(d: Mapping[str, Any]) -> bytes:
     return _compressor().compress(bytes(msgpack.packb(d, use_bin_type=True)))
 
 
+def _bare(pose: Pose) -> Pose:
+    """The pose without its landmarks, as a non-anchor travels."""
+    return pose.with_landmarks(pose.landmarks.take(np.zeros(0, dtype=np.intp)))
+
+
 def _ids(s: Collection[int] | None) -> list[int] | None:
     return None if s is None else sorted(int(u) for u in s)
 
@@ -1315,7 +1320,10 @@ class Exchanger:
             and robot_of(pose.uid) == self.robot
             and not self._travels_whole(pose)
         ):
-            pose = pose.with_landmarks(pose.landmarks.take(np.zeros(0, dtype=np.intp)))
+            pose = _bare(pose)
+        return self._quantised(pose)
+
+    def _quantised(self, pose: Pose) -> Pose:
         return quantise_pose(pose, self.params.descriptor_bits, self.params.ternary_maps)
 
     def _travels_whole(self, pose: Pose) -> bool:
@@ -1349,10 +1357,8 @@ class Exchanger:
         one would go whole (the office: 3-5 % of naive's bytes). Each pose made whole
         here counts at once, its landmarks' bytes times the live peers, until sent and
         after (so the end spends at most the target)."""
-        bare = pose.with_landmarks(pose.landmarks.take(np.zeros(0, dtype=np.intp)))
-        bits, ternary = self.params.descriptor_bits, self.params.ternary_maps
-        extra = len(_pack({"p": encode(quantise_pose(pose, bits, ternary))})) - len(
-            _pack({"p": encode(quantise_pose(bare, bits, ternary))})
+        extra = len(_pack({"p": encode(self._quantised(pose))})) - len(
+            _pack({"p": encode(self._quantised(_bare(pose)))})
         )
         cost = extra * max(1, len(self._live(self._now)))
         if self.stats.bytes_sent + self._end_spent + cost > target:
