@@ -140,26 +140,24 @@ def test_loop_anchors_travel_whole_and_relays_forward_them_as_received(
 def test_a_checkpoint_keeps_the_anchors_chosen() -> None:
     import msgpack
 
-    from sonarmap.team.node import _exchanger_into, _exchanger_state
-
     def exchanger(store: RobotStore) -> Exchanger:
         hub = SimHub(SimNetwork(NetworkParams(kind="full"), 3))
         return Exchanger(store, hub.transport(0), ExchangeParams(anchor_every=4, loop_anchors=True))
 
     e = exchanger(_source())
     e.step(1.0)
-    assert e._chooser is not None
-    assert chosen(e._chooser) == [0, 4, 5, 8, 10]
-    state = msgpack.unpackb(msgpack.packb(_exchanger_state(e)), raw=False)
+    assert e.outgoing.chooser is not None
+    assert chosen(e.outgoing.chooser) == [0, 4, 5, 8, 10]
+    state = msgpack.unpackb(msgpack.packb(e.state()), raw=False)
     # Restored onto a store whose closures were since dropped (as the graph may): the
     # poses already decided keep their choice.
     bare = _source()
     bare.closures.clear()
     back = exchanger(bare)
-    _exchanger_into(back, state)
+    back.restore(state)
     back.step(2.0)
-    assert back._chooser is not None
-    assert chosen(back._chooser) == [0, 4, 5, 8, 10]
+    assert back.outgoing.chooser is not None
+    assert chosen(back.outgoing.chooser) == [0, 4, 5, 8, 10]
 
 
 @pytest.mark.parametrize(
@@ -186,23 +184,21 @@ def test_the_byte_target_adds_whole_poses_while_under_it(naive: float, want: lis
 def test_the_byte_target_decides_each_pose_once_and_keeps_it_in_a_checkpoint() -> None:
     import msgpack
 
-    from sonarmap.team.node import _exchanger_into, _exchanger_state
-
     spent = [1e12]
     hub = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
     params = ExchangeParams(anchor_every=4, anchor_share=0.5)
     e = Exchanger(_source(), hub.transport(0), params, naive_bytes=lambda: spent[0])
     p1, p2 = (e.store.local.poses[own(k)] for k in (1, 2))
-    assert e._travels_whole(p1)
+    assert e.outgoing.travels_whole(p1)
     spent[0] = 0.0  # over the target from now on
-    assert e._travels_whole(p1)  # decided
-    assert not e._travels_whole(p2)
-    state = msgpack.unpackb(msgpack.packb(_exchanger_state(e)), strict_map_key=False)
+    assert e.outgoing.travels_whole(p1)  # decided
+    assert not e.outgoing.travels_whole(p2)
+    state = msgpack.unpackb(msgpack.packb(e.state()), strict_map_key=False)
     hub2 = SimHub(SimNetwork(NetworkParams(kind="full"), 2))
     fresh = Exchanger(_source(), hub2.transport(0), params, naive_bytes=lambda: 1e12)
-    _exchanger_into(fresh, state)
-    assert fresh._travels_whole(p1)
-    assert not fresh._travels_whole(p2)
+    fresh.restore(state)
+    assert fresh.outgoing.travels_whole(p1)
+    assert not fresh.outgoing.travels_whole(p2)
 
 
 @pytest.mark.parametrize(
@@ -232,9 +228,9 @@ def test_the_byte_target_follows_the_baseline_a_hold_behind() -> None:
     e = Exchanger(_source(), hub.transport(0), params, naive_bytes=lambda: 1e12)
     e.step(0.0)
     e.step(3.0)
-    assert not e._travels_whole(e.store.local.poses[own(1)])
+    assert not e.outgoing.travels_whole(e.store.local.poses[own(1)])
     e.step(6.0)
-    assert e._travels_whole(e.store.local.poses[own(2)])
+    assert e.outgoing.travels_whole(e.store.local.poses[own(2)])
 
 
 def _finished_exchanger(naive: Callable[[], float]) -> Exchanger:
@@ -243,7 +239,7 @@ def _finished_exchanger(naive: Callable[[], float]) -> Exchanger:
     params = ExchangeParams(anchor_every=4, anchor_share=0.5)
     e = Exchanger(_source(), hub.transport(0), params, naive_bytes=naive)
     e.step(0.0)
-    assert e._travels_whole(e.store.local.poses[own(1)])
+    assert e.outgoing.travels_whole(e.store.local.poses[own(1)])
     e.finish()
     e.step(1.0)
     return e
@@ -251,8 +247,8 @@ def _finished_exchanger(naive: Callable[[], float]) -> Exchanger:
 
 def test_after_the_mission_the_byte_target_still_spends_what_it_has() -> None:
     e = _finished_exchanger(lambda: 1e12)
-    assert all(e._travels_whole(e.store.local.poses[own(k)]) for k in (1, 2, 3, 4))
-    assert e._end_spent > 0
+    assert all(e.outgoing.travels_whole(e.store.local.poses[own(k)]) for k in (1, 2, 3, 4))
+    assert e.outgoing.end_spent > 0
 
 
 def test_after_the_mission_each_whole_pose_counts_at_once() -> None:
@@ -261,13 +257,13 @@ def test_after_the_mission_each_whole_pose_counts_at_once() -> None:
     # has been sent between the two decisions.
     cost = _finished_exchanger(lambda: 1e12)
     p2, p3 = (cost.store.local.poses[own(k)] for k in (2, 3))
-    assert cost._travels_whole(p2)
-    one = cost._end_spent
+    assert cost.outgoing.travels_whole(p2)
+    one = cost.outgoing.end_spent
     room = [1e12]
     e = _finished_exchanger(lambda: room[0])
     room[0] = (e.stats.bytes_sent + 1.5 * one) / e.params.anchor_share
-    assert e._travels_whole(p2)
-    assert e._end_spent == one
-    assert not e._travels_whole(p3)
-    assert e._travels_whole(e.store.local.poses[own(1)])  # decided before: kept
-    assert e._travels_whole(e.store.local.poses[own(4)])  # an anchor by its counter
+    assert e.outgoing.travels_whole(p2)
+    assert e.outgoing.end_spent == one
+    assert not e.outgoing.travels_whole(p3)
+    assert e.outgoing.travels_whole(e.store.local.poses[own(1)])  # decided before: kept
+    assert e.outgoing.travels_whole(e.store.local.poses[own(4)])  # an anchor by its counter

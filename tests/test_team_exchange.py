@@ -20,25 +20,8 @@ import zstandard
 from sonarmap.errors import ConfigError, InputError
 from sonarmap.grid import Grid
 from sonarmap.team.exchange import (
-    MAX_INFLATED,
-    VERSION,
-    ZSTD_LEVEL,
-    Advert,
-    AdvertEntry,
-    Answer,
-    ExchangeError,
     ExchangeParams,
     Exchanger,
-    PatchAnswer,
-    PatchRequest,
-    Request,
-    _inflate,
-    decode_advert,
-    decode_answer,
-    decode_request,
-    encode_advert,
-    encode_answer,
-    encode_request,
 )
 from sonarmap.team.network import NetworkParams, SimNetwork
 from sonarmap.team.records import (
@@ -55,6 +38,25 @@ from sonarmap.team.records import (
 )
 from sonarmap.team.store import Layer, RobotStore, StoreParams
 from sonarmap.team.transport import SimHub, SimTransport, Transport
+from sonarmap.team.wire import (
+    MAX_INFLATED,
+    VERSION,
+    ZSTD_LEVEL,
+    Advert,
+    AdvertEntry,
+    Answer,
+    ExchangeError,
+    PatchAnswer,
+    PatchRequest,
+    Request,
+    decode_advert,
+    decode_answer,
+    decode_request,
+    encode_advert,
+    encode_answer,
+    encode_request,
+    inflate,
+)
 
 LOGGER = "sonarmap.team.exchange"
 BIG = StoreParams(pose_limit=10**7, region_limit=10**8)
@@ -338,7 +340,7 @@ def test_a_middle_robot_carries_poses_between_robots_out_of_range() -> None:
     assert uids(c.received[0]) == uids(a.local)
     assert c.received[0].patches[1].stamp == b.received[0].patches[1].stamp
     assert team.ex[0].stats.messages_received > 0
-    assert 2 not in team.ex[0]._adverts  # A never heard C
+    assert not team.ex[0].peer_table(2)  # A never heard C
     # A deletion at A travels the same way.
     gone = make_uid(0, 1)
     a.delete_pose(gone, team.hub.now)
@@ -390,7 +392,7 @@ def test_a_deletion_at_the_source_removes_the_pose_its_edges_and_closures(mode: 
 def _pose_bytes_per_answer(bodies: Sequence[bytes]) -> list[int]:
     out = []
     for body in bodies:
-        d = msgpack.unpackb(_inflate(body), raw=False)
+        d = msgpack.unpackb(inflate(body), raw=False)
         out.append(sum(len(p) for row in d["patches"] for p in row["poses"]))
     return out
 
@@ -641,7 +643,7 @@ def _zstd(raw: bytes, **options: Any) -> bytes:
     return zstandard.ZstdCompressor(**options).compress(raw)
 
 
-def _pack(d: object) -> bytes:
+def pack(d: object) -> bytes:
     return _zstd(bytes(msgpack.packb(d, use_bin_type=True)))
 
 
@@ -687,17 +689,17 @@ def _good_entry(b: RobotStore, ks: Sequence[int], region: int = 0) -> dict[str, 
 
 
 def _answer(rid: int, *rows: dict[str, Any], **top: Any) -> bytes:
-    return _pack({"v": VERSION, "id": rid, "mode": "good", "patches": list(rows), **top})
+    return pack({"v": VERSION, "id": rid, "mode": "good", "patches": list(rows), **top})
 
 
 def _request_body(drop: Sequence[str] = (), **changes: Any) -> bytes:
     """A good request for robot 2's region 0 with its one patch's fields changed, and
     those named in ``drop`` left out."""
     d = msgpack.unpackb(
-        _inflate(encode_request(Request(0, "good", (PatchRequest(2, 0, None, frozenset()),))))
+        inflate(encode_request(Request(0, "good", (PatchRequest(2, 0, None, frozenset()),))))
     )
     row = {k: v for k, v in {**d["patches"][0], **changes}.items() if k not in drop}
-    return _pack({**d, "patches": [row]})
+    return pack({**d, "patches": [row]})
 
 
 def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
@@ -714,8 +716,8 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
         "size understated": ("answer", _lying_frame(), "zstd"),
         "truncated": ("answer", good[:-40], "truncated"),
         "trailing": ("answer", good + b"\x00", "trailing"),
-        "not a map": ("answer", _pack([1, 2, 3]), "not_map"),
-        "missing key": ("answer", _pack({"v": VERSION, "id": rid, "mode": "good"}), "keys"),
+        "not a map": ("answer", pack([1, 2, 3]), "not_map"),
+        "missing key": ("answer", pack({"v": VERSION, "id": rid, "mode": "good"}), "keys"),
         "extra key": ("answer", _answer(rid, entry, pickle=b"cos\nsystem"), "keys"),
         "version": ("answer", _answer(rid, entry, v=VERSION + 1), "version"),
         "id as str": ("answer", _answer(rid, entry, id=str(rid)), "type"),
@@ -767,20 +769,20 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
             ),
             "own",
         ),
-        "advert row short": ("advert", _pack({"v": VERSION, "patches": [[1, 0, 2.0]]}), "type"),
+        "advert row short": ("advert", pack({"v": VERSION, "patches": [[1, 0, 2.0]]}), "type"),
         "advert stamp inf": (
             "advert",
-            _pack({"v": VERSION, "patches": [[1, 0, math.inf, 1]]}),
+            pack({"v": VERSION, "patches": [[1, 0, math.inf, 1]]}),
             "range",
         ),
         "advert twice": (
             "advert",
-            _pack({"v": VERSION, "patches": [[1, 0, 1.0, 1]] * 2}),
+            pack({"v": VERSION, "patches": [[1, 0, 1.0, 1]] * 2}),
             "duplicate",
         ),
         "request no patches": (
             "request",
-            _pack({"v": VERSION, "id": 0, "mode": "good", "patches": []}),
+            pack({"v": VERSION, "id": 0, "mode": "good", "patches": []}),
             "range",
         ),
         "request full in good": (
@@ -821,7 +823,7 @@ def test_bad_bodies_are_rejected_counted_logged_and_change_nothing(
         for name, (kind, body, reason) in bad.items():
             assert tb.send(0, body, kind=kind), name
             expected[reason] += 1
-            ex.step(ex._now)
+            ex.step(ex.now)
             assert ex.stats.rejected == expected, name
             assert snapshot(a) == before, name
     records = [r for r in caplog.records if r.name == LOGGER]
@@ -831,7 +833,7 @@ def test_bad_bodies_are_rejected_counted_logged_and_change_nothing(
     assert ex.outstanding  # still waiting for the real answer
     # The real answer is still taken afterwards.
     tb.send(0, _answer(rid, _good_entry(b, [0, 1])), kind="answer")
-    ex.step(ex._now)
+    ex.step(ex.now)
     assert uids(a.received[1]) == {make_uid(1, 0), make_uid(1, 1)}
     assert not ex.outstanding
     check_consistent(a)
@@ -863,7 +865,7 @@ def test_an_answer_older_than_the_patch_is_not_applied(
     a.received[1].patches[0].full = {make_uid(1, 0)}
     before = snapshot(a)
     tb.send(0, _answer(rid, _good_entry(b, [1])), kind="answer")  # stamped 2.0
-    ex.step(ex._now)
+    ex.step(ex.now)
     assert ex.stats.stale == 1
     assert not ex.stats.rejected
     assert snapshot(a) == before
@@ -874,7 +876,7 @@ def test_an_answer_older_than_the_patch_is_not_applied(
 
 
 def _answer_rows(bodies: Sequence[bytes]) -> list[dict[str, Any]]:
-    return [row for body in bodies for row in msgpack.unpackb(_inflate(body), raw=False)["patches"]]
+    return [row for body in bodies for row in msgpack.unpackb(inflate(body), raw=False)["patches"]]
 
 
 @pytest.mark.parametrize("mode", ["good", "limited"])
@@ -997,7 +999,7 @@ def test_a_peer_vanishing_mid_answer_leaves_the_store_whole() -> None:
     hub.step(DT)
     ea.step(hub.now)
     assert len(parts) >= 2
-    assert [r["r"] for r in msgpack.unpackb(_inflate(parts[0]), raw=False)["patches"]] == [0]
+    assert [r["r"] for r in msgpack.unpackb(inflate(parts[0]), raw=False)["patches"]] == [0]
     layer = a.received[1]
     assert set(layer.poses) == set(b.local.patches[0].short)  # the first part, whole
     assert all(p.short == p.full for p in layer.patches.values())
@@ -1127,7 +1129,7 @@ def test_only_anchors_travel_with_their_landmarks(mode: str) -> None:
 
 
 def test_merged_poses_are_always_anchors() -> None:
-    from sonarmap.team.exchange import is_anchor
+    from sonarmap.team.anchors import is_anchor
 
     p = pose(0, 3, 0, 0.0)
     assert not is_anchor(p, 2)
@@ -1173,7 +1175,7 @@ def test_an_answer_carries_only_the_edges_the_requester_lacks() -> None:
 
 
 def test_edge_fingerprints_ignore_order_and_tell_remade_edges_apart() -> None:
-    from sonarmap.team.exchange import edge_fingerprint, edge_fingerprints
+    from sonarmap.team.wire import edge_fingerprint, edge_fingerprints
 
     p, q, r = pose(0, 0, 0, 0.0), pose(0, 1, 0, 1.0), pose(0, 2, 0, 2.0)
     e1, e2 = odometry(p, q), odometry(q, r)
@@ -1185,7 +1187,7 @@ def test_edge_fingerprints_ignore_order_and_tell_remade_edges_apart() -> None:
 def test_bodies_are_compressed_with_the_preset_dictionary() -> None:
     advert = Advert((AdvertEntry(1, 0, 2.0, 2), AdvertEntry(2, 3, 4.0, 1)), t=5.0)
     body = encode_advert(advert)
-    plain = _zstd(_inflate(body), level=ZSTD_LEVEL)
+    plain = _zstd(inflate(body), level=ZSTD_LEVEL)
     assert len(body) < len(plain)
     with pytest.raises(zstandard.ZstdError):
         zstandard.ZstdDecompressor().decompress(body)  # a reader without the dictionary

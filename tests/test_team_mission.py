@@ -157,9 +157,9 @@ def test_bad_team_input_is_one_line_and_exit_2(
     assert not (tmp_path / "out").exists()
 
 
-def test_precision_by_landmarks_counts_only_closures_pairing_the_same_landmarks() -> None:
-    from sonarmap.team.mission import _same_landmarks
+def test_precision_by_landmarks_counts_only_closures_pairing_thesame_landmarks() -> None:
     from sonarmap.team.records import ClosureEdge, Landmarks, Pose
+    from sonarmap.team.scoring import same_landmarks
 
     def pose(uid: int, ids: list[int]) -> Pose:
         n = len(ids)
@@ -178,10 +178,10 @@ def test_precision_by_landmarks_counts_only_closures_pairing_the_same_landmarks(
     def closure(matches: tuple[tuple[int, int], ...]) -> ClosureEdge:
         return ClosureEdge(1, 2, (0.0, 0.0, 0.0), cov, len(matches), 0.0, matches)
 
-    assert _same_landmarks(closure(((0, 2), (1, 1), (2, 0))), a, b)
+    assert same_landmarks(closure(((0, 2), (1, 1), (2, 0))), a, b)
     # Two of three pair different landmarks: a wrong place, however good its transform.
-    assert not _same_landmarks(closure(((0, 0), (1, 1), (2, 2))), a, b)
+    assert not same_landmarks(closure(((0, 0), (1, 1), (2, 2))), a, b)
     # Landmarks the simulation does not know (-1) never count as the same.
-    assert not _same_landmarks(closure(((3, 3), (3, 3), (1, 1))), a, b)
-    assert not _same_landmarks(closure(((0, 2),)), None, b)
-    assert not _same_landmarks(closure(()), a, b)
+    assert not same_landmarks(closure(((3, 3), (3, 3), (1, 1))), a, b)
+    assert not same_landmarks(closure(((0, 2),)), None, b)
+    assert not same_landmarks(closure(()), a, b)

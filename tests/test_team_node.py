@@ -21,18 +21,14 @@ from sonarmap.io.rosmap import OccupancyMap, write_map
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
 from sonarmap.team.exchange import LEAN, ExchangeParams, Exchanger
+from sonarmap.team.launcher import ZmqTeamResult, node_args, run_zmq_team
+from sonarmap.team.link import ReliableLink
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams, SimNetwork
 from sonarmap.team.node import (
     LockstepParams,
-    ZmqTeamResult,
-    _exchanger_into,
-    _exchanger_state,
-    _Link,
-    _node_args,
     parse_exchange,
     parse_peers,
-    run_zmq_team,
     store_digest,
 )
 from sonarmap.team.records import Landmarks, Pose, make_uid
@@ -174,14 +170,16 @@ def test_a_killed_node_resumes_without_losing_or_duplicating_poses(
     assert KILL_AT <= resumed < killed.nodes[1]["ticks"]
 
 
-def _link(robot: int) -> tuple[_Link, ZmqTransport]:
+def _link(robot: int) -> tuple[ReliableLink, ZmqTransport]:
     peer_t = ZmqTransport(1 - robot, "tcp://127.0.0.1:0")
     t = ZmqTransport(robot, "tcp://127.0.0.1:0", {1 - robot: peer_t.address})
     peer_t.connect(robot, t.address)
-    return _Link(t, [1 - robot], LockstepParams()), peer_t
+    return ReliableLink(
+        t, [1 - robot], wait_timeout=LockstepParams().wait_timeout, retry=LockstepParams().retry
+    ), peer_t
 
 
-def _pump_until(link: _Link, test: Any) -> None:
+def _pump_until(link: ReliableLink, test: Any) -> None:
     deadline = time.monotonic() + 30.0
     while not test() and time.monotonic() < deadline:
         link.pump(0.05)
@@ -322,7 +320,7 @@ def test_peers_and_exchange_options() -> None:
     with pytest.raises(ConfigError, match="bool expected"):
         parse_exchange(["ternary_maps=maybe"])
     # What the launcher writes is what a node reads back, the lean settings included.
-    args = _node_args(CONFIG, LEAN, 30.0, None, 120.0, LockstepParams())
+    args = node_args(CONFIG, LEAN, 30.0, None, 120.0, LockstepParams())
     items = [args[i + 1] for i, a in enumerate(args) if a == "--exchange"]
     assert parse_exchange(items) == LEAN
 
@@ -349,18 +347,20 @@ def test_a_checkpoint_keeps_the_hold_and_what_it_let_out() -> None:
 
     e, _ = exchanger()
     e.step(3.0)  # poses 0 and 1 are out, pose 2 is held
-    state = msgpack.unpackb(msgpack.packb(_exchanger_state(e)), raw=False)
+    state = msgpack.unpackb(msgpack.packb(e.state()), raw=False)
     back, _ = exchanger()
-    _exchanger_into(back, state)
-    assert back._published is not None
-    assert e._published is not None
-    assert set(back._published.poses) == set(e._published.poses) == {make_uid(0, 0), make_uid(0, 1)}
+    back.restore(state)
+    assert (
+        set(back.outgoing.offered.poses)
+        == set(e.outgoing.offered.poses)
+        == {make_uid(0, 0), make_uid(0, 1)}
+    )
     assert back.advert() == e.advert()
     assert e.stats.bytes_by_kind["advert"] > 0
     assert back.stats.bytes_by_kind == e.stats.bytes_by_kind
     back.stats.bytes_by_kind["advert"] += 1  # still a Counter after the round trip
     e.finish()
-    state = msgpack.unpackb(msgpack.packb(_exchanger_state(e)), raw=False)
-    _exchanger_into(back, state)
+    state = msgpack.unpackb(msgpack.packb(e.state()), raw=False)
+    back.restore(state)
     back.step(3.5)
-    assert set(back._published.poses) == {make_uid(0, k) for k in range(3)}
+    assert set(back.outgoing.offered.poses) == {make_uid(0, k) for k in range(3)}

@@ -15,13 +15,14 @@ from sonarmap.patrol.simulation import random_starts, run_patrol
 from sonarmap.patrol.territory import Territory
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
-from sonarmap.team.exchange import ExchangeError, ExchangeParams
+from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.naive import decode_pose_message, encode_pose_message
 from sonarmap.team.network import NetworkParams
 from sonarmap.team.patrolling import patrol_config, patrol_routes
 from sonarmap.team.records import Landmarks, Pose, encode, make_uid
 from sonarmap.team.simulation import TeamResult, run_team
+from sonarmap.team.wire import ExchangeError
 from sonarmap.team.world import builtin_plan
 
 

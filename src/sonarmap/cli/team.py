@@ -3,29 +3,24 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 
 from ..errors import ConfigError
 from ..io._atomic import atomic_folder, atomic_write_text
 from ..io._json import dumps as json_dumps
-from ..io.rosmap import OccupancyMap, write_map
-from ..team.animation import mp4_available, save_mission_animation, save_team_animation
+from ..io.rosmap import OccupancyMap
 from ..team.exchange import LEAN, LEAN_MERGE_ON_CLOSURE, PROTOCOLS, ExchangeParams
-from ..team.globalmap import plot_pose_graph, plot_team
-from ..team.mission import MissionConfig, MissionResult, run_mission
+from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
+from ..team.outputs import write_missions, write_team
 from ..team.patrolling import patrol_routes
-from ..team.records import compose
-from ..team.simulation import TeamResult, run_team
+from ..team.simulation import run_team
 from ..team.store import StoreParams
 from ..team.world import (
     builtin_plan,
@@ -80,19 +75,6 @@ MergeOption = Annotated[
         "that the loop travels in the exchanged layer (0: only under region compression).",
     ),
 ]
-
-#: Summary figures averaged over the robots at the top level of summary.json.
-MEAN_KEYS = (
-    "association_precision",
-    "association_recall",
-    "ate_m",
-    "ate_odometry_m",
-    "map_f1",
-    "map_f1_true_poses",
-    "map_f1_odometry_poses",
-    "alignment_error_m",
-    "alignment_error_deg",
-)
 
 
 def _team_plan(path: Path, resolution: float | None, origin: tuple[float, float]) -> OccupancyMap:
@@ -159,27 +141,6 @@ def _check_bounds(
         raise ConfigError(f"{option}: {str(e).removeprefix('store: ')}") from None
 
 
-def _summary(results: list[MissionResult]) -> dict[str, Any]:
-    robots = [r.summary for r in results]
-    out: dict[str, Any] = {"robots": robots}
-    for key in MEAN_KEYS:
-        vals = [float(r[key]) for r in robots if not math.isnan(float(r[key]))]
-        out[key] = float(np.mean(vals)) if vals else float("nan")
-    for key in ("store_bytes_peak", "store_bytes_final", "poses", "landmarks", "closures"):
-        out[key] = int(sum(int(r[key]) for r in robots))
-    return out
-
-
-def _memory_csv(results: list[MissionResult]) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["robot", "pose", "store_bytes"])
-    for r in results:
-        for i, b in enumerate(r.bytes_per_pose):
-            w.writerow([r.summary["robot"], i, b])
-    return buf.getvalue()
-
-
 #: Link models of ``--network``.
 NETWORK_KINDS = ("full", "limited", "none")
 #: Transports of ``--transport``.
@@ -202,6 +163,13 @@ def _network_params(
     if network != "limited":
         raise ConfigError(f"--range is the limited network's; --network is {network}")
     return NetworkParams(kind=network, bandwidth=bandwidth, loss=loss, r_max=reach)
+
+
+def _wrote(out: Path, files: list[Path]) -> str:
+    """The last line of a command: every file it wrote."""
+    return f"wrote {len(files)} files in {out}: " + ", ".join(
+        str(f.relative_to(out)) for f in files
+    )
 
 
 def _share(s: dict[str, Any]) -> str:
@@ -266,10 +234,10 @@ def _run_zmq_team(
     seed: int,
     progress: Any,
 ) -> dict[str, Any]:
-    """The team as local ZeroMQ processes (:func:`sonarmap.team.node.run_zmq_team`):
+    """The team as local ZeroMQ processes (:func:`sonarmap.team.launcher.run_zmq_team`):
     the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json``."""
     # Imported here: the node module pulls in the process machinery only zmq needs.
-    from ..team.node import run_zmq_team
+    from ..team.launcher import run_zmq_team
 
     with atomic_folder(out) as tmp:
         result = run_zmq_team(
@@ -284,72 +252,6 @@ def _run_zmq_team(
         )
         atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
     return result.summary
-
-
-def _write_robot(
-    tmp: Path, plan: OccupancyMap, r: MissionResult, suffix: str, animate: bool
-) -> None:
-    """One robot's map, graph picture and (``animate``) animation, named with ``suffix``."""
-    robot = r.summary["robot"]
-    write_map(r.global_map, tmp / f"map{suffix}")
-    placed = {u: compose(r.alignment.transform, e) for u, e in r.graph.estimates.items()}
-    plot_pose_graph(
-        plan,
-        placed,
-        r.store.local.edges,
-        r.store.closures,
-        tmp / f"graph{suffix}.png",
-        truth={u: t for u, t in r.truth.items() if u in placed},
-        title=f"robot {robot}: ATE {r.summary['ate_m']:.2f} m "
-        f"(odometry {r.summary['ate_odometry_m']:.2f} m)",
-    )
-    if animate:
-        save_mission_animation(
-            r.frames,
-            plan,
-            r.alignment.transform,
-            tmp / f"mission{suffix}.gif",
-            title=f"robot {robot}",
-        )
-
-
-def _write_team(out: Path, plan: OccupancyMap, team: TeamResult, animate: bool) -> dict[str, Any]:
-    """Every output of a team's run, written at once; the summary written. With
-    ``animate``, each robot's mission.gif and the team's team.gif (and team.mp4 where
-    ffmpeg is installed)."""
-    summary = _summary(team.robots)
-    summary.update(team.summary)
-    with atomic_folder(out) as tmp:
-        atomic_write_text(tmp / "summary.json", json_dumps(summary))
-        atomic_write_text(tmp / "memory.csv", _memory_csv(team.robots))
-        for r in team.robots:
-            _write_robot(tmp, plan, r, f"_robot{r.summary['robot']}", animate)
-        if team.central is not None:
-            write_map(team.central.global_map, tmp / "map_central")
-        graphs = []
-        for r in team.robots:
-            own = {u: e for u, e in r.graph.estimates.items() if u in r.store.local.poses}
-            placed = {u: compose(r.alignment.transform, e) for u, e in own.items()}
-            graphs.append((f"robot {r.summary['robot']}", placed, r.store.local.edges))
-        plot_team(
-            plan,
-            graphs,
-            tmp / "team.png",
-            title=f"{len(team.robots)} robots, {team.summary['network']['kind']} network, "
-            f"{team.summary['exchange']['mode']} exchange: team F1 "
-            f"{team.summary['map_f1_team']:.3f}",
-        )
-        if animate and team.team_frames:
-            kind = team.summary["network"]["kind"]
-            names = ["team.gif", "team.mp4"] if mp4_available() else ["team.gif"]
-            for name in names:
-                save_team_animation(
-                    plan,
-                    team.team_frames,
-                    tmp / name,
-                    title=f"{len(team.robots)} robots, {kind} network",
-                )
-    return summary
 
 
 @team_app.command("run")
@@ -489,7 +391,7 @@ def run_cmd(
     Two or more robots run as a team exchanging their poses over the simulated network;
     summary.json then adds the exchange's figures per robot and the team's, with the
     central upper bound ``map_f1_central``. ``--transport zmq`` runs the team as local
-    processes (:func:`sonarmap.team.node.run_zmq_team`)."""
+    processes (:func:`sonarmap.team.launcher.run_zmq_team`)."""
     if robots < 1:
         raise ConfigError(f"--robots must be >= 1, got {robots}")
     if not (math.isfinite(duration) and duration > 0):
@@ -586,14 +488,16 @@ def run_cmd(
         with _progress("team") as update:
             team_args["progress"] = partial(_tick, update, f"{robots} robots")
             team = run_team(plan, config, robots, **team_args)
-        s = _write_team(out, plan, team, animate)
+        s = team.summary
+        written = write_team(out, plan, team, animate=animate)
         convergence = s["convergence_s"]
         console.print(
             f"team F1 {s['map_f1_team']:.3f} (central {s['map_f1_central']:.3f}), "
             f"{s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}, "
-            f"converged {'never' if convergence is None else f'{convergence:.1f} s'}: {out}"
+            f"converged {'never' if convergence is None else f'{convergence:.1f} s'}"
         )
+        console.print(_wrote(out, written))
         return
     results = []
     with _progress("mission") as update:
@@ -609,17 +513,13 @@ def run_cmd(
                     record=animate,
                 )
             )
-    with atomic_folder(out) as tmp:
-        atomic_write_text(tmp / "summary.json", json_dumps(_summary(results)))
-        atomic_write_text(tmp / "memory.csv", _memory_csv(results))
-        for r in results:
-            _write_robot(tmp, plan, r, "", animate)
-    s0 = _summary(results)
+    s0, written = write_missions(out, plan, results, animate=animate)
     console.print(
         f"precision {s0['association_precision']:.3f}, recall {s0['association_recall']:.3f}, "
         f"ATE {s0['ate_m']:.3f} m (odometry {s0['ate_odometry_m']:.3f} m), "
-        f"map F1 {s0['map_f1']:.3f}, peak store {s0['store_bytes_peak']} B: {out}"
+        f"map F1 {s0['map_f1']:.3f}, peak store {s0['store_bytes_peak']} B"
     )
+    console.print(_wrote(out, written))
 
 
 @team_app.command("node")

@@ -51,16 +51,11 @@ from .globalmap import (
     grid_around,
     optimise_graph,
 )
-from .mission import (
-    ODOMETRY_NOISE,
-    RobotAgent,
-    _closure_correct,
-    _odometry_covariance,
-    _rigid_ate,
-)
+from .mission import RobotAgent
 from .quantise import check_quantisation, quantise_pose
 from .records import ClosureEdge, OdometryEdge, Pose, compose, invert
-from .world import observe
+from .scoring import closure_correct, rigid_ate
+from .world import ODOMETRY_NOISE, observe, odometry_covariance
 
 __all__ = ["CentralResult", "central_map"]
 
@@ -115,7 +110,7 @@ def _odometry_edges(agent: RobotAgent, poses: Sequence[Pose]) -> list[OdometryEd
         ka = int(np.searchsorted(t, a.time))
         kb = int(np.searchsorted(t, b.time))
         step = compose(invert(odo[ka, 1:4]), odo[kb, 1:4])
-        cov = _odometry_covariance(odo, ka, kb, ODOMETRY_NOISE)
+        cov = odometry_covariance(odo, ka, kb, ODOMETRY_NOISE)
         out.append(
             OdometryEdge(
                 a.uid,
@@ -198,7 +193,10 @@ def central_map(
     uids = sorted(graph.estimates)
     est = np.array([graph.estimates[u][:2] for u in uids]).reshape(-1, 2)
     tru = np.array([truth[u][:2] for u in uids]).reshape(-1, 2)
-    correct = sum(_closure_correct(c, truth[c.a], truth[c.b], cfg) for c in closures)
+    correct = sum(
+        closure_correct(c, truth[c.a], truth[c.b], cfg.correct_xy, cfg.correct_theta)
+        for c in closures
+    )
     summary: dict[str, Any] = {
         "map_f1": score(plan, global_map).f1_all,
         "poses": len(poses),
@@ -206,7 +204,7 @@ def central_map(
         "closures": len(closures),
         "closures_correct": int(correct),
         "closures_rejected_by_graph": len(graph.inconsistent),
-        "ate_m": _rigid_ate(est, tru),
+        "ate_m": rigid_ate(est, tru),
         "alignment_score_m": float(alignment.score),
         "wall_seconds": time.perf_counter() - wall0,
     }

@@ -81,7 +81,6 @@ from .association import (
     AssociationStats,
     Prior,
     associate,
-    estimate_planar,
 )
 from .globalmap import (
     Alignment,
@@ -98,12 +97,30 @@ from .records import (
     Pose,
     compose,
     compose_covariance,
+    decode_as,
+    encode,
     invert,
     make_uid,
 )
 from .regions import cut_regions, region_of
+from .scoring import (
+    closure_correct,
+    landmark_changes,
+    origin_of,
+    rigid_ate,
+    same_landmarks,
+)
 from .store import RobotStore, StoreParams
-from .world import World, make_world, observe, odometry, patrol_route, sonar_readings
+from .world import (
+    ODOMETRY_NOISE,
+    World,
+    make_world,
+    observe,
+    odometry,
+    odometry_covariance,
+    patrol_route,
+    sonar_readings,
+)
 
 __all__ = ["MissionConfig", "MissionResult", "RobotAgent", "run_mission"]
 
@@ -225,131 +242,6 @@ def _local_map(readings: Readings, rig: Rig, config: MissionConfig) -> LocalMap 
     m = build_map(readings, rig, grid, config.mapper, config.mapper_params)
     p = np.clip(np.nan_to_num(m.occupancy.astype(np.float64), nan=0.5), 0.01, 0.99)
     return LocalMap.from_logodds(np.log(p / (1 - p)), config.local_resolution)
-
-
-def _odometry_covariance(odo: F64, j: int, k: int, noise: dict[str, float]) -> F64:
-    """Covariance of the odometry between route steps j and k, from the odometry
-    model's own noise (its bias counted as noise: the robot does not know it)."""
-    d = np.diff(odo[j : k + 1, 1:3], axis=0)
-    s = float(np.hypot(d[:, 0], d[:, 1]).sum())
-    turn = float(np.abs(np.diff(np.unwrap(odo[j : k + 1, 3]))).sum())
-    var_xy = noise["sigma_xy"] ** 2 * s + 1e-6
-    var_t = (
-        noise["sigma_theta"] ** 2 * turn
-        + noise["sigma_theta_dist"] ** 2 * s
-        + (noise["bias_theta"] * s) ** 2
-        + 1e-8
-    )
-    return np.diag([var_xy, var_xy, var_t])
-
-
-#: The odometry model's noise (:func:`~sonarmap.team.world.odometry`'s defaults).
-ODOMETRY_NOISE = {
-    "sigma_xy": 0.02,
-    "sigma_theta": 0.01,
-    "sigma_theta_dist": 0.002,
-    "bias_theta": 0.003,
-}
-
-
-def _rigid_ate(est: F64, true: F64) -> float:
-    """RMS position error after the best rigid 2-D fit of ``est`` onto ``true``."""
-    if len(est) < 2:
-        return float("nan")
-    tf = estimate_planar(
-        np.column_stack([true, np.zeros(len(true))]), np.column_stack([est, np.zeros(len(est))])
-    )
-    c, s = math.cos(tf[2]), math.sin(tf[2])
-    moved = est @ np.array([[c, s], [-s, c]]) + tf[:2]
-    return float(np.sqrt(np.mean(np.sum((moved - true) ** 2, axis=1))))
-
-
-def _origin(uid: int, truth: Mapping[int, F64], poses: Mapping[int, Pose]) -> int | None:
-    """The made pose whose frame a pose has (a merged pose keeps its first pose's)."""
-    while uid not in truth:
-        p = poses.get(uid)
-        if p is None or not p.merged_from:
-            return None
-        uid = p.merged_from[0]
-    return uid
-
-
-def _changes(
-    world: World, store: RobotStore, made: dict[int, Pose], truth: dict[int, F64], now: float
-) -> dict[str, float]:
-    """How the store treats landmarks that vanished during the mission.
-
-    ``reliability_vanished`` / ``reliability_present``: mean reliability in the final
-    store of landmarks whose true landmark had vanished by the end, and of the others.
-    ``kept_vanished`` / ``kept_present``: of the landmark observations made at poses
-    before the median vanishing time, the share still in the store at the end: lower
-    for the vanished ones means they leave first. One window for both, because the
-    store keeps recent poses longer: a window running to each landmark's own vanishing
-    would credit late-vanishing landmarks with recent observations.
-    """
-    gone = world.died <= now
-    rel: dict[bool, list[float]] = {True: [], False: []}
-    kept: set[tuple[int, int]] = set()
-    for p in store.local.poses.values():
-        ids = p.landmarks.ids
-        for i, r in zip(
-            ids[ids >= 0].tolist(), p.landmarks.reliability[ids >= 0].tolist(), strict=True
-        ):
-            rel[bool(gone[i])].append(r)
-            kept.add((p.uid, i))
-    cut = float(np.median(world.died[gone])) if gone.any() else now
-    seen = {True: 0, False: 0}
-    still = {True: 0, False: 0}
-    heirs = _heirs(store, made)
-    for uid in truth:
-        p = made[uid]
-        ids = p.landmarks.ids
-        for i in ids[ids >= 0].tolist():
-            v = bool(gone[i])
-            if p.time >= cut:
-                continue
-            seen[v] += 1
-            # A merged pose keeps its landmarks under a new UID: count it by identity.
-            still[v] += any((u, i) in kept for u in heirs.get(uid, ()))
-    nan = float("nan")
-    return {
-        "reliability_vanished": float(np.mean(rel[True])) if rel[True] else nan,
-        "reliability_present": float(np.mean(rel[False])) if rel[False] else nan,
-        "kept_vanished": still[True] / seen[True] if seen[True] else nan,
-        "kept_present": still[False] / seen[False] if seen[False] else nan,
-    }
-
-
-def _heirs(store: RobotStore, made: dict[int, Pose]) -> dict[int, list[int]]:
-    """For each pose ever made, the stored poses that hold it: itself, or the merged
-    poses it went into (through merges of merges)."""
-    out: dict[int, list[int]] = {}
-    for p in store.local.poses.values():
-        todo = [p.uid]
-        while todo:
-            u = todo.pop()
-            out.setdefault(u, []).append(p.uid)
-            q = made.get(u)
-            todo += list(q.merged_from) if q is not None else []
-    return out
-
-
-def _same_landmarks(c: ClosureEdge, a: Pose | None, b: Pose) -> bool:
-    """Whether most of a closure's inliers pair the same true landmark."""
-    if a is None or not c.matches:
-        return False
-    m = np.array(c.matches)
-    ia, ib = a.landmarks.ids[m[:, 0]], b.landmarks.ids[m[:, 1]]
-    return bool(np.mean((ia == ib) & (ia >= 0)) > 0.5)
-
-
-def _closure_correct(c: ClosureEdge, ta: F64, tb: F64, config: MissionConfig) -> bool:
-    true = compose(invert(ta), tb)
-    err = np.asarray(c.transform) - true
-    return bool(
-        math.hypot(err[0], err[1]) <= config.correct_xy
-        and abs(math.remainder(err[2], 2 * math.pi)) <= config.correct_theta
-    )
 
 
 #: What a stored pose's estimate is assumed to be off by, relative to the graph's other
@@ -617,9 +509,9 @@ class RobotAgent:
         return compose(self.start_believed, compose(invert(self.odo[0, 1:4]), self.odo[k, 1:4]))
 
     def _origin_any(self, uid: int) -> int | None:
-        o = _origin(uid, self.truth, self.made)
+        o = origin_of(uid, self.truth, self.made)
         if o is None and self.peers_truth is not self.truth:
-            o = _origin(uid, self.peers_truth, self.peers_made)
+            o = origin_of(uid, self.peers_truth, self.peers_made)
         return o
 
     def _true_of(self, uid: int) -> F64:
@@ -631,7 +523,9 @@ class RobotAgent:
         return (
             oa is not None
             and ob is not None
-            and _closure_correct(c, self._true_of(oa), self._true_of(ob), self.cfg)
+            and closure_correct(
+                c, self._true_of(oa), self._true_of(ob), self.cfg.correct_xy, self.cfg.correct_theta
+            )
         )
 
     # --- the robot -----------------------------------------------------------------------
@@ -698,7 +592,7 @@ class RobotAgent:
         if step is not None:
             assert prev_k is not None
             assert prev_uid is not None
-            cov = _odometry_covariance(odo, prev_k, k, ODOMETRY_NOISE)
+            cov = odometry_covariance(odo, prev_k, k, ODOMETRY_NOISE)
             edge = OdometryEdge(
                 prev_uid,
                 uid,
@@ -770,7 +664,7 @@ class RobotAgent:
             row["kept_false"] += len(after - overlapping)
             before = after
         for c in closures:
-            self.n_same_place += _same_landmarks(c, self.stored_pose(c.a), pose)
+            self.n_same_place += same_landmarks(c, self.stored_pose(c.a), pose)
             right = self.correct(c)
             oa = self._origin_any(c.a)
             if not right and oa is not None:
@@ -804,6 +698,52 @@ class RobotAgent:
         self.received_closures += len(closures)
         self.received_correct += sum(self.correct(c) for c in closures)
         return closures
+
+    # --- state -------------------------------------------------------------------------
+
+    #: Attributes kept as plain msgpack values in :meth:`state`.
+    PLAIN_STATE = (
+        "bytes_per_pose",
+        "n_true_pairs",
+        "n_correct",
+        "n_closures",
+        "n_found",
+        "n_same_place",
+        "received_closures",
+        "received_correct",
+        "wrong",
+        "stage_removed",
+        "stages",
+        "by_half",
+        "assoc_seconds",
+        "prev_k",
+        "prev_uid",
+        "counter",
+        "k",
+    )
+
+    def state(self) -> dict[str, Any]:
+        """Where the agent is on its route and what it has counted, as plain msgpack
+        values (:meth:`restore`); the store has its own (:meth:`RobotStore.state`)."""
+        d: dict[str, Any] = {name: getattr(self, name) for name in self.PLAIN_STATE}
+        d["truth"] = [[u, [float(v) for v in x]] for u, x in self.truth.items()]
+        d["odo_poses"] = [[u, [float(v) for v in x]] for u, x in self.odo_poses.items()]
+        d["made"] = [encode(p) for p in self.made.values()]
+        d["graph_dropped"] = [[k[0], k[1], v] for k, v in self.graph_dropped.items()]
+        d["drift"] = [float(v) for v in np.asarray(self.drift).ravel()]
+        return d
+
+    def restore(self, d: Mapping[str, Any]) -> None:
+        """Take back a :meth:`state`. :attr:`made` becomes a new dict: views over it
+        (``peers_made``, a :class:`~.naive.NaiveMeter`'s ``made``) must be renewed."""
+        for name in self.PLAIN_STATE:
+            setattr(self, name, d[name])
+        self.truth = {int(u): np.array(x, dtype=np.float64) for u, x in d["truth"]}
+        self.odo_poses = {int(u): np.array(x, dtype=np.float64) for u, x in d["odo_poses"]}
+        made = [decode_as(b, Pose) for b in d["made"]]
+        self.made = {p.uid: p for p in made}
+        self.graph_dropped = {(int(x), int(y)): bool(v) for x, y, v in d["graph_dropped"]}
+        self.drift = np.array(d["drift"], dtype=np.float64).reshape(3, 3)
 
     def run(self, progress: Progress | None = None) -> None:
         """Process the rest of the route, alone."""
@@ -841,7 +781,7 @@ class RobotAgent:
         a = np.asarray(alignment.transform, dtype=np.float64)
         a_true = self.a_true
 
-        kept = {u: _origin(u, truth, self.made) for u in store.local.poses}
+        kept = {u: origin_of(u, truth, self.made) for u in store.local.poses}
         uids = [u for u, o in kept.items() if o is not None]
         est = np.array([graph.estimates[u] for u in uids])
         tru = np.array([truth[kept[u]] for u in uids])  # type: ignore[index]
@@ -879,7 +819,9 @@ class RobotAgent:
             cfg.mapper_params,
         )
         assoc = np.array(self.assoc_seconds)
-        changes: dict[str, Any] = dict(_changes(self.world, store, self.made, truth, self.end))
+        changes: dict[str, Any] = dict(
+            landmark_changes(self.world, store, self.made, truth, self.end)
+        )
         changes["change_time_s"] = self.t_change
         for h, row in self.by_half.items():
             changes[f"association_{h}"] = {
@@ -920,8 +862,8 @@ class RobotAgent:
             "association_stages": stages,
             "changing_landmarks": changes,
             "closures_rejected_by_graph": len(graph.inconsistent),
-            "ate_m": _rigid_ate(est[:, :2], tru[:, :2]),
-            "ate_odometry_m": _rigid_ate(odo_est[:, :2], tru[:, :2]),
+            "ate_m": rigid_ate(est[:, :2], tru[:, :2]),
+            "ate_odometry_m": rigid_ate(odo_est[:, :2], tru[:, :2]),
             "map_f1": score(plan, global_map).f1_all,
             "map_f1_true_poses": score(plan, true_posed).f1_all,
             "map_f1_odometry_poses": score(plan, odo_posed).f1_all,

@@ -41,26 +41,28 @@ from typing import Any
 
 from ..errors import ConfigError
 from .exchange import (
-    VERSION,
-    ExchangeError,
     ExchangeParams,
     Exchanger,
     ExchangeStats,
     OnReceived,
-    _check_pair,
-    _check_time,
-    _default_peers,
-    _keys,
-    _list,
-    _pack,
-    _record,
-    _unpack,
-    _version,
+    check_pair,
+    check_time,
+    default_peers,
 )
 from .quantise import quantise_pose
 from .records import OdometryEdge, Pose, encode, robot_of
 from .store import RobotStore
 from .transport import Message, Transport
+from .wire import (
+    VERSION,
+    ExchangeError,
+    check_keys,
+    check_version,
+    pack,
+    read_list,
+    read_record,
+    unpack,
+)
 
 __all__ = [
     "KIND",
@@ -162,7 +164,7 @@ class NaiveMeter:
 
 def encode_pose_message(pose: Pose, edges: Sequence[OdometryEdge]) -> bytes:
     """The body carrying ``pose`` and ``edges``."""
-    return _pack({"v": VERSION, "pose": encode(pose), "edges": [encode(e) for e in edges]})
+    return pack({"v": VERSION, "pose": encode(pose), "edges": [encode(e) for e in edges]})
 
 
 def decode_pose_message(
@@ -176,13 +178,13 @@ def decode_pose_message(
         If the body is not a valid one: bad msgpack or fields, a record that does not
         decode, a pose or edge that is not ``source``'s, a pose outside ``regions``.
     """
-    d = _unpack(body)
-    _keys(d, ("v", "pose", "edges"), "pose message")
-    _version(d)
-    pose: Pose = _record(d["pose"], Pose, "pose message.pose")
+    d = unpack(body)
+    check_keys(d, ("v", "pose", "edges"), "pose message")
+    check_version(d)
+    pose: Pose = read_record(d["pose"], Pose, "pose message.pose")
     edges: list[OdometryEdge] = [
-        _record(e, OdometryEdge, f"pose message.edges[{k}]")
-        for k, e in enumerate(_list(d["edges"], "pose message.edges"))
+        read_record(e, OdometryEdge, f"pose message.edges[{k}]")
+        for k, e in enumerate(read_list(d["edges"], "pose message.edges"))
     ]
     if robot_of(pose.uid) != source:
         raise ExchangeError("inconsistent", f"pose {pose.uid} is not robot {source}'s")
@@ -229,7 +231,7 @@ class NaiveExchanger:
         on_received: OnReceived | None = None,
         peers: Callable[[], Iterable[int]] | None = None,
     ) -> None:
-        _check_pair(store, transport)
+        check_pair(store, transport)
         self.params = params if params is not None else ExchangeParams(mode="naive")
         if self.params.mode != "naive":
             raise ConfigError(f"exchange: NaiveExchanger runs mode 'naive', not {params!r}")
@@ -238,7 +240,7 @@ class NaiveExchanger:
         self.regions = None if adjacency is None else frozenset(int(r) for r in adjacency)
         self.on_received = on_received
         self.stats = ExchangeStats()
-        self._peers = peers if peers is not None else _default_peers(transport)
+        self._peers = peers if peers is not None else default_peers(transport)
         self._now = -math.inf
         self._sent: set[int] = set()
 
@@ -257,7 +259,7 @@ class NaiveExchanger:
     def step(self, now: float, wanted_regions: Sequence[int] | None = None) -> None:
         """Take every pose received, then send each new local pose to every reachable
         robot. ``wanted_regions`` is ignored (the baseline sends everything)."""
-        _check_time(now, self._now)
+        check_time(now, self._now)
         self._now = float(now)
         for msg in self.transport.poll(0.0):
             self._handle(msg, self._now)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 import msgpack
 import numpy as np
@@ -46,6 +46,7 @@ __all__ = [
     "compose_covariance",
     "counter_of",
     "decode",
+    "decode_as",
     "encode",
     "invert",
     "invert_covariance",
@@ -534,6 +535,7 @@ def _edge_from(d: Mapping[str, Any], kind: str, where: str) -> OdometryEdge | Cl
 
 
 Record = Pose | OdometryEdge | ClosureEdge
+_R = TypeVar("_R", Pose, OdometryEdge, ClosureEdge)
 
 
 def encode(record: Record) -> bytes:
@@ -565,6 +567,17 @@ def decode(data: bytes) -> Record:
     if kind in ("odometry", "closure"):
         return _edge_from(d, kind, kind)
     raise RecordError(f"record.kind: {kind!r} is not pose, odometry or closure")
+
+
+def decode_as(data: object, kind: type[_R]) -> _R:
+    """The record in ``data``, which must be bytes of a ``kind`` record; else
+    :class:`RecordError`."""
+    if not isinstance(data, bytes):
+        raise RecordError("a record's bytes expected")
+    rec = decode(data)
+    if not isinstance(rec, kind):
+        raise RecordError(f"a {kind.__name__} expected, got {type(rec).__name__}")
+    return rec
 
 
 def size_of(record: Record) -> int:

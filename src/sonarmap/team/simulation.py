@@ -65,12 +65,14 @@ from ..io.rosmap import OccupancyMap
 from .animation import TeamFrame
 from .central import CentralResult, central_map
 from .exchange import ExchangeParams, Exchanger
+from .lockstep import LockstepClock, quiet_seconds, team_ticks
 from .mission import MissionConfig, MissionResult, RobotAgent
 from .naive import NaiveExchanger, NaiveMeter, make_exchanger
 from .network import NetworkParams, SimNetwork
 from .records import Pose
 from .regions import region_adjacency
 from .store import RobotStore
+from .summary import mission_figures, robot_row, team_figures
 from .transport import SimHub
 from .world import World, make_world
 
@@ -300,7 +302,6 @@ def run_team(
         raise ValueError(f"frame_every must be > 0 seconds, got {frame_every}")
     if isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 2:
         raise ValueError(f"max_frames must be an int >= 2, got {max_frames!r}")
-    quiet = 2 * exchange.advert_every + 2 * exchange.request_every if quiet is None else quiet
     world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
     agents = [
         RobotAgent(
@@ -320,7 +321,7 @@ def run_team(
         a.peers_made = made
     free = plan.classes() == 0
     net = SimNetwork(network, robots, seed=seed, clear=free, grid=plan.grid)
-    times = np.unique(np.concatenate([a.route[:, 0] for a in agents]))
+    times = team_ticks([a.route for a in agents])
     hub = SimHub(net, t0=float(times[0]))
     adjacency = region_adjacency(agents[0].labels)
     # The naive baseline's bytes on the same mission, for the share of them we send (and
@@ -354,41 +355,45 @@ def run_team(
         max_frames,
     )
 
-    def tick(t: float, wanted: bool) -> None:
+    clock = LockstepClock.for_ticks(
+        times,
+        quiet=quiet_seconds(exchange.advert_every, exchange.request_every, quiet),
+        settle=settle,
+        request_every=exchange.request_every,
+    )
+
+    def tick(n: int, t: float, driving: bool) -> None:
+        if driving:
+            for a in agents:
+                a.advance_to(t)
+        else:
+            for e in exchangers:
+                e.finish()
         hub.advance(t)
         hub.update(np.array([a.position() for a in agents]))
         for a, e in zip(agents, exchangers, strict=True):
-            e.step(t, a.wanted_regions(lookahead) if wanted else None)
+            e.step(t, a.wanted_regions(lookahead) if driving else None)
         for a, m in zip(agents, meters, strict=False):
             m.step(len(set(net.reachable(a.robot)) - {a.robot}))
         if record:
-            recorder.sample(t, driving=wanted)
+            recorder.sample(t, driving=driving)
 
-    for i, t in enumerate(times.tolist()):
-        for a in agents:
-            a.advance_to(t)
-        tick(t, wanted=True)
-        if progress is not None:
-            progress(i + 1, len(times))
-    end = float(times[-1])
-    sent_in_mission = [e.stats.bytes_sent for e in exchangers]
-    held_at_end = _held_share(agents)
-    for e in exchangers:
-        e.finish()
+    def team(n: int) -> tuple[int, bool]:
+        return _changes(exchangers), any(e.outstanding for e in exchangers)
 
-    # The network's quiet phase: robots still, exchanging until nothing changes.
-    dt = float(np.median(np.diff(times))) if len(times) > 1 else exchange.request_every
-    t, last_change, count = end, end, _changes(exchangers)
-    settled = False
-    while t < end + settle:
-        t = t + dt
-        tick(t, wanted=False)
-        now = _changes(exchangers)
-        if now != count or any(e.outstanding for e in exchangers):
-            count, last_change = now, t
-        elif t - last_change >= quiet:
-            settled = True
-            break
+    at_end: dict[str, float] = {}
+
+    def routes_end() -> int:
+        at_end["held"] = _held_share(agents)
+        return sum(e.stats.bytes_sent for e in exchangers)
+
+    def after(n: int, t: float, driving: bool) -> None:
+        if driving and progress is not None:
+            progress(n + 1, len(times))
+
+    clock.run(tick, team, routes_end=routes_end, after=after)
+    end, t, settled = clock.end, clock.t, clock.settled
+    held_at_end = at_end["held"]
     if record:
         recorder.sample(t, driving=t <= end, last=True)
 
@@ -396,56 +401,45 @@ def run_team(
     identical = all(h[0] == held[0][0] for h in held)
     converged = settled and (identical or network.kind != "full")
     results = [a.finish() for a in agents]
-    rows: list[dict[str, Any]] = []
-    for a, e, r in zip(agents, exchangers, results, strict=True):
-        row = dict(r.summary)
-        row.update(
-            {
-                "bytes_sent": e.stats.bytes_sent,
-                "bytes_by_kind": dict(sorted(e.stats.bytes_by_kind.items())),
-                "bytes_received": e.stats.bytes_received,
-                "messages": e.stats.messages_sent,
-                "messages_received": e.stats.messages_received,
-                "poses_local": len(a.store.local.poses),
-                "poses_received": sum(len(x.poses) for x in a.store.received.values()),
-                "received_closures": a.received_closures,
-                "received_closures_correct": a.received_correct,
-                "links_made": int(net.stats.links_made[a.robot]),
-                "links_broken": int(net.stats.links_broken[a.robot]),
-            }
+    rows = [
+        robot_row(
+            r.summary,
+            a,
+            e.stats,
+            (net.stats.links_made[a.robot], net.stats.links_broken[a.robot]),
         )
-        rows.append(row)
-    minutes = max(end - float(times[0]), 1e-9) / 60.0
-    f1 = [float(r["map_f1"]) for r in rows if not math.isnan(float(r["map_f1"]))]
-    sent_all = sum(e.stats.bytes_sent for e in exchangers) / robots / minutes
-    naive = sum(m.bytes for m in meters) / robots / minutes if meters else sent_all
+        for a, e, r in zip(agents, exchangers, results, strict=True)
+    ]
     bound = central_map(agents, seed=cfg.seed) if central else None
-    summary: dict[str, Any] = {
-        "robots": rows,
-        "robots_n": robots,
-        "duplicate_poses": sum(h[1] for h in held),
-        "identical_maps": identical,
-        # Each link has two ends, each counted at its robot.
-        "meetings": int(net.stats.links_made.sum()) // 2,
-        "partings": int(net.stats.links_broken.sum()) // 2,
-        "map_agreement": map_agreement([r.global_map for r in results]),
-        "convergence_s": last_change - end if converged else None,
-        "bytes_per_robot_minute": sum(sent_in_mission) / robots / minutes,
-        # The quiet phase's bytes too, still per minute of mission: the maps are scored
-        # after it, so a protocol that defers its sending must pay for it here.
-        "bytes_per_robot_minute_all": sent_all,
-        "naive_bytes_per_robot_minute": naive,
-        "share_of_naive": sent_all / naive if naive > 0 else None,
-        "held_share_at_routes_end": held_at_end,
-        "map_f1_team": float(np.mean(f1)) if f1 else math.nan,
-        "map_f1_central": None if bound is None else bound.summary["map_f1"],
-        "central": None if bound is None else bound.summary,
-        "settle_seconds": t - end,
-        "settled": settled,
-        "network": asdict(network),
-        "exchange": asdict(exchange),
-        "seed": seed,
-    }
+    summary: dict[str, Any] = mission_figures(rows)
+    summary.update(
+        team_figures(
+            rows,
+            held=[h[0] for h in held],
+            duplicates=sum(h[1] for h in held),
+            route_seconds=end - clock.start,
+            sent_in_mission=clock.sent,
+            naive_bytes=sum(m.bytes for m in meters) if meters else None,
+            converged=converged,
+            convergence_s=clock.convergence_s,
+            settle_seconds=clock.settle_seconds,
+            settled=settled,
+        )
+    )
+    summary.update(
+        {
+            # Each link has two ends, each counted at its robot.
+            "meetings": int(net.stats.links_made.sum()) // 2,
+            "partings": int(net.stats.links_broken.sum()) // 2,
+            "map_agreement": map_agreement([r.global_map for r in results]),
+            "held_share_at_routes_end": held_at_end,
+            "map_f1_central": None if bound is None else bound.summary["map_f1"],
+            "central": None if bound is None else bound.summary,
+            "network": asdict(network),
+            "exchange": asdict(exchange),
+            "seed": seed,
+        }
+    )
     return TeamResult(
         summary, results, exchangers, net, [h[0] for h in held], bound, recorder.frames, agents
     )

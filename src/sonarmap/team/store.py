@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Collection, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -33,6 +34,8 @@ from sonarmap.team.records import (
     Pose,
     compose,
     compose_covariance,
+    decode_as,
+    encode,
     invert,
     invert_covariance,
     make_uid,
@@ -465,6 +468,34 @@ class Layer:
         n = sum(self.pose_bytes(u) for u in uids)
         return n + sum(self._edge_sizes.of(e) for e in self.edges if e.b in uids)
 
+    def state(self) -> dict[str, Any]:
+        """The layer as plain msgpack values: poses and edges as their records' own
+        encodings, patches as ``[region, stamp, short, full]`` (:meth:`from_state`)."""
+        return {
+            "source": self.source,
+            "poses": [encode(p) for p in self.poses.values()],
+            "edges": [encode(e) for e in self.edges],
+            "patches": [
+                [r, float(p.stamp), sorted(p.short), sorted(p.full)]
+                for r, p in self.patches.items()
+            ],
+        }
+
+    @classmethod
+    def from_state(cls, state: Mapping[str, Any], *, own: bool = False) -> Layer:
+        """The layer a :meth:`state` describes; :class:`~.records.RecordError` or
+        ``KeyError`` / ``TypeError`` / ``ValueError`` if it is not one."""
+        layer = cls(int(state["source"]), own=own)
+        for b in state["poses"]:
+            p = decode_as(b, Pose)
+            layer.poses[p.uid] = p
+        layer.edges = [decode_as(b, OdometryEdge) for b in state["edges"]]
+        layer.patches = {
+            int(r): Patch(float(stamp), {int(u) for u in short}, {int(u) for u in full})
+            for r, stamp, short, full in state["patches"]
+        }
+        return layer
+
 
 # --- merging --------------------------------------------------------------------------
 
@@ -621,6 +652,33 @@ class RobotStore:
         self._closure_sizes = _Sizes()
         self._merges = 0
         self._newest: int | None = None
+
+    # state
+
+    def state(self) -> dict[str, Any]:
+        """Everything the store holds, as plain msgpack values (:meth:`restore`)."""
+        return {
+            "local": self.local.state(),
+            "received": [self.received[s].state() for s in self.received],
+            "closures": [encode(c) for c in self.closures],
+            "peak_bytes": self.peak_bytes,
+            "peak_local_bytes": self.peak_local_bytes,
+            "merges": self._merges,
+            "newest": self._newest,
+        }
+
+    def restore(self, state: Mapping[str, Any]) -> None:
+        """Take back a :meth:`state` (the parameters stay the store's own)."""
+        self.local = Layer.from_state(state["local"], own=True)
+        self.received = {}
+        for s in state["received"]:
+            layer = Layer.from_state(s, own=False)
+            self.received[layer.source] = layer
+        self.closures = [decode_as(b, ClosureEdge) for b in state["closures"]]
+        self.peak_bytes = int(state["peak_bytes"])
+        self.peak_local_bytes = int(state["peak_local_bytes"])
+        self._merges = int(state["merges"])
+        self._newest = None if state["newest"] is None else int(state["newest"])
 
     # accounting
 

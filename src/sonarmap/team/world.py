@@ -60,6 +60,7 @@ from .records import Landmarks
 __all__ = [
     "BUILTIN_PLANS",
     "LANDMARK_COLUMNS",
+    "ODOMETRY_NOISE",
     "ROUTE_COLUMNS",
     "World",
     "builtin_plan",
@@ -67,6 +68,7 @@ __all__ = [
     "make_world",
     "observe",
     "odometry",
+    "odometry_covariance",
     "patrol_route",
     "read_route",
     "route_from_waypoints",
@@ -987,3 +989,28 @@ def load_world(folder: str | Path) -> tuple[World, F64 | None]:
     own = meta["plan"] == "plan.yaml"
     world = World(plan=plan, params=dict(params), plan_path=None if own else str(plan_file), **cols)
     return world, route
+
+
+def odometry_covariance(odo: F64, j: int, k: int, noise: dict[str, float]) -> F64:
+    """Covariance of the odometry between route steps j and k, from the odometry
+    model's own noise (its bias counted as noise: the robot does not know it)."""
+    d = np.diff(odo[j : k + 1, 1:3], axis=0)
+    s = float(np.hypot(d[:, 0], d[:, 1]).sum())
+    turn = float(np.abs(np.diff(np.unwrap(odo[j : k + 1, 3]))).sum())
+    var_xy = noise["sigma_xy"] ** 2 * s + 1e-6
+    var_t = (
+        noise["sigma_theta"] ** 2 * turn
+        + noise["sigma_theta_dist"] ** 2 * s
+        + (noise["bias_theta"] * s) ** 2
+        + 1e-8
+    )
+    return np.diag([var_xy, var_xy, var_t])
+
+
+#: The odometry model's noise (:func:`~sonarmap.team.world.odometry`'s defaults).
+ODOMETRY_NOISE = {
+    "sigma_xy": 0.02,
+    "sigma_theta": 0.01,
+    "sigma_theta_dist": 0.002,
+    "bias_theta": 0.003,
+}

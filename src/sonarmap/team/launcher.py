@@ -1,0 +1,395 @@
+"""A local team of ZeroMQ nodes: :func:`run_zmq_team` starts one process per robot
+(``python -m sonarmap team node``, :func:`~.node.run_node`) on loopback ports, restarts
+a node killed by a signal (it resumes from its checkpoint), and gathers the nodes'
+summaries into the team's, built as the simulated team's
+(:mod:`.summary`)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import ConfigError, InputError
+from ..io._atomic import atomic_write_text
+from ..io.rosmap import OccupancyMap, read_map, write_map
+from .exchange import ExchangeParams
+from .mission import MissionConfig
+from .network import NetworkParams
+from .node import SUMMARY_FILE, LockstepParams, save_routes
+from .simulation import map_agreement
+from .store import StoreParams
+from .summary import mission_figures, team_figures
+from .transport import DEFAULT_MAX_MESSAGE
+from .world import patrol_route
+
+__all__ = ["ZmqTeamResult", "node_args", "run_zmq_team"]
+
+logger = logging.getLogger("sonarmap.team.node")
+
+F64 = npt.NDArray[np.float64]
+Progress = Callable[[int, int], None]
+
+
+@dataclass
+class ZmqTeamResult:
+    """What a team of node processes made.
+
+    Attributes
+    ----------
+    summary : dict
+        run_team's summary keys (``robots`` rows, ``duplicate_poses``,
+        ``identical_maps``, ``bytes_per_robot_minute``, ``naive_bytes_per_robot_minute``,
+        ``share_of_naive``, ``settle_seconds``, ``settled``, ``robots_n``, ``network``,
+        ``exchange``, ``seed``) and
+        ``transport`` ("zmq"), ``wall_seconds``, ``restarts`` (per robot) and
+        ``store_digests`` (per robot, :func:`store_digest`).
+    held : list of set of int
+        The pose UIDs each robot held once the network was quiet.
+    nodes : list of dict
+        Each node's ``summary.json``.
+    folder : Path
+        Where the nodes wrote (their outputs ``robotK/``, states ``robotK.state/``,
+        logs ``robotK.log`` and process ids ``robotK.pid``).
+    """
+
+    summary: dict[str, Any]
+    held: list[set[int]]
+    nodes: list[dict[str, Any]]
+    folder: Path
+
+
+def _free_ports(n: int) -> list[int]:
+    socks = []
+    try:
+        for _ in range(n):
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.bind(("127.0.0.1", 0))
+            socks.append(s)
+        return [int(s.getsockname()[1]) for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
+def node_args(
+    cfg: MissionConfig,
+    exchange: ExchangeParams,
+    lookahead: float,
+    quiet: float | None,
+    settle: float,
+    timing: LockstepParams,
+) -> list[str]:
+    """The command-line options every node of a team gets (``team node``), besides its
+    id, addresses, map, output and state folders; :class:`ConfigError` for a mission
+    setting a node's command line cannot carry."""
+    base = MissionConfig(
+        duration=cfg.duration,
+        seed=cfg.seed,
+        store=StoreParams(
+            pose_limit=cfg.store.pose_limit,
+            region_limit=cfg.store.region_limit,
+            fold=cfg.store.fold,
+            merge_on_closure=cfg.store.merge_on_closure,
+        ),
+    )
+    if base != cfg:
+        raise ConfigError(
+            "run_zmq_team: the nodes take only the mission's duration, seed, pose_limit, "
+            "region_limit, fold and merge_on_closure; other MissionConfig settings differ "
+            "from their defaults"
+        )
+    args = [
+        "--duration",
+        repr(float(cfg.duration)),
+        "--seed",
+        str(cfg.seed),
+        "--pose-limit",
+        str(cfg.store.pose_limit),
+        "--region-limit",
+        str(cfg.store.region_limit),
+        "--fold" if cfg.store.fold else "--no-fold",
+        "--merge-on-closure",
+        str(cfg.store.merge_on_closure),
+        "--lookahead",
+        repr(float(lookahead)),
+        "--settle",
+        repr(float(settle)),
+        "--wait-timeout",
+        repr(float(timing.wait_timeout)),
+        "--checkpoint-every",
+        repr(float(timing.checkpoint_every)),
+    ]
+    if quiet is not None:
+        args += ["--quiet", repr(float(quiet))]
+    for f in fields(exchange):
+        args += ["--exchange", f"{f.name}={getattr(exchange, f.name)!r}".replace("'", "")]
+    return args
+
+
+def _last_line(path: Path) -> str:
+    try:
+        lines = [s for s in path.read_text(errors="replace").splitlines() if s.strip()]
+    except OSError:
+        return ""
+    return lines[-1].strip() if lines else ""
+
+
+def run_zmq_team(
+    plan: OccupancyMap | Path,
+    cfg: MissionConfig,
+    robots: int,
+    *,
+    network: NetworkParams | None = None,
+    exchange: ExchangeParams | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+    lookahead: float = 30.0,
+    quiet: float | None = None,
+    settle: float = 120.0,
+    folder: Path | None = None,
+    timing: LockstepParams | None = None,
+    restarts: int = 3,
+    timeout: float | None = None,
+    python: str | None = None,
+    routes: Sequence[F64 | None] | None = None,
+) -> ZmqTeamResult:
+    """Run ``robots`` robots as local processes (``python -m sonarmap team node``) on
+    loopback ports, exchanging over ZeroMQ; the same mission as :func:`run_team`.
+
+    Parameters
+    ----------
+    plan : OccupancyMap or Path
+        The floor, or a map_server YAML of it.
+    cfg : MissionConfig
+        Only ``duration``, ``seed`` and the store's two limits may differ from the
+        defaults (they are what a node's command line takes).
+    robots : int
+        Robots (processes), ids 0..robots-1; >= 1.
+    network : NetworkParams, optional
+        The real network is what it is: only ``kind="full"`` with no loss, delay,
+        jitter or bandwidth cap describes it (else :class:`ConfigError`); recorded in
+        the summary.
+    exchange : ExchangeParams, optional
+    seed : int
+        The simulated network's seed in run_team; recorded only.
+    progress : callable, optional
+        ``progress(done, robots)`` as nodes finish.
+    lookahead, quiet, settle : float
+        As in :func:`run_team`.
+    folder : Path, optional
+        Where the nodes write; a temporary folder (removed) when not given.
+    timing : LockstepParams, optional
+    restarts : int
+        Times a node killed by a signal is started again (it resumes from its state).
+    timeout : float, optional
+        Wall seconds for the whole team; default 600 + 10 x the mission's seconds.
+    python : str, optional
+        The interpreter; this one by default.
+    routes : sequence of ndarray (T, 4) or None, optional
+        One per robot, as run_team's: a given route replaces the robot's patrol route.
+        The launcher draws the others and hands every node all of them, so that no
+        node spends its start drawing routes.
+
+    Returns
+    -------
+    ZmqTeamResult
+    """
+    if isinstance(robots, bool) or not isinstance(robots, int) or robots < 1:
+        raise ConfigError(f"robots must be an int >= 1, got {robots!r}")
+    net = network if network is not None else NetworkParams(kind="full")
+    if (
+        net.kind != "full"
+        or net.loss
+        or net.delay
+        or net.jitter
+        or net.bandwidth is not None
+        or net.max_message != DEFAULT_MAX_MESSAGE
+    ):
+        raise ConfigError(
+            "the zmq transport runs over the real network: only --network full, with no "
+            "--bandwidth or --loss, describes it (use --transport sim for the others)"
+        )
+    ex = exchange if exchange is not None else ExchangeParams()
+    timing = timing if timing is not None else LockstepParams()
+    args = node_args(cfg, ex, lookahead, quiet, settle, timing)
+    limit = 600.0 + 10.0 * cfg.duration if timeout is None else timeout
+    with tempfile.TemporaryDirectory(prefix="sonarmap-zmq-") as scratch:
+        where = Path(folder) if folder is not None else Path(scratch)
+        where.mkdir(parents=True, exist_ok=True)
+        if isinstance(plan, OccupancyMap):
+            write_map(plan, where / "plan")
+            plan_path = where / "plan.yaml"
+        else:
+            plan_path = Path(plan)
+            plan = read_map(plan_path)
+        if routes is not None and len(routes) != robots:
+            raise ConfigError(f"routes: {len(routes)} given for {robots} robots")
+        drawn = [
+            patrol_route(plan, cfg.duration, seed=cfg.seed + 7919 * i)
+            if routes is None or routes[i] is None
+            else routes[i]
+            for i in range(robots)
+        ]
+        save_routes(where / "routes", [np.asarray(r, dtype=np.float64) for r in drawn])
+        args = [*args, "--routes", str(where / "routes")]
+        addresses = [f"tcp://127.0.0.1:{p}" for p in _free_ports(robots)]
+        return _launch(
+            where,
+            plan_path,
+            robots,
+            addresses,
+            args,
+            net,
+            ex,
+            seed,
+            restarts,
+            limit,
+            python,
+            progress,
+        )
+
+
+def _launch(
+    where: Path,
+    plan_path: Path,
+    robots: int,
+    addresses: list[str],
+    args: list[str],
+    net: NetworkParams,
+    ex: ExchangeParams,
+    seed: int,
+    restarts: int,
+    limit: float,
+    python: str | None,
+    progress: Progress | None,
+) -> ZmqTeamResult:
+    exe = python or sys.executable
+    cmds = []
+    for i in range(robots):
+        peers = ",".join(f"{j}={addresses[j]}" for j in range(robots) if j != i)
+        cmd = [exe, "-m", "sonarmap", "team", "node", "--id", str(i), "--listen", addresses[i]]
+        if peers:
+            cmd += ["--peers", peers]
+        cmd += ["--map", str(plan_path), "-o", str(where / f"robot{i}")]
+        cmd += ["--state", str(where / f"robot{i}.state"), *args]
+        cmds.append(cmd)
+    env = dict(os.environ)
+    src = str(Path(__file__).resolve().parents[2])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (src, env.get("PYTHONPATH")) if p)
+    procs: dict[int, subprocess.Popen[bytes]] = {}
+    logs: dict[int, Any] = {}
+    used = dict.fromkeys(range(robots), 0)
+    lock = threading.Lock()
+
+    def start(i: int) -> None:
+        log = logs.get(i)
+        if log is None:
+            log = logs[i] = open(where / f"robot{i}.log", "ab")  # noqa: SIM115
+        procs[i] = subprocess.Popen(cmds[i], stdout=log, stderr=subprocess.STDOUT, env=env)
+        atomic_write_text(where / f"robot{i}.pid", f"{procs[i].pid}\n")
+
+    t0 = time.monotonic()
+    try:
+        with lock:
+            for i in range(robots):
+                start(i)
+        finished: set[int] = set()
+        while len(finished) < robots:
+            if time.monotonic() - t0 > limit:
+                raise InputError(f"the zmq team did not finish within {limit:g} s (see {where})")
+            for i in range(robots):
+                if i in finished:
+                    continue
+                rc = procs[i].poll()
+                if rc is None:
+                    continue
+                if rc == 0:
+                    finished.add(i)
+                    if progress is not None:
+                        progress(len(finished), robots)
+                elif rc < 0 and used[i] < restarts:
+                    # Killed by a signal: started again, it resumes from its state.
+                    used[i] += 1
+                    logger.warning("robot %d killed (signal %d); starting it again", i, -rc)
+                    start(i)
+                else:
+                    why = _last_line(where / f"robot{i}.log") or f"exit code {rc}"
+                    raise InputError(f"robot {i}'s node failed: {why}")
+            time.sleep(0.1)
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGKILL)
+                p.wait()
+        for log in logs.values():
+            log.close()
+    nodes = [json.loads((where / f"robot{i}" / SUMMARY_FILE).read_text()) for i in range(robots)]
+    return _team_summary(nodes, net, ex, seed, time.monotonic() - t0, where)
+
+
+def _team_summary(
+    nodes: list[dict[str, Any]],
+    net: NetworkParams,
+    ex: ExchangeParams,
+    seed: int,
+    wall: float,
+    where: Path,
+) -> ZmqTeamResult:
+    robots = len(nodes)
+    held = [set(n["held"]) for n in nodes]
+    rows = [n["row"] for n in nodes]
+    settled = all(bool(n["settled"]) for n in nodes)
+    # Nodes of a release before the meter report none.
+    metered = all("naive_bytes" in n for n in nodes)
+    maps = [where / f"robot{i}" / "map.yaml" for i in range(robots)]
+    agreement = (
+        map_agreement([read_map(m) for m in maps]) if all(m.exists() for m in maps) else None
+    )
+    summary: dict[str, Any] = mission_figures(rows)
+    summary.update(
+        team_figures(
+            rows,
+            held=held,
+            duplicates=sum(int(n["duplicates"]) for n in nodes),
+            route_seconds=float(nodes[0]["route_seconds"]),
+            sent_in_mission=sum(int(n["bytes_sent_mission"]) for n in nodes),
+            naive_bytes=sum(int(n["naive_bytes"]) for n in nodes) if metered else None,
+            converged=settled,
+            convergence_s=float(nodes[0]["last_change_s"]),
+            settle_seconds=max(float(n["settle_seconds"]) for n in nodes),
+            settled=settled,
+        )
+    )
+    summary["convergence_s"] = summary["convergence_s"] if summary["identical_maps"] else None
+    summary.update(
+        {
+            "map_agreement": agreement,
+            # The central bound needs every robot's data in one process: 'team run
+            # --transport sim'.
+            "map_f1_central": None,
+            "central": None,
+            "network": asdict(net),
+            "exchange": asdict(ex),
+            "seed": seed,
+            "transport": "zmq",
+            "wall_seconds": wall,
+            "restarts": [int(n["restarts"]) for n in nodes],
+            "store_digests": [n["local_digest"] for n in nodes],
+        }
+    )
+    return ZmqTeamResult(summary, held, nodes, where)

@@ -1,0 +1,360 @@
+"""Reliable numbered frames between ZeroMQ nodes (:mod:`.node`), and the transport
+the exchanger of a node sees.
+
+Every frame a node sends a peer (exchanger messages and the lock-step's markers) is
+numbered per destination and kept in a log until the peer acknowledges it durably (its
+checkpoint holds it); a receiver takes frames in number order, drops the ones it has
+and keeps early ones aside. A node stuck waiting asks the peer to send again from the
+first number it lacks (``hello``), which covers a socket that refused a frame (peer not
+connected yet) and a restarted peer.
+
+A node's frames on the wire (envelope kinds): ``lock`` (a numbered frame:
+``{"q", "t", "k", "b"}``, ``k`` an exchanger kind, ``done`` or ``bye``) and ``hello``
+(``{"next", "ack"}``: send again from frame ``next``; frames below ``ack`` are durable
+here). Bad frames are rejected whole and logged (logger ``sonarmap.team.node``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import msgpack
+
+from ..errors import InputError
+from .records import UnpackError, unpack_strict
+from .transport import Message, Transport, ZmqTransport
+from .wire import KINDS
+
+__all__ = [
+    "LOCK_SLACK",
+    "ExchangerPort",
+    "Frame",
+    "FrameError",
+    "ReliableLink",
+    "decode_done",
+    "decode_frame",
+]
+
+logger = logging.getLogger("sonarmap.team.node")
+
+_LOCK_KINDS = frozenset({*KINDS, "done", "bye"})
+_Q_LIMIT = 2**62
+#: Frames a receiver keeps aside ahead of the one it waits for, at most.
+_WINDOW = 100_000
+#: Bytes a lock frame adds around an exchanger body, at most.
+LOCK_SLACK = 4096
+
+
+# --- the messages the exchanger sees ---------------------------------------------------
+
+
+class ExchangerPort(Transport):
+    """The exchanger's transport: what it sends is collected for the tick, what it
+    polls is what the lock-step hands it."""
+
+    def __init__(self, robot: int, peers: Iterable[int], max_message: int) -> None:
+        super().__init__(robot, max_message=max_message)
+        self.peers = set(peers)
+        self.inbox: list[Message] = []
+        self.outbox: list[tuple[int, str, bytes]] = []
+        self._next: tuple[str, bytes] = ("data", b"")
+
+    def send(self, dst: int, payload: bytes, kind: str = "data") -> bool:
+        # The base class checks and sizes the envelope as the simulated transport does;
+        # the envelope itself is the outer transport's business.
+        self._next = (kind, payload)
+        return super().send(dst, payload, kind)
+
+    def _send_frame(self, dst: int, data: bytes) -> str | None:
+        if dst not in self.peers:
+            return "unknown_peer"
+        self.outbox.append((dst, *self._next))
+        return None
+
+    def poll(self, timeout: float = 0.0) -> list[Message]:
+        out, self.inbox = self.inbox, []
+        return out
+
+    def close(self) -> None:
+        self.closed = True
+
+
+# --- reliable numbered frames ----------------------------------------------------------
+
+
+@dataclass
+class Frame:
+    q: int
+    tick: int
+    kind: str
+    body: bytes
+
+
+def _pack(d: Any) -> bytes:
+    return bytes(msgpack.packb(d, use_bin_type=True))
+
+
+class FrameError(ValueError):
+    def __init__(self, reason: str, detail: str) -> None:
+        self.reason = reason
+        super().__init__(detail)
+
+
+def _int_field(d: Mapping[str, Any], key: str, limit: int = _Q_LIMIT) -> int:
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v < limit:
+        raise FrameError("type", f"{key}: an int in [0, {limit}) expected, got {v!r}")
+    return v
+
+
+def _strict_map(body: bytes, keys: set[str]) -> dict[str, Any]:
+    try:
+        d = unpack_strict(body, max_bin=len(body), max_str=64, max_array=8, max_map=8)
+    except UnpackError as e:
+        raise FrameError(e.reason, str(e)) from None
+    if not isinstance(d, dict) or set(d) != keys:
+        raise FrameError("keys", f"a map of {sorted(keys)} expected")
+    return d
+
+
+def decode_frame(body: bytes) -> Frame:
+    d = _strict_map(body, {"q", "t", "k", "b"})
+    q, tick = _int_field(d, "q"), _int_field(d, "t")
+    kind, inner = d["k"], d["b"]
+    if not isinstance(kind, str) or kind not in _LOCK_KINDS:
+        raise FrameError("kind", f"frame kind {kind!r} unknown")
+    if not isinstance(inner, bytes):
+        raise FrameError("type", "b: bytes expected")
+    if kind == "done":
+        decode_done(inner)
+    return Frame(q, tick, kind, inner)
+
+
+def decode_done(body: bytes) -> tuple[int, bool, int]:
+    d = _strict_map(body, {"ch", "out", "ack"})
+    out = d["out"]
+    if not isinstance(out, bool):
+        raise FrameError("type", "out: a bool expected")
+    return _int_field(d, "ch"), out, _int_field(d, "ack")
+
+
+class ReliableLink:
+    """Numbered, acknowledged frames between this node and each peer, over a
+    :class:`ZmqTransport`."""
+
+    def __init__(
+        self, transport: ZmqTransport, peers: Sequence[int], *, wait_timeout: float, retry: float
+    ) -> None:
+        self.zmq = transport
+        self.robot = transport.robot
+        self.peers = list(peers)
+        self.wait_timeout = wait_timeout
+        self.retry = retry
+        self.out_q = dict.fromkeys(self.peers, 0)
+        self.log: dict[int, list[Frame]] = {j: [] for j in self.peers}
+        self.next_q = dict.fromkeys(self.peers, 0)
+        self.early: dict[int, dict[int, Frame]] = {j: {} for j in self.peers}
+        self.inbox: dict[int, list[Frame]] = {j: [] for j in self.peers}
+        #: Highest tick whose ``done`` marker came from each peer (-1: none).
+        self.done = dict.fromkeys(self.peers, -1)
+        self.markers: dict[int, dict[int, tuple[int, bool]]] = {j: {} for j in self.peers}
+        self.bye: set[int] = set()
+        #: Frames below these numbers are durable at the peer (its acks).
+        self.acked_by = dict.fromkeys(self.peers, 0)
+        #: Frames below these numbers are durable here (in our last checkpoint).
+        self.ack_mine = dict.fromkeys(self.peers, 0)
+        self.heard = dict.fromkeys(self.peers, time.monotonic())
+        self.rejected = 0
+
+    # state
+
+    def state(self) -> dict[str, Any]:
+        def frames(fs: Iterable[Frame]) -> list[Any]:
+            return [[f.q, f.tick, f.kind, f.body] for f in fs]
+
+        return {
+            "out_q": _pairs(self.out_q),
+            "log": [[j, frames(self.log[j])] for j in self.peers],
+            "next_q": _pairs(self.next_q),
+            "early": [[j, frames(self.early[j].values())] for j in self.peers],
+            "inbox": [[j, frames(self.inbox[j])] for j in self.peers],
+            "done": _pairs(self.done),
+            "markers": [
+                [j, [[t, c, o] for t, (c, o) in sorted(self.markers[j].items())]]
+                for j in self.peers
+            ],
+            "bye": sorted(self.bye),
+            "acked_by": _pairs(self.acked_by),
+        }
+
+    def restore(self, s: Mapping[str, Any]) -> None:
+        def frames(rows: Iterable[Any]) -> list[Frame]:
+            return [Frame(int(q), int(t), str(k), bytes(b)) for q, t, k, b in rows]
+
+        self.out_q = _unpairs(s["out_q"])
+        self.log = {int(j): frames(fs) for j, fs in s["log"]}
+        self.next_q = _unpairs(s["next_q"])
+        self.early = {int(j): {f.q: f for f in frames(fs)} for j, fs in s["early"]}
+        self.inbox = {int(j): frames(fs) for j, fs in s["inbox"]}
+        self.done = _unpairs(s["done"])
+        self.markers = {
+            int(j): {int(t): (int(c), bool(o)) for t, c, o in rows} for j, rows in s["markers"]
+        }
+        self.bye = {int(j) for j in s["bye"]}
+        self.acked_by = _unpairs(s["acked_by"])
+        self.ack_mine = dict(self.next_q)
+
+    # sending
+
+    def send(self, dst: int, tick: int, kind: str, body: bytes) -> None:
+        f = Frame(self.out_q[dst], tick, kind, body)
+        self.out_q[dst] += 1
+        self.log[dst].append(f)
+        self._transmit(dst, f)
+
+    def _transmit(self, dst: int, f: Frame) -> None:
+        # A refused send stays in the log: the peer asks again when it waits for it.
+        self.zmq.send(dst, _pack({"q": f.q, "t": f.tick, "k": f.kind, "b": f.body}), "lock")
+
+    def mark_done(self, tick: int, changes: int, outstanding: bool) -> None:
+        """Send every peer the ``done`` marker of ``tick``: the robot's count of poses
+        the exchange added and deleted, and whether it awaits an answer."""
+        for j in self.peers:
+            done = _pack({"ch": changes, "out": outstanding, "ack": self.ack_mine[j]})
+            self.send(j, tick, "done", done)
+
+    def forget_markers(self, before: int) -> None:
+        """Drop the peers' markers of ticks before ``before``."""
+        for j in self.peers:
+            for old in [k for k in self.markers[j] if k < before]:
+                del self.markers[j][old]
+
+    def hello(self, peers: Iterable[int]) -> None:
+        for j in peers:
+            self.zmq.send(j, _pack({"next": self.next_q[j], "ack": self.ack_mine[j]}), "hello")
+
+    def _trim(self, j: int) -> None:
+        log, ack = self.log[j], self.acked_by[j]
+        if log and log[0].q < ack:
+            self.log[j] = [f for f in log if f.q >= ack]
+
+    def _resend(self, j: int, start: int) -> None:
+        log = self.log[j]
+        first = log[0].q if log else self.out_q[j]
+        if start < first:
+            logger.error(
+                "robot %d: robot %d asks again from frame %d, but frames before %d are gone "
+                "(its state folder was lost?)",
+                self.robot,
+                j,
+                start,
+                first,
+            )
+        for f in log:
+            if f.q >= start:
+                self._transmit(j, f)
+
+    # receiving
+
+    def pump(self, timeout: float) -> bool:
+        """Take what arrived (waiting up to ``timeout`` s for a first message); True if
+        any frame came in order."""
+        progress = False
+        for msg in self.zmq.poll(timeout):
+            j = msg.src
+            if j not in self.next_q:
+                self._reject(j, "peer", f"robot {j} is not a peer")
+                continue
+            self.heard[j] = time.monotonic()
+            try:
+                if msg.kind == "hello":
+                    d = _strict_map(msg.payload, {"next", "ack"})
+                    start, ack = _int_field(d, "next"), _int_field(d, "ack")
+                    self.acked_by[j] = max(self.acked_by[j], ack)
+                    self._trim(j)
+                    self._resend(j, start)
+                elif msg.kind == "lock":
+                    progress = self._take(j, decode_frame(msg.payload)) or progress
+                else:
+                    raise FrameError("kind", f"envelope kind {msg.kind!r} unknown")
+            except FrameError as e:
+                self._reject(j, e.reason, str(e))
+        return progress
+
+    def _reject(self, j: int, reason: str, detail: str) -> None:
+        self.rejected += 1
+        logger.warning(
+            "robot %d rejected a frame from robot %d (%s): %s", self.robot, j, reason, detail
+        )
+
+    def _take(self, j: int, f: Frame) -> bool:
+        if f.q < self.next_q[j]:
+            return False  # a copy of one we have
+        if f.q >= self.next_q[j] + _WINDOW:
+            raise FrameError("window", f"frame {f.q} is far ahead of {self.next_q[j]}")
+        self.early[j][f.q] = f
+        progress = False
+        while self.next_q[j] in self.early[j]:
+            g = self.early[j].pop(self.next_q[j])
+            self.next_q[j] += 1
+            progress = True
+            if g.kind == "done":
+                ch, out, ack = decode_done(g.body)
+                self.done[j] = max(self.done[j], g.tick)
+                self.markers[j][g.tick] = (ch, out)
+                self.acked_by[j] = max(self.acked_by[j], ack)
+                self._trim(j)
+            elif g.kind == "bye":
+                self.bye.add(j)
+            else:
+                self.inbox[j].append(g)
+        return progress
+
+    def wait(self, ready: Callable[[], list[int]], what: str) -> None:
+        """Pump until ``ready()`` names no peer still awaited; ask the awaited peers to
+        send again every ``retry`` s; fail after ``wait_timeout`` s of silence."""
+        last_ask = time.monotonic()
+        while True:
+            missing = ready()
+            if not missing:
+                return
+            now = time.monotonic()
+            for j in missing:
+                if now - self.heard[j] > self.wait_timeout:
+                    raise InputError(
+                        f"robot {self.robot}: peer robot {j} ({self.zmq.peers.get(j, '?')}) "
+                        f"sent nothing for {self.wait_timeout:g} s while awaited for "
+                        f"{what}: not started, unreachable, or stopped and not restarted",
+                        field="peers",
+                    )
+            if now - last_ask >= self.retry:
+                self.hello(missing)
+                last_ask = now
+            self.pump(min(self.retry, 0.05))
+
+    def take(self, upto: Mapping[int, int]) -> list[tuple[int, int, Frame]]:
+        """The exchanger frames of each peer up to tick ``upto[j]``, in the simulated
+        network's delivery order: (tick, sender, number)."""
+        out: list[tuple[int, int, Frame]] = []
+        for j in self.peers:
+            keep: list[Frame] = []
+            for f in self.inbox[j]:
+                if f.tick <= upto[j]:
+                    out.append((f.tick, j, f))
+                else:
+                    keep.append(f)
+            self.inbox[j] = keep
+        out.sort(key=lambda x: (x[0], x[1], x[2].q))
+        return out
+
+
+def _pairs(d: Mapping[int, int]) -> list[list[int]]:
+    return [[k, v] for k, v in d.items()]
+
+
+def _unpairs(rows: Iterable[Any]) -> dict[int, int]:
+    return {int(k): int(v) for k, v in rows}

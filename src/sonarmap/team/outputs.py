@@ -1,0 +1,154 @@
+"""The files a mission or a team's run writes: ``summary.json``, ``memory.csv`` (the store's
+bytes after each pose), each robot's global map (map_server YAML + PGM + float ``.npy``)
+and pose-graph picture, the central bound's map, the team's picture and, on request,
+animations (``mission.gif`` per robot; ``team.gif``, and ``team.mp4`` where ffmpeg is
+installed).
+
+Everything is written into a temporary folder renamed into place at the end, so a failed
+run leaves no half-written output.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from ..io._atomic import atomic_folder, atomic_write_text
+from ..io._json import dumps as json_dumps
+from ..io.rosmap import OccupancyMap, write_map
+from .mission import MissionResult
+from .records import compose
+from .simulation import TeamResult
+from .summary import mission_figures
+
+__all__ = ["memory_csv", "write_missions", "write_team"]
+
+#: ``note(text)``: told each phase as it starts (a progress line).
+Note = Callable[[str], None]
+
+
+def memory_csv(results: Sequence[MissionResult]) -> str:
+    """``robot,pose,store_bytes``: each robot's store bytes after each pose it made."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["robot", "pose", "store_bytes"])
+    for r in results:
+        for i, b in enumerate(r.bytes_per_pose):
+            w.writerow([r.summary["robot"], i, b])
+    return buf.getvalue()
+
+
+def _write_robot(
+    tmp: Path, plan: OccupancyMap, r: MissionResult, suffix: str, animate: bool
+) -> None:
+    """One robot's map, graph picture and (``animate``) animation, named with ``suffix``."""
+    from .animation import save_mission_animation
+    from .globalmap import plot_pose_graph
+
+    robot = r.summary["robot"]
+    write_map(r.global_map, tmp / f"map{suffix}")
+    placed = {u: compose(r.alignment.transform, e) for u, e in r.graph.estimates.items()}
+    plot_pose_graph(
+        plan,
+        placed,
+        r.store.local.edges,
+        r.store.closures,
+        tmp / f"graph{suffix}.png",
+        truth={u: t for u, t in r.truth.items() if u in placed},
+        title=f"robot {robot}: ATE {r.summary['ate_m']:.2f} m "
+        f"(odometry {r.summary['ate_odometry_m']:.2f} m)",
+    )
+    if animate:
+        save_mission_animation(
+            r.frames,
+            plan,
+            r.alignment.transform,
+            tmp / f"mission{suffix}.gif",
+            title=f"robot {robot}",
+        )
+
+
+def _files(folder: Path, tmp: Path) -> list[Path]:
+    return sorted(folder / p.relative_to(tmp) for p in tmp.rglob("*") if p.is_file())
+
+
+def write_missions(
+    out: Path,
+    plan: OccupancyMap,
+    results: Sequence[MissionResult],
+    *,
+    animate: bool = False,
+    note: Note | None = None,
+) -> tuple[dict[str, Any], list[Path]]:
+    """Write single missions' outputs into the folder ``out``: ``summary.json``
+    (:func:`~.summary.mission_figures`), ``memory.csv``, and per robot ``map.*``,
+    ``graph.png`` (``mission.gif`` with ``animate``); with several robots, each name
+    takes the suffix ``_robotK``. Returns the summary and the files written."""
+    summary = mission_figures([r.summary for r in results])
+    with atomic_folder(out) as tmp:
+        atomic_write_text(tmp / "summary.json", json_dumps(summary))
+        atomic_write_text(tmp / "memory.csv", memory_csv(results))
+        for r in results:
+            if note is not None:
+                note(f"writing robot {r.summary['robot']}")
+            suffix = "" if len(results) == 1 else f"_robot{r.summary['robot']}"
+            _write_robot(tmp, plan, r, suffix, animate)
+        files = _files(out, tmp)
+    return summary, files
+
+
+def write_team(
+    out: Path,
+    plan: OccupancyMap,
+    team: TeamResult,
+    *,
+    animate: bool = False,
+    note: Note | None = None,
+) -> list[Path]:
+    """Write a team's outputs into the folder ``out``: ``summary.json`` (the team's
+    summary), ``memory.csv``, per robot ``map_robotK.*`` and ``graph_robotK.png``, the
+    central bound's ``map_central.*``, ``team.png``; with ``animate`` each robot's
+    ``mission_robotK.gif`` and ``team.gif`` (and ``team.mp4`` where ffmpeg is
+    installed). Returns the files written."""
+    from .animation import mp4_available, save_team_animation
+    from .globalmap import plot_team
+
+    with atomic_folder(out) as tmp:
+        atomic_write_text(tmp / "summary.json", json_dumps(team.summary))
+        atomic_write_text(tmp / "memory.csv", memory_csv(team.robots))
+        for r in team.robots:
+            if note is not None:
+                note(f"writing robot {r.summary['robot']}")
+            _write_robot(tmp, plan, r, f"_robot{r.summary['robot']}", animate)
+        if team.central is not None:
+            write_map(team.central.global_map, tmp / "map_central")
+        graphs = []
+        for r in team.robots:
+            own = {u: e for u, e in r.graph.estimates.items() if u in r.store.local.poses}
+            placed = {u: compose(r.alignment.transform, e) for u, e in own.items()}
+            graphs.append((f"robot {r.summary['robot']}", placed, r.store.local.edges))
+        plot_team(
+            plan,
+            graphs,
+            tmp / "team.png",
+            title=f"{len(team.robots)} robots, {team.summary['network']['kind']} network, "
+            f"{team.summary['exchange']['mode']} exchange: team F1 "
+            f"{team.summary['map_f1_team']:.3f}",
+        )
+        if animate and team.team_frames:
+            kind = team.summary["network"]["kind"]
+            names = ["team.gif", "team.mp4"] if mp4_available() else ["team.gif"]
+            for name in names:
+                if note is not None:
+                    note(f"writing {name}")
+                save_team_animation(
+                    plan,
+                    team.team_frames,
+                    tmp / name,
+                    title=f"{len(team.robots)} robots, {kind} network",
+                )
+        files = _files(out, tmp)
+    return files
