@@ -69,19 +69,18 @@ import numpy as np
 import numpy.typing as npt
 
 from ..api import build_map
-from ..errors import ConfigError, InputError
+from ..errors import InputError
 from ..grid import Grid
 from ..io.rosmap import OccupancyMap
-from ..metrics import score
 from ..readings import Readings
-from ..rig import Rig, get_rig
+from ..rig import Rig
 from .animation import Frame
 from .association import (
-    AssociationParams,
-    AssociationStats,
     Prior,
     associate,
 )
+from .config import MissionConfig
+from .evaluation import MissionEvaluator
 from .globalmap import (
     Alignment,
     GraphResult,
@@ -103,97 +102,19 @@ from .records import (
     make_uid,
 )
 from .regions import cut_regions, region_of
-from .scoring import (
-    closure_correct,
-    landmark_changes,
-    origin_of,
-    rigid_ate,
-    same_landmarks,
-)
-from .store import RobotStore, StoreParams
+from .sensing import RobotSensing
+from .store import RobotStore
 from .world import (
     ODOMETRY_NOISE,
     World,
     make_world,
-    observe,
-    odometry,
     odometry_covariance,
-    patrol_route,
-    sonar_readings,
 )
 
 __all__ = ["MissionConfig", "MissionResult", "RobotAgent", "run_mission"]
 
 F64 = npt.NDArray[np.float64]
 Progress = Callable[[int, int], None]
-
-
-@dataclass(frozen=True)
-class MissionConfig:
-    """Every number of a mission (see the module's notes for the choices)."""
-
-    duration: float = 600.0
-    pose_every: float = 1.0
-    pose_turn: float = 0.5
-    local_size: float = 6.0
-    local_resolution: float = 0.1
-    map_resolution: float = 0.1
-    mapper: str = "inverse"
-    mapper_params: dict[str, Any] = field(
-        default_factory=lambda: {
-            "p_occ": 0.6,
-            "p_free": 0.45,
-            "falloff_deg": 20.0,
-            "dr": 0.05,
-            # The inverse mapper's default: its band 0.75 cell behind the echo.
-            "band_offset": None,
-        }
-    )
-    mapping_range: float = 3.0
-    max_speed: float = 1.0
-    start_error: tuple[float, float] = (1.0, math.radians(10.0))
-    batch: int = 25
-    correct_xy: float = 0.3
-    correct_theta: float = math.radians(5.0)
-    rig: str = "ring16"
-    seed: int = 0
-    store: StoreParams = field(default_factory=StoreParams)
-    #: Association as :class:`AssociationParams`, but a closure is refused when its
-    #: refit puts the new pose less surely than half the scoring tolerance: standard
-    #: deviations of 0.15 m (worst direction) and 2.5 degrees. Chosen on training plans
-    #: (office and random buildings 0-4, 600 s, mission seed 0): without the limits the
-    #: stereo-weighted refit alone gave precision 0.9975-1.0, and the wrong closures had
-    #: 0.19-0.38 m and 0.75-4.7 degrees of standard deviation, where 99 % of the right
-    #: ones were under 0.15-0.29 m; with them, 0.999-1.0 at recall 0.27-0.49.
-    association: AssociationParams = field(
-        default_factory=lambda: AssociationParams(
-            max_sigma_xy=0.15, max_sigma_theta=math.radians(2.5)
-        )
-    )
-    #: The odometry gate: a candidate's closure must put the new pose within
-    #: ``gate_floor`` m + ``gate_sigmas`` standard deviations of where the current
-    #: estimates put it (and its heading within ``gate_turn_floor`` rad + as many sigmas),
-    #: never beyond the hard bound (top speed x elapsed time).
-    gate_floor: float = 0.5
-    gate_sigmas: float = 3.0
-    gate_turn_floor: float = 0.1
-
-    def __post_init__(self) -> None:
-        for name in (
-            "duration",
-            "pose_every",
-            "pose_turn",
-            "local_size",
-            "local_resolution",
-            "mapping_range",
-        ):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"{name} must be > 0, got {v}")
-        if self.batch < 1:
-            raise ConfigError(f"batch must be >= 1, got {self.batch}")
-        if self.seed < 0:
-            raise ConfigError(f"seed must be >= 0, got {self.seed}")
 
 
 @dataclass
@@ -271,13 +192,6 @@ def _priors(
     return out
 
 
-#: The two halves of a mission association is scored on apart: before and after the
-#: median time of the world's changes.
-HALVES = ("before", "after")
-#: The stages of association, then the graph's consistency check, as reported.
-STAGES = ("votes", "bounds", "ransac", "accepted", "graph")
-
-
 def _optimise(store: RobotStore) -> tuple[GraphResult, list[ClosureEdge]]:
     """One batch of the global map: optimise, move every pose's estimate, drop the
     closures the result finds inconsistent (returned)."""
@@ -309,14 +223,18 @@ def _optimise(store: RobotStore) -> tuple[GraphResult, list[ClosureEdge]]:
 
 
 class RobotAgent:
-    """One robot's mission, one route step at a time: the robot logic of
-    :func:`run_mission`, and the truth bookkeeping that scores it.
+    """One simulated robot on its mission, one route step at a time: the robot, the
+    world simulator of its sensors (:class:`~.sensing.RobotSensing`, :attr:`sensing`)
+    and the evaluator that scores it (:class:`~.evaluation.MissionEvaluator`,
+    :attr:`evaluator`), which the robot tells what it did through its observer hooks
+    and never asks.
 
-    The agent makes its poses (:meth:`step`), associates each one with every pose its
-    store holds (its own and those received from other robots), optimises the pose
-    graph every ``batch`` poses, associates the poses other robots send it
-    (:meth:`receive`, an :class:`~sonarmap.team.exchange.Exchanger`'s ``on_received``)
-    and, at the end, fuses, aligns and scores the global map (:meth:`finish`).
+    The robot makes its poses (:meth:`step`) from odometry, associates each one with
+    every pose its store holds (its own and those received from other robots),
+    optimises the pose graph every ``batch`` poses, associates the poses other robots
+    send it (:meth:`receive`, an :class:`~sonarmap.team.exchange.Exchanger`'s
+    ``on_received``) and, at the end, fuses and aligns the global map (:meth:`finish`,
+    which also has it scored).
 
     Parameters
     ----------
@@ -337,17 +255,12 @@ class RobotAgent:
     Attributes
     ----------
     store : RobotStore
-    truth : dict of int to ndarray
-        The true pose (x, y, theta) of each pose the robot made, by UID.
     made : dict of int to Pose
         Every pose the robot made or merged, by UID.
-    peers_truth, peers_made : mapping
-        Where :meth:`receive` and the scoring look up other robots' poses; default the
-        agent's own dicts (a team passes views over every robot's).
     route : ndarray (T, 4)
-        The true route, cut to the mission's duration.
+        The route (the patroller's plan; the simulator drives it truly).
     region_of_step : ndarray of int (T,)
-        The prior map's region of each route step's true position.
+        The prior map's region of each route step.
     k : int
         The next route step :meth:`step` processes.
     """
@@ -375,70 +288,24 @@ class RobotAgent:
         self.record = record
         world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
         self.world = world
-        self.seed = cfg.seed + 7919 * robot
-        seed = self.seed
-        true = patrol_route(plan, cfg.duration, seed=seed) if route is None else route
-        true = np.asarray(true, dtype=np.float64)
-        true = true[true[:, 0] <= true[0, 0] + cfg.duration]
-        self.route = true
-        odo, _ = odometry(true, seed=seed + 1, **ODOMETRY_NOISE)
-        self.odo = odo
-        self.rig = get_rig(cfg.rig)
-        readings = sonar_readings(plan, true, rig=self.rig, seed=seed + 2)
-        readings = readings.take(np.flatnonzero(readings.range <= cfg.mapping_range))
-        self.readings = readings
-        self.step_of = np.clip(np.searchsorted(true[:, 0], readings.t), 0, len(true) - 1)
-        # Each reading's sonar pose on the robot: invert(true robot pose) (+) world sonar pose.
-        self.mounts = compose(
-            invert(true[self.step_of, 1:4]),
-            np.column_stack([readings.x, readings.y, readings.theta]),
-        )
+        self.sensing = sensing = RobotSensing(plan, cfg, world, robot, route)
+        self.seed = sensing.seed
+        self.route = sensing.route
+        self.odo = sensing.odometry()
+        self.rig = sensing.rig
+        self.start_believed = sensing.start_believed
         self.labels = cut_regions(prior.classes() == 0, prior.grid.resolution)
         self.region_of_step: npt.NDArray[np.intp] = np.array(
-            [region_of(self.labels, prior.grid, float(x), float(y)) for x, y in true[:, 1:3]],
+            [region_of(self.labels, prior.grid, float(x), float(y)) for x, y in self.route[:, 1:3]],
             dtype=np.intp,
         ).reshape(-1)
 
-        # The robot's start as it believes it: the true one off by start_error.
-        rng = np.random.default_rng(seed + 3)
-        off = np.array([*rng.normal(0, cfg.start_error[0], 2), rng.normal(0, cfg.start_error[1])])
-        start_true = true[0, 1:4]
-        self.start_believed = start_true + off
-        # Prior frame = A_true (+) robot frame.
-        self.a_true = compose(start_true, invert(self.start_believed))
-
         self.store = RobotStore(robot, cfg.store)
-        self.truth: dict[int, F64] = {}
-        self.odo_poses: dict[int, F64] = {}
         self.made: dict[int, Pose] = {}
-        self.peers_truth: Mapping[int, F64] = self.truth
-        self.peers_made: Mapping[int, Pose] = self.made
+        self.evaluator = MissionEvaluator(sensing, cfg, world, lambda: self.made)
         self.bytes_per_pose: list[int] = []
         self.local_bytes_per_pose: list[int] = []
         self.frames: list[Frame] = []
-        self.n_true_pairs = 0
-        self.n_correct = 0
-        self.n_closures = 0
-        self.n_found = 0
-        self.n_same_place = 0
-        self.received_closures = 0
-        self.received_correct = 0
-        self.wrong: list[dict[str, Any]] = []
-        self.stage_removed: dict[str, list[int]] = {}
-        self.stages = {
-            s: {"in": 0, "removed": 0, "removed_true": 0, "kept_false": 0} for s in STAGES
-        }
-        self.graph_dropped: dict[tuple[int, int], bool] = {}
-
-        # Association before and after the world changed: split at the median time of
-        # the changes (vanishing, appearing, moving) that happen during the mission.
-        self.end = float(true[-1, 0])
-        events = np.concatenate([world.died, world.moved_at, world.born[world.born > 0]])
-        events = events[events <= self.end]
-        self.t_change = float(np.median(events)) if len(events) else self.end
-        self.by_half = {
-            h: {"closures": 0, "correct": 0, "true_pairs": 0, "found": 0} for h in HALVES
-        }
         self.assoc_seconds: list[float] = []
         self.graph: GraphResult | None = None
         self.drift = np.zeros((3, 3))
@@ -446,6 +313,53 @@ class RobotAgent:
         self.prev_uid: int | None = None
         self.counter = 0
         self.k = 0
+
+    # --- the evaluator's views -----------------------------------------------------------
+
+    @property
+    def truth(self) -> dict[int, F64]:
+        """The true pose (x, y, theta) of each pose the robot made, by UID (the
+        evaluator's)."""
+        return self.evaluator.truth
+
+    @property
+    def odo_poses(self) -> dict[int, F64]:
+        """Each pose's dead-reckoning estimate (the evaluator's)."""
+        return self.evaluator.odo_poses
+
+    @property
+    def peers_truth(self) -> Mapping[int, F64]:
+        """Where the scoring looks up other robots' true poses (a team passes a view
+        over every robot's)."""
+        return self.evaluator.peers_truth
+
+    @peers_truth.setter
+    def peers_truth(self, view: Mapping[int, F64]) -> None:
+        self.evaluator.peers_truth = view
+
+    @property
+    def peers_made(self) -> Mapping[int, Pose]:
+        """Where the scoring looks up other robots' poses as made."""
+        view = self.evaluator.peers_made
+        return self.made if view is None else view
+
+    @peers_made.setter
+    def peers_made(self, view: Mapping[int, Pose]) -> None:
+        self.evaluator.peers_made = view
+
+    @property
+    def received_closures(self) -> int:
+        """Closures found for received poses."""
+        return self.evaluator.received_closures
+
+    @property
+    def received_correct(self) -> int:
+        """Of :attr:`received_closures`, the right ones."""
+        return self.evaluator.received_correct
+
+    def correct(self, c: ClosureEdge) -> bool:
+        """Whether a closure's transform is within the tolerance of the true one."""
+        return self.evaluator.correct(c)
 
     # --- queries -------------------------------------------------------------------------
 
@@ -508,34 +422,13 @@ class RobotAgent:
         """The robot's belief of route step ``k``'s pose: dead reckoning from its start."""
         return compose(self.start_believed, compose(invert(self.odo[0, 1:4]), self.odo[k, 1:4]))
 
-    def _origin_any(self, uid: int) -> int | None:
-        o = origin_of(uid, self.truth, self.made)
-        if o is None and self.peers_truth is not self.truth:
-            o = origin_of(uid, self.peers_truth, self.peers_made)
-        return o
-
-    def _true_of(self, uid: int) -> F64:
-        return self.truth[uid] if uid in self.truth else self.peers_truth[uid]
-
-    def correct(self, c: ClosureEdge) -> bool:
-        """Whether a closure's transform is within the tolerance of the true one."""
-        oa, ob = self._origin_any(c.a), self._origin_any(c.b)
-        return (
-            oa is not None
-            and ob is not None
-            and closure_correct(
-                c, self._true_of(oa), self._true_of(ob), self.cfg.correct_xy, self.cfg.correct_theta
-            )
-        )
-
     # --- the robot -----------------------------------------------------------------------
 
     def batch(self) -> GraphResult:
-        """One batch of the global map (every layer's poses, our oldest the anchor),
-        noting the closures the graph drops."""
+        """One batch of the global map (every layer's poses, our oldest the anchor); the
+        closures the graph drops are told to the evaluator."""
         graph, dropped = _optimise(self.store)
-        for c in dropped:
-            self.graph_dropped[(c.a, c.b)] = self.correct(c)
+        self.evaluator.dropped(dropped)
         self.graph = graph
         return graph
 
@@ -550,7 +443,7 @@ class RobotAgent:
         """Process route step :attr:`k` and move on: the pose made there, if one is."""
         k = self.k
         self.k += 1
-        cfg, odo, true, store = self.cfg, self.odo, self.route, self.store
+        cfg, odo, route, store = self.cfg, self.odo, self.route, self.store
         prev_k, prev_uid = self.prev_k, self.prev_uid
         if prev_k is not None:
             d = odo[k, 1:3] - odo[prev_k, 1:3]
@@ -558,10 +451,10 @@ class RobotAgent:
             if (
                 math.hypot(d[0], d[1]) < cfg.pose_every
                 and turn < cfg.pose_turn
-                and k < len(true) - 1
+                and k < len(route) - 1
             ):
                 return None
-        t = float(true[k, 0])
+        t = float(route[k, 0])
         uid = make_uid(self.robot, self.counter)
         self.counter += 1
         # The odometry since the previous pose, which the store keeps until this one.
@@ -571,21 +464,14 @@ class RobotAgent:
             assert prev_k is not None
             step = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
             estimate = compose(store.local.poses[prev_uid].estimate, step)
-        lo = -1 if prev_k is None else prev_k
-        step_of = self.step_of
-        mine = np.flatnonzero((step_of > lo) & (step_of <= k))
+        readings, mounts, steps = self.sensing.readings_up_to(-1 if prev_k is None else prev_k, k)
         local = _local_map(
-            _sonar_in_pose_frame(
-                self.readings.take(mine), self.mounts[mine], step_of[mine], odo[:, 1:4], k
-            ),
-            self.rig,
-            cfg,
+            _sonar_in_pose_frame(readings, mounts, steps, odo[:, 1:4], k), self.rig, cfg
         )
-        landmarks = observe(self.world, true[k, 1:4], t, seed=self.seed)
+        landmarks = self.sensing.landmarks_at(k)
         region = region_of(self.labels, self.prior.grid, float(estimate[0]), float(estimate[1]))
         pose = Pose(uid, t, region, estimate, landmarks, local)
-        self.truth[uid] = true[k, 1:4].copy()
-        self.odo_poses[uid] = self.believed(k)
+        self.evaluator.pose_made(k, pose, self.believed(k))
         self.made[uid] = pose
 
         edge = None
@@ -598,7 +484,7 @@ class RobotAgent:
                 uid,
                 (float(step[0]), float(step[1]), float(step[2])),
                 tuple(float(v) for v in cov.ravel()),
-                cfg.max_speed * (t - float(true[prev_k, 0])) + 0.05,
+                cfg.max_speed * (t - float(route[prev_k, 0])) + 0.05,
             )
         if edge is not None:
             assert step is not None
@@ -618,7 +504,7 @@ class RobotAgent:
             pose.estimate = compose(store.local.poses[best.a].estimate, best.transform)
             self.drift = best.cov() + CANDIDATE_COV
         self.assoc_seconds.append(time.perf_counter() - t0)
-        self._score_association(pose, stored, closures, stats, t)
+        self.evaluator.associated(pose, stored, closures, stats, t)
         store.add_own_pose(pose, edge, closures, t)
         for p in store.local.poses.values():
             self.made.setdefault(p.uid, p)
@@ -626,124 +512,55 @@ class RobotAgent:
         self.local_bytes_per_pose.append(store.local.bytes())
         if self.record:
             self.frames.append(
-                _frame(store, t, true[k, 1:3], self.believed(k)[:2], self.bytes_per_pose[-1])
+                _frame(
+                    store,
+                    t,
+                    self.sensing.true_pose(k)[:2],
+                    self.believed(k)[:2],
+                    self.bytes_per_pose[-1],
+                )
             )
         self.prev_k, self.prev_uid = k, uid
         if self.counter % cfg.batch == 0:
             self.batch()
         return pose
 
-    def _score_association(
-        self,
-        pose: Pose,
-        stored: list[Pose],
-        closures: list[ClosureEdge],
-        stats: AssociationStats,
-        t: float,
-    ) -> None:
-        cfg, uid, landmarks = self.cfg, pose.uid, pose.landmarks
-        for stage, (_, matches) in stats.removed().items():
-            self.stage_removed.setdefault(stage, []).append(matches)
-        ids = set(landmarks.ids[landmarks.ids >= 0].tolist())
-        overlapping = {
-            p.uid
-            for p in stored
-            if len(ids & set(p.landmarks.ids[p.landmarks.ids >= 0].tolist()))
-            >= cfg.association.n_min
-        }
-        self.n_true_pairs += len(overlapping)
-        half = self.by_half[HALVES[int(t >= self.t_change)]]
-        half["true_pairs"] += len(overlapping)
-        before = {p.uid for p in stored if p.uid != uid}
-        for stage in STAGES[:-1]:
-            after = set(stats.kept[stage])
-            row = self.stages[stage]
-            row["in"] += len(before)
-            row["removed"] += len(before - after)
-            row["removed_true"] += len((before - after) & overlapping)
-            row["kept_false"] += len(after - overlapping)
-            before = after
-        for c in closures:
-            self.n_same_place += same_landmarks(c, self.stored_pose(c.a), pose)
-            right = self.correct(c)
-            oa = self._origin_any(c.a)
-            if not right and oa is not None:
-                err = np.asarray(c.transform) - compose(invert(self._true_of(oa)), self.truth[uid])
-                self.wrong.append(
-                    {
-                        "a": c.a,
-                        "b": c.b,
-                        "inliers": c.inliers,
-                        "error_m": round(math.hypot(err[0], err[1]), 3),
-                        "error_deg": round(
-                            math.degrees(abs(math.remainder(err[2], 2 * math.pi))), 2
-                        ),
-                    }
-                )
-            self.n_closures += 1
-            self.n_correct += right
-            self.n_found += right and c.a in overlapping
-            half["closures"] += 1
-            half["correct"] += right
-            half["found"] += right and c.a in overlapping
-
     def receive(self, source: int, pose: Pose) -> list[ClosureEdge]:
         """Associate a pose received from robot ``source`` with every pose the store
         holds, without priors (its estimate is in its source's frame, with no odometry
         link to ours). The closures are returned for the store to keep with the pose
-        (:meth:`RobotStore.add_received_pose`); the caller adds it. Counted in
-        ``received_closures`` / ``received_correct``, not in the own poses' scores."""
+        (:meth:`RobotStore.add_received_pose`); the caller adds it. The evaluator counts
+        them apart from the own poses' scores."""
         stored = [p for p in self._candidates() if p.uid != pose.uid]
         closures, _ = associate(pose, stored, None, self.cfg.association)
-        self.received_closures += len(closures)
-        self.received_correct += sum(self.correct(c) for c in closures)
+        self.evaluator.received(pose, closures)
         return closures
 
-    # --- state -------------------------------------------------------------------------
+    # --- state ---------------------------------------------------------------------------
 
     #: Attributes kept as plain msgpack values in :meth:`state`.
-    PLAIN_STATE = (
-        "bytes_per_pose",
-        "n_true_pairs",
-        "n_correct",
-        "n_closures",
-        "n_found",
-        "n_same_place",
-        "received_closures",
-        "received_correct",
-        "wrong",
-        "stage_removed",
-        "stages",
-        "by_half",
-        "assoc_seconds",
-        "prev_k",
-        "prev_uid",
-        "counter",
-        "k",
-    )
+    PLAIN_STATE = ("bytes_per_pose", "assoc_seconds", "prev_k", "prev_uid", "counter", "k")
 
     def state(self) -> dict[str, Any]:
-        """Where the agent is on its route and what it has counted, as plain msgpack
-        values (:meth:`restore`); the store has its own (:meth:`RobotStore.state`)."""
+        """Where the robot is on its route, what it made, and the evaluator's counters,
+        as plain msgpack values (:meth:`restore`); the store has its own
+        (:meth:`RobotStore.state`)."""
         d: dict[str, Any] = {name: getattr(self, name) for name in self.PLAIN_STATE}
-        d["truth"] = [[u, [float(v) for v in x]] for u, x in self.truth.items()]
-        d["odo_poses"] = [[u, [float(v) for v in x]] for u, x in self.odo_poses.items()]
         d["made"] = [encode(p) for p in self.made.values()]
-        d["graph_dropped"] = [[k[0], k[1], v] for k, v in self.graph_dropped.items()]
         d["drift"] = [float(v) for v in np.asarray(self.drift).ravel()]
+        d.update(self.evaluator.state())
         return d
 
     def restore(self, d: Mapping[str, Any]) -> None:
-        """Take back a :meth:`state`. :attr:`made` becomes a new dict: views over it
-        (``peers_made``, a :class:`~.naive.NaiveMeter`'s ``made``) must be renewed."""
+        """Take back a :meth:`state`. :attr:`made` and :attr:`truth` become new dicts:
+        views over them (``peers_made``, ``peers_truth``, a
+        :class:`~.naive.NaiveMeter`'s ``made``) must be renewed."""
         for name in self.PLAIN_STATE:
             setattr(self, name, d[name])
-        self.truth = {int(u): np.array(x, dtype=np.float64) for u, x in d["truth"]}
-        self.odo_poses = {int(u): np.array(x, dtype=np.float64) for u, x in d["odo_poses"]}
         made = [decode_as(b, Pose) for b in d["made"]]
         self.made = {p.uid: p for p in made}
-        self.graph_dropped = {(int(x), int(y)): bool(v) for x, y, v in d["graph_dropped"]}
         self.drift = np.array(d["drift"], dtype=np.float64).reshape(3, 3)
+        self.evaluator.restore(d)
 
     def run(self, progress: Progress | None = None) -> None:
         """Process the rest of the route, alone."""
@@ -756,10 +573,10 @@ class RobotAgent:
     # --- the end -------------------------------------------------------------------------
 
     def finish(self) -> MissionResult:
-        """The last batch, the global map from every layer, its alignment to the prior,
-        and the scores (:func:`run_mission`'s summary)."""
-        cfg, store, truth, odo = self.cfg, self.store, self.truth, self.odo
-        plan, rig, readings, step_of = self.plan, self.rig, self.readings, self.step_of
+        """The last batch, the global map from every layer and its alignment to the
+        prior (the robot's), then the evaluator's scores: :func:`run_mission`'s
+        summary."""
+        cfg, store, plan = self.cfg, self.store, self.plan
         t_batch = time.perf_counter()
         graph = self.batch()
         poses = self.all_poses()
@@ -769,67 +586,15 @@ class RobotAgent:
             grid_around(graph.estimates, cfg.local_size / 2, cfg.map_resolution, margin=1.0),
         )
         batch_seconds = time.perf_counter() - t_batch
-        stages = self.stages
-        stages["graph"] = {
-            "in": self.n_closures,
-            "removed": len(self.graph_dropped),
-            "removed_true": sum(self.graph_dropped.values()),
-            "kept_false": sum(not self.correct(c) for c in store.closures),
-        }
         # The robot believes its frame is the prior's (it started where it thinks).
         alignment = align_to_prior(built, self.prior, seed=cfg.seed, guess=(0.0, 0.0, 0.0))
         a = np.asarray(alignment.transform, dtype=np.float64)
-        a_true = self.a_true
-
-        kept = {u: origin_of(u, truth, self.made) for u in store.local.poses}
-        uids = [u for u, o in kept.items() if o is not None]
-        est = np.array([graph.estimates[u] for u in uids])
-        tru = np.array([truth[kept[u]] for u in uids])  # type: ignore[index]
-        odo_est = np.array([self.odo_poses[kept[u]] for u in uids])  # type: ignore[index]
-        # How far the found alignment puts the robot's poses from where the true one would.
-        placed = compose(a, est)
-        should = compose(a_true, est)
-        align_m = float(np.mean(np.hypot(*(placed[:, :2] - should[:, :2]).T)))
-        align_deg = math.degrees(abs(math.remainder(a[2] - a_true[2], 2 * math.pi)))
-
-        # The map in the plan's frame, by the found alignment, against its bounds: the
-        # same readings mapped at the true poses and at the odometry poses (given the
-        # true start).
+        # The map in the plan's frame, by the found alignment.
         in_prior = {u: compose(a, graph.estimates[u]) for u in poses if u in graph.estimates}
         global_map = fuse_local_maps(poses, in_prior, plan.grid)
-        true_posed = build_map(readings, rig, plan.grid, cfg.mapper, cfg.mapper_params)
-        odo_world = compose(
-            a_true,
-            compose(self.start_believed, compose(invert(odo[0, 1:4]), odo[step_of, 1:4])),
-        )
-        odo_sonar = compose(odo_world, self.mounts)
-        odo_posed = build_map(
-            Readings(
-                readings.t,
-                readings.sensor,
-                odo_sonar[:, 0],
-                odo_sonar[:, 1],
-                odo_sonar[:, 2],
-                readings.range,
-                readings.names,
-            ),
-            rig,
-            plan.grid,
-            cfg.mapper,
-            cfg.mapper_params,
-        )
+        scores = self.evaluator.scores(plan, store, graph, alignment, global_map)
         assoc = np.array(self.assoc_seconds)
-        changes: dict[str, Any] = dict(
-            landmark_changes(self.world, store, self.made, truth, self.end)
-        )
-        changes["change_time_s"] = self.t_change
-        for h, row in self.by_half.items():
-            changes[f"association_{h}"] = {
-                "closures": row["closures"],
-                "precision": row["correct"] / row["closures"] if row["closures"] else math.nan,
-                "recall": row["found"] / row["true_pairs"] if row["true_pairs"] else math.nan,
-            }
-        n_closures, counter, labels = self.n_closures, self.counter, self.labels
+        counter, labels = self.counter, self.labels
         summary: dict[str, Any] = {
             "robot": self.robot,
             "store_bytes_peak": int(store.peak_bytes),
@@ -847,28 +612,7 @@ class RobotAgent:
             "closures": len(store.closures),
             "regions": int(labels.max()) + 1,
             "regions_used": len({p.region for p in store.local.poses.values()}),
-            "association_precision": self.n_correct / n_closures if n_closures else math.nan,
-            "association_recall": self.n_found / self.n_true_pairs
-            if self.n_true_pairs
-            else math.nan,
-            "association_precision_landmarks": self.n_same_place / n_closures
-            if n_closures
-            else math.nan,
-            "closures_found": n_closures,
-            "closures_correct": self.n_correct,
-            "closures_wrong": self.wrong,
-            "true_pairs": self.n_true_pairs,
-            "association_removed_matches": {k: int(sum(v)) for k, v in self.stage_removed.items()},
-            "association_stages": stages,
-            "changing_landmarks": changes,
-            "closures_rejected_by_graph": len(graph.inconsistent),
-            "ate_m": rigid_ate(est[:, :2], tru[:, :2]),
-            "ate_odometry_m": rigid_ate(odo_est[:, :2], tru[:, :2]),
-            "map_f1": score(plan, global_map).f1_all,
-            "map_f1_true_poses": score(plan, true_posed).f1_all,
-            "map_f1_odometry_poses": score(plan, odo_posed).f1_all,
-            "alignment_error_m": align_m,
-            "alignment_error_deg": align_deg,
+            **scores,
             "alignment_score_m": float(alignment.score),
             "association_ms_median": float(np.median(assoc) * 1e3) if len(assoc) else math.nan,
             "association_ms_p99": float(np.percentile(assoc, 99) * 1e3) if len(assoc) else math.nan,
@@ -886,7 +630,7 @@ class RobotAgent:
             store,
             graph,
             alignment,
-            truth,
+            self.truth,
             self.odo_poses,
             self.bytes_per_pose,
             self.frames,

@@ -47,8 +47,11 @@ class _Stats(Protocol):
 
 
 class _Agent(Protocol):
-    received_closures: int
-    received_correct: int
+    @property
+    def received_closures(self) -> int: ...
+
+    @property
+    def received_correct(self) -> int: ...
 
     @property
     def store(self) -> Any: ...

@@ -302,14 +302,17 @@ class SimHub:
         """A transport for ``robot`` (an index of the network) on this hub."""
         return SimTransport(self, robot, **kwargs)
 
-    def _join(self, robot: int) -> None:
+    def join(self, robot: int) -> None:
+        """Give ``robot`` a mailbox (its :class:`SimTransport` calls this); a robot outside
+        the network or already joined is a :class:`ConfigError`."""
         if not 0 <= robot < self.network.n:
             raise ConfigError(f"robot {robot} is not in the network's 0..{self.network.n - 1}")
         if robot in self._boxes:
             raise ConfigError(f"robot {robot} already has a transport on this hub")
         self._boxes[robot] = deque()
 
-    def _leave(self, robot: int) -> None:
+    def leave(self, robot: int) -> None:
+        """Close ``robot``'s mailbox; what it still held counts as undelivered."""
         self.undelivered += len(self._boxes.pop(robot, ()))
 
     def _pump(self) -> None:
@@ -320,7 +323,9 @@ class SimHub:
             else:
                 box.append(d)
 
-    def _take(self, robot: int) -> list[Delivery]:
+    def take(self, robot: int) -> list[Delivery]:
+        """Everything delivered to ``robot`` by now, in delivery order, and empty its
+        mailbox."""
         self._pump()
         box = self._boxes.get(robot)
         if not box:
@@ -337,7 +342,7 @@ class SimTransport(Transport):
     def __init__(self, hub: SimHub, robot: int, *, max_message: int | None = None) -> None:
         net_max = hub.network.params.max_message
         super().__init__(robot, max_message=net_max if max_message is None else max_message)
-        hub._join(robot)
+        hub.join(robot)
         self.hub = hub
 
     def _send_frame(self, dst: int, data: bytes) -> str | None:
@@ -356,7 +361,7 @@ class SimTransport(Transport):
         if self.closed:
             return []
         out = []
-        for d in self.hub._take(self.robot):
+        for d in self.hub.take(self.robot):
             msg = self._accept(d.payload, d.src, f"robot {d.src}")
             if msg is not None:
                 out.append(msg)
@@ -365,7 +370,7 @@ class SimTransport(Transport):
     def close(self) -> None:
         if not self.closed:
             self.closed = True
-            self.hub._leave(self.robot)
+            self.hub.leave(self.robot)
 
 
 # --- ZeroMQ --------------------------------------------------------------------------
