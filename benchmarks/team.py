@@ -67,7 +67,7 @@ KEYS = (
 )
 
 
-def _plan(name: str) -> OccupancyMap:
+def plan_by_name(name: str) -> OccupancyMap:
     try:
         return builtin_plan(name)
     except ConfigError as e:
@@ -78,7 +78,7 @@ def measure(
     base: float, scales: list[float], seed: int, plan_name: str
 ) -> tuple[list[dict[str, Any]], dict[str, list[int]]]:
     """The summary rows, one per length, and each length's local-layer bytes per pose."""
-    plan = _plan(plan_name)
+    plan = plan_by_name(plan_name)
     rows = []
     series = {}
     for k in scales:

@@ -63,7 +63,7 @@ from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from benchmarks.team import _plan
+from benchmarks.team import plan_by_name
 from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams
@@ -82,7 +82,7 @@ def _one(
     """One team run; its summary's figures and the setting."""
     t0 = time.perf_counter()
     s = run_team(
-        _plan(plan_name),
+        plan_by_name(plan_name),
         MissionConfig(
             duration=duration, seed=seed, store=StoreParams(fold=setting.get("fold", False))
         ),
@@ -329,11 +329,11 @@ def _lean(text: str) -> Lean:
         if loops_text not in ("0", "1"):
             raise argparse.ArgumentTypeError(f"L must be 0 or 1, got {text!r}")
         loops = loops_text == "1"
-    bits, ternary = _quantised(quant) if quant else (8, False)
+    bits, ternary = parse_quantised(quant) if quant else (8, False)
     return k, hold, bits, ternary, loops
 
 
-def _quantised(text: str) -> tuple[int, bool]:
+def parse_quantised(text: str) -> tuple[int, bool]:
     bits_text, sep, t_text = text.partition(":")
     try:
         bits, ternary = int(bits_text), int(t_text)
@@ -401,7 +401,7 @@ def main() -> None:
     )
     parser.add_argument(
         "--quantised",
-        type=_quantised,
+        type=parse_quantised,
         default=(3, True),
         help="BITS:T of the quantised group's rows (the good protocol and the naive "
         "baseline, both quantised so).",
@@ -413,7 +413,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.robots < 2:
         raise SystemExit(f"--robots: a team needs >= 2 robots, got {args.robots}")
-    _plan(args.plan)  # a bad --plan fails before any run
+    plan_by_name(args.plan)  # a bad --plan fails before any run
     t0 = time.perf_counter()
     rows = measure(
         args.plan,

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.team import _plan
+from benchmarks.team import plan_by_name
 from benchmarks.team_exchange import BYTES_SHARE, F1_GAP
 from sonarmap.errors import ConfigError
 from sonarmap.team.exchange import LEAN, LEAN_MERGE_ON_CLOSURE, ExchangeParams
@@ -43,7 +43,7 @@ def _one(
     """One seed's run and its verdict."""
     t0 = time.perf_counter()
     s = run_team(
-        _plan(plan_name),
+        plan_by_name(plan_name),
         MissionConfig(duration=duration, seed=seed, store=store),
         robots,
         network=NetworkParams(kind="full"),
@@ -120,7 +120,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.robots < 2:
         raise SystemExit(f"--robots: a team needs >= 2 robots, got {args.robots}")
-    _plan(args.plan)  # a bad --plan fails before any run
+    plan_by_name(args.plan)  # a bad --plan fails before any run
     try:
         ex, store = _setting(args)
     except ConfigError as e:

@@ -28,7 +28,7 @@ from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from benchmarks.team import _plan
+from benchmarks.team import plan_by_name
 from sonarmap.plot import save_memory_series
 from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.mission import MissionConfig
@@ -59,7 +59,7 @@ def measure(
 ) -> tuple[list[dict[str, Any]], dict[str, list[int]]]:
     """One row per length (the team's figures and a row per robot), and each robot's
     whole-store bytes per pose of the longest mission."""
-    plan = _plan(plan_name)
+    plan = plan_by_name(plan_name)
     rows: list[dict[str, Any]] = []
     series: dict[str, list[int]] = {}
     for k in scales:

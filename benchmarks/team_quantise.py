@@ -25,9 +25,9 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import msgpack
 import numpy as np
 
-from benchmarks.team import _plan
-from benchmarks.team_exchange import _quantised
-from sonarmap.team.central import _raw_poses, central_map
+from benchmarks.team import plan_by_name
+from benchmarks.team_exchange import parse_quantised
+from sonarmap.team.central import central_map, raw_poses
 from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams
@@ -48,13 +48,13 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--settings",
-        type=_quantised,
+        type=parse_quantised,
         nargs="+",
         default=[(8, False), (4, False), (3, False), (2, False), (8, True), (3, True)],
         help="BITS:T, descriptor bits and (T = 1) ternary maps.",
     )
     args = parser.parse_args()
-    plan = _plan(args.plan)
+    plan = plan_by_name(args.plan)
     t0 = time.perf_counter()
     team = run_team(
         plan,
@@ -64,7 +64,7 @@ def main() -> None:
         exchange=ExchangeParams(),
         seed=args.seed,
     )
-    poses = [p for a in team.agents for p in _raw_poses(a)]
+    poses = [p for a in team.agents for p in raw_poses(a)]
     bare = [p.with_landmarks(p.landmarks.take(np.zeros(0, dtype=np.intp))) for p in poses]
     exact, exact_bare = _deflated(poses), _deflated(bare)
     print(

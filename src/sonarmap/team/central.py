@@ -57,7 +57,7 @@ from .records import ClosureEdge, OdometryEdge, Pose, compose, invert
 from .scoring import closure_correct, rigid_ate
 from .world import ODOMETRY_NOISE, observe, odometry_covariance
 
-__all__ = ["CentralResult", "central_map"]
+__all__ = ["CentralResult", "central_map", "raw_poses"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -87,7 +87,7 @@ class CentralResult:
     poses: dict[int, Pose]
 
 
-def _raw_poses(agent: RobotAgent) -> list[Pose]:
+def raw_poses(agent: RobotAgent) -> list[Pose]:
     """The poses ``agent`` made, as made, at its dead-reckoned estimates."""
     out = []
     for uid in agent.truth:  # the poses made (not merged), in the order made
@@ -156,7 +156,7 @@ def central_map(
     cfg, plan, prior = lead.cfg, lead.plan, lead.prior
     check_quantisation(descriptor_bits, ternary_maps)
     by_robot = [
-        [quantise_pose(p, descriptor_bits, ternary_maps) for p in _raw_poses(a)] for a in agents
+        [quantise_pose(p, descriptor_bits, ternary_maps) for p in raw_poses(a)] for a in agents
     ]
     poses = {p.uid: p for ps in by_robot for p in ps}
     edges = [e for a, ps in zip(agents, by_robot, strict=True) for e in _odometry_edges(a, ps)]
