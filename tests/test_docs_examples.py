@@ -1,5 +1,9 @@
 """The README's and the getting-started page's examples run as written.
 
+The README's commands run in order in one temporary folder. ``docs/getting-started.md``
+repeats the README's first map; its commands must each be one of the README's (run
+there) or cheap, and the others run in a folder of their own.
+
 Convention (README, "Examples as tests"): a fenced block whose info string is ``sh`` is
 run, one command a line, in order, in one temporary folder per page; a line ending in
 ``\\`` continues on the next, and ``#`` starts a comment. Blocks fenced ``text``,
@@ -24,7 +28,10 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = [ROOT / "README.md", ROOT / "docs" / "getting-started.md"]
+README = ROOT / "README.md"
+GETTING_STARTED = ROOT / "docs" / "getting-started.md"
+#: Commands of the getting-started page that need not be the README's.
+CHEAP = ("sonarmap --help",)
 FENCE = re.compile(r"^```(\S*)\s*$")
 #: One command may take this long (a cold numba cache compiles on first use).
 COMMAND_TIMEOUT_S = 180
@@ -106,10 +113,10 @@ def test_parsing_follows_the_convention() -> None:
 
 
 def test_readme_has_examples() -> None:
-    commands = page_commands(ROOT / "README.md")
+    commands = page_commands(README)
     assert any(c.startswith("sonarmap patrol run") for c in commands)
     assert any(c.startswith("sonarmap team run") for c in commands)
-    assert sum(1 for info, _ in fenced_blocks((ROOT / "README.md").read_text()) if info == "python")
+    assert sum(1 for info, _ in fenced_blocks(README.read_text()) if info == "python")
 
 
 def _environment() -> dict[str, str]:
@@ -119,18 +126,15 @@ def _environment() -> dict[str, str]:
     return env
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
-def test_shell_examples_run(page: Path, tmp_path: Path) -> None:
+def _run_all(page: Path, commands: list[str], folder: Path) -> None:
     env = _environment()
-    commands = page_commands(page)
-    assert commands, f"{page.name}: no sh block to run"
     for command in commands:
         start = time.monotonic()
         done = subprocess.run(
             command,
             shell=True,
             executable="/bin/bash",
-            cwd=tmp_path,
+            cwd=folder,
             env=env,
             capture_output=True,
             text=True,
@@ -144,9 +148,26 @@ def test_shell_examples_run(page: Path, tmp_path: Path) -> None:
         )
 
 
+def test_readme_shell_examples_run(tmp_path: Path) -> None:
+    commands = page_commands(README)
+    assert commands, "README.md: no sh block to run"
+    _run_all(README, commands, tmp_path)
+
+
+def test_getting_started_examples_run(tmp_path: Path) -> None:
+    readme = set(page_commands(README))
+    commands = page_commands(GETTING_STARTED)
+    assert commands, "getting-started.md: no sh block to run"
+    others = [c for c in commands if c not in readme]
+    assert all(c in CHEAP for c in others), (
+        f"getting-started.md: commands neither in the README nor cheap: {others}"
+    )
+    _run_all(GETTING_STARTED, others, tmp_path)
+
+
 def test_readme_python_example_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
-    blocks = [body for info, body in fenced_blocks((ROOT / "README.md").read_text()) if info == "python"]
+    blocks = [body for info, body in fenced_blocks(README.read_text()) if info == "python"]
     for body in blocks:
         exec(compile(body, "README.md (python block)", "exec"), {"__name__": "readme"})
     assert (tmp_path / "em.yaml").exists()
