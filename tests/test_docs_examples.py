@@ -171,3 +171,14 @@ def test_readme_python_example_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPa
     for body in blocks:
         exec(compile(body, "README.md (python block)", "exec"), {"__name__": "readme"})
     assert (tmp_path / "em.yaml").exists()
+
+
+def test_readme_links_resolve() -> None:
+    """Every relative link and image of the README names a file of the repository (the
+    docs site's own links are checked by ``mkdocs build --strict``)."""
+    text = README.read_text(encoding="utf-8")
+    targets = re.findall(r"\]\(([^)\s]+)\)", text)
+    local = [t.split("#")[0] for t in targets if "://" not in t and not t.startswith("#")]
+    assert local
+    missing = [t for t in local if t and not (ROOT / t).exists()]
+    assert not missing, f"README.md links to missing files: {missing}"
