@@ -1,5 +1,6 @@
-"""The README's claims, on held-out scenes only (sonarmap.splits): families and seeds no
-method was tuned on, read by the acoustic sonar, every method at its defaults.
+"""The claims of the held-out results page (``docs/results/2026-11-22-held-out-scenes.md``),
+on held-out scenes only (sonarmap.splits): families and seeds no method was tuned on, read
+by the acoustic sonar, every method at its defaults.
 
 The full-size figures come from ``sonarmap experiment passages`` and ``sonarmap
 experiment doorways`` (ten and five scenes); these tests run smaller held-out scenes and
