@@ -44,8 +44,8 @@ def is_anchor(pose: Pose, every: int, *, merged_whole: bool = True) -> bool:
 
     ``merged_whole=False`` takes merged poses by their counter too: a store that merges
     at every reliable closure (:attr:`.store.StoreParams.merge_on_closure`) makes merged
-    poses as often as loops close, and sending each whole cost building 8 (3 robots,
-    seed 0, anchors 1/16) 44 kB per robot-minute against 28 kB.
+    poses as often as loops close, and sending each whole would cost about half as much
+    again (the team results pages of the docs).
 
     Examples
     --------

@@ -46,11 +46,8 @@ class MissionConfig:
     store: StoreParams = field(default_factory=StoreParams)
     #: Association as :class:`AssociationParams`, but a closure is refused when its
     #: refit puts the new pose less surely than half the scoring tolerance: standard
-    #: deviations of 0.15 m (worst direction) and 2.5 degrees. Chosen on training plans
-    #: (office and random buildings 0-4, 600 s, mission seed 0): without the limits the
-    #: stereo-weighted refit alone gave precision 0.9975-1.0, and the wrong closures had
-    #: 0.19-0.38 m and 0.75-4.7 degrees of standard deviation, where 99 % of the right
-    #: ones were under 0.15-0.29 m; with them, 0.999-1.0 at recall 0.27-0.49.
+    #: deviations of 0.15 m (worst direction) and 2.5 degrees, chosen on training plans
+    #: (docs/results/2026-12-03-team-code-notes.md).
     association: AssociationParams = field(
         default_factory=lambda: AssociationParams(
             max_sigma_xy=0.15, max_sigma_theta=math.radians(2.5)

@@ -29,9 +29,8 @@ Choices where the thesis is silent (each is documented where it is made):
   requester holds or is sent, and whose fingerprint it did not name. That is how the
   edges a source adds when it deletes a pose (chaining its neighbours, which stamps
   both neighbours' patches anew) reach holders that already had both ends, and an
-  edge held is never sent again (version 3 sent one 8-byte digest of them all, and on
-  any difference every edge of the patch: on the office, 3 robots, 120 s, 335 of 775
-  edges sent were already held). An edge to a pose outside the patch that the
+  edge held is never sent again (an earlier version sent every edge of the patch on
+  any difference, most of them already held). An edge to a pose outside the patch that the
   requester lacks may come; the receiver keeps only edges whose two poses it holds, so
   such an edge comes again with a later answer. Two edges of one patch share a
   fingerprint with odds of about 1 in 4e9 per pair; the one the requester lacks would
@@ -41,8 +40,8 @@ Choices where the thesis is silent (each is documented where it is made):
   soon as a peer has it newer; any other patch at most once per ``refresh`` seconds
   since it was last asked for, so that the poses a source makes and compresses away
   within that time never travel. A patch we have never asked for is asked for at
-  once (what the robot knows nothing of is worth most; delaying it too saved nothing
-  on the office plan: 213 k against 212 k bytes per robot-minute, same F1). With no
+  once (what the robot knows nothing of is worth most; delaying it too saved
+  nothing measurable). With no
   ``wanted_regions`` (None: no patrol plan, e.g. the quiet network after a mission)
   every newer patch is asked for at once, so that a full network still converges. A
   patch whose request timed out is asked for again at once (a lost message is

@@ -15,15 +15,10 @@ Decisions where the thesis is silent:
   frame by odometry, on a square of ``local_size`` metres (6) at ``local_resolution``
   (0.1 m). Only readings up to ``mapping_range`` (3 m) are used, and the inverse model
   takes ``mapper_params`` (p_occ 0.6, p_free 0.45, a 20-degree fall-off, a 5 cm band
-  centred on the echo): on four seeded training buildings
-  (:func:`~sonarmap.floorplan.random_building` seeds 0-3, 300 s patrols, the 16-sonar
-  ring) this scored a mean wall F1 of 0.31 at the true poses, against 0.05 for the
-  mapper's own defaults, whose long specular no-echo misses and weak ``p_occ`` erase
-  the walls (48 settings of p_occ, p_free and range, and the counting model, tried).
-  The band has since moved 0.75 cell (7.5 cm) behind the echo, the inverse mapper's
-  default (a cell counts as wall when its centre is inside one, so it lies behind the
-  surface heard): on the same four buildings (mission seed 0) the wall F1 at the true
-  poses rose from 0.33 to 0.42 on average, and the global map's from 0.28 to 0.32.
+  centred on the echo); the band lies 0.75 cell behind
+  the echo, the inverse mapper's default (a cell counts as wall when its centre is
+  inside one). Chosen on four training buildings
+  (docs/results/2026-12-03-team-code-notes.md).
 - **Odometry edges** carry the odometry model's covariance and the hard bound top
   speed x elapsed time (``max_speed``, 1.0 m/s: twice the route's speed).
 - **Association** is tried against every pose in the store. The thesis's hard bound
@@ -198,7 +193,7 @@ def _optimise(store: RobotStore) -> tuple[GraphResult, list[ClosureEdge]]:
     if not store.received:
         # Started from the current estimates, which closures keep near the truth:
         # chained odometry drifts metres over an hour, and from there GNC rejected
-        # hundreds of correct closures (building 7, 6000 s: ATE 3.17 m; 0.04 m so).
+        # hundreds of correct closures on a long mission.
         graph = optimise_graph(
             store.local.poses, store.local.edges, store.closures, initial="estimates"
         )

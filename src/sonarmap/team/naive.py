@@ -106,14 +106,12 @@ class NaiveMeter:
         For a store that folds deleted poses' maps into the newest pose
         (``StoreParams.fold``): the poses as they were made, by UID. A pose found there
         is priced with its local map as made, since the baseline's store (the thesis's)
-        does not fold; a folded map costs a few per cent more (office and building 8,
-        ``--lean``: 4 %).
+        does not fold; a folded map costs a few per cent more.
     merged : bool, optional
         Price merged poses too. Default: unless the store merges at every reliable
         closure (``StoreParams.merge_on_closure``), since the baseline's store merges
         only under region compression, so it would have sent the poses as made and
-        none of those merges (building 8, 3 robots, seed 0: pricing them put the
-        baseline 39 % above a real baseline run).
+        none of those merges (pricing them put the estimate well above a real baseline run).
 
     Attributes
     ----------

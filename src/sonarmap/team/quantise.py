@@ -11,16 +11,8 @@ Every function is idempotent: a quantised pose quantised again is unchanged, so 
 never quantises twice and every holder of a pose holds the values its source sent, but
 for the landmark stamps, which the thesis lets every holder raise.
 
-Measured by ``python -m benchmarks.team_quantise`` (every pose of the office team, 3
-robots, 300 s, seed 0, deflated as one stream), as a share of the exact bytes:
-descriptors of 4, 3 and 2 bits 67.8 %, 54.9 % and 47.4 %; ternary maps alone 91.0 %;
-3-bit descriptors with ternary maps 46.8 %; the poses without landmarks are 14.4 % of
-the exact bytes, 6.9 % with ternary maps. The simulation's descriptors are uniform
-bytes, which deflate cannot shrink; real SIFT descriptors are mostly small values and
-deflate better exact, so the saving on real data would be smaller. The central map
-built from the poses so quantised scores wall F1 .498 exact, .505 / .502 / .496 with
-4 / 3 / 2-bit descriptors (the spread of settings that change nothing), .490 with
-ternary maps and .485 with both.
+What each setting saves, and what it costs the central map, is measured by
+``python -m benchmarks.team_quantise`` (docs/results/2026-12-03-team-code-notes.md).
 """
 
 from __future__ import annotations

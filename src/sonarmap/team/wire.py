@@ -281,17 +281,12 @@ def _preset_dictionary() -> bytes:
     return b"".join(bytes(msgpack.packb(b, use_bin_type=True)) for b in bodies)
 
 
-#: See :func:`_preset_dictionary`. On messages of a lean exchange (building 8, 3 robots,
-#: 120 s) it saved 11 % of the deflated bytes: 28 % of the requests', 10 % of the
-#: answers', 8 % of the adverts'.
+#: See :func:`_preset_dictionary`.
 PRESET_DICTIONARY = _preset_dictionary()
 
 
-#: zstd's level for every body. Measured on the bodies of 120 s runs on the office (3
-#: robots, full network, seed 1) against deflate at level 6 with the same dictionary:
-#: level 19 sent 12.5 % fewer bytes for the lean exchange (answers 14 %; adverts grew 7 %)
-#: and 4.2 % fewer for the naive baseline; level 12, 7.4 % and 3.7 %. 19 costs about
-#: 1.5 ms per body.
+#: zstd's level for every body (about 1.5 ms a body; how it compares with deflate and
+#: lower levels: docs/results/2026-12-03-team-code-notes.md).
 ZSTD_LEVEL = 19
 _ZSTD_DICT = zstandard.ZstdCompressionDict(
     PRESET_DICTIONARY, dict_type=zstandard.DICT_TYPE_RAWCONTENT
