@@ -6,6 +6,7 @@ The main entry points::
 """
 
 from .acoustics import AcousticModel
+from .annotations import Passage, SmallObstacle, load_annotations
 from .api import build_map, grid_for_readings
 from .errors import ConfigError, InputError, OutputError, SonarmapError
 from .floorplan import FloorPlan
@@ -32,14 +33,7 @@ from .readings import (
     write_trajectory,
 )
 from .rig import Mount, Rig, get_rig, load_rig, save_rig
-from .scenarios import (
-    SCENARIOS,
-    Passage,
-    Scenario,
-    SmallObstacle,
-    load_annotations,
-    make_scenario,
-)
+from .scenarios import SCENARIOS, Scenario, make_scenario
 from .sensors import Noise, Region, SensorModel, get_sensor, load_sensor
 from .simulate import PoseNoise, make_model, simulate
 

@@ -35,8 +35,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .errors import ConfigError
-from .io._atomic import atomic_folder, atomic_write, atomic_write_text
-from .io._json import dumps as json_dumps
+from .files import atomic_folder, atomic_write, atomic_write_text, json_dumps
 from .io.rosmap import OccupancyMap, write_map
 from .mappers import make_mapper, preset_params
 from .metrics import measure_passage, score

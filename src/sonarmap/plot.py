@@ -18,8 +18,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from .errors import ConfigError
+from .files import atomic_outputs, atomic_write
 from .grid import Grid
-from .io._atomic import atomic_outputs, atomic_write
 from .io.rosmap import OCCUPIED, UNKNOWN, OccupancyMap, classify
 from .readings import Readings
 

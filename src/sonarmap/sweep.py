@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import ConfigError, InputError
-from .io._yaml import read_yaml
+from .files import read_yaml
 from .mappers import MAPPERS, make_mapper
 from .metrics import MapScore, score
 from .scenarios import SCENARIOS, Scenario, make_scenario, model_from_dict

@@ -29,17 +29,18 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from rich.table import Table
 
 from .. import __version__
+from ..annotations import load_annotations
 from ..api import build_map, grid_for_log, grid_for_readings, off_grid_note, stream_log
 from ..errors import ConfigError, InputError, SonarmapError
 from ..experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
-from ..io._atomic import (
+from ..files import (
     atomic_folder,
     atomic_write,
     atomic_write_text,
     check_writable,
+    json_dumps,
     live_outputs,
 )
-from ..io._json import dumps as json_dumps
 from ..io.record import BagRecorder
 from ..io.rosmap import IMAGE_SUFFIXES, OccupancyMap, read_map, write_map
 from ..mappers import MAPPERS, parse_params
@@ -56,7 +57,7 @@ from ..readings import (
     write_readings_stream,
 )
 from ..rig import Rig, load_rig, save_rig
-from ..scenarios import PAPER_NOISE, SCENARIOS, load_annotations, make_scenario
+from ..scenarios import PAPER_NOISE, SCENARIOS, make_scenario
 from ..simulate import MODEL_KINDS, PoseNoise, make_model, simulate
 from ..streaming import DEFAULT_STRATEGY, ReplayReport, StreamingMapper
 from ..sweep import load_sweep, run_sweep, summarise

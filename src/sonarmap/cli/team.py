@@ -15,8 +15,7 @@ import numpy as np
 import typer
 
 from ..errors import ConfigError
-from ..io._atomic import atomic_folder, atomic_write_text
-from ..io._json import dumps as json_dumps
+from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap, write_map
 from ..team.animation import mp4_available, save_mission_animation, save_team_animation
 from ..team.exchange import LEAN, LEAN_MERGE_ON_CLOSURE, PROTOCOLS, ExchangeParams

@@ -30,8 +30,7 @@ import pandas as pd
 from scipy.stats import spearmanr
 
 from ..errors import ConfigError
-from ..io._atomic import atomic_folder, atomic_write_text
-from ..io._json import dumps as json_dumps
+from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..report import Report
 from ..sweep import run_on_dask
 from .forces import FORCE_F, FORCE_G, Force
