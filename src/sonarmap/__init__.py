@@ -36,8 +36,7 @@ from .rig import Mount, Rig, get_rig, load_rig, save_rig
 from .scenarios import SCENARIOS, Scenario, make_scenario
 from .sensors import Noise, Region, SensorModel, get_sensor, load_sensor
 from .simulate import PoseNoise, make_model, simulate
-
-__version__ = "0.1.0"
+from .version import __version__
 
 __all__ = [
     "MAPPERS",

@@ -28,7 +28,6 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from .. import __version__
 from ..annotations import load_annotations
 from ..api import build_map, grid_for_log, grid_for_readings, off_grid_note, stream_log
 from ..errors import ConfigError, InputError, SonarmapError
@@ -61,6 +60,7 @@ from ..scenarios import PAPER_NOISE, SCENARIOS, make_scenario
 from ..simulate import MODEL_KINDS, PoseNoise, make_model, simulate
 from ..streaming import DEFAULT_STRATEGY, ReplayReport, StreamingMapper
 from ..sweep import load_sweep, run_sweep, summarise
+from ..version import __version__
 
 app = typer.Typer(
     name="sonarmap",
