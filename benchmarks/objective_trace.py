@@ -98,7 +98,7 @@ def trace(seed: int, offset: float, ccp: bool, model: dict[str, float]) -> None:
     parts = split(p, truth)
     unexplained = int(np.sum(p.term_values(p.W @ truth)[p.is_occ] >= 1.0 - 1e-9))
     print(_row("the true map", parts, f" | {unexplained} occ terms with nothing in the band"))
-    for off in sorted({0.0, offset, base._band_offset(g)}):
+    for off in sorted({0.0, offset, base.band_offset_for(g)}):
         print(
             f"  echoes whose band holds a true obstacle cell, band moved {off:.4f} m: "
             f"{band_share(sc, base, off):.1%}"

@@ -246,7 +246,7 @@ def reference_map(mapper: InverseMapper, readings: Readings, grid: Grid, rig: Ri
         (_logit(mapper.clamp_min), _logit(mapper.clamp_max)),
         math.radians(mapper.falloff_deg),
         dr=mapper.dr,
-        offset=mapper._band_offset(grid),
+        offset=mapper.band_offset_for(grid),
     )
     return values, touched
 

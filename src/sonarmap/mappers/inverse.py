@@ -33,8 +33,8 @@ from ..raster import accumulate
 from ..readings import Readings
 from ..selection import Strategy
 from ..sensors import SensorModel
-from . import _checks
 from ._base import Mapper, Progress, register
+from ._checks import choice, number
 from ._correlated import reading_weights
 from ._stream import StreamEngine
 
@@ -111,17 +111,17 @@ class InverseMapper(Mapper):
         self.dr = dr
         self.band_offset = band_offset
         self.correlated = correlated
-        _checks.number("p_occ", p_occ, 0.5, 1.0, lo_open=True, hi_open=True)
-        _checks.number("p_free", p_free, 0.0, 0.5, lo_open=True, hi_open=True)
-        _checks.number("clamp_min", clamp_min, 0.0, 0.5, lo_open=True, hi_open=True)
-        _checks.number("clamp_max", clamp_max, 0.5, 1.0, lo_open=True, hi_open=True)
-        _checks.number("falloff_deg", falloff_deg, 0.0, None)
-        _checks.choice("no_echo", no_echo, ("free", "ignore"))
+        number("p_occ", p_occ, 0.5, 1.0, lo_open=True, hi_open=True)
+        number("p_free", p_free, 0.0, 0.5, lo_open=True, hi_open=True)
+        number("clamp_min", clamp_min, 0.0, 0.5, lo_open=True, hi_open=True)
+        number("clamp_max", clamp_max, 0.5, 1.0, lo_open=True, hi_open=True)
+        number("falloff_deg", falloff_deg, 0.0, None)
+        choice("no_echo", no_echo, ("free", "ignore"))
         if dr is not None:
-            _checks.number("dr", dr, 0.0, None)
+            number("dr", dr, 0.0, None)
         if band_offset is not None:
-            _checks.number("band_offset", band_offset, 0.0, None)
-        _checks.number("correlated", correlated, 0.0, None)
+            number("band_offset", band_offset, 0.0, None)
+        number("correlated", correlated, 0.0, None)
 
     def _reset(self) -> None:
         self._logodds = np.zeros(self.grid.size, dtype=np.float64)
@@ -161,7 +161,7 @@ class InverseMapper(Mapper):
                 inc_occ=l_occ,
                 clamp=(lo, hi),
                 dr=self.dr,
-                offset=self._band_offset(self.grid),
+                offset=self.band_offset_for(self.grid),
                 falloff=math.radians(self.falloff_deg),
                 weights=None if weights is None else weights[a : a + len(r)],
             )
@@ -250,7 +250,7 @@ class InverseStream(StreamEngine):
 
     def occupancy(self) -> npt.NDArray[np.float32]:
         if self._exact is not None:
-            return self._exact._occupancy()
+            return self._exact.occupancy_.reshape(-1)
         p = 1.0 / (1.0 + np.exp(-self._shown))
         p[~self.seen] = np.nan
         return np.asarray(p, dtype=np.float32)
