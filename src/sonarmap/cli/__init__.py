@@ -31,7 +31,7 @@ from rich.table import Table
 from ..annotations import load_annotations
 from ..api import build_map, grid_for_log, grid_for_readings, off_grid_note, stream_log
 from ..errors import ConfigError, InputError, SonarmapError
-from ..experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
+from ..experiments import EXPERIMENTS, run_experiment
 from ..files import (
     atomic_folder,
     atomic_write,
@@ -42,7 +42,7 @@ from ..files import (
 )
 from ..io.record import BagRecorder
 from ..io.rosmap import IMAGE_SUFFIXES, OccupancyMap, read_map, write_map
-from ..mappers import MAPPERS, parse_params
+from ..mappers import MAPPERS, parse_params, preset_params
 from ..metrics import MapScore, score
 from ..plot import MapAnimation, save_map_picture, save_side_by_side
 from ..readings import (
@@ -703,12 +703,13 @@ def demo_cmd(
     with _progress("simulating corridor") as cb:
         s = make_scenario("corridor", seed=seed, progress=cb)
     s.write(out / "corridor")
-    # The research's baseline (laser-style increments, no fall-off) beside every
-    # registered method at its defaults.
-    runs: list[tuple[str, str, dict[str, Any]]] = [
-        ("inverse-traditional", "inverse", TRADITIONAL_INVERSE)
-    ]
-    runs += [(name, name, {}) for name in sorted(MAPPERS, key=lambda n: (n != "inverse", n))]
+    # Every registered method at its defaults, after the presets it shows in the demo
+    # (the inverse's "traditional": the research's baseline), so the labels are those
+    # `map --method NAME --preset PRESET` reproduces.
+    runs: list[tuple[str, str, dict[str, Any]]] = []
+    for name in sorted(MAPPERS, key=lambda n: (n != "inverse", n)):
+        runs += [(f"{name}-{p}", name, preset_params(name, p)) for p in MAPPERS[name].demo_presets]
+        runs.append((name, name, {}))
     maps = {}
     for label, name, params in runs:
         with _progress(f"mapping ({label})") as cb:

@@ -79,6 +79,9 @@ class Mapper(ABC):
     #: Named parameter sets (``--preset NAME``): keyword arguments that replace the
     #: defaults they name; parameters given explicitly override them in turn.
     presets: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
+    #: Presets ``sonarmap demo`` maps beside the defaults, each labelled
+    #: ``{name}-{preset}``.
+    demo_presets: ClassVar[tuple[str, ...]] = ()
     #: Where the band sits behind the echo when ``band_offset`` is None, in cells: the
     #: first occupied cell behind a surface lies up to a cell behind it, so the best
     #: offset on the training scenes scales with the cell (see :mod:`sonarmap.raster`).

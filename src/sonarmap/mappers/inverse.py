@@ -22,6 +22,7 @@ a smooth wall mirrored away, not free space.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -38,7 +39,22 @@ from ._checks import choice, number
 from ._correlated import reading_weights
 from ._stream import StreamEngine
 
-__all__ = ["InverseMapper"]
+__all__ = ["PRESETS", "TRADITIONAL", "InverseMapper"]
+
+#: Laser-style log-odds (OctoMap's increments, no fall-off, no-echo beams cleared) on the
+#: 5 cm band centred on the echo that the tuned inverse had before the band offset: the
+#: kind of baseline the research compared against (``--preset traditional``).
+TRADITIONAL: dict[str, Any] = {
+    "p_occ": 0.7,
+    "p_free": 0.4,
+    "falloff_deg": 0.0,
+    "no_echo": "free",
+    "dr": 0.05,
+    "band_offset": 0.0,
+}
+
+#: Named parameter sets (``--preset NAME``).
+PRESETS: dict[str, dict[str, Any]] = {"traditional": TRADITIONAL}
 
 
 def _logit(p: float) -> float:
@@ -84,6 +100,8 @@ class InverseMapper(Mapper):
     """
 
     name = "inverse"
+    presets = PRESETS
+    demo_presets = ("traditional",)
     offset_cells = 0.75
     exact_streaming = True
     _logodds: npt.NDArray[np.float64]
