@@ -331,6 +331,12 @@ class GradientMapper(Mapper):
         solve = {"gd": _gd, "pgd": _pgd, "lbfgs": _lbfgs, "ccp": _ccp}[self.solver]
         return solve(problem, x, self, progress)
 
+    @property
+    def solution_(self) -> F64 | None:
+        """The solver's occupancy values (unclipped) on the cells the readings touch;
+        None before a fit."""
+        return self._x
+
     def _occupancy(self) -> npt.NDArray[np.float32]:
         out = np.full(self.grid.size, np.nan, dtype=np.float32)
         if self._x is not None:

@@ -184,6 +184,22 @@ class InverseMapper(Mapper):
                 weights=None if weights is None else weights[a : a + len(r)],
             )
 
+    @property
+    def log_odds_(self) -> npt.NDArray[np.float64]:
+        """Each cell's log-odds of occupancy, flat over the grid (0 where untouched).
+
+        The mapper's own array, read-only by contract; set once :meth:`start` has run.
+        """
+        return self._logodds
+
+    @property
+    def touched_(self) -> npt.NDArray[np.bool_]:
+        """Whether any reading touched each cell, flat over the grid.
+
+        The mapper's own array, read-only by contract; set once :meth:`start` has run.
+        """
+        return self._touched
+
     def _occupancy(self) -> npt.NDArray[np.float32]:
         p = 1.0 / (1.0 + np.exp(-self._logodds))
         p[~self._touched] = np.nan

@@ -429,6 +429,17 @@ class StochasticMapper(Mapper):
         )
         return int(accepted), float(loglik)
 
+    @property
+    def index_(self) -> BeamIndex | None:
+        """The beam index of the readings last searched over; None before a fit."""
+        return self._index
+
+    @property
+    def local_occupancy_(self) -> npt.NDArray[np.float64] | None:
+        """The searched map (0 or 1) on the cells of :attr:`index_`, in its order; None
+        before a fit."""
+        return self._occ
+
     def _occupancy(self) -> npt.NDArray[np.float32]:
         if self._occ is None or self._index is None:
             return np.full(self.grid.size, np.nan, dtype=np.float32)
