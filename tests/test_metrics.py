@@ -282,7 +282,10 @@ def test_classes_at_known_values_and_the_written_map() -> None:
     assert m.classes().tolist() == [[1, -1, 0, -1, 1]]
 
 
-@pytest.mark.parametrize("method", ["inverse", "counting", "gradient", "stochastic", "em"])
+@pytest.mark.parametrize(
+    "method",
+    ["inverse", "counting", "gradient", pytest.param("stochastic", marks=pytest.mark.slow), "em"],
+)
 def test_written_pgm_reads_back_as_the_scored_classes(
     method: str, doorways: Scenario, tmp_path: Path
 ) -> None:
