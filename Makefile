@@ -1,10 +1,11 @@
-# Two commands: `make demo` and `make test`. Both create .venv on first use.
+# `make demo`, `make test` (everything) and `make quick` (lint, types and the tests not
+# marked slow, for the edit-test loop). Each creates .venv on first use.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck docs unit bench bench-mrpt clean
+.PHONY: demo test quick lint typecheck docs unit bench bench-mrpt clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,10 +28,16 @@ typecheck: $(STAMP)
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
+# Two workers: the tests use their own tmp paths and free ports, so they run in parallel.
+PYTEST := $(BIN)/pytest -q -n 2
+
 unit: $(STAMP)
-	$(BIN)/pytest -q
+	$(PYTEST)
 
 test: lint typecheck docs unit
+
+quick: lint typecheck
+	$(PYTEST) -m "not slow"
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run

@@ -93,12 +93,12 @@ def trace(seed: int, offset: float, ccp: bool, model: dict[str, float]) -> None:
             f" | detected {s.passages_detected}/{s.passages}, false openings "
             f"{s.false_openings}, wall F1 {s.f1_all:.3f}"
         )
-        print(_row(name, split(p, m._x if m._x is not None else np.empty(0)), extra))
+        print(_row(name, split(p, m.solution_ if m.solution_ is not None else np.empty(0)), extra))
     truth = (np.asarray(sc.truth.occupancy, np.float64).ravel()[p.cells] > 0.5).astype(float)
     parts = split(p, truth)
     unexplained = int(np.sum(p.term_values(p.W @ truth)[p.is_occ] >= 1.0 - 1e-9))
     print(_row("the true map", parts, f" | {unexplained} occ terms with nothing in the band"))
-    for off in sorted({0.0, offset, base._band_offset(g)}):
+    for off in sorted({0.0, offset, base.band_offset_for(g)}):
         print(
             f"  echoes whose band holds a true obstacle cell, band moved {off:.4f} m: "
             f"{band_share(sc, base, off):.1%}"

@@ -210,8 +210,8 @@ def bench_forward(repeat: int, bandwidth: float) -> list[dict[str, Any]]:
 
         t, fitted = best_of(search, repeat)
         assert isinstance(fitted, StochasticMapper)
-        assert fitted._index is not None
-        flips = round(fitted.sweeps * fitted._index.n_cells)
+        assert fitted.index_ is not None
+        flips = round(fitted.sweeps * fitted.index_.n_cells)
         rows.append(
             {
                 "benchmark": f"stochastic on doorways, {res * 100:g} cm",

@@ -120,7 +120,10 @@ def test_streaming_takes_the_mappers_offset(doorways: Scenario, method: str) -> 
     assert not np.allclose(maps[0], maps[2])
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize(
+    "method",
+    [pytest.param(m, marks=pytest.mark.slow) if m == "stochastic" else m for m in METHODS],
+)
 def test_an_offset_map_is_the_map_of_echoes_heard_that_much_further(
     doorways: Scenario, method: str
 ) -> None:

@@ -21,6 +21,9 @@ from sonarmap.metrics import measure_passage, score
 from sonarmap.scenarios import Scenario, make_scenario
 from sonarmap.splits import HELD_OUT_SEED
 
+# Its module fixtures map whole held-out scenes with every method (minutes).
+pytestmark = pytest.mark.slow
+
 SEEDS = (HELD_OUT_SEED + 20, HELD_OUT_SEED + 21, HELD_OUT_SEED + 22)
 WIDTHS = (0.3, 0.5, 0.7, 0.9, 1.2)
 

@@ -232,7 +232,7 @@ def test_counting_burst_casts_one_vote() -> None:
         [0] * (N_BURST + 1),
     )
     m = CountingMapper()
-    both = m.start(GRID, RIG)._band_offset(GRID)
+    both = m.start(GRID, RIG).band_offset_for(GRID)
     burst = rasterise(GRID, SENSOR, [0.5], [2.5], [0.0], [2.0], dr=m.dr, offset=both)
     lone = rasterise(GRID, SENSOR, [1.0], [2.5], [0.0], [2.0], dr=m.dr, offset=both)
     cells = np.intersect1d(burst.occ.cells, lone.free.cells)

@@ -36,6 +36,7 @@ def doorways_report(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_doorways_experiment_outputs(doorways_report: Path) -> None:
     d = doorways_report
     for name in ("report.html", "metrics.csv", "metrics.json", "doorways.png"):
@@ -53,6 +54,7 @@ def test_doorways_experiment_outputs(doorways_report: Path) -> None:
     assert [r["method"] for r in summary] == [m.label for m in METHODS]
 
 
+@pytest.mark.slow
 def test_compare_agrees_with_the_experiment(
     doorways_report: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -79,6 +81,7 @@ def test_compare_agrees_with_the_experiment(
 
 
 @pytest.mark.parametrize("name", [n for n in EXPERIMENTS if n not in ("doorways", "real")])
+@pytest.mark.slow
 def test_other_experiments_quick(name: str, tmp_path: Path) -> None:
     report = run_experiment(name, tmp_path, quick=True)
     html = report.read_text()
@@ -158,6 +161,7 @@ def test_sweep_file_errors(tmp_path: Path) -> None:
             load_sweep(tmp_path / "s.yaml")
 
 
+@pytest.mark.slow
 def test_sweep_on_a_local_cluster_via_cli(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -175,6 +179,7 @@ def test_sweep_on_a_local_cluster_via_cli(
     assert "best parameters" in out
 
 
+@pytest.mark.slow
 def test_sweep_on_a_scheduler_address(tmp_path: Path) -> None:
     from dask.distributed import LocalCluster
 
@@ -191,6 +196,7 @@ def test_sweep_on_a_scheduler_address(tmp_path: Path) -> None:
     assert best[best["method"] == "inverse"]["best_params"].item() == top
 
 
+@pytest.mark.slow
 def test_sweep_unreachable_scheduler(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "s.yaml").write_text(SMALL)
     code, _, err = run(
@@ -220,6 +226,7 @@ def _browser() -> str | None:
 @pytest.mark.skipif(
     _browser() is None, reason="no Chromium on this machine (.ci/run installs Debian's chromium)"
 )
+@pytest.mark.slow
 def test_report_in_headless_chromium(doorways_report: Path, tmp_path: Path) -> None:
     browser = _browser()
     assert browser is not None
@@ -250,6 +257,7 @@ def test_report_in_headless_chromium(doorways_report: Path, tmp_path: Path) -> N
     assert int(attrs["data-tables"]) >= 1
 
 
+@pytest.mark.slow
 def test_passages_experiment_on_a_scene_folder(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -291,6 +299,7 @@ def test_passages_experiment_on_a_scene_folder(
         assert got[r["method"]]["size_error"] == pytest.approx(r["size_error"], nan_ok=True)
 
 
+@pytest.mark.slow
 def test_experiment_scene_parameters(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run(
         [

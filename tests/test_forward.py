@@ -246,10 +246,10 @@ def test_stochastic_incremental_score_matches_a_full_recomputation(small: Scenar
     from sonarmap.mappers._thrun_common import model_sigma
 
     m = StochasticMapper(sweeps=5.0).fit(small.readings, small.truth.grid, small.rig)
-    ix = m._index
+    ix = m.index_
     assert ix is not None
-    assert m._occ is not None
-    occ = m._occ >= 0.5
+    assert m.local_occupancy_ is not None
+    occ = m.local_occupancy_ >= 0.5
     v = m.values()
     sigma = model_sigma(m, m.sigma)
     args = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)

@@ -246,7 +246,7 @@ def reference_map(mapper: InverseMapper, readings: Readings, grid: Grid, rig: Ri
         (_logit(mapper.clamp_min), _logit(mapper.clamp_max)),
         math.radians(mapper.falloff_deg),
         dr=mapper.dr,
-        offset=mapper._band_offset(grid),
+        offset=mapper.band_offset_for(grid),
     )
     return values, touched
 
@@ -254,8 +254,8 @@ def reference_map(mapper: InverseMapper, readings: Readings, grid: Grid, rig: Ri
 def assert_same_map(mapper: InverseMapper, readings: Readings, grid: Grid, rig: Rig) -> None:
     want, want_t = reference_map(mapper, readings, grid, rig)
     mapper.fit(readings, grid, rig)
-    np.testing.assert_array_equal(mapper._touched, want_t)
-    np.testing.assert_allclose(mapper._logodds, want, rtol=0, atol=1e-7)
+    np.testing.assert_array_equal(mapper.touched_, want_t)
+    np.testing.assert_allclose(mapper.log_odds_, want, rtol=0, atol=1e-7)
     p = np.where(want_t, 1 / (1 + np.exp(-want)), np.nan).astype(np.float32)
     ref = OccupancyMap(grid, p.reshape(grid.shape))
     np.testing.assert_array_equal(mapper.result().classes(), ref.classes())

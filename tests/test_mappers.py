@@ -27,7 +27,10 @@ def beyond_every_beam(scene: Scenario, margin: float = 0.5) -> npt.NDArray[np.bo
     return out.reshape(scene.truth.grid.shape)
 
 
-@pytest.mark.parametrize("method", sorted(MAPPERS))
+@pytest.mark.parametrize(
+    "method",
+    [pytest.param(m, marks=pytest.mark.slow) if m == "stochastic" else m for m in sorted(MAPPERS)],
+)
 def test_contract(method: str, doorways: Scenario) -> None:
     mapper = make_mapper(method)
     assert set(mapper.get_params()) == set(type(mapper).param_names())

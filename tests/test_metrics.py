@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from sonarmap.annotations import Passage
 from sonarmap.errors import InputError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap, read_map, write_map
@@ -23,7 +24,7 @@ from sonarmap.metrics import (
     score,
     width_tolerance,
 )
-from sonarmap.scenarios import Passage, Scenario
+from sonarmap.scenarios import Scenario
 
 F32 = npt.NDArray[np.float32]
 
@@ -281,7 +282,10 @@ def test_classes_at_known_values_and_the_written_map() -> None:
     assert m.classes().tolist() == [[1, -1, 0, -1, 1]]
 
 
-@pytest.mark.parametrize("method", ["inverse", "counting", "gradient", "stochastic", "em"])
+@pytest.mark.parametrize(
+    "method",
+    ["inverse", "counting", "gradient", pytest.param("stochastic", marks=pytest.mark.slow), "em"],
+)
 def test_written_pgm_reads_back_as_the_scored_classes(
     method: str, doorways: Scenario, tmp_path: Path
 ) -> None:
@@ -355,7 +359,7 @@ def test_small_obstacle_size(small_passages: Scenario) -> None:
 
 
 def test_annotations_round_trip(tmp_path: Path, small_passages: Scenario) -> None:
-    from sonarmap.scenarios import load_annotations
+    from sonarmap.annotations import load_annotations
 
     small_passages.write(tmp_path)
     passages, posts = load_annotations(tmp_path / "annotations.yaml")

@@ -59,6 +59,7 @@ def _graph(passable: np.ndarray) -> coo_matrix:
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.slow
 def test_wave_is_dijkstra_and_first_steps_lead_there(seed: int) -> None:
     rng = np.random.default_rng(seed)
     passable = rng.random((30, 40)) > 0.3
@@ -177,6 +178,7 @@ def test_fog_bookkeeping_and_dilation() -> None:
     assert dilate(tb, 0) is tb
 
 
+@pytest.mark.slow
 def test_runs_are_deterministic_and_more_robots_watch_better() -> None:
     t = _open_field(40.0)
     cfg = PatrolConfig(duration=300.0, paths="wave")

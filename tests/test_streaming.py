@@ -198,7 +198,7 @@ def test_windowed_inverse_sums_the_readings_in_play(doorways: Scenario) -> None:
     touched = np.zeros(doorways.truth.grid.size, bool)
     mapper = make_mapper("inverse")
     dr = mapper.get_params()["dr"]
-    offset = mapper._band_offset(doorways.truth.grid)
+    offset = mapper.band_offset_for(doorways.truth.grid)
     lf, lo_ = math.log(0.48 / 0.52), math.log(0.52 / 0.48)
     from sonarmap.raster import accumulate
 

@@ -35,8 +35,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .errors import ConfigError
-from .io._atomic import atomic_folder, atomic_write, atomic_write_text
-from .io._json import dumps as json_dumps
+from .files import atomic_folder, atomic_write, atomic_write_text, json_dumps
 from .io.rosmap import OccupancyMap, write_map
 from .mappers import make_mapper, preset_params
 from .metrics import measure_passage, score
@@ -68,17 +67,8 @@ class MethodSpec:
     params: dict[str, Any] = field(default_factory=dict)
 
 
-#: Laser-style log-odds (OctoMap's increments, no fall-off, no-echo beams cleared) on the
-#: 5 cm band centred on the echo that the tuned inverse had before the band offset: the
-#: kind of baseline the research compared against.
-TRADITIONAL_INVERSE: dict[str, Any] = {
-    "p_occ": 0.7,
-    "p_free": 0.4,
-    "falloff_deg": 0.0,
-    "no_echo": "free",
-    "dr": 0.05,
-    "band_offset": 0.0,
-}
+#: The research's baseline: the inverse method's ``traditional`` preset.
+TRADITIONAL_INVERSE: dict[str, Any] = preset_params("inverse", "traditional")
 
 METHODS: tuple[MethodSpec, ...] = (
     MethodSpec("inverse-traditional", "inverse", TRADITIONAL_INVERSE),

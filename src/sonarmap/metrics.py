@@ -33,9 +33,9 @@ import numpy.typing as npt
 from scipy import ndimage
 
 from ._walls_kernel import STEPS, crossings
+from .annotations import Passage, SmallObstacle
 from .errors import InputError
 from .io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap
-from .scenarios import Passage, SmallObstacle
 
 __all__ = [
     "JAMB_LENGTH",

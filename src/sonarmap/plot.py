@@ -18,8 +18,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from .errors import ConfigError
+from .files import atomic_outputs, atomic_write
 from .grid import Grid
-from .io._atomic import atomic_outputs, atomic_write
 from .io.rosmap import OCCUPIED, UNKNOWN, OccupancyMap, classify
 from .readings import Readings
 
@@ -32,6 +32,7 @@ __all__ = [
     "save_map_picture",
     "save_patrol_series",
     "save_side_by_side",
+    "write_animation",
 ]
 
 _UNKNOWN_RGBA = (0.80, 0.86, 0.93, 1.0)
@@ -295,11 +296,31 @@ class MapAnimation:
             ax.set_title(f"{self.title}  t = {t:.0f} s".strip())
             return [im, marker]
 
-        return _write_animation(fig, show, len(self.frames), p, writer)
+        return write_animation(fig, show, len(self.frames), p, writer)
 
 
-def _write_animation(fig: Any, show: Any, frames: int, path: Path, writer: Any) -> Path:
-    """Render ``frames`` frames drawn by ``show(i)`` to ``path`` atomically."""
+def write_animation(fig: Any, show: Any, frames: int, path: Path, writer: Any) -> Path:
+    """Render an animation of a figure to a file atomically, then close the figure.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure ``show`` draws on; closed when done, written or not.
+    show : callable
+        ``show(i)`` draws frame ``i`` (matplotlib's FuncAnimation protocol).
+    frames : int
+        How many frames, 0 to ``frames - 1``.
+    path : Path
+        The output; its suffix chooses the format with ``writer``.
+    writer : matplotlib.animation.MovieWriter
+        The writer (e.g. FFMpegWriter for .mp4, PillowWriter for .gif); frames are
+        rendered at 80 dpi.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     anim = FuncAnimation(fig, show, frames=frames, blit=False)
     try:
         with atomic_outputs(path, keep_suffix=True) as (tmp,):
@@ -420,7 +441,7 @@ class FogAnimation:
             ax.set_title(f"{self.title}  t = {t:.0f} s".strip())
             return [im, *rings]
 
-        return _write_animation(fig, show, len(self.frames), p, writer)
+        return write_animation(fig, show, len(self.frames), p, writer)
 
 
 def save_force_tables(

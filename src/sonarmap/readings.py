@@ -23,8 +23,7 @@ import numpy.typing as npt
 import pandas as pd
 
 from .errors import InputError
-from .io._atomic import atomic_write
-from .io._files import need_file
+from .files import atomic_write, need_file
 
 __all__ = [
     "READINGS_COLUMNS",

@@ -12,7 +12,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from .io._atomic import atomic_write_text
+from .files import atomic_write_text
 
 __all__ = ["Report"]
 

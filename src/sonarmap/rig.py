@@ -23,9 +23,10 @@ import numpy as np
 import numpy.typing as npt
 import yaml
 
+from .checks import finite_number
 from .errors import ConfigError, InputError
-from .io._yaml import read_yaml
-from .sensors import SensorModel, _number, get_sensor, sensor_from_dict
+from .files import read_yaml
+from .sensors import SensorModel, get_sensor, sensor_from_dict
 
 __all__ = ["RIG_PRESETS", "Mount", "Rig", "get_rig", "load_rig", "save_rig"]
 
@@ -147,9 +148,9 @@ def rig_from_dict(d: Any, where: str = "rig", base_dir: Path | None = None) -> R
         mounts.append(
             Mount(
                 name=str(s["name"]),
-                x=_number(s["x"], f"{w}.x"),
-                y=_number(s["y"], f"{w}.y"),
-                yaw_deg=_number(s["yaw_deg"], f"{w}.yaw_deg"),
+                x=finite_number(s["x"], f"{w}.x"),
+                y=finite_number(s["y"], f"{w}.y"),
+                yaw_deg=finite_number(s["yaw_deg"], f"{w}.yaw_deg"),
             )
         )
     return Rig(sensor=sensor, mounts=tuple(mounts))
@@ -169,7 +170,7 @@ def load_rig(path: str | Path) -> Rig:
 
 def save_rig(rig: Rig, path: str | Path) -> None:
     """Write a rig as YAML (atomically)."""
-    from .io._atomic import atomic_write_text
+    from .files import atomic_write_text
 
     atomic_write_text(Path(path), yaml.safe_dump(rig.to_dict(), sort_keys=False))
 

@@ -43,12 +43,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from .acoustics import AcousticModel
+from .annotations import Passage, SmallObstacle, load_annotations, write_annotations
 from .errors import ConfigError
 from .floorplan import FloorPlan
-from .io._atomic import atomic_write_text
 from .io.rosmap import OccupancyMap, write_map
 from .readings import Readings, Trajectory, write_readings, write_trajectory
 from .rig import Mount, Rig, get_rig, save_rig
@@ -58,10 +57,7 @@ from .simulate import SonarModel, simulate
 __all__ = [
     "PAPER_NOISE",
     "SCENARIOS",
-    "Passage",
     "Scenario",
-    "SmallObstacle",
-    "load_annotations",
     "load_scene",
     "make_scenario",
     "model_from_dict",
@@ -89,33 +85,6 @@ GAP_WIDTHS = (
 
 #: Cell size (metres) of the geometry the acoustic sonar sees.
 GEOMETRY_CELL = 0.01
-
-
-@dataclass(frozen=True)
-class Passage:
-    """An opening in the floor plan.
-
-    ``a`` and ``b`` are the jamb points (world, metres) on the mid-line of the obstacle
-    the opening goes through, ``depth`` that obstacle's thickness across the opening.
-    """
-
-    name: str
-    a: tuple[float, float]
-    b: tuple[float, float]
-    depth: float = 0.1
-
-    @property
-    def width(self) -> float:
-        return math.dist(self.a, self.b)
-
-
-@dataclass(frozen=True)
-class SmallObstacle:
-    """A small square obstacle: ``centre`` (world, metres) and side ``size`` (metres)."""
-
-    name: str
-    centre: tuple[float, float]
-    size: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -146,25 +115,9 @@ class Scenario:
         save_rig(self.rig, d / "rig.yaml")
         write_trajectory(self.trajectory, d / "trajectory.csv")
         write_readings(self.readings, d / "readings.csv")
-        ann = {
-            "scenario": self.name,
-            "params": self.params,
-            "passages": [
-                {
-                    "name": p.name,
-                    "a": [float(v) for v in p.a],
-                    "b": [float(v) for v in p.b],
-                    "depth": float(p.depth),
-                    "width": round(float(p.width), 6),
-                }
-                for p in self.passages
-            ],
-            "small_obstacles": [
-                {"name": o.name, "centre": [float(v) for v in o.centre], "size": float(o.size)}
-                for o in self.obstacles
-            ],
-        }
-        atomic_write_text(d / "annotations.yaml", yaml.safe_dump(ann, sort_keys=False))
+        write_annotations(
+            d / "annotations.yaml", self.name, self.params, self.passages, self.obstacles
+        )
         return d
 
 
@@ -918,50 +871,6 @@ def make_scenario(name: str, **params: Any) -> Scenario:
             f"unknown parameter(s) {sorted(bad)} for scenario '{name}'; valid: {', '.join(valid)}"
         )
     return fn(**params)
-
-
-def load_annotations(path: str | Path) -> tuple[tuple[Passage, ...], tuple[SmallObstacle, ...]]:
-    """Passages and small obstacles from a scenario's ``annotations.yaml``."""
-    from .errors import InputError
-    from .io._yaml import read_yaml
-
-    p = Path(path)
-    data = read_yaml(p, "annotations")
-    if not isinstance(data, dict):
-        raise InputError("expected a mapping with 'passages' and 'small_obstacles'", path=p)
-    items = data.get("passages") or []
-    posts = data.get("small_obstacles") or []
-    for key, value in (("passages", items), ("small_obstacles", posts)):
-        if not isinstance(value, list):
-            raise InputError(f"expected a list under '{key}'", path=p, field=key)
-    out = []
-    for i, d in enumerate(items):
-        try:
-            out.append(
-                Passage(
-                    str(d["name"]),
-                    (float(d["a"][0]), float(d["a"][1])),
-                    (float(d["b"][0]), float(d["b"][1])),
-                    float(d.get("depth", 0.1)),
-                )
-            )
-        except (KeyError, TypeError, ValueError, IndexError) as err:
-            raise InputError(
-                f"bad passage entry ({err!r})", path=p, field=f"passages[{i}]"
-            ) from err
-    small = []
-    for i, d in enumerate(posts):
-        try:
-            small.append(
-                SmallObstacle(
-                    str(d["name"]), (float(d["centre"][0]), float(d["centre"][1])), float(d["size"])
-                )
-            )
-        except (KeyError, TypeError, ValueError, IndexError) as err:
-            raise InputError(
-                f"bad small obstacle entry ({err!r})", path=p, field=f"small_obstacles[{i}]"
-            ) from err
-    return tuple(out), tuple(small)
 
 
 def load_scene(

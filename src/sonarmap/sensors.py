@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from .checks import finite_number
 from .errors import ConfigError, InputError
 
 __all__ = [
@@ -364,22 +365,13 @@ def _region_from_dict(d: Any, where: str, r_max: float) -> Region:
         cone = d["cone"]
         if not isinstance(cone, Mapping) or "aperture_deg" not in cone:
             raise ConfigError(f"{where}.cone: missing key 'aperture_deg'")
-        return Region.cone(_number(cone["aperture_deg"], f"{where}.cone.aperture_deg"), r_max)
+        return Region.cone(finite_number(cone["aperture_deg"], f"{where}.cone.aperture_deg"), r_max)
     if "polygon" in d:
         try:
             return Region.polygon(d["polygon"])
         except (TypeError, ValueError) as err:
             raise ConfigError(f"{where}.polygon: {err}") from err
     raise ConfigError(f"{where}: expected key 'cone' or 'polygon', got {sorted(d)}")
-
-
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{where}: expected a number, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise ConfigError(f"{where}: expected a finite number, got {value!r}")
-    return v
 
 
 def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
@@ -413,7 +405,7 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
         for key in ("beam", "r_max", "range_resolution"):
             if key not in d:
                 raise ConfigError(f"{where}: missing key '{key}'")
-    r_max = _number(d["r_max"], f"{where}.r_max") if "r_max" in d else base.r_max  # type: ignore[union-attr]
+    r_max = finite_number(d["r_max"], f"{where}.r_max") if "r_max" in d else base.r_max  # type: ignore[union-attr]
     kwargs: dict[str, Any] = {"name": str(d.get("name", base.name if base else "custom"))}
     kwargs["beam"] = (
         _region_from_dict(d["beam"], f"{where}.beam", r_max)
@@ -423,7 +415,7 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
     kwargs["r_max"] = r_max
     for key in ("r_min", "range_resolution", "min_size"):
         if key in d:
-            kwargs[key] = _number(d[key], f"{where}.{key}")
+            kwargs[key] = finite_number(d[key], f"{where}.{key}")
         elif base is not None:
             kwargs[key] = getattr(base, key)
     kwargs.setdefault("r_min", 0.0)
@@ -438,7 +430,7 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
             parsed.append(
                 (
                     _region_from_dict(z, f"{where}.zones[{i}]", r_max),
-                    _number(z["min_size"], f"{where}.zones[{i}].min_size"),
+                    finite_number(z["min_size"], f"{where}.zones[{i}].min_size"),
                 )
             )
         kwargs["zones"] = tuple(parsed)
@@ -454,14 +446,14 @@ def sensor_from_dict(d: Any, where: str = "sensor") -> SensorModel:
             raise ConfigError(
                 f"{where}.noise: unknown key(s) {sorted(bad)}; valid: p_hit, p_rand, sigma"
             )
-        noise = Noise(**{k: _number(v, f"{where}.noise.{k}") for k, v in nd.items()})
+        noise = Noise(**{k: finite_number(v, f"{where}.noise.{k}") for k, v in nd.items()})
     kwargs["noise"] = noise
     return SensorModel(**kwargs)
 
 
 def load_sensor(path: str | Path) -> SensorModel:
     """Read a sensor model from a YAML file (see :func:`sensor_from_dict`)."""
-    from .io._yaml import read_yaml
+    from .files import read_yaml
 
     p = Path(path)
     data = read_yaml(p)

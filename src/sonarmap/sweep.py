@@ -32,18 +32,19 @@ from __future__ import annotations
 import itertools
 import json
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from .errors import ConfigError, InputError
-from .io._yaml import read_yaml
+from .files import read_yaml
 from .mappers import MAPPERS, make_mapper
 from .metrics import MapScore, score
+from .parallel import Progress, run_on_dask
 from .scenarios import SCENARIOS, Scenario, make_scenario, model_from_dict
 from .splits import check_training
 
@@ -51,15 +52,10 @@ __all__ = [
     "SweepConfig",
     "Task",
     "load_sweep",
-    "run_on_dask",
     "run_sweep",
     "run_task",
     "summarise",
 ]
-
-Progress = Callable[[int, int], None]
-T = TypeVar("T")
-R = TypeVar("R")
 
 #: Metrics where smaller is better; for the others larger is better.
 LOWER_IS_BETTER = {
@@ -278,54 +274,6 @@ def run_task(task: Task) -> dict[str, Any]:
 
 def _params_key(params: Mapping[str, Any]) -> str:
     return ", ".join(f"{k}={params[k]!r}" for k in sorted(params)) or "(defaults)"
-
-
-def run_on_dask(
-    fn: Callable[[T], R],
-    tasks: Sequence[T],
-    *,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    progress: Progress | None = None,
-) -> list[R]:
-    """``fn`` over every task on a Dask cluster, results in completion order.
-
-    Parameters
-    ----------
-    scheduler : str, optional
-        Address of a running Dask scheduler (``tcp://host:port``); default a LocalCluster.
-    workers : int, optional
-        Worker processes of the LocalCluster (default: the machine's cores).
-    """
-    from dask.distributed import Client, LocalCluster, as_completed
-
-    if workers is not None and workers < 1:
-        raise ConfigError(f"workers must be >= 1, got {workers}")
-    cluster = None
-    try:
-        if scheduler is None:
-            # Port 0: the scheduler's HTTP endpoint takes a free port, so two runs on one
-            # machine do not fight over the default 8787.
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=":0")
-            client = Client(cluster)
-        else:
-            try:
-                client = Client(scheduler, timeout=10)
-            except OSError as err:
-                raise ConfigError(
-                    f"cannot reach the Dask scheduler at {scheduler} ({err})"
-                ) from err
-        with client:
-            futures = client.map(fn, list(tasks), pure=False)
-            out: list[R] = []
-            for k, fut in enumerate(as_completed(futures)):
-                out.append(fut.result())
-                if progress is not None:
-                    progress(k + 1, len(tasks))
-    finally:
-        if cluster is not None:
-            cluster.close()
-    return out
 
 
 def run_sweep(

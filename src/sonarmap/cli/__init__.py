@@ -28,21 +28,21 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from .. import __version__
+from ..annotations import load_annotations
 from ..api import build_map, grid_for_log, grid_for_readings, off_grid_note, stream_log
 from ..errors import ConfigError, InputError, SonarmapError
-from ..experiments import EXPERIMENTS, TRADITIONAL_INVERSE, run_experiment
-from ..io._atomic import (
+from ..experiments import EXPERIMENTS, run_experiment
+from ..files import (
     atomic_folder,
     atomic_write,
     atomic_write_text,
     check_writable,
+    json_dumps,
     live_outputs,
 )
-from ..io._json import dumps as json_dumps
 from ..io.record import BagRecorder
 from ..io.rosmap import IMAGE_SUFFIXES, OccupancyMap, read_map, write_map
-from ..mappers import MAPPERS, parse_params
+from ..mappers import MAPPERS, parse_params, preset_params
 from ..metrics import MapScore, score
 from ..plot import MapAnimation, save_map_picture, save_side_by_side
 from ..readings import (
@@ -56,10 +56,11 @@ from ..readings import (
     write_readings_stream,
 )
 from ..rig import Rig, load_rig, save_rig
-from ..scenarios import PAPER_NOISE, SCENARIOS, load_annotations, make_scenario
+from ..scenarios import PAPER_NOISE, SCENARIOS, make_scenario
 from ..simulate import MODEL_KINDS, PoseNoise, make_model, simulate
 from ..streaming import DEFAULT_STRATEGY, ReplayReport, StreamingMapper
 from ..sweep import load_sweep, run_sweep, summarise
+from ..version import __version__
 
 app = typer.Typer(
     name="sonarmap",
@@ -702,12 +703,13 @@ def demo_cmd(
     with _progress("simulating corridor") as cb:
         s = make_scenario("corridor", seed=seed, progress=cb)
     s.write(out / "corridor")
-    # The research's baseline (laser-style increments, no fall-off) beside every
-    # registered method at its defaults.
-    runs: list[tuple[str, str, dict[str, Any]]] = [
-        ("inverse-traditional", "inverse", TRADITIONAL_INVERSE)
-    ]
-    runs += [(name, name, {}) for name in sorted(MAPPERS, key=lambda n: (n != "inverse", n))]
+    # Every registered method at its defaults, after the presets it shows in the demo
+    # (the inverse's "traditional": the research's baseline), so the labels are those
+    # `map --method NAME --preset PRESET` reproduces.
+    runs: list[tuple[str, str, dict[str, Any]]] = []
+    for name in sorted(MAPPERS, key=lambda n: (n != "inverse", n)):
+        runs += [(f"{name}-{p}", name, preset_params(name, p)) for p in MAPPERS[name].demo_presets]
+        runs.append((name, name, {}))
     maps = {}
     for label, name, params in runs:
         with _progress(f"mapping ({label})") as cb:

@@ -14,8 +14,7 @@ import numpy as np
 import typer
 
 from ..errors import ConfigError, InputError
-from ..io._atomic import atomic_folder, atomic_write_text
-from ..io._json import dumps as json_dumps
+from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..patrol import Fog, PatrolConfig, Territory, parse_force, read_starts, run_patrol
 from ..patrol.config import read_run_file
 from ..patrol.experiments import run_experiment

@@ -12,8 +12,7 @@ from typing import Annotated, Any
 import typer
 
 from ..errors import ConfigError
-from ..io._atomic import atomic_folder, atomic_write_text
-from ..io._json import dumps as json_dumps
+from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap
 from ..team.exchange import LEAN, LEAN_MERGE_ON_CLOSURE, PROTOCOLS, ExchangeParams
 from ..team.mission import MissionConfig, run_mission

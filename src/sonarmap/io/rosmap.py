@@ -31,10 +31,8 @@ import yaml
 from PIL import Image, UnidentifiedImageError
 
 from ..errors import InputError
+from ..files import atomic_outputs, need_file, read_yaml
 from ..grid import Grid
-from ._atomic import atomic_outputs
-from ._files import need_file
-from ._yaml import read_yaml
 
 __all__ = ["FREE", "OCCUPIED", "UNKNOWN", "OccupancyMap", "classify", "read_map", "write_map"]
 

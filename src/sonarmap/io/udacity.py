@@ -16,10 +16,10 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError
+from ..files import need_file
 from ..readings import Readings
 from ..rig import Mount, Rig
 from ..sensors import Region, SensorModel
-from ._files import need_file
 
 __all__ = ["UNITS", "read_udacity", "udacity_rig"]
 

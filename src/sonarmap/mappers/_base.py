@@ -79,6 +79,9 @@ class Mapper(ABC):
     #: Named parameter sets (``--preset NAME``): keyword arguments that replace the
     #: defaults they name; parameters given explicitly override them in turn.
     presets: ClassVar[Mapping[str, Mapping[str, Any]]] = {}
+    #: Presets ``sonarmap demo`` maps beside the defaults, each labelled
+    #: ``{name}-{preset}``.
+    demo_presets: ClassVar[tuple[str, ...]] = ()
     #: Where the band sits behind the echo when ``band_offset`` is None, in cells: the
     #: first occupied cell behind a surface lies up to a cell behind it, so the best
     #: offset on the training scenes scales with the cell (see :mod:`sonarmap.raster`).
@@ -114,6 +117,22 @@ class Mapper(ABC):
         self._batches: list[Readings] = []
         self._reset()
         return self
+
+    def attach(self, grid: Grid, sensor: SensorModel) -> None:
+        """Give the mapper a grid and sensor model without starting a map.
+
+        For a stream engine that keeps the map itself and calls the mapper's methods,
+        which read :attr:`grid` and :attr:`sensor`.
+
+        Parameters
+        ----------
+        grid : Grid
+            Returned by :attr:`grid` from now on.
+        sensor : SensorModel
+            Returned by :attr:`sensor` as given (the mapper's own model of it is not
+            applied, unlike :meth:`start`).
+        """
+        self._grid, self._sensor = grid, sensor
 
     def fit(
         self,
@@ -192,9 +211,20 @@ class Mapper(ABC):
     def _occupancy(self) -> npt.NDArray[np.float32]:
         """Flat occupancy, NaN where unknown."""
 
-    def _band_offset(self, grid: Grid) -> float:
-        """The band's offset behind the echo in metres: ``band_offset`` when given,
-        else :attr:`offset_cells` cells of ``grid``."""
+    def band_offset_for(self, grid: Grid) -> float:
+        """How far behind the echo the band of occupied cells is moved, on ``grid``.
+
+        Parameters
+        ----------
+        grid : Grid
+            The grid the band is rasterised on.
+
+        Returns
+        -------
+        float
+            Metres: the mapper's ``band_offset`` when it has one and it is given, else
+            :attr:`offset_cells` cells of ``grid``.
+        """
         given: float | None = getattr(self, "band_offset", None)
         return float(given) if given is not None else self.offset_cells * grid.resolution
 
@@ -223,11 +253,31 @@ class Mapper(ABC):
             if progress is not None:
                 progress(b, n)
 
-    def _kept_footprints(
+    def kept_footprints(
         self, readings: Readings, *, dr: float | None, offset: float = 0.0
     ) -> list[Footprint]:
-        """Every reading's footprint, for methods whose objective couples them all;
-        refused beyond :data:`MAX_ENTRIES` entries."""
+        """Every reading's footprint, for methods whose objective couples them all.
+
+        Parameters
+        ----------
+        readings : Readings
+            Rasterised ``chunk_size`` at a time on the started grid and sensor.
+        dr : float or None
+            Width of the band about the range (metres); None for the sensor's default.
+        offset : float, default 0.0
+            How far the band is moved behind the range (metres).
+
+        Returns
+        -------
+        list of Footprint
+            One per chunk, in reading order.
+
+        Raises
+        ------
+        ConfigError
+            Once the footprints hold more than :data:`MAX_ENTRIES` (reading, cell)
+            entries, saying what to do instead.
+        """
         out: list[Footprint] = []
         total = 0
         for a, fp in self._footprints(readings, dr=dr, offset=offset):

@@ -170,7 +170,7 @@ class StreamEngine(ABC):
         #: Band half-width to rasterise with: the mapper's ``dr`` (None for the
         #: rasteriser's default); engines of other models set their own in ``_setup``.
         self.dr: float | None = getattr(mapper, "dr", None)
-        self.offset = mapper._band_offset(grid)
+        self.offset = mapper.band_offset_for(grid)
         self.pool = ReadingPool(grid.cols, sort_band=self.sort_band, spans=self.spans)
         self.cov = np.zeros(grid.size, np.int32)
         self.seen = np.zeros(grid.size, np.bool_)

@@ -17,8 +17,8 @@ import numpy as np
 import numpy.typing as npt
 
 from ..readings import Readings
-from . import _checks
 from ._base import Mapper, Progress, register
+from ._checks import choice, number
 from ._correlated import reading_weights
 
 __all__ = ["CountingMapper"]
@@ -70,12 +70,12 @@ class CountingMapper(Mapper):
         self.dr = dr
         self.band_offset = band_offset
         self.correlated = correlated
-        _checks.choice("no_echo", no_echo, ("free", "ignore"))
+        choice("no_echo", no_echo, ("free", "ignore"))
         if dr is not None:
-            _checks.number("dr", dr, 0.0, None)
+            number("dr", dr, 0.0, None)
         if band_offset is not None:
-            _checks.number("band_offset", band_offset, 0.0, None)
-        _checks.number("correlated", correlated, 0.0, None)
+            number("band_offset", band_offset, 0.0, None)
+        number("correlated", correlated, 0.0, None)
 
     def _reset(self) -> None:
         self._hits = np.zeros(self.grid.size, dtype=np.float64)
@@ -97,7 +97,7 @@ class CountingMapper(Mapper):
             weights = reading_weights(readings, self.correlated, self.sensor.r_max)
         n_cells = self.grid.size
         for a, fp in self._footprints(
-            readings, dr=self.dr, offset=self._band_offset(self.grid), progress=progress
+            readings, dr=self.dr, offset=self.band_offset_for(self.grid), progress=progress
         ):
             if weights is None:
                 self._seen += np.bincount(fp.free.cells, minlength=n_cells)

@@ -41,11 +41,11 @@ import numpy as np
 import numpy.typing as npt
 
 from ..readings import Readings
-from . import _checks
 from ._base import Mapper, Progress, register
+from ._checks import choice, integer, number
 from ._correlated import reading_weights
-from ._thrun import BeamIndex, flip_delta, init_state
-from ._thrun_common import index_readings, model_sigma, scatter
+from ._thrun import BeamIndex
+from ._thrun_common import index_readings, model_sigma, posterior, scatter
 
 __all__ = ["EMMapper"]
 
@@ -129,56 +129,6 @@ def _e_step(
         for j in range(free_off[i], free_off[i + 1]):
             pas[free_cell[j]] += wi * beyond
     return hit, pas, total_ll, outlier
-
-
-@nb.njit(cache=True)
-def _posterior(
-    occ: npt.NDArray[np.bool_],
-    index_arrays: tuple[I64, I64, I64, I64, F64, I64, I64, npt.NDArray[np.int8], F64],
-    p_rand: float,
-    p_hit: float,
-    sigma: float,
-    r_max: float,
-    weight: F64 | None = None,
-) -> F64:
-    """log p(Z | m_i = 1, m_-i) - log p(Z | m_i = 0, m_-i) for every cell (each
-    reading's log-likelihood times its ``weight``, when given)."""
-    (free_off, free_cell, band_off, band_cell, band_dist, cell_off, cell_reading, cell_kind, z) = (
-        index_arrays
-    )
-    n_before, bsum, loglik = init_state(
-        occ, free_off, free_cell, band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max
-    )
-    max_deg = 1
-    for c in range(occ.shape[0]):
-        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
-    new_ll = np.empty(max_deg)
-    new_b = np.empty(max_deg)
-    out = np.empty(occ.shape[0])
-    for c in range(occ.shape[0]):
-        d = flip_delta(
-            c,
-            occ,
-            n_before,
-            bsum,
-            loglik,
-            new_ll,
-            new_b,
-            cell_off,
-            cell_reading,
-            cell_kind,
-            band_off,
-            band_cell,
-            band_dist,
-            z,
-            p_rand,
-            p_hit,
-            sigma,
-            r_max,
-            weight,
-        )
-        out[c] = -d if occ[c] else d
-    return out
 
 
 @register
@@ -269,18 +219,18 @@ class EMMapper(Mapper):
         self.tol = tol
         self.prior = prior
         self.correlated = correlated
-        _checks.number("p_rand", p_rand, 0.0, 1.0, hi_open=True)
-        _checks.number("p_hit", p_hit, 0.0, 1.0, lo_open=True, hi_open=True)
+        number("p_rand", p_rand, 0.0, 1.0, hi_open=True)
+        number("p_hit", p_hit, 0.0, 1.0, lo_open=True, hi_open=True)
         if sigma is not None:
-            _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+            number("sigma", sigma, 0.0, None, lo_open=True)
         if band_offset is not None:
-            _checks.number("band_offset", band_offset, 0.0, None)
-        _checks.choice("init", init, ("inverse", "uniform"))
-        _checks.number("init_value", init_value, 0.0, 1.0, lo_open=True)
-        _checks.integer("max_iter", max_iter, 1)
-        _checks.number("tol", tol, 0.0, None)
-        _checks.number("prior", prior, 0.0, 1.0, lo_open=True, hi_open=True)
-        _checks.number("correlated", correlated, 0.0, None)
+            number("band_offset", band_offset, 0.0, None)
+        choice("init", init, ("inverse", "uniform"))
+        number("init_value", init_value, 0.0, 1.0, lo_open=True)
+        integer("max_iter", max_iter, 1)
+        number("tol", tol, 0.0, None)
+        number("prior", prior, 0.0, 1.0, lo_open=True, hi_open=True)
+        number("correlated", correlated, 0.0, None)
 
     def _reset(self) -> None:
         self._index: BeamIndex | None = None
@@ -343,7 +293,7 @@ class EMMapper(Mapper):
             ix.cell_kind,
             ix.z,
         )
-        log_odds = _posterior(occ, arrays, self.p_rand, self.p_hit, sigma, r_max, weight)
+        log_odds = posterior(occ, arrays, self.p_rand, self.p_hit, sigma, r_max, weight)
         log_odds += math.log(self.prior / (1.0 - self.prior))
         self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))
         self._m = m

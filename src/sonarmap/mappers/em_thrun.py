@@ -47,12 +47,11 @@ import numpy as np
 import numpy.typing as npt
 
 from ..readings import Readings
-from . import _checks
 from ._base import Mapper, Progress, register
+from ._checks import choice, integer, number
 from ._correlated import reading_weights
 from ._thrun import BeamIndex, apply_flip, flip_delta, init_state
-from ._thrun_common import index_readings, model_sigma, scatter
-from .em import _posterior
+from ._thrun_common import index_readings, model_sigma, posterior, scatter
 
 __all__ = ["ThrunEMMapper"]
 
@@ -293,16 +292,16 @@ class ThrunEMMapper(Mapper):
         self.max_iter = max_iter
         self.prior = prior
         self.correlated = correlated
-        _checks.number("p_rand", p_rand, 0.0, 1.0, lo_open=True, hi_open=True)
-        _checks.number("p_hit", p_hit, 0.0, 1.0, lo_open=True, hi_open=True)
+        number("p_rand", p_rand, 0.0, 1.0, lo_open=True, hi_open=True)
+        number("p_hit", p_hit, 0.0, 1.0, lo_open=True, hi_open=True)
         if sigma is not None:
-            _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+            number("sigma", sigma, 0.0, None, lo_open=True)
         if band_offset is not None:
-            _checks.number("band_offset", band_offset, 0.0, None)
-        _checks.choice("init", init, ("free", "inverse"))
-        _checks.integer("max_iter", max_iter, 1)
-        _checks.number("prior", prior, 0.0, 1.0, lo_open=True, hi_open=True)
-        _checks.number("correlated", correlated, 0.0, None)
+            number("band_offset", band_offset, 0.0, None)
+        choice("init", init, ("free", "inverse"))
+        integer("max_iter", max_iter, 1)
+        number("prior", prior, 0.0, 1.0, lo_open=True, hi_open=True)
+        number("correlated", correlated, 0.0, None)
 
     def _reset(self) -> None:
         self._index: BeamIndex | None = None
@@ -372,7 +371,7 @@ class ThrunEMMapper(Mapper):
             ix.cell_kind,
             ix.z,
         )
-        log_odds = _posterior(occ, arrays, *model, weight)
+        log_odds = posterior(occ, arrays, *model, weight)
         log_odds += math.log(self.prior / (1.0 - self.prior))
         self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))
         self._occ = occ

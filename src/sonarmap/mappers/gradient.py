@@ -56,8 +56,8 @@ import scipy.optimize as so
 import scipy.sparse as sp
 
 from ..readings import Readings
-from . import _checks
 from ._base import Mapper, Progress, register
+from ._checks import choice, integer, number
 from ._correlated import reading_weights
 from ._forward import (
     R2_FORMS,
@@ -238,28 +238,28 @@ class GradientMapper(Mapper):
         self.robust_support = robust_support
         self.correlated = correlated
         self.init = init
-        _checks.number("a1", a1, 0.0, 1.0, lo_open=True, hi_open=True)
-        _checks.number("a2", a2, 0.0, 1.0, lo_open=True, hi_open=True)
-        _checks.number("c1", c1, 0.0, None)
-        _checks.number("c2", c2, 0.0, None)
-        _checks.choice("r2", r2, R2_FORMS)
-        _checks.choice("solver", solver, SOLVERS)
+        number("a1", a1, 0.0, 1.0, lo_open=True, hi_open=True)
+        number("a2", a2, 0.0, 1.0, lo_open=True, hi_open=True)
+        number("c1", c1, 0.0, None)
+        number("c2", c2, 0.0, None)
+        choice("r2", r2, R2_FORMS)
+        choice("solver", solver, SOLVERS)
         if step is not None:
-            _checks.number("step", step, 0.0, None, lo_open=True)
-        _checks.integer("max_iter", max_iter, 1)
-        _checks.number("tol", tol, 0.0, None)
-        _checks.integer("patience", patience, 1)
-        _checks.choice("no_echo", no_echo, ("free", "ignore"))
+            number("step", step, 0.0, None, lo_open=True)
+        integer("max_iter", max_iter, 1)
+        number("tol", tol, 0.0, None)
+        integer("patience", patience, 1)
+        choice("no_echo", no_echo, ("free", "ignore"))
         if dr is not None:
-            _checks.number("dr", dr, 0.0, None)
+            number("dr", dr, 0.0, None)
         if band_offset is not None:
-            _checks.number("band_offset", band_offset, 0.0, None)
-        _checks.number("robust", robust, 0.0, None)
-        _checks.choice("robust_terms", robust_terms, ROBUST_TERMS)
-        _checks.integer("robust_rounds", robust_rounds, 1)
-        _checks.number("robust_support", robust_support, 0.0, None)
-        _checks.number("correlated", correlated, 0.0, None)
-        _checks.choice("init", init, ("uniform", "inverse"))
+            number("band_offset", band_offset, 0.0, None)
+        number("robust", robust, 0.0, None)
+        choice("robust_terms", robust_terms, ROBUST_TERMS)
+        integer("robust_rounds", robust_rounds, 1)
+        number("robust_support", robust_support, 0.0, None)
+        number("correlated", correlated, 0.0, None)
+        choice("init", init, ("uniform", "inverse"))
 
     # The objective couples all readings, so batches are kept and the map re-solved,
     # warm-started from the previous solution.
@@ -311,7 +311,7 @@ class GradientMapper(Mapper):
         if self.no_echo == "ignore":
             # A no-echo reading has only an Omega_free term; ignoring it drops the reading.
             readings = self._echoes(readings)
-        fps = self._kept_footprints(readings, dr=self.dr, offset=self._band_offset(self.grid))
+        fps = self.kept_footprints(readings, dr=self.dr, offset=self.band_offset_for(self.grid))
         bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
         echo = [readings.range[a:b] < self.sensor.r_max for a, b in itertools.pairwise(bounds)]
         pen = Penalties(self.a1, self.a2, self.c1, self.c2, self.r2)
@@ -330,6 +330,12 @@ class GradientMapper(Mapper):
             return x, 0, []
         solve = {"gd": _gd, "pgd": _pgd, "lbfgs": _lbfgs, "ccp": _ccp}[self.solver]
         return solve(problem, x, self, progress)
+
+    @property
+    def solution_(self) -> F64 | None:
+        """The solver's occupancy values (unclipped) on the cells the readings touch;
+        None before a fit."""
+        return self._x
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
         out = np.full(self.grid.size, np.nan, dtype=np.float32)

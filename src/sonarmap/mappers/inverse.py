@@ -22,6 +22,7 @@ a smooth wall mirrored away, not free space.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -33,12 +34,27 @@ from ..raster import accumulate
 from ..readings import Readings
 from ..selection import Strategy
 from ..sensors import SensorModel
-from . import _checks
 from ._base import Mapper, Progress, register
+from ._checks import choice, number
 from ._correlated import reading_weights
 from ._stream import StreamEngine
 
-__all__ = ["InverseMapper"]
+__all__ = ["PRESETS", "TRADITIONAL", "InverseMapper"]
+
+#: Laser-style log-odds (OctoMap's increments, no fall-off, no-echo beams cleared) on the
+#: 5 cm band centred on the echo that the tuned inverse had before the band offset: the
+#: kind of baseline the research compared against (``--preset traditional``).
+TRADITIONAL: dict[str, Any] = {
+    "p_occ": 0.7,
+    "p_free": 0.4,
+    "falloff_deg": 0.0,
+    "no_echo": "free",
+    "dr": 0.05,
+    "band_offset": 0.0,
+}
+
+#: Named parameter sets (``--preset NAME``).
+PRESETS: dict[str, dict[str, Any]] = {"traditional": TRADITIONAL}
 
 
 def _logit(p: float) -> float:
@@ -84,6 +100,8 @@ class InverseMapper(Mapper):
     """
 
     name = "inverse"
+    presets = PRESETS
+    demo_presets = ("traditional",)
     offset_cells = 0.75
     exact_streaming = True
     _logodds: npt.NDArray[np.float64]
@@ -111,17 +129,17 @@ class InverseMapper(Mapper):
         self.dr = dr
         self.band_offset = band_offset
         self.correlated = correlated
-        _checks.number("p_occ", p_occ, 0.5, 1.0, lo_open=True, hi_open=True)
-        _checks.number("p_free", p_free, 0.0, 0.5, lo_open=True, hi_open=True)
-        _checks.number("clamp_min", clamp_min, 0.0, 0.5, lo_open=True, hi_open=True)
-        _checks.number("clamp_max", clamp_max, 0.5, 1.0, lo_open=True, hi_open=True)
-        _checks.number("falloff_deg", falloff_deg, 0.0, None)
-        _checks.choice("no_echo", no_echo, ("free", "ignore"))
+        number("p_occ", p_occ, 0.5, 1.0, lo_open=True, hi_open=True)
+        number("p_free", p_free, 0.0, 0.5, lo_open=True, hi_open=True)
+        number("clamp_min", clamp_min, 0.0, 0.5, lo_open=True, hi_open=True)
+        number("clamp_max", clamp_max, 0.5, 1.0, lo_open=True, hi_open=True)
+        number("falloff_deg", falloff_deg, 0.0, None)
+        choice("no_echo", no_echo, ("free", "ignore"))
         if dr is not None:
-            _checks.number("dr", dr, 0.0, None)
+            number("dr", dr, 0.0, None)
         if band_offset is not None:
-            _checks.number("band_offset", band_offset, 0.0, None)
-        _checks.number("correlated", correlated, 0.0, None)
+            number("band_offset", band_offset, 0.0, None)
+        number("correlated", correlated, 0.0, None)
 
     def _reset(self) -> None:
         self._logodds = np.zeros(self.grid.size, dtype=np.float64)
@@ -161,10 +179,26 @@ class InverseMapper(Mapper):
                 inc_occ=l_occ,
                 clamp=(lo, hi),
                 dr=self.dr,
-                offset=self._band_offset(self.grid),
+                offset=self.band_offset_for(self.grid),
                 falloff=math.radians(self.falloff_deg),
                 weights=None if weights is None else weights[a : a + len(r)],
             )
+
+    @property
+    def log_odds_(self) -> npt.NDArray[np.float64]:
+        """Each cell's log-odds of occupancy, flat over the grid (0 where untouched).
+
+        The mapper's own array, read-only by contract; set once :meth:`start` has run.
+        """
+        return self._logodds
+
+    @property
+    def touched_(self) -> npt.NDArray[np.bool_]:
+        """Whether any reading touched each cell, flat over the grid.
+
+        The mapper's own array, read-only by contract; set once :meth:`start` has run.
+        """
+        return self._touched
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
         p = 1.0 / (1.0 + np.exp(-self._logodds))
@@ -250,7 +284,7 @@ class InverseStream(StreamEngine):
 
     def occupancy(self) -> npt.NDArray[np.float32]:
         if self._exact is not None:
-            return self._exact._occupancy()
+            return self._exact.occupancy_.reshape(-1)
         p = 1.0 / (1.0 + np.exp(-self._shown))
         p[~self.seen] = np.nan
         return np.asarray(p, dtype=np.float32)

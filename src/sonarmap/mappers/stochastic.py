@@ -26,8 +26,8 @@ import numpy.typing as npt
 from ..errors import ConfigError
 from ..readings import Readings
 from ..sensors import SensorModel
-from . import _checks
 from ._base import Mapper, Progress, register
+from ._checks import choice, integer, number
 from ._correlated import reading_weights
 from ._stream import StreamEngine
 from ._thrun import BeamIndex, apply_flip, flip_delta, index_arrays, init_state
@@ -294,28 +294,28 @@ class StochasticMapper(Mapper):
         self.init = init
         self.seed = seed
         self.correlated = correlated
-        _checks.choice("preset", preset, tuple(PRESETS))
+        choice("preset", preset, tuple(PRESETS))
         v = self.values()
-        _checks.number("p_rand", v["p_rand"], 0.0, 1.0, hi_open=True)
-        _checks.number("p_hit", v["p_hit"], 0.0, 1.0, lo_open=True, hi_open=True)
-        _checks.number("w_occ", v["w_occ"])
-        _checks.number("w_border", v["w_border"])
+        number("p_rand", v["p_rand"], 0.0, 1.0, hi_open=True)
+        number("p_hit", v["p_hit"], 0.0, 1.0, lo_open=True, hi_open=True)
+        number("w_occ", v["w_occ"])
+        number("w_border", v["w_border"])
         if sigma is not None:
-            _checks.number("sigma", sigma, 0.0, None, lo_open=True)
+            number("sigma", sigma, 0.0, None, lo_open=True)
         if band_offset is not None:
-            _checks.number("band_offset", band_offset, 0.0, None)
+            number("band_offset", band_offset, 0.0, None)
         if r_max is not None:
-            _checks.number("r_max", r_max, 0.0, None, lo_open=True)
+            number("r_max", r_max, 0.0, None, lo_open=True)
         if neighbours not in (4, 8):
             raise ConfigError(f"parameter 'neighbours' must be 4 or 8, got {neighbours!r}")
-        _checks.number("sweeps", sweeps, 0.0, None)
-        _checks.choice("schedule", schedule, ("greedy", "anneal"))
-        _checks.number("p_randomfactor", p_randomfactor, 0.0, 1.0)
-        _checks.number("t0", t0, 0.0, None, lo_open=True)
-        _checks.number("t_end", t_end, 0.0, t0, lo_open=True)
-        _checks.choice("init", init, ("free", "occupied"))
-        _checks.integer("seed", seed, 0)
-        _checks.number("correlated", correlated, 0.0, None)
+        number("sweeps", sweeps, 0.0, None)
+        choice("schedule", schedule, ("greedy", "anneal"))
+        number("p_randomfactor", p_randomfactor, 0.0, 1.0)
+        number("t0", t0, 0.0, None, lo_open=True)
+        number("t_end", t_end, 0.0, t0, lo_open=True)
+        choice("init", init, ("free", "occupied"))
+        integer("seed", seed, 0)
+        number("correlated", correlated, 0.0, None)
 
     def _model(self, sensor: SensorModel) -> SensorModel:
         if self.r_max is None or self.r_max >= sensor.r_max:
@@ -429,6 +429,17 @@ class StochasticMapper(Mapper):
         )
         return int(accepted), float(loglik)
 
+    @property
+    def index_(self) -> BeamIndex | None:
+        """The beam index of the readings last searched over; None before a fit."""
+        return self._index
+
+    @property
+    def local_occupancy_(self) -> npt.NDArray[np.float64] | None:
+        """The searched map (0 or 1) on the cells of :attr:`index_`, in its order; None
+        before a fit."""
+        return self._occ
+
     def _occupancy(self) -> npt.NDArray[np.float32]:
         if self._occ is None or self._index is None:
             return np.full(self.grid.size, np.nan, dtype=np.float32)
@@ -451,7 +462,7 @@ class StochasticStream(StreamEngine):
     def _setup(self) -> None:
         m = self.mapper
         assert isinstance(m, StochasticMapper)
-        m._grid, m._sensor = self.grid, self.sensor
+        m.attach(self.grid, self.sensor)
         self.sigma = model_sigma(m, m.sigma)
         self.dr = 3.0 * self.sigma
         self.full = np.zeros(self.grid.size, np.bool_)

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..io._yaml import read_yaml
+from ..files import read_yaml
 
 __all__ = ["SETUP_KEYS", "read_run_file"]
 

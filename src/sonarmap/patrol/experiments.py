@@ -3,7 +3,7 @@ literature's baselines beside them.
 
 Each experiment is a grid of runs -- a variant (force pair, direction method, network,
 crowding rule, policy, ...) x a number of robots x seeds -- run on Dask through
-:func:`sonarmap.sweep.run_on_dask`. Every run starts the robots at the map's start
+:func:`sonarmap.parallel.run_on_dask`. Every run starts the robots at the map's start
 positions (the first N of them), so seeds change only the random moves; the tables give
 the mean over seeds. The results go into ``runs.csv`` (one row per run),
 ``table.csv`` (means), ``claims.json`` (each ordering the thesis states, confirmed or
@@ -30,10 +30,9 @@ import pandas as pd
 from scipy.stats import spearmanr
 
 from ..errors import ConfigError
-from ..io._atomic import atomic_folder, atomic_write_text
-from ..io._json import dumps as json_dumps
+from ..files import atomic_folder, atomic_write_text, json_dumps
+from ..parallel import run_on_dask
 from ..report import Report
-from ..sweep import run_on_dask
 from .forces import FORCE_F, FORCE_G, Force
 from .maps import builtin_map, builtin_territory
 from .semaphores import polygon_cells

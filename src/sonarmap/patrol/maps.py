@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..files import atomic_write_text
 from ..floorplan import FloorPlan
-from ..io._atomic import atomic_write_text
 from ..io.rosmap import write_map
 from .territory import Territory
 

@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
-from matplotlib.path import Path as Polygon
 
 from ..errors import InputError
 from ..grid import Grid
@@ -57,6 +56,9 @@ def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]
 def polygon_cells(vertices_dm: Sequence[tuple[float, float]], grid: Grid) -> npt.NDArray[np.bool_]:
     """Cells whose centres lie inside a polygon given in decimetres from the map's
     top-left corner, y down (the thesis's frame)."""
+    # matplotlib is heavy to import and only this function needs it.
+    from matplotlib.path import Path as Polygon
+
     top = grid.origin[1] + grid.rows * grid.resolution
     cx, cy = grid.all_centres()
     world = np.array([(grid.origin[0] + x / 10.0, top - y / 10.0) for x, y in vertices_dm])

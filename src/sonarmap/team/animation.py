@@ -27,7 +27,8 @@ from matplotlib.lines import Line2D
 
 from ..errors import ConfigError
 from ..io.rosmap import OccupancyMap
-from ..plot import MapAnimation, _write_animation
+from ..plot import MapAnimation
+from ..plot import write_animation as _write_animation
 from .records import compose
 
 __all__ = ["Frame", "TeamFrame", "mp4_available", "save_mission_animation", "save_team_animation"]

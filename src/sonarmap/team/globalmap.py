@@ -41,8 +41,8 @@ from scipy import fft as sfft
 from scipy import ndimage, stats
 
 from ..errors import ConfigError, InputError
+from ..files import atomic_write
 from ..grid import Grid
-from ..io._atomic import atomic_write
 from ..io.rosmap import OCCUPIED, OccupancyMap
 from .records import LOGODDS_SCALE, ClosureEdge, OdometryEdge, Pose, compose, invert
 

@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
-from ..io._atomic import atomic_write_text
+from ..files import atomic_write_text
 from ..io.rosmap import OccupancyMap, read_map, write_map
 from .exchange import ExchangeParams
 from .mission import MissionConfig

@@ -70,8 +70,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
-from ..io._atomic import atomic_folder, atomic_outputs, atomic_write, atomic_write_text
-from ..io._json import dumps as json_dumps
+from ..files import atomic_folder, atomic_outputs, atomic_write, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap, write_map
 from .exchange import ExchangeParams, Exchanger
 from .link import LOCK_SLACK, ExchangerPort, ReliableLink

@@ -16,8 +16,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..io._atomic import atomic_folder, atomic_write_text
-from ..io._json import dumps as json_dumps
+from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap, write_map
 from .mission import MissionResult
 from .records import compose

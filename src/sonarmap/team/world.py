@@ -42,11 +42,9 @@ import yaml
 from scipy import ndimage
 
 from ..errors import ConfigError, InputError
+from ..files import atomic_folder, need_file, read_yaml
 from ..floorplan import random_building
 from ..grid import Grid
-from ..io._atomic import atomic_folder
-from ..io._files import need_file
-from ..io._yaml import read_yaml
 from ..io.rosmap import FREE, OCCUPIED, OccupancyMap, read_map, write_map
 from ..patrol.paths import Wave, path_to
 from ..patrol.territory import Territory, segment_clear
