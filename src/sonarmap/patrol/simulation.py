@@ -131,34 +131,50 @@ class PatrolConfig:
         if math.isnan(self.cell):
             object.__setattr__(self, "cell", min(0.5, self.radius / 2))
         if self.direction not in ("mode", "vector"):
-            raise ConfigError(f"unknown direction {self.direction!r}; valid: mode, vector")
+            raise ConfigError(
+                f"unknown direction {self.direction!r}; valid: mode, vector", field="direction"
+            )
         if self.model not in MODELS:
-            raise ConfigError(f"unknown robot model {self.model!r}; valid: {', '.join(MODELS)}")
+            raise ConfigError(
+                f"unknown robot model {self.model!r}; valid: {', '.join(MODELS)}", field="model"
+            )
         if self.motion not in MOTIONS:
-            raise ConfigError(f"unknown motion {self.motion!r}; valid: {', '.join(MOTIONS)}")
+            raise ConfigError(
+                f"unknown motion {self.motion!r}; valid: {', '.join(MOTIONS)}", field="motion"
+            )
         if self.motion == "path" and not (
             self.model == "holonomic" and self.paths == "wave" and self.policy == "potential"
         ):
             raise ConfigError(
                 "motion 'path' follows the wave's paths of the potential field with "
-                "holonomic robots (--model holonomic --paths wave --policy potential)"
+                "holonomic robots (--model holonomic --paths wave --policy potential)",
+                field="motion",
             )
         if self.motion == "path" and self.refine:
-            raise ConfigError("motion 'path' already keeps to the path: drop --refine")
+            raise ConfigError(
+                "motion 'path' already keeps to the path: drop --refine", field="refine"
+            )
         if self.paths not in PATHS:
-            raise ConfigError(f"unknown path-finding {self.paths!r}; valid: {', '.join(PATHS)}")
+            raise ConfigError(
+                f"unknown path-finding {self.paths!r}; valid: {', '.join(PATHS)}", field="paths"
+            )
         if self.paths in FINDERS and self.crowding != "none":
             # Both crowding rules edit each robot's map every step; only the wave follows.
             raise ConfigError(
                 f"path-finding {self.paths!r} is built once for a static map and cannot "
-                f"follow the map edits of crowding {self.crowding!r}; use the wave"
+                f"follow the map edits of crowding {self.crowding!r}; use the wave",
+                field="paths",
             )
         if self.policy not in POLICIES:
-            raise ConfigError(f"unknown policy {self.policy!r}; valid: {', '.join(POLICIES)}")
+            raise ConfigError(
+                f"unknown policy {self.policy!r}; valid: {', '.join(POLICIES)}", field="policy"
+            )
         if self.network not in NETWORKS:
-            raise ConfigError(f"unknown network {self.network!r}; valid: {', '.join(NETWORKS)}")
+            raise ConfigError(
+                f"unknown network {self.network!r}; valid: {', '.join(NETWORKS)}", field="network"
+            )
         if not (self.r_max >= 0):
-            raise ConfigError(f"r_max must be >= 0 metres, got {self.r_max}")
+            raise ConfigError(f"r_max must be >= 0 metres, got {self.r_max}", field="r_max")
         for name in (
             "radius",
             "speed",
@@ -175,27 +191,31 @@ class PatrolConfig:
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"{name} must be > 0, got {v}")
+                raise ConfigError(f"{name} must be > 0, got {v}", field=name)
         if self.crowding not in CROWDING:
             raise ConfigError(
-                f"unknown crowding rule {self.crowding!r}; valid: {', '.join(CROWDING)}"
+                f"unknown crowding rule {self.crowding!r}; valid: {', '.join(CROWDING)}",
+                field="crowding",
             )
         if not (math.isfinite(self.r_obst) and self.r_obst > 0):
-            raise ConfigError(f"r_obst must be > 0 metres, got {self.r_obst}")
+            raise ConfigError(f"r_obst must be > 0 metres, got {self.r_obst}", field="r_obst")
         if not (0.0 <= self.p_random <= 1.0):
-            raise ConfigError(f"p_random must be in [0, 1], got {self.p_random}")
+            raise ConfigError(f"p_random must be in [0, 1], got {self.p_random}", field="p_random")
         if not (math.isfinite(self.start_fog) and self.start_fog >= 0):
-            raise ConfigError(f"start_fog must be >= 0 seconds, got {self.start_fog}")
+            raise ConfigError(
+                f"start_fog must be >= 0 seconds, got {self.start_fog}", field="start_fog"
+            )
         if self.sectors < 1:
-            raise ConfigError(f"sectors must be >= 1, got {self.sectors}")
+            raise ConfigError(f"sectors must be >= 1, got {self.sectors}", field="sectors")
         if self.dilation < 0:
-            raise ConfigError(f"dilation must be >= 0 cells, got {self.dilation}")
+            raise ConfigError(f"dilation must be >= 0 cells, got {self.dilation}", field="dilation")
         if round(self.duration / self.dt) < 1:
             raise ConfigError(
-                f"duration {self.duration:g} s is shorter than one step of {self.dt:g} s"
+                f"duration {self.duration:g} s is shorter than one step of {self.dt:g} s",
+                field="duration",
             )
         if self.warmup is not None and not (0 <= self.warmup < self.duration):
-            raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}")
+            raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}", field="warmup")
 
     @property
     def warmup_s(self) -> float:
