@@ -23,7 +23,7 @@ from ..patrol.maps import write_builtin_maps
 from ..patrol.robots import Team, parse_speed_bands
 from ..patrol.semaphores import read_semaphores
 from ..plot import FogAnimation, save_fog_picture
-from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
+from .common import ImageOrigin, ImageResolution, console, progress, read_plan, writable
 
 #: setup.json keys with no option of their own.
 SETUP_ONLY = ("steps", "output_file", "log_period_steps")
@@ -63,7 +63,7 @@ def _load_settings(ctx: typer.Context, path: Path | None) -> Path | None:
     return path
 
 
-patrol_app = typer.Typer(
+app = patrol_app = typer.Typer(
     help="Team patrolling with potential fields (thesis 002, chapter 3).",
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
@@ -74,7 +74,7 @@ patrol_app = typer.Typer(
 def run_cmd(
     ctx: typer.Context,
     out: Annotated[
-        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
+        Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
     ],
     map_: Annotated[
         Path | None,
@@ -254,7 +254,7 @@ def run_cmd(
         warmup=warmup,
         cell=math.nan if cell is None else cell,
     )
-    territory = Territory.from_map(_read_plan(map_, resolution, origin), cell=config.cell)
+    territory = Territory.from_map(read_plan(map_, resolution, origin), cell=config.cell)
     start = read_starts(starts, territory) if starts is not None else None
     if robots is not None and robots < 1:
         raise ConfigError(f"robots must be >= 1, got {robots}")
@@ -272,7 +272,7 @@ def run_cmd(
         if anim is not None and frame["k"] % every == 0:
             anim.add(t, fog.tb, np.column_stack([team.x, team.y, team.heading]))
 
-    with _progress("patrolling") as cb, atomic_folder(out) as tmp:
+    with progress("patrolling") as cb, atomic_folder(out) as tmp:
         res = run_patrol(
             territory,
             config,
@@ -336,7 +336,7 @@ def run_cmd(
 @patrol_app.command("maps")
 def maps_cmd(
     out: Annotated[
-        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the maps.")
+        Path, typer.Option("-o", "--out", callback=writable, help="Folder for the maps.")
     ],
 ) -> None:
     """Write the built-in territories (map_server YAML + PGM at 0.1 m), their start files
@@ -356,7 +356,7 @@ def experiment_cmd(
         ),
     ],
     out: Annotated[
-        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
+        Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
     ],
     quick: Annotated[
         bool,
@@ -379,7 +379,7 @@ def experiment_cmd(
 ) -> None:
     """Rerun one of the thesis's chapter-3 experiments on the built-in maps: runs.csv,
     table.csv, claims.json, figures and report.html in OUT."""
-    with _progress(f"patrol experiment {name}") as cb:
+    with progress(f"patrol experiment {name}") as cb:
         report = run_experiment(
             name,
             out,

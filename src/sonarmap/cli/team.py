@@ -35,9 +35,9 @@ from ..team.world import (
     read_route,
     save_world,
 )
-from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
+from .common import ImageOrigin, ImageResolution, console, progress, read_plan, writable
 
-team_app = typer.Typer(
+app = team_app = typer.Typer(
     help="Team mapping: each robot's bounded store and global map (thesis 002, chapter 2).",
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
@@ -52,7 +52,7 @@ MapOption = Annotated[
     ),
 ]
 OutOption = Annotated[
-    Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
+    Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
 ]
 SeedOption = Annotated[int, typer.Option("--seed", help="Seed of everything random.")]
 DurationOption = Annotated[float, typer.Option("--duration", help="Mission length, seconds.")]
@@ -100,7 +100,7 @@ def _team_plan(path: Path, resolution: float | None, origin: tuple[float, float]
     name = str(path)
     if not path.exists() and (name == "office" or name.startswith("building:")):
         return builtin_plan(name)
-    return _read_plan(path, resolution, origin)
+    return read_plan(path, resolution, origin)
 
 
 @team_app.command("world")
@@ -565,7 +565,7 @@ def run_cmd(
         routes = dict(enumerate(patrolled))
     if transport == "zmq":
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
-        with _progress("team") as update:
+        with progress("team") as update:
             tick = partial(_tick, update, f"{robots} nodes")
             s = _run_zmq_team(out, plan, config, robots, net, protocol, seed, tick)
         console.print(
@@ -583,7 +583,7 @@ def run_cmd(
             "central": True,
             "record": animate,
         }
-        with _progress("team") as update:
+        with progress("team") as update:
             team_args["progress"] = partial(_tick, update, f"{robots} robots")
             team = run_team(plan, config, robots, **team_args)
         s = _write_team(out, plan, team, animate)
@@ -596,7 +596,7 @@ def run_cmd(
         )
         return
     results = []
-    with _progress("mission") as update:
+    with progress("mission") as update:
         for robot in range(robots):
             results.append(
                 run_mission(
@@ -690,7 +690,7 @@ def node_cmd(
     given = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
     plan = _team_plan(map_, resolution, origin)
     config = MissionConfig(duration=duration, seed=seed, store=store)
-    with _progress(f"robot {robot}") as update:
+    with progress(f"robot {robot}") as update:
         s = run_node(
             plan,
             config,
