@@ -361,7 +361,8 @@ def _parameters(cls: type, opt: Opt) -> list[inspect.Parameter]:
 
 
 def _alias_param(alias: str) -> str:
-    return "alias__" + alias.removeprefix("--").replace("-", "_")
+    # The alias's own Python name, so that a settings file may still use it (r_max).
+    return alias.removeprefix("--").replace("-", "_")
 
 
 def config_options(*tables: tuple[type, Sequence[Opt]]) -> Callable[[_F], _F]:

@@ -275,6 +275,109 @@ class PatrolResult:
             "robots": len(self.positions),
         }
 
+    def metrics_csv(self) -> str:
+        """``metrics.csv``: per step its number (from 1), time (s), MTB (s), mean TB (s)
+        and the team's mean DVT so far (%)."""
+        import csv
+        import io
+
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["step", "t", "mtb", "mean_tb", "dvt"])
+        for k in range(len(self.t)):
+            w.writerow(
+                [
+                    k + 1,
+                    f"{self.t[k]:g}",
+                    f"{self.mtb[k]:g}",
+                    f"{self.mean_tb[k]:.4g}",
+                    f"{self.dvt[k]:.4g}",
+                ]
+            )
+        return buf.getvalue()
+
+    def batch_output(self, period: int = 1) -> str:
+        """The thesis's batch output: ``step MTB DVT`` every ``period`` steps."""
+        period = max(1, int(period))
+        rows = [
+            f"{k + 1} {self.mtb[k]:g} {self.dvt[k]:.4g}"
+            for k in range(len(self.t))
+            if (k + 1) % period == 0
+        ]
+        return "\n".join(rows) + "\n"
+
+    def write(
+        self,
+        folder: str | Path,
+        territory: Territory,
+        *,
+        seed: int,
+        source: str = "",
+        batch: tuple[str, int] | None = None,
+        animation: Any = None,
+    ) -> list[Path]:
+        """Write the run's results into ``folder``, all or none (atomically).
+
+        Parameters
+        ----------
+        folder : str or path-like
+            The output folder, created (or replaced) whole.
+        territory : Territory
+            The territory patrolled (for ``fog.png`` and the cell size).
+        seed : int
+            The run's seed, recorded in ``summary.json``.
+        source : str
+            The map's name or file, recorded in ``summary.json``.
+        batch : (str, int), optional
+            The thesis's batch output: a file name (in ``folder``) and its period in
+            steps (``setup.json``'s ``output_file`` and ``log_period_steps``).
+        animation : sonarmap.plot.FogAnimation, optional
+            Frames recorded during the run, saved as ``patrol.gif``.
+
+        Returns
+        -------
+        list of Path
+            The files written: ``metrics.csv``, ``summary.json``, ``fog.png``, then the
+            batch output and ``patrol.gif`` when asked for.
+        """
+        # Imported here: the plotting stack is only needed to write.
+        from ..io._atomic import atomic_folder, atomic_write_text
+        from ..io._json import dumps as json_dumps
+        from ..plot import save_fog_picture
+
+        out = Path(folder)
+        robots = self.summary()["robots"]
+        names = ["metrics.csv", "summary.json", "fog.png"]
+        with atomic_folder(out) as tmp:
+            if animation is not None:
+                animation.title = f"{self.config.policy}, {robots} robots"
+                animation.save(tmp / "patrol.gif")
+            atomic_write_text(tmp / "metrics.csv", self.metrics_csv())
+            if batch is not None:
+                name = Path(batch[0]).name
+                atomic_write_text(tmp / name, self.batch_output(batch[1]))
+                names.append(name)
+            summary: dict[str, Any] = {
+                **self.summary(),
+                "map": source,
+                "cell_m": territory.grid.resolution,  # the cell used (whole map pixels)
+                "seed": seed,
+                "params": self.config.as_dict(),
+            }
+            atomic_write_text(tmp / "summary.json", json_dumps(summary) + "\n")
+            save_fog_picture(
+                territory.grid,
+                territory.free,
+                self.final_tb,
+                self.positions,
+                tmp / "fog.png",
+                radius=self.config.radius,
+                title=f"{robots} robots, t = {self.t[-1]:.0f} s",
+            )
+        if animation is not None:
+            names.append("patrol.gif")
+        return [out / n for n in names]
+
 
 def read_starts(path: str | Path, territory: Territory) -> F64:
     """A start file in the thesis's format: the robot count, then ``X Y phi`` per line,
