@@ -131,7 +131,9 @@ def _root(
 
 
 def _fail(message: str) -> None:
-    err_console.print(f"sonarmap: error: {message}", markup=False, highlight=False, soft_wrap=True)
+    err_console.print(
+        f"sonarmap: error: {message}", markup=False, highlight=False, emoji=False, soft_wrap=True
+    )
     sys.exit(2)
 
 

@@ -45,6 +45,7 @@ __all__ = [
     "console",
     "err_console",
     "figure",
+    "given",
     "make_console",
     "option_name",
     "pairs",
