@@ -477,3 +477,35 @@ def config_from_options(
 
 def _reason(err: ConfigError) -> str:
     return err.reason if err.reason is not None else str(err)
+
+
+def _install_plain_types() -> None:
+    """``--help``'s value column in a user's words: nothing after a plain flag (typer
+    prints ``<bool>``), a repeatable value's element (``<str>...``, not ``<list[str]>``).
+    Typer has no setting for either, so its two display methods are wrapped once."""
+    from typer.core import TyperArgument, TyperOption
+
+    if getattr(TyperOption, "_sonarmap_plain", False):
+        return
+    shown_rich = TyperOption.display_type_rich
+
+    def option_rich(self: Any, ctx: Any) -> str | None:
+        if getattr(self, "is_flag", False):
+            return None
+        return shown_rich(self, ctx)
+
+    for cls in (TyperArgument, TyperOption):
+        shown = cls.display_type
+
+        def display(self: Any, ctx: Any, shown: Any = shown) -> str:
+            text = str(shown(self, ctx))
+            if text.startswith("<list[") and text.endswith("]>"):
+                return f"<{text[6:-2]}>..."
+            return text
+
+        cls.display_type = display  # type: ignore[method-assign]
+    TyperOption.display_type_rich = option_rich  # type: ignore[method-assign]
+    TyperOption._sonarmap_plain = True  # type: ignore[attr-defined]
+
+
+_install_plain_types()
