@@ -30,6 +30,7 @@ def test_help_has_no_markup(path: list[str], capsys: pytest.CaptureFixture[str])
     assert text.strip(), path
     found = [bad for bad in FORBIDDEN if bad in text]
     assert not found, f"sonarmap {' '.join(path)} --help shows {found}"
+    assert "docs/" in text, f"sonarmap {' '.join(path)} --help points to no docs page"
 
 
 def test_root_help_lines_are_the_commands_own() -> None:

@@ -1,5 +1,5 @@
 """``sonarmap convert``: a recorded log into a readings CSV and its rig (the user guide:
-``docs/real-data.md``)."""
+``docs/guides/real-data.md``)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,9 @@ from ..readings import Readings, TimeOrder, in_time_order, write_readings, write
 from ..rig import Rig, load_rig, save_rig
 from .common import console, progress, writable
 
+#: Where --help points for more.
+EPILOG = "Guide: docs/guides/real-data.md; formats: docs/formats/logs.md."
+
 app = typer.Typer()
 
 
@@ -24,7 +27,7 @@ def _log_kind(log: Path) -> str:
     return "udacity" if log.name.startswith("measurement") else "carmen"
 
 
-@app.command("convert")
+@app.command("convert", epilog=EPILOG)
 def convert_cmd(
     log: Annotated[
         Path,

@@ -1,5 +1,5 @@
 """Mapping commands of ``sonarmap``: scenes, simulation, maps, scores, experiments,
-sweeps (the user guide: ``docs/mapping.md``)."""
+sweeps (the user guide: ``docs/guides/mapping.md``)."""
 
 from __future__ import annotations
 
@@ -43,6 +43,9 @@ from .common import (
     writable,
 )
 
+#: Where --help points for more.
+EPILOG = "Guide: docs/guides/mapping.md; the methods: docs/methods.md."
+
 app = typer.Typer(help="Mapping commands.")
 
 
@@ -85,7 +88,7 @@ _MODEL_HELP = (
 )
 
 
-@app.command("scenario")
+@app.command("scenario", epilog=EPILOG)
 def scenario_cmd(
     name: Annotated[ScenarioName, typer.Argument(help="Which scenario.")],
     out: Annotated[
@@ -129,7 +132,7 @@ def scenario_cmd(
     console.print(f"wrote scenario [bold]{scen}[/] ({len(s.readings)} readings) to {out}")
 
 
-@app.command("simulate")
+@app.command("simulate", epilog=EPILOG)
 def simulate_cmd(
     map_: Annotated[
         Path,
@@ -191,7 +194,7 @@ def simulate_cmd(
     console.print(f"wrote {len(readings)} readings to {out}")
 
 
-@app.command("map")
+@app.command("map", epilog=EPILOG)
 def map_cmd(
     readings: Annotated[Path, typer.Argument(help="Readings CSV t,sensor,x,y,theta,range.")],
     rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
@@ -248,7 +251,7 @@ def map_cmd(
     console.print(f"wrote {', '.join(str(p) for p in paths)}")
 
 
-@app.command("show")
+@app.command("show", epilog=EPILOG)
 def show_cmd(
     map_: Annotated[Path, typer.Argument(help="Map YAML (or bare image) to draw.")],
     out: Annotated[Path, typer.Option("-o", "--out", callback=writable, help="PNG to write.")],
@@ -279,7 +282,7 @@ def show_cmd(
     console.print(f"wrote {out}")
 
 
-@app.command("methods")
+@app.command("methods", epilog=EPILOG)
 def methods_cmd() -> None:
     """List mapping methods, their parameters with defaults, and their presets (--preset)."""
     table = Table("method", "streams", "parameters (defaults)", "presets (--preset)")
@@ -299,7 +302,7 @@ def methods_cmd() -> None:
     console.print(table)
 
 
-@app.command("demo")
+@app.command("demo", epilog=EPILOG)
 def demo_cmd(
     out: Annotated[
         Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
@@ -366,7 +369,7 @@ EXPERIMENT_SCENE = {
 HELD_OUT_SCENE = {"doorways": "corridor", "passages": "gaps", "noise": "corridor"}
 
 
-@app.command("experiment")
+@app.command("experiment", epilog=EPILOG)
 def experiment_cmd(
     name: Annotated[ExperimentName, typer.Argument(help="Which experiment.")],
     out: Annotated[
@@ -448,7 +451,7 @@ def experiment_cmd(
     console.print(f"wrote {report} and the figures and metrics beside it")
 
 
-@app.command("compare")
+@app.command("compare", epilog=EPILOG)
 def compare_cmd(
     truth: Annotated[Path, typer.Argument(help="Truth map YAML.")],
     maps: Annotated[list[Path], typer.Argument(help="Map YAML files to score.")],
@@ -500,7 +503,7 @@ def compare_cmd(
         console.print(f"wrote {json_out}")
 
 
-@app.command("sweep")
+@app.command("sweep", epilog=EPILOG)
 def sweep_cmd(
     config: Annotated[Path, typer.Argument(help="Sweep file (YAML).")],
     out: Annotated[

@@ -67,8 +67,12 @@ def _load_settings(ctx: typer.Context, path: Path | None) -> Path | None:
     return path
 
 
+#: Where --help points for more.
+EPILOG = "Guide: docs/guides/patrolling.md; the model: docs/patrol.md."
+
 app = patrol_app = typer.Typer(
     help="Team patrolling with potential fields (thesis 002, chapter 3).",
+    epilog=EPILOG,
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
@@ -183,7 +187,7 @@ PATROL_OPTIONS = (
 )
 
 
-@patrol_app.command("run")
+@patrol_app.command("run", epilog=EPILOG)
 @config_options((PatrolConfig, PATROL_OPTIONS))
 def run_cmd(
     ctx: typer.Context,
@@ -301,7 +305,7 @@ def run_cmd(
     console.print(wrote(out, written))
 
 
-@patrol_app.command("maps")
+@patrol_app.command("maps", epilog=EPILOG)
 def maps_cmd(
     out: Annotated[
         Path, typer.Option("-o", "--out", callback=writable, help="Folder for the maps.")
@@ -316,7 +320,7 @@ def maps_cmd(
     console.print(f"wrote {len(written)} files to {out}: {', '.join(p.name for p in written)}")
 
 
-@patrol_app.command("experiment")
+@patrol_app.command("experiment", epilog=EPILOG)
 def experiment_cmd(
     name: Annotated[
         str,

@@ -1,5 +1,5 @@
 """``sonarmap stream``: replay a log through a streaming map (the user guide:
-``docs/streaming.md``)."""
+``docs/guides/streaming.md``)."""
 
 from __future__ import annotations
 
@@ -39,6 +39,9 @@ from .common import (
     writable,
 )
 
+#: Where --help points for more.
+EPILOG = "Guide: docs/guides/streaming.md; the methods: docs/methods.md."
+
 app = typer.Typer()
 
 
@@ -47,7 +50,7 @@ StreamMethod = Enum(  # type: ignore[misc]
 )
 
 
-@app.command("stream")
+@app.command("stream", epilog=EPILOG)
 def stream_cmd(
     readings: Annotated[Path, typer.Argument(help="Readings CSV t,sensor,x,y,theta,range.")],
     rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],

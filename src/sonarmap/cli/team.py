@@ -46,8 +46,12 @@ from .common import (
     writable,
 )
 
+#: Where --help points for more.
+EPILOG = "Guide: docs/guides/team.md; the protocols: docs/team.md."
+
 app = team_app = typer.Typer(
     help="Team mapping: each robot's bounded store and global map (thesis 002, chapter 2).",
+    epilog=EPILOG,
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
@@ -80,7 +84,7 @@ MEAN_KEYS = (
 )
 
 
-@team_app.command("world")
+@team_app.command("world", epilog=EPILOG)
 def world_cmd(
     out: OutOption,
     map_: MapOption,
@@ -359,7 +363,7 @@ def _write_team(out: Path, plan: OccupancyMap, team: TeamResult, animate: bool) 
     return summary
 
 
-@team_app.command("run")
+@team_app.command("run", epilog=EPILOG)
 @config_options(
     (NetworkParams, NETWORK_OPTIONS),
     (ExchangeParams, EXCHANGE_OPTIONS),
@@ -507,7 +511,7 @@ def run_cmd(
     )
 
 
-@team_app.command("node")
+@team_app.command("node", epilog=EPILOG)
 @config_options((StoreParams, STORE_OPTIONS))
 def node_cmd(
     ctx: typer.Context,
