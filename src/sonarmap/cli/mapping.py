@@ -94,7 +94,7 @@ def scenario_cmd(
     out: Annotated[
         Path, typer.Option("-o", "--out", callback=writable, help="Folder to write into.")
     ],
-    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
     param: Annotated[
         list[str] | None,
         typer.Option(
@@ -161,7 +161,7 @@ def simulate_cmd(
     ] = None,
     pose_sigma_xy: Annotated[float, typer.Option(help="Recorded-pose noise, metres.")] = 0.0,
     pose_sigma_theta: Annotated[float, typer.Option(help="Recorded-heading noise, rad.")] = 0.0,
-    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
 ) -> None:

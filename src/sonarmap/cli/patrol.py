@@ -122,7 +122,7 @@ PATROL_OPTIONS = (
         "r_max",
         "limited network: the link range, metres.",
         flag="--link-range",
-        aliases=("--r-max",),
+        aliases=("--r-max", "--range"),
     ),
     Opt("dilation", "Fog dilation: cells by which each unseen area grows every step."),
     Opt(
@@ -172,7 +172,7 @@ PATROL_OPTIONS = (
         "Vision blocked by obstacles, or a plain disc (the thesis's).",
         off="--disc",
     ),
-    Opt("duration", "Simulated time, seconds."),
+    Opt("duration", "Mission length, simulated seconds."),
     Opt(
         "warmup",
         "Seconds at the start left out of the mean MTB (the mean of the worst "
@@ -219,7 +219,7 @@ def run_cmd(
         Path | None,
         typer.Option(help="Semaphore file: one polygon a line, 'x y;x y;...' in dm."),
     ] = None,
-    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
     animate: Annotated[
         bool, typer.Option("--animate", help="Also write OUT/patrol.gif (200 frames at most).")
     ] = False,

@@ -69,7 +69,9 @@ OutOption = Annotated[
     Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
 ]
 SeedOption = Annotated[int, typer.Option("--seed", help="Seed of everything random.")]
-DurationOption = Annotated[float, typer.Option("--duration", help="Mission length, seconds.")]
+DurationOption = Annotated[
+    float, typer.Option("--duration", help="Mission length, simulated seconds.")
+]
 #: Summary figures averaged over the robots at the top level of summary.json.
 MEAN_KEYS = (
     "association_precision",
@@ -159,7 +161,7 @@ NETWORK_OPTIONS = (
         "r_max",
         "limited network: metres a link reaches with line of sight.",
         flag="--link-range",
-        aliases=("--range",),
+        aliases=("--range", "--r-max"),
     ),
 )
 #: Options that set :class:`~sonarmap.team.exchange.ExchangeParams`.
