@@ -55,6 +55,7 @@ __all__ = [
     "say_order",
     "writable",
     "wrote",
+    "wrote_folder",
 ]
 
 
@@ -155,6 +156,19 @@ def wrote(out: Path, names: Sequence[str | Path]) -> str:
     return f"wrote {out}/: {', '.join(shown)}"
 
 
+def wrote_folder(out: Path) -> str:
+    """The last line of a command that fills a folder: every file and folder in it
+    (``wrote OUT/: a.yaml, b.png, snapshots/ (12 files)``)."""
+    items = []
+    for p in sorted(out.iterdir()) if out.is_dir() else []:
+        if p.is_dir():
+            n = sum(1 for q in p.rglob("*") if q.is_file())
+            items.append(f"{p.name}/ ({n} files)")
+        else:
+            items.append(p.name)
+    return wrote(out, items)
+
+
 class Update(Protocol):
     """A progress callback: ``done`` of ``total`` (0: unknown), and a note."""
 
@@ -205,8 +219,10 @@ def _progress_lines(label: str) -> Update:
         if step > last["step"] or now - last["t"] >= 30.0 or note != last["note"]:
             last["t"], last["step"], last["note"] = now, step, note
             share = f"{done}/{total} ({100 * done / total:.0f} %)" if total else f"{done}"
-            extra = f", {note}" if note else ""
-            print(f"{label}: {share}, {now - start:.0f} s{extra}", file=sys.stderr, flush=True)
+            # A phase of unknown length (nothing done of nothing) shows only its name.
+            parts = [share] if total or done else []
+            parts += [f"{now - start:.0f} s"] + ([note] if note else [])
+            print(f"{label}: {', '.join(parts)}", file=sys.stderr, flush=True)
 
     return update
 

@@ -41,6 +41,8 @@ from .common import (
     read_plan,
     say_order,
     writable,
+    wrote,
+    wrote_folder,
 )
 
 #: Where --help points for more.
@@ -129,7 +131,8 @@ def scenario_cmd(
     with progress(f"simulating {scen}") as cb:
         s = make_scenario(scen, **params, seed=seed, progress=cb)
     s.write(out)
-    console.print(f"wrote scenario [bold]{scen}[/] ({len(s.readings)} readings) to {out}")
+    console.print(f"scenario [bold]{scen}[/]: {len(s.readings)} readings")
+    console.print(wrote_folder(out), markup=False)
 
 
 @app.command("simulate", epilog=EPILOG)
@@ -324,7 +327,7 @@ def demo_cmd(
         with progress(f"mapping ({label})") as cb:
             maps[label] = build_map(s.readings, s.rig, s.truth.grid, name, params, progress=cb)
         write_map(maps[label], out / "maps" / label)
-    picture = save_side_by_side(maps, out / "corridor.png", truth=s.truth)
+    save_side_by_side(maps, out / "corridor.png", truth=s.truth)
     fields = ["method", *(f.name for f in dataclasses.fields(MapScore))]
     # The terminal shows the main columns; metrics.csv has them all.
     shown = {
@@ -350,7 +353,7 @@ def demo_cmd(
     writer.writerows(rows)
     atomic_write_text(out / "metrics.csv", buf.getvalue())
     console.print(table)
-    console.print(f"wrote {picture}, {out / 'metrics.csv'} and maps under {out / 'maps'}")
+    console.print(wrote_folder(out), markup=False)
 
 
 ExperimentName = Enum("ExperimentName", {n.replace("-", "_"): n for n in EXPERIMENTS}, type=str)  # type: ignore[misc]
@@ -448,7 +451,8 @@ def experiment_cmd(
             truth_resolution=resolution,
             truth_origin=origin,
         )
-    console.print(f"wrote {report} and the figures and metrics beside it")
+    console.print(f"report: {report}", markup=False)
+    console.print(wrote_folder(out), markup=False)
 
 
 @app.command("compare", epilog=EPILOG)
@@ -539,4 +543,4 @@ def sweep_cmd(
             str(r.method), f"{r.metric} ({r.goal})", f"{r.best_value:.3f}", str(r.best_params)
         )
     console.print(table)
-    console.print(f"wrote {out / 'results.parquet'}, results.csv and best.csv")
+    console.print(wrote(out, ["results.parquet", "results.csv", "best.csv"]), markup=False)

@@ -27,6 +27,7 @@ from .common import (
     resolve_map,
     writable,
     wrote,
+    wrote_folder,
 )
 
 #: setup.json keys with no option of their own.
@@ -317,7 +318,7 @@ def maps_cmd(
 
     with atomic_folder(out) as tmp:
         written = write_builtin_maps(tmp)
-    console.print(f"wrote {len(written)} files to {out}: {', '.join(p.name for p in written)}")
+    console.print(wrote(out, [p.name for p in written]), markup=False)
 
 
 @patrol_app.command("experiment", epilog=EPILOG)
@@ -372,4 +373,5 @@ def experiment_cmd(
         console.print(
             f"{c['verdict']}: {c['claim']}: {c['measured']} (thesis: {c['thesis']})", markup=False
         )
-    console.print(f"wrote {report}")
+    console.print(f"report: {report}", markup=False)
+    console.print(wrote_folder(out), markup=False)

@@ -37,6 +37,7 @@ from .common import (
     read_plan,
     say_order,
     writable,
+    wrote_folder,
 )
 
 #: Where --help points for more.
@@ -218,7 +219,10 @@ def stream_cmd(
             rec.map(sm.result(), float(sm.last_batch.t[-1]))
         write_map(sm.result(), tmp / "map")
         if anim is not None:
-            anim.save(tmp / animation)
+            # An animation of many frames takes tens of seconds to encode.
+            with progress("writing") as cb:
+                cb(0, 0, animation)
+                anim.save(tmp / animation)
         summary: dict[str, Any] = {
             "method": m,
             "strategy": sm.strategy.spec(),
@@ -235,10 +239,9 @@ def stream_cmd(
     for k, v in summary.items():
         table.add_row(k, str(v))
     console.print(table)
-    bag_note = f", bag/ ({rec.n_messages} messages)" if rec is not None else ""
-    console.print(
-        f"wrote {out}/map.yaml, snapshots, {animation or 'no animation'}, stream.json{bag_note}"
-    )
+    if rec is not None:
+        console.print(f"bag/: {rec.n_messages} messages")
+    console.print(wrote_folder(out), markup=False)
     if rep.interrupted:
         err_console.print(
             f"interrupted after {rep.data_duration:.1f} s of log: kept the map so far in {out}"

@@ -44,6 +44,7 @@ from .common import (
     progress,
     resolve_map,
     writable,
+    wrote_folder,
 )
 
 #: Where --help points for more.
@@ -113,11 +114,17 @@ def world_cmd(
     )
     route = patrol_route(plan, duration, seed=seed)
     save_world(world, route, out)
-    console.print(f"{len(world)} landmarks, route of {len(route)} poses: {out}/world.yaml")
+    console.print(f"{len(world)} landmarks, route of {len(route)} poses")
+    console.print(wrote_folder(out), markup=False)
 
 
 def _tick(update: Any, note: str, done: int, total: int) -> None:
     update(done, total, note)
+
+
+def _phase(update: Any, name: str) -> None:
+    """A phase after the routes: its own line, with no share of ticks to show."""
+    update(0, 0, name)
 
 
 def _summary(results: list[MissionResult]) -> dict[str, Any]:
@@ -476,8 +483,11 @@ def run_cmd(
         }
         with progress("team") as update:
             team_args["progress"] = partial(_tick, update, f"{robots} robots")
+            team_args["phase"] = partial(_phase, update)
             team = run_team(plan, config, robots, **team_args)
-        s = _write_team(out, plan, team, animate)
+        with progress("writing") as update:
+            update(0, 0, "maps, pictures" + (" and animations" if animate else ""))
+            s = _write_team(out, plan, team, animate)
         convergence = s["convergence_s"]
         console.print(
             f"team F1 {s['map_f1_team']:.3f} (central {s['map_f1_central']:.3f}), "
@@ -576,7 +586,7 @@ def node_cmd(
     timing = LockstepParams(wait_timeout=wait_timeout, checkpoint_every=checkpoint_every)
     ex = parse_exchange(exchange or [])
     peer_map = parse_peers(peers, robot)
-    given = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
+    fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
     plan = resolve_map(map_, resolution, origin)
     config = MissionConfig(duration=duration, seed=seed, store=store)
     with progress(f"robot {robot}") as update:
@@ -594,9 +604,10 @@ def node_cmd(
             settle=settle,
             timing=timing,
             progress=partial(_tick, update, "ticks"),
-            routes=given,
+            routes=fixed_routes,
         )
     console.print(
         f"robot {robot}: {s['row']['poses_local']} own poses, {len(s['held'])} held, "
-        f"{s['ticks']} ticks, {s['restarts']} restarts: {out}"
+        f"{s['ticks']} ticks, {s['restarts']} restarts"
     )
+    console.print(wrote_folder(out), markup=False)

@@ -246,6 +246,7 @@ def run_team(
     record: bool = False,
     frame_every: float = 2.0,
     max_frames: int = 300,
+    phase: Callable[[str], None] | None = None,
 ) -> TeamResult:
     """Run ``robots`` robots' missions together, exchanging over a simulated network.
 
@@ -287,6 +288,9 @@ def run_team(
         Seconds of mission time between two team frames at least (> 0).
     max_frames : int
         Team frames at most (>= 2); the cadence widens to keep to it.
+    phase : callable, optional
+        ``phase(name)`` as each phase after the routes begins (``"quiet network"``,
+        ``"robots' maps"``, ``"central bound"``), so that a caller can show progress.
 
     Returns
     -------
@@ -377,6 +381,8 @@ def run_team(
         e.finish()
 
     # The network's quiet phase: robots still, exchanging until nothing changes.
+    if phase is not None:
+        phase("quiet network")
     dt = float(np.median(np.diff(times))) if len(times) > 1 else exchange.request_every
     t, last_change, count = end, end, _changes(exchangers)
     settled = False
@@ -395,6 +401,8 @@ def run_team(
     held = [held_uids(a.store) for a in agents]
     identical = all(h[0] == held[0][0] for h in held)
     converged = settled and (identical or network.kind != "full")
+    if phase is not None:
+        phase("robots' maps")
     results = [a.finish() for a in agents]
     rows: list[dict[str, Any]] = []
     for a, e, r in zip(agents, exchangers, results, strict=True):
@@ -419,6 +427,8 @@ def run_team(
     f1 = [float(r["map_f1"]) for r in rows if not math.isnan(float(r["map_f1"]))]
     sent_all = sum(e.stats.bytes_sent for e in exchangers) / robots / minutes
     naive = sum(m.bytes for m in meters) / robots / minutes if meters else sent_all
+    if phase is not None and central:
+        phase("central bound")
     bound = central_map(agents, seed=cfg.seed) if central else None
     summary: dict[str, Any] = {
         "robots": rows,
