@@ -39,6 +39,7 @@ from .common import (
     pairs,
     progress,
     read_plan,
+    resolve_map,
     say_order,
     writable,
     wrote,
@@ -142,7 +143,8 @@ def simulate_cmd(
         typer.Option(
             "--map",
             help="Floor plan: map_server YAML, or a bare image with --resolution; the finer, "
-            "the truer the echoes.",
+            "the truer the echoes; or a built-in map by name (office, building:SEED, open-field, "
+            "fig3-2, fig3-4, fig3-10).",
         ),
     ],
     rig: Annotated[Path, typer.Option(help="Rig YAML or preset name.")],
@@ -172,7 +174,7 @@ def simulate_cmd(
 
     With --model thrun, noise not given comes from the rig's sensor file (default none).
     """
-    world = read_plan(map_, resolution, origin)
+    world = resolve_map(map_, resolution, origin)
     r = load_rig(rig)
     traj = read_trajectory(trajectory)
     sonar = make_model(
@@ -256,7 +258,9 @@ def map_cmd(
 
 @app.command("show", epilog=EPILOG)
 def show_cmd(
-    map_: Annotated[Path, typer.Argument(help="Map YAML (or bare image) to draw.")],
+    map_: Annotated[
+        Path, typer.Argument(help="Map YAML, a bare image, or a built-in map by name, to draw.")
+    ],
     out: Annotated[Path, typer.Option("-o", "--out", callback=writable, help="PNG to write.")],
     readings: Annotated[Path | None, typer.Option(help="Readings CSV to overlay.")] = None,
     truth: Annotated[Path | None, typer.Option(help="Truth map YAML to outline in red.")] = None,
@@ -268,7 +272,7 @@ def show_cmd(
     origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
     """Draw a map as a PNG, optionally with the truth outlined and readings overlaid."""
-    m = read_plan(map_, resolution, origin)
+    m = resolve_map(map_, resolution, origin)
     t = read_plan(truth, resolution, origin) if truth is not None else None
     r = load_rig(rig) if rig is not None else None
     rd = None

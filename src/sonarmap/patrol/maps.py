@@ -24,6 +24,7 @@ from .territory import Territory
 
 __all__ = [
     "BUILTIN_MAPS",
+    "RESOLUTION",
     "BuiltinMap",
     "builtin_map",
     "builtin_territory",
