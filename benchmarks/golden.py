@@ -210,9 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     cases = {k: v for k, v in all_cases().items() if k.startswith(a.only)}
     if not cases:
         raise SystemExit(f"--only: no case starts with {a.only!r}")
-    recorded: dict[str, dict[str, Any]] = (
-        json.loads(a.file.read_text()) if a.file.exists() else {}
-    )
+    recorded: dict[str, dict[str, Any]] = json.loads(a.file.read_text()) if a.file.exists() else {}
     failures: list[str] = []
     for i, (name, run) in enumerate(cases.items(), 1):
         with tempfile.TemporaryDirectory(prefix="sonarmap-golden-") as tmp:
