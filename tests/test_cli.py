@@ -451,12 +451,12 @@ def test_map_tells_what_it_left_out(floor_plan: Path, capsys: pytest.CaptureFixt
 def test_ctrl_c_is_exit_130_and_leaves_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import sonarmap.cli as cli
+    import sonarmap.cli.mapping as mapping
 
     def interrupted(*args: object, **kwargs: object) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(cli, "make_scenario", interrupted)
+    monkeypatch.setattr(mapping, "make_scenario", interrupted)
     code, _out, err = run(["scenario", "doorways", "-o", str(tmp_path / "sc")], capsys)
     assert code == 130
     assert err.strip() == "sonarmap: interrupted"

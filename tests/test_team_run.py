@@ -91,14 +91,18 @@ def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap
         (["--lean", "--loop-anchors"], "--loop-anchors"),
         (["--lean", "--merge-on-closure", "0"], "--merge-on-closure"),
         (["--merge-on-closure", "-1"], "--merge-on-closure"),
-        (["--anchor-share", "0.2"], "--anchors K > 1"),
+        (
+            ["--anchor-share", "0.2"],
+            "--anchor-share: exchange: anchor_share needs anchor_every > 1",
+        ),
         (["--anchors", "8", "--anchor-share", "2"], "--anchor-share"),
         (["--lean", "--anchor-share", "0.1"], "--anchor-share"),
         (["--loop-anchors"], "--anchors K > 1"),
         (["--lean", "--exchange", "naive"], "--lean"),
         (["--descriptor-bits", "9"], "--descriptor-bits"),
-        (["--range", "0", "--network", "limited"], "--range"),
-        (["--range", "10"], "--range"),
+        (["--range", "0", "--network", "limited"], "--link-range: network parameter 'r_max'"),
+        (["--link-range", "0", "--network", "limited"], "--link-range"),
+        (["--range", "10"], "--link-range is the limited network's"),
         (["--transport", "pigeon"], "--transport"),
         (["--patrol", "--route", "r.csv"], "--patrol"),
     ],
@@ -128,7 +132,9 @@ def test_built_in_plans_by_name(tmp_path: Path, capsys: pytest.CaptureFixture[st
         main(["team", "run", "--map", "building:x", "--duration", "20",
               "-o", str(tmp_path / "out")])  # fmt: skip
     assert e.value.code == 2
-    assert "no built-in plan 'building:x'" in capsys.readouterr().err
+    assert "building:x: no such file, nor a built-in map; built-ins: open-field" in (
+        capsys.readouterr().err
+    )
     assert not (tmp_path / "out").exists()
 
 

@@ -58,7 +58,21 @@ class InputError(SonarmapError, ValueError):
 
 
 class ConfigError(SonarmapError, ValueError):
-    """Bad configuration: an unknown method or parameter, a value out of its range."""
+    """Bad configuration: an unknown method or parameter, a value out of its range.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong, e.g. ``"store: pose_limit must be > 0, got 0"``.
+    field : str, optional
+        The config object's field at fault, so that a caller (the command line) can
+        name its own option for it instead of parsing the message.
+    """
+
+    def __init__(self, message: str, *, field: str | None = None) -> None:
+        self.field = field
+        self.reason = message
+        super().__init__(message)
 
 
 class OutputError(SonarmapError, OSError):

@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import math
 from pathlib import Path
@@ -14,15 +12,23 @@ import numpy as np
 import typer
 
 from ..errors import ConfigError, InputError
-from ..files import atomic_folder, atomic_write_text, json_dumps
-from ..patrol import Fog, PatrolConfig, Territory, parse_force, read_starts, run_patrol
+from ..files import atomic_folder
+from ..patrol import Fog, PatrolConfig
 from ..patrol.config import read_run_file
-from ..patrol.experiments import run_experiment
-from ..patrol.maps import write_builtin_maps
-from ..patrol.robots import Team, parse_speed_bands
-from ..patrol.semaphores import read_semaphores
-from ..plot import FogAnimation, save_fog_picture
-from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
+from ..patrol.robots import Team
+from .common import (
+    ImageOrigin,
+    ImageResolution,
+    Opt,
+    config_from_options,
+    config_options,
+    console,
+    progress,
+    resolve_map,
+    writable,
+    wrote,
+    wrote_folder,
+)
 
 #: setup.json keys with no option of their own.
 SETUP_ONLY = ("steps", "output_file", "log_period_steps")
@@ -62,23 +68,139 @@ def _load_settings(ctx: typer.Context, path: Path | None) -> Path | None:
     return path
 
 
-patrol_app = typer.Typer(
+#: Where --help points for more.
+EPILOG = "Guide: docs/guides/patrolling.md; the model: docs/patrol.md."
+
+app = patrol_app = typer.Typer(
     help="Team patrolling with potential fields (thesis 002, chapter 3).",
+    epilog=EPILOG,
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
 
-@patrol_app.command("run")
+#: The options of ``patrol run`` that set :class:`~sonarmap.patrol.PatrolConfig`'s
+#: fields, in ``--help``'s order (types and defaults from the dataclass).
+PATROL_OPTIONS = (
+    Opt(
+        "policy",
+        "How a robot picks its way: potential (the thesis's potential field), "
+        "random, reactive, gravity or cycle.",
+    ),
+    Opt(
+        "model",
+        "holonomic (4.4 m/s or standing, turns at once) or car (turning radius, "
+        "speed by the nearest obstacle, dead-end escape).",
+    ),
+    Opt(
+        "motion",
+        "Holonomic robots: straight (a full step along the chosen direction, the "
+        "thesis's) or path (a step along the shortest path to the strongest pull that way; "
+        "for doors narrower than a step).",
+    ),
+    Opt(
+        "force",
+        "The force law: f1..f5 (how the pull of a place grows with the time it "
+        "has gone unseen) times g1..g5 (how it falls with distance), e.g. f3g4; see "
+        "docs/patrol.md.",
+        kind=str,
+        default="f3g4",
+        metavar="fNgM",
+    ),
+    Opt(
+        "direction",
+        "How the pulls become a heading: mode (the strongest of --sectors "
+        "sectors) or vector (their sum).",
+    ),
+    Opt("sectors", "mode: number of direction sectors around a robot."),
+    Opt(
+        "paths",
+        "Path lengths: wave (follows crowding's map edits), straight (open space), "
+        "regions (offline rectangles and doors) or marching (fast marching, Euclidean).",
+    ),
+    Opt("network", "Who hears whom: full, limited (--link-range and line of sight) or none."),
+    Opt(
+        "r_max",
+        "limited network: the link range, metres.",
+        flag="--link-range",
+        aliases=("--r-max", "--range"),
+    ),
+    Opt("dilation", "Fog dilation: cells by which each unseen area grows every step."),
+    Opt(
+        "crowding",
+        "none, obstacles (artificial obstacles around robots) or semaphores (--semaphores).",
+    ),
+    Opt(
+        "r_obst", "Artificial obstacles' radius, metres (default 3 x --radius).", unset_as=math.nan
+    ),
+    Opt(
+        "refine",
+        "Direction refinement: head for the least obstacle-crowded point near a goal 2.5 m ahead.",
+        off="--no-refine",
+    ),
+    Opt(
+        "weaken",
+        "Direction weakening: sectors scaled by min(1, r / 5.5 m), r the nearest "
+        "obstacle in the sector (mode only).",
+        off="--no-weaken",
+    ),
+    Opt("weaken_r0", "Weakening's distance at which a sector keeps its whole pull, metres."),
+    Opt("refine_window", "Refinement: half the width of the penalty window, metres."),
+    Opt("refine_goal", "Refinement: the goal's distance ahead, metres."),
+    Opt("refine_side", "Refinement: side of the square searched around the goal, metres."),
+    Opt("radius", "Robot radius, metres."),
+    Opt(
+        "min_separation",
+        "Least distance between robots' centres, metres (default 2 x --radius).",
+        unset_as=math.nan,
+    ),
+    Opt("p_random", "Chance per step that a blocked robot moves at random (0..1)."),
+    Opt("dt", "Simulation step, seconds."),
+    Opt("start_fog", "Time since last seen of every place at the start, seconds."),
+    Opt("speed", "Holonomic robots' speed, m/s."),
+    Opt("turn_radius", "Cars' minimum turning radius, metres."),
+    Opt(
+        "speed_bands",
+        "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
+        "nearest obstacle, in order; the last D may be inf.",
+        kind=str,
+        default="2:3,5:6,7.5:9,inf:15",
+        metavar="D:KMH,...",
+    ),
+    Opt("vision", "Vision radius, metres."),
+    Opt(
+        "line_of_sight",
+        "Vision blocked by obstacles, or a plain disc (the thesis's).",
+        off="--disc",
+    ),
+    Opt("duration", "Mission length, simulated seconds."),
+    Opt(
+        "warmup",
+        "Seconds at the start left out of the mean MTB (the mean of the worst "
+        "time since last seen; default a fifth of --duration).",
+        kind=float,
+    ),
+    Opt(
+        "cell",
+        "Cell of the fog and paths, metres (default 0.5, or --radius / 2 if less).",
+        unset_as=math.nan,
+    ),
+)
+
+
+@patrol_app.command("run", epilog=EPILOG)
+@config_options((PatrolConfig, PATROL_OPTIONS))
 def run_cmd(
     ctx: typer.Context,
     out: Annotated[
-        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
+        Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
     ],
     map_: Annotated[
         Path | None,
         typer.Option(
-            "--map", help="Territory: map_server YAML, or a bare image with --resolution."
+            "--map",
+            help="Territory: map_server YAML, a bare image with --resolution, or a built-in "
+            "map by name: open-field, fig3-2, fig3-4, fig3-10 (see 'patrol maps').",
         ),
     ] = None,
     robots: Annotated[
@@ -88,118 +210,17 @@ def run_cmd(
         Path | None,
         typer.Option(help="Start file: the count, then 'X Y phi' per robot (dm from top-left)."),
     ] = None,
-    policy: Annotated[
-        str,
-        typer.Option(help="potential (the thesis's), random, reactive, gravity or cycle."),
-    ] = "potential",
-    model: Annotated[
-        str,
-        typer.Option(
-            help="holonomic (4.4 m/s or standing, turns at once) or car (turning radius, "
-            "speed by the nearest obstacle, dead-end escape)."
-        ),
-    ] = "holonomic",
-    motion: Annotated[
-        str,
-        typer.Option(
-            help="Holonomic robots: straight (a full step along the chosen direction, the "
-            "thesis's) or path (a step along the shortest path to the strongest pull that "
-            "way; for doors narrower than a step)."
-        ),
-    ] = "straight",
-    force: Annotated[str, typer.Option(help="Force law f1..f5 x g1..g5.")] = "f3g4",
-    force_a: Annotated[float, typer.Option(help="a of the f family.")] = 40.0,
-    force_b: Annotated[float, typer.Option(help="b of the g family, decimetres.")] = 65.0,
-    direction: Annotated[str, typer.Option(help="mode or vector.")] = "mode",
-    sectors: Annotated[int, typer.Option(help="mode: direction sectors.")] = 8,
-    paths: Annotated[
-        str,
-        typer.Option(
-            help="wave (follows crowding's map edits), straight (open space), regions "
-            "(offline rectangles and doors) or marching (fast marching, Euclidean lengths)."
-        ),
-    ] = "wave",
-    network: Annotated[
-        str, typer.Option(help="full, limited (--r-max and line of sight) or none.")
-    ] = "full",
-    r_max: Annotated[float, typer.Option(help="limited network: link range, metres.")] = 70.0,
-    dilation: Annotated[int, typer.Option(help="Fog dilation wing, cells.")] = 0,
-    crowding: Annotated[
-        str,
-        typer.Option(help="none, obstacles (artificial obstacles around robots) or semaphores."),
-    ] = "none",
+    force_a: Annotated[
+        float, typer.Option(help="The f family's constant a (how fast the pull grows).")
+    ] = 40.0,
+    force_b: Annotated[
+        float, typer.Option(help="The g family's constant b (how far the pull reaches), dm.")
+    ] = 65.0,
     semaphores: Annotated[
         Path | None,
         typer.Option(help="Semaphore file: one polygon a line, 'x y;x y;...' in dm."),
     ] = None,
-    r_obst: Annotated[
-        float | None,
-        typer.Option(help="Artificial obstacles' radius, metres (default 3 x --radius)."),
-    ] = None,
-    refine: Annotated[
-        bool,
-        typer.Option(
-            "--refine/--no-refine",
-            help="Direction refinement: head for the least obstacle-crowded point near a "
-            "goal 2.5 m ahead.",
-        ),
-    ] = False,
-    weaken: Annotated[
-        bool,
-        typer.Option(
-            "--weaken/--no-weaken",
-            help="Direction weakening: sectors scaled by min(1, r / 5.5 m), r the nearest "
-            "obstacle in the sector (mode only).",
-        ),
-    ] = False,
-    weaken_r0: Annotated[float, typer.Option(help="Weakening's R0, metres.")] = 5.5,
-    refine_window: Annotated[
-        float, typer.Option(help="Refinement's l: half the penalty window, metres.")
-    ] = 10.0,
-    refine_goal: Annotated[
-        float, typer.Option(help="Refinement's R_G: the goal's distance, metres.")
-    ] = 2.5,
-    refine_side: Annotated[
-        float, typer.Option(help="Refinement's r: side of the search square, metres.")
-    ] = 2.0,
-    radius: Annotated[float, typer.Option(help="Robot radius, metres.")] = 1.0,
-    min_separation: Annotated[
-        float | None,
-        typer.Option(help="Least distance between robots' centres, m (default 2 x --radius)."),
-    ] = None,
-    p_random: Annotated[
-        float, typer.Option(help="Chance per step that a blocked robot moves at random.")
-    ] = 0.1,
-    dt: Annotated[float, typer.Option(help="Step, seconds.")] = 0.5,
-    start_fog: Annotated[float, typer.Option(help="TB of every place at the start, s.")] = 0.0,
-    speed: Annotated[float, typer.Option(help="Holonomic robots' speed, m/s.")] = 4.4,
-    turn_radius: Annotated[float, typer.Option(help="Cars' minimum turning radius, metres.")] = 3.5,
-    speed_bands: Annotated[
-        str,
-        typer.Option(
-            help="Cars' speed rule: 'D:KMH,...', KMH below D metres from the nearest "
-            "obstacle, in order; the last D may be inf.",
-        ),
-    ] = "2:3,5:6,7.5:9,inf:15",
-    vision: Annotated[float, typer.Option(help="Vision radius, metres.")] = 10.0,
-    line_of_sight: Annotated[
-        bool,
-        typer.Option(
-            "--line-of-sight/--disc",
-            help="Vision blocked by obstacles, or a plain disc (the thesis's).",
-        ),
-    ] = False,
-    duration: Annotated[float, typer.Option(help="Simulated seconds.")] = 3600.0,
-    warmup: Annotated[
-        float | None, typer.Option(help="Seconds left out of the mean MTB (default a fifth).")
-    ] = None,
-    cell: Annotated[
-        float | None,
-        typer.Option(
-            help="Cell of the fog and paths, metres (default 0.5, or --radius / 2 if less)."
-        ),
-    ] = None,
-    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
     animate: Annotated[
         bool, typer.Option("--animate", help="Also write OUT/patrol.gif (200 frames at most).")
     ] = False,
@@ -216,44 +237,27 @@ def run_cmd(
         ),
     ] = None,
 ) -> None:
-    """Patrol a territory; writes metrics.csv, summary.json, fog.png (and patrol.gif)."""
+    """Patrol a territory; writes metrics.csv, summary.json, fog.png (and patrol.gif).
+
+    The model, the force laws and the metrics (MTB: the worst time since a place was
+    last seen; DVT: time spent escaping dead ends) are explained in docs/patrol.md."""
+    from ..patrol import Territory, parse_force, read_starts, run_patrol
+    from ..patrol.robots import parse_speed_bands
+    from ..patrol.semaphores import read_semaphores
+
     extra: dict[str, Any] = ctx.meta.get("patrol_setup", {})
     if map_ is None:
         raise ConfigError("give the territory: --map, or 'map' in --config")
-    config = PatrolConfig(
-        policy=policy,
-        model=model,
-        motion=motion,
-        turn_radius=turn_radius,
-        speed_bands=parse_speed_bands(speed_bands),
-        force=parse_force(force, force_a, force_b),
-        direction=direction,
-        sectors=sectors,
-        paths=paths,
-        network=network,
-        r_max=r_max,
-        dilation=dilation,
-        crowding=crowding,
-        r_obst=math.nan if r_obst is None else r_obst,
-        refine=refine,
-        weaken=weaken,
-        weaken_r0=weaken_r0,
-        refine_window=refine_window,
-        refine_goal=refine_goal,
-        refine_side=refine_side,
-        radius=radius,
-        min_separation=math.nan if min_separation is None else min_separation,
-        p_random=p_random,
-        dt=dt,
-        start_fog=start_fog,
-        speed=speed,
-        vision=vision,
-        line_of_sight=line_of_sight,
-        duration=duration,
-        warmup=warmup,
-        cell=math.nan if cell is None else cell,
+    config = config_from_options(
+        PatrolConfig,
+        ctx.params,
+        PATROL_OPTIONS,
+        convert={
+            "force": lambda name: parse_force(name, force_a, force_b),
+            "speed_bands": parse_speed_bands,
+        },
     )
-    territory = Territory.from_map(_read_plan(map_, resolution, origin), cell=config.cell)
+    territory = Territory.from_map(resolve_map(map_, resolution, origin), cell=config.cell)
     start = read_starts(starts, territory) if starts is not None else None
     if robots is not None and robots < 1:
         raise ConfigError(f"robots must be >= 1, got {robots}")
@@ -262,7 +266,11 @@ def run_cmd(
             raise ConfigError(f"{robots} robots asked for, the start file has {len(start)}")
         start = start[:robots]  # robot_number: the first N of the start file
     areas = read_semaphores(semaphores, territory.grid) if semaphores is not None else None
-    anim = FogAnimation(territory.grid, territory.free, radius=radius) if animate else None
+    anim = None
+    if animate:
+        from ..plot import FogAnimation
+
+        anim = FogAnimation(territory.grid, territory.free, radius=config.radius)
     every = max(1, round(config.duration / config.dt) // 200)
     frame = {"k": 0}
 
@@ -271,7 +279,7 @@ def run_cmd(
         if anim is not None and frame["k"] % every == 0:
             anim.add(t, fog.tb, np.column_stack([team.x, team.y, team.heading]))
 
-    with _progress("patrolling") as cb, atomic_folder(out) as tmp:
+    with progress("patrolling") as cb:
         res = run_patrol(
             territory,
             config,
@@ -282,70 +290,38 @@ def run_cmd(
             on_step=keep if anim is not None else None,
             semaphores=areas,
         )
-        if anim is not None:
-            anim.title = f"{policy}, {res.summary()['robots']} robots"
-            anim.save(tmp / "patrol.gif")
-        buf = io.StringIO()
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow(["step", "t", "mtb", "mean_tb", "dvt"])
-        for k in range(len(res.t)):
-            w.writerow(
-                [
-                    k + 1,
-                    f"{res.t[k]:g}",
-                    f"{res.mtb[k]:g}",
-                    f"{res.mean_tb[k]:.4g}",
-                    f"{res.dvt[k]:.4g}",
-                ]
-            )
-        atomic_write_text(tmp / "metrics.csv", buf.getvalue())
-        if "output_file" in extra:
-            # The thesis's batch output: 'step MTB DVT' every log_period_steps steps.
-            period = max(1, int(extra.get("log_period_steps", 1)))
-            rows = [
-                f"{k + 1} {res.mtb[k]:g} {res.dvt[k]:.4g}"
-                for k in range(len(res.t))
-                if (k + 1) % period == 0
-            ]
-            atomic_write_text(tmp / Path(str(extra["output_file"])).name, "\n".join(rows) + "\n")
-        summary: dict[str, Any] = {
-            **res.summary(),
-            "map": str(map_),
-            "cell_m": territory.grid.resolution,  # the cell used (whole map pixels)
-            "seed": seed,
-            "params": config.as_dict(),
-        }
-        atomic_write_text(tmp / "summary.json", json_dumps(summary) + "\n")
-        save_fog_picture(
-            territory.grid,
-            territory.free,
-            res.final_tb,
-            res.positions,
-            tmp / "fog.png",
-            radius=radius,
-            title=f"{res.summary()['robots']} robots, t = {res.t[-1]:.0f} s",
+    batch = None
+    if "output_file" in extra:
+        batch = (str(extra["output_file"]), int(extra.get("log_period_steps", 1)))
+    with progress("writing") as cb:
+        cb(0, 0, "patrol.gif" if anim is not None else "")
+        written = res.write(
+            out, territory, seed=seed, source=str(map_), batch=batch, animation=anim
         )
+    s = res.summary()
     console.print(
-        f"mean MTB {summary['mean_mtb']:.1f} s (after {config.warmup_s:g} s), worst idleness "
-        f"{summary['worst_idleness']:.0f} s, {summary['steps']} steps in "
-        f"{summary['wall_seconds']:.1f} s; wrote {out}/metrics.csv, summary.json, fog.png"
+        f"mean MTB {s['mean_mtb']:.1f} s (after {config.warmup_s:g} s), worst idleness "
+        f"{s['worst_idleness']:.0f} s, {s['steps']} steps in {s['wall_seconds']:.1f} s"
     )
+    console.print(wrote(out, written))
 
 
-@patrol_app.command("maps")
+@patrol_app.command("maps", epilog=EPILOG)
 def maps_cmd(
     out: Annotated[
-        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the maps.")
+        Path, typer.Option("-o", "--out", callback=writable, help="Folder for the maps.")
     ],
 ) -> None:
     """Write the built-in territories (map_server YAML + PGM at 0.1 m), their start files
     and semaphore files."""
+    from ..patrol.maps import write_builtin_maps
+
     with atomic_folder(out) as tmp:
         written = write_builtin_maps(tmp)
-    console.print(f"wrote {len(written)} files to {out}: {', '.join(p.name for p in written)}")
+    console.print(wrote(out, [p.name for p in written]), markup=False)
 
 
-@patrol_app.command("experiment")
+@patrol_app.command("experiment", epilog=EPILOG)
 def experiment_cmd(
     name: Annotated[
         str,
@@ -355,7 +331,7 @@ def experiment_cmd(
         ),
     ],
     out: Annotated[
-        Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
+        Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
     ],
     quick: Annotated[
         bool,
@@ -378,7 +354,9 @@ def experiment_cmd(
 ) -> None:
     """Rerun one of the thesis's chapter-3 experiments on the built-in maps: runs.csv,
     table.csv, claims.json, figures and report.html in OUT."""
-    with _progress(f"patrol experiment {name}") as cb:
+    from ..patrol.experiments import run_experiment
+
+    with progress(f"patrol experiment {name}") as cb:
         report = run_experiment(
             name,
             out,
@@ -395,4 +373,5 @@ def experiment_cmd(
         console.print(
             f"{c['verdict']}: {c['claim']}: {c['measured']} (thesis: {c['thesis']})", markup=False
         )
-    console.print(f"wrote {report}")
+    console.print(f"report: {report}", markup=False)
+    console.print(wrote_folder(out), markup=False)

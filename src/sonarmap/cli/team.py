@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Annotated, Any
@@ -14,7 +13,7 @@ import typer
 from ..errors import ConfigError
 from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap
-from ..team.exchange import LEAN, LEAN_MERGE_ON_CLOSURE, PROTOCOLS, ExchangeParams
+from ..team.exchange import ExchangeParams
 from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
 from ..team.outputs import write_missions, write_team
@@ -22,17 +21,32 @@ from ..team.patrolling import patrol_routes
 from ..team.simulation import run_team
 from ..team.store import StoreParams
 from ..team.world import (
-    builtin_plan,
     load_world,
     make_world,
     patrol_route,
     read_route,
     save_world,
 )
-from . import ImageOrigin, ImageResolution, _progress, _read_plan, _writable, console
+from .common import (
+    ImageOrigin,
+    ImageResolution,
+    Opt,
+    config_from_options,
+    config_options,
+    console,
+    given,
+    progress,
+    resolve_map,
+    writable,
+    wrote_folder,
+)
 
-team_app = typer.Typer(
+#: Where --help points for more.
+EPILOG = "Guide: docs/guides/team.md; the protocols: docs/team.md."
+
+app = team_app = typer.Typer(
     help="Team mapping: each robot's bounded store and global map (thesis 002, chapter 2).",
+    epilog=EPILOG,
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
@@ -41,50 +55,33 @@ MapOption = Annotated[
     Path,
     typer.Option(
         "--map",
-        help="Floor plan: map_server YAML, an image with --resolution, or a built-in plan "
-        "by name: office, building:SEED.",
+        help="Floor plan: map_server YAML, an image with --resolution, or a built-in map "
+        "by name: office, building:SEED (a random building), or a patrol territory "
+        "(open-field, fig3-2, fig3-4, fig3-10).",
     ),
 ]
 OutOption = Annotated[
-    Path, typer.Option("-o", "--out", callback=_writable, help="Folder for the results.")
+    Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
 ]
 SeedOption = Annotated[int, typer.Option("--seed", help="Seed of everything random.")]
-DurationOption = Annotated[float, typer.Option("--duration", help="Mission length, seconds.")]
-#: The store's defaults, shown by --help.
-STORE_DEFAULTS = StoreParams()
-PoseLimitOption = Annotated[
-    int, typer.Option("--pose-limit", help="M_pose: bytes a pose may take.")
+DurationOption = Annotated[
+    float, typer.Option("--duration", help="Mission length, simulated seconds.")
 ]
-RegionLimitOption = Annotated[
-    int, typer.Option("--region-limit", help="M_r: bytes a region may take.")
-]
-FoldOption = Annotated[
-    bool,
-    typer.Option(
-        "--fold/--no-fold",
-        help="A pose region compression deletes leaves its local map to the newest pose.",
-    ),
-]
-MergeOption = Annotated[
-    int,
-    typer.Option(
-        "--merge-on-closure",
-        metavar="N",
-        help="Merge two own poses as soon as a closure with >= N inliers joins them, so "
-        "that the loop travels in the exchanged layer (0: only under region compression).",
-    ),
-]
+#: Summary figures averaged over the robots at the top level of summary.json.
+MEAN_KEYS = (
+    "association_precision",
+    "association_recall",
+    "ate_m",
+    "ate_odometry_m",
+    "map_f1",
+    "map_f1_true_poses",
+    "map_f1_odometry_poses",
+    "alignment_error_m",
+    "alignment_error_deg",
+)
 
 
-def _team_plan(path: Path, resolution: float | None, origin: tuple[float, float]) -> OccupancyMap:
-    """``--map``: a file, or, when no such file exists, a built-in plan's name."""
-    name = str(path)
-    if not path.exists() and (name == "office" or name.startswith("building:")):
-        return builtin_plan(name)
-    return _read_plan(path, resolution, origin)
-
-
-@team_app.command("world")
+@team_app.command("world", epilog=EPILOG)
 def world_cmd(
     out: OutOption,
     map_: MapOption,
@@ -100,7 +97,7 @@ def world_cmd(
     ] = 0.1,
 ) -> None:
     """Make a mission's world: landmarks with their changes, a patrol route, the truth."""
-    plan = _team_plan(map_, resolution, origin)
+    plan = resolve_map(map_, resolution, origin)
     world = make_world(
         plan,
         seed=seed,
@@ -111,64 +108,21 @@ def world_cmd(
     )
     route = patrol_route(plan, duration, seed=seed)
     save_world(world, route, out)
-    console.print(f"{len(world)} landmarks, route of {len(route)} poses: {out}/world.yaml")
+    console.print(f"{len(world)} landmarks, route of {len(route)} poses")
+    console.print(wrote_folder(out), markup=False)
 
 
 def _tick(update: Any, note: str, done: int, total: int) -> None:
     update(done, total, note)
 
 
-def _check_bounds(
-    pose_limit: int, region_limit: int, fold: bool = False, merge_on_closure: int = 0
-) -> StoreParams:
-    try:
-        return StoreParams(
-            pose_limit=pose_limit,
-            region_limit=region_limit,
-            fold=fold,
-            merge_on_closure=merge_on_closure,
-        )
-    except ConfigError as e:
-        text = str(e)
-        option = (
-            "--pose-limit"
-            if text.startswith("store: pose_limit")
-            else "--merge-on-closure"
-            if text.startswith("store: merge_on_closure")
-            else "--region-limit"
-        )
-        raise ConfigError(f"{option}: {str(e).removeprefix('store: ')}") from None
+def _phase(update: Any, name: str) -> None:
+    """A phase after the routes: its own line, with no share of ticks to show."""
+    update(0, 0, name)
 
 
-#: Link models of ``--network``.
-NETWORK_KINDS = ("full", "limited", "none")
 #: Transports of ``--transport``.
 TRANSPORTS = ("sim", "zmq")
-
-
-def _network_params(
-    network: str, bandwidth: float | None, loss: float, reach: float | None = None
-) -> NetworkParams:
-    if network not in NETWORK_KINDS:
-        raise ConfigError(f"--network must be one of {', '.join(NETWORK_KINDS)}, got {network!r}")
-    if bandwidth is not None and not (math.isfinite(bandwidth) and bandwidth > 0):
-        raise ConfigError(f"--bandwidth must be > 0 bytes/s, got {bandwidth}")
-    if not (0.0 <= loss <= 1.0):
-        raise ConfigError(f"--loss must be a probability in [0, 1], got {loss}")
-    if reach is None:
-        return NetworkParams(kind=network, bandwidth=bandwidth, loss=loss)
-    if not (math.isfinite(reach) and reach > 0):
-        raise ConfigError(f"--range must be > 0 metres, got {reach}")
-    if network != "limited":
-        raise ConfigError(f"--range is the limited network's; --network is {network}")
-    return NetworkParams(kind=network, bandwidth=bandwidth, loss=loss, r_max=reach)
-
-
-def _wrote(out: Path, files: list[Path]) -> str:
-    """The last line of a command: every file it wrote."""
-    return f"wrote {len(files)} files in {out}: " + ", ".join(
-        str(f.relative_to(out)) for f in files
-    )
 
 
 def _share(s: dict[str, Any]) -> str:
@@ -178,49 +132,121 @@ def _share(s: dict[str, Any]) -> str:
     return f" ({100 * share:.1f} % of the naive baseline's, quiet phase included)"
 
 
-def _exchange_params(
-    exchange: str | None,
-    cap: int,
-    network: str,
-    budget: float = 0.0,
-    anchors: int = 1,
-    hold: float = 0.0,
-    descriptor_bits: int = 8,
-    ternary_maps: bool = False,
-    loop_anchors: bool = False,
-    anchor_share: float = 0.0,
-) -> ExchangeParams:
-    # A link that may break or be slow is what the limited protocol was designed for.
-    mode = exchange if exchange is not None else ("good" if network == "full" else "limited")
-    if mode not in PROTOCOLS:
-        raise ConfigError(f"--exchange must be one of {', '.join(PROTOCOLS)}, got {mode!r}")
-    if cap < 1:
-        raise ConfigError(f"--cap must be >= 1 byte, got {cap}")
-    if not (math.isfinite(budget) and budget >= 0):
-        raise ConfigError(f"--budget must be >= 0 bytes/s, got {budget}")
-    if anchors < 1:
-        raise ConfigError(f"--anchors must be >= 1, got {anchors}")
-    if loop_anchors and anchors == 1:
-        raise ConfigError("--loop-anchors chooses among poses sent bare: give --anchors K > 1")
-    if not (math.isfinite(hold) and hold >= 0):
-        raise ConfigError(f"--hold must be >= 0 seconds, got {hold}")
-    if not (math.isfinite(anchor_share) and 0 <= anchor_share <= 1):
-        raise ConfigError(f"--anchor-share must be in [0, 1], got {anchor_share}")
-    if anchor_share > 0 and anchors == 1:
-        raise ConfigError("--anchor-share chooses among poses sent bare: give --anchors K > 1")
-    if not 1 <= descriptor_bits <= 8:
-        raise ConfigError(f"--descriptor-bits must be in 1..8, got {descriptor_bits}")
-    return ExchangeParams(
-        mode=mode,
-        cap_bytes=cap,
-        budget=budget,
-        anchor_every=anchors,
-        hold=hold,
-        descriptor_bits=descriptor_bits,
-        ternary_maps=ternary_maps,
-        loop_anchors=loop_anchors,
-        anchor_share=anchor_share,
+#: Options that set :class:`~sonarmap.team.network.NetworkParams`.
+NETWORK_OPTIONS = (
+    Opt("kind", "Links: full, limited (--link-range and line of sight) or none.", flag="--network"),
+    Opt("bandwidth", "Bytes/s of each link (default: unlimited).", kind=float),
+    Opt("loss", "Probability a message is lost on one hop (0..1)."),
+    Opt(
+        "r_max",
+        "limited network: metres a link reaches with line of sight.",
+        flag="--link-range",
+        aliases=("--range", "--r-max"),
+    ),
+)
+#: Options that set :class:`~sonarmap.team.exchange.ExchangeParams`.
+EXCHANGE_OPTIONS = (
+    Opt(
+        "mode",
+        "Protocol: good, limited, or naive (every new pose to everyone). "
+        "Default: good on a full network, limited otherwise.",
+        flag="--exchange",
+        unset_as=None,
+        kind=str,
+    ),
+    Opt(
+        "cap_bytes",
+        "Bytes of poses one limited-protocol answer carries at most (the thesis's T).",
+        flag="--cap",
+    ),
+    Opt("budget", "Bytes/s of answers each robot lets its requests bring in (0: no budget)."),
+    Opt(
+        "anchor_every",
+        "Landmarks travel only with every K-th pose a robot made and with "
+        "merged poses (1: every pose whole, as the thesis stores it).",
+        flag="--anchors",
+        metavar="K",
+    ),
+    Opt(
+        "loop_anchors",
+        "With --anchors K: also send whole every pose that closed a loop "
+        "with an older anchor or met another robot's pose, so that receivers can close it "
+        "too.",
+    ),
+    Opt(
+        "anchor_share",
+        "With --anchors K: also send a pose whole while the robot has sent "
+        "less than S times what the naive baseline would have (0: off).",
+        metavar="S",
+    ),
+    Opt("hold", "Seconds a robot keeps a new pose to itself before offering it."),
+    Opt("descriptor_bits", "Bits each landmark descriptor byte keeps as it travels (8: exact)."),
+    Opt(
+        "ternary_maps",
+        "Local maps travel as free / occupied / unknown, each class at its "
+        "mean log-odds in that map.",
+    ),
+)
+#: Options that set :class:`~sonarmap.team.store.StoreParams`.
+STORE_OPTIONS = (
+    Opt("pose_limit", "Bytes one pose may take in the store (the thesis's M_pose)."),
+    Opt("region_limit", "Bytes one region of the store may take (the thesis's M_r)."),
+    Opt(
+        "fold",
+        "A pose that region compression deletes leaves its local map to the newest pose.",
+        off="--no-fold",
+    ),
+    Opt(
+        "merge_on_closure",
+        "Merge two own poses as soon as a loop closure with >= N "
+        "inliers joins them, so that the loop travels in the exchanged layer (0: only "
+        "under region compression).",
+        metavar="N",
+    ),
+)
+
+
+def _team_options(ctx: typer.Context) -> tuple[NetworkParams, ExchangeParams, StoreParams]:
+    """The network, exchange and store of ``team run``'s options (``--lean`` applied)."""
+    from ..team.presets import PRESETS
+
+    net = config_from_options(NetworkParams, ctx.params, NETWORK_OPTIONS)
+    if "r_max" in given(ctx, NETWORK_OPTIONS) and net.kind != "limited":
+        raise ConfigError(f"--link-range is the limited network's; --network is {net.kind}")
+
+    def protocol(mode: str | None) -> str:
+        # A link that may break or be slow is what the limited protocol was designed for.
+        return mode if mode is not None else ("good" if net.kind == "full" else "limited")
+
+    lean = PRESETS["lean"]
+    if ctx.params.get("lean"):
+        # Given at all, even at its default value, an option would be silently overridden.
+        opts = given(ctx, (*EXCHANGE_OPTIONS, *STORE_OPTIONS))
+        clash = lean.conflicts(opts)
+        if clash:
+            names = [opts[f] for f in clash]
+            raise ConfigError(
+                f"--lean sets {', '.join(opts_of(lean.sets()))}: drop {', '.join(names)} "
+                "or drop --lean"
+            )
+    exchange = config_from_options(
+        ExchangeParams, ctx.params, EXCHANGE_OPTIONS, convert={"mode": protocol}
     )
+    if exchange.loop_anchors and exchange.anchor_every == 1:
+        raise ConfigError("--loop-anchors chooses among poses sent bare: give --anchors K > 1")
+    store = config_from_options(StoreParams, ctx.params, STORE_OPTIONS)
+    if ctx.params.get("lean"):
+        try:
+            exchange, store = lean.apply(exchange, store)
+        except ConfigError as err:
+            raise ConfigError(f"--lean: {err}") from None
+    return net, exchange, store
+
+
+def opts_of(fields: tuple[str, ...]) -> list[str]:
+    """The options of ``fields`` that have one, in the tables' order."""
+    names = {o.field: o.name for o in (*EXCHANGE_OPTIONS, *STORE_OPTIONS)}
+    return [names[f] for f in fields if f in names]
 
 
 def _run_zmq_team(
@@ -253,7 +279,12 @@ def _run_zmq_team(
     return result.summary
 
 
-@team_app.command("run")
+@team_app.command("run", epilog=EPILOG)
+@config_options(
+    (NetworkParams, NETWORK_OPTIONS),
+    (ExchangeParams, EXCHANGE_OPTIONS),
+    (StoreParams, STORE_OPTIONS),
+)
 def run_cmd(
     ctx: typer.Context,
     out: OutOption,
@@ -272,8 +303,6 @@ def run_cmd(
     world_dir: Annotated[
         Path | None, typer.Option("--world", help="A folder made by 'team world'.")
     ] = None,
-    pose_limit: PoseLimitOption = STORE_DEFAULTS.pose_limit,
-    region_limit: RegionLimitOption = STORE_DEFAULTS.region_limit,
     seed: SeedOption = 0,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
@@ -285,89 +314,6 @@ def run_cmd(
             "or more robots team.gif too: positions, links, poses held from the others.",
         ),
     ] = False,
-    network: Annotated[
-        str, typer.Option("--network", help="Links: full, limited (range, line of sight), none.")
-    ] = "full",
-    bandwidth: Annotated[
-        float | None,
-        typer.Option("--bandwidth", help="Bytes/s of each link (default: unlimited)."),
-    ] = None,
-    loss: Annotated[
-        float, typer.Option("--loss", help="Probability a message is lost on one hop.")
-    ] = 0.0,
-    reach: Annotated[
-        float | None,
-        typer.Option(
-            "--range",
-            help="Metres a limited network's link reaches with line of sight (default 70).",
-        ),
-    ] = None,
-    exchange: Annotated[
-        str | None,
-        typer.Option(
-            "--exchange",
-            help="Protocol: good, limited, or naive (every new pose to everyone). "
-            "Default: good on a full network, limited otherwise.",
-        ),
-    ] = None,
-    cap: Annotated[
-        int, typer.Option("--cap", help="T: bytes of poses one limited-protocol answer carries.")
-    ] = ExchangeParams().cap_bytes,
-    budget: Annotated[
-        float,
-        typer.Option(
-            "--budget",
-            help="Bytes/s of answers each robot lets its requests bring in (0: no budget).",
-        ),
-    ] = 0.0,
-    anchors: Annotated[
-        int,
-        typer.Option(
-            "--anchors",
-            help="K: landmarks travel only with every K-th pose a robot made and merged "
-            "poses (1: every pose whole, as the thesis stores it).",
-        ),
-    ] = ExchangeParams().anchor_every,
-    loop_anchors: Annotated[
-        bool,
-        typer.Option(
-            "--loop-anchors",
-            help="With --anchors K: also send whole every pose that closed a loop with an "
-            "older anchor or met another robot's pose, so that receivers can close it too.",
-        ),
-    ] = ExchangeParams().loop_anchors,
-    anchor_share: Annotated[
-        float,
-        typer.Option(
-            "--anchor-share",
-            metavar="S",
-            help="With --anchors K: also send a pose whole while the robot has sent less "
-            "than S times what the naive baseline would have (0: off).",
-        ),
-    ] = ExchangeParams().anchor_share,
-    hold: Annotated[
-        float,
-        typer.Option(
-            "--hold", help="Seconds a robot keeps a new pose to itself before offering it."
-        ),
-    ] = ExchangeParams().hold,
-    descriptor_bits: Annotated[
-        int,
-        typer.Option(
-            "--descriptor-bits",
-            help="Bits each landmark descriptor byte keeps as it travels (8: exact).",
-        ),
-    ] = ExchangeParams().descriptor_bits,
-    ternary_maps: Annotated[
-        bool,
-        typer.Option(
-            "--ternary-maps",
-            help="Local maps travel as free / occupied / unknown, each class at its mean "
-            "log-odds in that map.",
-        ),
-    ] = ExchangeParams().ternary_maps,
-    fold: FoldOption = STORE_DEFAULTS.fold,
-    merge_on_closure: MergeOption = STORE_DEFAULTS.merge_on_closure,
     lean: Annotated[
         bool,
         typer.Option(
@@ -389,57 +335,16 @@ def run_cmd(
 
     Two or more robots run as a team exchanging their poses over the simulated network;
     summary.json then adds the exchange's figures per robot and the team's, with the
-    central upper bound ``map_f1_central``. ``--transport zmq`` runs the team as local
-    processes (:func:`sonarmap.team.launcher.run_zmq_team`)."""
+    central upper bound map_f1_central (one map built from every robot's poses). With
+    --transport zmq the team runs as local processes. The protocols and the figures are
+    explained in docs/team.md."""
     if robots < 1:
         raise ConfigError(f"--robots must be >= 1, got {robots}")
     if not (math.isfinite(duration) and duration > 0):
         raise ConfigError(f"--duration must be > 0, got {duration}")
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
-    net = _network_params(network, bandwidth, loss, reach)
-    if lean:
-        # Given at all, even at its default value, an option would be silently overridden.
-        given = [
-            flag
-            for name, flag in (
-                ("anchors", "--anchors"),
-                ("loop_anchors", "--loop-anchors"),
-                ("anchor_share", "--anchor-share"),
-                ("hold", "--hold"),
-                ("descriptor_bits", "--descriptor-bits"),
-                ("ternary_maps", "--ternary-maps"),
-                ("fold", "--fold/--no-fold"),
-                ("merge_on_closure", "--merge-on-closure"),
-            )
-            if getattr(ctx.get_parameter_source(name), "name", "DEFAULT") != "DEFAULT"
-        ]
-        if given:
-            raise ConfigError(
-                f"--lean sets --anchors, --loop-anchors, --anchor-share, --hold, "
-                f"--descriptor-bits, --ternary-maps, --fold and --merge-on-closure: "
-                f"drop {', '.join(given)} or drop --lean"
-            )
-        if exchange == "naive":
-            raise ConfigError("--lean is for the protocols; the naive baseline sends every pose")
-        fold, merge_on_closure = True, LEAN_MERGE_ON_CLOSURE
-    protocol = _exchange_params(
-        exchange,
-        cap,
-        network,
-        budget,
-        anchors,
-        hold,
-        descriptor_bits,
-        ternary_maps,
-        loop_anchors,
-        anchor_share,
-    )
-    if lean:
-        # All of LEAN but what the network and the options above still choose.
-        protocol = replace(
-            LEAN, mode=protocol.mode, cap_bytes=protocol.cap_bytes, budget=protocol.budget
-        )
+    net, protocol, store = _team_options(ctx)
     if transport not in TRANSPORTS:
         raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")
     if patrol and route is not None:
@@ -449,8 +354,7 @@ def run_cmd(
             "--transport zmq: the nodes drive their own seeded routes; --patrol, --route, "
             "--world and --animate are --transport sim's"
         )
-    store = _check_bounds(pose_limit, region_limit, fold, merge_on_closure)
-    plan = _team_plan(map_, resolution, origin)
+    plan = resolve_map(map_, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
     if world_dir is not None:
@@ -466,7 +370,7 @@ def run_cmd(
         routes = dict(enumerate(patrolled))
     if transport == "zmq":
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
-        with _progress("team") as update:
+        with progress("team") as update:
             tick = partial(_tick, update, f"{robots} nodes")
             s = _run_zmq_team(out, plan, config, robots, net, protocol, seed, tick)
         console.print(
@@ -484,11 +388,14 @@ def run_cmd(
             "central": True,
             "record": animate,
         }
-        with _progress("team") as update:
+        with progress("team") as update:
             team_args["progress"] = partial(_tick, update, f"{robots} robots")
+            team_args["phase"] = partial(_phase, update)
             team = run_team(plan, config, robots, **team_args)
+        with progress("writing") as update:
+            update(0, 0, "maps, pictures" + (" and animations" if animate else ""))
+            write_team(out, plan, team, animate=animate)
         s = team.summary
-        written = write_team(out, plan, team, animate=animate)
         convergence = s["convergence_s"]
         console.print(
             f"team F1 {s['map_f1_team']:.3f} (central {s['map_f1_central']:.3f}), "
@@ -496,10 +403,10 @@ def run_cmd(
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}, "
             f"converged {'never' if convergence is None else f'{convergence:.1f} s'}"
         )
-        console.print(_wrote(out, written))
+        console.print(wrote_folder(out), markup=False)
         return
     results = []
-    with _progress("mission") as update:
+    with progress("mission") as update:
         for robot in range(robots):
             results.append(
                 run_mission(
@@ -512,17 +419,19 @@ def run_cmd(
                     record=animate,
                 )
             )
-    s0, written = write_missions(out, plan, results, animate=animate)
+    s0, _ = write_missions(out, plan, results, animate=animate)
     console.print(
         f"precision {s0['association_precision']:.3f}, recall {s0['association_recall']:.3f}, "
         f"ATE {s0['ate_m']:.3f} m (odometry {s0['ate_odometry_m']:.3f} m), "
         f"map F1 {s0['map_f1']:.3f}, peak store {s0['store_bytes_peak']} B"
     )
-    console.print(_wrote(out, written))
+    console.print(wrote_folder(out), markup=False)
 
 
-@team_app.command("node")
+@team_app.command("node", epilog=EPILOG)
+@config_options((StoreParams, STORE_OPTIONS))
 def node_cmd(
+    ctx: typer.Context,
     out: OutOption,
     map_: MapOption,
     robot: Annotated[int, typer.Option("--id", help="This robot's id, in 0..N-1.")],
@@ -541,10 +450,6 @@ def node_cmd(
         Path | None,
         typer.Option("--state", help="Checkpoint folder; a node started on one resumes."),
     ] = None,
-    pose_limit: PoseLimitOption = STORE_DEFAULTS.pose_limit,
-    region_limit: RegionLimitOption = STORE_DEFAULTS.region_limit,
-    fold: FoldOption = STORE_DEFAULTS.fold,
-    merge_on_closure: MergeOption = STORE_DEFAULTS.merge_on_closure,
     exchange: Annotated[
         list[str] | None,
         typer.Option("--exchange", help="An exchange setting KEY=VALUE (repeatable)."),
@@ -582,14 +487,14 @@ def node_cmd(
         raise ConfigError(f"--duration must be > 0, got {duration}")
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
-    store = _check_bounds(pose_limit, region_limit, fold, merge_on_closure)
+    store = config_from_options(StoreParams, ctx.params, STORE_OPTIONS)
     timing = LockstepParams(wait_timeout=wait_timeout, checkpoint_every=checkpoint_every)
     ex = parse_exchange(exchange or [])
     peer_map = parse_peers(peers, robot)
-    given = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
-    plan = _team_plan(map_, resolution, origin)
+    fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
+    plan = resolve_map(map_, resolution, origin)
     config = MissionConfig(duration=duration, seed=seed, store=store)
-    with _progress(f"robot {robot}") as update:
+    with progress(f"robot {robot}") as update:
         s = run_node(
             plan,
             config,
@@ -604,9 +509,10 @@ def node_cmd(
             settle=settle,
             timing=timing,
             progress=partial(_tick, update, "ticks"),
-            routes=given,
+            routes=fixed_routes,
         )
     console.print(
         f"robot {robot}: {s['row']['poses_local']} own poses, {len(s['held'])} held, "
-        f"{s['ticks']} ticks, {s['restarts']} restarts: {out}"
+        f"{s['ticks']} ticks, {s['restarts']} restarts"
     )
+    console.print(wrote_folder(out), markup=False)

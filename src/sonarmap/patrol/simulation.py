@@ -131,34 +131,50 @@ class PatrolConfig:
         if math.isnan(self.cell):
             object.__setattr__(self, "cell", min(0.5, self.radius / 2))
         if self.direction not in ("mode", "vector"):
-            raise ConfigError(f"unknown direction {self.direction!r}; valid: mode, vector")
+            raise ConfigError(
+                f"unknown direction {self.direction!r}; valid: mode, vector", field="direction"
+            )
         if self.model not in MODELS:
-            raise ConfigError(f"unknown robot model {self.model!r}; valid: {', '.join(MODELS)}")
+            raise ConfigError(
+                f"unknown robot model {self.model!r}; valid: {', '.join(MODELS)}", field="model"
+            )
         if self.motion not in MOTIONS:
-            raise ConfigError(f"unknown motion {self.motion!r}; valid: {', '.join(MOTIONS)}")
+            raise ConfigError(
+                f"unknown motion {self.motion!r}; valid: {', '.join(MOTIONS)}", field="motion"
+            )
         if self.motion == "path" and not (
             self.model == "holonomic" and self.paths == "wave" and self.policy == "potential"
         ):
             raise ConfigError(
                 "motion 'path' follows the wave's paths of the potential field with "
-                "holonomic robots (--model holonomic --paths wave --policy potential)"
+                "holonomic robots (--model holonomic --paths wave --policy potential)",
+                field="motion",
             )
         if self.motion == "path" and self.refine:
-            raise ConfigError("motion 'path' already keeps to the path: drop --refine")
+            raise ConfigError(
+                "motion 'path' already keeps to the path: drop --refine", field="refine"
+            )
         if self.paths not in PATHS:
-            raise ConfigError(f"unknown path-finding {self.paths!r}; valid: {', '.join(PATHS)}")
+            raise ConfigError(
+                f"unknown path-finding {self.paths!r}; valid: {', '.join(PATHS)}", field="paths"
+            )
         if self.paths in FINDERS and self.crowding != "none":
             # Both crowding rules edit each robot's map every step; only the wave follows.
             raise ConfigError(
                 f"path-finding {self.paths!r} is built once for a static map and cannot "
-                f"follow the map edits of crowding {self.crowding!r}; use the wave"
+                f"follow the map edits of crowding {self.crowding!r}; use the wave",
+                field="paths",
             )
         if self.policy not in POLICIES:
-            raise ConfigError(f"unknown policy {self.policy!r}; valid: {', '.join(POLICIES)}")
+            raise ConfigError(
+                f"unknown policy {self.policy!r}; valid: {', '.join(POLICIES)}", field="policy"
+            )
         if self.network not in NETWORKS:
-            raise ConfigError(f"unknown network {self.network!r}; valid: {', '.join(NETWORKS)}")
+            raise ConfigError(
+                f"unknown network {self.network!r}; valid: {', '.join(NETWORKS)}", field="network"
+            )
         if not (self.r_max >= 0):
-            raise ConfigError(f"r_max must be >= 0 metres, got {self.r_max}")
+            raise ConfigError(f"r_max must be >= 0 metres, got {self.r_max}", field="r_max")
         for name in (
             "radius",
             "speed",
@@ -175,27 +191,31 @@ class PatrolConfig:
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"{name} must be > 0, got {v}")
+                raise ConfigError(f"{name} must be > 0, got {v}", field=name)
         if self.crowding not in CROWDING:
             raise ConfigError(
-                f"unknown crowding rule {self.crowding!r}; valid: {', '.join(CROWDING)}"
+                f"unknown crowding rule {self.crowding!r}; valid: {', '.join(CROWDING)}",
+                field="crowding",
             )
         if not (math.isfinite(self.r_obst) and self.r_obst > 0):
-            raise ConfigError(f"r_obst must be > 0 metres, got {self.r_obst}")
+            raise ConfigError(f"r_obst must be > 0 metres, got {self.r_obst}", field="r_obst")
         if not (0.0 <= self.p_random <= 1.0):
-            raise ConfigError(f"p_random must be in [0, 1], got {self.p_random}")
+            raise ConfigError(f"p_random must be in [0, 1], got {self.p_random}", field="p_random")
         if not (math.isfinite(self.start_fog) and self.start_fog >= 0):
-            raise ConfigError(f"start_fog must be >= 0 seconds, got {self.start_fog}")
+            raise ConfigError(
+                f"start_fog must be >= 0 seconds, got {self.start_fog}", field="start_fog"
+            )
         if self.sectors < 1:
-            raise ConfigError(f"sectors must be >= 1, got {self.sectors}")
+            raise ConfigError(f"sectors must be >= 1, got {self.sectors}", field="sectors")
         if self.dilation < 0:
-            raise ConfigError(f"dilation must be >= 0 cells, got {self.dilation}")
+            raise ConfigError(f"dilation must be >= 0 cells, got {self.dilation}", field="dilation")
         if round(self.duration / self.dt) < 1:
             raise ConfigError(
-                f"duration {self.duration:g} s is shorter than one step of {self.dt:g} s"
+                f"duration {self.duration:g} s is shorter than one step of {self.dt:g} s",
+                field="duration",
             )
         if self.warmup is not None and not (0 <= self.warmup < self.duration):
-            raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}")
+            raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}", field="warmup")
 
     @property
     def warmup_s(self) -> float:
@@ -254,6 +274,108 @@ class PatrolResult:
             "wall_seconds": round(self.wall_seconds, 3),
             "robots": len(self.positions),
         }
+
+    def metrics_csv(self) -> str:
+        """``metrics.csv``: per step its number (from 1), time (s), MTB (s), mean TB (s)
+        and the team's mean DVT so far (%)."""
+        import csv
+        import io
+
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["step", "t", "mtb", "mean_tb", "dvt"])
+        for k in range(len(self.t)):
+            w.writerow(
+                [
+                    k + 1,
+                    f"{self.t[k]:g}",
+                    f"{self.mtb[k]:g}",
+                    f"{self.mean_tb[k]:.4g}",
+                    f"{self.dvt[k]:.4g}",
+                ]
+            )
+        return buf.getvalue()
+
+    def batch_output(self, period: int = 1) -> str:
+        """The thesis's batch output: ``step MTB DVT`` every ``period`` steps."""
+        period = max(1, int(period))
+        rows = [
+            f"{k + 1} {self.mtb[k]:g} {self.dvt[k]:.4g}"
+            for k in range(len(self.t))
+            if (k + 1) % period == 0
+        ]
+        return "\n".join(rows) + "\n"
+
+    def write(
+        self,
+        folder: str | Path,
+        territory: Territory,
+        *,
+        seed: int,
+        source: str = "",
+        batch: tuple[str, int] | None = None,
+        animation: Any = None,
+    ) -> list[Path]:
+        """Write the run's results into ``folder``, all or none (atomically).
+
+        Parameters
+        ----------
+        folder : str or path-like
+            The output folder, created (or replaced) whole.
+        territory : Territory
+            The territory patrolled (for ``fog.png`` and the cell size).
+        seed : int
+            The run's seed, recorded in ``summary.json``.
+        source : str
+            The map's name or file, recorded in ``summary.json``.
+        batch : (str, int), optional
+            The thesis's batch output: a file name (in ``folder``) and its period in
+            steps (``setup.json``'s ``output_file`` and ``log_period_steps``).
+        animation : sonarmap.plot.FogAnimation, optional
+            Frames recorded during the run, saved as ``patrol.gif``.
+
+        Returns
+        -------
+        list of Path
+            The files written: ``metrics.csv``, ``summary.json``, ``fog.png``, then the
+            batch output and ``patrol.gif`` when asked for.
+        """
+        # Imported here: the plotting stack is only needed to write.
+        from ..files import atomic_folder, atomic_write_text, json_dumps
+        from ..plot import save_fog_picture
+
+        out = Path(folder)
+        robots = self.summary()["robots"]
+        names = ["metrics.csv", "summary.json", "fog.png"]
+        with atomic_folder(out) as tmp:
+            if animation is not None:
+                animation.title = f"{self.config.policy}, {robots} robots"
+                animation.save(tmp / "patrol.gif")
+            atomic_write_text(tmp / "metrics.csv", self.metrics_csv())
+            if batch is not None:
+                name = Path(batch[0]).name
+                atomic_write_text(tmp / name, self.batch_output(batch[1]))
+                names.append(name)
+            summary: dict[str, Any] = {
+                **self.summary(),
+                "map": source,
+                "cell_m": territory.grid.resolution,  # the cell used (whole map pixels)
+                "seed": seed,
+                "params": self.config.as_dict(),
+            }
+            atomic_write_text(tmp / "summary.json", json_dumps(summary) + "\n")
+            save_fog_picture(
+                territory.grid,
+                territory.free,
+                self.final_tb,
+                self.positions,
+                tmp / "fog.png",
+                radius=self.config.radius,
+                title=f"{robots} robots, t = {self.t[-1]:.0f} s",
+            )
+        if animation is not None:
+            names.append("patrol.gif")
+        return [out / n for n in names]
 
 
 def read_starts(path: str | Path, territory: Territory) -> F64:

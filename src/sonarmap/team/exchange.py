@@ -221,38 +221,47 @@ class ExchangeParams:
     def __post_init__(self) -> None:
         if self.mode not in PROTOCOLS:
             raise ConfigError(
-                f"exchange: mode must be one of {', '.join(PROTOCOLS)}, got {self.mode!r}"
+                f"exchange: mode must be one of {', '.join(PROTOCOLS)}, got {self.mode!r}",
+                field="mode",
             )
         for f in fields(self):
             if f.name in ("mode", "ternary_maps", "loop_anchors"):
                 continue
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ConfigError(f"exchange: {f.name} must be a finite number, got {v!r}")
+                raise ConfigError(
+                    f"exchange: {f.name} must be a finite number, got {v!r}", field=f.name
+                )
             may_be_0 = f.name in ("budget", "hold", "full_advert_every", "anchor_share")
             if v < 0 or (v == 0 and not may_be_0):
                 bound = ">= 0" if may_be_0 else "> 0"
-                raise ConfigError(f"exchange: {f.name} must be {bound}, got {v}")
+                raise ConfigError(f"exchange: {f.name} must be {bound}, got {v}", field=f.name)
         for name in ("cap_bytes", "max_patches", "max_outstanding", "anchor_every"):
             if not isinstance(getattr(self, name), int):
                 raise ConfigError(
-                    f"exchange: {name} must be an integer, got {getattr(self, name)!r}"
+                    f"exchange: {name} must be an integer, got {getattr(self, name)!r}", field=name
                 )
         check_quantisation(self.descriptor_bits, self.ternary_maps)
         if self.anchor_share > 1:
-            raise ConfigError(f"exchange: anchor_share must be <= 1, got {self.anchor_share}")
+            raise ConfigError(
+                f"exchange: anchor_share must be <= 1, got {self.anchor_share}",
+                field="anchor_share",
+            )
         if self.anchor_share > 0 and self.anchor_every == 1:
             raise ConfigError(
-                "exchange: anchor_share needs anchor_every > 1 (with 1 every pose travels whole)"
+                "exchange: anchor_share needs anchor_every > 1 (with 1 every pose travels whole)",
+                field="anchor_share",
             )
         if not isinstance(self.loop_anchors, bool):
             raise ConfigError(
-                f"exchange: loop_anchors must be true or false, got {self.loop_anchors!r}"
+                f"exchange: loop_anchors must be true or false, got {self.loop_anchors!r}",
+                field="loop_anchors",
             )
         if self.peer_timeout < self.advert_every:
             raise ConfigError(
                 f"exchange: peer_timeout {self.peer_timeout} s is below advert_every "
-                f"{self.advert_every} s (every peer would be forgotten between adverts)"
+                f"{self.advert_every} s (every peer would be forgotten between adverts)",
+                field="peer_timeout",
             )
 
 

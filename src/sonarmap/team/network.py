@@ -112,7 +112,8 @@ class NetworkParams:
     def __post_init__(self) -> None:
         if self.kind not in NETWORKS:
             raise ConfigError(
-                f"network parameter 'kind' must be one of {', '.join(NETWORKS)}, got {self.kind!r}"
+                f"network parameter 'kind' must be one of {', '.join(NETWORKS)}, got {self.kind!r}",
+                field="kind",
             )
         if self.bandwidth is not None:
             _check(self.bandwidth, "bandwidth", low=0.0, open_low=True)
@@ -124,10 +125,15 @@ class NetworkParams:
         _check(self.delay, "delay", low=0.0)
         _check(self.jitter, "jitter", low=0.0)
         if not isinstance(self.relay, (bool, np.bool_)):
-            raise ConfigError(f"network parameter 'relay' must be a bool, got {self.relay!r}")
+            raise ConfigError(
+                f"network parameter 'relay' must be a bool, got {self.relay!r}", field="relay"
+            )
         m = self.max_message
         if isinstance(m, bool) or not isinstance(m, (int, np.integer)) or m < 1:
-            raise ConfigError(f"network parameter 'max_message' must be an int >= 1, got {m!r}")
+            raise ConfigError(
+                f"network parameter 'max_message' must be an int >= 1, got {m!r}",
+                field="max_message",
+            )
 
 
 def _check(
@@ -142,7 +148,9 @@ def _check(
         span = f"{'>' if open_low else '>='} {low:g}"
     else:
         span = f"in {'(' if open_low else '['}{low:g}, {high:g}]"
-    raise ConfigError(f"network parameter '{name}' must be a finite number {span}, got {v!r}")
+    raise ConfigError(
+        f"network parameter '{name}' must be a finite number {span}, got {v!r}", field=name
+    )
 
 
 @dataclass(frozen=True)

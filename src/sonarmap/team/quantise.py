@@ -46,9 +46,15 @@ def check_quantisation(descriptor_bits: int, ternary_maps: bool) -> None:
     """
     v = descriptor_bits
     if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 8:
-        raise ConfigError(f"exchange: descriptor_bits must be an integer in 1..8, got {v!r}")
+        raise ConfigError(
+            f"exchange: descriptor_bits must be an integer in 1..8, got {v!r}",
+            field="descriptor_bits",
+        )
     if not isinstance(ternary_maps, bool):
-        raise ConfigError(f"exchange: ternary_maps must be true or false, got {ternary_maps!r}")
+        raise ConfigError(
+            f"exchange: ternary_maps must be true or false, got {ternary_maps!r}",
+            field="ternary_maps",
+        )
 
 
 def quantise_descriptors(desc: npt.NDArray[np.uint8], bits: int) -> npt.NDArray[np.uint8]:

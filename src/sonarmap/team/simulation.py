@@ -248,6 +248,7 @@ def run_team(
     record: bool = False,
     frame_every: float = 2.0,
     max_frames: int = 300,
+    phase: Callable[[str], None] | None = None,
 ) -> TeamResult:
     """Run ``robots`` robots' missions together, exchanging over a simulated network.
 
@@ -289,6 +290,9 @@ def run_team(
         Seconds of mission time between two team frames at least (> 0).
     max_frames : int
         Team frames at most (>= 2); the cadence widens to keep to it.
+    phase : callable, optional
+        ``phase(name)`` as each phase after the routes begins (``"quiet network"``,
+        ``"robots' maps"``, ``"central bound"``), so that a caller can show progress.
 
     Returns
     -------
@@ -385,6 +389,8 @@ def run_team(
 
     def routes_end() -> int:
         at_end["held"] = _held_share(agents)
+        if phase is not None:
+            phase("quiet network")
         return sum(e.stats.bytes_sent for e in exchangers)
 
     def after(n: int, t: float, driving: bool) -> None:
@@ -400,6 +406,8 @@ def run_team(
     held = [held_uids(a.store) for a in agents]
     identical = all(h[0] == held[0][0] for h in held)
     converged = settled and (identical or network.kind != "full")
+    if phase is not None:
+        phase("robots' maps")
     results = [a.finish() for a in agents]
     rows = [
         robot_row(
@@ -410,6 +418,8 @@ def run_team(
         )
         for a, e, r in zip(agents, exchangers, results, strict=True)
     ]
+    if phase is not None and central:
+        phase("central bound")
     bound = central_map(agents, seed=cfg.seed) if central else None
     summary: dict[str, Any] = mission_figures(rows)
     summary.update(

@@ -154,7 +154,7 @@ class StoreParams:
 
     def __post_init__(self) -> None:
         if not isinstance(self.fold, bool):
-            raise ConfigError(f"store: fold must be true or false, got {self.fold!r}")
+            raise ConfigError(f"store: fold must be true or false, got {self.fold!r}", field="fold")
         for f in fields(self):
             if f.name == "fold":
                 continue
@@ -162,9 +162,11 @@ class StoreParams:
             if v is None and f.name == "beta":
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ConfigError(f"store: {f.name} must be a finite number, got {v!r}")
+                raise ConfigError(
+                    f"store: {f.name} must be a finite number, got {v!r}", field=f.name
+                )
             if v < 0 or (v == 0 and f.name not in ("a", "g", "beta", "merge_on_closure")):
-                raise ConfigError(f"store: {f.name} must be > 0, got {v}")
+                raise ConfigError(f"store: {f.name} must be > 0, got {v}", field=f.name)
         for name in (
             "pose_limit",
             "region_limit",
@@ -173,20 +175,25 @@ class StoreParams:
             "descriptor_dim",
         ):
             if not isinstance(getattr(self, name), int):
-                raise ConfigError(f"store: {name} must be an integer")
+                raise ConfigError(f"store: {name} must be an integer", field=name)
         if self.decay_cap < 1:
-            raise ConfigError(f"store: decay_cap (L) must be >= 1, got {self.decay_cap}")
+            raise ConfigError(
+                f"store: decay_cap (L) must be >= 1, got {self.decay_cap}", field="decay_cap"
+            )
         if self.fov > 360:
-            raise ConfigError(f"store: fov must be <= 360 degrees, got {self.fov}")
+            raise ConfigError(f"store: fov must be <= 360 degrees, got {self.fov}", field="fov")
         one = _one_landmark_bytes(self.descriptor_dim)
         if self.pose_limit < one:
             raise ConfigError(
                 f"store: pose_limit {self.pose_limit} B is below the size of a pose with one "
-                f"landmark ({one} B)"
+                f"landmark ({one} B)",
+                field="pose_limit",
             )
         if self.region_limit < self.pose_limit:
             raise ConfigError(
-                f"store: region_limit {self.region_limit} B is below pose_limit {self.pose_limit} B"
+                f"store: region_limit {self.region_limit} B is below pose_limit "
+                f"{self.pose_limit} B",
+                field="region_limit",
             )
 
 

@@ -1,0 +1,90 @@
+"""Named settings of the team's exchange and store, such as ``team run --lean``.
+
+A preset sets some fields of :class:`~.exchange.ExchangeParams` and
+:class:`~.store.StoreParams` and leaves the others to the caller; it says which fields it
+sets, so that a caller can refuse a setting the preset would silently override.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+from ..errors import ConfigError
+from .exchange import LEAN, LEAN_MERGE_ON_CLOSURE, ExchangeParams
+from .store import StoreParams
+
+__all__ = ["PRESETS", "TeamPreset"]
+
+
+@dataclass(frozen=True)
+class TeamPreset:
+    """Exchange and store settings applied together.
+
+    Parameters
+    ----------
+    name : str
+        The preset's name (``"lean"``).
+    exchange : ExchangeParams
+        The exchange the preset stands for; every field but ``keep`` is taken from it.
+    keep : tuple of str
+        Exchange fields left to the caller (the protocol, its cap and budget).
+    store : mapping
+        Store fields the preset sets, with their values.
+    """
+
+    name: str
+    exchange: ExchangeParams
+    keep: tuple[str, ...] = ("mode", "cap_bytes", "budget")
+    store: Mapping[str, Any] = field(default_factory=dict)
+
+    def sets(self) -> tuple[str, ...]:
+        """Every field the preset sets: the exchange's (but ``keep``), then the store's."""
+        own = tuple(f.name for f in fields(ExchangeParams) if f.name not in self.keep)
+        return own + tuple(self.store)
+
+    def conflicts(self, given: Iterable[str]) -> list[str]:
+        """The fields of ``given`` (set explicitly by the caller) the preset would
+        override, in ``given``'s order."""
+        sets = set(self.sets())
+        return [g for g in given if g in sets]
+
+    def apply(
+        self, exchange: ExchangeParams, store: StoreParams
+    ) -> tuple[ExchangeParams, StoreParams]:
+        """The preset over ``exchange`` and ``store``.
+
+        Parameters
+        ----------
+        exchange : ExchangeParams
+            The caller's exchange; only its ``keep`` fields survive.
+        store : StoreParams
+            The caller's store; the preset's store fields replace its own.
+
+        Returns
+        -------
+        (ExchangeParams, StoreParams)
+            Both validated.
+
+        Raises
+        ------
+        ConfigError
+            For the naive baseline, which has nothing to thin out (``field="mode"``).
+        """
+        if exchange.mode == "naive":
+            raise ConfigError(
+                f"the {self.name} preset is for the protocols; the naive baseline sends every pose",
+                field="mode",
+            )
+        kept = {k: getattr(exchange, k) for k in self.keep}
+        return replace(self.exchange, **kept), replace(store, **self.store)
+
+
+#: The presets by name. ``lean``: :data:`~.exchange.LEAN` with the store's ``fold`` and
+#: :data:`~.exchange.LEAN_MERGE_ON_CLOSURE` (the measured lean exchange).
+PRESETS = {
+    "lean": TeamPreset(
+        "lean", LEAN, store={"fold": True, "merge_on_closure": LEAN_MERGE_ON_CLOSURE}
+    ),
+}
