@@ -268,7 +268,7 @@ def test_scenario_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
                 "-o",
                 "{d}/x.csv",
             ],
-            "nope.yaml: cannot read map file",
+            "nope.yaml: no such file, nor a built-in map",
         ),
         (
             [

@@ -72,7 +72,8 @@ def test_presets_resolve_and_yield_to_given_parameters(
         "band_offset": 0.0,
     }
     assert preset_params("stochastic", "thesis002")["r_max"] == 3.5
-    with pytest.raises(ConfigError, match=r"unknown preset 'x' for method 'inverse'; valid: none"):
+    unknown = r"unknown preset 'x' for method 'inverse'; valid: traditional"
+    with pytest.raises(ConfigError, match=unknown):
         preset_params("inverse", "x")
     code, out, _ = run(["methods"], capsys)
     assert code == 0
