@@ -31,7 +31,8 @@ import numpy as np
 
 from sonarmap.patrol import PatrolConfig, run_patrol
 from sonarmap.patrol.maps import builtin_territory
-from sonarmap.patrol.simulation import PatrolResult, starts_from_dm
+from sonarmap.patrol.simulation import PatrolResult
+from sonarmap.patrol.starts import starts_from_dm
 
 
 def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolResult, float]:

@@ -94,7 +94,7 @@ def test_patrol_run_takes_a_builtin_name(
     main(["patrol", "run", "--map", "open-field", "--robots", "2", "--duration", "5",
           "--cell", "1", "-o", str(tmp_path / "out")])  # fmt: skip
     last = capsys.readouterr().out.strip().splitlines()[-1]
-    assert last == f"wrote {tmp_path / 'out'}/: metrics.csv, summary.json, fog.png"
+    assert last == f"wrote {tmp_path / 'out'}/: metrics.csv, summary.json, fog.png, starts.txt"
     with pytest.raises(SystemExit) as e:
         main(["patrol", "run", "--map", "open-feld", "--robots", "2", "-o", str(tmp_path / "x")])
     assert e.value.code == 2
@@ -110,7 +110,13 @@ def test_patrol_result_writes_itself(tmp_path: Path) -> None:
     written = res.write(
         tmp_path / "out", territory, seed=0, source="open-field", batch=("o.txt", 2)
     )
-    assert [p.name for p in written] == ["metrics.csv", "summary.json", "fog.png", "o.txt"]
+    assert [p.name for p in written] == [
+        "metrics.csv",
+        "summary.json",
+        "fog.png",
+        "starts.txt",
+        "o.txt",
+    ]
     assert all(p.is_file() for p in written)
     lines = (tmp_path / "out" / "metrics.csv").read_text().splitlines()
     assert lines[0] == "step,t,mtb,mean_tb,dvt"

@@ -84,14 +84,17 @@ def test_wave_is_dijkstra_and_first_steps_lead_there(seed: int) -> None:
 
 
 def test_places_beside_walls_still_pull() -> None:
-    """A cell the robot's centre cannot reach is reached by a passable path and a last
-    stretch over free cells; paths between passable cells never leave them."""
+    """A cell the robot's centre cannot reach is reached by a passable path and one
+    last step onto it, never across others like it (a strip along a wall or through a
+    gap too narrow for the robot must not pull the robot into the wall); paths between
+    passable cells never leave them."""
     free = np.ones((10, 10), dtype=bool)
     passable = free.copy()
     passable[:, :2] = False  # a strip too near the wall for the robot's centre
     dist, _first = wave(passable, (5, 5), 1.0, target=free)
-    assert np.isfinite(dist[:, :2]).all()
-    assert dist[5, 0] == pytest.approx(5.0)
+    assert np.isfinite(dist[:, 1]).all()
+    assert dist[5, 1] == pytest.approx(4.0)
+    assert np.isinf(dist[:, 0]).all()
     alone, _ = wave(passable, (5, 5), 1.0)
     np.testing.assert_array_equal(dist[passable], alone[passable])
 
@@ -266,7 +269,7 @@ def test_patrol_run_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
             ]
         )
     assert e.value.code == 2
-    assert "robot 1 at (20, 15) m is in or too near an obstacle" in capsys.readouterr().err
+    assert "robot 1 at (20, 15) m is in an obstacle" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
 
 
@@ -665,7 +668,7 @@ def _bad_input_files(tmp: Path) -> None:
         (["--map", "broken.yaml"], "nowhere.pgm: map image not found"),
         (["--map", "grey.yaml", "--robots", "1"], "no free cell"),
         (["--map", "plan.yaml", "--starts", "outside.txt"], "outside the map"),
-        (["--map", "plan.yaml", "--starts", "wall.txt"], "too near an obstacle"),
+        (["--map", "plan.yaml", "--starts", "wall.txt"], "is in an obstacle"),
         (["--map", "plan.yaml", "--starts", "overlap.txt"], "start closer than 2 m"),
         (
             ["--map", "plan.yaml", "--starts", "malformed.txt"],
@@ -731,7 +734,7 @@ def test_pruned_waves_change_nothing() -> None:
     """Waves cut where far places can no longer change a robot's choice give the very
     same run as waves over the whole map."""
     from sonarmap.patrol.maps import builtin_territory
-    from sonarmap.patrol.simulation import starts_from_dm
+    from sonarmap.patrol.starts import starts_from_dm
 
     cars = {"model": "car", "refine": True, "crowding": "obstacles"}
     for name, cell, seconds, n, extra in (
@@ -760,7 +763,7 @@ def test_short_reproduction_of_the_open_field_ordering() -> None:
     """Tables 2-3 in miniature: the adopted f3g4 patrols the open field far better than
     f1g1 (a pull linear in TB_n and 1/L: the thesis's worst, 1476 s against 80.7 s)."""
     from sonarmap.patrol.maps import builtin_territory
-    from sonarmap.patrol.simulation import starts_from_dm
+    from sonarmap.patrol.starts import starts_from_dm
 
     t, starts = builtin_territory("open-field", 1.0)
     mtb = {}
@@ -795,7 +798,7 @@ def test_path_motion_keeps_to_paths_and_to_the_speed() -> None:
     with pytest.raises(ConfigError, match="motion 'path'"):
         PatrolConfig(motion="path", model="car")
     with pytest.raises(ConfigError, match="motion 'path'"):
-        PatrolConfig(motion="path", policy="reactive")
+        PatrolConfig(motion="path", policy="random")
     with pytest.raises(ConfigError, match="motion 'path'"):
         PatrolConfig(motion="path", refine=True)
 

@@ -293,7 +293,10 @@ def test_on_fig32_against_the_wave() -> None:
             dist, _, _ = built.paths(start, t.free)
             assert time.perf_counter() - began < 0.5
             ref, _ = wave(passable, start, t.grid.resolution, t.free)
-            np.testing.assert_array_equal(np.isfinite(dist), np.isfinite(ref))
+            # Same reach over passable cells; off them the wave takes one last step
+            # only, where the finders may go on to any target they can see.
+            np.testing.assert_array_equal(np.isfinite(dist)[passable], np.isfinite(ref)[passable])
+            assert np.isfinite(dist)[np.isfinite(ref)].all()
             both = passable & (ref > 0) & np.isfinite(ref)
             ratios.append(dist[both] / ref[both])
         ratio = np.concatenate(ratios)

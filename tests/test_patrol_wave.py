@@ -36,8 +36,8 @@ def _reference(
             rr, cc = r + dr, c + dc
             if not (0 <= rr < rows and 0 <= cc < cols and tg[rr, cc]):
                 continue
-            if passable[rr, cc] and not passable[r, c]:
-                continue  # paths do not come back to passable cells
+            if not passable[r, c]:
+                return  # a target-only cell is a path's last step
             if k % 2:
                 if not (tg[r, cc] and tg[rr, c]):
                     continue

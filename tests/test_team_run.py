@@ -11,7 +11,8 @@ import pytest
 
 from sonarmap.cli import main
 from sonarmap.io.rosmap import OccupancyMap, write_map
-from sonarmap.patrol.simulation import random_starts, run_patrol
+from sonarmap.patrol.simulation import run_patrol
+from sonarmap.patrol.starts import random_starts
 from sonarmap.patrol.territory import Territory
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise

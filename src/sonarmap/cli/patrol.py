@@ -125,6 +125,13 @@ PATROL_OPTIONS = (
         flag="--link-range",
         aliases=("--r-max", "--range"),
     ),
+    Opt(
+        "reach",
+        "The places watched: reachable (what a robot of --radius can get to from the "
+        "starts; free space it cannot reach is reported, not counted) or free (every "
+        "free cell, the thesis's reading).",
+        flag="--territory-mode",
+    ),
     Opt("dilation", "Fog dilation: cells by which each unseen area grows every step."),
     Opt(
         "crowding",
@@ -220,6 +227,14 @@ def run_cmd(
         Path | None,
         typer.Option(help="Semaphore file: one polygon a line, 'x y;x y;...' in dm."),
     ] = None,
+    territory_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--territory",
+            help="Patrol only inside this mask: a map_server YAML (its free cells) or a "
+            "polygon file ('x y' metres a line, a blank line between polygons).",
+        ),
+    ] = None,
     seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
     animate: Annotated[
         bool, typer.Option("--animate", help="Also write OUT/patrol.gif (200 frames at most).")
@@ -241,7 +256,8 @@ def run_cmd(
 
     The model, the force laws and the metrics (MTB: the worst time since a place was
     last seen; DVT: time spent escaping dead ends) are explained in docs/patrol.md."""
-    from ..patrol import Territory, parse_force, read_starts, run_patrol
+    from ..patrol import parse_force, read_starts, run_patrol
+    from ..patrol.region import read_region
     from ..patrol.robots import parse_speed_bands
     from ..patrol.semaphores import read_semaphores
 
@@ -257,7 +273,8 @@ def run_cmd(
             "speed_bands": parse_speed_bands,
         },
     )
-    territory = Territory.from_map(resolve_map(map_, resolution, origin), cell=config.cell)
+    territory = _territory(map_, resolve_map(map_, resolution, origin), config)
+    region = read_region(territory_file, territory.grid) if territory_file else None
     start = read_starts(starts, territory) if starts is not None else None
     if robots is not None and robots < 1:
         raise ConfigError(f"robots must be >= 1, got {robots}")
@@ -289,6 +306,7 @@ def run_cmd(
             progress=cb,
             on_step=keep if anim is not None else None,
             semaphores=areas,
+            region=region,
         )
     batch = None
     if "output_file" in extra:
@@ -299,11 +317,42 @@ def run_cmd(
             out, territory, seed=seed, source=str(map_), batch=batch, animation=anim
         )
     s = res.summary()
+    if res.reach is not None:
+        console.print(res.reach.describe(), markup=False)
+    if s["never_seen"] > 0:
+        console.print(
+            f"[yellow]warning:[/] {100 * s['never_seen']:.1f} % of the territory was never "
+            f"seen in {config.duration:g} s: the mean MTB says only that the run was too "
+            "short or the team too small"
+        )
     console.print(
         f"mean MTB {s['mean_mtb']:.1f} s (after {config.warmup_s:g} s), worst idleness "
         f"{s['worst_idleness']:.0f} s, {s['steps']} steps in {s['wall_seconds']:.1f} s"
     )
     console.print(wrote(out, written))
+
+
+def _territory(path: Path, m: Any, config: PatrolConfig) -> Any:
+    """The map's territory on the run's cells; a map with no free cell (thresholds or
+    mode that make none) or cells coarser than the map is one error naming the file."""
+    from ..patrol import Territory
+
+    g = m.grid
+    short = min(g.rows, g.cols) * g.resolution
+    if config.cell > short / 4:
+        raise ConfigError(
+            f"cell {config.cell:g} m is too coarse for a map {short:g} m across "
+            f"(at most {short / 4:g} m)",
+            field="cell",
+        )
+    try:
+        return Territory.from_map(m, cell=config.cell)
+    except InputError as err:
+        if err.path is not None:
+            raise
+        raise InputError(
+            f"{err.reason} (check the YAML's mode and thresholds)", path=path
+        ) from None
 
 
 @patrol_app.command("maps", epilog=EPILOG)

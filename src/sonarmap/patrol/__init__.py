@@ -26,7 +26,8 @@ from .network import NETWORKS, components
 from .paths import straight_paths, wave
 from .policies import POLICIES
 from .robots import Car, Holonomic, Team
-from .simulation import PatrolConfig, PatrolResult, read_starts, run_patrol
+from .simulation import PatrolConfig, PatrolResult, run_patrol
+from .starts import read_starts
 from .territory import Territory
 
 __all__ = [

@@ -36,7 +36,8 @@ from ..report import Report
 from .forces import FORCE_F, FORCE_G, Force
 from .maps import builtin_map, builtin_territory
 from .semaphores import polygon_cells
-from .simulation import PatrolConfig, run_patrol, starts_from_dm
+from .simulation import PatrolConfig, run_patrol
+from .starts import starts_from_dm
 
 __all__ = ["EXPERIMENTS", "THESIS_TABLE_2", "THESIS_TABLE_3", "PatrolTask", "run_experiment"]
 

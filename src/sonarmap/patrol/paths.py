@@ -217,6 +217,12 @@ def _dial(
                         pick = j
                 first[u] = pick
             cu = code[u]
+            if cu < 2:
+                # A place off the passable cells is reached in one step from a cell the
+                # centre may be on, never through others like it: a strip of such
+                # places along a wall or through a gap narrower than the robot would
+                # otherwise pull the robot towards places it cannot get to that way.
+                continue
             for j in range(8):
                 v = u + step[j]
                 cv = code[v]
@@ -419,9 +425,10 @@ def wave(
 
     Paths run over ``passable`` cells (where the robot's centre may be). With
     ``target`` (the free cells; passable cells count as target cells anyway), a cell the
-    centre cannot reach -- beside a wall, in a gap narrower than the robot -- is reached
-    by a passable path and a last stretch over target cells, so it still pulls the robot
-    towards the nearest place from which it can be seen. With ``limit`` (metres), the
+    centre cannot reach -- beside a wall, at the mouth of a gap narrower than the robot --
+    is reached by a passable path and one last step onto it, so it still pulls the robot
+    towards the nearest place from which it can be seen; target cells are never crossed
+    on the way to others. With ``limit`` (metres), the
     wave stops there: cells farther away are left as if unreachable (the cells within
     get exactly the lengths and first steps of the full wave).
 

@@ -26,7 +26,7 @@ import numpy.typing as npt
 from ..errors import ConfigError
 from .forces import Force, choose_direction
 
-__all__ = ["POLICIES", "choose", "normalised"]
+__all__ = ["POLICIES", "choose", "goal_pulls", "normalised", "reactive_pick"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -41,6 +41,28 @@ def normalised(tb: F64, top: float | None = None) -> F64:
     """TB_n = TB / MTB(t) (``top``; default the largest of ``tb``), 0 when all is seen."""
     m = float(tb.max()) if top is None and len(tb) else (top or 0.0)
     return tb / m if m > 0 else np.zeros_like(tb)
+
+
+def reactive_pick(tb: F64, lengths: F64) -> int | None:
+    """The conscientious reactive agent's place: the index of the one unseen longest,
+    ties to the nearest, the robot's own cell left out (None when nothing else)."""
+    if not len(tb):
+        return None
+    oldest = tb >= tb.max() - 1e-9
+    pick = np.flatnonzero(oldest & (lengths > 0))
+    if len(pick) == 0:
+        return None
+    return int(pick[np.argmin(lengths[pick])])
+
+
+def goal_pulls(policy: str, force: Force, tb: F64, lengths: F64, top: float | None) -> F64:
+    """Log of each place's pull under ``policy`` (potential or gravity): the path
+    motion goes for the strongest place its chosen direction leads to."""
+    if policy == "gravity":
+        with np.errstate(divide="ignore"):
+            pulls = np.log(tb) - GRAVITY_K * np.log(lengths)
+        return np.where(lengths > 0, pulls, -np.inf)
+    return force.log_pull(normalised(tb, top), lengths)
 
 
 def choose(
@@ -80,16 +102,9 @@ def choose(
             log_pull = force.log_pull(normalised(tb, top), lengths)
         return choose_direction(log_pull, ux, uy, method, sectors, weights=weights, steps=steps)
     if policy == "reactive":
-        oldest = tb >= tb.max() - 1e-9
-        away = lengths > 0
-        pick = np.flatnonzero(oldest & away)
-        if len(pick) == 0:
-            return None
-        k = pick[np.argmin(lengths[pick])]
-        return float(ux[k]), float(uy[k])
+        k = reactive_pick(tb, lengths)
+        return None if k is None else (float(ux[k]), float(uy[k]))
     if policy == "gravity":
-        with np.errstate(divide="ignore"):
-            log_pull = np.log(tb) - GRAVITY_K * np.log(lengths)
-        log_pull = np.where(lengths > 0, log_pull, -np.inf)
-        return choose_direction(log_pull, ux, uy, "vector", sectors)
+        pulls = goal_pulls(policy, force, tb, lengths, top)
+        return choose_direction(pulls, ux, uy, "vector", sectors)
     raise ConfigError(f"unknown policy {policy!r}; valid: {', '.join(POLICIES)}")

@@ -25,7 +25,7 @@ import numpy.typing as npt
 from ..errors import ConfigError
 from ..grid import Grid
 from .paths import STEPS, nearest_step
-from .territory import segment_clear
+from .territory import move_clear
 
 __all__ = [
     "SPEED_BANDS",
@@ -139,7 +139,7 @@ class Holonomic(Team):
                     dx[i], dy[i] = vx / length, vy / length
         clear = want.copy()
         for i in np.flatnonzero(want).tolist():
-            if segment_clear(self.x[i], self.y[i], nx[i], ny[i], passable, grid):
+            if move_clear(self.x[i], self.y[i], nx[i], ny[i], passable, grid):
                 continue
             # Cells are coarser than the thesis's 10 cm, so a robot may stray up to half
             # a cell off the centre line of its path and clip a wall a centred robot
@@ -148,7 +148,7 @@ class Holonomic(Team):
             if alt is not None:
                 ax, ay = alt
                 ex, ey = self.x[i] + ax * step, self.y[i] + ay * step
-                if segment_clear(self.x[i], self.y[i], ex, ey, passable, grid):
+                if move_clear(self.x[i], self.y[i], ex, ey, passable, grid):
                     nx[i], ny[i], dx[i], dy[i] = ex, ey, ax, ay
                     continue
             clear[i] = False

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError
 from ..grid import Grid
 from .finders import PathFinder
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
@@ -39,12 +39,15 @@ from .forces import Force, sector_pulls, step_direction
 from .marching import Marching
 from .network import NETWORKS, components
 from .paths import STEP_UNITS, Wave, nearest_step, path_to, straight_paths
-from .policies import POLICIES, choose, normalised
+from .policies import POLICIES, choose, goal_pulls, reactive_pick
+from .reach import MODES as REACH_MODES
+from .reach import Reach, reach
 from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .regions import Regions
-from .robots import SPEED_BANDS, Car, Holonomic, Team, close_pairs
+from .robots import SPEED_BANDS, Car, Holonomic, Team
 from .semaphores import Semaphores
-from .territory import Territory, segment_clear
+from .starts import check_starts, format_starts, spread_starts
+from .territory import Territory, move_clear
 from .tour import plan_tour
 
 __all__ = [
@@ -52,9 +55,7 @@ __all__ = [
     "MODELS",
     "PatrolConfig",
     "PatrolResult",
-    "read_starts",
     "run_patrol",
-    "starts_from_dm",
 ]
 
 #: Anti-crowding rules: none; artificial obstacles (each robot blocks, on its own
@@ -64,15 +65,22 @@ CROWDING = ("none", "obstacles", "semaphores")
 #: Robot models: holonomic, or car-like (:class:`~sonarmap.patrol.robots.Car`).
 MODELS = ("holonomic", "car")
 #: How a holonomic robot moves: a full step straight along its chosen direction (the
-#: thesis's), or a step along the wave's shortest path towards the strongest pull in
-#: that direction (``path``: no overshooting the narrow bands of door-ways).
-MOTIONS = ("straight", "path")
+#: thesis's), or a step along the wave's shortest path towards the place it goes for
+#: (``path``: the strongest pull in the chosen direction, the reactive agent's place,
+#: the tour's waypoint; no overshooting the narrow bands of door-ways, no jamming on
+#: corners); ``auto`` is ``path`` where it applies (holonomic robots, the wave, a
+#: policy with a place to go for, no refinement) and ``straight`` elsewhere.
+MOTIONS = ("auto", "straight", "path")
+#: Policies the path motion can follow.
+PATH_POLICIES = ("potential", "reactive", "gravity", "cycle")
 #: Path-finders built once per run for the static map (:mod:`.regions`, :mod:`.marching`).
 FINDERS: dict[str, type[PathFinder]] = {"regions": Regions, "marching": Marching}
 #: Every path-finding: the wave, straight lines (open space) and the static finders.
 PATHS = ("wave", "straight", *FINDERS)
 
 F64 = npt.NDArray[np.float64]
+#: The most steps one run may take (about 58 days at 0.5 s): more is a typo.
+MAX_STEPS = 10_000_000
 
 
 @dataclass(frozen=True)
@@ -81,7 +89,7 @@ class PatrolConfig:
 
     policy: str = "potential"
     model: str = "holonomic"
-    motion: str = "straight"
+    motion: str = "auto"
     force: Force = field(default_factory=Force)
     direction: str = "mode"
     sectors: int = 8
@@ -120,6 +128,9 @@ class PatrolConfig:
     #: float64 precision, or, for the mode's choice, below the lead of the strongest
     #: step); False runs every wave over the whole map. The runs are the same either way.
     prune: bool = True
+    #: The places watched: ``reachable`` (what the robots can get to from the starts,
+    #: :mod:`.reach`) or ``free`` (every free cell, the thesis's reading).
+    reach: str = "reachable"
 
     def __post_init__(self) -> None:
         # Lengths left unset follow the robot's size, as the thesis's do (1 m robots,
@@ -142,12 +153,16 @@ class PatrolConfig:
             raise ConfigError(
                 f"unknown motion {self.motion!r}; valid: {', '.join(MOTIONS)}", field="motion"
             )
-        if self.motion == "path" and not (
-            self.model == "holonomic" and self.paths == "wave" and self.policy == "potential"
-        ):
+        fits_path = (
+            self.model == "holonomic" and self.paths == "wave" and self.policy in PATH_POLICIES
+        )
+        if self.motion == "auto":
+            chosen = "path" if fits_path and not self.refine else "straight"
+            object.__setattr__(self, "motion", chosen)
+        if self.motion == "path" and not fits_path:
             raise ConfigError(
-                "motion 'path' follows the wave's paths of the potential field with "
-                "holonomic robots (--model holonomic --paths wave --policy potential)",
+                "motion 'path' follows the wave's paths with holonomic robots (--model "
+                f"holonomic --paths wave --policy {'/'.join(PATH_POLICIES)})",
                 field="motion",
             )
         if self.motion == "path" and self.refine:
@@ -164,6 +179,11 @@ class PatrolConfig:
                 f"path-finding {self.paths!r} is built once for a static map and cannot "
                 f"follow the map edits of crowding {self.crowding!r}; use the wave",
                 field="paths",
+            )
+        if self.reach not in REACH_MODES:
+            raise ConfigError(
+                f"unknown territory mode {self.reach!r}; valid: {', '.join(REACH_MODES)}",
+                field="reach",
             )
         if self.policy not in POLICIES:
             raise ConfigError(
@@ -214,6 +234,12 @@ class PatrolConfig:
                 f"duration {self.duration:g} s is shorter than one step of {self.dt:g} s",
                 field="duration",
             )
+        if self.duration / self.dt > MAX_STEPS:
+            raise ConfigError(
+                f"duration {self.duration:g} s is {self.duration / self.dt:.3g} steps of "
+                f"{self.dt:g} s; at most {MAX_STEPS:,} steps",
+                field="duration",
+            )
         if self.warmup is not None and not (0 <= self.warmup < self.duration):
             raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}", field="warmup")
 
@@ -246,10 +272,16 @@ class PatrolResult:
     escape_steps: npt.NDArray[np.int64]
     #: The team's mean DVT so far, in %, after each step.
     dvt: F64
-    #: The cells the metric watches (the free cells).
+    #: The cells the metric watches (:attr:`Reach.watched`).
     watched: npt.NDArray[np.bool_]
     #: Share of the watched cells no robot ever saw.
     unseen: float = 0.0
+    #: What the team patrolled and what was left out (:mod:`.reach`).
+    reach: Reach | None = None
+    #: World (x, y, heading) of every robot at the start.
+    starts: F64 = field(default_factory=lambda: np.zeros((0, 3)))
+    #: Watched cells no robot ever saw.
+    never_seen: npt.NDArray[np.bool_] | None = None
 
     def dvt_per_robot(self) -> F64:
         """Share of the run each robot spent escaping dead ends, in %."""
@@ -269,6 +301,7 @@ class PatrolResult:
             # Places no robot has seen yet: while any is left, MTB(t) is the time itself
             # and the mean MTB says only that the run was too short.
             "never_seen": self.unseen,
+            **(self.reach.summary() if self.reach is not None else {}),
             "steps": len(self.t),
             "sim_seconds": float(self.t[-1]) if len(self.t) else 0.0,
             "wall_seconds": round(self.wall_seconds, 3),
@@ -337,8 +370,9 @@ class PatrolResult:
         Returns
         -------
         list of Path
-            The files written: ``metrics.csv``, ``summary.json``, ``fog.png``, then the
-            batch output and ``patrol.gif`` when asked for.
+            The files written: ``metrics.csv``, ``summary.json``, ``fog.png``,
+            ``starts.txt`` (the starts used, in the start-file format), then the batch
+            output and ``patrol.gif`` when asked for.
         """
         # Imported here: the plotting stack is only needed to write.
         from ..files import atomic_folder, atomic_write_text, json_dumps
@@ -346,8 +380,9 @@ class PatrolResult:
 
         out = Path(folder)
         robots = self.summary()["robots"]
-        names = ["metrics.csv", "summary.json", "fog.png"]
+        names = ["metrics.csv", "summary.json", "fog.png", "starts.txt"]
         with atomic_folder(out) as tmp:
+            atomic_write_text(tmp / "starts.txt", format_starts(self.starts, territory))
             if animation is not None:
                 animation.title = f"{self.config.policy}, {robots} robots"
                 animation.save(tmp / "patrol.gif")
@@ -378,81 +413,6 @@ class PatrolResult:
         return [out / n for n in names]
 
 
-def read_starts(path: str | Path, territory: Territory) -> F64:
-    """A start file in the thesis's format: the robot count, then ``X Y phi`` per line,
-    X and Y in decimetres from the map's top-left corner (Y down), phi in radians.
-    Returns world (x, y, heading) per robot."""
-    p = Path(path)
-    try:
-        lines = [ln.strip() for ln in p.read_text().splitlines()]
-    except OSError as err:
-        raise InputError(f"cannot read start file ({err.strerror or err})", path=p) from err
-    except UnicodeDecodeError as err:
-        raise InputError("start file is not text", path=p) from err
-    body = [(k + 1, ln) for k, ln in enumerate(lines) if ln and not ln.startswith("#")]
-    if not body:
-        raise InputError("start file is empty; expected the robot count", path=p)
-    line, head = body[0]
-    try:
-        n = int(head)
-    except ValueError:
-        raise InputError(f"expected the robot count, got {head!r}", path=p, line=line) from None
-    if n < 1:
-        raise InputError(f"robot count must be >= 1, got {n}", path=p, line=line)
-    if len(body) - 1 < n:
-        raise InputError(f"the file says {n} robots but lists {len(body) - 1}", path=p)
-    rows = []
-    for line, text in body[1 : n + 1]:
-        parts = text.split()
-        try:
-            xd, yd, phi = (float(v) for v in parts)
-        except ValueError:
-            raise InputError(f"expected 'X Y phi', got {text!r}", path=p, line=line) from None
-        rows.append((xd, yd, phi))
-    return starts_from_dm(rows, territory)
-
-
-def starts_from_dm(rows: Sequence[tuple[float, float, float]], territory: Territory) -> F64:
-    """World (x, y, heading) of starts given as ``X Y phi``, X and Y in decimetres from
-    the map's top-left corner (Y down), phi in radians."""
-    g = territory.grid
-    top = g.origin[1] + g.rows * g.resolution
-    out = [(g.origin[0] + xd / 10.0, top - yd / 10.0, phi) for xd, yd, phi in rows]
-    return np.array(out, dtype=np.float64).reshape(-1, 3)
-
-
-def _check_starts(
-    starts: F64, territory: Territory, passable: npt.NDArray[np.bool_], sep: float
-) -> None:
-    r, c = territory.grid.world_to_cell(starts[:, 0], starts[:, 1])
-    for i in range(len(starts)):
-        where = f"robot {i + 1} at ({starts[i, 0]:g}, {starts[i, 1]:g}) m"
-        if not territory.grid.contains(r[i], c[i]):
-            raise InputError(f"{where} is outside the map")
-        if not passable[r[i], c[i]]:
-            raise InputError(f"{where} is in or too near an obstacle for the robot's radius")
-    near = close_pairs(starts[:, 0], starts[:, 1], sep)
-    if near:
-        a, b = near[0]
-        raise InputError(f"robots {a + 1} and {b + 1} start closer than {sep:g} m")
-
-
-def random_starts(
-    n: int, territory: Territory, passable: npt.NDArray[np.bool_], sep: float, seed: int
-) -> F64:
-    """``n`` starts drawn on passable cells, at least ``sep`` apart, facing +x."""
-    rng = np.random.default_rng(seed)
-    cells = np.argwhere(passable)
-    out: list[tuple[float, float, float]] = []
-    for k in rng.permutation(len(cells)):
-        x, y = territory.grid.cell_centres(cells[k, :1], cells[k, 1:])
-        if all(math.hypot(x[0] - a, y[0] - b) >= sep for a, b, _ in out):
-            out.append((float(x[0]), float(y[0]), 0.0))
-            if len(out) == n:
-                return np.array(out)
-    raise InputError(f"room for only {len(out)} robots {sep:g} m apart on this map, not {n}")
-
-
 def _follow_tour(
     i: int,
     tour: npt.NDArray[np.int64],
@@ -473,29 +433,33 @@ def _follow_tour(
     return None
 
 
+def _goal_index(
+    direction: tuple[float, float] | None, step: npt.NDArray[np.int8], lp: F64
+) -> int | None:
+    """The place with the strongest pull ``lp`` among those whose first step is the
+    one nearest ``direction`` (None when there is none)."""
+    if direction is None or not len(lp):
+        return None
+    mine = np.flatnonzero(step == nearest_step(*direction))
+    if not len(mine):
+        return None
+    return int(mine[int(np.argmax(lp[mine]))])
+
+
 def _path_goal(
     team: Team,
     i: int,
-    direction: tuple[float, float] | None,
-    rr: npt.NDArray[np.intp],
-    cc: npt.NDArray[np.intp],
-    step: npt.NDArray[np.int8],
-    lp: F64,
+    cell: tuple[int, int] | None,
     waver: Wave,
     g: Grid,
     passable: npt.NDArray[np.bool_],
     config: PatrolConfig,
 ) -> tuple[float, float] | None:
-    """Where robot i gets to in one step along the shortest path to the strongest pull
-    among the places its chosen direction leads to (path motion)."""
-    if direction is None or not len(lp):
+    """Where robot i gets to in one step along the wave's shortest path to ``cell``
+    (path motion; None when there is no cell or no clear step)."""
+    if cell is None or not np.isfinite(waver.dist[cell]) or waver.dist[cell] <= 0:
         return None
-    k = nearest_step(*direction)
-    mine = np.flatnonzero(step == k)
-    if not len(mine):
-        return None
-    best = mine[int(np.argmax(lp[mine]))]
-    cells = path_to(waver.dist, (int(rr[best]), int(cc[best])), g.resolution)
+    cells = path_to(waver.dist, cell, g.resolution)
     px, py = g.cell_centres(cells[1:, 0], cells[1:, 1])
     x0, y0 = float(team.x[i]), float(team.y[i])
     x, y = x0, y0
@@ -506,7 +470,7 @@ def _path_goal(
     for qx, qy in zip(px.tolist(), py.tolist(), strict=True):
         d = math.hypot(qx - x, qy - y)
         end = (x + (qx - x) * left / d, y + (qy - y) * left / d) if d >= left else (qx, qy)
-        if not segment_clear(x0, y0, end[0], end[1], passable, g):
+        if not move_clear(x0, y0, end[0], end[1], passable, g):
             break
         reach = end
         if d >= left:
@@ -525,30 +489,57 @@ def run_patrol(
     progress: Callable[[int, int], None] | None = None,
     on_step: Callable[[float, Team, Fog], None] | None = None,
     semaphores: list[npt.NDArray[np.bool_]] | None = None,
+    region: npt.NDArray[np.bool_] | None = None,
 ) -> PatrolResult:
     """Patrol ``territory`` for ``config.duration`` seconds.
 
     Parameters
     ----------
     starts : ndarray (N, 3), optional
-        World (x, y, heading) per robot; otherwise ``robots`` random starts (seeded).
+        World (x, y, heading) per robot; otherwise ``robots`` starts spread over the
+        reachable territory (:func:`~sonarmap.patrol.starts.spread_starts`, seeded).
     on_step : callable, optional
         Called after every step with the time, the robots and the fog (for pictures).
     semaphores : list of ndarray of bool, optional
         The semaphores' cells (:func:`~sonarmap.patrol.semaphores.read_semaphores`);
         needed by ``crowding="semaphores"``.
+    region : ndarray of bool, optional
+        The user's territory mask on the territory's grid (:mod:`.region`): nothing
+        outside it is entered or watched.
+
+    Raises
+    ------
+    InputError
+        A start outside the map, the region, or too near an obstacle or another robot;
+        a territory with nothing to patrol (:func:`~sonarmap.patrol.reach.reach`).
     """
     if seed < 0:
         raise ConfigError(f"seed must be >= 0, got {seed}")
     if config.crowding == "semaphores" and not semaphores:
         raise ConfigError("crowding 'semaphores' needs a semaphore file (--semaphores)")
     sems = Semaphores(semaphores or [])
-    passable = territory.passable(config.radius)
     if starts is None:
         if robots is None or robots < 1:
             raise ConfigError("give start positions or a number of robots >= 1")
-        starts = random_starts(robots, territory, passable, config.min_separation, seed)
-    _check_starts(starts, territory, passable, config.min_separation)
+        where = reach(
+            territory, config.radius, region=region, mode=config.reach, vision=config.vision
+        )
+        starts = spread_starts(robots, territory, where.passable, config.min_separation, seed)
+    else:
+        inside = territory.passable(config.radius)
+        if region is not None:
+            inside = inside & region
+        check_starts(starts, territory, inside, config.min_separation)
+        rc = np.column_stack(territory.grid.world_to_cell(starts[:, 0], starts[:, 1]))
+        where = reach(
+            territory,
+            config.radius,
+            starts=rc,
+            region=region,
+            mode=config.reach,
+            vision=config.vision,
+        )
+    passable = where.passable
     team: Team
     if config.model == "car":
         team = Car(
@@ -573,14 +564,14 @@ def run_patrol(
             p_random=config.p_random,
         )
     g = territory.grid
-    fog = Fog(g, territory.free, config.start_fog)  # the true fog: the metric
+    watched = where.watched
+    fog = Fog(g, watched, config.start_fog)  # the true fog: the metric
     # Each robot's own fog; with the full network they are all the true fog.
     shared = config.network == "full"
-    own = [fog] if shared else [Fog(g, territory.free, config.start_fog) for _ in starts]
+    own = [fog] if shared else [Fog(g, watched, config.start_fog) for _ in starts]
     disc = Vision(config.vision, g.resolution, territory.free if config.line_of_sight else None)
     rng = np.random.default_rng(seed)
     cx, cy = g.all_centres()
-    watched = territory.free
     steps = round(config.duration / config.dt)
     t_out = np.empty(steps)
     mtb = np.empty(steps)
@@ -736,6 +727,10 @@ def run_patrol(
                 lengths, ux, uy = dist[rr, cc], gx[rr, cc], gy[rr, cc]
             if config.policy == "cycle":
                 directions.append(_follow_tour(i, tour, target, waver.dist, waver.first, config))
+                way = (int(tour[target[i], 0]), int(tour[target[i], 1]))
+                goals.append(
+                    _path_goal(team, i, way, waver, g, passable, config) if along_path else None
+                )
                 continue
             directions.append(
                 choose(
@@ -755,23 +750,19 @@ def run_patrol(
                     steps=step,
                 )
             )
-            goals.append(
-                _path_goal(
-                    team,
-                    i,
-                    directions[-1],
-                    rr,
-                    cc,
-                    step,
-                    config.force.log_pull(normalised(tbv, top), lengths),
-                    waver,
-                    g,
-                    passable,
-                    config,
+            goal: tuple[int, int] | None = None
+            if along_path and step is not None:
+                pick = (
+                    reactive_pick(tbv, lengths)
+                    if config.policy == "reactive"
+                    else _goal_index(
+                        directions[-1],
+                        step,
+                        goal_pulls(config.policy, config.force, tbv, lengths, top),
+                    )
                 )
-                if along_path and step is not None
-                else None
-            )
+                goal = None if pick is None else (int(rr[pick]), int(cc[pick]))
+            goals.append(_path_goal(team, i, goal, waver, g, passable, config))
         if penalty is not None:
             directions = [
                 d
@@ -819,4 +810,7 @@ def run_patrol(
         dvt,
         watched,
         float(np.mean(fog.last[watched] == -config.start_fog)),
+        reach=where,
+        starts=np.array(starts, dtype=np.float64),
+        never_seen=watched & (fog.last == -config.start_fog),
     )

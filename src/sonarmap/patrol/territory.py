@@ -18,9 +18,9 @@ from scipy import ndimage
 
 from ..errors import ConfigError, InputError
 from ..grid import Grid
-from ..io.rosmap import FREE, OCCUPIED, OccupancyMap
+from ..io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 
-__all__ = ["Territory", "segment_clear"]
+__all__ = ["Territory", "move_clear", "segment_clear"]
 
 
 def segment_clear(
@@ -41,6 +41,30 @@ def segment_clear(
     return bool(inside.all() and clear[r, c].all())
 
 
+def move_clear(
+    x0: float,
+    y0: float,
+    x1: float,
+    y1: float,
+    clear: npt.NDArray[np.bool_],
+    grid: Grid,
+    step: float = 0.25,
+) -> bool:
+    """A robot's centre may move along the segment: both ends and the midpoints of
+    ``step``-cell pieces of it lie inside the map on ``clear`` cells.
+
+    Unlike :func:`segment_clear`, no sample falls on the corner a diagonal move between
+    two cell centres crosses: such a move is the wave's diagonal step, which a path may
+    take between two clear cells whatever the two cells beside the corner are (where
+    the point on the corner would be read as one of them, arbitrarily).
+    """
+    n = max(1, math.ceil(math.hypot(x1 - x0, y1 - y0) / (grid.resolution * step)))
+    t = np.concatenate([[0.0], (np.arange(n) + 0.5) / n, [1.0]])
+    r, c = grid.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
+    inside = grid.contains(r, c)
+    return bool(inside.all() and clear[r, c].all())
+
+
 @dataclass(frozen=True, eq=False)
 class Territory:
     """A patrolled map.
@@ -53,11 +77,15 @@ class Territory:
     clearance : ndarray of float, shape grid.shape
         Distance in metres from each cell's centre to the nearest cell that is not free
         (or to the map's edge).
+    unknown : ndarray of bool, shape grid.shape, optional
+        Cells the map marks unknown (most of their map cells are); None when the
+        territory was not made from a map.
     """
 
     grid: Grid
     free: npt.NDArray[np.bool_]
     clearance: npt.NDArray[np.float64]
+    unknown: npt.NDArray[np.bool_] | None = None
 
     @classmethod
     def from_map(cls, m: OccupancyMap, cell: float | None = None) -> Territory:
@@ -67,6 +95,7 @@ class Territory:
         InputError."""
         classes = m.classes()
         free = classes == FREE
+        unknown = classes == UNKNOWN
         grid = m.grid
         if cell is not None:
             if not (np.isfinite(cell) and cell > 0):
@@ -82,6 +111,9 @@ class Territory:
                 hit[: free.shape[0], : free.shape[1]] = classes == OCCUPIED
                 # Any occupied pixel closes the cell: a thin wall must stay a wall.
                 free = (share > 0.5) & ~hit.reshape(rows, k, cols, k).any(axis=(1, 3))
+                grey = np.zeros((rows * k, cols * k))
+                grey[: unknown.shape[0], : unknown.shape[1]] = unknown
+                unknown = grey.reshape(rows, k, cols, k).mean(axis=(1, 3)) > 0.5
                 # Rows are counted from the top: the coarse grid keeps the top edge.
                 top = grid.origin[1] + grid.rows * grid.resolution
                 res = grid.resolution * k
@@ -96,7 +128,7 @@ class Territory:
         # the gap to that cell's edge.
         dist = ndimage.distance_transform_edt(padded)[1:-1, 1:-1] * grid.resolution
         clearance = np.where(free, dist - 0.5 * grid.resolution, 0.0)
-        return cls(grid, free, clearance)
+        return cls(grid, free, clearance, unknown)
 
     def passable(self, radius: float) -> npt.NDArray[np.bool_]:
         """Cells where the centre of a disc of ``radius`` metres may be."""

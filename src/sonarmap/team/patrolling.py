@@ -36,7 +36,8 @@ from ..errors import ConfigError
 from ..io.rosmap import OccupancyMap
 from ..patrol.fog import Fog
 from ..patrol.robots import Team
-from ..patrol.simulation import PatrolConfig, PatrolResult, random_starts, run_patrol
+from ..patrol.simulation import PatrolConfig, PatrolResult, run_patrol
+from ..patrol.starts import random_starts
 from ..patrol.territory import Territory
 
 __all__ = ["patrol_config", "patrol_routes"]

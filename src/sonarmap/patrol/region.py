@@ -1,0 +1,111 @@
+"""A user's territory mask: only the inside of a building, say, of a map whose outside
+is drawn free.
+
+Two formats:
+
+- a map_server map (``.yaml`` and its image) in the map's frame, at any resolution: its
+  free cells are inside. A territory cell is inside when the mask's cell under its
+  centre is free; cells beyond the mask's extent are outside;
+- a polygon file (any other suffix): one ``x y`` vertex a line, in metres in the map's
+  frame (the frame of its YAML ``origin``), ``#`` comments; a blank line ends a
+  polygon, so one file may hold several. A cell is inside when its centre is inside
+  any polygon.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import InputError
+from ..grid import Grid
+from ..io.rosmap import FREE, read_map
+
+__all__ = ["read_polygons", "read_region"]
+
+
+def read_polygons(path: str | Path) -> list[npt.NDArray[np.float64]]:
+    """The polygons of a polygon file, each (K, 2) in metres, K >= 3.
+
+    Raises
+    ------
+    InputError
+        Naming the file and line: unreadable, not two finite numbers, a polygon of
+        fewer than 3 vertices, no polygon at all.
+    """
+    p = Path(path)
+    try:
+        lines = p.read_text().splitlines()
+    except OSError as err:
+        raise InputError(f"cannot read territory file ({err.strerror or err})", path=p) from err
+    except UnicodeDecodeError as err:
+        raise InputError("territory file is neither a map YAML nor text", path=p) from err
+    polygons: list[npt.NDArray[np.float64]] = []
+    current: list[tuple[float, float]] = []
+    start = 0
+
+    def close(line: int) -> None:
+        if not current:
+            return
+        if len(current) < 3:
+            raise InputError(
+                f"a polygon needs at least 3 vertices, got {len(current)}", path=p, line=line
+            )
+        polygons.append(np.array(current, dtype=np.float64))
+        current.clear()
+
+    for number, raw in enumerate(lines, start=1):
+        text = raw.split("#", 1)[0].strip()
+        if not text:
+            close(start)
+            continue
+        if not current:
+            start = number
+        parts = text.replace(",", " ").split()
+        try:
+            x, y = (float(v) for v in parts)
+        except ValueError:
+            raise InputError(
+                f"expected 'x y' in metres, got {raw.strip()!r}", path=p, line=number
+            ) from None
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise InputError(f"expected finite numbers, got {raw.strip()!r}", path=p, line=number)
+        current.append((x, y))
+    close(start)
+    if not polygons:
+        raise InputError("the territory file holds no polygon", path=p)
+    return polygons
+
+
+def read_region(path: str | Path, grid: Grid) -> npt.NDArray[np.bool_]:
+    """The territory mask of a file (module notes for the formats) on ``grid``.
+
+    Raises
+    ------
+    InputError
+        Naming the file: unreadable or malformed, or a mask that covers no cell.
+    """
+    p = Path(path)
+    cx, cy = grid.all_centres()
+    if p.suffix.lower() in (".yaml", ".yml"):
+        mask_map = read_map(p)
+        r, c = mask_map.grid.world_to_cell(cx, cy)
+        ok = mask_map.grid.contains(r, c)
+        free = mask_map.classes() == FREE
+        inside = np.zeros(grid.shape, dtype=bool)
+        inside[ok] = free[r[ok], c[ok]]
+    else:
+        # matplotlib is heavy to import and only this branch needs it.
+        from matplotlib.path import Path as Polygon
+
+        points = np.column_stack([cx.ravel(), cy.ravel()])
+        hits = np.zeros(points.shape[0], dtype=bool)
+        for poly in read_polygons(p):
+            hits |= Polygon(poly).contains_points(points)
+        inside = hits.reshape(grid.shape)
+    if not inside.any():
+        raise InputError("the territory mask covers no cell of the map", path=p)
+    return inside
