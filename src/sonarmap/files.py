@@ -32,6 +32,7 @@ __all__ = [
     "json_dumps",
     "live_outputs",
     "need_file",
+    "read_text",
     "read_yaml",
 ]
 
@@ -258,6 +259,30 @@ def need_file(path: str | Path, what: str = "file") -> Path:
     return p
 
 
+def read_text(path: str | Path, what: str = "file") -> str:
+    """The text of a file, or one :class:`InputError` naming it.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    what : str, default "file"
+        What the file is, for the error message.
+
+    Raises
+    ------
+    InputError
+        If the file cannot be read or is not text.
+    """
+    p = Path(path)
+    try:
+        return p.read_text()
+    except OSError as err:
+        raise InputError(f"cannot read {what} ({err.strerror or err})", path=p) from err
+    except UnicodeDecodeError as err:
+        raise InputError(f"{what} is not text ({err.reason})", path=p) from err
+
+
 def read_yaml(path: str | Path, what: str = "file") -> Any:
     """Parse a YAML file with the safe loader.
 
@@ -280,12 +305,9 @@ def read_yaml(path: str | Path, what: str = "file") -> Any:
         gives the line of a syntax error.
     """
     p = Path(path)
+    text = read_text(p, what)
     try:
-        return yaml.safe_load(p.read_text())
-    except OSError as err:
-        raise InputError(f"cannot read {what} ({err.strerror})", path=p) from err
-    except UnicodeDecodeError as err:
-        raise InputError(f"{what} is not text ({err.reason})", path=p) from err
+        return yaml.safe_load(text)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         problem = getattr(err, "problem", None) or type(err).__name__

@@ -21,10 +21,11 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError
+from ..files import read_text
 from ..grid import Grid
 from ..io.rosmap import FREE, read_map
 
-__all__ = ["read_polygons", "read_region"]
+__all__ = ["polygon_mask", "read_polygons", "read_region"]
 
 
 def read_polygons(path: str | Path) -> list[npt.NDArray[np.float64]]:
@@ -37,12 +38,7 @@ def read_polygons(path: str | Path) -> list[npt.NDArray[np.float64]]:
         fewer than 3 vertices, no polygon at all.
     """
     p = Path(path)
-    try:
-        lines = p.read_text().splitlines()
-    except OSError as err:
-        raise InputError(f"cannot read territory file ({err.strerror or err})", path=p) from err
-    except UnicodeDecodeError as err:
-        raise InputError("territory file is neither a map YAML nor text", path=p) from err
+    lines = read_text(p, "territory file").splitlines()
     polygons: list[npt.NDArray[np.float64]] = []
     current: list[tuple[float, float]] = []
     start = 0
@@ -80,6 +76,17 @@ def read_polygons(path: str | Path) -> list[npt.NDArray[np.float64]]:
     return polygons
 
 
+def polygon_mask(vertices: npt.NDArray[np.float64], grid: Grid) -> npt.NDArray[np.bool_]:
+    """The cells of ``grid`` whose centres lie inside a polygon of (K, 2) world
+    vertices, metres."""
+    # matplotlib is heavy to import and only this function needs it.
+    from matplotlib.path import Path as Polygon
+
+    cx, cy = grid.all_centres()
+    inside = Polygon(vertices).contains_points(np.column_stack([cx.ravel(), cy.ravel()]))
+    return np.asarray(inside.reshape(grid.shape), dtype=bool)
+
+
 def read_region(path: str | Path, grid: Grid) -> npt.NDArray[np.bool_]:
     """The territory mask of a file (module notes for the formats) on ``grid``.
 
@@ -89,23 +96,15 @@ def read_region(path: str | Path, grid: Grid) -> npt.NDArray[np.bool_]:
         Naming the file: unreadable or malformed, or a mask that covers no cell.
     """
     p = Path(path)
-    cx, cy = grid.all_centres()
+    inside = np.zeros(grid.shape, dtype=bool)
     if p.suffix.lower() in (".yaml", ".yml"):
         mask_map = read_map(p)
-        r, c = mask_map.grid.world_to_cell(cx, cy)
+        r, c = mask_map.grid.world_to_cell(*grid.all_centres())
         ok = mask_map.grid.contains(r, c)
-        free = mask_map.classes() == FREE
-        inside = np.zeros(grid.shape, dtype=bool)
-        inside[ok] = free[r[ok], c[ok]]
+        inside[ok] = (mask_map.classes() == FREE)[r[ok], c[ok]]
     else:
-        # matplotlib is heavy to import and only this branch needs it.
-        from matplotlib.path import Path as Polygon
-
-        points = np.column_stack([cx.ravel(), cy.ravel()])
-        hits = np.zeros(points.shape[0], dtype=bool)
         for poly in read_polygons(p):
-            hits |= Polygon(poly).contains_points(points)
-        inside = hits.reshape(grid.shape)
+            inside |= polygon_mask(poly, grid)
     if not inside.any():
         raise InputError("the territory mask covers no cell of the map", path=p)
     return inside

@@ -20,7 +20,9 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError
+from ..files import read_text
 from ..grid import Grid
+from .region import polygon_mask
 
 __all__ = ["Semaphores", "polygon_cells", "read_semaphores"]
 
@@ -28,12 +30,7 @@ __all__ = ["Semaphores", "polygon_cells", "read_semaphores"]
 def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]:
     """The cells of each semaphore of a file (cell centres inside the polygon)."""
     p = Path(path)
-    try:
-        lines = p.read_text().splitlines()
-    except OSError as err:
-        raise InputError(f"cannot read semaphore file ({err.strerror or err})", path=p) from err
-    except UnicodeDecodeError as err:
-        raise InputError("semaphore file is not text", path=p) from err
+    lines = read_text(p, "semaphore file").splitlines()
     out = []
     for number, text in enumerate(lines, start=1):
         if not text.strip() or text.lstrip().startswith("#"):
@@ -56,14 +53,9 @@ def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]
 def polygon_cells(vertices_dm: Sequence[tuple[float, float]], grid: Grid) -> npt.NDArray[np.bool_]:
     """Cells whose centres lie inside a polygon given in decimetres from the map's
     top-left corner, y down (the thesis's frame)."""
-    # matplotlib is heavy to import and only this function needs it.
-    from matplotlib.path import Path as Polygon
-
     top = grid.origin[1] + grid.rows * grid.resolution
-    cx, cy = grid.all_centres()
     world = np.array([(grid.origin[0] + x / 10.0, top - y / 10.0) for x, y in vertices_dm])
-    inside = Polygon(world).contains_points(np.column_stack([cx.ravel(), cy.ravel()]))
-    return np.asarray(inside.reshape(grid.shape), dtype=bool)
+    return polygon_mask(world, grid)
 
 
 class Semaphores:

@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError
+from ..files import read_text
 from .paths import Wave
 from .robots import close_pairs
 from .territory import Territory
@@ -46,12 +47,7 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
         fewer lines than the count, a line that is not three finite numbers.
     """
     p = Path(path)
-    try:
-        lines = [ln.strip() for ln in p.read_text().splitlines()]
-    except OSError as err:
-        raise InputError(f"cannot read start file ({err.strerror or err})", path=p) from err
-    except UnicodeDecodeError as err:
-        raise InputError("start file is not text", path=p) from err
+    lines = [ln.strip() for ln in read_text(p, "start file").splitlines()]
     body = [(k + 1, ln) for k, ln in enumerate(lines) if ln and not ln.startswith("#")]
     if not body:
         raise InputError("start file is empty; expected the robot count", path=p)

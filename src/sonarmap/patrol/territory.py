@@ -35,10 +35,7 @@ def segment_clear(
     """Every point of the segment lies inside the map on a ``clear`` cell (sampled every
     ``step`` cells)."""
     n = max(2, math.ceil(math.hypot(x1 - x0, y1 - y0) / (grid.resolution * step)) + 1)
-    t = np.linspace(0.0, 1.0, n)
-    r, c = grid.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
-    inside = grid.contains(r, c)
-    return bool(inside.all() and clear[r, c].all())
+    return _points_clear(x0, y0, x1, y1, np.linspace(0.0, 1.0, n), clear, grid)
 
 
 def move_clear(
@@ -60,9 +57,22 @@ def move_clear(
     """
     n = max(1, math.ceil(math.hypot(x1 - x0, y1 - y0) / (grid.resolution * step)))
     t = np.concatenate([[0.0], (np.arange(n) + 0.5) / n, [1.0]])
+    return _points_clear(x0, y0, x1, y1, t, clear, grid)
+
+
+def _points_clear(
+    x0: float,
+    y0: float,
+    x1: float,
+    y1: float,
+    t: npt.NDArray[np.float64],
+    clear: npt.NDArray[np.bool_],
+    grid: Grid,
+) -> bool:
+    """The points at fractions ``t`` of the segment all lie inside the map on ``clear``
+    cells."""
     r, c = grid.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
-    inside = grid.contains(r, c)
-    return bool(inside.all() and clear[r, c].all())
+    return bool(grid.contains(r, c).all() and clear[r, c].all())
 
 
 @dataclass(frozen=True, eq=False)

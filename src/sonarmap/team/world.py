@@ -42,7 +42,7 @@ import yaml
 from scipy import ndimage
 
 from ..errors import ConfigError, InputError
-from ..files import atomic_folder, need_file, read_yaml
+from ..files import atomic_folder, need_file, read_text, read_yaml
 from ..floorplan import random_building
 from ..grid import Grid
 from ..io.rosmap import FREE, OCCUPIED, OccupancyMap, read_map, write_map
@@ -836,13 +836,7 @@ def save_world(world: World, route: npt.ArrayLike | None, folder: str | Path) ->
 def _rows(path: Path, columns: Sequence[str], what: str) -> list[tuple[int, list[str]]]:
     """The data rows of a CSV with exactly ``columns`` as its header, with line numbers."""
     p = need_file(path, what)
-    try:
-        text = p.read_text()
-    except OSError as err:
-        raise InputError(f"cannot read {what} ({err.strerror})", path=p) from err
-    except UnicodeDecodeError as err:
-        raise InputError(f"{what} is not text ({err.reason})", path=p) from err
-    lines = text.splitlines()
+    lines = read_text(p, what).splitlines()
     if not lines or [h.strip() for h in lines[0].split(",")] != list(columns):
         raise InputError(f"header must be '{','.join(columns)}'", path=p, line=1)
     out: list[tuple[int, list[str]]] = []
