@@ -188,7 +188,7 @@ def test_bad_territory_input_is_one_line_and_writes_nothing(
 def test_an_indoor_robot_does_not_jam_on_the_depot_map() -> None:
     """One indoor robot on a real SLAM map, no start file: it sees what it can reach and
     is seldom blocked by walls (the issue found 39 % blocked and 85 % unseen; robots
-    blocking one another in corridors is not solved yet, docs/results)."""
+    meeting one another: test_patrol_traffic)."""
     from sonarmap.io.rosmap import read_map
 
     t = Territory.from_map(read_map(SHARED_DATA / "maps" / "depot.yaml"), cell=0.1)

@@ -138,6 +138,12 @@ PATROL_OPTIONS = (
         "none, obstacles (artificial obstacles around robots) or semaphores (--semaphores).",
     ),
     Opt(
+        "traffic",
+        "When moves would collide: thesis (both robots stop) or give-way (the later "
+        "robot stops first and, blocked, plans around the earlier robots near it for 5 s); "
+        "auto: give-way with the path motion.",
+    ),
+    Opt(
         "r_obst", "Artificial obstacles' radius, metres (default 3 x --radius).", unset_as=math.nan
     ),
     Opt(

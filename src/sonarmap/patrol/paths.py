@@ -469,8 +469,11 @@ def _back(
     c: int,
     steps: npt.NDArray[np.int64],
     resolution: float,
+    through: npt.NDArray[np.bool_],
 ) -> npt.NDArray[np.int64]:
     rows, cols = dist.shape
+    # A (1, 1) ``through`` lets the path through any cell the wave reached.
+    every = through.shape[0] == 1 and through.shape[1] == 1 and (rows > 1 or cols > 1)
     # Every step is at least one cell long: the path has at most L / cell + 1 cells.
     out = np.empty((int(dist[r, c] / resolution) + 2, 2), dtype=np.int64)
     n = 0
@@ -485,6 +488,8 @@ def _back(
             rr = r + steps[k, 0]
             cc = c + steps[k, 1]
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+                continue
+            if not every and not through[rr, cc]:
                 continue
             cost = diag if k % 2 == 1 else resolution
             # A predecessor on a shortest path: its length plus the step is this one's.
@@ -502,11 +507,27 @@ def _back(
 
 
 def path_to(
-    dist: npt.NDArray[np.float64], target: tuple[int, int], resolution: float
+    dist: npt.NDArray[np.float64],
+    target: tuple[int, int],
+    resolution: float,
+    passable: npt.NDArray[np.bool_] | None = None,
 ) -> npt.NDArray[np.int64]:
     """The cells (K, 2) of a shortest path from the wave's start to ``target``, start
-    first, read back from the wave's lengths ``dist`` (metres)."""
+    first, read back from the wave's lengths ``dist`` (metres).
+
+    ``passable`` (the map the wave ran on) keeps the path to cells the wave went
+    through: the wave also reaches, in one last step, target cells it may not cross,
+    and one of those can tie with a passable cell as the way back. Only ``target``
+    itself may then be impassable. Default: any cell the wave reached.
+    """
     r, c = target
     if not np.isfinite(dist[r, c]):
         raise ValueError(f"no path to {target}")
-    return _back(np.ascontiguousarray(dist), int(r), int(c), STEPS, float(resolution))
+    if passable is not None and passable.shape != dist.shape:
+        raise ValueError(f"passable cells of {passable.shape} for a wave of {dist.shape}")
+    through = (
+        np.ones((1, 1), dtype=np.bool_)
+        if passable is None
+        else np.ascontiguousarray(passable, dtype=np.bool_)
+    )
+    return _back(np.ascontiguousarray(dist), int(r), int(c), STEPS, float(resolution), through)

@@ -5,7 +5,9 @@ over the step keeps the disc clear of obstacles and inside the map (the territor
 passable cells). Robots must keep ``min_separation`` (2 m) between centres: if the
 chosen moves of several robots make a collision possible on a step, the moves of all
 of those robots are cancelled for that step (repeated until no possible collision is
-left, since a cancelled robot stays where another may be heading).
+left, since a cancelled robot stays where another may be heading). With ``give_way``
+(not the thesis's) of two robots whose moves collide only one stops, so that one of
+two robots meeting in a corridor keeps its way (:func:`cancel_collisions`).
 
 - :class:`Holonomic`: stands or moves at full speed (4.4 m/s) in a straight line along
   its chosen direction, turning at once. While blocked (its move cancelled), each step
@@ -61,6 +63,8 @@ class Team:
     radius: float = 1.0
     min_separation: float = 2.0
     p_random: float = 0.1
+    #: Collisions cancel the later robot's move first (:func:`cancel_collisions`).
+    give_way: bool = False
     blocked: npt.NDArray[np.bool_] = field(init=False)
     escaping: npt.NDArray[np.bool_] = field(init=False)
 
@@ -152,7 +156,9 @@ class Holonomic(Team):
                     nx[i], ny[i], dx[i], dy[i] = ex, ey, ax, ay
                     continue
             clear[i] = False
-        moving = cancel_collisions(self.x, self.y, nx, ny, clear, self.min_separation)
+        moving = cancel_collisions(
+            self.x, self.y, nx, ny, clear, self.min_separation, self.give_way
+        )
         self.blocked = want & ~moving
         self.x = np.where(moving, nx, self.x)
         self.y = np.where(moving, ny, self.y)
@@ -174,20 +180,48 @@ def _towards_next_cell(
 
 
 def cancel_collisions(
-    x: F64, y: F64, nx: F64, ny: F64, moving: npt.NDArray[np.bool_], sep: float
+    x: F64,
+    y: F64,
+    nx: F64,
+    ny: F64,
+    moving: npt.NDArray[np.bool_],
+    sep: float,
+    give_way: bool = False,
 ) -> npt.NDArray[np.bool_]:
-    """Who still moves once the moves of every robot in a possible collision (ending
-    closer than ``sep`` to another robot) are cancelled; repeated until none is left,
-    since a cancelled robot stays where another may be heading."""
+    """Who still moves once the moves of robots in a possible collision (ending closer
+    than ``sep`` to another robot) are cancelled; repeated until none is left, since a
+    cancelled robot stays where another may be heading.
+
+    By default (the thesis's rule) every moving robot of a pair loses its move. With
+    ``give_way``, of a pair where both move only one does when that parts them: the
+    later robot (the higher index), unless the earlier one would still run into it
+    where it stands, and the later one could move on (as when it backs off before the
+    earlier one). Of two robots meeting in a corridor one keeps its way.
+    """
     moving = moving.copy()
     while True:
         px = np.where(moving, nx, x)
         py = np.where(moving, ny, y)
         pairs = close_pairs(px, py, sep)
-        culprits = sorted({k for pair in pairs for k in pair if moving[k]})
+        culprits = {k for pair in pairs for k in pair if moving[k]}
+        if give_way:
+            culprits = set()
+            for i, j in pairs:
+                if moving[i] and moving[j]:
+                    culprits.add(_yielder(i, j, x, y, nx, ny, sep))
+                else:
+                    culprits.update(k for k in (i, j) if moving[k])
         if not culprits:
             return moving
-        moving[culprits] = False
+        moving[sorted(culprits)] = False
+
+
+def _yielder(i: int, j: int, x: F64, y: F64, nx: F64, ny: F64, sep: float) -> int:
+    """Which of robots i < j, both moving and ending too close, loses its move: j,
+    unless i's move alone still ends too close to j and j's alone does not."""
+    i_alone = math.hypot(nx[i] - x[j], ny[i] - y[j]) >= sep - 1e-9
+    j_alone = math.hypot(nx[j] - x[i], ny[j] - y[i]) >= sep - 1e-9
+    return i if j_alone and not i_alone else j
 
 
 def close_pairs(x: F64, y: F64, sep: float) -> list[tuple[int, int]]:
@@ -378,7 +412,9 @@ class Car(Team):
                 boxed.append(i)  # boxed in both ways: stand, still escaping
             else:
                 end[i] = move
-        moving = cancel_collisions(self.x, self.y, end[:, 0], end[:, 1], want, self.min_separation)
+        moving = cancel_collisions(
+            self.x, self.y, end[:, 0], end[:, 1], want, self.min_separation, self.give_way
+        )
         for i in boxed:
             moving[i] = False
         # A boxed-in car counts as blocked, so that its random re-targeting can free it.

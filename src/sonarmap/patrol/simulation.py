@@ -71,6 +71,14 @@ MODELS = ("holonomic", "car")
 #: corners); ``auto`` is ``path`` where it applies (holonomic robots, the wave, a
 #: policy with a place to go for, no refinement) and ``straight`` elsewhere.
 MOTIONS = ("auto", "straight", "path")
+#: What robots do when their moves would collide: ``thesis`` (both moves are cancelled)
+#: or ``give-way`` (the later robot's move is cancelled first, and a robot so blocked
+#: plans around the earlier robots near it for ``GIVE_WAY_TIME``, so that of two robots
+#: meeting in a corridor one backs off and the other passes); ``auto`` is ``give-way``
+#: with the path motion and ``thesis`` elsewhere.
+TRAFFIC = ("auto", "thesis", "give-way")
+#: Seconds a robot that gave way keeps planning around the robots it gave way to.
+GIVE_WAY_TIME = 5.0
 #: Policies the path motion can follow.
 PATH_POLICIES = ("potential", "reactive", "gravity", "cycle")
 #: Path-finders built once per run for the static map (:mod:`.regions`, :mod:`.marching`).
@@ -98,6 +106,7 @@ class PatrolConfig:
     r_max: float = 70.0
     dilation: int = 0
     crowding: str = "none"
+    traffic: str = "auto"
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
     r_obst: float = math.nan
     refine: bool = False
@@ -159,6 +168,14 @@ class PatrolConfig:
         if self.motion == "auto":
             chosen = "path" if fits_path and not self.refine else "straight"
             object.__setattr__(self, "motion", chosen)
+        if self.traffic not in TRAFFIC:
+            raise ConfigError(
+                f"unknown traffic rule {self.traffic!r}; valid: {', '.join(TRAFFIC)}",
+                field="traffic",
+            )
+        if self.traffic == "auto":
+            rule = "give-way" if self.motion == "path" else "thesis"
+            object.__setattr__(self, "traffic", rule)
         if self.motion == "path" and not fits_path:
             raise ConfigError(
                 "motion 'path' follows the wave's paths with holonomic robots (--model "
@@ -446,6 +463,15 @@ def _goal_index(
     return int(mine[int(np.argmax(lp[mine]))])
 
 
+def _give_way(team: Team, until: npt.NDArray[np.int64], step: int, near: float) -> None:
+    """Robots blocked with an earlier robot within ``near`` metres plan around the
+    earlier robots near them until ``step``."""
+    for i in np.flatnonzero(team.blocked).tolist():
+        d = np.hypot(team.x[:i] - team.x[i], team.y[:i] - team.y[i])
+        if (d < near).any():
+            until[i] = step
+
+
 def _path_goal(
     team: Team,
     i: int,
@@ -459,7 +485,7 @@ def _path_goal(
     (path motion; None when there is no cell or no clear step)."""
     if cell is None or not np.isfinite(waver.dist[cell]) or waver.dist[cell] <= 0:
         return None
-    cells = path_to(waver.dist, cell, g.resolution)
+    cells = path_to(waver.dist, cell, g.resolution, passable)
     px, py = g.cell_centres(cells[1:, 0], cells[1:, 1])
     x0, y0 = float(team.x[i]), float(team.y[i])
     x, y = x0, y0
@@ -549,6 +575,7 @@ def run_patrol(
             radius=config.radius,
             min_separation=config.min_separation,
             p_random=config.p_random,
+            give_way=config.traffic == "give-way",
             clearance=territory.clearance,
             turn_radius=config.turn_radius,
             bands=config.speed_bands,
@@ -562,6 +589,7 @@ def run_patrol(
             speed=config.speed,
             min_separation=config.min_separation,
             p_random=config.p_random,
+            give_way=config.traffic == "give-way",
         )
     g = territory.grid
     watched = where.watched
@@ -587,6 +615,11 @@ def run_patrol(
         else None
     )
     label = np.zeros(len(team), dtype=np.int64)
+    # give-way: until which step each robot plans around the earlier robots near it.
+    yielding = np.full(len(team), -1, dtype=np.int64)
+    yield_steps = max(1, round(GIVE_WAY_TIME / config.dt))
+    yield_disc = disc_offsets(config.min_separation, g.resolution)
+    yield_range = config.min_separation + config.speed * GIVE_WAY_TIME
 
     def look() -> None:
         nonlocal label
@@ -602,22 +635,29 @@ def run_patrol(
             f.observe(r[heard], c[heard], disc)
 
     def closed_cells(
-        i: int, r: npt.NDArray[np.intp], c: npt.NDArray[np.intp]
+        i: int, r: npt.NDArray[np.intp], c: npt.NDArray[np.intp], now: int
     ) -> npt.NDArray[np.intp] | None:
         """Cells closed on robot i's path-finding map, as (row, column) pairs: the
         crowding rule closes the active semaphores it does not hold, or discs around
-        the other robots it hears of (its own cell stays open)."""
+        the other robots it hears of; a robot giving way closes discs around the
+        earlier robots near it (its own cell stays open)."""
         heard = label == label[i]
-        if config.crowding == "semaphores":
-            return sems.closed_cells(i, heard)
-        if config.crowding == "obstacles" and len(team) > 1:
+        parts: list[npt.NDArray[np.intp]] = []
+        if yielding[i] >= now:
+            near = np.hypot(team.x[:i] - team.x[i], team.y[:i] - team.y[i]) < yield_range
             parts = [
+                np.column_stack(disc_cells(yield_disc, int(r[j]), int(c[j]), passable.shape))
+                for j in np.flatnonzero(near & heard[:i]).tolist()
+            ]
+        if config.crowding == "semaphores":
+            parts.append(sems.closed_cells(i, heard))
+        if config.crowding == "obstacles" and len(team) > 1:
+            parts += [
                 np.column_stack(disc_cells(obst, int(r[j]), int(c[j]), passable.shape))
                 for j in np.flatnonzero(heard).tolist()
                 if j != i
             ]
-            return np.concatenate(parts) if parts else None
-        return None
+        return np.concatenate(parts) if parts else None
 
     look()
     wall0 = time.perf_counter()
@@ -677,7 +717,7 @@ def run_patrol(
                 tbv = lengths = ux = uy = np.empty(0)
             elif config.paths == "wave" or config.policy == "cycle":
                 start = (int(r[i]), int(c[i]))
-                closed = closed_cells(i, r, c)
+                closed = closed_cells(i, r, c, k)
                 if config.policy == "potential":
                     # Only the places near the robot can change its choice (see
                     # Force.pull_limit): the wave stops there unless told not to.
@@ -780,6 +820,13 @@ def run_patrol(
                 for i, d in enumerate(directions)
             ]
         team.step(directions, passable, g, config.dt, rng, goals if along_path else None)
+        if team.give_way:
+            _give_way(
+                team,
+                yielding,
+                k + yield_steps,
+                config.min_separation + 2 * config.speed * config.dt,
+            )
         blocked += team.blocked
         escapes += team.escaping
         dvt[k] = 100.0 * escapes.mean() / (k + 1)

@@ -1,0 +1,113 @@
+"""Robots meeting one another: the give-way rule, and paths that keep to passable cells."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import SHARED_DATA
+from sonarmap.errors import ConfigError
+from sonarmap.grid import Grid
+from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.patrol.paths import path_to, wave
+from sonarmap.patrol.robots import cancel_collisions
+from sonarmap.patrol.simulation import PatrolConfig, run_patrol
+from sonarmap.patrol.territory import Territory
+
+
+def _moves(
+    ends: list[tuple[float, float]], give_way: bool, starts: list[tuple[float, float]]
+) -> list[bool]:
+    x, y = (np.array(v, dtype=np.float64) for v in zip(*starts, strict=True))
+    nx, ny = (np.array(v, dtype=np.float64) for v in zip(*ends, strict=True))
+    moving = cancel_collisions(x, y, nx, ny, np.ones(len(x), dtype=bool), 0.6, give_way)
+    return [bool(v) for v in moving]
+
+
+def test_head_on_the_thesis_stops_both_and_give_way_lets_the_first_pass() -> None:
+    starts = [(0.0, 0.0), (1.0, 0.0)]
+    ends = [(0.3, 0.0), (0.7, 0.0)]  # 0.4 m apart: too close
+    assert _moves(ends, False, starts) == [False, False]
+    assert _moves(ends, True, starts) == [True, False]
+
+
+def test_give_way_lets_a_robot_that_backs_off_move() -> None:
+    # Robot 0 alone would still end too close to robot 1 where it stands; robot 1's own
+    # move (back and aside) parts them: robot 1 moves, robot 0 waits a step.
+    starts = [(0.0, 0.0), (1.0, 0.0)]
+    ends = [(0.55, 0.0), (1.0, 0.3)]
+    assert _moves(ends, False, starts) == [False, False]
+    assert _moves(ends, True, starts) == [False, True]
+
+
+def test_give_way_still_stops_a_robot_walking_into_one_that_stands() -> None:
+    starts = [(0.0, 0.0), (1.0, 0.0)]
+    x, y = np.array([0.0, 1.0]), np.array([0.0, 0.0])
+    moving = cancel_collisions(
+        x, y, np.array([0.6, 1.0]), y.copy(), np.array([True, False]), 0.6, True
+    )
+    assert moving.tolist() == [False, False]
+    assert _moves([(0.0, 0.5), (1.0, 0.5)], True, starts) == [True, True]
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_paths_do_not_cut_through_cells_the_wave_may_only_end_on(flip: bool) -> None:
+    # Start at (0, 0); (0, 1) may be reached as a target but not crossed, so the
+    # wave's length at (1, 1) ties between (0, 1) and (1, 0). Mirrored, the other
+    # neighbour comes first in the steps' order: one of the two would cut through.
+    ok = np.ones((4, 4), dtype=bool)
+    ok[0, 1] = False
+    if flip:
+        ok = ok.T.copy()
+    dist, _ = wave(ok, (0, 0), 0.1, target=np.ones_like(ok))
+    cells = path_to(dist, (3, 3), 0.1, ok)
+    assert ok[cells[:, 0], cells[:, 1]].all()
+    with pytest.raises(ValueError, match="passable"):
+        path_to(dist, (3, 3), 0.1, ok[:3])
+
+
+def _corridor() -> Territory:
+    """Two 5 x 6 m rooms joined by a 20 m corridor 1 m wide, at 0.1 m: two 0.6 m robots
+    cannot pass each other in it."""
+    g = Grid(resolution=0.1, origin=(0.0, 0.0), shape=(60, 300))
+    occ = np.ones(g.shape, np.float32)
+    occ[1:-1, 1:50] = 0.0
+    occ[1:-1, 250:-1] = 0.0
+    occ[25:35, 50:250] = 0.0
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def test_in_a_corridor_one_robot_gives_way_and_neither_jams() -> None:
+    # Short sight makes the corridor's far end the place to go for each robot in turn,
+    # so they keep meeting in it. Under the thesis's rule they block each other.
+    t = _corridor()
+    starts = np.array([[6.0, 3.0, 0.0], [24.0, 3.0, np.pi]])
+    share = {}
+    for rule in ("thesis", "give-way"):
+        cfg = PatrolConfig(
+            radius=0.3, speed=1.0, vision=2.0, duration=300.0, cell=0.1, traffic=rule
+        )
+        s = run_patrol(t, cfg, starts=starts, seed=0).summary()
+        assert s["never_seen"] == 0.0
+        share[rule] = s["blocked_share"]
+    assert share["thesis"] > 0.1
+    assert share["give-way"] < 0.05
+
+
+def test_traffic_rule_follows_the_motion_and_is_checked() -> None:
+    assert PatrolConfig(radius=0.3).traffic == "give-way"  # path motion
+    assert PatrolConfig(motion="straight").traffic == "thesis"
+    assert PatrolConfig(model="car").traffic == "thesis"
+    with pytest.raises(ConfigError, match="traffic"):
+        PatrolConfig(traffic="polite")
+
+
+@pytest.mark.skipif(not (SHARED_DATA / "maps").is_dir(), reason="needs ../shared/data/maps")
+def test_two_indoor_robots_do_not_jam_on_the_depot_map() -> None:
+    from sonarmap.io.rosmap import read_map
+
+    t = Territory.from_map(read_map(SHARED_DATA / "maps" / "depot.yaml"), cell=0.1)
+    cfg = PatrolConfig(radius=0.3, speed=1.0, vision=5.0, duration=300.0, cell=0.1)
+    s = run_patrol(t, cfg, robots=2, seed=1).summary()
+    assert s["blocked_share"] < 0.05
+    assert s["never_seen"] == 0.0
