@@ -99,16 +99,24 @@ class Monitor:
 
     Examples
     --------
-    Fed from a run's ``on_step`` callback, after one update with the starts at time 0::
+    Fed from a run's ``on_step`` callback, after one update with the starts at time 0
+    (so that a vertex's idleness is the fog's TB at its cell, step by step)::
 
-        graph = PatrolGraph.from_territory(territory, passable, config.vision,
-                                           starts=[start_cell])
+        from sonarmap.patrol.graph import PatrolGraph
+        from sonarmap.patrol.monitor import Monitor
+        from sonarmap.plot import save_idleness_plot
+
+        passable = territory.passable(config.radius)
+        r, c = territory.grid.world_to_cell(starts[:, 0], starts[:, 1])
+        graph = PatrolGraph.from_territory(
+            territory, passable, config.vision, starts=list(zip(r.tolist(), c.tolist()))
+        )
         mon = Monitor(graph, start_idleness=config.start_fog, robot_radius=config.radius)
         mon.update(0.0, starts[:, 0], starts[:, 1])
         run_patrol(territory, config, starts=starts,
                    on_step=lambda t, team, fog: mon.update(t, team.x, team.y))
-        summary = mon.summary()          # JSON-ready numbers
-        text = mon.idleness_csv()        # idleness.csv
+        summary = mon.summary()               # JSON-ready numbers for summary.json
+        text = mon.idleness_csv()             # idleness.csv
         save_idleness_plot(mon.idleness_series(), "idleness.png")
 
     Memory is O(V) plus one number pair per visit (the visit intervals, kept exactly
@@ -306,14 +314,17 @@ class Monitor:
     # --- reports -------------------------------------------------------------------
 
     def summary(self) -> dict[str, Any]:
-        """The run's numbers, JSON-ready (NaN where nothing was measured yet).
+        """The run's numbers, JSON-ready (NaN where nothing was measured yet; the
+        project's ``json_dumps`` writes it as null).
 
         ``avg_idleness``, ``std_idleness`` (population), ``median_idleness`` and
         ``worst_idleness_visits`` are over every visit interval (patrolling_sim's);
         ``worst_instantaneous_idleness`` is the largest idleness of any vertex at an
         update, never-visited vertices included; ``mean_instantaneous_idleness`` and
         ``mean_max_idleness`` are time averages of the mean and the max of idleness over
-        the vertices (the graph's mean TB and MTB).
+        the vertices (the graph's mean TB and MTB). ``interference_events`` counts
+        onsets of a close pair (closer than ``interference_distance`` at an update and
+        not at the one before; a pair already close at the first update counts there).
         """
         _, val = self.intervals()
         span = self.t - self.start_time
