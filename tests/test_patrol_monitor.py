@@ -220,6 +220,8 @@ def test_state_and_restore_continue_identically() -> None:
     assert a.summary()["interference_events"] > 0
     with pytest.raises(ValueError, match="vertices"):
         Monitor(_line_graph()).restore(saved)
+    with pytest.raises(ValueError, match="set up otherwise"):
+        Monitor(g, visit_radius=2.0, max_rows=64).restore(saved)
 
 
 def test_updates_must_move_forward() -> None:

@@ -157,15 +157,17 @@ def _cover(mask: B, grid: Grid, cells: I64, vision: float) -> I64:
     # Cell centres are exact multiples of the cell: a hair of slack keeps a cell exactly
     # at the vision radius watched, as the fog's disc does.
     reach = vision + 1e-9 * max(1.0, vision)
-    watched = np.zeros(len(pts), dtype=bool)
-    out = [tuple(v) for v in cells.tolist()]
+    out = [(int(r), int(c)) for r, c in cells.tolist()]
+    vx, vy = grid.cell_centres(cells[:, 0], cells[:, 1])
+    if len(cells):
+        d, _ = cKDTree(np.column_stack([vx, vy])).query(pts, distance_upper_bound=reach)
+        watched = np.isfinite(d)
+    else:
+        watched = np.zeros(len(pts), dtype=bool)
 
     def mark(k: int) -> None:
         watched[tree_all.query_ball_point(pts[k], reach)] = True
 
-    node_of = {(int(r), int(c)): k for k, (r, c) in enumerate(zip(rr, cc, strict=True))}
-    for r, c in out:
-        mark(node_of[(r, c)])
     while not watched.all():
         u = int(np.argmin(watched))  # the first unwatched cell, row-major
         near = np.array(tree_all.query_ball_point(pts[u], reach), dtype=np.int64)

@@ -425,9 +425,20 @@ class Monitor:
 
     # --- checkpoints ---------------------------------------------------------------
 
+    def _params(self) -> dict[str, Any]:
+        return {
+            "visit_radius": self.visit_radius,
+            "start_idleness": self.start_idleness,
+            "start_time": self.start_time,
+            "interference_distance": self.interference_distance,
+            "snap": self.snap,
+            "max_rows": self.max_rows,
+        }
+
     def state(self) -> dict[str, Any]:
         """Everything the monitor has gathered, as plain values (:meth:`restore`)."""
         return {
+            "params": self._params(),
             "t": self.t,
             "steps": self.steps,
             "robots": self.robots,
@@ -455,6 +466,11 @@ class Monitor:
         v = len(self.graph)
         if len(state["last"]) != v:
             raise ValueError(f"a state of {len(state['last'])} vertices for a graph of {v}")
+        if dict(state["params"]) != self._params():
+            raise ValueError(
+                f"a state of a monitor set up otherwise: {dict(state['params'])}, "
+                f"not {self._params()}"
+            )
         self.t = float(state["t"])
         self.steps = int(state["steps"])
         self.robots = int(state["robots"])
