@@ -101,21 +101,21 @@ def test_time_averages_match_a_step_by_step_reference() -> None:
     assert val[:3].tolist() == [3.0 + 5.0, 13.0 + 5.0, 23.0 + 5.0]
 
 
-def test_the_start_itself_is_no_visit_and_unvisited_vertices_are_reported() -> None:
+def test_a_vertex_watched_from_the_start_is_visited_there_and_unvisited_ones_reported() -> None:
     mon = Monitor(_line_graph(width=60, cols=(5, 15, 55)), visit_radius=2.0)
-    # The robot starts on vertex 0 (just seen at the start: no idleness to clear) and
-    # walks to vertex 1 and back; vertex 2 is never reached.
+    # The robot starts on vertex 0 (just seen at the start: an interval of 0) and walks
+    # to vertex 1 and back; vertex 2 is never reached.
     xs = [5.5 + k for k in range(11)] + [15.5 - k for k in range(1, 11)]
     _walk(mon, xs)
     vert, val = mon.intervals()
-    assert vert.tolist() == [1, 0]
-    assert val.tolist() == [8.0, 18.0 - 2.0]
+    assert vert.tolist() == [0, 1, 0]
+    assert val.tolist() == [0.0, 8.0, 18.0 - 2.0]
     s = mon.summary()
     assert s["never_visited_vertices"] == 1
     assert s["complete_cycles"] == 0
     assert s["worst_instantaneous_idleness"] == 20.0  # vertex 2: the whole run
     pv = mon.per_vertex()
-    assert pv["visits"].tolist() == [1, 1, 0]
+    assert pv["visits"].tolist() == [2, 1, 0]
     assert math.isnan(pv["avg"][2])
     assert math.isnan(pv["median"][2])
     assert pv["worst_idleness"][2] == 20.0

@@ -226,11 +226,9 @@ class Monitor:
         now[flat] = True
         idx = np.flatnonzero(now)
         new = idx[~self._covered[idx]]
+        # A run under way at the first update is a visit too (of interval the start
+        # idleness, 0 by default): a vertex watched from the start on is not unvisited.
         gap = t - self._last[new]
-        # A run covering the start itself with no idleness to clear is no visit: the
-        # vertex counts as just seen at the start.
-        keep = gap > 0
-        new, gap = new[keep], gap[keep]
         if len(new):
             self._iv_vertex.extend(new)
             self._iv_value.extend(gap)
