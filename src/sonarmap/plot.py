@@ -549,3 +549,35 @@ def save_memory_series(
     ax.legend(fontsize=7)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def save_idleness_plot(
+    series: Mapping[str, npt.ArrayLike],
+    path: str | Path,
+    *,
+    title: str = "",
+) -> Path:
+    """The idleness of a patrol graph's vertices over time: the mean and the max over
+    the vertices, seconds against seconds.
+
+    Parameters
+    ----------
+    series : mapping of str to array of float
+        ``t``, ``mean`` and ``max`` of equal length, as
+        :meth:`sonarmap.patrol.monitor.Monitor.idleness_series` gives them.
+    path : str or Path
+        The picture written (PNG by its suffix).
+    title : str
+    """
+    t = np.asarray(series["t"], dtype=np.float64)
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    ax.plot(t, np.asarray(series["max"], dtype=np.float64), lw=1.0, label="max over vertices")
+    ax.plot(t, np.asarray(series["mean"], dtype=np.float64), lw=1.0, label="mean over vertices")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("idleness [s]")
+    ax.set_ylim(bottom=0.0)
+    if title:
+        ax.set_title(title)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, path)

@@ -15,6 +15,8 @@ falling with the length of the path to it. One module per concept:
 - :mod:`.network` -- who hears whom (full, limited, none), relayed along chains;
 - :mod:`.semaphores` -- marked areas one robot (or one step's entrants) may hold;
 - :mod:`.policies`, :mod:`.tour` -- the potential field and the literature's baselines;
+- :mod:`.graph`, :mod:`.monitor` -- the patrol graph derived from the map, and the graph
+  patrolling literature's metrics on it (visit intervals, cycles, interference);
 - :mod:`.maps`, :mod:`.config` -- the built-in territories, the thesis's file formats;
 - :mod:`.simulation` -- the step loop and what a run measured;
 - :mod:`.experiments` -- the thesis's experiments, on Dask.
@@ -22,6 +24,8 @@ falling with the length of the path to it. One module per concept:
 
 from .fog import Fog
 from .forces import FORCE_F, FORCE_G, Force, choose_direction, parse_force
+from .graph import PatrolGraph
+from .monitor import Monitor
 from .network import NETWORKS, components
 from .paths import straight_paths, wave
 from .policies import POLICIES
@@ -39,7 +43,9 @@ __all__ = [
     "Fog",
     "Force",
     "Holonomic",
+    "Monitor",
     "PatrolConfig",
+    "PatrolGraph",
     "PatrolResult",
     "Team",
     "Territory",

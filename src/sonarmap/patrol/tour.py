@@ -4,53 +4,23 @@ several).
 
 Waypoints lie on a square lattice of spacing vision * sqrt(2), so that every place is
 within the vision radius of one; each moves to the nearest cell a robot's centre can
-reach. The tour orders them by nearest neighbour and improves the order by 2-opt, with
-path lengths from the wave. A robot heads along the wave's first step for its next
+reach (:func:`~sonarmap.patrol.graph.lattice_cells`, the patrol graph's vertices). The
+tour orders them by nearest neighbour and improves the order by 2-opt, with path lengths
+from the wave. A robot heads along the wave's first step for its next
 waypoint and takes the following one on arrival.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
 
 from ..errors import InputError
+from .graph import lattice_cells
 from .paths import wave
 from .territory import Territory
 
 __all__ = ["plan_tour"]
-
-
-def _waypoints(
-    territory: Territory, passable: npt.NDArray[np.bool_], vision: float
-) -> npt.NDArray[np.int64]:
-    g = territory.grid
-    step = max(1, math.floor(vision * math.sqrt(2) / g.resolution))
-    # The nearest passable cell of every cell (an index map from the distance transform).
-    _, (near_r, near_c) = ndimage.distance_transform_edt(~passable, return_indices=True)
-    # Lattice lines spread evenly over each side, at most ``step`` apart, so that the
-    # map's edges are within reach too.
-    rows = ((np.arange(math.ceil(g.rows / step)) + 0.5) * g.rows / math.ceil(g.rows / step)).astype(
-        int
-    )
-    cols = ((np.arange(math.ceil(g.cols / step)) + 0.5) * g.cols / math.ceil(g.cols / step)).astype(
-        int
-    )
-    half = step // 2 + 1
-    out: list[tuple[int, int]] = []
-    for r in rows.tolist():
-        for c in cols.tolist():
-            if not territory.free[
-                max(0, r - half) : r + half + 1, max(0, c - half) : c + half + 1
-            ].any():
-                continue  # nothing to watch around this lattice point
-            rr, cc = int(near_r[r, c]), int(near_c[r, c])
-            if (rr, cc) not in out:
-                out.append((rr, cc))
-    return np.array(out, dtype=np.int64)
 
 
 def plan_tour(
@@ -60,7 +30,7 @@ def plan_tour(
 
     Only waypoints reachable from ``start`` (a passable cell) are kept.
     """
-    points = _waypoints(territory, passable, vision)
+    points = lattice_cells(territory, passable, vision)
     dist0, _ = wave(passable, start, territory.grid.resolution)
     points = points[np.isfinite(dist0[points[:, 0], points[:, 1]])]
     if len(points) == 0:
