@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 from matplotlib.animation import FFMpegWriter, FuncAnimation, PillowWriter
 from matplotlib.lines import Line2D
-from matplotlib.patches import Patch
+from matplotlib.patches import Circle, Patch
 
 from .errors import ConfigError
 from .files import atomic_outputs, atomic_write
@@ -25,6 +25,7 @@ from .readings import Readings
 
 __all__ = [
     "FogAnimation",
+    "FogPicture",
     "MapAnimation",
     "draw_map",
     "save_fog_picture",
@@ -330,6 +331,334 @@ def write_animation(fig: Any, show: Any, frames: int, path: Path, writer: Any) -
     return path
 
 
+# The fog's colours: obstacles black, and nothing else near black, so that the longest
+# unseen places never read as walls. Magma (reversed, pale yellow to purple) is ordered
+# in lightness and made for colour-blind readers; cut at 0.28 its dark end keeps a
+# lightness of about 25 (of 100) and stays purple.
+_FOG_CMAP = matplotlib.colors.ListedColormap(
+    plt.get_cmap("magma")(np.linspace(1.0, 0.28, 256)), name="fog"
+).with_extremes(bad=(0.0, 0.0, 0.0, 0.0))
+_OBSTACLE_RGBA = (0.0, 0.0, 0.0, 1.0)
+# A neutral grey: the fog's colours are all warm and saturated, the robots blue.
+_MAP_UNKNOWN_RGBA = (0.56, 0.56, 0.56, 1.0)
+_OUTSIDE_RGBA = (0.84, 0.89, 0.93, 1.0)
+_OUTSIDE_HATCH_RGBA = (0.45, 0.55, 0.65, 1.0)
+_NEVER_HATCH_RGBA = (1.0, 1.0, 1.0, 1.0)
+# Okabe-Ito blue: absent from the fog map, dark enough to show on the just-seen yellow
+# that surrounds every robot.
+_ROBOT_RGB = "#0072B2"
+
+
+def _seconds_ticks(top: float) -> tuple[list[float], list[str]]:
+    """Round ticks from 0 for a colour bar in seconds, and ``top`` itself (the bar's end)."""
+    locator = matplotlib.ticker.MaxNLocator(nbins=5, steps=[1, 2, 2.5, 5, 10])
+    # A round tick nearer the end than 12 % of the bar would collide with the end's label.
+    ticks = [float(v) for v in locator.tick_values(0.0, top) if 0.0 <= v < 0.88 * top]
+    ticks.append(top)
+    labels = [f"{v:g}" for v in ticks[:-1]]
+    labels.append(f"{top:.0f}" if top >= 10 else f"{top:.2g}")
+    return ticks, labels
+
+
+def _mask(
+    mask: npt.NDArray[np.bool_] | None, shape: tuple[int, int], name: str
+) -> npt.NDArray[np.bool_]:
+    if mask is None:
+        return np.zeros(shape, dtype=bool)
+    out = np.asarray(mask, dtype=bool)
+    if out.shape != shape:
+        raise ConfigError(f"{name} mask has shape {out.shape}, the grid {shape}")
+    return out
+
+
+def _blocks(mask: npt.NDArray[np.bool_], k: int) -> npt.NDArray[np.bool_]:
+    """Whether any cell of each k x k block is in ``mask`` (edge blocks may be partial)."""
+    if k == 1:
+        return mask
+    return _blocks_max(mask.astype(np.float64), k) > 0
+
+
+def _blocks_max(values: npt.NDArray[np.float64], k: int) -> npt.NDArray[np.float64]:
+    """The largest value of each k x k block (edge blocks may be partial)."""
+    if k == 1:
+        return values
+    rows, cols = -(-values.shape[0] // k), -(-values.shape[1] // k)
+    padded = np.full((rows * k, cols * k), -np.inf)
+    padded[: values.shape[0], : values.shape[1]] = values
+    # k * k strided maxima: several times faster than a max over a reshaped view.
+    out = padded[::k, ::k].copy()
+    for i in range(k):
+        for j in range(k):
+            np.maximum(out, padded[i::k, j::k], out=out)
+    return out
+
+
+def _figure_inches(grid: Grid, long_side: float) -> tuple[float, float]:
+    """A figure whose long side is ``long_side`` inches and whose map keeps its aspect,
+    with room for the labels, the title, the colour bar and the key below."""
+    xmin, xmax, ymin, ymax = grid.extent
+    aspect = (ymax - ymin) / (xmax - xmin)
+    # Inches around the map: y label and colour bar across; title, x label, key down.
+    across, down = 2.6, 1.9
+    if aspect <= 1.0:
+        width = long_side
+        height = (width - across) * aspect + down
+    else:
+        height = long_side
+        width = (height - down) / aspect + across
+    return max(width, 6.0), max(height, 4.0)
+
+
+class FogPicture:
+    """A figure of a patrol: the time since each place was last seen, the map's other
+    classes, the robots and a key; what :func:`save_fog_picture` writes and each frame
+    of :class:`FogAnimation`.
+
+    The fog's colours run from pale yellow (just seen) through orange and red to purple
+    (``top`` seconds and more); obstacles are black, cells the map marks unknown flat
+    grey, cells outside the patrolled territory pale blue-grey with hatching, places
+    never seen cross-hatched white over the darkest fog colour, and robots blue discs
+    (their radius, or at least 0.6 % of the map's long side) with a segment along the
+    heading. The key sits below the x-axis label, the colour bar to the right.
+
+    Parameters
+    ----------
+    grid : Grid
+    free : ndarray of bool, shape grid.shape
+        The free cells (the fog is drawn on those not ``outside`` nor ``unknown``).
+        Cells neither free, unknown nor outside are drawn as obstacles.
+    top : float
+        Seconds at the colour bar's end; longer times take its colour. Values <= 0
+        (nothing unseen yet) draw a bar of 1 s.
+    radius : float
+        The robots' radius in metres.
+    title : str
+    outside : ndarray of bool, optional
+        Free cells that are not part of the patrolled territory (unreachable, or left
+        out by the user). None: none.
+    unknown : ndarray of bool, optional
+        Cells the map marks unknown. None: none.
+    never_seen : bool
+        Whether the key lists "never seen" (the cells are given to :meth:`update`).
+    long_side : float
+        The figure's long side in inches.
+    dpi : float
+        The figure's dots per inch (a saved PNG may choose its own).
+
+    Attributes
+    ----------
+    fig : matplotlib.figure.Figure
+    ax : matplotlib.axes.Axes
+        The map's axes (world metres).
+    bar : matplotlib.colorbar.Colorbar
+    legend : matplotlib.legend.Legend
+        The key, a figure legend below the axes.
+    """
+
+    def __init__(
+        self,
+        grid: Grid,
+        free: npt.NDArray[np.bool_],
+        *,
+        top: float,
+        radius: float = 1.0,
+        title: str = "",
+        outside: npt.NDArray[np.bool_] | None = None,
+        unknown: npt.NDArray[np.bool_] | None = None,
+        never_seen: bool = False,
+        long_side: float = 8.0,
+        dpi: float = 100.0,
+    ) -> None:
+        shape = (grid.rows, grid.cols)
+        self.grid = grid
+        free = _mask(free, shape, "free")
+        out = _mask(outside, shape, "outside")
+        unk = _mask(unknown, shape, "unknown") & ~out
+        self.fogged = free & ~out & ~unk
+        self.top = float(top) if top > 0 else 1.0
+        self.title = title
+        width, height = _figure_inches(grid, long_side)
+        self.fig = plt.figure(figsize=(width, height), dpi=dpi, layout="constrained")
+        self.ax = self.fig.add_subplot()
+        ax = self.ax
+        xmin, xmax, ymin, ymax = grid.extent
+        # No picture shows more than about 1000 samples along the map: larger grids are
+        # drawn in blocks of k x k cells, resampled once here rather than by every frame.
+        self.k = k = max(1, max(shape) // 1000)
+        obstacle = _blocks(~free & ~unk & ~out, k)
+        unk_b = _blocks(unk, k) & ~obstacle
+        out_b = _blocks(out, k) & ~obstacle & ~unk_b
+        self.fogged_blocks = _blocks(self.fogged, k) & ~obstacle & ~unk_b & ~out_b
+        rows, cols = obstacle.shape
+        step = k * grid.resolution
+        self.extent = (xmin, xmin + cols * step, ymax - rows * step, ymax)
+        # Contour samples at block centres, with the picture's edges added so that
+        # hatching reaches them.
+        self._xs = np.concatenate([[xmin], xmin + (np.arange(cols) + 0.5) * step, [xmax]])
+        # Row 0 is the top of the map: y falls down the rows.
+        self._ys = np.concatenate([[ymax], ymax - (np.arange(rows) + 0.5) * step, [ymin]])
+        classes = np.zeros((rows, cols, 4))
+        classes[obstacle] = _OBSTACLE_RGBA
+        classes[unk_b] = _MAP_UNKNOWN_RGBA
+        classes[out_b] = _OUTSIDE_RGBA
+        ax.imshow(classes, extent=self.extent, interpolation="nearest", origin="upper")
+        self.image = ax.imshow(
+            np.ma.masked_array(np.zeros((rows, cols)), mask=True),
+            cmap=_FOG_CMAP,
+            vmin=0.0,
+            vmax=self.top,
+            extent=self.extent,
+            interpolation="nearest",
+            origin="upper",
+        )
+        if out_b.any():
+            self._hatch(out_b, "///", _OUTSIDE_HATCH_RGBA)
+        self._never: Any = None
+        self.long = max(xmax - xmin, ymax - ymin)
+        self.disc = max(float(radius), 0.006 * self.long)
+        self.robots: list[tuple[Any, Any]] = []
+        ax.set_xlim(xmin, xmax)
+        ax.set_ylim(ymin, ymax)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        self.bar = self.fig.colorbar(self.image, ax=ax, shrink=0.85, aspect=25, pad=0.02)
+        self.bar.set_label("time since last seen [s]")
+        ticks, labels = _seconds_ticks(self.top)
+        self.bar.set_ticks(ticks, labels=labels)
+        handles: list[Any] = [Patch(facecolor=_OBSTACLE_RGBA, edgecolor="0.4", label="obstacle")]
+        if unk_b.any():
+            handles.append(Patch(facecolor=_MAP_UNKNOWN_RGBA, label="unknown (map)"))
+        if out_b.any():
+            handles.append(
+                Patch(
+                    facecolor=_OUTSIDE_RGBA,
+                    hatch="///",
+                    edgecolor=_OUTSIDE_HATCH_RGBA,
+                    label="outside territory",
+                )
+            )
+        if never_seen:
+            handles.append(
+                Patch(
+                    facecolor=_FOG_CMAP(1.0),
+                    hatch="xx",
+                    edgecolor=_NEVER_HATCH_RGBA,
+                    label="never seen",
+                )
+            )
+        handles.append(
+            Line2D(
+                [],
+                [],
+                ls="-",
+                lw=1.8,
+                color=_ROBOT_RGB,
+                marker="o",
+                ms=9,
+                mfc=_ROBOT_RGB,
+                mec="black",
+                mew=0.8,
+                label="robot (to scale), heading",
+            )
+        )
+        ncol = len(handles) if width >= 9.5 else min(3, len(handles))
+        self.legend = self.fig.legend(
+            handles=handles, loc="outside lower center", ncol=ncol, frameon=False
+        )
+
+    def _hatch(self, blocks: npt.NDArray[np.bool_], hatch: str, colour: Any) -> Any:
+        """Hatch the blocks of a mask: a filled contour at 0.5 of the mask runs along
+        block edges; the mask is padded so that the hatching reaches the map's edge."""
+        padded = np.pad(blocks.astype(np.float64), 1, mode="edge")
+        cs = self.ax.contourf(
+            self._xs, self._ys, padded, levels=[0.5, 1.5], colors="none", hatches=[hatch]
+        )
+        cs.set_edgecolor("none")
+        cs.set_hatchcolor(colour)
+        cs.set_hatch_linewidth(1.0)
+        return cs
+
+    def update(
+        self,
+        tb: npt.NDArray[np.float64],
+        robots: npt.NDArray[np.float64],
+        *,
+        never_seen: npt.NDArray[np.bool_] | None = None,
+        t: float | None = None,
+    ) -> None:
+        """Draw a moment of the patrol.
+
+        Parameters
+        ----------
+        tb : ndarray of float, shape grid.shape
+            Seconds since each cell was last seen (read on the fogged cells only).
+        robots : ndarray of float, shape (n, 3) or (n, 2)
+            Each robot's world x, y in metres and heading in radians (no heading
+            segment without the third column).
+        never_seen : ndarray of bool, optional
+            Cells not seen since the start, drawn cross-hatched in the darkest fog
+            colour whatever their time.
+        t : float, optional
+            The time in seconds, added to the title.
+        """
+        shape = (self.grid.rows, self.grid.cols)
+        never = _blocks(_mask(never_seen, shape, "never_seen") & self.fogged, self.k)
+        never &= self.fogged_blocks
+        values = np.where(self.fogged, np.asarray(tb, dtype=np.float64), -np.inf)
+        # A block shows its longest time: the picture errs towards the unseen.
+        shown = np.where(never, self.top, _blocks_max(values, self.k))
+        self.image.set_data(np.ma.masked_where(~self.fogged_blocks, shown))
+        if self._never is not None:
+            self._never.remove()
+            self._never = None
+        if never.any():
+            self._never = self._hatch(never, "xx", _NEVER_HATCH_RGBA)
+        pose = np.asarray(robots, dtype=np.float64).reshape(-1, robots.shape[-1])
+        while len(self.robots) < len(pose):
+            disc = Circle(
+                (0.0, 0.0), self.disc, facecolor=_ROBOT_RGB, edgecolor="black", lw=0.8, zorder=4
+            )
+            self.ax.add_patch(disc)
+            (tick,) = self.ax.plot(
+                [], [], color=_ROBOT_RGB, lw=1.8, solid_capstyle="round", zorder=3
+            )
+            self.robots.append((disc, tick))
+        for k, (disc, tick) in enumerate(self.robots):
+            here = k < len(pose)
+            disc.set_visible(here)
+            tick.set_visible(here)
+            if not here:
+                continue
+            x, y = pose[k, 0], pose[k, 1]
+            disc.set_center((x, y))
+            if pose.shape[1] >= 3:
+                reach = 2.5 * self.disc
+                th = pose[k, 2]
+                tick.set_data([x, x + reach * np.cos(th)], [y, y + reach * np.sin(th)])
+            else:
+                tick.set_data([], [])
+        when = f"t = {t:.0f} s" if t is not None else ""
+        self.ax.set_title("  ".join(s for s in (self.title, when) if s))
+
+    def moving(self) -> list[Any]:
+        """The artists :meth:`update` changes: the fog, the never-seen hatching, the
+        robots and the title."""
+        out: list[Any] = [self.image]
+        if self._never is not None:
+            out.append(self._never)
+        for disc, tick in self.robots:
+            out += [tick, disc]
+        out.append(self.ax.title)
+        return out
+
+    def freeze(self) -> None:
+        """Lay the figure out once and keep that layout (frames of an animation then
+        stay put and draw faster)."""
+        self.fig.canvas.draw()
+        self.fig.set_layout_engine("none")
+
+
 def save_fog_picture(
     grid: Grid,
     free: npt.NDArray[np.bool_],
@@ -339,109 +668,234 @@ def save_fog_picture(
     *,
     radius: float = 1.0,
     title: str = "",
+    outside: npt.NDArray[np.bool_] | None = None,
+    unknown: npt.NDArray[np.bool_] | None = None,
+    never_seen: npt.NDArray[np.bool_] | None = None,
+    top: float | None = None,
 ) -> Path:
-    """A patrol as the thesis's simulator drew it: obstacles black, fog from white (just
-    seen) to dark grey (longest unseen), robots as circles with a heading segment.
+    """Write a PNG of a patrol's fog (see :class:`FogPicture` for the colours).
 
-    ``robots`` holds (x, y, heading) per robot; ``tb`` the time since each cell was seen.
+    Parameters
+    ----------
+    grid : Grid
+    free : ndarray of bool, shape grid.shape
+        The free cells; the fog is drawn on those neither ``outside`` nor ``unknown``.
+    tb : ndarray of float, shape grid.shape
+        Seconds since each cell was last seen.
+    robots : ndarray of float, shape (n, 3)
+        Each robot's world x, y (metres) and heading (radians); with shape (n, 2)
+        the robots are drawn without a heading.
+    path : str or Path
+        The PNG, written atomically.
+    radius : float
+        The robots' radius in metres (drawn to scale, at least 0.6 % of the map's long
+        side so that small robots on large maps still show).
+    title : str
+    outside : ndarray of bool, optional
+        Free cells that are not part of the patrolled territory (unreachable, or
+        excluded by the user): pale blue-grey, hatched, no fog. Default: none.
+    unknown : ndarray of bool, optional
+        Cells the map marks unknown: flat grey, no fog. Default: none.
+    never_seen : ndarray of bool, optional
+        Cells not seen since the start: cross-hatched white over the darkest fog
+        colour, with a key entry. Default: none marked.
+    top : float, optional
+        Seconds at the colour bar's end. Default: the longest time on the fogged cells.
+
+    Returns
+    -------
+    Path
+        ``path``.
     """
-    from matplotlib.patches import Circle
-
-    fig, ax = plt.subplots(figsize=(7, 7 * grid.rows / max(grid.cols, 1) + 0.8))
-    top = float(tb[free].max()) if free.any() else 0.0
-    shade = np.where(free, tb / top if top > 0 else 0.0, np.nan)
-    cmap = plt.get_cmap("Greys").with_extremes(bad="black")
-    im = ax.imshow(
-        np.ma.masked_invalid(shade * 0.8),
-        cmap=cmap,
-        vmin=0.0,
-        vmax=1.0,
-        extent=grid.extent,
-        interpolation="nearest",
-        origin="upper",
+    shape = (grid.rows, grid.cols)
+    fogged = (
+        _mask(free, shape, "free")
+        & ~_mask(outside, shape, "outside")
+        & ~_mask(unknown, shape, "unknown")
     )
-    for x, y, th in robots:
-        ax.add_patch(Circle((x, y), radius, fill=False, color="tab:red", lw=1.5))
-        ax.plot([x, x + radius * np.cos(th)], [y, y + radius * np.sin(th)], color="tab:red")
-    ax.set_xlim(grid.extent[0], grid.extent[1])
-    ax.set_ylim(grid.extent[2], grid.extent[3])
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    if title:
-        ax.set_title(title)
-    bar = fig.colorbar(im, ax=ax, shrink=0.7, ticks=[0, 0.8])
-    bar.ax.set_yticklabels(["just seen", f"{top:.0f} s unseen"])
-    ax.legend(
-        handles=[
-            Patch(facecolor="black", label="obstacle"),
-            Line2D([], [], ls="", marker="o", mfc="none", mec="tab:red", label="robot"),
-        ],
-        loc="upper center",
-        bbox_to_anchor=(0.5, -0.1),
-        ncol=2,
-        fontsize="small",
-        frameon=False,
+    if top is None:
+        top = float(np.max(tb[fogged])) if fogged.any() else 0.0
+    never = never_seen is not None and bool(np.any(np.asarray(never_seen) & fogged))
+    pic = FogPicture(
+        grid,
+        free,
+        top=top,
+        radius=radius,
+        title=title,
+        outside=outside,
+        unknown=unknown,
+        never_seen=never,
     )
-    return _save(fig, path)
+    pic.update(tb, robots, never_seen=never_seen)
+    return _save(pic.fig, path)
 
 
 class FogAnimation:
-    """Frames of a patrol (the fog as one byte per cell, the robots' poses), saved as an
-    animated GIF (or MP4 with ffmpeg)."""
+    """Frames of a patrol, saved as an animated GIF (or MP4 with ffmpeg) drawn as
+    :class:`FogPicture` draws, on one colour scale for the whole animation.
+
+    Each frame keeps the fog as one byte per cell (against the frame's own longest
+    time, rescaled when saved), the never-seen cells as one bit per cell, and the
+    robots' poses.
+
+    Parameters
+    ----------
+    grid : Grid
+    free : ndarray of bool, shape grid.shape
+        The free cells (see :class:`FogPicture`).
+    radius : float
+        The robots' radius in metres.
+    title : str
+        Shown before each frame's time.
+    outside, unknown : ndarray of bool, optional
+        As for :func:`save_fog_picture`; fixed for the whole animation.
+    top : float, optional
+        Seconds at the colour bar's end. Default: the longest time over all frames.
+    long_side : float
+        The frames' long side in inches; rendered at 80 dpi, the default 12 gives
+        960 pixels whatever the map's size, its aspect kept.
+    """
 
     def __init__(
-        self, grid: Grid, free: npt.NDArray[np.bool_], *, radius: float = 1.0, title: str = ""
+        self,
+        grid: Grid,
+        free: npt.NDArray[np.bool_],
+        *,
+        radius: float = 1.0,
+        title: str = "",
+        outside: npt.NDArray[np.bool_] | None = None,
+        unknown: npt.NDArray[np.bool_] | None = None,
+        top: float | None = None,
+        long_side: float = 12.0,
     ) -> None:
+        shape = (grid.rows, grid.cols)
         self.grid = grid
-        self.free = free
+        self.free = _mask(free, shape, "free")
+        self.outside = None if outside is None else _mask(outside, shape, "outside")
+        self.unknown = None if unknown is None else _mask(unknown, shape, "unknown")
+        self.fogged = (
+            self.free & ~_mask(outside, shape, "outside") & ~_mask(unknown, shape, "unknown")
+        )
         self.radius = radius
         self.title = title
-        self.frames: list[tuple[float, npt.NDArray[np.uint8], npt.NDArray[np.float64]]] = []
+        self.top = top
+        self.long_side = long_side
+        self.frames: list[
+            tuple[float, float, npt.NDArray[np.uint8], npt.NDArray[np.uint8] | None, Any]
+        ] = []
 
-    def add(self, t: float, tb: npt.NDArray[np.float64], robots: npt.NDArray[np.float64]) -> None:
-        """Keep the fog at time ``t`` (shaded against its own maximum) and the robots'
-        (x, y, heading)."""
-        top = float(tb[self.free].max()) if self.free.any() else 0.0
-        shade = np.where(self.free, tb / top if top > 0 else 0.0, 1.25)
-        self.frames.append((t, np.round(shade * 200).astype(np.uint8), robots.copy()))
+    def add(
+        self,
+        t: float,
+        tb: npt.NDArray[np.float64],
+        robots: npt.NDArray[np.float64],
+        *,
+        never_seen: npt.NDArray[np.bool_] | None = None,
+    ) -> None:
+        """Keep a frame.
+
+        Parameters
+        ----------
+        t : float
+            The time in seconds.
+        tb : ndarray of float, shape grid.shape
+            Seconds since each cell was last seen.
+        robots : ndarray of float, shape (n, 3)
+            Each robot's world x, y (metres) and heading (radians).
+        never_seen : ndarray of bool, optional
+            Cells not seen since the start.
+        """
+        top = float(np.max(tb[self.fogged])) if self.fogged.any() else 0.0
+        scale = 250.0 / top if top > 0 else 0.0
+        code = np.round(np.clip(np.asarray(tb) * scale, 0, 250)).astype(np.uint8)
+        bits = None if never_seen is None else np.packbits(np.asarray(never_seen, dtype=bool))
+        self.frames.append((t, top, code, bits, np.array(robots, dtype=np.float64)))
 
     def save(self, path: str | Path, *, fps: int = 8) -> Path:
+        """Write the animation; the format follows the suffix (``.gif``, or ``.mp4``
+        when ffmpeg is installed). Returns ``path``."""
         p = Path(path)
         MapAnimation.check_name(p)
         if not self.frames:
             raise ConfigError("no frames to animate")
         writer: Any = PillowWriter(fps=fps) if p.suffix.lower() == ".gif" else FFMpegWriter(fps=fps)
-        fig, ax = plt.subplots(figsize=(6, 6 * self.grid.rows / max(self.grid.cols, 1) + 0.6))
-        im = ax.imshow(
-            self.frames[0][1],
-            cmap="Greys",
-            vmin=0,
-            vmax=250,
-            extent=self.grid.extent,
-            interpolation="nearest",
+        top = self.top if self.top is not None else max(f[1] for f in self.frames)
+        cells = self.grid.rows * self.grid.cols
+        shape = (self.grid.rows, self.grid.cols)
+
+        def never(bits: npt.NDArray[np.uint8] | None) -> npt.NDArray[np.bool_] | None:
+            if bits is None:
+                return None
+            return np.unpackbits(bits, count=cells).reshape(shape).astype(bool)
+
+        any_never = False
+        for frame in self.frames:
+            seen = never(frame[3])
+            any_never = any_never or (seen is not None and bool(np.any(seen & self.fogged)))
+        pic = FogPicture(
+            self.grid,
+            self.free,
+            top=top,
+            radius=self.radius,
+            title=self.title,
+            outside=self.outside,
+            unknown=self.unknown,
+            never_seen=any_never,
+            long_side=self.long_side,
+            dpi=80,
         )
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        n = len(self.frames[0][2])
-        rings = ax.plot(*([[], []] * n), color="tab:red", lw=1.2)
-        theta = np.linspace(0, 2 * np.pi, 24)
 
         def show(i: int) -> list[Any]:
-            t, code, robots = self.frames[i]
-            im.set_data(code)
-            for line, (x, y, th) in zip(rings, robots, strict=True):
-                xs = np.concatenate(
-                    [x + self.radius * np.cos(theta), [x, x + 2 * self.radius * np.cos(th)]]
-                )
-                ys = np.concatenate(
-                    [y + self.radius * np.sin(theta), [y, y + 2 * self.radius * np.sin(th)]]
-                )
-                line.set_data(xs, ys)
-            ax.set_title(f"{self.title}  t = {t:.0f} s".strip())
-            return [im, *rings]
+            t, frame_top, code, bits, robots = self.frames[i]
+            tb = code.astype(np.float64) * (frame_top / 250.0)
+            pic.update(tb, robots, never_seen=never(bits), t=t)
+            return pic.moving()
 
-        return write_animation(fig, show, len(self.frames), p, writer)
+        show(0)
+        pic.freeze()
+        if p.suffix.lower() != ".gif":
+            return write_animation(pic.fig, show, len(self.frames), p, writer)
+        try:
+            with atomic_outputs(p, keep_suffix=True) as (tmp,):
+                _write_gif(pic.fig, show, len(self.frames), tmp, fps=fps)
+        finally:
+            plt.close(pic.fig)
+        return p
+
+
+def _write_gif(fig: Any, show: Any, frames: int, path: Path, *, fps: int) -> None:
+    """Write frames of a figure as a GIF, redrawing only what moves.
+
+    ``show(i)`` draws frame ``i`` and returns the artists that change; the rest is
+    drawn once and restored for every frame. Each frame is reduced to a palette of
+    its own as it is made, so that memory holds one byte a pixel a frame.
+    """
+    from PIL import Image
+
+    canvas = fig.canvas
+    for artist in show(0):
+        artist.set_animated(True)
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
+    images = []
+    for i in range(frames):
+        canvas.restore_region(background)
+        for artist in show(i):
+            fig.draw_artist(artist)
+        rgb = np.asarray(canvas.buffer_rgba())[..., :3]
+        images.append(
+            Image.fromarray(rgb).quantize(
+                255, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE
+            )
+        )
+    images[0].save(
+        path,
+        format="GIF",
+        save_all=True,
+        append_images=images[1:],
+        duration=round(1000 / fps),
+        loop=0,
+    )
 
 
 def save_force_tables(
