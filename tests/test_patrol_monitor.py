@@ -17,7 +17,7 @@ from sonarmap.patrol import Fog, PatrolConfig, Territory, run_patrol
 from sonarmap.patrol.graph import PatrolGraph
 from sonarmap.patrol.monitor import Monitor
 from sonarmap.patrol.robots import Team
-from sonarmap.patrol.simulation import random_starts
+from sonarmap.patrol.starts import spread_starts
 
 DEPOT = SHARED_DATA / "maps" / "depot.yaml"
 
@@ -238,7 +238,7 @@ def test_vertex_idleness_is_the_fogs_on_a_real_map() -> None:
     t = Territory.from_map(read_map(DEPOT), cell=0.5)
     cfg = PatrolConfig(duration=40.0, vision=4.0, radius=0.5, start_fog=3.0)
     passable = t.passable(cfg.radius)
-    starts = random_starts(2, t, passable, cfg.min_separation, 0)
+    starts = spread_starts(2, t, passable, cfg.min_separation, 0)
     r, c = t.grid.world_to_cell(starts[:, 0], starts[:, 1])
     g = PatrolGraph.from_territory(t, passable, cfg.vision, starts=[(int(r[0]), int(c[0]))])
     mon = Monitor(g, start_idleness=cfg.start_fog, robot_radius=cfg.radius)
