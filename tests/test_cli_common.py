@@ -94,7 +94,10 @@ def test_patrol_run_takes_a_builtin_name(
     main(["patrol", "run", "--map", "open-field", "--robots", "2", "--duration", "5",
           "--cell", "1", "-o", str(tmp_path / "out")])  # fmt: skip
     last = capsys.readouterr().out.strip().splitlines()[-1]
-    assert last == f"wrote {tmp_path / 'out'}/: metrics.csv, summary.json, fog.png, starts.txt"
+    assert last == (
+        f"wrote {tmp_path / 'out'}/: metrics.csv, summary.json, fog.png, starts.txt, "
+        "idleness.csv, vertices.csv, idleness.png"
+    )
     with pytest.raises(SystemExit) as e:
         main(["patrol", "run", "--map", "open-feld", "--robots", "2", "-o", str(tmp_path / "x")])
     assert e.value.code == 2

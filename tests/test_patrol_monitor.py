@@ -254,3 +254,50 @@ def test_vertex_idleness_is_the_fogs_on_a_real_map() -> None:
     assert len(worst) == 80
     assert max(worst) == 0.0
     assert mon.summary()["visits"] > 0
+
+
+def test_a_run_with_the_graph_reports_and_writes_its_metrics(tmp_path: Path) -> None:
+    from sonarmap.cli import main
+    from sonarmap.io.rosmap import OccupancyMap, write_map
+
+    g = Grid(resolution=0.5, origin=(0.0, 0.0), shape=(40, 60))  # 30 x 20 m
+    occ = np.zeros(g.shape, np.float32)
+    occ[[0, -1], :] = occ[:, [0, -1]] = 1.0
+    occ[:30, 30] = 1.0  # a wall with a 5 m gap at the top
+    write_map(OccupancyMap(g, occ), tmp_path / "hall")
+    out = tmp_path / "out"
+    main(["patrol", "run", "--map", str(tmp_path / "hall.yaml"), "--robots", "2",
+          "--duration", "200", "--vision", "4", "--radius", "0.5", "-o", str(out)])  # fmt: skip
+    s = json.loads((out / "summary.json").read_text())
+    m = s["graph"]
+    assert m["graph_vertices"] >= 6
+    assert m["graph_connected"]
+    assert m["never_visited_vertices"] == 0
+    assert m["visits"] >= m["graph_vertices"]
+    # Average idleness over visit intervals cannot exceed the worst one, and a vertex's
+    # worst interval cannot exceed the run.
+    assert 0 < m["avg_idleness"] <= m["worst_idleness_visits"] <= 200.0
+    rows = (out / "idleness.csv").read_text().splitlines()
+    assert rows[0] == "step,t,mean_idleness,max_idleness"
+    assert len(rows) > 10
+    vertices = (out / "vertices.csv").read_text().splitlines()
+    assert len(vertices) == m["graph_vertices"] + 1
+    assert (out / "idleness.png").stat().st_size > 0
+    main(["patrol", "run", "--map", str(tmp_path / "hall.yaml"), "--robots", "2",
+          "--duration", "20", "--no-graph", "-o", str(tmp_path / "bare")])  # fmt: skip
+    assert "graph" not in json.loads((tmp_path / "bare" / "summary.json").read_text())
+    assert not (tmp_path / "bare" / "idleness.csv").exists()
+
+
+def test_fog_knows_its_never_seen_cells() -> None:
+    g = Grid(resolution=1.0, origin=(0.0, 0.0), shape=(3, 3))
+    watched = np.ones(g.shape, dtype=bool)
+    watched[0, 0] = False
+    fog = Fog(g, watched, start=5.0)
+    assert fog.never_seen().sum() == 8
+    fog.advance(1.0)
+    fog.observe(np.array([2]), np.array([2]), np.zeros((1, 2), dtype=np.int64))
+    seen = fog.never_seen()
+    assert not seen[2, 2]
+    assert not seen[0, 0]
+    assert seen.sum() == 7

@@ -245,6 +245,15 @@ def run_cmd(
     animate: Annotated[
         bool, typer.Option("--animate", help="Also write OUT/patrol.gif (200 frames at most).")
     ] = False,
+    graph: Annotated[
+        bool,
+        typer.Option(
+            "--graph/--no-graph",
+            help="patrolling_sim's metrics on the patrol graph (idleness per vertex, "
+            "visits, cycles, interference): summary.json's 'graph', idleness.csv, "
+            "vertices.csv, idleness.png.",
+        ),
+    ] = True,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
     config_file: Annotated[
@@ -258,7 +267,8 @@ def run_cmd(
         ),
     ] = None,
 ) -> None:
-    """Patrol a territory; writes metrics.csv, summary.json, fog.png (and patrol.gif).
+    """Patrol a territory; writes metrics.csv, summary.json, fog.png, starts.txt, the patrol
+    graph's idleness.csv, vertices.csv and idleness.png (and patrol.gif).
 
     The model, the force laws and the metrics (MTB: the worst time since a place was
     last seen; DVT: time spent escaping dead ends) are explained in docs/patrol.md."""
@@ -289,18 +299,27 @@ def run_cmd(
             raise ConfigError(f"{robots} robots asked for, the start file has {len(start)}")
         start = start[:robots]  # robot_number: the first N of the start file
     areas = read_semaphores(semaphores, territory.grid) if semaphores is not None else None
-    anim = None
-    if animate:
-        from ..plot import FogAnimation
-
-        anim = FogAnimation(territory.grid, territory.free, radius=config.radius)
+    anim: Any = None
     every = max(1, round(config.duration / config.dt) // 200)
     frame = {"k": 0}
 
     def keep(t: float, team: Team, fog: Fog) -> None:
+        nonlocal anim
+        if anim is None:
+            from ..plot import FogAnimation
+
+            # Made at the first step, once the run has settled what it watches.
+            anim = FogAnimation(
+                territory.grid,
+                territory.free,
+                radius=config.radius,
+                outside=territory.free & ~fog.watched,
+                unknown=territory.unknown,
+            )
         frame["k"] += 1
-        if anim is not None and frame["k"] % every == 0:
-            anim.add(t, fog.tb, np.column_stack([team.x, team.y, team.heading]))
+        if frame["k"] % every == 0:
+            robots_now = np.column_stack([team.x, team.y, team.heading])
+            anim.add(t, fog.tb, robots_now, never_seen=fog.never_seen())
 
     with progress("patrolling") as cb:
         res = run_patrol(
@@ -310,9 +329,10 @@ def run_cmd(
             robots=robots,
             seed=seed,
             progress=cb,
-            on_step=keep if anim is not None else None,
+            on_step=keep if animate else None,
             semaphores=areas,
             region=region,
+            graph=graph,
         )
     batch = None
     if "output_file" in extra:
@@ -335,6 +355,14 @@ def run_cmd(
         f"mean MTB {s['mean_mtb']:.1f} s (after {config.warmup_s:g} s), worst idleness "
         f"{s['worst_idleness']:.0f} s, {s['steps']} steps in {s['wall_seconds']:.1f} s"
     )
+    if "graph" in s:
+        m = s["graph"]
+        console.print(
+            f"patrol graph: {m['graph_vertices']} vertices, average idleness "
+            f"{m['avg_idleness']:.1f} s (median {m['median_idleness']:.1f}, worst "
+            f"{m['worst_idleness_visits']:.0f}), {m['complete_cycles']} complete cycles, "
+            f"{m['interference_events']} interference events"
+        )
     console.print(wrote(out, written))
 
 

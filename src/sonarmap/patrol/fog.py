@@ -112,10 +112,16 @@ class Fog:
         self.grid = grid
         self.watched = watched
         self.t = 0.0
+        self.start = float(start)
         self.last = np.where(watched, -float(start), np.inf)
         self._n = int(watched.sum())
         # Sum of ``last`` over the watched cells, kept as cells are seen.
         self._sum = -float(start) * self._n
+
+    def never_seen(self) -> npt.NDArray[np.bool_]:
+        """Watched cells not seen since time 0: a new array."""
+        out: npt.NDArray[np.bool_] = self.watched & (self.last == -self.start)
+        return out
 
     @property
     def tb(self) -> npt.NDArray[np.float64]:

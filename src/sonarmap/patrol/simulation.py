@@ -36,7 +36,9 @@ from ..grid import Grid
 from .finders import PathFinder
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force, sector_pulls, step_direction
+from .graph import PatrolGraph
 from .marching import Marching
+from .monitor import Monitor
 from .network import NETWORKS, components
 from .paths import STEP_UNITS, Wave, nearest_step, path_to, straight_paths
 from .policies import POLICIES, choose, goal_pulls, reactive_pick
@@ -299,6 +301,8 @@ class PatrolResult:
     starts: F64 = field(default_factory=lambda: np.zeros((0, 3)))
     #: Watched cells no robot ever saw.
     never_seen: npt.NDArray[np.bool_] | None = None
+    #: patrolling_sim's metrics on the patrol graph (``run_patrol(graph=True)``).
+    monitor: Monitor | None = None
 
     def dvt_per_robot(self) -> F64:
         """Share of the run each robot spent escaping dead ends, in %."""
@@ -323,6 +327,7 @@ class PatrolResult:
             "sim_seconds": float(self.t[-1]) if len(self.t) else 0.0,
             "wall_seconds": round(self.wall_seconds, 3),
             "robots": len(self.positions),
+            **({"graph": self.monitor.summary()} if self.monitor is not None else {}),
         }
 
     def metrics_csv(self) -> str:
@@ -388,12 +393,14 @@ class PatrolResult:
         -------
         list of Path
             The files written: ``metrics.csv``, ``summary.json``, ``fog.png``,
-            ``starts.txt`` (the starts used, in the start-file format), then the batch
-            output and ``patrol.gif`` when asked for.
+            ``starts.txt`` (the starts used, in the start-file format); with the patrol
+            graph's monitor ``idleness.csv`` (the idleness of its vertices over time),
+            ``vertices.csv`` (per vertex) and ``idleness.png``; then the batch output
+            and ``patrol.gif`` when asked for.
         """
         # Imported here: the plotting stack is only needed to write.
         from ..files import atomic_folder, atomic_write_text, json_dumps
-        from ..plot import save_fog_picture
+        from ..plot import save_fog_picture, save_idleness_plot
 
         out = Path(folder)
         robots = self.summary()["robots"]
@@ -416,6 +423,15 @@ class PatrolResult:
                 "params": self.config.as_dict(),
             }
             atomic_write_text(tmp / "summary.json", json_dumps(summary) + "\n")
+            if self.monitor is not None:
+                atomic_write_text(tmp / "idleness.csv", self.monitor.idleness_csv())
+                atomic_write_text(tmp / "vertices.csv", self.monitor.per_vertex_csv())
+                save_idleness_plot(
+                    self.monitor.idleness_series(),
+                    tmp / "idleness.png",
+                    title=f"{robots} robots, {len(self.monitor.graph)} patrol-graph vertices",
+                )
+                names += ["idleness.csv", "vertices.csv", "idleness.png"]
             save_fog_picture(
                 territory.grid,
                 territory.free,
@@ -424,6 +440,9 @@ class PatrolResult:
                 tmp / "fog.png",
                 radius=self.config.radius,
                 title=f"{robots} robots, t = {self.t[-1]:.0f} s",
+                outside=territory.free & ~self.watched,
+                unknown=territory.unknown,
+                never_seen=self.never_seen,
             )
         if animation is not None:
             names.append("patrol.gif")
@@ -516,6 +535,7 @@ def run_patrol(
     on_step: Callable[[float, Team, Fog], None] | None = None,
     semaphores: list[npt.NDArray[np.bool_]] | None = None,
     region: npt.NDArray[np.bool_] | None = None,
+    graph: bool = False,
 ) -> PatrolResult:
     """Patrol ``territory`` for ``config.duration`` seconds.
 
@@ -532,6 +552,11 @@ def run_patrol(
     region : ndarray of bool, optional
         The user's territory mask on the territory's grid (:mod:`.region`): nothing
         outside it is entered or watched.
+    graph : bool
+        Also measure patrolling_sim's metrics (:class:`~sonarmap.patrol.monitor.Monitor`)
+        on the patrol graph of the reachable territory
+        (:meth:`~sonarmap.patrol.graph.PatrolGraph.from_territory`, vertices spaced by
+        the vision radius), every step; default False.
 
     Raises
     ------
@@ -661,6 +686,20 @@ def run_patrol(
 
     look()
     wall0 = time.perf_counter()
+    monitor = None
+    if graph:
+        r0, c0 = g.world_to_cell(team.x, team.y)
+        monitor = Monitor(
+            PatrolGraph.from_territory(
+                territory,
+                passable,
+                config.vision,
+                starts=list(zip(np.asarray(r0).tolist(), np.asarray(c0).tolist(), strict=True)),
+            ),
+            start_idleness=config.start_fog,
+            robot_radius=config.radius,
+        )
+        monitor.update(0.0, team.x, team.y)
     finder = (
         FINDERS[config.paths].build(passable, g.resolution) if config.paths in FINDERS else None
     )
@@ -838,6 +877,8 @@ def run_patrol(
                 f.advance(config.dt)
         look()
         t_out[k] = (k + 1) * config.dt
+        if monitor is not None:
+            monitor.update(float(t_out[k]), team.x, team.y)
         mtb[k] = fog.mtb()
         mean_tb[k] = fog.mean_tb()
         if on_step is not None:
@@ -859,5 +900,6 @@ def run_patrol(
         float(np.mean(fog.last[watched] == -config.start_fog)),
         reach=where,
         starts=np.array(starts, dtype=np.float64),
-        never_seen=watched & (fog.last == -config.start_fog),
+        never_seen=fog.never_seen(),
+        monitor=monitor,
     )
