@@ -79,13 +79,20 @@ def _corridor() -> Territory:
 
 def test_in_a_corridor_one_robot_gives_way_and_neither_jams() -> None:
     # Short sight makes the corridor's far end the place to go for each robot in turn,
-    # so they keep meeting in it. Under the thesis's rule they block each other.
+    # so reactive robots (each for the longest-unseen place) keep meeting in it. Under
+    # the thesis's rule they block each other.
     t = _corridor()
     starts = np.array([[6.0, 3.0, 0.0], [24.0, 3.0, np.pi]])
     share = {}
     for rule in ("thesis", "give-way"):
         cfg = PatrolConfig(
-            radius=0.3, speed=1.0, vision=2.0, duration=300.0, cell=0.1, traffic=rule
+            policy="reactive",
+            radius=0.3,
+            speed=1.0,
+            vision=2.0,
+            duration=300.0,
+            cell=0.1,
+            traffic=rule,
         )
         s = run_patrol(t, cfg, starts=starts, seed=0).summary()
         assert s["never_seen"] == 0.0
@@ -111,3 +118,21 @@ def test_two_indoor_robots_do_not_jam_on_the_depot_map() -> None:
     s = run_patrol(t, cfg, robots=2, seed=1).summary()
     assert s["blocked_share"] < 0.05
     assert s["never_seen"] == 0.0
+
+
+@pytest.mark.skipif(not (SHARED_DATA / "maps").is_dir(), reason="needs ../shared/data/maps")
+def test_a_robot_keeps_its_goal_instead_of_swinging_at_a_corner() -> None:
+    # On the warehouse map, from seed 0's start, a robot choosing again every step
+    # swings between two cells at a wall's corner (two places whose paths leave in
+    # opposite directions) and sees a sixth of the building in 200 s.
+    from sonarmap.io.rosmap import read_map
+
+    t = Territory.from_map(read_map(SHARED_DATA / "maps" / "warehouse.yaml"), cell=0.1)
+    unseen = {}
+    for keep in (False, True):
+        cfg = PatrolConfig(
+            radius=0.3, speed=1.0, vision=5.0, duration=200.0, cell=0.1, keep_goal=keep
+        )
+        unseen[keep] = run_patrol(t, cfg, robots=1, seed=0).summary()["never_seen"]
+    assert unseen[True] < 0.4
+    assert unseen[False] > unseen[True] + 0.2

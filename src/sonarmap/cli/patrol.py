@@ -144,6 +144,12 @@ PATROL_OPTIONS = (
         "auto: give-way with the path motion.",
     ),
     Opt(
+        "keep_goal",
+        "Path motion: keep the place a robot goes for until it is seen, or choose "
+        "again every step.",
+        off="--choose-every-step",
+    ),
+    Opt(
         "r_obst", "Artificial obstacles' radius, metres (default 3 x --radius).", unset_as=math.nan
     ),
     Opt(

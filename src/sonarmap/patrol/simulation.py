@@ -109,6 +109,11 @@ class PatrolConfig:
     dilation: int = 0
     crowding: str = "none"
     traffic: str = "auto"
+    #: Path motion: a robot keeps the place it goes for until it (or, with the full
+    #: network, any robot) has seen it, or it cannot be reached; False chooses again
+    #: every step (two places whose paths leave in opposite directions can then hold
+    #: a robot swinging between two cells).
+    keep_goal: bool = True
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
     r_obst: float = math.nan
     refine: bool = False
@@ -729,6 +734,9 @@ def run_patrol(
         return dilated[j][rr, cc] if dilated is not None else own[j].tb_at(rr, cc)
 
     along_path = config.motion == "path"
+    # Path motion: the place each robot goes for, and when it chose it.
+    aims: list[tuple[int, int] | None] = [None] * len(team)
+    aimed_at = np.zeros(len(team))
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
         goals: list[tuple[float, float] | None] = []
@@ -830,7 +838,16 @@ def run_patrol(
                 )
             )
             goal: tuple[int, int] | None = None
-            if along_path and step is not None:
+            held = aims[i]
+            if (
+                along_path
+                and config.keep_goal
+                and held is not None
+                and np.isfinite(waver.dist[held])
+                and own[0 if shared else i].last[held] < aimed_at[i]
+            ):
+                goal = held  # not seen since chosen: still worth the trip
+            elif along_path and step is not None:
                 pick = (
                     reactive_pick(tbv, lengths)
                     if config.policy == "reactive"
@@ -841,6 +858,7 @@ def run_patrol(
                     )
                 )
                 goal = None if pick is None else (int(rr[pick]), int(cc[pick]))
+                aims[i], aimed_at[i] = goal, own[0 if shared else i].t
             goals.append(_path_goal(team, i, goal, waver, g, passable, config))
         if penalty is not None:
             directions = [
