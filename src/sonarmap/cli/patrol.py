@@ -85,7 +85,8 @@ PATROL_OPTIONS = (
     Opt(
         "policy",
         "How a robot picks its way: potential (the thesis's potential field), "
-        "random, reactive, gravity or cycle.",
+        "random, reactive, gravity, cycle, or cr / hcr (conscientious and heuristic "
+        "conscientious reactive agents on the patrol graph).",
     ),
     Opt(
         "model",

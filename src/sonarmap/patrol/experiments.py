@@ -309,10 +309,15 @@ def _plans() -> dict[str, Plan]:
         "baselines": Plan(
             "baselines",
             "The potential field against the literature's strategies on every map "
-            "(holonomic, wave): random walk, conscientious reactive, gravitational "
-            "(Sampaio et al. 2010) and the offline cyclic tour (Chevaleyre's reference).",
+            "(holonomic, wave): random walk, a reactive agent on the fog's places, "
+            "conscientious and heuristic conscientious reactive agents on the patrol graph "
+            "(cr, hcr), gravitational (Sampaio et al. 2010) and the offline cyclic tour "
+            "(Chevaleyre's reference).",
             {**HOLO},
-            {p: {"policy": p} for p in ("potential", "random", "reactive", "gravity", "cycle")},
+            {
+                p: {"policy": p}
+                for p in ("potential", "random", "reactive", "cr", "hcr", "gravity", "cycle")
+            },
             ["open-field", "fig3-2", "fig3-4", "fig3-10"],
             [1, 3],
         ),
@@ -642,7 +647,7 @@ def _assess(
         ]
     if name == "baselines":
         claims = []
-        for other in ("random", "reactive", "gravity", "cycle"):
+        for other in ("random", "reactive", "cr", "hcr", "gravity", "cycle"):
             claims += _pairs(table, report, name, "potential", other, "(not in the thesis)")
         return claims
     return []

@@ -5,12 +5,14 @@ baselines measured on the same simulator and metric.
   step; mode or vector sum (:mod:`.forces`).
 - ``random``: a random walk -- keep going straight, take a new random heading when
   blocked or, each step, with probability ``turn`` (5 %).
-- ``reactive``: the conscientious reactive agent -- head for the place unseen longest
-  (ties to the nearest), along its path's first step.
+- ``reactive``: a reactive agent on the fog's places -- head for the place unseen
+  longest (ties to the nearest), along its path's first step.
 - ``gravity`` (Sampaio et al. 2010): every place has a mass growing with its idleness and
   pulls with mass / L^k (k = 2); the robot follows the vector sum of the pulls.
 - ``cycle``: the offline reference, robots spread along one tour (:mod:`.tour`); the
   simulation drives it, since it needs no pull.
+- ``cr`` and ``hcr``: conscientious and heuristic conscientious reactive agents walking
+  the patrol graph vertex to vertex (:mod:`.walkers`); the simulation drives them too.
 
 Each returns a unit direction (x, y) or None (stand).
 """
@@ -30,7 +32,7 @@ __all__ = ["POLICIES", "choose", "goal_pulls", "normalised", "reactive_pick"]
 
 F64 = npt.NDArray[np.float64]
 
-POLICIES = ("potential", "random", "reactive", "gravity", "cycle")
+POLICIES = ("potential", "random", "reactive", "gravity", "cycle", "cr", "hcr")
 #: Per-step chance that the random walk turns while not blocked.
 RANDOM_TURN = 0.05
 #: Exponent of distance in the gravitational pull.

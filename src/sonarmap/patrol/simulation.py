@@ -51,6 +51,7 @@ from .semaphores import Semaphores
 from .starts import check_starts, format_starts, spread_starts
 from .territory import Territory, move_clear
 from .tour import plan_tour
+from .walkers import WALKERS, GraphWalkers
 
 __all__ = [
     "CROWDING",
@@ -82,7 +83,7 @@ TRAFFIC = ("auto", "thesis", "give-way")
 #: Seconds a robot that gave way keeps planning around the robots it gave way to.
 GIVE_WAY_TIME = 5.0
 #: Policies the path motion can follow.
-PATH_POLICIES = ("potential", "reactive", "gravity", "cycle")
+PATH_POLICIES = ("potential", "reactive", "gravity", "cycle", *WALKERS)
 #: Path-finders built once per run for the static map (:mod:`.regions`, :mod:`.marching`).
 FINDERS: dict[str, type[PathFinder]] = {"regions": Regions, "marching": Marching}
 #: Every path-finding: the wave, straight lines (open space) and the static finders.
@@ -474,6 +475,22 @@ def _follow_tour(
     return None
 
 
+def _walk(
+    i: int, walkers: GraphWalkers, waver: Wave, fog: Fog, config: PatrolConfig
+) -> tuple[float, float] | None:
+    """Robot i's step towards its graph vertex, the next one once within a step of it;
+    None (stand) while the vertex cannot be reached (robots in the way)."""
+    r, c = walkers.goal_cell(i)
+    if waver.dist[r, c] <= config.speed * config.dt:
+        cells = walkers.graph.cells
+        walkers.arrive(i, fog.t, fog.last[cells[:, 0], cells[:, 1]])
+        r, c = walkers.goal_cell(i)
+    k = int(waver.first[r, c])
+    if k < 0:
+        return None
+    return float(STEP_UNITS[k, 0]), float(STEP_UNITS[k, 1])
+
+
 def _goal_index(
     direction: tuple[float, float] | None, step: npt.NDArray[np.int8], lp: F64
 ) -> int | None:
@@ -692,19 +709,20 @@ def run_patrol(
     look()
     wall0 = time.perf_counter()
     monitor = None
-    if graph:
+    walkers = None
+    if graph or config.policy in WALKERS:
         r0, c0 = g.world_to_cell(team.x, team.y)
-        monitor = Monitor(
-            PatrolGraph.from_territory(
-                territory,
-                passable,
-                config.vision,
-                starts=list(zip(np.asarray(r0).tolist(), np.asarray(c0).tolist(), strict=True)),
-            ),
-            start_idleness=config.start_fog,
-            robot_radius=config.radius,
+        cells0 = np.column_stack([np.asarray(r0), np.asarray(c0)])
+        patrol_graph = PatrolGraph.from_territory(
+            territory, passable, config.vision, starts=[tuple(rc) for rc in cells0.tolist()]
         )
-        monitor.update(0.0, team.x, team.y)
+        if config.policy in WALKERS:
+            walkers = GraphWalkers(patrol_graph, config.policy, cells0)
+        if graph:
+            monitor = Monitor(
+                patrol_graph, start_idleness=config.start_fog, robot_radius=config.radius
+            )
+            monitor.update(0.0, team.x, team.y)
     finder = (
         FINDERS[config.paths].build(passable, g.resolution) if config.paths in FINDERS else None
     )
@@ -762,7 +780,7 @@ def run_patrol(
             step: npt.NDArray[np.int8] | None = None
             if config.policy == "random":
                 tbv = lengths = ux = uy = np.empty(0)
-            elif config.paths == "wave" or config.policy == "cycle":
+            elif config.paths == "wave" or config.policy == "cycle" or walkers is not None:
                 start = (int(r[i]), int(c[i]))
                 closed = closed_cells(i, r, c, k)
                 if config.policy == "potential":
@@ -812,6 +830,14 @@ def run_patrol(
                 rr, cc = np.nonzero(watched & np.isfinite(dist))
                 tbv = tb_of(i, rr, cc, dilated)
                 lengths, ux, uy = dist[rr, cc], gx[rr, cc], gy[rr, cc]
+            if walkers is not None:
+                directions.append(_walk(i, walkers, waver, own[0 if shared else i], config))
+                goals.append(
+                    _path_goal(team, i, walkers.goal_cell(i), waver, g, passable, config)
+                    if along_path
+                    else None
+                )
+                continue
             if config.policy == "cycle":
                 directions.append(_follow_tour(i, tour, target, waver.dist, waver.first, config))
                 way = (int(tour[target[i], 0]), int(tour[target[i], 1]))
