@@ -186,7 +186,8 @@ class Plan:
         return out
 
 
-HOLO = {"model": "holonomic"}
+# The thesis's robot: a full step along the chosen direction, its collision rule.
+HOLO = {"model": "holonomic", "motion": "straight"}
 CARS = {"model": "car", "refine": True}
 
 
