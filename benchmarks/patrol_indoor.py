@@ -13,7 +13,10 @@ count, traffic rule and seed one run of ``--duration`` simulated seconds, report
 
 Run with ``python -m benchmarks.patrol_indoor [--maps depot warehouse] [--robots 1 2 4]
 [--policies potential] [--traffic thesis give-way] [--seeds 0 1] [--duration 600]
-[--json F]``; ``--maps`` takes names in the data folder or paths to map YAML files.
+[--json F] [--figure F.png]``; ``--maps`` takes names in the data folder or paths to map
+YAML files. ``--replot F.json --figure F.png`` draws the figure of an earlier ``--json``
+without running anything: the mean MTB against the team's size, one line per policy and
+traffic rule and one panel per map (the mean over the seeds, each seed a dot).
 """
 
 from __future__ import annotations
@@ -68,6 +71,46 @@ def run_one(
     }
 
 
+def plot(rows: list[dict[str, Any]], path: Path) -> None:
+    """The figure of runs ``rows`` (see the module's notes), written to ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    maps = sorted({r["map"] for r in rows})
+    fig, axes = plt.subplots(1, len(maps), figsize=(5.0 * len(maps), 3.8), squeeze=False)
+    for ax, name in zip(axes[0], maps, strict=True):
+        mine = [r for r in rows if r["map"] == name]
+        lines = sorted({(r["policy"], r["traffic"]) for r in mine})
+        for policy, traffic in lines:
+            runs = [r for r in mine if (r["policy"], r["traffic"]) == (policy, traffic)]
+            sizes = sorted({r["robots"] for r in runs})
+            mean = [
+                sum(r["mean_mtb"] for r in runs if r["robots"] == n)
+                / sum(1 for r in runs if r["robots"] == n)
+                for n in sizes
+            ]
+            label = policy if len({t for _, t in lines}) == 1 else f"{policy}, {traffic}"
+            (line,) = ax.plot(sizes, mean, marker="o", label=label)
+            ax.scatter(
+                [r["robots"] for r in runs],
+                [r["mean_mtb"] for r in runs],
+                s=10,
+                color=line.get_color(),
+                alpha=0.5,
+            )
+        ax.set_xticks(sorted({r["robots"] for r in mine}))
+        ax.set_xlabel("robots")
+        ax.set_ylabel("mean MTB [s]")
+        ax.set_ylim(bottom=0.0)
+        ax.set_title(name)
+        ax.legend(fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--maps", nargs="+", default=["depot", "warehouse"])
@@ -77,7 +120,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--figure", type=Path)
+    ap.add_argument("--replot", type=Path, help="Draw --figure from this --json file.")
     args = ap.parse_args(argv)
+    if args.replot is not None:
+        if args.figure is None:
+            raise SystemExit("--replot needs --figure")
+        plot(json.loads(args.replot.read_text())["runs"], args.figure)
+        return
     rows: list[dict[str, Any]] = []
     print(
         "| map | policy | robots | traffic | seed | blocked | never seen | unreachable "
@@ -107,6 +157,8 @@ def main(argv: list[str] | None = None) -> None:
                         )
     if args.json is not None:
         args.json.write_text(json.dumps({"duration": args.duration, "runs": rows}, indent=2))
+    if args.figure is not None:
+        plot(rows, args.figure)
 
 
 if __name__ == "__main__":
