@@ -472,8 +472,6 @@ def _back(
     through: npt.NDArray[np.bool_],
 ) -> npt.NDArray[np.int64]:
     rows, cols = dist.shape
-    # A (1, 1) ``through`` lets the path through any cell the wave reached.
-    every = through.shape[0] == 1 and through.shape[1] == 1 and (rows > 1 or cols > 1)
     # Every step is at least one cell long: the path has at most L / cell + 1 cells.
     out = np.empty((int(dist[r, c] / resolution) + 2, 2), dtype=np.int64)
     n = 0
@@ -489,7 +487,7 @@ def _back(
             cc = c + steps[k, 1]
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
                 continue
-            if not every and not through[rr, cc]:
+            if not through[rr, cc]:
                 continue
             cost = diag if k % 2 == 1 else resolution
             # A predecessor on a shortest path: its length plus the step is this one's.
@@ -525,9 +523,7 @@ def path_to(
         raise ValueError(f"no path to {target}")
     if passable is not None and passable.shape != dist.shape:
         raise ValueError(f"passable cells of {passable.shape} for a wave of {dist.shape}")
-    through = (
-        np.ones((1, 1), dtype=np.bool_)
-        if passable is None
-        else np.ascontiguousarray(passable, dtype=np.bool_)
-    )
+    # Without a map, any reached cell: the only ones a shortest path can come from.
+    through = np.isfinite(dist) if passable is None else passable
+    through = np.ascontiguousarray(through, dtype=np.bool_)
     return _back(np.ascontiguousarray(dist), int(r), int(c), STEPS, float(resolution), through)

@@ -203,14 +203,12 @@ def cancel_collisions(
         px = np.where(moving, nx, x)
         py = np.where(moving, ny, y)
         pairs = close_pairs(px, py, sep)
-        culprits = {k for pair in pairs for k in pair if moving[k]}
-        if give_way:
-            culprits = set()
-            for i, j in pairs:
-                if moving[i] and moving[j]:
-                    culprits.add(_yielder(i, j, x, y, nx, ny, sep))
-                else:
-                    culprits.update(k for k in (i, j) if moving[k])
+        culprits: set[int] = set()
+        for i, j in pairs:
+            if give_way and moving[i] and moving[j]:
+                culprits.add(_yielder(i, j, x, y, nx, ny, sep))
+            else:
+                culprits.update(k for k in (i, j) if moving[k])
         if not culprits:
             return moving
         moving[sorted(culprits)] = False

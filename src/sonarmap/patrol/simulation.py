@@ -504,12 +504,17 @@ def _goal_index(
     return int(mine[int(np.argmax(lp[mine]))])
 
 
+def _earlier_near(team: Team, i: int, near: float) -> npt.NDArray[np.bool_]:
+    """Which of robots 0 .. i-1 are within ``near`` metres of robot i."""
+    out: npt.NDArray[np.bool_] = np.hypot(team.x[:i] - team.x[i], team.y[:i] - team.y[i]) < near
+    return out
+
+
 def _give_way(team: Team, until: npt.NDArray[np.int64], step: int, near: float) -> None:
     """Robots blocked with an earlier robot within ``near`` metres plan around the
     earlier robots near them until ``step``."""
     for i in np.flatnonzero(team.blocked).tolist():
-        d = np.hypot(team.x[:i] - team.x[i], team.y[:i] - team.y[i])
-        if (d < near).any():
+        if _earlier_near(team, i, near).any():
             until[i] = step
 
 
@@ -691,7 +696,7 @@ def run_patrol(
         heard = label == label[i]
         parts: list[npt.NDArray[np.intp]] = []
         if yielding[i] >= now:
-            near = np.hypot(team.x[:i] - team.x[i], team.y[:i] - team.y[i]) < yield_range
+            near = _earlier_near(team, i, yield_range)
             parts = [
                 np.column_stack(disc_cells(yield_disc, int(r[j]), int(c[j]), passable.shape))
                 for j in np.flatnonzero(near & heard[:i]).tolist()
@@ -865,12 +870,13 @@ def run_patrol(
             )
             goal: tuple[int, int] | None = None
             held = aims[i]
+            mine = own[0 if shared else i]
             if (
                 along_path
                 and config.keep_goal
                 and held is not None
                 and np.isfinite(waver.dist[held])
-                and own[0 if shared else i].last[held] < aimed_at[i]
+                and mine.last[held] < aimed_at[i]
             ):
                 goal = held  # not seen since chosen: still worth the trip
             elif along_path and step is not None:
@@ -884,7 +890,7 @@ def run_patrol(
                     )
                 )
                 goal = None if pick is None else (int(rr[pick]), int(cc[pick]))
-                aims[i], aimed_at[i] = goal, own[0 if shared else i].t
+                aims[i], aimed_at[i] = goal, mine.t
             goals.append(_path_goal(team, i, goal, waver, g, passable, config))
         if penalty is not None:
             directions = [
@@ -929,6 +935,7 @@ def run_patrol(
             on_step(float(t_out[k]), team, fog)
         if progress is not None:
             progress(k + 1, steps)
+    never = fog.never_seen()
     return PatrolResult(
         t_out,
         mtb,
@@ -941,9 +948,9 @@ def run_patrol(
         escapes,
         dvt,
         watched,
-        float(np.mean(fog.last[watched] == -config.start_fog)),
+        float(never[watched].mean()),
         reach=where,
         starts=np.array(starts, dtype=np.float64),
-        never_seen=fog.never_seen(),
+        never_seen=never,
         monitor=monitor,
     )
