@@ -34,7 +34,7 @@ from sonarmap.patrol import (
 from sonarmap.patrol.experiments import run_experiment
 from sonarmap.patrol.fog import dilate, disc_offsets
 from sonarmap.patrol.forces import sector_pulls, step_direction
-from sonarmap.patrol.paths import STEP_UNITS, STEPS, Wave
+from sonarmap.patrol.paths import STEP_UNITS, STEPS, Wave, nearest_step
 from sonarmap.patrol.robots import SPEED_BANDS, Car, arc, band_speed, parse_speed_bands
 
 
@@ -847,6 +847,29 @@ def test_pulls_summed_with_the_wave_match_the_whole_map(seed: int) -> None:
     )
     assert step_direction(chosen, "mode", weights) == expected
     assert np.isfinite(waver.dist).sum() <= np.isfinite(dist).sum()
+    # With goal: the strongest place whose first step is the chosen one, among the
+    # cells the cut wave reached, pulls as hard as the whole map's strongest there.
+    aimed = sector_pulls(
+        waver,
+        passable,
+        start,
+        res,
+        free,
+        force,
+        top,
+        certify=True,
+        weights=weights,
+        goal=True,
+        **kw,  # type: ignore[arg-type]
+    )
+    way = step_direction(aimed, "mode", weights)
+    assert way == expected
+    assert way is not None
+    k = nearest_step(*way)
+    mine = first[rr, cc] == k
+    qr, qc = np.nonzero(free & (waver.first == k) & np.isfinite(waver.dist))
+    cut_lp = force.log_pull((now - last[qr, qc]) / top, waver.dist[qr, qc])
+    assert cut_lp.max() == pytest.approx(lp[mine].max(), rel=1e-12)
     if seed == 0:
         assert expected == pytest.approx((1.0, 0.0))  # four steps tie: the first wins
     with pytest.raises(ValueError, match="either"):

@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from sonarmap.patrol.paths import STEPS, TIE, Wave, wave
+from sonarmap.patrol.paths import STEPS, TIE, Wave, path_to, wave
 
 _S = math.sqrt(0.5)
 _UNITS = [(1, 0), (_S, _S), (0, 1), (-_S, _S), (-1, 0), (-_S, -_S), (0, -1), (_S, -_S)]
@@ -204,3 +204,32 @@ def test_a_visitor_sees_each_cell_once_and_its_limit_may_rise_and_fall(seed: int
     counts = w._inner(shown)
     assert set(np.unique(counts[reached]).tolist()) == {1}
     assert not counts[~reached].any()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_a_wave_to_a_goal_gives_the_full_waves_path_there(seed: int) -> None:
+    """Wave.to: the goal's length and the path read back to it are the full wave's,
+    every cell reached has the full wave's length, none is more than two cells farther
+    than the goal (the wave stops between buckets of a cell's length), and an
+    unreachable goal is inf."""
+    passable, free = _maps(seed)
+    full = Wave(passable.shape)
+    dist, first = full(passable, (15, 20), 0.2, free)
+    dist, first = dist.copy(), first.copy()
+    part = Wave(passable.shape)
+    rng = np.random.default_rng(seed)
+    reached = np.argwhere(np.isfinite(dist))
+    for r, c in reached[rng.choice(len(reached), 5, replace=False)].tolist():
+        length = part.to(passable, (15, 20), (r, c), 0.2, free)
+        assert length == dist[r, c]
+        got = np.isfinite(part.dist)
+        np.testing.assert_array_equal(part.dist[got], dist[got])
+        assert not (got & (dist > dist[r, c] + 2 * 0.2)).any()
+        np.testing.assert_array_equal(
+            path_to(part.dist, (r, c), 0.2, passable), path_to(dist, (r, c), 0.2, passable)
+        )
+    walled = np.ones((9, 9), dtype=bool)
+    walled[:, 4] = False
+    assert Wave(walled.shape).to(walled, (4, 1), (4, 7), 0.2) == math.inf
+    with pytest.raises(ValueError, match="off the grid"):
+        part.to(passable, (15, 20), (-1, 3), 0.2)

@@ -112,10 +112,12 @@ def _pull_limit(
 
 
 #: What :func:`sector_pulls` gathers: [0] the strongest log pull so far, [1:9] each
-#: wave step's summed pull relative to it, [9] the watched cells taken.
-_BEST, _SUMS, _TAKEN = 0, 1, 9
+#: wave step's summed pull relative to it, [9] the watched cells taken, [10:18] each
+#: step's strongest single log pull.
+_BEST, _SUMS, _TAKEN, _STEP_BEST = 0, 1, 9, 10
 #: The visitor's numbers: TB = [0] + [1] x source, f and g codes, a, b, MTB, watched
-#: cells, prune (0/1), certify the mode's choice (0/1), the 8 steps' weights.
+#: cells, prune (0/1), certify the mode's choice (0: no, 1: the step, 2: the step and
+#: its strongest place), the 8 steps' weights.
 _ALPHA, _BETA, _F, _G, _A, _B, _TOP, _COUNT, _PRUNE, _CERTIFY, _WEIGHTS = range(11)
 
 
@@ -137,6 +139,7 @@ def _pull_visit(
     best = acc[_BEST]
     taken = acc[_TAKEN]
     sums = acc[_SUMS : _SUMS + 8].copy()
+    step_best = acc[_STEP_BEST : _STEP_BEST + 8]
     inv_width = 1.0 / width
     for i in range(lo, hi):
         u = order[i]
@@ -162,6 +165,8 @@ def _pull_visit(
                     sums[j] *= scale
             best = lp
         sums[step] += math.exp(lp - best)
+        if lp > step_best[step]:
+            step_best[step] = lp
     acc[_BEST] = best
     acc[_TAKEN] = taken
     acc[_SUMS : _SUMS + 8] = sums
@@ -179,6 +184,12 @@ def _pull_visit(
         gap = top_w - w.max()
         if gap > 0.0:
             share = max(share, math.log(gap))
+        if p[_CERTIFY] == 2.0 and gap > 0.0:
+            # And no place left could outpull the chosen step's strongest (a place
+            # pulls at most f(1) g(L)): that place is the whole map's too.
+            alone = _pull_limit(fcode, gcode, a, b, best, 1.0, step_best[k] - best)
+            limit = _pull_limit(fcode, gcode, a, b, best, p[_COUNT] - taken, share)
+            return max(limit, alone)
     return _pull_limit(fcode, gcode, a, b, best, p[_COUNT] - taken, share)
 
 
@@ -324,6 +335,7 @@ def sector_pulls(
     n_watched: int | None = None,
     certify: bool = False,
     weights: F64 | None = None,
+    goal: bool = False,
 ) -> F64:
     """The pulls of the ``watched`` places on a robot at ``start``, summed per first
     step of their waves' paths, in one pass with the wave.
@@ -333,9 +345,11 @@ def sector_pulls(
     pull found so far and the places not yet taken: the sums are then those of the
     whole map to float64 precision; with ``certify`` too, it stops as soon as the places
     left could not change the ``mode`` choice of :func:`step_direction` (with
-    ``weights``): the choice is then that of the whole map, the sums not quite.
-    ``closed`` edits the map as in :class:`Wave`;
-    ``waver`` is left holding the wave. ``n_watched``: ``watched.sum()``, when known.
+    ``weights``): the choice is then that of the whole map, the sums not quite; with
+    ``goal`` as well, only once the strongest place whose first step is the chosen one
+    is also the whole map's (the place the path motion goes for). ``closed`` edits the
+    map as in :class:`Wave`; ``waver`` is left holding the wave. ``n_watched``:
+    ``watched.sum()``, when known.
 
     Returns
     -------
@@ -352,11 +366,12 @@ def sector_pulls(
     if w.shape != (8,) or not (np.all(w >= 0) and np.all(w <= 1)):
         raise ValueError("weights: 8 values in [0, 1]")
     params = np.array(
-        [alpha, beta, *force.codes, force.a, force.b, top, count, prune, certify, *w],
+        [alpha, beta, *force.codes, force.a, force.b, top, count, prune, certify * (1 + goal), *w],
         dtype=np.float64,
     )
-    acc = np.zeros(10)
+    acc = np.zeros(_STEP_BEST + 8)
     acc[_BEST] = -np.inf
+    acc[_STEP_BEST:] = -np.inf
     ctx = (np.ascontiguousarray(src, dtype=np.float64), watched, params, acc)
     waver(passable, start, resolution, watched, None, closed, visit=(_pull_visit, ctx))
     return acc[_SUMS : _SUMS + 8].copy()

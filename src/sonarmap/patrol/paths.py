@@ -54,6 +54,7 @@ __all__ = [
     "no_visit",
     "path_to",
     "straight_paths",
+    "until_reached",
     "wave",
 ]
 
@@ -287,6 +288,22 @@ def no_visit(
 
 
 @nb.njit(cache=True)
+def until_reached(
+    order: npt.NDArray[np.int32],
+    lo: int,
+    hi: int,
+    dist: npt.NDArray[np.float64],
+    first: npt.NDArray[np.uint8],
+    width: int,
+    ctx: Any,
+) -> float:
+    """A visitor stopping the wave once the cell ``ctx[0]`` (a padded flat index) is
+    taken: its length so far, a bound that only falls, so the wave ends with every
+    cell up to it exact (as in the full wave) and nothing farther."""
+    return float(dist[ctx[0]])
+
+
+@nb.njit(cache=True)
 def _reset(
     dist: npt.NDArray[np.float64],
     first: npt.NDArray[np.uint8],
@@ -393,6 +410,28 @@ class Wave:
             # Cells listed twice were saved already edited: restore in reverse order.
             self._code[edits[::-1]] = saved[::-1]
         return self.dist, self.first
+
+    def to(
+        self,
+        passable: npt.NDArray[np.bool_],
+        start: tuple[int, int],
+        goal: tuple[int, int],
+        resolution: float,
+        target: npt.NDArray[np.bool_] | None = None,
+        closed: npt.NDArray[np.intp] | None = None,
+    ) -> float:
+        """The wave from ``start`` only as far as ``goal``: every cell up to the goal's
+        path length gets the full wave's length and first step (so :func:`path_to` the
+        goal reads back the full wave's path); the wave stops between buckets, so cells
+        up to about a cell's length farther may be reached too, none beyond. Returns the
+        goal's path length (metres; inf when it cannot be reached). Arguments as in a
+        call."""
+        r, c = int(goal[0]), int(goal[1])
+        if not (0 <= r < self.shape[0] and 0 <= c < self.shape[1]):
+            raise ValueError(f"the wave's goal {goal} is off the grid {self.shape}")
+        flat = np.array([(r + 1) * self._width + c + 1], dtype=np.int64)
+        self(passable, start, resolution, target, None, closed, visit=(until_reached, flat))
+        return float(self.dist[r, c])
 
     def _inner(self, flat: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:
         return flat.reshape(self.shape[0] + 2, self._width)[1:-1, 1:-1]

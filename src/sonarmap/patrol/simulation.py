@@ -551,6 +551,33 @@ def _path_goal(
     return reach
 
 
+def _held_goal(
+    team: Team,
+    i: int,
+    start: tuple[int, int],
+    held: tuple[int, int],
+    waver: Wave,
+    g: Grid,
+    passable: npt.NDArray[np.bool_],
+    watched: npt.NDArray[np.bool_],
+    closed: npt.NDArray[np.intp] | None,
+    config: PatrolConfig,
+) -> tuple[float, float] | None:
+    """Robot i's step from its cell ``start`` towards the place it keeps going for, from
+    a wave run only as far as that place (None when it cannot be reached or there is
+    no clear step)."""
+    if not np.isfinite(waver.to(passable, start, held, g.resolution, watched, closed)):
+        return None
+    return _path_goal(team, i, held, waver, g, passable, config)
+
+
+def _unit_towards(team: Team, i: int, point: tuple[float, float]) -> tuple[float, float]:
+    """The unit vector from robot i to ``point`` (not at the robot)."""
+    dx, dy = point[0] - float(team.x[i]), point[1] - float(team.y[i])
+    n = math.hypot(dx, dy)
+    return dx / n, dy / n
+
+
 def run_patrol(
     territory: Territory,
     config: PatrolConfig,
@@ -757,6 +784,22 @@ def run_patrol(
         return dilated[j][rr, cc] if dilated is not None else own[j].tb_at(rr, cc)
 
     along_path = config.motion == "path"
+    # A potential-field robot on its way to a kept goal needs only the path there: the
+    # field's direction (always some step while the goal is unseen) is overridden by
+    # the goal, and only consulted when the path gives no clear step -- then, and when
+    # the goal is seen or cut off, the full field is worked out as before.
+    # Its choice of step and of the place it goes for along it are settled once the
+    # places left could change neither: the wave stops there.
+    certify_goal = along_path and config.sectors == 8 and config.policy == "potential"
+    hold_fast = (
+        along_path
+        and config.keep_goal
+        and config.policy == "potential"
+        and config.direction == "mode"
+        and config.paths == "wave"
+        and penalty is None
+        and isinstance(team, Holonomic)
+    )
     # Path motion: the place each robot goes for, and when it chose it.
     aims: list[tuple[int, int] | None] = [None] * len(team)
     aimed_at = np.zeros(len(team))
@@ -769,6 +812,17 @@ def run_patrol(
         tops = [f.mtb() for f in own]
 
         for i in range(len(team)):
+            held = aims[i]
+            if hold_fast and held is not None and own[0 if shared else i].last[held] < aimed_at[i]:
+                start = (int(r[i]), int(c[i]))
+                closed = closed_cells(i, r, c, k)
+                towards = _held_goal(
+                    team, i, start, held, waver, g, passable, watched, closed, config
+                )
+                if towards is not None:
+                    directions.append(_unit_towards(team, i, towards))
+                    goals.append(towards)
+                    continue
             top = tops[0 if shared else i]
             weights = (
                 sector_weakening(
@@ -803,8 +857,9 @@ def run_patrol(
                         closed=closed,
                         prune=config.prune,
                         n_watched=n_watched,
-                        certify=direct and config.direction == "mode",
+                        certify=config.direction == "mode" and (direct or certify_goal),
                         weights=weights,
+                        goal=certify_goal,
                         **(
                             {"tb": dilated[j]}
                             if dilated is not None
