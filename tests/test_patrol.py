@@ -32,7 +32,7 @@ from sonarmap.patrol import (
     wave,
 )
 from sonarmap.patrol.experiments import run_experiment
-from sonarmap.patrol.fog import dilate, disc_offsets
+from sonarmap.patrol.fog import Vision, dilate, disc_offsets
 from sonarmap.patrol.forces import sector_pulls, step_direction
 from sonarmap.patrol.paths import STEP_UNITS, STEPS, Wave, nearest_step
 from sonarmap.patrol.robots import SPEED_BANDS, Car, arc, band_speed, parse_speed_bands
@@ -476,7 +476,6 @@ def test_builtin_maps_are_usable(tmp_path: Path, capsys: pytest.CaptureFixture[s
 
 
 def test_line_of_sight_vision() -> None:
-    from sonarmap.patrol.fog import Vision
 
     clear = np.ones((21, 21), dtype=bool)
     clear[5:16, 13] = False  # a wall 3 cells east of the robot at (10, 10)
@@ -874,3 +873,55 @@ def test_pulls_summed_with_the_wave_match_the_whole_map(seed: int) -> None:
         assert expected == pytest.approx((1.0, 0.0))  # four steps tie: the first wins
     with pytest.raises(ValueError, match="either"):
         sector_pulls(waver, passable, start, res, free, force, top)
+
+
+@pytest.mark.parametrize("shape", [(70, 45), (64, 64), (100, 33)])
+def test_the_fogs_mtb_is_the_worst_watched_cell(shape: tuple[int, int]) -> None:
+    """Fog.mtb from its block minima equals the plain maximum of TB over the watched
+    cells, on grids whose sides are and are not whole numbers of blocks."""
+    rng = np.random.default_rng(shape[1])
+    watched = rng.random(shape) > 0.2
+    fog = Fog(Grid(resolution=0.1, origin=(0.0, 0.0), shape=shape), watched, 3.0)
+    vision = Vision(1.0, 0.1)
+    for _ in range(60):
+        fog.advance(0.5)
+        fog.observe(rng.integers(0, shape[0], 3), rng.integers(0, shape[1], 3), vision)
+        assert fog.mtb() == fog.tb[watched].max()
+
+
+def test_sector_pulls_names_each_steps_strongest_place() -> None:
+    """``places``: per step, the place whose pull is the strongest of those the wave
+    took with that first step, as worked out apart from the wave's lengths."""
+    rng = np.random.default_rng(5)
+    free = rng.random((41, 53)) > 0.1
+    start = (20, 26)
+    free[start] = True
+    last = -rng.uniform(0, 60, free.shape)
+    top = float((-last[free]).max())
+    force = Force()
+    waver = Wave(free.shape)
+    places = np.zeros((8, 2), dtype=np.int64)
+    sector_pulls(waver, free, start, 0.25, free, force, top, last_seen=last, places=places)
+    dist, first = waver.dist, waver.first
+    for k in range(8):
+        rr, cc = np.nonzero(free & (first == k) & np.isfinite(dist))
+        if not len(rr):
+            assert tuple(places[k]) == (-1, -1)
+            continue
+        lp = force.log_pull(-last[rr, cc] / top, dist[rr, cc])
+        r, c = places[k]
+        got = force.log_pull(np.array([-last[r, c] / top]), np.array([dist[r, c]]))[0]
+        assert first[r, c] == k
+        assert got == pytest.approx(lp.max(), rel=1e-12)
+    with pytest.raises(ValueError, match="places"):
+        sector_pulls(
+            waver,
+            free,
+            start,
+            0.25,
+            free,
+            force,
+            top,
+            last_seen=last,
+            places=np.zeros((8, 3), dtype=np.int64),
+        )

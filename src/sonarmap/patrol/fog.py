@@ -95,8 +95,10 @@ def dilate(tb: npt.NDArray[np.float64], wing: int) -> npt.NDArray[np.float64]:
 class Fog:
     """TB over a grid; cells outside ``watched`` stay at 0 and never count.
 
-    Kept as the time each cell was last seen, so that time passing costs nothing and
-    MTB is one pass over the grid (unwatched cells are "last seen" at +inf).
+    Kept as the time each cell was last seen, so that time passing costs nothing, with
+    the earliest of those times per block of :attr:`BLOCK` x :attr:`BLOCK` cells, so that
+    MTB costs one pass over the blocks and a robot's look renews only the blocks its
+    vision touches (unwatched cells are "last seen" at +inf).
 
     Parameters
     ----------
@@ -108,12 +110,20 @@ class Fog:
         the patrol starts from a territory just seen).
     """
 
+    #: Side of the blocks whose earliest last-seen time is kept, in cells.
+    BLOCK = 32
+
     def __init__(self, grid: Grid, watched: npt.NDArray[np.bool_], start: float = 0.0) -> None:
         self.grid = grid
         self.watched = watched
         self.t = 0.0
         self.start = float(start)
         self.last = np.where(watched, -float(start), np.inf)
+        b = self.BLOCK
+        rows, cols = self.last.shape
+        padded = np.full((-(-rows // b) * b, -(-cols // b) * b), np.inf)
+        padded[:rows, :cols] = self.last
+        self._block_min = padded.reshape(padded.shape[0] // b, b, -1, b).min(axis=(1, 3))
         self._n = int(watched.sum())
         # Sum of ``last`` over the watched cells, kept as cells are seen.
         self._sum = -float(start) * self._n
@@ -151,12 +161,29 @@ class Fog:
                 rr, cc = disc_cells(vision, r, c, shape)
             keep = self.watched[rr, cc]
             rr, cc = rr[keep], cc[keep]
+            if not len(rr):
+                continue
             self._sum += float(np.sum(self.t - self.last[rr, cc]))
             self.last[rr, cc] = self.t
+            self._renew_blocks(int(rr.min()), int(rr.max()), int(cc.min()), int(cc.max()))
+
+    def _renew_blocks(self, r0: int, r1: int, c0: int, c1: int) -> None:
+        """Recompute the earliest last-seen time of the blocks over rows r0..r1 and
+        columns c0..c1 (inclusive)."""
+        b = self.BLOCK
+        br0, br1, bc0, bc1 = r0 // b, r1 // b, c0 // b, c1 // b
+        part = self.last[br0 * b : (br1 + 1) * b, bc0 * b : (bc1 + 1) * b]
+        nr, nc = br1 - br0 + 1, bc1 - bc0 + 1
+        if part.shape != (nr * b, nc * b):
+            # Blocks on the grid's last rows or columns are cut short: pad them.
+            full = np.full((nr * b, nc * b), np.inf)
+            full[: part.shape[0], : part.shape[1]] = part
+            part = full
+        self._block_min[br0 : br1 + 1, bc0 : bc1 + 1] = part.reshape(nr, b, nc, b).min(axis=(1, 3))
 
     def mtb(self) -> float:
         """Max of TB over the watched cells."""
-        return self.t - float(self.last.min())
+        return self.t - float(self._block_min.min())
 
     def mean_tb(self) -> float:
         """Mean of TB over the watched cells."""

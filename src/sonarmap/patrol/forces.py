@@ -113,8 +113,8 @@ def _pull_limit(
 
 #: What :func:`sector_pulls` gathers: [0] the strongest log pull so far, [1:9] each
 #: wave step's summed pull relative to it, [9] the watched cells taken, [10:18] each
-#: step's strongest single log pull.
-_BEST, _SUMS, _TAKEN, _STEP_BEST = 0, 1, 9, 10
+#: step's strongest single log pull, [18:26] and [26:34] that place's row and column.
+_BEST, _SUMS, _TAKEN, _STEP_BEST, _STEP_ROW, _STEP_COL = 0, 1, 9, 10, 18, 26
 #: The visitor's numbers: TB = [0] + [1] x source, f and g codes, a, b, MTB, watched
 #: cells, prune (0/1), certify the mode's choice (0: no, 1: the step, 2: the step and
 #: its strongest place), the 8 steps' weights.
@@ -167,6 +167,8 @@ def _pull_visit(
         sums[step] += math.exp(lp - best)
         if lp > step_best[step]:
             step_best[step] = lp
+            acc[_STEP_ROW + step] = r
+            acc[_STEP_COL + step] = c
     acc[_BEST] = best
     acc[_TAKEN] = taken
     acc[_SUMS : _SUMS + 8] = sums
@@ -336,6 +338,7 @@ def sector_pulls(
     certify: bool = False,
     weights: F64 | None = None,
     goal: bool = False,
+    places: npt.NDArray[np.int64] | None = None,
 ) -> F64:
     """The pulls of the ``watched`` places on a robot at ``start``, summed per first
     step of their waves' paths, in one pass with the wave.
@@ -349,7 +352,9 @@ def sector_pulls(
     ``goal`` as well, only once the strongest place whose first step is the chosen one
     is also the whole map's (the place the path motion goes for). ``closed`` edits the
     map as in :class:`Wave`; ``waver`` is left holding the wave. ``n_watched``:
-    ``watched.sum()``, when known.
+    ``watched.sum()``, when known. ``places``, an (8, 2) array, is filled with the row
+    and column of each step's strongest place among those the wave took (-1 where the
+    step has none).
 
     Returns
     -------
@@ -369,9 +374,15 @@ def sector_pulls(
         [alpha, beta, *force.codes, force.a, force.b, top, count, prune, certify * (1 + goal), *w],
         dtype=np.float64,
     )
-    acc = np.zeros(_STEP_BEST + 8)
+    if places is not None and places.shape != (8, 2):
+        raise ValueError(f"places: an (8, 2) array, got {places.shape}")
+    acc = np.zeros(_STEP_COL + 8)
     acc[_BEST] = -np.inf
-    acc[_STEP_BEST:] = -np.inf
+    acc[_STEP_BEST : _STEP_BEST + 8] = -np.inf
+    acc[_STEP_ROW:] = -1.0
     ctx = (np.ascontiguousarray(src, dtype=np.float64), watched, params, acc)
     waver(passable, start, resolution, watched, None, closed, visit=(_pull_visit, ctx))
+    if places is not None:
+        places[:, 0] = acc[_STEP_ROW : _STEP_ROW + 8]
+        places[:, 1] = acc[_STEP_COL : _STEP_COL + 8]
     return acc[_SUMS : _SUMS + 8].copy()

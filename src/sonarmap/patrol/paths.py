@@ -564,5 +564,7 @@ def path_to(
         raise ValueError(f"passable cells of {passable.shape} for a wave of {dist.shape}")
     # Without a map, any reached cell: the only ones a shortest path can come from.
     through = np.isfinite(dist) if passable is None else passable
-    through = np.ascontiguousarray(through, dtype=np.bool_)
-    return _back(np.ascontiguousarray(dist), int(r), int(c), STEPS, float(resolution), through)
+    # No copies: a wave's lengths are a strided view of a whole-map buffer, and copying
+    # it for every path read back would cost more than the wave.
+    through = np.asarray(through, dtype=np.bool_)
+    return _back(dist, int(r), int(c), STEPS, float(resolution), through)

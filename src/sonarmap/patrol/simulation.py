@@ -571,6 +571,36 @@ def _held_goal(
     return _path_goal(team, i, held, waver, g, passable, config)
 
 
+def _aim(
+    i: int,
+    way: tuple[float, float] | None,
+    places: npt.NDArray[np.int64],
+    waver: Wave,
+    fog: Fog,
+    aims: list[tuple[int, int] | None],
+    aimed_at: F64,
+    config: PatrolConfig,
+) -> tuple[int, int] | None:
+    """The place robot i goes for on the path motion: the one it keeps while unseen
+    since chosen and reachable, else the strongest place along its step ``way``
+    (``places`` per step, from :func:`sector_pulls`), noted in ``aims`` and
+    ``aimed_at``."""
+    held = aims[i]
+    if (
+        config.keep_goal
+        and held is not None
+        and np.isfinite(waver.dist[held])
+        and fog.last[held] < aimed_at[i]
+    ):
+        return held
+    goal = None
+    if way is not None:
+        r, c = places[nearest_step(*way)]
+        goal = None if r < 0 else (int(r), int(c))
+    aims[i], aimed_at[i] = goal, fog.t
+    return goal
+
+
 def _unit_towards(team: Team, i: int, point: tuple[float, float]) -> tuple[float, float]:
     """The unit vector from robot i to ``point`` (not at the robot)."""
     dx, dy = point[0] - float(team.x[i]), point[1] - float(team.y[i])
@@ -791,6 +821,10 @@ def run_patrol(
     # Its choice of step and of the place it goes for along it are settled once the
     # places left could change neither: the wave stops there.
     certify_goal = along_path and config.sectors == 8 and config.policy == "potential"
+    # Then the mode's step and that step's strongest place come straight from the pulls
+    # summed with the wave, as the straight motion's direction does.
+    direct_path = certify_goal and config.direction == "mode"
+    places = np.full((8, 2), -1, dtype=np.int64)
     hold_fast = (
         along_path
         and config.keep_goal
@@ -860,6 +894,7 @@ def run_patrol(
                         certify=config.direction == "mode" and (direct or certify_goal),
                         weights=weights,
                         goal=certify_goal,
+                        places=places,
                         **(
                             {"tb": dilated[j]}
                             if dilated is not None
@@ -869,6 +904,21 @@ def run_patrol(
                     if direct:
                         directions.append(step_direction(strength, config.direction, weights))
                         goals.append(None)
+                        continue
+                    if direct_path:
+                        way = step_direction(strength, "mode", weights)
+                        directions.append(way)
+                        goals.append(
+                            _path_goal(
+                                team,
+                                i,
+                                _aim(i, way, places, waver, own[j], aims, aimed_at, config),
+                                waver,
+                                g,
+                                passable,
+                                config,
+                            )
+                        )
                         continue
                 else:
                     waver(passable, start, g.resolution, watched, None, closed)

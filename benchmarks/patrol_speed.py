@@ -1,0 +1,91 @@
+"""How fast the patrol runs on a large building at the thesis's 0.1 m cells.
+
+Setting (issue 36's speed goal): a seeded floor plan of rooms off one another
+(:func:`sonarmap.floorplan.random_building`, ``--size`` 100 x 80 m by default, rooms of
+3-10 m, doors of 1.0-1.5 m) drawn at 0.1 m, patrolled on 0.1 m cells by ``--robots``
+indoor robots (radius 0.3 m, 1 m/s, 5 m vision), no start file, the default motion
+(the wave's paths, giving way). One run per seed of ``--duration`` simulated seconds
+after one short run that compiles the kernels, on one core. Reported per seed:
+
+- ``x real``: simulated seconds per wall-clock second (goal: 100; the check: 20);
+- the run's mean MTB, blocked share and never-seen share, so a faster version can be
+  seen to patrol alike.
+
+Run with ``python -m benchmarks.patrol_speed [--robots 4] [--duration 600] [--seeds 0]
+[--size 100 80] [--json F]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from typing import Any
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+from sonarmap.floorplan import random_building
+from sonarmap.grid import Grid
+from sonarmap.patrol import PatrolConfig, run_patrol
+from sonarmap.patrol.territory import Territory
+
+
+def indoor(duration: float) -> PatrolConfig:
+    """Issue 36's indoor robots on 0.1 m cells, otherwise the defaults."""
+    return PatrolConfig(radius=0.3, speed=1.0, vision=5.0, cell=0.1, duration=duration)
+
+
+def building(width: float, height: float, seed: int) -> Territory:
+    """The benchmark's building as a territory on 0.1 m cells."""
+    plan = random_building(width, height, seed=seed, max_room=10.0, door=(1.0, 1.5))
+    return Territory.from_map(plan.render(Grid.from_bounds(0, 0, width, height, 0.1)), cell=0.1)
+
+
+def run_one(territory: Territory, robots: int, duration: float, seed: int) -> dict[str, Any]:
+    """One timed run's figures (see the module's notes)."""
+    t0 = time.perf_counter()
+    s = run_patrol(territory, indoor(duration), robots=robots, seed=seed).summary()
+    wall = time.perf_counter() - t0
+    return {
+        "seed": seed,
+        "robots": robots,
+        "cells": int(territory.free.size),
+        "x_real": duration / wall,
+        "mean_mtb": s["mean_mtb"],
+        "blocked": s["blocked_share"],
+        "never_seen": s["never_seen"],
+        "unreachable": s["unreachable_free_share"],
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--robots", type=int, default=4)
+    ap.add_argument("--duration", type=float, default=600.0)
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0])
+    ap.add_argument("--size", nargs=2, type=float, default=[100.0, 80.0])
+    ap.add_argument("--json")
+    args = ap.parse_args(argv)
+    rows = []
+    print("| seed | robots | cells | x real | mean MTB, s | blocked | never seen | unreachable |")
+    print("|---|---|---|---|---|---|---|---|")
+    for seed in args.seeds:
+        territory = building(args.size[0], args.size[1], seed)
+        # Compile the kernels first: the timed run should not pay for them.
+        run_patrol(territory, indoor(2.0), robots=args.robots, seed=seed)
+        row = run_one(territory, args.robots, args.duration, seed)
+        rows.append(row)
+        print(
+            f"| {seed} | {row['robots']} | {row['cells']:,} | {row['x_real']:.1f} "
+            f"| {row['mean_mtb']:.1f} | {row['blocked']:.3f} | {row['never_seen']:.3f} "
+            f"| {row['unreachable']:.3f} |",
+            flush=True,
+        )
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"size_m": args.size, "duration": args.duration, "runs": rows}, f, indent=2)
+
+
+if __name__ == "__main__":
+    main()
