@@ -34,7 +34,7 @@ from sonarmap.patrol import (
 from sonarmap.patrol.experiments import run_experiment
 from sonarmap.patrol.fog import Vision, dilate, disc_offsets
 from sonarmap.patrol.forces import sector_pulls, step_direction
-from sonarmap.patrol.paths import STEP_UNITS, STEPS, Wave, nearest_step
+from sonarmap.patrol.paths import STEP_UNITS, STEPS, Wave, nearest_step, shadows
 from sonarmap.patrol.robots import SPEED_BANDS, Car, arc, band_speed, parse_speed_bands
 
 
@@ -925,3 +925,57 @@ def test_sector_pulls_names_each_steps_strongest_place() -> None:
             last_seen=last,
             places=np.zeros((8, 3), dtype=np.int64),
         )
+
+
+def test_shadows_pull_from_their_anchors() -> None:
+    """sector_pulls with shadows: the sums add, to each anchor's step, the pulls of the
+    watched cells tied to it at the anchor's length plus their distance, worked out
+    apart; a strip cell the wave cannot reach then draws the robot."""
+    free = np.ones((24, 36), dtype=bool)
+    free[:, 0] = free[:, -1] = free[0, :] = free[-1, :] = False
+    passable = ndimage.distance_transform_edt(free) >= 4
+    start, res = (12, 18), 0.1
+    last = np.zeros(free.shape)
+    last[1, 1:6] = -100.0  # a corner of the wall-side strip unseen for long
+    top, force = 100.0, Force()
+    sh = shadows(passable, free, res)
+    waver = Wave(free.shape)
+    kw = {"last_seen": last, "now": 0.0, "prune": False}
+    plain = sector_pulls(waver, passable, start, res, free, force, top, **kw)  # type: ignore[arg-type]
+    places = np.zeros((8, 2), dtype=np.int64)
+    shaded = sector_pulls(
+        waver,
+        passable,
+        start,
+        res,
+        free,
+        force,
+        top,
+        shadows=sh,
+        places=places,
+        **kw,  # type: ignore[arg-type]
+    )
+    dist, first = waver.dist, waver.first
+    rr, cc = np.nonzero(free & (first >= 0))
+    lengths, steps, ages = list(dist[rr, cc]), list(first[rr, cc]), list(-last[rr, cc])
+    cols = free.shape[1]
+    for k in np.flatnonzero(np.diff(sh.ptr)).tolist():
+        ar, ac = divmod(k, cols)
+        if first[ar, ac] < 0:
+            continue
+        for j in range(int(sh.ptr[k]), int(sh.ptr[k + 1])):
+            lengths.append(dist[ar, ac] + sh.extra[j])
+            steps.append(first[ar, ac])
+            ages.append(-last[sh.rows[j], sh.cols[j]])
+    lp = force.log_pull(np.array(ages) / top, np.array(lengths))
+    w = np.exp(lp - lp.max())
+    expected = np.bincount(np.array(steps, dtype=np.int64), weights=w, minlength=8)
+    np.testing.assert_allclose(shaded, expected, rtol=1e-9)
+    # The old corner pulls only through its shadows: up and to the left.
+    way = step_direction(shaded, "mode")
+    assert way is not None
+    assert way[0] < 0
+    assert way[1] > 0
+    assert not np.allclose(plain, shaded)
+    r, c = places[nearest_step(*way)]
+    assert passable[r, c] or np.isfinite(dist[r, c])

@@ -12,8 +12,9 @@ import numba as nb
 import numpy as np
 import numpy.typing as npt
 import pytest
+from scipy import ndimage
 
-from sonarmap.patrol.paths import STEPS, TIE, Wave, path_to, wave
+from sonarmap.patrol.paths import STEPS, TIE, Wave, path_to, shadows, wave
 
 _S = math.sqrt(0.5)
 _UNITS = [(1, 0), (_S, _S), (0, 1), (-_S, _S), (-1, 0), (-_S, -_S), (0, -1), (_S, -_S)]
@@ -233,3 +234,33 @@ def test_a_wave_to_a_goal_gives_the_full_waves_path_there(seed: int) -> None:
     assert Wave(walled.shape).to(walled, (4, 1), (4, 7), 0.2) == math.inf
     with pytest.raises(ValueError, match="off the grid"):
         part.to(passable, (15, 20), (-1, 3), 0.2)
+
+
+def test_shadows_tie_every_unreached_watched_cell_to_a_reached_one() -> None:
+    """paths.shadows: the watched cells of a wall-side strip more than one cell deep are
+    not reached by the wave; each is tied to the nearest cell that is, at its straight
+    distance, and the shadows and the reached cells together are every watched cell."""
+    free = np.ones((20, 30), dtype=bool)
+    free[:, 0] = free[:, -1] = free[0, :] = free[-1, :] = False
+    clearance = ndimage.distance_transform_edt(free)
+    passable = clearance >= 4  # a strip three cells deep along every wall
+    watched = free.copy()
+    res = 0.1
+    dist, _ = wave(passable, (10, 15), res, watched)
+    reached = np.isfinite(dist)
+    sh = shadows(passable, watched, res)
+    shadow = np.zeros_like(free)
+    shadow[sh.rows, sh.cols] = True
+    np.testing.assert_array_equal(shadow, watched & ~reached)
+    assert len(sh) > 0
+    cols = free.shape[1]
+    for k in range(free.size):
+        for j in range(int(sh.ptr[k]), int(sh.ptr[k + 1])):
+            ar, ac = divmod(k, cols)
+            assert reached[ar, ac]
+            d = math.hypot(sh.rows[j] - ar, sh.cols[j] - ac) * res
+            assert sh.extra[j] == pytest.approx(d)
+            nearest = np.min(np.hypot(*(np.argwhere(reached) - [sh.rows[j], sh.cols[j]]).T))
+            assert d == pytest.approx(nearest * res)
+    with pytest.raises(ValueError, match="watched"):
+        shadows(passable, watched[:-1], res)

@@ -23,7 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError
-from .paths import STEP_UNITS, Wave
+from .paths import STEP_UNITS, Shadows, Wave
 
 __all__ = [
     "FORCE_F",
@@ -119,6 +119,8 @@ _BEST, _SUMS, _TAKEN, _STEP_BEST, _STEP_ROW, _STEP_COL = 0, 1, 9, 10, 18, 26
 #: cells, prune (0/1), certify the mode's choice (0: no, 1: the step, 2: the step and
 #: its strongest place), the 8 steps' weights.
 _ALPHA, _BETA, _F, _G, _A, _B, _TOP, _COUNT, _PRUNE, _CERTIFY, _WEIGHTS = range(11)
+#: After the weights: whether shadows (:class:`~sonarmap.patrol.paths.Shadows`) pull.
+_SHADE = _WEIGHTS + 8
 
 
 @nb.njit(cache=True)
@@ -132,7 +134,9 @@ def _pull_visit(
     ctx: Any,
 ) -> float:
     """The wave's visitor summing pulls by first step (see :func:`sector_pulls`)."""
-    tb_src, watched, p, acc = ctx
+    tb_src, watched, p, acc, ptr, s_rows, s_cols, s_extra = ctx
+    shade = p[_SHADE] != 0.0
+    cols = width - 2
     alpha, beta, top = p[_ALPHA], p[_BETA], p[_TOP]
     fcode, gcode, a, b = int(p[_F]), int(p[_G]), p[_A], p[_B]
     inv_top = 1.0 / top if top > 0 else 0.0
@@ -150,25 +154,37 @@ def _pull_visit(
         r = int((u + 0.5) * inv_width)
         c = u - r * width - 1
         r -= 1
-        if not watched[r, c]:
-            continue
-        taken += 1.0
-        t = alpha + beta * tb_src[r, c]
-        lp = _log_f(fcode, t * inv_top, a) + _log_g(gcode, dist[u] * 10.0, b)
-        if not lp > -np.inf:
-            continue
-        if lp > best:
-            # A new strongest pull: every sum so far relative to it instead.
-            if best > -np.inf:
-                scale = math.exp(best - lp)
-                for j in range(8):
-                    sums[j] *= scale
-            best = lp
-        sums[step] += math.exp(lp - best)
-        if lp > step_best[step]:
-            step_best[step] = lp
-            acc[_STEP_ROW + step] = r
-            acc[_STEP_COL + step] = c
+        # The place itself, then the shadows tied to it (they pull as if there, a little
+        # farther, and a robot goes for the place to see them).
+        s_lo = s_hi = 0
+        if shade:
+            g = r * cols + c
+            s_lo, s_hi = ptr[g], ptr[g + 1]
+        for k in range(s_lo - 1, s_hi):
+            if k < s_lo:
+                if not watched[r, c]:
+                    continue
+                t = alpha + beta * tb_src[r, c]
+                length = dist[u]
+            else:
+                t = alpha + beta * tb_src[s_rows[k], s_cols[k]]
+                length = dist[u] + s_extra[k]
+            taken += 1.0
+            lp = _log_f(fcode, t * inv_top, a) + _log_g(gcode, length * 10.0, b)
+            if not lp > -np.inf:
+                continue
+            if lp > best:
+                # A new strongest pull: every sum so far relative to it instead.
+                if best > -np.inf:
+                    scale = math.exp(best - lp)
+                    for j in range(8):
+                        sums[j] *= scale
+                best = lp
+            sums[step] += math.exp(lp - best)
+            if lp > step_best[step]:
+                step_best[step] = lp
+                acc[_STEP_ROW + step] = r
+                acc[_STEP_COL + step] = c
     acc[_BEST] = best
     acc[_TAKEN] = taken
     acc[_SUMS : _SUMS + 8] = sums
@@ -339,6 +355,7 @@ def sector_pulls(
     weights: F64 | None = None,
     goal: bool = False,
     places: npt.NDArray[np.int64] | None = None,
+    shadows: Shadows | None = None,
 ) -> F64:
     """The pulls of the ``watched`` places on a robot at ``start``, summed per first
     step of their waves' paths, in one pass with the wave.
@@ -354,7 +371,9 @@ def sector_pulls(
     map as in :class:`Wave`; ``waver`` is left holding the wave. ``n_watched``:
     ``watched.sum()``, when known. ``places``, an (8, 2) array, is filled with the row
     and column of each step's strongest place among those the wave took (-1 where the
-    step has none).
+    step has none). ``shadows`` (:func:`~sonarmap.patrol.paths.shadows` of ``passable``
+    and ``watched``): the watched cells no wave reaches pull too, as if at their
+    anchors (which ``places`` then names); without them they do not pull at all.
 
     Returns
     -------
@@ -370,9 +389,16 @@ def sector_pulls(
     w = np.ones(8) if weights is None else np.asarray(weights, dtype=np.float64)
     if w.shape != (8,) or not (np.all(w >= 0) and np.all(w <= 1)):
         raise ValueError("weights: 8 values in [0, 1]")
-    params = np.array(
-        [alpha, beta, *force.codes, force.a, force.b, top, count, prune, certify * (1 + goal), *w],
-        dtype=np.float64,
+    shaded = shadows is not None and len(shadows) > 0
+    head = [alpha, beta, *force.codes, force.a, force.b, top, count, prune]
+    params = np.array([*head, certify * (1 + goal), *w, shaded], dtype=np.float64)
+    if shadows is not None and len(shadows.ptr) != watched.size + 1:
+        raise ValueError(f"shadows of {len(shadows.ptr) - 1} cells for a map of {watched.size}")
+    none = np.zeros(1, dtype=np.int64)
+    shade = (
+        (shadows.ptr, shadows.rows, shadows.cols, shadows.extra)
+        if shadows is not None and shaded
+        else (none, none, none, np.zeros(1))
     )
     if places is not None and places.shape != (8, 2):
         raise ValueError(f"places: an (8, 2) array, got {places.shape}")
@@ -380,7 +406,7 @@ def sector_pulls(
     acc[_BEST] = -np.inf
     acc[_STEP_BEST : _STEP_BEST + 8] = -np.inf
     acc[_STEP_ROW:] = -1.0
-    ctx = (np.ascontiguousarray(src, dtype=np.float64), watched, params, acc)
+    ctx = (np.ascontiguousarray(src, dtype=np.float64), watched, params, acc, *shade)
     waver(passable, start, resolution, watched, None, closed, visit=(_pull_visit, ctx))
     if places is not None:
         places[:, 0] = acc[_STEP_ROW : _STEP_ROW + 8]

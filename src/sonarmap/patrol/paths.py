@@ -40,6 +40,7 @@ through cells within), the others are left unreached.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numba as nb
@@ -49,10 +50,12 @@ import numpy.typing as npt
 __all__ = [
     "STEPS",
     "TIE",
+    "Shadows",
     "Wave",
     "nearest_step",
     "no_visit",
     "path_to",
+    "shadows",
     "straight_paths",
     "until_reached",
     "wave",
@@ -568,3 +571,70 @@ def path_to(
     # it for every path read back would cost more than the wave.
     through = np.asarray(through, dtype=np.bool_)
     return _back(dist, int(r), int(c), STEPS, float(resolution), through)
+
+
+@dataclass(frozen=True)
+class Shadows:
+    """Watched cells no wave reaches, each tied to the nearest cell a wave does reach.
+
+    A wave reaches a place off the passable cells in one last step from a passable
+    cell, never through other such places (see :func:`wave`), so the cells of a
+    wall-side strip two or more cells deep get no path: they would pull no robot and
+    could stay unseen. Each is tied to its *anchor*, the nearest cell the wave reaches,
+    and pulls as if it lay there, ``extra`` metres farther.
+
+    Attributes
+    ----------
+    ptr : ndarray of int64, shape (rows * cols + 1,)
+        The shadows of the cell with flat index ``k`` (row-major) are entries
+        ``ptr[k]:ptr[k + 1]`` of ``rows``, ``cols`` and ``extra``.
+    rows, cols : ndarray of int64
+        The shadow cells, grouped by anchor.
+    extra : ndarray of float64
+        Straight distance from each shadow cell to its anchor, metres.
+    """
+
+    ptr: npt.NDArray[np.int64]
+    rows: npt.NDArray[np.int64]
+    cols: npt.NDArray[np.int64]
+    extra: npt.NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+
+def shadows(
+    passable: npt.NDArray[np.bool_], watched: npt.NDArray[np.bool_], resolution: float
+) -> Shadows:
+    """The watched cells that no wave over ``passable`` with ``watched`` as its targets
+    reaches, tied to their anchors (see :class:`Shadows`)."""
+    from scipy import ndimage
+
+    if passable.shape != watched.shape:
+        raise ValueError(f"passable cells of {passable.shape}, watched of {watched.shape}")
+    reached = np.zeros(passable.shape, dtype=bool)
+    waver = Wave(passable.shape)
+    # One wave per passable component: paths never leave one.
+    labels, n = ndimage.label(passable, structure=np.ones((3, 3), dtype=bool))
+    for k in range(1, n + 1):
+        r, c = np.argwhere(labels == k)[0]
+        dist, _ = waver(passable, (int(r), int(c)), resolution, watched)
+        reached |= np.isfinite(dist)
+    lost = watched & ~reached
+    rows, cols = passable.shape
+    ptr = np.zeros(rows * cols + 1, dtype=np.int64)
+    if not lost.any() or not reached.any():
+        empty = np.empty(0, dtype=np.int64)
+        return Shadows(ptr, empty, empty.copy(), np.empty(0))
+    gap, (ar, ac) = ndimage.distance_transform_edt(~reached, return_indices=True)
+    sr, sc = np.nonzero(lost)
+    anchor = ar[sr, sc] * cols + ac[sr, sc]
+    order = np.argsort(anchor, kind="stable")
+    np.add.at(ptr, anchor + 1, 1)
+    np.cumsum(ptr, out=ptr)
+    return Shadows(
+        ptr,
+        sr[order].astype(np.int64),
+        sc[order].astype(np.int64),
+        (gap[sr, sc] * resolution)[order].astype(np.float64),
+    )

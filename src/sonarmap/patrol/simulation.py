@@ -40,7 +40,7 @@ from .graph import PatrolGraph
 from .marching import Marching
 from .monitor import Monitor
 from .network import NETWORKS, components
-from .paths import STEP_UNITS, Wave, nearest_step, path_to, straight_paths
+from .paths import STEP_UNITS, Wave, nearest_step, path_to, shadows, straight_paths
 from .policies import POLICIES, choose, goal_pulls, reactive_pick
 from .reach import MODES as REACH_MODES
 from .reach import Reach, reach
@@ -797,6 +797,14 @@ def run_patrol(
         target = (np.arange(len(team)) * len(tour)) // len(team)
     waver = Wave(passable.shape)
     n_watched = int(watched.sum())
+    # Wall-side cells no wave reaches pull from the nearest cell one does, so that no
+    # place of the territory is left without a pull (on real maps a fifth of the cells
+    # may be such); the thesis's free territory keeps its own rule.
+    shade = (
+        shadows(passable, watched, g.resolution)
+        if config.policy == "potential" and config.paths == "wave" and config.reach == "reachable"
+        else None
+    )
     watched_rc = np.nonzero(watched)
     # The potential field's pulls summed per wave step in one pass with the wave give
     # its direction at once, unless the path motion or other sectors need every place.
@@ -895,6 +903,7 @@ def run_patrol(
                         weights=weights,
                         goal=certify_goal,
                         places=places,
+                        shadows=shade,
                         **(
                             {"tb": dilated[j]}
                             if dilated is not None
