@@ -8,6 +8,15 @@ and keeps early ones aside. A node stuck waiting asks the peer to send again fro
 first number it lacks (``hello``), which covers a socket that refused a frame (peer not
 connected yet) and a restarted peer.
 
+A peer's claims are checked against what was sent to it: a ``hello`` (or a ``done``
+marker's ``ack``) claiming frames this node never sent is a protocol error, rejected and
+not acted on (acting on it would drop frames the peer still lacks, and the two would
+then ask each other to send again forever). After a resume from a checkpoint, frames
+sent before the kill but after the checkpoint may be claimed: those claims are only
+clamped to what was sent since, not logged. A peer is judged by its progress, not its
+traffic: one that sends no new frame for ``wait_timeout`` s while awaited ends the wait
+with one line naming it, whatever else it sends.
+
 A node's frames on the wire (envelope kinds): ``lock`` (a numbered frame:
 ``{"q", "t", "k", "b"}``, ``k`` an exchanger kind, ``done`` or ``bye``) and ``hello``
 (``{"next", "ack"}``: send again from frame ``next``; frames below ``ack`` are durable
@@ -26,6 +35,7 @@ import msgpack
 
 from ..errors import InputError
 from .records import UnpackError, unpack_strict
+from .rejects import RejectLog
 from .transport import Message, Transport, ZmqTransport
 from .wire import KINDS
 
@@ -37,6 +47,7 @@ __all__ = [
     "ReliableLink",
     "decode_done",
     "decode_frame",
+    "decode_hello",
 ]
 
 logger = logging.getLogger("sonarmap.team.node")
@@ -142,6 +153,12 @@ def decode_done(body: bytes) -> tuple[int, bool, int]:
     return _int_field(d, "ch"), out, _int_field(d, "ack")
 
 
+def decode_hello(body: bytes) -> tuple[int, int]:
+    """A ``hello``'s (next, ack)."""
+    d = _strict_map(body, {"next", "ack"})
+    return _int_field(d, "next"), _int_field(d, "ack")
+
+
 class ReliableLink:
     """Numbered, acknowledged frames between this node and each peer, over a
     :class:`ZmqTransport`."""
@@ -167,8 +184,14 @@ class ReliableLink:
         self.acked_by = dict.fromkeys(self.peers, 0)
         #: Frames below these numbers are durable here (in our last checkpoint).
         self.ack_mine = dict.fromkeys(self.peers, 0)
-        self.heard = dict.fromkeys(self.peers, time.monotonic())
+        now = time.monotonic()
+        #: When each peer last sent anything valid, and last sent a new frame in order.
+        self.heard = dict.fromkeys(self.peers, now)
+        self.progressed = dict.fromkeys(self.peers, now)
         self.rejected = 0
+        #: Restored from a checkpoint: frames may have gone out after it (see the module).
+        self.resumed = False
+        self._rejects = RejectLog(logger)
 
     # state
 
@@ -207,6 +230,7 @@ class ReliableLink:
         self.bye = {int(j) for j in s["bye"]}
         self.acked_by = _unpairs(s["acked_by"])
         self.ack_mine = dict(self.next_q)
+        self.resumed = True
 
     # sending
 
@@ -269,26 +293,48 @@ class ReliableLink:
             if j not in self.next_q:
                 self._reject(j, "peer", f"robot {j} is not a peer")
                 continue
-            self.heard[j] = time.monotonic()
             try:
                 if msg.kind == "hello":
-                    d = _strict_map(msg.payload, {"next", "ack"})
-                    start, ack = _int_field(d, "next"), _int_field(d, "ack")
-                    self.acked_by[j] = max(self.acked_by[j], ack)
-                    self._trim(j)
-                    self._resend(j, start)
+                    start, ack = decode_hello(msg.payload)
+                    self.heard[j] = time.monotonic()
+                    self._hello_from(j, start, ack)
                 elif msg.kind == "lock":
-                    progress = self._take(j, decode_frame(msg.payload)) or progress
+                    f = decode_frame(msg.payload)
+                    self.heard[j] = time.monotonic()
+                    if self._take(j, f):
+                        progress = True
+                        self.progressed[j] = self.heard[j]
                 else:
-                    raise FrameError("kind", f"envelope kind {msg.kind!r} unknown")
+                    raise FrameError("kind", f"envelope kind {msg.kind[:16]!r} unknown")
             except FrameError as e:
                 self._reject(j, e.reason, str(e))
+            except Exception as e:
+                # A peer's bytes: whatever they make the decoder raise rejects the frame.
+                self._reject(j, "decode", f"{type(e).__name__}: {e}")
         return progress
+
+    def _claim(self, j: int, what: str, claimed: int) -> int:
+        """A peer's claim to hold our frames below ``claimed``, checked against what we
+        sent it: the part beyond is never acted on, and (unless we resumed, see the
+        module) a protocol error."""
+        if claimed <= self.out_q[j]:
+            return claimed
+        if not self.resumed:
+            raise FrameError(
+                "claim", f"{what} {claimed} claims frames never sent (sent {self.out_q[j]})"
+            )
+        return self.out_q[j]
+
+    def _hello_from(self, j: int, start: int, ack: int) -> None:
+        start, ack = self._claim(j, "next", start), self._claim(j, "ack", ack)
+        self.acked_by[j] = max(self.acked_by[j], ack)
+        self._trim(j)
+        self._resend(j, start)
 
     def _reject(self, j: int, reason: str, detail: str) -> None:
         self.rejected += 1
-        logger.warning(
-            "robot %d rejected a frame from robot %d (%s): %s", self.robot, j, reason, detail
+        self._rejects.warn(
+            f"robot {self.robot} rejected a frame from robot {j} ({reason}): {detail}"
         )
 
     def _take(self, j: int, f: Frame) -> bool:
@@ -296,6 +342,9 @@ class ReliableLink:
             return False  # a copy of one we have
         if f.q >= self.next_q[j] + _WINDOW:
             raise FrameError("window", f"frame {f.q} is far ahead of {self.next_q[j]}")
+        if f.kind == "done":
+            # Checked on arrival, before it can take its place in the sequence.
+            self._claim(j, "done ack", decode_done(f.body)[2])
         self.early[j][f.q] = f
         progress = False
         while self.next_q[j] in self.early[j]:
@@ -306,7 +355,7 @@ class ReliableLink:
                 ch, out, ack = decode_done(g.body)
                 self.done[j] = max(self.done[j], g.tick)
                 self.markers[j][g.tick] = (ch, out)
-                self.acked_by[j] = max(self.acked_by[j], ack)
+                self.acked_by[j] = max(self.acked_by[j], min(ack, self.out_q[j]))
                 self._trim(j)
             elif g.kind == "bye":
                 self.bye.add(j)
@@ -316,7 +365,8 @@ class ReliableLink:
 
     def wait(self, ready: Callable[[], list[int]], what: str) -> None:
         """Pump until ``ready()`` names no peer still awaited; ask the awaited peers to
-        send again every ``retry`` s; fail after ``wait_timeout`` s of silence."""
+        send again every ``retry`` s; fail after ``wait_timeout`` s without a new frame
+        from an awaited peer (whatever else it sends meanwhile)."""
         last_ask = time.monotonic()
         while True:
             missing = ready()
@@ -324,11 +374,20 @@ class ReliableLink:
                 return
             now = time.monotonic()
             for j in missing:
-                if now - self.heard[j] > self.wait_timeout:
+                if now - self.progressed[j] > self.wait_timeout:
+                    where = f"peer robot {j} ({self.zmq.peers.get(j, '?')})"
+                    if now - self.heard[j] > self.wait_timeout:
+                        raise InputError(
+                            f"robot {self.robot}: {where} sent nothing for "
+                            f"{self.wait_timeout:g} s while awaited for {what}: not started, "
+                            "unreachable, or stopped and not restarted",
+                            field="peers",
+                        )
                     raise InputError(
-                        f"robot {self.robot}: peer robot {j} ({self.zmq.peers.get(j, '?')}) "
-                        f"sent nothing for {self.wait_timeout:g} s while awaited for "
-                        f"{what}: not started, unreachable, or stopped and not restarted",
+                        f"robot {self.robot}: {where} sent no new frame for "
+                        f"{self.wait_timeout:g} s while awaited for {what}, only requests "
+                        "or frames out of sequence: a peer that lost its state, or not one "
+                        "of the team",
                         field="peers",
                     )
             if now - last_ask >= self.retry:

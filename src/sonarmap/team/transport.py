@@ -13,8 +13,9 @@ the receiver that the network lost one. On receipt the envelope is checked stric
 bytes, not a map, missing or extra keys, another version, a field of the wrong type or
 out of range, addressed to another robot, or claiming another sender than the one it
 came from is rejected. A rejection is logged (logger ``sonarmap.team.transport``,
-warning) and counted in ``stats.rejected`` by reason; :meth:`Transport.poll` never
-raises on a peer's bytes. The decoder's length limits keep a forged length field from
+warning; each line clipped and their rate bounded, :class:`~.rejects.RejectLog`) and
+counted in ``stats.rejected`` by reason; :meth:`Transport.poll` never raises on a
+peer's bytes. The decoder's length limits keep a forged length field from
 allocating more than the frame itself.
 
 Sends never block: a message that cannot leave now (no route, no connection, queue
@@ -42,6 +43,7 @@ import zmq
 from ..errors import ConfigError, InputError
 from .network import Delivery, SimNetwork
 from .records import UnpackError, unpack_strict
+from .rejects import RejectLog
 
 __all__ = [
     "DEFAULT_MAX_MESSAGE",
@@ -180,6 +182,7 @@ class Transport(abc.ABC):
         self.max_message = max_message
         self.stats = TransportStats()
         self.closed = False
+        self._rejects = RejectLog(logger)
         self._seq: dict[int, int] = {}
 
     def send(self, dst: int, payload: bytes, kind: str = "data") -> bool:
@@ -237,13 +240,18 @@ class Transport(abc.ABC):
         except EnvelopeError as e:
             self._reject(e.reason, str(e), origin)
             return None
+        except Exception as e:
+            # The frame is a stranger's bytes: nothing it makes the decoder raise may
+            # stop the receiver.
+            self._reject("decode", f"{type(e).__name__}: {e}", origin)
+            return None
         self.stats.messages_received += 1
         self.stats.bytes_received += len(data)
         return msg
 
     def _reject(self, reason: str, detail: str, origin: str) -> None:
         self.stats.rejected[reason] += 1
-        logger.warning("robot %d rejected a frame from %s: %s", self.robot, origin, detail)
+        self._rejects.warn(f"robot {self.robot} rejected a frame from {origin[:48]}: {detail}")
 
     def __enter__(self) -> Self:
         return self
