@@ -5,23 +5,36 @@ Every socket is on 127.0.0.1; every wait is bounded in time."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import stat
 import time
 from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 
 import msgpack
 import numpy as np
 import pytest
+import zmq
 import zstandard
 
+from sonarmap.cli import main
 from sonarmap.errors import InputError
+from sonarmap.scenarios import office
+from sonarmap.sensors import Noise
 from sonarmap.team.exchange import ExchangeParams, Exchanger
+from sonarmap.team.keys import read_team_key
+from sonarmap.team.launcher import KEY_FILE, run_zmq_team
 from sonarmap.team.link import ReliableLink
+from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams, SimNetwork
+from sonarmap.team.node import store_digest
 from sonarmap.team.records import Landmarks, Pose, RecordError, decode, encode, make_uid
 from sonarmap.team.rejects import LINE_WIDTH, RejectLog
-from sonarmap.team.store import RobotStore
-from sonarmap.team.transport import Message, SimHub, ZmqTransport
+from sonarmap.team.simulation import run_team
+from sonarmap.team.store import RobotStore, StoreParams
+from sonarmap.team.transport import Message, SimHub, ZmqTransport, encode_envelope
 from sonarmap.team.wire import PRESET_DICTIONARY, VERSION, ExchangeError, decode_answer, pack
 
 #: Upper bound on any wait in this file.
@@ -204,3 +217,170 @@ def test_a_peer_that_only_asks_again_times_out_naming_it(
     assert "sent no new frame for 0.5 s" in message
     assert "\n" not in message
     assert link.heard[1] > start  # it was heard all along
+
+
+# --- C: a keyed team ---------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def key_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("key") / "team.key"
+    assert main_exit(["team", "key", "-o", str(path), "--robots", "3"]) == 0
+    return path
+
+
+def main_exit(argv: list[str]) -> int:
+    try:
+        main(argv)
+    except SystemExit as e:
+        return int(e.code or 0)
+    return 0
+
+
+def test_team_key_writes_an_owner_only_file_of_one_key_pair_per_robot(
+    key_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert stat.S_IMODE(key_file.stat().st_mode) == 0o600
+    key = read_team_key(key_file)
+    assert key.robots == 3
+    assert len(set(key.public.values())) == 3
+    assert key.robot_of(key.public[2]) == 2
+    assert key.robot_of(zmq.curve_keypair()[0]) is None
+    # Not overwritten by accident; damaged or readable by others: one line, exit 2.
+    capsys.readouterr()
+    assert main_exit(["team", "key", "-o", str(key_file)]) == 2
+    assert "exists" in capsys.readouterr().err
+    copy = key_file.with_name("copy.key")
+    copy.write_text(key_file.read_text())
+    copy.chmod(0o644)
+    with pytest.raises(InputError, match="readable by others"):
+        read_team_key(copy)
+    copy.chmod(0o600)
+    copy.write_text(key_file.read_text().replace('"id": 1', '"id": 7'))
+    with pytest.raises(InputError, match=r"robots\[1\]: id 7, expected 1"):
+        read_team_key(copy)
+
+
+@pytest.fixture
+def keyed(key_file: Path) -> Iterator[tuple[ZmqTransport, ZmqTransport]]:
+    key = read_team_key(key_file)
+    a = ZmqTransport(0, "tcp://127.0.0.1:0", key=key)
+    b = ZmqTransport(1, "tcp://127.0.0.1:0", {0: a.address}, key=key)
+    a.connect(1, b.address)
+    try:
+        yield a, b
+    finally:
+        a.close()
+        b.close()
+
+
+def _stranger(to: str, identity: bytes, curve: tuple[bytes, bytes, bytes] | None) -> Any:
+    """A raw DEALER claiming ``identity``; with ``curve`` (server public, own public,
+    own secret) it attempts CURVE."""
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
+    sock = ctx.socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.SNDTIMEO, 100)
+    sock.setsockopt(zmq.IDENTITY, identity)
+    if curve is not None:
+        sock.setsockopt(zmq.CURVE_SERVERKEY, curve[0])
+        sock.setsockopt(zmq.CURVE_PUBLICKEY, curve[1])
+        sock.setsockopt(zmq.CURVE_SECRETKEY, curve[2])
+    sock.connect(to)
+    return ctx, sock
+
+
+def _forged_end() -> list[bytes]:
+    """Robot 1's "tick done" for every tick and its "bye": what made robot 0 finish
+    alone in the issue."""
+    done = _pack({"ch": 0, "out": False, "ack": 0})
+    frames = [_pack({"q": q, "t": q, "k": "done", "b": done}) for q in range(40)]
+    frames.append(_pack({"q": 40, "t": 40, "k": "bye", "b": b""}))
+    return [encode_envelope(1, 0, seq, "lock", f) for seq, f in enumerate(frames)]
+
+
+@pytest.mark.parametrize("curve", ["plain", "own key"])
+def test_a_stranger_without_the_key_is_not_admitted(
+    keyed: tuple[ZmqTransport, ZmqTransport], key_file: Path, curve: str
+) -> None:
+    a, b = keyed
+    key = read_team_key(key_file)
+    link = ReliableLink(a, [1, 2], wait_timeout=5.0, retry=0.5)
+    public, secret = zmq.curve_keypair()
+    ctx, sock = _stranger(
+        a.address, b"1", None if curve == "plain" else (key.public[0], public, secret)
+    )
+    try:
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            for f in _forged_end():
+                with contextlib.suppress(zmq.Again):
+                    sock.send(f, zmq.NOBLOCK)
+            link.pump(0.05)
+        assert link.done == {1: -1, 2: -1}
+        assert link.bye == set()
+        assert link.next_q == {1: 0, 2: 0}
+        if curve == "own key":
+            assert a.stats.rejected["unauthenticated"] >= 1
+        # The real robot 1 still gets through.
+        _send(b, 0, b"genuine", "data")
+        got: list[Message] = []
+        end = time.monotonic() + DEADLINE
+        while not got and time.monotonic() < end:
+            got = a.poll(0.05)
+        assert [(m.src, m.payload) for m in got] == [(1, b"genuine")]
+    finally:
+        sock.close(0)
+        ctx.term()
+
+
+def test_a_robot_is_known_by_its_key_not_by_the_identity_it_claims(
+    keyed: tuple[ZmqTransport, ZmqTransport], key_file: Path
+) -> None:
+    """Robot 2's key with routing identity "1" and envelopes claiming robot 1: spoofed."""
+    a, _ = keyed
+    key = read_team_key(key_file)
+    ctx, sock = _stranger(a.address, b"1", (key.public[0], key.public[2], key.secret[2]))
+    try:
+        end = time.monotonic() + DEADLINE
+        while not a.stats.rejected["spoofed"] and time.monotonic() < end:
+            with contextlib.suppress(zmq.Again):
+                sock.send(encode_envelope(1, 0, 0, "lock", b"x"), zmq.NOBLOCK)
+            assert a.poll(0.05) == []
+        assert a.stats.rejected["spoofed"] >= 1
+        sock.send(encode_envelope(2, 0, 0, "data", b"as myself"))
+        got: list[Message] = []
+        end = time.monotonic() + DEADLINE
+        while not got and time.monotonic() < end:
+            got = a.poll(0.05)
+        assert [(m.src, m.payload) for m in got] == [(2, b"as myself")]
+    finally:
+        sock.close(0)
+        ctx.term()
+
+
+def test_without_a_key_a_node_listens_on_loopback_only() -> None:
+    with pytest.raises(InputError, match="without a team key") as err:
+        ZmqTransport(0, "tcp://0.0.0.0:0")
+    assert "--insecure" in str(err.value)
+    with pytest.raises(InputError, match="without a team key"):
+        ZmqTransport(0, "tcp://*:0")
+    ZmqTransport(0, "tcp://localhost:0").close()
+
+
+@pytest.mark.slow
+def test_a_keyed_team_gives_the_simulated_teams_results(tmp_path: Path) -> None:
+    """The launcher keys its team (a fresh key, owner-only, in its folder); the nodes
+    then end exactly as the simulated team's robots (and so as an unkeyed team's)."""
+    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    cfg = MissionConfig(duration=10.0, seed=2, store=StoreParams(region_limit=32_768))
+    z = run_zmq_team(plan, cfg, 2, seed=3, folder=tmp_path, timeout=300.0)
+    s = run_team(
+        plan, cfg, 2, network=NetworkParams(kind="full"), exchange=ExchangeParams(), seed=3
+    )
+    assert stat.S_IMODE((tmp_path / KEY_FILE).stat().st_mode) == 0o600
+    assert read_team_key(tmp_path / KEY_FILE).robots == 2
+    assert z.held == s.held
+    assert z.summary["store_digests"] == [store_digest(r.store) for r in s.robots]
+    assert z.summary["duplicate_poses"] == s.summary["duplicate_poses"]
+    assert sum(n["rejected_frames"] for n in z.nodes) == 0

@@ -73,6 +73,7 @@ from ..errors import ConfigError, InputError
 from ..files import atomic_folder, atomic_outputs, atomic_write, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap, write_map
 from .exchange import ExchangeParams, Exchanger
+from .keys import TeamKey
 from .link import LOCK_SLACK, ExchangerPort, ReliableLink
 from .lockstep import LockstepClock, quiet_seconds, team_ticks
 from .mission import MissionConfig, RobotAgent
@@ -324,8 +325,15 @@ class _Node:
         max_message: int,
         progress: Progress | None,
         routes: Sequence[F64 | None] | None,
+        key: TeamKey | None = None,
+        insecure: bool = False,
     ) -> None:
         ids = _check_team(robot, peers)
+        if key is not None and key.robots < len(ids):
+            raise ConfigError(
+                f"--key: the team key is for {key.robots} robots, the team has {len(ids)}",
+                field="key",
+            )
         self.robot = robot
         self.others = [j for j in ids if j != robot]
         self.cfg = cfg
@@ -337,7 +345,9 @@ class _Node:
         self.progress = progress
         self.state_path = None if state_dir is None else Path(state_dir) / STATE_FILE
         # The sockets first: a bad or busy address fails before any work.
-        self.zmq = ZmqTransport(robot, listen, peers, max_message=max_message + LOCK_SLACK)
+        self.zmq = ZmqTransport(
+            robot, listen, peers, max_message=max_message + LOCK_SLACK, key=key, insecure=insecure
+        )
         try:
             self._setup(plan, ids, max_message, routes)
         except BaseException:
@@ -590,6 +600,8 @@ def run_node(
     max_message: int = DEFAULT_MAX_MESSAGE,
     progress: Progress | None = None,
     routes: Sequence[F64 | None] | None = None,
+    key: TeamKey | None = None,
+    insecure: bool = False,
 ) -> dict[str, Any]:
     """Run robot ``robot_id``'s mission as one node of a team over ZeroMQ.
 
@@ -622,6 +634,11 @@ def run_node(
     routes : sequence of ndarray (T, 4) or None, optional
         One per robot of the team (``t, x, y, theta``), as run_team's ``routes``; None
         draws a robot's patrol route from the seed.
+    key : TeamKey, optional
+        The team's key (:mod:`.keys`): connections encrypted and admitted only with it
+        (CURVE), each peer known by its key. None: plain TCP, loopback only.
+    insecure : bool
+        Without a key, listen on an address other than loopback all the same.
 
     Returns
     -------
@@ -650,6 +667,8 @@ def run_node(
         max_message=max_message,
         progress=progress,
         routes=routes,
+        key=key,
+        insecure=insecure,
     )
     try:
         finished = node.load()
