@@ -384,3 +384,71 @@ def test_a_keyed_team_gives_the_simulated_teams_results(tmp_path: Path) -> None:
     assert z.summary["store_digests"] == [store_digest(r.store) for r in s.robots]
     assert z.summary["duplicate_poses"] == s.summary["duplicate_poses"]
     assert sum(n["rejected_frames"] for n in z.nodes) == 0
+
+
+# --- D: bounded queues -------------------------------------------------------------------
+
+
+def _frame(q: int, size: int) -> bytes:
+    return _pack({"q": q, "t": 0, "k": "advert", "b": bytes(size)})
+
+
+def test_frames_kept_aside_are_bounded_in_bytes(
+    pair: tuple[ZmqTransport, ZmqTransport], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Out-of-order frames of 1000 bytes past a 10 kB queue: rejected, naming the peer;
+    the frame awaited is still taken, and the ones kept aside after it."""
+    a, b = pair
+    link = ReliableLink(a, [1], wait_timeout=5.0, retry=0.5, max_queue=10_000)
+    with caplog.at_level(logging.WARNING, logger="sonarmap.team.node"):
+        for q in range(1, 31):
+            _send(b, 0, _frame(q, 1000), "lock")
+        end = time.monotonic() + DEADLINE
+        while len(link.early[1]) + link.rejected < 30 and time.monotonic() < end:
+            link.pump(0.05)
+    kept = len(link.early[1])
+    assert 5 <= kept < 10
+    assert link.early_bytes[1] <= 10_000
+    assert link.rejected == 30 - kept
+    assert "frames kept aside from robot 1 would pass 10000 bytes" in caplog.text
+    _send(b, 0, _frame(0, 1000), "lock")
+    end = time.monotonic() + DEADLINE
+    while link.next_q[1] == 0 and time.monotonic() < end:
+        link.pump(0.05)
+    assert link.next_q[1] == kept + 1
+    assert link.early_bytes[1] == 0
+
+
+def test_frames_a_peer_does_not_acknowledge_are_bounded_naming_it(
+    pair: tuple[ZmqTransport, ZmqTransport],
+) -> None:
+    link = ReliableLink(pair[0], [1], wait_timeout=5.0, retry=0.5, max_queue=10_000)
+    for _ in range(9):
+        link.send(1, 0, "advert", bytes(1000))
+    with pytest.raises(InputError, match="sent to robot 1 and not acknowledged") as err:
+        link.send(1, 0, "advert", bytes(1000))
+    assert "--max-queue" in str(err.value)
+    assert len(link.log[1]) == 9
+
+
+def test_without_a_state_folder_frames_taken_are_acknowledged(
+    pair: tuple[ZmqTransport, ZmqTransport],
+) -> None:
+    """The issue: sent-frame logs were trimmed only at the peer's checkpoint, so a team
+    without --state kept every frame it ever sent."""
+    a, b = pair
+    sender = ReliableLink(a, [1], wait_timeout=5.0, retry=0.5, durable=False)
+    receiver = ReliableLink(b, [0], wait_timeout=5.0, retry=0.5, durable=False)
+    end = time.monotonic() + DEADLINE
+    while not a.send(1, _pack({"next": 0, "ack": 0}), "hello") and time.monotonic() < end:
+        time.sleep(0.01)  # connected: the frames below are not refused
+    for _ in range(20):
+        sender.send(1, 0, "advert", bytes(1000))
+    assert sender.log_bytes[1] > 20_000
+    while receiver.next_q[0] < 20 and time.monotonic() < end:
+        receiver.pump(0.05)
+    receiver.mark_done(0, 0, False)
+    while sender.log[1] and time.monotonic() < end:
+        sender.pump(0.05)
+    assert sender.log[1] == []
+    assert sender.log_bytes[1] == 0

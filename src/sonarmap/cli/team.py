@@ -476,6 +476,14 @@ def node_cmd(
             "--routes", help="Folder of every robot's route, robotK.npy (t, x, y, theta)."
         ),
     ] = None,
+    max_queue: Annotated[
+        float,
+        typer.Option(
+            "--max-queue",
+            help="MiB of frames kept per peer: sent and not yet acknowledged (past it the "
+            "node fails naming the peer), and received ahead of the one awaited.",
+        ),
+    ] = 64.0,
     key_file: Annotated[
         Path | None,
         typer.Option(
@@ -499,14 +507,25 @@ def node_cmd(
     results as 'team run' on a full network; killed and started again on its --state
     folder, it resumes."""
     from ..team.keys import read_team_key
-    from ..team.node import LockstepParams, load_routes, parse_exchange, parse_peers, run_node
+    from ..team.node import (
+        MIB,
+        LockstepParams,
+        load_routes,
+        parse_exchange,
+        parse_peers,
+        run_node,
+    )
 
     if not (math.isfinite(duration) and duration > 0):
         raise ConfigError(f"--duration must be > 0, got {duration}")
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
     store = config_from_options(StoreParams, ctx.params, STORE_OPTIONS)
-    timing = LockstepParams(wait_timeout=wait_timeout, checkpoint_every=checkpoint_every)
+    if not (math.isfinite(max_queue) and max_queue > 0):
+        raise ConfigError(f"--max-queue must be > 0 MiB, got {max_queue}")
+    timing = LockstepParams(
+        wait_timeout=wait_timeout, checkpoint_every=checkpoint_every, max_queue=max_queue * MIB
+    )
     ex = parse_exchange(exchange or [])
     peer_map = parse_peers(peers, robot)
     fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)

@@ -31,7 +31,7 @@ from .exchange import ExchangeParams
 from .keys import make_team_key
 from .mission import MissionConfig
 from .network import NetworkParams
-from .node import SUMMARY_FILE, LockstepParams, save_routes
+from .node import MIB, SUMMARY_FILE, LockstepParams, save_routes
 from .simulation import map_agreement
 from .store import StoreParams
 from .summary import mission_figures, team_figures
@@ -137,6 +137,8 @@ def node_args(
         repr(float(timing.wait_timeout)),
         "--checkpoint-every",
         repr(float(timing.checkpoint_every)),
+        "--max-queue",
+        repr(float(timing.max_queue) / MIB),
     ]
     if quiet is not None:
         args += ["--quiet", repr(float(quiet))]

@@ -40,6 +40,7 @@ from .transport import Message, Transport, ZmqTransport
 from .wire import KINDS
 
 __all__ = [
+    "DEFAULT_MAX_QUEUE",
     "LOCK_SLACK",
     "ExchangerPort",
     "Frame",
@@ -58,6 +59,11 @@ _Q_LIMIT = 2**62
 _WINDOW = 100_000
 #: Bytes a lock frame adds around an exchanger body, at most.
 LOCK_SLACK = 4096
+#: Bytes of frames kept per peer, by default: sent and not yet acknowledged, and
+#: received ahead of the one awaited (each bound on its own).
+DEFAULT_MAX_QUEUE = 64 << 20
+#: Bytes a frame is counted for besides its body (its number, tick, kind, the list).
+_FRAME_OVERHEAD = 64
 
 
 # --- the messages the exchanger sees ---------------------------------------------------
@@ -159,18 +165,52 @@ def decode_hello(body: bytes) -> tuple[int, int]:
     return _int_field(d, "next"), _int_field(d, "ack")
 
 
+def _size(f: Frame) -> int:
+    return len(f.body) + _FRAME_OVERHEAD
+
+
 class ReliableLink:
     """Numbered, acknowledged frames between this node and each peer, over a
-    :class:`ZmqTransport`."""
+    :class:`ZmqTransport`.
+
+    Parameters
+    ----------
+    transport : ZmqTransport
+    peers : sequence of int
+    wait_timeout : float
+        Seconds an awaited peer may go without sending a new frame (:meth:`wait`).
+    retry : float
+        Seconds between requests to send again while waiting.
+    max_queue : int
+        Bytes of frames kept per peer: sent and not acknowledged (past it the node
+        fails, naming the peer), and received early (past it an early frame is
+        rejected; the peer sends it again when asked). Default
+        :data:`DEFAULT_MAX_QUEUE`.
+    durable : bool
+        Whether this node checkpoints what it receives: True. A node without a state
+        folder cannot resume, so it acknowledges frames as it takes them and its peers
+        need not keep them.
+    """
 
     def __init__(
-        self, transport: ZmqTransport, peers: Sequence[int], *, wait_timeout: float, retry: float
+        self,
+        transport: ZmqTransport,
+        peers: Sequence[int],
+        *,
+        wait_timeout: float,
+        retry: float,
+        max_queue: int = DEFAULT_MAX_QUEUE,
+        durable: bool = True,
     ) -> None:
         self.zmq = transport
         self.robot = transport.robot
         self.peers = list(peers)
         self.wait_timeout = wait_timeout
         self.retry = retry
+        self.max_queue = max_queue
+        self.durable = durable
+        self.log_bytes = dict.fromkeys(self.peers, 0)
+        self.early_bytes = dict.fromkeys(self.peers, 0)
         self.out_q = dict.fromkeys(self.peers, 0)
         self.log: dict[int, list[Frame]] = {j: [] for j in self.peers}
         self.next_q = dict.fromkeys(self.peers, 0)
@@ -231,13 +271,25 @@ class ReliableLink:
         self.acked_by = _unpairs(s["acked_by"])
         self.ack_mine = dict(self.next_q)
         self.resumed = True
+        self.log_bytes = {j: sum(map(_size, fs)) for j, fs in self.log.items()}
+        self.early_bytes = {j: sum(map(_size, fs.values())) for j, fs in self.early.items()}
 
     # sending
 
     def send(self, dst: int, tick: int, kind: str, body: bytes) -> None:
+        """Number, log and send a frame; :class:`InputError` naming ``dst`` if the
+        frames it has not acknowledged would pass ``max_queue`` bytes."""
         f = Frame(self.out_q[dst], tick, kind, body)
+        if self.log_bytes[dst] + _size(f) > self.max_queue:
+            raise InputError(
+                f"robot {self.robot}: the frames sent to robot {dst} and not acknowledged "
+                f"would pass {self.max_queue} bytes (--max-queue): robot {dst} takes or "
+                "checkpoints nothing",
+                field="max_queue",
+            )
         self.out_q[dst] += 1
         self.log[dst].append(f)
+        self.log_bytes[dst] += _size(f)
         self._transmit(dst, f)
 
     def _transmit(self, dst: int, f: Frame) -> None:
@@ -248,8 +300,12 @@ class ReliableLink:
         """Send every peer the ``done`` marker of ``tick``: the robot's count of poses
         the exchange added and deleted, and whether it awaits an answer."""
         for j in self.peers:
-            done = _pack({"ch": changes, "out": outstanding, "ack": self.ack_mine[j]})
+            done = _pack({"ch": changes, "out": outstanding, "ack": self._ack(j)})
             self.send(j, tick, "done", done)
+
+    def _ack(self, j: int) -> int:
+        """Frames of ``j`` below this number need not be sent again."""
+        return self.ack_mine[j] if self.durable else self.next_q[j]
 
     def forget_markers(self, before: int) -> None:
         """Drop the peers' markers of ticks before ``before``."""
@@ -259,12 +315,13 @@ class ReliableLink:
 
     def hello(self, peers: Iterable[int]) -> None:
         for j in peers:
-            self.zmq.send(j, _pack({"next": self.next_q[j], "ack": self.ack_mine[j]}), "hello")
+            self.zmq.send(j, _pack({"next": self.next_q[j], "ack": self._ack(j)}), "hello")
 
     def _trim(self, j: int) -> None:
         log, ack = self.log[j], self.acked_by[j]
         if log and log[0].q < ack:
             self.log[j] = [f for f in log if f.q >= ack]
+            self.log_bytes[j] = sum(map(_size, self.log[j]))
 
     def _resend(self, j: int, start: int) -> None:
         log = self.log[j]
@@ -345,10 +402,20 @@ class ReliableLink:
         if f.kind == "done":
             # Checked on arrival, before it can take its place in the sequence.
             self._claim(j, "done ack", decode_done(f.body)[2])
+        if f.q in self.early[j]:
+            return False  # a copy of one kept aside
+        if f.q != self.next_q[j] and self.early_bytes[j] + _size(f) > self.max_queue:
+            raise FrameError(
+                "queue",
+                f"frames kept aside from robot {j} would pass {self.max_queue} bytes "
+                f"(--max-queue); frame {f.q} dropped, to be asked for again",
+            )
         self.early[j][f.q] = f
+        self.early_bytes[j] += _size(f)
         progress = False
         while self.next_q[j] in self.early[j]:
             g = self.early[j].pop(self.next_q[j])
+            self.early_bytes[j] -= _size(g)
             self.next_q[j] += 1
             progress = True
             if g.kind == "done":

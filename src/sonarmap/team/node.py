@@ -74,7 +74,7 @@ from ..files import atomic_folder, atomic_outputs, atomic_write, atomic_write_te
 from ..io.rosmap import OccupancyMap, write_map
 from .exchange import ExchangeParams, Exchanger
 from .keys import TeamKey
-from .link import LOCK_SLACK, ExchangerPort, ReliableLink
+from .link import DEFAULT_MAX_QUEUE, LOCK_SLACK, ExchangerPort, ReliableLink
 from .lockstep import LockstepClock, quiet_seconds, team_ticks
 from .mission import MissionConfig, RobotAgent
 from .naive import NaiveMeter
@@ -97,6 +97,7 @@ from .wire import MODES
 from .world import ODOMETRY_NOISE, make_world, odometry, patrol_route
 
 __all__ = [
+    "MIB",
     "STATE_FILE",
     "SUMMARY_FILE",
     "LockstepParams",
@@ -114,6 +115,8 @@ logger = logging.getLogger("sonarmap.team.node")
 F64 = npt.NDArray[np.float64]
 Progress = Callable[[int, int], None]
 
+#: Bytes of a MiB (``--max-queue`` counts them).
+MIB = 1 << 20
 #: The checkpoint's file name in a node's state folder.
 STATE_FILE = "state.msgpack"
 #: The node's summary in its output folder.
@@ -135,12 +138,16 @@ class LockstepParams:
         Seconds between checkpoints (with a state folder): 5.
     linger : float
         Seconds a finished node stays to serve its peers' last requests: 120.
+    max_queue : float
+        Bytes of frames kept per peer, sent and not acknowledged, and received ahead of
+        the one awaited (each bound on its own; :class:`~.link.ReliableLink`): 64 MiB.
     """
 
     wait_timeout: float = 300.0
     retry: float = 0.5
     checkpoint_every: float = 5.0
     linger: float = 120.0
+    max_queue: float = float(DEFAULT_MAX_QUEUE)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -391,7 +398,12 @@ class _Node:
             naive_bytes=lambda: float(self.meter.bytes),
         )
         self.link = ReliableLink(
-            self.zmq, self.others, wait_timeout=self.timing.wait_timeout, retry=self.timing.retry
+            self.zmq,
+            self.others,
+            wait_timeout=self.timing.wait_timeout,
+            retry=self.timing.retry,
+            max_queue=int(self.timing.max_queue),
+            durable=self.state_path is not None,
         )
         self.clock = LockstepClock.for_ticks(
             self.times,
