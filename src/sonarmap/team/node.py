@@ -42,7 +42,8 @@ line naming the silent peer).
 
 **Kill and restart.** A node writes its whole state every ``checkpoint_every`` wall
 seconds to ``state_dir/state.msgpack`` (msgpack of the records' own encodings, never
-pickle; written to a temporary file and renamed): the store (all layers, patches,
+pickle; with its SHA-256 and format version, written to a temporary file, fsynced and
+renamed: :mod:`.checkpoint`, which also locks the folder against a second process): the store (all layers, patches,
 closures and the store's counters), the agent's route position and scoring counters,
 the exchanger's stamps, adverts and pending requests, and the frame logs. Restarted on
 the same ``state_dir`` it resumes at the tick after its checkpoint and asks its peers
@@ -53,11 +54,11 @@ ends as it would have without the kill.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import math
-import os
 import time
 from collections import ChainMap
 from collections.abc import Callable, Mapping, Sequence
@@ -70,8 +71,9 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
-from ..files import atomic_folder, atomic_outputs, atomic_write, atomic_write_text, json_dumps
+from ..files import atomic_folder, atomic_outputs, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap, write_map
+from .checkpoint import StateLock, read_state, write_state
 from .exchange import ExchangeParams, Exchanger
 from .keys import TeamKey
 from .link import DEFAULT_MAX_QUEUE, LOCK_SLACK, ExchangerPort, ReliableLink
@@ -82,11 +84,9 @@ from .records import (
     ClosureEdge,
     Pose,
     RecordError,
-    UnpackError,
     decode_as,
     encode,
     make_uid,
-    unpack_strict,
 )
 from .regions import region_adjacency
 from .simulation import held_uids
@@ -449,14 +449,7 @@ class _Node:
             state["received_merged"] = [encode(p) for p in self.received_merged.values()]
         data = _pack(state)
         acked = dict(self.link.next_q)
-
-        def write(tmp: Path) -> None:
-            with open(tmp, "wb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-
-        atomic_write(self.state_path, write)
+        write_state(self.state_path, data)
         self.link.ack_mine = acked
         self.last_checkpoint = time.monotonic()
 
@@ -465,10 +458,8 @@ class _Node:
         path = self.state_path
         if path is None or not path.exists():
             return False
+        s = read_state(path)
         try:
-            data = path.read_bytes()
-            n = len(data)
-            s = unpack_strict(data, max_bin=n, max_str=n, max_array=n, max_map=n)
             if not isinstance(s, dict) or s.get("v") != _STATE_VERSION:
                 raise InputError("not a node state of this version")
             if s["fingerprint"] != self.fingerprint:
@@ -490,7 +481,7 @@ class _Node:
                     self.received_merged[p.uid] = p
         except InputError as e:
             raise InputError(e.reason, path=path) from None
-        except (UnpackError, RecordError, KeyError, TypeError, ValueError) as e:
+        except (RecordError, KeyError, TypeError, ValueError, OverflowError) as e:
             raise InputError(f"cannot resume from this state: {e}", path=path) from None
         logger.warning(
             "robot %d resumes at tick %d from %s (restart %d)",
@@ -664,6 +655,52 @@ def run_node(
         file of another mission.
     """
     ex = exchange if exchange is not None else ExchangeParams()
+    with contextlib.ExitStack() as held:
+        if state_dir is not None:
+            # Before any socket or work: the same robot started twice fails at once.
+            held.enter_context(StateLock(Path(state_dir), f"robot {robot_id}"))
+        return _run(
+            plan,
+            cfg,
+            robot_id,
+            listen,
+            peers,
+            out=out,
+            exchange=ex,
+            state_dir=state_dir,
+            lookahead=lookahead,
+            quiet=quiet,
+            settle=settle,
+            timing=timing,
+            max_message=max_message,
+            progress=progress,
+            routes=routes,
+            key=key,
+            insecure=insecure,
+        )
+
+
+def _run(
+    plan: OccupancyMap,
+    cfg: MissionConfig,
+    robot_id: int,
+    listen: str,
+    peers: Mapping[int, str],
+    *,
+    out: Path,
+    exchange: ExchangeParams,
+    state_dir: Path | None,
+    lookahead: float,
+    quiet: float | None,
+    settle: float,
+    timing: LockstepParams | None,
+    max_message: int,
+    progress: Progress | None,
+    routes: Sequence[F64 | None] | None,
+    key: TeamKey | None,
+    insecure: bool,
+) -> dict[str, Any]:
+    ex = exchange
     node = _Node(
         plan,
         cfg,
