@@ -198,6 +198,26 @@ def test_a_hello_claiming_frames_never_sent_is_rejected_and_not_acted_on(
     assert [f.q for f in link.log[1]] == [2]
 
 
+def test_after_a_resume_claims_past_what_was_sent_are_clamped_not_rejected(
+    pair: tuple[ZmqTransport, ZmqTransport],
+) -> None:
+    """A node resumed from a checkpoint may have sent frames after it that the peer
+    holds: the peer's claims past what was sent since are legitimate; only the part
+    below what was sent is acted on."""
+    link = _linked(pair, 5.0)
+    state = msgpack.unpackb(_pack(link.state()))
+    resumed = ReliableLink(pair[0], [1], wait_timeout=5.0, retry=0.05)
+    resumed.restore(state)
+    _, b = pair
+    _send(b, 0, _pack({"next": 5, "ack": 5}), "hello")
+    end = time.monotonic() + DEADLINE
+    while resumed.acked_by[1] < 3 and time.monotonic() < end:
+        resumed.pump(0.05)
+    assert resumed.rejected == 0
+    assert resumed.acked_by[1] == 3  # clamped to the 3 frames sent
+    assert resumed.log[1] == []
+
+
 def test_a_peer_that_only_asks_again_times_out_naming_it(
     pair: tuple[ZmqTransport, ZmqTransport],
 ) -> None:
