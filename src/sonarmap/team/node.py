@@ -43,13 +43,13 @@ line naming the silent peer).
 **Kill and restart.** A node writes its whole state every ``checkpoint_every`` wall
 seconds to ``state_dir/state.msgpack`` (msgpack of the records' own encodings, never
 pickle; with its SHA-256 and format version, written to a temporary file, fsynced and
-renamed: :mod:`.checkpoint`, which also locks the folder against a second process): the store (all layers, patches,
-closures and the store's counters), the agent's route position and scoring counters,
-the exchanger's stamps, adverts and pending requests, and the frame logs. Restarted on
-the same ``state_dir`` it resumes at the tick after its checkpoint and asks its peers
-to send again what it has not yet taken; the ticks it repeats make the same frames
-with the same numbers (everything is deterministic), which the peers drop. The team
-ends as it would have without the kill.
+renamed: :mod:`.checkpoint`, which also locks the folder against a second process): the
+store (all layers, patches, closures and the store's counters), the agent's route
+position and scoring counters, the exchanger's stamps, adverts and pending requests, and
+the frame logs. Restarted on the same ``state_dir`` it resumes at the tick after its
+checkpoint and asks its peers to send again what it has not yet taken; the ticks it
+repeats make the same frames with the same numbers (everything is deterministic), which
+the peers drop. The team ends as it would have without the kill.
 """
 
 from __future__ import annotations
