@@ -9,7 +9,9 @@ import contextlib
 import errno
 import logging
 import os
+import socket
 import stat
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -33,7 +35,7 @@ from sonarmap.team.launcher import KEY_FILE, run_zmq_team
 from sonarmap.team.link import ReliableLink
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams, SimNetwork
-from sonarmap.team.node import store_digest
+from sonarmap.team.node import LockstepParams, run_node, store_digest
 from sonarmap.team.records import Landmarks, Pose, RecordError, decode, encode, make_uid
 from sonarmap.team.rejects import LINE_WIDTH, RejectLog
 from sonarmap.team.simulation import run_team
@@ -107,6 +109,60 @@ def test_mutated_answers_raise_nothing_but_exchange_errors() -> None:
             except ExchangeError as err:
                 codes.add(err.code)
     assert {"record", "type"} <= codes
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.slow
+def test_a_live_node_rejects_the_poison_answer_and_goes_on(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Robot 0 runs as a node on 127.0.0.1; the test plays robot 1 and sends it the
+    poison answer in tick 0, then tick 0's marker. The node rejects the answer, counts
+    it, and goes on to wait for tick 1's marker, which never comes: it ends with one
+    line naming robot 1 (it ended with the decoder's ValueError before)."""
+    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    cfg = MissionConfig(duration=5.0, seed=1)
+    ports = _free_port(), _free_port()
+    addresses = [f"tcp://127.0.0.1:{p}" for p in ports]
+    out: dict[str, BaseException] = {}
+
+    def node() -> None:
+        try:
+            run_node(
+                plan,
+                cfg,
+                0,
+                addresses[0],
+                {1: addresses[1]},
+                out=tmp_path / "robot0",
+                timing=LockstepParams(wait_timeout=2.0, retry=0.2, linger=1.0),
+            )
+        except BaseException as e:  # handed to the test's thread
+            out["error"] = e
+
+    runner = threading.Thread(target=node)
+    with caplog.at_level(logging.WARNING), ZmqTransport(1, addresses[1], {0: addresses[0]}) as me:
+        runner.start()
+        done = _pack({"ch": 0, "out": False, "ack": 0})
+        frames = [
+            _pack({"q": 0, "t": 0, "k": "answer", "b": _poison_answer()}),
+            _pack({"q": 1, "t": 0, "k": "done", "b": done}),
+        ]
+        end = time.monotonic() + 120.0
+        for f in frames:
+            while not me.send(0, f, "lock") and time.monotonic() < end:
+                time.sleep(0.05)
+        runner.join(timeout=max(1.0, end - time.monotonic()))
+    assert not runner.is_alive()
+    error = out.get("error")
+    assert isinstance(error, InputError), repr(error)
+    assert "peer robot 1" in str(error)
+    assert "rejected a 'answer' from robot 1 (record)" in caplog.text
 
 
 def test_rejection_lines_are_clipped_and_their_rate_bounded(
