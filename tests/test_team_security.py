@@ -610,3 +610,26 @@ def test_a_state_folder_is_locked_against_a_second_process(
     # Released with its holder.
     with StateLock(state, "robot 1"):
         pass
+
+
+def test_team_node_without_a_key_off_loopback_and_a_short_key_are_one_line(
+    tmp_path: Path, key_file: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    write_map(plan, tmp_path / "plan")
+    argv = ["team", "node", "--map", str(tmp_path / "plan.yaml"), "-o", str(tmp_path / "o")]
+    four = ",".join(f"{j}=tcp://127.0.0.1:9" for j in range(1, 4))
+    cases = [
+        (["--id", "0", "--listen", "tcp://0.0.0.0:0"], "without a team key"),
+        (
+            ["--id", "0", "--listen", "tcp://127.0.0.1:0", "--key", str(key_file), "--peers", four],
+            "the team key is for 3 robots, the team has 4",
+        ),
+        (["--id", "0", "--listen", "tcp://127.0.0.1:0", "--key", str(tmp_path)], "team key"),
+    ]
+    for args, expected in cases:
+        capsys.readouterr()
+        assert main_exit([*argv, *args]) == 2, args
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1, err
+        assert expected in err
