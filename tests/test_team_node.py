@@ -20,6 +20,7 @@ from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap, write_map
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
+from sonarmap.team.checkpoint import read_state
 from sonarmap.team.exchange import LEAN, ExchangeParams, Exchanger
 from sonarmap.team.launcher import ZmqTeamResult, node_args, run_zmq_team
 from sonarmap.team.link import ReliableLink
@@ -80,10 +81,9 @@ KILL_AT = 25
 
 def _tick_of(state: Path) -> int:
     """The tick a node's checkpoint resumes at (-1 if none yet)."""
-    try:
-        return int(msgpack.unpackb(state.read_bytes())["clock"]["next"])
-    except FileNotFoundError:
+    if not state.exists():
         return -1
+    return int(read_state(state)["clock"]["next"])
 
 
 @pytest.fixture(scope="module")

@@ -38,6 +38,7 @@ from .common import (
     progress,
     resolve_map,
     writable,
+    wrote,
     wrote_folder,
 )
 
@@ -475,23 +476,60 @@ def node_cmd(
             "--routes", help="Folder of every robot's route, robotK.npy (t, x, y, theta)."
         ),
     ] = None,
+    max_queue: Annotated[
+        float,
+        typer.Option(
+            "--max-queue",
+            help="MiB of frames kept per peer: sent and not yet acknowledged (past it the "
+            "node fails naming the peer), and received ahead of the one awaited.",
+        ),
+    ] = 64.0,
+    key_file: Annotated[
+        Path | None,
+        typer.Option(
+            "--key",
+            help="The team key ('team key'): connections encrypted, and only robots "
+            "holding it admitted, each known by its key.",
+        ),
+    ] = None,
+    insecure: Annotated[
+        bool,
+        typer.Option(
+            "--insecure",
+            help="Without --key, listen on an address other than loopback all the same "
+            "(anyone reaching it could pose as a robot).",
+        ),
+    ] = False,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
     """One robot of a team over ZeroMQ (TCP), on the team's lock-step clock: the same
     results as 'team run' on a full network; killed and started again on its --state
     folder, it resumes."""
-    from ..team.node import LockstepParams, load_routes, parse_exchange, parse_peers, run_node
+    from ..team.keys import read_team_key
+    from ..team.node import (
+        MIB,
+        LockstepParams,
+        load_routes,
+        parse_exchange,
+        parse_peers,
+        run_node,
+    )
 
     if not (math.isfinite(duration) and duration > 0):
         raise ConfigError(f"--duration must be > 0, got {duration}")
     if seed < 0:
         raise ConfigError(f"--seed must be >= 0, got {seed}")
     store = config_from_options(StoreParams, ctx.params, STORE_OPTIONS)
-    timing = LockstepParams(wait_timeout=wait_timeout, checkpoint_every=checkpoint_every)
+    if not (math.isfinite(max_queue) and max_queue > 0):
+        raise ConfigError(f"--max-queue must be > 0 MiB, got {max_queue}")
+    timing = LockstepParams(
+        wait_timeout=wait_timeout, checkpoint_every=checkpoint_every, max_queue=max_queue * MIB
+    )
     ex = parse_exchange(exchange or [])
     peer_map = parse_peers(peers, robot)
     fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
+    key = None if key_file is None else read_team_key(key_file)
     plan = resolve_map(map_, resolution, origin)
     config = MissionConfig(duration=duration, seed=seed, store=store)
     with progress(f"robot {robot}") as update:
@@ -510,9 +548,33 @@ def node_cmd(
             timing=timing,
             progress=partial(_tick, update, "ticks"),
             routes=fixed_routes,
+            key=key,
+            insecure=insecure,
         )
     console.print(
         f"robot {robot}: {s['row']['poses_local']} own poses, {len(s['held'])} held, "
         f"{s['ticks']} ticks, {s['restarts']} restarts"
     )
     console.print(wrote_folder(out), markup=False)
+
+
+@team_app.command("key", epilog=EPILOG)
+def key_cmd(
+    out: Annotated[Path, typer.Option("-o", "--out", help="The key file to write (mode 0600).")],
+    robots: Annotated[
+        int, typer.Option("--robots", help="Robots the key admits: ids 0..N-1.")
+    ] = 16,
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing key file.")] = False,
+) -> None:
+    """A team key for 'team node --key': a CURVE key pair per robot id, in one file
+    every robot of the team gets (keep it secret: whoever holds it can join the team)."""
+    from ..team.keys import make_team_key
+
+    if out.exists() and not force:
+        raise ConfigError(
+            f"-o: {out} exists; give --force to replace it (the team's nodes "
+            "then need the new file)"
+        )
+    make_team_key(robots).write(out)
+    console.print(f"team key for robots 0..{robots - 1}", markup=False)
+    console.print(wrote(out.parent, [out.name]), markup=False)

@@ -78,6 +78,7 @@ from ..errors import ConfigError, InputError
 from .outgoing import OutgoingPolicy
 from .quantise import check_quantisation
 from .records import ClosureEdge, OdometryEdge, Pose, encode, size_of
+from .rejects import RejectLog
 from .store import Layer, Patch, RobotStore, compress_for_sending
 from .transport import Message, SimTransport, Transport, ZmqTransport
 from .wire import (
@@ -508,6 +509,7 @@ class Exchanger:
         )
         self.on_received = on_received
         self.stats = ExchangeStats()
+        self._rejects = RejectLog(logger)
         self._peers = peers if peers is not None else default_peers(transport)
         self._now = -math.inf
         self._next_advert = -math.inf
@@ -904,13 +906,9 @@ class Exchanger:
                 raise ExchangeError("kind", f"unknown kind {msg.kind!r}")
         except ExchangeError as e:
             self.stats.rejected[e.code] += 1
-            logger.warning(
-                "robot %d rejected a %r from robot %d (%s): %s",
-                self.robot,
-                msg.kind[:16],
-                msg.src,
-                e.code,
-                e.reason,
+            self._rejects.warn(
+                f"robot {self.robot} rejected a {msg.kind[:16]!r} from robot {msg.src} "
+                f"({e.code}): {e.reason}"
             )
 
     def _take_advert(self, peer: int, advert: Advert, now: float) -> None:

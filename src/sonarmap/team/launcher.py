@@ -28,21 +28,25 @@ from ..errors import ConfigError, InputError
 from ..files import atomic_write_text
 from ..io.rosmap import OccupancyMap, read_map, write_map
 from .exchange import ExchangeParams
+from .keys import make_team_key
 from .mission import MissionConfig
 from .network import NetworkParams
-from .node import SUMMARY_FILE, LockstepParams, save_routes
+from .node import MIB, SUMMARY_FILE, LockstepParams, save_routes
 from .simulation import map_agreement
 from .store import StoreParams
 from .summary import mission_figures, team_figures
 from .transport import DEFAULT_MAX_MESSAGE
 from .world import patrol_route
 
-__all__ = ["ZmqTeamResult", "node_args", "run_zmq_team"]
+__all__ = ["KEY_FILE", "ZmqTeamResult", "node_args", "run_zmq_team"]
 
 logger = logging.getLogger("sonarmap.team.node")
 
 F64 = npt.NDArray[np.float64]
 Progress = Callable[[int, int], None]
+
+#: The team key's file (:mod:`.keys`) in the nodes' folder.
+KEY_FILE = "team.key"
 
 
 @dataclass
@@ -133,6 +137,8 @@ def node_args(
         repr(float(timing.wait_timeout)),
         "--checkpoint-every",
         repr(float(timing.checkpoint_every)),
+        "--max-queue",
+        repr(float(timing.max_queue) / MIB),
     ]
     if quiet is not None:
         args += ["--quiet", repr(float(quiet))]
@@ -246,7 +252,10 @@ def run_zmq_team(
             for i in range(robots)
         ]
         save_routes(where / "routes", [np.asarray(r, dtype=np.float64) for r in drawn])
-        args = [*args, "--routes", str(where / "routes")]
+        # A fresh key per team: even on loopback, another process of this machine must
+        # not be able to join it or pose as one of its robots.
+        make_team_key(robots).write(where / KEY_FILE)
+        args = [*args, "--routes", str(where / "routes"), "--key", str(where / KEY_FILE)]
         addresses = [f"tcp://127.0.0.1:{p}" for p in _free_ports(robots)]
         return _launch(
             where,

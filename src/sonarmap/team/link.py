@@ -8,6 +8,15 @@ and keeps early ones aside. A node stuck waiting asks the peer to send again fro
 first number it lacks (``hello``), which covers a socket that refused a frame (peer not
 connected yet) and a restarted peer.
 
+A peer's claims are checked against what was sent to it: a ``hello`` (or a ``done``
+marker's ``ack``) claiming frames this node never sent is a protocol error, rejected and
+not acted on (acting on it would drop frames the peer still lacks, and the two would
+then ask each other to send again forever). After a resume from a checkpoint, frames
+sent before the kill but after the checkpoint may be claimed: those claims are only
+clamped to what was sent since, not logged. A peer is judged by its progress, not its
+traffic: one that sends no new frame for ``wait_timeout`` s while awaited ends the wait
+with one line naming it, whatever else it sends.
+
 A node's frames on the wire (envelope kinds): ``lock`` (a numbered frame:
 ``{"q", "t", "k", "b"}``, ``k`` an exchanger kind, ``done`` or ``bye``) and ``hello``
 (``{"next", "ack"}``: send again from frame ``next``; frames below ``ack`` are durable
@@ -26,10 +35,12 @@ import msgpack
 
 from ..errors import InputError
 from .records import UnpackError, unpack_strict
+from .rejects import RejectLog
 from .transport import Message, Transport, ZmqTransport
 from .wire import KINDS
 
 __all__ = [
+    "DEFAULT_MAX_QUEUE",
     "LOCK_SLACK",
     "ExchangerPort",
     "Frame",
@@ -37,6 +48,7 @@ __all__ = [
     "ReliableLink",
     "decode_done",
     "decode_frame",
+    "decode_hello",
 ]
 
 logger = logging.getLogger("sonarmap.team.node")
@@ -47,6 +59,11 @@ _Q_LIMIT = 2**62
 _WINDOW = 100_000
 #: Bytes a lock frame adds around an exchanger body, at most.
 LOCK_SLACK = 4096
+#: Bytes of frames kept per peer, by default: sent and not yet acknowledged, and
+#: received ahead of the one awaited (each bound on its own).
+DEFAULT_MAX_QUEUE = 64 << 20
+#: Bytes a frame is counted for besides its body (its number, tick, kind, the list).
+_FRAME_OVERHEAD = 64
 
 
 # --- the messages the exchanger sees ---------------------------------------------------
@@ -142,18 +159,58 @@ def decode_done(body: bytes) -> tuple[int, bool, int]:
     return _int_field(d, "ch"), out, _int_field(d, "ack")
 
 
+def decode_hello(body: bytes) -> tuple[int, int]:
+    """A ``hello``'s (next, ack)."""
+    d = _strict_map(body, {"next", "ack"})
+    return _int_field(d, "next"), _int_field(d, "ack")
+
+
+def _size(f: Frame) -> int:
+    return len(f.body) + _FRAME_OVERHEAD
+
+
 class ReliableLink:
     """Numbered, acknowledged frames between this node and each peer, over a
-    :class:`ZmqTransport`."""
+    :class:`ZmqTransport`.
+
+    Parameters
+    ----------
+    transport : ZmqTransport
+    peers : sequence of int
+    wait_timeout : float
+        Seconds an awaited peer may go without sending a new frame (:meth:`wait`).
+    retry : float
+        Seconds between requests to send again while waiting.
+    max_queue : int
+        Bytes of frames kept per peer: sent and not acknowledged (past it the node
+        fails, naming the peer), and received early (past it an early frame is
+        rejected; the peer sends it again when asked). Default
+        :data:`DEFAULT_MAX_QUEUE`.
+    durable : bool
+        Whether this node checkpoints what it receives: True. A node without a state
+        folder cannot resume, so it acknowledges frames as it takes them and its peers
+        need not keep them.
+    """
 
     def __init__(
-        self, transport: ZmqTransport, peers: Sequence[int], *, wait_timeout: float, retry: float
+        self,
+        transport: ZmqTransport,
+        peers: Sequence[int],
+        *,
+        wait_timeout: float,
+        retry: float,
+        max_queue: int = DEFAULT_MAX_QUEUE,
+        durable: bool = True,
     ) -> None:
         self.zmq = transport
         self.robot = transport.robot
         self.peers = list(peers)
         self.wait_timeout = wait_timeout
         self.retry = retry
+        self.max_queue = max_queue
+        self.durable = durable
+        self.log_bytes = dict.fromkeys(self.peers, 0)
+        self.early_bytes = dict.fromkeys(self.peers, 0)
         self.out_q = dict.fromkeys(self.peers, 0)
         self.log: dict[int, list[Frame]] = {j: [] for j in self.peers}
         self.next_q = dict.fromkeys(self.peers, 0)
@@ -167,8 +224,14 @@ class ReliableLink:
         self.acked_by = dict.fromkeys(self.peers, 0)
         #: Frames below these numbers are durable here (in our last checkpoint).
         self.ack_mine = dict.fromkeys(self.peers, 0)
-        self.heard = dict.fromkeys(self.peers, time.monotonic())
+        now = time.monotonic()
+        #: When each peer last sent anything valid, and last sent a new frame in order.
+        self.heard = dict.fromkeys(self.peers, now)
+        self.progressed = dict.fromkeys(self.peers, now)
         self.rejected = 0
+        #: Restored from a checkpoint: frames may have gone out after it (see the module).
+        self.resumed = False
+        self._rejects = RejectLog(logger)
 
     # state
 
@@ -207,13 +270,26 @@ class ReliableLink:
         self.bye = {int(j) for j in s["bye"]}
         self.acked_by = _unpairs(s["acked_by"])
         self.ack_mine = dict(self.next_q)
+        self.resumed = True
+        self.log_bytes = {j: sum(map(_size, fs)) for j, fs in self.log.items()}
+        self.early_bytes = {j: sum(map(_size, fs.values())) for j, fs in self.early.items()}
 
     # sending
 
     def send(self, dst: int, tick: int, kind: str, body: bytes) -> None:
+        """Number, log and send a frame; :class:`InputError` naming ``dst`` if the
+        frames it has not acknowledged would pass ``max_queue`` bytes."""
         f = Frame(self.out_q[dst], tick, kind, body)
+        if self.log_bytes[dst] + _size(f) > self.max_queue:
+            raise InputError(
+                f"robot {self.robot}: the frames sent to robot {dst} and not acknowledged "
+                f"would pass {self.max_queue} bytes (--max-queue): robot {dst} takes or "
+                "checkpoints nothing",
+                field="max_queue",
+            )
         self.out_q[dst] += 1
         self.log[dst].append(f)
+        self.log_bytes[dst] += _size(f)
         self._transmit(dst, f)
 
     def _transmit(self, dst: int, f: Frame) -> None:
@@ -224,8 +300,12 @@ class ReliableLink:
         """Send every peer the ``done`` marker of ``tick``: the robot's count of poses
         the exchange added and deleted, and whether it awaits an answer."""
         for j in self.peers:
-            done = _pack({"ch": changes, "out": outstanding, "ack": self.ack_mine[j]})
+            done = _pack({"ch": changes, "out": outstanding, "ack": self._ack(j)})
             self.send(j, tick, "done", done)
+
+    def _ack(self, j: int) -> int:
+        """Frames of ``j`` below this number need not be sent again."""
+        return self.ack_mine[j] if self.durable else self.next_q[j]
 
     def forget_markers(self, before: int) -> None:
         """Drop the peers' markers of ticks before ``before``."""
@@ -235,12 +315,13 @@ class ReliableLink:
 
     def hello(self, peers: Iterable[int]) -> None:
         for j in peers:
-            self.zmq.send(j, _pack({"next": self.next_q[j], "ack": self.ack_mine[j]}), "hello")
+            self.zmq.send(j, _pack({"next": self.next_q[j], "ack": self._ack(j)}), "hello")
 
     def _trim(self, j: int) -> None:
         log, ack = self.log[j], self.acked_by[j]
         if log and log[0].q < ack:
             self.log[j] = [f for f in log if f.q >= ack]
+            self.log_bytes[j] = sum(map(_size, self.log[j]))
 
     def _resend(self, j: int, start: int) -> None:
         log = self.log[j]
@@ -269,26 +350,48 @@ class ReliableLink:
             if j not in self.next_q:
                 self._reject(j, "peer", f"robot {j} is not a peer")
                 continue
-            self.heard[j] = time.monotonic()
             try:
                 if msg.kind == "hello":
-                    d = _strict_map(msg.payload, {"next", "ack"})
-                    start, ack = _int_field(d, "next"), _int_field(d, "ack")
-                    self.acked_by[j] = max(self.acked_by[j], ack)
-                    self._trim(j)
-                    self._resend(j, start)
+                    start, ack = decode_hello(msg.payload)
+                    self.heard[j] = time.monotonic()
+                    self._hello_from(j, start, ack)
                 elif msg.kind == "lock":
-                    progress = self._take(j, decode_frame(msg.payload)) or progress
+                    f = decode_frame(msg.payload)
+                    self.heard[j] = time.monotonic()
+                    if self._take(j, f):
+                        progress = True
+                        self.progressed[j] = self.heard[j]
                 else:
-                    raise FrameError("kind", f"envelope kind {msg.kind!r} unknown")
+                    raise FrameError("kind", f"envelope kind {msg.kind[:16]!r} unknown")
             except FrameError as e:
                 self._reject(j, e.reason, str(e))
+            except Exception as e:
+                # A peer's bytes: whatever they make the decoder raise rejects the frame.
+                self._reject(j, "decode", f"{type(e).__name__}: {e}")
         return progress
+
+    def _claim(self, j: int, what: str, claimed: int) -> int:
+        """A peer's claim to hold our frames below ``claimed``, checked against what we
+        sent it: the part beyond is never acted on, and (unless we resumed, see the
+        module) a protocol error."""
+        if claimed <= self.out_q[j]:
+            return claimed
+        if not self.resumed:
+            raise FrameError(
+                "claim", f"{what} {claimed} claims frames never sent (sent {self.out_q[j]})"
+            )
+        return self.out_q[j]
+
+    def _hello_from(self, j: int, start: int, ack: int) -> None:
+        start, ack = self._claim(j, "next", start), self._claim(j, "ack", ack)
+        self.acked_by[j] = max(self.acked_by[j], ack)
+        self._trim(j)
+        self._resend(j, start)
 
     def _reject(self, j: int, reason: str, detail: str) -> None:
         self.rejected += 1
-        logger.warning(
-            "robot %d rejected a frame from robot %d (%s): %s", self.robot, j, reason, detail
+        self._rejects.warn(
+            f"robot {self.robot} rejected a frame from robot {j} ({reason}): {detail}"
         )
 
     def _take(self, j: int, f: Frame) -> bool:
@@ -296,17 +399,30 @@ class ReliableLink:
             return False  # a copy of one we have
         if f.q >= self.next_q[j] + _WINDOW:
             raise FrameError("window", f"frame {f.q} is far ahead of {self.next_q[j]}")
+        if f.kind == "done":
+            # Checked on arrival, before it can take its place in the sequence.
+            self._claim(j, "done ack", decode_done(f.body)[2])
+        if f.q in self.early[j]:
+            return False  # a copy of one kept aside
+        if f.q != self.next_q[j] and self.early_bytes[j] + _size(f) > self.max_queue:
+            raise FrameError(
+                "queue",
+                f"frames kept aside from robot {j} would pass {self.max_queue} bytes "
+                f"(--max-queue); frame {f.q} dropped, to be asked for again",
+            )
         self.early[j][f.q] = f
+        self.early_bytes[j] += _size(f)
         progress = False
         while self.next_q[j] in self.early[j]:
             g = self.early[j].pop(self.next_q[j])
+            self.early_bytes[j] -= _size(g)
             self.next_q[j] += 1
             progress = True
             if g.kind == "done":
                 ch, out, ack = decode_done(g.body)
                 self.done[j] = max(self.done[j], g.tick)
                 self.markers[j][g.tick] = (ch, out)
-                self.acked_by[j] = max(self.acked_by[j], ack)
+                self.acked_by[j] = max(self.acked_by[j], min(ack, self.out_q[j]))
                 self._trim(j)
             elif g.kind == "bye":
                 self.bye.add(j)
@@ -316,7 +432,8 @@ class ReliableLink:
 
     def wait(self, ready: Callable[[], list[int]], what: str) -> None:
         """Pump until ``ready()`` names no peer still awaited; ask the awaited peers to
-        send again every ``retry`` s; fail after ``wait_timeout`` s of silence."""
+        send again every ``retry`` s; fail after ``wait_timeout`` s without a new frame
+        from an awaited peer (whatever else it sends meanwhile)."""
         last_ask = time.monotonic()
         while True:
             missing = ready()
@@ -324,11 +441,20 @@ class ReliableLink:
                 return
             now = time.monotonic()
             for j in missing:
-                if now - self.heard[j] > self.wait_timeout:
+                if now - self.progressed[j] > self.wait_timeout:
+                    where = f"peer robot {j} ({self.zmq.peers.get(j, '?')})"
+                    if now - self.heard[j] > self.wait_timeout:
+                        raise InputError(
+                            f"robot {self.robot}: {where} sent nothing for "
+                            f"{self.wait_timeout:g} s while awaited for {what}: not started, "
+                            "unreachable, or stopped and not restarted",
+                            field="peers",
+                        )
                     raise InputError(
-                        f"robot {self.robot}: peer robot {j} ({self.zmq.peers.get(j, '?')}) "
-                        f"sent nothing for {self.wait_timeout:g} s while awaited for "
-                        f"{what}: not started, unreachable, or stopped and not restarted",
+                        f"robot {self.robot}: {where} sent no new frame for "
+                        f"{self.wait_timeout:g} s while awaited for {what}, only requests "
+                        "or frames out of sequence: a peer that lost its state, or not one "
+                        "of the team",
                         field="peers",
                     )
             if now - last_ask >= self.retry:

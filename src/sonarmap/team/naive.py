@@ -51,6 +51,7 @@ from .exchange import (
 )
 from .quantise import quantise_pose
 from .records import OdometryEdge, Pose, encode, robot_of
+from .rejects import RejectLog
 from .store import RobotStore
 from .transport import Message, Transport
 from .wire import (
@@ -61,6 +62,7 @@ from .wire import (
     pack,
     read_list,
     read_record,
+    strict_decoder,
     unpack,
 )
 
@@ -165,6 +167,7 @@ def encode_pose_message(pose: Pose, edges: Sequence[OdometryEdge]) -> bytes:
     return pack({"v": VERSION, "pose": encode(pose), "edges": [encode(e) for e in edges]})
 
 
+@strict_decoder
 def decode_pose_message(
     body: bytes, source: int, *, regions: Collection[int] | None = None
 ) -> tuple[Pose, list[OdometryEdge]]:
@@ -238,6 +241,7 @@ class NaiveExchanger:
         self.regions = None if adjacency is None else frozenset(int(r) for r in adjacency)
         self.on_received = on_received
         self.stats = ExchangeStats()
+        self._rejects = RejectLog(logger)
         self._peers = peers if peers is not None else default_peers(transport)
         self._now = -math.inf
         self._sent: set[int] = set()
@@ -294,13 +298,9 @@ class NaiveExchanger:
             pose, edges = decode_pose_message(msg.payload, msg.src, regions=self.regions)
         except ExchangeError as e:
             self.stats.rejected[e.code] += 1
-            logger.warning(
-                "robot %d rejected a %r from robot %d (%s): %s",
-                self.robot,
-                msg.kind[:16],
-                msg.src,
-                e.code,
-                e.reason,
+            self._rejects.warn(
+                f"robot {self.robot} rejected a {msg.kind[:16]!r} from robot {msg.src} "
+                f"({e.code}): {e.reason}"
             )
             return
         self.stats.poses_received += 1

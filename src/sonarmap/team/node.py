@@ -42,22 +42,23 @@ line naming the silent peer).
 
 **Kill and restart.** A node writes its whole state every ``checkpoint_every`` wall
 seconds to ``state_dir/state.msgpack`` (msgpack of the records' own encodings, never
-pickle; written to a temporary file and renamed): the store (all layers, patches,
-closures and the store's counters), the agent's route position and scoring counters,
-the exchanger's stamps, adverts and pending requests, and the frame logs. Restarted on
-the same ``state_dir`` it resumes at the tick after its checkpoint and asks its peers
-to send again what it has not yet taken; the ticks it repeats make the same frames
-with the same numbers (everything is deterministic), which the peers drop. The team
-ends as it would have without the kill.
+pickle; with its SHA-256 and format version, written to a temporary file, fsynced and
+renamed: :mod:`.checkpoint`, which also locks the folder against a second process): the
+store (all layers, patches, closures and the store's counters), the agent's route
+position and scoring counters, the exchanger's stamps, adverts and pending requests, and
+the frame logs. Restarted on the same ``state_dir`` it resumes at the tick after its
+checkpoint and asks its peers to send again what it has not yet taken; the ticks it
+repeats make the same frames with the same numbers (everything is deterministic), which
+the peers drop. The team ends as it would have without the kill.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import math
-import os
 import time
 from collections import ChainMap
 from collections.abc import Callable, Mapping, Sequence
@@ -70,10 +71,12 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
-from ..files import atomic_folder, atomic_outputs, atomic_write, atomic_write_text, json_dumps
+from ..files import atomic_folder, atomic_outputs, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap, write_map
+from .checkpoint import StateLock, read_state, write_state
 from .exchange import ExchangeParams, Exchanger
-from .link import LOCK_SLACK, ExchangerPort, ReliableLink
+from .keys import TeamKey
+from .link import DEFAULT_MAX_QUEUE, LOCK_SLACK, ExchangerPort, ReliableLink
 from .lockstep import LockstepClock, quiet_seconds, team_ticks
 from .mission import MissionConfig, RobotAgent
 from .naive import NaiveMeter
@@ -81,11 +84,9 @@ from .records import (
     ClosureEdge,
     Pose,
     RecordError,
-    UnpackError,
     decode_as,
     encode,
     make_uid,
-    unpack_strict,
 )
 from .regions import region_adjacency
 from .simulation import held_uids
@@ -96,6 +97,7 @@ from .wire import MODES
 from .world import ODOMETRY_NOISE, make_world, odometry, patrol_route
 
 __all__ = [
+    "MIB",
     "STATE_FILE",
     "SUMMARY_FILE",
     "LockstepParams",
@@ -113,6 +115,8 @@ logger = logging.getLogger("sonarmap.team.node")
 F64 = npt.NDArray[np.float64]
 Progress = Callable[[int, int], None]
 
+#: Bytes of a MiB (``--max-queue`` counts them).
+MIB = 1 << 20
 #: The checkpoint's file name in a node's state folder.
 STATE_FILE = "state.msgpack"
 #: The node's summary in its output folder.
@@ -134,12 +138,16 @@ class LockstepParams:
         Seconds between checkpoints (with a state folder): 5.
     linger : float
         Seconds a finished node stays to serve its peers' last requests: 120.
+    max_queue : float
+        Bytes of frames kept per peer, sent and not acknowledged, and received ahead of
+        the one awaited (each bound on its own; :class:`~.link.ReliableLink`): 64 MiB.
     """
 
     wait_timeout: float = 300.0
     retry: float = 0.5
     checkpoint_every: float = 5.0
     linger: float = 120.0
+    max_queue: float = float(DEFAULT_MAX_QUEUE)
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -324,8 +332,15 @@ class _Node:
         max_message: int,
         progress: Progress | None,
         routes: Sequence[F64 | None] | None,
+        key: TeamKey | None = None,
+        insecure: bool = False,
     ) -> None:
         ids = _check_team(robot, peers)
+        if key is not None and key.robots < len(ids):
+            raise ConfigError(
+                f"--key: the team key is for {key.robots} robots, the team has {len(ids)}",
+                field="key",
+            )
         self.robot = robot
         self.others = [j for j in ids if j != robot]
         self.cfg = cfg
@@ -337,7 +352,9 @@ class _Node:
         self.progress = progress
         self.state_path = None if state_dir is None else Path(state_dir) / STATE_FILE
         # The sockets first: a bad or busy address fails before any work.
-        self.zmq = ZmqTransport(robot, listen, peers, max_message=max_message + LOCK_SLACK)
+        self.zmq = ZmqTransport(
+            robot, listen, peers, max_message=max_message + LOCK_SLACK, key=key, insecure=insecure
+        )
         try:
             self._setup(plan, ids, max_message, routes)
         except BaseException:
@@ -381,7 +398,12 @@ class _Node:
             naive_bytes=lambda: float(self.meter.bytes),
         )
         self.link = ReliableLink(
-            self.zmq, self.others, wait_timeout=self.timing.wait_timeout, retry=self.timing.retry
+            self.zmq,
+            self.others,
+            wait_timeout=self.timing.wait_timeout,
+            retry=self.timing.retry,
+            max_queue=int(self.timing.max_queue),
+            durable=self.state_path is not None,
         )
         self.clock = LockstepClock.for_ticks(
             self.times,
@@ -427,14 +449,7 @@ class _Node:
             state["received_merged"] = [encode(p) for p in self.received_merged.values()]
         data = _pack(state)
         acked = dict(self.link.next_q)
-
-        def write(tmp: Path) -> None:
-            with open(tmp, "wb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-
-        atomic_write(self.state_path, write)
+        write_state(self.state_path, data)
         self.link.ack_mine = acked
         self.last_checkpoint = time.monotonic()
 
@@ -443,10 +458,8 @@ class _Node:
         path = self.state_path
         if path is None or not path.exists():
             return False
+        s = read_state(path)
         try:
-            data = path.read_bytes()
-            n = len(data)
-            s = unpack_strict(data, max_bin=n, max_str=n, max_array=n, max_map=n)
             if not isinstance(s, dict) or s.get("v") != _STATE_VERSION:
                 raise InputError("not a node state of this version")
             if s["fingerprint"] != self.fingerprint:
@@ -468,7 +481,7 @@ class _Node:
                     self.received_merged[p.uid] = p
         except InputError as e:
             raise InputError(e.reason, path=path) from None
-        except (UnpackError, RecordError, KeyError, TypeError, ValueError) as e:
+        except (RecordError, KeyError, TypeError, ValueError, OverflowError) as e:
             raise InputError(f"cannot resume from this state: {e}", path=path) from None
         logger.warning(
             "robot %d resumes at tick %d from %s (restart %d)",
@@ -590,6 +603,8 @@ def run_node(
     max_message: int = DEFAULT_MAX_MESSAGE,
     progress: Progress | None = None,
     routes: Sequence[F64 | None] | None = None,
+    key: TeamKey | None = None,
+    insecure: bool = False,
 ) -> dict[str, Any]:
     """Run robot ``robot_id``'s mission as one node of a team over ZeroMQ.
 
@@ -622,6 +637,11 @@ def run_node(
     routes : sequence of ndarray (T, 4) or None, optional
         One per robot of the team (``t, x, y, theta``), as run_team's ``routes``; None
         draws a robot's patrol route from the seed.
+    key : TeamKey, optional
+        The team's key (:mod:`.keys`): connections encrypted and admitted only with it
+        (CURVE), each peer known by its key. None: plain TCP, loopback only.
+    insecure : bool
+        Without a key, listen on an address other than loopback all the same.
 
     Returns
     -------
@@ -635,6 +655,52 @@ def run_node(
         file of another mission.
     """
     ex = exchange if exchange is not None else ExchangeParams()
+    with contextlib.ExitStack() as held:
+        if state_dir is not None:
+            # Before any socket or work: the same robot started twice fails at once.
+            held.enter_context(StateLock(Path(state_dir), f"robot {robot_id}"))
+        return _run(
+            plan,
+            cfg,
+            robot_id,
+            listen,
+            peers,
+            out=out,
+            exchange=ex,
+            state_dir=state_dir,
+            lookahead=lookahead,
+            quiet=quiet,
+            settle=settle,
+            timing=timing,
+            max_message=max_message,
+            progress=progress,
+            routes=routes,
+            key=key,
+            insecure=insecure,
+        )
+
+
+def _run(
+    plan: OccupancyMap,
+    cfg: MissionConfig,
+    robot_id: int,
+    listen: str,
+    peers: Mapping[int, str],
+    *,
+    out: Path,
+    exchange: ExchangeParams,
+    state_dir: Path | None,
+    lookahead: float,
+    quiet: float | None,
+    settle: float,
+    timing: LockstepParams | None,
+    max_message: int,
+    progress: Progress | None,
+    routes: Sequence[F64 | None] | None,
+    key: TeamKey | None,
+    insecure: bool,
+) -> dict[str, Any]:
+    ex = exchange
     node = _Node(
         plan,
         cfg,
@@ -650,6 +716,8 @@ def run_node(
         max_message=max_message,
         progress=progress,
         routes=routes,
+        key=key,
+        insecure=insecure,
     )
     try:
         finished = node.load()

@@ -62,6 +62,8 @@ F64 = npt.NDArray[np.float64]
 #: int8 log-odds of a local map = round(log-odds x LOGODDS_SCALE), clipped to +-127.
 LOGODDS_SCALE = 16.0
 _UID_SHIFT = 40
+#: Dimensions an encoded array may have at most (a record's have two).
+_MAX_DIMS = 4
 #: The encoding's version, first field of every message.
 VERSION = 1
 
@@ -398,9 +400,18 @@ def _unarr(d: Any, where: str) -> npt.NDArray[Any]:
     dtype, shape, data = d["dtype"], d["shape"], d["data"]
     if dtype not in _DTYPES:
         raise RecordError(f"{where}: dtype {dtype!r} not allowed")
-    if not (isinstance(shape, list) and all(isinstance(s, int) and 0 <= s < 2**31 for s in shape)):
-        raise RecordError(f"{where}: bad shape {shape!r}")
-    if not isinstance(data, bytes) or len(data) != int(np.prod(shape)) * np.dtype(dtype).itemsize:
+    if not (
+        isinstance(shape, list)
+        and len(shape) <= _MAX_DIMS
+        and all(isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**31 for s in shape)
+    ):
+        raise RecordError(f"{where}: bad shape {str(shape)[:80]}")
+    # Python ints: numpy's product of a forged shape wraps around in int64 (65536**4 is
+    # 0), which would let an empty buffer pass for an absurd shape.
+    count = 1
+    for s in shape:
+        count *= s
+    if not isinstance(data, bytes) or len(data) != count * np.dtype(dtype).itemsize:
         raise RecordError(f"{where}: data does not fill shape {shape} of {dtype}")
     return np.frombuffer(data, dtype=dtype).reshape(shape).copy()
 
@@ -562,11 +573,18 @@ def decode(data: bytes) -> Record:
     if d.get("v") != VERSION:
         raise RecordError(f"record.v: version {d.get('v')!r}, expected {VERSION}")
     kind = d.get("kind")
-    if kind == "pose":
-        return _pose_from(d, "pose")
-    if kind in ("odometry", "closure"):
-        return _edge_from(d, kind, kind)
-    raise RecordError(f"record.kind: {kind!r} is not pose, odometry or closure")
+    try:
+        if kind == "pose":
+            return _pose_from(d, "pose")
+        if kind in ("odometry", "closure"):
+            return _edge_from(d, kind, kind)
+    except RecordError:
+        raise
+    except Exception as e:
+        # The bytes are a peer's: whatever the records' constructors raise on them
+        # (ValueError, TypeError, OverflowError...) means a bad record, not a bug here.
+        raise RecordError(f"{kind}: {type(e).__name__}: {str(e)[:120]}") from None
+    raise RecordError(f"record.kind: {str(kind)[:40]!r} is not pose, odometry or closure")
 
 
 def decode_as(data: object, kind: type[_R]) -> _R:

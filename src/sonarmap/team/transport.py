@@ -13,8 +13,9 @@ the receiver that the network lost one. On receipt the envelope is checked stric
 bytes, not a map, missing or extra keys, another version, a field of the wrong type or
 out of range, addressed to another robot, or claiming another sender than the one it
 came from is rejected. A rejection is logged (logger ``sonarmap.team.transport``,
-warning) and counted in ``stats.rejected`` by reason; :meth:`Transport.poll` never
-raises on a peer's bytes. The decoder's length limits keep a forged length field from
+warning; each line clipped and their rate bounded, :class:`~.rejects.RejectLog`) and
+counted in ``stats.rejected`` by reason; :meth:`Transport.poll` never raises on a
+peer's bytes. The decoder's length limits keep a forged length field from
 allocating more than the frame itself.
 
 Sends never block: a message that cannot leave now (no route, no connection, queue
@@ -40,8 +41,10 @@ import numpy.typing as npt
 import zmq
 
 from ..errors import ConfigError, InputError
+from .keys import ZAP_DOMAIN, KeyGate, TeamKey
 from .network import Delivery, SimNetwork
 from .records import UnpackError, unpack_strict
+from .rejects import RejectLog
 
 __all__ = [
     "DEFAULT_MAX_MESSAGE",
@@ -180,6 +183,7 @@ class Transport(abc.ABC):
         self.max_message = max_message
         self.stats = TransportStats()
         self.closed = False
+        self._rejects = RejectLog(logger)
         self._seq: dict[int, int] = {}
 
     def send(self, dst: int, payload: bytes, kind: str = "data") -> bool:
@@ -237,13 +241,18 @@ class Transport(abc.ABC):
         except EnvelopeError as e:
             self._reject(e.reason, str(e), origin)
             return None
+        except Exception as e:
+            # The frame is a stranger's bytes: nothing it makes the decoder raise may
+            # stop the receiver.
+            self._reject("decode", f"{type(e).__name__}: {e}", origin)
+            return None
         self.stats.messages_received += 1
         self.stats.bytes_received += len(data)
         return msg
 
     def _reject(self, reason: str, detail: str, origin: str) -> None:
         self.stats.rejected[reason] += 1
-        logger.warning("robot %d rejected a frame from %s: %s", self.robot, origin, detail)
+        self._rejects.warn(f"robot {self.robot} rejected a frame from {origin[:48]}: {detail}")
 
     def __enter__(self) -> Self:
         return self
@@ -396,6 +405,12 @@ def _parse_address(address: object, *, bind: bool) -> str:
     return f"tcp://{host}:{int(port)}"
 
 
+def _loopback(endpoint: str) -> bool:
+    """Whether a parsed ``tcp://HOST:PORT`` is on this machine only."""
+    host = endpoint[len("tcp://") :].rsplit(":", 1)[0]
+    return host in ("localhost", "[::1]") or re.fullmatch(r"127(\.\d{1,3}){3}", host) is not None
+
+
 def _why(e: zmq.ZMQError) -> str:
     """zmq's reason in one line (its str() repeats the address)."""
     return zmq.strerror(e.errno) if e.errno else str(e)
@@ -409,6 +424,14 @@ class ZmqTransport(Transport):
     (decimal ASCII). A frame's sender is read from that identity and must match the
     envelope's ``src``. Messages between two robots arrive in order; from several
     peers they are fair-queued.
+
+    With a team ``key`` (:mod:`.keys`) every connection is encrypted and authenticated
+    with CURVE: the ROUTER is a CURVE server with this robot's key pair and admits, by
+    its ZAP handler (:class:`~.keys.KeyGate`), only clients holding one of the team's
+    keys; each DEALER checks its peer's public key. A frame's sender is then the robot
+    whose key the connection proved (ZAP's User-Id), whatever routing identity it set.
+    Without a key, anyone who can reach the port can claim any robot id: a keyless
+    transport binds only to loopback unless ``insecure``.
 
     Sockets never block the caller: LINGER 0 (close discards what is queued), send
     with NOBLOCK and IMMEDIATE (a peer with no live connection refuses at once, counted
@@ -431,12 +454,17 @@ class ZmqTransport(Transport):
         Seconds between reconnection attempts, first and at most: 0.1 and 2.
     context : zmq.Context, optional
         Shared context (not terminated by :meth:`close`); else the transport's own.
+        A keyed transport needs its own (ZAP has one handler per context).
+    key : TeamKey, optional
+        The team's key; None: plain TCP.
+    insecure : bool
+        Without a key, bind to an address other than loopback all the same: False.
 
     Raises
     ------
     InputError
         ``listen`` (or a peer's address) cannot be parsed, or the address cannot be
-        bound (in use, not an address of this machine).
+        bound (in use, not an address of this machine, not loopback without a key).
     """
 
     def __init__(
@@ -450,6 +478,8 @@ class ZmqTransport(Transport):
         reconnect: float = 0.1,
         reconnect_max: float = 2.0,
         context: zmq.Context[zmq.Socket[bytes]] | None = None,
+        key: TeamKey | None = None,
+        insecure: bool = False,
     ) -> None:
         super().__init__(robot, max_message=max_message)
         if not _is_int(hwm) or hwm < 1:
@@ -460,12 +490,34 @@ class ZmqTransport(Transport):
                 f"{reconnect!r} and {reconnect_max!r}"
             )
         endpoint = _parse_address(listen, bind=True)
+        if key is None and not insecure and not _loopback(endpoint):
+            raise InputError(
+                f"cannot listen on {listen!r} without a team key: anyone reaching it could "
+                "pose as a robot (give --key FILE, or --insecure on a trusted network)",
+                field="listen",
+            )
+        if key is not None:
+            if robot >= key.robots:
+                raise ConfigError(f"robot {robot} is not in the team key's 0..{key.robots - 1}")
+            if context is not None:
+                raise ConfigError("a keyed transport needs its own zmq context")
+        self.key = key
+        self._gate: KeyGate | None = None
         self._hwm = hwm
         self._reconnect = (int(reconnect * 1000) or 1, int(reconnect_max * 1000) or 1)
         self._own_context = context is None
         self._ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context() if context is None else context
         self._peers: dict[int, zmq.Socket[bytes]] = {}
+        if key is not None:
+            self._gate = KeyGate(self._ctx, key)
+            self._gate.start()
+            self._denied = 0
         self._router = self._socket(zmq.ROUTER, endpoint)
+        if key is not None:
+            self._router.setsockopt(zmq.ZAP_DOMAIN, ZAP_DOMAIN)
+            self._router.setsockopt(zmq.CURVE_SERVER, 1)
+            self._router.setsockopt(zmq.CURVE_PUBLICKEY, key.public[robot])
+            self._router.setsockopt(zmq.CURVE_SECRETKEY, key.secret[robot])
         # A restarted peer reconnects with its old identity: the new connection wins.
         self._router.setsockopt(zmq.ROUTER_HANDOVER, 1)
         try:
@@ -498,8 +550,18 @@ class ZmqTransport(Transport):
         if self.closed:
             raise InputError(f"robot {self.robot}'s transport is closed", field="peers")
         endpoint = _parse_address(address, bind=False)
+        key = self.key
+        if key is not None and robot >= key.robots:
+            raise InputError(
+                f"robot {robot} is not in the team key's 0..{key.robots - 1}", field="peers"
+            )
         sock = self._socket(zmq.DEALER, endpoint)
         sock.setsockopt(zmq.IDENTITY, str(self.robot).encode())
+        if key is not None:
+            # The peer must prove it holds robot `robot`'s secret key.
+            sock.setsockopt(zmq.CURVE_SERVERKEY, key.public[robot])
+            sock.setsockopt(zmq.CURVE_PUBLICKEY, key.public[self.robot])
+            sock.setsockopt(zmq.CURVE_SECRETKEY, key.secret[self.robot])
         sock.setsockopt(zmq.IMMEDIATE, 1)
         sock.setsockopt(zmq.RECONNECT_IVL, self._reconnect[0])
         sock.setsockopt(zmq.RECONNECT_IVL_MAX, self._reconnect[1])
@@ -547,6 +609,7 @@ class ZmqTransport(Transport):
         if self.closed:
             return []
         out: list[Message] = []
+        self._count_denied()
         while True:
             wait = max(0.0, deadline - time.monotonic())
             if dict(self._poller.poll(math.ceil(wait * 1000))).get(self._router):
@@ -557,7 +620,7 @@ class ZmqTransport(Transport):
     def _drain(self, out: list[Message]) -> None:
         for _ in range(_DRAIN):
             try:
-                frames = self._router.recv_multipart(zmq.NOBLOCK)
+                frames = self._router.recv_multipart(zmq.NOBLOCK, copy=False)
             except zmq.Again:
                 return
             except zmq.ZMQError as e:
@@ -567,13 +630,34 @@ class ZmqTransport(Transport):
             if msg is not None:
                 out.append(msg)
 
-    def _frames(self, frames: list[bytes]) -> Message | None:
+    def _count_denied(self) -> None:
+        """The handshakes the key's gate denied, into ``stats.rejected``."""
+        if self._gate is not None:
+            denied = self._gate.denied
+            if denied > self._denied:
+                self.stats.rejected["unauthenticated"] += denied - self._denied
+                self._rejects.warn(
+                    f"robot {self.robot} denied {denied - self._denied} connection(s) "
+                    "without the team's key"
+                )
+                self._denied = denied
+
+    def _frames(self, parts: list[zmq.Frame]) -> Message | None:
+        frames = [p.bytes for p in parts]
         identity = frames[0]
+        if self.key is not None:
+            # The robot is the one whose key the connection proved, not the routing
+            # identity it chose.
+            try:
+                user = parts[-1].get("User-Id")
+            except zmq.ZMQError:
+                user = ""
+            identity = str(user).encode(errors="replace")
         digits = identity.isdigit() and len(identity) <= 7
         sender = int(identity) if digits and int(identity) < ROBOT_LIMIT else None
-        origin = f"peer {identity!r}"
+        origin = f"peer {identity[:16]!r}"
         if sender is None:
-            self._reject("identity", f"identity {identity!r} is not a robot id", origin)
+            self._reject("identity", f"identity {identity[:16]!r} is not a robot id", origin)
             return None
         if len(frames) != 2:
             self._reject("frames", f"{len(frames) - 1} frames where 1 expected", origin)
@@ -591,5 +675,8 @@ class ZmqTransport(Transport):
         router = getattr(self, "_router", None)
         if router is not None:
             router.close(linger=0)
+        gate = getattr(self, "_gate", None)
+        if gate is not None:
+            gate.stop()
         if self._own_context:
             self._ctx.term()

@@ -39,9 +39,9 @@ import hashlib
 import math
 import struct
 import threading
-from collections.abc import Collection, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 import msgpack
 import numpy as np
@@ -100,6 +100,7 @@ __all__ = [
     "sorted_ids",
     "split_fingerprints",
     "stamp_or_none",
+    "strict_decoder",
     "unpack",
 ]
 
@@ -397,6 +398,30 @@ def encode_answer(answer: Answer) -> bytes:
 
 # --- strict decoding ----------------------------------------------------------------------
 
+_P = ParamSpec("_P")
+_T = TypeVar("_T")
+
+
+def strict_decoder(decoder: Callable[_P, _T]) -> Callable[_P, _T]:
+    """``decoder`` raising nothing but :class:`ExchangeError` on a peer's bytes.
+
+    The checks below mean to catch every bad body by name; this is the net under them:
+    whatever else a forged body makes numpy, msgpack or a record's constructor raise
+    (ValueError, TypeError, KeyError, OverflowError, MemoryError...) becomes an
+    :class:`ExchangeError` "decode", so a receiver rejects it like any other."""
+
+    @functools.wraps(decoder)
+    def strict(*args: _P.args, **kwargs: _P.kwargs) -> _T:
+        try:
+            return decoder(*args, **kwargs)
+        except ExchangeError:
+            raise
+        except Exception as e:
+            name = decoder.__name__.removeprefix("decode_")
+            raise ExchangeError("decode", f"{name}: {type(e).__name__}: {str(e)[:120]}") from None
+
+    return strict
+
 
 #: What a body that is not one whole msgpack object is told, by reason.
 _BODY_DETAIL = {"trailing": "bytes after the body", "truncated": "the body ends early"}
@@ -509,6 +534,7 @@ def _unique_keys(keys: Sequence[PatchKey], where: str) -> None:
         raise ExchangeError("duplicate", f"{where}: a patch is named twice")
 
 
+@strict_decoder
 def decode_advert(body: bytes, *, regions: Collection[int] | None = None) -> Advert:
     """The advert in ``body``; :class:`ExchangeError` if it is not a valid one.
 
@@ -579,6 +605,7 @@ def _connected(regions: Sequence[int], adjacency: Mapping[int, Collection[int]])
     return seen == wanted
 
 
+@strict_decoder
 def decode_request(
     body: bytes,
     *,
@@ -691,6 +718,7 @@ def _answer_entry(row: Any, mode: str, where: str, regions: Collection[int] | No
     return PatchAnswer(src, region, stamp, short, full, tuple(poses), tuple(edges))
 
 
+@strict_decoder
 def decode_answer(body: bytes, *, regions: Collection[int] | None = None) -> Answer:
     """The answer in ``body``; :class:`ExchangeError` if it is not a valid one.
 
