@@ -18,7 +18,7 @@ from typing import Annotated, Any
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from ..errors import ConfigError, SonarmapError
+from ..errors import ConfigError, SonarmapError, quote
 from .common import INTERRUPTED, console, err_console
 
 #: Every command: its module and the one line ``sonarmap --help`` shows for it (the
@@ -130,9 +130,28 @@ def _root(
         raise typer.Exit()
 
 
+#: Characters of an error line at most, and of one word in it (a path, a quoted value).
+MESSAGE_LIMIT = 1000
+_WORD_LIMIT = 240
+
+
+def bounded(message: str) -> str:
+    """An error message as one line of bounded length: whitespace runs (a value's own
+    newlines included) become one space, an overlong word keeps its start, and the line
+    its first :data:`MESSAGE_LIMIT` characters. A value the library did not quote cut
+    short (:func:`sonarmap.errors.quote`) still cannot flood a log."""
+    words = [w if len(w) <= _WORD_LIMIT else w[:_WORD_LIMIT] + "..." for w in message.split()]
+    line = " ".join(words)
+    return line if len(line) <= MESSAGE_LIMIT else line[:MESSAGE_LIMIT] + "..."
+
+
 def _fail(message: str) -> None:
     err_console.print(
-        f"sonarmap: error: {message}", markup=False, highlight=False, emoji=False, soft_wrap=True
+        f"sonarmap: error: {bounded(message)}",
+        markup=False,
+        highlight=False,
+        emoji=False,
+        soft_wrap=True,
     )
     sys.exit(2)
 
@@ -156,7 +175,7 @@ def _split_lists(args: list[str]) -> list[str]:
             if len(values) != _LIST_OPTIONS[name]:
                 raise ConfigError(
                     f"{name} takes {_LIST_OPTIONS[name]} numbers (comma- or space-separated), "
-                    f"got {value!r}"
+                    f"got {quote(value)}"
                 )
             out.append(name)
             out.extend(values)

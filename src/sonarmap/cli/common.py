@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Protocol, TypeVar, cast
 import typer
 from rich.console import Console
 
-from ..errors import ConfigError
+from ..errors import ConfigError, quote
 
 if TYPE_CHECKING:
     from ..io.rosmap import OccupancyMap
@@ -233,7 +233,7 @@ def pairs(items: list[str] | None, option: str) -> dict[str, str]:
     for item in items or []:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise ConfigError(f"{option} expects KEY=VALUE, got {item!r}")
+            raise ConfigError(f"{option} expects KEY=VALUE, got {quote(item)}")
         out[key.strip()] = value.strip()
     return out
 

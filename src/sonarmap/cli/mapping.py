@@ -16,7 +16,7 @@ from rich.table import Table
 
 from ..annotations import load_annotations
 from ..api import build_map, grid_for_readings, off_grid_note
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, quote
 from ..experiments import EXPERIMENTS, run_experiment
 from ..files import atomic_write, atomic_write_text, json_dumps
 from ..io.rosmap import IMAGE_SUFFIXES, write_map
@@ -77,7 +77,7 @@ def _scenario_params(name: str, pairs: dict[str, str]) -> dict[str, Any]:
             raise ConfigError(
                 f"parameter '{key}' expects "
                 f"{'numbers separated by commas' if isinstance(default, tuple) else 'a number'}"
-                f", got {value!r}"
+                f", got {quote(value)}"
             ) from None
     return out
 

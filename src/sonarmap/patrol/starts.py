@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..files import read_text
 from .paths import Wave
 from .robots import close_pairs
@@ -66,9 +66,9 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
         try:
             xd, yd, phi = (float(v) for v in parts)
         except ValueError:
-            raise InputError(f"expected 'X Y phi', got {text!r}", path=p, line=line) from None
+            raise InputError(f"expected 'X Y phi', got {quote(text)}", path=p, line=line) from None
         if not all(math.isfinite(v) for v in (xd, yd, phi)):
-            raise InputError(f"expected finite numbers, got {text!r}", path=p, line=line)
+            raise InputError(f"expected finite numbers, got {quote(text)}", path=p, line=line)
         rows.append((xd, yd, phi))
     return starts_from_dm(rows, territory)
 

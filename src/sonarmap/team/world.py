@@ -41,7 +41,7 @@ import numpy.typing as npt
 import yaml
 from scipy import ndimage
 
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, quote
 from ..files import atomic_folder, need_file, read_text, read_yaml
 from ..floorplan import random_building
 from ..grid import Grid
@@ -858,9 +858,9 @@ def _float(
     try:
         v = float(text)
     except ValueError:
-        raise InputError(f"not a number: {text!r}", path=path, line=line, field=name) from None
+        raise InputError(f"not a number: {quote(text)}", path=path, line=line, field=name) from None
     if math.isnan(v) or (finite and not math.isfinite(v)):
-        raise InputError(f"not a finite number: {text!r}", path=path, line=line, field=name)
+        raise InputError(f"not a finite number: {quote(text)}", path=path, line=line, field=name)
     return v
 
 
@@ -950,7 +950,7 @@ def _meta_key(meta: Mapping[str, Any], key: str, kind: type | tuple[type, ...], 
         raise InputError(f"missing key '{key}'", path=p, field=key)
     v = meta[key]
     if isinstance(v, bool) or not isinstance(v, kind):
-        raise InputError(f"unexpected value {v!r}", path=p, field=key)
+        raise InputError(f"unexpected value {quote(v)}", path=p, field=key)
     return v
 
 

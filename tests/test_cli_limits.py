@@ -1,0 +1,151 @@
+"""Bad input and absurd sizes on the command line: one line naming the option or the
+file, exit code 2, nothing written, and within seconds (issues 36 and 38)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sonarmap.cli import main
+from sonarmap.errors import InputError, quote
+from sonarmap.io.rosmap import read_map
+
+#: Seconds a refused command may take at most, the interpreter's start included.
+QUICK = 60
+
+
+def refused(args: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    """Run ``sonarmap ARGS`` in process; assert exit code 2 and one line; the line."""
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("sonarmap: error: ")
+    return lines[0]
+
+
+def refused_subprocess(args: list[str], tmp_path: Path) -> str:
+    """Run ``sonarmap ARGS`` as a process with a deadline (a hang fails the test, it does
+    not stall the suite); assert exit code 2 and one line; the line."""
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1"}
+    done = subprocess.run(
+        [sys.executable, "-m", "sonarmap", *args],
+        capture_output=True,
+        text=True,
+        timeout=QUICK,
+        cwd=tmp_path,
+        env=env,
+        check=False,
+    )
+    assert done.returncode == 2, done.stderr[-2000:]
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr[-2000:]
+    return lines[0]
+
+
+@pytest.fixture
+def plan(tmp_path: Path) -> Path:
+    """A 6 m x 6 m room at 0.1 m: plan.yaml, plan.png."""
+    px = np.full((60, 60), 254, dtype=np.uint8)
+    px[:2, :] = px[-2:, :] = px[:, :2] = px[:, -2:] = 0
+    Image.fromarray(px).save(tmp_path / "plan.png")
+    (tmp_path / "plan.yaml").write_text(
+        "image: plan.png\nresolution: 0.1\norigin: [0.0, 0.0, 0.0]\nnegate: 0\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
+    return tmp_path / "plan.yaml"
+
+
+# --- Map files ---------------------------------------------------------------------------
+
+
+def test_a_damaged_npy_header_is_one_line(
+    plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = plan.with_suffix(".npy")
+    np.save(good, np.zeros((60, 60), dtype=np.float32))
+    raw = bytearray(good.read_bytes())
+    # The header's dict cut open: numpy's parser fails with tokenize.TokenError.
+    start = raw.index(b"{")
+    raw[start : start + 10] = b"{'descr': "
+    raw[start + 10 : start + 40] = b"(" * 30
+    good.write_bytes(bytes(raw))
+    with pytest.raises(InputError, match=r"plan\.npy: cannot read occupancy array"):
+        read_map(plan)
+    line = refused(
+        ["patrol", "run", "--map", str(plan), "--robots", "1", "-o", str(tmp_path / "out")],
+        capsys,
+    )
+    assert "plan.npy: cannot read occupancy array" in line
+    assert len(line) < 300
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("array", "match"),
+    [
+        (np.zeros((30, 60), dtype=np.float32), r"array of shape \(30, 60\) beside an image"),
+        (np.zeros((60, 60), dtype=np.int64), r"expected a float occupancy array, got int64"),
+        (np.full((60, 60), 2.0), r"occupancy must be in \[0, 1\] or NaN, got 2\.0"),
+    ],
+)
+def test_an_npy_of_the_wrong_shape_or_kind_is_one_line(
+    plan: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    array: np.ndarray,
+    match: str,
+) -> None:
+    np.save(plan.with_suffix(".npy"), array)
+    with pytest.raises(InputError, match=match):
+        read_map(plan)
+    line = refused(
+        ["patrol", "run", "--map", str(plan), "--robots", "1", "-o", str(tmp_path / "out")],
+        capsys,
+    )
+    assert "plan.npy: " in line
+    assert not (tmp_path / "out").exists()
+
+
+# --- Messages of bounded length ------------------------------------------------------------
+
+
+def test_quote_cuts_a_long_value() -> None:
+    assert quote("abc") == "'abc'"
+    long = quote("1" * 1_000_000)
+    assert long.startswith("'111")
+    assert long.endswith("... (1000000 characters)")
+    assert len(long) < 120
+
+
+def test_a_huge_field_is_quoted_short(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "rig.yaml").write_text(
+        "sensor: hc-sr04\nsonars: [{name: s0, x: 0.1, y: 0, yaw_deg: 0}]\n"
+    )
+    (tmp_path / "readings.csv").write_text(
+        "t,sensor,x,y,theta,range\n0,s0,1,1,0,0.5\n0.1,s0,1,1,0," + "1" * 1_000_000 + "x\n"
+    )
+    line = refused(
+        [
+            "map",
+            str(tmp_path / "readings.csv"),
+            "--rig",
+            str(tmp_path / "rig.yaml"),
+            "--resolution",
+            "0.1",
+            "-o",
+            str(tmp_path / "m"),
+        ],
+        capsys,
+    )
+    assert "readings.csv:3, field 'range': not a finite number" in line
+    assert len(line) < 300
+    assert not list(tmp_path.glob("m*"))
