@@ -149,3 +149,44 @@ def test_a_huge_field_is_quoted_short(tmp_path: Path, capsys: pytest.CaptureFixt
     assert "readings.csv:3, field 'range': not a finite number" in line
     assert len(line) < 300
     assert not list(tmp_path.glob("m*"))
+
+
+# --- NaN and infinity ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        # NaN is PatrolConfig's "unset" sentinel: given by a user it must not mean the default.
+        (["patrol", "run", "--map", "open-field", "--robots", "1", "--cell", "nan"], "--cell nan"),
+        (["patrol", "run", "--map", "open-field", "--min-separation", "nan"], "--min-separation"),
+        (["patrol", "run", "--map", "open-field", "--r-obst", "nan"], "--r-obst nan"),
+        (["patrol", "run", "--map", "open-field", "--duration", "inf"], "--duration inf"),
+        (["patrol", "run", "--map", "open-field", "--origin", "0", "nan"], "--origin nan"),
+        (["team", "run", "--map", "office", "--duration", "nan"], "--duration nan"),
+        (["team", "run", "--map", "office", "--link-range", "-inf"], "--link-range -inf"),
+        (
+            [
+                "team",
+                "node",
+                "--map",
+                "office",
+                "--id",
+                "0",
+                "--listen",
+                "tcp://127.0.0.1:1",
+                "--settle",
+                "inf",
+            ],
+            "--settle inf",
+        ),
+        (["team", "world", "--map", "office", "--texture-share", "nan"], "--texture-share nan"),
+    ],
+)
+def test_nan_and_inf_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], match: str
+) -> None:
+    line = refused([*args, "-o", str(tmp_path / "out")], capsys)
+    assert f"{match}" in line
+    assert "expected a finite number" in line
+    assert not (tmp_path / "out").exists()

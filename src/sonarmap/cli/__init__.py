@@ -19,7 +19,7 @@ import typer
 from typer.core import TyperCommand, TyperGroup
 
 from ..errors import ConfigError, SonarmapError, quote
-from .common import INTERRUPTED, console, err_console
+from .common import INTERRUPTED, console, err_console, finite_numbers
 
 #: Every command: its module and the one line ``sonarmap --help`` shows for it (the
 #: first line of its docstring; a test keeps them equal). In the order they are listed.
@@ -74,12 +74,31 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def load_command(name: str) -> Any:
-    """The click command (or group) ``name``, its module imported now."""
+    """The click command (or group) ``name``, its module imported now; every command in
+    it refuses NaN and infinity in its number options (:func:`.common.finite_numbers`)."""
     module = importlib.import_module(f"{__name__}.{COMMANDS[name][0]}")
     cmd = typer.main.get_command(module.app)
     if isinstance(cmd, TyperGroup) and name not in ("patrol", "team"):
-        return cmd.commands[name]
+        cmd = cmd.commands[name]
+    _check_numbers(cmd)
     return cmd
+
+
+def _check_numbers(cmd: Any) -> None:
+    """Run :func:`.common.finite_numbers` on every command of ``cmd`` once its options
+    are parsed and before it does any work (typer has no hook for all of a command's
+    options at once, so each command's ``invoke`` is wrapped)."""
+    if isinstance(cmd, TyperGroup):
+        for sub in cmd.commands.values():
+            _check_numbers(sub)
+        return
+    invoke = cmd.invoke
+
+    def checked(ctx: Any) -> Any:
+        finite_numbers(ctx)
+        return invoke(ctx)
+
+    cmd.invoke = checked
 
 
 class _LazyGroup(TyperGroup):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
+import math
 import os
 import signal
 import sys
@@ -45,6 +46,7 @@ __all__ = [
     "console",
     "err_console",
     "figure",
+    "finite_numbers",
     "given",
     "make_console",
     "option_name",
@@ -489,6 +491,39 @@ def config_from_options(
         if name is None:
             raise
         raise ConfigError(f"{name}: {_reason(err)}", field=err.field) from None
+
+
+def finite_numbers(ctx: typer.Context) -> None:
+    """Refuse NaN and infinity given to any number option, before the command runs.
+
+    The parser reads ``nan`` and ``inf`` as numbers; no option means anything by them,
+    and passed on, NaN would silently become a field's default (the library's "unset"
+    sentinel) and infinity a size or a time without end. Values left at their defaults
+    are not checked: those are the command's own.
+
+    Parameters
+    ----------
+    ctx : typer.Context
+        The command's context, its options parsed.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first option with such a value.
+    """
+    for param in ctx.command.params:
+        name = param.name
+        if name is None or name not in ctx.params:
+            continue
+        source = ctx.get_parameter_source(name)
+        if source is not None and source.name == "DEFAULT":
+            continue
+        value = ctx.params[name]
+        values = value if isinstance(value, tuple | list) else (value,)
+        for v in values:
+            if isinstance(v, float) and not math.isfinite(v):
+                flag = max(getattr(param, "opts", None) or [f"--{name}"], key=len)
+                raise ConfigError(f"{flag} {v}: expected a finite number", field=name)
 
 
 def _reason(err: ConfigError) -> str:
