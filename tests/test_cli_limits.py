@@ -4,6 +4,7 @@ file, exit code 2, nothing written, and within seconds (issues 36 and 38)."""
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -12,12 +13,23 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from sonarmap.builtins import builtin_plan
 from sonarmap.cli import main
-from sonarmap.errors import InputError, quote
+from sonarmap.errors import ConfigError, InputError, quote
 from sonarmap.io.rosmap import read_map
+from sonarmap.team.config import (
+    MAX_ROBOTS,
+    MissionConfig,
+    check_team_size,
+    process_limit,
+    team_size_problem,
+)
+from sonarmap.team.world import patrol_route
 
 #: Seconds a refused command may take at most, the interpreter's start included.
 QUICK = 60
+#: ``team node``'s required options.
+NODE = ["--id", "0", "--listen", "tcp://127.0.0.1:1"]
 
 
 def refused(args: list[str], capsys: pytest.CaptureFixture[str]) -> str:
@@ -190,3 +202,65 @@ def test_nan_and_inf_are_refused(
     assert f"{match}" in line
     assert "expected a finite number" in line
     assert not (tmp_path / "out").exists()
+
+
+# --- Team sizes and times ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["--robots", "100000"], r"--robots 100000: at most 64 robots in a team"),
+        (["--robots", "100000", "--transport", "zmq"], r"--robots 100000: at most 64 robots"),
+        # Each a process: refused before any is started.
+        (["--robots", "64", "--transport", "zmq"], r"--robots 64: at most \d+ node processes"),
+        (["--duration", "1e12"], r"--duration 1e\+12: at most 86400 s \(a day\)"),
+        (["--robots", "0"], r"--robots 0: expected an int >= 1"),
+    ],
+)
+def test_team_run_refuses_absurd_sizes_at_once(tmp_path: Path, args: list[str], match: str) -> None:
+    out = tmp_path / "out"
+    line = refused_subprocess(["team", "run", "--map", "office", *args, "-o", str(out)], tmp_path)
+    assert re.search(match, line), line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["world", "--duration", "1e12"], r"--duration 1e\+12: at most 86400 s"),
+        (["world", "--change-share", "2"], r"--change-share 2: must be in \[0, 1\]"),
+        (["run", "--seed", "-1"], r"'--seed'"),
+        (["node", *NODE, "--duration", "1e9"], r"--duration 1e\+09: at most 86400 s"),
+        (["node", *NODE, "--settle", "-1"], r"--settle -1: must be >= 0 seconds"),
+        (["node", *NODE, "--wait-timeout", "1e9"], r"--wait-timeout 1e\+09: at most 86400 s"),
+        (["node", *NODE, "--quiet", "0"], r"--quiet 0: must be > 0 seconds"),
+        (
+            ["node", *NODE, "--peers", ",".join(f"tcp://127.0.0.1:{5000 + i}" for i in range(70))],
+            r"--peers: a team of 71 robots; at most 64",
+        ),
+    ],
+)
+def test_team_options_are_checked_before_any_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], match: str
+) -> None:
+    out = tmp_path / "out"
+    line = refused(["team", args[0], "--map", "office", *args[1:], "-o", str(out)], capsys)
+    assert re.search(match, line), line
+    assert not out.exists()
+
+
+def test_the_team_library_refuses_absurd_sizes() -> None:
+    with pytest.raises(ConfigError, match=r"^robots 100000: at most 64 robots in a team$") as e:
+        check_team_size(100_000)
+    assert e.value.field == "robots"
+    over = team_size_problem(process_limit() + 1, processes=True)
+    assert over is not None
+    assert re.search(r"node processes on this machine|at most 64 robots", over)
+    assert process_limit() <= MAX_ROBOTS
+    assert team_size_problem(3, processes=True) is None  # the smallest machine runs 8
+    with pytest.raises(ConfigError, match=r"^duration 1e\+12 s: at most 86400 s") as e:
+        MissionConfig(duration=1e12)
+    assert e.value.field == "duration"
+    with pytest.raises(ConfigError, match=r"duration 1e\+12 s: at most 86400 s"):
+        patrol_route(builtin_plan("office"), 1e12)
