@@ -17,6 +17,8 @@ from sonarmap.builtins import builtin_plan
 from sonarmap.cli import main
 from sonarmap.errors import ConfigError, InputError, quote
 from sonarmap.io.rosmap import read_map
+from sonarmap.patrol import PatrolConfig
+from sonarmap.patrol.starts import check_robot_count
 from sonarmap.team.config import (
     MAX_ROBOTS,
     MissionConfig,
@@ -264,3 +266,95 @@ def test_the_team_library_refuses_absurd_sizes() -> None:
     assert e.value.field == "duration"
     with pytest.raises(ConfigError, match=r"duration 1e\+12 s: at most 86400 s"):
         patrol_route(builtin_plan("office"), 1e12)
+
+
+# --- Patrol --------------------------------------------------------------------------------
+
+
+def test_patrol_run_refuses_a_huge_team_at_once(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    line = refused_subprocess(
+        ["patrol", "run", "--map", "open-field", "--robots", "100000", "-o", str(out)], tmp_path
+    )
+    assert line == "sonarmap: error: --robots 100000: at most 64 robots"
+    assert not out.exists()
+
+
+def _patrol_files(d: Path, plan: Path) -> None:
+    (d / "many.txt").write_text("100\n" + "10 10 0\n" * 100)
+    (d / "short.txt").write_text("3\n10 10 0\n30 30 0\n")
+    (d / "nan.txt").write_text("1\n10 nan 0\n")
+    (d / "far.txt").write_text("1\n10 1e9 0\n")
+    (d / "huge.txt").write_text("1\n" + "1" * 1_000_000 + " 1 0\n")
+    (d / "poly_nan.txt").write_text("0 0\n5 0\nnan 5\n")
+    (d / "poly_two.txt").write_text("0 0\n5 0\n")
+    (d / "poly_three.txt").write_text("0 0 0\n5 0\n5 5\n")
+    # Thresholds under which no pixel is free: nothing to patrol.
+    (d / "dark.yaml").write_text(plan.read_text().replace("free_thresh: 0.196", "free_thresh: 0.0"))
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["--robots", "1", "--duration", "1e12"], r"--duration: duration 1e\+12 s is .* at most"),
+        (["--robots", "1", "--sectors", "100000000"], r"--sectors: sectors must be in 1\.\.360"),
+        (["--robots", "1", "--dilation", "1000000"], r"--dilation: dilation must be in 0\.\.20"),
+        (
+            ["--robots", "1", "--cell", "100"],
+            r"--cell 100: too coarse for .*plan\.yaml, a map 6 m across",
+        ),
+        (["--robots", "0"], r"--robots 0: robots must be >= 1"),
+        (["--starts", "many.txt"], r"many\.txt:1: robot count must be in 1\.\.64, got 100"),
+        (["--starts", "short.txt"], r"short\.txt: the file says 3 robots but lists 2"),
+        (["--starts", "nan.txt"], r"nan\.txt:2: expected finite numbers"),
+        (["--starts", "far.txt"], r"far\.txt:2: start \(10, 1e\+09\) dm is outside the map"),
+        (["--starts", "huge.txt"], r"huge\.txt:2: expected finite numbers, got '1111.*\.\.\."),
+        (["--robots", "1", "--territory", "poly_nan.txt"], r"poly_nan\.txt:3: expected finite"),
+        (["--robots", "1", "--territory", "poly_two.txt"], r"poly_two\.txt:1: a polygon needs"),
+        (["--robots", "1", "--territory", "poly_three.txt"], r"poly_three\.txt:1: expected 'x y'"),
+    ],
+)
+def test_bad_patrol_sizes_and_files_are_one_line(
+    plan: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    args: list[str],
+    match: str,
+) -> None:
+    _patrol_files(tmp_path, plan)
+    here = [str(tmp_path / a) if a.endswith(".txt") else a for a in args]
+    out = tmp_path / "out"
+    line = refused(["patrol", "run", "--map", str(plan), *here, "-o", str(out)], capsys)
+    assert re.search(match, line), line
+    assert len(line) < 400
+    assert not out.exists()
+
+
+def test_a_map_with_no_free_place_names_its_file(
+    plan: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _patrol_files(tmp_path, plan)
+    out = tmp_path / "out"
+    line = refused(
+        ["patrol", "run", "--map", str(tmp_path / "dark.yaml"), "--robots", "1", "-o", str(out)],
+        capsys,
+    )
+    assert re.search(r"dark\.yaml: the map has no free cell .*thresholds", line), line
+    assert not out.exists()
+
+
+def test_the_patrol_library_refuses_absurd_sizes() -> None:
+    with pytest.raises(ConfigError, match=r"^sectors must be in 1\.\.360, got 100000000$") as e:
+        PatrolConfig(sectors=100_000_000)
+    assert e.value.field == "sectors"
+    with pytest.raises(ConfigError, match=r"^dilation must be in 0\.\.20 cells") as e:
+        PatrolConfig(dilation=10**6)
+    assert e.value.field == "dilation"
+    with pytest.raises(ConfigError, match=r"at most 10,000,000 steps") as e:
+        PatrolConfig(duration=1e12)
+    assert e.value.field == "duration"
+    with pytest.raises(ConfigError, match=r"^robots 100000: at most 64 robots$") as e:
+        check_robot_count(100_000)
+    assert e.value.field == "robots"
+    # NaN stays the library's explicit "unset": the command line refuses it (above).
+    assert PatrolConfig(cell=float("nan"), radius=0.5).cell == 0.25

@@ -16,6 +16,7 @@ from ..files import atomic_folder
 from ..patrol import Fog, PatrolConfig
 from ..patrol.config import read_run_file
 from ..patrol.robots import Team
+from ..patrol.starts import MAX_ROBOTS
 from .common import (
     ImageOrigin,
     ImageResolution,
@@ -224,7 +225,8 @@ def run_cmd(
         ),
     ] = None,
     robots: Annotated[
-        int | None, typer.Option(help="Robots (random starts, seeded) unless --starts.")
+        int | None,
+        typer.Option(help=f"Robots (random starts, seeded) unless --starts; at most {MAX_ROBOTS}."),
     ] = None,
     starts: Annotated[
         Path | None,
@@ -287,6 +289,11 @@ def run_cmd(
     extra: dict[str, Any] = ctx.meta.get("patrol_setup", {})
     if map_ is None:
         raise ConfigError("give the territory: --map, or 'map' in --config")
+    if robots is not None and robots < 1:
+        raise ConfigError(f"--robots {robots}: robots must be >= 1")
+    if robots is not None and robots > MAX_ROBOTS:
+        # Refused before any work: placing each robot alone runs a wave over the map.
+        raise ConfigError(f"--robots {robots}: at most {MAX_ROBOTS} robots")
     config = config_from_options(
         PatrolConfig,
         ctx.params,
@@ -299,8 +306,6 @@ def run_cmd(
     territory = _territory(map_, resolve_map(map_, resolution, origin), config)
     region = read_region(territory_file, territory.grid) if territory_file else None
     start = read_starts(starts, territory) if starts is not None else None
-    if robots is not None and robots < 1:
-        raise ConfigError(f"robots must be >= 1, got {robots}")
     if start is not None and robots is not None:
         if robots > len(start):
             raise ConfigError(f"{robots} robots asked for, the start file has {len(start)}")
@@ -382,7 +387,7 @@ def _territory(path: Path, m: Any, config: PatrolConfig) -> Any:
     short = min(g.rows, g.cols) * g.resolution
     if config.cell > short / 4:
         raise ConfigError(
-            f"cell {config.cell:g} m is too coarse for a map {short:g} m across "
+            f"--cell {config.cell:g}: too coarse for {path}, a map {short:g} m across "
             f"(at most {short / 4:g} m)",
             field="cell",
         )
