@@ -17,15 +17,10 @@ from sonarmap.builtins import builtin_plan
 from sonarmap.cli import main
 from sonarmap.errors import ConfigError, InputError, quote
 from sonarmap.io.rosmap import read_map
+from sonarmap.parallel import check_workers, process_limit
 from sonarmap.patrol import PatrolConfig
 from sonarmap.patrol.starts import check_robot_count
-from sonarmap.team.config import (
-    MAX_ROBOTS,
-    MissionConfig,
-    check_team_size,
-    process_limit,
-    team_size_problem,
-)
+from sonarmap.team.config import MAX_ROBOTS, MissionConfig, check_team_size, team_size_problem
 from sonarmap.team.world import patrol_route
 
 #: Seconds a refused command may take at most, the interpreter's start included.
@@ -358,3 +353,73 @@ def test_the_patrol_library_refuses_absurd_sizes() -> None:
     assert e.value.field == "robots"
     # NaN stays the library's explicit "unset": the command line refuses it (above).
     assert PatrolConfig(cell=float("nan"), radius=0.5).cell == 0.25
+
+
+# --- Mapping, streaming, simulating and the process pools -----------------------------------
+
+
+@pytest.fixture
+def log(tmp_path: Path) -> Path:
+    """A rig and a readings CSV of a few seconds in a 4 m square: rig.yaml, readings.csv."""
+    (tmp_path / "rig.yaml").write_text(
+        "sensor: hc-sr04\nsonars: [{name: s0, x: 0.1, y: 0, yaw_deg: 0}]\n"
+    )
+    rows = [f"{0.1 * k:.1f},s0,{1 + 0.02 * k:.2f},2,0,1.5" for k in range(50)]
+    (tmp_path / "readings.csv").write_text("t,sensor,x,y,theta,range\n" + "\n".join(rows) + "\n")
+    (tmp_path / "traj.csv").write_text("t,x,y,theta\n0,1,1,0\n1,2,1,0\n")
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["map", "{d}/readings.csv", "--resolution", "0.0001"], r"--resolution: a grid of \d+ x"),
+        (
+            ["map", "{d}/readings.csv", "--resolution", "0.1", "--bounds", "0,0,2000,2000"],
+            r"--resolution/--bounds: a grid of 20000 x 20000 cells at 0.1 m; at most 1e\+08",
+        ),
+        # Beyond what a Grid holds at all: the grid's own message.
+        (["map", "{d}/readings.csv", "--resolution", "1e-9"], r"cells is too large"),
+        (["stream", "{d}/readings.csv", "--resolution", "0.0001"], r"--resolution: a grid of"),
+        (["stream", "{d}/readings.csv", "--effort", "1000000000"], r"--effort 1000000000: must"),
+        (["stream", "{d}/readings.csv", "--snapshot-every", "1e-9"], r"--snapshot-every 1e-09"),
+        (["stream", "{d}/readings.csv", "--period", "1e-9"], r"--period 1e-09: at least 0.001"),
+        (["stream", "{d}/readings.csv", "--speed", "1e-9"], r"--speed 1e-09: at least 0.01"),
+        (["stream", "{d}/readings.csv", "--period", "nan"], r"--period nan: expected a finite"),
+    ],
+)
+def test_map_and_stream_sizes_are_checked_before_any_work(
+    log: Path, capsys: pytest.CaptureFixture[str], args: list[str], match: str
+) -> None:
+    out = log / "out"
+    cmd = [a.format(d=log) for a in args]
+    line = refused([*cmd, "--rig", str(log / "rig.yaml"), "-o", str(out)], capsys)
+    assert re.search(match, line), line
+    assert not list(log.glob("out*"))
+
+
+def test_simulate_refuses_a_negative_seed(log: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (log / "plan.yaml").write_text("image: plan.png\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    Image.fromarray(np.full((40, 40), 254, dtype=np.uint8)).save(log / "plan.png")
+    out = log / "sim.csv"
+    line = refused(
+        ["simulate", "--map", str(log / "plan.yaml"), "--rig", str(log / "rig.yaml"),
+         "--trajectory", str(log / "traj.csv"), "--seed", "-1", "-o", str(out)],
+        capsys,
+    )  # fmt: skip
+    assert "'--seed'" in line
+    assert not out.exists()
+
+
+def test_process_pools_are_bounded(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(ConfigError, match=r"^workers 100000: at most \d+ worker processes") as e:
+        check_workers(100_000)
+    assert e.value.field == "workers"
+    check_workers(None)
+    check_workers(process_limit())
+    out = tmp_path / "out"
+    line = refused(
+        ["patrol", "experiment", "forces", "--workers", "100000", "-o", str(out)], capsys
+    )
+    assert re.search(r"--workers: workers 100000: at most \d+ worker processes", line), line
+    assert not out.exists()

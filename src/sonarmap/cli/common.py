@@ -29,11 +29,13 @@ from rich.console import Console
 from ..errors import ConfigError, quote
 
 if TYPE_CHECKING:
+    from ..grid import Grid
     from ..io.rosmap import OccupancyMap
     from ..readings import TimeOrder
 
 __all__ = [
     "INTERRUPTED",
+    "MAX_MAP_CELLS",
     "ImageOrigin",
     "ImageResolution",
     "MethodPreset",
@@ -41,6 +43,7 @@ __all__ = [
     "ReorderWindow",
     "StopOnInterrupt",
     "Update",
+    "check_grid_size",
     "config_from_options",
     "config_options",
     "console",
@@ -49,6 +52,7 @@ __all__ = [
     "finite_numbers",
     "given",
     "make_console",
+    "named_check",
     "option_name",
     "pairs",
     "progress",
@@ -142,6 +146,34 @@ def resolve_map(
     if not path.exists():
         return builtin_plan(str(path))
     return read_plan(path, resolution, origin)
+
+
+#: Cells of a map a command builds at most: 10^8 (10 000 x 10 000, a kilometre square
+#: at 0.1 m), 800 MB for each float64 layer a method keeps. A resolution given in
+#: centimetres for metres would otherwise allocate for minutes before failing. The
+#: library's :class:`~sonarmap.grid.Grid` takes up to 2^31 cells for callers that
+#: know their memory.
+MAX_MAP_CELLS = 100_000_000
+
+
+def check_grid_size(grid: Grid, option: str) -> None:
+    """Refuse a map grid of more than :data:`MAX_MAP_CELLS` cells, naming the option
+    that sized it, before any layer is allocated."""
+    cells = grid.rows * grid.cols
+    if cells > MAX_MAP_CELLS:
+        raise ConfigError(
+            f"{option}: a grid of {grid.rows} x {grid.cols} cells at {grid.resolution:g} m; "
+            f"at most {MAX_MAP_CELLS:.0e} cells (a coarser --resolution, or --bounds)"
+        )
+
+
+def named_check(option: str, check: Callable[[Any], None], value: Any) -> None:
+    """``check(value)``, a library check raising :class:`ConfigError`, its message
+    prefixed with the option that gave the value (``--workers: workers 100000: ...``)."""
+    try:
+        check(value)
+    except ConfigError as err:
+        raise ConfigError(f"{option}: {_reason(err)}", field=err.field) from None
 
 
 def writable(out: Path) -> Path:

@@ -24,6 +24,7 @@ from .common import (
     config_from_options,
     config_options,
     console,
+    named_check,
     progress,
     resolve_map,
     writable,
@@ -449,8 +450,10 @@ def experiment_cmd(
 ) -> None:
     """Rerun one of the thesis's chapter-3 experiments on the built-in maps: runs.csv,
     table.csv, claims.json, figures and report.html in OUT."""
+    from ..parallel import check_workers
     from ..patrol.experiments import run_experiment
 
+    named_check("--workers", check_workers, workers)
     with progress(f"patrol experiment {name}") as cb:
         report = run_experiment(
             name,

@@ -4,11 +4,11 @@
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import ConfigError
+from ..parallel import MIN_PROCESS_LIMIT, PROCESSES_PER_CORE, process_limit
 from .association import AssociationParams
 from .store import StoreParams
 
@@ -17,7 +17,6 @@ __all__ = [
     "MAX_ROBOTS",
     "MissionConfig",
     "check_team_size",
-    "process_limit",
     "team_size_problem",
 ]
 
@@ -32,22 +31,6 @@ MAX_ROBOTS = 64
 #: missions last minutes).
 MAX_DURATION = 86_400.0
 
-#: Node processes a team over ZeroMQ may start per core, and at least: the nodes run
-#: in lock-step (each tick waits for every node), so more processes than that only
-#: queue for the cores and stretch the run towards the nodes' wait timeouts.
-PROCESSES_PER_CORE = 4
-MIN_PROCESS_LIMIT = 8
-
-
-def process_limit() -> int:
-    """Node processes one machine may start for a team over ZeroMQ: 4 per core this
-    process may run on (at least 8, at most :data:`MAX_ROBOTS`)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on every platform (macOS, Windows)
-        cores = os.cpu_count() or 1
-    return min(MAX_ROBOTS, max(MIN_PROCESS_LIMIT, PROCESSES_PER_CORE * cores))
-
 
 def team_size_problem(robots: int, *, processes: bool = False) -> str | None:
     """What is wrong with a team of ``robots`` robots, or None.
@@ -58,7 +41,7 @@ def team_size_problem(robots: int, *, processes: bool = False) -> str | None:
         The team's size.
     processes : bool
         The robots run as local processes (:func:`~.launcher.run_zmq_team`), one each:
-        :func:`process_limit` bounds them too.
+        :func:`sonarmap.parallel.process_limit` bounds them too.
 
     Returns
     -------
