@@ -284,6 +284,10 @@ def _patrol_files(d: Path, plan: Path) -> None:
     (d / "poly_nan.txt").write_text("0 0\n5 0\nnan 5\n")
     (d / "poly_two.txt").write_text("0 0\n5 0\n")
     (d / "poly_three.txt").write_text("0 0 0\n5 0\n5 5\n")
+    (d / "wall.txt").write_text("1\n1 1 0\n")
+    (d / "sem_nan.txt").write_text("0 0;10 0;nan 10\n")
+    (d / "setup.json").write_text('{"max_model_time": 1e15, "robot_number": 1}')
+    (d / "settings.yaml").write_text("robots: 1\nstart_fog: .nan\n")
     # Thresholds under which no pixel is free: nothing to patrol.
     (d / "dark.yaml").write_text(plan.read_text().replace("free_thresh: 0.196", "free_thresh: 0.0"))
 
@@ -304,6 +308,13 @@ def _patrol_files(d: Path, plan: Path) -> None:
         (["--starts", "nan.txt"], r"nan\.txt:2: expected finite numbers"),
         (["--starts", "far.txt"], r"far\.txt:2: start \(10, 1e\+09\) dm is outside the map"),
         (["--starts", "huge.txt"], r"huge\.txt:2: expected finite numbers, got '1111.*\.\.\."),
+        (["--starts", "wall.txt"], r"wall\.txt: robot 1 at \(0\.1, 5\.9\) m is in an obstacle"),
+        (
+            ["--robots", "1", "--crowding", "semaphores", "--semaphores", "sem_nan.txt"],
+            r"sem_nan\.txt:1: expected finite numbers",
+        ),
+        (["--config", "setup.json"], r"setup\.json, field 'max_model_time': 1e\+15 steps"),
+        (["--config", "settings.yaml"], r"--start-fog nan \(from the settings file\)"),
         (["--robots", "1", "--territory", "poly_nan.txt"], r"poly_nan\.txt:3: expected finite"),
         (["--robots", "1", "--territory", "poly_two.txt"], r"poly_two\.txt:1: a polygon needs"),
         (["--robots", "1", "--territory", "poly_three.txt"], r"poly_three\.txt:1: expected 'x y'"),
@@ -317,7 +328,7 @@ def test_bad_patrol_sizes_and_files_are_one_line(
     match: str,
 ) -> None:
     _patrol_files(tmp_path, plan)
-    here = [str(tmp_path / a) if a.endswith(".txt") else a for a in args]
+    here = [str(tmp_path / a) if a.endswith((".txt", ".json", ".yaml")) else a for a in args]
     out = tmp_path / "out"
     line = refused(["patrol", "run", "--map", str(plan), *here, "-o", str(out)], capsys)
     assert re.search(match, line), line

@@ -547,15 +547,18 @@ def finite_numbers(ctx: typer.Context) -> None:
         name = param.name
         if name is None or name not in ctx.params:
             continue
-        source = ctx.get_parameter_source(name)
-        if source is not None and source.name == "DEFAULT":
+        given = ctx.get_parameter_source(name)
+        if given is not None and given.name == "DEFAULT":
             continue
+        # A settings file (patrol run --config) sets the defaults it holds.
+        source = given if given is not None and given.name == "DEFAULT_MAP" else None
         value = ctx.params[name]
         values = value if isinstance(value, tuple | list) else (value,)
         for v in values:
             if isinstance(v, float) and not math.isfinite(v):
                 flag = max(getattr(param, "opts", None) or [f"--{name}"], key=len)
-                raise ConfigError(f"{flag} {v}: expected a finite number", field=name)
+                where = " (from the settings file)" if source is not None else ""
+                raise ConfigError(f"{flag} {v}{where}: expected a finite number", field=name)
 
 
 def _reason(err: ConfigError) -> str:

@@ -11,11 +11,12 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, quote
 from ..files import atomic_folder
 from ..patrol import Fog, PatrolConfig
 from ..patrol.config import read_run_file
 from ..patrol.robots import Team
+from ..patrol.simulation import MAX_STEPS
 from ..patrol.starts import MAX_ROBOTS
 from .common import (
     ImageOrigin,
@@ -58,12 +59,16 @@ def _load_settings(ctx: typer.Context, path: Path | None) -> Path | None:
     if "steps" in setup:
         try:
             steps = int(setup["steps"])
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise InputError(
-                f"expected a number of steps, got {setup['steps']!r}",
+                f"expected a number of steps, got {quote(setup['steps'])}",
                 path=path,
                 field="max_model_time",
             ) from None
+        if not (1 <= steps <= MAX_STEPS):
+            raise InputError(
+                f"{steps:g} steps; must be in 1..{MAX_STEPS:,}", path=path, field="max_model_time"
+            )
         defaults.setdefault("duration", steps * PatrolConfig().dt)
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
     ctx.meta["patrol_setup"] = setup
@@ -307,6 +312,8 @@ def run_cmd(
     territory = _territory(map_, resolve_map(map_, resolution, origin), config)
     region = read_region(territory_file, territory.grid) if territory_file else None
     start = read_starts(starts, territory) if starts is not None else None
+    if start is not None and starts is not None:
+        _check_start_file(starts, start, territory, config, region)
     if start is not None and robots is not None:
         if robots > len(start):
             raise ConfigError(f"{robots} robots asked for, the start file has {len(start)}")
@@ -377,6 +384,22 @@ def run_cmd(
             f"{m['interference_events']} interference events"
         )
     console.print(wrote(out, written))
+
+
+def _check_start_file(
+    path: Path, start: Any, territory: Any, config: PatrolConfig, region: Any
+) -> None:
+    """The start file's robots on free, passable cells of the territory (and its mask),
+    far enough apart: the run's own check, made here so that its message names the file."""
+    from ..patrol.starts import check_starts
+
+    inside = territory.passable(config.radius)
+    if region is not None:
+        inside = inside & region
+    try:
+        check_starts(start, territory, inside, config.min_separation)
+    except InputError as err:
+        raise InputError(err.reason, path=path) from None
 
 
 def _territory(path: Path, m: Any, config: PatrolConfig) -> Any:

@@ -13,6 +13,7 @@ corner with y down, e.g. ``953 615;753 551;787 315;1063 97;1181 100;1181 241``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -41,6 +42,8 @@ def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]
             raise InputError(
                 f"expected 'x y;x y;...', got {quote(text)}", path=p, line=number
             ) from None
+        if not all(math.isfinite(c) for v in xy for c in v):
+            raise InputError(f"expected finite numbers, got {quote(text)}", path=p, line=number)
         if any(len(v) != 2 for v in xy) or len(xy) < 3:
             raise InputError(
                 f"a semaphore needs at least 3 'x y' vertices, got {quote(text)}",
