@@ -17,7 +17,7 @@ from sonarmap.patrol.paths import Wave
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.region import read_polygons, read_region
 from sonarmap.patrol.simulation import PatrolConfig, run_patrol
-from sonarmap.patrol.starts import read_starts, spread_starts
+from sonarmap.patrol.starts import MAX_ROBOTS, read_starts, spread_starts
 from sonarmap.patrol.territory import Territory
 
 
@@ -102,7 +102,7 @@ def test_spread_starts_are_far_apart_on_paths_and_repeatable() -> None:
 
     assert closest(a) > 6.0
     with pytest.raises(InputError, match="room for only"):
-        spread_starts(400, t, where.passable, 2.0, seed=0)
+        spread_starts(MAX_ROBOTS, t, where.passable, 2.0, seed=0)
 
 
 def test_region_files(tmp_path: Path) -> None:

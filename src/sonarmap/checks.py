@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from .errors import ConfigError
+from .errors import ConfigError, quote
 
 __all__ = ["finite_number"]
 
@@ -31,8 +31,8 @@ def finite_number(value: Any, where: str) -> float:
         If ``value`` is not a number, is a bool, or is not finite.
     """
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{where}: expected a number, got {value!r}")
+        raise ConfigError(f"{where}: expected a number, got {quote(value)}")
     v = float(value)
     if not math.isfinite(v):
-        raise ConfigError(f"{where}: expected a finite number, got {value!r}")
+        raise ConfigError(f"{where}: expected a finite number, got {quote(value)}")
     return v

@@ -9,7 +9,33 @@ from __future__ import annotations
 
 from os import PathLike
 
-__all__ = ["ConfigError", "InputError", "OutputError", "SonarmapError"]
+__all__ = ["QUOTE_LIMIT", "ConfigError", "InputError", "OutputError", "SonarmapError", "quote"]
+
+#: Characters of a bad value a message quotes at most: a 1 MB field must not become a
+#: 1 MB line of a log.
+QUOTE_LIMIT = 80
+
+
+def quote(value: object, limit: int = QUOTE_LIMIT) -> str:
+    """``repr(value)`` for a message, cut to ``limit`` characters with the full length said.
+
+    Parameters
+    ----------
+    value : object
+        The bad value, as read.
+    limit : int
+        Characters kept at most.
+
+    Returns
+    -------
+    str
+        E.g. ``'1111111111...' (1000000 characters)``.
+    """
+    text = repr(value)
+    if len(text) <= limit:
+        return text
+    size = f" ({len(value)} characters)" if isinstance(value, str | bytes) else ""
+    return f"{text[:limit]}...{size}"
 
 
 class SonarmapError(Exception):

@@ -5,17 +5,64 @@ Dask is imported only when a run starts, so importing this module is cheap.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
 from .errors import ConfigError
 
-__all__ = ["Progress", "run_on_dask"]
+__all__ = [
+    "MIN_PROCESS_LIMIT",
+    "PROCESSES_PER_CORE",
+    "Progress",
+    "check_workers",
+    "process_limit",
+    "run_on_dask",
+]
+
+#: Processes one run may start per core, and at least (a team's ZeroMQ nodes, a
+#: LocalCluster's workers): more only queue for the cores, each with the memory of a
+#: Python process holding numpy and numba, and a typo such as 100000 would start that
+#: many before failing.
+PROCESSES_PER_CORE = 4
+MIN_PROCESS_LIMIT = 8
 
 #: Called as ``progress(done, total)`` as results arrive.
 Progress = Callable[[int, int], None]
 T = TypeVar("T")
 R = TypeVar("R")
+
+
+def process_limit() -> int:
+    """Processes one run may start on this machine: :data:`PROCESSES_PER_CORE` per core
+    this process may run on, at least :data:`MIN_PROCESS_LIMIT`, at most 64."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on every platform (macOS, Windows)
+        cores = os.cpu_count() or 1
+    return min(64, max(MIN_PROCESS_LIMIT, PROCESSES_PER_CORE * cores))
+
+
+def check_workers(workers: int | None) -> None:
+    """Refuse a LocalCluster of ``workers`` processes unless 1 <= workers <=
+    :func:`process_limit` (None: the cores, always fine).
+
+    Raises
+    ------
+    ConfigError
+        With ``field="workers"``.
+    """
+    if workers is None:
+        return
+    if workers < 1:
+        raise ConfigError(f"workers must be >= 1, got {workers}", field="workers")
+    limit = process_limit()
+    if workers > limit:
+        raise ConfigError(
+            f"workers {workers}: at most {limit} worker processes on this machine "
+            f"({PROCESSES_PER_CORE} per core, at least {MIN_PROCESS_LIMIT})",
+            field="workers",
+        )
 
 
 def run_on_dask(
@@ -50,12 +97,12 @@ def run_on_dask(
     Raises
     ------
     ConfigError
-        If ``workers`` is below 1 or the scheduler cannot be reached.
+        If ``workers`` is out of :func:`check_workers`'s range or the scheduler cannot
+        be reached.
     """
+    check_workers(workers)
     from dask.distributed import Client, LocalCluster, as_completed
 
-    if workers is not None and workers < 1:
-        raise ConfigError(f"workers must be >= 1, got {workers}")
     cluster = None
     try:
         if scheduler is None:

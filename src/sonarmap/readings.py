@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from .errors import InputError
+from .errors import InputError, quote
 from .files import atomic_write, need_file
 
 __all__ = [
@@ -314,7 +314,7 @@ def _parse_chunks(
                 if bad_mask.any():
                     i = int(np.flatnonzero(bad_mask)[0])
                     text = str(raw.iloc[i]).strip()
-                    why = "missing value" if text == "" else f"not a finite number ({text!r})"
+                    why = "missing value" if text == "" else f"not a finite number ({quote(text)})"
                     raise InputError(why, path=path, line=line + i, field=col)
                 out[col] = num
             yield line, out

@@ -35,7 +35,7 @@ import numba as nb
 import numpy as np
 import numpy.typing as npt
 
-from .errors import ConfigError
+from .errors import ConfigError, quote
 from .readings import Readings
 
 __all__ = [
@@ -368,6 +368,6 @@ def parse_strategy(text: str) -> Strategy:
         raise  # a number out of its range: the strategy's own message says which
     except ValueError:
         raise ConfigError(
-            f"bad strategy {text!r}: counts and sizes must be numbers; {usage}"
+            f"bad strategy {quote(text)}: counts and sizes must be numbers; {usage}"
         ) from None
-    raise ConfigError(f"unknown strategy {text!r}; {usage}")
+    raise ConfigError(f"unknown strategy {quote(text)}; {usage}")

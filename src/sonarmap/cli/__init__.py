@@ -18,8 +18,8 @@ from typing import Annotated, Any
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from ..errors import ConfigError, SonarmapError
-from .common import INTERRUPTED, console, err_console
+from ..errors import ConfigError, SonarmapError, quote
+from .common import INTERRUPTED, console, err_console, finite_numbers
 
 #: Every command: its module and the one line ``sonarmap --help`` shows for it (the
 #: first line of its docstring; a test keeps them equal). In the order they are listed.
@@ -74,12 +74,31 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def load_command(name: str) -> Any:
-    """The click command (or group) ``name``, its module imported now."""
+    """The click command (or group) ``name``, its module imported now; every command in
+    it refuses NaN and infinity in its number options (:func:`.common.finite_numbers`)."""
     module = importlib.import_module(f"{__name__}.{COMMANDS[name][0]}")
     cmd = typer.main.get_command(module.app)
     if isinstance(cmd, TyperGroup) and name not in ("patrol", "team"):
-        return cmd.commands[name]
+        cmd = cmd.commands[name]
+    _check_numbers(cmd)
     return cmd
+
+
+def _check_numbers(cmd: Any) -> None:
+    """Run :func:`.common.finite_numbers` on every command of ``cmd`` once its options
+    are parsed and before it does any work (typer has no hook for all of a command's
+    options at once, so each command's ``invoke`` is wrapped)."""
+    if isinstance(cmd, TyperGroup):
+        for sub in cmd.commands.values():
+            _check_numbers(sub)
+        return
+    invoke = cmd.invoke
+
+    def checked(ctx: Any) -> Any:
+        finite_numbers(ctx)
+        return invoke(ctx)
+
+    cmd.invoke = checked
 
 
 class _LazyGroup(TyperGroup):
@@ -130,9 +149,28 @@ def _root(
         raise typer.Exit()
 
 
+#: Characters of an error line at most, and of one word in it (a path, a quoted value).
+MESSAGE_LIMIT = 1000
+_WORD_LIMIT = 240
+
+
+def bounded(message: str) -> str:
+    """An error message as one line of bounded length: whitespace runs (a value's own
+    newlines included) become one space, an overlong word keeps its start, and the line
+    its first :data:`MESSAGE_LIMIT` characters. A value the library did not quote cut
+    short (:func:`sonarmap.errors.quote`) still cannot flood a log."""
+    words = [w if len(w) <= _WORD_LIMIT else w[:_WORD_LIMIT] + "..." for w in message.split()]
+    line = " ".join(words)
+    return line if len(line) <= MESSAGE_LIMIT else line[:MESSAGE_LIMIT] + "..."
+
+
 def _fail(message: str) -> None:
     err_console.print(
-        f"sonarmap: error: {message}", markup=False, highlight=False, emoji=False, soft_wrap=True
+        f"sonarmap: error: {bounded(message)}",
+        markup=False,
+        highlight=False,
+        emoji=False,
+        soft_wrap=True,
     )
     sys.exit(2)
 
@@ -156,7 +194,7 @@ def _split_lists(args: list[str]) -> list[str]:
             if len(values) != _LIST_OPTIONS[name]:
                 raise ConfigError(
                     f"{name} takes {_LIST_OPTIONS[name]} numbers (comma- or space-separated), "
-                    f"got {value!r}"
+                    f"got {quote(value)}"
                 )
             out.append(name)
             out.extend(values)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
+import math
 import os
 import signal
 import sys
@@ -25,14 +26,16 @@ from typing import TYPE_CHECKING, Annotated, Any, Protocol, TypeVar, cast
 import typer
 from rich.console import Console
 
-from ..errors import ConfigError
+from ..errors import ConfigError, quote
 
 if TYPE_CHECKING:
+    from ..grid import Grid
     from ..io.rosmap import OccupancyMap
     from ..readings import TimeOrder
 
 __all__ = [
     "INTERRUPTED",
+    "MAX_MAP_CELLS",
     "ImageOrigin",
     "ImageResolution",
     "MethodPreset",
@@ -40,13 +43,16 @@ __all__ = [
     "ReorderWindow",
     "StopOnInterrupt",
     "Update",
+    "check_grid_size",
     "config_from_options",
     "config_options",
     "console",
     "err_console",
     "figure",
+    "finite_numbers",
     "given",
     "make_console",
+    "named_check",
     "option_name",
     "pairs",
     "progress",
@@ -142,6 +148,34 @@ def resolve_map(
     return read_plan(path, resolution, origin)
 
 
+#: Cells of a map a command builds at most: 10^8 (10 000 x 10 000, a kilometre square
+#: at 0.1 m), 800 MB for each float64 layer a method keeps. A resolution given in
+#: centimetres for metres would otherwise allocate for minutes before failing. The
+#: library's :class:`~sonarmap.grid.Grid` takes up to 2^31 cells for callers that
+#: know their memory.
+MAX_MAP_CELLS = 100_000_000
+
+
+def check_grid_size(grid: Grid, option: str) -> None:
+    """Refuse a map grid of more than :data:`MAX_MAP_CELLS` cells, naming the option
+    that sized it, before any layer is allocated."""
+    cells = grid.rows * grid.cols
+    if cells > MAX_MAP_CELLS:
+        raise ConfigError(
+            f"{option}: a grid of {grid.rows} x {grid.cols} cells at {grid.resolution:g} m; "
+            f"at most {MAX_MAP_CELLS:.0e} cells (a coarser --resolution, or --bounds)"
+        )
+
+
+def named_check(option: str, check: Callable[[Any], None], value: Any) -> None:
+    """``check(value)``, a library check raising :class:`ConfigError`, its message
+    prefixed with the option that gave the value (``--workers: workers 100000: ...``)."""
+    try:
+        check(value)
+    except ConfigError as err:
+        raise ConfigError(f"{option}: {_reason(err)}", field=err.field) from None
+
+
 def writable(out: Path) -> Path:
     """-o: refuse at once an output that cannot be written, before any work."""
     from ..files import check_writable
@@ -233,7 +267,7 @@ def pairs(items: list[str] | None, option: str) -> dict[str, str]:
     for item in items or []:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise ConfigError(f"{option} expects KEY=VALUE, got {item!r}")
+            raise ConfigError(f"{option} expects KEY=VALUE, got {quote(item)}")
         out[key.strip()] = value.strip()
     return out
 
@@ -489,6 +523,42 @@ def config_from_options(
         if name is None:
             raise
         raise ConfigError(f"{name}: {_reason(err)}", field=err.field) from None
+
+
+def finite_numbers(ctx: typer.Context) -> None:
+    """Refuse NaN and infinity given to any number option, before the command runs.
+
+    The parser reads ``nan`` and ``inf`` as numbers; no option means anything by them,
+    and passed on, NaN would silently become a field's default (the library's "unset"
+    sentinel) and infinity a size or a time without end. Values left at their defaults
+    are not checked: those are the command's own.
+
+    Parameters
+    ----------
+    ctx : typer.Context
+        The command's context, its options parsed.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first option with such a value.
+    """
+    for param in ctx.command.params:
+        name = param.name
+        if name is None or name not in ctx.params:
+            continue
+        given = ctx.get_parameter_source(name)
+        if given is not None and given.name == "DEFAULT":
+            continue
+        # A settings file (patrol run --config) sets the defaults it holds.
+        source = given if given is not None and given.name == "DEFAULT_MAP" else None
+        value = ctx.params[name]
+        values = value if isinstance(value, tuple | list) else (value,)
+        for v in values:
+            if isinstance(v, float) and not math.isfinite(v):
+                flag = max(getattr(param, "opts", None) or [f"--{name}"], key=len)
+                where = " (from the settings file)" if source is not None else ""
+                raise ConfigError(f"{flag} {v}{where}: expected a finite number", field=name)
 
 
 def _reason(err: ConfigError) -> str:

@@ -16,12 +16,13 @@ from rich.table import Table
 
 from ..annotations import load_annotations
 from ..api import build_map, grid_for_readings, off_grid_note
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, quote
 from ..experiments import EXPERIMENTS, run_experiment
 from ..files import atomic_write, atomic_write_text, json_dumps
 from ..io.rosmap import IMAGE_SUFFIXES, write_map
 from ..mappers import MAPPERS, parse_params, preset_params
 from ..metrics import MapScore, score
+from ..parallel import check_workers
 from ..plot import save_map_picture, save_side_by_side
 from ..readings import REORDER_WINDOW, TimeOrder, read_readings, read_trajectory, write_readings
 from ..rig import load_rig
@@ -34,8 +35,10 @@ from .common import (
     ImageResolution,
     MethodPreset,
     ReorderWindow,
+    check_grid_size,
     console,
     figure,
+    named_check,
     pairs,
     progress,
     read_plan,
@@ -77,7 +80,7 @@ def _scenario_params(name: str, pairs: dict[str, str]) -> dict[str, Any]:
             raise ConfigError(
                 f"parameter '{key}' expects "
                 f"{'numbers separated by commas' if isinstance(default, tuple) else 'a number'}"
-                f", got {value!r}"
+                f", got {quote(value)}"
             ) from None
     return out
 
@@ -97,7 +100,7 @@ def scenario_cmd(
     out: Annotated[
         Path, typer.Option("-o", "--out", callback=writable, help="Folder to write into.")
     ],
-    seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of everything random.")] = 0,
     param: Annotated[
         list[str] | None,
         typer.Option(
@@ -166,7 +169,7 @@ def simulate_cmd(
     ] = None,
     pose_sigma_xy: Annotated[float, typer.Option(help="Recorded-pose noise, metres.")] = 0.0,
     pose_sigma_theta: Annotated[float, typer.Option(help="Recorded-heading noise, rad.")] = 0.0,
-    seed: Annotated[int, typer.Option(help="Seed of everything random.")] = 0,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of everything random.")] = 0,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
@@ -242,6 +245,7 @@ def map_cmd(
         grid = read_plan(like, resolution, origin).grid
     elif resolution is not None:
         grid = grid_for_readings(data, r, resolution, bounds)
+        check_grid_size(grid, "--resolution" if bounds is None else "--resolution/--bounds")
     else:
         raise ConfigError("give --like MAP.yaml or --resolution R")
     said = off_grid_note(data, r, grid)
@@ -314,7 +318,7 @@ def demo_cmd(
     out: Annotated[
         Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
     ] = Path("out"),
-    seed: Annotated[int, typer.Option(help="Seed of the held-out corridor scene.")] = 1000,
+    seed: Annotated[int, typer.Option(min=0, help="Seed of the held-out corridor scene.")] = 1000,
 ) -> None:
     """Map a held-out corridor scene with every method: maps, a picture, a metrics table."""
     with progress("simulating corridor") as cb:
@@ -386,7 +390,9 @@ def experiment_cmd(
     quick: Annotated[bool, typer.Option(help="A small, fast version.")] = False,
     seed: Annotated[
         int | None,
-        typer.Option(help="Seed of the first scene (default: the first held-out seed, 1000)."),
+        typer.Option(
+            min=0, help="Seed of the first scene (default: the first held-out seed, 1000)."
+        ),
     ] = None,
     seeds: Annotated[
         int | None, typer.Option(help="How many scenes (default: the experiment's own).")
@@ -527,9 +533,8 @@ def sweep_cmd(
     ] = None,
 ) -> None:
     """Run a parameter sweep on Dask: results.parquet, results.csv, best.csv."""
+    named_check("--workers", check_workers, workers)
     cfg = load_sweep(config)
-    if workers is not None and workers < 1:
-        raise ConfigError(f"--workers must be >= 1, got {workers}")
     n = len(cfg.tasks())
     with progress(f"sweep ({n} maps)") as cb:
         df = run_sweep(cfg, scheduler=scheduler, workers=workers, progress=cb)

@@ -11,11 +11,13 @@ from typing import Annotated, Any
 import numpy as np
 import typer
 
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, quote
 from ..files import atomic_folder
 from ..patrol import Fog, PatrolConfig
 from ..patrol.config import read_run_file
 from ..patrol.robots import Team
+from ..patrol.simulation import MAX_STEPS
+from ..patrol.starts import MAX_ROBOTS
 from .common import (
     ImageOrigin,
     ImageResolution,
@@ -23,6 +25,7 @@ from .common import (
     config_from_options,
     config_options,
     console,
+    named_check,
     progress,
     resolve_map,
     writable,
@@ -56,12 +59,16 @@ def _load_settings(ctx: typer.Context, path: Path | None) -> Path | None:
     if "steps" in setup:
         try:
             steps = int(setup["steps"])
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise InputError(
-                f"expected a number of steps, got {setup['steps']!r}",
+                f"expected a number of steps, got {quote(setup['steps'])}",
                 path=path,
                 field="max_model_time",
             ) from None
+        if not (1 <= steps <= MAX_STEPS):
+            raise InputError(
+                f"{steps:g} steps; must be in 1..{MAX_STEPS:,}", path=path, field="max_model_time"
+            )
         defaults.setdefault("duration", steps * PatrolConfig().dt)
     ctx.default_map = {**(ctx.default_map or {}), **defaults}
     ctx.meta["patrol_setup"] = setup
@@ -224,7 +231,8 @@ def run_cmd(
         ),
     ] = None,
     robots: Annotated[
-        int | None, typer.Option(help="Robots (random starts, seeded) unless --starts.")
+        int | None,
+        typer.Option(help=f"Robots (random starts, seeded) unless --starts; at most {MAX_ROBOTS}."),
     ] = None,
     starts: Annotated[
         Path | None,
@@ -287,6 +295,11 @@ def run_cmd(
     extra: dict[str, Any] = ctx.meta.get("patrol_setup", {})
     if map_ is None:
         raise ConfigError("give the territory: --map, or 'map' in --config")
+    if robots is not None and robots < 1:
+        raise ConfigError(f"--robots {robots}: robots must be >= 1")
+    if robots is not None and robots > MAX_ROBOTS:
+        # Refused before any work: placing each robot alone runs a wave over the map.
+        raise ConfigError(f"--robots {robots}: at most {MAX_ROBOTS} robots")
     config = config_from_options(
         PatrolConfig,
         ctx.params,
@@ -299,8 +312,8 @@ def run_cmd(
     territory = _territory(map_, resolve_map(map_, resolution, origin), config)
     region = read_region(territory_file, territory.grid) if territory_file else None
     start = read_starts(starts, territory) if starts is not None else None
-    if robots is not None and robots < 1:
-        raise ConfigError(f"robots must be >= 1, got {robots}")
+    if start is not None and starts is not None:
+        _check_start_file(starts, start, territory, config, region)
     if start is not None and robots is not None:
         if robots > len(start):
             raise ConfigError(f"{robots} robots asked for, the start file has {len(start)}")
@@ -373,6 +386,22 @@ def run_cmd(
     console.print(wrote(out, written))
 
 
+def _check_start_file(
+    path: Path, start: Any, territory: Any, config: PatrolConfig, region: Any
+) -> None:
+    """The start file's robots on free, passable cells of the territory (and its mask),
+    far enough apart: the run's own check, made here so that its message names the file."""
+    from ..patrol.starts import check_starts
+
+    inside = territory.passable(config.radius)
+    if region is not None:
+        inside = inside & region
+    try:
+        check_starts(start, territory, inside, config.min_separation)
+    except InputError as err:
+        raise InputError(err.reason, path=path) from None
+
+
 def _territory(path: Path, m: Any, config: PatrolConfig) -> Any:
     """The map's territory on the run's cells; a map with no free cell (thresholds or
     mode that make none) or cells coarser than the map is one error naming the file."""
@@ -382,7 +411,7 @@ def _territory(path: Path, m: Any, config: PatrolConfig) -> Any:
     short = min(g.rows, g.cols) * g.resolution
     if config.cell > short / 4:
         raise ConfigError(
-            f"cell {config.cell:g} m is too coarse for a map {short:g} m across "
+            f"--cell {config.cell:g}: too coarse for {path}, a map {short:g} m across "
             f"(at most {short / 4:g} m)",
             field="cell",
         )
@@ -444,8 +473,10 @@ def experiment_cmd(
 ) -> None:
     """Rerun one of the thesis's chapter-3 experiments on the built-in maps: runs.csv,
     table.csv, claims.json, figures and report.html in OUT."""
+    from ..parallel import check_workers
     from ..patrol.experiments import run_experiment
 
+    named_check("--workers", check_workers, workers)
     with progress(f"patrol experiment {name}") as cb:
         report = run_experiment(
             name,

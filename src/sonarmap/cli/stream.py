@@ -29,6 +29,7 @@ from .common import (
     MethodPreset,
     ReorderWindow,
     StopOnInterrupt,
+    check_grid_size,
     console,
     err_console,
     pairs,
@@ -128,16 +129,17 @@ def stream_cmd(
     pixels. Writes OUT/map.yaml (.pgm, .npy), OUT/snapshots/t*.png, the animation and
     OUT/stream.json with the figures printed.
     """
+    _check_pace(speed, period, effort, snapshot_every)
     m = method.value
     params = parse_params(m, pairs(param, "--param"), preset=preset)
     r = load_rig(rig)
     if like is not None and bounds is not None:
         raise ConfigError("give either --like or --bounds, not both")
-    grid = (
-        read_plan(like, resolution, origin).grid
-        if like is not None
-        else grid_for_log(readings, r, resolution, bounds)
-    )
+    if like is not None:
+        grid = read_plan(like, resolution, origin).grid
+    else:
+        grid = grid_for_log(readings, r, resolution, bounds)
+        check_grid_size(grid, "--resolution" if bounds is None else "--resolution/--bounds")
     t_map = read_plan(truth, resolution, origin) if truth is not None else None
     if t_map is not None and t_map.grid != grid:
         raise ConfigError(f"{truth}: the truth map's grid differs from the stream's; use --like")
@@ -247,6 +249,28 @@ def stream_cmd(
         )
         # Not typer.Exit: main() would report the interruption a second time.
         sys.exit(INTERRUPTED)
+
+
+#: The replay's pace, bounded so that a typo fails at once instead of running for days:
+#: updates at most every millisecond of log, at least a hundredth of real time with
+#: --realtime (a minute of log in under two hours), at most a thousand gradient steps or
+#: flip sweeps per update.
+MIN_PERIOD = 0.001
+MIN_SPEED = 0.01
+MAX_EFFORT = 1000
+
+
+def _check_pace(speed: float, period: float, effort: int, snapshot_every: float) -> None:
+    """--speed, --period, --effort and --snapshot-every in their ranges, before any work."""
+    if not (period >= MIN_PERIOD):
+        raise ConfigError(f"--period {period:g}: at least {MIN_PERIOD:g} s of log per update")
+    if not (speed >= MIN_SPEED):
+        raise ConfigError(f"--speed {speed:g}: at least {MIN_SPEED:g} log seconds a second")
+    if not (1 <= effort <= MAX_EFFORT):
+        raise ConfigError(f"--effort {effort}: must be in 1..{MAX_EFFORT}")
+    if not (snapshot_every >= period):
+        # A snapshot is taken after an update: a shorter interval cannot be kept.
+        raise ConfigError(f"--snapshot-every {snapshot_every:g}: at least --period ({period:g} s)")
 
 
 def _log_seconds(path: Path) -> float:

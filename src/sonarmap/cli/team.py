@@ -10,9 +10,10 @@ from typing import Annotated, Any
 
 import typer
 
-from ..errors import ConfigError
+from ..errors import ConfigError, quote
 from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap
+from ..team.config import MAX_DURATION, MAX_ROBOTS, team_size_problem
 from ..team.exchange import ExchangeParams
 from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
@@ -64,9 +65,12 @@ MapOption = Annotated[
 OutOption = Annotated[
     Path, typer.Option("-o", "--out", callback=writable, help="Folder for the results.")
 ]
-SeedOption = Annotated[int, typer.Option("--seed", help="Seed of everything random.")]
+SeedOption = Annotated[int, typer.Option("--seed", min=0, help="Seed of everything random.")]
 DurationOption = Annotated[
-    float, typer.Option("--duration", help="Mission length, simulated seconds.")
+    float,
+    typer.Option(
+        "--duration", help=f"Mission length, simulated seconds (at most {MAX_DURATION:g}: a day)."
+    ),
 ]
 #: Summary figures averaged over the robots at the top level of summary.json.
 MEAN_KEYS = (
@@ -98,6 +102,10 @@ def world_cmd(
     ] = 0.1,
 ) -> None:
     """Make a mission's world: landmarks with their changes, a patrol route, the truth."""
+    _check_duration(duration)
+    for name, share in (("--texture-share", texture_share), ("--change-share", change_share)):
+        if not (0.0 <= share <= 1.0):
+            raise ConfigError(f"{name} {share:g}: must be in [0, 1]")
     plan = resolve_map(map_, resolution, origin)
     world = make_world(
         plan,
@@ -111,6 +119,35 @@ def world_cmd(
     save_world(world, route, out)
     console.print(f"{len(world)} landmarks, route of {len(route)} poses")
     console.print(wrote_folder(out), markup=False)
+
+
+def _check_duration(duration: float) -> None:
+    """--duration: > 0 and at most a day, refused before any work (a route is drawn for
+    the whole mission at once)."""
+    if not (math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"--duration must be > 0, got {duration}")
+    if duration > MAX_DURATION:
+        raise ConfigError(f"--duration {duration:g}: at most {MAX_DURATION:g} s (a day)")
+
+
+def _check_robots(robots: int, *, processes: bool = False) -> None:
+    """--robots: a team the machine can run (:func:`~sonarmap.team.config.team_size_problem`)."""
+    problem = team_size_problem(robots, processes=processes)
+    if problem is not None:
+        raise ConfigError(f"--robots {robots}: {problem}")
+
+
+def _check_seconds(name: str, value: float | None, least: float | None) -> None:
+    """A node's time option: >= ``least`` (None: > 0) and at most a day (more would only
+    keep a node waiting for ever); None (not given) passes."""
+    if value is None:
+        return
+    low = value >= least if least is not None else value > 0
+    if not low:
+        bound = f">= {least:g}" if least is not None else "> 0"
+        raise ConfigError(f"{name} {value:g}: must be {bound} seconds")
+    if value > MAX_DURATION:
+        raise ConfigError(f"{name} {value:g}: at most {MAX_DURATION:g} s (a day)")
 
 
 def _tick(update: Any, note: str, done: int, total: int) -> None:
@@ -339,15 +376,14 @@ def run_cmd(
     central upper bound map_f1_central (one map built from every robot's poses). With
     --transport zmq the team runs as local processes. The protocols and the figures are
     explained in docs/team.md."""
-    if robots < 1:
-        raise ConfigError(f"--robots must be >= 1, got {robots}")
-    if not (math.isfinite(duration) and duration > 0):
-        raise ConfigError(f"--duration must be > 0, got {duration}")
-    if seed < 0:
-        raise ConfigError(f"--seed must be >= 0, got {seed}")
-    net, protocol, store = _team_options(ctx)
     if transport not in TRANSPORTS:
-        raise ConfigError(f"--transport must be one of {', '.join(TRANSPORTS)}, got {transport!r}")
+        raise ConfigError(
+            f"--transport must be one of {', '.join(TRANSPORTS)}, got {quote(transport)}"
+        )
+    # Refused, not attempted: with zmq each robot is a process of its own.
+    _check_robots(robots, processes=transport == "zmq")
+    _check_duration(duration)
+    net, protocol, store = _team_options(ctx)
     if patrol and route is not None:
         raise ConfigError("--patrol drives every robot: drop --route")
     if transport == "zmq" and (patrol or route is not None or world_dir is not None or animate):
@@ -516,10 +552,15 @@ def node_cmd(
         run_node,
     )
 
-    if not (math.isfinite(duration) and duration > 0):
-        raise ConfigError(f"--duration must be > 0, got {duration}")
-    if seed < 0:
-        raise ConfigError(f"--seed must be >= 0, got {seed}")
+    _check_duration(duration)
+    for name, value, least in (
+        ("--lookahead", lookahead, 0.0),
+        ("--settle", settle, 0.0),
+        ("--quiet", quiet, None),
+        ("--wait-timeout", wait_timeout, None),
+        ("--checkpoint-every", checkpoint_every, None),
+    ):
+        _check_seconds(name, value, least)
     store = config_from_options(StoreParams, ctx.params, STORE_OPTIONS)
     if not (math.isfinite(max_queue) and max_queue > 0):
         raise ConfigError(f"--max-queue must be > 0 MiB, got {max_queue}")
@@ -528,6 +569,10 @@ def node_cmd(
     )
     ex = parse_exchange(exchange or [])
     peer_map = parse_peers(peers, robot)
+    if len(peer_map) + 1 > MAX_ROBOTS:
+        raise ConfigError(
+            f"--peers: a team of {len(peer_map) + 1} robots; at most {MAX_ROBOTS} robots in a team"
+        )
     fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
     key = None if key_file is None else read_team_key(key_file)
     plan = resolve_map(map_, resolution, origin)

@@ -12,9 +12,9 @@ values map_saver writes) and ``NAME.npy`` (float32 occupancy in [0, 1], NaN wher
 unknown, same orientation as the image). The image holds the map's classes
 (:meth:`OccupancyMap.classes`), the same ones every score and picture uses, and the
 YAML's thresholds are map_saver's, which read those three pixel values back as written.
-When reading ``NAME.yaml`` and a ``NAME.npy`` of the image's shape lies beside it, its
-exact occupancy is used instead of the thresholded image (``use_npy=False`` reads the
-image only).
+When reading ``NAME.yaml`` and a ``NAME.npy`` lies beside it, its exact occupancy is
+used instead of the thresholded image (``use_npy=False`` reads the image only); an array
+that cannot be read, or is not float occupancy of the image's shape, is an error naming it.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ import numpy.typing as npt
 import yaml
 from PIL import Image, UnidentifiedImageError
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..files import atomic_outputs, need_file, read_yaml
 from ..grid import Grid
 
@@ -110,10 +110,10 @@ def _key(d: Mapping[str, Any], key: str, path: Path) -> Any:
 
 def _num(value: Any, path: Path, field: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise InputError(f"expected a number, got {value!r}", path=path, field=field)
+        raise InputError(f"expected a number, got {quote(value)}", path=path, field=field)
     v = float(value)
     if not math.isfinite(v):
-        raise InputError(f"expected a finite number, got {value!r}", path=path, field=field)
+        raise InputError(f"expected a finite number, got {quote(value)}", path=path, field=field)
     return v
 
 
@@ -208,13 +208,40 @@ def read_map(
     grid = Grid(resolution=resolution, origin=(ox, oy), shape=(value.shape[0], value.shape[1]))
     exact = p.with_suffix(".npy")
     if use_npy and exact.is_file():
-        try:
-            arr = np.load(exact, allow_pickle=False)
-        except (OSError, ValueError) as err:
-            raise InputError(f"cannot read occupancy array ({err})", path=exact) from err
-        if arr.shape == value.shape and arr.dtype.kind == "f":
-            return OccupancyMap(grid, arr.astype(np.float32))
+        return OccupancyMap(grid, _read_exact(exact, (value.shape[0], value.shape[1])))
     return OccupancyMap(grid, occ.astype(np.float32))
+
+
+def _read_exact(path: Path, shape: tuple[int, int]) -> F32:
+    """The ``.npy`` beside a map's YAML: float occupancy of the image's shape, in [0, 1]
+    or NaN; anything else is an error naming the file (a stale or foreign array would
+    otherwise be used, or dropped, without a word)."""
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except Exception as err:
+        # numpy reports a damaged header in many ways (ValueError, OSError, EOFError,
+        # tokenize.TokenError, SyntaxError, ...): at this boundary each is the file's fault.
+        reason = " ".join(str(err).split())
+        raise InputError(
+            f"cannot read occupancy array ({type(err).__name__}: {reason[:80]})", path=path
+        ) from None
+    if not isinstance(arr, np.ndarray) or arr.dtype.kind != "f":
+        kind = type(arr).__name__ if not isinstance(arr, np.ndarray) else str(arr.dtype)
+        raise InputError(f"expected a float occupancy array, got {kind}", path=path)
+    if arr.shape != shape:
+        raise InputError(
+            f"array of shape {arr.shape} beside an image of {shape[0]} x {shape[1]} pixels: "
+            "remove it or write the map again",
+            path=path,
+        )
+    bad = ~np.isnan(arr) & ~((arr >= 0.0) & (arr <= 1.0))
+    if bad.any():
+        r, c = np.argwhere(bad)[0]
+        raise InputError(
+            f"occupancy must be in [0, 1] or NaN, got {arr[r, c]} at row {r}, column {c}",
+            path=path,
+        )
+    return arr.astype(np.float32)
 
 
 def _read_bare_image(

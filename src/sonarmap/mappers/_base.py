@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Self
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import ConfigError, SonarmapError
+from ..errors import ConfigError, SonarmapError, quote
 from ..grid import Grid
 from ..io.rosmap import OccupancyMap
 from ..raster import Footprint, rasterise
@@ -322,12 +322,12 @@ def _coerce(value: str, default: Any, key: str) -> Any:
             return True
         if value.lower() in ("0", "false", "no", "off"):
             return False
-        raise ConfigError(f"parameter '{key}' expects true or false, got {value!r}")
+        raise ConfigError(f"parameter '{key}' expects true or false, got {quote(value)}")
     if isinstance(default, int):
         try:
             return int(value)
         except ValueError:
-            raise ConfigError(f"parameter '{key}' expects an integer, got {value!r}") from None
+            raise ConfigError(f"parameter '{key}' expects an integer, got {quote(value)}") from None
     if isinstance(default, float) or default is None:
         if default is None and value.lower() in ("none", ""):
             return None
@@ -336,7 +336,7 @@ def _coerce(value: str, default: Any, key: str) -> Any:
         except ValueError:
             if default is None:
                 return value
-            raise ConfigError(f"parameter '{key}' expects a number, got {value!r}") from None
+            raise ConfigError(f"parameter '{key}' expects a number, got {quote(value)}") from None
     return value
 
 

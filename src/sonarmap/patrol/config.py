@@ -19,7 +19,14 @@ from typing import Any
 from ..errors import InputError
 from ..files import read_yaml
 
-__all__ = ["SETUP_KEYS", "read_run_file"]
+__all__ = ["MAX_DILATION", "MAX_SECTORS", "SETUP_KEYS", "read_run_file"]
+
+#: Direction sectors at most (one a degree): each step scores every robot's sectors
+#: (the thesis uses 8).
+MAX_SECTORS = 360
+#: Fog dilation at most, cells a step: each step dilates the fog with a window of
+#: (2 d + 1)^2 cells (the thesis's experiment tries 0 to 4).
+MAX_DILATION = 20
 
 SETUP_KEYS = {
     "map": "map",

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..files import read_text
 from ..grid import Grid
 from ..io.rosmap import FREE, read_map
@@ -65,10 +65,12 @@ def read_polygons(path: str | Path) -> list[npt.NDArray[np.float64]]:
             x, y = (float(v) for v in parts)
         except ValueError:
             raise InputError(
-                f"expected 'x y' in metres, got {raw.strip()!r}", path=p, line=number
+                f"expected 'x y' in metres, got {quote(raw.strip())}", path=p, line=number
             ) from None
         if not (math.isfinite(x) and math.isfinite(y)):
-            raise InputError(f"expected finite numbers, got {raw.strip()!r}", path=p, line=number)
+            raise InputError(
+                f"expected finite numbers, got {quote(raw.strip())}", path=p, line=number
+            )
         current.append((x, y))
     close(start)
     if not polygons:

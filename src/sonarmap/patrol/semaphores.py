@@ -13,13 +13,14 @@ corner with y down, e.g. ``953 615;753 551;787 315;1063 97;1181 100;1181 241``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..files import read_text
 from ..grid import Grid
 from .region import polygon_mask
@@ -38,10 +39,16 @@ def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]
         try:
             xy = [tuple(float(v) for v in pair.split()) for pair in text.strip().split(";")]
         except ValueError:
-            raise InputError(f"expected 'x y;x y;...', got {text!r}", path=p, line=number) from None
+            raise InputError(
+                f"expected 'x y;x y;...', got {quote(text)}", path=p, line=number
+            ) from None
+        if not all(math.isfinite(c) for v in xy for c in v):
+            raise InputError(f"expected finite numbers, got {quote(text)}", path=p, line=number)
         if any(len(v) != 2 for v in xy) or len(xy) < 3:
             raise InputError(
-                f"a semaphore needs at least 3 'x y' vertices, got {text!r}", path=p, line=number
+                f"a semaphore needs at least 3 'x y' vertices, got {quote(text)}",
+                path=p,
+                line=number,
             )
         mask = polygon_cells([(v[0], v[1]) for v in xy], grid)
         if not mask.any():

@@ -250,10 +250,19 @@ class PatrolConfig:
             raise ConfigError(
                 f"start_fog must be >= 0 seconds, got {self.start_fog}", field="start_fog"
             )
-        if self.sectors < 1:
-            raise ConfigError(f"sectors must be >= 1, got {self.sectors}", field="sectors")
-        if self.dilation < 0:
-            raise ConfigError(f"dilation must be >= 0 cells, got {self.dilation}", field="dilation")
+        # Upper bounds: each step's cost grows with the sectors and with the square of
+        # the dilation, so absurd values would run for days rather than fail.
+        from .config import MAX_DILATION, MAX_SECTORS
+
+        if not (1 <= self.sectors <= MAX_SECTORS):
+            raise ConfigError(
+                f"sectors must be in 1..{MAX_SECTORS}, got {self.sectors}", field="sectors"
+            )
+        if not (0 <= self.dilation <= MAX_DILATION):
+            raise ConfigError(
+                f"dilation must be in 0..{MAX_DILATION} cells, got {self.dilation}",
+                field="dilation",
+            )
         if round(self.duration / self.dt) < 1:
             raise ConfigError(
                 f"duration {self.duration:g} s is shorter than one step of {self.dt:g} s",

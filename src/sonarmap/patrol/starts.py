@@ -18,13 +18,15 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import InputError
+from ..errors import ConfigError, InputError, quote
 from ..files import read_text
 from .paths import Wave
 from .robots import close_pairs
 from .territory import Territory
 
 __all__ = [
+    "MAX_ROBOTS",
+    "check_robot_count",
     "check_starts",
     "format_starts",
     "random_starts",
@@ -36,6 +38,25 @@ __all__ = [
 
 F64 = npt.NDArray[np.float64]
 
+#: Robots in one patrol at most. Every step checks each pair of robots for collisions
+#: and placing each spread start runs a wave over the whole map; the thesis's teams have
+#: a handful of robots.
+MAX_ROBOTS = 64
+
+
+def check_robot_count(n: int) -> None:
+    """Refuse a team of ``n`` robots unless 1 <= n <= :data:`MAX_ROBOTS`.
+
+    Raises
+    ------
+    ConfigError
+        With ``field="robots"``.
+    """
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        raise ConfigError(f"robots must be an int >= 1, got {quote(n)}", field="robots")
+    if n > MAX_ROBOTS:
+        raise ConfigError(f"robots {n}: at most {MAX_ROBOTS} robots", field="robots")
+
 
 def read_starts(path: str | Path, territory: Territory) -> F64:
     """A start file: world (x, y, heading) per robot (module notes for the format).
@@ -43,8 +64,9 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
     Raises
     ------
     InputError
-        Naming the file and line: unreadable, a count that is not a whole number >= 1,
-        fewer lines than the count, a line that is not three finite numbers.
+        Naming the file and line: unreadable, a count that is not a whole number in
+        1..:data:`MAX_ROBOTS`, fewer lines than the count, a line that is not three
+        finite numbers, a start outside the map.
     """
     p = Path(path)
     lines = [ln.strip() for ln in read_text(p, "start file").splitlines()]
@@ -55,9 +77,11 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
     try:
         n = int(head)
     except ValueError:
-        raise InputError(f"expected the robot count, got {head!r}", path=p, line=line) from None
-    if n < 1:
-        raise InputError(f"robot count must be >= 1, got {n}", path=p, line=line)
+        raise InputError(
+            f"expected the robot count, got {quote(head)}", path=p, line=line
+        ) from None
+    if not (1 <= n <= MAX_ROBOTS):
+        raise InputError(f"robot count must be in 1..{MAX_ROBOTS}, got {n}", path=p, line=line)
     if len(body) - 1 < n:
         raise InputError(f"the file says {n} robots but lists {len(body) - 1}", path=p)
     rows = []
@@ -66,9 +90,17 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
         try:
             xd, yd, phi = (float(v) for v in parts)
         except ValueError:
-            raise InputError(f"expected 'X Y phi', got {text!r}", path=p, line=line) from None
+            raise InputError(f"expected 'X Y phi', got {quote(text)}", path=p, line=line) from None
         if not all(math.isfinite(v) for v in (xd, yd, phi)):
-            raise InputError(f"expected finite numbers, got {text!r}", path=p, line=line)
+            raise InputError(f"expected finite numbers, got {quote(text)}", path=p, line=line)
+        g = territory.grid
+        width, height = 10.0 * g.cols * g.resolution, 10.0 * g.rows * g.resolution
+        if not (0.0 <= xd <= width and 0.0 <= yd <= height):
+            raise InputError(
+                f"start ({xd:g}, {yd:g}) dm is outside the map, 0..{width:g} x 0..{height:g} dm",
+                path=p,
+                line=line,
+            )
         rows.append((xd, yd, phi))
     return starts_from_dm(rows, territory)
 
@@ -129,6 +161,7 @@ def random_starts(
     n: int, territory: Territory, passable: npt.NDArray[np.bool_], sep: float, seed: int
 ) -> F64:
     """``n`` starts drawn on passable cells, at least ``sep`` apart, facing +x."""
+    check_robot_count(n)
     rng = np.random.default_rng(seed)
     cells = np.argwhere(passable)
     out: list[tuple[float, float, float]] = []
@@ -156,6 +189,7 @@ def spread_starts(
     InputError
         When fewer than ``n`` robots fit ``sep`` apart on one connected piece.
     """
+    check_robot_count(n)
     res = territory.grid.resolution
     cells = np.argwhere(passable)
     if not len(cells):

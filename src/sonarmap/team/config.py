@@ -8,10 +8,70 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import ConfigError
+from ..parallel import MIN_PROCESS_LIMIT, PROCESSES_PER_CORE, process_limit
 from .association import AssociationParams
 from .store import StoreParams
 
-__all__ = ["MissionConfig"]
+__all__ = [
+    "MAX_DURATION",
+    "MAX_ROBOTS",
+    "MissionConfig",
+    "check_team_size",
+    "team_size_problem",
+]
+
+#: Robots in one team at most. The exchange's traffic and the simulated network's
+#: pairs grow with the square of the team (64 robots: 4032 links); the thesis's teams
+#: have a handful of robots.
+MAX_ROBOTS = 64
+
+#: Seconds of one mission at most: a day of simulated time. A route holds two poses a
+#: second and each robot's store grows with its route, so a mission of 10^12 s would
+#: try to build a route of 2 x 10^12 poses before anything else (the thesis's
+#: missions last minutes).
+MAX_DURATION = 86_400.0
+
+
+def team_size_problem(robots: int, *, processes: bool = False) -> str | None:
+    """What is wrong with a team of ``robots`` robots, or None.
+
+    Parameters
+    ----------
+    robots : int
+        The team's size.
+    processes : bool
+        The robots run as local processes (:func:`~.launcher.run_zmq_team`), one each:
+        :func:`sonarmap.parallel.process_limit` bounds them too.
+
+    Returns
+    -------
+    str or None
+        The reason without the value, e.g. ``"at most 64 robots in a team"``.
+    """
+    if isinstance(robots, bool) or not isinstance(robots, int) or robots < 1:
+        return "expected an int >= 1"
+    if robots > MAX_ROBOTS:
+        return f"at most {MAX_ROBOTS} robots in a team"
+    limit = process_limit()
+    if processes and robots > limit:
+        return (
+            f"at most {limit} node processes on this machine ({PROCESSES_PER_CORE} per "
+            f"core, at least {MIN_PROCESS_LIMIT}); use --transport sim"
+        )
+    return None
+
+
+def check_team_size(robots: int, *, processes: bool = False) -> None:
+    """Refuse a team too large to run, before any work (:func:`team_size_problem`).
+
+    Raises
+    ------
+    ConfigError
+        With ``field="robots"``.
+    """
+    problem = team_size_problem(robots, processes=processes)
+    if problem is not None:
+        raise ConfigError(f"robots {robots!r}: {problem}", field="robots")
 
 
 @dataclass(frozen=True)
@@ -72,8 +132,13 @@ class MissionConfig:
         ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"{name} must be > 0, got {v}")
+                raise ConfigError(f"{name} must be > 0, got {v}", field=name)
+        if self.duration > MAX_DURATION:
+            raise ConfigError(
+                f"duration {self.duration:g} s: at most {MAX_DURATION:g} s (a day)",
+                field="duration",
+            )
         if self.batch < 1:
-            raise ConfigError(f"batch must be >= 1, got {self.batch}")
+            raise ConfigError(f"batch must be >= 1, got {self.batch}", field="batch")
         if self.seed < 0:
-            raise ConfigError(f"seed must be >= 0, got {self.seed}")
+            raise ConfigError(f"seed must be >= 0, got {self.seed}", field="seed")

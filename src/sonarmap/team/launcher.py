@@ -27,6 +27,7 @@ import numpy.typing as npt
 from ..errors import ConfigError, InputError
 from ..files import atomic_write_text
 from ..io.rosmap import OccupancyMap, read_map, write_map
+from .config import check_team_size
 from .exchange import ExchangeParams
 from .keys import make_team_key
 from .mission import MissionConfig
@@ -215,8 +216,8 @@ def run_zmq_team(
     -------
     ZmqTeamResult
     """
-    if isinstance(robots, bool) or not isinstance(robots, int) or robots < 1:
-        raise ConfigError(f"robots must be an int >= 1, got {robots!r}")
+    # Refused, not attempted: each robot is a process of its own.
+    check_team_size(robots, processes=True)
     net = network if network is not None else NetworkParams(kind="full")
     if (
         net.kind != "full"

@@ -39,6 +39,7 @@ from ..patrol.robots import Team
 from ..patrol.simulation import PatrolConfig, PatrolResult, run_patrol
 from ..patrol.starts import random_starts
 from ..patrol.territory import Territory
+from .config import check_team_size
 
 __all__ = ["patrol_config", "patrol_routes"]
 
@@ -115,8 +116,7 @@ def patrol_routes(
     result : PatrolResult
         The patrol's own measures (idleness).
     """
-    if isinstance(robots, bool) or not isinstance(robots, int) or robots < 1:
-        raise ConfigError(f"robots must be an int >= 1, got {robots!r}")
+    check_team_size(robots)
     cfg = patrol_config(duration) if config is None else config
     territory = Territory.from_map(plan, cell=cfg.cell)
     t: list[float] = []

@@ -64,6 +64,7 @@ import numpy.typing as npt
 from ..io.rosmap import OccupancyMap
 from .animation import TeamFrame
 from .central import CentralResult, central_map
+from .config import check_team_size
 from .exchange import ExchangeParams, Exchanger
 from .lockstep import LockstepClock, quiet_seconds, team_ticks
 from .mission import MissionConfig, MissionResult, RobotAgent
@@ -298,8 +299,7 @@ def run_team(
     -------
     TeamResult
     """
-    if isinstance(robots, bool) or not isinstance(robots, int) or robots < 1:
-        raise ValueError(f"robots must be an int >= 1, got {robots!r}")
+    check_team_size(robots)
     if routes is not None and len(routes) != robots:
         raise ValueError(f"routes: {len(routes)} given for {robots} robots")
     if not (math.isfinite(frame_every) and frame_every > 0):

@@ -41,7 +41,7 @@ import numpy.typing as npt
 import yaml
 from scipy import ndimage
 
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, quote
 from ..files import atomic_folder, need_file, read_text, read_yaml
 from ..floorplan import random_building
 from ..grid import Grid
@@ -53,6 +53,7 @@ from ..rig import Rig, get_rig
 from ..scenarios import office
 from ..sensors import Noise
 from ..simulate import SonarModel, simulate
+from .config import MAX_DURATION
 from .records import Landmarks
 
 __all__ = [
@@ -262,6 +263,14 @@ def _check_positive(**values: float) -> None:
             raise ConfigError(f"parameter '{k}' must be > 0, got {v}")
 
 
+def _check_duration(duration: float) -> None:
+    # Routes and changes are drawn for the whole mission at once: refuse before drawing.
+    if duration > MAX_DURATION:
+        raise ConfigError(
+            f"duration {duration:g} s: at most {MAX_DURATION:g} s (a day)", field="duration"
+        )
+
+
 def make_world(
     plan: OccupancyMap,
     *,
@@ -324,6 +333,7 @@ def make_world(
         texture_groups=texture_groups,
         move_max=move_max,
     )
+    _check_duration(duration)
     _check_share(texture_share=texture_share, change_share=change_share, move_share=move_share)
     if not (0 <= z_min <= z_max) or not (0 <= move_min <= move_max) or texture_noise < 0:
         raise ConfigError(
@@ -541,6 +551,7 @@ def patrol_route(
         ``t, x, y, theta``; T = ``round(duration * rate)``.
     """
     _check_positive(duration=duration, speed=speed, rate=rate)
+    _check_duration(duration)
     grid, ok = _passable(plan, radius)
     comps, _ = ndimage.label(ok, structure=np.ones((3, 3), dtype=bool))
     sizes = np.bincount(comps.ravel())
@@ -858,9 +869,9 @@ def _float(
     try:
         v = float(text)
     except ValueError:
-        raise InputError(f"not a number: {text!r}", path=path, line=line, field=name) from None
+        raise InputError(f"not a number: {quote(text)}", path=path, line=line, field=name) from None
     if math.isnan(v) or (finite and not math.isfinite(v)):
-        raise InputError(f"not a finite number: {text!r}", path=path, line=line, field=name)
+        raise InputError(f"not a finite number: {quote(text)}", path=path, line=line, field=name)
     return v
 
 
@@ -950,7 +961,7 @@ def _meta_key(meta: Mapping[str, Any], key: str, kind: type | tuple[type, ...], 
         raise InputError(f"missing key '{key}'", path=p, field=key)
     v = meta[key]
     if isinstance(v, bool) or not isinstance(v, kind):
-        raise InputError(f"unexpected value {v!r}", path=p, field=key)
+        raise InputError(f"unexpected value {quote(v)}", path=p, field=key)
     return v
 
 
