@@ -59,6 +59,7 @@ __all__ = [
     "MappingPublisher",
     "Recorder",
     "Sink",
+    "make_recorder",
     "robot_poses",
     "trinary",
 ]
@@ -132,6 +133,8 @@ class Recorder:
 
     def __init__(self, sinks: Sequence[Sink] = ()) -> None:
         self.sinks = list(sinks)
+        #: Where a live viewer connects, when a sink serves live (:func:`make_recorder`).
+        self.url: str | None = None
         self.n_messages = 0
         self._due: dict[str, float] = {}
         self._closed = False
@@ -293,3 +296,47 @@ class BagRecorder(MappingPublisher):
         tb: TracebackType | None,
     ) -> None:
         self.recorder.close()
+
+
+def make_recorder(
+    bag: Path | None = None,
+    *,
+    live_port: int | None = None,
+    live_rate: float | None = 1.0,
+    live_host: str = "127.0.0.1",
+) -> Recorder:
+    """A recorder into a bag, a live server, both or neither.
+
+    Parameters
+    ----------
+    bag : Path, optional
+        The bag's new folder (:class:`BagSink`).
+    live_port : int, optional
+        Serve live on this port (0: any free one) with a
+        :class:`~sonarmap.io.live.LiveSink`.
+    live_rate : float or None
+        Live: simulated seconds per wall second the run is held to; None, no pacing.
+    live_host : str
+        Live: the address bound, ``127.0.0.1`` by default.
+
+    The live server starts first; a bag that cannot be opened then stops it again, so
+    a failure leaves nothing behind.
+    """
+    sinks: list[Sink] = []
+    url = None
+    if live_port is not None:
+        from .live import LiveSink
+
+        live = LiveSink(live_port, host=live_host, rate=live_rate)
+        sinks.append(live)
+        url = live.url
+    if bag is not None:
+        try:
+            sinks.append(BagSink(bag))
+        except BaseException:
+            for s in sinks:
+                s.close()
+            raise
+    rec = Recorder(sinks)
+    rec.url = url
+    return rec

@@ -1,0 +1,149 @@
+"""A run served live over the Foxglove WebSocket protocol (the ``--live`` option).
+
+:class:`LiveSink` is a :class:`~sonarmap.io.record.Sink`: it serves the messages a bag
+would hold, on the same topics and in the same ROS 2 types (CDR bytes, ``ros2msg``
+schemas), through the Foxglove SDK's WebSocket server (``foxglove-sdk``), so that
+Foxglove (``Open connection``, ``ws://127.0.0.1:8765``) draws them as they come.
+
+Choices:
+
+- **Pace.** A simulation runs far faster than real time; a viewer would see only its
+  end. The sink holds each message until ``t / rate`` wall seconds after the first
+  (``rate`` simulated seconds per wall second), which paces the loop that publishes.
+- **Late viewers.** The protocol keeps no message for a client that subscribes later,
+  and a territory is published once. So the sink sends again the latest message of
+  every topic not published for ``refresh`` wall seconds (2), with its own time stamp:
+  a viewer that connects at any moment has every topic within that time.
+- **Where.** The server binds ``127.0.0.1`` unless told otherwise; the run's own
+  :class:`foxglove.Context` keeps its channels apart from any other in the process.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from ..errors import ConfigError
+from .rosmsg import msgdef, serialize
+
+__all__ = ["DEFAULT_PORT", "LiveSink"]
+
+#: Foxglove's default WebSocket port.
+DEFAULT_PORT = 8765
+
+
+class LiveSink:
+    """Serve a run's messages over the Foxglove WebSocket protocol while it goes.
+
+    Parameters
+    ----------
+    port : int
+        TCP port, 0 for any free one (:attr:`port` says which); default 8765.
+    host : str
+        Address to bind; default ``127.0.0.1`` (this machine only).
+    rate : float or None
+        Simulated seconds per wall second the run is held to (> 0); None: no pacing.
+    refresh : float
+        Wall seconds after which a topic's latest message is sent again (> 0).
+    name : str
+        The server's name, shown by Foxglove.
+
+    Raises
+    ------
+    ConfigError
+        A rate or refresh that is not > 0, a port outside 0-65535.
+        Also when the server cannot listen there (the port is taken, say).
+    """
+
+    def __init__(
+        self,
+        port: int = DEFAULT_PORT,
+        *,
+        host: str = "127.0.0.1",
+        rate: float | None = 1.0,
+        refresh: float = 2.0,
+        name: str = "sonarmap",
+    ) -> None:
+        if rate is not None and not (math.isfinite(rate) and rate > 0):
+            raise ConfigError(f"live rate must be > 0 simulated seconds per second, got {rate}")
+        if not (math.isfinite(refresh) and refresh > 0):
+            raise ConfigError(f"refresh must be > 0 seconds, got {refresh}")
+        if not 0 <= port <= 65535:
+            raise ConfigError(f"live port must be in 0-65535, got {port}")
+        import foxglove
+
+        self._foxglove = foxglove
+        self._context = foxglove.Context()
+        try:
+            self._server = foxglove.start_server(
+                name=name, host=host, port=port, context=self._context
+            )
+        except Exception as err:  # the SDK raises its own error types for a busy port
+            raise ConfigError(
+                f"cannot serve on {host}:{port} ({err}); try another --live-port",
+                field="live_port",
+            ) from err
+        self.host = host
+        self.port = int(self._server.port)
+        self.rate = rate
+        self.refresh = refresh
+        self.n_messages = 0
+        self._channels: dict[str, Any] = {}
+        # topic -> (wall time sent, bytes, log time ns)
+        self._latest: dict[str, tuple[float, bytes, int]] = {}
+        self._start: tuple[float, float] | None = None
+        self._closed = False
+
+    @property
+    def url(self) -> str:
+        """Where Foxglove connects."""
+        return f"ws://{self.host}:{self.port}"
+
+    def _channel(self, topic: str, msgtype: str) -> Any:
+        ch = self._channels.get(topic)
+        if ch is None:
+            schema = self._foxglove.Schema(
+                name=msgtype, encoding="ros2msg", data=msgdef(msgtype).encode()
+            )
+            ch = self._foxglove.Channel(
+                topic, schema=schema, message_encoding="cdr", context=self._context
+            )
+            self._channels[topic] = ch
+        return ch
+
+    def wait_until(self, t: float) -> None:
+        """Hold the caller until simulated time ``t`` is due on the wall clock (no wait
+        without a rate), sending stale topics again meanwhile."""
+        now = time.perf_counter()
+        if self._start is None:
+            self._start = (now, t)
+        if self.rate is None:
+            return
+        due = self._start[0] + (t - self._start[1]) / self.rate
+        while (left := due - time.perf_counter()) > 0:
+            time.sleep(min(left, 0.2))
+            self._send_stale()
+
+    def publish(self, topic: str, msgtype: str, msg: Any, t: float) -> None:
+        self.wait_until(t)
+        data = serialize(msg, msgtype)
+        stamp = max(0, round(t * 1e9))
+        self._channel(topic, msgtype).log(data, log_time=stamp)
+        self._latest[topic] = (time.perf_counter(), data, stamp)
+        self.n_messages += 1
+        self._send_stale()
+
+    def _send_stale(self) -> None:
+        now = time.perf_counter()
+        for topic, (sent, data, stamp) in list(self._latest.items()):
+            if now - sent >= self.refresh:
+                self._channels[topic].log(data, log_time=stamp)
+                self._latest[topic] = (now, data, stamp)
+
+    def close(self) -> None:
+        """Stop the server (once)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._server.stop()

@@ -1,0 +1,208 @@
+"""Patrol and team runs recorded as ROS 2 bags (read back with rosbags) and served live
+over the Foxglove WebSocket protocol (answered by a client on 127.0.0.1)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import struct
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import websockets
+import yaml
+from rosbags.highlevel import AnyReader
+
+from sonarmap.cli import main
+from sonarmap.grid import Grid
+from sonarmap.io.record import Recorder, make_recorder
+from sonarmap.io.rosmap import OccupancyMap, read_map, write_map
+from sonarmap.patrol import PatrolConfig, Territory, run_patrol
+from sonarmap.patrol.publish import PatrolPublisher, robot_frame, territory_levels
+
+#: The SDK's server takes the protocol under its new name; Foxglove offers both.
+SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
+TIMEOUT = 20.0
+
+
+def _plan(tmp_path: Path) -> Path:
+    """A 40 x 30 m floor with a wall across the middle, two robots' start file."""
+    g = Grid(resolution=0.1, origin=(0.0, 0.0), shape=(300, 400))
+    occ = np.zeros(g.shape, np.float32)
+    occ[140:160, 100:300] = 1.0
+    write_map(OccupancyMap(g, occ), tmp_path / "plan")
+    (tmp_path / "starts.txt").write_text("2\n50 50 0\n350 250 0\n")
+    return tmp_path / "plan.yaml"
+
+
+def _grid_values(msg: Any) -> np.ndarray[Any, np.dtype[np.int8]]:
+    """An OccupancyGrid's data as sonarmap's arrays hold it (row 0 at the top)."""
+    data = np.asarray(msg.data, dtype=np.int8).reshape(msg.info.height, msg.info.width)
+    return data[::-1]
+
+
+def _read(bag: Path) -> dict[str, list[tuple[int, Any]]]:
+    out: dict[str, list[tuple[int, Any]]] = {}
+    with AnyReader([bag]) as reader:
+        for conn, t, raw in reader.messages():
+            out.setdefault(conn.topic, []).append((t, reader.deserialize(raw, conn.msgtype)))
+    return out
+
+
+def test_patrol_run_records_a_bag(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    plan = _plan(tmp_path)
+    out = tmp_path / "run"
+    args = ["patrol", "run", "--map", str(plan), "--starts", str(tmp_path / "starts.txt")]
+    main([*args, "--duration", "20", "--network", "limited", "--bag", "-o", str(out)])
+    assert "bag/" in capsys.readouterr().out
+    meta = yaml.safe_load((out / "bag" / "metadata.yaml").read_text())
+    assert meta["rosbag2_bagfile_information"]["storage_identifier"] == "mcap"
+    with AnyReader([out / "bag"]) as reader:
+        types = {c.topic: c.msgtype for c in reader.connections}
+    assert types["/map"] == types["/fog"] == "nav_msgs/msg/OccupancyGrid"
+    assert types["/tf"] == "tf2_msgs/msg/TFMessage"
+    assert types["/robot0/path"] == "nav_msgs/msg/Path"
+    assert types["/network"] == "visualization_msgs/msg/MarkerArray"
+    assert types["/mtb"] == "std_msgs/msg/Float64"
+    msgs = _read(out / "bag")
+    territory = Territory.from_map(read_map(plan), cell=PatrolConfig().cell)
+    [(_, grid)] = msgs["/map"]
+    np.testing.assert_array_equal(_grid_values(grid), territory_levels(territory))
+    assert grid.info.resolution == pytest.approx(territory.grid.resolution)
+    # 40 steps of 0.5 s: one pose per robot per step, stamped in simulated time.
+    steps = 40
+    per_robot: Counter[str] = Counter()
+    for t, msg in msgs["/tf"]:
+        for tr in msg.transforms:
+            assert tr.header.frame_id == "map"
+            per_robot[tr.child_frame_id] += 1
+            assert tr.header.stamp.sec + 1e-9 * tr.header.stamp.nanosec == pytest.approx(t * 1e-9)
+    assert per_robot == {robot_frame(0): steps, robot_frame(1): steps}
+    assert [t for t, _ in msgs["/tf"]][-1] == 20 * 10**9
+    # The fog at its lower rate (every 5 s), scaled 0-100, -1 where not watched.
+    assert len(msgs["/fog"]) == 4
+    fog = _grid_values(msgs["/fog"][-1][1])
+    assert fog.max() == 100
+    assert set(np.unique(fog[~territory.free]).tolist()) == {-1}
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["steps"] == steps
+
+
+def test_patrol_bad_fog_rate_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plan = _plan(tmp_path)
+    out = tmp_path / "run"
+    args = ["patrol", "run", "--map", str(plan), "--robots", "1", "--duration", "5"]
+    with pytest.raises(SystemExit) as e:
+        main([*args, "--bag", "--fog-every", "0", "-o", str(out)])
+    assert e.value.code == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_recorder_due_gates_a_slower_topic() -> None:
+    rec = Recorder()
+    assert not rec
+    due = [t for t in np.arange(0.0, 10.0, 0.5).tolist() if rec.due("fog", t, 2.0)]
+    assert due == [0.0, 2.0, 4.0, 6.0, 8.0]
+
+
+# --- live ----------------------------------------------------------------------------
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+async def _watch(port: int, want: set[str], deadline: float) -> dict[str, Any]:
+    """Connect, take serverInfo and the advertised channels, subscribe to ``want`` and
+    collect one message of each; every wait bounded by ``deadline``."""
+    seen: dict[str, Any] = {"channels": {}, "data": {}}
+    uri = f"ws://127.0.0.1:{port}"
+    ws: Any = None
+    while ws is None:
+        try:
+            ws = await websockets.connect(uri, subprotocols=SUBPROTOCOLS, open_timeout=2)  # type: ignore[arg-type]
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.2)
+    async with ws:
+        subscribed: dict[int, str] = {}
+        while set(seen["data"]) != want:
+            left = deadline - time.monotonic()
+            assert left > 0, f"timed out: {sorted(seen['data'])} of {sorted(want)}"
+            frame = await asyncio.wait_for(ws.recv(), left)
+            if isinstance(frame, str):
+                msg = json.loads(frame)
+                if msg["op"] == "serverInfo":
+                    seen["serverInfo"] = msg
+                elif msg["op"] == "advertise":
+                    subs = []
+                    for ch in msg["channels"]:
+                        seen["channels"][ch["topic"]] = ch
+                        if ch["topic"] in want and ch["id"] not in subscribed.values():
+                            sid = len(subscribed) + 1
+                            subscribed[sid] = ch["topic"]
+                            subs.append({"id": sid, "channelId": ch["id"]})
+                    if subs:
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            elif frame[0] == 1:  # messageData: opcode, subscription id, log time, payload
+                sid, log_time = struct.unpack_from("<IQ", frame, 1)
+                seen["data"].setdefault(subscribed[sid], (log_time, bytes(frame[13:])))
+    return seen
+
+
+def test_a_live_patrol_answers_a_foxglove_client(tmp_path: Path) -> None:
+    plan = _plan(tmp_path)
+    territory = Territory.from_map(read_map(plan), cell=0.5)
+    config = PatrolConfig(duration=60.0)
+    want = {"/map", "/tf", "/fog", "/network"}
+    result: dict[str, Any] = {}
+    # Paced at 10x real time: the run lasts 6 s, long enough for the client to join.
+    with make_recorder(live_port=0, live_rate=10.0) as rec:
+        assert rec.url is not None
+        port = int(rec.url.rsplit(":", 1)[1])
+        publisher = PatrolPublisher(rec, territory, config)
+
+        def run() -> None:
+            run_patrol(territory, config, robots=2, seed=1, on_step=publisher)
+            result["steps"] = publisher.steps
+
+        worker = threading.Thread(target=run, daemon=True)
+        worker.start()
+        seen = asyncio.run(_watch(port, want, time.monotonic() + TIMEOUT))
+        worker.join(TIMEOUT)
+    assert not worker.is_alive()
+    assert result["steps"] == 120
+    assert seen["serverInfo"]["name"] == "sonarmap"
+    assert seen["channels"]["/map"]["schemaName"] == "nav_msgs/msg/OccupancyGrid"
+    assert seen["channels"]["/map"]["encoding"] == "cdr"
+    assert seen["channels"]["/tf"]["schemaEncoding"] == "ros2msg"
+    assert set(seen["data"]) == want
+
+
+def test_patrol_run_live_serves_on_the_port_given(tmp_path: Path) -> None:
+    plan = _plan(tmp_path)
+    port = _free_port()
+    out = tmp_path / "run"
+    args = ["patrol", "run", "--map", str(plan), "--robots", "2", "--duration", "40"]
+    args += ["--live", "--live-port", str(port), "--live-rate", "10", "-o", str(out)]
+    worker = threading.Thread(target=main, args=(args,), daemon=True)
+    worker.start()
+    seen = asyncio.run(_watch(port, {"/map", "/tf"}, time.monotonic() + 60.0))
+    worker.join(60.0)
+    assert not worker.is_alive()
+    assert "serverInfo" in seen
+    assert {"/map", "/fog", "/tf"} <= set(seen["channels"])
+    assert (out / "summary.json").exists()
+    assert not (out / "bag").exists()
