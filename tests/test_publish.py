@@ -21,7 +21,7 @@ from rosbags.highlevel import AnyReader
 
 from sonarmap.cli import main
 from sonarmap.grid import Grid
-from sonarmap.io.record import Recorder, make_recorder
+from sonarmap.io.record import Recorder, make_recorder, trinary
 from sonarmap.io.rosmap import OccupancyMap, read_map, write_map
 from sonarmap.patrol import PatrolConfig, Territory, run_patrol
 from sonarmap.patrol.publish import PatrolPublisher, robot_frame, territory_levels
@@ -206,3 +206,63 @@ def test_patrol_run_live_serves_on_the_port_given(tmp_path: Path) -> None:
     assert {"/map", "/fog", "/tf"} <= set(seen["channels"])
     assert (out / "summary.json").exists()
     assert not (out / "bag").exists()
+
+
+# --- team ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def floor() -> OccupancyMap:
+    from sonarmap.scenarios import office
+    from sonarmap.sensors import Noise
+
+    return office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+
+
+def test_team_run_records_a_bag(
+    tmp_path: Path, floor: OccupancyMap, capsys: pytest.CaptureFixture[str]
+) -> None:
+    write_map(floor, tmp_path / "plan")
+    out = tmp_path / "out"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "20",
+          "--bag", "--map-every", "5", "-o", str(out)])  # fmt: skip
+    assert "bag/ (2 files)" in capsys.readouterr().out
+    meta = yaml.safe_load((out / "bag" / "metadata.yaml").read_text())
+    assert meta["rosbag2_bagfile_information"]["storage_identifier"] == "mcap"
+    msgs = _read(out / "bag")
+    [(_, grid)] = msgs["/map"]
+    np.testing.assert_array_equal(_grid_values(grid), trinary(floor.classes()))
+    assert len(msgs["/robot0/map"]) >= 4  # every 5 s of 20, and the final one
+    assert all(len(m.transforms) == 1 for _, m in msgs["/tf"])
+    assert len(msgs["/tf"]) == len(msgs["/bytes_sent"])
+
+
+def test_team_publisher_sends_each_robots_map(tmp_path: Path, floor: OccupancyMap) -> None:
+    from sonarmap.io.record import BagSink
+    from sonarmap.team.exchange import ExchangeParams
+    from sonarmap.team.mission import MissionConfig
+    from sonarmap.team.network import NetworkParams
+    from sonarmap.team.publish import TeamPublisher, global_map_now
+    from sonarmap.team.publish import robot_frame as team_frame
+    from sonarmap.team.simulation import run_team
+
+    with Recorder([BagSink(tmp_path / "bag")]) as rec:
+        pub = TeamPublisher(rec, floor, map_every=5.0)
+        team = run_team(floor, MissionConfig(duration=20.0), 2, network=NetworkParams(),
+                        exchange=ExchangeParams(), seed=0, on_tick=pub)  # fmt: skip
+        pub.finish()
+    msgs = _read(tmp_path / "bag")
+    for k, agent in enumerate(team.agents):
+        last = msgs[f"/robot{k}/map"][-1][1]
+        held = global_map_now(agent)
+        np.testing.assert_array_equal(_grid_values(last), trinary(held.classes()))
+        assert (last.info.width, last.info.height) == (held.grid.cols, held.grid.rows)
+        graph = msgs[f"/robot{k}/graph"][-1][1]
+        poses = [m for m in graph.markers if m.ns == "poses"]
+        assert len(poses[0].points) == len(agent.store.local.poses)
+    # One pose per robot per tick in /tf, at the tick's time.
+    children: Counter[str] = Counter()
+    for _, msg in msgs["/tf"]:
+        children.update(tr.child_frame_id for tr in msg.transforms)
+    assert children == {team_frame(0): pub.ticks, team_frame(1): pub.ticks}
+    assert msgs["/bytes_sent"][-1][1].data == sum(e.stats.bytes_sent for e in team.exchangers)
