@@ -25,6 +25,7 @@ from sonarmap.io.record import Recorder, make_recorder, trinary
 from sonarmap.io.rosmap import OccupancyMap, read_map, write_map
 from sonarmap.patrol import PatrolConfig, Territory, run_patrol
 from sonarmap.patrol.publish import PatrolPublisher, robot_frame, territory_levels
+from sonarmap.scenarios import Scenario
 
 #: The SDK's server takes the protocol under its new name; Foxglove offers both.
 SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
@@ -266,3 +267,27 @@ def test_team_publisher_sends_each_robots_map(tmp_path: Path, floor: OccupancyMa
         children.update(tr.child_frame_id for tr in msg.transforms)
     assert children == {team_frame(0): pub.ticks, team_frame(1): pub.ticks}
     assert msgs["/bytes_sent"][-1][1].data == sum(e.stats.bytes_sent for e in team.exchangers)
+
+
+# --- stream --------------------------------------------------------------------------
+
+
+def test_stream_live_serves_the_mapping_topics(doorways: Scenario, tmp_path: Path) -> None:
+    doorways.write(tmp_path / "scene")
+    d = tmp_path / "scene"
+    port = _free_port()
+    args = ["stream", str(d / "readings.csv"), "--rig", str(d / "rig.yaml")]
+    args += ["--like", str(d / "truth.yaml"), "--method", "inverse", "--animation", ""]
+    # 20 s of log at 4x: 5 s of serving.
+    args += ["--live", "--live-port", str(port), "--live-rate", "4", "-o", str(tmp_path / "out")]
+    worker = threading.Thread(target=main, args=(args,), daemon=True)
+    worker.start()
+    want = {"/map", "/tf", "/tf_static"}
+    seen = asyncio.run(_watch(port, want, time.monotonic() + 60.0))
+    worker.join(60.0)
+    assert not worker.is_alive()
+    assert seen["channels"]["/map"]["schemaName"] == "nav_msgs/msg/OccupancyGrid"
+    assert any(t.startswith("/sonar/") for t in seen["channels"])
+    assert set(seen["data"]) == want
+    assert (tmp_path / "out" / "map.yaml").exists()
+    assert not (tmp_path / "out" / "bag").exists()

@@ -10,6 +10,8 @@ Choices:
 - **Pace.** A simulation runs far faster than real time; a viewer would see only its
   end. The sink holds each message until ``t / rate`` wall seconds after the first
   (``rate`` simulated seconds per wall second), which paces the loop that publishes.
+  A run that falls behind the pace by more than half a second (kernels compiling, a
+  slow step) is not hurried to catch up: the pace starts again from there.
 - **Late viewers.** The protocol keeps no message for a client that subscribes later,
   and a territory is published once. So the sink sends again the latest message of
   every topic not published for ``refresh`` wall seconds (2), with its own time stamp:
@@ -88,6 +90,8 @@ class LiveSink:
         self.port = int(self._server.port)
         self.rate = rate
         self.refresh = refresh
+        #: Wall seconds behind the pace after which the pace starts again from now.
+        self.slack = 0.5
         self.n_messages = 0
         self._channels: dict[str, Any] = {}
         # topic -> (wall time sent, bytes, log time ns)
@@ -121,6 +125,11 @@ class LiveSink:
         if self.rate is None:
             return
         due = self._start[0] + (t - self._start[1]) / self.rate
+        if now - due > self.slack:
+            # Behind (kernels compiling, a slow step): keep the pace from here on rather
+            # than rush through the run to catch up.
+            self._start = (now, t)
+            return
         while (left := due - time.perf_counter()) > 0:
             time.sleep(min(left, 0.2))
             self._send_stale()
