@@ -291,3 +291,14 @@ def test_stream_live_serves_the_mapping_topics(doorways: Scenario, tmp_path: Pat
     assert set(seen["data"]) == want
     assert (tmp_path / "out" / "map.yaml").exists()
     assert not (tmp_path / "out" / "bag").exists()
+
+
+def test_shipped_layouts_are_the_generated_ones() -> None:
+    from sonarmap.io.layouts import LAYERS, layout
+
+    folder = Path(__file__).parents[1] / "docs" / "layouts"
+    for name in LAYERS:
+        text = (folder / f"{name}.json").read_text()
+        assert text == layout(name), f"docs/layouts/{name}.json: run write_layouts again"
+        topics = json.loads(text)["content"]["items"][0]["content"]["config"]["topics"]
+        assert "/map" in topics
