@@ -302,3 +302,31 @@ def test_shipped_layouts_are_the_generated_ones() -> None:
         assert text == layout(name), f"docs/layouts/{name}.json: run write_layouts again"
         topics = json.loads(text)["content"]["items"][0]["content"]["config"]["topics"]
         assert "/map" in topics
+
+
+def test_a_live_team_answers_a_foxglove_client(floor: OccupancyMap) -> None:
+    from sonarmap.team.exchange import ExchangeParams
+    from sonarmap.team.mission import MissionConfig
+    from sonarmap.team.network import NetworkParams
+    from sonarmap.team.publish import TeamPublisher
+    from sonarmap.team.simulation import run_team
+
+    want = {"/map", "/tf", "/robot0/map", "/robot1/graph", "/bytes_sent"}
+    with make_recorder(live_port=0, live_rate=5.0) as rec:
+        assert rec.url is not None
+        port = int(rec.url.rsplit(":", 1)[1])
+        pub = TeamPublisher(rec, floor, map_every=2.0)
+
+        def run() -> None:
+            run_team(floor, MissionConfig(duration=20.0), 2, network=NetworkParams(),
+                     exchange=ExchangeParams(), seed=0, on_tick=pub)  # fmt: skip
+
+        worker = threading.Thread(target=run, daemon=True)
+        worker.start()
+        # The team's set-up (world, robots, first tick) takes a while on a busy machine.
+        seen = asyncio.run(_watch(port, want, time.monotonic() + 120.0))
+        worker.join(120.0)
+    assert not worker.is_alive()
+    assert seen["channels"]["/robot0/map"]["schemaName"] == "nav_msgs/msg/OccupancyGrid"
+    assert seen["channels"]["/bytes_sent"]["schemaName"] == "std_msgs/msg/Float64"
+    assert set(seen["data"]) == want
