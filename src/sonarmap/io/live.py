@@ -16,6 +16,10 @@ Choices:
   and a territory is published once. So the sink sends again the latest message of
   every topic not published for ``refresh`` wall seconds (2), with its own time stamp:
   a viewer that connects at any moment has every topic within that time.
+- **Channels early.** The publishers declare their topics before the run's set-up
+  (:meth:`LiveSink.declare`), so a viewer that connects is offered them in one
+  advertisement rather than one by one as they first carry a message: the SDK's server
+  can refuse a subscription that arrives just as its channel is advertised.
 - **Where.** The server binds ``127.0.0.1`` unless told otherwise; the run's own
   :class:`foxglove.Context` keeps its channels apart from any other in the process.
 """
@@ -115,6 +119,12 @@ class LiveSink:
             )
             self._channels[topic] = ch
         return ch
+
+    def declare(self, topic: str, msgtype: str) -> None:
+        """Advertise ``topic`` now. A viewer that subscribes to a channel in the same
+        moment the server advertises it can be refused (foxglove-sdk 0.30: "unknown
+        channel"); channels made before it connects come in its first advertisement."""
+        self._channel(topic, msgtype)
 
     def wait_until(self, t: float) -> None:
         """Hold the caller until simulated time ``t`` is due on the wall clock (no wait

@@ -75,6 +75,10 @@ class Sink(Protocol):
         """Take one message of ROS 2 type ``msgtype`` (a rosbags message object) on
         ``topic`` at the run's time ``t`` seconds; times never go back on a topic."""
 
+    def declare(self, topic: str, msgtype: str) -> None:
+        """Say that ``topic`` will carry ``msgtype`` messages (a live server advertises
+        it at once); publishing without declaring is allowed."""
+
     def close(self) -> None:
         """Finish: the bag closed, the server stopped. Called once."""
 
@@ -117,6 +121,9 @@ class BagSink:
         self._writer.write(conn, _ns(t), serialize(msg, msgtype))
         self.n_messages += 1
 
+    def declare(self, topic: str, msgtype: str) -> None:
+        """Nothing: a bag lists only the topics that have messages."""
+
     def close(self) -> None:
         self._writer.close()
 
@@ -147,6 +154,13 @@ class Recorder:
         for sink in self.sinks:
             sink.publish(topic, msgtype, msg, t)
         self.n_messages += 1
+
+    def declare(self, topics: dict[str, str]) -> None:
+        """Declare topics (name to message type) to every sink before they carry
+        messages, so that a live viewer is offered them all at once."""
+        for topic, msgtype in topics.items():
+            for sink in self.sinks:
+                sink.declare(topic, msgtype)
 
     def due(self, key: str, t: float, every: float) -> bool:
         """Whether the slower topic ``key`` is due at time ``t``: True the first time
@@ -225,6 +239,8 @@ class MappingPublisher:
         self.rig = rig
         self._fov = _field_of_view(rig)
         self._last_pose_t = -math.inf
+        topics = {"/tf_static": TF, "/tf": TF, "/map": GRID, "/map_occupancy": GRID}
+        recorder.declare(topics | {f"/sonar/{m.name}": _RANGE for m in rig.mounts})
         statics = [
             transform(0.0, "base_link", f"sonar_{m.name}", m.x, m.y, math.radians(m.yaw_deg))
             for m in rig.mounts

@@ -6,8 +6,9 @@ and gives them to a :class:`~sonarmap.io.record.Recorder`. Topics, all in frame
 ``map`` and stamped in simulated seconds:
 
 - ``/map`` (``nav_msgs/OccupancyGrid``): the territory on the run's cells, trinary as
-  ``map_server`` publishes a map (0 free, 100 obstacle, -1 unknown); once, at the first
-  step (a live viewer gets it again every few seconds, :class:`~sonarmap.io.live.LiveSink`);
+  ``map_server`` publishes a map (0 free, 100 obstacle, -1 unknown); once, at time 0
+  when the publisher is made (a live viewer gets it again every few seconds,
+  :class:`~sonarmap.io.live.LiveSink`);
 - ``/fog`` (the same type): every ``fog_every`` simulated seconds (5), each watched
   cell's time since last seen scaled to 0-100, 100 the worst place now (the MTB);
   -1 on the cells not watched;
@@ -18,7 +19,8 @@ and gives them to a :class:`~sonarmap.io.record.Recorder`. Topics, all in frame
 - ``/robots`` (``visualization_msgs/MarkerArray``): every step, each robot's disc;
 - ``/network`` (the same type): every step, the direct links of the network (every
   pair with ``full``; within the link range and in line of sight with ``limited``);
-- ``/crowding`` (the same type): the crowding areas: the semaphores' cells, once, or
+- ``/crowding`` (the same type): the crowding areas: the semaphores' cells, once at time
+  0, or
   with ``crowding="obstacles"`` every step the artificial obstacles' discs around the
   robots;
 - ``/mtb`` and ``/mean_tb`` (``std_msgs/Float64``): every step, the worst and the mean
@@ -57,7 +59,19 @@ from .robots import Team
 from .simulation import PatrolConfig
 from .territory import Territory
 
-__all__ = ["PatrolPublisher", "fog_levels", "robot_frame", "territory_levels"]
+__all__ = ["TOPICS", "PatrolPublisher", "fog_levels", "robot_frame", "territory_levels"]
+
+#: The topics of every run, and their types (``/robotK/path`` besides).
+TOPICS = {
+    "/map": GRID,
+    "/fog": GRID,
+    "/tf": TF,
+    "/robots": MARKERS,
+    "/network": MARKERS,
+    "/crowding": MARKERS,
+    "/mtb": FLOAT,
+    "/mean_tb": FLOAT,
+}
 
 #: Colours (r, g, b, a) of the markers.
 ROBOT_RGBA = (0.1, 0.4, 0.9, 0.9)
@@ -133,16 +147,20 @@ class PatrolPublisher:
         self.trail = trail
         self.steps = 0
         self._trails: list[deque[tuple[float, float, float, float]]] = []
+        # At once, before the run's set-up: a live viewer sees the territory from the start.
+        recorder.declare(TOPICS)
+        g = territory.grid
+        recorder.publish("/map", GRID, grid_message(g, 0.0, territory_levels(territory)), 0.0)
+        if self.semaphores:
+            recorder.publish("/crowding", MARKERS, markers_message(0.0, self._semaphores(0.0)), 0.0)
 
     def __call__(self, t: float, team: Team, fog: Fog) -> None:
         """Publish the run after the step that ended at time ``t``."""
         rec = self.recorder
         g = self.territory.grid
         if self.steps == 0:
-            rec.publish("/map", GRID, grid_message(g, t, territory_levels(self.territory)), t)
             self._trails = [deque() for _ in range(len(team))]
-            if self.semaphores:
-                rec.publish("/crowding", MARKERS, markers_message(t, self._semaphores(t)), t)
+            rec.declare({f"/robot{k}/path": PATH for k in range(len(team))})
         self.steps += 1
         x, y, heading = team.x, team.y, team.heading
         tfs = [

@@ -6,7 +6,8 @@
 ``on_step`` (:meth:`TeamPublisher.robot_step`). Topics, stamped in mission seconds:
 
 - ``/map`` (``nav_msgs/OccupancyGrid``, frame ``map``): the floor plan, trinary as
-  ``map_server`` publishes a map (0 free, 100 occupied, -1 unknown); once;
+  ``map_server`` publishes a map (0 free, 100 occupied, -1 unknown); once, at time 0
+  when the publisher is made;
 - ``/tf`` (``tf2_msgs/TFMessage``): every tick, ``map -> robotK/base_link``, each
   robot's true pose (one message holding them all);
 - ``/robotK/path`` (``nav_msgs/Path``): every ``path_every`` seconds (2), robot K's
@@ -59,7 +60,11 @@ from .globalmap import fuse_local_maps
 from .mission import RobotAgent
 from .simulation import TeamTick
 
-__all__ = ["TeamPublisher", "global_map_now", "robot_frame"]
+__all__ = ["ROBOT_TOPICS", "TOPICS", "TeamPublisher", "global_map_now", "robot_frame"]
+
+#: The team's topics, and their types; :data:`ROBOT_TOPICS` per robot (``/robotK/...``).
+TOPICS = {"/map": GRID, "/tf": TF, "/robots": MARKERS, "/network": MARKERS, "/bytes_sent": FLOAT}
+ROBOT_TOPICS = {"path": PATH, "map": GRID, "graph": MARKERS, "bytes_sent": FLOAT}
 
 ROBOT_RGBA = (0.1, 0.4, 0.9, 0.9)
 LINK_RGBA = (0.1, 0.8, 0.2, 0.9)
@@ -123,6 +128,9 @@ class TeamPublisher:
         self.ticks = 0
         self._trails: list[deque[tuple[float, float, float, float]]] = []
         self._last: TeamTick | None = None
+        # At once, before the run's set-up: a live viewer sees the floor from the start.
+        recorder.declare(TOPICS)
+        recorder.publish("/map", GRID, grid_message(plan.grid, 0.0, trinary(plan.classes())), 0.0)
 
     def robot_step(self, t: float, agent: RobotAgent) -> None:
         """``run_mission``'s ``on_step``: one robot alone, no network."""
@@ -133,9 +141,14 @@ class TeamPublisher:
         rec, t, agents = self.recorder, tick.t, tick.agents
         self._last = tick
         if self.ticks == 0:
-            g = self.plan.grid
-            rec.publish("/map", GRID, grid_message(g, t, trinary(self.plan.classes())), t)
             self._trails = [deque() for _ in agents]
+            rec.declare(
+                {
+                    f"/robot{a.robot}/{name}": msgtype
+                    for a in agents
+                    for name, msgtype in ROBOT_TOPICS.items()
+                }
+            )
         self.ticks += 1
         poses = np.array([a.route[max(a.k - 1, 0), 1:4] for a in agents], dtype=np.float64)
         tfs = [
