@@ -357,3 +357,22 @@ def test_a_live_team_answers_a_foxglove_client(floor: OccupancyMap) -> None:
     assert seen["channels"]["/robot0/map"]["schemaName"] == "nav_msgs/msg/OccupancyGrid"
     assert seen["channels"]["/bytes_sent"]["schemaName"] == "std_msgs/msg/Float64"
     assert set(seen["data"]) == want
+
+
+def test_a_busy_live_port_is_one_line_and_nothing_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plan = _plan(tmp_path)
+    out = tmp_path / "run"
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        args = ["patrol", "run", "--map", str(plan), "--robots", "1", "--duration", "5"]
+        with pytest.raises(SystemExit) as e:
+            main([*args, "--bag", "--live", "--live-port", str(port), "-o", str(out)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert f"cannot serve on 127.0.0.1:{port}" in err
+    assert not out.exists()
