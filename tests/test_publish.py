@@ -359,6 +359,30 @@ def test_a_live_team_answers_a_foxglove_client(floor: OccupancyMap) -> None:
     assert set(seen["data"]) == want
 
 
+def test_the_live_server_takes_the_subprotocol_the_guide_names() -> None:
+    """docs/guides/live-view.md: a client offering ``foxglove.sdk.v1`` gets serverInfo;
+    one offering only the spec's ``foxglove.websocket.v1`` is refused with HTTP 400.
+    If an SDK release starts taking the old name, the guide is to be changed."""
+    from sonarmap.io.live import LiveSink
+
+    async def first(uri: str, offer: list[str]) -> Any:
+        async with asyncio.timeout(10):
+            try:
+                async with websockets.connect(uri, subprotocols=offer, open_timeout=5) as ws:  # type: ignore[arg-type]
+                    return ws.subprotocol, json.loads(await ws.recv())["op"]
+            except websockets.exceptions.InvalidStatus as err:
+                return err.response.status_code
+
+    ok = ("foxglove.sdk.v1", "serverInfo")
+    sink = LiveSink(port=0, rate=None)
+    try:
+        assert asyncio.run(first(sink.url, ["foxglove.sdk.v1"])) == ok
+        assert asyncio.run(first(sink.url, SUBPROTOCOLS)) == ok
+        assert asyncio.run(first(sink.url, ["foxglove.websocket.v1"])) == 400
+    finally:
+        sink.close()
+
+
 def test_a_busy_live_port_is_one_line_and_nothing_written(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
