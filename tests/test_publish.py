@@ -360,25 +360,58 @@ def test_a_live_team_answers_a_foxglove_client(floor: OccupancyMap) -> None:
 
 
 def test_the_live_server_takes_the_subprotocol_the_guide_names() -> None:
-    """docs/guides/live-view.md: a client offering ``foxglove.sdk.v1`` gets serverInfo;
-    one offering only the spec's ``foxglove.websocket.v1`` is refused with HTTP 400.
-    If an SDK release starts taking the old name, the guide is to be changed."""
+    """docs/guides/live-view.md: a client offering ``foxglove.sdk.v1``, or only the
+    spec's ``foxglove.websocket.v1``, gets serverInfo, the advertised channels and
+    their data; one offering neither is refused with HTTP 400."""
     from sonarmap.io.live import LiveSink
+    from sonarmap.io.rosmsg import FLOAT, float_message, serialize
 
-    async def first(uri: str, offer: list[str]) -> Any:
+    async def session(uri: str, offer: list[str]) -> Any:
+        """(subprotocol chosen, first op, topics advertised, payload of /figure), or
+        the HTTP status of a refusal; publishes until the data comes, within 10 s."""
         async with asyncio.timeout(10):
             try:
-                async with websockets.connect(uri, subprotocols=offer, open_timeout=5) as ws:  # type: ignore[arg-type]
-                    return ws.subprotocol, json.loads(await ws.recv())["op"]
+                ws = await websockets.connect(uri, subprotocols=offer, open_timeout=5)  # type: ignore[arg-type]
             except websockets.exceptions.InvalidStatus as err:
                 return err.response.status_code
+            async with ws:
+                first = json.loads(await ws.recv())["op"]
+                advertised = json.loads(await ws.recv())
+                assert advertised["op"] == "advertise"
+                [channel] = [c for c in advertised["channels"] if c["topic"] == "/figure"]
+                sub = {"id": 7, "channelId": channel["id"]}
+                await ws.send(json.dumps({"op": "subscribe", "subscriptions": [sub]}))
+                for k in range(100):  # the sink sends on publish only: publish until seen
+                    sink.publish("/figure", FLOAT, float_message(2.5), t=float(k))
+                    try:
+                        frame = await asyncio.wait_for(ws.recv(), 0.1)
+                    except TimeoutError:
+                        continue
+                    if isinstance(frame, bytes) and frame[0] == 1:
+                        assert struct.unpack_from("<I", frame, 1) == (7,)
+                        return (
+                            ws.subprotocol,
+                            first,
+                            [c["topic"] for c in advertised["channels"]],
+                            frame[13:],
+                        )
+                raise AssertionError("no data after 100 messages")
 
-    ok = ("foxglove.sdk.v1", "serverInfo")
-    sink = LiveSink(port=0, rate=None)
+    port = _free_port()
+    sink = LiveSink(port=port, rate=None)
     try:
-        assert asyncio.run(first(sink.url, ["foxglove.sdk.v1"])) == ok
-        assert asyncio.run(first(sink.url, SUBPROTOCOLS)) == ok
-        assert asyncio.run(first(sink.url, ["foxglove.websocket.v1"])) == 400
+        assert sink.url == f"ws://127.0.0.1:{port}"
+        sink.declare("/figure", FLOAT)
+        want = serialize(float_message(2.5), FLOAT)
+        # The name chosen: the one offered, the SDK's when both are.
+        for offer, chosen in [
+            (["foxglove.websocket.v1"], "foxglove.websocket.v1"),
+            (["foxglove.sdk.v1"], "foxglove.sdk.v1"),
+            (SUBPROTOCOLS, "foxglove.sdk.v1"),
+        ]:
+            got = asyncio.run(session(sink.url, offer))
+            assert got == (chosen, "serverInfo", ["/figure"], want), offer
+        assert asyncio.run(session(sink.url, ["chat"])) == 400
     finally:
         sink.close()
 

@@ -22,6 +22,12 @@ Choices:
   can refuse a subscription that arrives just as its channel is advertised.
 - **Where.** The server binds ``127.0.0.1`` unless told otherwise; the run's own
   :class:`foxglove.Context` keeps its channels apart from any other in the process.
+- **Both protocol names.** The SDK's server takes only the subprotocol
+  ``foxglove.sdk.v1``; clients that follow the protocol's spec offer only
+  ``foxglove.websocket.v1``, the same protocol. So the SDK's server listens on a
+  loopback port of its own, and a relay (:mod:`sonarmap.io.relay`) on the port asked
+  for accepts either name and forwards frames unchanged both ways. The SDK's server
+  remains the one that speaks the protocol; the relay parses nothing.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ import time
 from typing import Any
 
 from ..errors import ConfigError
+from .relay import Relay, listen
 from .rosmsg import msgdef, serialize
 
 __all__ = ["DEFAULT_PORT", "LiveSink"]
@@ -45,7 +52,8 @@ class LiveSink:
     Parameters
     ----------
     port : int
-        TCP port, 0 for any free one (:attr:`port` says which); default 8765.
+        TCP port, 0 for any free one (:attr:`port` says which); default 8765. A client
+        there may offer ``foxglove.sdk.v1`` or ``foxglove.websocket.v1``.
     host : str
         Address to bind; default ``127.0.0.1`` (this machine only).
     rate : float or None
@@ -79,19 +87,30 @@ class LiveSink:
             raise ConfigError(f"live port must be in 0-65535, got {port}")
         import foxglove
 
-        self._foxglove = foxglove
-        self._context = foxglove.Context()
         try:
-            self._server = foxglove.start_server(
-                name=name, host=host, port=port, context=self._context
-            )
-        except Exception as err:  # the SDK raises its own error types for a busy port
+            # Bound here, before anything starts, so that a taken port is one error now.
+            sock = listen(host, port)
+        except OSError as err:
             raise ConfigError(
                 f"cannot serve on {host}:{port} ({err}); try another --live-port",
                 field="live_port",
             ) from err
+        self._foxglove = foxglove
+        self._context = foxglove.Context()
+        try:
+            self._server = foxglove.start_server(
+                name=name, host="127.0.0.1", port=0, context=self._context
+            )
+        except Exception as err:  # the SDK raises its own error types
+            sock.close()
+            raise ConfigError(f"cannot start the live server ({err})", field="live_port") from err
+        try:
+            self._relay = Relay(sock, f"ws://127.0.0.1:{int(self._server.port)}")
+        except RuntimeError as err:
+            self._server.stop()
+            raise ConfigError(f"cannot serve on {host}:{port} ({err})", field="live_port") from err
         self.host = host
-        self.port = int(self._server.port)
+        self.port = self._relay.port
         self.rate = rate
         self.refresh = refresh
         #: Wall seconds behind the pace after which the pace starts again from now.
@@ -161,8 +180,9 @@ class LiveSink:
                 self._latest[topic] = (now, data, stamp)
 
     def close(self) -> None:
-        """Stop the server (once)."""
+        """Stop the relay, then the server (once)."""
         if self._closed:
             return
         self._closed = True
+        self._relay.close()
         self._server.stop()
