@@ -107,6 +107,37 @@ MethodPreset = Annotated[
 ]
 
 
+#: ``--bag`` of ``patrol run`` and ``team run`` (``stream`` has its own wording).
+BagOption = Annotated[
+    bool,
+    typer.Option(
+        "--bag/--no-bag",
+        help="Also record the run as a ROS 2 bag in MCAP storage (OUT/bag/); open it in "
+        "Foxglove or 'ros2 bag play' it (topics: docs/guides/live-view.md).",
+    ),
+]
+LiveOption = Annotated[
+    bool,
+    typer.Option(
+        "--live",
+        help="Serve the run's topics live over the Foxglove WebSocket protocol on "
+        "127.0.0.1 (--live-port) while it goes, paced to --live-rate; connect Foxglove "
+        "to ws://127.0.0.1:PORT (docs/guides/live-view.md).",
+    ),
+]
+LivePortOption = Annotated[
+    int,
+    typer.Option("--live-port", help="--live: the TCP port (0: any free one).", min=0, max=65535),
+]
+LiveRateOption = Annotated[
+    float,
+    typer.Option(
+        "--live-rate",
+        help="--live: simulated (or log) seconds per wall second the run is held to.",
+    ),
+]
+
+
 ReorderWindow = Annotated[
     float,
     typer.Option(

@@ -19,8 +19,12 @@ from ..patrol.robots import Team
 from ..patrol.simulation import MAX_STEPS
 from ..patrol.starts import MAX_ROBOTS
 from .common import (
+    BagOption,
     ImageOrigin,
     ImageResolution,
+    LiveOption,
+    LivePortOption,
+    LiveRateOption,
     Opt,
     config_from_options,
     config_options,
@@ -271,6 +275,16 @@ def run_cmd(
     ] = True,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
+    bag: BagOption = False,
+    live: LiveOption = False,
+    live_port: LivePortOption = 8765,
+    live_rate: LiveRateOption = 1.0,
+    fog_every: Annotated[
+        float,
+        typer.Option(
+            help="--bag, --live: simulated seconds between two /fog grids (poses go every step).",
+        ),
+    ] = 5.0,
     config_file: Annotated[
         Path | None,
         typer.Option(
@@ -287,7 +301,9 @@ def run_cmd(
 
     The model, the force laws and the metrics (MTB: the worst time since a place was
     last seen; DVT: time spent escaping dead ends) are explained in docs/patrol.md."""
+    from ..io.record import make_recorder
     from ..patrol import parse_force, read_starts, run_patrol
+    from ..patrol.publish import PatrolPublisher
     from ..patrol.region import read_region
     from ..patrol.robots import parse_speed_bands
     from ..patrol.semaphores import read_semaphores
@@ -341,27 +357,50 @@ def run_cmd(
             robots_now = np.column_stack([team.x, team.y, team.heading])
             anim.add(t, fog.tb, robots_now, never_seen=fog.never_seen())
 
-    with progress("patrolling") as cb:
-        res = run_patrol(
-            territory,
-            config,
-            starts=start,
-            robots=robots,
-            seed=seed,
-            progress=cb,
-            on_step=keep if animate else None,
-            semaphores=areas,
-            region=region,
-            graph=graph,
-        )
     batch = None
     if "output_file" in extra:
         batch = (str(extra["output_file"]), int(extra.get("log_period_steps", 1)))
-    with progress("writing") as cb:
-        cb(0, 0, "patrol.gif" if anim is not None else "")
-        written = res.write(
-            out, territory, seed=seed, source=str(map_), batch=batch, animation=anim
-        )
+    # Everything, the bag included, goes into OUT at once at the end (or nothing).
+    with atomic_folder(out) as tmp:
+        with make_recorder(
+            tmp / "bag" if bag else None,
+            live_port=live_port if live else None,
+            live_rate=live_rate,
+        ) as rec:
+            observers = [keep] if animate else []
+            if rec:
+                observers.append(
+                    PatrolPublisher(rec, territory, config, semaphores=areas, fog_every=fog_every)
+                )
+            if live:
+                console.print(
+                    f"live: {rec.url} (Foxglove: Open connection), {live_rate:g}x real time",
+                    markup=False,
+                )
+
+            def step(t: float, team: Team, fog: Fog) -> None:
+                for observe in observers:
+                    observe(t, team, fog)
+
+            with progress("patrolling") as cb:
+                res = run_patrol(
+                    territory,
+                    config,
+                    starts=start,
+                    robots=robots,
+                    seed=seed,
+                    progress=cb,
+                    on_step=step if observers else None,
+                    semaphores=areas,
+                    region=region,
+                    graph=graph,
+                )
+        with progress("writing") as cb:
+            cb(0, 0, "patrol.gif" if anim is not None else "")
+            written = res.write(
+                tmp, territory, seed=seed, source=str(map_), batch=batch, animation=anim
+            )
+    names = [p.name for p in written] + (["bag/"] if bag else [])
     s = res.summary()
     if res.reach is not None:
         console.print(res.reach.describe(), markup=False)
@@ -383,7 +422,7 @@ def run_cmd(
             f"{m['worst_idleness_visits']:.0f}), {m['complete_cycles']} complete cycles, "
             f"{m['interference_events']} interference events"
         )
-    console.print(wrote(out, written))
+    console.print(wrote(out, names))
 
 
 def _check_start_file(

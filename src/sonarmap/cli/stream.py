@@ -16,7 +16,7 @@ from rich.table import Table
 from ..api import grid_for_log, stream_log
 from ..errors import ConfigError
 from ..files import atomic_folder, atomic_write_text, json_dumps, live_outputs
-from ..io.record import BagRecorder
+from ..io.record import MappingPublisher, make_recorder
 from ..io.rosmap import OccupancyMap, write_map
 from ..mappers import MAPPERS, parse_params
 from ..plot import MapAnimation, save_map_picture
@@ -26,6 +26,9 @@ from ..streaming import DEFAULT_STRATEGY, ReplayReport, StreamingMapper
 from .common import (
     INTERRUPTED,
     ImageOrigin,
+    LiveOption,
+    LivePortOption,
+    LiveRateOption,
     MethodPreset,
     ReorderWindow,
     StopOnInterrupt,
@@ -119,8 +122,11 @@ def stream_cmd(
         ),
     ] = False,
     bag_map_every: Annotated[
-        float, typer.Option(help="--bag: log seconds between map messages.", min=0.01)
+        float, typer.Option(help="--bag, --live: log seconds between map messages.", min=0.01)
     ] = 1.0,
+    live: LiveOption = False,
+    live_port: LivePortOption = 8765,
+    live_rate: LiveRateOption = 1.0,
     origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
     """Replay a log through a streaming map: latency, throughput, snapshots, animation.
@@ -156,7 +162,21 @@ def stream_cmd(
         atomic_folder(out) as tmp,
         contextlib.ExitStack() as stack,
     ):
-        rec = stack.enter_context(BagRecorder(tmp / "bag", r)) if bag else None
+        recorder = stack.enter_context(
+            make_recorder(
+                tmp / "bag" if bag else None,
+                live_port=live_port if live else None,
+                # --realtime paces the replay itself, at --speed.
+                live_rate=None if realtime else live_rate,
+            )
+        )
+        rec = MappingPublisher(recorder, r) if recorder else None
+        if recorder.url is not None:
+            pace = f"{speed:g}x (--speed)" if realtime else f"{live_rate:g}x (--live-rate)"
+            console.print(
+                f"live: {recorder.url} (Foxglove: Open connection), {pace} real time",
+                markup=False,
+            )
         next_map = -math.inf
 
         def record(batch: Readings, sm: StreamingMapper) -> None:
@@ -218,6 +238,7 @@ def stream_cmd(
         say_order(order)
         if rec is not None and sm.last_batch is not None:
             rec.map(sm.result(), float(sm.last_batch.t[-1]))
+        recorder.close()  # the bag complete before it moves into OUT
         write_map(sm.result(), tmp / "map")
         if anim is not None:
             # An animation of many frames takes tens of seconds to encode.
@@ -240,7 +261,7 @@ def stream_cmd(
     for k, v in summary.items():
         table.add_row(k, str(v))
     console.print(table)
-    if rec is not None:
+    if bag and rec is not None:
         console.print(f"bag/: {rec.n_messages} messages")
     console.print(wrote_folder(out), markup=False)
     if rep.interrupted:

@@ -12,6 +12,7 @@ import typer
 
 from ..errors import ConfigError, quote
 from ..files import atomic_folder, atomic_write_text, json_dumps
+from ..io.record import make_recorder
 from ..io.rosmap import OccupancyMap
 from ..team.config import MAX_DURATION, MAX_ROBOTS, team_size_problem
 from ..team.exchange import ExchangeParams
@@ -19,6 +20,7 @@ from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
 from ..team.outputs import write_missions, write_team
 from ..team.patrolling import patrol_routes
+from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
 from ..team.store import StoreParams
 from ..team.world import (
@@ -29,8 +31,12 @@ from ..team.world import (
     save_world,
 )
 from .common import (
+    BagOption,
     ImageOrigin,
     ImageResolution,
+    LiveOption,
+    LivePortOption,
+    LiveRateOption,
     Opt,
     config_from_options,
     config_options,
@@ -368,6 +374,18 @@ def run_cmd(
         bool,
         typer.Option("--patrol", help="Drive the robots by the potential-field patroller."),
     ] = False,
+    bag: BagOption = False,
+    live: LiveOption = False,
+    live_port: LivePortOption = 8765,
+    live_rate: LiveRateOption = 1.0,
+    map_every: Annotated[
+        float,
+        typer.Option(
+            "--map-every",
+            help="--bag, --live: mission seconds between two of each robot's global maps "
+            "and pose graphs (poses go every tick).",
+        ),
+    ] = 10.0,
 ) -> None:
     """One mission per robot: store, association, memory bounds, global map, scores.
 
@@ -386,11 +404,15 @@ def run_cmd(
     net, protocol, store = _team_options(ctx)
     if patrol and route is not None:
         raise ConfigError("--patrol drives every robot: drop --route")
-    if transport == "zmq" and (patrol or route is not None or world_dir is not None or animate):
+    if transport == "zmq" and (
+        patrol or route is not None or world_dir is not None or animate or bag or live
+    ):
         raise ConfigError(
             "--transport zmq: the nodes drive their own seeded routes; --patrol, --route, "
-            "--world and --animate are --transport sim's"
+            "--world, --animate, --bag and --live are --transport sim's"
         )
+    if not (math.isfinite(map_every) and map_every > 0):
+        raise ConfigError(f"--map-every must be > 0 seconds, got {map_every}")
     plan = resolve_map(map_, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
@@ -415,23 +437,55 @@ def run_cmd(
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}: {out}"
         )
         return
+    # Everything, the bag included, goes into OUT at once at the end (or nothing).
+    with atomic_folder(out) as tmp:
+        with make_recorder(
+            tmp / "bag" if bag else None,
+            live_port=live_port if live else None,
+            live_rate=live_rate,
+        ) as rec:
+            publisher = TeamPublisher(rec, plan, map_every=map_every) if rec else None
+            if rec.url is not None:
+                console.print(
+                    f"live: {rec.url} (Foxglove: Open connection), {live_rate:g}x real time",
+                    markup=False,
+                )
+            if robots > 1:
+                team_args: dict[str, Any] = {
+                    "network": net,
+                    "exchange": protocol,
+                    "seed": seed,
+                    "world": world,
+                    "routes": [routes.get(i) for i in range(robots)],
+                    "central": True,
+                    "record": animate,
+                    "on_tick": publisher,
+                }
+                with progress("team") as update:
+                    team_args["progress"] = partial(_tick, update, f"{robots} robots")
+                    team_args["phase"] = partial(_phase, update)
+                    team = run_team(plan, config, robots, **team_args)
+            else:
+                with progress("mission") as update:
+                    result = run_mission(
+                        plan,
+                        config,
+                        route=routes.get(0),
+                        world=world,
+                        robot=0,
+                        progress=partial(_tick, update, "robot 0"),
+                        record=animate,
+                        on_step=None if publisher is None else publisher.robot_step,
+                    )
+            if publisher is not None:
+                publisher.finish()
+        if robots > 1:
+            with progress("writing") as update:
+                update(0, 0, "maps, pictures" + (" and animations" if animate else ""))
+                write_team(tmp, plan, team, animate=animate)
+        else:
+            s0, _ = write_missions(tmp, plan, [result], animate=animate)
     if robots > 1:
-        team_args: dict[str, Any] = {
-            "network": net,
-            "exchange": protocol,
-            "seed": seed,
-            "world": world,
-            "routes": [routes.get(i) for i in range(robots)],
-            "central": True,
-            "record": animate,
-        }
-        with progress("team") as update:
-            team_args["progress"] = partial(_tick, update, f"{robots} robots")
-            team_args["phase"] = partial(_phase, update)
-            team = run_team(plan, config, robots, **team_args)
-        with progress("writing") as update:
-            update(0, 0, "maps, pictures" + (" and animations" if animate else ""))
-            write_team(out, plan, team, animate=animate)
         s = team.summary
         convergence = s["convergence_s"]
         console.print(
@@ -440,28 +494,13 @@ def run_cmd(
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}, "
             f"converged {'never' if convergence is None else f'{convergence:.1f} s'}"
         )
-        console.print(wrote_folder(out), markup=False)
-        return
-    results = []
-    with progress("mission") as update:
-        for robot in range(robots):
-            results.append(
-                run_mission(
-                    plan,
-                    config,
-                    route=routes.get(robot),
-                    world=world,
-                    robot=robot,
-                    progress=partial(_tick, update, f"robot {robot}"),
-                    record=animate,
-                )
-            )
-    s0, _ = write_missions(out, plan, results, animate=animate)
-    console.print(
-        f"precision {s0['association_precision']:.3f}, recall {s0['association_recall']:.3f}, "
-        f"ATE {s0['ate_m']:.3f} m (odometry {s0['ate_odometry_m']:.3f} m), "
-        f"map F1 {s0['map_f1']:.3f}, peak store {s0['store_bytes_peak']} B"
-    )
+    else:
+        console.print(
+            f"precision {s0['association_precision']:.3f}, "
+            f"recall {s0['association_recall']:.3f}, "
+            f"ATE {s0['ate_m']:.3f} m (odometry {s0['ate_odometry_m']:.3f} m), "
+            f"map F1 {s0['map_f1']:.3f}, peak store {s0['store_bytes_peak']} B"
+        )
     console.print(wrote_folder(out), markup=False)
 
 

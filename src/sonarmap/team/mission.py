@@ -557,13 +557,20 @@ class RobotAgent:
         self.drift = np.array(d["drift"], dtype=np.float64).reshape(3, 3)
         self.evaluator.restore(d)
 
-    def run(self, progress: Progress | None = None) -> None:
-        """Process the rest of the route, alone."""
+    def run(
+        self,
+        progress: Progress | None = None,
+        on_step: Callable[[float, RobotAgent], None] | None = None,
+    ) -> None:
+        """Process the rest of the route, alone; ``on_step(t, self)`` after each route
+        step, ``t`` its mission time (to record or serve the run)."""
         n = len(self.route)
         while not self.done:
             if progress is not None:
                 progress(self.k + 1, n)
             self.step()
+            if on_step is not None:
+                on_step(self.time_of(self.k - 1), self)
 
     # --- the end -------------------------------------------------------------------------
 
@@ -643,19 +650,21 @@ def run_mission(
     robot: int = 0,
     progress: Progress | None = None,
     record: bool = False,
+    on_step: Callable[[float, RobotAgent], None] | None = None,
 ) -> MissionResult:
     """Run robot ``robot``'s mission on the floor ``plan``.
 
     The prior map is the plan unless ``prior`` is given; ``world`` (landmarks) is made
     from the seed unless given; ``route`` (T, 4: t, x, y, theta) replaces the patrol
     route (random waypoints drawn from the seed and the robot's number). ``record``
-    keeps a :class:`~sonarmap.team.animation.Frame` per pose made, for an animation.
+    keeps a :class:`~sonarmap.team.animation.Frame` per pose made, for an animation;
+    ``on_step(t, agent)`` is called after each route step (:meth:`RobotAgent.run`).
     A thin loop over a :class:`RobotAgent`.
     """
     agent = RobotAgent(
         plan, config, prior=prior, route=route, world=world, robot=robot, record=record
     )
-    agent.run(progress)
+    agent.run(progress, on_step)
     return agent.finish()
 
 

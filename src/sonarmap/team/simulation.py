@@ -77,10 +77,37 @@ from .summary import mission_figures, robot_row, team_figures
 from .transport import SimHub
 from .world import World, make_world
 
-__all__ = ["TeamResult", "held_uids", "map_agreement", "run_team"]
+__all__ = ["TeamResult", "TeamTick", "held_uids", "map_agreement", "run_team"]
 
 F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
 Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class TeamTick:
+    """The team after one tick, for an observer (``run_team(on_tick=...)``): read it,
+    never change it.
+
+    Attributes
+    ----------
+    t : float
+        Mission time, seconds.
+    driving : bool
+        Whether the robots still drive their routes (False in the quiet phase).
+    agents : sequence of RobotAgent
+        The robots, by id.
+    links : ndarray of int (K, 2)
+        The network's direct links now, pairs (i, j) with i < j.
+    bytes_sent : list of int
+        Message bodies each robot has sent so far.
+    """
+
+    t: float
+    driving: bool
+    agents: Sequence[RobotAgent]
+    links: I64
+    bytes_sent: list[int]
 
 
 @dataclass
@@ -250,6 +277,7 @@ def run_team(
     frame_every: float = 2.0,
     max_frames: int = 300,
     phase: Callable[[str], None] | None = None,
+    on_tick: Callable[[TeamTick], None] | None = None,
 ) -> TeamResult:
     """Run ``robots`` robots' missions together, exchanging over a simulated network.
 
@@ -294,6 +322,9 @@ def run_team(
     phase : callable, optional
         ``phase(name)`` as each phase after the routes begins (``"quiet network"``,
         ``"robots' maps"``, ``"central bound"``), so that a caller can show progress.
+    on_tick : callable, optional
+        ``on_tick(TeamTick)`` after every tick, the routes' and the quiet phase's (to
+        record or serve the run).
 
     Returns
     -------
@@ -381,6 +412,9 @@ def run_team(
             m.step(len(set(net.reachable(a.robot)) - {a.robot}))
         if record:
             recorder.sample(t, driving=driving)
+        if on_tick is not None:
+            sent = [e.stats.bytes_sent for e in exchangers]
+            on_tick(TeamTick(t, driving, agents, net.links(), sent))
 
     def team(n: int) -> tuple[int, bool]:
         return _changes(exchangers), any(e.outstanding for e in exchangers)
