@@ -85,8 +85,9 @@ PATROL_OPTIONS = (
     Opt(
         "policy",
         "How a robot picks its way: potential (the thesis's potential field), "
-        "random, reactive, gravity, cycle, or cr / hcr (conscientious and heuristic "
-        "conscientious reactive agents on the patrol graph).",
+        "random, reactive, gravity, cycle, or cr / hcr / sebs (conscientious and heuristic "
+        "conscientious reactive agents, the state exchange Bayesian strategy, on the patrol "
+        "graph).",
     ),
     Opt(
         "model",
