@@ -180,8 +180,11 @@ def baseline_table(rows: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 "traffic": traffic,
                 "robots": n,
                 "mean_mtb": _mean(r["mean_mtb"] for r in runs),
-                "graph_avg_idleness": _mean(r["graph_avg_idleness"] for r in runs),
-                "graph_worst_idleness": _mean(r["graph_worst_idleness"] for r in runs),
+                # Runs recorded before the graph was measured in every run have none.
+                "graph_avg_idleness": _mean(r.get("graph_avg_idleness", math.nan) for r in runs),
+                "graph_worst_idleness": _mean(
+                    r.get("graph_worst_idleness", math.nan) for r in runs
+                ),
                 "blocked": max(r["blocked"] for r in runs),
                 "never_seen": max(r["never_seen"] for r in runs),
                 "seeds_mtb": [round(float(r["mean_mtb"]), 1) for r in runs],
