@@ -9,14 +9,18 @@ count, traffic rule and seed one run of ``--duration`` simulated seconds, report
 - ``never seen``: the share of the reachable territory never seen;
 - ``unreachable``: the share of the map's free cells no robot can reach (left out);
 - ``mean MTB``: the mean, after a fifth of the run, of the worst time since last seen;
+- ``graph idleness``: the patrol graph's average and worst idleness over the visits;
 - ``x real``: simulated seconds per wall-clock second, on one core.
 
 Run with ``python -m benchmarks.patrol_indoor [--maps depot warehouse] [--robots 1 2 4]
 [--policies potential] [--traffic thesis give-way] [--seeds 0 1] [--duration 600]
 [--json F] [--figure F.png]``; ``--maps`` takes names in the data folder or paths to map
-YAML files. ``--replot F.json --figure F.png`` draws the figure of an earlier ``--json``
-without running anything: the mean MTB against the team's size, one line per policy and
-traffic rule and one panel per map (the mean over the seeds, each seed a dot).
+YAML files. ``--replot F.json [G.json ...] [--figure F.png]`` tabulates earlier runs
+(``--json`` files, or ``runs.json`` of ``sonarmap patrol experiment baselines --map``)
+together with issue 36's claims, and draws their figure, without running anything: the
+mean MTB against the team's size, one line per policy and traffic rule and one panel per
+map (the mean over the seeds, each seed a dot). The runs and the figure are
+:mod:`sonarmap.patrol.baselines`'s.
 """
 
 from __future__ import annotations
@@ -24,14 +28,21 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import time
 from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 from sonarmap.io.rosmap import read_map
-from sonarmap.patrol import PatrolConfig, run_patrol
+from sonarmap.patrol import PatrolConfig
+from sonarmap.patrol.baselines import (
+    INDOOR,
+    baseline_claims,
+    baseline_run,
+    baseline_table,
+    plot_baselines,
+    table_lines,
+)
 from sonarmap.patrol.territory import Territory
 
 MAPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "maps"
@@ -45,70 +56,17 @@ def _map_path(name: str) -> Path:
 def run_one(
     territory: Territory, policy: str, robots: int, traffic: str, seed: int, duration: float
 ) -> dict[str, Any]:
-    """One run's figures (see the module's notes)."""
+    """One run's figures (:func:`sonarmap.patrol.baselines.baseline_run`)."""
     config = PatrolConfig(
         policy=policy,
-        radius=0.3,
-        speed=1.0,
-        vision=5.0,
-        cell=0.1,
+        radius=INDOOR["radius"],
+        speed=INDOOR["speed"],
+        vision=INDOOR["vision"],
+        cell=INDOOR["cell"],
         duration=duration,
         traffic=traffic,
     )
-    t0 = time.perf_counter()
-    s = run_patrol(territory, config, robots=robots, seed=seed).summary()
-    wall = time.perf_counter() - t0
-    return {
-        "policy": policy,
-        "robots": robots,
-        "traffic": config.traffic,
-        "seed": seed,
-        "blocked": s["blocked_share"],
-        "never_seen": s["never_seen"],
-        "unreachable": s["unreachable_free_share"],
-        "mean_mtb": s["mean_mtb"],
-        "x_real": duration / wall,
-    }
-
-
-def plot(rows: list[dict[str, Any]], path: Path) -> None:
-    """The figure of runs ``rows`` (see the module's notes), written to ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    maps = sorted({r["map"] for r in rows})
-    fig, axes = plt.subplots(1, len(maps), figsize=(5.0 * len(maps), 3.8), squeeze=False)
-    for ax, name in zip(axes[0], maps, strict=True):
-        mine = [r for r in rows if r["map"] == name]
-        lines = sorted({(r["policy"], r["traffic"]) for r in mine})
-        for policy, traffic in lines:
-            runs = [r for r in mine if (r["policy"], r["traffic"]) == (policy, traffic)]
-            sizes = sorted({r["robots"] for r in runs})
-            mean = [
-                sum(r["mean_mtb"] for r in runs if r["robots"] == n)
-                / sum(1 for r in runs if r["robots"] == n)
-                for n in sizes
-            ]
-            label = policy if len({t for _, t in lines}) == 1 else f"{policy}, {traffic}"
-            (line,) = ax.plot(sizes, mean, marker="o", label=label)
-            ax.scatter(
-                [r["robots"] for r in runs],
-                [r["mean_mtb"] for r in runs],
-                s=10,
-                color=line.get_color(),
-                alpha=0.5,
-            )
-        ax.set_xticks(sorted({r["robots"] for r in mine}))
-        ax.set_xlabel("robots")
-        ax.set_ylabel("mean MTB [s]")
-        ax.set_ylim(bottom=0.0)
-        ax.set_title(name)
-        ax.legend(fontsize="small")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return baseline_run(territory, config, robots, seed)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -121,19 +79,29 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--json", type=Path)
     ap.add_argument("--figure", type=Path)
-    ap.add_argument("--replot", type=Path, help="Draw --figure from this --json file.")
+    ap.add_argument(
+        "--replot",
+        type=Path,
+        nargs="+",
+        help="Tabulate (and draw --figure of) the runs of these --json files or "
+        "'patrol experiment baselines' runs.json files together, running nothing.",
+    )
     args = ap.parse_args(argv)
     if args.replot is not None:
-        if args.figure is None:
-            raise SystemExit("--replot needs --figure")
-        plot(json.loads(args.replot.read_text())["runs"], args.figure)
+        runs = [r for f in args.replot for r in json.loads(f.read_text())["runs"]]
+        table = baseline_table(runs)
+        print("\n".join(table_lines(table)))
+        for c in baseline_claims(table):
+            print(f"{c['verdict']}: {c['claim']}: {c['measured']}")
+        if args.figure is not None:
+            plot_baselines(runs, args.figure)
         return
     rows: list[dict[str, Any]] = []
     print(
         "| map | policy | robots | traffic | seed | blocked | never seen | unreachable "
-        "| mean MTB, s | x real |"
+        "| mean MTB, s | graph idleness, s (avg, worst) | x real |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.maps:
         path = _map_path(name)
         if not path.is_file():
@@ -152,13 +120,14 @@ def main(argv: list[str] | None = None) -> None:
                             f"| {row['map']} | {policy} | {robots} | {row['traffic']} | {seed} "
                             f"| {row['blocked']:.3f} | {row['never_seen']:.3f} "
                             f"| {row['unreachable']:.3f} | {row['mean_mtb']:.1f} "
-                            f"| {row['x_real']:.0f} |",
+                            f"| {row['graph_avg_idleness']:.1f}, "
+                            f"{row['graph_worst_idleness']:.1f} | {row['x_real']:.0f} |",
                             flush=True,
                         )
     if args.json is not None:
         args.json.write_text(json.dumps({"duration": args.duration, "runs": rows}, indent=2))
     if args.figure is not None:
-        plot(rows, args.figure)
+        plot_baselines(rows, args.figure)
 
 
 if __name__ == "__main__":

@@ -96,8 +96,9 @@ PATROL_OPTIONS = (
     Opt(
         "policy",
         "How a robot picks its way: potential (the thesis's potential field), "
-        "random, reactive, gravity, cycle, or cr / hcr (conscientious and heuristic "
-        "conscientious reactive agents on the patrol graph).",
+        "random, reactive, gravity, cycle, or cr / hcr / sebs (conscientious and heuristic "
+        "conscientious reactive agents, the state exchange Bayesian strategy, on the patrol "
+        "graph).",
     ),
     Opt(
         "model",
@@ -509,13 +510,54 @@ def experiment_cmd(
     workers: Annotated[
         int | None, typer.Option(help="LocalCluster worker processes (default: the cores).")
     ] = None,
+    map_: Annotated[
+        Path | None,
+        typer.Option(
+            "--map",
+            help="baselines only: run on this map (map_server YAML) instead of the built-in "
+            "ones, one run at a time, with indoor robots (defaults: --radius 0.3 --speed 1 "
+            "--vision 5, 0.1 m cells, 1800 s, 2 seeds).",
+        ),
+    ] = None,
+    radius: Annotated[
+        float | None, typer.Option(help="With --map: robot radius, metres (0.3).")
+    ] = None,
+    speed: Annotated[float | None, typer.Option(help="With --map: speed, m/s (1).")] = None,
+    vision: Annotated[
+        float | None, typer.Option(help="With --map: vision radius, metres (5).")
+    ] = None,
+    robots: Annotated[
+        str | None, typer.Option(help="With --map: team sizes, comma-separated (1,2,4).")
+    ] = None,
+    policies: Annotated[
+        str | None,
+        typer.Option(
+            help="With --map: policies, comma-separated (potential,random,reactive,cycle,"
+            "cr,hcr,sebs)."
+        ),
+    ] = None,
 ) -> None:
     """Rerun one of the thesis's chapter-3 experiments on the built-in maps: runs.csv,
-    table.csv, claims.json, figures and report.html in OUT."""
+    table.csv, claims.json, figures and report.html in OUT. ``baselines --map FILE``
+    runs the policies side by side on a real map instead (runs.csv, runs.json,
+    table.csv, claims.json, mtb.png, report.html)."""
     from ..parallel import check_workers
     from ..patrol.experiments import run_experiment
 
     named_check("--workers", check_workers, workers)
+    if map_ is not None:
+        if name != "baselines":
+            raise ConfigError(f"--map runs only the baselines experiment, not {name!r}")
+        _baselines_on_map(
+            map_, out, quick, seeds, duration, cell, radius, speed, vision, robots, policies
+        )
+        return
+    given: dict[str, object] = {"--radius": radius, "--speed": speed, "--vision": vision}
+    given |= {"--robots": robots, "--policies": policies}
+    extra = [k for k, v in given.items() if v is not None]
+    if extra:
+        raise ConfigError(f"{', '.join(extra)} only with --map")
+
     with progress(f"patrol experiment {name}") as cb:
         report = run_experiment(
             name,
@@ -534,4 +576,87 @@ def experiment_cmd(
             f"{c['verdict']}: {c['claim']}: {c['measured']} (thesis: {c['thesis']})", markup=False
         )
     console.print(f"report: {report}", markup=False)
+    console.print(wrote_folder(out), markup=False)
+
+
+def _numbers(option: str, text: str) -> list[int]:
+    """``1,2,4`` as [1, 2, 4]; anything else one error naming ``option``."""
+    try:
+        return [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"{option} takes whole numbers, comma-separated, got {text!r}") from None
+
+
+def _baselines_on_map(
+    map_: Path,
+    out: Path,
+    quick: bool,
+    seeds: int | None,
+    duration: float | None,
+    cell: float | None,
+    radius: float | None,
+    speed: float | None,
+    vision: float | None,
+    robots: str | None,
+    policies: str | None,
+) -> None:
+    """``patrol experiment baselines --map``: the policies side by side on one map
+    (:mod:`sonarmap.patrol.baselines`), a table and the claims printed."""
+    from ..patrol.baselines import (
+        BASELINE_POLICIES,
+        INDOOR,
+        baseline_claims,
+        baseline_table,
+        run_baselines,
+        table_lines,
+        write_baselines,
+    )
+
+    n_seeds = seeds if seeds is not None else (1 if quick else 2)
+    if n_seeds < 1:
+        raise ConfigError(f"seeds must be >= 1, got {n_seeds}")
+    sizes = _numbers("--robots", robots) if robots is not None else [1, 2, 4]
+    names = (
+        [p.strip() for p in policies.split(",") if p.strip()]
+        if policies is not None
+        else list(BASELINE_POLICIES)
+    )
+    base: dict[str, Any] = {
+        "radius": INDOOR["radius"] if radius is None else radius,
+        "speed": INDOOR["speed"] if speed is None else speed,
+        "vision": INDOOR["vision"] if vision is None else vision,
+        "cell": INDOOR["cell"] if cell is None else cell,
+        "duration": duration if duration is not None else (300.0 if quick else 1800.0),
+    }
+    config = PatrolConfig(**base)
+    territory = _territory(map_, resolve_map(map_), config)
+    settings = {"map": str(map_), **base, "robots": sizes, "seeds": n_seeds, "policies": names}
+
+    def show(row: dict[str, Any]) -> None:
+        console.print(
+            f"{row['policy']}, {row['robots']} robots, seed {row['seed']}: mean MTB "
+            f"{row['mean_mtb']:.1f} s, graph idleness {row['graph_avg_idleness']:.1f} s "
+            f"(worst {row['graph_worst_idleness']:.1f} s), blocked {row['blocked']:.3f}, "
+            f"never seen {row['never_seen']:.3f}, {row['x_real']:.1f}x real",
+            markup=False,
+        )
+
+    with progress(f"patrol experiment baselines on {map_.stem}") as cb:
+        rows = run_baselines(
+            territory,
+            base,
+            policies=names,
+            robots=sizes,
+            seeds=list(range(n_seeds)),
+            map_name=map_.stem,
+            progress=cb,
+            on_row=show,
+        )
+    with atomic_folder(out) as tmp:
+        write_baselines(tmp, rows, settings)
+    table = baseline_table(rows)
+    for line in table_lines(table):
+        console.print(line, markup=False)
+    for c in baseline_claims(table):
+        console.print(f"{c['verdict']}: {c['claim']}: {c['measured']}", markup=False)
     console.print(wrote_folder(out), markup=False)

@@ -311,13 +311,23 @@ def _plans() -> dict[str, Plan]:
             "baselines",
             "The potential field against the literature's strategies on every map "
             "(holonomic, wave): random walk, a reactive agent on the fog's places, "
-            "conscientious and heuristic conscientious reactive agents on the patrol graph "
-            "(cr, hcr), gravitational (Sampaio et al. 2010) and the offline cyclic tour "
-            "(Chevaleyre's reference).",
+            "conscientious and heuristic conscientious reactive agents and the state "
+            "exchange Bayesian strategy on the patrol graph (cr, hcr, sebs), gravitational "
+            "(Sampaio et al. 2010) and the offline cyclic tour (Chevaleyre's reference). "
+            "On a real map: --map FILE (patrol.baselines).",
             {**HOLO},
             {
                 p: {"policy": p}
-                for p in ("potential", "random", "reactive", "cr", "hcr", "gravity", "cycle")
+                for p in (
+                    "potential",
+                    "random",
+                    "reactive",
+                    "cr",
+                    "hcr",
+                    "sebs",
+                    "gravity",
+                    "cycle",
+                )
             },
             ["open-field", "fig3-2", "fig3-4", "fig3-10"],
             [1, 3],
@@ -648,7 +658,7 @@ def _assess(
         ]
     if name == "baselines":
         claims = []
-        for other in ("random", "reactive", "cr", "hcr", "gravity", "cycle"):
+        for other in ("random", "reactive", "cr", "hcr", "sebs", "gravity", "cycle"):
             claims += _pairs(table, report, name, "potential", other, "(not in the thesis)")
         return claims
     return []

@@ -11,8 +11,9 @@ baselines measured on the same simulator and metric.
   pulls with mass / L^k (k = 2); the robot follows the vector sum of the pulls.
 - ``cycle``: the offline reference, robots spread along one tour (:mod:`.tour`); the
   simulation drives it, since it needs no pull.
-- ``cr`` and ``hcr``: conscientious and heuristic conscientious reactive agents walking
-  the patrol graph vertex to vertex (:mod:`.walkers`); the simulation drives them too.
+- ``cr``, ``hcr`` and ``sebs``: conscientious and heuristic conscientious reactive agents
+  and the state exchange Bayesian strategy, walking the patrol graph vertex to vertex
+  (:mod:`.walkers`); the simulation drives them too.
 
 Each returns a unit direction (x, y) or None (stand).
 """
@@ -32,7 +33,7 @@ __all__ = ["POLICIES", "choose", "goal_pulls", "normalised", "reactive_pick"]
 
 F64 = npt.NDArray[np.float64]
 
-POLICIES = ("potential", "random", "reactive", "gravity", "cycle", "cr", "hcr")
+POLICIES = ("potential", "random", "reactive", "gravity", "cycle", "cr", "hcr", "sebs")
 #: Per-step chance that the random walk turns while not blocked.
 RANDOM_TURN = 0.05
 #: Exponent of distance in the gravitational pull.

@@ -485,14 +485,27 @@ def _follow_tour(
 
 
 def _walk(
-    i: int, walkers: GraphWalkers, waver: Wave, fog: Fog, config: PatrolConfig
+    i: int,
+    walkers: GraphWalkers,
+    waver: Wave,
+    fog: Fog,
+    config: PatrolConfig,
+    heard: npt.NDArray[np.bool_],
+    stuck: bool,
 ) -> tuple[float, float] | None:
-    """Robot i's step towards its graph vertex, the next one once within a step of it;
-    None (stand) while the vertex cannot be reached (robots in the way)."""
+    """Robot i's step towards its graph vertex, the next one once within a step of it,
+    another one when it cannot be reached or ``stuck`` (it gave way and was blocked
+    again: two walkers head-on on one edge push against each other for good otherwise);
+    None (stand) while no neighbour can be reached. ``heard``: the robots whose
+    intentions robot i hears."""
     r, c = walkers.goal_cell(i)
+    cells = walkers.graph.cells
     if waver.dist[r, c] <= config.speed * config.dt:
-        cells = walkers.graph.cells
-        walkers.arrive(i, fog.t, fog.last[cells[:, 0], cells[:, 1]])
+        walkers.arrive(i, fog.t, fog.last[cells[:, 0], cells[:, 1]], heard)
+        r, c = walkers.goal_cell(i)
+    if stuck or not np.isfinite(waver.dist[r, c]):
+        reachable = np.isfinite(waver.dist[cells[:, 0], cells[:, 1]])
+        walkers.reroute(i, fog.t, fog.last[cells[:, 0], cells[:, 1]], reachable, heard)
         r, c = walkers.goal_cell(i)
     k = int(waver.first[r, c])
     if k < 0:
@@ -788,7 +801,7 @@ def run_patrol(
             territory, passable, config.vision, starts=[tuple(rc) for rc in cells0.tolist()]
         )
         if config.policy in WALKERS:
-            walkers = GraphWalkers(patrol_graph, config.policy, cells0)
+            walkers = GraphWalkers(patrol_graph, config.policy, cells0, speed=config.speed)
         if graph:
             monitor = Monitor(
                 patrol_graph, start_idleness=config.start_fog, robot_radius=config.radius
@@ -959,7 +972,17 @@ def run_patrol(
                 tbv = tb_of(i, rr, cc, dilated)
                 lengths, ux, uy = dist[rr, cc], gx[rr, cc], gy[rr, cc]
             if walkers is not None:
-                directions.append(_walk(i, walkers, waver, own[0 if shared else i], config))
+                directions.append(
+                    _walk(
+                        i,
+                        walkers,
+                        waver,
+                        own[0 if shared else i],
+                        config,
+                        label == label[i],
+                        bool(team.blocked[i]) and yielding[i] >= k,
+                    )
+                )
                 goals.append(
                     _path_goal(team, i, walkers.goal_cell(i), waver, g, passable, config)
                     if along_path
