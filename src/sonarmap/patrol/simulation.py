@@ -821,10 +821,14 @@ def run_patrol(
     n_watched = int(watched.sum())
     # Wall-side cells no wave reaches pull from the nearest cell one does, so that no
     # place of the territory is left without a pull (on real maps a fifth of the cells
-    # may be such); the thesis's free territory keeps its own rule.
+    # may be such). Only with the path motion: the thesis's straight-motion robots and
+    # cars keep the thesis's pulls, so its experiments are unchanged.
     shade = (
         shadows(passable, watched, g.resolution)
-        if config.policy == "potential" and config.paths == "wave" and config.reach == "reachable"
+        if config.policy == "potential"
+        and config.motion == "path"
+        and config.paths == "wave"
+        and config.reach == "reachable"
         else None
     )
     watched_rc = np.nonzero(watched)
