@@ -37,8 +37,9 @@ F64 = npt.NDArray[np.float64]
 
 #: Heading bins of the search: a turning arc of one primitive turns by one bin.
 HEADINGS = 16
-#: Points checked per metre of a primitive (the map's cells are 0.5 m).
-SAMPLES_PER_M = 8
+#: Points checked per metre of a primitive (the map's cells are 0.5 m): a corner of a
+#: cell the arc passes closer than 1/16 m may go unseen.
+SAMPLES_PER_M = 16
 #: Side of the search's position bins, metres.
 BIN = 0.5
 #: Extra cost of a metre driven in reverse, and of a change of gear, in metres.

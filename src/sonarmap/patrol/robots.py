@@ -498,9 +498,13 @@ class Car(Team):
         while plan.arcs and left > 1e-9 and math.copysign(1.0, plan.arcs[0][0]) == gear:
             length, k = plan.arcs[0]
             part = math.copysign(min(left, abs(length)), length)
-            move = self._try(i, part, [k], passable, grid)
-            if move is None:
+            # The search checked the whole arc; checked again on a part of it, other
+            # sample points could clip the corner of a cell the search's passed by.
+            px, py, h = arc(float(self.x[i]), float(self.y[i]), float(self.heading[i]), part, k, 2)
+            r, c = grid.world_to_cell(px[-1], py[-1])
+            if not (grid.contains(r, c) and passable[int(r), int(c)]):
                 break
+            move = (float(px[-1]), float(py[-1]), h)
             self.x[i], self.y[i], self.heading[i] = move
             left -= abs(part)
             rest = length - part
