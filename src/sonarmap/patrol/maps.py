@@ -71,7 +71,7 @@ def write_builtin_maps(folder: Path) -> list[Path]:
 
 
 def street_site(seed: int, width: float = 90.0, height: float = 70.0) -> FloorPlan:
-    """A site of blocks 10-20 m a side between streets 3-6 m wide, ``width`` x
+    """A site of blocks 10-30 m a side between streets 3-6 m wide, ``width`` x
     ``height`` metres, drawn from ``seed``; a third of the street segments are half
     closed by their block, leaving a dead-end stub a car has to back out of.
 
@@ -83,14 +83,16 @@ def street_site(seed: int, width: float = 90.0, height: float = 70.0) -> FloorPl
         """Blocks along one axis: (start, end) pairs with a street before each."""
         out = []
         at = float(rng.uniform(3.0, 6.0))
+        last = size - float(rng.uniform(3.0, 6.0))  # the street along the far edge
         while True:
             block = float(rng.uniform(10.0, 20.0))
             street = float(rng.uniform(3.0, 6.0))
-            if at + block + street > size:
-                break
+            if at + block + street + 10.0 > last:
+                # The last block reaches the far edge's street: no open ground is left.
+                out.append((at, last))
+                return out
             out.append((at, at + block))
             at += block + street
-        return out
 
     plan = FloorPlan((0.0, 0.0, width, height))
     xs, ys = cuts(width), cuts(height)
