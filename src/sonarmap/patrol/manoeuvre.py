@@ -137,7 +137,8 @@ def plan_manoeuvre(
     of radius ``turn_radius`` from ``start`` (x, y, heading) to within ``tolerance``
     metres and ``heading_tolerance`` radians of one of ``goals`` (M, 3; a NaN heading
     takes any), keeping every point on ``passable`` cells and ``separation`` metres
-    from every robot in ``others`` (K, 2); None when ``budget`` expansions find none.
+    from every robot in ``others`` (K, 2; a robot nearer at the start: no nearer than
+    that); None when ``budget`` expansions find none.
 
     A hybrid A*: states are binned by position (:data:`BIN`) and heading
     (:data:`HEADINGS`) but keep their exact poses; the heuristic is, to the nearest
@@ -149,9 +150,13 @@ def plan_manoeuvre(
     bin_w = 2 * math.pi / HEADINGS
     gx, gy, gh = goals[:, 0], goals[:, 1], goals[:, 2]
     any_heading = np.isnan(gh)
-    near_sep = separation - 1e-9
     ox = others[:, 0] if others is not None and len(others) else None
     oy = others[:, 1] if others is not None and len(others) else None
+    near_sep = np.empty(0)
+    if ox is not None and oy is not None:
+        # A robot already nearer than ``separation`` must only not come nearer: a car
+        # held up by another has to be able to back away from it.
+        near_sep = np.minimum(separation, np.hypot(ox - start[0], oy - start[1])) - 1e-9
 
     ox0, oy0 = grid.origin
     res = grid.resolution

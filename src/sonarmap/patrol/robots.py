@@ -529,6 +529,14 @@ class Car(Team):
             self.plans[i] = None
         return end
 
+    def _yielded_to(self, i: int) -> bool:
+        """Whether a later car, held too and near car i, manoeuvres instead of it: of
+        two cars holding each other up only one gets out of the way (both would
+        otherwise back off and meet again)."""
+        near = np.hypot(self.x - self.x[i], self.y - self.y[i]) < self.min_separation + 2.0
+        near[: i + 1] = False
+        return bool((near & (self.held > 0)).any())
+
     def _plan(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid) -> bool:
         """Plan a manoeuvre for car i onto its route; True when one was found."""
         route = self.routes[i]
@@ -542,7 +550,9 @@ class Car(Team):
             grid,
             self.turn_radius,
             others=others,
-            separation=self.min_separation,
+            # Some room to spare: a car that ends its manoeuvre just clear of another
+            # is held again at once.
+            separation=self.min_separation + 0.5,
         )
         if plan is None or not plan.arcs:
             # No way out from here: searching again next step would find none either.
@@ -570,7 +580,12 @@ class Car(Team):
         for i, d in enumerate(directions):
             s = self.speed_of(i, grid) * dt
             self.rest[i] = max(0, self.rest[i] - 1)
-            if self.plans[i] is None and self.held[i] >= self.patience and not self.rest[i]:
+            if (
+                self.plans[i] is None
+                and self.held[i] >= self.patience
+                and not self.rest[i]
+                and not self._yielded_to(i)
+            ):
                 self._plan(i, passable, grid)
             if self.plans[i] is None:
                 self.escaping[i] = False
