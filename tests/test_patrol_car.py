@@ -104,10 +104,10 @@ def test_street_sites_are_seeded_and_tracking_cars_never_drive_through_walls() -
 
 @pytest.mark.slow
 def test_tracking_car_dvt_on_a_training_street_site_is_low() -> None:
-    # Measured 2026-12-06 on training site 0, 1 car, 600 s, refinement: DVT below 10 %
-    # (the thesis's planner: about 50 %); the bound leaves a margin.
+    # Measured 2026-12-06 on training site 0, 1 car, 600 s, refinement, seed 0: DVT
+    # 12.8 % (the thesis's planner on the held-out sites: 73-85 %); 16 leaves a margin.
     t = street_territory(0)
     track = run_patrol(
         t, PatrolConfig(model="car", refine=True, duration=600.0), robots=1, seed=0
     ).summary()
-    assert track["dvt"] < 15.0
+    assert track["dvt"] < 16.0
