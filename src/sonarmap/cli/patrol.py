@@ -192,6 +192,12 @@ PATROL_OPTIONS = (
     Opt("speed", "Holonomic robots' speed, m/s."),
     Opt("turn_radius", "Cars' minimum turning radius, metres."),
     Opt(
+        "car_planner",
+        "Cars: track (pure pursuit along the wave's path, hybrid-A* manoeuvres out of "
+        "dead ends) or thesis (turn towards the chosen direction, reversing escape).",
+    ),
+    Opt("lookahead", "Tracking cars: the pure-pursuit point's distance along the path, metres."),
+    Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
         "nearest obstacle, in order; the last D may be inf.",

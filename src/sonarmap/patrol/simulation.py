@@ -37,6 +37,7 @@ from .finders import PathFinder
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force, sector_pulls, step_direction
 from .graph import PatrolGraph
+from .manoeuvre import carrot
 from .marching import Marching
 from .monitor import Monitor
 from .network import NETWORKS, components
@@ -67,6 +68,10 @@ __all__ = [
 CROWDING = ("none", "obstacles", "semaphores")
 #: Robot models: holonomic, or car-like (:class:`~sonarmap.patrol.robots.Car`).
 MODELS = ("holonomic", "car")
+#: How cars plan: ``track`` (pure pursuit along the wave's path to the place chosen,
+#: hybrid-A* manoeuvres out of dead ends; :mod:`.manoeuvre`) or ``thesis`` (turn
+#: towards the chosen direction, the thesis's reversing escape).
+CAR_PLANNERS = ("track", "thesis")
 #: How a holonomic robot moves: a full step straight along its chosen direction (the
 #: thesis's), or a step along the wave's shortest path towards the place it goes for
 #: (``path``: the strongest pull in the chosen direction, the reactive agent's place,
@@ -129,6 +134,10 @@ class PatrolConfig:
     min_separation: float = math.nan
     p_random: float = 0.1
     turn_radius: float = 3.5
+    #: How cars plan (:data:`CAR_PLANNERS`).
+    car_planner: str = "track"
+    #: Track: how far along the path the car's pure-pursuit point lies, metres.
+    lookahead: float = 3.0
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
     vision: float = 10.0
@@ -165,6 +174,11 @@ class PatrolConfig:
         if self.model not in MODELS:
             raise ConfigError(
                 f"unknown robot model {self.model!r}; valid: {', '.join(MODELS)}", field="model"
+            )
+        if self.car_planner not in CAR_PLANNERS:
+            raise ConfigError(
+                f"unknown car planner {self.car_planner!r}; valid: {', '.join(CAR_PLANNERS)}",
+                field="car_planner",
             )
         if self.motion not in MOTIONS:
             raise ConfigError(
@@ -228,6 +242,7 @@ class PatrolConfig:
             "duration",
             "cell",
             "turn_radius",
+            "lookahead",
             "min_separation",
             "weaken_r0",
             "refine_window",
@@ -630,6 +645,29 @@ def _unit_towards(team: Team, i: int, point: tuple[float, float]) -> tuple[float
     return dx / n, dy / n
 
 
+def _car_carrot(
+    team: Team,
+    i: int,
+    cell: tuple[int, int] | None,
+    waver: Wave,
+    g: Grid,
+    passable: npt.NDArray[np.bool_],
+    config: PatrolConfig,
+) -> tuple[float, float] | None:
+    """Car i's route (the wave's shortest path to ``cell``, set on the car) and its
+    pure-pursuit point ``config.lookahead`` metres along it; None when there is none."""
+    assert isinstance(team, Car)
+    team.routes[i] = None
+    if cell is None or not np.isfinite(waver.dist[cell]) or waver.dist[cell] <= 0:
+        return None
+    cells = path_to(waver.dist, cell, g.resolution, passable)
+    px, py = g.cell_centres(cells[:, 0], cells[:, 1])
+    route = np.column_stack([px, py]).astype(np.float64)
+    route[0] = team.x[i], team.y[i]
+    team.routes[i] = route
+    return carrot(route, float(team.x[i]), float(team.y[i]), config.lookahead)
+
+
 def run_patrol(
     territory: Territory,
     config: PatrolConfig,
@@ -710,6 +748,7 @@ def run_patrol(
             clearance=territory.clearance,
             turn_radius=config.turn_radius,
             bands=config.speed_bands,
+            planner=config.car_planner,
         )
     else:
         team = Holonomic(
@@ -834,10 +873,13 @@ def run_patrol(
     watched_rc = np.nonzero(watched)
     # The potential field's pulls summed per wave step in one pass with the wave give
     # its direction at once, unless the path motion or other sectors need every place.
+    # Tracking cars follow the path to a place: they need every place too.
+    tracking = isinstance(team, Car) and team.planner == "track"
     direct = (
         config.policy == "potential"
         and config.motion == "straight"
         and (config.sectors == 8 or config.direction == "vector")
+        and not tracking
     )
 
     def tb_of(
@@ -1021,15 +1063,16 @@ def run_patrol(
             goal: tuple[int, int] | None = None
             held = aims[i]
             mine = own[0 if shared else i]
+            seek = along_path or tracking
             if (
-                along_path
+                seek
                 and config.keep_goal
                 and held is not None
                 and np.isfinite(waver.dist[held])
                 and mine.last[held] < aimed_at[i]
             ):
                 goal = held  # not seen since chosen: still worth the trip
-            elif along_path and step is not None:
+            elif seek and step is not None:
                 pick = (
                     reactive_pick(tbv, lengths)
                     if config.policy == "reactive"
@@ -1041,6 +1084,16 @@ def run_patrol(
                 )
                 goal = None if pick is None else (int(rr[pick]), int(cc[pick]))
                 aims[i], aimed_at[i] = goal, mine.t
+            if tracking:
+                goals.append(_car_carrot(team, i, goal, waver, g, passable, config))
+                if goals[-1] is not None:
+                    # Steer for the point ahead on the path (refinement then moves it).
+                    px, py = goals[-1]
+                    vx, vy = px - float(team.x[i]), py - float(team.y[i])
+                    norm = math.hypot(vx, vy)
+                    if norm > 1e-9:
+                        directions[-1] = (vx / norm, vy / norm)
+                continue
             goals.append(_path_goal(team, i, goal, waver, g, passable, config))
         if penalty is not None:
             directions = [
@@ -1058,7 +1111,9 @@ def run_patrol(
                 )
                 for i, d in enumerate(directions)
             ]
-        team.step(directions, passable, g, config.dt, rng, goals if along_path else None)
+        team.step(
+            directions, passable, g, config.dt, rng, goals if along_path or tracking else None
+        )
         if team.give_way:
             _give_way(
                 team,

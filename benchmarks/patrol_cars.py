@@ -1,0 +1,93 @@
+"""Cars on street sites: DVT, never-seen share and mean MTB per planner and team size.
+
+Setting (issue 36, goal 4): street sites of blocks with 3-6 m streets and dead-end stubs
+(:func:`sonarmap.patrol.maps.street_site`; seeds below 1000 are training sites, 1000
+and above held out), cars (turning radius 3.5 m, the thesis's speed rule), refinement,
+mode, artificial obstacles, starts spread by farthest point (by seed). For each site,
+planner, team size and seed one run of ``--duration`` simulated seconds, reporting:
+
+- ``DVT``: the team's mean share of time in the dead-end escape mode, %;
+- ``never seen``: the share of the reachable site never seen by the end, %;
+- ``mean MTB``: the mean, after a fifth of the run, of the worst time since last seen, s.
+
+Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
+[--planners track thesis] [--crowding obstacles] [--seeds 0] [--duration 3600]
+[--json F]``; one process, one core (``NUMBA_NUM_THREADS=1``). Each run prints one
+line as it ends; the table follows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+from sonarmap.patrol import PatrolConfig, run_patrol
+from sonarmap.patrol.maps import street_territory
+
+
+def run_one(
+    site: int, planner: str, cars: int, crowding: str, seed: int, duration: float
+) -> dict[str, Any]:
+    """One run's figures (see the module's notes)."""
+    config = PatrolConfig(
+        model="car",
+        car_planner=planner,
+        refine=True,
+        crowding=crowding if cars > 1 else "none",
+        duration=duration,
+    )
+    t0 = time.perf_counter()
+    s = run_patrol(street_territory(site), config, robots=cars, seed=seed).summary()
+    return {
+        "site": site,
+        "split": "held-out" if site >= 1000 else "training",
+        "planner": planner,
+        "cars": cars,
+        "crowding": config.crowding,
+        "seed": seed,
+        "duration": duration,
+        "dvt": round(float(s["dvt"]), 2),
+        "never_seen": round(100 * float(s["never_seen"]), 2),
+        "mean_mtb": round(float(s["mean_mtb"]), 1),
+        "wall_seconds": round(time.perf_counter() - t0, 1),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.patrol_cars", description=__doc__)
+    ap.add_argument("--sites", type=int, nargs="+", default=[1000])
+    ap.add_argument("--cars", type=int, nargs="+", default=[1, 3, 5])
+    ap.add_argument("--planners", nargs="+", default=["track"])
+    ap.add_argument("--crowding", default="obstacles")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--duration", type=float, default=3600.0)
+    ap.add_argument("--json", type=Path)
+    a = ap.parse_args(argv)
+    rows = []
+    for site in a.sites:
+        for planner in a.planners:
+            for cars in a.cars:
+                for seed in a.seeds:
+                    row = run_one(site, planner, cars, a.crowding, seed, a.duration)
+                    print(json.dumps(row), flush=True)
+                    rows.append(row)
+                    if a.json:
+                        a.json.write_text(json.dumps(rows, indent=1) + "\n")
+    print("| site | split | planner | cars | DVT % | never seen % | mean MTB s |")
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(
+            f"| {r['site']} | {r['split']} | {r['planner']} | {r['cars']} | {r['dvt']:.1f} "
+            f"| {r['never_seen']:.1f} | {r['mean_mtb']:.0f} |"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

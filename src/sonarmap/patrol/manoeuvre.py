@@ -1,0 +1,230 @@
+"""A car-like robot's planner: pure pursuit along the wave's path, and hybrid-A*
+manoeuvres out of dead ends.
+
+The thesis's car turns towards the chosen direction (the first step of the wave's path)
+as fast as its turning radius allows and, when forward motion is impossible, reverses
+while steering towards that direction. On streets only a little wider than a car's
+turning circle that takes it into dead ends again and again. A car-like planner does
+two things instead:
+
+- it follows the wave's path to the place it goes for with *pure pursuit*: the arc
+  through a point ``lookahead`` metres along the path (:func:`carrot`), so it turns
+  where the path turns and not where the path's first step points;
+- when no forward arc is clear, or the path lies behind it, it plans a *manoeuvre*
+  (:func:`plan_manoeuvre`): a hybrid-A* search over (x, y, heading) with forward and
+  reverse arcs of the car's turning radius, to a pose on the path a few metres ahead,
+  every point of it checked against the map (the cells the car's disc may have its
+  centre on) and against the other robots. A manoeuvre that reverses is the dead-end
+  escape the DVT counts.
+
+Nothing here is random: the search breaks ties by insertion order.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from ..grid import Grid
+
+__all__ = ["Manoeuvre", "carrot", "plan_manoeuvre", "route_goals"]
+
+F64 = npt.NDArray[np.float64]
+
+#: Heading bins of the search: a turning arc of one primitive turns by one bin.
+HEADINGS = 16
+#: Points checked per metre of a primitive (the map's cells are 0.5 m): a corner of a
+#: cell the arc passes closer than 1/16 m may go unseen.
+SAMPLES_PER_M = 16
+#: Side of the search's position bins, metres.
+BIN = 0.5
+#: Extra cost of a metre driven in reverse, and of a change of gear, in metres.
+REVERSE_COST = 1.5
+GEAR_COST = 2.0
+
+
+@dataclass
+class Manoeuvre:
+    """A planned manoeuvre: arcs (signed length in metres, negative in reverse, and
+    curvature in 1/m) driven in order; ``reverses`` when any of them is in reverse."""
+
+    arcs: list[tuple[float, float]]
+
+    @property
+    def reverses(self) -> bool:
+        return any(length < 0 for length, _ in self.arcs)
+
+
+def carrot(route: F64, x: float, y: float, lookahead: float) -> tuple[float, float]:
+    """The point ``lookahead`` metres along ``route`` (K, 2 world points, starting near
+    the car) from its point nearest (x, y); the route's end when it is shorter."""
+    d = np.hypot(route[:, 0] - x, route[:, 1] - y)
+    k = int(np.argmin(d))
+    left = lookahead
+    px, py = x, y
+    for qx, qy in route[k:].tolist():
+        step = math.hypot(qx - px, qy - py)
+        if step >= left and step > 0:
+            f = left / step
+            return px + (qx - px) * f, py + (qy - py) * f
+        left -= step
+        px, py = qx, qy
+    return float(route[-1, 0]), float(route[-1, 1])
+
+
+def route_goals(route: F64, near: float = 3.0, far: float = 10.0) -> F64:
+    """Poses (M, 3: x, y, heading) on ``route`` from ``near`` to ``far`` metres along it,
+    every half metre, heading along the route; the route's end alone (heading NaN, any
+    heading will do) when the route is shorter than ``near``."""
+    seg = np.hypot(np.diff(route[:, 0]), np.diff(route[:, 1]))
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if len(route) < 2 or s[-1] < near:
+        return np.array([[route[-1, 0], route[-1, 1], math.nan]])
+    out = []
+    for at in np.arange(near, min(far, s[-1]) + 1e-9, 0.5):
+        k = int(np.searchsorted(s, at))
+        k = min(max(k, 1), len(route) - 1)
+        # The tangent over about a metre either side: single cell steps zigzag.
+        a = int(np.searchsorted(s, at - 1.0))
+        b = min(int(np.searchsorted(s, at + 1.0)), len(route) - 1)
+        a = min(a, b - 1)
+        h = math.atan2(route[b, 1] - route[a, 1], route[b, 0] - route[a, 0])
+        out.append((route[k, 0], route[k, 1], h))
+    return np.array(out, dtype=np.float64)
+
+
+def _primitives(turn_radius: float) -> tuple[F64, F64, F64, list[tuple[float, float]]]:
+    """The six arcs (forward and reverse; left, straight, right), each one heading bin
+    long at the turning radius: their sample points in the car's frame (6, S, 2), end
+    poses (6, 3) and costs (6,)."""
+    length = turn_radius * 2 * math.pi / HEADINGS
+    kmax = 1.0 / turn_radius
+    arcs = [(g * length, k) for g in (1.0, -1.0) for k in (kmax, 0.0, -kmax)]
+    n = max(2, math.ceil(length * SAMPLES_PER_M) + 1)
+    pts = np.empty((len(arcs), n, 2))
+    ends = np.empty((len(arcs), 3))
+    cost = np.empty(len(arcs))
+    for j, (ln, k) in enumerate(arcs):
+        u = np.linspace(0.0, ln, n)
+        if k == 0.0:
+            pts[j, :, 0], pts[j, :, 1] = u, 0.0
+        else:
+            pts[j, :, 0] = np.sin(k * u) / k
+            pts[j, :, 1] = (1 - np.cos(k * u)) / k
+        ends[j] = (pts[j, -1, 0], pts[j, -1, 1], k * ln)
+        cost[j] = abs(ln) * (REVERSE_COST if ln < 0 else 1.0)
+    return pts, ends, cost, arcs
+
+
+def plan_manoeuvre(
+    start: tuple[float, float, float],
+    goals: F64,
+    passable: npt.NDArray[np.bool_],
+    grid: Grid,
+    turn_radius: float,
+    *,
+    others: F64 | None = None,
+    separation: float = 2.0,
+    tolerance: float = 0.75,
+    heading_tolerance: float = 0.5,
+    budget: int = 3000,
+) -> Manoeuvre | None:
+    """A shortest manoeuvre (by length, reverse and gear changes costing more) of arcs
+    of radius ``turn_radius`` from ``start`` (x, y, heading) to within ``tolerance``
+    metres and ``heading_tolerance`` radians of one of ``goals`` (M, 3; a NaN heading
+    takes any), keeping every point on ``passable`` cells and ``separation`` metres
+    from every robot in ``others`` (K, 2; a robot nearer at the start: no nearer than
+    that); None when ``budget`` expansions find none.
+
+    A hybrid A*: states are binned by position (:data:`BIN`) and heading
+    (:data:`HEADINGS`) but keep their exact poses; the heuristic is, to the nearest
+    goal, the larger of the straight-line distance and the arc a turn to the goal's
+    heading takes at least (both less the tolerances: it never overestimates).
+    """
+    pts, ends, cost, arcs = _primitives(turn_radius)
+    rows, cols = passable.shape
+    bin_w = 2 * math.pi / HEADINGS
+    gx, gy, gh = goals[:, 0], goals[:, 1], goals[:, 2]
+    any_heading = np.isnan(gh)
+    ox = others[:, 0] if others is not None and len(others) else None
+    oy = others[:, 1] if others is not None and len(others) else None
+    near_sep = np.empty(0)
+    if ox is not None and oy is not None:
+        # A robot already nearer than ``separation`` must only not come nearer: a car
+        # held up by another has to be able to back away from it.
+        near_sep = np.minimum(separation, np.hypot(ox - start[0], oy - start[1])) - 1e-9
+
+    ox0, oy0 = grid.origin
+    res = grid.resolution
+
+    def key(x: float, y: float, h: float) -> tuple[int, int, int]:
+        # Grid.world_to_cell's arithmetic on scalars: this runs for every node.
+        return (
+            math.floor((x - ox0) / BIN),
+            math.floor((y - oy0) / BIN),
+            round(h / bin_w) % HEADINGS,
+        )
+
+    def done(x: float, y: float, h: float) -> bool:
+        close = np.hypot(gx - x, gy - y) <= tolerance
+        dh = np.abs((gh - h + math.pi) % (2 * math.pi) - math.pi)
+        return bool((close & (any_heading | (dh <= heading_tolerance))).any())
+
+    gh0 = np.where(any_heading, 0.0, gh)
+
+    def guess(x: float, y: float, h: float) -> float:
+        # Every turn by dh takes at least turn_radius * dh metres of arc.
+        dh = np.abs((gh0 - h + math.pi) % (2 * math.pi) - math.pi)
+        turn = np.where(any_heading, 0.0, np.maximum(dh - heading_tolerance, 0.0))
+        return float(np.maximum(np.hypot(gx - x, gy - y) - tolerance, turn_radius * turn).min())
+
+    x0, y0, h0 = start
+    # Nodes: (x, y, heading, cost so far, gear, parent); via: the arc that led there.
+    nodes: list[tuple[float, float, float, float, int, int]] = [(x0, y0, h0, 0.0, 0, -1)]
+    via: list[int] = [-1]
+    heap: list[tuple[float, int]] = [(guess(x0, y0, h0), 0)]
+    best: dict[tuple[int, int, int], float] = {key(x0, y0, h0): 0.0}
+    expanded = 0
+    while heap and expanded < budget:
+        _, u = heapq.heappop(heap)
+        x, y, h, g, gear, _parent = nodes[u]
+        if g > best.get(key(x, y, h), math.inf) + 1e-9:
+            continue
+        if u and done(x, y, h):
+            out: list[tuple[float, float]] = []
+            while u:
+                out.append(arcs[via[u]])
+                u = nodes[u][5]
+            return Manoeuvre(out[::-1])
+        expanded += 1
+        ch, sh = math.cos(h), math.sin(h)
+        wx = x + ch * pts[:, :, 0] - sh * pts[:, :, 1]
+        wy = y + sh * pts[:, :, 0] + ch * pts[:, :, 1]
+        c = np.floor((wx - ox0) / res).astype(np.int64)
+        r = rows - 1 - np.floor((wy - oy0) / res).astype(np.int64)
+        inside = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+        ok = inside.all(axis=1)
+        clear = np.zeros_like(inside)
+        clear[inside] = passable[r[inside], c[inside]]
+        ok &= clear.all(axis=1)
+        if ox is not None and oy is not None:
+            dd = np.hypot(wx[:, :, None] - ox, wy[:, :, None] - oy)
+            ok &= (dd >= near_sep).all(axis=(1, 2))
+        for j in np.flatnonzero(ok).tolist():
+            nx = x + ch * ends[j, 0] - sh * ends[j, 1]
+            ny = y + sh * ends[j, 0] + ch * ends[j, 1]
+            nh = (h + ends[j, 2] + math.pi) % (2 * math.pi) - math.pi
+            ngear = 1 if arcs[j][0] > 0 else -1
+            ng = g + float(cost[j]) + (GEAR_COST if gear and ngear != gear else 0.0)
+            kk = key(nx, ny, nh)
+            if ng >= best.get(kk, math.inf) - 1e-9:
+                continue
+            best[kk] = ng
+            nodes.append((nx, ny, nh, ng, ngear, u))
+            via.append(j)
+            heapq.heappush(heap, (ng + guess(nx, ny, nh), len(nodes) - 1))
+    return None
