@@ -544,9 +544,9 @@ def experiment_cmd(
     ] = None,
 ) -> None:
     """Rerun one of the thesis's chapter-3 experiments on the built-in maps: runs.csv,
-    table.csv, claims.json, figures and report.html in OUT. ``baselines --map FILE``
-    runs the policies side by side on a real map instead (runs.csv, runs.json,
-    table.csv, claims.json, mtb.png, report.html)."""
+    table.csv, claims.json, figures and report.html in OUT. With --map FILE, the
+    baselines experiment runs the policies side by side on a real map instead (runs.csv,
+    runs.json, table.csv, claims.json, mtb.png, report.html)."""
     from ..parallel import check_workers
     from ..patrol.experiments import run_experiment
 
