@@ -10,6 +10,7 @@ message is stamped in the run's own (simulated or log) time, in seconds.
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
@@ -31,6 +32,7 @@ __all__ = [
     "SPHERE_LIST",
     "TF",
     "TYPESTORE",
+    "Trails",
     "float_message",
     "grid_message",
     "header",
@@ -220,3 +222,23 @@ def markers_message(t: float, markers: Sequence[Any], frame: str = "map") -> Any
     last one whole (a link that went down disappears)."""
     clear = marker(t, "", LINE_LIST, [], frame=frame, action=_DELETEALL)
     return _T[MARKERS](markers=[clear, *markers])
+
+
+class Trails:
+    """Each robot's poses over the last ``seconds`` (time, x, y, heading), for the
+    ``nav_msgs/Path`` of its trail (:func:`path_message`)."""
+
+    def __init__(self, robots: int, seconds: float) -> None:
+        self.seconds = float(seconds)
+        self._poses: list[deque[tuple[float, float, float, float]]] = [
+            deque() for _ in range(robots)
+        ]
+
+    def add(self, k: int, t: float, x: float, y: float, heading: float) -> Any:
+        """Add robot ``k``'s pose at time ``t``, drop what is older than the window, and
+        return the path message of what is left."""
+        trail = self._poses[k]
+        trail.append((t, x, y, heading))
+        while trail and trail[0][0] < t - self.seconds:
+            trail.popleft()
+        return path_message(t, list(trail))

@@ -29,8 +29,6 @@ and gives them to a :class:`~sonarmap.io.record.Recorder`. Topics, all in frame
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
 import numpy.typing as npt
 
@@ -45,11 +43,11 @@ from ..io.rosmsg import (
     MARKERS,
     PATH,
     TF,
+    Trails,
     float_message,
     grid_message,
     marker,
     markers_message,
-    path_message,
     tf_message,
     transform,
 )
@@ -146,7 +144,7 @@ class PatrolPublisher:
         self.path_every = path_every
         self.trail = trail
         self.steps = 0
-        self._trails: list[deque[tuple[float, float, float, float]]] = []
+        self._trails = Trails(0, trail)
         # At once, before the run's set-up: a live viewer sees the territory from the start.
         recorder.declare(TOPICS)
         g = territory.grid
@@ -159,7 +157,7 @@ class PatrolPublisher:
         rec = self.recorder
         g = self.territory.grid
         if self.steps == 0:
-            self._trails = [deque() for _ in range(len(team))]
+            self._trails = Trails(len(team), self.trail)
             rec.declare({f"/robot{k}/path": PATH for k in range(len(team))})
         self.steps += 1
         x, y, heading = team.x, team.y, team.heading
@@ -201,11 +199,9 @@ class PatrolPublisher:
         if rec.due("fog", t, self.fog_every):
             rec.publish("/fog", GRID, grid_message(g, t, fog_levels(fog)), t)
         if rec.due("path", t, self.path_every):
-            for k, trail in enumerate(self._trails):
-                trail.append((t, float(x[k]), float(y[k]), float(heading[k])))
-                while trail and trail[0][0] < t - self.trail:
-                    trail.popleft()
-                rec.publish(f"/robot{k}/path", PATH, path_message(t, list(trail)), t)
+            for k in range(len(team)):
+                path = self._trails.add(k, t, float(x[k]), float(y[k]), float(heading[k]))
+                rec.publish(f"/robot{k}/path", PATH, path, t)
 
     def _semaphores(self, t: float) -> list[object]:
         g = self.territory.grid

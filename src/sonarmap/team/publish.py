@@ -29,7 +29,6 @@
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
@@ -48,11 +47,11 @@ from ..io.rosmsg import (
     PATH,
     SPHERE_LIST,
     TF,
+    Trails,
     float_message,
     grid_message,
     marker,
     markers_message,
-    path_message,
     tf_message,
     transform,
 )
@@ -126,7 +125,7 @@ class TeamPublisher:
         self.path_every = path_every
         self.trail = trail
         self.ticks = 0
-        self._trails: list[deque[tuple[float, float, float, float]]] = []
+        self._trails = Trails(0, trail)
         self._last: TeamTick | None = None
         # At once, before the run's set-up: a live viewer sees the floor from the start.
         recorder.declare(TOPICS)
@@ -141,7 +140,7 @@ class TeamPublisher:
         rec, t, agents = self.recorder, tick.t, tick.agents
         self._last = tick
         if self.ticks == 0:
-            self._trails = [deque() for _ in agents]
+            self._trails = Trails(len(agents), self.trail)
             rec.declare(
                 {
                     f"/robot{a.robot}/{name}": msgtype
@@ -168,11 +167,9 @@ class TeamPublisher:
             rec.publish(f"/robot{a.robot}/bytes_sent", FLOAT, float_message(sent), t)
         rec.publish("/bytes_sent", FLOAT, float_message(sum(tick.bytes_sent)), t)
         if rec.due("path", t, self.path_every):
-            for k, (a, trail) in enumerate(zip(agents, self._trails, strict=True)):
-                trail.append((t, *poses[k].tolist()))
-                while trail and trail[0][0] < t - self.trail:
-                    trail.popleft()
-                rec.publish(f"/robot{a.robot}/path", PATH, path_message(t, list(trail)), t)
+            for k, a in enumerate(agents):
+                path = self._trails.add(k, t, *(float(v) for v in poses[k]))
+                rec.publish(f"/robot{a.robot}/path", PATH, path, t)
         if rec.due("map", t, self.map_every):
             self.maps(t, agents)
 
