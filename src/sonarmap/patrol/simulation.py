@@ -896,19 +896,18 @@ def run_patrol(
     # the goal is seen or cut off, the full field is worked out as before.
     # Its choice of step and of the place it goes for along it are settled once the
     # places left could change neither: the wave stops there.
-    certify_goal = along_path and config.sectors == 8 and config.policy == "potential"
+    # Tracking cars choose their place the same way.
+    certify_goal = (along_path or tracking) and config.sectors == 8 and config.policy == "potential"
     # Then the mode's step and that step's strongest place come straight from the pulls
     # summed with the wave, as the straight motion's direction does.
-    direct_path = certify_goal and config.direction == "mode"
+    direct_path = along_path and certify_goal and config.direction == "mode"
     places = np.full((8, 2), -1, dtype=np.int64)
     hold_fast = (
-        along_path
+        ((along_path and penalty is None and isinstance(team, Holonomic)) or tracking)
         and config.keep_goal
         and config.policy == "potential"
         and config.direction == "mode"
         and config.paths == "wave"
-        and penalty is None
-        and isinstance(team, Holonomic)
     )
     # Path motion: the place each robot goes for, and when it chose it.
     aims: list[tuple[int, int] | None] = [None] * len(team)
@@ -926,9 +925,23 @@ def run_patrol(
             if hold_fast and held is not None and own[0 if shared else i].last[held] < aimed_at[i]:
                 start = (int(r[i]), int(c[i]))
                 closed = closed_cells(i, r, c, k)
-                towards = _held_goal(
-                    team, i, start, held, waver, g, passable, watched, closed, config
-                )
+                if tracking:
+                    reached = waver.to(passable, start, held, g.resolution, watched, closed)
+                    towards = (
+                        _car_carrot(team, i, held, waver, g, passable, config)
+                        if np.isfinite(reached)
+                        else None
+                    )
+                    if (
+                        towards is not None
+                        and math.hypot(towards[0] - float(team.x[i]), towards[1] - float(team.y[i]))
+                        <= 1e-9
+                    ):
+                        towards = None
+                else:
+                    towards = _held_goal(
+                        team, i, start, held, waver, g, passable, watched, closed, config
+                    )
                 if towards is not None:
                     directions.append(_unit_towards(team, i, towards))
                     goals.append(towards)
