@@ -83,6 +83,11 @@ def _confuse(raw: bytes, rng: np.random.Generator) -> bytes:
     d = msgpack.unpackb(raw, strict_map_key=False)
     if not isinstance(d, dict) or not d:
         return raw
+    rows = [k for k, v in d.items() if isinstance(v, list) and v and isinstance(v[0], dict)]
+    if rows and rng.random() < 0.5:
+        # A field of a nested map (an answer's patch row) confused instead.
+        d[rows[0]][0] = msgpack.unpackb(_confuse(_pack(d[rows[0]][0]), rng), strict_map_key=False)
+        return _pack(d)
     keys = list(d)
     a, b = (keys[int(rng.integers(0, len(keys)))] for _ in range(2))
     how = int(rng.integers(0, 4))
