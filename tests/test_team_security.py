@@ -169,6 +169,51 @@ def test_a_live_node_rejects_the_poison_answer_and_goes_on(
     assert "rejected a 'answer' from robot 1 (record)" in caplog.text
 
 
+@pytest.mark.slow
+def test_done_markers_that_skip_ticks_end_the_node_with_one_line_not_a_key_error(
+    tmp_path: Path,
+) -> None:
+    """Found by benchmarks.team_fuzz: a key-holding peer whose numbered frames are
+    well formed but whose ``done`` markers skip ticks (tick 0, then tick 50) made the
+    node look up the skipped tick's marker and die of a KeyError. It now ends with one
+    line naming the peer."""
+    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    cfg = MissionConfig(duration=5.0, seed=1)
+    addresses = [f"tcp://127.0.0.1:{_free_port()}" for _ in range(2)]
+    out: dict[str, BaseException] = {}
+
+    def node() -> None:
+        try:
+            run_node(
+                plan,
+                cfg,
+                0,
+                addresses[0],
+                {1: addresses[1]},
+                out=tmp_path / "robot0",
+                timing=LockstepParams(wait_timeout=5.0, retry=0.2, linger=1.0),
+            )
+        except BaseException as e:  # handed to the test's thread
+            out["error"] = e
+
+    runner = threading.Thread(target=node)
+    with ZmqTransport(1, addresses[1], {0: addresses[0]}) as me:
+        runner.start()
+        done = _pack({"ch": 0, "out": False, "ack": 0})
+        frames = [_pack({"q": q, "t": t, "k": "done", "b": done}) for q, t in enumerate([0, 50])]
+        end = time.monotonic() + 60.0
+        for f in frames:
+            while not me.send(0, f, "lock") and time.monotonic() < end:
+                time.sleep(0.05)
+        runner.join(timeout=max(1.0, end - time.monotonic()))
+    assert not runner.is_alive()
+    error = out.get("error")
+    assert isinstance(error, InputError), repr(error)
+    assert "peer robot 1" in str(error)
+    assert "no marker for tick" in str(error)
+    assert "\n" not in str(error)
+
+
 def test_rejection_lines_are_clipped_and_their_rate_bounded(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
