@@ -243,8 +243,10 @@ class FuzzResult:
         The node did not exit within the time limit.
     asked : int
         ``hello`` requests the node sent the insider: it kept answering under attack.
-    rss_start_mb, rss_peak_mb : float
-        The node's resident set once it was up, and its peak (VmHWM).
+    rss_start_mb, rss_attacked_mb, rss_peak_mb : float
+        The node's resident set once it was up, right after the attack's last frame (the
+        node still waiting for robot 1, holding what the attack left it), and its peak
+        over the run (VmHWM).
     seconds : float
         Wall time from the first attack frame to the node's exit.
     last_line : str
@@ -259,6 +261,7 @@ class FuzzResult:
     hung: bool
     asked: int
     rss_start_mb: float
+    rss_attacked_mb: float
     rss_peak_mb: float
     seconds: float
     last_line: str
@@ -337,7 +340,7 @@ def fuzz_node(frames: int, seed: int, folder: Path, *, timeout: float = 120.0) -
     log = open(folder / "robot0.log", "wb")  # noqa: SIM115
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
     sent = refused = asked = inner = 0
-    rss_start = 0.0
+    rss_start = rss_attacked = 0.0
     peak = 0.0
     try:
         with ZmqTransport(1, addresses[1], key=key) as me:
@@ -364,6 +367,11 @@ def fuzz_node(frames: int, seed: int, folder: Path, *, timeout: float = 120.0) -
                 if sent % 200 == 0:
                     asked += sum(m.kind == "hello" for m in me.poll(0.0))
                     peak = max(peak, _rss(proc.pid)[1])
+            # Left a moment to take in what is queued before it is measured.
+            settle_end = time.monotonic() + 1.0
+            while time.monotonic() < settle_end and proc.poll() is None:
+                asked += sum(m.kind == "hello" for m in me.poll(0.1))
+            rss_attacked = _rss(proc.pid)[0]
             for tick in range(_TICKS):
                 numbered(tick, "done", _pack({"ch": 0, "out": False, "ack": 0}))
             numbered(_TICKS, "bye", b"")
@@ -402,6 +410,7 @@ def fuzz_node(frames: int, seed: int, folder: Path, *, timeout: float = 120.0) -
         hung=hung,
         asked=asked,
         rss_start_mb=rss_start,
+        rss_attacked_mb=rss_attacked,
         rss_peak_mb=peak,
         seconds=seconds,
         last_line=lines[-1] if lines else "",
@@ -432,14 +441,14 @@ def main(argv: list[str] | None = None) -> None:
         r = fuzz_node(a.frames, a.seed, where / "fuzzed", timeout=a.timeout)
     print(
         "| frames sent | to the exchanger | rejected by the link | exit | crashes | hangs | "
-        "peak RSS MB | undisturbed peak MB | over undisturbed MB | s |"
+        "RSS before / after the attack MB | peak RSS MB | undisturbed peak MB | s |"
     )
     print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     print(
         f"| {r.sent} | {r.inner} | {r.rejected} | {r.exit_code} | {int(r.crashed)} | "
         f"{int(r.hung)} | "
-        f"{r.rss_peak_mb:.0f} | {ref.rss_peak_mb:.0f} | {r.rss_peak_mb - ref.rss_peak_mb:.0f} "
-        f"| {r.seconds:.1f} |"
+        f"{r.rss_start_mb:.0f} / {r.rss_attacked_mb:.0f} | {r.rss_peak_mb:.0f} | "
+        f"{ref.rss_peak_mb:.0f} | {r.seconds:.1f} |"
     )
     if r.exit_code != 0:
         print(f"node: {r.last_line}", file=sys.stderr)
