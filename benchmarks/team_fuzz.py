@@ -30,7 +30,6 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import msgpack
 import numpy as np
@@ -41,7 +40,7 @@ from sonarmap.io.rosmap import write_map
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
 from sonarmap.team.exchange import ExchangeParams
-from sonarmap.team.keys import make_team_key, read_team_key
+from sonarmap.team.keys import TeamKey, make_team_key, read_team_key
 from sonarmap.team.launcher import KEY_FILE, node_args
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.node import SUMMARY_FILE, LockstepParams
@@ -274,7 +273,7 @@ class FuzzResult:
         return self.exit_code not in (0, None) and not clean
 
 
-def _dealer(ctx: Any, address: str, key: Any) -> Any:
+def _dealer(ctx: zmq.Context[zmq.Socket[bytes]], address: str, key: TeamKey) -> zmq.Socket[bytes]:
     """Robot 1's own connection to robot 0: its key, its identity."""
     sock = ctx.socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
@@ -417,7 +416,7 @@ def fuzz_node(frames: int, seed: int, folder: Path, *, timeout: float = 120.0) -
     )
 
 
-def _resend(sock: Any, honest: list[bytes], start: int) -> None:
+def _resend(sock: zmq.Socket[bytes], honest: list[bytes], start: int) -> None:
     for env in honest[max(0, start) :]:
         try:
             sock.send(env)
