@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import logging
 import os
 import socket
 import stat
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -22,6 +25,7 @@ import numpy as np
 import pytest
 import zmq
 import zstandard
+from benchmarks.team_fuzz import fuzz_node
 
 from sonarmap.cli import main
 from sonarmap.errors import InputError, OutputError
@@ -30,12 +34,12 @@ from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
 from sonarmap.team.checkpoint import StateLock, read_state, write_state
 from sonarmap.team.exchange import ExchangeParams, Exchanger
-from sonarmap.team.keys import read_team_key
-from sonarmap.team.launcher import KEY_FILE, run_zmq_team
+from sonarmap.team.keys import make_team_key, read_team_key
+from sonarmap.team.launcher import KEY_FILE, node_args, run_zmq_team
 from sonarmap.team.link import ReliableLink
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams, SimNetwork
-from sonarmap.team.node import LockstepParams, run_node, store_digest
+from sonarmap.team.node import SUMMARY_FILE, LockstepParams, run_node, store_digest
 from sonarmap.team.records import Landmarks, Pose, RecordError, decode, encode, make_uid
 from sonarmap.team.rejects import LINE_WIDTH, RejectLog
 from sonarmap.team.simulation import run_team
@@ -163,6 +167,51 @@ def test_a_live_node_rejects_the_poison_answer_and_goes_on(
     assert isinstance(error, InputError), repr(error)
     assert "peer robot 1" in str(error)
     assert "rejected a 'answer' from robot 1 (record)" in caplog.text
+
+
+@pytest.mark.slow
+def test_done_markers_that_skip_ticks_end_the_node_with_one_line_not_a_key_error(
+    tmp_path: Path,
+) -> None:
+    """Found by benchmarks.team_fuzz: a key-holding peer whose numbered frames are
+    well formed but whose ``done`` markers skip ticks (tick 0, then tick 50) made the
+    node look up the skipped tick's marker and die of a KeyError. It now ends with one
+    line naming the peer."""
+    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    cfg = MissionConfig(duration=5.0, seed=1)
+    addresses = [f"tcp://127.0.0.1:{_free_port()}" for _ in range(2)]
+    out: dict[str, BaseException] = {}
+
+    def node() -> None:
+        try:
+            run_node(
+                plan,
+                cfg,
+                0,
+                addresses[0],
+                {1: addresses[1]},
+                out=tmp_path / "robot0",
+                timing=LockstepParams(wait_timeout=5.0, retry=0.2, linger=1.0),
+            )
+        except BaseException as e:  # handed to the test's thread
+            out["error"] = e
+
+    runner = threading.Thread(target=node)
+    with ZmqTransport(1, addresses[1], {0: addresses[0]}) as me:
+        runner.start()
+        done = _pack({"ch": 0, "out": False, "ack": 0})
+        frames = [_pack({"q": q, "t": t, "k": "done", "b": done}) for q, t in enumerate([0, 50])]
+        end = time.monotonic() + 60.0
+        for f in frames:
+            while not me.send(0, f, "lock") and time.monotonic() < end:
+                time.sleep(0.05)
+        runner.join(timeout=max(1.0, end - time.monotonic()))
+    assert not runner.is_alive()
+    error = out.get("error")
+    assert isinstance(error, InputError), repr(error)
+    assert "peer robot 1" in str(error)
+    assert "no marker for tick" in str(error)
+    assert "\n" not in str(error)
 
 
 def test_rejection_lines_are_clipped_and_their_rate_bounded(
@@ -633,3 +682,120 @@ def test_team_node_without_a_key_off_loopback_and_a_short_key_are_one_line(
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1, err
         assert expected in err
+
+
+# --- F: tests that attack ----------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_an_insider_fuzzing_a_live_node_neither_crashes_nor_hangs_it(tmp_path: Path) -> None:
+    """3,000 frames from robot 1's own key (so every one reaches a decoder): mutated,
+    retyped, truncated, huge, forged; then an honest end. The node exits 0 having
+    counted the rejections, and its memory grows by less than 200 MB under the attack
+    and peaks within 200 MB of its undisturbed run's (benchmarks.team_fuzz: the same
+    at scale)."""
+    ref = fuzz_node(0, 38, tmp_path / "undisturbed", timeout=60.0)
+    got = fuzz_node(3000, 38, tmp_path / "fuzzed", timeout=60.0)
+    assert ref.exit_code == 0, ref.last_line
+    assert got.exit_code == 0, got.last_line
+    assert not got.hung
+    assert (got.sent, got.refused) == (3000, 0)
+    assert got.asked >= 1  # it asked for robot 1's frames: it was up and waiting
+    # Some attack frames are valid (a hello asking again, a frame kept aside far ahead):
+    # most are not, and each of those is counted.
+    assert got.rejected >= (got.sent - got.inner) // 2
+    assert "rejected a " in (tmp_path / "fuzzed" / "robot0.log").read_text()
+    assert got.rss_peak_mb - ref.rss_peak_mb < 200.0
+    assert got.rss_attacked_mb - got.rss_start_mb < 200.0
+
+
+def _node_cmd(i: int, addresses: list[str], folder: Path, args: list[str]) -> list[str]:
+    """Robot ``i``'s ``team node`` command, as the launcher builds it."""
+    peer = ",".join(f"{j}={a}" for j, a in enumerate(addresses) if j != i)
+    cmd = [sys.executable, "-m", "sonarmap", "team", "node", "--id", str(i)]
+    cmd += ["--listen", addresses[i], "--peers", peer, "--map", str(folder / "plan.yaml")]
+    return [*cmd, "-o", str(folder / f"robot{i}"), "--key", str(folder / KEY_FILE), *args]
+
+
+def _start(
+    i: int, addresses: list[str], folder: Path, args: list[str], log: Any
+) -> subprocess.Popen[bytes]:
+    cmd = _node_cmd(i, addresses, folder, args)
+    return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
+
+
+def _listening(address: str) -> bool:
+    port = int(address.rsplit(":", 1)[1])
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+@pytest.mark.slow
+def test_a_stranger_before_robot_1_starts_changes_nothing(tmp_path: Path) -> None:
+    """The issue's acceptance scenario: a 2-robot keyed team on loopback; a stranger
+    without the key connects to robot 0 before robot 1 starts, calls itself robot 1 and
+    sends forged tick and bye frames, a forged hello and 2,000 random frames. Both
+    robots exit 0 and robot 0 ends with the poses and store digest of an undisturbed
+    run (the simulated team's: a keyed zmq team's results are the same)."""
+    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    cfg = MissionConfig(duration=10.0, seed=2, store=StoreParams(region_limit=32_768))
+    undisturbed = run_team(
+        plan, cfg, 2, network=NetworkParams(kind="full"), exchange=ExchangeParams(), seed=3
+    )
+    write_map(plan, tmp_path / "plan")
+    make_team_key(2).write(tmp_path / KEY_FILE)
+    args = node_args(cfg, ExchangeParams(), 30.0, None, 120.0, LockstepParams(wait_timeout=60.0))
+    addresses = [f"tcp://127.0.0.1:{_free_port()}" for _ in range(2)]
+    logs = [open(tmp_path / f"robot{i}.log", "wb") for i in range(2)]  # noqa: SIM115
+    procs: list[subprocess.Popen[bytes]] = []
+    forged = _forged_end()
+    forged.append(encode_envelope(1, 0, 41, "hello", _pack({"next": 10**6, "ack": 10**6})))
+    rng = np.random.default_rng(38)
+    forged += [rng.bytes(int(rng.integers(1, 300))) for _ in range(2000)]
+    server = read_team_key(tmp_path / KEY_FILE).public[0]
+    public, secret = zmq.curve_keypair()
+    # Without CURVE, and with CURVE and robot 0's public key but a key of its own.
+    strangers = [_stranger(addresses[0], b"1", c) for c in (None, (server, public, secret))]
+    sent = 0
+
+    def attack(frames: int) -> None:
+        nonlocal sent
+        for _ in range(frames):
+            for _, sock in strangers:
+                with contextlib.suppress(zmq.Again):
+                    sock.send(forged[sent % len(forged)], zmq.NOBLOCK)
+            sent += 1
+
+    try:
+        procs.append(_start(0, addresses, tmp_path, args, logs[0]))
+        end = time.monotonic() + 60.0
+        while not _listening(addresses[0]) and time.monotonic() < end:
+            time.sleep(0.1)
+        # Robot 0 is up: attacked for 3 s and every forged frame, before robot 1 starts.
+        end = time.monotonic() + 3.0
+        while (time.monotonic() < end or sent < len(forged)) and time.monotonic() < end + DEADLINE:
+            attack(50)
+            time.sleep(0.01)
+        procs.append(_start(1, addresses, tmp_path, args, logs[1]))
+        end = time.monotonic() + 240.0
+        while any(p.poll() is None for p in procs) and time.monotonic() < end:
+            attack(50)  # and all along
+            time.sleep(0.1)
+        codes = [p.poll() for p in procs]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+        for log in logs:
+            log.close()
+        for ctx, sock in strangers:
+            sock.close(0)
+            ctx.term()
+    assert codes == [0, 0], (tmp_path / "robot0.log").read_text()[-2000:]
+    summary = json.loads((tmp_path / "robot0" / SUMMARY_FILE).read_text())
+    # The stranger with a key of its own was turned away at the handshake, counted.
+    assert "denied" in (tmp_path / "robot0.log").read_text()
+    assert summary["rejected_frames"] >= 1
+    assert set(summary["held"]) == undisturbed.held[0]
+    assert summary["local_digest"] == store_digest(undisturbed.robots[0].store)

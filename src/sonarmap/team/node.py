@@ -527,7 +527,17 @@ class _Node:
         link.wait(lambda: [j for j in self.others if link.done[j] < n], f"the end of tick {n}")
         total, outstanding = self.own_marker
         for j in self.others:
-            c, o = link.markers[j][n]
+            marker = link.markers[j].get(n)
+            if marker is None:
+                # A later tick's marker came in this one's place: the peer holds the
+                # key but does not run the mission's clock; one line, not a KeyError.
+                where = f"peer robot {j} ({self.zmq.peers.get(j, '?')})"
+                raise InputError(
+                    f"robot {self.robot}: {where} sent no marker for tick {n}, only one for "
+                    f"tick {link.done[j]}: not one of the team, or its node is damaged",
+                    field="peers",
+                )
+            c, o = marker
             total += c
             outstanding = outstanding or o
         return total, outstanding
