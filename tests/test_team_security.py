@@ -466,10 +466,12 @@ def test_a_stranger_without_the_key_is_not_admitted(
 def test_a_robot_is_known_by_its_key_not_by_the_identity_it_claims(
     keyed: tuple[ZmqTransport, ZmqTransport], key_file: Path
 ) -> None:
-    """Robot 2's key with routing identity "1" and envelopes claiming robot 1: spoofed."""
+    """Robot 2's key with envelopes claiming robot 1: spoofed. (Its routing identity is
+    not "1": the real robot 1 holds that one on this socket, and ZeroMQ would refuse a
+    second connection under it before any check of ours, depending on who came first.)"""
     a, _ = keyed
     key = read_team_key(key_file)
-    ctx, sock = _stranger(a.address, b"1", (key.public[0], key.public[2], key.secret[2]))
+    ctx, sock = _stranger(a.address, b"one", (key.public[0], key.public[2], key.secret[2]))
     try:
         end = time.monotonic() + DEADLINE
         while not a.stats.rejected["spoofed"] and time.monotonic() < end:
