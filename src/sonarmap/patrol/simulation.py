@@ -599,13 +599,21 @@ def _held_goal(
     watched: npt.NDArray[np.bool_],
     closed: npt.NDArray[np.intp] | None,
     config: PatrolConfig,
+    towards: Callable[..., tuple[float, float] | None],
 ) -> tuple[float, float] | None:
-    """Robot i's step from its cell ``start`` towards the place it keeps going for, from
-    a wave run only as far as that place (None when it cannot be reached or there is
-    no clear step)."""
+    """Robot i's point ahead towards the place it keeps going for, from a wave run only
+    as far as that place: ``towards`` (:func:`_path_goal` or :func:`_car_carrot`) of
+    that wave; None when the place cannot be reached or there is no point off the
+    robot."""
     if not np.isfinite(waver.to(passable, start, held, g.resolution, watched, closed)):
         return None
-    return _path_goal(team, i, held, waver, g, passable, config)
+    point: tuple[float, float] | None = towards(team, i, held, waver, g, passable, config)
+    if (
+        point is None
+        or math.hypot(point[0] - float(team.x[i]), point[1] - float(team.y[i])) <= 1e-9
+    ):
+        return None
+    return point
 
 
 def _aim(
@@ -925,23 +933,19 @@ def run_patrol(
             if hold_fast and held is not None and own[0 if shared else i].last[held] < aimed_at[i]:
                 start = (int(r[i]), int(c[i]))
                 closed = closed_cells(i, r, c, k)
-                if tracking:
-                    reached = waver.to(passable, start, held, g.resolution, watched, closed)
-                    towards = (
-                        _car_carrot(team, i, held, waver, g, passable, config)
-                        if np.isfinite(reached)
-                        else None
-                    )
-                    if (
-                        towards is not None
-                        and math.hypot(towards[0] - float(team.x[i]), towards[1] - float(team.y[i]))
-                        <= 1e-9
-                    ):
-                        towards = None
-                else:
-                    towards = _held_goal(
-                        team, i, start, held, waver, g, passable, watched, closed, config
-                    )
+                towards = _held_goal(
+                    team,
+                    i,
+                    start,
+                    held,
+                    waver,
+                    g,
+                    passable,
+                    watched,
+                    closed,
+                    config,
+                    _car_carrot if tracking else _path_goal,
+                )
                 if towards is not None:
                     directions.append(_unit_towards(team, i, towards))
                     goals.append(towards)
