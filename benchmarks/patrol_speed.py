@@ -14,7 +14,7 @@ after a warm-up that compiles the kernels, on one core. Reported per seed:
   seen to patrol alike.
 
 Run with ``python -m benchmarks.patrol_speed [--robots 4] [--duration 600] [--seeds 0]
-[--size 100 80] [--json F]``.
+[--size 100 80] [--min-hold S] [--json F]``.
 """
 
 from __future__ import annotations
@@ -36,9 +36,12 @@ from sonarmap.patrol.paths import Wave
 from sonarmap.patrol.territory import Territory
 
 
-def indoor(duration: float) -> PatrolConfig:
-    """Issue 36's indoor robots on 0.1 m cells, otherwise the defaults."""
-    return PatrolConfig(radius=0.3, speed=1.0, vision=5.0, cell=0.1, duration=duration)
+def indoor(duration: float, min_hold: float = 0.0) -> PatrolConfig:
+    """Issue 36's indoor robots on 0.1 m cells, otherwise the defaults (``min_hold``:
+    :attr:`~sonarmap.patrol.PatrolConfig.min_hold`)."""
+    return PatrolConfig(
+        radius=0.3, speed=1.0, vision=5.0, cell=0.1, duration=duration, min_hold=min_hold
+    )
 
 
 def building(width: float, height: float, seed: int) -> Territory:
@@ -59,10 +62,13 @@ def warm_up(territory: Territory, robots: int, seed: int) -> None:
         Wave(passable.shape).to(passable, start, start, 0.1, territory.free)
 
 
-def run_one(territory: Territory, robots: int, duration: float, seed: int) -> dict[str, Any]:
+def run_one(
+    territory: Territory, robots: int, duration: float, seed: int, min_hold: float = 0.0
+) -> dict[str, Any]:
     """One timed run's figures (see the module's notes)."""
+    config = indoor(duration, min_hold)
     t0, c0 = time.perf_counter(), time.process_time()
-    s = run_patrol(territory, indoor(duration), robots=robots, seed=seed).summary()
+    s = run_patrol(territory, config, robots=robots, seed=seed).summary()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     return {
         "seed": seed,
@@ -83,6 +89,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--size", nargs=2, type=float, default=[100.0, 80.0])
+    ap.add_argument("--min-hold", type=float, default=0.0, help="seconds (PatrolConfig.min_hold)")
     ap.add_argument("--json")
     args = ap.parse_args(argv)
     rows = []
@@ -95,7 +102,7 @@ def main(argv: list[str] | None = None) -> None:
         territory = building(args.size[0], args.size[1], seed)
         # Compile the kernels first: the timed run should not pay for them.
         warm_up(territory, args.robots, seed)
-        row = run_one(territory, args.robots, args.duration, seed)
+        row = run_one(territory, args.robots, args.duration, seed, args.min_hold)
         rows.append(row)
         print(
             f"| {seed} | {row['robots']} | {row['cells']:,} | {row['x_real']:.1f} "
@@ -106,7 +113,16 @@ def main(argv: list[str] | None = None) -> None:
         )
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"size_m": args.size, "duration": args.duration, "runs": rows}, f, indent=2)
+            json.dump(
+                {
+                    "size_m": args.size,
+                    "duration": args.duration,
+                    "min_hold": args.min_hold,
+                    "runs": rows,
+                },
+                f,
+                indent=2,
+            )
 
 
 if __name__ == "__main__":

@@ -163,6 +163,11 @@ PATROL_OPTIONS = (
         off="--choose-every-step",
     ),
     Opt(
+        "min_hold",
+        "Path motion: keep the place a robot goes for at least this many seconds, even "
+        "once seen (fewer choices, each a wave over the places that could change it).",
+    ),
+    Opt(
         "r_obst", "Artificial obstacles' radius, metres (default 3 x --radius).", unset_as=math.nan
     ),
     Opt(

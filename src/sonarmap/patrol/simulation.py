@@ -120,6 +120,12 @@ class PatrolConfig:
     #: every step (two places whose paths leave in opposite directions can then hold
     #: a robot swinging between two cells).
     keep_goal: bool = True
+    #: Path motion with ``keep_goal``: a holonomic robot keeps the place it goes for at
+    #: least this long after choosing it (seconds), even once it has been seen, while
+    #: the place can be reached and is more than a step away: each choice runs a wave
+    #: over the places that could change it, and a place chosen just beyond the vision
+    #: radius is seen a step or two later. 0: choose again as soon as it is seen.
+    min_hold: float = 0.0
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
     r_obst: float = math.nan
     refine: bool = False
@@ -288,6 +294,10 @@ class PatrolConfig:
                 f"duration {self.duration:g} s is {self.duration / self.dt:.3g} steps of "
                 f"{self.dt:g} s; at most {MAX_STEPS:,} steps",
                 field="duration",
+            )
+        if not (math.isfinite(self.min_hold) and self.min_hold >= 0):
+            raise ConfigError(
+                f"min_hold must be >= 0 seconds, got {self.min_hold}", field="min_hold"
             )
         if self.warmup is not None and not (0 <= self.warmup < self.duration):
             raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}", field="warmup")
@@ -930,7 +940,15 @@ def run_patrol(
 
         for i in range(len(team)):
             held = aims[i]
-            if hold_fast and held is not None and own[0 if shared else i].last[held] < aimed_at[i]:
+            mine_fog = own[0 if shared else i]
+            if (
+                hold_fast
+                and held is not None
+                and (
+                    mine_fog.last[held] < aimed_at[i]
+                    or (along_path and mine_fog.t - aimed_at[i] < config.min_hold - 1e-9)
+                )
+            ):
                 start = (int(r[i]), int(c[i]))
                 closed = closed_cells(i, r, c, k)
                 towards = _held_goal(
