@@ -145,18 +145,18 @@ def test_a_minimum_hold_means_fewer_choices_and_still_every_place_seen(
     # (sector_pulls); a robot keeping its place for 2 s once chosen chooses less often,
     # and on a small building still sees every place.
     from sonarmap.floorplan import random_building
-    from sonarmap.patrol import simulation
+    from sonarmap.patrol.forces import sector_pulls
 
     plan = random_building(16.0, 12.0, seed=3, max_room=6.0, door=(1.0, 1.5))
     t = Territory.from_map(plan.render(Grid.from_bounds(0, 0, 16.0, 12.0, 0.1)), cell=0.1)
     calls = {"n": 0}
-    real = simulation.sector_pulls
 
     def counted(*args: object, **kwargs: object) -> object:
         calls["n"] += 1
-        return real(*args, **kwargs)  # type: ignore[arg-type]
+        return sector_pulls(*args, **kwargs)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(simulation, "sector_pulls", counted)
+    # The simulation calls it by the name it imported.
+    monkeypatch.setattr("sonarmap.patrol.simulation.sector_pulls", counted)
     choices, unseen = {}, {}
     for hold in (0.0, 2.0):
         calls["n"] = 0
