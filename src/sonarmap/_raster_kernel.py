@@ -867,13 +867,19 @@ def accumulate_kernel(
     parts: int = 1,
     stripe: int = 8,
     weight: npt.NDArray[np.float64] | None = None,
+    runs: bool = True,
 ) -> int:
     """Add ``inc_free`` to the Omega_free cells and ``inc_occ`` to the Omega_occ cells of
     each reading, in reading order, clamping to [lo, hi] after each addition; returns
     the number of cell updates.
 
-    The cells are exactly those of :func:`rasterise_kernel`: the same rows and spans, and
-    the same distance test, made LANES cells at a time (:func:`_update_blocks`).
+    The cells are exactly those of :func:`rasterise_kernel`: the same rows and spans,
+    and the same decision at each centre. A row's band is taken as column intervals,
+    their edges computed once (:func:`_row_pass`), and its cells updated as one run,
+    LANES at a time, with no distance test (:func:`_update_runs`); a row with an edge
+    within :data:`RUN_SLACK` of a centre, and every row when ``runs`` is False (the
+    reference the runs are tested against, bit for bit), tests each cell's distance as
+    the rasteriser does (:func:`_update_blocks`).
 
     With ``sigma > 0`` both increments are scaled by ``exp(-b^2 / (2 sigma^2))``, b the
     cell's angle off the beam axis (the rasteriser's bearing). ``coef`` is a polynomial
@@ -931,7 +937,7 @@ def accumulate_kernel(
             if not flat and (len(coef) == 0 or abs(dy) <= ROW_TOL):
                 total += _update_cells(values, touched, base, c_lo, c_hi, params, sigma)
                 continue
-            if row_buf[_ROW_SURE, j] == 0.0:
+            if not runs or row_buf[_ROW_SURE, j] == 0.0:
                 if flat:
                     total += _update_blocks(values, touched, base, c_lo, c_hi, cols - 1, params, ())
                 else:
