@@ -198,6 +198,12 @@ PATROL_OPTIONS = (
     ),
     Opt("lookahead", "Tracking cars: the pure-pursuit point's distance along the path, metres."),
     Opt(
+        "forward_wave",
+        "Tracking cars: paths leave forwards (cells up to 4 m behind the car closed on "
+        "its wave) unless the way ahead is a dead end.",
+        off="--no-forward-wave",
+    ),
+    Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
         "nearest obstacle, in order; the last D may be inf.",
