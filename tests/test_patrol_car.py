@@ -9,7 +9,8 @@ import pytest
 
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
-from sonarmap.patrol.fog import Fog
+from sonarmap.patrol.fog import Fog, disc_offsets
+from sonarmap.patrol.giveup import GiveUp
 from sonarmap.patrol.manoeuvre import (
     behind_cells,
     carrot,
@@ -55,8 +56,9 @@ def test_behind_cells_lie_behind_the_car_within_the_radius() -> None:
 def test_the_way_ahead_leads_on_unless_it_is_a_dead_end() -> None:
     t = _corridor_map()
     passable = t.passable(1.0)
-    start = tuple(int(v) for v in t.grid.world_to_cell(55.0, 15.0))
-    assert start is not None and passable[start]
+    r0, c0 = t.grid.world_to_cell(55.0, 15.0)
+    start = (int(r0), int(c0))
+    assert passable[start]
     # Facing the corridor's end: ahead is a dead end; facing the room: it leads on.
     assert not leads_on(passable, behind_cells(55.0, 15.0, 0.0, t.grid), start)
     assert leads_on(passable, behind_cells(55.0, 15.0, math.pi, t.grid), start)
@@ -167,3 +169,29 @@ def test_tracking_car_dvt_on_a_training_street_site_is_low() -> None:
         t, PatrolConfig(model="car", refine=True, duration=600.0), robots=1, seed=0
     ).summary()
     assert track["dvt"] < 9.0
+
+
+def test_cars_give_up_a_never_seen_place_at_the_limit_and_take_it_back_once_seen() -> None:
+    g = Grid(resolution=0.5, origin=(0.0, 0.0), shape=(20, 20))
+    watched = np.ones(g.shape, dtype=bool)
+    fog = Fog(g, watched)
+    fog.advance(1.0)  # at time 0 a place seen is a place never seen
+    fog.observe(np.array([2]), np.array([2]), disc_offsets(1.0, 0.5))  # seen: 2 m round
+    quit_ = GiveUp(watched, 2, disc_offsets(1.0, 0.5))
+    assert quit_.targets(fog) is watched
+    assert not quit_.tried((2, 2), fog)  # seen places are never given up
+    assert not quit_.tried((2, 2), fog)
+    assert not quit_.tried((15, 15), fog)
+    assert quit_.targets(fog) is watched
+    assert quit_.tried((15, 15), fog)  # the second try on the way to it
+    targets = quit_.targets(fog)
+    assert not targets[15, 15]
+    assert not targets[15, 17]  # never seen, within 1 m
+    assert targets[15, 18]  # 1.5 m off
+    assert int((~targets).sum()) == len(disc_offsets(1.0, 0.5))
+    fog.advance(1.0)
+    fog.observe(np.array([15]), np.array([17]), disc_offsets(0.0, 0.5))
+    targets = quit_.targets(fog)
+    assert targets[15, 17]  # seen at last: a target again
+    assert not targets[15, 15]
+    assert targets is quit_.targets(fog)  # unchanged: the same array

@@ -204,6 +204,11 @@ PATROL_OPTIONS = (
         off="--no-forward-wave",
     ),
     Opt(
+        "give_up",
+        "Tracking cars: reversing manoeuvres on the way to a never-seen place after which "
+        "the cars stop going for it (and the never-seen places within 2 m); 0: never.",
+    ),
+    Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
         "nearest obstacle, in order; the last D may be inf.",

@@ -357,6 +357,8 @@ class Car(Team):
     cause: list[str] = field(init=False)
     #: Track: per cause, each car's steps counted by the DVT.
     escape_causes: dict[str, npt.NDArray[np.int64]] = field(init=False)
+    #: Track: reversing manoeuvres (and falls back on the thesis's escape) each car began.
+    turns: npt.NDArray[np.int64] = field(init=False)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -375,6 +377,7 @@ class Car(Team):
         self.rest = np.zeros(len(self.x), dtype=np.int64)
         self.cause = [""] * len(self.x)
         self.escape_causes = {c: np.zeros(len(self.x), dtype=np.int64) for c in CAUSES}
+        self.turns = np.zeros(len(self.x), dtype=np.int64)
 
     def speed_of(self, i: int, grid: Grid) -> float:
         r, c = grid.world_to_cell(self.x[i], self.y[i])
@@ -572,6 +575,7 @@ class Car(Team):
             return False
         self.plans[i] = plan
         self.cause[i] = cause
+        self.turns[i] += plan.reverses
         return True
 
     def _track(
@@ -631,6 +635,7 @@ class Car(Team):
                     # No manoeuvre found: the thesis's escape, for this step.
                     if not self.escaping[i]:
                         self.gear[i] = -1
+                        self.turns[i] += 1
                     self.escaping[i] = True
                     self.escape_causes["fallback"][i] += 1
                     self.goal[i] = math.atan2(d[1], d[0])
