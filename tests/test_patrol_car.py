@@ -162,7 +162,7 @@ def test_street_sites_are_seeded_and_tracking_cars_never_drive_through_walls() -
 @pytest.mark.slow
 def test_tracking_car_dvt_on_a_training_street_site_is_low() -> None:
     # Measured 2026-12-06 on training site 0, 1 car, 600 s, refinement, seed 0: DVT
-    # 5.7 % with the forward wave, 12.8 % without (the thesis's planner on the held-out
+    # 5.8 % with the forward wave, 12.8 % without (the thesis's planner on the held-out
     # sites: 73-85 %); 9 leaves a margin and still fails without the forward wave.
     t = street_territory(0)
     track = run_patrol(
