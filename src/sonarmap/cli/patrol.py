@@ -203,6 +203,17 @@ PATROL_OPTIONS = (
     ),
     Opt("lookahead", "Tracking cars: the pure-pursuit point's distance along the path, metres."),
     Opt(
+        "forward_wave",
+        "Tracking cars: paths leave forwards (cells up to 4 m behind the car closed on "
+        "its wave) unless the way ahead is a dead end.",
+        off="--no-forward-wave",
+    ),
+    Opt(
+        "give_up",
+        "Tracking cars: reversing manoeuvres on the way to a never-seen place after which "
+        "the cars stop going for it (and the never-seen places within 2 m); 0: never.",
+    ),
+    Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
         "nearest obstacle, in order; the last D may be inf.",
