@@ -20,8 +20,9 @@ from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.mappers import GradientMapper, make_mapper
 from sonarmap.mappers._pool import ReadingPool
+from sonarmap.mappers.em_thrun import ThrunEMStream
 from sonarmap.mappers.gradient import STEP, GradientStream, _stream_steps, stream_step_sizes
-from sonarmap.metrics import agreement
+from sonarmap.metrics import agreement, score
 from sonarmap.raster import rasterise
 from sonarmap.readings import Readings, write_readings
 from sonarmap.rig import save_rig
@@ -292,6 +293,54 @@ def test_gradient_stream_agrees_with_offline_and_memory_is_bounded(doorways: Sce
     rep2 = replay([again], sm2, period=0.5)
     assert rep2.max_in_play == rep.max_in_play == 200
     assert rep2.max_state_bytes <= 1.1 * size_once
+
+
+class _Forgetful(ThrunEMStream):
+    """em-thrun's stream as it would be if leaving readings were simply forgotten."""
+
+    fold = False
+
+
+def test_em_thrun_stream_keeps_the_offline_map_in_bounded_memory(doorways: Scenario) -> None:
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    offline = score(doorways.truth, build_map(r, rig, g, "em-thrun")).f1_all
+    held: list[int] = []
+    sm = StreamingMapper("em-thrun", g, rig, strategy="last:200")
+    rep = replay([r], sm, period=0.25, on_update=lambda _b, s: held.append(s.n_in_play))
+    streamed = score(doorways.truth, sm.result()).f1_all
+    assert offline > 0.2
+    assert streamed >= 0.9 * offline
+    assert max(held) == rep.max_in_play == 200
+    # Forgetting the readings that leave instead of folding them in loses the walls.
+    mapper = make_mapper("em-thrun")
+    forgetful = _Forgetful(mapper, g, rig.sensor, LastN(200), 1)
+    for batch in time_batches([r], 0.25):
+        forgetful.add(batch)
+    lost = score(doorways.truth, OccupancyMap(g, forgetful.occupancy().reshape(g.shape))).f1_all
+    assert lost < 0.9 * offline
+    # The log twice over: the readings held and the state stay where they were.
+    again = Readings.concat(
+        [r, Readings(r.t + r.t[-1] + 1, r.sensor, r.x, r.y, r.theta, r.range, r.names)]
+    )
+    sm2 = StreamingMapper("em-thrun", g, rig, strategy="last:200")
+    rep2 = replay([again], sm2, period=0.25)
+    assert rep2.max_in_play == 200
+    assert rep2.max_state_bytes <= 1.1 * rep.max_state_bytes
+
+
+def test_em_thrun_stream_is_deterministic_and_refuses_the_inverse_start(
+    doorways: Scenario,
+) -> None:
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    part = r.take(np.arange(300))
+    maps = []
+    for _ in range(2):
+        sm = StreamingMapper("em-thrun", g, rig, strategy="last:100")
+        replay([part], sm, period=0.25)
+        maps.append(sm.occupancy_)
+    np.testing.assert_array_equal(maps[0], maps[1])
+    with pytest.raises(ConfigError, match="init=free"):
+        StreamingMapper("em-thrun", g, rig, init="inverse")
 
 
 def test_stochastic_stream_is_deterministic_and_finds_walls(doorways: Scenario) -> None:

@@ -46,7 +46,12 @@ __all__ = ["DEFAULT_STRATEGY", "ReplayReport", "StreamingMapper", "replay", "tim
 #: of the last 500-2000 readings agreed with the offline gradient map on 99.6 % of cells
 #: at 30-75x real time; cell:1-4 on 99.1-99.3 % (F1 0.19-0.23 against 0.31) and pose:1-3
 #: on 86-95 %.
-DEFAULT_STRATEGY = {"inverse": "all", "gradient": "last:1000", "stochastic": "last:1000"}
+DEFAULT_STRATEGY = {
+    "inverse": "all",
+    "gradient": "last:1000",
+    "stochastic": "last:1000",
+    "em-thrun": "last:200",
+}
 
 
 class StreamingMapper:

@@ -41,16 +41,19 @@ re-solves over every reading given so far, from the start.
 from __future__ import annotations
 
 import math
+import time
 
 import numba as nb
 import numpy as np
 import numpy.typing as npt
 
+from ..errors import ConfigError
 from ..readings import Readings
 from ._base import Mapper, Progress, register
 from ._checks import choice, integer, number
 from ._correlated import reading_weights
-from ._thrun import BeamIndex, apply_flip, flip_delta, init_state
+from ._stream import StreamEngine
+from ._thrun import BeamIndex, apply_flip, flip_delta, index_arrays, init_state
 from ._thrun_common import index_readings, model_sigma, posterior, scatter
 
 __all__ = ["ThrunEMMapper"]
@@ -397,3 +400,194 @@ class ThrunEMMapper(Mapper):
         if self._index is None or self._post is None:
             return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._post, self.grid.size)
+
+
+@nb.njit(cache=True)
+def _climb(
+    cand: I64,
+    occ: B,
+    n_before: I64,
+    bsum: F64,
+    loglik: F64,
+    cell_off: I64,
+    cell_reading: I64,
+    cell_kind: npt.NDArray[np.int8],
+    band_off: I64,
+    band_cell: I64,
+    band_dist: F64,
+    z: F64,
+    p_rand: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+    max_sweeps: int,
+    bias: F64,
+    log_odds: F64,
+) -> int:
+    """Hill-climbing sweeps of the M-step over the local cells ``cand`` only, in their
+    order, until a sweep flips none or ``max_sweeps`` have run; then each candidate's
+    log posterior odds with the other cells held (into ``log_odds``, aligned with
+    ``cand``). ``bias`` (per local cell) is a fixed log-likelihood ratio of occupied to
+    free added to each cell's: the readings that have left the stream. Returns the flips
+    made."""
+    max_deg = 1
+    for c in cand:
+        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
+    new_ll = np.empty(max_deg)
+    new_b = np.empty(max_deg)
+    flips = 0
+    for _ in range(max_sweeps):
+        made = 0
+        for c in cand:
+            gain = flip_delta(
+                c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading,
+                cell_kind, band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max, None,
+            )  # fmt: skip
+            gain += -bias[c] if occ[c] else bias[c]
+            if gain > MIN_GAIN:
+                apply_flip(
+                    c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading,
+                    cell_kind,
+                )  # fmt: skip
+                made += 1
+        flips += made
+        if made == 0:
+            break
+    for k in range(cand.shape[0]):
+        c = cand[k]
+        d = flip_delta(
+            c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading, cell_kind,
+            band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max, None,
+        )  # fmt: skip
+        log_odds[k] = (-d if occ[c] else d) + bias[c]
+    return flips
+
+
+class ThrunEMStream(StreamEngine):
+    """Thrun's EM over a bounded set of readings, the M-step on the touched cells.
+
+    Each update indexes the readings in play that touch the cells the entering or
+    leaving readings touch (their footprints are kept, so nothing is rasterised twice),
+    computes those readings' causes under the current binary map (the E-step, exact for
+    them, as every reading through a touched cell is indexed) and runs the offline
+    M-step's hill-climbing sweeps over the touched cells only -- up to ``effort`` sweeps,
+    fewer once a sweep flips nothing -- then gives each touched cell its posterior with
+    the rest of the map held, as the offline fit does at its end. A cell no reading in
+    play touches keeps its last state and posterior. New cells start free, as the
+    offline ``init="free"`` does (``init="inverse"`` is refused: it needs every reading).
+    """
+
+    sort_band = True
+    #: Whether leaving readings are folded into :attr:`bias` (off: forgotten).
+    fold = True
+
+    def _setup(self) -> None:
+        m = self.mapper
+        assert isinstance(m, ThrunEMMapper)
+        if m.init != "free":
+            raise ConfigError(
+                "streaming 'em-thrun' starts every new cell free; set init=free "
+                "(init=inverse needs every reading at once)"
+            )
+        m.attach(self.grid, self.sensor)
+        self.sigma = model_sigma(m, m.sigma)
+        self.dr = 3.0 * self.sigma
+        self.occ = np.zeros(self.grid.size, np.bool_)
+        self.post = np.full(self.grid.size, m.prior)
+        self._prior_log_odds = math.log(m.prior / (1.0 - m.prior))
+        #: Per cell, the log-likelihood ratio (occupied to free) of the readings that
+        #: have left, each taken with the rest of the map as it was when it left.
+        self.bias = np.zeros(self.grid.size)
+        self.flips_ = 0
+
+    def _leave(self, gone: I64) -> None:
+        # A reading that leaves keeps voting on the cells of its beam, but no longer
+        # jointly: its vote on each cell is fixed at the map of the moment it leaves
+        # (each cell's flip with the others held, as in the final posterior). Without
+        # it a wall's cells lose their echoes when those leave, and the long no-echo
+        # beams still in play clear them.
+        if len(gone) == 0 or not self.fold:
+            return
+        m = self.mapper
+        assert isinstance(m, ThrunEMMapper)
+        p = self.pool
+        f_cells, f_off, b_cells, b_dist, b_off = p.gather(gone)
+        ix = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[gone], self.offset)
+        arrays = (
+            ix.free_off,
+            ix.free_cell,
+            ix.band_off,
+            ix.band_cell,
+            ix.band_dist,
+            ix.cell_off,
+            ix.cell_reading,
+            ix.cell_kind,
+            ix.z,
+        )
+        model = (m.p_rand, m.p_hit, self.sigma, self.sensor.r_max)
+        self.bias[ix.cells] += posterior(self.occ[ix.cells], arrays, *model)
+
+    def _optimise(self, dirty: I64, box: tuple[int, int, int, int]) -> None:
+        live = dirty[self.cov[dirty] > 0]
+        if len(live) == 0:
+            return
+        self._climb(self.touching_dirty(box), live, self.effort)
+
+    def _climb(self, sel: I64, cells: I64, sweeps: int) -> None:
+        """Sweep ``cells`` (grid indices, each touched by a reading of ``sel``) against
+        the readings ``sel``, which must hold every reading in play through them."""
+        m = self.mapper
+        assert isinstance(m, ThrunEMMapper)
+        p = self.pool
+        f_cells, f_off, b_cells, b_dist, b_off = p.gather(sel)
+        ix = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[sel], self.offset)
+        cand = np.searchsorted(ix.cells, cells).astype(np.int64)
+        occ = self.occ[ix.cells]
+        model = (m.p_rand, m.p_hit, self.sigma, self.sensor.r_max)
+        beams = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)
+        n_before, bsum, loglik = init_state(occ, *beams, *model)
+        log_odds = np.empty(len(cand))
+        self.flips_ += _climb(
+            cand,
+            occ,
+            n_before,
+            bsum,
+            loglik,
+            ix.cell_off,
+            ix.cell_reading,
+            ix.cell_kind,
+            ix.band_off,
+            ix.band_cell,
+            ix.band_dist,
+            ix.z,
+            *model,
+            sweeps,
+            self.bias[ix.cells],
+            log_odds,
+        )
+        self.occ[cells] = occ[cand]
+        self.post[cells] = 0.5 * (1.0 + np.tanh(0.5 * (log_odds + self._prior_log_odds)))
+
+    def improve(self, budget: float) -> int:
+        """One M-step sweep at a time over every cell in play, for up to ``budget`` s."""
+        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
+        if len(cells) == 0 or budget <= 0:
+            return 0
+        sel = self.pool.alive_slots()
+        end = time.perf_counter() + budget
+        n = 0
+        while time.perf_counter() < end:
+            self._climb(sel, cells, 1)
+            n += 1
+        return n
+
+    def occupancy(self) -> npt.NDArray[np.float32]:
+        out = self.post.astype(np.float32)
+        out[~self.seen] = np.nan
+        return out
+
+    def nbytes(self) -> int:
+        return super().nbytes() + int(self.occ.nbytes + self.post.nbytes)
+
+
+ThrunEMMapper.streamer = ThrunEMStream
