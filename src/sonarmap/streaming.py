@@ -50,7 +50,7 @@ DEFAULT_STRATEGY = {
     "inverse": "all",
     "gradient": "last:1000",
     "stochastic": "last:1000",
-    "em-thrun": "last:200",
+    "em-thrun": "last:50",
 }
 
 

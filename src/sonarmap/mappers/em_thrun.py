@@ -425,11 +425,15 @@ def _climb(
     log_odds: F64,
 ) -> int:
     """Hill-climbing sweeps of the M-step over the local cells ``cand`` only, in their
-    order, until a sweep flips none or ``max_sweeps`` have run; then each candidate's
-    log posterior odds with the other cells held (into ``log_odds``, aligned with
-    ``cand``). ``bias`` (per local cell) is a fixed log-likelihood ratio of occupied to
-    free added to each cell's: the readings that have left the stream. Returns the flips
-    made."""
+    order, until a sweep flips none or ``max_sweeps`` have run. ``bias`` (per local
+    cell) is a fixed log-likelihood ratio of occupied to free added to each cell's: the
+    readings that have left the stream. Returns the flips made.
+
+    Each candidate's log posterior odds with the other cells held go to ``log_odds``
+    (aligned with ``cand``) as the last sweep found them: a cell's odds do not depend
+    on its own state, only on the other cells', which that sweep may still have
+    changed after it; a second pass for the exact odds would double the work.
+    """
     max_deg = 1
     for c in cand:
         max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
@@ -438,13 +442,15 @@ def _climb(
     flips = 0
     for _ in range(max_sweeps):
         made = 0
-        for c in cand:
-            gain = flip_delta(
+        for k in range(cand.shape[0]):
+            c = cand[k]
+            d = flip_delta(
                 c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading,
                 cell_kind, band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max, None,
             )  # fmt: skip
-            gain += -bias[c] if occ[c] else bias[c]
-            if gain > MIN_GAIN:
+            odds = (-d if occ[c] else d) + bias[c]
+            log_odds[k] = odds
+            if (odds if not occ[c] else -odds) > MIN_GAIN:
                 apply_flip(
                     c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading,
                     cell_kind,
@@ -453,13 +459,6 @@ def _climb(
         flips += made
         if made == 0:
             break
-    for k in range(cand.shape[0]):
-        c = cand[k]
-        d = flip_delta(
-            c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading, cell_kind,
-            band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max, None,
-        )  # fmt: skip
-        log_odds[k] = (-d if occ[c] else d) + bias[c]
     return flips
 
 
