@@ -20,7 +20,6 @@ from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.mappers import GradientMapper, make_mapper
 from sonarmap.mappers._pool import ReadingPool
-from sonarmap.mappers.em_thrun import ThrunEMStream
 from sonarmap.mappers.gradient import STEP, GradientStream, _stream_steps, stream_step_sizes
 from sonarmap.metrics import agreement, score
 from sonarmap.raster import rasterise
@@ -295,12 +294,6 @@ def test_gradient_stream_agrees_with_offline_and_memory_is_bounded(doorways: Sce
     assert rep2.max_state_bytes <= 1.1 * size_once
 
 
-class _Forgetful(ThrunEMStream):
-    """em-thrun's stream as it would be if leaving readings were simply forgotten."""
-
-    fold = False
-
-
 def test_em_thrun_stream_keeps_the_offline_map_in_bounded_memory(doorways: Scenario) -> None:
     g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
     offline = score(doorways.truth, build_map(r, rig, g, "em-thrun")).f1_all
@@ -312,12 +305,9 @@ def test_em_thrun_stream_keeps_the_offline_map_in_bounded_memory(doorways: Scena
     assert streamed >= 0.9 * offline
     assert max(held) == rep.max_in_play == 200
     # Forgetting the readings that leave instead of folding them in loses the walls.
-    mapper = make_mapper("em-thrun")
-    forgetful = _Forgetful(mapper, g, rig.sensor, LastN(200), 1)
-    for batch in time_batches([r], 0.25):
-        forgetful.add(batch)
-    lost = score(doorways.truth, OccupancyMap(g, forgetful.occupancy().reshape(g.shape))).f1_all
-    assert lost < 0.9 * offline
+    forgetful = StreamingMapper("em-thrun", g, rig, strategy="last:200", fold=False)
+    replay([r], forgetful, period=0.25)
+    assert score(doorways.truth, forgetful.result()).f1_all < 0.9 * offline
     # The log twice over: the readings held and the state stay where they were.
     again = Readings.concat(
         [r, Readings(r.t + r.t[-1] + 1, r.sensor, r.x, r.y, r.theta, r.range, r.names)]

@@ -71,7 +71,12 @@ class StreamingMapper:
         default :data:`DEFAULT_STRATEGY` of the method.
     effort : int
         Work per update: gradient steps (``gradient``), flip sweeps over the updated
-        cells (``stochastic``); ignored by ``inverse``.
+        cells (``stochastic``), M-step sweeps at most (``em-thrun``); ignored by
+        ``inverse``.
+    fold : bool
+        ``gradient``, ``em-thrun``: fold each reading that leaves into fixed per-cell
+        evidence (default) rather than forget it (see :mod:`sonarmap.mappers._stream`);
+        ignored by the other methods.
     **params
         The method's parameters, when ``method`` is a name.
     """
@@ -84,6 +89,7 @@ class StreamingMapper:
         *,
         strategy: Strategy | str | None = None,
         effort: int = 1,
+        fold: bool = True,
         **params: Any,
     ) -> None:
         if isinstance(method, Mapper):
@@ -96,6 +102,7 @@ class StreamingMapper:
             strategy = DEFAULT_STRATEGY.get(mapper.name, "cell:4")
         self.strategy = parse_strategy(strategy) if isinstance(strategy, str) else strategy
         self.engine: StreamEngine = mapper.stream(grid, sensor, self.strategy, effort=effort)
+        self.engine.fold = fold
         self.mapper = mapper
         self.grid = grid
         self.n_readings = 0

@@ -477,8 +477,6 @@ class ThrunEMStream(StreamEngine):
     """
 
     sort_band = True
-    #: Whether leaving readings are folded into :attr:`bias` (off: forgotten).
-    fold = True
 
     def _setup(self) -> None:
         m = self.mapper

@@ -750,12 +750,17 @@ def _fold_terms(
     x: F64,
     a1: float,
     a2: float,
+    known: F64,
+    known_at: F64,
+    drift: F64,
     fixed: F64,
 ) -> None:
     """Add to ``fixed`` the gradient of the terms of the slots ``gone`` at the map ``x``:
     each term linearised where it stands when its reading leaves (its slope on the side
     of X0 its X lies, as :func:`_stream_steps` takes it), so that it keeps pulling its
-    cells as it did, without its reading."""
+    cells as it did, without its reading. A term's X is summed again only when the
+    known one (``known``, ``known_at``, ``drift``: see :func:`_stream_steps`) cannot
+    tell its side."""
     for s in gone:
         for part in range(2):
             if part == 0:
@@ -766,14 +771,17 @@ def _fold_terms(
                 a, n, m, tot = os_start[s], os_len[s], o_len[s], o_sum[s]
             if m == 0 or tot <= 0.0:
                 continue
-            big = 0.0
-            for q in range(a, a + n):
-                c0 = sp_cell[q]
-                w = np.float64(sp_w[q])
-                for i in range(sp_len[q]):
-                    big += w * x[c0 + i]
-            big_x = big / tot
             x0 = 1.0 / tot
+            big_x = known[s, part]
+            moved = (drift[0] - known_at[s, part]) * (1.0 + 1e-6)
+            if not abs(big_x - x0) > moved + 4.0 * (m + 4) * EPS:
+                big = 0.0
+                for q in range(a, a + n):
+                    c0 = sp_cell[q]
+                    w = np.float64(sp_w[q])
+                    for i in range(sp_len[q]):
+                        big += w * x[c0 + i]
+                big_x = big / tot
             if part == 0:
                 below = a1
                 above = (1.0 - a1 * x0) / (1.0 - x0) if x0 < 1.0 else a1
@@ -790,8 +798,9 @@ def _fold_terms(
             for q in range(a, a + n):
                 c0 = sp_cell[q]
                 fw = f * np.float64(sp_w[q])
+                fs = fixed[c0 : c0 + sp_len[q]]
                 for i in range(sp_len[q]):
-                    fixed[c0 + i] += fw
+                    fs[i] += fw
 
 
 def stream_step_sizes(step: float, k_cap: int = STREAM_STEP_CAP) -> F64:
@@ -819,8 +828,6 @@ class GradientStream(StreamEngine):
     """
 
     spans = True
-    #: Whether leaving readings' terms are folded into :attr:`fixed` (off: forgotten).
-    fold = True
 
     def _setup(self) -> None:
         m = self.mapper
@@ -864,6 +871,9 @@ class GradientStream(StreamEngine):
             self.x,
             m.a1,
             m.a2,
+            self._known,
+            self._known_at,
+            self._drift,
             self.fixed,
         )
 
