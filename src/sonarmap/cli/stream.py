@@ -67,7 +67,7 @@ def stream_cmd(
         str | None,
         typer.Option(
             help="Readings in play: last:N, cell:N, pose:N[:XY_M[:DEG]][:median] or all "
-            "(default: all for inverse, last:1000 for the others)."
+            "(default: all for inverse, last:50 for em-thrun, last:1000 for the others)."
         ),
     ] = None,
     realtime: Annotated[
