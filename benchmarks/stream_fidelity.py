@@ -8,7 +8,8 @@ truth. Reported per method: offline wall F1 and time, streamed wall F1, their ra
 the stream's real-time factor, the most readings it held and its state, and the load
 average of the machine (the real-time factors are wall-clock: a shared machine slows
 them; the CPU column divides the log's length by the process's CPU time instead, one
-numba thread, which other jobs slow less). ``--forget`` adds each folding method streamed with ``fold=False``.
+numba thread, which other jobs slow less). ``--forget`` adds each folding method
+streamed with ``fold=False``.
 
 Scenes (``--scene``): ``office`` (the ``ring16`` rig, 16 Polaroid sonars at 20 Hz, the
 first ``--seconds`` of the tour) or ``corridor`` (six MaxSonar EZ1s); both are held-out
