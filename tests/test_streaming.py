@@ -20,6 +20,9 @@ from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.mappers import GradientMapper, make_mapper
 from sonarmap.mappers._pool import ReadingPool
+from sonarmap.mappers._thrun import index_arrays
+from sonarmap.mappers._thrun_common import posterior
+from sonarmap.mappers.em_thrun import ThrunEMMapper, ThrunEMStream
 from sonarmap.mappers.gradient import STEP, GradientStream, _stream_steps, stream_step_sizes
 from sonarmap.metrics import agreement, score
 from sonarmap.raster import rasterise
@@ -316,6 +319,31 @@ def test_em_thrun_stream_keeps_the_offline_map_in_bounded_memory(doorways: Scena
     rep2 = replay([again], sm2, period=0.25)
     assert rep2.max_in_play == 200
     assert rep2.max_state_bytes <= 1.1 * rep.max_state_bytes
+
+
+def test_em_thrun_fold_is_the_posterior_of_the_leaving_readings(doorways: Scenario) -> None:
+    """Folded a reading at a time from the store, the leaving readings' votes are each
+    cell's log posterior odds over an index of just those readings, the map held."""
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    sm = StreamingMapper("em-thrun", g, rig, strategy="last:200")
+    replay([r.take(np.arange(600))], sm)
+    e, m = sm.engine, sm.mapper
+    assert isinstance(e, ThrunEMStream)
+    assert isinstance(m, ThrunEMMapper)
+    p = e.pool
+    gone = p.alive_slots()
+    f_cells, f_off, b_cells, b_dist, b_off = p.gather(gone)
+    ix = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[gone], e.offset)
+    arrays = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist)
+    arrays += (ix.cell_off, ix.cell_reading, ix.cell_kind, ix.z)
+    model = (m.p_rand, m.p_hit, e.sigma, e.sensor.r_max)
+    want = np.zeros(g.size)
+    want[ix.cells] = posterior(e.occ[ix.cells], arrays, *model)
+    assert e.occ.sum() > 50
+    assert np.abs(want).max() > 10
+    before = e.bias.copy()
+    e._leave(gone)
+    np.testing.assert_allclose(e.bias - before, want, atol=1e-9)
 
 
 def test_em_thrun_stream_is_deterministic_and_refuses_the_inverse_start(

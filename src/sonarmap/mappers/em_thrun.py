@@ -53,7 +53,7 @@ from ._base import Mapper, Progress, register
 from ._checks import choice, integer, number
 from ._correlated import reading_weights
 from ._stream import StreamEngine
-from ._thrun import BeamIndex, apply_flip, flip_delta, index_arrays, init_state
+from ._thrun import BeamIndex, apply_flip, flip_delta, index_arrays, init_state, loglik_of
 from ._thrun_common import index_readings, model_sigma, posterior, scatter
 
 __all__ = ["ThrunEMMapper"]
@@ -462,6 +462,84 @@ def _climb(
     return flips
 
 
+@nb.njit(cache=True)
+def _band_sum_at(
+    a: int,
+    n: int,
+    cell: npt.NDArray[np.int32],
+    dist: npt.NDArray[np.float32],
+    offset: float,
+    occ: B,
+    flip: int,
+    zi: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+) -> float:
+    """:func:`~._thrun.band_sum` of one reading read straight from a store's arena (its
+    band entries ``a .. a + n``, sorted by distance) against the whole grid's ``occ``,
+    the grid cell ``flip`` (or -1) read inverted."""
+    norm = 1.0 / (sigma * math.sqrt(2.0 * math.pi))
+    miss = 1.0 - p_hit
+    k = 0
+    total = 0.0
+    for j in range(a, a + n):
+        c = cell[j]
+        state = occ[c]
+        if c == flip:
+            state = not state
+        if state:
+            u = (zi - (np.float64(dist[j]) - offset)) / sigma
+            total += norm * math.exp(-0.5 * u * u) * p_hit * miss**k
+            k += 1
+    u = (zi - r_max) / sigma
+    return total + norm * math.exp(-0.5 * u * u) * miss**k
+
+
+@nb.njit(cache=True)
+def _fold_readings(
+    gone: I64,
+    f_start: I64,
+    f_len: I64,
+    o_start: I64,
+    o_len: I64,
+    cell: npt.NDArray[np.int32],
+    dist: npt.NDArray[np.float32],
+    z: F64,
+    offset: float,
+    occ: B,
+    p_rand: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+    bias: F64,
+) -> None:
+    """Add to ``bias`` each reading of ``gone``'s log-likelihood ratio of occupied to
+    free for every cell of its beam, the rest of the map held at ``occ`` (the grid's).
+    Read straight from the store, a reading at a time: the sum over the readings is
+    what :func:`~._thrun_common.posterior` gives over an index of them."""
+    for s in gone:
+        zi = z[s]
+        n_before = 0
+        for j in range(f_start[s], f_start[s] + f_len[s]):
+            if occ[cell[j]]:
+                n_before += 1
+        a, n = o_start[s], o_len[s]
+        bs = _band_sum_at(a, n, cell, dist, offset, occ, -1, zi, p_hit, sigma, r_max)
+        ll = loglik_of(n_before, bs, p_rand, p_hit, r_max)
+        for j in range(f_start[s], f_start[s] + f_len[s]):
+            c = cell[j]
+            if occ[c]:
+                bias[c] += ll - loglik_of(n_before - 1, bs, p_rand, p_hit, r_max)
+            else:
+                bias[c] += loglik_of(n_before + 1, bs, p_rand, p_hit, r_max) - ll
+        for j in range(a, a + n):
+            c = cell[j]
+            flipped = _band_sum_at(a, n, cell, dist, offset, occ, c, zi, p_hit, sigma, r_max)
+            d = loglik_of(n_before, flipped, p_rand, p_hit, r_max) - ll
+            bias[c] += -d if occ[c] else d
+
+
 class ThrunEMStream(StreamEngine):
     """Thrun's EM over a bounded set of readings, the M-step on the touched cells.
 
@@ -508,21 +586,23 @@ class ThrunEMStream(StreamEngine):
         m = self.mapper
         assert isinstance(m, ThrunEMMapper)
         p = self.pool
-        f_cells, f_off, b_cells, b_dist, b_off = p.gather(gone)
-        ix = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[gone], self.offset)
-        arrays = (
-            ix.free_off,
-            ix.free_cell,
-            ix.band_off,
-            ix.band_cell,
-            ix.band_dist,
-            ix.cell_off,
-            ix.cell_reading,
-            ix.cell_kind,
-            ix.z,
+        _fold_readings(
+            gone,
+            p.f_start,
+            p.f_len,
+            p.o_start,
+            p.o_len,
+            p.cell,
+            p.dist,
+            p.z,
+            self.offset,
+            self.occ,
+            m.p_rand,
+            m.p_hit,
+            self.sigma,
+            self.sensor.r_max,
+            self.bias,
         )
-        model = (m.p_rand, m.p_hit, self.sigma, self.sensor.r_max)
-        self.bias[ix.cells] += posterior(self.occ[ix.cells], arrays, *model)
 
     def _optimise(self, dirty: I64, box: tuple[int, int, int, int]) -> None:
         live = dirty[self.cov[dirty] > 0]
