@@ -489,7 +489,7 @@ def _band_sum_at(
         if c == flip:
             state = not state
         if state:
-            u = (zi - (np.float64(dist[j]) - offset)) / sigma
+            u = (zi - (float(dist[j]) - offset)) / sigma
             total += norm * math.exp(-0.5 * u * u) * p_hit * miss**k
             k += 1
     u = (zi - r_max) / sigma
