@@ -355,6 +355,25 @@ def test_em_thrun_fold_is_the_posterior_of_the_leaving_readings(doorways: Scenar
     np.testing.assert_allclose(e.bias - before, want, atol=1e-9)
 
 
+def test_em_thrun_index_from_the_store_is_the_gathered_index(doorways: Scenario) -> None:
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    sm = StreamingMapper("em-thrun", g, rig, strategy="last:200")
+    replay([r.take(np.arange(700))], sm)
+    e = sm.engine
+    assert isinstance(e, ThrunEMStream)
+    p = e.pool
+    # Every third slot: slots out of order with the arena, some cells shared, some not.
+    sel = p.alive_slots()[::3]
+    f_cells, f_off, b_cells, b_dist, b_off = p.gather(sel)
+    want = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[sel], e.offset)
+    got = e.index(sel)
+    assert got.n_cells > 100
+    for name in ("free_off", "free_cell", "band_off", "band_cell", "band_dist", "cell_off"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    for name in ("cell_reading", "cell_kind", "cell_slot", "z", "cells"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+
+
 def test_em_thrun_stream_is_deterministic_and_refuses_the_inverse_start(
     doorways: Scenario,
 ) -> None:

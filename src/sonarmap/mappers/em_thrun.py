@@ -53,7 +53,7 @@ from ._base import Mapper, Progress, register
 from ._checks import choice, integer, number
 from ._correlated import reading_weights
 from ._stream import StreamEngine
-from ._thrun import BeamIndex, apply_flip, flip_delta, index_arrays, init_state, loglik_of
+from ._thrun import BeamIndex, apply_flip, flip_delta, init_state, loglik_of
 from ._thrun_common import index_readings, model_sigma, posterior, scatter
 
 __all__ = ["ThrunEMMapper"]
@@ -540,6 +540,97 @@ def _fold_readings(
             bias[c] += -d if occ[c] else d
 
 
+@nb.njit(cache=True)
+def _store_index(
+    sel: I64,
+    f_start: I64,
+    f_len: I64,
+    o_start: I64,
+    o_len: I64,
+    cell: npt.NDArray[np.int32],
+    dist: npt.NDArray[np.float32],
+    offset: float,
+    local: I64,
+) -> tuple[I64, I64, I64, I64, F64, I64, I64, npt.NDArray[np.int8], I64, I64]:
+    """The arrays of :func:`~._thrun.index_arrays` for the store's slots ``sel``, read
+    straight from its arena (whose bands are kept sorted by distance): free offsets and
+    cells, band offsets, cells and distances, then per cell its readings, their kinds
+    and band positions, and the touched grid cells, sorted. ``local`` is a grid-sized
+    scratch array of -1, left so."""
+    n = sel.shape[0]
+    free_off = np.zeros(n + 1, np.int64)
+    band_off = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        free_off[i + 1] = free_off[i] + f_len[sel[i]]
+        band_off[i + 1] = band_off[i] + o_len[sel[i]]
+    n_free, n_band = free_off[n], band_off[n]
+    touched = np.empty(n_free + n_band, np.int64)
+    k = 0
+    for i in range(n):
+        s = sel[i]
+        for a, m in ((f_start[s], f_len[s]), (o_start[s], o_len[s])):
+            for j in range(a, a + m):
+                c = cell[j]
+                if local[c] == -1:
+                    local[c] = -2
+                    touched[k] = c
+                    k += 1
+    cells = np.sort(touched[:k])
+    for q in range(k):
+        local[cells[q]] = q
+    free_cell = np.empty(n_free, np.int64)
+    band_cell = np.empty(n_band, np.int64)
+    band_dist = np.empty(n_band)
+    counts = np.zeros(k + 1, np.int64)
+    for i in range(n):
+        s = sel[i]
+        for j in range(f_len[s]):
+            c = local[cell[f_start[s] + j]]
+            free_cell[free_off[i] + j] = c
+            counts[c + 1] += 1
+    for i in range(n):
+        s = sel[i]
+        for j in range(o_len[s]):
+            e = o_start[s] + j
+            c = local[cell[e]]
+            band_cell[band_off[i] + j] = c
+            band_dist[band_off[i] + j] = np.float64(dist[e]) - offset
+            counts[c + 1] += 1
+    cell_off = np.cumsum(counts)
+    fill = cell_off[:-1].copy()
+    cell_reading = np.empty(n_free + n_band, np.int64)
+    cell_kind = np.empty(n_free + n_band, np.int8)
+    cell_slot = np.empty(n_free + n_band, np.int64)
+    for i in range(n):
+        for j in range(free_off[i], free_off[i + 1]):
+            c = free_cell[j]
+            cell_reading[fill[c]] = i
+            cell_kind[fill[c]] = 0
+            cell_slot[fill[c]] = -1
+            fill[c] += 1
+    for i in range(n):
+        for j in range(band_off[i], band_off[i + 1]):
+            c = band_cell[j]
+            cell_reading[fill[c]] = i
+            cell_kind[fill[c]] = 1
+            cell_slot[fill[c]] = j - band_off[i]
+            fill[c] += 1
+    for q in range(k):
+        local[cells[q]] = -1
+    return (
+        free_off,
+        free_cell,
+        band_off,
+        band_cell,
+        band_dist,
+        cell_off,
+        cell_reading,
+        cell_kind,
+        cell_slot,
+        cells,
+    )
+
+
 class ThrunEMStream(StreamEngine):
     """Thrun's EM over a bounded set of readings, the M-step on the touched cells.
 
@@ -573,6 +664,7 @@ class ThrunEMStream(StreamEngine):
         #: Per cell, the log-likelihood ratio (occupied to free) of the readings that
         #: have left, each taken with the rest of the map as it was when it left.
         self.bias = np.zeros(self.grid.size)
+        self._local = np.full(self.grid.size, -1, np.int64)
         self.flips_ = 0
 
     def _leave(self, gone: I64) -> None:
@@ -604,6 +696,15 @@ class ThrunEMStream(StreamEngine):
             self.bias,
         )
 
+    def index(self, sel: I64) -> BeamIndex:
+        """The beam index of the slots ``sel`` of the store (local cells in grid order),
+        as :func:`~._thrun.index_arrays` builds it from their gathered entries."""
+        p = self.pool
+        a = _store_index(
+            sel, p.f_start, p.f_len, p.o_start, p.o_len, p.cell, p.dist, self.offset, self._local
+        )
+        return BeamIndex(*a[:9], z=p.z[sel].astype(np.float64), cells=a[9])
+
     def _optimise(self, dirty: I64, box: tuple[int, int, int, int]) -> None:
         live = dirty[self.cov[dirty] > 0]
         if len(live) == 0:
@@ -615,9 +716,7 @@ class ThrunEMStream(StreamEngine):
         the readings ``sel``, which must hold every reading in play through them."""
         m = self.mapper
         assert isinstance(m, ThrunEMMapper)
-        p = self.pool
-        f_cells, f_off, b_cells, b_dist, b_off = p.gather(sel)
-        ix = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[sel], self.offset)
+        ix = self.index(sel)
         cand = np.searchsorted(ix.cells, cells).astype(np.int64)
         occ = self.occ[ix.cells]
         model = (m.p_rand, m.p_hit, self.sigma, self.sensor.r_max)
