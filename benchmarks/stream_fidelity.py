@@ -22,8 +22,10 @@ Run with ``python -m benchmarks.stream_fidelity --scene office --seconds 60``.
 from __future__ import annotations
 
 import argparse
+import cProfile
 import json
 import os
+import pstats
 import sys
 import time
 from pathlib import Path
@@ -57,16 +59,28 @@ def scene(name: str, seed: int, seconds: float | None) -> Scenario:
 
 
 def method_row(
-    sc: Scenario, method: str, window: str | None, period: float, offline: bool, fold: bool = True
+    sc: Scenario,
+    method: str,
+    window: str | None,
+    period: float,
+    offline: bool,
+    fold: bool = True,
+    profile: int = 0,
 ) -> dict[str, Any]:
     grid, rig, r = sc.truth.grid, sc.rig, sc.readings
     # Compiled kernels loaded before timing.
     replay([r.take(np.arange(min(500, len(r))))], StreamingMapper(method, grid, rig))
     sm = StreamingMapper(method, grid, rig, strategy=window, fold=fold)
     _log(f"{method}: streaming {len(r):,} readings ({sm.strategy.spec()}, fold {fold})")
+    prof = cProfile.Profile() if profile else None
+    if prof is not None:
+        prof.enable()
     cpu0 = time.process_time()
     rep = replay([r], sm, period=period)
     cpu = time.process_time() - cpu0
+    if prof is not None:
+        prof.disable()
+        pstats.Stats(prof, stream=sys.stderr).sort_stats("tottime").print_stats(profile)
     row: dict[str, Any] = {
         "method": method if fold else f"{method}, forgetting",
         "strategy": sm.strategy.spec(),
@@ -131,6 +145,9 @@ def main() -> None:
         action="store_true",
         help="also stream gradient and em-thrun forgetting the readings that leave",
     )
+    parser.add_argument(
+        "--profile", type=int, default=0, help="print the stream's N costliest functions"
+    )
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     t0 = time.perf_counter()
@@ -140,7 +157,9 @@ def main() -> None:
          f"simulated in {time.perf_counter() - t0:.0f} s")  # fmt: skip
     rows = []
     for m in args.methods.split(","):
-        rows.append(method_row(sc, m, args.window, args.period, not args.no_offline))
+        rows.append(
+            method_row(sc, m, args.window, args.period, not args.no_offline, profile=args.profile)
+        )
         if args.forget and m in FOLDING:
             rows.append(method_row(sc, m, args.window, args.period, False, fold=False))
     print_rows(
