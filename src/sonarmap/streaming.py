@@ -61,8 +61,8 @@ class StreamingMapper:
     Parameters
     ----------
     method : str or Mapper
-        A method that streams (``inverse``, ``gradient``, ``stochastic``), or a mapper
-        instance carrying its parameters.
+        A method that streams (``inverse``, ``gradient``, ``em-thrun``, ``stochastic``),
+        or a mapper instance carrying its parameters.
     grid : Grid
         The map grid; fixed for the stream.
     sensor : SensorModel or Rig
