@@ -533,9 +533,33 @@ def _fold_readings(
                 bias[c] += ll - loglik_of(n_before - 1, bs, p_rand, p_hit, r_max)
             else:
                 bias[c] += loglik_of(n_before + 1, bs, p_rand, p_hit, r_max) - ll
+        # A flip at band position j scales the terms after it by (1 - p_hit)^-+1: with
+        # the sum of the occupied cells' terms before j and the total, each flip's band
+        # sum costs O(1), not a pass over the band.
+        norm = 1.0 / (sigma * math.sqrt(2.0 * math.pi))
+        miss = 1.0 - p_hit
+        u = (zi - r_max) / sigma
+        tail = norm * math.exp(-0.5 * u * u)
+        occupied = 0.0
+        k = 0
+        for j in range(a, a + n):
+            if occ[cell[j]]:
+                v = (zi - (float(dist[j]) - offset)) / sigma
+                occupied += norm * math.exp(-0.5 * v * v) * p_hit * miss**k
+                k += 1
+        tail *= miss**k
+        before = 0.0
+        k = 0
         for j in range(a, a + n):
             c = cell[j]
-            flipped = _band_sum_at(a, n, cell, dist, offset, occ, c, zi, p_hit, sigma, r_max)
+            v = (zi - (float(dist[j]) - offset)) / sigma
+            t = norm * math.exp(-0.5 * v * v) * p_hit * miss**k
+            if occ[c]:
+                flipped = before + (occupied - before - t + tail) / miss
+                before += t
+                k += 1
+            else:
+                flipped = before + t + miss * (occupied - before + tail)
             d = loglik_of(n_before, flipped, p_rand, p_hit, r_max) - ll
             bias[c] += -d if occ[c] else d
 
