@@ -16,7 +16,7 @@ planner, team size and seed one run of ``--duration`` simulated seconds, reporti
   arc ahead, no manoeuvre found), %.
 
 Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
-[--planners track thesis] [--crowding obstacles] [--no-forward-wave] [--give-up 3] [--seeds 0]
+[--planners track thesis] [--crowding obstacles] [--forward-wave] [--give-up 3] [--seeds 0]
 [--duration 3600]
 [--json F]``; one process, one core (``NUMBA_NUM_THREADS=1``). Each run prints one
 line as it ends; the table follows.
@@ -46,7 +46,7 @@ def run_one(
     crowding: str,
     seed: int,
     duration: float,
-    forward_wave: bool = True,
+    forward_wave: bool = False,
     give_up: int = 3,
 ) -> dict[str, Any]:
     """One run's figures (see the module's notes)."""
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cars", type=int, nargs="+", default=[1, 3, 5])
     ap.add_argument("--planners", nargs="+", default=["track"])
     ap.add_argument("--crowding", default="obstacles")
-    ap.add_argument("--no-forward-wave", dest="forward_wave", action="store_false")
+    ap.add_argument("--forward-wave", action="store_true")
     ap.add_argument("--give-up", type=int, default=3)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=3600.0)

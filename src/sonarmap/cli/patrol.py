@@ -205,7 +205,8 @@ PATROL_OPTIONS = (
     Opt(
         "forward_wave",
         "Tracking cars: paths leave forwards (cells up to 4 m behind the car closed on "
-        "its wave) unless the way ahead is a dead end.",
+        "its wave) unless the way ahead is a dead end; off by default (it helps one car, "
+        "not a team of five, and costs a whole-map labelling a step).",
         off="--no-forward-wave",
     ),
     Opt(

@@ -154,8 +154,10 @@ class PatrolConfig:
     lookahead: float = 3.0
     #: Track: a car's wave leaves forwards (the cells up to 4 m behind it closed,
     #: :func:`~sonarmap.patrol.manoeuvre.behind_cells`) unless the way ahead is a dead
-    #: end; False runs it from the car's cell in every direction.
-    forward_wave: bool = True
+    #: end; False (the default) runs it from the car's cell in every direction. Off by
+    #: default: it helps a lone car out of dead ends but holds teams of five up in
+    #: each other's streets, and its dead-end test labels the whole map every step.
+    forward_wave: bool = False
     #: Track: reversing manoeuvres on the way to a never-seen place after which the cars
     #: stop going for it and the never-seen places within :data:`GIVE_UP_RADIUS` (until
     #: one is seen; they still count in every metric); 0: never give up.
