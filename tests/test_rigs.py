@@ -137,12 +137,17 @@ def test_observed_wall_recall_and_quality() -> None:
     s_true = score(truth, truth, observed=seen)
     assert s_true.observed_wall_recall == 1.0
     assert s_clear.observed_wall_recall == 0.0
-    # Without passages the quality is the mean of wall F1 and the recall.
-    assert s_clear.quality == pytest.approx((s_clear.f1_all + 0.0) / 2)
-    # Not given the observed walls, the recall is left out (the former quality).
+    # Without passages the quality is the geometric mean of wall F1 and the recall: a
+    # map that cleared every wall the sonar heard scores 0 whatever its wall F1.
+    assert s_clear.f1_all > 0.3
+    assert s_clear.quality == 0.0
+    assert s_true.quality == pytest.approx(1.0)
+    # Not given the observed walls, the recall is left out.
     assert math.isnan(score(truth, cleared).observed_wall_recall)
     assert score(truth, cleared).quality == pytest.approx(s_clear.f1_all)
-    assert quality(0.2, 0.6, 0.7) == pytest.approx(0.5)
-    assert quality(float("nan"), 0.6, 0.9) == pytest.approx(0.5)
+    assert quality(0.2, 0.625, 0.512) == pytest.approx(0.4)
+    # No part can be traded for another: closing every door costs it all.
+    assert quality(0.9, 0.0, 1.0) == 0.0
+    assert quality(float("nan"), 0.6, 0.9) == 0.0
     with pytest.raises(InputError, match="observed walls"):
         score(truth, truth, observed=seen[:, :5])

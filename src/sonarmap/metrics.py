@@ -128,9 +128,10 @@ class MapScore:
         Share of the observed walls (:func:`observed_walls`) the map marks occupied; NaN
         when the score was not given them, or there are none.
     quality : float
-        What sweeps rank parameters by (:func:`quality`): the mean of wall F1, passage
-        F1 and observed-wall recall, each part that is scored. Erasing walls lowers all
-        three, marking everything occupied the first two.
+        What sweeps rank parameters by (:func:`quality`): the geometric mean of wall F1,
+        passage F1 and observed-wall recall, each part that is scored. Erasing walls
+        lowers all three, closing every door the second, marking everything occupied
+        the first two.
     """
 
     accuracy: float
@@ -198,23 +199,24 @@ def _mean_distance(src: B, dst: B, h: float) -> float:
 
 
 def quality(wall_f1: float, pf1: float, observed_recall: float = math.nan) -> float:
-    """The tuning objective: the mean of wall F1, passage F1 and observed-wall recall.
+    """The tuning objective: the geometric mean of wall F1, passage F1 and observed-wall
+    recall.
 
     A part that is not scored (NaN: no passages nor false openings, no observed walls
-    given) is left out of the mean; an undefined wall F1 (no walls marked nor true)
-    counts 0. The recall keeps a default from trading the walls the sonar heard for
-    open doors (issue 39): passage F1 alone pays for a cleared wall only where the
-    clearing makes a see-through gap, and wall F1 barely where walls are a small share
-    of the cells.
+    given) is left out; an undefined wall F1 (no walls marked nor true) counts 0. The
+    parts multiply, so none can be traded away for another: a map that clears the walls
+    the sonar heard to open its doors (issue 39), or closes every door to keep its
+    walls, scores near 0. (The arithmetic mean, tried first on the training scenes,
+    picked an inverse setting that detected no passage at all.)
 
     Examples
     --------
-    >>> quality(0.4, 0.6), quality(0.4, float("nan")), quality(0.4, 0.6, 0.8)
-    (0.5, 0.4, 0.6)
+    >>> quality(0.4, 0.9), quality(0.4, float("nan")), quality(0.5, 0.8, 0.0)
+    (0.6, 0.4, 0.0)
     """
     parts = [0.0 if math.isnan(wall_f1) else wall_f1]
     parts += [v for v in (pf1, observed_recall) if not math.isnan(v)]
-    return float(round(sum(parts) / len(parts), 15))
+    return float(round(math.prod(parts) ** (1.0 / len(parts)), 12))
 
 
 def observed_walls(truth: OccupancyMap, rig: Rig, readings: Readings) -> B:
