@@ -4,18 +4,21 @@ defaults that keep the walls a MaxSonar rig hears."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 import yaml
 
 from sonarmap.errors import ConfigError, InputError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.mappers import make_mapper
 from sonarmap.metrics import observed_walls, quality, score
 from sonarmap.readings import Readings
 from sonarmap.rig import SIX_BEARINGS, Mount, Rig, get_rig
-from sonarmap.scenarios import make_scenario
+from sonarmap.scenarios import Scenario, make_scenario
 from sonarmap.sensors import Region, SensorModel
 from sonarmap.splits import TRAINING_FAMILIES
 from sonarmap.sweep import load_sweep, run_task
@@ -151,3 +154,37 @@ def test_observed_wall_recall_and_quality() -> None:
     assert quality(float("nan"), 0.6, 0.9) == 0.0
     with pytest.raises(InputError, match="observed walls"):
         score(truth, truth, observed=seen[:, :5])
+
+
+#: Each method's defaults before issue 39, where they differ from today's.
+OLD_DEFAULTS: dict[str, dict[str, Any]] = {
+    "inverse": {"p_free": 0.48, "falloff_deg": 10.0, "dr": None},
+    "gradient": {"a2": 0.03, "no_echo": "free"},
+}
+
+
+@pytest.fixture(scope="module")
+def maxsonar_hall() -> tuple[Scenario, npt.NDArray[np.bool_]]:
+    # A hall the tuning never saw (seed 11; the sweep used seed 0), six MaxSonar EZ1s
+    # at 2 Hz to keep the test short.
+    scene = make_scenario("hall", rig="ez1-six", seed=11, rate=2.0)
+    return scene, observed_walls(scene.truth, scene.rig, scene.readings)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("method", "least"), [("inverse", 0.55), ("gradient", 0.4)])
+def test_default_maps_keep_the_walls_a_maxsonar_rig_hears(
+    maxsonar_hall: tuple[Scenario, npt.NDArray[np.bool_]], method: str, least: float
+) -> None:
+    # Measured: inverse 0.60 (0.46 at the old defaults), gradient 0.46 (0.11: its
+    # no-echo beams cleared the walls they crossed). Issue 39 asks for 0.7; neither
+    # default reaches it (docs/results/2026-12-06-rig-defaults.md).
+    scene, observed = maxsonar_hall
+
+    def recall(**params: Any) -> float:
+        m = make_mapper(method, **params).fit(scene.readings, scene.truth.grid, scene.rig)
+        s = score(scene.truth, m.result(), scene.passages, scene.obstacles, observed)
+        return s.observed_wall_recall
+
+    assert recall() >= least
+    assert recall(**OLD_DEFAULTS[method]) < least
