@@ -19,9 +19,9 @@ tuning objective and the seconds the map took (one thread). Held-out seeds only
 (``--seeds``, from 1000).
 
 Run with ``python -m benchmarks.rigs [--seeds 1000] [--rigs ...] [--families office
-corridor] [--methods ...] [--which old new] -o out/rigs-heldout``; writes
-``results.csv`` there and prints one table per rig (``--report CSV ...`` prints the
-tables of earlier runs).
+corridor] [--methods ...] [--which old new] [--variant "METHOD K=V ..."] -o
+out/rigs-heldout``; writes ``results.csv`` there and prints one table per rig
+(``--report CSV ...`` prints the tables of earlier runs).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -51,7 +51,13 @@ DEFAULT_METHODS = ("inverse", "counting", "gradient", "em", "em-thrun")
 
 #: Each method's defaults before issue 39 (docs/results/2026-11-22-mapper-defaults.md).
 OLD_DEFAULTS: dict[str, dict[str, Any]] = {
-    "inverse": {"p_occ": 0.52, "p_free": 0.48, "falloff_deg": 10.0, "no_echo": "ignore"},
+    "inverse": {
+        "p_occ": 0.52,
+        "p_free": 0.48,
+        "falloff_deg": 10.0,
+        "no_echo": "ignore",
+        "dr": None,
+    },
     "counting": {"no_echo": "ignore", "dr": 0.025, "band_offset": None},
     "gradient": {"a1": 0.3, "a2": 0.03, "c1": 10.0, "c2": 1.0, "no_echo": "free"},
     "em": {"p_rand": 0.1, "p_hit": 0.75, "sigma": 0.03},
@@ -82,47 +88,74 @@ def held_out_scene(family: str, rig: str, seed: int) -> Scenario:
     return make_scenario(family, rig=rig, seed=seed)
 
 
+def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
+    """``"METHOD K=V K=V"`` as the method and its parameters (numbers where they parse).
+
+    Examples
+    --------
+    >>> parse_variant("gradient a2=0.2 no_echo=free")
+    ('gradient', {'a2': 0.2, 'no_echo': 'free'})
+    """
+    method, *pairs = text.split()
+    params: dict[str, Any] = {}
+    for pair in pairs:
+        key, _, value = pair.partition("=")
+        try:
+            params[key] = float(value)
+        except ValueError:
+            params[key] = value
+    return method, params
+
+
 def run(
     rigs: Sequence[str],
     families: Sequence[str],
     seeds: Sequence[int],
     methods: Sequence[str],
     which: Sequence[str],
+    variants: Sequence[str] = (),
 ) -> pd.DataFrame:
-    """One row per (rig, family, seed, method, defaults)."""
+    """One row per (rig, family, seed, method, defaults), then one per variant (its
+    text in ``defaults``)."""
     rows = []
     for rig in rigs:
         for family in families:
             for seed in seeds:
                 scene = held_out_scene(family, rig, seed)
                 observed = observed_walls(scene.truth, scene.rig, scene.readings)
-                for method in methods:
-                    for label in which:
-                        params = OLD_DEFAULTS[method] if label == "old" else {}
-                        t0 = time.perf_counter()
-                        mapper = make_mapper(method, **params)
-                        m = mapper.fit(scene.readings, scene.truth.grid, scene.rig).result()
-                        seconds = time.perf_counter() - t0
-                        s = score(scene.truth, m, scene.passages, scene.obstacles, observed)
-                        rows.append(
-                            {
-                                "rig": rig,
-                                "family": family,
-                                "seed": seed,
-                                "method": method,
-                                "defaults": label,
-                                "readings": len(scene.readings.t),
-                                "seconds": seconds,
-                                **s.as_dict(),
-                            }
-                        )
-                        print(
-                            f"{rig} {family} {seed} {method} {label}: wall F1 {s.f1_all:.3f}, "
-                            f"observed walls {s.observed_wall_recall:.3f}, passage F1 "
-                            f"{s.passage_f1:.3f}, false openings {s.false_openings}, "
-                            f"{seconds:.1f} s",
-                            flush=True,
-                        )
+                runs = [
+                    (method, label, OLD_DEFAULTS[method] if label == "old" else {})
+                    for method in methods
+                    for label in which
+                ]
+                for text in variants:
+                    method, params = parse_variant(text)
+                    runs.append((method, " ".join(text.split()[1:]), params))
+                for method, label, params in runs:
+                    t0 = time.perf_counter()
+                    mapper = make_mapper(method, **params)
+                    m = mapper.fit(scene.readings, scene.truth.grid, scene.rig).result()
+                    seconds = time.perf_counter() - t0
+                    s = score(scene.truth, m, scene.passages, scene.obstacles, observed)
+                    rows.append(
+                        {
+                            "rig": rig,
+                            "family": family,
+                            "seed": seed,
+                            "method": method,
+                            "defaults": label,
+                            "readings": len(scene.readings.t),
+                            "seconds": seconds,
+                            **s.as_dict(),
+                        }
+                    )
+                    print(
+                        f"{rig} {family} {seed} {method} {label}: wall F1 {s.f1_all:.3f}, "
+                        f"observed walls {s.observed_wall_recall:.3f}, passage F1 "
+                        f"{s.passage_f1:.3f}, false openings {s.false_openings}, "
+                        f"{seconds:.1f} s",
+                        flush=True,
+                    )
     return pd.DataFrame(rows)
 
 
@@ -137,7 +170,8 @@ def markdown(df: pd.DataFrame) -> str:
     for rig, part in df.groupby("rig", sort=False):
         mean = part.groupby(["method", "defaults"], sort=False)[cols].mean()
         lines = [f"**{rig}** ({part['readings'].iloc[0]} readings a map)", "", head]
-        for (method, label), r in mean.iterrows():
+        for key, r in mean.iterrows():
+            method, label = cast(tuple[str, str], key)
             lines.append(
                 f"| {method} | {label} | {r.f1_all:.3f} | {r.observed_wall_recall:.3f} "
                 f"| {r.passage_f1:.3f} | {r.false_openings:.1f} | {r.seconds:.1f} |"
@@ -155,6 +189,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=METHODS)
     ap.add_argument("--which", nargs="+", default=["old", "new"], choices=("old", "new"))
     ap.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        help='also run "METHOD K=V ..." (repeatable), e.g. "inverse p_occ=0.6"',
+    )
+    ap.add_argument(
         "--report",
         type=Path,
         nargs="+",
@@ -166,7 +206,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         return
     if min(args.seeds) < held_out_seeds(1)[0] and args.families != ["hall"]:
         ap.error(f"--seeds: held-out seeds start at {held_out_seeds(1)[0]}")
-    df = run(args.rigs, args.families, args.seeds, args.methods, args.which)
+    df = run(args.rigs, args.families, args.seeds, args.methods, args.which, args.variant)
     args.out.mkdir(parents=True, exist_ok=True)
     df.to_csv(args.out / "results.csv", index=False)
     print(markdown(df))
