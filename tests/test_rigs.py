@@ -188,3 +188,13 @@ def test_default_maps_keep_the_walls_a_maxsonar_rig_hears(
 
     assert recall() >= least
     assert recall(**OLD_DEFAULTS[method]) < least
+
+
+def test_the_rigs_sweep_spans_the_sensor_presets() -> None:
+    from pathlib import Path
+
+    config = load_sweep(Path(__file__).parents[1] / "sweeps" / "rigs.yaml")
+    rigs = {p.get("rig", "paper-synthetic") for p in config.scenarios.values()}
+    sensors = {get_rig(r).sensor.name for r in rigs}
+    assert sensors == {"maxsonar-ez1", "hc-sr04", "polaroid-6500"}
+    assert config.metrics[0] == "quality"
