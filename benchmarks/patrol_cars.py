@@ -8,10 +8,16 @@ planner, team size and seed one run of ``--duration`` simulated seconds, reporti
 
 - ``DVT``: the team's mean share of time in the dead-end escape mode, %;
 - ``never seen``: the share of the reachable site never seen by the end, %;
-- ``mean MTB``: the mean, after a fifth of the run, of the worst time since last seen, s.
+- ``given up``: the share of it the cars stopped going for (never seen places they
+  turned round on the way to three times, :mod:`sonarmap.patrol.giveup`), %;
+- ``mean MTB``: the mean, after a fifth of the run, of the worst time since last seen, s;
+- ``DVT by cause`` (tracking cars): the DVT split by why the car manoeuvred
+  (:data:`sonarmap.patrol.robots.CAUSES`: held by another car, path behind, no clear
+  arc ahead, no manoeuvre found), %.
 
 Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
-[--planners track thesis] [--crowding obstacles] [--seeds 0] [--duration 3600]
+[--planners track thesis] [--crowding obstacles] [--no-forward-wave] [--give-up 3] [--seeds 0]
+[--duration 3600]
 [--json F]``; one process, one core (``NUMBA_NUM_THREADS=1``). Each run prints one
 line as it ends; the table follows.
 """
@@ -28,33 +34,60 @@ from typing import Any
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 from sonarmap.patrol import PatrolConfig, run_patrol
+from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
+from sonarmap.patrol.robots import Car, Team
 
 
 def run_one(
-    site: int, planner: str, cars: int, crowding: str, seed: int, duration: float
+    site: int,
+    planner: str,
+    cars: int,
+    crowding: str,
+    seed: int,
+    duration: float,
+    forward_wave: bool = True,
+    give_up: int = 3,
 ) -> dict[str, Any]:
     """One run's figures (see the module's notes)."""
     config = PatrolConfig(
         model="car",
         car_planner=planner,
+        forward_wave=forward_wave,
+        give_up=give_up,
         refine=True,
         crowding=crowding if cars > 1 else "none",
         duration=duration,
     )
     t0 = time.perf_counter()
-    s = run_patrol(street_territory(site), config, robots=cars, seed=seed).summary()
+    last: list[Team] = []
+
+    def keep(_t: float, team: Team, _fog: Fog) -> None:
+        last[:] = [team]
+
+    result = run_patrol(street_territory(site), config, robots=cars, seed=seed, on_step=keep)
+    s = result.summary()
+    causes = {}
+    if last and isinstance(last[0], Car) and planner == "track":
+        causes = {
+            k: round(float(100.0 * v.mean() / len(result.t)), 2)
+            for k, v in last[0].escape_causes.items()
+        }
     return {
         "site": site,
         "split": "held-out" if site >= 1000 else "training",
         "planner": planner,
         "cars": cars,
         "crowding": config.crowding,
+        "forward_wave": forward_wave,
+        "give_up": give_up,
         "seed": seed,
         "duration": duration,
         "dvt": round(float(s["dvt"]), 2),
         "never_seen": round(100 * float(s["never_seen"]), 2),
+        "given_up": round(100 * float(s["given_up"]), 3),
         "mean_mtb": round(float(s["mean_mtb"]), 1),
+        "dvt_by_cause": causes,
         "wall_seconds": round(time.perf_counter() - t0, 1),
     }
 
@@ -65,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cars", type=int, nargs="+", default=[1, 3, 5])
     ap.add_argument("--planners", nargs="+", default=["track"])
     ap.add_argument("--crowding", default="obstacles")
+    ap.add_argument("--no-forward-wave", dest="forward_wave", action="store_false")
+    ap.add_argument("--give-up", type=int, default=3)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--json", type=Path)
@@ -74,7 +109,9 @@ def main(argv: list[str] | None = None) -> int:
         for planner in a.planners:
             for cars in a.cars:
                 for seed in a.seeds:
-                    row = run_one(site, planner, cars, a.crowding, seed, a.duration)
+                    row = run_one(
+                        site, planner, cars, a.crowding, seed, a.duration, a.forward_wave, a.give_up
+                    )
                     print(json.dumps(row), flush=True)
                     rows.append(row)
                     if a.json:

@@ -14,8 +14,8 @@ count, traffic rule and seed one run of ``--duration`` simulated seconds, report
 
 Run with ``python -m benchmarks.patrol_indoor [--maps depot warehouse] [--robots 1 2 4]
 [--policies potential] [--traffic thesis give-way] [--seeds 0 1] [--duration 600]
-[--json F] [--figure F.png]``; ``--maps`` takes names in the data folder or paths to map
-YAML files. ``--replot F.json [G.json ...] [--figure F.png]`` tabulates earlier runs
+[--min-hold S] [--json F] [--figure F.png]``; ``--maps`` takes names in the data folder
+or paths to map YAML files. ``--replot F.json [G.json ...] [--figure F.png]`` tabulates earlier runs
 (``--json`` files, or ``runs.json`` of ``sonarmap patrol experiment baselines --map``)
 together with issue 36's claims, and draws their figure, without running anything: the
 mean MTB against the team's size, one line per policy and traffic rule and one panel per
@@ -54,10 +54,18 @@ def _map_path(name: str) -> Path:
 
 
 def run_one(
-    territory: Territory, policy: str, robots: int, traffic: str, seed: int, duration: float
+    territory: Territory,
+    policy: str,
+    robots: int,
+    traffic: str,
+    seed: int,
+    duration: float,
+    min_hold: float = 0.0,
 ) -> dict[str, Any]:
-    """One run's figures (:func:`sonarmap.patrol.baselines.baseline_run`)."""
+    """One run's figures (:func:`sonarmap.patrol.baselines.baseline_run`); ``min_hold``:
+    :attr:`~sonarmap.patrol.PatrolConfig.min_hold`."""
     config = PatrolConfig(
+        min_hold=min_hold,
         policy=policy,
         radius=INDOOR["radius"],
         speed=INDOOR["speed"],
@@ -77,6 +85,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--traffic", nargs="+", default=["thesis", "give-way"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     ap.add_argument("--duration", type=float, default=600.0)
+    ap.add_argument("--min-hold", type=float, default=0.0, help="seconds (PatrolConfig.min_hold)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--figure", type=Path)
     ap.add_argument(
@@ -113,7 +122,15 @@ def main(argv: list[str] | None = None) -> None:
                     for seed in args.seeds:
                         row = {
                             "map": path.stem,
-                            **run_one(territory, policy, robots, traffic, seed, args.duration),
+                            **run_one(
+                                territory,
+                                policy,
+                                robots,
+                                traffic,
+                                seed,
+                                args.duration,
+                                args.min_hold,
+                            ),
                         }
                         rows.append(row)
                         print(

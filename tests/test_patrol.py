@@ -32,10 +32,11 @@ from sonarmap.patrol import (
     wave,
 )
 from sonarmap.patrol.experiments import run_experiment
-from sonarmap.patrol.fog import Vision, dilate, disc_offsets
+from sonarmap.patrol.fog import Vision, dilate, disc_cells, disc_offsets
 from sonarmap.patrol.forces import sector_pulls, step_direction
 from sonarmap.patrol.paths import STEP_UNITS, STEPS, Wave, nearest_step, shadows
 from sonarmap.patrol.robots import SPEED_BANDS, Car, arc, band_speed, parse_speed_bands
+from sonarmap.patrol.territory import move_clear
 
 
 def _graph(passable: np.ndarray) -> coo_matrix:
@@ -887,6 +888,50 @@ def test_the_fogs_mtb_is_the_worst_watched_cell(shape: tuple[int, int]) -> None:
         fog.advance(0.5)
         fog.observe(rng.integers(0, shape[0], 3), rng.integers(0, shape[1], 3), vision)
         assert fog.mtb() == fog.tb[watched].max()
+
+
+def test_the_fog_sees_the_discs_watched_cells_and_keeps_its_mean() -> None:
+    """A look with a plain disc marks exactly the watched cells of the disc inside the
+    grid (robots at and beyond its edges too), and the mean TB kept as cells are seen
+    equals the plain mean over the watched cells."""
+    rng = np.random.default_rng(7)
+    shape = (57, 80)
+    watched = rng.random(shape) > 0.3
+    fog = Fog(Grid(resolution=0.1, origin=(0.0, 0.0), shape=shape), watched, 2.0)
+    disc = disc_offsets(1.5, 0.1)
+    last = np.where(watched, -2.0, np.inf)
+    for _ in range(40):
+        fog.advance(0.5)
+        rows, cols = rng.integers(-5, shape[0] + 5, 2), rng.integers(-5, shape[1] + 5, 2)
+        fog.observe(rows, cols, disc)
+        for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
+            rr, cc = disc_cells(disc, r, c, shape)
+            keep = watched[rr, cc]
+            last[rr[keep], cc[keep]] = fog.t
+        np.testing.assert_array_equal(fog.last, last)
+        assert fog.mean_tb() == pytest.approx(float(np.mean(fog.t - last[watched])), rel=1e-12)
+        assert fog.mtb() == fog.tb[watched].max()
+
+
+def test_move_clear_samples_both_ends_and_the_pieces_midpoints() -> None:
+    """move_clear is clear exactly when both ends and the midpoints of the quarter-cell
+    pieces of the segment lie on clear cells inside the grid (segments leaving the
+    grid, on a map with an origin off 0)."""
+    rng = np.random.default_rng(11)
+    g = Grid(resolution=0.1, origin=(-1.3, 2.2), shape=(40, 60))
+    clear = rng.random(g.shape) > 0.05
+    agree = {True: 0, False: 0}
+    for _ in range(400):
+        x0, x1 = rng.uniform(-1.5, 4.9, 2)
+        y0, y1 = rng.uniform(2.0, 6.4, 2)
+        n = max(1, math.ceil(math.hypot(x1 - x0, y1 - y0) / 0.025))
+        t = np.concatenate([[0.0], (np.arange(n) + 0.5) / n, [1.0]])
+        r, c = g.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
+        inside = g.contains(r, c)
+        want = bool(inside.all() and clear[r[inside], c[inside]].all())
+        assert move_clear(float(x0), float(y0), float(x1), float(y1), clear, g) == want
+        agree[want] += 1
+    assert min(agree.values()) > 20  # both answers were tried
 
 
 def test_sector_pulls_names_each_steps_strongest_place() -> None:

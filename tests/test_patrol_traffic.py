@@ -136,3 +136,40 @@ def test_a_robot_keeps_its_goal_instead_of_swinging_at_a_corner() -> None:
         unseen[keep] = run_patrol(t, cfg, robots=1, seed=0).summary()["never_seen"]
     assert unseen[True] < 0.4
     assert unseen[False] > unseen[True] + 0.2
+
+
+def test_a_minimum_hold_means_fewer_choices_and_still_every_place_seen(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Each choice of the potential field runs one wave with the pulls summed
+    # (sector_pulls); a robot keeping its place for 2 s once chosen chooses less often,
+    # and on a small building still sees every place.
+    from sonarmap.floorplan import random_building
+    from sonarmap.patrol.forces import sector_pulls
+
+    plan = random_building(16.0, 12.0, seed=3, max_room=6.0, door=(1.0, 1.5))
+    t = Territory.from_map(plan.render(Grid.from_bounds(0, 0, 16.0, 12.0, 0.1)), cell=0.1)
+    calls = {"n": 0}
+
+    def counted(*args: object, **kwargs: object) -> object:
+        calls["n"] += 1
+        return sector_pulls(*args, **kwargs)  # type: ignore[arg-type]
+
+    # The simulation calls it by the name it imported.
+    monkeypatch.setattr("sonarmap.patrol.simulation.sector_pulls", counted)
+    choices, unseen = {}, {}
+    for hold in (0.0, 2.0):
+        calls["n"] = 0
+        cfg = PatrolConfig(
+            radius=0.3, speed=1.0, vision=3.0, duration=150.0, cell=0.1, min_hold=hold
+        )
+        unseen[hold] = run_patrol(t, cfg, robots=1, seed=0).summary()["never_seen"]
+        choices[hold] = calls["n"]
+    assert choices[2.0] < 0.6 * choices[0.0]
+    assert unseen[0.0] == unseen[2.0] == 0.0
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
+def test_a_minimum_hold_must_be_a_finite_time_of_at_least_zero(bad: float) -> None:
+    with pytest.raises(ConfigError, match="min_hold"):
+        PatrolConfig(min_hold=bad)

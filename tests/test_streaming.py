@@ -20,8 +20,11 @@ from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.mappers import GradientMapper, make_mapper
 from sonarmap.mappers._pool import ReadingPool
+from sonarmap.mappers._thrun import index_arrays
+from sonarmap.mappers._thrun_common import posterior
+from sonarmap.mappers.em_thrun import ThrunEMMapper, ThrunEMStream
 from sonarmap.mappers.gradient import STEP, GradientStream, _stream_steps, stream_step_sizes
-from sonarmap.metrics import agreement
+from sonarmap.metrics import agreement, score
 from sonarmap.raster import rasterise
 from sonarmap.readings import Readings, write_readings
 from sonarmap.rig import save_rig
@@ -292,6 +295,98 @@ def test_gradient_stream_agrees_with_offline_and_memory_is_bounded(doorways: Sce
     rep2 = replay([again], sm2, period=0.5)
     assert rep2.max_in_play == rep.max_in_play == 200
     assert rep2.max_state_bytes <= 1.1 * size_once
+
+
+def test_em_thrun_stream_keeps_the_offline_map_in_bounded_memory(doorways: Scenario) -> None:
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    offline = score(doorways.truth, build_map(r, rig, g, "em-thrun")).f1_all
+    held: list[int] = []
+    sm = StreamingMapper("em-thrun", g, rig, strategy="last:200")
+    rep = replay([r], sm, period=0.25, on_update=lambda _b, s: held.append(s.n_in_play))
+    streamed = score(doorways.truth, sm.result()).f1_all
+    assert offline > 0.2
+    assert streamed >= 0.9 * offline
+    assert max(held) == rep.max_in_play == 200
+    # Forgetting the readings that leave instead of folding them in loses the walls.
+    forgetful = StreamingMapper("em-thrun", g, rig, strategy="last:200", fold=False)
+    replay([r], forgetful, period=0.25)
+    assert score(doorways.truth, forgetful.result()).f1_all < 0.9 * offline
+    # The log twice over: the readings held and the state stay where they were.
+    again = Readings.concat(
+        [r, Readings(r.t + r.t[-1] + 1, r.sensor, r.x, r.y, r.theta, r.range, r.names)]
+    )
+    sm2 = StreamingMapper("em-thrun", g, rig, strategy="last:200")
+    rep2 = replay([again], sm2, period=0.25)
+    assert rep2.max_in_play == 200
+    assert rep2.max_state_bytes <= 1.1 * rep.max_state_bytes
+
+
+def test_em_thrun_fold_is_the_posterior_of_the_leaving_readings(doorways: Scenario) -> None:
+    """Folded a reading at a time from the store, the leaving readings' votes are each
+    cell's log posterior odds over an index of just those readings, the map held."""
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    sm = StreamingMapper("em-thrun", g, rig, strategy="last:200")
+    replay([r.take(np.arange(600))], sm)
+    e, m = sm.engine, sm.mapper
+    assert isinstance(e, ThrunEMStream)
+    assert isinstance(m, ThrunEMMapper)
+    p = e.pool
+    gone = p.alive_slots()
+    f_cells, f_off, b_cells, b_dist, b_off = p.gather(gone)
+    ix = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[gone], e.offset)
+    arrays = (
+        ix.free_off,
+        ix.free_cell,
+        ix.band_off,
+        ix.band_cell,
+        ix.band_dist,
+        ix.cell_off,
+        ix.cell_reading,
+        ix.cell_kind,
+        ix.z,
+    )
+    model = (m.p_rand, m.p_hit, e.sigma, e.sensor.r_max)
+    want = np.zeros(g.size)
+    want[ix.cells] = posterior(e.occ[ix.cells], arrays, *model)
+    assert e.occ.sum() > 50
+    assert np.abs(want).max() > 10
+    before = e.bias.copy()
+    e._leave(gone)
+    np.testing.assert_allclose(e.bias - before, want, atol=1e-9)
+
+
+def test_em_thrun_index_from_the_store_is_the_gathered_index(doorways: Scenario) -> None:
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    sm = StreamingMapper("em-thrun", g, rig, strategy="last:200")
+    replay([r.take(np.arange(700))], sm)
+    e = sm.engine
+    assert isinstance(e, ThrunEMStream)
+    p = e.pool
+    # Every third slot: slots out of order with the arena, some cells shared, some not.
+    sel = p.alive_slots()[::3]
+    f_cells, f_off, b_cells, b_dist, b_off = p.gather(sel)
+    want = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[sel], e.offset)
+    got = e.index(sel)
+    assert got.n_cells > 100
+    for name in ("free_off", "free_cell", "band_off", "band_cell", "band_dist", "cell_off"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    for name in ("cell_reading", "cell_kind", "cell_slot", "z", "cells"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+
+
+def test_em_thrun_stream_is_deterministic_and_refuses_the_inverse_start(
+    doorways: Scenario,
+) -> None:
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    part = r.take(np.arange(300))
+    maps = []
+    for _ in range(2):
+        sm = StreamingMapper("em-thrun", g, rig, strategy="last:100")
+        replay([part], sm, period=0.25)
+        maps.append(sm.occupancy_)
+    np.testing.assert_array_equal(maps[0], maps[1])
+    with pytest.raises(ConfigError, match="init=free"):
+        StreamingMapper("em-thrun", g, rig, init="inverse")
 
 
 def test_stochastic_stream_is_deterministic_and_finds_walls(doorways: Scenario) -> None:

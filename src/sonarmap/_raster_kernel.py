@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numba as nb
@@ -385,6 +386,148 @@ def _masked(builder: Any, op: str, vec: Any, ptr: Any, suffix: str) -> Any:
     )
 
 
+def _arrays_ok(values: Any, touched: Any, params: Any) -> bool:
+    """Flat contiguous arrays only (the blocks address them as base + column), and a
+    full set of row parameters."""
+    for arr, dtype in ((values, types.float64), (touched, types.boolean)):
+        if not (isinstance(arr, types.Array) and arr.dtype == dtype and arr.ndim == 1):
+            return False
+        if arr.layout != "C":
+            return False
+    return len(params) == len(_ROW_PARAMS)
+
+
+class _Row:
+    """A row's values splat over LANES, and the block operations both insertion
+    intrinsics share (the same instructions, so the same bits)."""
+
+    def __init__(self, context: Any, builder: Any, sig: Any, args: Any) -> None:
+        vals, tch, _, _, _, _, *rest = args
+        params, coef = rest[-2], rest[-1]
+        self.b = builder
+        self.f64 = ir.DoubleType()
+        self.i64 = ir.IntType(64)
+        self.vd = ir.VectorType(self.f64, LANES)
+        self.vi = ir.VectorType(self.i64, LANES)
+        self.vb = ir.VectorType(ir.IntType(8), LANES)
+        self.bits = ir.IntType(LANES)
+        self.p = {n: builder.extract_value(params, k) for k, n in enumerate(_ROW_PARAMS)}
+        self.s = {n: _splat(builder, v) for n, v in self.p.items()}
+        ncoef = len(sig.args[-1])
+        self.coefs = [_splat(builder, builder.extract_value(coef, j)) for j in range(ncoef)]
+        self.dy_s = _splat(builder, builder.fmul(self.p["dy"], self.p["sin"]))
+        self.dy_c = _splat(builder, builder.fmul(self.p["dy"], self.p["cos"]))
+        self.half = _splat(builder, ir.Constant(self.f64, 0.5))
+        self.varr = context.make_array(sig.args[0])(context, builder, vals)
+        self.tarr = context.make_array(sig.args[1])(context, builder, tch)
+
+    def dx(self, col_f: Any) -> Any:
+        """x offsets of the cell centres from the sensor: the rasteriser's, operation for
+        operation, so that a centre decides alike."""
+        b, s = self.b, self.s
+        return b.fsub(b.fadd(s["ox"], b.fmul(b.fadd(col_f, self.half), s["h"])), s["x0"])
+
+    def weigh(self, inc: Any, dx: Any) -> Any:
+        """``inc`` times the fall-off polynomial at each cell's angle (none without one)."""
+        if not self.coefs:
+            return inc
+        b, s = self.b, self.s
+        # Contraction into fused multiply-adds, where the machine has them, for the
+        # fall-off only: it changes the last bit of the weight, never the cells.
+        fma = ("contract",)
+        along = b.fadd(b.fmul(dx, s["cos"], flags=fma), self.dy_s, flags=fma)
+        across = b.fsub(self.dy_c, b.fmul(dx, s["sin"], flags=fma), flags=fma)
+        q = b.fdiv(across, along)
+        u = b.fmul(q, q)
+        w = self.coefs[-1]
+        for c in reversed(self.coefs[:-1]):
+            w = b.fadd(b.fmul(w, u, flags=fma), c, flags=fma)
+        return b.fmul(inc, w)
+
+    def write(self, base: Any, col: Any, col_end: Any, in_row: Any, update: Any, inc: Any) -> None:
+        """Add ``inc`` to the cells of the block at ``col`` where ``update``, clamped."""
+        b, s = self.b, self.s
+        i32 = ir.IntType(32)
+        at = b.add(base, col)
+        vptr = b.bitcast(b.gep(self.varr.data, [at]), self.vd.as_pointer())
+        tptr = b.bitcast(b.gep(self.tarr.data, [at]), self.vb.as_pointer())
+
+        def clamp(v: Any) -> Any:
+            v = b.select(b.fcmp_ordered(">", v, s["lo"]), v, s["lo"])
+            return b.select(b.fcmp_ordered("<", v, s["hi"]), v, s["hi"])
+
+        whole = b.append_basic_block("blocks.whole")
+        edge = b.append_basic_block("blocks.edge")
+        latch = b.append_basic_block("blocks.latch")
+        last = b.add(col, ir.Constant(self.i64, LANES - 1))
+        b.cbranch(b.icmp_signed("<=", last, col_end), whole, edge)
+
+        # A block inside the grid's row is read and written whole, its lanes off the
+        # span written back unchanged: the row is this thread's alone. Masked stores
+        # are slow without AVX-512 (a byte-masked one becomes eight branches), and most
+        # blocks of a beam's row lie inside the grid.
+        b.position_at_end(whole)
+        old = b.load(vptr, align=8)
+        b.store(b.select(update, clamp(b.fadd(old, inc)), old), vptr, align=8)
+        flags = b.load(tptr, align=1)
+        b.store(b.or_(flags, b.zext(update, self.vb)), tptr, align=1)
+        b.branch(latch)
+
+        # A block passing the grid's edge: masked lanes are neither read nor written,
+        # so nothing beyond the row (another thread's, or past the array) is touched.
+        b.position_at_end(edge)
+        zero = _splat(b, ir.Constant(self.f64, 0.0))
+        old = b.call(
+            _masked(b, "load", self.vd, vptr, f"v{LANES}f64"),
+            [vptr, ir.Constant(i32, 8), in_row, zero],
+        )
+        b.call(
+            _masked(b, "store", self.vd, vptr, f"v{LANES}f64"),
+            [clamp(b.fadd(old, inc)), vptr, ir.Constant(i32, 8), update],
+        )
+        b.call(
+            _masked(b, "store", self.vb, tptr, f"v{LANES}i8"),
+            [ir.Constant(self.vb, [1] * LANES), tptr, ir.Constant(i32, 1), update],
+        )
+        b.branch(latch)
+        b.position_at_end(latch)
+
+
+def _block_loop(row: _Row, col_from: Any, col_to: Any, body: Callable[[Any, Any, Any], Any]) -> Any:
+    """Run ``body(col, col_f, col_i)`` on the blocks of columns ``col_from .. col_to``
+    (the block's first column, and its LANES columns as floats and as integers); sums
+    what each call returns."""
+    b = row.b
+    lanes_f = ir.Constant(row.vd, [float(k) for k in range(LANES)])
+    first_f = b.fadd(_splat(b, b.sitofp(col_from, row.f64)), lanes_f)
+    first_i = b.add(_splat(b, col_from), ir.Constant(row.vi, list(range(LANES))))
+    entry = b.block
+    head = b.append_basic_block("blocks.head")
+    start = b.append_basic_block("blocks.body")
+    done = b.append_basic_block("blocks.done")
+    b.branch(head)
+    b.position_at_end(head)
+    col = b.phi(row.i64)
+    col_f = b.phi(row.vd)
+    col_i = b.phi(row.vi)
+    count = b.phi(row.i64)
+    col.add_incoming(col_from, entry)
+    col_f.add_incoming(first_f, entry)
+    col_i.add_incoming(first_i, entry)
+    count.add_incoming(ir.Constant(row.i64, 0), entry)
+    b.cbranch(b.icmp_signed("<=", col, col_to), start, done)
+    b.position_at_end(start)
+    n = body(col, col_f, col_i)
+    latch = b.block
+    col.add_incoming(b.add(col, ir.Constant(row.i64, LANES)), latch)
+    col_f.add_incoming(b.fadd(col_f, _splat(b, ir.Constant(row.f64, LANES))), latch)
+    col_i.add_incoming(b.add(col_i, _splat(b, ir.Constant(row.i64, LANES))), latch)
+    count.add_incoming(b.add(count, n), latch)
+    b.branch(head)
+    b.position_at_end(done)
+    return count
+
+
 def _blocks_intrinsic(
     typingctx: Any,
     values: Any,
@@ -396,7 +539,8 @@ def _blocks_intrinsic(
     params: Any,
     coef: Any,
 ) -> Any:
-    """Update cells ``base + col_from .. base + col_to`` of one row, LANES at a time.
+    """Update cells ``base + col_from .. base + col_to`` of one row, LANES at a time,
+    each decided by its distance to the sensor.
 
     ``col_end`` is the row's last column in the grid: a block that ends by it is read
     and written whole, one that passes it through masks.
@@ -408,184 +552,259 @@ def _blocks_intrinsic(
     these coefficients (lowest first) in u = tan^2 of the cell's angle off the axis.
     Returns the number of cells updated.
     """
-    # Flat contiguous arrays only: the blocks address them as base + column.
-    for arr, dtype in ((values, types.float64), (touched, types.boolean)):
-        if not (isinstance(arr, types.Array) and arr.dtype == dtype and arr.ndim == 1):
-            return None
-        if arr.layout != "C":
-            return None
-    if len(params) != len(_ROW_PARAMS):
+    if not _arrays_ok(values, touched, params):
         return None
-    ncoef = len(coef)
     sig = types.int64(values, touched, base, col_from, col_to, col_end, params, coef)
 
     def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        vals, tch, base, col_from, col_to, col_end, params, coef = args
-        f64 = ir.DoubleType()
-        i64 = ir.IntType(64)
-        i32 = ir.IntType(32)
-        vd = ir.VectorType(f64, LANES)
-        vi = ir.VectorType(i64, LANES)
-        vb = ir.VectorType(ir.IntType(8), LANES)
-        bits = ir.IntType(LANES)
-        # Contraction into fused multiply-adds, where the machine has them, for the
-        # fall-off only: it changes the last bit of the weight, never the cells.
-        fma = ("contract",)
-        p = {n: builder.extract_value(params, k) for k, n in enumerate(_ROW_PARAMS)}
-        s = {n: _splat(builder, v) for n, v in p.items()}
-        dy2 = _splat(builder, builder.fmul(p["dy"], p["dy"]))
-        dy_s = _splat(builder, builder.fmul(p["dy"], p["sin"]))
-        dy_c = _splat(builder, builder.fmul(p["dy"], p["cos"]))
-        coefs = [_splat(builder, builder.extract_value(coef, j)) for j in range(ncoef)]
-        zero = _splat(builder, ir.Constant(f64, 0.0))
-        half = _splat(builder, ir.Constant(f64, 0.5))
-        sqrt = _declare(builder, f"llvm.sqrt.v{LANES}f64", vd, [vd])
+        row = _Row(context, builder, signature, args)
+        b, p, s = builder, row.p, row.s
+        base, col_from, col_to, col_end = args[2:6]
+        dy2 = _splat(b, b.fmul(p["dy"], p["dy"]))
+        sqrt = _declare(b, f"llvm.sqrt.v{LANES}f64", row.vd, [row.vd])
+        ctpop = _declare(b, f"llvm.ctpop.i{LANES}", row.bits, [row.bits])
 
         def band(t: Any) -> tuple[Any, Any]:
             # Squared distances below the first bound have sqrt(d2) < t once rounded,
             # those at or above the second sqrt(d2) > t; between, the root decides. A
             # threshold <= 0 (or NaN) admits no centre: both bounds below any d2.
-            t2 = builder.fmul(t, t)
-            pos = builder.fcmp_ordered(">", t, ir.Constant(f64, 0.0))
-            lo2 = builder.fmul(t2, ir.Constant(f64, 1.0 - SQRT_SLACK))
-            hi2 = builder.fmul(t2, ir.Constant(f64, 1.0 + SQRT_SLACK))
-            none = ir.Constant(f64, -1.0)
-            return (
-                _splat(builder, builder.select(pos, lo2, none)),
-                _splat(builder, builder.select(pos, hi2, none)),
-            )
+            t2 = b.fmul(t, t)
+            pos = b.fcmp_ordered(">", t, ir.Constant(row.f64, 0.0))
+            lo2 = b.fmul(t2, ir.Constant(row.f64, 1.0 - SQRT_SLACK))
+            hi2 = b.fmul(t2, ir.Constant(row.f64, 1.0 + SQRT_SLACK))
+            none = ir.Constant(row.f64, -1.0)
+            return _splat(b, b.select(pos, lo2, none)), _splat(b, b.select(pos, hi2, none))
 
         f_band = band(p["f_thr"])
         o_band = band(p["o_thr"])
-        ctpop = _declare(builder, f"llvm.ctpop.i{LANES}", bits, [bits])
-        varr = context.make_array(signature.args[0])(context, builder, vals)
-        tarr = context.make_array(signature.args[1])(context, builder, tch)
 
-        lanes_f = ir.Constant(vd, [float(k) for k in range(LANES)])
-        first_f = builder.fadd(_splat(builder, builder.sitofp(col_from, f64)), lanes_f)
-        first_i = builder.add(_splat(builder, col_from), ir.Constant(vi, list(range(LANES))))
-        entry = builder.block
-        head = builder.append_basic_block("blocks.head")
-        body = builder.append_basic_block("blocks.body")
-        done = builder.append_basic_block("blocks.done")
-        builder.branch(head)
-        builder.position_at_end(head)
-        col = builder.phi(i64)
-        col_f = builder.phi(vd)
-        col_i = builder.phi(vi)
-        count = builder.phi(i64)
-        col.add_incoming(col_from, entry)
-        col_f.add_incoming(first_f, entry)
-        col_i.add_incoming(first_i, entry)
-        count.add_incoming(ir.Constant(i64, 0), entry)
-        builder.cbranch(builder.icmp_signed("<=", col, col_to), body, done)
+        def body(col: Any, col_f: Any, col_i: Any) -> Any:
+            dx = row.dx(col_f)
+            d2 = b.fadd(b.fmul(dx, dx), dy2)
+            in_row = b.icmp_signed("<=", col_i, _splat(b, col_to))
+            # The square root is the block's slowest step on AVX2 (vsqrtpd), and only
+            # a centre within a few ulps of a threshold's square needs it to decide
+            # alike.
+            near = b.or_(
+                b.and_(b.fcmp_ordered(">", d2, f_band[0]), b.fcmp_ordered("<", d2, f_band[1])),
+                b.and_(b.fcmp_ordered(">", d2, o_band[0]), b.fcmp_ordered("<", d2, o_band[1])),
+            )
+            near = b.bitcast(b.and_(near, in_row), row.bits)
+            free_s = b.fcmp_ordered("<", d2, f_band[1])
+            occ_s = b.fcmp_ordered("<", d2, o_band[1])
+            sure = b.block
+            exact = b.append_basic_block("blocks.exact")
+            decide = b.append_basic_block("blocks.decide")
+            b.cbranch(b.icmp_unsigned("!=", near, ir.Constant(row.bits, 0)), exact, decide)
+            b.position_at_end(exact)
+            d = b.call(sqrt, [d2])
+            free_x = b.fcmp_ordered("<", d, s["f_thr"])
+            occ_x = b.fcmp_ordered("<=", d, s["o_thr"])
+            b.branch(decide)
+            b.position_at_end(decide)
+            mask = ir.VectorType(ir.IntType(1), LANES)
+            free = b.phi(mask)
+            free.add_incoming(free_s, sure)
+            free.add_incoming(free_x, exact)
+            occ = b.phi(mask)
+            occ.add_incoming(occ_s, sure)
+            occ.add_incoming(occ_x, exact)
+            update = b.and_(in_row, b.or_(free, occ))
+            inc = row.weigh(b.select(free, s["inc_free"], s["inc_occ"]), dx)
+            row.write(base, col, col_end, in_row, update, inc)
+            return b.zext(b.call(ctpop, [b.bitcast(update, row.bits)]), row.i64)
 
-        builder.position_at_end(body)
-        # The rasteriser's distance, operation for operation: a centre decides alike.
-        dx = builder.fsub(
-            builder.fadd(s["ox"], builder.fmul(builder.fadd(col_f, half), s["h"])), s["x0"]
-        )
-        d2 = builder.fadd(builder.fmul(dx, dx), dy2)
-        in_row = builder.icmp_signed("<=", col_i, _splat(builder, col_to))
-        # The square root is the block's slowest step on AVX2 (vsqrtpd), and only a
-        # centre within a few ulps of a threshold's square needs it to decide alike.
-        near = builder.or_(
-            builder.and_(
-                builder.fcmp_ordered(">", d2, f_band[0]), builder.fcmp_ordered("<", d2, f_band[1])
-            ),
-            builder.and_(
-                builder.fcmp_ordered(">", d2, o_band[0]), builder.fcmp_ordered("<", d2, o_band[1])
-            ),
-        )
-        near = builder.bitcast(builder.and_(near, in_row), bits)
-        free_s = builder.fcmp_ordered("<", d2, f_band[1])
-        occ_s = builder.fcmp_ordered("<", d2, o_band[1])
-        sure = builder.block
-        exact = builder.append_basic_block("blocks.exact")
-        decide = builder.append_basic_block("blocks.decide")
-        builder.cbranch(builder.icmp_unsigned("!=", near, ir.Constant(bits, 0)), exact, decide)
-        builder.position_at_end(exact)
-        d = builder.call(sqrt, [d2])
-        free_x = builder.fcmp_ordered("<", d, s["f_thr"])
-        occ_x = builder.fcmp_ordered("<=", d, s["o_thr"])
-        builder.branch(decide)
-        builder.position_at_end(decide)
-        mask = ir.VectorType(ir.IntType(1), LANES)
-        free = builder.phi(mask)
-        free.add_incoming(free_s, sure)
-        free.add_incoming(free_x, exact)
-        occ = builder.phi(mask)
-        occ.add_incoming(occ_s, sure)
-        occ.add_incoming(occ_x, exact)
-        update = builder.and_(in_row, builder.or_(free, occ))
-        inc = builder.select(free, s["inc_free"], s["inc_occ"])
-        if ncoef:
-            along = builder.fadd(builder.fmul(dx, s["cos"], flags=fma), dy_s, flags=fma)
-            across = builder.fsub(dy_c, builder.fmul(dx, s["sin"], flags=fma), flags=fma)
-            q = builder.fdiv(across, along)
-            u = builder.fmul(q, q)
-            w = coefs[-1]
-            for c in reversed(coefs[:-1]):
-                w = builder.fadd(builder.fmul(w, u, flags=fma), c, flags=fma)
-            inc = builder.fmul(inc, w)
-        at = builder.add(base, col)
-        vptr = builder.bitcast(builder.gep(varr.data, [at]), vd.as_pointer())
-        tptr = builder.bitcast(builder.gep(tarr.data, [at]), vb.as_pointer())
+        return _block_loop(row, col_from, col_to, body)
 
-        def clamp(v: Any) -> Any:
-            v = builder.select(builder.fcmp_ordered(">", v, s["lo"]), v, s["lo"])
-            return builder.select(builder.fcmp_ordered("<", v, s["hi"]), v, s["hi"])
+    return sig, codegen
 
-        whole = builder.append_basic_block("blocks.whole")
-        edge = builder.append_basic_block("blocks.edge")
-        latch = builder.append_basic_block("blocks.latch")
-        last = builder.add(col, ir.Constant(i64, LANES - 1))
-        builder.cbranch(builder.icmp_signed("<=", last, col_end), whole, edge)
 
-        # A block inside the grid's row is read and written whole, its lanes off the
-        # span written back unchanged: the row is this thread's alone. Masked stores
-        # are slow without AVX-512 (a byte-masked one becomes eight branches), and most
-        # blocks of a beam's row lie inside the grid.
-        builder.position_at_end(whole)
-        old = builder.load(vptr, align=8)
-        builder.store(builder.select(update, clamp(builder.fadd(old, inc)), old), vptr, align=8)
-        flags = builder.load(tptr, align=1)
-        builder.store(builder.or_(flags, builder.zext(update, vb)), tptr, align=1)
-        builder.branch(latch)
+def _runs_intrinsic(
+    typingctx: Any,
+    values: Any,
+    touched: Any,
+    base: Any,
+    col_from: Any,
+    col_to: Any,
+    col_end: Any,
+    free_from: Any,
+    free_to: Any,
+    params: Any,
+    coef: Any,
+) -> Any:
+    """Update every cell ``base + col_from .. base + col_to`` of one row, LANES at a
+    time: free for columns ``free_from .. free_to``, occupied for the others.
 
-        # A block passing the grid's edge: masked lanes are neither read nor written,
-        # so nothing beyond the row (another thread's, or past the array) is touched.
-        builder.position_at_end(edge)
-        old = builder.call(
-            _masked(builder, "load", vd, vptr, f"v{LANES}f64"),
-            [vptr, ir.Constant(i32, 8), in_row, zero],
-        )
-        builder.call(
-            _masked(builder, "store", vd, vptr, f"v{LANES}f64"),
-            [clamp(builder.fadd(old, inc)), vptr, ir.Constant(i32, 8), update],
-        )
-        builder.call(
-            _masked(builder, "store", vb, tptr, f"v{LANES}i8"),
-            [ir.Constant(vb, [1] * LANES), tptr, ir.Constant(i32, 1), update],
-        )
-        builder.branch(latch)
+    The row's band is known as column intervals (see :func:`_interval`), so no cell's
+    distance is computed. ``col_end``, ``params`` and ``coef`` are those of
+    :func:`_blocks_intrinsic` (``f_thr`` and ``o_thr`` unused), and a cell's weight is
+    computed as there, to the bit.
+    """
+    if not _arrays_ok(values, touched, params):
+        return None
+    sig = types.none(
+        values, touched, base, col_from, col_to, col_end, free_from, free_to, params, coef
+    )
 
-        builder.position_at_end(latch)
-        n = builder.zext(builder.call(ctpop, [builder.bitcast(update, bits)]), i64)
-        col.add_incoming(builder.add(col, ir.Constant(i64, LANES)), latch)
-        col_f.add_incoming(builder.fadd(col_f, _splat(builder, ir.Constant(f64, LANES))), latch)
-        col_i.add_incoming(builder.add(col_i, _splat(builder, ir.Constant(i64, LANES))), latch)
-        count.add_incoming(builder.add(count, n), latch)
-        builder.branch(head)
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        row = _Row(context, builder, signature, args)
+        b, s = builder, row.s
+        base, col_from, col_to, col_end, free_from, free_to = args[2:8]
+        to_s = _splat(b, col_to)
+        lo_s = _splat(b, free_from)
+        hi_s = _splat(b, free_to)
 
-        builder.position_at_end(done)
-        return count
+        def body(col: Any, col_f: Any, col_i: Any) -> Any:
+            in_row = b.icmp_signed("<=", col_i, to_s)
+            free = b.and_(b.icmp_signed(">=", col_i, lo_s), b.icmp_signed("<=", col_i, hi_s))
+            inc = b.select(free, s["inc_free"], s["inc_occ"])
+            if row.coefs:
+                inc = row.weigh(inc, row.dx(col_f))
+            row.write(base, col, col_end, in_row, in_row, inc)
+            return ir.Constant(row.i64, 0)
+
+        _block_loop(row, col_from, col_to, body)
+        return context.get_dummy_value()
 
     return sig, codegen
 
 
 # Typed as Any: numba's intrinsic wrapper takes the arguments after typingctx.
 _update_blocks: Any = intrinsic(_blocks_intrinsic)
+_update_runs: Any = intrinsic(_runs_intrinsic)
+
+
+# Relative margin (of the coordinates and of a threshold's square) inside which a
+# band's edge computed in a row is too close to a cell centre to decide that centre:
+# 2^-40, thousands of times the rounding of the rasteriser's test and of the edge's own
+# computation, and still a few nanometres on a map of kilometres.
+RUN_SLACK = 2.0**-40
+
+
+@nb.njit(cache=True, inline="always")
+def _interval(
+    t2: float,
+    slack: float,
+    dy2: float,
+    mid: float,
+    inv_h: float,
+    size: float,
+    end: float,
+) -> tuple[float, float, bool]:
+    """Columns ``lo .. hi`` of a row whose centre lies nearer than t to the sensor, and
+    whether that is sure (as floats holding integers; lo > hi when there are none).
+
+    ``t2`` is t squared (negative when no centre is nearer) and ``slack``
+    :data:`RUN_SLACK` times it, ``dy2`` the row's squared offset from the sensor,
+    ``mid`` the sensor's x in columns (centres at integers), ``inv_h`` one over the cell
+    size, ``size`` the scale of the coordinates (metres: ``|ox| + |x0| + h``) and
+    ``end`` the grid's last column. A centre at x is nearer iff
+    ``|x - x0| < sqrt(t^2 - dy2)``: the columns between two edges. An edge within
+    :data:`RUN_SLACK` of a centre (rounding could decide that centre either way), or a
+    row that only grazes the circle, is not sure: the caller then tests each centre as
+    the rasteriser does. Away from the edges ``d <= t`` gives the same columns as
+    ``d < t``. Free of branches, so that a loop over rows vectorises.
+    """
+    g = t2 - dy2
+    none = g < -slack
+    half = math.sqrt(max(g, 0.0))
+    w = half * inv_h
+    left = min(max(mid - w, -1.5), end + 1.5)
+    right = min(max(mid + w, -1.5), end + 1.5)
+    fl = np.floor(left)
+    fr = np.floor(right)
+    # An edge's error, in columns: rounding of the coordinates (size) and of the
+    # squares (t^2 / half), times the slack; multiplied through by half.
+    gap = min(min(left - fl, fl + 1.0 - left), min(right - fr, fr + 1.0 - right))
+    clear = (g > slack) & (gap * half > RUN_SLACK * ((size + half) * half + t2) * inv_h)
+    return (1.0 if none else fl + 1.0), (0.0 if none else fr), none | clear
+
+
+# The rows _row_pass fills, one per quantity.
+_ROW_C_LO, _ROW_C_HI, _ROW_DY, _ROW_F_LO, _ROW_F_HI, _ROW_O_LO, _ROW_O_HI, _ROW_SURE = range(8)
+
+
+@nb.njit(cache=True)
+def _row_pass(
+    out: npt.NDArray[np.float64],
+    iy_lo: int,
+    n: int,
+    planes: npt.NDArray[np.float64],
+    cos_t: float,
+    sin_t: float,
+    sx: float,
+    sy: float,
+    radius: float,
+    ox: float,
+    oy: float,
+    h: float,
+    cols: int,
+    f_thr: float,
+    o_thr: float,
+) -> None:
+    """Per row ``iy_lo + j`` (j < n) of one reading, into ``out[:, j]``: the beam's
+    columns (:func:`_span` and the kernels' rounding, operation for operation), the
+    row's offset dy from the sensor, and the band's column intervals
+    (:func:`_interval`).
+
+    Each quantity is a loop over the rows without branches, so that it vectorises: a
+    beam's row holds a few blocks of cells, and the scalar row work was as dear as
+    they.
+    """
+    inv_h = 1.0 / h
+    end = cols - 1.0
+    mid = (sx - ox) * inv_h - 0.5
+    size = abs(ox) + abs(sx) + h
+    f_t2 = f_thr * f_thr if f_thr > 0.0 else -1.0
+    o_t2 = o_thr * o_thr if o_thr > 0.0 else -1.0
+    f_slack = RUN_SLACK * f_t2
+    o_slack = RUN_SLACK * o_t2
+    lo = out[_ROW_C_LO]
+    hi = out[_ROW_C_HI]
+    dys = out[_ROW_DY]
+    for j in range(n):
+        yc = oy + (iy_lo + j + 0.5) * h
+        dy = yc - sy
+        r2 = radius * radius - dy * dy
+        half = math.sqrt(max(r2, 0.0)) + EDGE_TOL
+        inside = r2 >= 0.0
+        lo[j] = sx - half if inside else math.inf
+        hi[j] = sx + half if inside else -math.inf
+        dys[j] = dy
+    for k in range(planes.shape[0]):
+        a = planes[k, 0]
+        b = planes[k, 1]
+        aw = a * cos_t - b * sin_t
+        bw = a * sin_t + b * cos_t
+        c0 = planes[k, 2] + aw * sx + bw * sy
+        if abs(aw) < 1e-12:
+            for j in range(n):
+                yc = oy + (iy_lo + j + 0.5) * h
+                if c0 - bw * yc + EDGE_TOL < 0.0:
+                    lo[j] = math.inf
+        elif aw > 0.0:
+            for j in range(n):
+                yc = oy + (iy_lo + j + 0.5) * h
+                hi[j] = min(hi[j], (c0 - bw * yc + EDGE_TOL) / aw)
+        else:
+            for j in range(n):
+                yc = oy + (iy_lo + j + 0.5) * h
+                lo[j] = max(lo[j], (c0 - bw * yc + EDGE_TOL) / aw)
+    f_lo = out[_ROW_F_LO]
+    f_hi = out[_ROW_F_HI]
+    o_lo = out[_ROW_O_LO]
+    o_hi = out[_ROW_O_HI]
+    sure = out[_ROW_SURE]
+    for j in range(n):
+        a_lo = lo[j]
+        a_hi = hi[j]
+        empty = a_hi < a_lo
+        lo[j] = 1.0 if empty else max(0.0, np.ceil((a_lo - ox) / h - 0.5))
+        hi[j] = 0.0 if empty else min(end, np.floor((a_hi - ox) / h - 0.5))
+        dy2 = dys[j] * dys[j]
+        f_lo[j], f_hi[j], f_sure = _interval(f_t2, f_slack, dy2, mid, inv_h, size, end)
+        o_lo[j], o_hi[j], o_sure = _interval(o_t2, o_slack, dy2, mid, inv_h, size, end)
+        sure[j] = 1.0 if f_sure and o_sure else 0.0
 
 
 @nb.njit(cache=True)
@@ -648,13 +867,19 @@ def accumulate_kernel(
     parts: int = 1,
     stripe: int = 8,
     weight: npt.NDArray[np.float64] | None = None,
+    runs: bool = True,
 ) -> int:
     """Add ``inc_free`` to the Omega_free cells and ``inc_occ`` to the Omega_occ cells of
     each reading, in reading order, clamping to [lo, hi] after each addition; returns
     the number of cell updates.
 
-    The cells are exactly those of :func:`rasterise_kernel`: the same rows and spans, and
-    the same distance test, made LANES cells at a time (:func:`_update_blocks`).
+    The cells are exactly those of :func:`rasterise_kernel`: the same rows and spans,
+    and the same decision at each centre. A row's band is taken as column intervals,
+    their edges computed once (:func:`_row_pass`), and its cells updated as one run,
+    LANES at a time, with no distance test (:func:`_update_runs`); a row with an edge
+    within :data:`RUN_SLACK` of a centre, and every row when ``runs`` is False (the
+    reference the runs are tested against, bit for bit), tests each cell's distance as
+    the rasteriser does (:func:`_update_blocks`).
 
     With ``sigma > 0`` both increments are scaled by ``exp(-b^2 / (2 sigma^2))``, b the
     cell's angle off the beam axis (the rasteriser's bearing). ``coef`` is a polynomial
@@ -673,6 +898,7 @@ def accumulate_kernel(
     n = sx.shape[0]
     total = 0
     scratch = np.empty((3, beam_planes.shape[0]))
+    row_buf = np.empty((8, rows + 1))
     for i in range(n):
         x0 = sx[i]
         y0 = sy[i]
@@ -690,26 +916,51 @@ def accumulate_kernel(
         if reach <= EDGE_TOL:
             continue
         iy_lo, iy_hi = _row_range(beam_planes, c, s, x0, y0, reach, oy, h, rows, scratch)
-        for iy in range(iy_lo, iy_hi + 1):
+        n_rows = iy_hi - iy_lo + 1
+        if n_rows <= 0:
+            continue
+        _row_pass(
+            row_buf, iy_lo, n_rows, beam_planes, c, s, x0, y0, reach, ox, oy, h, cols, f_thr, o_thr
+        )
+        for j in range(n_rows):
+            iy = iy_lo + j
             if parts > 1 and (iy // stripe) % parts != part:
                 continue
-            yc = oy + (iy + 0.5) * h
-            lo_x, hi_x = _span(beam_planes, c, s, x0, y0, yc, reach)
-            if hi_x < lo_x:
+            if not row_buf[_ROW_C_LO, j] <= row_buf[_ROW_C_HI, j]:
                 continue
-            c_lo = max(0, math.ceil((lo_x - ox) / h - 0.5))
-            c_hi = min(cols - 1, math.floor((hi_x - ox) / h - 0.5))
-            if c_hi < c_lo:
-                continue
-            dy = yc - y0
+            c_lo = int(row_buf[_ROW_C_LO, j])
+            c_hi = int(row_buf[_ROW_C_HI, j])
+            dy = row_buf[_ROW_DY, j]
             base = (rows - 1 - iy) * cols
             params = (ox, h, x0, dy, c, s, inc_f, inc_o, lo, hi, f_thr, o_thr)
-            if sigma <= 0.0:
-                total += _update_blocks(values, touched, base, c_lo, c_hi, cols - 1, params, ())
-            elif len(coef) > 0 and abs(dy) > ROW_TOL:
-                total += _update_blocks(values, touched, base, c_lo, c_hi, cols - 1, params, coef)
-            else:
+            flat = sigma <= 0.0
+            if not flat and (len(coef) == 0 or abs(dy) <= ROW_TOL):
                 total += _update_cells(values, touched, base, c_lo, c_hi, params, sigma)
+                continue
+            if not runs or row_buf[_ROW_SURE, j] == 0.0:
+                if flat:
+                    total += _update_blocks(values, touched, base, c_lo, c_hi, cols - 1, params, ())
+                else:
+                    total += _update_blocks(
+                        values, touched, base, c_lo, c_hi, cols - 1, params, coef
+                    )
+                continue
+            f_lo = max(int(row_buf[_ROW_F_LO, j]), c_lo)
+            f_hi = min(int(row_buf[_ROW_F_HI, j]), c_hi)
+            o_lo = max(int(row_buf[_ROW_O_LO, j]), c_lo)
+            o_hi = min(int(row_buf[_ROW_O_HI, j]), c_hi)
+            # Both sets are centred on the sensor's column: the smaller lies in the
+            # larger, and together they are one run.
+            u_lo, u_hi = (o_lo, o_hi) if f_hi < f_lo else (f_lo, f_hi)
+            if f_lo <= f_hi and o_lo <= o_hi:
+                u_lo, u_hi = min(f_lo, o_lo), max(f_hi, o_hi)
+            if u_hi < u_lo:
+                continue
+            total += u_hi - u_lo + 1
+            if flat:
+                _update_runs(values, touched, base, u_lo, u_hi, cols - 1, f_lo, f_hi, params, ())
+            else:
+                _update_runs(values, touched, base, u_lo, u_hi, cols - 1, f_lo, f_hi, params, coef)
     return total
 
 

@@ -163,6 +163,11 @@ PATROL_OPTIONS = (
         off="--choose-every-step",
     ),
     Opt(
+        "min_hold",
+        "Path motion: keep the place a robot goes for at least this many seconds, even "
+        "once seen (fewer choices, each a wave over the places that could change it).",
+    ),
+    Opt(
         "r_obst", "Artificial obstacles' radius, metres (default 3 x --radius).", unset_as=math.nan
     ),
     Opt(
@@ -197,6 +202,17 @@ PATROL_OPTIONS = (
         "dead ends) or thesis (turn towards the chosen direction, reversing escape).",
     ),
     Opt("lookahead", "Tracking cars: the pure-pursuit point's distance along the path, metres."),
+    Opt(
+        "forward_wave",
+        "Tracking cars: paths leave forwards (cells up to 4 m behind the car closed on "
+        "its wave) unless the way ahead is a dead end.",
+        off="--no-forward-wave",
+    ),
+    Opt(
+        "give_up",
+        "Tracking cars: reversing manoeuvres on the way to a never-seen place after which "
+        "the cars stop going for it (and the never-seen places within 2 m); 0: never.",
+    ),
     Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "

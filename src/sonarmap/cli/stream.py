@@ -67,7 +67,7 @@ def stream_cmd(
         str | None,
         typer.Option(
             help="Readings in play: last:N, cell:N, pose:N[:XY_M[:DEG]][:median] or all "
-            "(default: all for inverse, last:1000 for the others)."
+            "(default: all for inverse, last:50 for em-thrun, last:1000 for the others)."
         ),
     ] = None,
     realtime: Annotated[
@@ -81,7 +81,11 @@ def stream_cmd(
     speed: Annotated[float, typer.Option(help="--realtime: log seconds per wall second.")] = 1.0,
     period: Annotated[float, typer.Option(help="Log seconds per map update.")] = 0.25,
     effort: Annotated[
-        int, typer.Option(help="Work per update: gradient steps, or flip sweeps (stochastic).")
+        int,
+        typer.Option(
+            help="Work per update: gradient steps, flip sweeps (stochastic) or M-step "
+            "sweeps at most (em-thrun)."
+        ),
     ] = 1,
     resolution: Annotated[float, typer.Option(help="Cell size, metres.")] = 0.05,
     bounds: Annotated[

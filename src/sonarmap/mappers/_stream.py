@@ -146,6 +146,10 @@ class StreamEngine(ABC):
     sort_band: ClassVar[bool] = False
     #: Whether the pool keeps the footprints as spans too (see :class:`ReadingPool`).
     spans: ClassVar[bool] = False
+    #: Whether a reading that leaves is folded into fixed per-cell evidence (its pull
+    #: on each cell frozen as it stands when it leaves) rather than forgotten; for the
+    #: engines that keep readings and fold them (``gradient``, ``em-thrun``).
+    fold: bool = True
 
     def __init__(
         self, mapper: Mapper, grid: Grid, sensor: SensorModel, strategy: Strategy, effort: int

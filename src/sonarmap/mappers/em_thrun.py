@@ -41,16 +41,19 @@ re-solves over every reading given so far, from the start.
 from __future__ import annotations
 
 import math
+import time
 
 import numba as nb
 import numpy as np
 import numpy.typing as npt
 
+from ..errors import ConfigError
 from ..readings import Readings
 from ._base import Mapper, Progress, register
 from ._checks import choice, integer, number
 from ._correlated import reading_weights
-from ._thrun import BeamIndex, apply_flip, flip_delta, init_state
+from ._stream import StreamEngine
+from ._thrun import BeamIndex, apply_flip, flip_delta, init_state, loglik_of
 from ._thrun_common import index_readings, model_sigma, posterior, scatter
 
 __all__ = ["ThrunEMMapper"]
@@ -397,3 +400,394 @@ class ThrunEMMapper(Mapper):
         if self._index is None or self._post is None:
             return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._post, self.grid.size)
+
+
+@nb.njit(cache=True)
+def _climb(
+    cand: I64,
+    occ: B,
+    n_before: I64,
+    bsum: F64,
+    loglik: F64,
+    cell_off: I64,
+    cell_reading: I64,
+    cell_kind: npt.NDArray[np.int8],
+    band_off: I64,
+    band_cell: I64,
+    band_dist: F64,
+    z: F64,
+    p_rand: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+    max_sweeps: int,
+    bias: F64,
+    log_odds: F64,
+) -> int:
+    """Hill-climbing sweeps of the M-step over the local cells ``cand`` only, in their
+    order, until a sweep flips none or ``max_sweeps`` have run. ``bias`` (per local
+    cell) is a fixed log-likelihood ratio of occupied to free added to each cell's: the
+    readings that have left the stream. Returns the flips made.
+
+    Each candidate's log posterior odds with the other cells held go to ``log_odds``
+    (aligned with ``cand``) as the last sweep found them: a cell's odds do not depend
+    on its own state, only on the other cells', which that sweep may still have
+    changed after it; a second pass for the exact odds would double the work.
+    """
+    max_deg = 1
+    for c in cand:
+        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
+    new_ll = np.empty(max_deg)
+    new_b = np.empty(max_deg)
+    flips = 0
+    for _ in range(max_sweeps):
+        made = 0
+        for k in range(cand.shape[0]):
+            c = cand[k]
+            d = flip_delta(
+                c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading,
+                cell_kind, band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max, None,
+            )  # fmt: skip
+            odds = (-d if occ[c] else d) + bias[c]
+            log_odds[k] = odds
+            if (odds if not occ[c] else -odds) > MIN_GAIN:
+                apply_flip(
+                    c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading,
+                    cell_kind,
+                )  # fmt: skip
+                made += 1
+        flips += made
+        if made == 0:
+            break
+    return flips
+
+
+@nb.njit(cache=True)
+def _band_sum_at(
+    a: int,
+    n: int,
+    cell: npt.NDArray[np.int32],
+    dist: npt.NDArray[np.float32],
+    offset: float,
+    occ: B,
+    flip: int,
+    zi: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+) -> float:
+    """:func:`~._thrun.band_sum` of one reading read straight from a store's arena (its
+    band entries ``a .. a + n``, sorted by distance) against the whole grid's ``occ``,
+    the grid cell ``flip`` (or -1) read inverted."""
+    norm = 1.0 / (sigma * math.sqrt(2.0 * math.pi))
+    miss = 1.0 - p_hit
+    k = 0
+    total = 0.0
+    for j in range(a, a + n):
+        c = cell[j]
+        state = occ[c]
+        if c == flip:
+            state = not state
+        if state:
+            u = (zi - (float(dist[j]) - offset)) / sigma
+            total += norm * math.exp(-0.5 * u * u) * p_hit * miss**k
+            k += 1
+    u = (zi - r_max) / sigma
+    return total + norm * math.exp(-0.5 * u * u) * miss**k
+
+
+@nb.njit(cache=True)
+def _fold_readings(
+    gone: I64,
+    f_start: I64,
+    f_len: I64,
+    o_start: I64,
+    o_len: I64,
+    cell: npt.NDArray[np.int32],
+    dist: npt.NDArray[np.float32],
+    z: F64,
+    offset: float,
+    occ: B,
+    p_rand: float,
+    p_hit: float,
+    sigma: float,
+    r_max: float,
+    bias: F64,
+) -> None:
+    """Add to ``bias`` each reading of ``gone``'s log-likelihood ratio of occupied to
+    free for every cell of its beam, the rest of the map held at ``occ`` (the grid's).
+    Read straight from the store, a reading at a time: the sum over the readings is
+    what :func:`~._thrun_common.posterior` gives over an index of them."""
+    for s in gone:
+        zi = z[s]
+        n_before = 0
+        for j in range(f_start[s], f_start[s] + f_len[s]):
+            if occ[cell[j]]:
+                n_before += 1
+        a, n = o_start[s], o_len[s]
+        bs = _band_sum_at(a, n, cell, dist, offset, occ, -1, zi, p_hit, sigma, r_max)
+        ll = loglik_of(n_before, bs, p_rand, p_hit, r_max)
+        for j in range(f_start[s], f_start[s] + f_len[s]):
+            c = cell[j]
+            if occ[c]:
+                bias[c] += ll - loglik_of(n_before - 1, bs, p_rand, p_hit, r_max)
+            else:
+                bias[c] += loglik_of(n_before + 1, bs, p_rand, p_hit, r_max) - ll
+        # A flip at band position j scales the terms after it by (1 - p_hit)^-+1: with
+        # the sum of the occupied cells' terms before j and the total, each flip's band
+        # sum costs O(1), not a pass over the band.
+        norm = 1.0 / (sigma * math.sqrt(2.0 * math.pi))
+        miss = 1.0 - p_hit
+        u = (zi - r_max) / sigma
+        tail = norm * math.exp(-0.5 * u * u)
+        occupied = 0.0
+        k = 0
+        for j in range(a, a + n):
+            if occ[cell[j]]:
+                v = (zi - (float(dist[j]) - offset)) / sigma
+                occupied += norm * math.exp(-0.5 * v * v) * p_hit * miss**k
+                k += 1
+        tail *= miss**k
+        before = 0.0
+        k = 0
+        for j in range(a, a + n):
+            c = cell[j]
+            v = (zi - (float(dist[j]) - offset)) / sigma
+            t = norm * math.exp(-0.5 * v * v) * p_hit * miss**k
+            if occ[c]:
+                flipped = before + (occupied - before - t + tail) / miss
+                before += t
+                k += 1
+            else:
+                flipped = before + t + miss * (occupied - before + tail)
+            d = loglik_of(n_before, flipped, p_rand, p_hit, r_max) - ll
+            bias[c] += -d if occ[c] else d
+
+
+@nb.njit(cache=True)
+def _store_index(
+    sel: I64,
+    f_start: I64,
+    f_len: I64,
+    o_start: I64,
+    o_len: I64,
+    cell: npt.NDArray[np.int32],
+    dist: npt.NDArray[np.float32],
+    offset: float,
+    local: I64,
+) -> tuple[I64, I64, I64, I64, F64, I64, I64, npt.NDArray[np.int8], I64, I64]:
+    """The arrays of :func:`~._thrun.index_arrays` for the store's slots ``sel``, read
+    straight from its arena (whose bands are kept sorted by distance): free offsets and
+    cells, band offsets, cells and distances, then per cell its readings, their kinds
+    and band positions, and the touched grid cells, sorted. ``local`` is a grid-sized
+    scratch array of -1, left so."""
+    n = sel.shape[0]
+    free_off = np.zeros(n + 1, np.int64)
+    band_off = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        free_off[i + 1] = free_off[i] + f_len[sel[i]]
+        band_off[i + 1] = band_off[i] + o_len[sel[i]]
+    n_free, n_band = free_off[n], band_off[n]
+    touched = np.empty(n_free + n_band, np.int64)
+    k = 0
+    for i in range(n):
+        s = sel[i]
+        for a, m in ((f_start[s], f_len[s]), (o_start[s], o_len[s])):
+            for j in range(a, a + m):
+                c = cell[j]
+                if local[c] == -1:
+                    local[c] = -2
+                    touched[k] = c
+                    k += 1
+    cells = np.sort(touched[:k])
+    for q in range(k):
+        local[cells[q]] = q
+    free_cell = np.empty(n_free, np.int64)
+    band_cell = np.empty(n_band, np.int64)
+    band_dist = np.empty(n_band)
+    counts = np.zeros(k + 1, np.int64)
+    for i in range(n):
+        s = sel[i]
+        for j in range(f_len[s]):
+            c = local[cell[f_start[s] + j]]
+            free_cell[free_off[i] + j] = c
+            counts[c + 1] += 1
+    for i in range(n):
+        s = sel[i]
+        for j in range(o_len[s]):
+            e = o_start[s] + j
+            c = local[cell[e]]
+            band_cell[band_off[i] + j] = c
+            band_dist[band_off[i] + j] = np.float64(dist[e]) - offset
+            counts[c + 1] += 1
+    cell_off = np.cumsum(counts)
+    fill = cell_off[:-1].copy()
+    cell_reading = np.empty(n_free + n_band, np.int64)
+    cell_kind = np.empty(n_free + n_band, np.int8)
+    cell_slot = np.empty(n_free + n_band, np.int64)
+    for i in range(n):
+        for j in range(free_off[i], free_off[i + 1]):
+            c = free_cell[j]
+            cell_reading[fill[c]] = i
+            cell_kind[fill[c]] = 0
+            cell_slot[fill[c]] = -1
+            fill[c] += 1
+    for i in range(n):
+        for j in range(band_off[i], band_off[i + 1]):
+            c = band_cell[j]
+            cell_reading[fill[c]] = i
+            cell_kind[fill[c]] = 1
+            cell_slot[fill[c]] = j - band_off[i]
+            fill[c] += 1
+    for q in range(k):
+        local[cells[q]] = -1
+    return (
+        free_off,
+        free_cell,
+        band_off,
+        band_cell,
+        band_dist,
+        cell_off,
+        cell_reading,
+        cell_kind,
+        cell_slot,
+        cells,
+    )
+
+
+class ThrunEMStream(StreamEngine):
+    """Thrun's EM over a bounded set of readings, the M-step on the touched cells.
+
+    Each update indexes the readings in play that touch the cells the entering or
+    leaving readings touch (their footprints are kept, so nothing is rasterised twice),
+    computes those readings' causes under the current binary map (the E-step, exact for
+    them, as every reading through a touched cell is indexed) and runs the offline
+    M-step's hill-climbing sweeps over the touched cells only -- up to ``effort`` sweeps,
+    fewer once a sweep flips nothing -- then gives each touched cell its posterior with
+    the rest of the map held, as the offline fit does at its end. A cell no reading in
+    play touches keeps its last state and posterior. New cells start free, as the
+    offline ``init="free"`` does (``init="inverse"`` is refused: it needs every reading).
+    """
+
+    sort_band = True
+
+    def _setup(self) -> None:
+        m = self.mapper
+        assert isinstance(m, ThrunEMMapper)
+        if m.init != "free":
+            raise ConfigError(
+                "streaming 'em-thrun' starts every new cell free; set init=free "
+                "(init=inverse needs every reading at once)"
+            )
+        m.attach(self.grid, self.sensor)
+        self.sigma = model_sigma(m, m.sigma)
+        self.dr = 3.0 * self.sigma
+        self.occ = np.zeros(self.grid.size, np.bool_)
+        self.post = np.full(self.grid.size, m.prior)
+        self._prior_log_odds = math.log(m.prior / (1.0 - m.prior))
+        #: Per cell, the log-likelihood ratio (occupied to free) of the readings that
+        #: have left, each taken with the rest of the map as it was when it left.
+        self.bias = np.zeros(self.grid.size)
+        self._local = np.full(self.grid.size, -1, np.int64)
+        self.flips_ = 0
+
+    def _leave(self, gone: I64) -> None:
+        # A reading that leaves keeps voting on the cells of its beam, but no longer
+        # jointly: its vote on each cell is fixed at the map of the moment it leaves
+        # (each cell's flip with the others held, as in the final posterior). Without
+        # it a wall's cells lose their echoes when those leave, and the long no-echo
+        # beams still in play clear them.
+        if len(gone) == 0 or not self.fold:
+            return
+        m = self.mapper
+        assert isinstance(m, ThrunEMMapper)
+        p = self.pool
+        _fold_readings(
+            gone,
+            p.f_start,
+            p.f_len,
+            p.o_start,
+            p.o_len,
+            p.cell,
+            p.dist,
+            p.z,
+            self.offset,
+            self.occ,
+            m.p_rand,
+            m.p_hit,
+            self.sigma,
+            self.sensor.r_max,
+            self.bias,
+        )
+
+    def index(self, sel: I64) -> BeamIndex:
+        """The beam index of the slots ``sel`` of the store (local cells in grid order),
+        as :func:`~._thrun.index_arrays` builds it from their gathered entries."""
+        p = self.pool
+        a = _store_index(
+            sel, p.f_start, p.f_len, p.o_start, p.o_len, p.cell, p.dist, self.offset, self._local
+        )
+        return BeamIndex(*a[:9], z=p.z[sel].astype(np.float64), cells=a[9])
+
+    def _optimise(self, dirty: I64, box: tuple[int, int, int, int]) -> None:
+        live = dirty[self.cov[dirty] > 0]
+        if len(live) == 0:
+            return
+        self._climb(self.touching_dirty(box), live, self.effort)
+
+    def _climb(self, sel: I64, cells: I64, sweeps: int) -> None:
+        """Sweep ``cells`` (grid indices, each touched by a reading of ``sel``) against
+        the readings ``sel``, which must hold every reading in play through them."""
+        m = self.mapper
+        assert isinstance(m, ThrunEMMapper)
+        ix = self.index(sel)
+        cand = np.searchsorted(ix.cells, cells).astype(np.int64)
+        occ = self.occ[ix.cells]
+        model = (m.p_rand, m.p_hit, self.sigma, self.sensor.r_max)
+        beams = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)
+        n_before, bsum, loglik = init_state(occ, *beams, *model)
+        log_odds = np.empty(len(cand))
+        self.flips_ += _climb(
+            cand,
+            occ,
+            n_before,
+            bsum,
+            loglik,
+            ix.cell_off,
+            ix.cell_reading,
+            ix.cell_kind,
+            ix.band_off,
+            ix.band_cell,
+            ix.band_dist,
+            ix.z,
+            *model,
+            sweeps,
+            self.bias[ix.cells],
+            log_odds,
+        )
+        self.occ[cells] = occ[cand]
+        self.post[cells] = 0.5 * (1.0 + np.tanh(0.5 * (log_odds + self._prior_log_odds)))
+
+    def improve(self, budget: float) -> int:
+        """One M-step sweep at a time over every cell in play, for up to ``budget`` s."""
+        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
+        if len(cells) == 0 or budget <= 0:
+            return 0
+        sel = self.pool.alive_slots()
+        end = time.perf_counter() + budget
+        n = 0
+        while time.perf_counter() < end:
+            self._climb(sel, cells, 1)
+            n += 1
+        return n
+
+    def occupancy(self) -> npt.NDArray[np.float32]:
+        out = self.post.astype(np.float32)
+        out[~self.seen] = np.nan
+        return out
+
+    def nbytes(self) -> int:
+        return super().nbytes() + int(self.occ.nbytes + self.post.nbytes)
+
+
+ThrunEMMapper.streamer = ThrunEMStream

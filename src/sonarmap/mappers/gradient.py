@@ -623,6 +623,7 @@ def _stream_steps(
     known: F64,
     known_at: F64,
     drift: F64,
+    fixed: F64 | None = None,
 ) -> None:
     """Projected subgradient steps on the cells ``dirty``, over the terms of ``sel``.
 
@@ -650,6 +651,9 @@ def _stream_steps(
     are the ones summing every term at every step gives, to the bit. On the office
     ring a term's X lies 0.3-0.5 from X0 and the map moves by 0.005 an update, so most
     terms are summed once, when they enter.
+
+    ``fixed`` (per grid cell), when given, is added to each dirty cell's gradient: the
+    terms of readings that have left, frozen at their slope then (:func:`_fold_terms`).
     """
     n_terms = 0
     t_start = np.empty(2 * sel.shape[0], np.int64)
@@ -729,7 +733,10 @@ def _stream_steps(
             if cov[c] > 0:
                 k = min(kcount[c] + 1, k_cap)
                 kcount[c] = k
-                v = x[c] - steps[k - 1] * g[c]
+                gc = g[c]
+                if fixed is not None:
+                    gc += fixed[c]
+                v = x[c] - steps[k - 1] * gc
                 v = min(max(v, 0.0), 1.0)
                 largest = max(largest, abs(v - x[c]))
                 x[c] = v
@@ -740,6 +747,77 @@ def _stream_steps(
         # Cells outside ``dirty`` gathered gradient too (testing each entry's cell
         # cost more than clearing the range); nothing reads it, and it is cleared.
         g[lo:hi] = 0.0
+
+
+@nb.njit(cache=True)
+def _fold_terms(
+    gone: npt.NDArray[np.int64],
+    fs_start: npt.NDArray[np.int64],
+    fs_len: npt.NDArray[np.int64],
+    os_start: npt.NDArray[np.int64],
+    os_len: npt.NDArray[np.int64],
+    f_len: npt.NDArray[np.int64],
+    o_len: npt.NDArray[np.int64],
+    f_sum: F64,
+    o_sum: F64,
+    echo: npt.NDArray[np.bool_],
+    sp_cell: npt.NDArray[np.int32],
+    sp_len: npt.NDArray[np.int32],
+    sp_w: npt.NDArray[np.float32],
+    x: F64,
+    a1: float,
+    a2: float,
+    known: F64,
+    known_at: F64,
+    drift: F64,
+    fixed: F64,
+) -> None:
+    """Add to ``fixed`` the gradient of the terms of the slots ``gone`` at the map ``x``:
+    each term linearised where it stands when its reading leaves (its slope on the side
+    of X0 its X lies, as :func:`_stream_steps` takes it), so that it keeps pulling its
+    cells as it did, without its reading. A term's X is summed again only when the
+    known one (``known``, ``known_at``, ``drift``: see :func:`_stream_steps`) cannot
+    tell its side."""
+    for s in gone:
+        for part in range(2):
+            if part == 0:
+                a, n, m, tot = fs_start[s], fs_len[s], f_len[s], f_sum[s]
+            else:
+                if not echo[s]:
+                    continue
+                a, n, m, tot = os_start[s], os_len[s], o_len[s], o_sum[s]
+            if m == 0 or tot <= 0.0:
+                continue
+            x0 = 1.0 / tot
+            big_x = known[s, part]
+            moved = (drift[0] - known_at[s, part]) * (1.0 + 1e-6)
+            if not abs(big_x - x0) > moved + 4.0 * (m + 4) * EPS:
+                big = 0.0
+                for q in range(a, a + n):
+                    c0 = sp_cell[q]
+                    w = np.float64(sp_w[q])
+                    for i in range(sp_len[q]):
+                        big += w * x[c0 + i]
+                big_x = big / tot
+            if part == 0:
+                below = a1
+                above = (1.0 - a1 * x0) / (1.0 - x0) if x0 < 1.0 else a1
+            else:
+                below = -(1.0 - a2 + a2 * x0) / x0
+                above = -a2
+            if big_x < x0:
+                slope = below
+            elif big_x > x0:
+                slope = above
+            else:
+                continue
+            f = slope / tot
+            for q in range(a, a + n):
+                c0 = sp_cell[q]
+                fw = f * np.float64(sp_w[q])
+                fs = fixed[c0 : c0 + sp_len[q]]
+                for i in range(sp_len[q]):
+                    fs[i] += fw
 
 
 def stream_step_sizes(step: float, k_cap: int = STREAM_STEP_CAP) -> F64:
@@ -780,7 +858,41 @@ class GradientStream(StreamEngine):
         self._known = np.zeros((self.pool.capacity, 2))
         self._known_at = np.full((self.pool.capacity, 2), -np.inf)
         self._drift = np.zeros(1)
+        #: Per cell, the gradient of the terms of readings that have left (see _leave).
+        self.fixed = np.zeros(self.grid.size)
         self.steps_ = 0
+
+    def _leave(self, gone: npt.NDArray[np.int64]) -> None:
+        # A leaving reading's terms keep pulling their cells, frozen at their slope of
+        # the moment: without them a wall's cells lose their echoes when those leave,
+        # and the long no-echo beams still in play clear them.
+        if len(gone) == 0 or not self.fold:
+            return
+        m = self.mapper
+        assert isinstance(m, GradientMapper)
+        p = self.pool
+        _fold_terms(
+            gone,
+            p.fs_start,
+            p.fs_len,
+            p.os_start,
+            p.os_len,
+            p.f_len,
+            p.o_len,
+            p.f_sum,
+            p.o_sum,
+            p.echo,
+            p.sp_cell,
+            p.sp_len,
+            p.sp_w,
+            self.x,
+            m.a1,
+            m.a2,
+            self._known,
+            self._known_at,
+            self._drift,
+            self.fixed,
+        )
 
     def _enter(self, new: npt.NDArray[np.int64]) -> None:
         cap = self.pool.capacity
@@ -821,6 +933,7 @@ class GradientStream(StreamEngine):
             self._known,
             self._known_at,
             self._drift,
+            self.fixed if self.fold else None,
         )
         self.steps_ += n
 

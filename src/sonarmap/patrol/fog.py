@@ -7,6 +7,7 @@ MTB(t) = max of TB over the free cells; the thesis's criterion is its time avera
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
@@ -127,6 +128,8 @@ class Fog:
         self._n = int(watched.sum())
         # Sum of ``last`` over the watched cells, kept as cells are seen.
         self._sum = -float(start) * self._n
+        # The ages of the cells one look sees, before it (a buffer for the kernel).
+        self._ages = np.empty(0)
 
     def never_seen(self) -> npt.NDArray[np.bool_]:
         """Watched cells not seen since time 0: a new array."""
@@ -154,11 +157,31 @@ class Fog:
         """Robots at cells (rows, cols) see around them: a :class:`Vision`, or a plain
         disc of cell offsets."""
         shape = (self.last.shape[0], self.last.shape[1])
+        disc = vision if not isinstance(vision, Vision) else None
+        if isinstance(vision, Vision) and vision.clear is None:
+            disc = vision.disc
+        if disc is not None and len(self._ages) < len(disc):
+            self._ages = np.empty(len(disc))
         for r, c in zip(np.atleast_1d(rows).tolist(), np.atleast_1d(cols).tolist(), strict=True):
-            if isinstance(vision, Vision):
-                rr, cc = vision.seen(r, c, shape)
-            else:
-                rr, cc = disc_cells(vision, r, c, shape)
+            if disc is not None:
+                # A plain disc: one pass in a kernel. The ages are summed by numpy, as
+                # before, so that the mean TB keeps its rounding.
+                n = _see_disc(
+                    self.last,
+                    self.watched,
+                    disc,
+                    r,
+                    c,
+                    self.t,
+                    self._ages,
+                    self._block_min,
+                    self.BLOCK,
+                )
+                if n:
+                    self._sum += float(np.sum(self._ages[:n]))
+                continue
+            assert isinstance(vision, Vision)
+            rr, cc = vision.seen(r, c, shape)
             keep = self.watched[rr, cc]
             rr, cc = rr[keep], cc[keep]
             if not len(rr):
@@ -170,16 +193,7 @@ class Fog:
     def _renew_blocks(self, r0: int, r1: int, c0: int, c1: int) -> None:
         """Recompute the earliest last-seen time of the blocks over rows r0..r1 and
         columns c0..c1 (inclusive)."""
-        b = self.BLOCK
-        br0, br1, bc0, bc1 = r0 // b, r1 // b, c0 // b, c1 // b
-        part = self.last[br0 * b : (br1 + 1) * b, bc0 * b : (bc1 + 1) * b]
-        nr, nc = br1 - br0 + 1, bc1 - bc0 + 1
-        if part.shape != (nr * b, nc * b):
-            # Blocks on the grid's last rows or columns are cut short: pad them.
-            full = np.full((nr * b, nc * b), np.inf)
-            full[: part.shape[0], : part.shape[1]] = part
-            part = full
-        self._block_min[br0 : br1 + 1, bc0 : bc1 + 1] = part.reshape(nr, b, nc, b).min(axis=(1, 3))
+        _renew(self.last, self._block_min, self.BLOCK, r0, r1, c0, c1)
 
     def mtb(self) -> float:
         """Max of TB over the watched cells."""
@@ -188,3 +202,63 @@ class Fog:
     def mean_tb(self) -> float:
         """Mean of TB over the watched cells."""
         return self.t - self._sum / self._n
+
+
+@nb.njit(cache=True)
+def _renew(
+    last: npt.NDArray[np.float64],
+    block_min: npt.NDArray[np.float64],
+    b: int,
+    r0: int,
+    r1: int,
+    c0: int,
+    c1: int,
+) -> None:
+    """The earliest of ``last`` over each ``b`` x ``b`` block touching rows r0..r1 and
+    columns c0..c1 (inclusive) into ``block_min`` (blocks cut short by the grid's edge
+    over their cells inside)."""
+    rows, cols = last.shape
+    for br in range(r0 // b, r1 // b + 1):
+        for bc in range(c0 // b, c1 // b + 1):
+            m = np.inf
+            for r in range(br * b, min((br + 1) * b, rows)):
+                for c in range(bc * b, min((bc + 1) * b, cols)):
+                    v = last[r, c]
+                    if v < m:
+                        m = v
+            block_min[br, bc] = m
+
+
+@nb.njit(cache=True)
+def _see_disc(
+    last: npt.NDArray[np.float64],
+    watched: npt.NDArray[np.bool_],
+    disc: npt.NDArray[np.int64],
+    r: int,
+    c: int,
+    t: float,
+    ages: npt.NDArray[np.float64],
+    block_min: npt.NDArray[np.float64],
+    b: int,
+) -> int:
+    """A robot at cell (r, c) sees the watched cells of ``disc`` (offsets) inside the
+    grid: their ages before the look (seconds) into ``ages`` in the disc's order, their
+    ``last`` set to ``t``, their blocks renewed. Returns how many it saw."""
+    rows, cols = last.shape
+    n = 0
+    lo_r, hi_r, lo_c, hi_c = rows, -1, cols, -1
+    for k in range(disc.shape[0]):
+        rr = disc[k, 0] + r
+        cc = disc[k, 1] + c
+        if rr < 0 or rr >= rows or cc < 0 or cc >= cols or not watched[rr, cc]:
+            continue
+        ages[n] = t - last[rr, cc]
+        n += 1
+        last[rr, cc] = t
+        lo_r = min(lo_r, rr)
+        hi_r = max(hi_r, rr)
+        lo_c = min(lo_c, cc)
+        hi_c = max(hi_c, cc)
+    if n:
+        _renew(last, block_min, b, lo_r, hi_r, lo_c, hi_c)
+    return n

@@ -28,10 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy import ndimage
 
 from ..grid import Grid
 
-__all__ = ["Manoeuvre", "carrot", "plan_manoeuvre", "route_goals"]
+__all__ = ["Manoeuvre", "behind_cells", "carrot", "leads_on", "plan_manoeuvre", "route_goals"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -74,6 +75,51 @@ def carrot(route: F64, x: float, y: float, lookahead: float) -> tuple[float, flo
         left -= step
         px, py = qx, qy
     return float(route[-1, 0]), float(route[-1, 1])
+
+
+def behind_cells(
+    x: float, y: float, heading: float, grid: Grid, radius: float = 4.0, gap: float = 0.5
+) -> npt.NDArray[np.intp]:
+    """(row, column) pairs, shape (K, 2), of the cells inside the grid whose centres lie
+    within ``radius`` metres of a car at (x, y) and more than ``gap`` metres behind it
+    along its ``heading``: closed on the car's wave, its paths leave forwards, and a
+    place behind it is reached around the block rather than by turning on the spot
+    (a turn a car can only make by reversing on streets narrower than its turning
+    circle). The car's own cell is never among them."""
+    res = grid.resolution
+    k = math.ceil(radius / res)
+    r0, c0 = (int(v) for v in grid.world_to_cell(x, y))
+    dr, dc = np.mgrid[-k : k + 1, -k : k + 1]
+    rr, cc = (r0 + dr).ravel(), (c0 + dc).ravel()
+    px, py = grid.cell_centres(rr, cc)
+    dx, dy = px - x, py - y
+    along = dx * math.cos(heading) + dy * math.sin(heading)
+    keep = (np.hypot(dx, dy) <= radius) & (along < -gap) & grid.contains(rr, cc)
+    keep &= (rr != r0) | (cc != c0)
+    return np.column_stack([rr[keep], cc[keep]]).astype(np.intp)
+
+
+#: 8-connected, as the wave's steps are.
+_EIGHT = np.ones((3, 3), dtype=bool)
+
+
+def leads_on(
+    passable: npt.NDArray[np.bool_],
+    closed: npt.NDArray[np.intp],
+    start: tuple[int, int],
+    share: float = 0.5,
+) -> bool:
+    """Whether, with the ``closed`` cells (K, 2) shut, the passable cells still joined to
+    ``start`` are at least ``share`` of all passable cells: False when the way ahead is
+    a dead end (the car has to turn round) and the way out lay behind."""
+    if not len(closed):
+        return True
+    open_ = passable.copy()
+    open_[closed[:, 0], closed[:, 1]] = False
+    open_[start] = True
+    labels, _ = ndimage.label(open_, structure=_EIGHT)
+    mine = labels[start]
+    return bool(np.count_nonzero(labels == mine) >= share * np.count_nonzero(passable))
 
 
 def route_goals(route: F64, near: float = 3.0, far: float = 10.0) -> F64:

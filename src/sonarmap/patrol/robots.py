@@ -43,6 +43,11 @@ __all__ = [
 
 F64 = npt.NDArray[np.float64]
 
+#: Why a tracking car manoeuvres: held by the collision rule (``traffic``), its path
+#: behind it (``behind``), no clear forward arc along it (``ahead``), or no manoeuvre
+#: found, the thesis's escape (``fallback``).
+CAUSES = ("traffic", "behind", "ahead", "fallback")
+
 
 @dataclass
 class Team:
@@ -348,6 +353,12 @@ class Car(Team):
     held: npt.NDArray[np.int64] = field(init=False)
     #: Track: steps before a car whose search failed searches again.
     rest: npt.NDArray[np.int64] = field(init=False)
+    #: Track: why each car's manoeuvre was planned (one of :data:`CAUSES`).
+    cause: list[str] = field(init=False)
+    #: Track: per cause, each car's steps counted by the DVT.
+    escape_causes: dict[str, npt.NDArray[np.int64]] = field(init=False)
+    #: Track: reversing manoeuvres (and falls back on the thesis's escape) each car began.
+    turns: npt.NDArray[np.int64] = field(init=False)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -364,6 +375,9 @@ class Car(Team):
         self.plans = [None] * len(self.x)
         self.held = np.zeros(len(self.x), dtype=np.int64)
         self.rest = np.zeros(len(self.x), dtype=np.int64)
+        self.cause = [""] * len(self.x)
+        self.escape_causes = {c: np.zeros(len(self.x), dtype=np.int64) for c in CAUSES}
+        self.turns = np.zeros(len(self.x), dtype=np.int64)
 
     def speed_of(self, i: int, grid: Grid) -> float:
         r, c = grid.world_to_cell(self.x[i], self.y[i])
@@ -537,8 +551,9 @@ class Car(Team):
         near[: i + 1] = False
         return bool((near & (self.held > 0)).any())
 
-    def _plan(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid) -> bool:
-        """Plan a manoeuvre for car i onto its route; True when one was found."""
+    def _plan(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid, cause: str) -> bool:
+        """Plan a manoeuvre for car i onto its route, for ``cause`` (of :data:`CAUSES`);
+        True when one was found."""
         route = self.routes[i]
         if route is None or len(route) < 2:
             return False
@@ -559,6 +574,8 @@ class Car(Team):
             self.rest[i] = self.patience
             return False
         self.plans[i] = plan
+        self.cause[i] = cause
+        self.turns[i] += plan.reverses
         return True
 
     def _track(
@@ -586,7 +603,7 @@ class Car(Team):
                 and not self.rest[i]
                 and not self._yielded_to(i)
             ):
-                self._plan(i, passable, grid)
+                self._plan(i, passable, grid, "traffic")
             if self.plans[i] is None:
                 self.escaping[i] = False
             if self.plans[i] is None and d is not None:
@@ -608,7 +625,8 @@ class Car(Team):
                         want[i] = True
                         end[i] = move
                         continue
-                if self.rest[i] or not self._plan(i, passable, grid):
+                why = "behind" if abs(error) > self.behind else "ahead"
+                if self.rest[i] or not self._plan(i, passable, grid, why):
                     move = self._try(i, s, arcs, passable, grid)
                     if move is not None:
                         want[i] = True
@@ -617,7 +635,9 @@ class Car(Team):
                     # No manoeuvre found: the thesis's escape, for this step.
                     if not self.escaping[i]:
                         self.gear[i] = -1
+                        self.turns[i] += 1
                     self.escaping[i] = True
+                    self.escape_causes["fallback"][i] += 1
                     self.goal[i] = math.atan2(d[1], d[0])
                     move = self._escape_move(i, s, passable, grid)
                     if move is not None:
@@ -628,6 +648,8 @@ class Car(Team):
                 plan = self.plans[i]
                 assert plan is not None
                 self.escaping[i] = plan.reverses
+                if plan.reverses:
+                    self.escape_causes[self.cause[i]][i] += 1
                 saved[i] = list(plan.arcs)
                 move = self._drive_plan(i, s, passable, grid)
                 if move is not None:

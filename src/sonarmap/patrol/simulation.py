@@ -36,8 +36,9 @@ from ..grid import Grid
 from .finders import PathFinder
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force, sector_pulls, step_direction
+from .giveup import GiveUp
 from .graph import PatrolGraph
-from .manoeuvre import carrot
+from .manoeuvre import behind_cells, carrot, leads_on
 from .marching import Marching
 from .monitor import Monitor
 from .network import NETWORKS, components
@@ -87,6 +88,13 @@ MOTIONS = ("auto", "straight", "path")
 TRAFFIC = ("auto", "thesis", "give-way")
 #: Seconds a robot that gave way keeps planning around the robots it gave way to.
 GIVE_WAY_TIME = 5.0
+#: Seconds a tracking car with a forward wave whose way ahead only other robots shut
+#: keeps its wave forwards before it may turn round (training street sites 0 and 1,
+#: 3 and 5 cars, 600 s: the DVT of turning round for another robot fell from 3-10 % to
+#: 1-7 % against none; 20 s was no better).
+FOLLOW_TIME = 10.0
+#: Metres around a place the cars give up within which the never-seen places go too.
+GIVE_UP_RADIUS = 2.0
 #: Policies the path motion can follow.
 PATH_POLICIES = ("potential", "reactive", "gravity", "cycle", *WALKERS)
 #: Path-finders built once per run for the static map (:mod:`.regions`, :mod:`.marching`).
@@ -120,6 +128,12 @@ class PatrolConfig:
     #: every step (two places whose paths leave in opposite directions can then hold
     #: a robot swinging between two cells).
     keep_goal: bool = True
+    #: Path motion with ``keep_goal``: a holonomic robot keeps the place it goes for at
+    #: least this long after choosing it (seconds), even once it has been seen, while
+    #: the place can be reached and is more than a step away: each choice runs a wave
+    #: over the places that could change it, and a place chosen just beyond the vision
+    #: radius is seen a step or two later. 0: choose again as soon as it is seen.
+    min_hold: float = 0.0
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
     r_obst: float = math.nan
     refine: bool = False
@@ -138,6 +152,14 @@ class PatrolConfig:
     car_planner: str = "track"
     #: Track: how far along the path the car's pure-pursuit point lies, metres.
     lookahead: float = 3.0
+    #: Track: a car's wave leaves forwards (the cells up to 4 m behind it closed,
+    #: :func:`~sonarmap.patrol.manoeuvre.behind_cells`) unless the way ahead is a dead
+    #: end; False runs it from the car's cell in every direction.
+    forward_wave: bool = True
+    #: Track: reversing manoeuvres on the way to a never-seen place after which the cars
+    #: stop going for it and the never-seen places within :data:`GIVE_UP_RADIUS` (until
+    #: one is seen; they still count in every metric); 0: never give up.
+    give_up: int = 3
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
     vision: float = 10.0
@@ -252,6 +274,8 @@ class PatrolConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{name} must be > 0, got {v}", field=name)
+        if not (0 <= self.give_up <= 1000):
+            raise ConfigError(f"give_up must be in 0..1000, got {self.give_up}", field="give_up")
         if self.crowding not in CROWDING:
             raise ConfigError(
                 f"unknown crowding rule {self.crowding!r}; valid: {', '.join(CROWDING)}",
@@ -288,6 +312,10 @@ class PatrolConfig:
                 f"duration {self.duration:g} s is {self.duration / self.dt:.3g} steps of "
                 f"{self.dt:g} s; at most {MAX_STEPS:,} steps",
                 field="duration",
+            )
+        if not (math.isfinite(self.min_hold) and self.min_hold >= 0):
+            raise ConfigError(
+                f"min_hold must be >= 0 seconds, got {self.min_hold}", field="min_hold"
             )
         if self.warmup is not None and not (0 <= self.warmup < self.duration):
             raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}", field="warmup")
@@ -333,6 +361,8 @@ class PatrolResult:
     never_seen: npt.NDArray[np.bool_] | None = None
     #: patrolling_sim's metrics on the patrol graph (``run_patrol(graph=True)``).
     monitor: Monitor | None = None
+    #: Share of the watched cells the cars had given up at the end (:mod:`.giveup`).
+    given_up: float = 0.0
 
     def dvt_per_robot(self) -> F64:
         """Share of the run each robot spent escaping dead ends, in %."""
@@ -352,6 +382,8 @@ class PatrolResult:
             # Places no robot has seen yet: while any is left, MTB(t) is the time itself
             # and the mean MTB says only that the run was too short.
             "never_seen": self.unseen,
+            # Never-seen places tracking cars stopped going for (they still count above).
+            "given_up": self.given_up,
             **(self.reach.summary() if self.reach is not None else {}),
             "steps": len(self.t),
             "sim_seconds": float(self.t[-1]) if len(self.t) else 0.0,
@@ -787,6 +819,10 @@ def run_patrol(
     dvt = np.empty(steps)
 
     obst = disc_offsets(config.r_obst, g.resolution)
+    forward = config.forward_wave and isinstance(team, Car) and team.planner == "track"
+    # Forward waves: from which step other robots have shut each car's way ahead.
+    shut = np.full(len(team), -1, dtype=np.int64)
+    follow_steps = round(FOLLOW_TIME / config.dt)
     penalty = (
         obstacle_penalty(territory.free, g.resolution, config.refine_window)
         if config.refine
@@ -818,7 +854,9 @@ def run_patrol(
         """Cells closed on robot i's path-finding map, as (row, column) pairs: the
         crowding rule closes the active semaphores it does not hold, or discs around
         the other robots it hears of; a robot giving way closes discs around the
-        earlier robots near it (its own cell stays open)."""
+        earlier robots near it (its own cell stays open); a tracking car's forward wave
+        closes the cells behind it while the way ahead leads on (``config.forward_wave``,
+        :data:`FOLLOW_TIME`)."""
         heard = label == label[i]
         parts: list[npt.NDArray[np.intp]] = []
         if yielding[i] >= now:
@@ -835,6 +873,21 @@ def run_patrol(
                 for j in np.flatnonzero(heard).tolist()
                 if j != i
             ]
+        if forward:
+            back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
+            start = (int(r[i]), int(c[i]))
+            if leads_on(passable, np.concatenate([back, *parts]), start):
+                parts.append(back)
+                shut[i] = -1
+            elif leads_on(passable, back, start):
+                # Only other robots shut the way ahead: they are often on their way, so
+                # follow them for FOLLOW_TIME before turning round (nose to nose, a car
+                # turns round after that).
+                shut[i] = now if shut[i] < 0 else shut[i]
+                if now - shut[i] < follow_steps:
+                    parts.append(back)
+            else:
+                shut[i] = -1  # a dead end: the way out lies behind
         return np.concatenate(parts) if parts else None
 
     look()
@@ -920,6 +973,11 @@ def run_patrol(
     # Path motion: the place each robot goes for, and when it chose it.
     aims: list[tuple[int, int] | None] = [None] * len(team)
     aimed_at = np.zeros(len(team))
+    # The places the robots go for: the watched ones but those the cars gave up.
+    targets = watched
+    giving_up = tracking and config.give_up > 0
+    quitter = GiveUp(watched, max(1, config.give_up), disc_offsets(GIVE_UP_RADIUS, g.resolution))
+    turns = team.turns.copy() if isinstance(team, Car) else np.zeros(0, dtype=np.int64)
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
         goals: list[tuple[float, float] | None] = []
@@ -930,7 +988,15 @@ def run_patrol(
 
         for i in range(len(team)):
             held = aims[i]
-            if hold_fast and held is not None and own[0 if shared else i].last[held] < aimed_at[i]:
+            mine_fog = own[0 if shared else i]
+            if (
+                hold_fast
+                and held is not None
+                and (
+                    mine_fog.last[held] < aimed_at[i]
+                    or (along_path and mine_fog.t - aimed_at[i] < config.min_hold - 1e-9)
+                )
+            ):
                 start = (int(r[i]), int(c[i]))
                 closed = closed_cells(i, r, c, k)
                 towards = _held_goal(
@@ -941,7 +1007,7 @@ def run_patrol(
                     waver,
                     g,
                     passable,
-                    watched,
+                    targets,
                     closed,
                     config,
                     _car_carrot if tracking else _path_goal,
@@ -978,12 +1044,12 @@ def run_patrol(
                         passable,
                         start,
                         g.resolution,
-                        watched,
+                        targets,
                         config.force,
                         top,
                         closed=closed,
                         prune=config.prune,
-                        n_watched=n_watched,
+                        n_watched=n_watched if targets is watched else None,
                         certify=config.direction == "mode" and (direct or certify_goal),
                         weights=weights,
                         goal=certify_goal,
@@ -1015,10 +1081,10 @@ def run_patrol(
                         )
                         continue
                 else:
-                    waver(passable, start, g.resolution, watched, None, closed)
+                    waver(passable, start, g.resolution, targets, None, closed)
                 rr, cc = waver.reached()
                 step = waver.first[rr, cc]
-                keep = watched[rr, cc] & (step >= 0)
+                keep = targets[rr, cc] & (step >= 0)
                 rr, cc, step = rr[keep], cc[keep], step[keep]
                 lengths = waver.dist[rr, cc]
                 tbv = tb_of(i, rr, cc, dilated)
@@ -1138,6 +1204,18 @@ def run_patrol(
                 k + yield_steps,
                 config.min_separation + 2 * config.speed * config.dt,
             )
+        if giving_up:
+            assert isinstance(team, Car)
+            for i in np.flatnonzero(team.turns > turns).tolist():
+                held = aims[i]
+                if held is not None and quitter.tried(held, own[0 if shared else i]):
+                    aims[i] = None
+            turns = team.turns.copy()
+            targets = quitter.targets(fog)
+            # Every robot going for a place given up chooses again.
+            for j, a in enumerate(aims):
+                if a is not None and not targets[a]:
+                    aims[j] = None
         blocked += team.blocked
         escapes += team.escaping
         dvt[k] = 100.0 * escapes.mean() / (k + 1)
@@ -1175,4 +1253,5 @@ def run_patrol(
         starts=np.array(starts, dtype=np.float64),
         never_seen=never,
         monitor=monitor,
+        given_up=float(quitter.given[watched].mean()),
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
@@ -56,8 +57,22 @@ def move_clear(
     the point on the corner would be read as one of them, arbitrarily).
     """
     n = max(1, math.ceil(math.hypot(x1 - x0, y1 - y0) / (grid.resolution * step)))
-    t = np.concatenate([[0.0], (np.arange(n) + 0.5) / n, [1.0]])
-    return _points_clear(x0, y0, x1, y1, t, clear, grid)
+    ox, oy = grid.origin
+    # Called for every robot's every step, and a few times more along a path: a kernel
+    # rather than a dozen small numpy arrays.
+    return bool(
+        _move_clear(
+            float(x0),
+            float(y0),
+            float(x1),
+            float(y1),
+            n,
+            clear,
+            float(ox),
+            float(oy),
+            float(grid.resolution),
+        )
+    )
 
 
 def _points_clear(
@@ -73,6 +88,43 @@ def _points_clear(
     cells."""
     r, c = grid.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
     return bool(grid.contains(r, c).all() and clear[r, c].all())
+
+
+@nb.njit(cache=True)
+def _cell_clear(
+    x: float, y: float, clear: npt.NDArray[np.bool_], ox: float, oy: float, res: float
+) -> bool:
+    """The point (x, y) lies on a ``clear`` cell of the grid (the arithmetic of
+    :meth:`~sonarmap.grid.Grid.world_to_cell`)."""
+    rows, cols = clear.shape
+    c = math.floor((x - ox) / res)
+    r = rows - 1 - math.floor((y - oy) / res)
+    return bool(0 <= r < rows and 0 <= c < cols and clear[r, c])
+
+
+@nb.njit(cache=True)
+def _move_clear(
+    x0: float,
+    y0: float,
+    x1: float,
+    y1: float,
+    n: int,
+    clear: npt.NDArray[np.bool_],
+    ox: float,
+    oy: float,
+    res: float,
+) -> bool:
+    """:func:`move_clear` with the segment cut into ``n`` pieces: both ends and the
+    pieces' midpoints."""
+    dx = x1 - x0
+    dy = y1 - y0
+    if not (_cell_clear(x0, y0, clear, ox, oy, res) and _cell_clear(x1, y1, clear, ox, oy, res)):
+        return False
+    for k in range(n):
+        t = (k + 0.5) / n
+        if not _cell_clear(x0 + t * dx, y0 + t * dy, clear, ox, oy, res):
+            return False
+    return True
 
 
 @dataclass(frozen=True, eq=False)
