@@ -132,7 +132,10 @@ def test_sweep_file_errors(tmp_path: Path) -> None:
             r"methods.inverse: unknown parameter 'bogus'; valid: p_occ",
         ),
         ("scenarios: {doorways: {}}\nmethods: {magic: {}}\n", r"unknown method 'magic'"),
-        ("scenarios: {hall: {}}\nmethods: {inverse: {}}\n", r"scenarios.hall: unknown scenario"),
+        (
+            "scenarios: {atrium: {}}\nmethods: {inverse: {}}\n",
+            r"scenarios.atrium: unknown scenario",
+        ),
         (
             "scenarios: {doorways: {}}\nmethods: {inverse: {p_occ: [2.0]}}\n",
             r"parameter 'p_occ' must be in \(0.5, 1.0\)",

@@ -128,9 +128,11 @@ def test_no_echo_readings_only_clear(small: Scenario) -> None:
     # EM from the neutral start once left these cells at even odds: the E-step counted a
     # pass as 1 - P(random), which rounds to 0 when chance explains a long beam almost
     # surely, so the M-step never heard that the beam crossed them.
+    # The gradient method ignores no-echo readings by default (issue 39): asked to use
+    # them, they only clear; by default the map has no evidence at all.
     for method, params in [
-        ("gradient", {}),
-        ("gradient", {"init": "inverse"}),
+        ("gradient", {"no_echo": "free"}),
+        ("gradient", {"no_echo": "free", "init": "inverse"}),
         ("stochastic", {}),
         ("em", {}),
         ("em", {"init": "inverse"}),
@@ -138,6 +140,8 @@ def test_no_echo_readings_only_clear(small: Scenario) -> None:
     ]:
         occ = make_mapper(method, **params).fit(far, small.truth.grid, small.rig).occupancy_
         assert np.nanmax(occ) < 0.5, method  # no obstacle from readings that saw none
+    occ = make_mapper("gradient").fit(far, small.truth.grid, small.rig).occupancy_
+    assert not np.any(occ > 0.5)
 
 
 def test_gradient_starts_from_the_inverse_map_when_asked(small: Scenario) -> None:

@@ -38,7 +38,7 @@ from .errors import ConfigError
 from .files import atomic_folder, atomic_write, atomic_write_text, json_dumps
 from .io.rosmap import OccupancyMap, write_map
 from .mappers import make_mapper, preset_params
-from .metrics import measure_passage, score
+from .metrics import measure_passage, observed_walls, score
 from .plot import save_side_by_side
 from .report import Report
 from .scenarios import PAPER_NOISE, Scenario, load_scene, make_scenario, model_to_dict
@@ -156,7 +156,8 @@ def _build(spec: MethodSpec, scene: Scenario) -> tuple[OccupancyMap, float]:
 def _score_row(
     spec: MethodSpec, scene: Scenario, m: OccupancyMap, seconds: float, **extra: Any
 ) -> dict[str, Any]:
-    s = score(scene.truth, m, scene.passages, scene.obstacles).as_dict()
+    observed = observed_walls(scene.truth, scene.rig, scene.readings)
+    s = score(scene.truth, m, scene.passages, scene.obstacles, observed).as_dict()
     return {"method": spec.label, **extra, "seconds": seconds, **s}
 
 

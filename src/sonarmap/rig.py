@@ -28,7 +28,7 @@ from .errors import ConfigError, InputError
 from .files import read_yaml
 from .sensors import SensorModel, get_sensor, sensor_from_dict
 
-__all__ = ["RIG_PRESETS", "Mount", "Rig", "get_rig", "load_rig", "save_rig"]
+__all__ = ["RIG_PRESETS", "SIX_BEARINGS", "Mount", "Rig", "get_rig", "load_rig", "save_rig"]
 
 
 @dataclass(frozen=True)
@@ -226,16 +226,48 @@ def _ring16() -> Rig:
     return Rig(sensor=get_sensor("polaroid-6500"), mounts=tuple(mounts))
 
 
+#: Names and bearings (degrees) of the six-sonar rigs: front, +-45 degrees, sides, back.
+SIX_BEARINGS = (
+    ("front", 0.0),
+    ("front_left", 45.0),
+    ("front_right", -45.0),
+    ("left", 90.0),
+    ("right", -90.0),
+    ("back", 180.0),
+)
+
+
+def _six(sensor: str) -> Rig:
+    # A hobby robot's six sonars 0.15 m from its centre, each looking out from it.
+    mounts = []
+    for name, yaw in SIX_BEARINGS:
+        a = math.radians(yaw)
+        mounts.append(Mount(name, 0.15 * math.cos(a), 0.15 * math.sin(a), yaw))
+    return Rig(sensor=get_sensor(sensor), mounts=tuple(mounts))
+
+
+def _ez1_six() -> Rig:
+    return _six("maxsonar-ez1")
+
+
+def _hcsr04_six() -> Rig:
+    return _six("hc-sr04")
+
+
 RIG_PRESETS: Mapping[str, Callable[[], Rig]] = {
     "paper-synthetic": _paper_synthetic,
     "paper-real": _paper_real,
     "pioneer-front": _pioneer_front,
     "ring16": _ring16,
+    "ez1-six": _ez1_six,
+    "hcsr04-six": _hcsr04_six,
 }
 
 
 def get_rig(name: str) -> Rig:
-    """A preset rig by name: ``paper-synthetic``, ``paper-real``, ``pioneer-front``, ``ring16``."""
+    """A preset rig by name: ``paper-synthetic``, ``paper-real``, ``pioneer-front``,
+    ``ring16`` (16 Polaroid sonars), ``ez1-six`` (six MaxSonar EZ1s at :data:`SIX_BEARINGS`)
+    or ``hcsr04-six`` (six HC-SR04s there)."""
     try:
         return RIG_PRESETS[name]()
     except KeyError:

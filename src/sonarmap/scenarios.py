@@ -21,6 +21,9 @@ Training families (:mod:`sonarmap.splits`), the research's scenes:
   with a roughly known sonar mounting (thesis 000 fig. 4.1, right).
 - ``boxes``: a corridor between two rows of boxes, in two layouts (thesis 002 section
   4.4.2, the stochastic method's experiment).
+- ``hall``: an L-shaped hall with a pillar and a side room, drawn from the seed, walked
+  once round by a preset rig (six MaxSonar EZ1s by default): the scene that spans the
+  sensor presets in training.
 
 Held-out families, drawn from their seed so that no two are alike:
 
@@ -50,7 +53,7 @@ from .errors import ConfigError
 from .floorplan import FloorPlan
 from .io.rosmap import OccupancyMap, write_map
 from .readings import Readings, Trajectory, write_readings, write_trajectory
-from .rig import Mount, Rig, get_rig, save_rig
+from .rig import RIG_PRESETS, Mount, Rig, get_rig, save_rig
 from .sensors import Noise
 from .simulate import SonarModel, simulate
 
@@ -172,6 +175,16 @@ def _readings(
     return readings, world, model
 
 
+def _preset_rig(name: str) -> Rig:
+    """The preset rig a scenario's ``rig`` parameter names (a ConfigError naming it if none)."""
+    if not isinstance(name, str) or name not in RIG_PRESETS:
+        raise ConfigError(
+            f"scenario parameter 'rig' must be a rig preset ({', '.join(RIG_PRESETS)}), "
+            f"got {name!r}"
+        )
+    return get_rig(name)
+
+
 def _post(plan: FloorPlan, name: str, cx: float, cy: float, size: float) -> SmallObstacle:
     plan.box(cx - size / 2, cy - size / 2, cx + size / 2, cy + size / 2)
     return SmallObstacle(name, (cx, cy), size)
@@ -235,6 +248,7 @@ def doorways(
     door_widths: Sequence[float] = (1.0, 0.8, 0.9, 0.7),
     speed: float = 0.25,
     rate: float = 10.0,
+    rig: str = "paper-synthetic",
     model: SonarModel | None = None,
     seed: int = 0,
     progress: Progress | None = None,
@@ -245,10 +259,11 @@ def doorways(
     ``wall`` m thick around it and along a corridor of ``corridor_width`` m (2 m) centred
     on x = size / 2; doorways of ``door_widths`` m (1.0, 0.8, 0.9, 0.7) alternate between
     the left and right corridor walls, evenly spaced along the corridor. The robot drives up
-    the corridor centre from y = 0.5 to size - 0.5 at ``speed`` m/s (0.25), all six
-    ``paper-synthetic`` sonars firing at ``rate`` Hz (10). The research's readings were
-    exact: ``model=PAPER_NOISE["doorways"]``.
+    the corridor centre from y = 0.5 to size - 0.5 at ``speed`` m/s (0.25), every sonar
+    of the preset ``rig`` (``paper-synthetic``: six MaxSonar EZ1s) firing at ``rate`` Hz
+    (10). The research's readings were exact: ``model=PAPER_NOISE["doorways"]``.
     """
+    scene_rig = _preset_rig(rig)
     _check_positive(
         size=size,
         resolution=resolution,
@@ -286,9 +301,8 @@ def doorways(
             )
         )
     truth = plan.render(plan.grid(resolution))
-    rig = get_rig("paper-synthetic")
     traj = _straight(cx, 0.5, size - 0.5, speed, rate)
-    readings, world, used = _readings(plan, truth, rig, traj, model, seed, progress)
+    readings, world, used = _readings(plan, truth, scene_rig, traj, model, seed, progress)
     params = _record(
         used,
         seed,
@@ -299,8 +313,11 @@ def doorways(
         door_widths=door_widths,
         speed=speed,
         rate=rate,
+        rig=rig,
     )
-    return Scenario("doorways", truth, rig, traj, readings, tuple(passages), params, geometry=world)
+    return Scenario(
+        "doorways", truth, scene_rig, traj, readings, tuple(passages), params, geometry=world
+    )
 
 
 def passages(
@@ -544,6 +561,7 @@ def corridor(
     *,
     resolution: float = 0.05,
     rate: float = 10.0,
+    rig: str = "paper-synthetic",
     model: SonarModel | None = None,
     seed: int = 1000,
     progress: Progress | None = None,
@@ -554,9 +572,10 @@ def corridor(
     three doors 0.5 to 1.2 m wide at random places in each wall, rooms 1.5 to 2.5 m
     deep behind them, split by walls between the doors half of the time, with one or
     two pieces of furniture (boxes of 0.3 to 0.8 m) in each room away from the doors.
-    The ``paper-synthetic`` rig drives up the corridor at 0.2 to 0.35 m/s, weaving up to
-    15 cm either side, firing at ``rate`` Hz.
+    The preset ``rig`` (``paper-synthetic``) drives up the corridor at 0.2 to 0.35 m/s,
+    weaving up to 15 cm either side, firing at ``rate`` Hz.
     """
+    scene_rig = _preset_rig(rig)
     _check_positive(resolution=resolution, rate=rate)
     rng = np.random.default_rng([seed, 0xC0DE])
     width = float(rng.uniform(1.6, 2.4))
@@ -608,12 +627,11 @@ def corridor(
             else:
                 plan.box(hi - 0.05 - size_x, yc - size_y / 2, hi - 0.05, yc + size_y / 2)
     truth = plan.render(plan.grid(resolution))
-    rig = get_rig("paper-synthetic")
     speed = float(rng.uniform(0.2, 0.35))
     traj = _weaving(
         (x_l + x_r) / 2, 0.5, length - 0.5, speed, rate, float(rng.uniform(0.0, 0.15)), 3.0
     )
-    readings, world, used = _readings(plan, truth, rig, traj, model, seed, progress)
+    readings, world, used = _readings(plan, truth, scene_rig, traj, model, seed, progress)
     params = _record(
         used,
         seed,
@@ -624,8 +642,11 @@ def corridor(
         door_widths=[round(p.width, 4) for p in found],
         speed=round(speed, 4),
         rate=rate,
+        rig=rig,
     )
-    return Scenario("corridor", truth, rig, traj, readings, tuple(found), params, geometry=world)
+    return Scenario(
+        "corridor", truth, scene_rig, traj, readings, tuple(found), params, geometry=world
+    )
 
 
 def _waypoint_path(
@@ -658,6 +679,7 @@ def office(
     duration: float = 600.0,
     speed: float = 0.5,
     rate: float = 20.0,
+    rig: str = "ring16",
     model: SonarModel | None = None,
     seed: int = 1000,
     progress: Progress | None = None,
@@ -667,10 +689,12 @@ def office(
     Defaults: a ``size`` m square floor (20 m) at ``resolution`` m (5 cm); a corridor 2 m
     wide across the middle; ``rooms`` rooms (4) on each side, each with a door of
     ``door_widths`` m onto the corridor (top row left to right, then the bottom row) and
-    a cabinet and a post inside. The ``ring16`` rig (Polaroid sonars) fires every sonar
-    at ``rate`` Hz (20) while the robot drives the corridor and a loop through every room
-    at ``speed`` m/s (0.5) for ``duration`` s (600): 192,000 readings by default.
+    a cabinet and a post inside. The preset ``rig`` (``ring16``: 16 Polaroid sonars)
+    fires every sonar at ``rate`` Hz (20) while the robot drives the corridor and a loop
+    through every room at ``speed`` m/s (0.5) for ``duration`` s (600): 192,000 readings
+    by default.
     """
+    scene_rig = _preset_rig(rig)
     _check_positive(
         size=size, resolution=resolution, duration=duration, speed=speed, rate=rate, rooms=rooms
     )
@@ -730,9 +754,8 @@ def office(
             ]
         points.append((size - 0.8, mid) if side_sign > 0 else (0.8, mid))
     traj = _waypoint_path(points, speed, rate, duration)
-    rig = get_rig("ring16")
     readings, world, used = _readings(
-        plan, truth, rig, traj, model, seed, progress, chunk_size=2_000
+        plan, truth, scene_rig, traj, model, seed, progress, chunk_size=2_000
     )
     params = _record(
         used,
@@ -744,9 +767,18 @@ def office(
         duration=duration,
         speed=speed,
         rate=rate,
+        rig=rig,
     )
     return Scenario(
-        "office", truth, rig, traj, readings, tuple(found), params, tuple(small), geometry=world
+        "office",
+        truth,
+        scene_rig,
+        traj,
+        readings,
+        tuple(found),
+        params,
+        tuple(small),
+        geometry=world,
     )
 
 
@@ -845,6 +877,82 @@ def boxes(
     return Scenario("boxes", truth, rig, traj, readings, tuple(found), params, geometry=world)
 
 
+def hall(
+    *,
+    rig: str = "ez1-six",
+    resolution: float = 0.05,
+    speed: float = 0.3,
+    rate: float = 10.0,
+    model: SonarModel | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> Scenario:
+    """A training scene: an L-shaped hall with a pillar, walked by a preset rig.
+
+    Drawn from the seed: a hall 6.5 to 7.5 m by 4.6 to 5.4 m whose far corner is solid
+    (2.6 to 3.4 m by 2.0 to 2.6 m), which leaves an L; a square pillar of 0.25 to 0.4 m
+    in its wide arm; and along its upper wall a side room 1.6 m deep behind a door of
+    0.7 to 1.1 m (the scene's passage). The preset ``rig`` (``ez1-six``: six MaxSonar
+    EZ1s, front, +-45 degrees, sides and back) walks once round the L, 1 m off the walls,
+    at ``speed`` m/s (0.3), every sonar firing at ``rate`` Hz (10).
+    """
+    scene_rig = _preset_rig(rig)
+    _check_positive(resolution=resolution, speed=speed, rate=rate)
+    rng = np.random.default_rng([seed, 0x4A11])
+    length = float(rng.uniform(6.5, 7.5))
+    width = float(rng.uniform(4.6, 5.4))
+    cut_x = float(rng.uniform(2.6, 3.4))
+    cut_y = float(rng.uniform(2.0, 2.6))
+    pillar = float(rng.uniform(0.25, 0.4))
+    door = float(rng.uniform(0.7, 1.1))
+    wall = 0.1
+    side_room = 1.6
+    top = wall + width  # the hall's upper wall starts here
+    plan = FloorPlan((0.0, 0.0, length + 2 * wall, top + wall + side_room + wall))
+    plan.border(wall)
+    x_cut = wall + length - cut_x
+    plan.box(x_cut, top - cut_y, wall + length, top)
+    plan.box(0.0, top, wall + length + wall, top + wall)
+    # The door opens from the wide arm into the side room, clear of the hall's corners.
+    x_door = float(rng.uniform(wall + 0.6, x_cut - 0.6 - door))
+    plan.clear(x_door, top, x_door + door, top + wall)
+    passage = Passage("door", (x_door, top + wall / 2), (x_door + door, top + wall / 2), wall)
+    inner_x0, inner_y0 = wall + 1.0, wall + 1.0
+    inner_x1, inner_y1 = wall + length - 1.0, top - 1.0
+    x_mid, y_mid = x_cut - 1.0, top - cut_y - 1.0
+    # The pillar stands in the wide arm, halfway between the loop's legs.
+    px = (inner_x0 + x_mid) / 2
+    py = (y_mid + inner_y1) / 2
+    small = (_post(plan, "pillar", px, py, round(pillar, 3)),)
+    truth = plan.render(plan.grid(resolution))
+    loop = [
+        (inner_x0, inner_y0),
+        (inner_x1, inner_y0),
+        (inner_x1, y_mid),
+        (x_mid, y_mid),
+        (x_mid, inner_y1),
+        (inner_x0, inner_y1),
+    ]
+    perimeter = sum(math.dist(a, b) for a, b in itertools.pairwise([*loop, loop[0]]))
+    traj = _waypoint_path(loop, speed, rate, perimeter / speed)
+    readings, world, used = _readings(plan, truth, scene_rig, traj, model, seed, progress)
+    params = _record(
+        used,
+        seed,
+        rig=rig,
+        resolution=resolution,
+        length=round(length, 4),
+        width=round(width, 4),
+        cut=[round(cut_x, 4), round(cut_y, 4)],
+        door_width=round(door, 4),
+        speed=speed,
+        rate=rate,
+    )
+    return Scenario(
+        "hall", truth, scene_rig, traj, readings, (passage,), params, small, geometry=world
+    )
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "doorways": doorways,
     "passages": passages,
@@ -853,6 +961,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "corridor": corridor,
     "office": office,
     "boxes": boxes,
+    "hall": hall,
 }
 
 

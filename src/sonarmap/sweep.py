@@ -8,6 +8,7 @@ method the values to try::
       passages: {widths: [0.3, 0.5, 0.7]}
       passages-noisy: {scenario: passages, model: {kind: acoustic, p_rand: 0.05}}
       passages-paper: {scenario: passages, model: {kind: thrun, sigma: 0.01}}
+      hall-ring16: {scenario: hall, rig: ring16}
     seeds: [0, 1]
     search: grid            # or: random, with samples: N (per method)
     metrics: [quality, f1_all, passage_f1]
@@ -18,13 +19,16 @@ method the values to try::
 
 A scenario entry is a label; its ``scenario`` key names the kind when the label is not a
 scenario name itself; ``model`` is the sonar model of its readings (default the acoustic
-one; see :func:`sonarmap.scenarios.model_from_dict`). Sweeps tune, so they run on
-training scenes only: held-out families and seeds are refused (:mod:`sonarmap.splits`).
+one; see :func:`sonarmap.scenarios.model_from_dict`); the other keys are the
+scenario's parameters, ``rig`` among them (a rig preset) where the scenario takes one.
+Sweeps tune, so they run on training scenes only: held-out families and seeds are
+refused (:mod:`sonarmap.splits`).
 Every (scenario, seed, method, parameters) is one task; tasks run on a Dask cluster (a
 LocalCluster by default, or an existing scheduler). Results: one row per task with every
 metric of :class:`~sonarmap.metrics.MapScore`; the summary ranks each method's parameter
-sets by each metric's mean over scenarios and seeds. Rank by ``quality`` (wall F1 and
-passage F1 together), which erasing walls cannot win.
+sets by each metric's mean over scenarios and seeds. Rank by ``quality`` (wall F1,
+passage F1 and observed-wall recall together; :func:`sonarmap.metrics.quality`), which
+neither erasing walls nor trading them for open doors can win.
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ import pandas as pd
 from .errors import ConfigError, InputError
 from .files import read_yaml
 from .mappers import MAPPERS, make_mapper
-from .metrics import MapScore, score
+from .metrics import MapScore, observed_walls, score
 from .parallel import Progress, run_on_dask
 from .scenarios import SCENARIOS, Scenario, make_scenario, model_from_dict
 from .splits import check_training
@@ -234,11 +238,14 @@ def _parse(data: Any) -> SweepConfig:
     )
 
 
-#: Scenes built by this process, by their description: a worker maps each many times.
-_SCENES: dict[str, Scenario] = {}
+#: Scenes built by this process with their observed walls, by their description: a
+#: worker maps each many times.
+_SCENES: dict[str, tuple[Scenario, np.ndarray[Any, np.dtype[np.bool_]]]] = {}
 
 
-def _scene(kind: str, sparams: Mapping[str, Any], seed: int) -> Scenario:
+def _scene(
+    kind: str, sparams: Mapping[str, Any], seed: int
+) -> tuple[Scenario, np.ndarray[Any, np.dtype[np.bool_]]]:
     key = json.dumps([kind, sparams, seed], sort_keys=True, default=str)
     if key not in _SCENES:
         if len(_SCENES) >= 16:
@@ -246,7 +253,8 @@ def _scene(kind: str, sparams: Mapping[str, Any], seed: int) -> Scenario:
         params = dict(sparams)
         if "model" in params:
             params["model"] = model_from_dict(dict(params["model"]))
-        _SCENES[key] = make_scenario(kind, seed=seed, **params)
+        scene = make_scenario(kind, seed=seed, **params)
+        _SCENES[key] = (scene, observed_walls(scene.truth, scene.rig, scene.readings))
     return _SCENES[key]
 
 
@@ -254,13 +262,13 @@ def run_task(task: Task) -> dict[str, Any]:
     """Build (or reuse) one scenario, map it and score the map (runs on a Dask worker)."""
     sparams = dict(task.scenario_params)
     kind = sparams.pop("scenario")
-    scene = _scene(kind, sparams, task.seed)
+    scene, observed = _scene(kind, sparams, task.seed)
     params = dict(task.params)
     t0 = time.perf_counter()
     mapper = make_mapper(task.method, **params)
     m = mapper.fit(scene.readings, scene.truth.grid, scene.rig).result()
     seconds = time.perf_counter() - t0
-    s = score(scene.truth, m, scene.passages, scene.obstacles)
+    s = score(scene.truth, m, scene.passages, scene.obstacles, observed)
     return {
         "scenario": task.scenario,
         "seed": task.seed,

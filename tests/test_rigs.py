@@ -1,0 +1,200 @@
+"""Issue 39: rigs in scenarios and sweeps, the observed walls, the objective, and
+defaults that keep the walls a MaxSonar rig hears."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+import yaml
+
+from sonarmap.errors import ConfigError, InputError
+from sonarmap.grid import Grid
+from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.mappers import make_mapper
+from sonarmap.metrics import observed_walls, quality, score
+from sonarmap.readings import Readings
+from sonarmap.rig import SIX_BEARINGS, Mount, Rig, get_rig
+from sonarmap.scenarios import Scenario, make_scenario
+from sonarmap.sensors import Region, SensorModel
+from sonarmap.splits import TRAINING_FAMILIES
+from sonarmap.sweep import load_sweep, run_task
+
+
+@pytest.mark.parametrize(
+    ("name", "sensor"), [("ez1-six", "maxsonar-ez1"), ("hcsr04-six", "hc-sr04")]
+)
+def test_six_sonar_rigs(name: str, sensor: str) -> None:
+    rig = get_rig(name)
+    assert rig.sensor.name == sensor
+    assert [m.yaw_deg for m in rig.mounts] == [yaw for _, yaw in SIX_BEARINGS]
+    # Each sonar sits 0.15 m out from the centre along its own bearing.
+    for m in rig.mounts:
+        assert math.hypot(m.x, m.y) == pytest.approx(0.15)
+        assert math.degrees(math.atan2(m.y, m.x)) % 360 == pytest.approx(m.yaw_deg % 360)
+
+
+def test_scenarios_take_a_rig_preset() -> None:
+    scene = make_scenario("doorways", rig="ring16", size=4.0, door_widths=(0.8,), rate=2.0)
+    assert scene.rig.sensor.name == "polaroid-6500"
+    assert len(scene.rig.mounts) == 16
+    assert set(np.unique(scene.readings.sensor)) == set(range(16))
+    assert scene.params["rig"] == "ring16"
+    # The research's rig stays the default.
+    assert make_scenario("doorways", size=4.0, door_widths=(0.8,), rate=2.0).rig.names == (
+        get_rig("paper-synthetic").names
+    )
+
+
+def test_a_bad_rig_names_the_parameter() -> None:
+    with pytest.raises(ConfigError, match="scenario parameter 'rig' must be a rig preset"):
+        make_scenario("hall", rig="ring17")
+
+
+def test_hall_is_a_training_scene_drawn_from_its_seed() -> None:
+    assert "hall" in TRAINING_FAMILIES
+    a = make_scenario("hall", rig="hcsr04-six", rate=2.0, seed=3)
+    b = make_scenario("hall", rig="hcsr04-six", rate=2.0, seed=4)
+    assert a.rig.sensor.name == "hc-sr04"
+    assert a.params["length"] != b.params["length"]
+    assert [p.name for p in a.passages] == ["door"]
+    assert [o.name for o in a.obstacles] == ["pillar"]
+    # The robot walks inside the hall: every pose on a free cell of the truth.
+    rows, cols = a.truth.grid.world_to_cell(a.trajectory.x, a.trajectory.y)
+    assert np.all(a.truth.occupancy[rows, cols] < 0.5)
+
+
+def test_a_sweep_scenario_takes_a_rig(tmp_path: object) -> None:
+    from pathlib import Path
+
+    path = Path(str(tmp_path)) / "sweep.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "scenarios": {"hall-ring": {"scenario": "hall", "rig": "ring16", "rate": 1.0}},
+                "methods": {"counting": {}},
+            }
+        )
+    )
+    config = load_sweep(path)
+    (task,) = config.tasks()
+    row = run_task(task)
+    assert row["scenario"] == "hall-ring"
+    assert 0.0 <= row["observed_wall_recall"] <= 1.0
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "scenarios": {"o": {"scenario": "office", "rig": "ez1-six"}},
+                "methods": {"inverse": {}},
+            }
+        )
+    )
+    with pytest.raises(InputError, match="held out"):
+        load_sweep(path)
+
+
+def _wall_case() -> tuple[OccupancyMap, Rig, Readings]:
+    """A wall two cells thick at x in [2, 2.2) m; one narrow sonar at x = 0.5 looking at it."""
+    g = Grid(0.1, (0.0, 0.0), (10, 30))
+    data = np.zeros(g.shape, dtype=np.float32)
+    data[:, 20:22] = 1.0
+    sensor = SensorModel(
+        "narrow", Region.cone(10.0, 5.0), r_min=0.0, r_max=5.0, range_resolution=0.01
+    )
+    rig = Rig(sensor, (Mount("s", 0.0, 0.0, 0.0),))
+    n = 3
+    readings = Readings(
+        t=np.arange(n, dtype=np.float64),
+        sensor=np.zeros(n, dtype=np.int32),
+        x=np.full(n, 0.5),
+        y=np.full(n, 0.5),
+        theta=np.zeros(n),
+        # Two echoes from the wall's face 1.5 m ahead, one reading without an echo.
+        range=np.array([1.5, 1.5, 5.0]),
+        names=("s",),
+    )
+    return OccupancyMap(g, data), rig, readings
+
+
+def test_observed_walls_are_the_faces_the_echoes_sit_on() -> None:
+    truth, rig, readings = _wall_case()
+    seen = observed_walls(truth, rig, readings)
+    cols = np.flatnonzero(seen.any(axis=0))
+    # The near face of the wall only: not its far side, nor free cells.
+    assert cols.tolist() == [20]
+    assert seen[:, 20].sum() >= 1
+    assert not np.any(seen & (truth.occupancy < 0.5))
+    # Without echoes nothing is observed.
+    none = observed_walls(truth, rig, readings.take(np.array([2])))
+    assert not none.any()
+
+
+def test_observed_wall_recall_and_quality() -> None:
+    truth, rig, readings = _wall_case()
+    seen = observed_walls(truth, rig, readings)
+    cleared = OccupancyMap(truth.grid, np.where(seen, 0.0, truth.occupancy).astype(np.float32))
+    s_clear = score(truth, cleared, observed=seen)
+    s_true = score(truth, truth, observed=seen)
+    assert s_true.observed_wall_recall == 1.0
+    assert s_clear.observed_wall_recall == 0.0
+    # Without passages the quality is the geometric mean of wall F1 and the recall: a
+    # map that cleared every wall the sonar heard scores 0 whatever its wall F1.
+    assert s_clear.f1_all > 0.3
+    assert s_clear.quality == 0.0
+    assert s_true.quality == pytest.approx(1.0)
+    # Not given the observed walls, the recall is left out.
+    assert math.isnan(score(truth, cleared).observed_wall_recall)
+    assert score(truth, cleared).quality == pytest.approx(s_clear.f1_all)
+    assert quality(0.2, 0.625, 0.512) == pytest.approx(0.4)
+    # No part can be traded for another: closing every door costs it all.
+    assert quality(0.9, 0.0, 1.0) == 0.0
+    assert quality(float("nan"), 0.6, 0.9) == 0.0
+    with pytest.raises(InputError, match="observed walls"):
+        score(truth, truth, observed=seen[:, :5])
+
+
+#: Each method's defaults before issue 39, where they differ from today's.
+OLD_DEFAULTS: dict[str, dict[str, Any]] = {
+    "inverse": {"p_free": 0.48, "falloff_deg": 10.0, "dr": None},
+    "gradient": {"a2": 0.03, "no_echo": "free"},
+}
+
+
+@pytest.fixture(scope="module")
+def maxsonar_hall() -> tuple[Scenario, npt.NDArray[np.bool_]]:
+    # A hall the tuning never saw (seed 11; the sweep used seed 0), six MaxSonar EZ1s
+    # at 2 Hz to keep the test short.
+    scene = make_scenario("hall", rig="ez1-six", seed=11, rate=2.0)
+    return scene, observed_walls(scene.truth, scene.rig, scene.readings)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("method", "least"), [("inverse", 0.55), ("gradient", 0.4)])
+def test_default_maps_keep_the_walls_a_maxsonar_rig_hears(
+    maxsonar_hall: tuple[Scenario, npt.NDArray[np.bool_]], method: str, least: float
+) -> None:
+    # Measured: inverse 0.60 (0.46 at the old defaults), gradient 0.46 (0.11: its
+    # no-echo beams cleared the walls they crossed). Issue 39 asks for 0.7; neither
+    # default reaches it (docs/results/2026-12-06-rig-defaults.md).
+    scene, observed = maxsonar_hall
+
+    def recall(**params: Any) -> float:
+        m = make_mapper(method, **params).fit(scene.readings, scene.truth.grid, scene.rig)
+        s = score(scene.truth, m.result(), scene.passages, scene.obstacles, observed)
+        return s.observed_wall_recall
+
+    assert recall() >= least
+    assert recall(**OLD_DEFAULTS[method]) < least
+
+
+def test_the_rigs_sweep_spans_the_sensor_presets() -> None:
+    from pathlib import Path
+
+    config = load_sweep(Path(__file__).parents[1] / "sweeps" / "rigs.yaml")
+    rigs = {p.get("rig", "paper-synthetic") for p in config.scenarios.values()}
+    sensors = {get_rig(r).sensor.name for r in rigs}
+    assert sensors == {"maxsonar-ez1", "hc-sr04", "polaroid-6500"}
+    assert config.metrics[0] == "quality"
