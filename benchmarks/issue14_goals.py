@@ -141,6 +141,22 @@ def passages_report(folders: Sequence[Path]) -> str:
     out += ["Gaps detected per width:", "", _table(("method", *bins), counts), ""]
     out += ["Why gaps were missed (closed / jamb missing / width off):", ""]
     out.append(_table(("method", *bins), _misses(folders, labels, seeds, bins)))
+    off = []
+    for label in labels:
+        cells = []
+        for b in bins:
+            d = [
+                r["width"] - r["true_width"]
+                for r in per
+                if r["method"] == label
+                and r["open"]
+                and not r["detected"]
+                and _bin(r["true_width"]) == b
+            ]
+            cells.append(f"{np.median(d):+.2f} ({len(d)})" if d else "-")
+        off.append([label, *cells])
+    out += ["", "Width-off misses: median recovered minus true width [m] (count):", ""]
+    out.append(_table(("method", *bins), off))
     return "\n".join(out)
 
 
