@@ -347,6 +347,28 @@ class ReadingPool:
     def alive_slots(self) -> I64:
         return np.flatnonzero(self.alive).astype(np.int64)
 
+    def span_terms(
+        self,
+    ) -> tuple[I64, I64, I64, I64, I64, I64, F64, F64, npt.NDArray[np.bool_], I32, I32, F32]:
+        """The arrays a span kernel reads a slot's terms from, in the order the
+        gradient's stream kernels take them: ``fs_start``, ``fs_len``, ``os_start``,
+        ``os_len``, ``f_len``, ``o_len``, ``f_sum``, ``o_sum``, ``echo``, ``sp_cell``,
+        ``sp_len``, ``sp_w`` (views, not copies; valid until the pool next grows)."""
+        return (
+            self.fs_start,
+            self.fs_len,
+            self.os_start,
+            self.os_len,
+            self.f_len,
+            self.o_len,
+            self.f_sum,
+            self.o_sum,
+            self.echo,
+            self.sp_cell,
+            self.sp_len,
+            self.sp_w,
+        )
+
 
 @nb.njit(cache=True)
 def _insert(
