@@ -121,62 +121,13 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-@pytest.mark.slow
-def test_a_live_node_rejects_the_poison_answer_and_goes_on(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
-) -> None:
-    """Robot 0 runs as a node on 127.0.0.1; the test plays robot 1 and sends it the
-    poison answer in tick 0, then tick 0's marker. The node rejects the answer, counts
-    it, and goes on to wait for tick 1's marker, which never comes: it ends with one
-    line naming robot 1 (it ended with the decoder's ValueError before)."""
-    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
-    cfg = MissionConfig(duration=5.0, seed=1)
-    ports = _free_port(), _free_port()
-    addresses = [f"tcp://127.0.0.1:{p}" for p in ports]
-    out: dict[str, BaseException] = {}
-
-    def node() -> None:
-        try:
-            run_node(
-                plan,
-                cfg,
-                0,
-                addresses[0],
-                {1: addresses[1]},
-                out=tmp_path / "robot0",
-                timing=LockstepParams(wait_timeout=2.0, retry=0.2, linger=1.0),
-            )
-        except BaseException as e:  # handed to the test's thread
-            out["error"] = e
-
-    runner = threading.Thread(target=node)
-    with caplog.at_level(logging.WARNING), ZmqTransport(1, addresses[1], {0: addresses[0]}) as me:
-        runner.start()
-        done = _pack({"ch": 0, "out": False, "ack": 0})
-        frames = [
-            _pack({"q": 0, "t": 0, "k": "answer", "b": _poison_answer()}),
-            _pack({"q": 1, "t": 0, "k": "done", "b": done}),
-        ]
-        end = time.monotonic() + 120.0
-        for f in frames:
-            while not me.send(0, f, "lock") and time.monotonic() < end:
-                time.sleep(0.05)
-        runner.join(timeout=max(1.0, end - time.monotonic()))
-    assert not runner.is_alive()
-    error = out.get("error")
-    assert isinstance(error, InputError), repr(error)
-    assert "peer robot 1" in str(error)
-    assert "rejected a 'answer' from robot 1 (record)" in caplog.text
-
-
-@pytest.mark.slow
-def test_done_markers_that_skip_ticks_end_the_node_with_one_line_not_a_key_error(
-    tmp_path: Path,
-) -> None:
-    """Found by benchmarks.team_fuzz: a key-holding peer whose numbered frames are
-    well formed but whose ``done`` markers skip ticks (tick 0, then tick 50) made the
-    node look up the skipped tick's marker and die of a KeyError. It now ends with one
-    line naming the peer."""
+def _node_fed(
+    tmp_path: Path, frames: list[bytes], *, wait_timeout: float, deadline: float
+) -> BaseException | None:
+    """Run robot 0 as a node on 127.0.0.1 in a thread while the test, as robot 1, sends
+    it ``frames`` on the lockstep channel; return what the node raised (None if it
+    returned). Bounded: sends and the join give up ``deadline`` seconds after the start,
+    and the node must have ended by then."""
     plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
     cfg = MissionConfig(duration=5.0, seed=1)
     addresses = [f"tcp://127.0.0.1:{_free_port()}" for _ in range(2)]
@@ -191,7 +142,7 @@ def test_done_markers_that_skip_ticks_end_the_node_with_one_line_not_a_key_error
                 addresses[0],
                 {1: addresses[1]},
                 out=tmp_path / "robot0",
-                timing=LockstepParams(wait_timeout=5.0, retry=0.2, linger=1.0),
+                timing=LockstepParams(wait_timeout=wait_timeout, retry=0.2, linger=1.0),
             )
         except BaseException as e:  # handed to the test's thread
             out["error"] = e
@@ -199,15 +150,46 @@ def test_done_markers_that_skip_ticks_end_the_node_with_one_line_not_a_key_error
     runner = threading.Thread(target=node)
     with ZmqTransport(1, addresses[1], {0: addresses[0]}) as me:
         runner.start()
-        done = _pack({"ch": 0, "out": False, "ack": 0})
-        frames = [_pack({"q": q, "t": t, "k": "done", "b": done}) for q, t in enumerate([0, 50])]
-        end = time.monotonic() + 60.0
+        end = time.monotonic() + deadline
         for f in frames:
             while not me.send(0, f, "lock") and time.monotonic() < end:
                 time.sleep(0.05)
         runner.join(timeout=max(1.0, end - time.monotonic()))
     assert not runner.is_alive()
-    error = out.get("error")
+    return out.get("error")
+
+
+@pytest.mark.slow
+def test_a_live_node_rejects_the_poison_answer_and_goes_on(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Robot 0 runs as a node on 127.0.0.1; the test plays robot 1 and sends it the
+    poison answer in tick 0, then tick 0's marker. The node rejects the answer, counts
+    it, and goes on to wait for tick 1's marker, which never comes: it ends with one
+    line naming robot 1 (it ended with the decoder's ValueError before)."""
+    done = _pack({"ch": 0, "out": False, "ack": 0})
+    frames = [
+        _pack({"q": 0, "t": 0, "k": "answer", "b": _poison_answer()}),
+        _pack({"q": 1, "t": 0, "k": "done", "b": done}),
+    ]
+    with caplog.at_level(logging.WARNING):
+        error = _node_fed(tmp_path, frames, wait_timeout=2.0, deadline=120.0)
+    assert isinstance(error, InputError), repr(error)
+    assert "peer robot 1" in str(error)
+    assert "rejected a 'answer' from robot 1 (record)" in caplog.text
+
+
+@pytest.mark.slow
+def test_done_markers_that_skip_ticks_end_the_node_with_one_line_not_a_key_error(
+    tmp_path: Path,
+) -> None:
+    """Found by benchmarks.team_fuzz: a key-holding peer whose numbered frames are
+    well formed but whose ``done`` markers skip ticks (tick 0, then tick 50) made the
+    node look up the skipped tick's marker and die of a KeyError. It now ends with one
+    line naming the peer."""
+    done = _pack({"ch": 0, "out": False, "ack": 0})
+    frames = [_pack({"q": q, "t": t, "k": "done", "b": done}) for q, t in enumerate([0, 50])]
+    error = _node_fed(tmp_path, frames, wait_timeout=5.0, deadline=60.0)
     assert isinstance(error, InputError), repr(error)
     assert "peer robot 1" in str(error)
     assert "no marker for tick" in str(error)
