@@ -634,3 +634,19 @@ def test_ctrl_c_keeps_the_map_so_far(doorways: Scenario, tmp_path: Path) -> None
     assert 0 < info["readings"] < len(doorways.readings)
     assert (out / "map.yaml").is_file()
     assert (out / "map.pgm").is_file()
+
+
+@pytest.mark.parametrize("method", ["gradient", "em-thrun", "stochastic"])
+def test_idle_improvement_runs_passes_within_its_budget_and_keeps_unseen_cells_unknown(
+    doorways: Scenario, method: str
+) -> None:
+    sm = StreamingMapper(method, doorways.truth.grid, doorways.rig)
+    assert sm.improve(1.0) == 0  # no reading yet: nothing to improve
+    sm.add(doorways.readings.take(np.arange(0, 120)))
+    unseen = np.isnan(sm.occupancy_)
+    assert sm.improve(0.0) == 0
+    assert sm.improve(0.05) >= 1
+    occ = sm.occupancy_
+    assert np.array_equal(np.isnan(occ), unseen)
+    assert np.nanmin(occ) >= 0.0
+    assert np.nanmax(occ) <= 1.0

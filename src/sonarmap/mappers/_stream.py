@@ -16,7 +16,9 @@ throughout the pool. Engines refuse ``correlated > 0`` rather than ignore it.
 
 from __future__ import annotations
 
+import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from typing import TYPE_CHECKING, ClassVar
 
 import numba as nb
@@ -208,6 +210,28 @@ class StreamEngine(ABC):
         """Spend up to ``budget`` seconds improving the map over every reading in play;
         returns the units of work done (0 for methods with nothing to improve)."""
         return 0
+
+    def _improve_with(self, budget: float, one_pass: Callable[[I64, I64], object]) -> int:
+        """:meth:`improve` for a method whose unit of work is ``one_pass(slots, cells)``
+        over the readings in play and every cell a reading has covered: passes until
+        ``budget`` seconds are spent (the last may overrun it); returns their count."""
+        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
+        if len(cells) == 0 or budget <= 0:
+            return 0
+        sel = self.pool.alive_slots()
+        end = time.perf_counter() + budget
+        n = 0
+        while time.perf_counter() < end:
+            one_pass(sel, cells)
+            n += 1
+        return n
+
+    def _seen_only(self, values: npt.NDArray[np.generic]) -> npt.NDArray[np.float32]:
+        """Flat ``values`` (occupancies or a binary map) as float32 with NaN where no
+        reading has been (a copy)."""
+        out = values.astype(np.float32)
+        out[~self.seen] = np.nan
+        return out
 
     # -- the update ---------------------------------------------------------------
 

@@ -41,7 +41,6 @@ re-solves over every reading given so far, from the start.
 from __future__ import annotations
 
 import math
-import time
 
 import numba as nb
 import numpy as np
@@ -770,21 +769,10 @@ class ThrunEMStream(StreamEngine):
 
     def improve(self, budget: float) -> int:
         """One M-step sweep at a time over every cell in play, for up to ``budget`` s."""
-        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
-        if len(cells) == 0 or budget <= 0:
-            return 0
-        sel = self.pool.alive_slots()
-        end = time.perf_counter() + budget
-        n = 0
-        while time.perf_counter() < end:
-            self._climb(sel, cells, 1)
-            n += 1
-        return n
+        return self._improve_with(budget, lambda sel, cells: self._climb(sel, cells, 1))
 
     def occupancy(self) -> npt.NDArray[np.float32]:
-        out = self.post.astype(np.float32)
-        out[~self.seen] = np.nan
-        return out
+        return self._seen_only(self.post)
 
     def nbytes(self) -> int:
         return super().nbytes() + int(self.occ.nbytes + self.post.nbytes)

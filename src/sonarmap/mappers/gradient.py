@@ -47,7 +47,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-import time
 
 import numba as nb
 import numpy as np
@@ -919,21 +918,10 @@ class GradientStream(StreamEngine):
         self._run(self.touching_dirty(box), dirty, self.effort)
 
     def improve(self, budget: float) -> int:
-        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
-        if len(cells) == 0 or budget <= 0:
-            return 0
-        sel = self.pool.alive_slots()
-        end = time.perf_counter() + budget
-        n = 0
-        while time.perf_counter() < end:
-            self._run(sel, cells, 1)
-            n += 1
-        return n
+        return self._improve_with(budget, lambda sel, cells: self._run(sel, cells, 1))
 
     def occupancy(self) -> npt.NDArray[np.float32]:
-        out = self.x.astype(np.float32)
-        out[~self.seen] = np.nan
-        return out
+        return self._seen_only(self.x)
 
 
 GradientMapper.streamer = GradientStream

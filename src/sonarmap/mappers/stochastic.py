@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from typing import Any
 
 import numba as nb
@@ -500,21 +499,10 @@ class StochasticStream(StreamEngine):
         self.flips_ += n_flips
 
     def improve(self, budget: float) -> int:
-        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
-        if len(cells) == 0 or budget <= 0:
-            return 0
-        sel = self.pool.alive_slots()
-        end = time.perf_counter() + budget
-        n = 0
-        while time.perf_counter() < end:
-            self._search(sel, cells)
-            n += 1
-        return n
+        return self._improve_with(budget, self._search)
 
     def occupancy(self) -> npt.NDArray[np.float32]:
-        out = self.full.astype(np.float32)
-        out[~self.seen] = np.nan
-        return out
+        return self._seen_only(self.full)
 
 
 StochasticMapper.streamer = StochasticStream
