@@ -156,6 +156,30 @@ def test_observed_wall_recall_and_quality() -> None:
         score(truth, truth, observed=seen[:, :5])
 
 
+def test_observed_wall_recall_on_maps_built_to_fool_it() -> None:
+    truth, rig, readings = _wall_case()
+    seen = observed_walls(truth, rig, readings)
+    g = truth.grid
+    unknown = score(truth, OccupancyMap(g, np.full(g.shape, np.nan, np.float32)), observed=seen)
+    free = score(truth, OccupancyMap(g, np.zeros(g.shape, np.float32)), observed=seen)
+    solid = score(truth, OccupancyMap(g, np.ones(g.shape, np.float32)), observed=seen)
+    rng = np.random.default_rng(0)
+    speckle = score(
+        truth, OccupancyMap(g, (rng.random(g.shape) < 0.5).astype(np.float32)), observed=seen
+    )
+    # Unknown and free maps recover no heard wall; a map marked occupied everywhere
+    # recovers all of them but its wall F1, and so its quality, stays low; speckle
+    # recovers about half and is no better.
+    assert unknown.observed_wall_recall == 0.0
+    assert free.observed_wall_recall == 0.0
+    assert unknown.quality == 0.0
+    assert free.quality == 0.0
+    assert solid.observed_wall_recall == 1.0
+    assert solid.quality < 0.6
+    assert 0.3 < speckle.observed_wall_recall < 0.7
+    assert speckle.quality < 0.6
+
+
 #: Each method's defaults before issue 39, where they differ from today's.
 OLD_DEFAULTS: dict[str, dict[str, Any]] = {
     "inverse": {"p_free": 0.48, "falloff_deg": 10.0, "dr": None},
