@@ -148,6 +148,18 @@ def test_workflow_on_outside_floor_plan(
     assert read_map(d / "cnt.yaml").grid.shape == (40, 50)
 
 
+def test_scenario_takes_a_rig_preset_by_name(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "h"
+    code, _, err = run(
+        ["scenario", "hall", "-o", str(out), "--param", "rig=hcsr04-six", "--param", "rate=2"],
+        capsys,
+    )
+    assert code == 0, err
+    assert "hc-sr04" in (out / "rig.yaml").read_text()
+
+
 def test_scenario_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run(
         [
@@ -327,6 +339,10 @@ def test_scenario_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
         (
             ["scenario", "doorways", "-o", "{d}/x", "--param", "colour=3"],
             "unknown parameter 'colour' for scenario 'doorways'",
+        ),
+        (
+            ["scenario", "hall", "-o", "{d}/x", "--param", "rig=ring17"],
+            "scenario parameter 'rig' must be a rig preset",
         ),
         (
             ["map", "{d}", "--rig", "{d}/rig.yaml", "--resolution", "0.1", "-o", "{d}/m"],

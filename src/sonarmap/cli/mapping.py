@@ -74,6 +74,8 @@ def _scenario_params(name: str, pairs: dict[str, str]) -> dict[str, Any]:
                 out[key] = tuple(float(v) for v in value.split(","))
             elif isinstance(default, int) and not isinstance(default, bool):
                 out[key] = int(value)
+            elif isinstance(default, str):  # a name (a rig preset): the scenario checks it
+                out[key] = value
             else:
                 out[key] = float(value)
         except ValueError:
