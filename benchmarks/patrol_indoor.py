@@ -26,6 +26,7 @@ map (the mean over the seeds, each seed a dot). The runs and the figure are
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -61,9 +62,10 @@ def run_one(
     seed: int,
     duration: float,
     min_hold: float = 0.0,
+    choice_cell: float | None = None,
 ) -> dict[str, Any]:
-    """One run's figures (:func:`sonarmap.patrol.baselines.baseline_run`); ``min_hold``:
-    :attr:`~sonarmap.patrol.PatrolConfig.min_hold`."""
+    """One run's figures (:func:`sonarmap.patrol.baselines.baseline_run`); ``min_hold``,
+    ``choice_cell``: :class:`~sonarmap.patrol.PatrolConfig`'s (None: its default)."""
     config = PatrolConfig(
         min_hold=min_hold,
         policy=policy,
@@ -74,6 +76,8 @@ def run_one(
         duration=duration,
         traffic=traffic,
     )
+    if choice_cell is not None:
+        config = dataclasses.replace(config, choice_cell=choice_cell)
     return baseline_run(territory, config, robots, seed)
 
 
@@ -86,6 +90,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--min-hold", type=float, default=0.0, help="seconds (PatrolConfig.min_hold)")
+    ap.add_argument(
+        "--choice-cell", type=float, help="metres (PatrolConfig.choice_cell; default its default)"
+    )
     ap.add_argument("--json", type=Path)
     ap.add_argument("--figure", type=Path)
     ap.add_argument(
@@ -130,6 +137,7 @@ def main(argv: list[str] | None = None) -> None:
                                 seed,
                                 args.duration,
                                 args.min_hold,
+                                args.choice_cell,
                             ),
                         }
                         rows.append(row)

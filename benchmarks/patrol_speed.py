@@ -14,12 +14,13 @@ after a warm-up that compiles the kernels, on one core. Reported per seed:
   seen to patrol alike.
 
 Run with ``python -m benchmarks.patrol_speed [--robots 4] [--duration 600] [--seeds 0]
-[--size 100 80] [--min-hold S] [--json F]``.
+[--size 100 80] [--min-hold S] [--choice-cell M] [--json F]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -36,12 +37,15 @@ from sonarmap.patrol.paths import Wave
 from sonarmap.patrol.territory import Territory
 
 
-def indoor(duration: float, min_hold: float = 0.0) -> PatrolConfig:
-    """Issue 36's indoor robots on 0.1 m cells, otherwise the defaults (``min_hold``:
-    :attr:`~sonarmap.patrol.PatrolConfig.min_hold`)."""
-    return PatrolConfig(
+def indoor(
+    duration: float, min_hold: float = 0.0, choice_cell: float | None = None
+) -> PatrolConfig:
+    """Issue 36's indoor robots on 0.1 m cells, otherwise the defaults (``min_hold``,
+    ``choice_cell``: :class:`~sonarmap.patrol.PatrolConfig`'s; None: its default)."""
+    config = PatrolConfig(
         radius=0.3, speed=1.0, vision=5.0, cell=0.1, duration=duration, min_hold=min_hold
     )
+    return config if choice_cell is None else dataclasses.replace(config, choice_cell=choice_cell)
 
 
 def building(width: float, height: float, seed: int) -> Territory:
@@ -63,10 +67,15 @@ def warm_up(territory: Territory, robots: int, seed: int) -> None:
 
 
 def run_one(
-    territory: Territory, robots: int, duration: float, seed: int, min_hold: float = 0.0
+    territory: Territory,
+    robots: int,
+    duration: float,
+    seed: int,
+    min_hold: float = 0.0,
+    choice_cell: float | None = None,
 ) -> dict[str, Any]:
     """One timed run's figures (see the module's notes)."""
-    config = indoor(duration, min_hold)
+    config = indoor(duration, min_hold, choice_cell)
     t0, c0 = time.perf_counter(), time.process_time()
     s = run_patrol(territory, config, robots=robots, seed=seed).summary()
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -90,6 +99,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0])
     ap.add_argument("--size", nargs=2, type=float, default=[100.0, 80.0])
     ap.add_argument("--min-hold", type=float, default=0.0, help="seconds (PatrolConfig.min_hold)")
+    ap.add_argument(
+        "--choice-cell", type=float, help="metres (PatrolConfig.choice_cell; default its default)"
+    )
     ap.add_argument("--json")
     args = ap.parse_args(argv)
     rows = []
@@ -102,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
         territory = building(args.size[0], args.size[1], seed)
         # Compile the kernels first: the timed run should not pay for them.
         warm_up(territory, args.robots, seed)
-        row = run_one(territory, args.robots, args.duration, seed, args.min_hold)
+        row = run_one(territory, args.robots, args.duration, seed, args.min_hold, args.choice_cell)
         rows.append(row)
         print(
             f"| {seed} | {row['robots']} | {row['cells']:,} | {row['x_real']:.1f} "
@@ -118,6 +130,7 @@ def main(argv: list[str] | None = None) -> None:
                     "size_m": args.size,
                     "duration": args.duration,
                     "min_hold": args.min_hold,
+                    "choice_cell": args.choice_cell,
                     "runs": rows,
                 },
                 f,

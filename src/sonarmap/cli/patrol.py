@@ -168,6 +168,11 @@ PATROL_OPTIONS = (
         "once seen (fewer choices, each a wave over the places that could change it).",
     ),
     Opt(
+        "choice_cell",
+        "Path motion: choose each new place on blocks about this many metres wide, then "
+        "run the fine wave only as far as it (0: choose on the map's own cells).",
+    ),
+    Opt(
         "r_obst", "Artificial obstacles' radius, metres (default 3 x --radius).", unset_as=math.nan
     ),
     Opt(

@@ -119,8 +119,45 @@ _BEST, _SUMS, _TAKEN, _STEP_BEST, _STEP_ROW, _STEP_COL = 0, 1, 9, 10, 18, 26
 #: cells, prune (0/1), certify the mode's choice (0: no, 1: the step, 2: the step and
 #: its strongest place), the 8 steps' weights.
 _ALPHA, _BETA, _F, _G, _A, _B, _TOP, _COUNT, _PRUNE, _CERTIFY, _WEIGHTS = range(11)
-#: After the weights: whether shadows (:class:`~sonarmap.patrol.paths.Shadows`) pull.
+#: After the weights: whether shadows (:class:`~sonarmap.patrol.paths.Shadows`) pull,
+#: and the side of the fog's blocks a place stands for, in fog cells (1: one cell).
 _SHADE = _WEIGHTS + 8
+_BLOCK = _SHADE + 1
+
+
+@nb.njit(cache=True)
+def _block_log_f(
+    src: F64,
+    watched: npt.NDArray[np.bool_],
+    r: int,
+    c: int,
+    block: int,
+    alpha: float,
+    beta: float,
+    inv_top: float,
+    fcode: int,
+    a: float,
+) -> float:
+    """log of the sum of f(TB_n) over the watched fog cells of block (r, c), ``block`` x
+    ``block`` fog cells (TB = alpha + beta x src, TB_n = TB x inv_top); -inf when it has
+    none or none pulls."""
+    rows, cols = src.shape
+    r1 = min((r + 1) * block, rows)
+    c1 = min((c + 1) * block, cols)
+    # Summed relative to the strongest, as the steps' sums are.
+    most = -np.inf
+    for fr in range(r * block, r1):
+        for fc in range(c * block, c1):
+            if watched[fr, fc]:
+                most = max(most, _log_f(fcode, (alpha + beta * src[fr, fc]) * inv_top, a))
+    if not most > -np.inf:
+        return most
+    total = 0.0
+    for fr in range(r * block, r1):
+        for fc in range(c * block, c1):
+            if watched[fr, fc]:
+                total += math.exp(_log_f(fcode, (alpha + beta * src[fr, fc]) * inv_top, a) - most)
+    return most + math.log(total)
 
 
 @nb.njit(cache=True)
@@ -134,8 +171,11 @@ def _pull_visit(
     ctx: Any,
 ) -> float:
     """The wave's visitor summing pulls by first step (see :func:`sector_pulls`)."""
-    tb_src, watched, p, acc, ptr, s_rows, s_cols, s_extra = ctx
+    tb_src, watched, fog_watched, p, acc, ptr, s_rows, s_cols, s_extra = ctx
     shade = p[_SHADE] != 0.0
+    block = int(p[_BLOCK])
+    # A block pulls as its cells together: at most this many times a cell's most.
+    cells = float(block * block)
     cols = width - 2
     alpha, beta, top = p[_ALPHA], p[_BETA], p[_TOP]
     fcode, gcode, a, b = int(p[_F]), int(p[_G]), p[_A], p[_B]
@@ -164,13 +204,24 @@ def _pull_visit(
             if k < s_lo:
                 if not watched[r, c]:
                     continue
-                t = alpha + beta * tb_src[r, c]
+                if block == 1:
+                    lf = _log_f(fcode, (alpha + beta * tb_src[r, c]) * inv_top, a)
+                else:
+                    lf = _block_log_f(
+                        tb_src, fog_watched, r, c, block, alpha, beta, inv_top, fcode, a
+                    )
                 length = dist[u]
             else:
-                t = alpha + beta * tb_src[s_rows[k], s_cols[k]]
+                sr, sc = s_rows[k], s_cols[k]
+                if block == 1:
+                    lf = _log_f(fcode, (alpha + beta * tb_src[sr, sc]) * inv_top, a)
+                else:
+                    lf = _block_log_f(
+                        tb_src, fog_watched, sr, sc, block, alpha, beta, inv_top, fcode, a
+                    )
                 length = dist[u] + s_extra[k]
             taken += 1.0
-            lp = _log_f(fcode, t * inv_top, a) + _log_g(gcode, length * 10.0, b)
+            lp = lf + _log_g(gcode, length * 10.0, b)
             if not lp > -np.inf:
                 continue
             if lp > best:
@@ -205,10 +256,10 @@ def _pull_visit(
         if p[_CERTIFY] == 2.0 and gap > 0.0:
             # And no place left could outpull the chosen step's strongest (a place
             # pulls at most f(1) g(L)): that place is the whole map's too.
-            alone = _pull_limit(fcode, gcode, a, b, best, 1.0, step_best[k] - best)
-            limit = _pull_limit(fcode, gcode, a, b, best, p[_COUNT] - taken, share)
+            alone = _pull_limit(fcode, gcode, a, b, best, cells, step_best[k] - best)
+            limit = _pull_limit(fcode, gcode, a, b, best, (p[_COUNT] - taken) * cells, share)
             return max(limit, alone)
-    return _pull_limit(fcode, gcode, a, b, best, p[_COUNT] - taken, share)
+    return _pull_limit(fcode, gcode, a, b, best, (p[_COUNT] - taken) * cells, share)
 
 
 @dataclass(frozen=True)
@@ -356,6 +407,8 @@ def sector_pulls(
     goal: bool = False,
     places: npt.NDArray[np.int64] | None = None,
     shadows: Shadows | None = None,
+    block: int = 1,
+    fog_watched: npt.NDArray[np.bool_] | None = None,
 ) -> F64:
     """The pulls of the ``watched`` places on a robot at ``start``, summed per first
     step of their waves' paths, in one pass with the wave.
@@ -375,6 +428,13 @@ def sector_pulls(
     and ``watched``): the watched cells no wave reaches pull too, as if at their
     anchors (which ``places`` then names); without them they do not pull at all.
 
+    With ``block`` > 1 the wave runs on a coarser grid than the fog: ``passable``,
+    ``watched``, ``start``, ``shadows`` and ``places`` are on the coarse grid, whose
+    cell (r, c) is the block of ``block`` x ``block`` fog cells from (r x block,
+    c x block); ``tb`` or ``last_seen`` and ``fog_watched`` (the fog's watched cells)
+    are on the fog's grid. A coarse place pulls as its block's watched fog cells
+    together, the sum of their f(TB_n), at the coarse wave's length.
+
     Returns
     -------
     ndarray (8,)
@@ -391,7 +451,12 @@ def sector_pulls(
         raise ValueError("weights: 8 values in [0, 1]")
     shaded = shadows is not None and len(shadows) > 0
     head = [alpha, beta, *force.codes, force.a, force.b, top, count, prune]
-    params = np.array([*head, certify * (1 + goal), *w, shaded], dtype=np.float64)
+    if block < 1:
+        raise ValueError(f"block: a side of >= 1 fog cells, got {block}")
+    fog_mask = watched if fog_watched is None else fog_watched
+    if block == 1 and fog_mask.shape != watched.shape:
+        raise ValueError(f"fog_watched of {fog_mask.shape} for places of {watched.shape}")
+    params = np.array([*head, certify * (1 + goal), *w, shaded, block], dtype=np.float64)
     if shadows is not None and len(shadows.ptr) != watched.size + 1:
         raise ValueError(f"shadows of {len(shadows.ptr) - 1} cells for a map of {watched.size}")
     none = np.zeros(1, dtype=np.int64)
@@ -406,7 +471,7 @@ def sector_pulls(
     acc[_BEST] = -np.inf
     acc[_STEP_BEST : _STEP_BEST + 8] = -np.inf
     acc[_STEP_ROW:] = -1.0
-    ctx = (np.ascontiguousarray(src, dtype=np.float64), watched, params, acc, *shade)
+    ctx = (np.ascontiguousarray(src, dtype=np.float64), watched, fog_mask, params, acc, *shade)
     waver(passable, start, resolution, watched, None, closed, visit=(_pull_visit, ctx))
     if places is not None:
         places[:, 0] = acc[_STEP_ROW : _STEP_ROW + 8]

@@ -422,18 +422,19 @@ class Wave:
         resolution: float,
         target: npt.NDArray[np.bool_] | None = None,
         closed: npt.NDArray[np.intp] | None = None,
+        limit: float | None = None,
     ) -> float:
         """The wave from ``start`` only as far as ``goal``: every cell up to the goal's
         path length gets the full wave's length and first step (so :func:`path_to` the
         goal reads back the full wave's path); the wave stops between buckets, so cells
         up to about a cell's length farther may be reached too, none beyond. Returns the
-        goal's path length (metres; inf when it cannot be reached). Arguments as in a
-        call."""
+        goal's path length (metres; inf when it cannot be reached, or lies beyond
+        ``limit`` metres). Arguments as in a call."""
         r, c = int(goal[0]), int(goal[1])
         if not (0 <= r < self.shape[0] and 0 <= c < self.shape[1]):
             raise ValueError(f"the wave's goal {goal} is off the grid {self.shape}")
         flat = np.array([(r + 1) * self._width + c + 1], dtype=np.int64)
-        self(passable, start, resolution, target, None, closed, visit=(until_reached, flat))
+        self(passable, start, resolution, target, limit, closed, visit=(until_reached, flat))
         return float(self.dist[r, c])
 
     def _inner(self, flat: npt.NDArray[np.generic]) -> npt.NDArray[np.generic]:

@@ -33,6 +33,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
+from .coarse import CoarseChoice
 from .finders import PathFinder
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force, sector_pulls, step_direction
@@ -103,6 +104,11 @@ FINDERS: dict[str, type[PathFinder]] = {"regions": Regions, "marching": Marching
 PATHS = ("wave", "straight", *FINDERS)
 
 F64 = npt.NDArray[np.float64]
+#: A place chosen on blocks (:class:`~sonarmap.patrol.coarse.CoarseChoice`) is refused,
+#: and the fine choice made instead, when its fine path is longer than this factor times
+#: the blocks' path plus these metres (the blocks' 8-connected paths run up to a block
+#: off the cells' at either end).
+COARSE_SLACK = (1.25, 2.0)
 #: The most steps one run may take (about 58 days at 0.5 s): more is a typo.
 MAX_STEPS = 10_000_000
 
@@ -134,6 +140,12 @@ class PatrolConfig:
     #: over the places that could change it, and a place chosen just beyond the vision
     #: radius is seen a step or two later. 0: choose again as soon as it is seen.
     min_hold: float = 0.0
+    #: Path motion (potential field, the mode's 8 steps, holonomic robots): the side,
+    #: in metres, of the blocks a new choice of place is made on
+    #: (:class:`~sonarmap.patrol.coarse.CoarseChoice`; the nearest whole number of
+    #: cells); the fine wave then runs only as far as the place chosen. 0, or under two
+    #: cells: the choice's wave runs on the fog's own cells.
+    choice_cell: float = 0.0
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
     r_obst: float = math.nan
     refine: bool = False
@@ -318,6 +330,10 @@ class PatrolConfig:
         if not (math.isfinite(self.min_hold) and self.min_hold >= 0):
             raise ConfigError(
                 f"min_hold must be >= 0 seconds, got {self.min_hold}", field="min_hold"
+            )
+        if not (math.isfinite(self.choice_cell) and self.choice_cell >= 0):
+            raise ConfigError(
+                f"choice_cell must be >= 0 metres, got {self.choice_cell}", field="choice_cell"
             )
         if self.warmup is not None and not (0 <= self.warmup < self.duration):
             raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}", field="warmup")
@@ -972,6 +988,12 @@ def run_patrol(
         and config.direction == "mode"
         and config.paths == "wave"
     )
+    # A new choice of place on blocks of cells, then the fine wave only as far as it.
+    coarse = (
+        CoarseChoice.build(passable, watched, g.resolution, config.choice_cell, fine_shadows=shade)
+        if direct_path and hold_fast and config.choice_cell > 0
+        else None
+    )
     # Path motion: the place each robot goes for, and when it chose it.
     aims: list[tuple[int, int] | None] = [None] * len(team)
     aimed_at = np.zeros(len(team))
@@ -1037,6 +1059,42 @@ def run_patrol(
             elif config.paths == "wave" or config.policy == "cycle" or walkers is not None:
                 start = (int(r[i]), int(c[i]))
                 closed = closed_cells(i, r, c, k)
+                j = 0 if shared else i
+                if (
+                    coarse is not None
+                    and closed is None
+                    and targets is watched
+                    and (held is None or own[j].last[held] >= aimed_at[i])
+                ):
+                    way, place, length = coarse.choose(
+                        start,
+                        config.force,
+                        top,
+                        weights=weights,
+                        **(
+                            {"tb": dilated[j]}
+                            if dilated is not None
+                            else {"last_seen": own[j].last, "now": own[j].t}
+                        ),
+                    )
+                    # The fine path to it; a place the fine wave cannot reach, or
+                    # only by a path much longer than the blocks' (the blocks join what
+                    # the cells do not; a shadow's anchor behind a wall), falls back on
+                    # the fine choice.
+                    if place is not None and np.isfinite(
+                        waver.to(
+                            passable,
+                            start,
+                            place,
+                            g.resolution,
+                            targets,
+                            limit=COARSE_SLACK[0] * length + COARSE_SLACK[1],
+                        )
+                    ):
+                        aims[i], aimed_at[i] = place, own[j].t
+                        directions.append(way)
+                        goals.append(_path_goal(team, i, place, waver, g, passable, config))
+                        continue
                 if config.policy == "potential":
                     # Only the places near the robot can change its choice (see
                     # Force.pull_limit): the wave stops there unless told not to.
