@@ -153,7 +153,7 @@ def test_a_patrol_choosing_on_blocks_calls_the_cells_choice_seldom(
         return sector_pulls(*args, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr("sonarmap.patrol.simulation.sector_pulls", counted)
-    cfg = PatrolConfig(radius=0.3, speed=1.0, vision=3.0, duration=60.0, cell=0.1)
+    cfg = PatrolConfig(radius=0.3, speed=1.0, vision=3.0, duration=60.0, cell=0.1, choice_cell=0.0)
     run_patrol(t, cfg, robots=1, seed=0)
     fine = calls["n"]
     calls["n"] = 0

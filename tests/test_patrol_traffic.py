@@ -160,8 +160,15 @@ def test_a_minimum_hold_means_fewer_choices_and_still_every_place_seen(
     choices, unseen = {}, {}
     for hold in (0.0, 2.0):
         calls["n"] = 0
+        # The choice on the cells, whose calls are counted (not on blocks).
         cfg = PatrolConfig(
-            radius=0.3, speed=1.0, vision=3.0, duration=150.0, cell=0.1, min_hold=hold
+            radius=0.3,
+            speed=1.0,
+            vision=3.0,
+            duration=150.0,
+            cell=0.1,
+            min_hold=hold,
+            choice_cell=0.0,
         )
         unseen[hold] = run_patrol(t, cfg, robots=1, seed=0).summary()["never_seen"]
         choices[hold] = calls["n"]

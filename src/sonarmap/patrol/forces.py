@@ -153,10 +153,17 @@ def _block_log_f(
     if not most > -np.inf:
         return most
     total = 0.0
+    # Cells seen by one look share their time: their terms are one exp.
+    prev = np.nan
+    term = 0.0
     for fr in range(r * block, r1):
         for fc in range(c * block, c1):
             if watched[fr, fc]:
-                total += math.exp(_log_f(fcode, (alpha + beta * src[fr, fc]) * inv_top, a) - most)
+                lf = _log_f(fcode, (alpha + beta * src[fr, fc]) * inv_top, a)
+                if lf != prev:
+                    prev = lf
+                    term = math.exp(lf - most)
+                total += term
     return most + math.log(total)
 
 

@@ -144,8 +144,9 @@ class PatrolConfig:
     #: in metres, of the blocks a new choice of place is made on
     #: (:class:`~sonarmap.patrol.coarse.CoarseChoice`; the nearest whole number of
     #: cells); the fine wave then runs only as far as the place chosen. 0, or under two
-    #: cells: the choice's wave runs on the fog's own cells.
-    choice_cell: float = 0.0
+    #: cells (as with the default 0.5 m cells): the choice's wave runs on the fog's own
+    #: cells.
+    choice_cell: float = 0.3
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
     r_obst: float = math.nan
     refine: bool = False
