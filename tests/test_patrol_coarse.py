@@ -166,3 +166,20 @@ def test_a_patrol_choosing_on_blocks_calls_the_cells_choice_seldom(
 def test_a_choice_cell_must_be_a_finite_length_of_at_least_zero(bad: float) -> None:
     with pytest.raises(ConfigError, match="choice_cell"):
         PatrolConfig(choice_cell=bad)
+
+
+def test_with_line_of_sight_the_choice_stays_on_the_cells(monkeypatch: pytest.MonkeyPatch) -> None:
+    # A block's place stands for the block's other cells only under a vision disc.
+    built: list[object] = []
+    real = CoarseChoice.build
+
+    def counted(*args: object, **kwargs: object) -> object:
+        built.append(real(*args, **kwargs))  # type: ignore[arg-type]
+        return built[-1]
+
+    monkeypatch.setattr(CoarseChoice, "build", counted)
+    t = _building()
+    seen = PatrolConfig(radius=0.3, speed=1.0, vision=3.0, duration=2.0, cell=0.1)
+    run_patrol(t, seen, robots=1, seed=0)
+    run_patrol(t, dataclasses.replace(seen, line_of_sight=True), robots=1, seed=0)
+    assert len(built) == 1

@@ -18,7 +18,8 @@ The coarse grid, from the fine one:
   :func:`~sonarmap.patrol.paths.shadows` do.
 
 The place a chosen block names is its oldest watched cell a fine wave reaches (with a
-vision disc, any cell of the block sees the others); when it has none, the anchor of its
+vision disc, any cell of the block sees the others; not so with line of sight, and the
+patrol does not choose on blocks then); when it has none, the anchor of its
 oldest cell (a fine shadow), from which the fine choice pulls it too. That anchor may lie
 behind a wall: :meth:`CoarseChoice.choose` also gives the coarse path's length, and a
 caller can refuse a place whose fine path is much longer.

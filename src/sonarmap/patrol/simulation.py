@@ -144,7 +144,8 @@ class PatrolConfig:
     #: in metres, of the blocks a new choice of place is made on
     #: (:class:`~sonarmap.patrol.coarse.CoarseChoice`; the nearest whole number of
     #: cells); the fine wave then runs only as far as the place chosen. 0, or under two
-    #: cells (as with the default 0.5 m cells): the choice's wave runs on the fog's own
+    #: cells (as with the default 0.5 m cells), or with ``line_of_sight`` (the block's
+    #: place stands for cells it may not see): the choice's wave runs on the fog's own
     #: cells.
     choice_cell: float = 0.3
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
@@ -992,7 +993,7 @@ def run_patrol(
     # A new choice of place on blocks of cells, then the fine wave only as far as it.
     coarse = (
         CoarseChoice.build(passable, watched, g.resolution, config.choice_cell, fine_shadows=shade)
-        if direct_path and hold_fast and config.choice_cell > 0
+        if direct_path and hold_fast and config.choice_cell > 0 and not config.line_of_sight
         else None
     )
     # Path motion: the place each robot goes for, and when it chose it.
