@@ -310,3 +310,21 @@ def test_the_shared_depot_offers_doorways_walls_and_furniture() -> None:
     assert len(find_doors(plan, err)) >= 2
     assert len(find_walls_to_open(plan, err)) >= 2
     assert len(find_furniture(plan, err)) >= 3
+
+
+def test_a_users_prior_file_is_what_a_team_cuts_its_regions_from(tmp_path: Path) -> None:
+    plan = builtin_plan("building:0")
+    # Without its furniture the building cuts into 15 regions, not 17.
+    prior, _ = degrade_plan(plan, PriorError(drop_furniture=8))
+    write_map(prior, tmp_path / "drawing")
+    path = tmp_path / "drawing.yaml"
+    out = tmp_path / "team"
+    main(["team", "run", "--map", "building:0", "--robots", "2", "--duration", "30",
+          "--prior", str(path), "-o", str(out)])  # fmt: skip
+    s = json.loads((out / "summary.json").read_text())
+    assert s["prior"]["source"] == str(path)
+    assert "error" not in s["prior"]  # the file as given, nothing drawn on it
+    regions = int(cut_regions(prior.classes() == FREE, H).max()) + 1
+    assert regions != int(cut_regions(plan.classes() == FREE, H).max()) + 1
+    assert [r["regions"] for r in s["robots"]] == [regions, regions]
+    assert (out / "prior.yaml").exists()
