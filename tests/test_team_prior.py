@@ -164,6 +164,7 @@ def test_prior_error_specs_parse_and_bad_ones_name_the_option() -> None:
         -0.04,
         9,
     )
+    assert parse_prior_error("furniture=1,seed=4", seed=9).seed == 4
     for spec, words in [
         ("doors=2", "KEY one of close-doors"),
         ("close-doors=two", "close-doors: an integer expected"),
@@ -171,6 +172,7 @@ def test_prior_error_specs_parse_and_bad_ones_name_the_option() -> None:
         ("furniture=-1", "drop_furniture"),
         ("scale=0.6", "(-0.5, 0.5)"),
         ("scale", "KEY=VALUE"),
+        ("seed=-2", "'seed'"),
     ]:
         with pytest.raises(ConfigError, match=r"^--prior-error") as e:
             parse_prior_error(spec)

@@ -445,10 +445,10 @@ def run_cmd(
         typer.Option(
             "--prior-error",
             metavar="SPEC",
-            help="Make the prior (--prior, else --map) imprecise, drawn with --seed: "
-            f"comma-separated KEY=VALUE, KEY one of {', '.join(ERROR_KEYS)} (doorways "
-            "closed, doorways opened, furniture left out: counts; scale: the plan drawn "
-            "1+S times too large, e.g. 0.03).",
+            help="Make the prior (--prior, else --map) imprecise: comma-separated "
+            f"KEY=VALUE, KEY one of {', '.join(ERROR_KEYS)} (doorways closed, doorways "
+            "opened, furniture left out: counts; scale: the plan drawn 1+S times too "
+            "large, e.g. 0.03; seed: which ones, default --seed).",
         ),
     ] = None,
 ) -> None:

@@ -147,13 +147,15 @@ ERROR_KEYS = {
     "open-doors": "open_doors",
     "furniture": "drop_furniture",
     "scale": "scale",
+    "seed": "seed",
 }
 
 
 def parse_prior_error(text: str, *, seed: int = 0, option: str = "--prior-error") -> PriorError:
-    """``close-doors=N,open-doors=N,furniture=N,scale=S`` (any of them, comma-separated)
-    as a :class:`PriorError` drawn from ``seed``; a bad item raises :class:`ConfigError`
-    naming ``option`` and the item."""
+    """``close-doors=N,open-doors=N,furniture=N,scale=S,seed=K`` (any of them,
+    comma-separated) as a :class:`PriorError` drawn from ``seed`` unless the spec gives
+    its own (to vary the prior alone while the mission keeps its seed); a bad item raises
+    :class:`ConfigError` naming ``option`` and the item."""
     values: dict[str, Any] = {}
     for item in (s.strip() for s in text.split(",")):
         if not item:
@@ -170,8 +172,9 @@ def parse_prior_error(text: str, *, seed: int = 0, option: str = "--prior-error"
         except ValueError:
             kind = "a number" if name == "scale" else "an integer"
             raise ConfigError(f"{option} {key}: {kind} expected, got {value!r}") from None
+    values.setdefault("seed", seed)
     try:
-        return PriorError(seed=seed, **values)
+        return PriorError(**values)
     except ConfigError as err:
         raise ConfigError(f"{option}: {err}") from None
 
