@@ -10,16 +10,17 @@ from typing import Annotated, Any
 
 import typer
 
-from ..errors import ConfigError, quote
+from ..errors import ConfigError, InputError, quote
 from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..io.record import make_recorder
-from ..io.rosmap import OccupancyMap
+from ..io.rosmap import OccupancyMap, write_map
 from ..team.config import MAX_DURATION, MAX_ROBOTS, team_size_problem
 from ..team.exchange import ExchangeParams
 from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
 from ..team.outputs import write_missions, write_team
 from ..team.patrolling import patrol_routes
+from ..team.prior import ERROR_KEYS, check_prior, degrade_plan, parse_prior_error
 from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
 from ..team.store import StoreParams
@@ -43,6 +44,7 @@ from .common import (
     console,
     given,
     progress,
+    read_plan,
     resolve_map,
     writable,
     wrote,
@@ -323,6 +325,49 @@ def _run_zmq_team(
     return result.summary
 
 
+def _prior(
+    plan: OccupancyMap,
+    prior_path: Path | None,
+    prior_error: str | None,
+    seed: int,
+    resolution: float | None,
+    origin: tuple[float, float],
+) -> tuple[OccupancyMap | None, dict[str, Any] | None]:
+    """``--prior`` and ``--prior-error``: the robots' prior map (None: the plan itself)
+    and what summary.json records of it. A prior file that cannot be matched to the
+    plan, or a bad error spec, fails in one line naming the option."""
+    if prior_path is None and prior_error is None:
+        return None, None
+    base, source = plan, "the map"
+    if prior_path is not None:
+        if not prior_path.is_file():
+            raise ConfigError(f"--prior {prior_path}: no such file")
+        base, source = read_plan(prior_path, resolution, origin), str(prior_path)
+        check_prior(plan, base, f"--prior {prior_path}")
+    desc: dict[str, Any] = {"source": source}
+    if prior_error is None:
+        return base, desc
+    prior, report = degrade_plan(base, parse_prior_error(prior_error, seed=seed))
+    desc.update(report.to_dict())
+    return prior, desc
+
+
+def _drawn(
+    plan: OccupancyMap, map_: Path, duration: float, seed: int, routes: dict[int, Any], robots: int
+) -> Any:
+    """The world and the missing seeded routes the missions would draw themselves (the
+    same seeds, so the same runs), drawn here so that a map with no wall for a landmark
+    or no territory for a route fails in one line naming --map before any work."""
+    try:
+        world = make_world(plan, seed=seed, duration=duration)
+        for i in range(robots):
+            if routes.get(i) is None:
+                routes[i] = patrol_route(plan, duration, seed=seed + 7919 * i)
+    except (InputError, ConfigError) as err:
+        raise ConfigError(f"--map {map_}: {err.reason}") from None
+    return world
+
+
 @team_app.command("run", epilog=EPILOG)
 @config_options(
     (NetworkParams, NETWORK_OPTIONS),
@@ -386,6 +431,26 @@ def run_cmd(
             "and pose graphs (poses go every tick).",
         ),
     ] = 10.0,
+    prior_path: Annotated[
+        Path | None,
+        typer.Option(
+            "--prior",
+            help="The robots' prior map (map_server YAML), which their regions and "
+            "alignment use; --map stays the truth they drive, sense and are scored on. "
+            "Default: --map itself.",
+        ),
+    ] = None,
+    prior_error: Annotated[
+        str | None,
+        typer.Option(
+            "--prior-error",
+            metavar="SPEC",
+            help="Make the prior (--prior, else --map) imprecise: comma-separated "
+            f"KEY=VALUE, KEY one of {', '.join(ERROR_KEYS)} (doorways closed, doorways "
+            "opened, furniture left out: counts; scale: the plan drawn 1+S times too "
+            "large, e.g. 0.03; seed: which ones, default --seed).",
+        ),
+    ] = None,
 ) -> None:
     """One mission per robot: store, association, memory bounds, global map, scores.
 
@@ -411,9 +476,12 @@ def run_cmd(
             "--transport zmq: the nodes drive their own seeded routes; --patrol, --route, "
             "--world, --animate, --bag and --live are --transport sim's"
         )
+    if transport == "zmq" and (prior_path is not None or prior_error is not None):
+        raise ConfigError("--transport zmq: the nodes use --map as their prior; drop --prior")
     if not (math.isfinite(map_every) and map_every > 0):
         raise ConfigError(f"--map-every must be > 0 seconds, got {map_every}")
     plan = resolve_map(map_, resolution, origin)
+    prior, prior_desc = _prior(plan, prior_path, prior_error, seed, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
     if world_dir is not None:
@@ -427,6 +495,8 @@ def run_cmd(
         # The patrol replaces any route, a saved world's included.
         patrolled, _ = patrol_routes(plan, robots, duration, seed=seed)
         routes = dict(enumerate(patrolled))
+    if transport == "sim" and world is None:
+        world = _drawn(plan, map_, duration, seed, routes, robots)
     if transport == "zmq":
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
         with progress("team") as update:
@@ -460,6 +530,7 @@ def run_cmd(
                     "central": True,
                     "record": animate,
                     "on_tick": publisher,
+                    "prior": prior,
                 }
                 with progress("team") as update:
                     team_args["progress"] = partial(_tick, update, f"{robots} robots")
@@ -470,6 +541,7 @@ def run_cmd(
                     result = run_mission(
                         plan,
                         config,
+                        prior=prior,
                         route=routes.get(0),
                         world=world,
                         robot=0,
@@ -482,9 +554,15 @@ def run_cmd(
         if robots > 1:
             with progress("writing") as update:
                 update(0, 0, "maps, pictures" + (" and animations" if animate else ""))
+                if prior_desc is not None:
+                    team.summary["prior"] = prior_desc
                 write_team(tmp, plan, team, animate=animate)
         else:
-            s0, _ = write_missions(tmp, plan, [result], animate=animate)
+            extra = None if prior_desc is None else {"prior": prior_desc}
+            s0, _ = write_missions(tmp, plan, [result], animate=animate, extra=extra)
+        if prior is not None:
+            # The prior the robots were given, beside the truth they were scored on.
+            write_map(prior, tmp / "prior")
     if robots > 1:
         s = team.summary
         convergence = s["convergence_s"]

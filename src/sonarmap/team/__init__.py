@@ -6,6 +6,7 @@ robot's global map. The design and the choices where the thesis is silent are in
 One module per concept, from the ground up:
 
 - records and their encoding: :mod:`.records`; the prior map's regions: :mod:`.regions`;
+  a prior that is not the truth (doorways, furniture, scale): :mod:`.prior`;
   the simulated world (landmarks, routes, odometry): :mod:`.world`;
 - one robot: the store (:mod:`.store`), association (:mod:`.association`), the pose
   graph and global map (:mod:`.globalmap`), its settings (:mod:`.config`), the robot on

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -81,12 +81,15 @@ def write_missions(
     *,
     animate: bool = False,
     note: Note | None = None,
+    extra: Mapping[str, Any] | None = None,
 ) -> tuple[dict[str, Any], list[Path]]:
     """Write single missions' outputs into the folder ``out``: ``summary.json``
-    (:func:`~.summary.mission_figures`), ``memory.csv``, and per robot ``map.*``,
-    ``graph.png`` (``mission.gif`` with ``animate``); with several robots, each name
-    takes the suffix ``_robotK``. Returns the summary and the files written."""
+    (:func:`~.summary.mission_figures`, with the keys of ``extra`` added at its top
+    level), ``memory.csv``, and per robot ``map.*``, ``graph.png`` (``mission.gif`` with
+    ``animate``); with several robots, each name takes the suffix ``_robotK``. Returns
+    the summary and the files written."""
     summary = mission_figures([r.summary for r in results])
+    summary.update(extra or {})
     with atomic_folder(out) as tmp:
         atomic_write_text(tmp / "summary.json", json_dumps(summary))
         atomic_write_text(tmp / "memory.csv", memory_csv(results))

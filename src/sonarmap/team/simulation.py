@@ -278,13 +278,14 @@ def run_team(
     max_frames: int = 300,
     phase: Callable[[str], None] | None = None,
     on_tick: Callable[[TeamTick], None] | None = None,
+    prior: OccupancyMap | None = None,
 ) -> TeamResult:
     """Run ``robots`` robots' missions together, exchanging over a simulated network.
 
     Parameters
     ----------
     plan : OccupancyMap
-        The floor (also the prior map).
+        The floor (also the prior map unless ``prior`` is given).
     cfg : MissionConfig
         Every robot's mission settings; robot ``i`` seeds its route and sensors from
         ``cfg.seed + 7919 i``.
@@ -325,6 +326,9 @@ def run_team(
     on_tick : callable, optional
         ``on_tick(TeamTick)`` after every tick, the routes' and the quiet phase's (to
         record or serve the run).
+    prior : OccupancyMap, optional
+        Every robot's prior map (:mod:`.prior`): its regions and the frame its global
+        map is aligned to; the plan unless given. The truth stays the plan.
 
     Returns
     -------
@@ -342,6 +346,7 @@ def run_team(
         RobotAgent(
             plan,
             cfg,
+            prior=prior,
             world=world,
             robot=i,
             route=None if routes is None else routes[i],
