@@ -236,6 +236,11 @@ STORE_OPTIONS = (
     Opt("pose_limit", "Bytes one pose may take in the store (the thesis's M_pose)."),
     Opt("region_limit", "Bytes one region of the store may take (the thesis's M_r)."),
     Opt(
+        "store_limit",
+        "Bytes the robot's own layer may take, every region together; past it the store "
+        "thins its poses across regions (0: only the regions' bound).",
+    ),
+    Opt(
         "fold",
         "A pose that region compression deletes leaves its local map to the newest pose.",
         off="--no-fold",
@@ -285,6 +290,17 @@ def _team_options(ctx: typer.Context) -> tuple[NetworkParams, ExchangeParams, St
         except ConfigError as err:
             raise ConfigError(f"--lean: {err}") from None
     return net, exchange, store
+
+
+def _mission_config(duration: float, seed: int, store: StoreParams) -> MissionConfig:
+    """The mission's config; a store bound too small for one pose names its option."""
+    try:
+        return MissionConfig(duration=duration, seed=seed, store=store)
+    except ConfigError as err:
+        names = {o.field: o.name for o in STORE_OPTIONS}
+        if err.field in names:
+            raise ConfigError(f"{names[err.field]}: {err.reason}", field=err.field) from None
+        raise
 
 
 def opts_of(fields: tuple[str, ...]) -> list[str]:
@@ -422,7 +438,7 @@ def run_cmd(
             routes[0] = saved
     if route is not None:
         routes[0] = read_route(route)
-    config = MissionConfig(duration=duration, seed=seed, store=store)
+    config = _mission_config(duration, seed, store)
     if patrol:
         # The patrol replaces any route, a saved world's included.
         patrolled, _ = patrol_routes(plan, robots, duration, seed=seed)
@@ -615,7 +631,7 @@ def node_cmd(
     fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
     key = None if key_file is None else read_team_key(key_file)
     plan = resolve_map(map_, resolution, origin)
-    config = MissionConfig(duration=duration, seed=seed, store=store)
+    config = _mission_config(duration, seed, store)
     with progress(f"robot {robot}") as update:
         s = run_node(
             plan,
