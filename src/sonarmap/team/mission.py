@@ -608,8 +608,8 @@ class RobotAgent:
             # of the prior full or the store's budget, plus the newest pose.
             "local_bytes_bound": bound,
             "local_bytes_bound_by": "regions"
-            if store.params.store_limit <= 0 or regions * store.params.region_limit
-            <= store.params.store_limit
+            if store.params.store_limit <= 0
+            or regions * store.params.region_limit <= store.params.store_limit
             else "store_limit",
             "local_bytes_within_bound": bool(store.peak_local_bytes <= bound),
             "closure_bytes_final": int(store.closure_bytes()),
