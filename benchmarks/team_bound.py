@@ -49,6 +49,8 @@ KEYS = (
     "poses",
     "poses_made",
     "map_f1",
+    "map_f1_held_true_poses",
+    "map_f1_true_poses",
     "ate_m",
     "ate_odometry_m",
 )
@@ -92,7 +94,9 @@ def measure(
             f"{row['store_bytes_peak'] / 1e3:.0f} kB, closures "
             f"{row['closure_bytes_final'] / 1e3:.0f} kB, regions {row['regions_used']}/"
             f"{row['regions']}, poses {row['poses']}/"
-            f"{row['poses_made']}, F1 {row['map_f1']:.3f}, ATE {row['ate_m']:.2f} m "
+            f"{row['poses_made']}, F1 {row['map_f1']:.3f} (held at truth "
+            f"{row['map_f1_held_true_poses']:.3f}, all readings "
+            f"{row['map_f1_true_poses']:.3f}), ATE {row['ate_m']:.2f} m "
             f"({row['ate_odometry_m']:.2f}), {row['wall_s']:.0f} s",
             flush=True,
         )

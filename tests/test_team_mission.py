@@ -55,6 +55,11 @@ def test_a_mission_beats_odometry_and_keeps_its_bounds(mission: dict[str, object
     # promised on 150 s, but the alignment must put it within a metre.
     assert s["alignment_error_m"] < 1.0
     assert 0.0 < s["map_f1"] <= s["map_f1_true_poses"] + 0.05
+    # The same local maps at their true poses bound the fused map; what the store
+    # dropped is the gap between that and the map from every reading.
+    assert s["map_poses_held"] == s["poses"]
+    assert s["map_f1"] <= s["map_f1_held_true_poses"] + 0.02
+    assert s["map_f1_held_true_poses"] <= s["map_f1_true_poses"] + 0.05
 
 
 def test_vanished_landmarks_lose_reliability(mission: dict[str, object]) -> None:

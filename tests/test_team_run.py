@@ -53,6 +53,10 @@ def test_a_patrolling_team_run_writes_the_team_summary(tmp_path: Path, plan: Occ
     for row in s["robots"]:
         for key in ("bytes_sent", "bytes_received", "messages", "poses_local", "poses_received"):
             assert row[key] > 0
+        # A robot's map fuses the others' poses too, which its own readings at the true
+        # poses (map_f1_true_poses) leave out: the bound it is scored beside holds them.
+        assert row["map_poses_held"] == row["poses_local"] + row["poses_received"]
+        assert row["map_f1"] <= row["map_f1_held_true_poses"] + 0.02
     for name in ("team.png", "map_central.yaml", "map_robot1.yaml", "graph_robot0.png"):
         assert (out / name).stat().st_size > 0
 
