@@ -18,7 +18,6 @@ import itertools
 import math
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
-from functools import partial
 from typing import Any
 
 import numpy as np
@@ -1147,10 +1146,7 @@ class RobotStore:
     def _compress_one(self, region: int, now: float) -> set[int]:
         layer = self.local
         touched = self._compress(
-            lambda: sorted(layer.patches[region].short),
-            lambda: layer.region_bytes(region) > self.params.region_limit,
-            region,
-            now,
+            lambda: layer.region_bytes(region) > self.params.region_limit, region, now
         )
         touched.discard(region)
         return touched
@@ -1177,8 +1173,7 @@ class RobotStore:
                 break
             region = max(sizes, key=lambda r: (sizes[r], -r))
             before = layer.bytes()
-            members = partial(sorted, layer.patches[region].short)
-            touched = self._compress(members, lambda: True, region, now, steps=1)
+            touched = self._compress(lambda: True, region, now, steps=1)
             if layer.bytes() >= before:
                 stuck.add(region)  # only the newest pose, or nothing it could free
             for r in sorted(touched - {region}):
@@ -1186,17 +1181,16 @@ class RobotStore:
 
     def _compress(
         self,
-        members: Callable[[], list[int]],
         over: Callable[[], bool],
-        region: int | None,
+        region: int,
         now: float,
         *,
         steps: int | None = None,
     ) -> set[int]:
-        """The greedy loop of region compression over the poses ``members()`` (sorted
-        UIDs) while ``over()``, at most ``steps`` deletions or merges (None: no limit):
-        merges of two poses of ``region`` (None: of any one region) compete with
-        deletions. Returns the regions whose edges changed."""
+        """The greedy loop of region compression over the poses of ``region`` while
+        ``over()``, at most ``steps`` deletions or merges (None: no limit); merges of
+        two of its poses compete with deletions. Returns the regions whose edges
+        changed."""
         layer, params = self.local, self.params
         lost: dict[int, float] = {}
         plans: dict[tuple[int, int], _MergePlan] = {}
@@ -1204,7 +1198,7 @@ class RobotStore:
         done = 0
         while over() and (steps is None or done < steps):
             done += 1
-            uids = members()
+            uids = sorted(layer.patches[region].short)
             where = np.array([layer.poses[u].estimate[:2] for u in uids]).reshape(-1, 2)
             density = dict(zip(uids, kernel_density(where, where, params.pose_sigma), strict=True))
             best: tuple[float, int, int, _MergePlan | None] | None = None
@@ -1239,16 +1233,11 @@ class RobotStore:
                 self._apply_merge(best[3], now)
         return touched
 
-    def _merge_candidates(self, region: int | None) -> dict[tuple[int, int], ClosureEdge]:
-        """The best mergeable closure (most inliers, then least error) of each pair of
-        poses of ``region`` (None: of any one region)."""
+    def _merge_candidates(self, region: int) -> dict[tuple[int, int], ClosureEdge]:
+        """The best mergeable closure (most inliers, then least error) of each pair."""
         out: dict[tuple[int, int], ClosureEdge] = {}
-        poses = self.local.poses
         for c in self.closures:
-            if region is None:
-                if c.a not in poses or not self._mergeable(c, poses[c.a].region):
-                    continue
-            elif not self._mergeable(c, region):
+            if not self._mergeable(c, region):
                 continue
             key = (min(c.a, c.b), max(c.a, c.b))
             have = out.get(key)
