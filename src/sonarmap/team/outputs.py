@@ -32,8 +32,9 @@ Note = Callable[[str], None]
 def memory_csv(results: Sequence[MissionResult]) -> str:
     """``robot,pose,store_bytes,local_bytes,local_bytes_bound``: each robot's whole store
     and its local layer after each pose it made, beside the local layer's configured
-    bound (``local_bytes_bound`` of its summary). ``local_bytes`` is empty where it was
-    not kept (a node that resumed from a checkpoint)."""
+    bound (``local_bytes_bound`` of its summary). ``local_bytes`` is empty where the
+    result has no such figure (a robot restored from a checkpoint keeps only the
+    whole store's)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["robot", "pose", "store_bytes", "local_bytes", "local_bytes_bound"])
