@@ -8,7 +8,8 @@ they produced:
 - ``patrol run`` on two built-in maps (every value of ``summary.json`` but the wall-clock
   ones, and a digest of ``metrics.csv``);
 - ``team run`` with the simulated and the ZeroMQ transport, each with the default exchange
-  and with ``--lean`` (every value of the team's ``summary.json`` but the wall-clock ones,
+  (the lean preset) and with ``--lean``, and the simulated one with ``--preset classic``
+  (every value of the team's ``summary.json`` but the wall-clock ones,
   and digests of the maps), and one robot alone.
 
 ``python -m benchmarks.golden record`` writes ``benchmarks/golden.json``;
@@ -75,6 +76,7 @@ TEAM = {
     "team/alone": ["--map", "office", "--robots", "1", "--duration", "120", "--seed", "1"],
     "team/sim": TEAM_BASE,
     "team/sim-lean": [*TEAM_BASE, "--lean"],
+    "team/sim-classic": [*TEAM_BASE, "--preset", "classic"],
     "team/zmq": [*TEAM_BASE, "--transport", "zmq"],
     "team/zmq-lean": [*TEAM_BASE, "--transport", "zmq", "--lean"],
     "team/limited": [

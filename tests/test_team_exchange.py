@@ -59,7 +59,7 @@ from sonarmap.team.wire import (
 )
 
 LOGGER = "sonarmap.team.exchange"
-BIG = StoreParams(pose_limit=10**7, region_limit=10**8)
+BIG = StoreParams(pose_limit=10**7, region_limit=10**8, store_limit=0)
 COV = (1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-5)
 FAST = {"advert_every": 1.0, "request_every": 0.5, "request_timeout": 3.0, "peer_timeout": 5.0}
 DT = 0.5

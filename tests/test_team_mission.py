@@ -15,7 +15,7 @@ from sonarmap.io.rosmap import OccupancyMap, write_map
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
 from sonarmap.team.mission import MissionConfig, run_mission
-from sonarmap.team.store import StoreParams
+from sonarmap.team.store import StoreParams, local_bound
 
 
 @pytest.fixture(scope="module")
@@ -44,14 +44,22 @@ def test_a_mission_beats_odometry_and_keeps_its_bounds(mission: dict[str, object
     store = r.store  # type: ignore[attr-defined]
     for region in store.local.patches:
         assert store.local.region_bytes(region) <= 60_000 + StoreParams().pose_limit
-    assert s["local_bytes_bound"] == s["regions"] * 60_000 + StoreParams().pose_limit
+    assert s["local_bytes_bound"] == local_bound(StoreParams(region_limit=60_000), s["regions"])
+    assert s["local_bytes_bound"] > s["regions"] * 60_000 + StoreParams().pose_limit
+    assert s["local_bytes_bound_by"] == "regions"
     assert s["local_bytes_peak"] <= s["local_bytes_bound"]
+    assert s["local_bytes_within_bound"] is True
     assert s["store_bytes_final"] == store.local.bytes() + s["closure_bytes_final"]
     assert s["poses"] < s["poses_made"]  # compression removed or merged some
     # The map lands on the plan: better than the odometry-posed map cannot be
     # promised on 150 s, but the alignment must put it within a metre.
     assert s["alignment_error_m"] < 1.0
     assert 0.0 < s["map_f1"] <= s["map_f1_true_poses"] + 0.05
+    # The same local maps at their true poses bound the fused map; what the store
+    # dropped is the gap between that and the map from every reading.
+    assert s["map_poses_held"] == s["poses"]
+    assert s["map_f1"] <= s["map_f1_held_true_poses"] + 0.02
+    assert s["map_f1_held_true_poses"] <= s["map_f1_true_poses"] + 0.05
 
 
 def test_vanished_landmarks_lose_reliability(mission: dict[str, object]) -> None:
@@ -96,6 +104,13 @@ def test_team_commands_write_their_outputs(tmp_path: Path, plan: OccupancyMap) -
         assert key in s
     for name in ("map.yaml", "map.pgm", "map.npy", "graph.png", "memory.csv", "mission.gif"):
         assert (tmp_path / "out" / name).stat().st_size > 0
+    # memory.csv: the store and its own layer after each pose, beside the layer's bound.
+    rows = (tmp_path / "out" / "memory.csv").read_text().splitlines()
+    assert rows[0] == "robot,pose,store_bytes,local_bytes,local_bytes_bound"
+    assert len(rows) == 1 + robot["poses_made"]
+    cells = [[int(v) for v in r.split(",")] for r in rows[1:]]
+    assert all(loc <= whole and b == robot["local_bytes_bound"] for _, _, whole, loc, b in cells)
+    assert max(c[3] for c in cells) <= robot["local_bytes_peak"] <= robot["local_bytes_bound"]
     from PIL import Image, ImageSequence
 
     with Image.open(tmp_path / "out" / "mission.gif") as gif:
@@ -123,6 +138,9 @@ def test_the_stage_table_accounts_for_every_candidate(mission: dict[str, object]
     ("args", "message"),
     [
         (["--pose-limit", "100"], "--pose-limit"),
+        # Room for one landmark, not for a pose's 60 x 60 cell local map.
+        (["--pose-limit", "2000"], "--pose-limit: store: pose_limit 2000 B is below"),
+        (["--store-limit", "1000"], "--store-limit"),
         (["--pose-limit", "20000", "--region-limit", "10000"], "--region-limit"),
         (["--robots", "0"], "--robots"),
         (["--duration", "-5"], "--duration"),

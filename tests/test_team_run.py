@@ -42,6 +42,7 @@ def test_a_patrolling_team_run_writes_the_team_summary(tmp_path: Path, plan: Occ
     assert s["duplicate_poses"] == 0
     assert s["identical_maps"] is True  # full network, good protocol by default
     assert s["exchange"]["mode"] == "good"
+    assert s["preset"] == "lean"  # a team's default
     assert s["convergence_s"] is not None
     assert s["convergence_s"] >= 0
     assert s["bytes_per_robot_minute"] > 0
@@ -52,16 +53,21 @@ def test_a_patrolling_team_run_writes_the_team_summary(tmp_path: Path, plan: Occ
     for row in s["robots"]:
         for key in ("bytes_sent", "bytes_received", "messages", "poses_local", "poses_received"):
             assert row[key] > 0
+        # A robot's map fuses the others' poses too, which its own readings at the true
+        # poses (map_f1_true_poses) leave out: the bound it is scored beside holds them.
+        assert row["map_poses_held"] == row["poses_local"] + row["poses_received"]
+        assert row["map_f1"] <= row["map_f1_held_true_poses"] + 0.02
     for name in ("team.png", "map_central.yaml", "map_robot1.yaml", "graph_robot0.png"):
         assert (out / name).stat().st_size > 0
 
 
-def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap) -> None:
+def test_a_team_runs_the_lean_exchange_by_default(tmp_path: Path, plan: OccupancyMap) -> None:
     write_map(plan, tmp_path / "plan")
     out = tmp_path / "out"
     main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--robots", "2",
-          "--duration", "40", "--lean", "-o", str(out)])  # fmt: skip
+          "--duration", "40", "-o", str(out)])  # fmt: skip
     s = json.loads((out / "summary.json").read_text())
+    assert s["preset"] == "lean"
     ex = s["exchange"]
     assert (ex["anchor_every"], ex["anchor_share"], ex["hold"]) == (12, 0.15, 30.0)
     assert (ex["descriptor_bits"], ex["ternary_maps"]) == (3, True)
@@ -70,6 +76,36 @@ def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap
     assert s["duplicate_poses"] == 0
     assert s["identical_maps"] is True  # everything is published when the routes end
     assert all(r["poses_received"] > 0 for r in s["robots"])
+
+
+@pytest.mark.parametrize(
+    ("args", "preset", "want"),
+    [
+        # The thesis's settings, by name.
+        (["--preset", "classic"], "classic", (1, 0.0, 0.0, 8, False, 0, False)),
+        # Options given under the default preset win over it; the rest stays lean.
+        (["--anchors", "4", "--no-fold"], "lean", (4, 0.15, 30.0, 3, True, 8, False)),
+        # One robot and the naive baseline get no preset unless they name one.
+        (["--exchange", "naive"], None, (1, 0.0, 0.0, 8, False, 0, False)),
+    ],
+)
+def test_presets_and_the_options_given_under_them(
+    tmp_path: Path,
+    plan: OccupancyMap,
+    args: list[str],
+    preset: str | None,
+    want: tuple[object, ...],
+) -> None:
+    write_map(plan, tmp_path / "plan")
+    out = tmp_path / "out"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--robots", "2",
+          "--duration", "10", *args, "-o", str(out)])  # fmt: skip
+    s = json.loads((out / "summary.json").read_text())
+    ex, store = s["exchange"], s["robots"][0]["parameters"]["store"]
+    got = (ex["anchor_every"], ex["anchor_share"], ex["hold"], ex["descriptor_bits"],
+           ex["ternary_maps"], store["merge_on_closure"], store["fold"])  # fmt: skip
+    assert s["preset"] == preset
+    assert got == want
 
 
 @pytest.mark.parametrize(
@@ -93,18 +129,25 @@ def test_lean_sets_the_measured_lean_exchange(tmp_path: Path, plan: OccupancyMap
         (["--lean", "--merge-on-closure", "0"], "--merge-on-closure"),
         (["--merge-on-closure", "-1"], "--merge-on-closure"),
         (
-            ["--anchor-share", "0.2"],
+            ["--anchors", "1", "--anchor-share", "0.2"],
             "--anchor-share: exchange: anchor_share needs anchor_every > 1",
         ),
         (["--anchors", "8", "--anchor-share", "2"], "--anchor-share"),
         (["--lean", "--anchor-share", "0.1"], "--anchor-share"),
-        (["--loop-anchors"], "--anchors K > 1"),
+        (["--anchors", "1", "--anchor-share", "0", "--loop-anchors"], "--anchors K > 1"),
         (["--lean", "--exchange", "naive"], "--lean"),
         (["--descriptor-bits", "9"], "--descriptor-bits"),
         (["--range", "0", "--network", "limited"], "--link-range: network parameter 'r_max'"),
         (["--link-range", "0", "--network", "limited"], "--link-range"),
         (["--range", "10"], "--link-range is the limited network's"),
         (["--transport", "pigeon"], "--transport"),
+        (["--preset", "fast"], "--preset must be one of classic, lean"),
+        (["--lean", "--preset", "classic"], "--lean is --preset lean"),
+        (["--preset", "lean", "--anchors", "4"], "--preset lean sets"),
+        (["--preset", "classic", "--hold", "5"], "--preset classic sets"),
+        (["--preset", "lean", "--exchange", "naive"], "--preset lean"),
+        # Under the default lean preset --anchors 1 leaves its anchor share without anchors.
+        (["--anchors", "1"], "under the default --preset lean"),
         (["--patrol", "--route", "r.csv"], "--patrol"),
     ],
 )

@@ -31,11 +31,12 @@ from sonarmap.team.store import (
     StoreParams,
     compress_for_sending,
     compress_pose,
+    local_bound,
 )
 
 F64 = npt.NDArray[np.float64]
 COV = (1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-5)
-BIG = StoreParams(pose_limit=10**7, region_limit=10**8)
+BIG = StoreParams(pose_limit=10**7, region_limit=10**8, store_limit=0)
 
 
 def make_landmarks(
@@ -191,6 +192,46 @@ def test_memory_stays_bounded_as_the_mission_grows() -> None:
         ids_a = store.local.poses[c.a].landmarks.ids[list(ia)]
         ids_b = store.local.poses[c.b].landmarks.ids[list(jb)]
         assert np.array_equal(ids_a, ids_b)  # matches still name the same landmarks
+
+
+@pytest.mark.parametrize("store_limit", [0, 70_000])
+def test_the_store_limit_holds_the_layer_below_the_regions_bound(store_limit: int) -> None:
+    # Four regions of 32 kB would hold 128 kB; a 70 kB store budget must hold the layer
+    # there from the first lap on, every visited region keeping a share; 0 lets it fill.
+    params = StoreParams(pose_limit=8000, region_limit=32000, store_limit=store_limit)
+    bound = local_bound(params, 4)
+    mission = Mission(params)
+    store = mission.store
+    peaks = []
+    for k in range(160):
+        mission.step(k)
+        assert store.local.bytes() <= bound
+        if store_limit:
+            assert store.local.bytes() <= store_limit
+        if k + 1 in (40, 160):
+            peaks.append(store.peak_local_bytes)
+    assert max(peaks) <= bound
+    if store_limit:
+        assert bound < 4 * params.region_limit  # the budget, not the regions, binds
+        assert peaks[-1] <= 1.05 * peaks[0]
+        regions = {p.region for p in store.local.poses.values()}
+        assert regions == {0, 1, 2, 3}  # no region forgotten whole
+        shares = [store.local.region_bytes(r) for r in range(4)]
+        assert max(shares) <= 2.5 * min(shares)
+    else:
+        assert peaks[-1] > 100_000  # without the budget the regions fill to 4 x 32 kB
+    uids = set(store.local.poses)
+    assert all(e.a in uids and e.b in uids for e in store.local.edges)
+    assert all(c.a in uids and c.b in uids for c in store.closures)
+
+
+def test_local_bound_is_the_smaller_of_the_regions_and_the_budget() -> None:
+    p = StoreParams(pose_limit=10_000, region_limit=50_000, store_limit=120_000)
+    slack = local_bound(p, 1) - 50_000 - 10_000
+    assert 0 < slack < 300  # the new pose's odometry edge
+    assert local_bound(p, 2) == 100_000 + 10_000 + slack
+    assert local_bound(p, 10) == 120_000 + 10_000 + slack
+    assert local_bound(replace(p, store_limit=0), 10) == 500_000 + 10_000 + slack
 
 
 # --- pose compression -----------------------------------------------------------------
@@ -549,6 +590,9 @@ def test_compress_for_sending_keeps_the_fresh_reliable_pose() -> None:
         ({"fold": 1}, "fold"),
         ({"merge_on_closure": -1}, "merge_on_closure"),
         ({"merge_on_closure": 8.5}, "merge_on_closure"),
+        ({"store_limit": 10_000}, "store_limit"),
+        ({"store_limit": -1}, "store_limit"),
+        ({"store_limit": 1.5e6}, "store_limit"),
     ],
 )
 def test_bad_params_name_the_field(kwargs: dict[str, float], name: str) -> None:

@@ -20,6 +20,7 @@ from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
 from ..team.outputs import write_missions, write_team
 from ..team.patrolling import patrol_routes
+from ..team.presets import DEFAULT_PRESET, PRESETS, TeamPreset
 from ..team.prior import ERROR_KEYS, check_prior, degrade_plan, parse_prior_error
 from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
@@ -238,6 +239,11 @@ STORE_OPTIONS = (
     Opt("pose_limit", "Bytes one pose may take in the store (the thesis's M_pose)."),
     Opt("region_limit", "Bytes one region of the store may take (the thesis's M_r)."),
     Opt(
+        "store_limit",
+        "Bytes the robot's own layer may take, every region together; past it the store "
+        "thins its poses across regions (0: only the regions' bound).",
+    ),
+    Opt(
         "fold",
         "A pose that region compression deletes leaves its local map to the newest pose.",
         off="--no-fold",
@@ -252,10 +258,13 @@ STORE_OPTIONS = (
 )
 
 
-def _team_options(ctx: typer.Context) -> tuple[NetworkParams, ExchangeParams, StoreParams]:
-    """The network, exchange and store of ``team run``'s options (``--lean`` applied)."""
-    from ..team.presets import PRESETS
-
+def _team_options(
+    ctx: typer.Context, robots: int
+) -> tuple[NetworkParams, ExchangeParams, StoreParams, str | None]:
+    """The network, exchange and store of ``team run``'s options, and the preset applied
+    (None: none). A preset named by ``--preset`` (or ``--lean``) refuses the options it
+    sets; the default preset of a team (:data:`~sonarmap.team.presets.DEFAULT_PRESET`)
+    yields to them. A single robot and the naive baseline get no preset by default."""
     net = config_from_options(NetworkParams, ctx.params, NETWORK_OPTIONS)
     if "r_max" in given(ctx, NETWORK_OPTIONS) and net.kind != "limited":
         raise ConfigError(f"--link-range is the limited network's; --network is {net.kind}")
@@ -264,29 +273,92 @@ def _team_options(ctx: typer.Context) -> tuple[NetworkParams, ExchangeParams, St
         # A link that may break or be slow is what the limited protocol was designed for.
         return mode if mode is not None else ("good" if net.kind == "full" else "limited")
 
-    lean = PRESETS["lean"]
+    chosen: str | None = ctx.params.get("preset")
+    flag = None if chosen is None else f"--preset {chosen}"
+    if chosen is not None and chosen not in PRESETS:
+        raise ConfigError(
+            f"--preset must be one of {', '.join(sorted(PRESETS))}, got {quote(chosen)}"
+        )
     if ctx.params.get("lean"):
-        # Given at all, even at its default value, an option would be silently overridden.
-        opts = given(ctx, (*EXCHANGE_OPTIONS, *STORE_OPTIONS))
-        clash = lean.conflicts(opts)
+        if chosen not in (None, "lean"):
+            raise ConfigError(f"--lean is --preset lean: drop it or {flag}")
+        chosen, flag = "lean", "--lean"
+    # Given at all, even at its default value, an option would be silently overridden.
+    opts = given(ctx, (*EXCHANGE_OPTIONS, *STORE_OPTIONS))
+    if chosen is not None:
+        preset = PRESETS[chosen]
+        clash = preset.conflicts(opts)
         if clash:
             names = [opts[f] for f in clash]
             raise ConfigError(
-                f"--lean sets {', '.join(opts_of(lean.sets()))}: drop {', '.join(names)} "
-                "or drop --lean"
+                f"{flag} sets {', '.join(opts_of(preset.sets()))}: drop {', '.join(names)} "
+                f"or drop {flag}"
             )
-    exchange = config_from_options(
-        ExchangeParams, ctx.params, EXCHANGE_OPTIONS, convert={"mode": protocol}
-    )
-    if exchange.loop_anchors and exchange.anchor_every == 1:
-        raise ConfigError("--loop-anchors chooses among poses sent bare: give --anchors K > 1")
-    store = config_from_options(StoreParams, ctx.params, STORE_OPTIONS)
-    if ctx.params.get("lean"):
+    params: dict[str, Any] = dict(ctx.params)
+    fixed: dict[str, dict[str, Any]] = {"exchange": {}, "store": {}}
+    mode = next(ctx.params.get(o.param) for o in EXCHANGE_OPTIONS if o.field == "mode")
+    default = chosen is None and robots > 1 and protocol(mode) != "naive"
+    if default:
+        # The default preset's values stand in for the defaults of the options not given.
+        chosen, flag = DEFAULT_PRESET, f"under the default --preset {DEFAULT_PRESET}"
+        params, fixed = _under_preset(PRESETS[chosen], params, set(opts))
+    try:
+        exchange = config_from_options(
+            ExchangeParams,
+            params,
+            EXCHANGE_OPTIONS,
+            convert={"mode": protocol},
+            fixed=fixed["exchange"],
+        )
+        if exchange.loop_anchors and exchange.anchor_every == 1:
+            raise ConfigError("--loop-anchors chooses among poses sent bare: give --anchors K > 1")
+        store = config_from_options(StoreParams, params, STORE_OPTIONS, fixed=fixed["store"])
+    except ConfigError as err:
+        if default:
+            raise ConfigError(f"{err} ({flag}; --preset classic for the thesis's)") from None
+        raise
+    if chosen is not None and not default:
         try:
-            exchange, store = lean.apply(exchange, store)
+            exchange, store = PRESETS[chosen].apply(exchange, store)
         except ConfigError as err:
-            raise ConfigError(f"--lean: {err}") from None
-    return net, exchange, store
+            raise ConfigError(f"{flag}: {err}") from None
+    return net, exchange, store, chosen
+
+
+def _under_preset(
+    preset: TeamPreset, params: dict[str, Any], given_fields: set[str]
+) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """``ctx.params`` with the preset's value for every option it sets that was not
+    given, and the preset's values of fields no option sets (``fixed`` of
+    :func:`config_from_options`, by ``"exchange"`` and ``"store"``)."""
+    out = dict(params)
+    fixed: dict[str, dict[str, Any]] = {"exchange": {}, "store": {}}
+    own = [f for f in preset.sets() if f not in preset.store]
+    values = {
+        "exchange": {f: getattr(preset.exchange, f) for f in own},
+        "store": dict(preset.store),
+    }
+    for kind, opts in (("exchange", EXCHANGE_OPTIONS), ("store", STORE_OPTIONS)):
+        by_field = {o.field: o for o in opts}
+        for f, v in values[kind].items():
+            if f in given_fields:
+                continue
+            if f in by_field:
+                out[by_field[f].param] = v
+            else:
+                fixed[kind][f] = v
+    return out, fixed
+
+
+def _mission_config(duration: float, seed: int, store: StoreParams) -> MissionConfig:
+    """The mission's config; a store bound too small for one pose names its option."""
+    try:
+        return MissionConfig(duration=duration, seed=seed, store=store)
+    except ConfigError as err:
+        names = {o.field: o.name for o in STORE_OPTIONS}
+        if err.field in names:
+            raise ConfigError(f"{names[err.field]}: {err.reason}", field=err.field) from None
+        raise
 
 
 def opts_of(fields: tuple[str, ...]) -> list[str]:
@@ -304,9 +376,11 @@ def _run_zmq_team(
     exchange: ExchangeParams,
     seed: int,
     progress: Any,
+    preset: str | None,
 ) -> dict[str, Any]:
     """The team as local ZeroMQ processes (:func:`sonarmap.team.launcher.run_zmq_team`):
-    the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json``."""
+    the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json`` (with
+    the preset applied, None for none)."""
     # Imported here: the node module pulls in the process machinery only zmq needs.
     from ..team.launcher import run_zmq_team
 
@@ -321,6 +395,7 @@ def _run_zmq_team(
             progress=progress,
             folder=tmp / "nodes",
         )
+        result.summary["preset"] = preset
         atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
     return result.summary
 
@@ -403,14 +478,21 @@ def run_cmd(
             "or more robots team.gif too: positions, links, poses held from the others.",
         ),
     ] = False,
+    preset: Annotated[
+        str | None,
+        typer.Option(
+            "--preset",
+            help="Exchange and store settings by name: lean (the measured lean exchange: "
+            "--anchors 12 --anchor-share 0.15 --hold 30 --descriptor-bits 3 --ternary-maps "
+            "--fold --merge-on-closure 8, adverts every 10 s, whole every 60 s) or classic "
+            "(the thesis's: every pose whole and exact). Default: lean for a team exchanging "
+            "by a protocol, the options given winning over it; none for one robot or the "
+            "naive baseline. A preset named here refuses the options it sets.",
+        ),
+    ] = None,
     lean: Annotated[
         bool,
-        typer.Option(
-            "--lean",
-            help="The measured lean exchange: --anchors 12 --anchor-share 0.15 --hold 30 "
-            "--descriptor-bits 3 --ternary-maps --fold --merge-on-closure 8, and adverts "
-            "every 10 s (whole every 60 s).",
-        ),
+        typer.Option("--lean", help="The same as --preset lean."),
     ] = False,
     transport: Annotated[
         str, typer.Option("--transport", help="sim (simulated network) or zmq (processes).")
@@ -466,7 +548,7 @@ def run_cmd(
     # Refused, not attempted: with zmq each robot is a process of its own.
     _check_robots(robots, processes=transport == "zmq")
     _check_duration(duration)
-    net, protocol, store = _team_options(ctx)
+    net, protocol, store, preset_used = _team_options(ctx, robots)
     if patrol and route is not None:
         raise ConfigError("--patrol drives every robot: drop --route")
     if transport == "zmq" and (
@@ -490,7 +572,7 @@ def run_cmd(
             routes[0] = saved
     if route is not None:
         routes[0] = read_route(route)
-    config = MissionConfig(duration=duration, seed=seed, store=store)
+    config = _mission_config(duration, seed, store)
     if patrol:
         # The patrol replaces any route, a saved world's included.
         patrolled, _ = patrol_routes(plan, robots, duration, seed=seed)
@@ -501,7 +583,7 @@ def run_cmd(
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
         with progress("team") as update:
             tick = partial(_tick, update, f"{robots} nodes")
-            s = _run_zmq_team(out, plan, config, robots, net, protocol, seed, tick)
+            s = _run_zmq_team(out, plan, config, robots, net, protocol, seed, tick, preset_used)
         console.print(
             f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}: {out}"
@@ -556,6 +638,7 @@ def run_cmd(
                 update(0, 0, "maps, pictures" + (" and animations" if animate else ""))
                 if prior_desc is not None:
                     team.summary["prior"] = prior_desc
+                team.summary["preset"] = preset_used
                 write_team(tmp, plan, team, animate=animate)
         else:
             extra = None if prior_desc is None else {"prior": prior_desc}
@@ -693,7 +776,7 @@ def node_cmd(
     fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
     key = None if key_file is None else read_team_key(key_file)
     plan = resolve_map(map_, resolution, origin)
-    config = MissionConfig(duration=duration, seed=seed, store=store)
+    config = _mission_config(duration, seed, store)
     with progress(f"robot {robot}") as update:
         s = run_node(
             plan,

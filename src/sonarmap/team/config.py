@@ -10,7 +10,7 @@ from typing import Any
 from ..errors import ConfigError
 from ..parallel import MIN_PROCESS_LIMIT, PROCESSES_PER_CORE, process_limit
 from .association import AssociationParams
-from .store import StoreParams
+from .store import StoreParams, pose_floor
 
 __all__ = [
     "MAX_DURATION",
@@ -142,3 +142,17 @@ class MissionConfig:
             raise ConfigError(f"batch must be >= 1, got {self.batch}", field="batch")
         if self.seed < 0:
             raise ConfigError(f"seed must be >= 0, got {self.seed}", field="seed")
+        n = self.local_cells()
+        floor = pose_floor(self.store, n)
+        if self.store.pose_limit < floor:
+            # Pose compression drops landmarks, never map cells: found here, not mid-run.
+            raise ConfigError(
+                f"store: pose_limit {self.store.pose_limit} B is below the size of a pose "
+                f"with one landmark and its {n} x {n} local map ({floor} B)",
+                field="pose_limit",
+            )
+
+    def local_cells(self) -> int:
+        """Cells along a side of a pose's local map (``local_size`` / ``local_resolution``,
+        at least 2)."""
+        return max(2, round(self.local_size / self.local_resolution))

@@ -24,7 +24,7 @@ from ..metrics import score
 from ..readings import Readings
 from .association import AssociationStats
 from .config import MissionConfig
-from .globalmap import Alignment, GraphResult
+from .globalmap import Alignment, GraphResult, fuse_local_maps
 from .records import ClosureEdge, Pose, compose, invert
 from .scoring import closure_correct, landmark_changes, origin_of, rigid_ate, same_landmarks
 from .sensing import RobotSensing
@@ -282,6 +282,7 @@ class MissionEvaluator:
             cfg.mapper,
             cfg.mapper_params,
         )
+        held_f1, held_n = self._held_at_truth(plan, store)
         changes: dict[str, Any] = dict(
             landmark_changes(self.world, store, dict(made), truth, self.end)
         )
@@ -312,9 +313,26 @@ class MissionEvaluator:
             "map_f1": score(plan, global_map).f1_all,
             "map_f1_true_poses": score(plan, true_posed).f1_all,
             "map_f1_odometry_poses": score(plan, odo_posed).f1_all,
+            "map_f1_held_true_poses": held_f1,
+            "map_poses_held": held_n,
             "alignment_error_m": align_m,
             "alignment_error_deg": align_deg,
         }
+
+    def _held_at_truth(self, plan: OccupancyMap, store: RobotStore) -> tuple[float, int]:
+        """The wall F1 of the map fused, as the global map is, from the local maps of
+        every pose the store holds (own and received), each at its true pose, and how
+        many poses that is: the global map's bound given what the store kept."""
+        held: dict[int, Pose] = dict(store.local.poses)
+        for source in sorted(store.received):
+            held.update(store.received[source].poses)
+        at: dict[int, F64] = {}
+        for uid in held:
+            o = self._origin_any(uid)
+            if o is not None:
+                at[uid] = self._true_of(o)
+        fused = fuse_local_maps({u: held[u] for u in at}, at, plan.grid)
+        return score(plan, fused).f1_all, len(at)
 
     # --- state ---------------------------------------------------------------------------
 

@@ -98,7 +98,7 @@ from .records import (
 )
 from .regions import cut_regions, region_of
 from .sensing import RobotSensing
-from .store import RobotStore
+from .store import RobotStore, local_bound
 from .world import (
     ODOMETRY_NOISE,
     World,
@@ -152,7 +152,7 @@ def _local_map(readings: Readings, rig: Rig, config: MissionConfig) -> LocalMap 
     """The pose's local map from its readings (in its frame), by the configured mapper."""
     if len(readings) == 0:
         return None
-    n = max(2, round(config.local_size / config.local_resolution))
+    n = config.local_cells()
     h = n * config.local_resolution / 2
     grid = Grid(config.local_resolution, (-h, -h), (n, n))
     m = build_map(readings, rig, grid, config.mapper, config.mapper_params)
@@ -597,22 +597,27 @@ class RobotAgent:
         scores = self.evaluator.scores(plan, store, graph, alignment, global_map)
         assoc = np.array(self.assoc_seconds)
         counter, labels = self.counter, self.labels
+        regions = int(labels.max()) + 1
+        bound = local_bound(store.params, regions)
         summary: dict[str, Any] = {
             "robot": self.robot,
             "store_bytes_peak": int(store.peak_bytes),
             "store_bytes_final": int(store.bytes()),
             "local_bytes_peak": int(store.peak_local_bytes),
-            # The configured bound of the local layer: every region of the prior full,
-            # plus the newest pose, which region compression never removes.
-            "local_bytes_bound": int(
-                (int(labels.max()) + 1) * store.params.region_limit + store.params.pose_limit
-            ),
+            # The configured bound of the local layer (store.local_bound): every region
+            # of the prior full or the store's budget, plus the newest pose.
+            "local_bytes_bound": bound,
+            "local_bytes_bound_by": "regions"
+            if store.params.store_limit <= 0
+            or regions * store.params.region_limit <= store.params.store_limit
+            else "store_limit",
+            "local_bytes_within_bound": bool(store.peak_local_bytes <= bound),
             "closure_bytes_final": int(store.closure_bytes()),
             "poses": len(store.local.poses),
             "poses_made": counter,
             "landmarks": int(sum(len(p.landmarks) for p in store.local.poses.values())),
             "closures": len(store.closures),
-            "regions": int(labels.max()) + 1,
+            "regions": regions,
             "regions_used": len({p.region for p in store.local.poses.values()}),
             **scores,
             "alignment_score_m": float(alignment.score),

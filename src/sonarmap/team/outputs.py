@@ -30,13 +30,19 @@ Note = Callable[[str], None]
 
 
 def memory_csv(results: Sequence[MissionResult]) -> str:
-    """``robot,pose,store_bytes``: each robot's store bytes after each pose it made."""
+    """``robot,pose,store_bytes,local_bytes,local_bytes_bound``: each robot's whole store
+    and its local layer after each pose it made, beside the local layer's configured
+    bound (``local_bytes_bound`` of its summary). ``local_bytes`` is empty where the
+    result has no such figure (a robot restored from a checkpoint keeps only the
+    whole store's)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["robot", "pose", "store_bytes"])
+    w.writerow(["robot", "pose", "store_bytes", "local_bytes", "local_bytes_bound"])
     for r in results:
+        bound = r.summary["local_bytes_bound"]
+        local = r.local_bytes_per_pose
         for i, b in enumerate(r.bytes_per_pose):
-            w.writerow([r.summary["robot"], i, b])
+            w.writerow([r.summary["robot"], i, b, local[i] if i < len(local) else "", bound])
     return buf.getvalue()
 
 

@@ -1,8 +1,14 @@
-"""Named settings of the team's exchange and store, such as ``team run --lean``.
+"""Named settings of the team's exchange and store: ``team run --preset NAME``.
 
 A preset sets some fields of :class:`~.exchange.ExchangeParams` and
 :class:`~.store.StoreParams` and leaves the others to the caller; it says which fields it
 sets, so that a caller can refuse a setting the preset would silently override.
+
+:data:`DEFAULT_PRESET` (``lean``) is what ``team run`` gives a team of two or more robots
+exchanging by a protocol: the setting that meets the team's bandwidth goal. ``classic``
+is the thesis's exchange and store as the dataclasses' defaults have them (every pose
+whole and exact, no fold, no merge at closures), which a single robot and the naive
+baseline keep.
 """
 
 from __future__ import annotations
@@ -15,7 +21,7 @@ from ..errors import ConfigError
 from .exchange import LEAN, LEAN_MERGE_ON_CLOSURE, ExchangeParams
 from .store import StoreParams
 
-__all__ = ["PRESETS", "TeamPreset"]
+__all__ = ["DEFAULT_PRESET", "PRESETS", "TeamPreset"]
 
 
 @dataclass(frozen=True)
@@ -32,12 +38,16 @@ class TeamPreset:
         Exchange fields left to the caller (the protocol, its cap and budget).
     store : mapping
         Store fields the preset sets, with their values.
+    naive : bool
+        Whether the preset may go with the naive baseline (which it then leaves as the
+        caller's): False for a preset that thins what travels.
     """
 
     name: str
     exchange: ExchangeParams
     keep: tuple[str, ...] = ("mode", "cap_bytes", "budget")
     store: Mapping[str, Any] = field(default_factory=dict)
+    naive: bool = False
 
     def sets(self) -> tuple[str, ...]:
         """Every field the preset sets: the exchange's (but ``keep``), then the store's."""
@@ -70,9 +80,12 @@ class TeamPreset:
         Raises
         ------
         ConfigError
-            For the naive baseline, which has nothing to thin out (``field="mode"``).
+            For the naive baseline, which has nothing to thin out (``field="mode"``),
+            unless the preset allows it (``naive``: then the caller's exchange stays).
         """
         if exchange.mode == "naive":
+            if self.naive:
+                return exchange, replace(store, **self.store)
             raise ConfigError(
                 f"the {self.name} preset is for the protocols; the naive baseline sends every pose",
                 field="mode",
@@ -82,9 +95,16 @@ class TeamPreset:
 
 
 #: The presets by name. ``lean``: :data:`~.exchange.LEAN` with the store's ``fold`` and
-#: :data:`~.exchange.LEAN_MERGE_ON_CLOSURE` (the measured lean exchange).
+#: :data:`~.exchange.LEAN_MERGE_ON_CLOSURE` (the measured lean exchange). ``classic``: the
+#: thesis's exchange and store (the dataclasses' defaults).
 PRESETS = {
     "lean": TeamPreset(
         "lean", LEAN, store={"fold": True, "merge_on_closure": LEAN_MERGE_ON_CLOSURE}
     ),
+    "classic": TeamPreset(
+        "classic", ExchangeParams(), store={"fold": False, "merge_on_closure": 0}, naive=True
+    ),
 }
+#: The preset of a team that names none (two or more robots, a protocol, not the naive
+#: baseline): the one that meets the team's goal (docs/results, the team pages).
+DEFAULT_PRESET = "lean"

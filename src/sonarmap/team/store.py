@@ -52,6 +52,8 @@ __all__ = [
     "compress_for_sending",
     "compress_pose",
     "kernel_density",
+    "local_bound",
+    "pose_floor",
     "utility",
 ]
 
@@ -81,6 +83,13 @@ class StoreParams:
     region_limit : int
         M_r, bytes of one region of the local layer (poses and the odometry edges ending
         at them). 131072 (eight full poses).
+    store_limit : int
+        M_store, bytes of the whole local layer, every region together: past it, the
+        layer is compressed across its regions by the same rule as one region (the
+        deletion or merge of best E over all its poses), so a building with more
+        regions than the budget holds thins its poses instead of growing. 2097152
+        (2 MiB: sixteen regions full at the default M_r, about what the project's
+        20 x 16 m buildings fill). 0: no bound but the regions' (regions x M_r).
     a, g, s : float
         The utility's phi(t, r) = a exp(-g t^2 (1 - r)^2 / s^2): scale 1, gain 1 and time
         scale 600 s (a landmark of reliability 0 keeps 1/e of its value after ten
@@ -135,6 +144,7 @@ class StoreParams:
 
     pose_limit: int = 16_384
     region_limit: int = 131_072
+    store_limit: int = 2_097_152
     a: float = 1.0
     g: float = 1.0
     s: float = 600.0
@@ -165,11 +175,13 @@ class StoreParams:
                 raise ConfigError(
                     f"store: {f.name} must be a finite number, got {v!r}", field=f.name
                 )
-            if v < 0 or (v == 0 and f.name not in ("a", "g", "beta", "merge_on_closure")):
+            zero_ok = ("a", "g", "beta", "merge_on_closure", "store_limit")
+            if v < 0 or (v == 0 and f.name not in zero_ok):
                 raise ConfigError(f"store: {f.name} must be > 0, got {v}", field=f.name)
         for name in (
             "pose_limit",
             "region_limit",
+            "store_limit",
             "merge_min_inliers",
             "merge_on_closure",
             "descriptor_dim",
@@ -195,6 +207,69 @@ class StoreParams:
                 f"{self.pose_limit} B",
                 field="region_limit",
             )
+        if 0 < self.store_limit < self.pose_limit:
+            raise ConfigError(
+                f"store: store_limit {self.store_limit} B is below pose_limit "
+                f"{self.pose_limit} B: the store could not hold one pose",
+                field="store_limit",
+            )
+
+
+def pose_floor(params: StoreParams, map_cells: int) -> int:
+    """Bytes of the largest pose the store must be able to keep: one landmark and a
+    local map of ``map_cells`` x ``map_cells`` cells, none of them unknown (pose
+    compression drops landmarks, never map cells).
+
+    Parameters
+    ----------
+    params : StoreParams
+        For the descriptor's length.
+    map_cells : int
+        Cells along a side of a pose's local map (0: no map).
+    """
+    lm = Landmarks(
+        np.zeros((1, 3), dtype=np.float32),
+        np.zeros((1, params.descriptor_dim), dtype=np.uint8),
+        np.full(1, 0.5, dtype=np.float32),
+        np.zeros(1),
+        np.full(1, -1, dtype=np.int64),
+    )
+    local = None
+    if map_cells > 0:
+        local = LocalMap(np.full((map_cells, map_cells), 127, dtype=np.int8), 0.1)
+    uid = make_uid(2**23 - 1, 2**40 - 1)
+    return size_of(Pose(uid, 0.0, 2**31 - 1, np.zeros(3), lm, local))
+
+
+#: The largest odometry edge's encoding (UIDs of the largest size): the edge that
+#: arrives with a new pose, which the local layer holds before it is compressed.
+_EDGE_BYTES = size_of(
+    OdometryEdge(
+        make_uid(2**23 - 1, 2**40 - 1),
+        make_uid(2**23 - 1, 2**40 - 1),
+        (1.0, 1.0, 1.0),
+        tuple(1.0 for _ in range(9)),
+        1e9,
+        1.0,
+    )
+)
+
+
+def local_bound(params: StoreParams, regions: int) -> int:
+    """The configured bound of a robot's local layer, bytes: every region full (regions
+    x M_r) or the store's budget M_store if that is less, plus the newest pose and its
+    odometry edge, which the layer holds before it is compressed.
+
+    Parameters
+    ----------
+    params : StoreParams
+    regions : int
+        Regions of the prior map.
+    """
+    full = regions * params.region_limit
+    if params.store_limit > 0:
+        full = min(full, params.store_limit)
+    return int(full + params.pose_limit + _EDGE_BYTES)
 
 
 def _one_landmark_bytes(dim: int) -> int:
@@ -719,7 +794,8 @@ class RobotStore:
 
         (1) The pose and its odometry edge into the local layer; (2) the closures into
         the closure store; (3) time stamps; (4) reliabilities (closures between two own
-        poses); (5) pose compression, then compression of its region. The new pose is
+        poses); (5) pose compression, then compression of its region, then of the whole
+        layer if it exceeds ``store_limit`` (:meth:`compress_store`). The new pose is
         kept whole by region compression until the next one arrives: the next odometry
         edge starts from it.
         """
@@ -752,6 +828,7 @@ class RobotStore:
         self.compress_region(pose.region, now)
         if self.params.merge_on_closure:
             self.merge_reliable(now)
+        self.compress_store(now)
         self._note_peak()
 
     def merge_reliable(self, now: float) -> list[int]:
@@ -1067,13 +1144,62 @@ class RobotStore:
             todo |= self._compress_one(r, now)
 
     def _compress_one(self, region: int, now: float) -> set[int]:
+        layer = self.local
+        touched = self._compress(
+            lambda: layer.region_bytes(region) > self.params.region_limit, region, now
+        )
+        touched.discard(region)
+        return touched
+
+    def compress_store(self, now: float) -> None:
+        """Compression of the whole local layer (``StoreParams.store_limit``): while the
+        layer exceeds M_store, the region holding the most bytes loses the deletion or
+        merge of best efficiency E = M / (d sum U) among its poses (one step of region
+        compression). The regions' shares so even out: every region the robot visited
+        keeps about M_store / (regions visited) bytes, instead of the oldest regions
+        being forgotten whole. Nothing when ``store_limit`` is 0."""
+        limit = self.params.store_limit
+        if limit <= 0:
+            return
+        layer = self.local
+        stuck: set[int] = set()
+        while layer.bytes() > limit:
+            sizes = {
+                r: layer.region_bytes(r)
+                for r, p in layer.patches.items()
+                if p.short and r not in stuck
+            }
+            if not sizes:
+                break
+            region = max(sizes, key=lambda r: (sizes[r], -r))
+            before = layer.bytes()
+            touched = self._compress(lambda: True, region, now, steps=1)
+            if layer.bytes() >= before:
+                stuck.add(region)  # only the newest pose, or nothing it could free
+            for r in sorted(touched - {region}):
+                self.compress_region(r, now)
+
+    def _compress(
+        self,
+        over: Callable[[], bool],
+        region: int,
+        now: float,
+        *,
+        steps: int | None = None,
+    ) -> set[int]:
+        """The greedy loop of region compression over the poses of ``region`` while
+        ``over()``, at most ``steps`` deletions or merges (None: no limit); merges of
+        two of its poses compete with deletions. Returns the regions whose edges
+        changed."""
         layer, params = self.local, self.params
         lost: dict[int, float] = {}
         plans: dict[tuple[int, int], _MergePlan] = {}
         touched: set[int] = set()
-        while layer.region_bytes(region) > params.region_limit:
+        done = 0
+        while over() and (steps is None or done < steps):
+            done += 1
             uids = sorted(layer.patches[region].short)
-            where = np.array([layer.poses[u].estimate[:2] for u in uids])
+            where = np.array([layer.poses[u].estimate[:2] for u in uids]).reshape(-1, 2)
             density = dict(zip(uids, kernel_density(where, where, params.pose_sigma), strict=True))
             best: tuple[float, int, int, _MergePlan | None] | None = None
             for u in uids:
@@ -1105,7 +1231,6 @@ class RobotStore:
             else:
                 plans.clear()  # the UIDs planned ahead are now taken
                 self._apply_merge(best[3], now)
-        touched.discard(region)
         return touched
 
     def _merge_candidates(self, region: int) -> dict[tuple[int, int], ClosureEdge]:

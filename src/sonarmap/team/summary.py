@@ -29,6 +29,7 @@ MEAN_KEYS = (
     "map_f1",
     "map_f1_true_poses",
     "map_f1_odometry_poses",
+    "map_f1_held_true_poses",
     "alignment_error_m",
     "alignment_error_deg",
 )
