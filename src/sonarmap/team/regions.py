@@ -38,8 +38,16 @@ from scipy import ndimage
 
 from ..errors import ConfigError
 from ..grid import Grid
+from ..io.rosmap import FREE, OccupancyMap
 
-__all__ = ["clearance", "cut_regions", "region_adjacency", "region_of", "region_sizes"]
+__all__ = [
+    "clearance",
+    "cut_regions",
+    "mission_regions",
+    "region_adjacency",
+    "region_of",
+    "region_sizes",
+]
 
 I32 = npt.NDArray[np.int32]
 Mask = npt.NDArray[np.bool_]
@@ -291,6 +299,12 @@ def cut_regions(
     labels = _tile(labels, resolution, max_area)
     labels = _merge_small(labels, resolution, min_area)
     return _renumber(labels)
+
+
+def mission_regions(prior: OccupancyMap) -> I32:
+    """The regions a mission cuts its prior map into: :func:`cut_regions` of its free
+    cells at the defaults."""
+    return cut_regions(prior.classes() == FREE, prior.grid.resolution)
 
 
 def region_sizes(labels: I32, resolution: float) -> npt.NDArray[np.float64]:

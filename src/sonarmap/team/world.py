@@ -73,6 +73,7 @@ __all__ = [
     "route_from_waypoints",
     "save_world",
     "sonar_readings",
+    "wall_faces",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -190,9 +191,18 @@ def builtin_plan(name: str) -> OccupancyMap:
     return fp.render(fp.grid(0.1))
 
 
-def _faces(plan: OccupancyMap) -> tuple[F64, F64, F64]:
-    """Cell sides where an occupied cell meets a free one: their start corners (m, 2),
-    unit directions along them (m, 2) and outward normals into free space (m, 2)."""
+def wall_faces(plan: OccupancyMap) -> tuple[F64, F64, F64]:
+    """Cell sides where an occupied cell meets a free one (4-neighbours).
+
+    Returns
+    -------
+    starts : ndarray (m, 2)
+        Each side's start corner, world metres.
+    dirs : ndarray (m, 2)
+        Unit direction along the side (the side is one cell long).
+    normals : ndarray (m, 2)
+        Unit normal out of the occupied cell, into the free one.
+    """
     classes = plan.classes()
     occ = classes == OCCUPIED
     free = np.pad(classes == FREE, 1, constant_values=False)
@@ -341,7 +351,7 @@ def make_world(
             f"({move_min}, {move_max}) and texture_noise >= 0 ({texture_noise})"
         )
     rng = np.random.default_rng(seed)
-    faces = _faces(plan)
+    faces = wall_faces(plan)
     starts, dirs, _ = faces
     h = plan.grid.resolution
     if len(starts) == 0:
