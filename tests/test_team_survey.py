@@ -8,12 +8,12 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from sonarmap.errors import ConfigError
+from sonarmap.errors import ConfigError, InputError
 from sonarmap.floorplan import FloorPlan
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.team.regions import cut_regions, mission_regions
-from sonarmap.team.survey import KINDS, draw_survey, landmark_kinds, speckle_mask, survey
-from sonarmap.team.world import make_world, route_from_waypoints
+from sonarmap.team.survey import KINDS, draw_survey, landmark_kinds, survey
+from sonarmap.team.world import make_world, route_from_waypoints, speckle_mask
 
 F64 = npt.NDArray[np.float64]
 
@@ -36,7 +36,7 @@ def back_and_forth(plan: OccupancyMap, laps: int) -> F64:
 def test_landmarks_behind_a_door_too_narrow_are_unreachable() -> None:
     # A 0.4 m door: a 0.3 m robot stays in the left room.
     plan = two_rooms(door=0.4)
-    world = make_world(plan, seed=1, change_share=0.0, move_share=0.0)
+    world = make_world(plan, seed=1, change_share=0.0, move_share=0.0, faces="all")
     route = back_and_forth(plan, 1)
     s = survey(plan, world, route, mission_regions(plan))
     right = world.points[:, 0] > 6.1
@@ -44,9 +44,36 @@ def test_landmarks_behind_a_door_too_narrow_are_unreachable() -> None:
     inner_left = (world.points[:, 0] < 5.8) & (world.points[:, 0] > 0.2)
     inner_left &= (world.points[:, 1] > 0.2) & (world.points[:, 1] < 5.8)
     assert (s.kinds[inner_left] == KINDS.index("reachable")).all()
-    # The outer faces of the border (none here: the wall is the map's edge) and the
-    # right room's: about half the landmarks.
+    # The right room's faces: about half the wall.
     assert 0.3 < s.figures["landmarks_unreachable_share"] < 0.7
+    assert s.figures["landmarks_reachable_share"] + s.figures["landmarks_unreachable_share"] == 1
+
+
+def test_the_default_world_puts_landmarks_only_where_the_robot_can_see_them() -> None:
+    # The same rooms: by default no landmark lies in the room the robot cannot enter
+    # (the left room is the largest area, first among equals).
+    plan = two_rooms(door=0.4)
+    world = make_world(plan, seed=1)
+    assert len(world) > 20
+    assert (world.points[:, 0] < 5.95).all()
+    assert (
+        np.isnan(world.moved_to[:, 0]).all()
+        or (world.moved_to[:, 0] < 5.95)[np.isfinite(world.moved_to[:, 0])].all()
+    )
+    s = survey(plan, world, back_and_forth(plan, 1), mission_regions(plan))
+    assert s.figures["landmarks_reachable_share"] == 1.0
+    # With every face, the right room's walls get their share.
+    every = make_world(plan, seed=1, faces="all")
+    assert (every.points[:, 0] > 6.1).sum() > 0.3 * len(every)
+
+
+def test_no_face_to_put_landmarks_on_is_one_line_error() -> None:
+    plan = FloorPlan((0.0, 0.0, 6.0, 6.0))
+    m = plan.render(plan.grid(0.1))  # all free: no wall at all
+    with pytest.raises(InputError, match="no obstacle facing free space"):
+        make_world(m)
+    with pytest.raises(ConfigError, match="faces"):
+        make_world(two_rooms(door=1.0), faces="some")
 
 
 def test_a_speck_is_speckle_and_a_post_is_not() -> None:

@@ -207,7 +207,8 @@ def to_body(pose: tuple[float, float, float], xy: F64) -> tuple[F64, F64]:
 
 def test_observe_respects_walls_fov_and_range() -> None:
     m = two_rooms(door=None)
-    w = make_world(m, seed=2, change_share=0.0, move_share=0.0)
+    # Every face: the closed room's landmarks are what the wall must hide.
+    w = make_world(m, seed=2, change_share=0.0, move_share=0.0, faces="all")
     pose = (4.0, 3.0, 0.0)  # facing the wall between the rooms
     obs = observe(w, pose, 0.0, max_range=8.0, fov_deg=90.0)
     assert len(obs) > 5

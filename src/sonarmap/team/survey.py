@@ -7,8 +7,10 @@ the project's own buildings every wall faces the inside and every free cell is
 reachable; on a real map (thin or speckled walls, the outside drawn free, unknown
 cells) neither holds. :func:`survey` measures, for one world and one route:
 
-- **landmarks**: how many lie on wall faces that face the reachable territory, per
-  metre of such face; the share of that face with a landmark within ``near`` metres;
+- **landmarks**: how many lie on wall faces that face the reachable territory
+  (:func:`~sonarmap.team.world.facing_cells`: free cells within the robot's radius
+  plus 0.5 m of where its centre can get to, never across a wall), per metre of such
+  face; the share of that face with a landmark within ``near`` metres;
   the share of landmarks on speckle (occupied specks smaller than ``speckle_area``),
   facing free space the robot cannot reach (the outside, closed pockets) or facing no
   free cell at all (unknown, inside an obstacle); the share the route ever sees;
@@ -53,9 +55,9 @@ from ..io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 from ..patrol.reach import Reach, reach
 from ..patrol.territory import Territory
 from .regions import clearance
-from .world import World, observe, wall_faces
+from .world import World, facing_cells, observe, speckle_mask, wall_faces
 
-__all__ = ["KINDS", "Survey", "draw_survey", "landmark_kinds", "speckle_mask", "survey"]
+__all__ = ["KINDS", "Survey", "draw_survey", "landmark_kinds", "survey"]
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -97,17 +99,6 @@ class Survey:
     params: dict[str, float] = field(default_factory=dict)
 
 
-def speckle_mask(plan: OccupancyMap, area: float = 0.01) -> Mask:
-    """Occupied cells in 8-connected pieces smaller than ``area`` m^2 (0.01: a speck
-    under 10 x 10 cm, a SLAM map's noise rather than a wall or a post)."""
-    occ = plan.classes() == OCCUPIED
-    labels, n = ndimage.label(occ, structure=_EIGHT)
-    cells = np.bincount(labels.ravel(), minlength=n + 1)
-    small = cells * plan.grid.resolution**2 < area
-    small[0] = False
-    return np.asarray(small[labels], dtype=bool)
-
-
 def _probe(plan: OccupancyMap, x: F64, y: F64) -> tuple[npt.NDArray[np.intp], ...]:
     """Rows and columns (k, 4) of the cells a quarter cell to each side of points that
     lie on cell sides, clipped to the map, with whether each is on the map."""
@@ -124,12 +115,13 @@ def _probe(plan: OccupancyMap, x: F64, y: F64) -> tuple[npt.NDArray[np.intp], ..
     )
 
 
-def landmark_kinds(plan: OccupancyMap, xy: F64, watched: Mask, speckle: Mask) -> I64:
+def landmark_kinds(plan: OccupancyMap, xy: F64, facing: Mask, speckle: Mask) -> I64:
     """Each landmark's index into :data:`KINDS`, from the cells beside its point.
 
     A landmark sits on the side of an occupied cell. It is ``speckle`` when the only
     occupied cells beside it are specks (``speckle``), else ``reachable`` when a free
-    cell beside it is ``watched``, else ``unreachable`` when some free cell is beside
+    cell beside it is ``facing`` (:func:`~sonarmap.team.world.facing_cells`: free
+    space the robot sees the wall from), else ``unreachable`` when some free cell is beside
     it, else ``unknown``.
     """
     p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
@@ -141,7 +133,7 @@ def landmark_kinds(plan: OccupancyMap, xy: F64, watched: Mask, speckle: Mask) ->
     occ = on_b & (cls == OCCUPIED)
     speck = occ & speckle[r, c]
     free = on_b & (cls == FREE)
-    seen = free & watched[r, c]
+    seen = free & facing[r, c]
     kind = np.full(len(p), KINDS.index("unknown"), dtype=np.int64)
     kind[free.any(axis=1)] = KINDS.index("unreachable")
     kind[seen.any(axis=1)] = KINDS.index("reachable")
@@ -153,7 +145,7 @@ def _landmark_figures(
     plan: OccupancyMap,
     world: World,
     route: F64,
-    terr: Reach,
+    facing: Mask,
     speckle: Mask,
     kinds: I64,
     near: float,
@@ -165,7 +157,7 @@ def _landmark_figures(
     centre = starts + 0.5 * h * dirs
     fr, fc = g.world_to_cell(*(centre + 0.5 * h * normals).T)
     orr, occ_c = g.world_to_cell(*(centre - 0.5 * h * normals).T)
-    faces_useful = terr.watched[fr, fc] & ~speckle[orr, occ_c]
+    faces_useful = facing[fr, fc] & ~speckle[orr, occ_c]
     initial = world.born == 0
     good = (kinds == KINDS.index("reachable")) & initial
     useful_m = float(faces_useful.sum()) * h
@@ -375,9 +367,10 @@ def survey(
     start = np.array([[r0, c0]], dtype=np.intp) if inside else None
     terr = reach(territory, radius, starts=start)
     speckle = speckle_mask(plan, speckle_area)
-    kinds = landmark_kinds(plan, world.points[:, :2], terr.watched, speckle)
+    facing = facing_cells(plan, radius, starts=start)
+    kinds = landmark_kinds(plan, world.points[:, :2], facing, speckle)
     revisit, episodes = _revisits(r, gap, place, view)
-    figures = _landmark_figures(plan, world, r, terr, speckle, kinds, near, every)
+    figures = _landmark_figures(plan, world, r, facing, speckle, kinds, near, every)
     figures.update(_route_figures(plan, r, terr, cover, revisit, episodes))
     regions, cut, at_door = _region_figures(labels, plan, terr, r, door_width)
     figures.update(regions)
