@@ -39,6 +39,8 @@ from scipy import ndimage
 from ..errors import ConfigError
 from ..grid import Grid
 from ..io.rosmap import FREE, OccupancyMap
+from ..patrol.reach import reach
+from ..patrol.territory import Territory
 
 __all__ = [
     "clearance",
@@ -301,10 +303,26 @@ def cut_regions(
     return _renumber(labels)
 
 
-def mission_regions(prior: OccupancyMap) -> I32:
-    """The regions a mission cuts its prior map into: :func:`cut_regions` of its free
-    cells at the defaults."""
-    return cut_regions(prior.classes() == FREE, prior.grid.resolution)
+def mission_regions(prior: OccupancyMap, radius: float = 0.3) -> I32:
+    """The regions a mission cuts its prior map into: :func:`cut_regions`, at the
+    defaults, of the free cells a robot of ``radius`` metres (0.3) can be on.
+
+    Those are :func:`~sonarmap.patrol.reach.reach`'s watched cells from every piece of
+    the map where the robot fits, not only the largest: a room the prior shows behind
+    a closed door keeps its regions. Free cells no robot can cover -- the inside of a
+    shelf drawn as an outline, a strip outside a wall, a SLAM map's specks of free --
+    are in no region (-1), as obstacles are; a map where the robot fits nowhere is cut
+    on all its free cells.
+    """
+    free = prior.classes() == FREE
+    terr = Territory.from_map(prior)
+    ok = terr.passable(radius)
+    pieces, n = ndimage.label(ok, structure=_EIGHT)
+    if n == 0:
+        return cut_regions(free, prior.grid.resolution)
+    ids, first = np.unique(pieces.ravel(), return_index=True)
+    starts = np.column_stack(np.unravel_index(first[ids > 0], ok.shape)).astype(np.intp)
+    return cut_regions(reach(terr, radius, starts=starts).watched, prior.grid.resolution)
 
 
 def region_sizes(labels: I32, resolution: float) -> npt.NDArray[np.float64]:
