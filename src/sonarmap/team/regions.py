@@ -303,16 +303,17 @@ def cut_regions(
     return _renumber(labels)
 
 
-def mission_regions(prior: OccupancyMap, radius: float = 0.3) -> I32:
+def mission_regions(prior: OccupancyMap, radius: float = 0.3, min_area: float = 4.0) -> I32:
     """The regions a mission cuts its prior map into: :func:`cut_regions`, at the
     defaults, of the free cells a robot of ``radius`` metres (0.3) can be on.
 
     Those are :func:`~sonarmap.patrol.reach.reach`'s watched cells from every piece of
-    the map where the robot fits, not only the largest: a room the prior shows behind
-    a closed door keeps its regions. Free cells no robot can cover -- the inside of a
-    shelf drawn as an outline, a strip outside a wall, a SLAM map's specks of free --
-    are in no region (-1), as obstacles are; a map where the robot fits nowhere is cut
-    on all its free cells.
+    the map where the robot fits and that covers at least ``min_area`` m^2 (4, the
+    smallest region), not only the largest: a room the prior shows behind a closed
+    door keeps its regions. Left in no region (-1, as obstacles): free cells no robot
+    covers (a strip outside a wall, a SLAM map's specks of free) and pieces smaller than
+    ``min_area`` (the inside of a shelf drawn as an outline). A map where the robot
+    fits nowhere is cut on all its free cells.
     """
     free = prior.classes() == FREE
     terr = Territory.from_map(prior)
@@ -322,7 +323,14 @@ def mission_regions(prior: OccupancyMap, radius: float = 0.3) -> I32:
         return cut_regions(free, prior.grid.resolution)
     ids, first = np.unique(pieces.ravel(), return_index=True)
     starts = np.column_stack(np.unravel_index(first[ids > 0], ok.shape)).astype(np.intp)
-    return cut_regions(reach(terr, radius, starts=starts).watched, prior.grid.resolution)
+    watched = reach(terr, radius, starts=starts).watched
+    parts, m = ndimage.label(watched, structure=_EIGHT)
+    area = np.bincount(parts.ravel(), minlength=m + 1) * prior.grid.resolution**2
+    big = area >= min_area
+    big[0] = False
+    if big.any():
+        watched = big[parts]
+    return cut_regions(watched, prior.grid.resolution)
 
 
 def region_sizes(labels: I32, resolution: float) -> npt.NDArray[np.float64]:
