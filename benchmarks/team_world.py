@@ -14,9 +14,10 @@ random building (:func:`~sonarmap.floorplan.random_building`, 40 x 30 m) drawn a
 0.1 m with 1-cell walls, a 1.2 m entrance in its south wall, 4 m of free "outside" all
 round, as a scanner draws the paper's white margin.
 
-Run with ``python -m benchmarks.team_world [MAP ...] [--duration 1200] [--out DIR]``
-(default maps: the shared depot, warehouse, tb3_sandbox, ``building:1`` and
-``scanned:1``).
+Run with ``python -m benchmarks.team_world [MAP ...] [--duration 1200] [--out DIR]
+[--before]`` (``--before``: the world as missions made it before issue 37, measured
+the same way; default maps: the shared depot, warehouse, tb3_sandbox, ``building:1``
+and ``scanned:1``).
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ import numpy as np
 from sonarmap.builtins import builtin_plan
 from sonarmap.floorplan import random_building
 from sonarmap.grid import Grid
-from sonarmap.io.rosmap import OccupancyMap, read_map
-from sonarmap.team.regions import mission_regions
+from sonarmap.io.rosmap import FREE, OccupancyMap, read_map
+from sonarmap.team.regions import cut_regions, mission_regions
 from sonarmap.team.survey import draw_survey, survey
 from sonarmap.team.world import make_world, patrol_route
 
@@ -96,13 +97,20 @@ def label_of(name: str) -> str:
     return Path(name).stem if Path(name).exists() else name
 
 
-def measure(name: str, duration: float, out: Path) -> dict[str, Any]:
-    """One map's survey row; its picture goes to ``out/<label>.png``."""
+def measure(name: str, duration: float, out: Path, *, before: bool = False) -> dict[str, Any]:
+    """One map's survey row; its picture goes to ``out/<label>.png``. ``before``: the
+    world as missions made it before issue 37 (landmarks on every face, random
+    waypoints, regions cut on every free cell)."""
     t0 = time.perf_counter()
     plan = load_plan(name)
-    world = make_world(plan, seed=0, duration=duration)
-    route = patrol_route(plan, duration, seed=0)
-    labels = mission_regions(plan)
+    if before:
+        world = make_world(plan, seed=0, duration=duration, faces="all")
+        route = patrol_route(plan, duration, seed=0, style="waypoints")
+        labels = cut_regions(plan.classes() == FREE, plan.grid.resolution)
+    else:
+        world = make_world(plan, seed=0, duration=duration)
+        route = patrol_route(plan, duration, seed=0)
+        labels = mission_regions(plan)
     s = survey(plan, world, route, labels)
     label = label_of(name)
     draw_survey(plan, world, route, s, out / f"{label}.png", title=f"{label}, {duration:g} s")
@@ -128,11 +136,17 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("maps", nargs="*", default=list(DEFAULT_MAPS))
     ap.add_argument("--duration", type=float, default=1200.0)
     ap.add_argument("--out", type=Path, default=Path("out/team_world"))
+    ap.add_argument(
+        "--before",
+        action="store_true",
+        help="The world as missions made it before issue 37 (every face, random "
+        "waypoints, regions on every free cell).",
+    )
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for name in args.maps:
-        row = measure(name, args.duration, args.out)
+        row = measure(name, args.duration, args.out, before=args.before)
         print(json.dumps(row), flush=True)
         rows.append(row)
     (args.out / "survey.json").write_text(json.dumps(rows, indent=1) + "\n")
