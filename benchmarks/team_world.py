@@ -15,9 +15,9 @@ random building (:func:`~sonarmap.floorplan.random_building`, 40 x 30 m) drawn a
 round, as a scanner draws the paper's white margin.
 
 Run with ``python -m benchmarks.team_world [MAP ...] [--duration 1200] [--out DIR]
-[--before]`` (``--before``: the world as missions made it before issue 37, measured
-the same way; default maps: the shared depot, warehouse, tb3_sandbox, ``building:1``
-and ``scanned:1``).
+[--before | --tour]``. ``--before``: the world as missions made it before issue 37,
+measured the same way; ``--tour``: the route is the tour driven lap after lap. Default
+maps: the shared depot, warehouse, tb3_sandbox, ``building:1`` and ``scanned:1``.
 """
 
 from __future__ import annotations
@@ -97,10 +97,13 @@ def label_of(name: str) -> str:
     return Path(name).stem if Path(name).exists() else name
 
 
-def measure(name: str, duration: float, out: Path, *, before: bool = False) -> dict[str, Any]:
+def measure(
+    name: str, duration: float, out: Path, *, before: bool = False, tour: bool = False
+) -> dict[str, Any]:
     """One map's survey row; its picture goes to ``out/<label>.png``. ``before``: the
     world as missions made it before issue 37 (landmarks on every face, random
-    waypoints, regions cut on every free cell)."""
+    waypoints, regions cut on every free cell); ``tour``: the route is the tour driven lap
+    after lap (``patrol_route(style="tour")``)."""
     t0 = time.perf_counter()
     plan = load_plan(name)
     if before:
@@ -109,7 +112,7 @@ def measure(name: str, duration: float, out: Path, *, before: bool = False) -> d
         labels = cut_regions(plan.classes() == FREE, plan.grid.resolution)
     else:
         world = make_world(plan, seed=0, duration=duration)
-        route = patrol_route(plan, duration, seed=0)
+        route = patrol_route(plan, duration, seed=0, style="tour" if tour else "waypoints")
         labels = mission_regions(plan)
     s = survey(plan, world, route, labels)
     label = label_of(name)
@@ -142,11 +145,12 @@ def main(argv: list[str] | None = None) -> None:
         help="The world as missions made it before issue 37 (every face, random "
         "waypoints, regions on every free cell).",
     )
+    ap.add_argument("--tour", action="store_true", help="Drive the tour, lap after lap.")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for name in args.maps:
-        row = measure(name, args.duration, args.out, before=args.before)
+        row = measure(name, args.duration, args.out, before=args.before, tour=args.tour)
         print(json.dumps(row), flush=True)
         rows.append(row)
     (args.out / "survey.json").write_text(json.dumps(rows, indent=1) + "\n")

@@ -306,8 +306,8 @@ def test_patrol_route_lasts_and_is_deterministic(office_plan: OccupancyMap) -> N
 def test_patrol_route_tour_passes_places_again_the_same_way(office_plan: OccupancyMap) -> None:
     # 600 s: three laps of at most 100 m each; random waypoints rarely pass a place the
     # same way twice.
-    tour = patrol_route(office_plan, 600.0, seed=3)
-    rand = patrol_route(office_plan, 600.0, seed=3, style="waypoints")
+    tour = patrol_route(office_plan, 600.0, seed=3, style="tour")
+    rand = patrol_route(office_plan, 600.0, seed=3)
     assert tour.shape == rand.shape == (1200, 4)
     labels = mission_regions(office_plan)
     world = make_world(office_plan, seed=3)
@@ -317,7 +317,7 @@ def test_patrol_route_tour_passes_places_again_the_same_way(office_plan: Occupan
     assert st["route_revisit_time_share"] > sr["route_revisit_time_share"] + 0.2
     assert st["route_on_territory_share"] > 0.95
     # The tour is the seed's start, then the same loop: two seeds share the loop.
-    other = patrol_route(office_plan, 600.0, seed=4)
+    other = patrol_route(office_plan, 600.0, seed=4, style="tour")
     end_a = {tuple(np.round(p, 1)) for p in tour[-400:, 1:3]}
     end_b = {tuple(np.round(p, 1)) for p in other[-400:, 1:3]}
     assert len(end_a & end_b) > 0.5 * len(end_a)

@@ -671,25 +671,26 @@ def patrol_route(
     radius: float = 0.3,
     min_leg: float = 3.0,
     smooth: float = 0.5,
-    style: str = "tour",
+    style: str = "waypoints",
     laps: float = 3.0,
     spacing: float = 2.0,
 ) -> F64:
-    """A stand-in for the patroller: a tour driven lap after lap, or random waypoints.
+    """A stand-in for the patroller: random waypoints, or a tour driven lap after lap.
 
     The robot starts on a random cell of the largest connected area where it fits
-    (the territory: unknown cells are never free). With ``style="tour"`` (default) it
-    then drives one cyclic tour of that area again and again, the same way round, so
-    that it passes every place of the tour with the same heading once a lap (places a
-    loop closure can join): the tour's waypoints lie on a square lattice ``spacing``
-    metres apart (2), or coarser so that one lap takes at most ``duration / laps``
-    seconds (``laps`` 3), ordered by nearest neighbour and 2-opt on path lengths
-    (:func:`~sonarmap.patrol.tour.plan_tour`; the tour is the same for every seed, the
-    start is not: the robot joins the tour at its waypoint nearest the start). With
-    ``style="waypoints"`` it heads for random cells of the area at least ``min_leg``
-    metres (3) away, one after the other, and rarely passes a place the same way
-    twice. Legs are driven as :func:`route_from_waypoints` drives them, until
-    ``duration`` seconds (600) have passed. Drawn from ``seed``.
+    (unknown cells are never free). With ``style="waypoints"`` (default) it then heads
+    for random cells of that area at least ``min_leg`` metres (3) away, one after the
+    other; it rarely passes a place the same way twice. With ``style="tour"`` it drives
+    one cyclic tour of that area again and again, the same way round, so that it passes
+    every place of the tour with the same heading once a lap: the tour's waypoints lie
+    on a square lattice ``spacing`` metres apart (2), or coarser so that one lap takes
+    at most ``duration / laps`` seconds (``laps`` 3), ordered by nearest neighbour and
+    2-opt on path lengths (:func:`~sonarmap.patrol.tour.plan_tour`; the tour is the same
+    for every seed, the start is not: the robot joins the tour at its waypoint nearest
+    the start). The tour is not the default: on the training maps it did not lower a
+    mission's trajectory error (docs/results/2026-12-06-team-real-maps-world.md). Legs
+    are driven as :func:`route_from_waypoints` drives them, until ``duration`` seconds
+    (600) have passed. Drawn from ``seed``.
 
     Returns
     -------
