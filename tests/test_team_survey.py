@@ -141,3 +141,20 @@ def test_picture_is_written(tmp_path: Path) -> None:
     s = survey(plan, world, route, mission_regions(plan))
     p = draw_survey(plan, world, route, s, tmp_path / "s.png", title="two rooms")
     assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_team_world_tour_option_drives_a_route_that_comes_back(tmp_path: Path) -> None:
+    from sonarmap.cli import main
+    from sonarmap.team.world import load_world
+
+    for flag, name in (([], "plain"), (["--tour"], "tour")):
+        main(["team", "world", "--map", "office", "--duration", "600", *flag,
+              "-o", str(tmp_path / name)])  # fmt: skip
+    shares = {}
+    for name in ("plain", "tour"):
+        world, route = load_world(tmp_path / name)
+        assert route is not None
+        s = survey(world.plan, world, route, mission_regions(world.plan))
+        shares[name] = s.figures["route_revisit_time_share"]
+    assert shares["tour"] > 0.4
+    assert shares["tour"] > shares["plain"] + 0.1
