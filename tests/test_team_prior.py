@@ -27,7 +27,7 @@ from sonarmap.team.prior import (
     parse_prior_error,
     scale_plan,
 )
-from sonarmap.team.regions import cut_regions
+from sonarmap.team.regions import cut_regions, mission_regions
 from sonarmap.team.world import builtin_plan
 
 H = 0.1  # metres a cell
@@ -200,7 +200,7 @@ def test_the_robot_cuts_its_regions_from_the_prior_and_is_scored_on_the_truth() 
     prior, _ = degrade_plan(plan, PriorError(close_doors=4, open_doors=3, seed=2))
     cfg = MissionConfig(duration=20.0, seed=0)
     truthful, given = RobotAgent(plan, cfg), RobotAgent(plan, cfg, prior=prior)
-    np.testing.assert_array_equal(given.labels, cut_regions(prior.classes() == FREE, H))
+    np.testing.assert_array_equal(given.labels, mission_regions(prior))
     assert not np.array_equal(given.labels, truthful.labels)
     # The simulator drives and senses the truth either way.
     np.testing.assert_array_equal(given.route, truthful.route)
@@ -326,7 +326,7 @@ def test_a_users_prior_file_is_what_a_team_cuts_its_regions_from(tmp_path: Path)
     s = json.loads((out / "summary.json").read_text())
     assert s["prior"]["source"] == str(path)
     assert "error" not in s["prior"]  # the file as given, nothing drawn on it
-    regions = int(cut_regions(prior.classes() == FREE, H).max()) + 1
-    assert regions != int(cut_regions(plan.classes() == FREE, H).max()) + 1
+    regions = int(mission_regions(prior).max()) + 1
+    assert regions != int(mission_regions(plan).max()) + 1
     assert [r["regions"] for r in s["robots"]] == [regions, regions]
     assert (out / "prior.yaml").exists()

@@ -10,12 +10,13 @@ import numpy.typing as npt
 import pytest
 from scipy import ndimage
 
-from sonarmap.errors import InputError
+from sonarmap.errors import ConfigError, InputError
 from sonarmap.floorplan import FloorPlan
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
-from sonarmap.team.regions import cut_regions, region_of, region_sizes
+from sonarmap.team.regions import cut_regions, mission_regions, region_of, region_sizes
+from sonarmap.team.survey import survey
 from sonarmap.team.world import (
     World,
     load_world,
@@ -207,7 +208,8 @@ def to_body(pose: tuple[float, float, float], xy: F64) -> tuple[F64, F64]:
 
 def test_observe_respects_walls_fov_and_range() -> None:
     m = two_rooms(door=None)
-    w = make_world(m, seed=2, change_share=0.0, move_share=0.0)
+    # Every face: the closed room's landmarks are what the wall must hide.
+    w = make_world(m, seed=2, change_share=0.0, move_share=0.0, faces="all")
     pose = (4.0, 3.0, 0.0)  # facing the wall between the rooms
     obs = observe(w, pose, 0.0, max_range=8.0, fov_deg=90.0)
     assert len(obs) > 5
@@ -299,6 +301,33 @@ def test_patrol_route_lasts_and_is_deterministic(office_plan: OccupancyMap) -> N
     assert (office_plan.classes()[r, cc] == 0).all()
     speed = np.hypot(*np.diff(a[:, 1:3], axis=0).T) * 2.0
     assert speed.max() <= 0.5 + 1e-6
+
+
+def test_patrol_route_tour_passes_places_again_the_same_way(office_plan: OccupancyMap) -> None:
+    # 600 s: three laps of at most 100 m each; random waypoints rarely pass a place the
+    # same way twice.
+    tour = patrol_route(office_plan, 600.0, seed=3, style="tour")
+    rand = patrol_route(office_plan, 600.0, seed=3)
+    assert tour.shape == rand.shape == (1200, 4)
+    labels = mission_regions(office_plan)
+    world = make_world(office_plan, seed=3)
+    st = survey(office_plan, world, tour, labels).figures
+    sr = survey(office_plan, world, rand, labels).figures
+    assert st["route_revisit_time_share"] > 0.6
+    assert st["route_revisit_time_share"] > sr["route_revisit_time_share"] + 0.2
+    assert st["route_on_territory_share"] > 0.95
+    # The tour is the seed's start, then the same loop: two seeds share the loop.
+    other = patrol_route(office_plan, 600.0, seed=4, style="tour")
+    end_a = {tuple(np.round(p, 1)) for p in tour[-400:, 1:3]}
+    end_b = {tuple(np.round(p, 1)) for p in other[-400:, 1:3]}
+    assert len(end_a & end_b) > 0.5 * len(end_a)
+
+
+def test_patrol_route_refuses_a_bad_style(office_plan: OccupancyMap) -> None:
+    with pytest.raises(ConfigError, match="style"):
+        patrol_route(office_plan, 60.0, style="zigzag")
+    with pytest.raises(ConfigError, match="laps"):
+        patrol_route(office_plan, 60.0, laps=0.0)
 
 
 def final_error(route: F64, seed: int) -> float:

@@ -81,6 +81,14 @@ DurationOption = Annotated[
         "--duration", help=f"Mission length, simulated seconds (at most {MAX_DURATION:g}: a day)."
     ),
 ]
+TourOption = Annotated[
+    bool,
+    typer.Option(
+        "--tour",
+        help="Drive one tour of the reachable territory lap after lap (at most a third of "
+        "the mission per lap) instead of random waypoints, so places are passed again.",
+    ),
+]
 #: Summary figures averaged over the robots at the top level of summary.json.
 MEAN_KEYS = (
     "association_precision",
@@ -109,6 +117,7 @@ def world_cmd(
     change_share: Annotated[
         float, typer.Option(help="Share of landmarks that vanish (and as many that appear).")
     ] = 0.1,
+    tour: TourOption = False,
 ) -> None:
     """Make a mission's world: landmarks with their changes, a patrol route, the truth."""
     _check_duration(duration)
@@ -124,7 +133,7 @@ def world_cmd(
         change_share=change_share,
         plan_path=map_.resolve() if map_.exists() else None,
     )
-    route = patrol_route(plan, duration, seed=seed)
+    route = patrol_route(plan, duration, seed=seed, style="tour" if tour else "waypoints")
     save_world(world, route, out)
     console.print(f"{len(world)} landmarks, route of {len(route)} poses")
     console.print(wrote_folder(out), markup=False)
@@ -501,6 +510,7 @@ def run_cmd(
         bool,
         typer.Option("--patrol", help="Drive the robots by the potential-field patroller."),
     ] = False,
+    tour: TourOption = False,
     bag: BagOption = False,
     live: LiveOption = False,
     live_port: LivePortOption = 8765,
@@ -551,12 +561,14 @@ def run_cmd(
     net, protocol, store, preset_used = _team_options(ctx, robots)
     if patrol and route is not None:
         raise ConfigError("--patrol drives every robot: drop --route")
+    if tour and (patrol or route is not None or world_dir is not None):
+        raise ConfigError("--tour draws every robot's route: drop --patrol, --route and --world")
     if transport == "zmq" and (
-        patrol or route is not None or world_dir is not None or animate or bag or live
+        patrol or tour or route is not None or world_dir is not None or animate or bag or live
     ):
         raise ConfigError(
-            "--transport zmq: the nodes drive their own seeded routes; --patrol, --route, "
-            "--world, --animate, --bag and --live are --transport sim's"
+            "--transport zmq: the nodes drive their own seeded routes; --patrol, --tour, "
+            "--route, --world, --animate, --bag and --live are --transport sim's"
         )
     if transport == "zmq" and (prior_path is not None or prior_error is not None):
         raise ConfigError("--transport zmq: the nodes use --map as their prior; drop --prior")
@@ -573,6 +585,12 @@ def run_cmd(
     if route is not None:
         routes[0] = read_route(route)
     config = _mission_config(duration, seed, store)
+    if tour:
+        # Each robot's seed as the mission draws its own route (seed + 7919 x robot).
+        routes = {
+            i: patrol_route(plan, duration, seed=seed + 7919 * i, style="tour")
+            for i in range(robots)
+        }
     if patrol:
         # The patrol replaces any route, a saved world's included.
         patrolled, _ = patrol_routes(plan, robots, duration, seed=seed)

@@ -96,7 +96,7 @@ from .records import (
     invert,
     make_uid,
 )
-from .regions import cut_regions, region_of
+from .regions import mission_regions, region_of
 from .sensing import RobotSensing
 from .store import RobotStore, local_bound
 from .world import (
@@ -289,7 +289,7 @@ class RobotAgent:
         self.odo = sensing.odometry()
         self.rig = sensing.rig
         self.start_believed = sensing.start_believed
-        self.labels = cut_regions(prior.classes() == 0, prior.grid.resolution)
+        self.labels = mission_regions(prior)
         self.region_of_step: npt.NDArray[np.intp] = np.array(
             [region_of(self.labels, prior.grid, float(x), float(y)) for x, y in self.route[:, 1:3]],
             dtype=np.intp,

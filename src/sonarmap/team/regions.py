@@ -38,8 +38,18 @@ from scipy import ndimage
 
 from ..errors import ConfigError
 from ..grid import Grid
+from ..io.rosmap import FREE, OccupancyMap
+from ..patrol.reach import reach
+from ..patrol.territory import Territory
 
-__all__ = ["clearance", "cut_regions", "region_adjacency", "region_of", "region_sizes"]
+__all__ = [
+    "clearance",
+    "cut_regions",
+    "mission_regions",
+    "region_adjacency",
+    "region_of",
+    "region_sizes",
+]
 
 I32 = npt.NDArray[np.int32]
 Mask = npt.NDArray[np.bool_]
@@ -291,6 +301,36 @@ def cut_regions(
     labels = _tile(labels, resolution, max_area)
     labels = _merge_small(labels, resolution, min_area)
     return _renumber(labels)
+
+
+def mission_regions(prior: OccupancyMap, radius: float = 0.3, min_area: float = 4.0) -> I32:
+    """The regions a mission cuts its prior map into: :func:`cut_regions`, at the
+    defaults, of the free cells a robot of ``radius`` metres (0.3) can be on.
+
+    Those are :func:`~sonarmap.patrol.reach.reach`'s watched cells from every piece of
+    the map where the robot fits and that covers at least ``min_area`` m^2 (4, the
+    smallest region), not only the largest: a room the prior shows behind a closed
+    door keeps its regions. Left in no region (-1, as obstacles): free cells no robot
+    covers (a strip outside a wall, a SLAM map's specks of free) and pieces smaller than
+    ``min_area`` (the inside of a shelf drawn as an outline). A map where the robot
+    fits nowhere is cut on all its free cells.
+    """
+    free = prior.classes() == FREE
+    terr = Territory.from_map(prior)
+    ok = terr.passable(radius)
+    pieces, n = ndimage.label(ok, structure=_EIGHT)
+    if n == 0:
+        return cut_regions(free, prior.grid.resolution)
+    ids, first = np.unique(pieces.ravel(), return_index=True)
+    starts = np.column_stack(np.unravel_index(first[ids > 0], ok.shape)).astype(np.intp)
+    watched = reach(terr, radius, starts=starts).watched
+    parts, m = ndimage.label(watched, structure=_EIGHT)
+    area = np.bincount(parts.ravel(), minlength=m + 1) * prior.grid.resolution**2
+    big = area >= min_area
+    big[0] = False
+    if big.any():
+        watched = big[parts]
+    return cut_regions(watched, prior.grid.resolution)
 
 
 def region_sizes(labels: I32, resolution: float) -> npt.NDArray[np.float64]:

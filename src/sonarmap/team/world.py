@@ -47,7 +47,9 @@ from ..floorplan import random_building
 from ..grid import Grid
 from ..io.rosmap import FREE, OCCUPIED, OccupancyMap, read_map, write_map
 from ..patrol.paths import Wave, path_to
+from ..patrol.reach import reach
 from ..patrol.territory import Territory, segment_clear
+from ..patrol.tour import plan_tour
 from ..readings import Readings, Trajectory
 from ..rig import Rig, get_rig
 from ..scenarios import office
@@ -58,11 +60,14 @@ from .records import Landmarks
 
 __all__ = [
     "BUILTIN_PLANS",
+    "FACES",
     "LANDMARK_COLUMNS",
     "ODOMETRY_NOISE",
     "ROUTE_COLUMNS",
+    "ROUTE_STYLES",
     "World",
     "builtin_plan",
+    "facing_cells",
     "load_world",
     "make_world",
     "observe",
@@ -73,6 +78,9 @@ __all__ = [
     "route_from_waypoints",
     "save_world",
     "sonar_readings",
+    "speckle_mask",
+    "territory_faces",
+    "wall_faces",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -190,9 +198,18 @@ def builtin_plan(name: str) -> OccupancyMap:
     return fp.render(fp.grid(0.1))
 
 
-def _faces(plan: OccupancyMap) -> tuple[F64, F64, F64]:
-    """Cell sides where an occupied cell meets a free one: their start corners (m, 2),
-    unit directions along them (m, 2) and outward normals into free space (m, 2)."""
+def wall_faces(plan: OccupancyMap) -> tuple[F64, F64, F64]:
+    """Cell sides where an occupied cell meets a free one (4-neighbours).
+
+    Returns
+    -------
+    starts : ndarray (m, 2)
+        Each side's start corner, world metres.
+    dirs : ndarray (m, 2)
+        Unit direction along the side (the side is one cell long).
+    normals : ndarray (m, 2)
+        Unit normal out of the occupied cell, into the free one.
+    """
     classes = plan.classes()
     occ = classes == OCCUPIED
     free = np.pad(classes == FREE, 1, constant_values=False)
@@ -217,6 +234,66 @@ def _faces(plan: OccupancyMap) -> tuple[F64, F64, F64]:
         dirs.append(np.tile(d, (m, 1)))
         normals.append(np.tile(nrm, (m, 1)))
     return np.concatenate(starts), np.concatenate(dirs), np.concatenate(normals)
+
+
+def speckle_mask(plan: OccupancyMap, area: float = 0.01) -> npt.NDArray[np.bool_]:
+    """Occupied cells in 8-connected pieces smaller than ``area`` m^2 (0.01: a speck
+    under 10 x 10 cm, a SLAM map's noise rather than a wall or a post)."""
+    occ = plan.classes() == OCCUPIED
+    labels, n = ndimage.label(occ, structure=np.ones((3, 3), dtype=bool))
+    cells = np.bincount(labels.ravel(), minlength=n + 1)
+    small = cells * plan.grid.resolution**2 < area
+    small[0] = False
+    return np.asarray(small[labels], dtype=bool)
+
+
+#: Which wall faces carry landmarks (:func:`make_world`'s ``faces``).
+FACES = ("territory", "all")
+
+
+def facing_cells(
+    plan: OccupancyMap,
+    radius: float = 0.3,
+    margin: float = 0.5,
+    starts: npt.NDArray[np.intp] | None = None,
+) -> npt.NDArray[np.bool_]:
+    """Free cells a robot of ``radius`` metres sees a wall across: those within
+    ``radius + margin`` metres (0.3 + 0.5) of where its centre can get to, by steps over
+    free cells (a wall, however thin, is not crossed).
+
+    Where its centre can get to is :func:`~sonarmap.patrol.reach.reach`'s: the pieces
+    of the map holding ``starts`` (rows, cols), or the largest piece; unknown cells
+    are never free. Left out: a real map's outside behind its outer wall, the inside of
+    a shelf drawn as an outline, a room behind a door narrower than the robot.
+    """
+    terr = Territory.from_map(plan)
+    passable = reach(terr, radius, starts=starts).passable
+    steps = max(1, math.ceil((radius + margin) / plan.grid.resolution))
+    grown = ndimage.binary_dilation(
+        passable, structure=np.ones((3, 3), dtype=bool), iterations=steps, mask=terr.free
+    )
+    return np.asarray(grown, dtype=bool)
+
+
+def territory_faces(
+    plan: OccupancyMap, radius: float = 0.3, speckle_area: float = 0.01
+) -> tuple[F64, F64, F64]:
+    """The :func:`wall_faces` a robot of ``radius`` metres can see: those whose free
+    cell is one of :func:`facing_cells` (of the largest piece where it fits), on an
+    obstacle that is not a speck (:func:`speckle_mask` of ``speckle_area`` m^2). Same
+    arrays as :func:`wall_faces`.
+    """
+    starts, dirs, normals = wall_faces(plan)
+    if len(starts) == 0:
+        return starts, dirs, normals
+    grid = plan.grid
+    h = grid.resolution
+    seen = facing_cells(plan, radius)
+    centre = starts + 0.5 * h * dirs
+    fr, fc = grid.world_to_cell(*(centre + 0.5 * h * normals).T)
+    orow, ocol = grid.world_to_cell(*(centre - 0.5 * h * normals).T)
+    keep = seen[fr, fc] & ~speckle_mask(plan, speckle_area)[orow, ocol]
+    return starts[keep], dirs[keep], normals[keep]
 
 
 def _on_faces(
@@ -288,13 +365,17 @@ def make_world(
     move_max: float = 2.0,
     duration: float = 600.0,
     plan_path: str | Path | None = None,
+    faces: str = "territory",
+    radius: float = 0.3,
+    speckle_area: float = 0.01,
 ) -> World:
     """Landmarks on the obstacle surfaces of ``plan``, with repeated textures and changes.
 
     Parameters
     ----------
     plan : OccupancyMap
-        The territory; landmarks lie on the sides of occupied cells that face free cells.
+        The territory; landmarks lie on the sides of occupied cells that face free cells
+        (which of them: ``faces``).
     seed : int
         Everything random is drawn from it (0).
     landmark_spacing : float
@@ -320,11 +401,22 @@ def make_world(
         The mission's length, seconds (600): changes happen within it.
     plan_path : str or Path, optional
         The map file ``plan`` came from, recorded by :func:`save_world`.
+    faces : {"territory", "all"}
+        ``territory`` (default): only the faces a robot of ``radius`` metres (0.3) can
+        see, :func:`territory_faces` (none on specks under ``speckle_area`` m^2, 0.01,
+        none facing free space it cannot reach: a real map's outside, the inside of a
+        shelf, a room behind a door narrower than the robot); ``all``: every face of an
+        occupied cell on a free one.
 
     Returns
     -------
     World
         Initial landmarks first (born at 0), then the appearing ones.
+
+    Raises
+    ------
+    InputError
+        When no face is left to put a landmark on.
     """
     _check_positive(
         landmark_spacing=landmark_spacing,
@@ -340,12 +432,16 @@ def make_world(
             f"need 0 <= z_min <= z_max ({z_min}, {z_max}), 0 <= move_min <= move_max "
             f"({move_min}, {move_max}) and texture_noise >= 0 ({texture_noise})"
         )
+    if faces not in FACES:
+        raise ConfigError(f"faces must be one of {', '.join(FACES)}, got {quote(faces)}")
+    _check_positive(radius=radius, speckle_area=speckle_area)
     rng = np.random.default_rng(seed)
-    faces = _faces(plan)
-    starts, dirs, _ = faces
+    sides = wall_faces(plan) if faces == "all" else territory_faces(plan, radius, speckle_area)
+    starts, dirs, _ = sides
     h = plan.grid.resolution
     if len(starts) == 0:
-        raise InputError("the plan has no obstacle facing free space to put landmarks on")
+        where = "" if faces == "all" else f" that a robot of radius {radius:g} m can reach"
+        raise InputError(f"the plan has no obstacle facing free space{where} to put landmarks on")
     n_base = max(1, round(len(starts) * h / landmark_spacing))
     n_new = round(change_share * n_base)
     n = n_base + n_new
@@ -372,7 +468,7 @@ def make_world(
     died[gone] = rng.uniform(0.0, duration, n_gone)
     moved_at = np.full(n, np.nan)
     moved_to = np.full((n, 2), np.nan)
-    moved_to[moving] = _moves(rng, faces, h, xy[moving], face[moving], move_min, move_max)
+    moved_to[moving] = _moves(rng, sides, h, xy[moving], face[moving], move_min, move_max)
     ok = moving[np.isfinite(moved_to[moving, 0])]
     moved_at[ok] = rng.uniform(0.0, duration, len(ok))
     params = {
@@ -389,6 +485,9 @@ def make_world(
         "move_min": move_min,
         "move_max": move_max,
         "duration": duration,
+        "faces": faces,
+        "radius": radius,
+        "speckle_area": speckle_area,
     }
     return World(
         plan,
@@ -527,6 +626,41 @@ def route_from_waypoints(
     return _drive(_legs(grid, ok, cells, Wave(grid.shape)), speed, rate, max(smooth, 0.0))
 
 
+#: How :func:`patrol_route` draws its route.
+ROUTE_STYLES = ("tour", "waypoints")
+
+
+def _largest_area(ok: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    comps, _ = ndimage.label(ok, structure=np.ones((3, 3), dtype=bool))
+    sizes = np.bincount(comps.ravel())
+    sizes[0] = 0
+    return np.asarray(comps == int(np.argmax(sizes)))
+
+
+def _tour_points(plan: OccupancyMap, radius: float, budget: float, spacing: float) -> F64:
+    """World points (K, 2) of a cyclic tour over the largest area a robot of ``radius``
+    fits in, in tour order, its lattice as fine as ``spacing`` metres allows while the
+    tour stays within ``budget`` metres (coarser until it does)."""
+    # On cells of about 0.1 m: a wave per waypoint, so the map's own 3-5 cm cells would
+    # cost ten times the time for the same tour.
+    terr = Territory.from_map(plan, cell=max(0.1, plan.grid.resolution))
+    ok = terr.passable(radius)
+    if not ok.any():
+        raise ConfigError(f"no cell of the plan lets a robot of radius {radius} m pass")
+    area = _largest_area(ok)
+    h = terr.grid.resolution
+    first = np.argwhere(area)[0]
+    # A lattice tour is about (area / spacing) long: start near the budget's spacing.
+    step = max(spacing, float(area.sum()) * h * h / budget)
+    for _ in range(20):
+        cells, length = plan_tour(terr, area, step / math.sqrt(2), (int(first[0]), int(first[1])))
+        if length <= budget or len(cells) <= 3:
+            break
+        step *= 1.25
+    x, y = terr.grid.cell_centres(cells[:, 0], cells[:, 1])
+    return np.column_stack([x, y]).astype(np.float64)
+
+
 def patrol_route(
     plan: OccupancyMap,
     duration: float = 600.0,
@@ -537,32 +671,68 @@ def patrol_route(
     radius: float = 0.3,
     min_leg: float = 3.0,
     smooth: float = 0.5,
+    style: str = "waypoints",
+    laps: float = 3.0,
+    spacing: float = 2.0,
 ) -> F64:
-    """A stand-in for the patroller: random reachable waypoints for ``duration`` s.
+    """A stand-in for the patroller: random waypoints, or a tour driven lap after lap.
 
-    The robot starts on a random cell of the largest connected area where it fits, then
-    heads for random cells of that area at least ``min_leg`` metres (3) away, one after
-    the other, as :func:`route_from_waypoints` drives them, until ``duration`` seconds
+    The robot starts on a random cell of the largest connected area where it fits
+    (unknown cells are never free). With ``style="waypoints"`` (default) it then heads
+    for random cells of that area at least ``min_leg`` metres (3) away, one after the
+    other; it rarely passes a place the same way twice. With ``style="tour"`` it drives
+    one cyclic tour of that area again and again, the same way round, so that it passes
+    every place of the tour with the same heading once a lap: the tour's waypoints lie
+    on a square lattice ``spacing`` metres apart (2), or coarser so that one lap takes
+    at most ``duration / laps`` seconds (``laps`` 3), ordered by nearest neighbour and
+    2-opt on path lengths (:func:`~sonarmap.patrol.tour.plan_tour`; the tour is the same
+    for every seed, the start is not: the robot joins the tour at its waypoint nearest
+    the start). The tour is not the default: on the training maps it did not lower a
+    mission's trajectory error (docs/results/2026-12-06-team-real-maps-world.md). Legs
+    are driven as :func:`route_from_waypoints` drives them, until ``duration`` seconds
     (600) have passed. Drawn from ``seed``.
 
     Returns
     -------
     ndarray (T, 4)
         ``t, x, y, theta``; T = ``round(duration * rate)``.
+
+    Raises
+    ------
+    ConfigError
+        An unknown ``style``, ``laps`` or ``spacing`` not > 0, or an area too small to
+        drive in.
     """
-    _check_positive(duration=duration, speed=speed, rate=rate)
+    _check_positive(duration=duration, speed=speed, rate=rate, laps=laps, spacing=spacing)
     _check_duration(duration)
+    if style not in ROUTE_STYLES:
+        raise ConfigError(
+            f"route style must be one of {', '.join(ROUTE_STYLES)}, got {quote(style)}"
+        )
     grid, ok = _passable(plan, radius)
-    comps, _ = ndimage.label(ok, structure=np.ones((3, 3), dtype=bool))
-    sizes = np.bincount(comps.ravel())
-    sizes[0] = 0
-    area = comps == int(np.argmax(sizes))
+    area = _largest_area(ok)
     rows, cols = np.nonzero(area)
     rng = np.random.default_rng(seed)
     wave = Wave(grid.shape)
     k = int(rng.integers(len(rows)))
     cells = [(int(rows[k]), int(cols[k]))]
     need = speed * duration
+    if style == "tour":
+        pts = _tour_points(plan, radius, need / laps, spacing)
+        loop = [_snap(grid, area, float(x), float(y)) for x, y in pts]
+        loop = [c for i, c in enumerate(loop) if c != loop[i - 1]] or loop[:1]
+        near = int(np.argmin([math.hypot(r - cells[0][0], c - cells[0][1]) for r, c in loop]))
+        loop = loop[near:] + loop[:near]
+        lap = _legs(grid, area, [*loop, loop[0]], wave)
+        lap_m = float(np.hypot(*np.diff(lap, axis=0).T).sum())
+        if lap_m >= min_leg:
+            lead = _legs(grid, area, [cells[0], loop[0]], wave)
+            lead_m = float(np.hypot(*np.diff(lead, axis=0).T).sum())
+            n = max(1, math.ceil((need - lead_m) / lap_m) + 1)
+            poly = np.concatenate([lead, *([lap[1:]] * n)])
+            route = _drive(poly, speed, rate, max(smooth, 0.0))
+            return route[: round(duration * rate)]
+        # A territory too small for a tour of min_leg: random waypoints, or their error.
     length = 0.0
     tries = stuck = 0
     while length < need:
