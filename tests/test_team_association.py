@@ -449,3 +449,43 @@ def test_bad_input_and_config(pair: tuple[Pose, Pose]) -> None:
         associate(b, [a, a])
     with pytest.raises(InputError, match="max_distance"):
         associate(b, [a], {a.uid: Prior((0.0, 0.0, 0.0), -1.0)})
+
+
+def far_pair(rng: np.random.Generator, depth_noise: float) -> tuple[Pose, Pose]:
+    """Two views (b at T_TRUE) of 10 landmarks 2-3 m ahead of a and 20 landmarks 6-8 m
+    ahead whose depth (x in each view) is off by ``depth_noise`` m (one sigma), as
+    stereo puts far points."""
+    near = np.column_stack(
+        [rng.uniform(2.0, 3.0, 10), rng.uniform(-1.5, 1.5, 10), rng.uniform(0.1, 2.0, 10)]
+    )
+    far = np.column_stack(
+        [rng.uniform(6.0, 8.0, 20), rng.uniform(-3.0, 3.0, 20), rng.uniform(0.1, 2.0, 20)]
+    )
+    world = np.vstack([near, far])
+    desc = sift_like(rng, 30)
+    ids = np.arange(30, dtype=np.int64)
+    views = []
+    for k, pts in enumerate((world, to_frame(T_TRUE, world))):
+        noisy = pts.copy()
+        noisy[10:, 0] += rng.normal(0.0, depth_noise, 20)
+        views.append(make_pose(make_uid(1 + k, 0), noisy, desc, ids, rng))
+    return views[0], views[1]
+
+
+@pytest.mark.parametrize("seed", [4, 5, 6])
+def test_inliers_within_the_stereo_covariance_count_far_landmarks(seed: int) -> None:
+    # Far depth off by 0.45 m (the model's sigma at 7 m is about 0.6 m): few far pairs
+    # are within 0.15 m in 3-D, most within three sigmas of the two stereo covariances.
+    a, b = far_pair(np.random.default_rng(seed), 0.45)
+    (fixed,), _ = associate(b, [a], None, AssociationParams())
+    (weighed,), _ = associate(b, [a], None, AssociationParams(inlier_sigmas=3.0))
+    assert weighed.inliers >= fixed.inliers + 3
+    assert matches_right(weighed, a, b) == 1.0
+    err_m, err_deg = transform_error(weighed, T_TRUE)
+    assert err_m < 0.3
+    assert err_deg < 3.0
+
+
+def test_inlier_sigmas_is_checked() -> None:
+    with pytest.raises(ConfigError, match="inlier_sigmas"):
+        AssociationParams(inlier_sigmas=-1.0)

@@ -27,7 +27,7 @@ from sonarmap.team.prior import (
     parse_prior_error,
     scale_plan,
 )
-from sonarmap.team.regions import cut_regions, mission_regions
+from sonarmap.team.regions import mission_regions
 from sonarmap.team.world import builtin_plan
 
 H = 0.1  # metres a cell

@@ -528,10 +528,39 @@ def test_deleting_a_pose_chains_its_neighbours() -> None:
     assert (edge.a, edge.b) == (p.uid, x.uid)
     np.testing.assert_allclose(compose(p.estimate, edge.transform), x.estimate, atol=1e-9)
     assert edge.max_distance == 20.0
-    assert store.closures == []
     cov = edge.cov()
     assert np.all(np.linalg.eigvalsh(cov) > 0)
     assert cov[0, 0] > COV[0]
+    # Q's closures go to X (its link of least uncertainty): P-Q becomes P-X, through
+    # the edge Q -> X; Q-X would join X to itself and goes.
+    (c,) = store.closures
+    assert (c.a, c.b) == (p.uid, x.uid)
+    np.testing.assert_allclose(compose(p.estimate, c.transform), x.estimate, atol=1e-9)
+    assert c.inliers == 0
+    assert c.matches == ()
+    assert np.linalg.eigvalsh(c.cov()).min() > 0
+    assert c.cov()[0, 0] > closure(p, q, [(5, 0)]).cov()[0, 0]
+
+
+def test_carried_closures_between_one_pair_fuse_into_one() -> None:
+    # Deleting Q, then a pose made after X whose closure to P lands on X too: two
+    # closures P-X fuse into one, less uncertain than either, between both transforms.
+    store, p, q, x, _ = merge_scene(BIG)
+    store.delete_pose(q.uid, now=3.0)
+    (first,) = store.closures
+    y_est = tuple(compose(x.estimate, (0.5, 0.0, 0.0)))
+    y = make_pose(0, 3, make_landmarks(np.zeros((3, 3)), seed=3), estimate=y_est, time=3.0)
+    z = make_pose(0, 4, make_landmarks(np.zeros((3, 3)), seed=4), estimate=y_est, time=4.0)
+    store.add_own_pose(y, odometry(x, y), [closure(p, y, [(0, 0)])], now=3.0)
+    loose = replace(odometry(y, z), covariance=tuple(100.0 * v for v in COV))
+    store.add_own_pose(z, loose, [], now=4.0)
+    store.delete_pose(y.uid, now=5.0)
+    carried = [c for c in store.closures if {c.a, c.b} == {p.uid, x.uid}]
+    assert len(carried) == 1
+    (fused,) = carried
+    assert fused.inliers == 0
+    assert np.trace(fused.cov()) < np.trace(first.cov())
+    np.testing.assert_allclose(compose(p.estimate, fused.transform), x.estimate, atol=1e-6)
 
 
 # --- choosing what to send ------------------------------------------------------------

@@ -124,6 +124,11 @@ class AssociationParams:
         a standard deviation above this along its worst direction is refused (inf: none).
     max_sigma_theta : float
         Likewise for the heading, rad (inf: none).
+    inlier_sigmas : float
+        0 (default): an inlier pair is within ``e0`` in 3-D. N > 0: also a pair whose
+        horizontal error is within N standard deviations of the two landmarks' stereo
+        covariances (:func:`stereo_covariance` plus ``sigma_point``) and whose heights
+        differ by at most ``e0``, so that far landmarks seen again from elsewhere count.
     seed : int
         Seed of the draws (0). Each candidate draws from its own stream, seeded by
         ``(seed, candidate uid, new uid)``, so a result does not depend on the other
@@ -150,6 +155,7 @@ class AssociationParams:
     sigma_point: float = 0.02
     max_sigma_xy: float = math.inf
     max_sigma_theta: float = math.inf
+    inlier_sigmas: float = 0.0
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -181,6 +187,9 @@ class AssociationParams:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 raise ConfigError(f"AssociationParams.{name}: a finite number > 0, got {value!r}")
+        sig = self.inlier_sigmas
+        if not (isinstance(sig, int | float) and math.isfinite(sig) and sig >= 0):
+            raise ConfigError(f"AssociationParams.inlier_sigmas: a finite number >= 0, got {sig!r}")
         for name in ("max_sigma_xy", "max_sigma_theta"):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and value > 0):
@@ -533,6 +542,10 @@ class _Matches:
     b: F64  # new pose's points
     w: F64  # r_i r_j
     n_new: int = field(default=0)  # distinct new landmarks with a match
+    #: Stereo covariances (n, 2, 2) of a's and b's points (``inlier_sigmas`` > 0 only).
+    ca: F64 | None = None
+    cb: F64 | None = None
+    sigmas: float = 0.0
 
 
 def _putative(cand: Pose, new: Pose, params: AssociationParams) -> _Matches:
@@ -555,20 +568,29 @@ def _putative(cand: Pose, new: Pose, params: AssociationParams) -> _Matches:
     w = np.maximum(
         lo.reliability[old].astype(np.float64) * ln.reliability[new_i].astype(np.float64), _W_MIN
     )
-    return _Matches(
-        old,
-        new_i,
-        lo.points[old].astype(np.float64),
-        ln.points[new_i].astype(np.float64),
-        w,
-        len(np.unique(new_i)),
-    )
+    a = lo.points[old].astype(np.float64)
+    b = ln.points[new_i].astype(np.float64)
+    m = _Matches(old, new_i, a, b, w, len(np.unique(new_i)))
+    if params.inlier_sigmas > 0:
+        m.ca, m.cb = _point_covariance(a, params), _point_covariance(b, params)
+        m.sigmas = params.inlier_sigmas
+    return m
 
 
 def _inliers(m: _Matches, T: F64, e0: float) -> tuple[I64, F64]:
     """One-to-one inliers of T (best error first) and their errors."""
-    err = np.linalg.norm(m.a - _apply(T, m.b), axis=1)
-    cand = np.flatnonzero(err <= e0)
+    diff = m.a - _apply(T, m.b)
+    err = np.linalg.norm(diff, axis=1)
+    ok = err <= e0
+    if m.ca is not None and m.cb is not None:
+        # Far landmarks' depth is known to decimetres: within the sigmas of the two
+        # stereo covariances (b's turned into a's frame) counts too, heights within e0.
+        c, s = math.cos(T[2]), math.sin(T[2])
+        R = np.array([[c, -s], [s, c]])
+        S = m.ca + R @ m.cb @ R.T
+        d2 = np.einsum("ni,nij,nj->n", diff[:, :2], np.linalg.inv(S), diff[:, :2])
+        ok |= (d2 <= m.sigmas**2) & (np.abs(diff[:, 2]) <= e0)
+    cand = np.flatnonzero(ok)
     cand = cand[np.argsort(err[cand], kind="stable")]
     # Keep the best match of each old landmark, then of each new one: every landmark is
     # then used once, as the count of inliers assumes.

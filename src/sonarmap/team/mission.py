@@ -304,6 +304,8 @@ class RobotAgent:
         self.assoc_seconds: list[float] = []
         self.graph: GraphResult | None = None
         self.drift = np.zeros((3, 3))
+        #: The drift each stored own pose was made with (3 x 3, by UID).
+        self.drift_of: dict[int, F64] = {}
         self.prev_k: int | None = None
         self.prev_uid: int | None = None
         self.counter = 0
@@ -497,10 +499,25 @@ class RobotAgent:
         if mine_closures:
             best = max(mine_closures, key=lambda c: c.inliers)
             pose.estimate = compose(store.local.poses[best.a].estimate, best.transform)
-            self.drift = best.cov() + CANDIDATE_COV
+            # The candidate's own drift since the closure before it, not a fresh start:
+            # a closure to the pose made a second ago (most closures are) says nothing
+            # of the drift since the last revisit, and a reset to CANDIDATE_COV let the
+            # gate refuse the true revisit closures that came after.
+            held = self.drift_of.get(best.a, np.zeros((3, 3)))
+            via = compose_covariance(
+                store.local.poses[best.a].estimate,
+                held,
+                best.transform,
+                best.cov() + CANDIDATE_COV,
+            )
+            if np.trace(via) < np.trace(self.drift):
+                self.drift = via
         self.assoc_seconds.append(time.perf_counter() - t0)
         self.evaluator.associated(pose, stored, closures, stats, t)
         store.add_own_pose(pose, edge, closures, t)
+        self.drift_of[uid] = self.drift.copy()
+        for gone in set(self.drift_of) - set(store.local.poses):
+            del self.drift_of[gone]
         for p in store.local.poses.values():
             self.made.setdefault(p.uid, p)
         self.bytes_per_pose.append(store.bytes())
@@ -543,6 +560,7 @@ class RobotAgent:
         d: dict[str, Any] = {name: getattr(self, name) for name in self.PLAIN_STATE}
         d["made"] = [encode(p) for p in self.made.values()]
         d["drift"] = [float(v) for v in np.asarray(self.drift).ravel()]
+        d["drift_of"] = [[u, [float(v) for v in m.ravel()]] for u, m in self.drift_of.items()]
         d.update(self.evaluator.state())
         return d
 
@@ -555,6 +573,9 @@ class RobotAgent:
         made = [decode_as(b, Pose) for b in d["made"]]
         self.made = {p.uid: p for p in made}
         self.drift = np.array(d["drift"], dtype=np.float64).reshape(3, 3)
+        self.drift_of = {
+            int(u): np.array(m, dtype=np.float64).reshape(3, 3) for u, m in d.get("drift_of", [])
+        }
         self.evaluator.restore(d)
 
     def run(

@@ -421,6 +421,27 @@ def _reframe(
     return a, b, transform, cov
 
 
+def _fuse_closures(d: ClosureEdge, c: ClosureEdge) -> ClosureEdge:
+    """Two closures between the same two poses as one, in ``d``'s direction: the
+    information-weighted mean of the transforms (linearised about ``d``'s, which
+    holds for the centimetres and degrees two right closures differ by), covariance
+    the inverse of the summed information, error the smaller."""
+    tf, cov = _tf(c.transform), c.cov()
+    if c.a != d.a:
+        tf, cov = _tf(invert(tf)), invert_covariance(tf, cov)
+    x0 = np.asarray(d.transform, dtype=np.float64)
+    delta = np.asarray(tf, dtype=np.float64) - x0
+    delta[2] = math.remainder(float(delta[2]), 2.0 * math.pi)
+    info_d, info_c = np.linalg.inv(d.cov()), np.linalg.inv(cov)
+    fused_cov = np.linalg.inv(info_d + info_c)
+    fused_cov = (fused_cov + fused_cov.T) / 2.0
+    x = x0 + fused_cov @ info_c @ delta
+    x[2] = math.remainder(float(x[2]), 2.0 * math.pi)
+    return replace(
+        d, transform=_tf(x), covariance=_cov_tuple(fused_cov), error=min(d.error, c.error)
+    )
+
+
 def _to_frame(points: npt.NDArray[np.float32], where: Transform) -> npt.NDArray[np.float64]:
     """Points of a frame held at ``where`` in another frame, expressed in that other."""
     c, s = math.cos(where[2]), math.sin(where[2])
@@ -1051,7 +1072,7 @@ class RobotStore:
         layer.remove_pose(uid, now)
         if uid == self._newest:
             self._newest = None
-        self.closures = [c for c in self.closures if uid not in (c.a, c.b)]
+        self._carry_closures(uid, links)
         order = sorted(links, key=lambda n: (layer.poses[n].time, n))
         touched: set[int] = set()
         for n1, n2 in itertools.pairwise(order):
@@ -1070,6 +1091,52 @@ class RobotStore:
                 layer.patch(layer.poses[n].region).stamp = now
             touched.add(layer.poses[n2].region)
         return touched
+
+    def _carry_closures(
+        self, uid: int, links: Mapping[int, tuple[Transform, F64, float, float]]
+    ) -> None:
+        """The closures of deleted pose ``uid`` carried to its odometry neighbour of
+        least uncertain link (``links``: neighbour to (transform of the neighbour in
+        uid's frame, its covariance, ...)), composed through that link; a carried
+        closure keeps no landmark matches and counts 0 inliers (it pairs no landmarks
+        of its new end, so it never drives a merge), and one joining a pair a carried
+        closure already joins is fused with it (:func:`_fuse_closures`). Without a
+        neighbour, or when the carried closure would join a pose to itself, it goes.
+
+        Region compression deletes most poses of a route that stays in a few regions;
+        dropping their closures left the graph only the odometry chained through them,
+        which undid every correction association had made."""
+        mine = [c for c in self.closures if uid in (c.a, c.b)]
+        if not mine:
+            return
+        self.closures = [c for c in self.closures if uid not in (c.a, c.b)]
+        if not links:
+            return
+        heir = min(links, key=lambda n: (float(np.trace(links[n][1])), n))
+        link_tf, link_cov = links[heir][0], links[heir][1]
+        for c in mine:
+            tf, cov, other = _tf(c.transform), c.cov(), c.a
+            if c.a == uid:
+                tf, cov, other = _tf(invert(tf)), invert_covariance(tf, cov), c.b
+            if other == heir:
+                continue
+            carried = ClosureEdge(
+                other,
+                heir,
+                _tf(compose(tf, link_tf)),
+                _cov_tuple(compose_covariance(tf, cov, link_tf, link_cov)),
+                0,
+                c.error,
+            )
+            self._add_carried(carried)
+
+    def _add_carried(self, c: ClosureEdge) -> None:
+        """Store a carried closure, fused with a carried one between the same poses."""
+        for i, d in enumerate(self.closures):
+            if d.inliers == 0 and {d.a, d.b} == {c.a, c.b}:
+                self.closures[i] = _fuse_closures(d, c)
+                return
+        self.closures.append(c)
 
     def _fold(self, uid: int, now: float) -> None:
         """Add local pose ``uid``'s map to the newest pose's (``StoreParams.fold``)."""
