@@ -323,17 +323,7 @@ def test_em_thrun_fold_is_the_posterior_of_the_leaving_readings(doorways: Scenar
     gone = p.alive_slots()
     f_cells, f_off, b_cells, b_dist, b_off = p.gather(gone)
     ix = index_arrays(f_cells, f_off, b_cells, b_dist, b_off, p.z[gone], e.offset)
-    arrays = (
-        ix.free_off,
-        ix.free_cell,
-        ix.band_off,
-        ix.band_cell,
-        ix.band_dist,
-        ix.cell_off,
-        ix.cell_reading,
-        ix.cell_kind,
-        ix.z,
-    )
+    arrays = ix.posterior_arrays()
     model = (m.p_rand, m.p_hit, e.sigma, e.sensor.r_max)
     want = np.zeros(g.size)
     want[ix.cells] = posterior(e.occ[ix.cells], arrays, *model)

@@ -67,6 +67,23 @@ class BeamIndex:
     def n_cells(self) -> int:
         return len(self.cells)
 
+    def posterior_arrays(
+        self,
+    ) -> tuple[I64, I64, I64, I64, F64, I64, I64, npt.NDArray[np.int8], F64]:
+        """The arrays :func:`._thrun_common.posterior` takes, in its order: both
+        directions of the index and ``z``."""
+        return (
+            self.free_off,
+            self.free_cell,
+            self.band_off,
+            self.band_cell,
+            self.band_dist,
+            self.cell_off,
+            self.cell_reading,
+            self.cell_kind,
+            self.z,
+        )
+
 
 def build_index(footprints: list[Footprint], ranges: F64, offset: float = 0.0) -> BeamIndex:
     """Index footprints rasterised with ``dr = 3 sigma`` (and ``offset``: each band

@@ -288,17 +288,7 @@ class EMMapper(Mapper):
         self.n_iter_ = k
         self.outlier_prob_ = outlier
         occ = m >= 0.5
-        arrays = (
-            ix.free_off,
-            ix.free_cell,
-            ix.band_off,
-            ix.band_cell,
-            ix.band_dist,
-            ix.cell_off,
-            ix.cell_reading,
-            ix.cell_kind,
-            ix.z,
-        )
+        arrays = ix.posterior_arrays()
         log_odds = posterior(occ, arrays, self.p_rand, self.p_hit, sigma, r_max, weight)
         log_odds += math.log(self.prior / (1.0 - self.prior))
         self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))

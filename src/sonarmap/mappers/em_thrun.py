@@ -362,17 +362,7 @@ class ThrunEMMapper(Mapper):
         self.loglik_.append(ll)
         self.n_iter_ = k
         self.outlier_prob_ = outlier
-        arrays = (
-            ix.free_off,
-            ix.free_cell,
-            ix.band_off,
-            ix.band_cell,
-            ix.band_dist,
-            ix.cell_off,
-            ix.cell_reading,
-            ix.cell_kind,
-            ix.z,
-        )
+        arrays = ix.posterior_arrays()
         log_odds = posterior(occ, arrays, *model, weight)
         log_odds += math.log(self.prior / (1.0 - self.prior))
         self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))
