@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import numpy.typing as npt
 import pytest
 
 from sonarmap._raster_kernel import accumulate_kernel, accumulate_parallel
 from sonarmap.grid import Grid
-from sonarmap.raster import FIT_TOL, falloff_fit, falloff_positive
+from sonarmap.raster import FIT_TOL, accumulate, falloff_fit, falloff_positive
 from sonarmap.sensors import SensorModel, get_sensor
 
 F64 = npt.NDArray[np.float64]
@@ -195,3 +196,40 @@ def test_positive_only_where_the_gaussian_clears_the_fit_tolerance() -> None:
         assert falloff_positive(sensor, math.radians(deg))
         u = np.linspace(0.0, u_max, 200_001)
         assert np.polynomial.polynomial.polyval(u, coef).min() > 1e3 * FIT_TOL
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_accumulate_on_two_threads_changes_no_bit(weighted: bool) -> None:
+    """The public insertion, which vouches for the polynomial itself, on one thread and
+    on two (the parallel kernel, unweighted or weighted), against every weight
+    computed."""
+    sensor = get_sensor("polaroid-6500")
+    falloff = math.radians(5.0)
+    n = 800
+    rng = np.random.default_rng(2)
+    spots = rng.uniform(0.5, 3.5, (6, 2))[rng.integers(0, 6, n)]
+    x, y = spots[:, 0], spots[:, 1]
+    th, r = rng.uniform(-4.0, 4.0, n), rng.uniform(0.2, 3.0, n)
+    w = rng.choice([0.5, 1.0, 2.0], size=n) if weighted else None
+    inc, clamp = (-0.2, 0.3), (-0.6, 0.9)
+    got = []
+    before = numba.get_num_threads()
+    for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):  # type: ignore[attr-defined]
+        numba.set_num_threads(threads)
+        try:
+            values = np.zeros(GRID.size)
+            touched = np.zeros(GRID.size, dtype=bool)
+            count = accumulate(
+                GRID, sensor, x, y, th, r, values, touched,
+                inc_free=inc[0], inc_occ=inc[1], clamp=clamp, dr=0.05, falloff=falloff,
+                weights=w,
+            )  # fmt: skip
+        finally:
+            numba.set_num_threads(before)
+        got.append((count, values, touched))
+    # The same readings' limits, every weight computed.
+    free_lim, occ_hi = r - 0.05, r + 0.05
+    full = insert(sensor, (x, y, th, free_lim, occ_hi), falloff, inc, clamp, False, weight=w)
+    assert held(full, clamp) > 0.5
+    for result in got:
+        assert_same(result, full)
