@@ -16,6 +16,8 @@ def test_profile_runs_and_refuses_bad_options(capsys: pytest.CaptureFixture[str]
     assert "blocks of 8 whose cells all do" in out
     assert main(["--minutes", "0", "--repeat", "1"]) == 2
     assert "--minutes must be > 0" in capsys.readouterr().err
+    assert main(["--minutes", "0.05", "--against", "no/such/_raster_kernel.py"]) == 2
+    assert "--against: no file no/such/_raster_kernel.py" in capsys.readouterr().err
 
 
 def repeat(cells: CellSet, times: int) -> CellSet:

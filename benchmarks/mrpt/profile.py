@@ -21,8 +21,12 @@ the chunk, the variants run in turn chunk by chunk: on a machine shared with oth
 fastest run of a short chunk is the one nothing interrupted. The chunks' numba calls add a
 fixed overhead (a few ms in all) that a single call, as the mapper makes, does not have.
 
+``--against FILE`` times another tree's kernel module (such as main's: ``git archive main
+src | tar -x -C /tmp/base``, then ``--against /tmp/base/src/sonarmap/_raster_kernel.py``)
+at the defaults, in the same process, on the same chunks.
+
 Run with ``python -m benchmarks.mrpt.profile [--minutes 2] [--repeat 5] [--held] [--clock
-thread]``.
+thread] [--against FILE]``.
 """
 
 from __future__ import annotations
@@ -31,7 +35,9 @@ import argparse
 import math
 import sys
 import time
+import types
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numba
@@ -106,7 +112,8 @@ def kernel_args(minutes: float, footprint: bool = False) -> Inputs:
     return Inputs(args, {"positive": falloff_positive(sensor, falloff)}, len(r), grid, fp)
 
 
-Case = tuple[list[Any], dict[str, Any]]
+# A kernel's arguments, positional and keyword, and the kernel (None: this tree's).
+Case = tuple[list[Any], dict[str, Any], Any]
 
 
 def variants(args: list[Any], kw: dict[str, Any], coef10: tuple[float, ...]) -> dict[str, Case]:
@@ -120,53 +127,82 @@ def variants(args: list[Any], kw: dict[str, Any], coef10: tuple[float, ...]) -> 
         f"defaults: runs, {deg:g}-degree fall-off ({len(coef)} terms), held blocks skipped": (
             args,
             kw,
+            None,
         ),
-        "runs, fall-off, every weight computed": (args, every),
+        "runs, fall-off, every weight computed": (args, every, None),
         "per-cell distance test (runs=False), fall-off, held blocks skipped": (
             args,
             {**kw, "runs": False},
+            None,
         ),
         "per-cell distance test (runs=False), fall-off, every weight": (
             args,
             {**every, "runs": False},
+            None,
         ),
         f"runs, 10-degree fall-off ({len(coef10)} terms), held blocks skipped": (
             [*args[:18], math.radians(10.0), coef10],
             kw,
+            None,
         ),
         f"runs, 10-degree fall-off ({len(coef10)} terms), every weight": (
             [*args[:18], math.radians(10.0), coef10],
             every,
+            None,
         ),
         "runs, fall-off cut to 7 terms, every weight (timing only)": (
             [*args[:19], coef[:7]],
             every,
+            None,
         ),
         "runs, fall-off cut to 2 terms, every weight (timing only)": (
             [*args[:19], coef[:2]],
             every,
+            None,
         ),
-        "runs, no fall-off": (flat, {}),
-        "per-cell distance test (runs=False), no fall-off": (flat, {"runs": False}),
+        "runs, no fall-off": (flat, {}, None),
+        "per-cell distance test (runs=False), no fall-off": (flat, {"runs": False}, None),
     }
+
+
+def foreign_kernel(path: Path) -> Any:
+    """``accumulate_kernel`` of the kernel module at ``path``, compiled afresh (numba's
+    cache would look for it under a module name it does not have)."""
+    module = types.ModuleType("_against_raster_kernel")
+    module.__file__ = str(path)
+    source = path.read_text().replace("cache=True", "cache=False")
+    exec(compile(source, str(path), "exec"), module.__dict__)
+    return module.accumulate_kernel
 
 
 def chunked(
     cases: dict[str, Case], n: int, repeat: int, clock: Callable[[], float] = time.perf_counter
 ) -> dict[str, float]:
-    """Each case's time in seconds (summed chunk minima) on ``clock``."""
+    """Each case's time in seconds (summed chunk minima) on ``clock``.
+
+    Each case inserts into a map of its own, and every run of a chunk starts from the
+    map the chunks before it left (a copy, outside the timing): the kernel's work
+    depends on the map (cells held at a clamp bound skip their weights), so each run
+    sees the map one insertion of the whole log would.
+    """
     total = dict.fromkeys(cases, 0.0)
+    maps = {name: (np.zeros_like(a[0]), np.zeros_like(a[1])) for name, (a, _, _) in cases.items()}
     for lo in range(0, n, CHUNK):
         hi = min(n, lo + CHUNK)
         best = dict.fromkeys(cases, math.inf)
+        latest = dict(maps)
         for _ in range(repeat):
-            for name, (args, kw) in cases.items():
+            for name, (args, kw, other) in cases.items():
+                run = kernel if other is None else other
                 a = list(args)
+                a[0], a[1] = maps[name][0].copy(), maps[name][1].copy()
                 for k in (7, 8, 9, 10, 11):
                     a[k] = np.ascontiguousarray(args[k][lo:hi])
                 t0 = clock()
-                kernel(*a, **kw)
+                run(*a, **kw)
                 best[name] = min(best[name], clock() - t0)
+                latest[name] = (a[0], a[1])
+        maps.update(latest)
         for name in cases:
             total[name] += best[name]
     return total
@@ -232,6 +268,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=5, help="runs of each chunk")
     parser.add_argument("--held", action="store_true", help="count the held cells too")
     parser.add_argument(
+        "--against",
+        type=Path,
+        help="another tree's _raster_kernel.py (such as main's, from git archive), timed "
+        "at the defaults in the same process",
+    )
+    parser.add_argument(
         "--clock",
         choices=("wall", "thread"),
         default="wall",
@@ -242,16 +284,22 @@ def main(argv: list[str] | None = None) -> int:
     if a.minutes <= 0 or a.repeat < 1:
         print("--minutes must be > 0 and --repeat >= 1", file=sys.stderr)
         return 2
+    if a.against is not None and not a.against.is_file():
+        print(f"--against: no file {a.against}", file=sys.stderr)
+        return 2
     numba.set_num_threads(1)
     inputs = kernel_args(a.minutes, footprint=a.held)
     sensor = make_scenario("office", duration=1.0).rig.sensor
     cases = variants(inputs.args, inputs.kw, falloff_fit(sensor, math.radians(10.0))[1])
     # Compile every variant before timing; count the cell updates once.
-    for case_args, kw in cases.values():
+    if a.against is not None:
+        # Without the skip's keyword: a kernel from before it computes every weight.
+        cases[f"{a.against}: defaults"] = (inputs.args, {}, foreign_kernel(a.against))
+    for case_args, kw, other in cases.values():
         fresh = list(case_args)
         fresh[0] = np.zeros_like(case_args[0])
         fresh[1] = np.zeros_like(case_args[1])
-        cells = kernel(*fresh, **kw)
+        cells = (kernel if other is None else other)(*fresh, **kw)
     clock = time.thread_time if a.clock == "thread" else time.perf_counter
     result = chunked(cases, inputs.n, a.repeat, clock)
     table = Table(
