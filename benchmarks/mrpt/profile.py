@@ -23,7 +23,7 @@ fixed overhead (a few ms in all) that a single call, as the mapper makes, does n
 
 ``--against FILE`` times another tree's kernel module (such as main's: ``git archive main
 src | tar -x -C /tmp/base``, then ``--against /tmp/base/src/sonarmap/_raster_kernel.py``)
-at the defaults, in the same process, on the same chunks.
+at the defaults and without the fall-off, in the same process, on the same chunks.
 
 Run with ``python -m benchmarks.mrpt.profile [--minutes 2] [--repeat 5] [--held] [--clock
 thread] [--against FILE]``.
@@ -294,7 +294,9 @@ def main(argv: list[str] | None = None) -> int:
     # Compile every variant before timing; count the cell updates once.
     if a.against is not None:
         # Without the skip's keyword: a kernel from before it computes every weight.
-        cases[f"{a.against}: defaults"] = (inputs.args, {}, foreign_kernel(a.against))
+        other = foreign_kernel(a.against)
+        cases[f"{a.against}: defaults"] = (inputs.args, {}, other)
+        cases[f"{a.against}: no fall-off"] = ([*inputs.args[:18], 0.0, ()], {}, other)
     for case_args, kw, other in cases.values():
         fresh = list(case_args)
         fresh[0] = np.zeros_like(case_args[0])
