@@ -42,6 +42,7 @@ __all__ = [
     "beam_cells",
     "default_dr",
     "falloff_fit",
+    "falloff_positive",
     "rasterise",
 ]
 
@@ -357,18 +358,19 @@ def accumulate(
         *_falloff_args(sensor, falloff),
     )
     threads = nb.get_num_threads()
+    positive = falloff_positive(sensor, falloff)
     if weights is not None:
         w = np.ascontiguousarray(weights, dtype=np.float64).reshape(-1)
         if len(w) != len(sx) or not (np.isfinite(w).all() and (w >= 0).all()):
             raise ConfigError(f"weights must be {len(sx)} finite numbers >= 0, one per reading")
         if threads > 1 and len(sx) >= 64:
-            return int(accumulate_parallel(*args, threads, w))
-        return int(accumulate_kernel(*args, weight=w))
+            return int(accumulate_parallel(*args, threads, w, positive))
+        return int(accumulate_kernel(*args, weight=w, positive=positive))
     # Unweighted, the kernels compile without the weight branch: the insertion keeps
     # the speed ``make bench-mrpt`` measures.
     if threads > 1 and len(sx) >= 64:
-        return int(accumulate_parallel(*args, threads))
-    return int(accumulate_kernel(*args))
+        return int(accumulate_parallel(*args, threads, None, positive))
+    return int(accumulate_kernel(*args, positive=positive))
 
 
 # Numbers of coefficients the fall-off fit tries, fewest first; the insertion kernel is
@@ -382,6 +384,10 @@ FIT_MAX_ANGLE = math.radians(80.0)
 # the kernel counts in the beam lies within EDGE_TOL of it; in a row at least ROW_TOL
 # from the sensor that is at most EDGE_TOL / ROW_TOL = 1e-4 rad outside its angles.
 FIT_MARGIN = 0.01
+# The least Gaussian weight over the fit's angles for which falloff_positive vouches
+# for the polynomial's sign: a thousand times FIT_TOL, which leaves room for the fit's
+# error between the points it is checked at.
+POSITIVE_FLOOR = 1e3 * FIT_TOL
 
 
 def _beam_half_angle(sensor: SensorModel) -> float:
@@ -464,6 +470,28 @@ def falloff_fit(sensor: SensorModel, falloff: float) -> tuple[float, tuple[float
     if falloff <= 0:
         return 0.0, ()
     return _fit(_beam_half_angle(sensor), float(falloff))
+
+
+def falloff_positive(sensor: SensorModel, falloff: float) -> bool:
+    """Whether the fall-off polynomial (:func:`falloff_fit`) is positive over the beam's
+    angles: the Gaussian it fits stays above :data:`POSITIVE_FLOOR` there. False without
+    a polynomial.
+
+    The insertion kernel relies on it to leave a cell held at a clamp bound by its
+    increment without computing its weight (any weight >= 0 gives the same value).
+
+    Examples
+    --------
+    >>> from sonarmap.sensors import get_sensor
+    >>> s = get_sensor("polaroid-6500")
+    >>> falloff_positive(s, math.radians(5)), falloff_positive(s, math.radians(2))
+    (True, False)
+    """
+    u_max, coef = falloff_fit(sensor, falloff)
+    if not coef:
+        return False
+    widest = math.atan(math.sqrt(u_max))
+    return math.exp(-0.5 * (widest / falloff) ** 2) > POSITIVE_FLOOR
 
 
 def _falloff_args(sensor: SensorModel, falloff: float) -> tuple[float, tuple[float, ...]]:
