@@ -89,21 +89,27 @@ def held_out_scene(family: str, rig: str, seed: int) -> Scenario:
 
 
 def parse_variant(text: str) -> tuple[str, dict[str, Any]]:
-    """``"METHOD K=V K=V"`` as the method and its parameters (numbers where they parse).
+    """``"METHOD K=V K=V"`` as the method and its parameters (true / false, integers and
+    numbers where they parse).
 
     Examples
     --------
-    >>> parse_variant("gradient a2=0.2 no_echo=free")
-    ('gradient', {'a2': 0.2, 'no_echo': 'free'})
+    >>> parse_variant("gradient a2=0.2 max_iter=30 convex_start=true no_echo=free")
+    ('gradient', {'a2': 0.2, 'max_iter': 30, 'convex_start': True, 'no_echo': 'free'})
     """
     method, *pairs = text.split()
     params: dict[str, Any] = {}
     for pair in pairs:
         key, _, value = pair.partition("=")
-        try:
-            params[key] = float(value)
-        except ValueError:
-            params[key] = value
+        if value in ("true", "false"):
+            params[key] = value == "true"
+            continue
+        for kind in (int, float, str):
+            try:
+                params[key] = kind(value)
+                break
+            except ValueError:
+                continue
     return method, params
 
 

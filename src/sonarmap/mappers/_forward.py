@@ -229,10 +229,11 @@ def robust_cost(r: F64, tau: float) -> F64:
 
 
 def _rows(
-    cs: CellSet, keep: npt.NDArray[np.bool_]
+    cs: CellSet, keep: npt.NDArray[np.bool_], scale: F64 | None = None
 ) -> tuple[F64, npt.NDArray[np.int32], npt.NDArray[np.int64], F64, npt.NDArray[np.int64]]:
     """Normalised weights of the kept readings' cells: data, columns, row offsets, X0,
-    and which readings (of the batch) the rows are."""
+    and which readings (of the batch) the rows are. ``scale`` (per entry) multiplies
+    the normalised weights, leaving the sums and X0 as they were."""
     counts = cs.counts
     # Per-reading sums; bincount is right for readings that touch no cell anywhere in the
     # batch (reduceat is not: it repeats a neighbour's value, or fails at the end).
@@ -242,6 +243,8 @@ def _rows(
     use = keep & (counts > 0) & (sums > 0)
     entry_use = np.repeat(use, counts)
     data = cs.weight.astype(np.float64) / np.repeat(np.where(sums > 0, sums, 1.0), counts)
+    if scale is not None:
+        data = data * scale
     cols = cs.cells[entry_use]
     offsets = np.concatenate([[0], np.cumsum(counts[use])]).astype(np.int64)
     return data[entry_use], cols, offsets, 1.0 / sums[use], np.flatnonzero(use).astype(np.int64)
@@ -252,6 +255,8 @@ def build_problem(
     echo: list[npt.NDArray[np.bool_]],
     n_grid_cells: int,
     pen: Penalties,
+    free_scale: list[F64] | None = None,
+    occ_scale: list[F64] | None = None,
 ) -> ForwardProblem:
     """Assemble W over the cells any reading touches.
 
@@ -265,6 +270,12 @@ def build_problem(
         Size of the grid.
     pen : Penalties
         Model constants.
+    free_scale : list of ndarray, optional
+        Per batch, a factor for each Omega_free entry's weight, applied after the
+        normalisation (so X0 stays one detectable obstacle of the unscaled beam): how
+        much less the beam says about a cell than its sensitivity alone would.
+    occ_scale : list of ndarray, optional
+        The same for each Omega_occ entry.
     """
     parts_d: list[F64] = []
     parts_c: list[npt.NDArray[np.int32]] = []
@@ -273,9 +284,12 @@ def build_problem(
     occ_flags: list[npt.NDArray[np.bool_]] = []
     which: list[npt.NDArray[np.int64]] = []
     first = 0
-    for fp, e in zip(footprints, echo, strict=True):
-        for cs, keep, flag in ((fp.free, np.ones_like(e), False), (fp.occ, e, True)):
-            d, c, o, x0, idx = _rows(cs, keep)
+    none: list[F64 | None] = [None] * len(footprints)
+    fss: list[F64 | None] = list(free_scale) if free_scale is not None else none
+    oss: list[F64 | None] = list(occ_scale) if occ_scale is not None else none
+    for fp, e, fs, os_ in zip(footprints, echo, fss, oss, strict=True):
+        for cs, keep, flag, sc in ((fp.free, np.ones_like(e), False, fs), (fp.occ, e, True, os_)):
+            d, c, o, x0, idx = _rows(cs, keep, sc)
             which.append(idx + first)
             parts_d.append(d)
             parts_c.append(c)

@@ -54,6 +54,8 @@ import numpy.typing as npt
 import scipy.optimize as so
 import scipy.sparse as sp
 
+from ..errors import ConfigError
+from ..raster import Footprint
 from ..readings import Readings
 from ._base import Mapper, Progress, register
 from ._checks import choice, integer, number
@@ -66,6 +68,7 @@ from ._forward import (
     build_problem,
     robust_weights,
 )
+from ._incidence import free_factors
 from ._stream import StreamEngine
 
 __all__ = ["GradientMapper"]
@@ -193,6 +196,25 @@ class GradientMapper(Mapper):
         (default), or the inverse mapper's map at its defaults (0.5 where it has no
         evidence), so the descent refines a map that already places the walls. The
         robust form's rounds restart from the same map. Streaming starts at 0.5.
+    specular_deg : float
+        Angular width of a smooth surface's echo, degrees, in [0, 90); 0 (default) is
+        off. With a width, each Omega_free weight is scaled by how well a surface at the
+        cell would face the beam: surface normals are estimated from the echoes' bands,
+        and a cell that only echoes and slanted beams have met counts little to a beam
+        crossing it at a slant (see :func:`~sonarmap.mappers._incidence.free_factors`).
+        The weights are scaled after the normalisation, so X0 stays one detectable
+        obstacle of the whole beam. Offline only: streaming ignores it. Off by default:
+        on the issue 39 training scenes (three seeds) 15 degrees kept more of the
+        observed walls (0.727 against 0.694) and detected fewer passages (passage F1
+        0.247 against 0.288), quality 0.268 against 0.297.
+    convex_start : bool
+        Solve the objective without the tent R2 first (a convex problem; L-BFGS-B on
+        its smoothed surrogate, as ``solver="lbfgs"``), then run the solver with the
+        tent from that map (default False: from the start map directly). From 0.5 the
+        tent binarises each cell by the sign of its first subgradients; from the convex
+        optimum, by where the readings together put it. Off by default: on the same
+        training scenes it kept more walls (observed 0.769) and fewer passages (passage
+        F1 0.207), quality 0.240 against 0.297. Offline only.
 
     Attributes
     ----------
@@ -234,6 +256,8 @@ class GradientMapper(Mapper):
         robust_support: float = 3.0,
         correlated: float = 0.0,
         init: str = "uniform",
+        specular_deg: float = 0.0,
+        convex_start: bool = False,
     ) -> None:
         self.a1 = a1
         self.a2 = a2
@@ -254,6 +278,8 @@ class GradientMapper(Mapper):
         self.robust_support = robust_support
         self.correlated = correlated
         self.init = init
+        self.specular_deg = specular_deg
+        self.convex_start = convex_start
         number("a1", a1, 0.0, 1.0, lo_open=True, hi_open=True)
         number("a2", a2, 0.0, 1.0, lo_open=True, hi_open=True)
         number("c1", c1, 0.0, None)
@@ -276,6 +302,10 @@ class GradientMapper(Mapper):
         number("robust_support", robust_support, 0.0, None)
         number("correlated", correlated, 0.0, None)
         choice("init", init, ("uniform", "inverse"))
+        number("specular_deg", specular_deg, 0.0, 90.0, hi_open=True)
+        if not isinstance(convex_start, bool):
+            got = repr(convex_start)
+            raise ConfigError(f"parameter 'convex_start' must be true or false, got {got}")
 
     # The objective couples all readings, so batches are kept and the map re-solved,
     # warm-started from the previous solution.
@@ -329,9 +359,10 @@ class GradientMapper(Mapper):
             readings = self._echoes(readings)
         fps = self.kept_footprints(readings, dr=self.dr, offset=self.band_offset_for(self.grid))
         bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
+        scale = self._slanted(readings, fps, bounds) if self.specular_deg > 0 else None
         echo = [readings.range[a:b] < self.sensor.r_max for a, b in itertools.pairwise(bounds)]
         pen = Penalties(self.a1, self.a2, self.c1, self.c2, self.r2)
-        problem = build_problem(fps, echo, self.grid.size, pen)
+        problem = build_problem(fps, echo, self.grid.size, pen, scale)
         if self.correlated > 0 and problem.reading is not None:
             # Scaled to mean 1: 1 / n alone weakens every term against the unscaled
             # R2, and walls lose to the tent (training quality 0.14 at 10 cm bins).
@@ -339,13 +370,36 @@ class GradientMapper(Mapper):
             problem = dataclasses.replace(problem, v=c[problem.reading])
         return problem
 
+    def _slanted(
+        self, readings: Readings, fps: list[Footprint], bounds: npt.NDArray[np.int64]
+    ) -> list[F64]:
+        """Per batch, each Omega_free entry's detectability at the beam's incidence
+        (``specular_deg``; see :func:`~sonarmap.mappers._incidence.free_factors`)."""
+        pairs = list(itertools.pairwise(bounds))
+        return free_factors(
+            self.grid,
+            [fp.free for fp in fps],
+            [fp.occ for fp in fps],
+            [readings.x[a:b] for a, b in pairs],
+            [readings.y[a:b] for a, b in pairs],
+            math.radians(self.specular_deg),
+        )
+
     def _solve(
         self, problem: ForwardProblem, x: F64, progress: Progress | None
     ) -> tuple[F64, int, list[float]]:
         if problem.n_cells == 0:
             return x, 0, []
         solve = {"gd": _gd, "pgd": _pgd, "lbfgs": _lbfgs, "ccp": _ccp}[self.solver]
-        return solve(problem, x, self, progress)
+        if not self.convex_start:
+            return solve(problem, x, self, progress)
+        # Without the concave tent the problem is convex, and L-BFGS-B on its smoothed
+        # surrogate solves it; the tent's descent then starts from that map instead of
+        # from the first subgradient's signs.
+        flat = dataclasses.replace(problem, pen=dataclasses.replace(problem.pen, c2=0.0))
+        x, k0, h0 = _lbfgs(flat, x, self, progress)
+        x, k1, h1 = solve(problem, np.clip(x, 0.0, 1.0), self, progress)
+        return x, k0 + k1, h0 + h1
 
     @property
     def solution_(self) -> F64 | None:
