@@ -16,7 +16,8 @@ planner, team size and seed one run of ``--duration`` simulated seconds, reporti
   arc ahead, no manoeuvre found), %.
 
 Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
-[--planners track thesis] [--crowding obstacles] [--forward-wave] [--give-up 3] [--seeds 0]
+[--planners track thesis] [--crowding obstacles] [--forward-wave] [--give-up 3]
+[--turn-penalty 10] [--no-out-of-sight] [--seeds 0]
 [--duration 3600]
 [--json F]``; one process, one core (``NUMBA_NUM_THREADS=1``). Each run prints one
 line as it ends; the table follows.
@@ -48,6 +49,8 @@ def run_one(
     duration: float,
     forward_wave: bool = False,
     give_up: int = 3,
+    turn_penalty: float = 10.0,
+    out_of_sight: bool = True,
 ) -> dict[str, Any]:
     """One run's figures (see the module's notes)."""
     config = PatrolConfig(
@@ -55,6 +58,8 @@ def run_one(
         car_planner=planner,
         forward_wave=forward_wave,
         give_up=give_up,
+        turn_penalty=turn_penalty,
+        out_of_sight=out_of_sight,
         refine=True,
         crowding=crowding if cars > 1 else "none",
         duration=duration,
@@ -81,6 +86,8 @@ def run_one(
         "crowding": config.crowding,
         "forward_wave": forward_wave,
         "give_up": give_up,
+        "turn_penalty": turn_penalty,
+        "out_of_sight": out_of_sight,
         "seed": seed,
         "duration": duration,
         "dvt": round(float(s["dvt"]), 2),
@@ -100,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--crowding", default="obstacles")
     ap.add_argument("--forward-wave", action="store_true")
     ap.add_argument("--give-up", type=int, default=3)
+    ap.add_argument("--turn-penalty", type=float, default=10.0)
+    ap.add_argument("--no-out-of-sight", dest="out_of_sight", action="store_false")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--json", type=Path)
@@ -110,7 +119,16 @@ def main(argv: list[str] | None = None) -> int:
             for cars in a.cars:
                 for seed in a.seeds:
                     row = run_one(
-                        site, planner, cars, a.crowding, seed, a.duration, a.forward_wave, a.give_up
+                        site,
+                        planner,
+                        cars,
+                        a.crowding,
+                        seed,
+                        a.duration,
+                        a.forward_wave,
+                        a.give_up,
+                        a.turn_penalty,
+                        a.out_of_sight,
                     )
                     print(json.dumps(row), flush=True)
                     rows.append(row)
