@@ -3,13 +3,22 @@
 Setting (issue 36, goal 4): street sites of blocks with 3-6 m streets and dead-end stubs
 (:func:`sonarmap.patrol.maps.street_site`; seeds below 1000 are training sites, 1000
 and above held out), cars (turning radius 3.5 m, the thesis's speed rule), refinement,
-mode, artificial obstacles, starts spread by farthest point (by seed). For each site,
+mode, artificial obstacles, starts spread by farthest point (by seed); tracking cars
+choose among the places out of their sight with places behind them damped
+(``--turn-penalty 10``; ``--turn-penalty 0 --no-out-of-sight`` is the library's
+default, the thesis's pulls). For each site,
 planner, team size and seed one run of ``--duration`` simulated seconds, reporting:
 
 - ``DVT``: the team's mean share of time in the dead-end escape mode, %;
+- ``blocked``: the team's mean share of time a robot's move was cancelled by the
+  collision rule (held by another robot, standing), %: the thesis's car escapes at
+  once when held, so this time counts towards its DVT, a tracking car's only when it
+  then manoeuvres in reverse;
 - ``never seen``: the share of the reachable site never seen by the end, %;
 - ``given up``: the share of it the cars stopped going for (never seen places they
   turned round on the way to three times, :mod:`sonarmap.patrol.giveup`), %;
+- ``mean idleness``: the mean, after a fifth of the run, of the mean time since last
+  seen over the places, s;
 - ``mean MTB``: the mean, after a fifth of the run, of the worst time since last seen, s;
 - ``DVT by cause`` (tracking cars): the DVT split by why the car manoeuvred
   (:data:`sonarmap.patrol.robots.CAUSES`: held by another car, path behind, no clear
@@ -91,6 +100,8 @@ def run_one(
         "seed": seed,
         "duration": duration,
         "dvt": round(float(s["dvt"]), 2),
+        "mean_idleness": round(float(s["mean_idleness"]), 1),
+        "blocked": round(100 * float(s["blocked_share"]), 2),
         "never_seen": round(100 * float(s["never_seen"]), 2),
         "given_up": round(100 * float(s["given_up"]), 3),
         "mean_mtb": round(float(s["mean_mtb"]), 1),
