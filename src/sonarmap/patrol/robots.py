@@ -323,9 +323,11 @@ class Car(Team):
     ``patience`` steps, it plans a manoeuvre (hybrid A* with forward and reverse arcs
     to a pose on the path 3-10 m ahead, clear of the map and the other robots) and
     drives it arc by arc; with no manoeuvre found it takes the pursuit arc if only the
-    step is clear, else falls back on the thesis's escape for that step, and searches
-    again ``patience`` steps later. DVT then counts the steps of manoeuvres that reverse and of the
-    fallback: the car's dead-end escapes.
+    step is clear, else falls back on the thesis's escape, aiming for the direction of
+    its route 1-3 m on (or the opposite one, whichever is nearer its heading), until
+    aligned with it or for at most :data:`ESCAPE_STEPS`, and then searches again. DVT
+    then counts the steps of manoeuvres that reverse and of the fallback: the car's
+    dead-end escapes.
 
     The body is the same disc as the holonomic robot's (the thesis gives no body for
     the car); the speed rule reads the distance from the car's centre to the nearest
