@@ -3,20 +3,30 @@
 Setting (issue 36, goal 4): street sites of blocks with 3-6 m streets and dead-end stubs
 (:func:`sonarmap.patrol.maps.street_site`; seeds below 1000 are training sites, 1000
 and above held out), cars (turning radius 3.5 m, the thesis's speed rule), refinement,
-mode, artificial obstacles, starts spread by farthest point (by seed). For each site,
+mode, artificial obstacles, starts spread by farthest point (by seed); tracking cars
+choose among the places out of their sight with places behind them damped
+(``--turn-penalty 10``; ``--turn-penalty 0 --no-out-of-sight`` is the library's
+default, the thesis's pulls). For each site,
 planner, team size and seed one run of ``--duration`` simulated seconds, reporting:
 
 - ``DVT``: the team's mean share of time in the dead-end escape mode, %;
+- ``blocked``: the team's mean share of time a robot's move was cancelled by the
+  collision rule (held by another robot, standing), %: the thesis's car escapes at
+  once when held, so this time counts towards its DVT, a tracking car's only when it
+  then manoeuvres in reverse;
 - ``never seen``: the share of the reachable site never seen by the end, %;
 - ``given up``: the share of it the cars stopped going for (never seen places they
   turned round on the way to three times, :mod:`sonarmap.patrol.giveup`), %;
+- ``mean idleness``: the mean, after a fifth of the run, of the mean time since last
+  seen over the places, s;
 - ``mean MTB``: the mean, after a fifth of the run, of the worst time since last seen, s;
 - ``DVT by cause`` (tracking cars): the DVT split by why the car manoeuvred
   (:data:`sonarmap.patrol.robots.CAUSES`: held by another car, path behind, no clear
   arc ahead, no manoeuvre found), %.
 
 Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
-[--planners track thesis] [--crowding obstacles] [--forward-wave] [--give-up 3] [--seeds 0]
+[--planners track thesis] [--crowding obstacles] [--forward-wave] [--give-up 3]
+[--turn-penalty 10] [--no-out-of-sight] [--seeds 0]
 [--duration 3600]
 [--json F]``; one process, one core (``NUMBA_NUM_THREADS=1``). Each run prints one
 line as it ends; the table follows.
@@ -48,6 +58,8 @@ def run_one(
     duration: float,
     forward_wave: bool = False,
     give_up: int = 3,
+    turn_penalty: float = 10.0,
+    out_of_sight: bool = True,
 ) -> dict[str, Any]:
     """One run's figures (see the module's notes)."""
     config = PatrolConfig(
@@ -55,6 +67,8 @@ def run_one(
         car_planner=planner,
         forward_wave=forward_wave,
         give_up=give_up,
+        turn_penalty=turn_penalty,
+        out_of_sight=out_of_sight,
         refine=True,
         crowding=crowding if cars > 1 else "none",
         duration=duration,
@@ -81,9 +95,13 @@ def run_one(
         "crowding": config.crowding,
         "forward_wave": forward_wave,
         "give_up": give_up,
+        "turn_penalty": turn_penalty,
+        "out_of_sight": out_of_sight,
         "seed": seed,
         "duration": duration,
         "dvt": round(float(s["dvt"]), 2),
+        "mean_idleness": round(float(s["mean_idleness"]), 1),
+        "blocked": round(100 * float(s["blocked_share"]), 2),
         "never_seen": round(100 * float(s["never_seen"]), 2),
         "given_up": round(100 * float(s["given_up"]), 3),
         "mean_mtb": round(float(s["mean_mtb"]), 1),
@@ -100,6 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--crowding", default="obstacles")
     ap.add_argument("--forward-wave", action="store_true")
     ap.add_argument("--give-up", type=int, default=3)
+    ap.add_argument("--turn-penalty", type=float, default=10.0)
+    ap.add_argument("--no-out-of-sight", dest="out_of_sight", action="store_false")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--json", type=Path)
@@ -110,7 +130,16 @@ def main(argv: list[str] | None = None) -> int:
             for cars in a.cars:
                 for seed in a.seeds:
                     row = run_one(
-                        site, planner, cars, a.crowding, seed, a.duration, a.forward_wave, a.give_up
+                        site,
+                        planner,
+                        cars,
+                        a.crowding,
+                        seed,
+                        a.duration,
+                        a.forward_wave,
+                        a.give_up,
+                        a.turn_penalty,
+                        a.out_of_sight,
                     )
                     print(json.dumps(row), flush=True)
                     rows.append(row)

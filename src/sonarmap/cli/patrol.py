@@ -220,6 +220,17 @@ PATROL_OPTIONS = (
         "the cars stop going for it (and the never-seen places within 2 m); 0: never.",
     ),
     Opt(
+        "turn_penalty",
+        "Tracking cars: the lead in log pull a place whose path leaves behind the car "
+        "(over 100 deg off its heading) needs over the places ahead; 0: none.",
+    ),
+    Opt(
+        "out_of_sight",
+        "Tracking cars: only places out of sight (not seen this step) pull on a car; "
+        "--every-place-pulls: every watched place does (the thesis's).",
+        off="--every-place-pulls",
+    ),
+    Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
         "nearest obstacle, in order; the last D may be inf.",

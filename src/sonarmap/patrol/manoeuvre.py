@@ -31,8 +31,17 @@ import numpy.typing as npt
 from scipy import ndimage
 
 from ..grid import Grid
+from .paths import STEP_UNITS
 
-__all__ = ["Manoeuvre", "behind_cells", "carrot", "leads_on", "plan_manoeuvre", "route_goals"]
+__all__ = [
+    "Manoeuvre",
+    "behind_cells",
+    "carrot",
+    "leads_on",
+    "plan_manoeuvre",
+    "route_goals",
+    "turn_weights",
+]
 
 F64 = npt.NDArray[np.float64]
 
@@ -97,6 +106,24 @@ def behind_cells(
     keep = (np.hypot(dx, dy) <= radius) & (along < -gap) & grid.contains(rr, cc)
     keep &= (rr != r0) | (cc != c0)
     return np.column_stack([rr[keep], cc[keep]]).astype(np.intp)
+
+
+def turn_weights(heading: float, behind: float, penalty: float) -> F64:
+    """Weights (8,) of the wave's first steps (:data:`~sonarmap.patrol.paths.STEPS`)
+    for a car heading ``heading`` radians: ``exp(-penalty)`` for the steps more than
+    ``behind`` radians off the heading, 1 for the others.
+
+    The potential field's pulls are logarithmic in TB (e^(a TB_n), a = 40), so a weight
+    must be that small to count: ``penalty`` is the lead, in units of log pull, a
+    place reached by turning round needs over one reached forwards (10 is a lead of a
+    quarter of the MTB in TB_n). On streets narrower than its turning circle a car can
+    only turn round by reversing, so a place behind it is chosen only when it pulls that
+    much harder; a car whose every path leaves backwards (at the end of a dead end) is
+    unaffected.
+    """
+    angle = np.arctan2(STEP_UNITS[:, 1], STEP_UNITS[:, 0])
+    off = np.abs((angle - heading + math.pi) % (2 * math.pi) - math.pi)
+    return np.where(off > behind, math.exp(-penalty), 1.0).astype(np.float64)
 
 
 #: 8-connected, as the wave's steps are.

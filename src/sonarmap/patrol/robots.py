@@ -26,7 +26,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
-from .manoeuvre import Manoeuvre, plan_manoeuvre, route_goals
+from .manoeuvre import Manoeuvre, carrot, plan_manoeuvre, route_goals
 from .paths import STEPS, nearest_step
 from .territory import move_clear
 
@@ -47,6 +47,9 @@ F64 = npt.NDArray[np.float64]
 #: behind it (``behind``), no clear forward arc along it (``ahead``), or no manoeuvre
 #: found, the thesis's escape (``fallback``).
 CAUSES = ("traffic", "behind", "ahead", "fallback")
+#: Track: the most steps a fallback on the thesis's escape runs before the car plans
+#: again (10 s at 0.5 s a step); it ends once the car is aligned.
+ESCAPE_STEPS = 20
 
 
 @dataclass
@@ -320,9 +323,11 @@ class Car(Team):
     ``patience`` steps, it plans a manoeuvre (hybrid A* with forward and reverse arcs
     to a pose on the path 3-10 m ahead, clear of the map and the other robots) and
     drives it arc by arc; with no manoeuvre found it takes the pursuit arc if only the
-    step is clear, else falls back on the thesis's escape for that step, and searches
-    again ``patience`` steps later. DVT then counts the steps of manoeuvres that reverse and of the
-    fallback: the car's dead-end escapes.
+    step is clear, else falls back on the thesis's escape, aiming for the direction of
+    its route 1-3 m on (or the opposite one, whichever is nearer its heading), until
+    aligned with it or for at most :data:`ESCAPE_STEPS`, and then searches again. DVT
+    then counts the steps of manoeuvres that reverse and of the fallback: the car's
+    dead-end escapes.
 
     The body is the same disc as the holonomic robot's (the thesis gives no body for
     the car); the speed rule reads the distance from the car's centre to the nearest
@@ -359,6 +364,8 @@ class Car(Team):
     escape_causes: dict[str, npt.NDArray[np.int64]] = field(init=False)
     #: Track: reversing manoeuvres (and falls back on the thesis's escape) each car began.
     turns: npt.NDArray[np.int64] = field(init=False)
+    #: Track: steps each car's fallback on the thesis's escape may still run.
+    stuck: npt.NDArray[np.int64] = field(init=False)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -378,6 +385,7 @@ class Car(Team):
         self.cause = [""] * len(self.x)
         self.escape_causes = {c: np.zeros(len(self.x), dtype=np.int64) for c in CAUSES}
         self.turns = np.zeros(len(self.x), dtype=np.int64)
+        self.stuck = np.zeros(len(self.x), dtype=np.int64)
 
     def speed_of(self, i: int, grid: Grid) -> float:
         r, c = grid.world_to_cell(self.x[i], self.y[i])
@@ -543,6 +551,23 @@ class Car(Team):
             self.plans[i] = None
         return end
 
+    def _street_axis(self, i: int, towards: float) -> float:
+        """The heading car i's fallback aligns with: its route's direction from 1 to
+        3 m on, or the opposite one when that is nearer its heading (a car askew in a
+        street straightens up before it turns round); ``towards`` when it has no
+        route that long."""
+        route = self.routes[i]
+        if route is None or len(route) < 2:
+            return towards
+        x, y = float(self.x[i]), float(self.y[i])
+        ax, ay = carrot(route, x, y, 1.0)
+        bx, by = carrot(route, x, y, 3.0)
+        if math.hypot(bx - ax, by - ay) < 1.0:
+            return towards
+        h = math.atan2(by - ay, bx - ax)
+        ahead = abs(_wrap(h - float(self.heading[i]))) <= math.pi / 2
+        return h if ahead else _wrap(h + math.pi)
+
     def _yielded_to(self, i: int) -> bool:
         """Whether a later car, held too and near car i, manoeuvres instead of it: of
         two cars holding each other up only one gets out of the way (both would
@@ -604,6 +629,20 @@ class Car(Team):
                 and not self._yielded_to(i)
             ):
                 self._plan(i, passable, grid, "traffic")
+            if self.plans[i] is None and self.stuck[i] > 0:
+                # The fallback runs until the car is aligned (at most ESCAPE_STEPS):
+                # one step of it, then pursuit again, can swing a car between two
+                # poses for good in a street whose passable cells are one wide.
+                if abs(_wrap(float(self.goal[i] - self.heading[i]))) <= self.align:
+                    self.stuck[i] = 0
+                else:
+                    self.stuck[i] -= 1
+                    self.escape_causes["fallback"][i] += 1
+                    move = self._escape_move(i, s, passable, grid)
+                    if move is not None:
+                        want[i] = True
+                        end[i] = move
+                    continue
             if self.plans[i] is None:
                 self.escaping[i] = False
             if self.plans[i] is None and d is not None:
@@ -638,7 +677,8 @@ class Car(Team):
                         self.turns[i] += 1
                     self.escaping[i] = True
                     self.escape_causes["fallback"][i] += 1
-                    self.goal[i] = math.atan2(d[1], d[0])
+                    self.stuck[i] = ESCAPE_STEPS
+                    self.goal[i] = self._street_axis(i, math.atan2(d[1], d[0]))
                     move = self._escape_move(i, s, passable, grid)
                     if move is not None:
                         want[i] = True
