@@ -270,6 +270,8 @@ class NaiveExchanger:
         if not new:
             return
         peers = sorted(set(self._peers()) - {self.robot})
+        # Sent as they are now: the store's fold must not change them afterwards.
+        self.store.share(new)
         for uid in new:
             self._sent.add(uid)
             pose = quantise_pose(
