@@ -246,7 +246,11 @@ EXCHANGE_OPTIONS = (
 #: Options that set :class:`~sonarmap.team.store.StoreParams`.
 STORE_OPTIONS = (
     Opt("pose_limit", "Bytes one pose may take in the store (the thesis's M_pose)."),
-    Opt("region_limit", "Bytes one region of the store may take (the thesis's M_r)."),
+    Opt(
+        "region_limit",
+        "Bytes one region of the store may take at least (the thesis's M_r); a larger "
+        "region may take 4096 B per m^2 of its area.",
+    ),
     Opt(
         "store_limit",
         "Bytes the robot's own layer may take, every region together; past it the store "
@@ -254,7 +258,8 @@ STORE_OPTIONS = (
     ),
     Opt(
         "fold",
-        "A pose that region compression deletes leaves its local map to the newest pose.",
+        "A pose that compression deletes leaves its local map to its nearest odometry "
+        "neighbour that no other robot holds yet (--no-fold: the thesis's deletion).",
         off="--no-fold",
     ),
     Opt(

@@ -634,6 +634,9 @@ class RobotAgent:
             if store.params.store_limit <= 0 or by_regions <= store.params.store_limit
             else "store_limit",
             "local_bytes_within_bound": bool(store.peak_local_bytes <= bound),
+            # M_r of each region (StoreParams.region_density x its area, at least
+            # region_limit): the terms of the regions' bound.
+            "region_bytes_limits": region_limits(store.params, self.region_areas),
             "closure_bytes_final": int(store.closure_bytes()),
             "poses": len(store.local.poses),
             "poses_made": counter,
