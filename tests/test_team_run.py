@@ -293,6 +293,8 @@ def test_the_naive_meter_prices_what_the_baseline_sends() -> None:
     assert meter.poses == 5
     assert meter.bytes == ex[0].stats.bytes_sent > 0
     assert ex[0].stats.poses_sent == 10
+    # Sent poses are shared: the store's fold leaves them as the peers got them.
+    assert all(stores[0].shared(u) for u in stores[0].local.poses)
 
 
 def test_the_naive_meter_prices_a_folded_pose_with_its_map_as_made() -> None:
