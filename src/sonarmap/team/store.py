@@ -142,18 +142,17 @@ class StoreParams:
         puts the loop into the local layer itself, which is exchanged (the edges of
         both poses now meet at the merged one).
     fold : bool
-        When compression deletes a pose, add its local map to that of the kept pose
-        nearest to it (by the two estimates) among the poses of its region that no
-        other robot holds yet (:meth:`RobotStore.share`), resampled into that pose's
-        frame by the two estimates; the kept pose keeps its grid, so cells outside it
-        are lost, and a pose farther than half the deleted map's width (3 m for the
-        default 6 m local map) is not used. The thesis deletes a pose's map with it;
+        When compression deletes a pose, add its local map to that of its nearest
+        odometry neighbour in the local layer (:meth:`RobotStore.fold_target`), resampled
+        into the neighbour's frame by the odometry edge between them; the neighbour keeps
+        its grid, so cells outside it are lost. The thesis deletes a pose's map with it;
         each pose's map holds only the readings since the pose before, so a deletion
         leaves a hole in the map where no other pose saw. The memory is unchanged (a
         local map's grid is fixed), so every bound holds as before. Only a pose no other
-        robot holds is changed, so every copy of a pose stays what its source sent, and
-        a deleted pose's readings reach the other robots once, with the pose that took
-        them. True (default); False: the thesis's deletion."""
+        robot holds (:meth:`RobotStore.share`) is changed, so every copy of a pose stays
+        what its source sent, and a deleted pose's readings reach the other robots once,
+        with the pose that took them. True (default); False: the thesis's deletion.
+    """
 
     pose_limit: int = 16_384
     region_limit: int = 131_072
