@@ -6,9 +6,7 @@ never sees (:class:`~.sensing.RobotSensing` holds it).
 The scores are those of :mod:`.mission`'s notes: association precision and recall
 (overall, per stage, before and after the world changed), the trajectory's error after a
 rigid fit (:func:`~.scoring.rigid_ate`), the global map's wall F1 beside the maps built
-from the same readings at the true and at the odometry poses, the same local maps at
-their true poses and at their estimates put in the plan by the true alignment instead of
-the one found, and the alignment's error.
+from the same readings at the true and at the odometry poses, and the alignment's error.
 """
 
 from __future__ import annotations
@@ -285,17 +283,6 @@ class MissionEvaluator:
             cfg.mapper_params,
         )
         held_f1, held_n = self._held_at_truth(plan, store)
-        # The global map as fused, but placed by the true alignment: what the found
-        # alignment costs the map, apart from the trajectory's error.
-        held = self._held(store)
-        at_true_frame = {
-            u: compose(a_true, np.asarray(graph.estimates[u], dtype=np.float64))
-            for u in held
-            if u in graph.estimates
-        }
-        true_frame_f1 = score(
-            plan, fuse_local_maps({u: held[u] for u in at_true_frame}, at_true_frame, plan.grid)
-        ).f1_all
         changes: dict[str, Any] = dict(
             landmark_changes(self.world, store, dict(made), truth, self.end)
         )
@@ -327,25 +314,18 @@ class MissionEvaluator:
             "map_f1_true_poses": score(plan, true_posed).f1_all,
             "map_f1_odometry_poses": score(plan, odo_posed).f1_all,
             "map_f1_held_true_poses": held_f1,
-            "map_f1_true_alignment": true_frame_f1,
             "map_poses_held": held_n,
             "alignment_error_m": align_m,
             "alignment_error_deg": align_deg,
         }
 
-    @staticmethod
-    def _held(store: RobotStore) -> dict[int, Pose]:
-        """Every pose the store holds, own and received, by UID."""
-        held: dict[int, Pose] = dict(store.local.poses)
-        for source in sorted(store.received):
-            held.update(store.received[source].poses)
-        return held
-
     def _held_at_truth(self, plan: OccupancyMap, store: RobotStore) -> tuple[float, int]:
         """The wall F1 of the map fused, as the global map is, from the local maps of
         every pose the store holds (own and received), each at its true pose, and how
         many poses that is: the global map's bound given what the store kept."""
-        held = self._held(store)
+        held: dict[int, Pose] = dict(store.local.poses)
+        for source in sorted(store.received):
+            held.update(store.received[source].poses)
         at: dict[int, F64] = {}
         for uid in held:
             o = self._origin_any(uid)

@@ -30,7 +30,6 @@ MEAN_KEYS = (
     "map_f1_true_poses",
     "map_f1_odometry_poses",
     "map_f1_held_true_poses",
-    "map_f1_true_alignment",
     "alignment_error_m",
     "alignment_error_deg",
 )
