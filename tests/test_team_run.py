@@ -85,8 +85,9 @@ def test_a_team_runs_the_lean_exchange_by_default(tmp_path: Path, plan: Occupanc
         (["--preset", "classic"], "classic", (1, 0.0, 0.0, 8, False, 0, False)),
         # Options given under the default preset win over it; the rest stays lean.
         (["--anchors", "4", "--no-fold"], "lean", (4, 0.15, 30.0, 3, True, 8, False)),
-        # One robot and the naive baseline get no preset unless they name one.
-        (["--exchange", "naive"], None, (1, 0.0, 0.0, 8, False, 0, False)),
+        # One robot and the naive baseline get no preset unless they name one: the
+        # exchange's and the store's defaults (the store folds by default).
+        (["--exchange", "naive"], None, (1, 0.0, 0.0, 8, False, 0, True)),
     ],
 )
 def test_presets_and_the_options_given_under_them(
