@@ -249,7 +249,12 @@ STORE_OPTIONS = (
     Opt(
         "region_limit",
         "Bytes one region of the store may take at least (the thesis's M_r); a larger "
-        "region may take 4096 B per m^2 of its area.",
+        "region may take --region-density bytes per m^2 of its area.",
+    ),
+    Opt(
+        "region_density",
+        "Bytes per m^2 of a region's area that it may take when that is more than "
+        "--region-limit (0: every region --region-limit, the thesis's).",
     ),
     Opt(
         "store_limit",
