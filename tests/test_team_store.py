@@ -726,5 +726,5 @@ def test_a_regions_limit_grows_with_its_area_and_the_bound_with_it() -> None:
         409_600,
         131_072,
     )
-    with pytest.raises(ConfigError, match="region_density"):
+    with pytest.raises(ConfigError, match="region_density must be >= 0"):
         StoreParams(region_density=-1.0)

@@ -190,7 +190,8 @@ class StoreParams:
                 )
             zero_ok = ("a", "g", "beta", "merge_on_closure", "store_limit", "region_density")
             if v < 0 or (v == 0 and f.name not in zero_ok):
-                raise ConfigError(f"store: {f.name} must be > 0, got {v}", field=f.name)
+                least = ">= 0" if f.name in zero_ok else "> 0"
+                raise ConfigError(f"store: {f.name} must be {least}, got {v}", field=f.name)
         for name in (
             "pose_limit",
             "region_limit",
