@@ -18,7 +18,7 @@ from sonarmap.patrol import PatrolConfig, Territory, run_patrol
 from sonarmap.patrol.maps import write_builtin_maps
 from sonarmap.team.exchange import LEAN, ExchangeParams
 from sonarmap.team.network import NetworkParams
-from sonarmap.team.presets import PRESETS
+from sonarmap.team.presets import PRESETS, PresetClashError, team_settings
 from sonarmap.team.store import StoreParams
 
 
@@ -75,6 +75,26 @@ def test_lean_preset_conflicts_and_applies() -> None:
     with pytest.raises(ConfigError, match="the lean preset is for the protocols") as e:
         lean.apply(ExchangeParams(mode="naive"), StoreParams())
     assert e.value.field == "mode"
+
+
+def test_a_node_gets_the_team_default_unless_told_otherwise() -> None:
+    """``team node`` by hand: the lean default fills what was not given, a named
+    preset refuses what it would override, and the naive baseline gets none."""
+    given_hold = ExchangeParams(mode="limited", hold=5.0)
+    ex, store, used = team_settings(None, given_hold, StoreParams(), {"mode", "hold"})
+    assert used == "lean"
+    assert (ex.mode, ex.hold, ex.anchor_every) == ("limited", 5.0, LEAN.anchor_every)
+    assert store.fold
+    assert store.merge_on_closure == 8
+    ex, store, used = team_settings(None, ExchangeParams(), StoreParams(fold=False), {"fold"})
+    assert (used, store.fold, ex.anchor_every) == ("lean", False, LEAN.anchor_every)
+    naive = ExchangeParams(mode="naive")
+    assert team_settings(None, naive, StoreParams(), {"mode"}) == (naive, StoreParams(), None)
+    classic = team_settings("classic", ExchangeParams(), StoreParams(), set())
+    assert classic == (ExchangeParams(), StoreParams(fold=False, merge_on_closure=0), "classic")
+    with pytest.raises(PresetClashError) as e:
+        team_settings("lean", given_hold, StoreParams(), {"mode", "hold"})
+    assert e.value.fields == ("hold",)
 
 
 def test_builtin_maps_are_the_written_ones(tmp_path: Path) -> None:

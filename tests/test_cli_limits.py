@@ -237,6 +237,11 @@ def test_team_run_refuses_absurd_sizes_at_once(tmp_path: Path, args: list[str], 
         (["node", *NODE, "--settle", "-1"], r"--settle -1: must be >= 0 seconds"),
         (["node", *NODE, "--wait-timeout", "1e9"], r"--wait-timeout 1e\+09: at most 86400 s"),
         (["node", *NODE, "--quiet", "0"], r"--quiet 0: must be > 0 seconds"),
+        (["node", *NODE, "--preset", "fast"], r"--preset must be one of classic, lean"),
+        (
+            ["node", *NODE, "--preset", "lean", "--exchange", "hold=5", "--no-fold"],
+            r"--preset lean sets --exchange hold=5, --fold: drop them or drop --preset",
+        ),
         (
             ["node", *NODE, "--peers", ",".join(f"tcp://127.0.0.1:{5000 + i}" for i in range(70))],
             r"--peers: a team of 71 robots; at most 64",

@@ -20,7 +20,7 @@ from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
 from ..team.outputs import write_missions, write_team
 from ..team.patrolling import patrol_routes
-from ..team.presets import DEFAULT_PRESET, PRESETS, TeamPreset
+from ..team.presets import DEFAULT_PRESET, PRESETS, PresetClashError, TeamPreset, team_settings
 from ..team.prior import ERROR_KEYS, check_prior, degrade_plan, parse_prior_error
 from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
@@ -367,6 +367,34 @@ def _under_preset(
             else:
                 fixed[kind][f] = v
     return out, fixed
+
+
+def _node_settings(
+    ctx: typer.Context, chosen: str | None, items: list[str]
+) -> tuple[ExchangeParams, StoreParams, str | None]:
+    """``team node``'s exchange and store from its ``--exchange`` items, store options
+    and ``--preset`` (:func:`~sonarmap.team.presets.team_settings`), and the preset
+    applied; a clash names the options."""
+    from ..team.node import parse_exchange
+
+    if chosen is not None and chosen not in PRESETS:
+        raise ConfigError(
+            f"--preset must be one of {', '.join(sorted(PRESETS))}, got {quote(chosen)}"
+        )
+    store_given = given(ctx, STORE_OPTIONS)
+    names = {item.partition("=")[0].strip(): f"--exchange {item}" for item in items}
+    names.update(store_given)
+    exchange = parse_exchange(items)
+    store = config_from_options(StoreParams, ctx.params, STORE_OPTIONS)
+    try:
+        return team_settings(chosen, exchange, store, list(names))
+    except PresetClashError as err:
+        raise ConfigError(
+            f"--preset {chosen} sets {', '.join(names[f] for f in err.fields)}: drop "
+            f"{'it' if len(err.fields) == 1 else 'them'} or drop --preset"
+        ) from None
+    except ConfigError as err:
+        raise ConfigError(f"--preset {chosen}: {err}") from None
 
 
 def _mission_config(duration: float, seed: int, store: StoreParams) -> MissionConfig:
@@ -719,6 +747,16 @@ def node_cmd(
         list[str] | None,
         typer.Option("--exchange", help="An exchange setting KEY=VALUE (repeatable)."),
     ] = None,
+    preset: Annotated[
+        str | None,
+        typer.Option(
+            "--preset",
+            help="Exchange and store settings by name, as in 'team run': lean or classic. "
+            "Default: lean, the --exchange settings and store options given winning over "
+            "it (none with --exchange mode=naive). A preset named here refuses the "
+            "settings it sets.",
+        ),
+    ] = None,
     lookahead: Annotated[
         float, typer.Option("--lookahead", help="Seconds of route whose regions come first.")
     ] = 30.0,
@@ -775,7 +813,6 @@ def node_cmd(
         MIB,
         LockstepParams,
         load_routes,
-        parse_exchange,
         parse_peers,
         run_node,
     )
@@ -789,13 +826,12 @@ def node_cmd(
         ("--checkpoint-every", checkpoint_every, None),
     ):
         _check_seconds(name, value, least)
-    store = config_from_options(StoreParams, ctx.params, STORE_OPTIONS)
     if not (math.isfinite(max_queue) and max_queue > 0):
         raise ConfigError(f"--max-queue must be > 0 MiB, got {max_queue}")
     timing = LockstepParams(
         wait_timeout=wait_timeout, checkpoint_every=checkpoint_every, max_queue=max_queue * MIB
     )
-    ex = parse_exchange(exchange or [])
+    ex, store, preset_used = _node_settings(ctx, preset, exchange or [])
     peer_map = parse_peers(peers, robot)
     if len(peer_map) + 1 > MAX_ROBOTS:
         raise ConfigError(
@@ -826,7 +862,7 @@ def node_cmd(
         )
     console.print(
         f"robot {robot}: {s['row']['poses_local']} own poses, {len(s['held'])} held, "
-        f"{s['ticks']} ticks, {s['restarts']} restarts"
+        f"{s['ticks']} ticks, {s['restarts']} restarts, preset {preset_used or 'none'}"
     )
     console.print(wrote_folder(out), markup=False)
 

@@ -13,7 +13,7 @@ baseline keep.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
@@ -21,7 +21,7 @@ from ..errors import ConfigError
 from .exchange import LEAN, LEAN_MERGE_ON_CLOSURE, ExchangeParams
 from .store import StoreParams
 
-__all__ = ["DEFAULT_PRESET", "PRESETS", "TeamPreset"]
+__all__ = ["DEFAULT_PRESET", "PRESETS", "PresetClashError", "TeamPreset", "team_settings"]
 
 
 @dataclass(frozen=True)
@@ -108,3 +108,60 @@ PRESETS = {
 #: The preset of a team that names none (two or more robots, a protocol, not the naive
 #: baseline): the one that meets the team's goal (docs/results, the team pages).
 DEFAULT_PRESET = "lean"
+
+
+class PresetClashError(ConfigError):
+    """Settings given by the caller that a preset named by the caller would override.
+
+    Attributes
+    ----------
+    fields : tuple of str
+        The clashing fields, in the caller's order.
+    """
+
+    def __init__(self, preset: str, fields: list[str]) -> None:
+        super().__init__(f"the {preset} preset sets {', '.join(fields)}", field=fields[0])
+        self.fields = tuple(fields)
+
+
+def team_settings(
+    chosen: str | None, exchange: ExchangeParams, store: StoreParams, given: Collection[str]
+) -> tuple[ExchangeParams, StoreParams, str | None]:
+    """One robot's exchange and store in a team, by the rule of ``team run``.
+
+    Parameters
+    ----------
+    chosen : str or None
+        A preset named by the caller, or None for the default.
+    exchange, store : ExchangeParams, StoreParams
+        The caller's settings: the fields in ``given`` as given, the others at the
+        dataclasses' defaults.
+    given : collection of str
+        The fields of ``exchange`` and ``store`` the caller set explicitly (a clash
+        names them in this order).
+
+    Returns
+    -------
+    (ExchangeParams, StoreParams, str or None)
+        The settings and the preset applied. A named preset sets its fields; with none
+        named, :data:`DEFAULT_PRESET`'s values stand in for the fields not given, but
+        the naive baseline (``mode="naive"``) keeps the caller's settings and no preset.
+
+    Raises
+    ------
+    PresetClashError
+        A named preset and given fields it sets.
+    ConfigError
+        A named preset that does not go with the naive baseline.
+    """
+    if chosen is not None:
+        clash = PRESETS[chosen].conflicts(given)
+        if clash:
+            raise PresetClashError(chosen, clash)
+        return (*PRESETS[chosen].apply(exchange, store), chosen)
+    if exchange.mode == "naive":
+        return exchange, store, None
+    ex, st = PRESETS[DEFAULT_PRESET].apply(exchange, store)
+    ex = replace(ex, **{f.name: getattr(exchange, f.name) for f in fields(ex) if f.name in given})
+    st = replace(st, **{f.name: getattr(store, f.name) for f in fields(st) if f.name in given})
+    return ex, st, DEFAULT_PRESET
