@@ -1066,9 +1066,13 @@ def test_a_hold_keeps_young_poses_home_until_they_age_or_the_mission_ends(mode: 
     young = add_own(a, 3, 1, team.hub.now)
     team.run(6)
     assert young.uid not in uids(b.received[0])
+    # What was offered is shared (the store's fold leaves it as sent); the young one not.
+    assert all(a.shared(u) for u in uids(b.received[0]))
+    assert not a.shared(young.uid)
     team.ex[0].finish()  # the mission is over: everything goes, however young
     team.run(6)
     assert uids(b.received[0]) == uids(a.local)
+    assert a.shared(young.uid)
     assert snapshot(a)[2][0] == {**before[0], young.uid: encode(young)}
     for s in (a, b):
         check_consistent(s)
@@ -1101,6 +1105,7 @@ def test_without_a_hold_a_pose_travels_at_once() -> None:
     team = Team([a, b])
     team.run(4)
     assert uids(b.received[0]) == uids(a.local)
+    assert all(a.shared(u) for u in uids(a.local))
 
 
 @pytest.mark.parametrize("mode", ["good", "limited"])

@@ -33,9 +33,14 @@ def pinned(plan: OccupancyMap) -> dict[str, Any]:
     }
 
 
+#: The thesis's M_r in every region (no area term), tight enough that compression works
+#: within 150 s.
+TIGHT = StoreParams(region_limit=60_000, region_density=0.0)
+
+
 @pytest.fixture(scope="module")
 def mission(plan: OccupancyMap) -> dict[str, object]:
-    cfg = MissionConfig(duration=150.0, seed=1, store=StoreParams(region_limit=60_000))
+    cfg = MissionConfig(duration=150.0, seed=1, store=TIGHT)
     # The world and route the figures below were measured on: every wall face and random
     # waypoints. On the default world of this seed (5 faces fewer, so another draw) the
     # vanished landmarks' reliability comes out above the present ones' (0.77 against
@@ -52,14 +57,18 @@ def test_a_mission_beats_odometry_and_keeps_its_bounds(mission: dict[str, object
     assert s["association_precision"] >= 0.95
     assert 0.2 < s["association_recall"] <= 1.0
     assert s["closures"] > 0
-    # Memory: every region within M_r (plus the protected newest pose), the peak
-    # within regions x M_r plus the closures' bytes.
+    # Memory: every region within M_r (plus the protected newest pose), the peak within
+    # regions x M_r.
     r = mission["result"]
     store = r.store  # type: ignore[attr-defined]
+    limits = s["region_bytes_limits"]
+    assert limits == [60_000] * s["regions"]
     for region in store.local.patches:
-        assert store.local.region_bytes(region) <= 60_000 + StoreParams().pose_limit
-    assert s["local_bytes_bound"] == local_bound(StoreParams(region_limit=60_000), s["regions"])
-    assert s["local_bytes_bound"] > s["regions"] * 60_000 + StoreParams().pose_limit
+        assert store.local.region_bytes(region) <= limits[region] + StoreParams().pose_limit
+    # The newest pose and its edge on top of every region full (local_bound of no region).
+    newest = local_bound(TIGHT, [])
+    assert s["local_bytes_bound"] == sum(limits) + newest
+    assert s["local_bytes_bound"] > sum(limits) + StoreParams().pose_limit
     assert s["local_bytes_bound_by"] == "regions"
     assert s["local_bytes_peak"] <= s["local_bytes_bound"]
     assert s["local_bytes_within_bound"] is True
@@ -94,7 +103,7 @@ def test_vanished_landmarks_lose_reliability(mission: dict[str, object]) -> None
 
 
 def test_missions_are_deterministic(plan: OccupancyMap, mission: dict[str, object]) -> None:
-    cfg = MissionConfig(duration=150.0, seed=1, store=StoreParams(region_limit=60_000))
+    cfg = MissionConfig(duration=150.0, seed=1, store=TIGHT)
     again = run_mission(plan, cfg, **pinned(plan)).summary
     s = mission["summary"]
     assert isinstance(s, dict)

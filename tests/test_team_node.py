@@ -45,7 +45,10 @@ WALL = {"wall_seconds", "association_ms_median", "association_ms_p99", "global_m
 HELD = {"map_f1_held_true_poses", "map_poses_held"}
 #: 20 s of mission with regions of two poses: every robot compresses, so its own store
 #: depends on what it received and when.
-CONFIG = MissionConfig(duration=20.0, seed=1, store=StoreParams(region_limit=32_768))
+#: 32 kB in every region (no area term), so that compression runs within 20 s.
+CONFIG = MissionConfig(
+    duration=20.0, seed=1, store=StoreParams(region_limit=32_768, region_density=0.0)
+)
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +64,9 @@ SETTINGS = {
         MissionConfig(
             duration=20.0,
             seed=1,
-            store=StoreParams(region_limit=32_768, fold=True, merge_on_closure=8),
+            store=StoreParams(
+                region_limit=32_768, region_density=0.0, fold=True, merge_on_closure=8
+            ),
         ),
         replace(LEAN, hold=5.0),
     ),

@@ -85,8 +85,9 @@ def test_a_team_runs_the_lean_exchange_by_default(tmp_path: Path, plan: Occupanc
         (["--preset", "classic"], "classic", (1, 0.0, 0.0, 8, False, 0, False)),
         # Options given under the default preset win over it; the rest stays lean.
         (["--anchors", "4", "--no-fold"], "lean", (4, 0.15, 30.0, 3, True, 8, False)),
-        # One robot and the naive baseline get no preset unless they name one.
-        (["--exchange", "naive"], None, (1, 0.0, 0.0, 8, False, 0, False)),
+        # One robot and the naive baseline get no preset unless they name one: the
+        # exchange's and the store's defaults (the store folds by default).
+        (["--exchange", "naive"], None, (1, 0.0, 0.0, 8, False, 0, True)),
     ],
 )
 def test_presets_and_the_options_given_under_them(
@@ -293,6 +294,8 @@ def test_the_naive_meter_prices_what_the_baseline_sends() -> None:
     assert meter.poses == 5
     assert meter.bytes == ex[0].stats.bytes_sent > 0
     assert ex[0].stats.poses_sent == 10
+    # Sent poses are shared: the store's fold leaves them as the peers got them.
+    assert all(stores[0].shared(u) for u in stores[0].local.poses)
 
 
 def test_the_naive_meter_prices_a_folded_pose_with_its_map_as_made() -> None:

@@ -32,6 +32,7 @@ from sonarmap.team.store import (
     compress_for_sending,
     compress_pose,
     local_bound,
+    region_limits,
 )
 
 F64 = npt.NDArray[np.float64]
@@ -668,14 +669,17 @@ def _square_map(cells: list[tuple[int, int]], value: int = 60) -> LocalMap:
     return LocalMap(lo, 0.1)
 
 
-@pytest.mark.parametrize("fold", [False, True])
-def test_a_deleted_poses_map_folds_into_the_newest(fold: bool) -> None:
+@pytest.mark.parametrize("mode", ["off", "alone", "shared"])
+def test_a_deleted_poses_map_folds_into_its_nearest_unshared_odometry_neighbour(
+    mode: str,
+) -> None:
     # Two poses in region 0 fill it; the third (newest) makes the store delete one.
-    params = StoreParams(pose_limit=1000, region_limit=2500, fold=fold)  # poses of 944 B
-    store = RobotStore(0, params)
+    params = StoreParams(pose_limit=1000, region_limit=2500, fold=mode != "off")
+    store = RobotStore(0, params)  # poses of 944 B
     lm = make_landmarks(np.zeros((1, 3)))
-    # Pose 0's map marks the cell 0.5 m ahead of it (row 10, column 15); pose 2 sits
-    # 0.3 m ahead of pose 0, so that cell is 0.2 m ahead of pose 2: column 12.
+    # Pose 0's map marks the cell 0.5 m ahead of it (row 10, column 15); pose 1's the
+    # cell 0.7 m behind and 0.7 m left of it (row 3, column 3). The poses lie on the x
+    # axis at 0, 0.1 and 0.3 m, chained by odometry 0 -> 1 -> 2.
     maps = [_square_map([(10, 15)]), _square_map([(3, 3)]), _square_map([])]
     xs = [0.0, 0.1, 0.3]
     poses = [
@@ -684,17 +688,43 @@ def test_a_deleted_poses_map_folds_into_the_newest(fold: bool) -> None:
     ]
     store.add_own_pose(poses[0], None, [], 0.0)
     store.add_own_pose(poses[1], odometry(poses[0], poses[1]), [], 1.0)
+    if mode == "shared":
+        store.share([poses[0].uid, poses[1].uid])  # both sent: only pose 2 may change
+        assert store.shared(poses[0].uid)
+        assert not store.shared(poses[2].uid)
     store.add_own_pose(poses[2], odometry(poses[1], poses[2]), [], 2.0)
     gone = {p.uid for p in poses} - set(store.local.poses)
     assert len(gone) == 1  # the region held only two
-    newest = store.local.poses[poses[2].uid].local_map
-    assert newest is not None
-    if not fold:
-        assert not newest.logodds.any()  # the thesis's deletion: the map goes with it
+    held = {u: p.local_map for u, p in store.local.poses.items()}
+    marked = {u: sorted(zip(*np.nonzero(m.logodds), strict=True)) for u, m in held.items() if m}
+    before = {
+        p.uid: sorted(zip(*np.nonzero(maps[k].logodds), strict=True)) for k, p in enumerate(poses)
+    }
+    if mode == "off":
+        assert all(marked[u] == before[u] for u in marked)  # the map goes with the pose
         return
     if poses[0].uid in gone:
-        assert newest.logodds[10, 12] == 60
-        assert np.count_nonzero(newest.logodds) == 1
-    else:  # pose 1's cell (3, 3) lies 0.2 m left of pose 2's square: (3, 1)
-        assert newest.logodds[3, 1] == 60
-        assert np.count_nonzero(newest.logodds) == 1
+        # Its one neighbour, pose 1 (0.1 m ahead): the cell 0.4 m ahead of it.
+        want = {poses[1].uid: [(3, 3), (10, 14)]} if mode == "alone" else {}
+    else:
+        # Pose 1's neighbours: pose 0 (0.1 m behind it, nearest) unless sent, else pose 2
+        # (0.2 m ahead): the cell moves 0.1 m or 0.2 m further left in their squares.
+        want = {poses[0].uid: [(3, 4), (10, 15)]} if mode == "alone" else {poses[2].uid: [(3, 1)]}
+    for u in marked:
+        assert marked[u] == want.get(u, before[u]), u
+
+
+def test_a_regions_limit_grows_with_its_area_and_the_bound_with_it() -> None:
+    params = StoreParams(region_limit=131_072, region_density=4096.0, store_limit=0)
+    assert region_limits(params, [10.0, 100.0]) == [131_072, 409_600]
+    assert local_bound(params, [10.0, 100.0]) == local_bound(params, 2) + 409_600 - 131_072
+    capped = replace(params, store_limit=300_000)
+    assert local_bound(capped, [10.0, 100.0]) == local_bound(capped, 3)
+    store = RobotStore(0, params, [10.0, 100.0])
+    assert (store.region_limit(0), store.region_limit(1), store.region_limit(7)) == (
+        131_072,
+        409_600,
+        131_072,
+    )
+    with pytest.raises(ConfigError, match="region_density must be >= 0"):
+        StoreParams(region_density=-1.0)

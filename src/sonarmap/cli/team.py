@@ -246,7 +246,16 @@ EXCHANGE_OPTIONS = (
 #: Options that set :class:`~sonarmap.team.store.StoreParams`.
 STORE_OPTIONS = (
     Opt("pose_limit", "Bytes one pose may take in the store (the thesis's M_pose)."),
-    Opt("region_limit", "Bytes one region of the store may take (the thesis's M_r)."),
+    Opt(
+        "region_limit",
+        "Bytes one region of the store may take at least (the thesis's M_r); a larger "
+        "region may take --region-density bytes per m^2 of its area.",
+    ),
+    Opt(
+        "region_density",
+        "Bytes per m^2 of a region's area that it may take when that is more than "
+        "--region-limit (0: every region --region-limit, the thesis's).",
+    ),
     Opt(
         "store_limit",
         "Bytes the robot's own layer may take, every region together; past it the store "
@@ -254,7 +263,8 @@ STORE_OPTIONS = (
     ),
     Opt(
         "fold",
-        "A pose that region compression deletes leaves its local map to the newest pose.",
+        "A pose that compression deletes leaves its local map to its nearest odometry "
+        "neighbour that no other robot holds yet (--no-fold: the thesis's deletion).",
         off="--no-fold",
     ),
     Opt(

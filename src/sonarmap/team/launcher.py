@@ -108,6 +108,7 @@ def node_args(
         store=StoreParams(
             pose_limit=cfg.store.pose_limit,
             region_limit=cfg.store.region_limit,
+            region_density=cfg.store.region_density,
             store_limit=cfg.store.store_limit,
             fold=cfg.store.fold,
             merge_on_closure=cfg.store.merge_on_closure,
@@ -116,9 +117,8 @@ def node_args(
     if base != cfg:
         raise ConfigError(
             "run_zmq_team: the nodes take only the mission's duration, seed, pose_limit, "
-            "region_limit, store_limit, fold and merge_on_closure; other MissionConfig "
-            "settings differ "
-            "from their defaults"
+            "region_limit, region_density, store_limit, fold and merge_on_closure; other "
+            "MissionConfig settings differ from their defaults"
         )
     args = [
         "--duration",
@@ -129,6 +129,8 @@ def node_args(
         str(cfg.store.pose_limit),
         "--region-limit",
         str(cfg.store.region_limit),
+        "--region-density",
+        repr(float(cfg.store.region_density)),
         "--store-limit",
         str(cfg.store.store_limit),
         "--fold" if cfg.store.fold else "--no-fold",

@@ -96,9 +96,9 @@ from .records import (
     invert,
     make_uid,
 )
-from .regions import mission_regions, region_of
+from .regions import mission_regions, region_of, region_sizes
 from .sensing import RobotSensing
-from .store import RobotStore, local_bound
+from .store import RobotStore, local_bound, region_limits
 from .world import (
     ODOMETRY_NOISE,
     World,
@@ -295,7 +295,8 @@ class RobotAgent:
             dtype=np.intp,
         ).reshape(-1)
 
-        self.store = RobotStore(robot, cfg.store)
+        self.region_areas = region_sizes(self.labels, prior.grid.resolution).tolist()
+        self.store = RobotStore(robot, cfg.store, self.region_areas)
         self.made: dict[int, Pose] = {}
         self.evaluator = MissionEvaluator(sensing, cfg, world, lambda: self.made)
         self.bytes_per_pose: list[int] = []
@@ -619,7 +620,8 @@ class RobotAgent:
         assoc = np.array(self.assoc_seconds)
         counter, labels = self.counter, self.labels
         regions = int(labels.max()) + 1
-        bound = local_bound(store.params, regions)
+        bound = local_bound(store.params, self.region_areas)
+        by_regions = sum(region_limits(store.params, self.region_areas))
         summary: dict[str, Any] = {
             "robot": self.robot,
             "store_bytes_peak": int(store.peak_bytes),
@@ -629,10 +631,12 @@ class RobotAgent:
             # of the prior full or the store's budget, plus the newest pose.
             "local_bytes_bound": bound,
             "local_bytes_bound_by": "regions"
-            if store.params.store_limit <= 0
-            or regions * store.params.region_limit <= store.params.store_limit
+            if store.params.store_limit <= 0 or by_regions <= store.params.store_limit
             else "store_limit",
             "local_bytes_within_bound": bool(store.peak_local_bytes <= bound),
+            # M_r of each region (StoreParams.region_density x its area, at least
+            # region_limit): the terms of the regions' bound.
+            "region_bytes_limits": region_limits(store.params, self.region_areas),
             "closure_bytes_final": int(store.closure_bytes()),
             "poses": len(store.local.poses),
             "poses_made": counter,

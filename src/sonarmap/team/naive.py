@@ -105,10 +105,10 @@ class NaiveMeter:
     store : RobotStore
         The robot's store (read only).
     made : mapping of int to Pose, optional
-        For a store that folds deleted poses' maps into the newest pose
+        For a store that folds deleted poses' maps into kept ones
         (``StoreParams.fold``): the poses as they were made, by UID. A pose found there
-        is priced with its local map as made, since the baseline's store (the thesis's)
-        does not fold; a folded map costs a few per cent more.
+        is priced with its local map as made: the baseline sends each pose as soon as it
+        is made, before a fold could change it.
     merged : bool, optional
         Price merged poses too. Default: unless the store merges at every reliable
         closure (``StoreParams.merge_on_closure``), since the baseline's store merges
@@ -270,6 +270,8 @@ class NaiveExchanger:
         if not new:
             return
         peers = sorted(set(self._peers()) - {self.robot})
+        # Sent as they are now: the store's fold must not change them afterwards.
+        self.store.share(new)
         for uid in new:
             self._sent.add(uid)
             pose = quantise_pose(

@@ -47,7 +47,8 @@ class OutgoingPolicy:
     Parameters
     ----------
     store : RobotStore
-        The robot's store (read only).
+        The robot's store, read but for :meth:`~.store.RobotStore.share`: every pose
+        offered is marked shared, so that the store's fold never changes it again.
     anchor_every : int
         k: landmarks travel with every k-th own pose; 1: every pose whole.
     loop_anchors : bool
@@ -157,6 +158,9 @@ class OutgoingPolicy:
             while len(log) > 1 and log[1][0] <= now - self.hold:
                 log.popleft()
         self._publish(now)
+        # What is offered may reach a peer from now on: the store's fold must leave it
+        # as it is, or copies of one pose would differ.
+        self.store.share(self.offered.poses)
 
     def _publish(self, now: float) -> None:
         """Bring the published layer up to the local one: poses the store no longer holds

@@ -54,6 +54,7 @@ __all__ = [
     "kernel_density",
     "local_bound",
     "pose_floor",
+    "region_limits",
     "utility",
 ]
 
@@ -83,6 +84,15 @@ class StoreParams:
     region_limit : int
         M_r, bytes of one region of the local layer (poses and the odometry edges ending
         at them). 131072 (eight full poses).
+    region_density : float
+        Bytes per square metre of a region's area that the region may hold, when that
+        is more than ``region_limit``: region r holds at most
+        M_r(r) = max(region_limit, region_density x area_r) (:meth:`RobotStore.region_limit`;
+        the areas come from the prior map's regions). 4096 (about one 6-7 kB pose per
+        1.6 m^2, poses a metre or so apart over the whole region): a region of the
+        project's 20 x 16 m buildings (15-20 m^2) keeps the thesis's M_r, while a
+        200 m^2 hall of a real plan, which 128 kB held at one pose in 10 m^2, may hold
+        800 kB. 0: every region M_r (the thesis's).
     store_limit : int
         M_store, bytes of the whole local layer, every region together: past it, the
         layer is compressed across its regions by the same rule as one region (the
@@ -132,18 +142,21 @@ class StoreParams:
         puts the loop into the local layer itself, which is exchanged (the edges of
         both poses now meet at the merged one).
     fold : bool
-        When region compression deletes a pose, add its local map to the newest pose's
-        (resampled into the newest's frame by the two estimates; the newest keeps its
-        grid, so cells outside it are lost) instead of losing all of it. The thesis
-        deletes a pose's map with it; each pose's map holds only the readings since the
-        pose before, so a deletion leaves a hole in the map where no other pose saw.
-        The newest pose is the one whose arrival triggered the compression, so no other
-        robot holds it yet and every copy of a pose stays what its source made.
-        False (default): the thesis's deletion.
+        When compression deletes a pose, add its local map to that of its nearest
+        odometry neighbour in the local layer (:meth:`RobotStore.fold_target`), resampled
+        into the neighbour's frame by the odometry edge between them; the neighbour keeps
+        its grid, so cells outside it are lost. The thesis deletes a pose's map with it;
+        each pose's map holds only the readings since the pose before, so a deletion
+        leaves a hole in the map where no other pose saw. The memory is unchanged (a
+        local map's grid is fixed), so every bound holds as before. Only a pose no other
+        robot holds (:meth:`RobotStore.share`) is changed, so every copy of a pose stays
+        what its source sent, and a deleted pose's readings reach the other robots once,
+        with the pose that took them. True (default); False: the thesis's deletion.
     """
 
     pose_limit: int = 16_384
     region_limit: int = 131_072
+    region_density: float = 4096.0
     store_limit: int = 2_097_152
     a: float = 1.0
     g: float = 1.0
@@ -160,7 +173,7 @@ class StoreParams:
     merge_max_angle_std: float = 0.05
     descriptor_dim: int = 128
     merge_on_closure: int = 0
-    fold: bool = False
+    fold: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.fold, bool):
@@ -175,9 +188,10 @@ class StoreParams:
                 raise ConfigError(
                     f"store: {f.name} must be a finite number, got {v!r}", field=f.name
                 )
-            zero_ok = ("a", "g", "beta", "merge_on_closure", "store_limit")
+            zero_ok = ("a", "g", "beta", "merge_on_closure", "store_limit", "region_density")
             if v < 0 or (v == 0 and f.name not in zero_ok):
-                raise ConfigError(f"store: {f.name} must be > 0, got {v}", field=f.name)
+                least = ">= 0" if f.name in zero_ok else "> 0"
+                raise ConfigError(f"store: {f.name} must be {least}, got {v}", field=f.name)
         for name in (
             "pose_limit",
             "region_limit",
@@ -255,18 +269,32 @@ _EDGE_BYTES = size_of(
 )
 
 
-def local_bound(params: StoreParams, regions: int) -> int:
-    """The configured bound of a robot's local layer, bytes: every region full (regions
-    x M_r) or the store's budget M_store if that is less, plus the newest pose and its
-    odometry edge, which the layer holds before it is compressed.
+def region_limits(params: StoreParams, areas: Sequence[float]) -> list[int]:
+    """Bytes each region may hold, M_r(r) = max(region_limit, region_density x area_r).
 
     Parameters
     ----------
     params : StoreParams
-    regions : int
-        Regions of the prior map.
+    areas : sequence of float
+        Area (m^2) of regions 0..K-1 of the prior map.
     """
-    full = regions * params.region_limit
+    return [max(params.region_limit, int(params.region_density * float(a))) for a in areas]
+
+
+def local_bound(params: StoreParams, regions: int | Sequence[float]) -> int:
+    """The configured bound of a robot's local layer, bytes: every region full (the sum
+    of :func:`region_limits`) or the store's budget M_store if that is less, plus the
+    newest pose and its odometry edge, which the layer holds before it is compressed.
+
+    Parameters
+    ----------
+    params : StoreParams
+    regions : int or sequence of float
+        The areas (m^2) of the prior map's regions; a count stands for regions of no
+        area (each holds ``region_limit``).
+    """
+    areas = [0.0] * regions if isinstance(regions, int) else list(regions)
+    full = sum(region_limits(params, areas))
     if params.store_limit > 0:
         full = min(full, params.store_limit)
     return int(full + params.pose_limit + _EDGE_BYTES)
@@ -729,6 +757,9 @@ class RobotStore:
     robot : int
         The owner.
     params : StoreParams, optional
+    region_areas : sequence of float, optional
+        Area (m^2) of regions 0..K-1 of the prior map, for :meth:`region_limit`; without
+        them every region holds ``params.region_limit``.
 
     Attributes
     ----------
@@ -744,9 +775,19 @@ class RobotStore:
         is compressed (step 5) and before its region is, and again after.
     """
 
-    def __init__(self, robot: int, params: StoreParams | None = None) -> None:
+    def __init__(
+        self,
+        robot: int,
+        params: StoreParams | None = None,
+        region_areas: Sequence[float] | None = None,
+    ) -> None:
         self.robot = robot
         self.params = params if params is not None else StoreParams()
+        self._region_limits = (
+            {}
+            if region_areas is None
+            else dict(enumerate(region_limits(self.params, region_areas)))
+        )
         self.local = Layer(robot, own=True)
         self.received: dict[int, Layer] = {}
         self.closures: list[ClosureEdge] = []
@@ -755,6 +796,8 @@ class RobotStore:
         self._closure_sizes = _Sizes()
         self._merges = 0
         self._newest: int | None = None
+        #: Own poses another robot may hold (:meth:`share`): the fold leaves them as sent.
+        self._shared: set[int] = set()
 
     # state
 
@@ -768,6 +811,7 @@ class RobotStore:
             "peak_local_bytes": self.peak_local_bytes,
             "merges": self._merges,
             "newest": self._newest,
+            "shared": sorted(self._shared),
         }
 
     def restore(self, state: Mapping[str, Any]) -> None:
@@ -782,6 +826,25 @@ class RobotStore:
         self.peak_local_bytes = int(state["peak_local_bytes"])
         self._merges = int(state["merges"])
         self._newest = None if state["newest"] is None else int(state["newest"])
+        self._shared = {int(u) for u in state.get("shared", ())}
+
+    def region_limit(self, region: int) -> int:
+        """Bytes region ``region`` of the local layer may hold: :func:`region_limits` of
+        the areas given, ``region_limit`` for a region without one."""
+        return self._region_limits.get(region, self.params.region_limit)
+
+    def share(self, uids: Iterable[int]) -> None:
+        """Own poses that have left for other robots (offered to or sent to a peer):
+        the fold (``StoreParams.fold``) never changes them afterwards, so that every
+        copy of a pose is the one its source sent and no reading is fused twice.
+        UIDs the local layer does not hold are ignored."""
+        poses = self.local.poses
+        self._shared = {u for u in self._shared if u in poses}
+        self._shared.update(u for u in uids if u in poses)
+
+    def shared(self, uid: int) -> bool:
+        """Whether own pose ``uid`` was passed to :meth:`share` (and is still held)."""
+        return uid in self._shared and uid in self.local.poses
 
     # accounting
 
@@ -1138,15 +1201,43 @@ class RobotStore:
                 return
         self.closures.append(c)
 
-    def _fold(self, uid: int, now: float) -> None:
-        """Add local pose ``uid``'s map to the newest pose's (``StoreParams.fold``)."""
-        layer, newest = self.local, self._newest
-        if newest is None or newest == uid or newest not in layer.poses:
-            return
-        gone, keep = layer.poses[uid], layer.poses[newest]
+    def fold_target(self, uid: int) -> tuple[int, Transform] | None:
+        """The pose whose local map takes deleted pose ``uid``'s (``StoreParams.fold``)
+        and where ``uid``'s frame lies in its frame: of ``uid``'s odometry neighbours in
+        the local layer that no other robot holds (:meth:`share`), the nearest by the
+        edge between them, if within half the width of ``uid``'s local map (ties: the
+        lower UID). None if there is none, or ``uid`` has no map.
+
+        The edge, not the two estimates, places the map: odometry over a metre or two
+        is off by centimetres, while the estimates of an older and a newer pose can
+        disagree by the whole correction of the last closures until the next batch
+        moves the older one (folding by the estimates into the nearest pose of the
+        region cost the depot's map, measured in docs/results)."""
+        layer = self.local
+        gone = layer.poses[uid]
         if gone.local_map is None:
+            return None
+        reach = gone.local_map.size * gone.local_map.resolution / 2.0
+        best: tuple[float, int, Transform] | None = None
+        for e in layer.edges_of(uid):
+            other = e.b if e.a == uid else e.a
+            if other == uid or other not in layer.poses or other in self._shared:
+                continue
+            # Where uid's frame lies in other's frame.
+            where = _tf(invert(e.transform)) if e.a == uid else _tf(e.transform)
+            d = math.hypot(where[0], where[1])
+            if d <= reach and (best is None or (d, other) < best[:2]):
+                best = (d, other, where)
+        return None if best is None else (best[1], best[2])
+
+    def _fold(self, uid: int, now: float) -> None:
+        """Add local pose ``uid``'s map to its :meth:`fold_target`'s."""
+        found = self.fold_target(uid)
+        if found is None:
             return
-        where = _tf(compose(invert(keep.estimate), gone.estimate))
+        target, where = found
+        layer = self.local
+        gone, keep = layer.poses[uid], layer.poses[target]
         layer.put_pose(
             replace(keep, local_map=_merge_maps(keep.local_map, gone.local_map, where)), now
         )
@@ -1202,7 +1293,7 @@ class RobotStore:
 
     def compress_region(self, region: int, now: float) -> None:
         """Thesis 2.3.2 region compression of the local layer: while the region exceeds
-        ``region_limit``, apply the deletion or merge of best efficiency
+        :meth:`region_limit`, apply the deletion or merge of best efficiency
         E = M / (d sum U). Regions that gain an edge from a deletion are checked too."""
         todo = {region}
         while todo:
@@ -1213,7 +1304,7 @@ class RobotStore:
     def _compress_one(self, region: int, now: float) -> set[int]:
         layer = self.local
         touched = self._compress(
-            lambda: layer.region_bytes(region) > self.params.region_limit, region, now
+            lambda: layer.region_bytes(region) > self.region_limit(region), region, now
         )
         touched.discard(region)
         return touched
