@@ -239,6 +239,11 @@ def test_team_run_refuses_absurd_sizes_at_once(tmp_path: Path, args: list[str], 
         (["node", *NODE, "--quiet", "0"], r"--quiet 0: must be > 0 seconds"),
         (["node", *NODE, "--preset", "fast"], r"--preset must be one of classic, lean"),
         (
+            ["node", *NODE, "--exchange", "anchor_every=1"],
+            r"anchor_share needs anchor_every > 1 .*\(under the default --preset lean; "
+            r"--preset classic for the thesis's\)$",
+        ),
+        (
             ["node", *NODE, "--preset", "lean", "--exchange", "hold=5", "--no-fold"],
             r"--preset lean sets --exchange hold=5, --fold: drop them or drop --preset",
         ),

@@ -294,10 +294,7 @@ def _team_options(
 
     chosen: str | None = ctx.params.get("preset")
     flag = None if chosen is None else f"--preset {chosen}"
-    if chosen is not None and chosen not in PRESETS:
-        raise ConfigError(
-            f"--preset must be one of {', '.join(sorted(PRESETS))}, got {quote(chosen)}"
-        )
+    _check_preset(chosen)
     if ctx.params.get("lean"):
         if chosen not in (None, "lean"):
             raise ConfigError(f"--lean is --preset lean: drop it or {flag}")
@@ -377,10 +374,7 @@ def _node_settings(
     applied; a clash names the options."""
     from ..team.node import parse_exchange
 
-    if chosen is not None and chosen not in PRESETS:
-        raise ConfigError(
-            f"--preset must be one of {', '.join(sorted(PRESETS))}, got {quote(chosen)}"
-        )
+    _check_preset(chosen)
     store_given = given(ctx, STORE_OPTIONS)
     names = {item.partition("=")[0].strip(): f"--exchange {item}" for item in items}
     names.update(store_given)
@@ -394,7 +388,21 @@ def _node_settings(
             f"{'it' if len(err.fields) == 1 else 'them'} or drop --preset"
         ) from None
     except ConfigError as err:
+        if chosen is None:
+            # As team run words it: the default preset's values met the ones given.
+            raise ConfigError(
+                f"{err} (under the default --preset {DEFAULT_PRESET}; --preset classic for "
+                "the thesis's)"
+            ) from None
         raise ConfigError(f"--preset {chosen}: {err}") from None
+
+
+def _check_preset(chosen: str | None) -> None:
+    """A ``--preset`` that names no preset fails in one line naming the ones there are."""
+    if chosen is not None and chosen not in PRESETS:
+        raise ConfigError(
+            f"--preset must be one of {', '.join(sorted(PRESETS))}, got {quote(chosen)}"
+        )
 
 
 def _mission_config(duration: float, seed: int, store: StoreParams) -> MissionConfig:
