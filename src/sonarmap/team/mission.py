@@ -621,7 +621,7 @@ class RobotAgent:
         counter, labels = self.counter, self.labels
         regions = int(labels.max()) + 1
         bound = local_bound(store.params, self.region_areas)
-        by_regions = sum(region_limits(store.params, self.region_areas))
+        limits = region_limits(store.params, self.region_areas)
         summary: dict[str, Any] = {
             "robot": self.robot,
             "store_bytes_peak": int(store.peak_bytes),
@@ -631,12 +631,12 @@ class RobotAgent:
             # of the prior full or the store's budget, plus the newest pose.
             "local_bytes_bound": bound,
             "local_bytes_bound_by": "regions"
-            if store.params.store_limit <= 0 or by_regions <= store.params.store_limit
+            if store.params.store_limit <= 0 or sum(limits) <= store.params.store_limit
             else "store_limit",
             "local_bytes_within_bound": bool(store.peak_local_bytes <= bound),
             # M_r of each region (StoreParams.region_density x its area, at least
             # region_limit): the terms of the regions' bound.
-            "region_bytes_limits": region_limits(store.params, self.region_areas),
+            "region_bytes_limits": limits,
             "closure_bytes_final": int(store.closure_bytes()),
             "poses": len(store.local.poses),
             "poses_made": counter,
