@@ -204,17 +204,15 @@ class GradientMapper(Mapper):
         crossing it at a slant (see :func:`~sonarmap.mappers._incidence.free_factors`).
         The weights are scaled after the normalisation, so X0 stays one detectable
         obstacle of the whole beam. Offline only: streaming ignores it. Off by default:
-        on the issue 39 training scenes (three seeds) 15 degrees kept more of the
-        observed walls (0.727 against 0.694) and detected fewer passages (passage F1
-        0.247 against 0.288), quality 0.268 against 0.297.
+        on the training scenes it kept more of the observed walls but detected fewer
+        passages, a lower quality (docs/results/2026-12-06-rig-defaults.md).
     convex_start : bool
         Solve the objective without the tent R2 first (a convex problem; L-BFGS-B on
         its smoothed surrogate, as ``solver="lbfgs"``), then run the solver with the
         tent from that map (default False: from the start map directly). From 0.5 the
         tent binarises each cell by the sign of its first subgradients; from the convex
-        optimum, by where the readings together put it. Off by default: on the same
-        training scenes it kept more walls (observed 0.769) and fewer passages (passage
-        F1 0.207), quality 0.240 against 0.297. Offline only.
+        optimum, by where the readings together put it. Off by default, for the same
+        trade on the same training scenes. Offline only.
 
     Attributes
     ----------

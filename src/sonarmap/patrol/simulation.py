@@ -180,18 +180,18 @@ class PatrolConfig:
     #: place whose path leaves more than the car's ``behind`` angle off its heading
     #: needs over the places ahead (:func:`~sonarmap.patrol.manoeuvre.turn_weights`):
     #: turning round takes a reversing manoeuvre on streets narrower than a car's
-    #: turning circle (10, as ``benchmarks.patrol_cars`` runs it: training street sites
-    #: 0-3, 1,200 s, mean DVT of one car 8.0 -> 5.9 %, of teams of 3 and 5 14.7 ->
-    #: 12.9 %; 5 was between). 0 (the default): every place pulls as the thesis has it.
+    #: turning circle (10 in ``benchmarks.patrol_cars``, chosen on the training street
+    #: sites: docs/results/2026-12-06-cars.md). 0 (the default): every place pulls as
+    #: the thesis has it.
     turn_penalty: float = 0.0
     #: Track: only the places out of a car's sight (not seen on this step) pull on it
     #: (all do when every place is in sight); False: every watched place does, as the
     #: thesis has it. A place in sight pulls (f(0) = 1 under f3), and by the mass of
     #: such places near the car the mode can name a place the car is looking at: going
     #: for it a car turns on the spot, which on streets narrower than its turning circle
-    #: is a reversing manoeuvre. Off by default: on the fig. 3.2 stand-in (5 cars, 300 s)
-    #: it raised the mean MTB from 109 to 158 s for no less DVT; ``benchmarks.patrol_cars``
-    #: turns it on for the street sites.
+    #: is a reversing manoeuvre. Off by default: on the fig. 3.2 stand-in it raised the
+    #: mean MTB (docs/results/2026-12-06-cars.md); ``benchmarks.patrol_cars`` turns it on
+    #: for the street sites.
     out_of_sight: bool = False
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
