@@ -285,6 +285,32 @@ def test_a_hello_claiming_frames_never_sent_is_rejected_and_not_acted_on(
     assert [f.q for f in link.log[1]] == [2]
 
 
+def test_a_peer_asking_again_in_a_loop_gets_the_log_once_per_half_retry(
+    pair: tuple[ZmqTransport, ZmqTransport],
+) -> None:
+    """Twenty requests to send everything again, faster than half a retry: the log
+    goes out once; a request from an earlier frame gets only the frames below the
+    ones already covered."""
+    a, b = pair
+    _send(a, 1, _pack({"next": 0, "ack": 0}), "hello")  # connected both ways
+    link = ReliableLink(a, [1], wait_timeout=5.0, retry=30.0)
+    for k in range(3):
+        link.send(1, 0, "advert", f"frame {k}".encode())
+    _send(b, 0, _pack({"next": 1, "ack": 0}), "hello")
+    for _ in range(20):
+        _send(b, 0, _pack({"next": 1, "ack": 0}), "hello")
+    _send(b, 0, _pack({"next": 0, "ack": 0}), "hello")
+    end = time.monotonic() + 2.0
+    arrived = 0
+    while time.monotonic() < end:
+        link.pump(0.05)
+        arrived += sum(m.kind == "lock" for m in b.poll(0.0))
+    assert link.rejected == 0
+    assert link.resent == 3  # frames 1 and 2 once, then frame 0 once
+    assert arrived == 6  # the first sends and the three sent again
+    assert [f.q for f in link.log[1]] == [0, 1, 2]  # nothing acknowledged, all kept
+
+
 def test_after_a_resume_claims_past_what_was_sent_are_clamped_not_rejected(
     pair: tuple[ZmqTransport, ZmqTransport],
 ) -> None:

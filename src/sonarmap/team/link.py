@@ -6,7 +6,8 @@ numbered per destination and kept in a log until the peer acknowledges it durabl
 checkpoint holds it); a receiver takes frames in number order, drops the ones it has
 and keeps early ones aside. A node stuck waiting asks the peer to send again from the
 first number it lacks (``hello``), which covers a socket that refused a frame (peer not
-connected yet) and a restarted peer.
+connected yet) and a restarted peer. Such requests are served with the whole log at most
+once per half ``retry``, so a peer that asks in a loop cannot make a node flood the wire.
 
 A peer's claims are checked against what was sent to it: a ``hello`` (or a ``done``
 marker's ``ack``) claiming frames this node never sent is a protocol error, rejected and
@@ -229,6 +230,12 @@ class ReliableLink:
         self.heard = dict.fromkeys(self.peers, now)
         self.progressed = dict.fromkeys(self.peers, now)
         self.rejected = 0
+        #: Frames sent again at a peer's request, over all peers.
+        self.resent = 0
+        #: When the log was last sent again to each peer, and from which frame: a
+        #: request that soon after is served only with the frames below that one.
+        self.resent_at = dict.fromkeys(self.peers, -float("inf"))
+        self.resent_from = dict.fromkeys(self.peers, 0)
         #: Restored from a checkpoint: frames may have gone out after it (see the module).
         self.resumed = False
         self._rejects = RejectLog(logger)
@@ -324,9 +331,19 @@ class ReliableLink:
             self.log_bytes[j] = sum(map(_size, self.log[j]))
 
     def _resend(self, j: int, start: int) -> None:
+        # A request to send again is served with the whole log at most once per half
+        # retry; one sooner gets only the frames below those the last one covered. A
+        # peer asking in a loop (a bug or a forgery) then costs one log per half
+        # retry, not one per request, and one line at most.
+        now = time.monotonic()
+        fresh = now - self.resent_at[j] >= self.retry / 2
+        if fresh:
+            self.resent_at[j], self.resent_from[j] = now, self.out_q[j]
+        stop = self.resent_from[j]
+        self.resent_from[j] = min(start, stop)
         log = self.log[j]
         first = log[0].q if log else self.out_q[j]
-        if start < first:
+        if start < first and fresh:
             logger.error(
                 "robot %d: robot %d asks again from frame %d, but frames before %d are gone "
                 "(its state folder was lost?)",
@@ -336,8 +353,9 @@ class ReliableLink:
                 first,
             )
         for f in log:
-            if f.q >= start:
+            if start <= f.q < stop:
                 self._transmit(j, f)
+                self.resent += 1
 
     # receiving
 
