@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import signal
@@ -15,6 +16,7 @@ import msgpack
 import numpy as np
 import pytest
 
+from sonarmap.builtins import builtin_plan
 from sonarmap.cli import main
 from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import OccupancyMap, write_map
@@ -28,14 +30,17 @@ from sonarmap.team.mission import MissionConfig
 from sonarmap.team.network import NetworkParams, SimNetwork
 from sonarmap.team.node import (
     LockstepParams,
+    load_routes,
     parse_exchange,
     parse_peers,
     store_digest,
 )
+from sonarmap.team.patrolling import patrol_routes
 from sonarmap.team.records import Landmarks, Pose, make_uid
 from sonarmap.team.simulation import TeamResult, run_team
 from sonarmap.team.store import RobotStore, StoreParams
 from sonarmap.team.transport import SimHub, ZmqTransport
+from sonarmap.team.world import patrol_route
 
 #: Summary keys measured on the wall clock: they differ between identical runs.
 WALL = {"wall_seconds", "association_ms_median", "association_ms_p99", "global_map_batch_s"}
@@ -375,3 +380,22 @@ def test_a_checkpoint_keeps_the_hold_and_what_it_let_out() -> None:
     back.restore(state)
     back.step(3.5)
     assert set(back.outgoing.offered.poses) == {make_uid(0, k) for k in range(3)}
+
+
+def test_a_zmq_team_patrols_on_the_routes_the_simulation_would_drive(
+    tmp_path: Path,
+) -> None:
+    """``team run --transport zmq --patrol``: the nodes drive the potential-field
+    patrol's routes (drawn once, handed to every node), not their own seeded ones."""
+    out = tmp_path / "out"
+    args = ["--map", "building:0", "--robots", "2", "--duration", "10", "--seed", "2"]
+    main(["team", "run", *args, "--transport", "zmq", "--patrol", "-o", str(out)])
+    plan = builtin_plan("building:0")
+    patrolled, _ = patrol_routes(plan, 2, 10.0, seed=2)
+    handed = load_routes(out / "nodes" / "routes", 2)
+    for mine, theirs in zip(handed, patrolled, strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+    seeded = patrol_route(plan, 10.0, seed=2)
+    assert not np.array_equal(handed[0][:, 1:3], seeded[: len(handed[0]), 1:3])
+    s = json.loads((out / "summary.json").read_text())
+    assert s["duplicate_poses"] == 0

@@ -427,15 +427,17 @@ def _run_zmq_team(
     plan: OccupancyMap,
     config: MissionConfig,
     robots: int,
-    network: NetworkParams,
-    exchange: ExchangeParams,
+    settings: tuple[NetworkParams, ExchangeParams],
     seed: int,
     progress: Any,
     preset: str | None,
+    routes: list[Any],
 ) -> dict[str, Any]:
     """The team as local ZeroMQ processes (:func:`sonarmap.team.launcher.run_zmq_team`):
     the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json`` (with
-    the preset applied, None for none)."""
+    the preset applied, None for none). ``routes`` holds one route or None per robot
+    (None: the node's seeded patrol route)."""
+    network, exchange = settings
     # Imported here: the node module pulls in the process machinery only zmq needs.
     from ..team.launcher import run_zmq_team
 
@@ -449,6 +451,7 @@ def _run_zmq_team(
             seed=seed,
             progress=progress,
             folder=tmp / "nodes",
+            routes=routes,
         )
         result.summary["preset"] = preset
         atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
@@ -609,12 +612,10 @@ def run_cmd(
         raise ConfigError("--patrol drives every robot: drop --route")
     if tour and (patrol or route is not None or world_dir is not None):
         raise ConfigError("--tour draws every robot's route: drop --patrol, --route and --world")
-    if transport == "zmq" and (
-        patrol or tour or route is not None or world_dir is not None or animate or bag or live
-    ):
+    if transport == "zmq" and (world_dir is not None or animate or bag or live):
         raise ConfigError(
-            "--transport zmq: the nodes drive their own seeded routes; --patrol, --tour, "
-            "--route, --world, --animate, --bag and --live are --transport sim's"
+            "--transport zmq: each node draws its own world and writes its own outputs; "
+            "--world, --animate, --bag and --live are --transport sim's"
         )
     if transport == "zmq" and (prior_path is not None or prior_error is not None):
         raise ConfigError("--transport zmq: the nodes use --map as their prior; drop --prior")
@@ -647,7 +648,10 @@ def run_cmd(
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
         with progress("team") as update:
             tick = partial(_tick, update, f"{robots} nodes")
-            s = _run_zmq_team(out, plan, config, robots, net, protocol, seed, tick, preset_used)
+            given = [routes.get(i) for i in range(robots)]
+            s = _run_zmq_team(
+                out, plan, config, robots, (net, protocol), seed, tick, preset_used, given
+            )
         console.print(
             f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}: {out}"
