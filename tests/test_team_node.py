@@ -36,6 +36,7 @@ from sonarmap.team.node import (
     store_digest,
 )
 from sonarmap.team.patrolling import patrol_routes
+from sonarmap.team.prior import degrade_plan, parse_prior_error
 from sonarmap.team.records import Landmarks, Pose, make_uid
 from sonarmap.team.simulation import TeamResult, run_team
 from sonarmap.team.store import RobotStore, StoreParams
@@ -399,3 +400,26 @@ def test_a_zmq_team_patrols_on_the_routes_the_simulation_would_drive(
     assert not np.array_equal(handed[0][:, 1:3], seeded[: len(handed[0]), 1:3])
     s = json.loads((out / "summary.json").read_text())
     assert s["duplicate_poses"] == 0
+
+
+def test_a_zmq_team_with_a_prior_gives_the_simulated_teams_results(tmp_path: Path) -> None:
+    """The nodes take the prior the launcher hands them (``team node --prior``): the
+    same stores and figures as the simulated team given the same prior, and not those
+    of a team given the plan (the stores themselves do not depend on the prior)."""
+    plan = builtin_plan("building:0")
+    prior, report = degrade_plan(plan, parse_prior_error("close-doors=2,scale=0.03", seed=1))
+    assert len(report.doors_closed) == 2
+    cfg = replace(CONFIG, duration=10.0)
+    full, ex = NetworkParams(kind="full"), ExchangeParams()
+    sim = run_team(plan, cfg, 2, network=full, exchange=ex, seed=3, prior=prior)
+    exact = run_team(plan, cfg, 2, network=full, exchange=ex, seed=3)
+    z = run_zmq_team(
+        plan, cfg, 2, exchange=ex, seed=3, folder=tmp_path / "zmq", prior=prior, timeout=300.0
+    )
+    assert z.summary["store_digests"] == [store_digest(r.store) for r in sim.robots]
+    rows = zip(z.summary["robots"], sim.summary["robots"], exact.summary["robots"], strict=True)
+    for zr, sr, er in rows:
+        for key in ("map_f1", "ate_m", "alignment_error_m", "poses_local", "poses_made"):
+            assert zr[key] == pytest.approx(sr[key]), key
+        # The global map is placed in the prior's frame and scored against the plan.
+        assert zr["alignment_error_m"] != pytest.approx(er["alignment_error_m"])

@@ -271,7 +271,7 @@ def test_a_prior_file_that_does_not_match_the_map_is_one_line_naming_it(
     [
         ["--prior-error", "doors=1"],
         ["--prior-error", "scale=2"],
-        ["--prior-error", "furniture=1", "--transport", "zmq", "--robots", "2"],
+        ["--prior-error", "doors=1", "--transport", "zmq", "--robots", "2"],
     ],
 )
 def test_bad_prior_options_are_one_line_and_exit_2(

@@ -430,14 +430,18 @@ def _run_zmq_team(
     settings: tuple[NetworkParams, ExchangeParams],
     seed: int,
     progress: Any,
-    preset: str | None,
-    routes: list[Any],
+    given: tuple[str | None, list[Any]],
+    prior: tuple[OccupancyMap | None, dict[str, Any] | None],
 ) -> dict[str, Any]:
     """The team as local ZeroMQ processes (:func:`sonarmap.team.launcher.run_zmq_team`):
-    the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json`` (with
-    the preset applied, None for none). ``routes`` holds one route or None per robot
-    (None: the node's seeded patrol route)."""
+    the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json``.
+
+    ``given`` is the preset applied (None for none) and one route or None per robot
+    (None: the node's seeded patrol route); ``prior`` the robots' prior map (None: the
+    plan) and what the summary records of it, as the simulated team's."""
     network, exchange = settings
+    preset, routes = given
+    prior_map, prior_desc = prior
     # Imported here: the node module pulls in the process machinery only zmq needs.
     from ..team.launcher import run_zmq_team
 
@@ -452,8 +456,14 @@ def _run_zmq_team(
             progress=progress,
             folder=tmp / "nodes",
             routes=routes,
+            prior=prior_map,
         )
         result.summary["preset"] = preset
+        if prior_desc is not None:
+            result.summary["prior"] = prior_desc
+        if prior_map is not None:
+            # The prior the robots were given, beside the truth they were scored on.
+            write_map(prior_map, tmp / "prior")
         atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
     return result.summary
 
@@ -617,8 +627,6 @@ def run_cmd(
             "--transport zmq: each node draws its own world and writes its own outputs; "
             "--world, --animate, --bag and --live are --transport sim's"
         )
-    if transport == "zmq" and (prior_path is not None or prior_error is not None):
-        raise ConfigError("--transport zmq: the nodes use --map as their prior; drop --prior")
     if not (math.isfinite(map_every) and map_every > 0):
         raise ConfigError(f"--map-every must be > 0 seconds, got {map_every}")
     plan = resolve_map(map_, resolution, origin)
@@ -650,7 +658,15 @@ def run_cmd(
             tick = partial(_tick, update, f"{robots} nodes")
             given = [routes.get(i) for i in range(robots)]
             s = _run_zmq_team(
-                out, plan, config, robots, (net, protocol), seed, tick, preset_used, given
+                out,
+                plan,
+                config,
+                robots,
+                (net, protocol),
+                seed,
+                tick,
+                (preset_used, given),
+                (prior, prior_desc),
             )
         console.print(
             f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
@@ -814,6 +830,14 @@ def node_cmd(
             "(anyone reaching it could pose as a robot).",
         ),
     ] = False,
+    prior_path: Annotated[
+        Path | None,
+        typer.Option(
+            "--prior",
+            help="The robot's prior map (map_server YAML), as 'team run --prior': its "
+            "regions and global frame; scored against --map all the same. Default: --map.",
+        ),
+    ] = None,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
 ) -> None:
@@ -852,6 +876,7 @@ def node_cmd(
     fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
     key = None if key_file is None else read_team_key(key_file)
     plan = resolve_map(map_, resolution, origin)
+    prior, _ = _prior(plan, prior_path, None, seed, resolution, origin)
     config = _mission_config(duration, seed, store)
     with progress(f"robot {robot}") as update:
         s = run_node(
@@ -871,6 +896,7 @@ def node_cmd(
             routes=fixed_routes,
             key=key,
             insecure=insecure,
+            prior=prior,
         )
     console.print(
         f"robot {robot}: {s['row']['poses_local']} own poses, {len(s['held'])} held, "

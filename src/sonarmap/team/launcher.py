@@ -33,6 +33,7 @@ from .keys import make_team_key
 from .mission import MissionConfig
 from .network import NetworkParams
 from .node import MIB, SUMMARY_FILE, LockstepParams, save_routes
+from .prior import check_prior
 from .simulation import map_agreement
 from .store import StoreParams
 from .summary import mission_figures, team_figures
@@ -180,6 +181,7 @@ def run_zmq_team(
     timeout: float | None = None,
     python: str | None = None,
     routes: Sequence[F64 | None] | None = None,
+    prior: OccupancyMap | None = None,
 ) -> ZmqTeamResult:
     """Run ``robots`` robots as local processes (``python -m sonarmap team node``) on
     loopback ports, exchanging over ZeroMQ; the same mission as :func:`run_team`.
@@ -217,6 +219,9 @@ def run_zmq_team(
         One per robot, as run_team's: a given route replaces the robot's patrol route.
         The launcher draws the others and hands every node all of them, so that no
         node spends its start drawing routes.
+    prior : OccupancyMap, optional
+        Every robot's prior map, as run_team's (written beside the plan and handed to
+        every node); the plan itself when not given.
 
     Returns
     -------
@@ -263,6 +268,10 @@ def run_zmq_team(
         # not be able to join it or pose as one of its robots.
         make_team_key(robots).write(where / KEY_FILE)
         args = [*args, "--routes", str(where / "routes"), "--key", str(where / KEY_FILE)]
+        if prior is not None:
+            check_prior(plan, prior, "prior")
+            write_map(prior, where / "prior")
+            args += ["--prior", str(where / "prior.yaml")]
         addresses = [f"tcp://127.0.0.1:{p}" for p in _free_ports(robots)]
         return _launch(
             where,

@@ -275,11 +275,15 @@ def _fingerprint(
     ids: Sequence[int],
     ex: ExchangeParams,
     routes: Sequence[F64],
+    prior: OccupancyMap | None = None,
 ) -> str:
-    """What a state file must belong to: the same plan, mission, team, routes and
-    exchange."""
+    """What a state file must belong to: the same plan, prior, mission, team, routes
+    and exchange."""
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(plan.classes()).tobytes())
+    if prior is not None:
+        h.update(b"prior")
+        h.update(np.ascontiguousarray(prior.classes()).tobytes())
     for r in routes:
         h.update(np.ascontiguousarray(r, dtype=np.float64).tobytes())
     h.update(json.dumps([asdict(cfg), robot, list(ids), asdict(ex)], default=str).encode())
@@ -334,6 +338,7 @@ class _Node:
         routes: Sequence[F64 | None] | None,
         key: TeamKey | None = None,
         insecure: bool = False,
+        prior: OccupancyMap | None = None,
     ) -> None:
         ids = _check_team(robot, peers)
         if key is not None and key.robots < len(ids):
@@ -356,7 +361,7 @@ class _Node:
             robot, listen, peers, max_message=max_message + LOCK_SLACK, key=key, insecure=insecure
         )
         try:
-            self._setup(plan, ids, max_message, routes)
+            self._setup(plan, ids, max_message, routes, prior)
         except BaseException:
             self.zmq.close()
             raise
@@ -367,13 +372,14 @@ class _Node:
         ids: Sequence[int],
         max_message: int,
         given: Sequence[F64 | None] | None,
+        prior: OccupancyMap | None,
     ) -> None:
         cfg, robot = self.cfg, self.robot
         if given is not None and len(given) != len(ids):
             raise ConfigError(f"routes: {len(given)} given for a team of {len(ids)}")
         world = make_world(plan, seed=cfg.seed, duration=cfg.duration)
         own = None if given is None else given[robot]
-        self.agent = agent = RobotAgent(plan, cfg, world=world, robot=robot, route=own)
+        self.agent = agent = RobotAgent(plan, cfg, prior=prior, world=world, robot=robot, route=own)
         routes = [agent.route]
         others_truth: dict[int, F64] = {}
         for j in self.others:
@@ -411,7 +417,7 @@ class _Node:
             settle=self.settle,
             request_every=self.exchange.request_every,
         )
-        self.fingerprint = _fingerprint(plan, cfg, robot, ids, self.exchange, routes)
+        self.fingerprint = _fingerprint(plan, cfg, robot, ids, self.exchange, routes, prior)
         self.last_checkpoint = time.monotonic()
 
     def _views(self) -> None:
@@ -615,13 +621,14 @@ def run_node(
     routes: Sequence[F64 | None] | None = None,
     key: TeamKey | None = None,
     insecure: bool = False,
+    prior: OccupancyMap | None = None,
 ) -> dict[str, Any]:
     """Run robot ``robot_id``'s mission as one node of a team over ZeroMQ.
 
     Parameters
     ----------
     plan : OccupancyMap
-        The floor (also the prior map).
+        The floor (also the prior map unless ``prior`` is given).
     cfg : MissionConfig
         The team's mission (every node the same); the robot's route and sensors are
         seeded from ``cfg.seed + 7919 robot_id``, as in :func:`~.simulation.run_team`.
@@ -652,6 +659,9 @@ def run_node(
         (CURVE), each peer known by its key. None: plain TCP, loopback only.
     insecure : bool
         Without a key, listen on an address other than loopback all the same.
+    prior : OccupancyMap, optional
+        The robot's prior map (:mod:`.prior`), as :func:`~.simulation.run_team`'s: its
+        regions and the frame of its global map; scored against ``plan`` all the same.
 
     Returns
     -------
@@ -687,6 +697,7 @@ def run_node(
             routes=routes,
             key=key,
             insecure=insecure,
+            prior=prior,
         )
 
 
@@ -709,6 +720,7 @@ def _run(
     routes: Sequence[F64 | None] | None,
     key: TeamKey | None,
     insecure: bool,
+    prior: OccupancyMap | None,
 ) -> dict[str, Any]:
     ex = exchange
     node = _Node(
@@ -728,6 +740,7 @@ def _run(
         routes=routes,
         key=key,
         insecure=insecure,
+        prior=prior,
     )
     try:
         finished = node.load()
