@@ -9,9 +9,11 @@ from conftest import SHARED_DATA
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.patrol.maps import builtin_territory
 from sonarmap.patrol.paths import path_to, wave
 from sonarmap.patrol.robots import cancel_collisions
 from sonarmap.patrol.simulation import PatrolConfig, run_patrol
+from sonarmap.patrol.starts import starts_from_dm
 from sonarmap.patrol.territory import Territory
 
 
@@ -48,6 +50,29 @@ def test_give_way_still_stops_a_robot_walking_into_one_that_stands() -> None:
     )
     assert moving.tolist() == [False, False]
     assert _moves([(0.0, 0.5), (1.0, 0.5)], True, starts) == [True, True]
+
+
+def test_a_robot_marked_first_keeps_its_move_under_either_rule() -> None:
+    starts = [(0.0, 0.0), (1.0, 0.0)]
+    x, y = (np.array(v, dtype=np.float64) for v in zip(*starts, strict=True))
+    nx, ny = np.array([0.3, 0.7]), np.zeros(2)  # head on, too close
+    both = np.ones(2, dtype=bool)
+    for give_way in (False, True):
+        moving = cancel_collisions(x, y, nx, ny, both, 0.6, give_way, first=np.array([0, 1], bool))
+        assert moving.tolist() == [False, True]
+    # Two marked (or two unmarked) robots meet by the rule as before.
+    moving = cancel_collisions(x, y, nx, ny, both, 0.6, False, first=np.ones(2, bool))
+    assert moving.tolist() == [False, False]
+
+
+def test_two_cars_on_the_fig_3_4_map_do_not_hold_each_other_for_good() -> None:
+    """Two tracking cars met at 543 s and held each other for the rest of the run: the
+    later one planned its way round every step, and the earlier one, driving on at it,
+    made the collision rule cancel that manoeuvre's first step, every step."""
+    cfg = PatrolConfig(model="car", refine=True, duration=700.0)
+    territory, starts = builtin_territory("fig3-4", cfg.cell)
+    res = run_patrol(territory, cfg, starts=starts_from_dm(starts[:2], territory), seed=0)
+    assert res.summary()["blocked_share"] < 0.05
 
 
 @pytest.mark.parametrize("flip", [False, True])

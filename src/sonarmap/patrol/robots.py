@@ -196,6 +196,7 @@ def cancel_collisions(
     moving: npt.NDArray[np.bool_],
     sep: float,
     give_way: bool = False,
+    first: npt.NDArray[np.bool_] | None = None,
 ) -> npt.NDArray[np.bool_]:
     """Who still moves once the moves of robots in a possible collision (ending closer
     than ``sep`` to another robot) are cancelled; repeated until none is left, since a
@@ -205,7 +206,9 @@ def cancel_collisions(
     ``give_way``, of a pair where both move only one does when that parts them: the
     later robot (the higher index), unless the earlier one would still run into it
     where it stands, and the later one could move on (as when it backs off before the
-    earlier one). Of two robots meeting in a corridor one keeps its way.
+    earlier one). Of two robots meeting in a corridor one keeps its way. Robots marked
+    in ``first`` (default none) keep their move against a moving robot not marked,
+    under either rule.
     """
     moving = moving.copy()
     while True:
@@ -214,7 +217,9 @@ def cancel_collisions(
         pairs = close_pairs(px, py, sep)
         culprits: set[int] = set()
         for i, j in pairs:
-            if give_way and moving[i] and moving[j]:
+            if first is not None and moving[i] and moving[j] and first[i] != first[j]:
+                culprits.add(j if first[i] else i)
+            elif give_way and moving[i] and moving[j]:
                 culprits.add(_yielder(i, j, x, y, nx, ny, sep))
             else:
                 culprits.update(k for k in (i, j) if moving[k])
@@ -569,12 +574,18 @@ class Car(Team):
         return h if ahead else _wrap(h + math.pi)
 
     def _yielded_to(self, i: int) -> bool:
-        """Whether a later car, held too and near car i, manoeuvres instead of it: of
-        two cars holding each other up only one gets out of the way (both would
-        otherwise back off and meet again)."""
+        """Whether a later car near car i, held too or already manoeuvring round
+        traffic, gets out of the way instead of it: of two cars holding each other up
+        only one manoeuvres (both would otherwise back off and meet again). A later car
+        that found no way out (resting) does not count: were car i to wait for it,
+        neither would ever move."""
         near = np.hypot(self.x - self.x[i], self.y - self.y[i]) < self.min_separation + 2.0
         near[: i + 1] = False
-        return bool((near & (self.held > 0)).any())
+        held = (self.held > 0) & (self.rest == 0)
+        traffic = np.array(
+            [p is not None and c == "traffic" for p, c in zip(self.plans, self.cause, strict=True)]
+        )
+        return bool((near & (held | traffic)).any())
 
     def _plan(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid, cause: str) -> bool:
         """Plan a manoeuvre for car i onto its route, for ``cause`` (of :data:`CAUSES`);
@@ -695,8 +706,18 @@ class Car(Team):
                 if move is not None:
                     want[i] = True
                     end[i] = move
+        # A car manoeuvring round traffic goes first: were the car it got out of the
+        # way of to drive on at it, the rule would cancel both moves, step after step.
+        traffic = np.array([c == "traffic" and i in saved for i, c in enumerate(self.cause)])
         moving = cancel_collisions(
-            self.x, self.y, end[:, 0], end[:, 1], want, self.min_separation, self.give_way
+            self.x,
+            self.y,
+            end[:, 0],
+            end[:, 1],
+            want,
+            self.min_separation,
+            self.give_way,
+            first=traffic,
         )
         self.blocked = want & ~moving
         self.held = np.where(self.blocked, self.held + 1, 0)
