@@ -20,7 +20,7 @@ from sonarmap.readings import Readings
 from sonarmap.rig import SIX_BEARINGS, Mount, Rig, get_rig
 from sonarmap.scenarios import Scenario, make_scenario
 from sonarmap.sensors import Region, SensorModel
-from sonarmap.splits import TRAINING_FAMILIES
+from sonarmap.splits import TRAINING_FAMILIES, check_training
 from sonarmap.sweep import load_sweep, run_task
 
 
@@ -65,6 +65,52 @@ def test_hall_is_a_training_scene_drawn_from_its_seed() -> None:
     # The robot walks inside the hall: every pose on a free cell of the truth.
     rows, cols = a.truth.grid.world_to_cell(a.trajectory.x, a.trajectory.y)
     assert np.all(a.truth.occupancy[rows, cols] < 0.5)
+
+
+def test_suite_is_a_training_scene_of_rooms_off_a_corridor() -> None:
+    assert "suite" in TRAINING_FAMILIES
+    check_training("suite", 999)
+    with pytest.raises(ConfigError, match="held out"):
+        check_training("suite", 1000)
+    a = make_scenario("suite", rig="ring16", rate=1.0, seed=3)
+    b = make_scenario("suite", rig="ring16", rate=1.0, seed=4)
+    assert a.rig.sensor.name == "polaroid-6500"
+    # Drawn from the seed: another floor, not only other readings.
+    assert a.params["length"] != b.params["length"]
+    assert a.truth.grid.shape != b.truth.grid.shape or not np.array_equal(
+        a.truth.occupancy, b.truth.occupancy
+    )
+    # Three or four rooms, each with a door onto the corridor and a post.
+    assert 3 <= len(a.passages) <= 4
+    assert len(a.obstacles) == len(a.passages)
+    assert all(0.7 <= p.width <= 1.1 for p in a.passages)
+    # The tour stays on the floor and goes through every door.
+    rows, cols = a.truth.grid.world_to_cell(a.trajectory.x, a.trajectory.y)
+    assert np.all(a.truth.occupancy[rows, cols] < 0.5)
+    for p in a.passages:
+        mx, my = (p.a[0] + p.b[0]) / 2, (p.a[1] + p.b[1]) / 2
+        assert np.min(np.hypot(a.trajectory.x - mx, a.trajectory.y - my)) < 0.1
+    # Every door is a passage the metrics can measure on the truth itself.
+    s = score(a.truth, a.truth, a.passages)
+    assert s.passage_f1 == 1.0
+
+
+def test_inverse_no_echo_reach_clears_only_near_cells() -> None:
+    """The wall case's no-echo reading, alone: with a 1 m reach only cells within 1 m of
+    the sonar are marked (free); without one its beam is cleared through the wall."""
+    truth, rig, readings = _wall_case()
+    alone = readings.take(np.array([2]))
+    xc, _ = truth.grid.all_centres()
+    far = (xc - 0.5) > 1.0
+    near = make_mapper("inverse", no_echo="free", no_echo_reach=1.0)
+    p = near.fit(alone, truth.grid, rig).result().occupancy
+    assert np.all(np.isnan(p[far]))
+    assert np.nanmax(p) < 0.5
+    assert np.sum(~np.isnan(p)) > 0
+    full = make_mapper("inverse", no_echo="free").fit(alone, truth.grid, rig).result().occupancy
+    assert np.nanmin(full[truth.occupancy > 0.5]) < 0.5  # the wall cleared
+    with pytest.raises(ConfigError, match="no_echo_reach"):
+        make_mapper("inverse", no_echo_reach=0.0)
 
 
 def test_a_sweep_scenario_takes_a_rig(tmp_path: object) -> None:
