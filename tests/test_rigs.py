@@ -287,3 +287,19 @@ def test_the_gradient_options_keep_more_walls_than_its_default(
         return s.observed_wall_recall
 
     assert recall(**params) >= recall() + 0.015
+
+
+def test_door_verdict_names_the_first_test_failed() -> None:
+    from benchmarks.doors import verdict
+
+    from sonarmap.metrics import PassageResult
+
+    def door(width: float, walls: tuple[float, float], crossed: bool) -> PassageResult:
+        is_open = min(walls) >= 0.75 and crossed
+        detected = is_open and abs(width - 0.9) <= 0.225
+        return PassageResult("d", 0.9, width, walls, crossed, is_open, detected)
+
+    assert verdict(door(0.85, (1.0, 1.0), True)) == "detected"
+    assert verdict(door(math.nan, (1.0, 1.0), False)) == "closed"
+    assert verdict(door(0.85, (0.33, 1.0), True)) == "walls"
+    assert verdict(door(0.2, (1.0, 1.0), True)) == "width"
