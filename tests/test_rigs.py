@@ -303,3 +303,25 @@ def test_door_verdict_names_the_first_test_failed() -> None:
     assert verdict(door(math.nan, (1.0, 1.0), False)) == "closed"
     assert verdict(door(0.85, (0.33, 1.0), True)) == "walls"
     assert verdict(door(0.2, (1.0, 1.0), True)) == "width"
+
+
+def test_jamb_walls_are_the_walls_beside_each_door() -> None:
+    from benchmarks.doors import jamb_walls
+
+    scene = make_scenario("suite", rig="hcsr04-six", rate=1.0, seed=5)
+    cells = jamb_walls(scene)
+    assert cells.any()
+    assert np.all(scene.truth.occupancy.reshape(-1)[cells] > 0.5)
+    xc, yc = scene.truth.grid.all_centres()
+    x, y = xc.reshape(-1)[cells], yc.reshape(-1)[cells]
+    # Each lies within half a door and 0.3 m (and a cell) of some door's middle, on the
+    # door's wall, and each door has such cells on both sides.
+    h = scene.truth.grid.resolution
+    for p in scene.passages:
+        mx, my = (p.a[0] + p.b[0]) / 2, (p.a[1] + p.b[1]) / 2
+        near = np.hypot(x - mx, y - my) <= p.width / 2 + 0.3 + 2 * h
+        assert np.sum(near & (x < mx)) > 0
+        assert np.sum(near & (x > mx)) > 0
+    mids = np.array([((p.a[0] + p.b[0]) / 2, (p.a[1] + p.b[1]) / 2) for p in scene.passages])
+    d = np.min(np.hypot(x[:, None] - mids[:, 0], y[:, None] - mids[:, 1]), axis=1)
+    assert np.all(d <= max(p.width for p in scene.passages) / 2 + 0.3 + 2 * h)
