@@ -142,6 +142,41 @@ def test_no_echo_has_no_occupied_band() -> None:
     assert fp.free.distance.max() < sensor.r_max - 0.05
 
 
+def test_no_echo_reach_shortens_only_the_no_echo_beams() -> None:
+    sensor = get_sensor("hc-sr04")
+    xs, ys, ths, rs = [0.0, 0.0], [0.0, 0.0], [0.0, math.pi], [sensor.r_max, 1.5]
+    full = rasterise(GRID, sensor, xs, ys, ths, rs, dr=0.05)
+    near = rasterise(GRID, sensor, xs, ys, ths, rs, dr=0.05, no_echo_reach=1.0)
+    # The no-echo beam clears out to 1.0 - dr only; the echo is untouched.
+    assert near.free.distance[: near.free.offsets[1]].max() < 0.95
+    assert full.free.distance[: full.free.offsets[1]].max() > 1.5
+    np.testing.assert_array_equal(near.free.of(1), full.free.of(1))
+    np.testing.assert_array_equal(near.occ.cells, full.occ.cells)
+    # A reach past r_max is r_max; the insertion clears the same cells.
+    far = rasterise(GRID, sensor, xs, ys, ths, rs, dr=0.05, no_echo_reach=sensor.r_max + 5)
+    np.testing.assert_array_equal(far.free.cells, full.free.cells)
+    got, got_t = np.zeros(GRID.size), np.zeros(GRID.size, dtype=bool)
+    accumulate(
+        GRID,
+        sensor,
+        xs,
+        ys,
+        ths,
+        rs,
+        got,
+        got_t,
+        inc_free=-1.0,
+        inc_occ=1.0,
+        dr=0.05,
+        no_echo_reach=1.0,
+    )
+    want, want_t = _apply_footprint(near, GRID.size, (-1.0, 1.0), (-np.inf, np.inf))
+    np.testing.assert_array_equal(got_t, want_t)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    with pytest.raises(ConfigError, match="no_echo_reach"):
+        rasterise(GRID, sensor, xs, ys, ths, rs, no_echo_reach=0.0)
+
+
 def test_clipped_to_grid_and_offsets_consistent() -> None:
     sensor = get_sensor("maxsonar-ez1")
     rng = np.random.default_rng(1)

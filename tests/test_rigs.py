@@ -20,7 +20,7 @@ from sonarmap.readings import Readings
 from sonarmap.rig import SIX_BEARINGS, Mount, Rig, get_rig
 from sonarmap.scenarios import Scenario, make_scenario
 from sonarmap.sensors import Region, SensorModel
-from sonarmap.splits import TRAINING_FAMILIES
+from sonarmap.splits import TRAINING_FAMILIES, check_training
 from sonarmap.sweep import load_sweep, run_task
 
 
@@ -65,6 +65,52 @@ def test_hall_is_a_training_scene_drawn_from_its_seed() -> None:
     # The robot walks inside the hall: every pose on a free cell of the truth.
     rows, cols = a.truth.grid.world_to_cell(a.trajectory.x, a.trajectory.y)
     assert np.all(a.truth.occupancy[rows, cols] < 0.5)
+
+
+def test_suite_is_a_training_scene_of_rooms_off_a_corridor() -> None:
+    assert "suite" in TRAINING_FAMILIES
+    check_training("suite", 999)
+    with pytest.raises(ConfigError, match="held out"):
+        check_training("suite", 1000)
+    a = make_scenario("suite", rig="ring16", rate=1.0, seed=3)
+    b = make_scenario("suite", rig="ring16", rate=1.0, seed=4)
+    assert a.rig.sensor.name == "polaroid-6500"
+    # Drawn from the seed: another floor, not only other readings.
+    assert a.params["length"] != b.params["length"]
+    assert a.truth.grid.shape != b.truth.grid.shape or not np.array_equal(
+        a.truth.occupancy, b.truth.occupancy
+    )
+    # Three or four rooms, each with a door onto the corridor and a post.
+    assert 3 <= len(a.passages) <= 4
+    assert len(a.obstacles) == len(a.passages)
+    assert all(0.7 <= p.width <= 1.1 for p in a.passages)
+    # The tour stays on the floor and goes through every door.
+    rows, cols = a.truth.grid.world_to_cell(a.trajectory.x, a.trajectory.y)
+    assert np.all(a.truth.occupancy[rows, cols] < 0.5)
+    for p in a.passages:
+        mx, my = (p.a[0] + p.b[0]) / 2, (p.a[1] + p.b[1]) / 2
+        assert np.min(np.hypot(a.trajectory.x - mx, a.trajectory.y - my)) < 0.1
+    # Every door is a passage the metrics can measure on the truth itself.
+    s = score(a.truth, a.truth, a.passages)
+    assert s.passage_f1 == 1.0
+
+
+def test_inverse_no_echo_reach_clears_only_near_cells() -> None:
+    """The wall case's no-echo reading, alone: with a 1 m reach only cells within 1 m of
+    the sonar are marked (free); without one its beam is cleared through the wall."""
+    truth, rig, readings = _wall_case()
+    alone = readings.take(np.array([2]))
+    xc, _ = truth.grid.all_centres()
+    far = (xc - 0.5) > 1.0
+    near = make_mapper("inverse", no_echo="free", no_echo_reach=1.0)
+    p = near.fit(alone, truth.grid, rig).result().occupancy
+    assert np.all(np.isnan(p[far]))
+    assert np.nanmax(p) < 0.5
+    assert np.sum(~np.isnan(p)) > 0
+    full = make_mapper("inverse", no_echo="free").fit(alone, truth.grid, rig).result().occupancy
+    assert np.nanmin(full[truth.occupancy > 0.5]) < 0.5  # the wall cleared
+    with pytest.raises(ConfigError, match="no_echo_reach"):
+        make_mapper("inverse", no_echo_reach=0.0)
 
 
 def test_a_sweep_scenario_takes_a_rig(tmp_path: object) -> None:
@@ -241,3 +287,41 @@ def test_the_gradient_options_keep_more_walls_than_its_default(
         return s.observed_wall_recall
 
     assert recall(**params) >= recall() + 0.015
+
+
+def test_door_verdict_names_the_first_test_failed() -> None:
+    from benchmarks.doors import verdict
+
+    from sonarmap.metrics import PassageResult
+
+    def door(width: float, walls: tuple[float, float], crossed: bool) -> PassageResult:
+        is_open = min(walls) >= 0.75 and crossed
+        detected = is_open and abs(width - 0.9) <= 0.225
+        return PassageResult("d", 0.9, width, walls, crossed, is_open, detected)
+
+    assert verdict(door(0.85, (1.0, 1.0), True)) == "detected"
+    assert verdict(door(math.nan, (1.0, 1.0), False)) == "closed"
+    assert verdict(door(0.85, (0.33, 1.0), True)) == "walls"
+    assert verdict(door(0.2, (1.0, 1.0), True)) == "width"
+
+
+def test_jamb_walls_are_the_walls_beside_each_door() -> None:
+    from benchmarks.doors import jamb_walls
+
+    scene = make_scenario("suite", rig="hcsr04-six", rate=1.0, seed=5)
+    cells = jamb_walls(scene)
+    assert cells.any()
+    assert np.all(scene.truth.occupancy.reshape(-1)[cells] > 0.5)
+    xc, yc = scene.truth.grid.all_centres()
+    x, y = xc.reshape(-1)[cells], yc.reshape(-1)[cells]
+    # Each lies within half a door and 0.3 m (and a cell) of some door's middle, on the
+    # door's wall, and each door has such cells on both sides.
+    h = scene.truth.grid.resolution
+    for p in scene.passages:
+        mx, my = (p.a[0] + p.b[0]) / 2, (p.a[1] + p.b[1]) / 2
+        near = np.hypot(x - mx, y - my) <= p.width / 2 + 0.3 + 2 * h
+        assert np.sum(near & (x < mx)) > 0
+        assert np.sum(near & (x > mx)) > 0
+    mids = np.array([((p.a[0] + p.b[0]) / 2, (p.a[1] + p.b[1]) / 2) for p in scene.passages])
+    d = np.min(np.hypot(x[:, None] - mids[:, 0], y[:, None] - mids[:, 1]), axis=1)
+    assert np.all(d <= max(p.width for p in scene.passages) / 2 + 0.3 + 2 * h)

@@ -392,6 +392,10 @@ def test_streaming_refuses_what_it_cannot_bound(doorways: Scenario) -> None:
         StreamingMapper("gradient", g, rig, strategy="all")
     with pytest.raises(ConfigError, match="fall-off"):
         StreamingMapper("inverse", g, rig, strategy="last:5", falloff_deg=10.0)
+    with pytest.raises(ConfigError, match="no_echo_reach"):
+        StreamingMapper(
+            "inverse", g, rig, strategy="last:5", falloff_deg=0.0, no_echo="free", no_echo_reach=1.0
+        )
     sm = StreamingMapper("gradient", g, rig)
     bad = doorways.readings.take(np.arange(3))
     bad = Readings(

@@ -209,6 +209,7 @@ def rasterise(
     dr: float | None = None,
     offset: float = 0.0,
     with_bearing: bool = False,
+    no_echo_reach: float | None = None,
 ) -> Footprint:
     """Omega_free and Omega_occ of each reading.
 
@@ -228,6 +229,9 @@ def rasterise(
         How far behind the range the band's centre lies, metres (>= 0; default 0).
     with_bearing : bool
         Also return each cell's angle off the beam axis.
+    no_echo_reach : float, optional
+        How far (metres) a no-echo reading's Omega_free reaches, less ``dr``; default
+        (None) ``r_max``.
 
     Returns
     -------
@@ -245,7 +249,7 @@ def rasterise(
     ([0, 1, 2], [3])
     """
     sx, sy, st, r = _poses(x, y, theta, ranges)
-    d, free_lim, occ_hi = _limits(grid, sensor, r, dr, offset)
+    d, free_lim, occ_hi = _limits(grid, sensor, r, dr, offset, no_echo_reach)
     f, o = _run(grid, sensor, sx, sy, st, free_lim, occ_hi, with_bearing)
     return Footprint(free=f, occ=o, dr=d)
 
@@ -256,6 +260,7 @@ def _limits(
     r: npt.NDArray[np.float64],
     dr: float | None,
     offset: float = 0.0,
+    no_echo_reach: float | None = None,
 ) -> tuple[float, npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     if (r < 0).any():
         raise InputError("ranges must be >= 0", field="range")
@@ -264,9 +269,13 @@ def _limits(
         raise ConfigError(f"dr must be a non-negative number of metres, got {dr}")
     if not (math.isfinite(offset) and offset >= 0):
         raise ConfigError(f"the band offset must be a non-negative number of metres, got {offset}")
+    if no_echo_reach is not None and not (math.isfinite(no_echo_reach) and no_echo_reach > 0):
+        raise ConfigError(f"no_echo_reach must be a positive number of metres, got {no_echo_reach}")
     echo = r < sensor.r_max
-    # A no-echo reading has no band to move: its free region ends at r_max - dr.
-    free_lim = np.where(echo, r + offset - d, sensor.r_max - d)
+    # A no-echo reading has no band to move: its free region ends at r_max - dr, or
+    # at the reach asked for when that is nearer.
+    reach = sensor.r_max if no_echo_reach is None else min(no_echo_reach, sensor.r_max)
+    free_lim = np.where(echo, r + offset - d, reach - d)
     occ_hi = np.where(echo, r + offset + d, -np.inf)
     return d, free_lim, occ_hi
 
@@ -288,6 +297,7 @@ def accumulate(
     offset: float = 0.0,
     falloff: float = 0.0,
     weights: npt.ArrayLike | None = None,
+    no_echo_reach: float | None = None,
 ) -> int:
     """Add to the Omega_free and Omega_occ cells of each reading, in place.
 
@@ -322,6 +332,8 @@ def accumulate(
     weights : array_like, shape (N,), optional
         A factor (finite, >= 0) on both increments of each reading, such as the
         mappers' correlation weights; None (default) adds them as given, at no cost.
+    no_echo_reach : float, optional
+        How far (metres) a no-echo reading's free cells reach, as for :func:`rasterise`.
 
     Returns
     -------
@@ -329,7 +341,7 @@ def accumulate(
         Cell updates made.
     """
     sx, sy, st, r = _poses(x, y, theta, ranges)
-    _, free_lim, occ_hi = _limits(grid, sensor, r, dr, offset)
+    _, free_lim, occ_hi = _limits(grid, sensor, r, dr, offset, no_echo_reach)
     if values.shape != (grid.size,) or touched.shape != (grid.size,):
         raise ConfigError(f"values and touched must have shape ({grid.size},)")
     if not (values.flags.c_contiguous and touched.flags.c_contiguous):

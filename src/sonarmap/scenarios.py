@@ -24,6 +24,9 @@ Training families (:mod:`sonarmap.splits`), the research's scenes:
 - ``hall``: an L-shaped hall with a pillar and a side room, drawn from the seed, walked
   once round by a preset rig (six MaxSonar EZ1s by default): the scene that spans the
   sensor presets in training.
+- ``suite``: two to four rooms off a corridor, each with a door, a cabinet and a post,
+  drawn from the seed and toured by a preset rig: the training scene shaped like the
+  floors users map (the held-out ``office`` is drawn by other rules).
 
 Held-out families, drawn from their seed so that no two are alike:
 
@@ -953,6 +956,142 @@ def hall(
     )
 
 
+def _room_visit(
+    door_x: float, y_door: float, y_in: float, y_far: float, x0: float, x1: float
+) -> list[tuple[float, float]]:
+    """Waypoints from the corridor point before a door round a room and back: in to
+    ``y_in``, along to the room's ``x0`` side, to ``y_far``, across to ``x1``, back."""
+    return [
+        (door_x, y_door),
+        (door_x, y_in),
+        (x0, y_in),
+        (x0, y_far),
+        (x1, y_far),
+        (x1, y_in),
+        (door_x, y_in),
+        (door_x, y_door),
+    ]
+
+
+def suite(
+    *,
+    rig: str = "ez1-six",
+    resolution: float = 0.05,
+    speed: float = 0.5,
+    rate: float = 5.0,
+    model: SonarModel | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> Scenario:
+    """A training scene: rooms off a corridor, drawn from the seed, toured by a preset rig.
+
+    The shape users map (the held-out ``office`` is one), drawn by other rules: a floor
+    7 to 9 m long; a corridor 1.5 to 2.2 m wide along it, off its centre by up to 0.5 m;
+    two rooms on one side split at 40-60 % of the length and one or two on the other
+    (rooms 2.6 to 3.4 m deep); each room with a door of 0.7 to 1.1 m at a random place
+    in its corridor wall (the scene's passages), a cabinet against its back wall and a
+    0.15 m post by its side wall. The preset ``rig`` (``ez1-six``) drives the corridor and
+    a loop 1 m off the walls of every room at ``speed`` m/s (0.5), every sonar firing
+    at ``rate`` Hz (5).
+    """
+    scene_rig = _preset_rig(rig)
+    _check_positive(resolution=resolution, speed=speed, rate=rate)
+    rng = np.random.default_rng([seed, 0x5017E])
+    wall = 0.1
+    length = float(rng.uniform(7.0, 9.0))
+    corridor_w = float(rng.uniform(1.5, 2.2))
+    depth_top = float(rng.uniform(2.6, 3.4))
+    depth_bottom = float(rng.uniform(2.6, 3.4))
+    y_lo = wall + depth_bottom + wall  # the corridor's lower face
+    y_hi = y_lo + corridor_w
+    x_end = wall + length
+    height = y_hi + wall + depth_top + wall
+    plan = FloorPlan((0.0, 0.0, x_end + wall, height))
+    plan.border(wall)
+    plan.box(0.0, y_lo - wall, x_end + wall, y_lo)
+    plan.box(0.0, y_hi, x_end + wall, y_hi + wall)
+    # The rooms' spans along x on each side; a side of one room spans the floor.
+    split = wall + length * float(rng.uniform(0.4, 0.6))
+    n_bottom = int(rng.integers(1, 3))
+    spans = {
+        "top": [(wall, split), (split, x_end)],
+        "bottom": [(wall, x_end)]
+        if n_bottom == 1
+        else [(wall, wall + length - (split - wall)), (wall + length - (split - wall), x_end)],
+    }
+    found: list[Passage] = []
+    small: list[SmallObstacle] = []
+    visits: dict[str, list[list[tuple[float, float]]]] = {"top": [], "bottom": []}
+    for side, rooms in spans.items():
+        inward = 1.0 if side == "top" else -1.0
+        y_wall = y_hi if side == "top" else y_lo - wall  # the corridor wall's lower edge
+        face = y_hi + wall if side == "top" else y_lo - wall  # the room's side of it
+        back = height - wall if side == "top" else wall
+        for k, (a, b) in enumerate(rooms):
+            if k > 0:
+                plan.box(a - wall / 2, min(face, back), a + wall / 2, max(face, back))
+            lo, hi = a + (wall / 2 if k > 0 else 0.0), b - (wall / 2 if k < len(rooms) - 1 else 0.0)
+            door = float(rng.uniform(0.7, 1.1))
+            dx = float(rng.uniform(lo + 0.4 + door / 2, hi - 0.4 - door / 2))
+            plan.clear(dx - door / 2, y_wall, dx + door / 2, y_wall + wall)
+            name = f"door{len(found) + 1}"
+            found.append(
+                Passage(
+                    name,
+                    (dx - door / 2, y_wall + wall / 2),
+                    (dx + door / 2, y_wall + wall / 2),
+                    wall,
+                )
+            )
+            # A cabinet 0.4-0.5 m deep against the back wall, a post by the far side wall.
+            c_len = float(rng.uniform(0.8, 1.4))
+            c_dep = float(rng.uniform(0.4, 0.5))
+            cx0 = float(rng.uniform(lo, hi - c_len))
+            plan.box(
+                cx0, min(back, back - inward * c_dep), cx0 + c_len, max(back, back - inward * c_dep)
+            )
+            mid_y = (face + back) / 2
+            small.append(_post(plan, f"post{len(small) + 1}", hi - 0.5, mid_y, 0.15))
+            y_mid = (y_lo + y_hi) / 2
+            visits[side].append(
+                _room_visit(dx, y_mid, face + inward * 1.0, back - inward * 1.0, lo + 1.0, hi - 1.0)
+            )
+    truth = plan.render(plan.grid(resolution))
+    y_mid = (y_lo + y_hi) / 2
+    points: list[tuple[float, float]] = [(wall + 0.8, y_mid)]
+    for visit in visits["top"]:
+        points += visit
+    points.append((x_end - 0.8, y_mid))
+    for visit in visits["bottom"][::-1]:
+        points += visit
+    perimeter = sum(math.dist(a, b) for a, b in itertools.pairwise([*points, points[0]]))
+    traj = _waypoint_path(points, speed, rate, perimeter / speed)
+    readings, world, used = _readings(plan, truth, scene_rig, traj, model, seed, progress)
+    params = _record(
+        used,
+        seed,
+        rig=rig,
+        resolution=resolution,
+        length=round(length, 4),
+        corridor=round(corridor_w, 4),
+        depths=[round(depth_bottom, 4), round(depth_top, 4)],
+        door_widths=[round(p.width, 4) for p in found],
+        speed=speed,
+        rate=rate,
+    )
+    return Scenario(
+        "suite",
+        truth,
+        scene_rig,
+        traj,
+        readings,
+        tuple(found),
+        params,
+        tuple(small),
+        geometry=world,
+    )
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "doorways": doorways,
     "passages": passages,
@@ -962,6 +1101,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "office": office,
     "boxes": boxes,
     "hall": hall,
+    "suite": suite,
 }
 
 

@@ -9,7 +9,7 @@ claim tests use them.
 split           families                                         seeds
 ==============  ===============================================  ==============
 training        ``doorways``, ``passages``, ``room-turn``,        0 to 999
-                ``boxes``, ``hall``
+                ``boxes``, ``hall``, ``suite``
 held-out        ``gaps``, ``corridor``, ``office``                1000 and above
 ==============  ===============================================  ==============
 
@@ -30,7 +30,7 @@ __all__ = [
     "held_out_seeds",
 ]
 
-TRAINING_FAMILIES = ("doorways", "passages", "room-turn", "boxes", "hall")
+TRAINING_FAMILIES = ("doorways", "passages", "room-turn", "boxes", "hall", "suite")
 HELD_OUT_FAMILIES = ("gaps", "corridor", "office")
 #: Seeds from this one on are held out.
 HELD_OUT_SEED = 1000

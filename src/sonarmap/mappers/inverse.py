@@ -80,8 +80,13 @@ class InverseMapper(Mapper):
         Standard deviation (degrees) of a Gaussian fall-off of both increments with the angle
         off the beam axis (5); 0 applies them uniformly over the beam.
     no_echo : {"free", "ignore"}
-        A reading with no echo clears its beam up to ``r_max - dr`` (``free``) or is
-        skipped (``ignore``).
+        A reading with no echo clears its beam up to ``no_echo_reach - dr`` (``free``) or
+        is skipped (``ignore``).
+    no_echo_reach : float or None
+        How far a no-echo reading clears its beam with ``no_echo="free"``, metres (> 0);
+        None (default): ``r_max``. A no-echo reading is mostly a beam a slanted wall
+        mirrored away, and the farther the wall the likelier that: a short reach clears
+        the doorways a passing robot looks through without the walls far down its beam.
     dr : float or None
         Half-width of the Omega_occ band, metres (0.05); None uses the rasteriser's
         default ``max(resolution / 2, range resolution)`` (:func:`sonarmap.raster.default_dr`).
@@ -119,6 +124,7 @@ class InverseMapper(Mapper):
         clamp_max: float = 0.97,
         falloff_deg: float = 5.0,
         no_echo: str = "ignore",
+        no_echo_reach: float | None = None,
         dr: float | None = 0.05,
         band_offset: float | None = None,
         correlated: float = 0.0,
@@ -129,6 +135,7 @@ class InverseMapper(Mapper):
         self.clamp_max = clamp_max
         self.falloff_deg = falloff_deg
         self.no_echo = no_echo
+        self.no_echo_reach = no_echo_reach
         self.dr = dr
         self.band_offset = band_offset
         self.correlated = correlated
@@ -138,6 +145,8 @@ class InverseMapper(Mapper):
         number("clamp_max", clamp_max, 0.5, 1.0, lo_open=True, hi_open=True)
         number("falloff_deg", falloff_deg, 0.0, None)
         choice("no_echo", no_echo, ("free", "ignore"))
+        if no_echo_reach is not None:
+            number("no_echo_reach", no_echo_reach, 0.0, None, lo_open=True)
         if dr is not None:
             number("dr", dr, 0.0, None)
         if band_offset is not None:
@@ -185,6 +194,7 @@ class InverseMapper(Mapper):
                 offset=self.band_offset_for(self.grid),
                 falloff=math.radians(self.falloff_deg),
                 weights=None if weights is None else weights[a : a + len(r)],
+                no_echo_reach=self.no_echo_reach,
             )
 
     @property
@@ -251,6 +261,11 @@ class InverseStream(StreamEngine):
             raise ConfigError(
                 "inverse fall-off streams only with the 'all' strategy; for a bounded "
                 "window set falloff_deg=0"
+            )
+        if strategy.bounded and mapper.no_echo == "free" and mapper.no_echo_reach is not None:
+            raise ConfigError(
+                "inverse no_echo_reach streams only with the 'all' strategy; for a "
+                "bounded window leave it unset"
             )
         super().__init__(mapper, grid, sensor, strategy, effort)
         self._exact = mapper if not strategy.bounded else None
