@@ -25,7 +25,10 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+if __name__ == "__main__":
+    # One core per run, set before numba is imported; not when a test imports the
+    # helpers (numba in the test's process may already have started its threads).
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import math
 
