@@ -61,8 +61,15 @@ def test_a_robot_marked_first_keeps_its_move_under_either_rule() -> None:
         moving = cancel_collisions(x, y, nx, ny, both, 0.6, give_way, first=np.array([0, 1], bool))
         assert moving.tolist() == [False, True]
     # Two marked (or two unmarked) robots meet by the rule as before.
-    moving = cancel_collisions(x, y, nx, ny, both, 0.6, False, first=np.ones(2, bool))
-    assert moving.tolist() == [False, False]
+    for give_way, want in ((False, [False, False]), (True, [True, False])):
+        moving = cancel_collisions(x, y, nx, ny, both, 0.6, give_way, first=np.ones(2, bool))
+        assert moving.tolist() == want
+    # A marked robot whose move alone would still run into the other, while the other
+    # backs off: the other moves, as under give-way, rather than neither.
+    back = cancel_collisions(
+        x, y, np.array([0.7, 1.2]), ny, both, 0.6, False, first=np.array([1, 0], bool)
+    )
+    assert back.tolist() == [False, True]
 
 
 def test_two_cars_on_the_fig_3_4_map_do_not_hold_each_other_for_good() -> None:

@@ -206,9 +206,11 @@ def cancel_collisions(
     ``give_way``, of a pair where both move only one does when that parts them: the
     later robot (the higher index), unless the earlier one would still run into it
     where it stands, and the later one could move on (as when it backs off before the
-    earlier one). Of two robots meeting in a corridor one keeps its way. Robots marked
-    in ``first`` (default none) keep their move against a moving robot not marked,
-    under either rule.
+    earlier one). Of two robots meeting in a corridor one keeps its way. Under either
+    rule, of a moving pair where one robot is marked in ``first`` (default none) and
+    the other is not, the marked one keeps its move unless that move alone still ends
+    too close to the other where it stands and the other's move alone does not (the
+    give-way test with the marked robot as the earlier one).
     """
     moving = moving.copy()
     while True:
@@ -218,7 +220,8 @@ def cancel_collisions(
         culprits: set[int] = set()
         for i, j in pairs:
             if first is not None and moving[i] and moving[j] and first[i] != first[j]:
-                culprits.add(j if first[i] else i)
+                m, u = (i, j) if first[i] else (j, i)
+                culprits.add(_yielder(m, u, x, y, nx, ny, sep))
             elif give_way and moving[i] and moving[j]:
                 culprits.add(_yielder(i, j, x, y, nx, ny, sep))
             else:
@@ -229,8 +232,9 @@ def cancel_collisions(
 
 
 def _yielder(i: int, j: int, x: F64, y: F64, nx: F64, ny: F64, sep: float) -> int:
-    """Which of robots i < j, both moving and ending too close, loses its move: j,
-    unless i's move alone still ends too close to j and j's alone does not."""
+    """Which of robots i and j (i the one with the right of way: the earlier, or the
+    one marked first), both moving and ending too close, loses its move: j, unless i's
+    move alone still ends too close to j and j's alone does not."""
     i_alone = math.hypot(nx[i] - x[j], ny[i] - y[j]) >= sep - 1e-9
     j_alone = math.hypot(nx[j] - x[i], ny[j] - y[i]) >= sep - 1e-9
     return i if j_alone and not i_alone else j
