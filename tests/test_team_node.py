@@ -397,7 +397,9 @@ def test_a_zmq_team_patrols_on_the_routes_the_simulation_would_drive(
     for mine, theirs in zip(handed, patrolled, strict=True):
         np.testing.assert_array_equal(mine, theirs)
     seeded = patrol_route(plan, 10.0, seed=2)
-    assert not np.array_equal(handed[0][:, 1:3], seeded[: len(handed[0]), 1:3])
+    n = min(len(seeded), len(handed[0]))
+    assert n >= 10
+    assert not np.array_equal(handed[0][:n, 1:3], seeded[:n, 1:3])
     s = json.loads((out / "summary.json").read_text())
     assert s["duplicate_poses"] == 0
 
@@ -405,7 +407,8 @@ def test_a_zmq_team_patrols_on_the_routes_the_simulation_would_drive(
 def test_a_zmq_team_with_a_prior_gives_the_simulated_teams_results(tmp_path: Path) -> None:
     """The nodes take the prior the launcher hands them (``team node --prior``): the
     same stores and figures as the simulated team given the same prior, and not those
-    of a team given the plan (the stores themselves do not depend on the prior)."""
+    of a team given the plan (here the stores match either way; the alignment error
+    tells the runs apart)."""
     plan = builtin_plan("building:0")
     prior, report = degrade_plan(plan, parse_prior_error("close-doors=2,scale=0.03", seed=1))
     assert len(report.doors_closed) == 2

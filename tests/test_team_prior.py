@@ -272,6 +272,8 @@ def test_a_prior_file_that_does_not_match_the_map_is_one_line_naming_it(
         ["--prior-error", "doors=1"],
         ["--prior-error", "scale=2"],
         ["--prior-error", "doors=1", "--transport", "zmq", "--robots", "2"],
+        # Shrunk to 0.6 of the map, it overlaps it on 36 %: refused under either transport.
+        ["--prior-error", "scale=-0.4"],
     ],
 )
 def test_bad_prior_options_are_one_line_and_exit_2(

@@ -308,6 +308,23 @@ def test_a_peer_asking_again_in_a_loop_gets_the_log_once_per_half_retry(
     assert link.rejected == 0
     assert link.resent == 3  # frames 1 and 2 once, then frame 0 once
     assert arrived == 6  # the first sends and the three sent again
+
+
+def test_a_request_after_half_a_retry_gets_the_whole_log_again(
+    pair: tuple[ZmqTransport, ZmqTransport],
+) -> None:
+    a, b = pair
+    link = ReliableLink(a, [1], wait_timeout=5.0, retry=0.2)
+    for k in range(3):
+        link.send(1, 0, "advert", f"frame {k}".encode())
+    for _ in range(2):
+        _send(b, 0, _pack({"next": 0, "ack": 0}), "hello")
+        end = time.monotonic() + DEADLINE
+        before = link.resent
+        while link.resent == before and time.monotonic() < end:
+            link.pump(0.05)
+        time.sleep(0.15)  # past half a retry
+    assert link.resent == 6
     assert [f.q for f in link.log[1]] == [0, 1, 2]  # nothing acknowledged, all kept
 
 

@@ -491,6 +491,15 @@ def _prior(
     if prior_error is None:
         return base, desc
     prior, report = degrade_plan(base, parse_prior_error(prior_error, seed=seed))
+    # The same rule as for a user's file, so that both transports take the same priors
+    # (a node checks the prior it is handed).
+    try:
+        check_prior(plan, prior, "prior")
+    except InputError as err:
+        raise ConfigError(
+            f"--prior-error {prior_error}: the prior it makes no longer matches the map "
+            f"({err.reason}; a smaller scale?)"
+        ) from None
     desc.update(report.to_dict())
     return prior, desc
 

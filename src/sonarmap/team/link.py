@@ -181,7 +181,9 @@ class ReliableLink:
     wait_timeout : float
         Seconds an awaited peer may go without sending a new frame (:meth:`wait`).
     retry : float
-        Seconds between requests to send again while waiting.
+        Seconds between requests to send again while waiting; a peer's requests are
+        served with the whole log at most once per half of it (the peers of a team
+        share one value, so a waiting peer is served at every request).
     max_queue : int
         Bytes of frames kept per peer: sent and not acknowledged (past it the node
         fails, naming the peer), and received early (past it an early frame is

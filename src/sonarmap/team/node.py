@@ -280,10 +280,11 @@ def _fingerprint(
     """What a state file must belong to: the same plan, prior, mission, team, routes
     and exchange."""
     h = hashlib.sha256()
-    h.update(np.ascontiguousarray(plan.classes()).tobytes())
-    if prior is not None:
-        h.update(b"prior")
-        h.update(np.ascontiguousarray(prior.classes()).tobytes())
+    for m in (plan,) if prior is None else (plan, prior):
+        # The frame too: the same cells at another origin or resolution are another map.
+        g = m.grid
+        h.update(json.dumps([g.resolution, list(g.origin), list(g.shape)]).encode())
+        h.update(np.ascontiguousarray(m.classes()).tobytes())
     for r in routes:
         h.update(np.ascontiguousarray(r, dtype=np.float64).tobytes())
     h.update(json.dumps([asdict(cfg), robot, list(ids), asdict(ex)], default=str).encode())
@@ -470,7 +471,7 @@ class _Node:
                 raise InputError("not a node state of this version")
             if s["fingerprint"] != self.fingerprint:
                 raise InputError(
-                    "the state belongs to another mission (plan, settings, robot or team)"
+                    "the state belongs to another mission (plan, prior, settings, robot or team)"
                 )
             self.link.restore(s["link"])
             self.clock.restore(s["clock"])
