@@ -19,7 +19,8 @@ unless ``--region-limit`` is given. Printed as JSON:
   graph's estimates placed by the true alignment; the summary's (found alignment).
 
 Run with ``python -m benchmarks.team_closures --map PLAN [--duration 1200] [--seed 0]
-[--region-limit B] [--inlier-sigmas N]`` (N: ``AssociationParams.inlier_sigmas``).
+[--region-limit B] [--inlier-sigmas N]`` (N: ``AssociationParams.inlier_sigmas``, 0 for the
+fixed 3-D bound alone; its default otherwise).
 """
 
 from __future__ import annotations
@@ -62,14 +63,14 @@ def trace(
     duration: float,
     seed: int,
     region_limit: int | None,
-    inlier_sigmas: float = 0.0,
+    inlier_sigmas: float | None = None,
 ) -> dict[str, Any]:
     """Run the mission and trace its closures (see the module's notes)."""
     plan = resolve_map(Path(plan_path))
     cfg = MissionConfig(duration=duration, seed=seed)
     if region_limit is not None:
         cfg = replace(cfg, store=replace(cfg.store, region_limit=region_limit))
-    if inlier_sigmas:
+    if inlier_sigmas is not None:
         cfg = replace(cfg, association=replace(cfg.association, inlier_sigmas=inlier_sigmas))
     agent = RobotAgent(plan, cfg)
     n_min = cfg.association.n_min
@@ -156,7 +157,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--duration", type=float, default=1200.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--region-limit", type=int, default=None)
-    ap.add_argument("--inlier-sigmas", type=float, default=0.0)
+    ap.add_argument(
+        "--inlier-sigmas", type=float, default=None, help="default: AssociationParams' (3)"
+    )
     a = ap.parse_args(argv)
     if not (0 < a.duration <= 86400):
         raise SystemExit(f"--duration: in (0, 86400] seconds, got {a.duration}")

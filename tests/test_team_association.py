@@ -477,8 +477,9 @@ def test_inliers_within_the_stereo_covariance_count_far_landmarks(seed: int) -> 
     # Far depth off by 0.45 m (the model's sigma at 7 m is about 0.6 m): few far pairs
     # are within 0.15 m in 3-D, most within three sigmas of the two stereo covariances.
     a, b = far_pair(np.random.default_rng(seed), 0.45)
-    (fixed,), _ = associate(b, [a], None, AssociationParams())
-    (weighed,), _ = associate(b, [a], None, AssociationParams(inlier_sigmas=3.0))
+    (fixed,), _ = associate(b, [a], None, AssociationParams(inlier_sigmas=0.0))
+    (weighed,), _ = associate(b, [a], None, AssociationParams())
+    assert AssociationParams().inlier_sigmas == 3.0
     assert weighed.inliers >= fixed.inliers + 3
     assert matches_right(weighed, a, b) == 1.0
     err_m, err_deg = transform_error(weighed, T_TRUE)

@@ -265,6 +265,34 @@ def test_alignment_recovers_rotation_and_shift() -> None:
     assert np.array_equal(al.transform, again.transform)
 
 
+def _fine_plan() -> OccupancyMap:
+    """The same floor as :func:`_plan`, at 0.03 m, its grid not a whole number of
+    coarse cells and its corner off the origin."""
+    g = Grid(0.03, (-1.3, 0.7), (334, 401))
+    x, y = g.all_centres()
+    x, y = x + 1.3, y - 0.7
+    occ = (x < 0.2) | (x > 11.8) | (y < 0.2) | (y > 9.8)
+    occ |= (np.abs(x - 7.0) < 0.1) & (y < 6.0)
+    occ |= (np.abs(y - 7.0) < 0.1) & (x > 2.0) & (x < 5.0)
+    occ |= (np.abs(x - 3.0) < 0.1) & (y > 2.0) & (y < 4.0)
+    return OccupancyMap(g, occ.astype(np.float32))
+
+
+@pytest.mark.parametrize("coarse", [0.1, 0.3])
+def test_alignment_on_a_fine_prior_searches_coarse_cells_and_refines(coarse: float) -> None:
+    plan = _fine_plan()
+    tf = np.array([1.7, -0.4, math.radians(-20.0)])
+    built = _built_from(plan, tf)
+    # The coarse search alone lands within about a coarse cell of the truth ...
+    rough = align_to_prior(built, plan, coarse_resolution=coarse, rounds=0)
+    assert math.hypot(*(rough.transform[:2] - tf[:2])) < 0.75 * coarse + 0.03
+    assert abs(math.degrees(math.remainder(rough.transform[2] - tf[2], 2 * math.pi))) < 3.0
+    # ... and the particle filter at the prior's resolution finishes it.
+    al = align_to_prior(built, plan, coarse_resolution=coarse)
+    assert math.hypot(*(al.transform[:2] - tf[:2])) < 0.1
+    assert abs(math.degrees(math.remainder(al.transform[2] - tf[2], 2 * math.pi))) < 1.0
+
+
 def test_alignment_needs_occupied_cells() -> None:
     plan = _plan()
     empty = OccupancyMap(plan.grid, np.zeros(plan.grid.shape, dtype=np.float32))

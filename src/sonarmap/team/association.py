@@ -125,10 +125,12 @@ class AssociationParams:
     max_sigma_theta : float
         Likewise for the heading, rad (inf: none).
     inlier_sigmas : float
-        0 (default): an inlier pair is within ``e0`` in 3-D. N > 0: also a pair whose
-        horizontal error is within N standard deviations of the two landmarks' stereo
-        covariances (:func:`stereo_covariance` plus ``sigma_point``) and whose heights
-        differ by at most ``e0``, so that far landmarks seen again from elsewhere count.
+        N > 0 (default 3): an inlier pair is within ``e0`` in 3-D, or its horizontal
+        error is within N standard deviations of the two landmarks' stereo covariances
+        (:func:`stereo_covariance` plus ``sigma_point``) and its heights differ by at
+        most ``e0``, so that far landmarks seen again from elsewhere count (a revisit
+        sees a place from farther or askew, where the stereo depth error exceeds
+        ``e0``). 0: within ``e0`` only.
     seed : int
         Seed of the draws (0). Each candidate draws from its own stream, seeded by
         ``(seed, candidate uid, new uid)``, so a result does not depend on the other
@@ -155,7 +157,7 @@ class AssociationParams:
     sigma_point: float = 0.02
     max_sigma_xy: float = math.inf
     max_sigma_theta: float = math.inf
-    inlier_sigmas: float = 0.0
+    inlier_sigmas: float = 3.0
     seed: int = 0
 
     def __post_init__(self) -> None:

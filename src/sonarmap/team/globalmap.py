@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -590,19 +590,39 @@ def _rot(theta: float) -> F64:
     return np.array([[c, -s], [s, c]])
 
 
+def _coarse_near(near: F64, grid: Grid, factor: int) -> tuple[F64, Grid]:
+    """The near-miss image max-pooled over ``factor`` x ``factor`` blocks, and its grid.
+
+    The image is padded with zeros at the top and the right so that the coarse grid
+    keeps the fine grid's lower-left corner: a coarse cell's value is the best fine
+    value under it, so a coarse score never ranks a place below what the fine image
+    would give there (the multi-resolution search's bound).
+    """
+    if factor == 1:
+        return near, grid
+    rows = -(-grid.rows // factor)
+    cols = -(-grid.cols // factor)
+    padded = np.zeros((rows * factor, cols * factor), dtype=np.float64)
+    # Row 0 is the top: the fine rows go to the bottom of the padded image.
+    padded[rows * factor - grid.rows :, : grid.cols] = near
+    pooled = padded.reshape(rows, factor, cols, factor).max(axis=(1, 3))
+    return pooled, Grid(grid.resolution * factor, grid.origin, (rows, cols))
+
+
 def _correlate_all(
     pts: F64, near: F64, grid: Grid, angles: int
-) -> list[tuple[float, npt.NDArray[np.float64], int, int]]:
+) -> Iterator[tuple[float, npt.NDArray[np.float64], int, int]]:
     """Per rotation, the correlation of the rotated points (about their centroid)
-    with ``near``; returns (theta, map, row offset, col offset) where map index
-    ``(k, l)`` puts the centroid on prior cell ``(k - row offset, l - col offset)``."""
+    with ``near``; yields (theta, map, row offset, col offset) where map index
+    ``(k, l)`` puts the centroid on cell ``(k - row offset, l - col offset)`` of
+    ``grid``. One map at a time: a caller that keeps only its peaks holds one map's
+    memory, not ``angles`` maps'."""
     h = grid.resolution
     rmax = float(np.max(np.hypot(pts[:, 0], pts[:, 1])))
     half = math.ceil(rmax / h) + 1
     d = 2 * half + 1
     shape = (sfft.next_fast_len(grid.rows + d - 1), sfft.next_fast_len(grid.cols + d - 1))
     f_near = sfft.rfft2(near, s=shape)
-    out = []
     for k in range(angles):
         theta = 2.0 * math.pi * k / angles
         q = pts @ _rot(theta).T
@@ -613,9 +633,8 @@ def _correlate_all(
         corr = sfft.irfft2(f_near * np.conj(sfft.rfft2(img, s=shape)), s=shape)
         # Circular lags -(d-1)..-1 wrap to the end; roll them in front of lag 0.
         corr = np.roll(corr, (d - 1, d - 1), axis=(0, 1))[: grid.rows + d - 1, : grid.cols + d - 1]
-        # Lag m puts image cell (a, b) on prior cell (a + m); the centroid on half + m.
-        out.append((theta, corr / count, d - 1 - half, d - 1 - half))
-    return out
+        # Lag m puts image cell (a, b) on grid cell (a + m); the centroid on half + m.
+        yield (theta, corr / count, d - 1 - half, d - 1 - half)
 
 
 def _weigh(
@@ -639,7 +658,7 @@ def _weigh(
 
 
 def _peaks(
-    maps: list[tuple[float, F64, int, int]],
+    maps: Iterable[tuple[float, F64, int, int]],
     grid: Grid,
     centroid: F64,
     n_best: int,
@@ -728,15 +747,19 @@ def align_to_prior(
     seed: int = 0,
     guess: tuple[float, float, float] | None = None,
     guess_sigma: tuple[float, float] = (3.0, math.radians(30.0)),
+    coarse_resolution: float = 0.1,
 ) -> Alignment:
     """Align the built map (robot's global frame) to the prior map.
 
-    The built map's occupied cell centres are rotated about their centroid for each
-    of ``angles`` headings, rasterised on the prior's grid and cross-correlated (FFT)
-    with a near-miss image of the prior, ``max(0, 1 - d / reach)`` with ``d`` the
-    distance to the nearest occupied prior cell, so that points just off a wall still
-    score. The ``n_best`` peaks over all headings after non-maximum suppression seed
-    a particle filter over ``(x, y, theta)``: each round jitters the particles,
+    Coarse to fine, as correlative scan matching does it: the built map's occupied
+    cell centres are rotated about their centroid for each of ``angles`` headings,
+    rasterised on a coarse grid (the prior's cells grouped by ``coarse_resolution``)
+    and cross-correlated (FFT) with a near-miss image of the prior,
+    ``max(0, 1 - d / reach)`` with ``d`` the distance to the nearest occupied prior
+    cell (so that points just off a wall still score), max-pooled onto the coarse
+    grid. The ``n_best`` peaks over all headings after non-maximum suppression seed
+    a particle filter over ``(x, y, theta)`` at the prior's full resolution, whose
+    first jitter covers two coarse cells: each round jitters the particles,
     scores each by the mean capped distance of the moved points to the prior's walls,
     and resamples (systematic) with weights ``exp(-(cost - min cost) / tau)``,
     ``tau`` a quarter of a prior cell; the jitter shrinks by ``shrink`` per round.
@@ -770,6 +793,11 @@ def align_to_prior(
         most this many.
     seed : int
         Of the particle filter's random generator.
+    coarse_resolution : float
+        Metres: the correlation's cell, the prior's cell times the largest whole number
+        that stays within this (the prior's cell when it is coarser). The search's
+        memory and time grow with the square of the coarse grid's side; the particle
+        filter restores the prior's resolution.
     guess : (x, y, theta), optional
         What the robot believes the transform is (e.g. from a roughly known start).
         Each heading's correlation is then weighed by a Gaussian of the centroid's
@@ -794,7 +822,12 @@ def align_to_prior(
             raise ConfigError(f"{name} must be >= 1, got {v}")
     if rounds < 0 or max_points < 3:
         raise ConfigError(f"rounds must be >= 0 and max_points >= 3, got {rounds}, {max_points}")
-    for name, f in (("reach", reach), ("nms_distance", nms_distance), ("shrink", shrink)):
+    for name, f in (
+        ("reach", reach),
+        ("nms_distance", nms_distance),
+        ("shrink", shrink),
+        ("coarse_resolution", coarse_resolution),
+    ):
         if not (math.isfinite(f) and f > 0):
             raise ConfigError(f"{name} must be > 0, got {f}")
     step = 2.0 * math.pi / angles
@@ -808,10 +841,14 @@ def align_to_prior(
 
     field_ = _DistanceField(prior, reach)
     near = np.maximum(0.0, 1.0 - field_.dist / reach)
-    maps = _correlate_all(pts, near, prior.grid, angles)
+    h = prior.grid.resolution
+    factor = max(1, math.floor(coarse_resolution / h + 1e-9))
+    near_c, grid_c = _coarse_near(near, prior.grid, factor)
+    maps = _correlate_all(pts, near_c, grid_c, angles)
     if guess is not None:
-        maps = [_weigh(m, prior.grid, centroid, guess, guess_sigma) for m in maps]
-    hyps = _peaks(maps, prior.grid, centroid, n_best, nms_distance, nms_angle)
+        g = guess
+        maps = (_weigh(m, grid_c, centroid, g, guess_sigma) for m in maps)
+    hyps = _peaks(maps, grid_c, centroid, n_best, nms_distance, nms_angle)
 
     # Particles carry (where the centroid lands, heading): a heading change then
     # does not swing the whole map about a far-away origin.
@@ -820,8 +857,8 @@ def align_to_prior(
     )
     rng = np.random.default_rng(seed)
     cloud = seeds[np.arange(particles) % len(seeds)]
-    h = prior.grid.resolution
-    sigma = np.array([2.0 * h, 2.0 * h, step / 2.0])
+    hc = grid_c.resolution
+    sigma = np.array([2.0 * hc, 2.0 * hc, step / 2.0])
     tau = h / 4.0
     costs = _particle_costs(cloud, pts, field_)
     best_i = int(np.argmin(costs))
