@@ -18,6 +18,7 @@ from sonarmap.team.globalmap import (
     align_to_prior,
     fuse_local_maps,
     grid_around,
+    layer_frames,
     optimise_graph,
     plot_pose_graph,
 )
@@ -311,3 +312,31 @@ def test_plot_pose_graph_writes_png(tmp_path: Path) -> None:
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(data) > 10_000
+
+
+def test_a_received_layers_frame_is_found_from_its_closures_to_own_poses_despite_a_false_one() -> (
+    None
+):
+    # Robot 1's poses in its own frame, which lies at `frame` in ours; four true
+    # closures from our poses to its poses and one false one (2 m, 1 rad off).
+    rng = np.random.default_rng(3)
+    frame = np.array([1.2, -0.7, math.radians(9.0)])
+    truth = {make_uid(1, k): np.array([2.0 * k, 1.0, 0.3 * k]) for k in range(6)}
+    theirs = {u: compose(invert(frame), t) for u, t in truth.items()}
+    own = {make_uid(0, k): np.array([2.0 * k + 0.5, 0.0, 0.1]) for k in range(6)}
+    closures = []
+    for k in range(5):
+        a, b = make_uid(0, k), make_uid(1, k)
+        rel = compose(invert(own[a]), truth[b]) + rng.normal(0, [0.01, 0.01, 0.002])
+        if k == 4:
+            rel = rel + np.array([2.0, 0.0, 1.0])
+        # Either end may be ours: the closure store keeps the new pose as b.
+        c = (a, b, rel) if k % 2 == 0 else (b, a, invert(rel))
+        closures.append(ClosureEdge(c[0], c[1], tuple(c[2].tolist()), CLO_COV, 20, 0.1))
+    # A closure between two received poses and one to a pose no layer holds: ignored.
+    closures.append(ClosureEdge(make_uid(1, 0), make_uid(1, 5), (9.0, 9.0, 1.0), CLO_COV, 20, 0.1))
+    closures.append(ClosureEdge(make_uid(0, 0), make_uid(2, 0), (9.0, 9.0, 1.0), CLO_COV, 20, 0.1))
+    frames = layer_frames(own, {1: theirs, 3: {make_uid(3, 0): np.zeros(3)}}, closures)
+    assert set(frames) == {1}  # layer 3 shares no closure with ours: left out
+    assert np.hypot(*(frames[1][:2] - frame[:2])) < 0.05
+    assert abs(math.remainder(frames[1][2] - frame[2], 2 * math.pi)) < math.radians(0.5)

@@ -53,6 +53,7 @@ __all__ = [
     "align_to_prior",
     "fuse_local_maps",
     "grid_around",
+    "layer_frames",
     "optimise_graph",
     "plot_pose_graph",
     "plot_team",
@@ -383,6 +384,56 @@ def optimise_graph(
         error_final=float(final.error(result)),
         iterations=iterations,
     )
+
+
+def layer_frames(
+    own: Mapping[int, F64],
+    layers: Mapping[int, Mapping[int, F64]],
+    closures: Sequence[ClosureEdge],
+) -> dict[int, F64]:
+    """Where each received layer's frame lies in the robot's own, from the closures
+    joining the layer's poses to the robot's own poses.
+
+    A received pose's estimate is its source's, in the source's frame (the source's
+    believed start, off by a metre and ten degrees from ours); each closure between an
+    own pose ``a`` and a pose ``b`` of a layer says where ``b`` is in our frame, and so
+    proposes ``(est_a (+) T_ab) (+) inv(est_b)`` as the layer's frame. The layer's
+    frame is the median of its proposals (x and y each, the heading by the median of
+    its sine and cosine), so that a few false closures do not move it.
+
+    Parameters
+    ----------
+    own : mapping of UID to ndarray (3,)
+        The robot's own poses' estimates (x, y, theta) in its frame.
+    layers : mapping of int to mapping of UID to ndarray (3,)
+        Each received layer (by source robot): its poses' estimates in its source's
+        frame.
+    closures : sequence of ClosureEdge
+        The closure store; closures not joining an own pose to a layer's are ignored.
+
+    Returns
+    -------
+    dict of int to ndarray (3,)
+        ``(x, y, theta)`` of each layer's frame in ours, for the layers that share at
+        least one closure with an own pose (the others are left out).
+    """
+    owner = {u: s for s, poses in layers.items() for u in poses}
+    proposals: dict[int, list[F64]] = {}
+    for c in closures:
+        t = np.array(c.transform, dtype=np.float64)
+        for a, b, ab in ((c.a, c.b, t), (c.b, c.a, invert(t))):
+            if a in own and b in owner:
+                where = compose(np.asarray(own[a], dtype=np.float64), ab)
+                est_b = np.asarray(layers[owner[b]][b], dtype=np.float64)
+                proposals.setdefault(owner[b], []).append(compose(where, invert(est_b)))
+    out: dict[int, F64] = {}
+    for source, props in proposals.items():
+        arr = np.array(props).reshape(-1, 3)
+        heading = math.atan2(
+            float(np.median(np.sin(arr[:, 2]))), float(np.median(np.cos(arr[:, 2])))
+        )
+        out[source] = np.array([np.median(arr[:, 0]), np.median(arr[:, 1]), heading])
+    return out
 
 
 def _between(e: OdometryEdge | ClosureEdge, key: Mapping[int, int]) -> Any:

@@ -1,0 +1,196 @@
+"""Where a team's robots place the poses they hold: what the team map loses against the
+central bound, split into the store, the graph and the alignment.
+
+Four robots (``--robots``) patrol a map as ``sonarmap team run --map MAP --robots 4
+--patrol`` drives them (the default lean exchange, a full network, the central bound),
+and after the mission each robot's final global map is built again from its store,
+once per start of its pose graph (``--starts``):
+
+- ``odometry``: what the robot does (odometry chained from its oldest pose and from
+  each received layer's oldest at its source's estimate);
+- ``estimates``: every pose at its stored estimate (a received pose in its source's
+  frame);
+- ``placed``: our poses at ours, each received layer's moved into our frame by
+  :func:`sonarmap.team.globalmap.layer_frames`.
+
+For each robot and start it prints the map's F1 with the alignment the robot finds,
+the F1 of the same map placed by the best rigid fit of the estimates to the truth (no
+alignment error left), and the RMS position error after that one fit of the robot's own
+poses and of its received poses (``ate_own``, ``ate_received``). Beside them, from the
+mission: the robot's map F1, the held poses' map at their true poses (the store's
+bound) and the correct closures its graph batches dropped during the mission.
+
+Usage::
+
+    python -m benchmarks.team_placement --map MAP [--robots 4] [--duration 600]
+        [--seed 0] [--starts odometry estimates placed] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+import numpy.typing as npt
+
+from sonarmap.cli.common import resolve_map
+from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.metrics import score
+from sonarmap.team.association import estimate_planar
+from sonarmap.team.exchange import ExchangeParams
+from sonarmap.team.globalmap import (
+    align_to_prior,
+    fuse_local_maps,
+    grid_around,
+    layer_frames,
+    optimise_graph,
+)
+from sonarmap.team.mission import MissionConfig, RobotAgent
+from sonarmap.team.network import NetworkParams
+from sonarmap.team.patrolling import patrol_routes
+from sonarmap.team.presets import DEFAULT_PRESET, PRESETS
+from sonarmap.team.records import Pose, compose
+from sonarmap.team.simulation import run_team
+from sonarmap.team.store import StoreParams
+from sonarmap.team.world import make_world
+
+F64 = npt.NDArray[np.float64]
+STARTS = ("odometry", "estimates", "placed")
+
+
+def _graph_poses(agent: RobotAgent, start: str) -> tuple[dict[int, Pose], list[Any], int]:
+    """Every pose the robot holds (estimates set for ``start``), every layer's odometry
+    edges and the anchor (our oldest pose)."""
+    store = agent.store
+    poses = dict(store.local.poses)
+    edges = list(store.local.edges)
+    for source in sorted(store.received):
+        poses.update(store.received[source].poses)
+        edges.extend(store.received[source].edges)
+    anchor = min(store.local.poses.values(), key=lambda p: (p.time, p.uid)).uid
+    if start == "placed":
+        frames = layer_frames(
+            {u: p.estimate for u, p in store.local.poses.items()},
+            {s: {u: p.estimate for u, p in ly.poses.items()} for s, ly in store.received.items()},
+            store.closures,
+        )
+        for source, frame in frames.items():
+            for uid, p in store.received[source].poses.items():
+                poses[uid] = replace(p, estimate=compose(frame, p.estimate))
+    return poses, edges, anchor
+
+
+def placement(
+    agent: RobotAgent, truth: dict[int, F64], plan: OccupancyMap, start: str
+) -> dict[str, Any]:
+    """The robot's final map rebuilt from its store with the graph started at ``start``:
+    F1 (found alignment and rigid fit to the truth) and the placement errors."""
+    cfg, store = agent.cfg, agent.store
+    poses, edges, anchor = _graph_poses(agent, start)
+    graph = optimise_graph(
+        poses,
+        edges,
+        store.closures,
+        anchor=anchor,
+        initial="odometry" if start == "odometry" else "estimates",
+    )
+    est = graph.estimates
+    grid = grid_around(est, cfg.local_size / 2, cfg.map_resolution, margin=1.0)
+    built = fuse_local_maps(poses, est, grid)
+    found = np.asarray(
+        align_to_prior(built, agent.prior, seed=cfg.seed, guess=(0.0, 0.0, 0.0)).transform
+    )
+    f1 = score(
+        plan, fuse_local_maps(poses, {u: compose(found, e) for u, e in est.items()}, plan.grid)
+    )
+    uids = [u for u in est if u in truth]
+    e_xy = np.array([est[u][:2] for u in uids])
+    t_xy = np.array([truth[u][:2] for u in uids])
+    fit = estimate_planar(t_xy, e_xy)
+    rigid = {u: compose(fit, e) for u, e in est.items()}
+    f1_rigid = score(plan, fuse_local_maps(poses, rigid, plan.grid))
+    err = np.array([np.hypot(*(rigid[u][:2] - truth[u][:2])) for u in uids])
+    own = np.array([u in store.local.poses for u in uids])
+    return {
+        "robot": agent.robot,
+        "start": start,
+        "map_f1": f1.f1_all,
+        "map_f1_rigid_to_truth": f1_rigid.f1_all,
+        "ate_own_m": float(np.sqrt(np.mean(err[own] ** 2))) if own.any() else None,
+        "ate_received_m": float(np.sqrt(np.mean(err[~own] ** 2))) if (~own).any() else None,
+        "closures": len(store.closures),
+        "closures_rejected": len(graph.inconsistent),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--map", required=True, help="A map_server YAML or a built-in name.")
+    parser.add_argument("--robots", type=int, default=4)
+    parser.add_argument("--duration", type=float, default=600.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--starts", nargs="+", choices=STARTS, default=list(STARTS))
+    parser.add_argument("--json", help="Also write the rows to this JSON file.")
+    args = parser.parse_args(argv)
+    plan = resolve_map(Path(args.map))
+    exchange, store = PRESETS[DEFAULT_PRESET].apply(ExchangeParams(), StoreParams())
+    cfg = MissionConfig(duration=args.duration, seed=args.seed, store=store)
+    routes, _ = patrol_routes(plan, args.robots, args.duration, seed=args.seed)
+    team = run_team(
+        plan,
+        cfg,
+        args.robots,
+        network=NetworkParams(kind="full"),
+        exchange=exchange,
+        seed=args.seed,
+        world=make_world(plan, seed=args.seed, duration=args.duration),
+        routes=list(routes),
+        central=True,
+    )
+    s = team.summary
+    central = s["central"]
+    print(
+        f"team F1 {s['map_f1_team']:.3f}, central {s['map_f1_central']:.3f} "
+        f"(gap {s['map_f1_team'] - s['map_f1_central']:+.3f}, central ATE "
+        f"{central['ate_m']:.3f} m), {100 * s['share_of_naive']:.1f} % of naive's bytes, "
+        f"{s['duplicate_poses']} duplicates, identical pose sets {s['identical_maps']}"
+    )
+    for r in s["robots"]:
+        graph = r["association_stages"]["graph"]
+        print(
+            f"robot {r['robot']}: map F1 {r['map_f1']:.3f}, held poses at truth "
+            f"{r['map_f1_held_true_poses']:.3f}, ATE (own) {r['ate_m']:.3f} m, alignment "
+            f"{r['alignment_error_m']:.2f} m off; the mission's graph batches dropped "
+            f"{graph['removed_true']} correct closures of {graph['in']}"
+        )
+    truth: dict[int, F64] = {}
+    for agent in team.agents:
+        truth.update(agent.truth)
+    rows = []
+    for start in args.starts:
+        for agent in team.agents:
+            row = placement(agent, truth, plan, start)
+            rows.append(row)
+            print(
+                f"{start:9s} robot {row['robot']}: F1 {row['map_f1']:.3f}, rigid to truth "
+                f"{row['map_f1_rigid_to_truth']:.3f}, ATE own {row['ate_own_m']:.3f} m, "
+                f"received {row['ate_received_m']:.3f} m"
+            )
+        mean = np.mean([r["map_f1"] for r in rows if r["start"] == start])
+        print(f"{start:9s} mean F1 {mean:.4f}")
+    if args.json:
+        keys = ("map_f1_team", "map_f1_central", "share_of_naive", "duplicate_poses")
+        team_row = {k: s[k] for k in (*keys, "identical_maps")}
+        Path(args.json).write_text(json.dumps({"team": team_row, "rows": rows}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
