@@ -792,6 +792,19 @@ def _followed(team: Team, i: int, near: float = ONCOMING_NEAR) -> npt.NDArray[np
     return out
 
 
+def _their_side(
+    cells: npt.NDArray[np.intp], mine: tuple[int, int], theirs: tuple[int, int]
+) -> npt.NDArray[np.intp]:
+    """Of ``cells`` (K, 2) round another robot's cell ``theirs``, those nearer it than
+    the planning robot's cell ``mine``: an artificial obstacle that never shuts the
+    cells about the robot planning, so two robots closer than twice its radius can
+    still part."""
+    near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
+    near_them = np.hypot(cells[:, 0] - theirs[0], cells[:, 1] - theirs[1])
+    out: npt.NDArray[np.intp] = cells[near_them < near_me]
+    return out
+
+
 def _route(team: Team, i: int, cells: npt.NDArray[np.int64], g: Grid) -> F64:
     """World points (K, 2) of a path's ``cells``, the first at robot i itself."""
     px, py = g.cell_centres(cells[:, 0], cells[:, 1])
@@ -945,6 +958,9 @@ def run_patrol(
     dvt = np.empty(steps)
 
     obst = disc_offsets(config.r_obst, g.resolution)
+    # A car that drives on round the block follows others closely; a whole disc round
+    # each would shut every cell about two cars nearer than 2 r_obst, and both stand.
+    halve = config.round_block > 0 and config.model == "car" and config.car_planner == "track"
     forward = config.forward_wave and isinstance(team, Car) and team.planner == "track"
     # Forward waves: from which step other robots have shut each car's way ahead.
     shut = np.full(len(team), -1, dtype=np.int64)
@@ -1003,11 +1019,13 @@ def run_patrol(
             parts.append(sems.closed_cells(i, heard))
         if config.crowding == "obstacles" and len(team) > 1:
             ahead = _followed(team, i) if following else np.zeros(len(team), dtype=bool)
-            parts += [
-                np.column_stack(disc_cells(obst, int(r[j]), int(c[j]), passable.shape))
-                for j in np.flatnonzero(heard & ~ahead).tolist()
-                if j != i
-            ]
+            for j in np.flatnonzero(heard & ~ahead).tolist():
+                if j == i:
+                    continue
+                cells = np.column_stack(disc_cells(obst, int(r[j]), int(c[j]), passable.shape))
+                if halve:
+                    cells = _their_side(cells, (int(r[i]), int(c[i])), (int(r[j]), int(c[j])))
+                parts.append(cells)
         if forward and not following:
             back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
             start = (int(r[i]), int(c[i]))
