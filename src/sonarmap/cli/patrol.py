@@ -231,6 +231,11 @@ PATROL_OPTIONS = (
         off="--every-place-pulls",
     ),
     Opt(
+        "round_block",
+        "Tracking cars: metres of extra path a car accepts to drive on round the block "
+        "rather than turn round for a path behind it; 0: the shortest path.",
+    ),
+    Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
         "nearest obstacle, in order; the last D may be inf.",

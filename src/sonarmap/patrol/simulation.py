@@ -25,6 +25,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +95,11 @@ GIVE_WAY_TIME = 5.0
 #: 3 and 5 cars, 600 s: the DVT of turning round for another robot fell from 3-10 % to
 #: 1-7 % against none; 20 s was no better).
 FOLLOW_TIME = 10.0
+#: Metres within which a robot coming the other way ahead of a car driving on round
+#: the block (``round_block``) shuts its way: one farther off may turn off before they
+#: meet, so the car keeps on rather than turn round for it (chosen on training street
+#: sites, docs/results/2026-12-06-cars.md).
+ONCOMING_NEAR = 10.0
 #: Metres around a place the cars give up within which the never-seen places go too.
 GIVE_UP_RADIUS = 2.0
 #: Policies the path motion can follow.
@@ -193,6 +199,14 @@ class PatrolConfig:
     #: mean MTB (docs/results/2026-12-06-cars.md); ``benchmarks.patrol_cars`` turns it on
     #: for the street sites.
     out_of_sight: bool = False
+    #: Track: metres of extra path a car accepts to drive on and round the block
+    #: rather than turn round: when its path leaves more than its ``behind`` angle off
+    #: its heading, it takes instead the shortest path that leaves forwards (the cells
+    #: up to 4 m behind it closed, :func:`~sonarmap.patrol.manoeuvre.behind_cells`) if
+    #: that is at most this much longer. On a street grid a loop round a block has no
+    #: reversing, where turning round on a street narrower than the turning circle
+    #: does. 0 (the default): the shortest path, as the thesis's wave has it.
+    round_block: float = 0.0
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
     vision: float = 10.0
@@ -310,6 +324,10 @@ class PatrolConfig:
         if not (math.isfinite(self.turn_penalty) and self.turn_penalty >= 0):
             raise ConfigError(
                 f"turn_penalty must be >= 0, got {self.turn_penalty}", field="turn_penalty"
+            )
+        if not (math.isfinite(self.round_block) and self.round_block >= 0):
+            raise ConfigError(
+                f"round_block must be >= 0 metres, got {self.round_block}", field="round_block"
             )
         if not (0 <= self.give_up <= 1000):
             raise ConfigError(f"give_up must be in 0..1000, got {self.give_up}", field="give_up")
@@ -734,19 +752,99 @@ def _car_carrot(
     g: Grid,
     passable: npt.NDArray[np.bool_],
     config: PatrolConfig,
+    targets: npt.NDArray[np.bool_] | None = None,
+    closed: Callable[[], npt.NDArray[np.intp] | None] | None = None,
 ) -> tuple[float, float] | None:
     """Car i's route (the wave's shortest path to ``cell``, set on the car) and its
-    pure-pursuit point ``config.lookahead`` metres along it; None when there is none."""
+    pure-pursuit point ``config.lookahead`` metres along it; None when there is none.
+
+    With ``config.round_block`` a route whose pursuit point lies behind the car is
+    replaced by the shortest one that leaves forwards (:func:`_forward_route`), when
+    that is at most ``round_block`` metres longer: ``targets`` are the wave's targets
+    and ``closed()`` the cells closed on it (without the discs round the cars ahead
+    going the car's way, which it follows). ``waver`` may then hold that wave."""
     assert isinstance(team, Car)
     team.routes[i] = None
     if cell is None or not np.isfinite(waver.dist[cell]) or waver.dist[cell] <= 0:
         return None
-    cells = path_to(waver.dist, cell, g.resolution, passable)
+    x, y = float(team.x[i]), float(team.y[i])
+    route = _route(team, i, path_to(waver.dist, cell, g.resolution, passable), g)
+    point = carrot(route, x, y, config.lookahead)
+    if config.round_block > 0 and _behind(team, i, point):
+        shut = closed() if closed is not None else None
+        forward = _forward_route(team, i, cell, waver, g, passable, config, targets, shut)
+        if forward is not None:
+            route = forward
+            point = carrot(route, x, y, config.lookahead)
+    team.routes[i] = route
+    return point
+
+
+def _followed(team: Team, i: int, near: float = ONCOMING_NEAR) -> npt.NDArray[np.bool_]:
+    """Which robots ahead of robot i (in front of it along its heading) it may follow
+    rather than turn round for: those heading within 90 deg of its heading, and any
+    farther than ``near`` metres."""
+    h = float(team.heading[i])
+    along = (team.x - team.x[i]) * math.cos(h) + (team.y - team.y[i]) * math.sin(h)
+    far = np.hypot(team.x - team.x[i], team.y - team.y[i]) > near
+    out: npt.NDArray[np.bool_] = (along > 0) & ((np.cos(team.heading - h) > 0) | far)
+    out[i] = False
+    return out
+
+
+def _their_side(
+    cells: npt.NDArray[np.intp], mine: tuple[int, int], theirs: tuple[int, int]
+) -> npt.NDArray[np.intp]:
+    """Of ``cells`` (K, 2) round another robot's cell ``theirs``, those nearer it than
+    the planning robot's cell ``mine``: an artificial obstacle that never shuts the
+    cells about the robot planning, so two robots closer than twice its radius can
+    still part."""
+    near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
+    near_them = np.hypot(cells[:, 0] - theirs[0], cells[:, 1] - theirs[1])
+    out: npt.NDArray[np.intp] = cells[near_them < near_me]
+    return out
+
+
+def _route(team: Team, i: int, cells: npt.NDArray[np.int64], g: Grid) -> F64:
+    """World points (K, 2) of a path's ``cells``, the first at robot i itself."""
     px, py = g.cell_centres(cells[:, 0], cells[:, 1])
     route = np.column_stack([px, py]).astype(np.float64)
     route[0] = team.x[i], team.y[i]
-    team.routes[i] = route
-    return carrot(route, float(team.x[i]), float(team.y[i]), config.lookahead)
+    return route
+
+
+def _behind(team: Car, i: int, point: tuple[float, float]) -> bool:
+    """Whether ``point`` lies more than car i's ``behind`` angle off its heading."""
+    dx, dy = point[0] - float(team.x[i]), point[1] - float(team.y[i])
+    if math.hypot(dx, dy) <= 1e-9:
+        return False
+    off = (math.atan2(dy, dx) - float(team.heading[i]) + math.pi) % (2 * math.pi) - math.pi
+    return abs(off) > team.behind
+
+
+def _forward_route(
+    team: Car,
+    i: int,
+    cell: tuple[int, int],
+    waver: Wave,
+    g: Grid,
+    passable: npt.NDArray[np.bool_],
+    config: PatrolConfig,
+    targets: npt.NDArray[np.bool_] | None,
+    closed: npt.NDArray[np.intp] | None,
+) -> F64 | None:
+    """Car i's shortest route to ``cell`` with the cells up to 4 m behind it closed (it
+    drives on and round the block), if that is at most ``config.round_block`` metres
+    longer than the shortest (``waver.dist`` on entry); None otherwise, or at a dead
+    end (no such route). Runs a wave on ``waver``."""
+    r, c = (int(v) for v in g.world_to_cell(team.x[i], team.y[i]))
+    back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
+    shut = back if closed is None else np.concatenate([closed, back])
+    limit = float(waver.dist[cell]) + config.round_block
+    length = waver.to(passable, (r, c), cell, g.resolution, targets, shut, limit=limit)
+    if not np.isfinite(length):
+        return None
+    return _route(team, i, path_to(waver.dist, cell, g.resolution, passable), g)
 
 
 def run_patrol(
@@ -860,6 +958,9 @@ def run_patrol(
     dvt = np.empty(steps)
 
     obst = disc_offsets(config.r_obst, g.resolution)
+    # A car that drives on round the block follows others closely; a whole disc round
+    # each would shut every cell about two cars nearer than 2 r_obst, and both stand.
+    halve = config.round_block > 0 and config.model == "car" and config.car_planner == "track"
     forward = config.forward_wave and isinstance(team, Car) and team.planner == "track"
     # Forward waves: from which step other robots have shut each car's way ahead.
     shut = np.full(len(team), -1, dtype=np.int64)
@@ -890,14 +991,22 @@ def run_patrol(
             f.observe(r[heard], c[heard], disc)
 
     def closed_cells(
-        i: int, r: npt.NDArray[np.intp], c: npt.NDArray[np.intp], now: int
+        i: int,
+        r: npt.NDArray[np.intp],
+        c: npt.NDArray[np.intp],
+        now: int,
+        following: bool = False,
     ) -> npt.NDArray[np.intp] | None:
         """Cells closed on robot i's path-finding map, as (row, column) pairs: the
         crowding rule closes the active semaphores it does not hold, or discs around
         the other robots it hears of; a robot giving way closes discs around the
         earlier robots near it (its own cell stays open); a tracking car's forward wave
         closes the cells behind it while the way ahead leads on (``config.forward_wave``,
-        :data:`FOLLOW_TIME`)."""
+        :data:`FOLLOW_TIME`). ``following``: for a car driving on rather than turning
+        round (``config.round_block``): no disc round the robots ahead of it going its
+        way (they clear the street as it follows) nor round those ahead farther than
+        :data:`ONCOMING_NEAR` (they may turn off before they meet it), and no forward
+        wave."""
         heard = label == label[i]
         parts: list[npt.NDArray[np.intp]] = []
         if yielding[i] >= now:
@@ -909,12 +1018,15 @@ def run_patrol(
         if config.crowding == "semaphores":
             parts.append(sems.closed_cells(i, heard))
         if config.crowding == "obstacles" and len(team) > 1:
-            parts += [
-                np.column_stack(disc_cells(obst, int(r[j]), int(c[j]), passable.shape))
-                for j in np.flatnonzero(heard).tolist()
-                if j != i
-            ]
-        if forward:
+            ahead = _followed(team, i) if following else np.zeros(len(team), dtype=bool)
+            for j in np.flatnonzero(heard & ~ahead).tolist():
+                if j == i:
+                    continue
+                cells = np.column_stack(disc_cells(obst, int(r[j]), int(c[j]), passable.shape))
+                if halve:
+                    cells = _their_side(cells, (int(r[i]), int(c[i])), (int(r[j]), int(c[j])))
+                parts.append(cells)
+        if forward and not following:
             back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
             start = (int(r[i]), int(c[i]))
             if leads_on(passable, np.concatenate([back, *parts]), start):
@@ -1036,6 +1148,7 @@ def run_patrol(
         for i in range(len(team)):
             held = aims[i]
             mine_fog = own[0 if shared else i]
+            closed: npt.NDArray[np.intp] | None = None
             if (
                 hold_fast
                 and held is not None
@@ -1057,7 +1170,13 @@ def run_patrol(
                     targets,
                     closed,
                     config,
-                    _car_carrot if tracking else _path_goal,
+                    partial(
+                        _car_carrot,
+                        targets=targets,
+                        closed=partial(closed_cells, i, r, c, k, True),
+                    )
+                    if tracking
+                    else _path_goal,
                 )
                 if towards is not None:
                     directions.append(_unit_towards(team, i, towards))
@@ -1261,7 +1380,19 @@ def run_patrol(
                 goal = None if pick is None else (int(rr[pick]), int(cc[pick]))
                 aims[i], aimed_at[i] = goal, mine.t
             if tracking:
-                goals.append(_car_carrot(team, i, goal, waver, g, passable, config))
+                goals.append(
+                    _car_carrot(
+                        team,
+                        i,
+                        goal,
+                        waver,
+                        g,
+                        passable,
+                        config,
+                        targets=pulling,
+                        closed=partial(closed_cells, i, r, c, k, True),
+                    )
+                )
                 if goals[-1] is not None:
                     # Steer for the point ahead on the path (refinement then moves it).
                     px, py = goals[-1]

@@ -1,0 +1,160 @@
+"""Why tracking cars turn round, and whether they stand: one street-site run, watched.
+
+For one run of :mod:`benchmarks.patrol_cars`'s setting (street site, cars, refinement,
+artificial obstacles for teams, places out of sight, ``--turn-penalty 10``,
+``--round-block``), every reversing manoeuvre a car begins because its path leaves
+behind it (cause ``behind``) is put in one class, by the shortest route to the same
+place that leaves forwards (the cells up to 4 m behind the car closed,
+:func:`sonarmap.patrol.manoeuvre.behind_cells`):
+
+- ``near``: the place is under 4 m away along the path;
+- ``dead end``: no route leaves forwards even with no other robot about;
+- ``others shut forward, same way`` / ``head-on``: one does, but not with the discs
+  round the other robots (artificial obstacles, 3 m) closed; it does again with only
+  the discs round robots ahead going the car's way left open (``same way``), or not;
+- ``forward longer``: one does with every disc closed, but it is longer.
+
+Reported: the count of each class, the DVT each accounts for (% of the team's time,
+every step of the manoeuvre), the extra length of the forward routes (m), and per car
+the metres driven and the steps it stood still (a car standing for good is a
+deadlock the DVT does not show).
+
+Run with ``python -m benchmarks.patrol_cars_why --site 0 --cars 5 --duration 600
+[--round-block 60]``; one process, one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from collections import Counter
+from typing import Any
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+import numpy.typing as npt
+
+from sonarmap.patrol import PatrolConfig, run_patrol
+from sonarmap.patrol.fog import Fog, disc_cells, disc_offsets
+from sonarmap.patrol.manoeuvre import behind_cells
+from sonarmap.patrol.maps import street_territory
+from sonarmap.patrol.paths import Wave
+from sonarmap.patrol.reach import reach
+from sonarmap.patrol.robots import Car, Team
+
+
+def watch_run(site: int, cars: int, duration: float, round_block: float) -> dict[str, Any]:
+    """One run's classes of turns and standing (see the module's notes)."""
+    t = street_territory(site)
+    cfg = PatrolConfig(
+        model="car",
+        refine=True,
+        crowding="obstacles" if cars > 1 else "none",
+        duration=duration,
+        turn_penalty=10.0,
+        out_of_sight=True,
+        round_block=round_block,
+    )
+    passable = reach(t, cfg.radius, mode="reachable", vision=cfg.vision).passable
+    g = t.grid
+    wave = Wave(passable.shape)
+    obst = disc_offsets(3.0 * cfg.radius, g.resolution)
+    seen: dict[int, int] = {}
+    current: dict[int, str] = {}
+    count: Counter[str] = Counter()
+    steps: Counter[str] = Counter()
+    extra: list[float] = []
+    last: list[npt.NDArray[np.float64]] = []
+    driven = np.zeros(cars)
+    still = np.zeros(cars, dtype=np.int64)
+
+    def disc(team: Team, j: int) -> npt.NDArray[np.intp]:
+        r, c = (int(v) for v in g.world_to_cell(team.x[j], team.y[j]))
+        return np.column_stack(disc_cells(obst, r, c, passable.shape))
+
+    def classify(team: Car, i: int, route: npt.NDArray[np.float64]) -> str:
+        x, y, h = float(team.x[i]), float(team.y[i]), float(team.heading[i])
+        r0, c0 = g.world_to_cell(x, y)
+        gr, gc = g.world_to_cell(route[-1, 0], route[-1, 1])
+        start, goal = (int(r0), int(c0)), (int(gr), int(gc))
+        length = float(np.hypot(*np.diff(route, axis=0).T).sum())
+        if length < 4.0:
+            return "near"
+        tgt = np.zeros_like(passable)
+        tgt[goal] = True
+        back = behind_cells(x, y, h, g)
+
+        def forward(others: list[int]) -> float:
+            shut = np.concatenate([back, *(disc(team, j) for j in others)])
+            return wave.to(passable, start, goal, g.resolution, tgt, shut)
+
+        if not np.isfinite(forward([])):
+            return "dead end"
+        everyone = [j for j in range(len(team)) if j != i]
+        with_all = forward(everyone)
+        if np.isfinite(with_all):
+            extra.append(with_all - length)
+            return "forward longer"
+        along = (team.x - x) * np.cos(h) + (team.y - y) * np.sin(h)
+        same = (along > 0) & (np.cos(team.heading - h) > 0)
+        if np.isfinite(forward([j for j in everyone if not same[j]])):
+            return "others shut forward, same way"
+        return "others shut forward, head-on"
+
+    def on_step(_t: float, team: Team, _fog: Fog) -> None:
+        assert isinstance(team, Car)
+        pose = np.concatenate([team.x, team.y])
+        if last:
+            d = np.hypot(team.x - last[0][:cars], team.y - last[0][cars:])
+            driven[:] += d
+            still[:] += d < 1e-9
+        last[:] = [pose]
+        for i, plan in enumerate(team.plans):
+            if plan is None:
+                current.pop(i, None)
+                continue
+            if plan.reverses and i in current:
+                steps[current[i]] += 1
+            if seen.get(i) == id(plan):
+                continue
+            seen[i] = id(plan)
+            route = team.routes[i]
+            if not plan.reverses or route is None or team.cause[i] != "behind":
+                current.pop(i, None)
+                continue
+            kind = classify(team, i, route)
+            count[kind] += 1
+            current[i] = kind
+
+    result = run_patrol(t, cfg, robots=cars, seed=0, on_step=on_step)
+    n = cars * duration / cfg.dt
+    return {
+        "site": site,
+        "cars": cars,
+        "duration": duration,
+        "round_block": round_block,
+        "dvt": round(float(result.summary()["dvt"]), 2),
+        "mean_idleness": round(float(result.summary()["mean_idleness"]), 1),
+        "behind_turns": dict(count),
+        "behind_dvt": {k: round(100.0 * v / n, 2) for k, v in steps.items()},
+        "forward_extra_m": sorted(round(e) for e in extra),
+        "driven_m": driven.round().tolist(),
+        "standing_steps": still.tolist(),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.patrol_cars_why", description=__doc__)
+    ap.add_argument("--site", type=int, default=0)
+    ap.add_argument("--cars", type=int, default=5)
+    ap.add_argument("--duration", type=float, default=600.0)
+    ap.add_argument("--round-block", type=float, default=0.0)
+    a = ap.parse_args(argv)
+    print(json.dumps(watch_run(a.site, a.cars, a.duration, a.round_block)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
