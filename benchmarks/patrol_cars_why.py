@@ -60,8 +60,8 @@ def watch_run(site: int, cars: int, duration: float, round_block: float) -> dict
     passable = reach(t, cfg.radius, mode="reachable", vision=cfg.vision).passable
     g = t.grid
     wave = Wave(passable.shape)
-    obst = disc_offsets(3.0 * cfg.radius, g.resolution)
-    seen: dict[int, int] = {}
+    obst = disc_offsets(cfg.r_obst, g.resolution)
+    seen: dict[int, object] = {}
     current: dict[int, str] = {}
     count: Counter[str] = Counter()
     steps: Counter[str] = Counter()
@@ -114,12 +114,14 @@ def watch_run(site: int, cars: int, duration: float, round_block: float) -> dict
         for i, plan in enumerate(team.plans):
             if plan is None:
                 current.pop(i, None)
+                seen.pop(i, None)
                 continue
             if plan.reverses and i in current:
                 steps[current[i]] += 1
-            if seen.get(i) == id(plan):
+            # The plan itself, not its id(): a freed plan's address is often reused.
+            if seen.get(i) is plan:
                 continue
-            seen[i] = id(plan)
+            seen[i] = plan
             route = team.routes[i]
             if not plan.reverses or route is None or team.cause[i] != "behind":
                 current.pop(i, None)

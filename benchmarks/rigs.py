@@ -33,7 +33,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, cast
 
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+if __name__ == "__main__":
+    # One core per run, set before numba is imported; not when benchmarks.doors or a
+    # test imports this module (numba may already have started its threads there).
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import pandas as pd
 

@@ -12,8 +12,8 @@ true alignment can score lower than the found one, which then is not the alignme
 fault.
 
 Run with ``python -m benchmarks.team_align --map PLAN [--duration 1200] [--seed 0]
-[--coarse 0.1 ...]``; prints JSON. A search at a fine prior's own resolution (the
-warehouse's 0.03 m) takes minutes and gigabytes.
+[--coarse 0.1 ...]``; prints JSON. What a search at a fine prior's own resolution
+costs is on the results page (docs/results/2026-12-06-team-real-maps-align.md).
 """
 
 from __future__ import annotations

@@ -130,6 +130,11 @@ def placement(
     }
 
 
+def _m(v: float | None) -> str:
+    """Metres for the console; a robot with no such poses (one robot receives none)."""
+    return "n/a" if v is None else f"{v:.3f} m"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--map", required=True, help="A map_server YAML or a built-in name.")
@@ -180,8 +185,8 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(row)
             print(
                 f"{start:9s} robot {row['robot']}: F1 {row['map_f1']:.3f}, rigid to truth "
-                f"{row['map_f1_rigid_to_truth']:.3f}, ATE own {row['ate_own_m']:.3f} m, "
-                f"received {row['ate_received_m']:.3f} m"
+                f"{row['map_f1_rigid_to_truth']:.3f}, ATE own {_m(row['ate_own_m'])}, "
+                f"received {_m(row['ate_received_m'])}"
             )
         mean = np.mean([r["map_f1"] for r in rows if r["start"] == start])
         print(f"{start:9s} mean F1 {mean:.4f}")

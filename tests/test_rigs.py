@@ -111,6 +111,9 @@ def test_inverse_no_echo_reach_clears_only_near_cells() -> None:
     assert np.nanmin(full[truth.occupancy > 0.5]) < 0.5  # the wall cleared
     with pytest.raises(ConfigError, match="no_echo_reach"):
         make_mapper("inverse", no_echo_reach=0.0)
+    # Readings with no echo ignored, a reach would change nothing: refused, not ignored.
+    with pytest.raises(ConfigError, match="no_echo='free'"):
+        make_mapper("inverse", no_echo="ignore", no_echo_reach=1.0)
 
 
 def test_a_sweep_scenario_takes_a_rig(tmp_path: object) -> None:

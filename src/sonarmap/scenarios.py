@@ -986,7 +986,7 @@ def suite(
     """A training scene: rooms off a corridor, drawn from the seed, toured by a preset rig.
 
     The shape users map (the held-out ``office`` is one), drawn by other rules: a floor
-    7 to 9 m long; a corridor 1.5 to 2.2 m wide along it, off its centre by up to 0.5 m;
+    7 to 9 m long; a corridor 1.5 to 2.2 m wide along it, off its centre by up to 0.4 m;
     two rooms on one side split at 40-60 % of the length and one or two on the other
     (rooms 2.6 to 3.4 m deep); each room with a door of 0.7 to 1.1 m at a random place
     in its corridor wall (the scene's passages), a cabinet against its back wall and a

@@ -147,6 +147,11 @@ class InverseMapper(Mapper):
         choice("no_echo", no_echo, ("free", "ignore"))
         if no_echo_reach is not None:
             number("no_echo_reach", no_echo_reach, 0.0, None, lo_open=True)
+            if no_echo != "free":
+                raise ConfigError(
+                    "no_echo_reach shortens the beams of readings with no echo: it needs "
+                    f"no_echo='free', got no_echo={no_echo!r}"
+                )
         if dr is not None:
             number("dr", dr, 0.0, None)
         if band_offset is not None:

@@ -395,7 +395,7 @@ def layer_frames(
     joining the layer's poses to the robot's own poses.
 
     A received pose's estimate is its source's, in the source's frame (the source's
-    believed start, off by a metre and ten degrees from ours); each closure between an
+    believed start, which need not be ours); each closure between an
     own pose ``a`` and a pose ``b`` of a layer says where ``b`` is in our frame, and so
     proposes ``(est_a (+) T_ab) (+) inv(est_b)`` as the layer's frame. The layer's
     frame is the median of its proposals (x and y each, the heading by the median of
@@ -838,7 +838,8 @@ def align_to_prior(
         Radians; default two heading steps.
     shrink : float
         Factor on the jitter per round; the first jitter is half a heading step and
-        two prior cells.
+        two cells of the coarse search (``coarse_resolution``, or the prior's cell
+        when that is finer).
     max_points : int
         The built map's occupied points are thinned (evenly, deterministically) to at
         most this many.
@@ -893,7 +894,8 @@ def align_to_prior(
     field_ = _DistanceField(prior, reach)
     near = np.maximum(0.0, 1.0 - field_.dist / reach)
     h = prior.grid.resolution
-    factor = max(1, math.floor(coarse_resolution / h + 1e-9))
+    # At most the whole prior in one coarse cell: a larger factor only pads with zeros.
+    factor = min(max(1, math.floor(coarse_resolution / h + 1e-9)), max(prior.grid.shape))
     near_c, grid_c = _coarse_near(near, prior.grid, factor)
     maps = _correlate_all(pts, near_c, grid_c, angles)
     if guess is not None:
