@@ -574,10 +574,12 @@ def test_cars_never_turn_tighter_than_their_radius_and_keep_the_speed_rule() -> 
             turn = abs(math.remainder(b[i, 2] - a[i, 2], 2 * math.pi))
             chord = math.hypot(b[i, 0] - a[i, 0], b[i, 1] - a[i, 1])
             # An arc of radius R >= 3.5 m turning by `turn` has chord 2 R sin(turn / 2).
-            assert chord >= 2 * 3.5 * math.sin(turn / 2) - 1e-9
+            assert chord >= 2 * 3.5 * math.sin(turn / 2) - 1e-6
             rr, cc = t.grid.world_to_cell(a[i, 0], a[i, 1])
             limit = band_speed(float(t.clearance[int(rr), int(cc)])) * 0.5
-            assert chord <= limit + 1e-9  # never faster than the rule allows there
+            # Never faster than the rule allows there, to a micrometre: the arcs'
+            # trigonometry leaves a step a few nanometres off its length.
+            assert chord <= limit + 1e-6
     s = res.summary()
     assert s["dvt"] > 0  # the dead-end corridor forces escapes
     assert len(s["dvt_per_robot"]) == 2
