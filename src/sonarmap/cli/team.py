@@ -427,21 +427,23 @@ def _run_zmq_team(
     plan: OccupancyMap,
     config: MissionConfig,
     robots: int,
-    settings: tuple[NetworkParams, ExchangeParams],
+    *,
+    network: NetworkParams,
+    exchange: ExchangeParams,
     seed: int,
     progress: Any,
-    given: tuple[str | None, list[Any]],
-    prior: tuple[OccupancyMap | None, dict[str, Any] | None],
+    preset: str | None,
+    routes: list[Any],
+    prior: OccupancyMap | None,
+    prior_desc: dict[str, Any] | None,
 ) -> dict[str, Any]:
     """The team as local ZeroMQ processes (:func:`sonarmap.team.launcher.run_zmq_team`):
     the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json``.
 
-    ``given`` is the preset applied (None for none) and one route or None per robot
-    (None: the node's seeded patrol route); ``prior`` the robots' prior map (None: the
-    plan) and what the summary records of it, as the simulated team's."""
-    network, exchange = settings
-    preset, routes = given
-    prior_map, prior_desc = prior
+    ``preset`` is the preset applied (None for none); ``routes`` one route (ndarray
+    (T, 4): t, x, y, theta) or None per robot (None: the node's seeded patrol route);
+    ``prior`` the robots' prior map (None: the plan) and ``prior_desc`` what the
+    summary records of it, as the simulated team's."""
     # Imported here: the node module pulls in the process machinery only zmq needs.
     from ..team.launcher import run_zmq_team
 
@@ -456,14 +458,14 @@ def _run_zmq_team(
             progress=progress,
             folder=tmp / "nodes",
             routes=routes,
-            prior=prior_map,
+            prior=prior,
         )
         result.summary["preset"] = preset
         if prior_desc is not None:
             result.summary["prior"] = prior_desc
-        if prior_map is not None:
+        if prior is not None:
             # The prior the robots were given, beside the truth they were scored on.
-            write_map(prior_map, tmp / "prior")
+            write_map(prior, tmp / "prior")
         atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
     return result.summary
 
@@ -665,17 +667,19 @@ def run_cmd(
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
         with progress("team") as update:
             tick = partial(_tick, update, f"{robots} nodes")
-            given = [routes.get(i) for i in range(robots)]
             s = _run_zmq_team(
                 out,
                 plan,
                 config,
                 robots,
-                (net, protocol),
-                seed,
-                tick,
-                (preset_used, given),
-                (prior, prior_desc),
+                network=net,
+                exchange=protocol,
+                seed=seed,
+                progress=tick,
+                preset=preset_used,
+                routes=[routes.get(i) for i in range(robots)],
+                prior=prior,
+                prior_desc=prior_desc,
             )
         console.print(
             f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
