@@ -252,8 +252,10 @@ def test_a_flood_of_bad_frames_logs_a_bounded_number_of_lines(
 # --- B: no livelock --------------------------------------------------------------------
 
 
-def _linked(pair: tuple[ZmqTransport, ZmqTransport], wait: float) -> ReliableLink:
-    link = ReliableLink(pair[0], [1], wait_timeout=wait, retry=0.05)
+def _linked(
+    pair: tuple[ZmqTransport, ZmqTransport], wait: float, retry: float = 0.05
+) -> ReliableLink:
+    link = ReliableLink(pair[0], [1], wait_timeout=wait, retry=retry)
     for k in range(3):
         link.send(1, 0, "advert", f"frame {k}".encode())
     return link
@@ -293,9 +295,7 @@ def test_a_peer_asking_again_in_a_loop_gets_the_log_once_per_half_retry(
     ones already covered."""
     a, b = pair
     _send(a, 1, _pack({"next": 0, "ack": 0}), "hello")  # connected both ways
-    link = ReliableLink(a, [1], wait_timeout=5.0, retry=30.0)
-    for k in range(3):
-        link.send(1, 0, "advert", f"frame {k}".encode())
+    link = _linked(pair, 5.0, retry=30.0)
     _send(b, 0, _pack({"next": 1, "ack": 0}), "hello")
     for _ in range(20):
         _send(b, 0, _pack({"next": 1, "ack": 0}), "hello")
@@ -313,10 +313,8 @@ def test_a_peer_asking_again_in_a_loop_gets_the_log_once_per_half_retry(
 def test_a_request_after_half_a_retry_gets_the_whole_log_again(
     pair: tuple[ZmqTransport, ZmqTransport],
 ) -> None:
-    a, b = pair
-    link = ReliableLink(a, [1], wait_timeout=5.0, retry=0.2)
-    for k in range(3):
-        link.send(1, 0, "advert", f"frame {k}".encode())
+    _, b = pair
+    link = _linked(pair, 5.0, retry=0.2)
     for _ in range(2):
         _send(b, 0, _pack({"next": 0, "ack": 0}), "hello")
         end = time.monotonic() + DEADLINE
