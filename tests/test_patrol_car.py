@@ -37,12 +37,18 @@ def _corridor_map(res: float = 0.5) -> Territory:
     return Territory.from_map(OccupancyMap(g, occ))
 
 
+def _block_site(width: float, west: float, east: float, res: float = 0.5) -> Territory:
+    """A ``width`` x 30 m site with one block from x = ``west`` to ``east`` m, 5 m off
+    the south and north edges (metres)."""
+    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(int(30 / res), int(width / res)))
+    occ = np.zeros(g.shape, np.float32)
+    occ[int(5 / res) : int(25 / res), int(west / res) : int(east / res)] = 1.0
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
 def _ring_map(res: float = 0.5) -> Territory:
     """A 40 x 30 m yard round a 30 x 20 m block: a ring of 5 m streets."""
-    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(int(30 / res), int(40 / res)))
-    occ = np.zeros(g.shape, np.float32)
-    occ[int(5 / res) : int(25 / res), int(5 / res) : int(35 / res)] = 1.0
-    return Territory.from_map(OccupancyMap(g, occ))
+    return _block_site(40.0, 5.0, 35.0, res)
 
 
 def test_behind_cells_lie_behind_the_car_within_the_radius() -> None:
@@ -319,10 +325,7 @@ def test_tracking_cars_do_not_manoeuvre_for_places_in_sight() -> None:
 def _yard_and_block_map(res: float = 0.5) -> Territory:
     """A 60 x 30 m site: a 25 m yard on the west, then a 30 x 20 m block with 5 m
     streets round it (narrower than a car's 7 m turning circle)."""
-    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(int(30 / res), int(60 / res)))
-    occ = np.zeros(g.shape, np.float32)
-    occ[int(5 / res) : int(25 / res), int(25 / res) : int(55 / res)] = 1.0
-    return Territory.from_map(OccupancyMap(g, occ))
+    return _block_site(60.0, 25.0, 55.0, res)
 
 
 def test_a_car_drives_round_the_block_rather_than_turn_round_when_allowed() -> None:
