@@ -560,6 +560,15 @@ class Car(Team):
             self.plans[i] = None
         return end
 
+    def is_behind(self, i: int, point: tuple[float, float]) -> bool:
+        """Whether the world ``point`` (metres) lies more than ``behind`` radians off
+        car i's heading, the angle past which the tracking car manoeuvres rather than
+        pursues; a point at the car itself is not behind."""
+        dx, dy = point[0] - float(self.x[i]), point[1] - float(self.y[i])
+        if math.hypot(dx, dy) <= 1e-9:
+            return False
+        return abs(_wrap(math.atan2(dy, dx) - float(self.heading[i]))) > self.behind
+
     def _street_axis(self, i: int, towards: float) -> float:
         """The heading car i's fallback aligns with: its route's direction from 1 to
         3 m on, or the opposite one when that is nearer its heading (a car askew in a

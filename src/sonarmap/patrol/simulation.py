@@ -770,7 +770,7 @@ def _car_carrot(
     x, y = float(team.x[i]), float(team.y[i])
     route = _route(team, i, path_to(waver.dist, cell, g.resolution, passable), g)
     point = carrot(route, x, y, config.lookahead)
-    if config.round_block > 0 and _behind(team, i, point):
+    if config.round_block > 0 and team.is_behind(i, point):
         shut = closed() if closed is not None else None
         forward = _forward_route(team, i, cell, waver, g, passable, config, targets, shut)
         if forward is not None:
@@ -811,15 +811,6 @@ def _route(team: Team, i: int, cells: npt.NDArray[np.int64], g: Grid) -> F64:
     route = np.column_stack([px, py]).astype(np.float64)
     route[0] = team.x[i], team.y[i]
     return route
-
-
-def _behind(team: Car, i: int, point: tuple[float, float]) -> bool:
-    """Whether ``point`` lies more than car i's ``behind`` angle off its heading."""
-    dx, dy = point[0] - float(team.x[i]), point[1] - float(team.y[i])
-    if math.hypot(dx, dy) <= 1e-9:
-        return False
-    off = (math.atan2(dy, dx) - float(team.heading[i]) + math.pi) % (2 * math.pi) - math.pi
-    return abs(off) > team.behind
 
 
 def _forward_route(
