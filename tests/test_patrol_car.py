@@ -430,6 +430,7 @@ def test_two_cars_closer_than_their_obstacles_part_when_driving_on() -> None:
     assert _steps_moving(60.0) >= 50  # measured: 59 of 59
 
 
-@pytest.mark.xfail(strict=True, reason="without round_block the whole discs shut both cars in")
 def test_two_cars_closer_than_their_obstacles_part_by_default() -> None:
-    assert _steps_moving(0.0) >= 50  # measured: 0 of 59
+    # Without round_block (the library's default) the whole discs shut both cars in
+    # (0 of 59 steps moving); tracking cars now always close only the other's side.
+    assert _steps_moving(0.0) >= 50  # measured: 59 of 59

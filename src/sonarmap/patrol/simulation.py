@@ -949,9 +949,10 @@ def run_patrol(
     dvt = np.empty(steps)
 
     obst = disc_offsets(config.r_obst, g.resolution)
-    # A car that drives on round the block follows others closely; a whole disc round
-    # each would shut every cell about two cars nearer than 2 r_obst, and both stand.
-    halve = config.round_block > 0 and config.model == "car" and config.car_planner == "track"
+    # A whole disc round each of two tracking cars nearer than 2 r_obst shuts every cell
+    # about both, and neither has a path or a direction: both stand for good. The thesis's
+    # car escapes at random instead, and keeps the thesis's whole discs.
+    halve = config.model == "car" and config.car_planner == "track"
     forward = config.forward_wave and isinstance(team, Car) and team.planner == "track"
     # Forward waves: from which step other robots have shut each car's way ahead.
     shut = np.full(len(team), -1, dtype=np.int64)
