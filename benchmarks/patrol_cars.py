@@ -8,7 +8,10 @@ choose among the places out of their sight with places behind them damped
 (``--turn-penalty 10``; ``--turn-penalty 0 --no-out-of-sight`` is the library's
 default, the thesis's pulls) and drive on round the block rather than turn round when
 that is at most 60 m longer, following the cars ahead going their way
-(``--round-block 60``; 0 is the library's default, the shortest path). For each site,
+(``--round-block 60``; 0 is the library's default, the shortest path); ``--one-way
+teams`` drives every street narrower than the turning circle one way only
+(:mod:`sonarmap.patrol.oneway`) in the runs of more than one car (``all``: every run;
+``off``, the default: none). For each site,
 planner, team size and seed one run of ``--duration`` simulated seconds, reporting:
 
 - ``DVT``: the team's mean share of time in the dead-end escape mode, %;
@@ -28,7 +31,8 @@ planner, team size and seed one run of ``--duration`` simulated seconds, reporti
 
 Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
 [--planners track thesis] [--crowding obstacles] [--forward-wave] [--give-up 3]
-[--turn-penalty 10] [--no-out-of-sight] [--round-block 60] [--seeds 0]
+[--turn-penalty 10] [--no-out-of-sight] [--round-block 60] [--one-way off|teams|all]
+[--seeds 0]
 [--duration 3600]
 [--json F]``; one process, one core (``NUMBA_NUM_THREADS=1``). Each run prints one
 line as it ends; the table follows.
@@ -63,6 +67,7 @@ def run_one(
     turn_penalty: float = 10.0,
     out_of_sight: bool = True,
     round_block: float = 60.0,
+    one_way: bool = False,
 ) -> dict[str, Any]:
     """One run's figures (see the module's notes)."""
     config = PatrolConfig(
@@ -73,6 +78,7 @@ def run_one(
         turn_penalty=turn_penalty,
         out_of_sight=out_of_sight,
         round_block=round_block,
+        one_way=one_way,
         refine=True,
         crowding=crowding if cars > 1 else "none",
         duration=duration,
@@ -102,6 +108,7 @@ def run_one(
         "turn_penalty": turn_penalty,
         "out_of_sight": out_of_sight,
         "round_block": round_block,
+        "one_way": one_way,
         "seed": seed,
         "duration": duration,
         "dvt": round(float(s["dvt"]), 2),
@@ -126,6 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--turn-penalty", type=float, default=10.0)
     ap.add_argument("--no-out-of-sight", dest="out_of_sight", action="store_false")
     ap.add_argument("--round-block", type=float, default=60.0)
+    ap.add_argument("--one-way", choices=["off", "teams", "all"], default="off")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--json", type=Path)
@@ -147,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
                         a.turn_penalty,
                         a.out_of_sight,
                         a.round_block,
+                        a.one_way == "all" or (a.one_way == "teams" and cars > 1),
                     )
                     print(json.dumps(row), flush=True)
                     rows.append(row)

@@ -236,6 +236,12 @@ PATROL_OPTIONS = (
         "rather than turn round for a path behind it; 0: the shortest path.",
     ),
     Opt(
+        "one_way",
+        "Tracking cars: one-way streets, every street narrower than the turning circle "
+        "but dead-end stubs driven one way only, derived from the map.",
+        off="--two-way",
+    ),
+    Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
         "nearest obstacle, in order; the last D may be inf.",

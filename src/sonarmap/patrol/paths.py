@@ -114,6 +114,7 @@ _UNITS = np.array(
 @nb.njit
 def _dial(
     code: npt.NDArray[np.uint8],
+    allow: npt.NDArray[np.uint8],
     width: int,
     start: int,
     resolution: float,
@@ -125,7 +126,8 @@ def _dial(
     visit: Any,
     ctx: Any,
 ) -> tuple[int, npt.NDArray[np.int32]]:
-    """The wave on padded flat arrays (``dist`` all inf and ``first`` all 255 on entry).
+    """The wave on padded flat arrays (``dist`` all inf and ``first`` all 255 on entry);
+    ``allow`` holds per cell the steps out of it the wave may take (bit j for step j).
 
     Fills ``dist`` (metres) and ``first`` for the cells within ``limit`` metres, lists
     them in ``order`` (in the order taken) and returns their count and the bucket ring
@@ -227,7 +229,10 @@ def _dial(
                 # places along a wall or through a gap narrower than the robot would
                 # otherwise pull the robot towards places it cannot get to that way.
                 continue
+            au = allow[u]
             for j in range(8):
+                if not (au >> j) & 1:
+                    continue
                 v = u + step[j]
                 cv = code[v]
                 # Once a path leaves the cells the robot's centre may cross (to reach a
@@ -321,13 +326,19 @@ def _reset(
 class Wave:
     """The wave on grids of one shape, keeping its buffers between calls.
 
+    ``allowed`` (uint8, the grid's shape; default every step everywhere): the steps out
+    of each cell the wave may take, bit j for :data:`STEPS` [j] (one-way streets,
+    :mod:`.oneway`). :func:`path_to` then needs the same mask.
+
     A call returns views of those buffers: they hold until the next call (copy them to
     keep them longer). Only the cells the last wave reached are cleared before the next,
     so a wave cut short by ``limit`` costs about the cells it reaches, plus one pass
     over the grid to read the passable mask.
     """
 
-    def __init__(self, shape: tuple[int, int]) -> None:
+    def __init__(
+        self, shape: tuple[int, int], allowed: npt.NDArray[np.uint8] | None = None
+    ) -> None:
         rows, cols = shape
         self.shape = (int(rows), int(cols))
         self._width = cols + 2
@@ -335,6 +346,11 @@ class Wave:
         if size >= 2**31:
             raise ValueError(f"grid too large for the wave: {shape}")
         self._code = np.zeros(size, dtype=np.uint8)
+        self._allow = np.full(size, 255, dtype=np.uint8)
+        if allowed is not None:
+            if allowed.shape != self.shape:
+                raise ValueError(f"a wave for {self.shape} given allowed steps of {allowed.shape}")
+            self._inner(self._allow)[...] = allowed
         self._dist = np.full(size, np.inf)
         self._first = np.full(size, -1, dtype=np.int8)
         self._order = np.empty(size, dtype=np.int32)
@@ -399,6 +415,7 @@ class Wave:
         try:
             self._n, self._ring = _dial(
                 self._code,
+                self._allow,
                 self._width,
                 start_flat,
                 float(resolution),
@@ -444,6 +461,11 @@ class Wave:
     def dist(self) -> npt.NDArray[np.float64]:
         """Path length (metres) to every cell of the last wave; inf where none."""
         return self._inner(self._dist)  # type: ignore[return-value]
+
+    @property
+    def allowed(self) -> npt.NDArray[np.uint8]:
+        """The steps the wave may take out of each cell (see the class notes)."""
+        return self._inner(self._allow)  # type: ignore[return-value]
 
     @property
     def first(self) -> npt.NDArray[np.int8]:
@@ -513,6 +535,7 @@ def _back(
     steps: npt.NDArray[np.int64],
     resolution: float,
     through: npt.NDArray[np.bool_],
+    allowed: npt.NDArray[np.uint8],
 ) -> npt.NDArray[np.int64]:
     rows, cols = dist.shape
     # Every step is at least one cell long: the path has at most L / cell + 1 cells.
@@ -531,6 +554,9 @@ def _back(
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
                 continue
             if not through[rr, cc]:
+                continue
+            # The step from the predecessor here is step k reversed.
+            if not (allowed[rr, cc] >> ((k + 4) % 8)) & 1:
                 continue
             cost = diag if k % 2 == 1 else resolution
             # A predecessor on a shortest path: its length plus the step is this one's.
@@ -552,9 +578,12 @@ def path_to(
     target: tuple[int, int],
     resolution: float,
     passable: npt.NDArray[np.bool_] | None = None,
+    allowed: npt.NDArray[np.uint8] | None = None,
 ) -> npt.NDArray[np.int64]:
     """The cells (K, 2) of a shortest path from the wave's start to ``target``, start
     first, read back from the wave's lengths ``dist`` (metres).
+
+    ``allowed``: the wave's allowed steps (:class:`Wave`), if it had any.
 
     ``passable`` (the map the wave ran on) keeps the path to cells the wave went
     through: the wave also reaches, in one last step, target cells it may not cross,
@@ -571,7 +600,13 @@ def path_to(
     # No copies: a wave's lengths are a strided view of a whole-map buffer, and copying
     # it for every path read back would cost more than the wave.
     through = np.asarray(through, dtype=np.bool_)
-    return _back(dist, int(r), int(c), STEPS, float(resolution), through)
+    if allowed is None:
+        steps = np.full(dist.shape, 255, dtype=np.uint8)
+    else:
+        steps = np.asarray(allowed, dtype=np.uint8)
+        if steps.shape != dist.shape:
+            raise ValueError(f"allowed steps of {steps.shape} for a wave of {dist.shape}")
+    return _back(dist, int(r), int(c), STEPS, float(resolution), through, steps)
 
 
 @dataclass(frozen=True)

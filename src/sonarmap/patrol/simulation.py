@@ -44,6 +44,7 @@ from .manoeuvre import behind_cells, carrot, leads_on, turn_weights
 from .marching import Marching
 from .monitor import Monitor
 from .network import NETWORKS, components
+from .oneway import one_way
 from .paths import STEP_UNITS, Wave, nearest_step, path_to, shadows, straight_paths
 from .policies import POLICIES, choose, goal_pulls, reactive_pick
 from .reach import MODES as REACH_MODES
@@ -207,6 +208,13 @@ class PatrolConfig:
     #: reversing, where turning round on a street narrower than the turning circle
     #: does. 0 (the default): the shortest path, as the thesis's wave has it.
     round_block: float = 0.0
+    #: Track: one-way streets (:mod:`.oneway`): every street narrower than the cars'
+    #: turning circle that is no bridge of the street graph (dead-end stubs are) gets a
+    #: direction, so that every place can still be reached from every other, and the
+    #: cars' waves take its cells only that way: two cars never meet head-on in such a
+    #: street, and a place behind is reached round the block. Every car derives the
+    #: same system from the map. False (the default): every street two-way.
+    one_way: bool = False
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
     vision: float = 10.0
@@ -328,6 +336,11 @@ class PatrolConfig:
         if not (math.isfinite(self.round_block) and self.round_block >= 0):
             raise ConfigError(
                 f"round_block must be >= 0 metres, got {self.round_block}", field="round_block"
+            )
+        if self.one_way and not (self.model == "car" and self.car_planner == "track"):
+            raise ConfigError(
+                "one_way applies to tracking cars only (model 'car', car_planner 'track')",
+                field="one_way",
             )
         if not (0 <= self.give_up <= 1000):
             raise ConfigError(f"give_up must be in 0..1000, got {self.give_up}", field="give_up")
@@ -659,7 +672,7 @@ def _path_goal(
     (path motion; None when there is no cell or no clear step)."""
     if cell is None or not np.isfinite(waver.dist[cell]) or waver.dist[cell] <= 0:
         return None
-    cells = path_to(waver.dist, cell, g.resolution, passable)
+    cells = path_to(waver.dist, cell, g.resolution, passable, waver.allowed)
     px, py = g.cell_centres(cells[1:, 0], cells[1:, 1])
     x0, y0 = float(team.x[i]), float(team.y[i])
     x, y = x0, y0
@@ -768,7 +781,7 @@ def _car_carrot(
     if cell is None or not np.isfinite(waver.dist[cell]) or waver.dist[cell] <= 0:
         return None
     x, y = float(team.x[i]), float(team.y[i])
-    route = _route(team, i, path_to(waver.dist, cell, g.resolution, passable), g)
+    route = _route(team, i, path_to(waver.dist, cell, g.resolution, passable, waver.allowed), g)
     point = carrot(route, x, y, config.lookahead)
     if config.round_block > 0 and team.is_behind(i, point):
         shut = closed() if closed is not None else None
@@ -835,7 +848,7 @@ def _forward_route(
     length = waver.to(passable, (r, c), cell, g.resolution, targets, shut, limit=limit)
     if not np.isfinite(length):
         return None
-    return _route(team, i, path_to(waver.dist, cell, g.resolution, passable), g)
+    return _route(team, i, path_to(waver.dist, cell, g.resolution, passable, waver.allowed), g)
 
 
 def run_patrol(
@@ -1062,7 +1075,12 @@ def run_patrol(
         tour, _ = plan_tour(territory, passable, config.vision, (int(r0[0]), int(c0[0])))
         # Robots spread evenly along the tour: robot k joins it at the k-th share.
         target = (np.arange(len(team)) * len(tour)) // len(team)
-    waver = Wave(passable.shape)
+    streets = (
+        one_way(passable, territory.clearance, g.resolution, config.turn_radius)
+        if config.one_way
+        else None
+    )
+    waver = Wave(passable.shape, None if streets is None else streets.steps)
     n_watched = int(watched.sum())
     # Wall-side cells no wave reaches pull from the nearest cell one does, so that no
     # place of the territory is left without a pull (on real maps a fifth of the cells

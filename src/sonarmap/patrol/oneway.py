@@ -1,0 +1,404 @@
+"""One-way streets: a direction for every street too narrow for a car to turn round in.
+
+Where a street is narrower than a car's turning circle, two cars meeting head-on, or a
+car whose next place lies behind it, must reverse. Real traffic avoids this with a
+one-way street system, and so can the cars here, each deriving the same system from the
+map alone (no messages, deterministic):
+
+1. **Street graph.** The passable cells are thinned to their skeleton (Zhang and Suen's
+   thinning); skeleton cells with three or more skeleton neighbours are junctions
+   (8-connected groups of them one junction each), cells with one are ends. The skeleton
+   with its junctions removed falls into segments: the streets, edges between the
+   junctions (or an end) they touch; a ring of streets with no junction is cut at its
+   first cell, a junction of its own. Every passable cell belongs to the skeleton cell
+   nearest it along the grid's paths, and so to a street or a junction.
+2. **Orientation** (Robbins' theorem): a street graph has a strongly connected
+   orientation iff it is 2-edge-connected. Bridges (dead-end stubs, a lone street to a
+   part of the map) stay two-way; every other street is directed by a depth-first
+   search, tree edges away from the root and the others back towards it, which makes
+   each 2-edge-connected part strongly connected. Streets as wide as the turning circle
+   (twice their median clearance at least ``2 * turn_radius``) are then opened both ways
+   again, which keeps every place reachable from every other.
+3. **Allowed steps.** A one-way street's cells carry their distance along it from its
+   tail (:attr:`OneWay.along`). The wave's step from one of them to another of the same
+   street must not lower that distance by more than half a cell (the nearest skeleton
+   cell of neighbouring cells may jitter by a cell across the street, never by one step
+   against it). Junction cells, and a street's cells within its junction's reach of
+   either end (the largest clearance on the junction's skeleton cells, plus a cell) are
+   two-way, so that a car turns from one street into another through the junction.
+
+The result is a mask of allowed steps per cell for :class:`~sonarmap.patrol.paths.Wave`
+(bit j of a cell: step :data:`~sonarmap.patrol.paths.STEPS` [j] out of it is allowed).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import networkx as nx
+import numba as nb
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from .graph import cell_graph
+from .paths import STEPS
+
+__all__ = ["OneWay", "one_way", "thin"]
+
+B = npt.NDArray[np.bool_]
+I64 = npt.NDArray[np.int64]
+F64 = npt.NDArray[np.float64]
+
+#: Every step allowed (the mask of a two-way cell).
+ALL_STEPS = 255
+#: Slack, in cells, of a step within a one-way street against its direction: the nearest
+#: skeleton cell of two neighbouring cells differs by at most about a cell across a
+#: street, while a step against it lowers the distance along it by a whole cell.
+ALONG_SLACK = 0.5
+
+
+@nb.njit(cache=True)
+def _thin_pass(img: npt.NDArray[np.uint8], first: bool) -> bool:
+    """One sub-iteration of Zhang-Suen thinning on ``img`` (0/1, a zero border), in
+    place; True when it removed a cell."""
+    rows, cols = img.shape
+    remove = []
+    for r in range(1, rows - 1):
+        for c in range(1, cols - 1):
+            if img[r, c] == 0:
+                continue
+            # Neighbours P2..P9 clockwise from north.
+            p = (
+                img[r - 1, c],
+                img[r - 1, c + 1],
+                img[r, c + 1],
+                img[r + 1, c + 1],
+                img[r + 1, c],
+                img[r + 1, c - 1],
+                img[r, c - 1],
+                img[r - 1, c - 1],
+            )
+            b = 0
+            for k in range(8):
+                b += p[k]
+            if b < 2 or b > 6:
+                continue
+            a = 0
+            for k in range(8):
+                if p[k] == 0 and p[(k + 1) % 8] == 1:
+                    a += 1
+            if a != 1:
+                continue
+            if first:
+                if p[0] * p[2] * p[4] != 0 or p[2] * p[4] * p[6] != 0:
+                    continue
+            elif p[0] * p[2] * p[6] != 0 or p[0] * p[4] * p[6] != 0:
+                continue
+            remove.append((r, c))
+    for r, c in remove:
+        img[r, c] = 0
+    return len(remove) > 0
+
+
+def thin(mask: B) -> B:
+    """The skeleton of ``mask`` (Zhang and Suen 1984): one cell wide, 8-connected,
+    keeping the topology of each component (a loop of streets stays a loop)."""
+    img = np.zeros((mask.shape[0] + 2, mask.shape[1] + 2), dtype=np.uint8)
+    img[1:-1, 1:-1] = mask
+    # Each pass removes at least one layer of cells: bounded by the mask's size.
+    for _ in range(max(mask.shape) + 1):
+        a = _thin_pass(img, True)
+        b = _thin_pass(img, False)
+        if not (a or b):
+            break
+    out: B = img[1:-1, 1:-1].astype(bool)
+    return out
+
+
+@dataclass(frozen=True)
+class OneWay:
+    """A one-way street system on a grid (see the module's notes).
+
+    Attributes
+    ----------
+    steps : ndarray of uint8, shape grid
+        Allowed steps out of each cell: bit j for :data:`~sonarmap.patrol.paths.STEPS`
+        [j]; 255 on two-way cells and off the passable cells.
+    street : ndarray of int64, shape grid
+        The street each passable cell belongs to; -1 on junctions and elsewhere.
+    along : ndarray of float64, shape grid
+        Distance along its street from its tail, cells; NaN off the one-way streets.
+    one_way : ndarray of bool, shape (streets,)
+        Which streets are one-way.
+    widths : ndarray of float64, shape (streets,)
+        Each street's width, metres (twice the median clearance on its skeleton).
+    bridges : ndarray of bool, shape (streets,)
+        Which streets are bridges of the street graph (left two-way).
+    """
+
+    steps: npt.NDArray[np.uint8]
+    street: I64
+    along: F64
+    one_way: B
+    widths: F64
+    bridges: B
+
+    @property
+    def share(self) -> float:
+        """Share of the streets' cells that lie on one-way streets (0 without streets)."""
+        on = self.street >= 0
+        if not on.any():
+            return 0.0
+        return float(self.one_way[self.street[on]].mean())
+
+
+def _orient(n_nodes: int, ends: list[tuple[int, int]]) -> tuple[B, B]:
+    """Directions of a multigraph's edges ``ends`` (u, v) over nodes 0..n-1: True when
+    an edge keeps u -> v, False when reversed; and which edges are bridges. Non-bridge
+    edges get a strongly connected orientation of each 2-edge-connected part (depth
+    first from the lowest node: tree edges away from the root, the others back)."""
+    g = nx.MultiGraph()
+    g.add_nodes_from(range(n_nodes))
+    for k, (u, v) in enumerate(ends):
+        g.add_edge(u, v, key=k)
+    bridge = np.zeros(len(ends), dtype=bool)
+    pairs = {frozenset(e) for e in nx.bridges(g)}
+    for k, (u, v) in enumerate(ends):
+        # A bridge is never a loop nor one of parallel edges (nx.bridges sees to both).
+        if u != v and frozenset((u, v)) in pairs:
+            bridge[k] = True
+    forward = np.ones(len(ends), dtype=bool)
+    incident: list[list[int]] = [[] for _ in range(n_nodes)]
+    for k, (u, v) in enumerate(ends):
+        if not bridge[k]:
+            incident[u].append(k)
+            if v != u:
+                incident[v].append(k)
+    used = np.zeros(len(ends), dtype=bool)
+    seen = np.zeros(n_nodes, dtype=bool)
+    for root in range(n_nodes):
+        if seen[root]:
+            continue
+        seen[root] = True
+        stack = [(root, iter(sorted(incident[root])))]
+        while stack:
+            u, it = stack[-1]
+            nxt: int | None = next(it, None)
+            if nxt is None:
+                stack.pop()
+                continue
+            if used[nxt]:
+                continue
+            used[nxt] = True
+            a, b = ends[nxt]
+            v = b if a == u else a
+            # Leaving u: a tree edge to a new node, or (an undirected depth-first search
+            # has no cross edges) a back edge to an ancestor still on the stack.
+            forward[nxt] = a == u
+            if not seen[v]:
+                seen[v] = True
+                stack.append((v, iter(sorted(incident[v]))))
+    return forward, bridge
+
+
+@nb.njit(cache=True)
+def _allowed(street: I64, along: F64, free: B, steps: I64, slack: float) -> npt.NDArray[np.uint8]:
+    """Allowed steps per cell (see the module's notes): no step between two cells of one
+    street that lowers the distance along it by more than ``slack`` cells, unless both
+    are ``free`` (two-way)."""
+    rows, cols = street.shape
+    out = np.full((rows, cols), 255, dtype=np.uint8)
+    for r in range(rows):
+        for c in range(cols):
+            e = street[r, c]
+            if e < 0:
+                continue
+            m = 0
+            for j in range(8):
+                rr = r + steps[j, 0]
+                cc = c + steps[j, 1]
+                ok = True
+                if 0 <= rr < rows and 0 <= cc < cols and street[rr, cc] == e:
+                    against = along[rr, cc] < along[r, c] - slack
+                    ok = not against or (free[r, c] and free[rr, cc])
+                if ok:
+                    m |= 1 << j
+            out[r, c] = m
+    return out
+
+
+def _chain_graph(mask: B) -> tuple[csr_matrix, I64]:
+    """The 8-connected graph of ``mask``'s cells, steps 1 and sqrt(2) cells long,
+    diagonals allowed past corners (a skeleton is one cell wide: its diagonal steps
+    have no side cells); and each cell's node (-1 off the mask)."""
+    index = np.full(mask.shape, -1, dtype=np.int64)
+    index[mask] = np.arange(int(mask.sum()))
+    rc = np.argwhere(mask)
+    rows, cols = mask.shape
+    src, dst, w = [], [], []
+    for dr, dc in STEPS.tolist():
+        rr, cc = rc[:, 0] + dr, rc[:, 1] + dc
+        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+        ok[ok] = mask[rr[ok], cc[ok]]
+        src.append(index[rc[ok, 0], rc[ok, 1]])
+        dst.append(index[rr[ok], cc[ok]])
+        w.append(np.full(int(ok.sum()), math.hypot(dr, dc)))
+    n = len(rc)
+    m = coo_matrix((np.concatenate(w), (np.concatenate(src), np.concatenate(dst))), shape=(n, n))
+    return m.tocsr(), index
+
+
+def one_way(
+    passable: B,
+    clearance: F64,
+    resolution: float,
+    turn_radius: float,
+) -> OneWay:
+    """The one-way street system of a map's passable cells (see the module's notes).
+
+    Parameters
+    ----------
+    passable : ndarray of bool
+        Cells a car's centre may be on.
+    clearance : ndarray of float64, same shape
+        Distance from each cell to the nearest obstacle, metres
+        (:attr:`~sonarmap.patrol.territory.Territory.clearance`).
+    resolution : float
+        Cell side, metres.
+    turn_radius : float
+        The cars' turning radius, metres: streets narrower than twice it are one-way.
+
+    Returns
+    -------
+    OneWay
+        Deterministic: the same map gives the same system.
+    """
+    mask = np.asarray(passable, dtype=bool)
+    skel = thin(mask)
+    nbrs = ndimage.convolve(skel.astype(np.int64), np.ones((3, 3), dtype=np.int64), mode="constant")
+    nbrs = np.where(skel, nbrs - 1, 0)
+    junction = skel & (nbrs >= 3)
+    eight = np.ones((3, 3), dtype=bool)
+    # A closed ring of streets with no junction (a lone block) gets one at its first
+    # cell, so that it is a loop with two ends like any other.
+    segment, n_segments = ndimage.label(skel & ~junction, structure=eight)
+    touching = ndimage.binary_dilation(junction, structure=eight)
+    for s in range(1, n_segments + 1):
+        pix = segment == s
+        if not (pix & touching).any() and not (pix & (nbrs == 1)).any():
+            junction[tuple(np.argwhere(pix)[0])] = True
+    node_of, n_junctions = ndimage.label(junction, structure=eight)
+    segment, n_segments = ndimage.label(skel & ~junction, structure=eight)
+    node_of = node_of.astype(np.int64) - 1  # -1 off the junctions
+    segment = segment.astype(np.int64) - 1
+    rows, cols = mask.shape
+    # Each segment's junctions (the nodes touching it) and ends (skeleton ends).
+    touches: list[set[int]] = [set() for _ in range(n_segments)]
+    sr, sc = np.nonzero(segment >= 0)
+    for dr, dc in STEPS.tolist():
+        rr, cc = sr + dr, sc + dc
+        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+        nodes = np.full(len(sr), -1, dtype=np.int64)
+        nodes[ok] = node_of[rr[ok], cc[ok]]
+        for s, n in zip(
+            segment[sr, sc][nodes >= 0].tolist(), nodes[nodes >= 0].tolist(), strict=True
+        ):
+            touches[s].add(n)
+    n_nodes = n_junctions
+    ends: list[tuple[int, int]] = []
+    tails: list[int] = []
+    for s in range(n_segments):
+        t = sorted(touches[s])
+        if len(t) == 2:
+            ends.append((t[0], t[1]))
+        elif len(t) == 1:
+            # A stub to a skeleton end, or a loop back to the same junction: a new node
+            # for the end keeps it a bridge; a loop is its own cycle.
+            pix = segment == s
+            is_end = bool((pix & (nbrs == 1)).any())
+            if is_end:
+                ends.append((t[0], n_nodes))
+                n_nodes += 1
+            else:
+                ends.append((t[0], t[0]))
+        else:
+            # No junction (a closed ring or a lone line) or a segment glued to three
+            # junctions: left out of the system (two-way).
+            ends.append((-1, -1))
+        tails.append(-1)
+    valid = [k for k, e in enumerate(ends) if e[0] >= 0]
+    forward = np.ones(n_segments, dtype=bool)
+    bridge = np.ones(n_segments, dtype=bool)
+    if valid:
+        f, b = _orient(n_nodes, [ends[k] for k in valid])
+        forward[valid] = f
+        bridge[valid] = b
+    widths = np.zeros(n_segments)
+    for s in range(n_segments):
+        widths[s] = 2.0 * float(np.median(clearance[segment == s]))
+    directed = ~bridge & (widths < 2.0 * turn_radius)
+    # Distance along each directed segment from the cell touching its tail junction.
+    along_skel = np.full(mask.shape, np.nan)
+    reach = np.zeros(n_nodes)
+    for n in range(n_junctions):
+        reach[n] = float(clearance[node_of == n].max()) + resolution
+    seg_margin = np.zeros(n_segments)
+    for s in np.flatnonzero(directed).tolist():
+        u, v = ends[s]
+        tail, head = (u, v) if forward[s] else (v, u)
+        pix = segment == s
+        near_tail = np.zeros(mask.shape, dtype=bool)
+        near_tail[node_of == tail] = True
+        near_tail = ndimage.binary_dilation(near_tail, structure=eight) & pix
+        if u == v:
+            # A loop: start at its cells next to the junction with the lowest index.
+            cand = np.argwhere(near_tail)
+            near_tail = np.zeros(mask.shape, dtype=bool)
+            near_tail[tuple(cand[0])] = True
+        g_s, idx_s = _chain_graph(pix)
+        starts = idx_s[near_tail]
+        d = dijkstra(g_s, directed=False, indices=starts, min_only=True)
+        along_skel[pix] = d[idx_s[pix]]
+        ends_reach = [reach[x] if x < n_junctions else 0.0 for x in (tail, head)]
+        seg_margin[s] = max(ends_reach) / resolution
+    # Every passable cell takes the skeleton cell nearest it along the grid's paths.
+    g_all, idx_all = cell_graph(mask, resolution)
+    sk = np.argwhere(skel & mask)
+    _, _, source = dijkstra(
+        g_all,
+        directed=False,
+        indices=idx_all[sk[:, 0], sk[:, 1]],
+        min_only=True,
+        return_predecessors=True,
+    )
+    flat_rc = np.argwhere(mask)
+    street = np.full(mask.shape, -1, dtype=np.int64)
+    along = np.full(mask.shape, np.nan)
+    src_ok = source >= 0
+    src_rc = flat_rc[np.maximum(source, 0)]
+    seg_of = np.where(src_ok, segment[src_rc[:, 0], src_rc[:, 1]], -1)
+    al = np.where(src_ok, along_skel[src_rc[:, 0], src_rc[:, 1]], np.nan)
+    street[mask] = seg_of
+    along[mask] = al
+    length = np.zeros(n_segments)
+    for s in np.flatnonzero(directed).tolist():
+        length[s] = float(np.nanmax(along_skel[segment == s]))
+    is_dir = (street >= 0) & directed[np.maximum(street, 0)]
+    along[~is_dir] = np.nan
+    m = seg_margin[np.maximum(street, 0)]
+    ln = length[np.maximum(street, 0)]
+    with np.errstate(invalid="ignore"):
+        free = ~is_dir | (along <= m) | (along >= ln - m)
+    steps = _allowed(street, np.nan_to_num(along, nan=0.0), free, STEPS, ALONG_SLACK)
+    return OneWay(
+        steps=steps,
+        street=street,
+        along=along,
+        one_way=directed,
+        widths=widths,
+        bridges=bridge,
+    )

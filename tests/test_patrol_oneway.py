@@ -1,0 +1,211 @@
+"""One-way streets derived from the map (patrol.oneway) and the wave that keeps to them."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from sonarmap.errors import ConfigError
+from sonarmap.grid import Grid
+from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.patrol.oneway import one_way, thin
+from sonarmap.patrol.paths import STEPS, Wave, path_to
+from sonarmap.patrol.robots import Car
+from sonarmap.patrol.simulation import PatrolConfig, run_patrol
+from sonarmap.patrol.territory import Territory
+
+RES = 0.5
+
+
+def _site(blocks: list[tuple[float, float, float, float]], w: float, h: float) -> Territory:
+    """A ``w`` x ``h`` m site walled round, with solid blocks (x0, y0, x1, y1) metres."""
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
+    occ = np.zeros(g.shape, np.float32)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
+    for x0, y0, x1, y1 in blocks:
+        # Rows grow downwards: y = h at row 0.
+        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = 1.0
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def _cell(g: Grid, x: float, y: float) -> tuple[int, int]:
+    r, c = g.world_to_cell(x, y)
+    return int(r), int(c)
+
+
+def _ring() -> Territory:
+    """5 m streets round one 30 x 20 m block."""
+    return _site([(5.0, 5.0, 35.0, 25.0)], 40.0, 30.0)
+
+
+def _four_blocks() -> Territory:
+    """5 m streets round four blocks: three in a row, the middle one split in two by
+    a 4 m street."""
+    return _site(
+        [
+            (5.0, 5.0, 18.0, 25.0),
+            (23.0, 5.0, 36.0, 13.0),
+            (23.0, 17.0, 36.0, 25.0),
+            (41.0, 5.0, 55.0, 25.0),
+        ],
+        60.0,
+        30.0,
+    )
+
+
+def _strongly_connected(passable: npt.NDArray[np.bool_], steps: npt.NDArray[np.uint8]) -> bool:
+    """Whether every passable cell reaches every other by allowed steps."""
+    rows, cols = passable.shape
+    idx = np.full(passable.shape, -1)
+    idx[passable] = np.arange(int(passable.sum()))
+    src, dst = [], []
+    for j, (dr, dc) in enumerate(STEPS.tolist()):
+        for r, c in np.argwhere(passable).tolist():
+            rr, cc = r + dr, c + dc
+            if 0 <= rr < rows and 0 <= cc < cols and passable[rr, cc] and (steps[r, c] >> j) & 1:
+                src.append(idx[r, c])
+                dst.append(idx[rr, cc])
+    n = int(passable.sum())
+    m = coo_matrix((np.ones(len(src)), (src, dst)), shape=(n, n)).tocsr()
+    k, _ = connected_components(m, directed=True, connection="strong")
+    return bool(k == 1)
+
+
+def test_thinning_keeps_a_ring_a_ring_one_cell_wide() -> None:
+    passable = _ring().passable(1.0)
+    skel = thin(passable)
+    assert skel.any()
+    assert (skel <= passable).all()
+    # One cell wide: no 2 x 2 square of skeleton cells.
+    assert not (skel[:-1, :-1] & skel[1:, :-1] & skel[:-1, 1:] & skel[1:, 1:]).any()
+    # Still a ring: one component, and the block inside it is a hole.
+    k, _ = connected_components(_adjacency(skel), directed=False)
+    assert k == 1
+    from scipy import ndimage
+
+    _, holes = ndimage.label(~skel)
+    assert holes == 2  # outside and the block
+
+
+def _adjacency(mask: npt.NDArray[np.bool_]) -> coo_matrix:
+    rows, cols = mask.shape
+    idx = np.full(mask.shape, -1)
+    idx[mask] = np.arange(int(mask.sum()))
+    src, dst = [], []
+    for dr, dc in STEPS.tolist():
+        for r, c in np.argwhere(mask).tolist():
+            rr, cc = r + dr, c + dc
+            if 0 <= rr < rows and 0 <= cc < cols and mask[rr, cc]:
+                src.append(idx[r, c])
+                dst.append(idx[rr, cc])
+    n = int(mask.sum())
+    return coo_matrix((np.ones(len(src)), (src, dst)), shape=(n, n))
+
+
+def test_a_ring_of_narrow_streets_is_one_way_and_still_strongly_connected() -> None:
+    t = _ring()
+    passable = t.passable(1.0)
+    ow = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    assert ow.one_way.all()
+    assert ow.share == 1.0
+    assert (ow.steps[passable] != 255).mean() > 0.5
+    assert _strongly_connected(passable, ow.steps)
+    # A place 6 m behind along the street is reached only round the block (about 100 m).
+    g = t.grid
+    a = _cell(g, 20.0, 2.5)
+    b = _cell(g, 14.0, 2.5)
+    two = Wave(passable.shape)
+    one = Wave(passable.shape, ow.steps)
+    there = one.to(passable, a, b, RES)
+    back = one.to(passable, b, a, RES)
+    assert two.to(passable, a, b, RES) == pytest.approx(6.0)
+    # One of the two ways is the short one, the other goes round the block.
+    assert min(there, back) == pytest.approx(6.0)
+    assert max(there, back) > 80.0
+
+
+def test_streets_as_wide_as_the_turning_circle_stay_two_way() -> None:
+    t = _ring()
+    passable = t.passable(1.0)
+    ow = one_way(passable, t.clearance, RES, turn_radius=1.0)
+    assert not ow.one_way.any()
+    assert (ow.steps == 255).all()
+
+
+def test_dead_end_stubs_are_bridges_and_stay_two_way() -> None:
+    # A ring with a 4 m dead-end street leaving its east side to the east.
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(30 / RES), int(60 / RES)))
+    occ = np.ones(g.shape, np.float32)
+    occ[1:-1, 1 : int(40 / RES)] = 0.0
+    occ[int(5 / RES) : int(25 / RES), int(5 / RES) : int(35 / RES)] = 1.0
+    occ[int(13 / RES) : int(17 / RES), int(40 / RES) : int(58 / RES)] = 0.0
+    t = Territory.from_map(OccupancyMap(g, occ))
+    passable = t.passable(1.0)
+    ow = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    assert ow.bridges.any()
+    assert ow.one_way.any()
+    stub = passable.copy()
+    stub[:, : int(45 / RES)] = False
+    assert stub.any()
+    assert (ow.steps[stub] == 255).all()
+    assert _strongly_connected(passable, ow.steps)
+
+
+def test_the_path_read_back_keeps_to_the_allowed_steps() -> None:
+    t = _four_blocks()
+    passable = t.passable(1.0)
+    ow = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    assert _strongly_connected(passable, ow.steps)
+    g = t.grid
+    w = Wave(passable.shape, ow.steps)
+    a = _cell(g, 20.0, 2.5)
+    rng = np.random.default_rng(0)
+    cells = np.argwhere(passable)
+    for r, c in cells[rng.choice(len(cells), 20, replace=False)].tolist():
+        dist, _ = w(passable, a, RES)
+        path = path_to(dist, (r, c), RES, passable, w.allowed)
+        assert tuple(path[0]) == a
+        assert tuple(path[-1]) == (r, c)
+        for (r0, c0), (r1, c1) in zip(path[:-1].tolist(), path[1:].tolist(), strict=True):
+            j = [tuple(s) for s in STEPS.tolist()].index((r1 - r0, c1 - c0))
+            assert (ow.steps[r0, c0] >> j) & 1
+
+
+def test_one_way_is_for_tracking_cars_only() -> None:
+    with pytest.raises(ConfigError, match="one_way"):
+        PatrolConfig(model="holonomic", one_way=True)
+    with pytest.raises(ConfigError, match="one_way"):
+        PatrolConfig(model="car", car_planner="thesis", one_way=True)
+
+
+def test_cars_on_a_one_way_ring_do_not_turn_round() -> None:
+    # Two cars on the ring of 5 m streets: two-way, the places behind them make them
+    # reverse; one-way, they drive round and never meet head-on (measured: 5 and 1).
+    t = _ring()
+
+    def turns(one: bool) -> tuple[int, int]:
+        out = [0, 0]
+
+        def keep(_t: float, team: object, _fog: object) -> None:
+            assert isinstance(team, Car)
+            out[:] = [int(team.turns.sum()), int(team.escape_causes["behind"][0])]
+
+        cfg = PatrolConfig(
+            model="car",
+            duration=120.0,
+            vision=5.0,
+            crowding="obstacles",
+            turn_penalty=10.0,
+            out_of_sight=True,
+            one_way=one,
+        )
+        # The second car starts facing against its street (it must turn once).
+        starts = np.array([[10.0, 2.5, 0.0], [30.0, 27.5, 0.0]])
+        run_patrol(t, cfg, starts=starts, seed=0, on_step=keep)
+        return out[0], out[1]
+
+    assert turns(False)[0] >= 3
+    assert turns(True) == (1, 0)
