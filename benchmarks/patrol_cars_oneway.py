@@ -1,0 +1,133 @@
+"""Where one-way cars still manoeuvre: the DVT split by cause and by the car's cell.
+
+Setting: one run of ``benchmarks.patrol_cars``'s cars with one-way streets
+(:mod:`sonarmap.patrol.oneway`) on a street site. Every step a car spends on a
+manoeuvre (by :data:`sonarmap.patrol.robots.CAUSES`) is put in one class by the cell the
+car is on: a ``junction``, a ``stub`` (a bridge of the street graph, two-way), a
+``two-way end`` of a one-way street (within its junction's reach of either end), the
+``one-way`` part of a street, or a ``wide`` two-way street. Figures are % of the team's
+time, so they add up to the run's DVT.
+
+Also printed: the sizes of the strongly connected sets of the reachable passable cells
+under the allowed steps (one set: every place reachable from every other).
+
+Run with ``python -m benchmarks.patrol_cars_oneway --site 3 --cars 5 --duration 1200``;
+one process, one core (``NUMBA_NUM_THREADS=1``); prints one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from typing import Any
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+import numpy.typing as npt
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from sonarmap.patrol import PatrolConfig, run_patrol
+from sonarmap.patrol.fog import Fog
+from sonarmap.patrol.maps import street_territory
+from sonarmap.patrol.oneway import OneWay, one_way
+from sonarmap.patrol.paths import STEPS
+from sonarmap.patrol.reach import reach
+from sonarmap.patrol.robots import CAUSES, Car, Team
+
+
+def cell_class(ow: OneWay, r: int, c: int) -> str:
+    """The class of cell (r, c) (see the module's notes)."""
+    e = int(ow.street[r, c])
+    if e < 0:
+        return "junction"
+    if ow.bridges[e]:
+        return "stub"
+    if not ow.one_way[e]:
+        return "wide"
+    return "two-way end" if ow.steps[r, c] == 255 else "one-way"
+
+
+def strong_sets(passable: npt.NDArray[np.bool_], steps: npt.NDArray[np.uint8]) -> list[int]:
+    """Sizes of the strongly connected sets of ``passable`` under ``steps``, largest first."""
+    rows, cols = passable.shape
+    idx = np.full(passable.shape, -1, dtype=np.int64)
+    idx[passable] = np.arange(int(passable.sum()))
+    rc = np.argwhere(passable)
+    src, dst = [], []
+    for j, (dr, dc) in enumerate(STEPS.tolist()):
+        rr, cc = rc[:, 0] + dr, rc[:, 1] + dc
+        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+        ok[ok] = passable[rr[ok], cc[ok]]
+        ok &= ((steps[rc[:, 0], rc[:, 1]] >> j) & 1).astype(bool)
+        src.append(idx[rc[ok, 0], rc[ok, 1]])
+        dst.append(idx[rr[ok], cc[ok]])
+    n = len(rc)
+    s, d = np.concatenate(src), np.concatenate(dst)
+    m = coo_matrix((np.ones(len(s)), (s, d)), shape=(n, n)).tocsr()
+    _, label = connected_components(m, directed=True, connection="strong")
+    return sorted(np.bincount(label).tolist(), reverse=True)
+
+
+def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
+    """One run's split (see the module's notes)."""
+    config = PatrolConfig(
+        model="car",
+        turn_penalty=10.0,
+        out_of_sight=True,
+        round_block=60.0,
+        one_way=True,
+        refine=True,
+        crowding="obstacles" if cars > 1 else "none",
+        duration=duration,
+    )
+    t = street_territory(site)
+    # The simulation's own passable cells, so the system is the one the cars use.
+    passable = reach(t, config.radius, mode=config.reach, vision=config.vision).passable
+    ow = one_way(passable, t.clearance, t.grid.resolution, config.turn_radius)
+    before = {k: np.zeros(cars, dtype=np.int64) for k in CAUSES}
+    counts: dict[str, int] = {}
+
+    def keep(_t: float, team: Team, _fog: Fog) -> None:
+        assert isinstance(team, Car)
+        r, c = t.grid.world_to_cell(team.x, team.y)
+        for cause in CAUSES:
+            now = team.escape_causes[cause]
+            for i in np.flatnonzero(now > before[cause]).tolist():
+                key = f"{cause}, {cell_class(ow, int(r[i]), int(c[i]))}"
+                counts[key] = counts.get(key, 0) + 1
+            before[cause] = now.copy()
+
+    result = run_patrol(t, config, robots=cars, seed=0, on_step=keep)
+    steps = len(result.t) * cars
+    return {
+        "site": site,
+        "cars": cars,
+        "duration": duration,
+        "dvt": round(float(result.summary()["dvt"]), 2),
+        "dvt_by_cause_and_cell": {
+            k: round(100.0 * v / steps, 2) for k, v in sorted(counts.items())
+        },
+        "streets": len(ow.one_way),
+        "one_way_streets": int(ow.one_way.sum()),
+        "bridges": int(ow.bridges.sum()),
+        "strongly_connected_sets": strong_sets(passable, ow.steps)[:5],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.patrol_cars_oneway", description=__doc__
+    )
+    ap.add_argument("--site", type=int, default=3)
+    ap.add_argument("--cars", type=int, default=5)
+    ap.add_argument("--duration", type=float, default=1200.0)
+    a = ap.parse_args(argv)
+    print(json.dumps(watch_run(a.site, a.cars, a.duration)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
