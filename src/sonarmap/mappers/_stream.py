@@ -211,6 +211,12 @@ class StreamEngine(ABC):
         returns the units of work done (0 for methods with nothing to improve)."""
         return 0
 
+    def finish(self, passes: int) -> int:
+        """Bring the map over the readings in play to rest at the end of a log: up to
+        ``passes`` units of the method's work over every reading in play; returns the
+        units done (0 for methods with nothing to finish)."""
+        return 0
+
     def _improve_with(self, budget: float, one_pass: Callable[[I64, I64], object]) -> int:
         """:meth:`improve` for a method whose unit of work is ``one_pass(slots, cells)``
         over the readings in play and every cell a reading has covered: passes until
