@@ -675,7 +675,6 @@ def _stream_steps(
     known_at: F64,
     drift: F64,
     fixed: F64 | None = None,
-    weight: F64 | None = None,
 ) -> None:
     """Projected subgradient steps on the cells ``dirty``, over the terms of ``sel``.
 
@@ -706,8 +705,6 @@ def _stream_steps(
 
     ``fixed`` (per grid cell), when given, is added to each dirty cell's gradient: the
     terms of readings that have left, frozen at their slope then (:func:`_fold_terms`).
-    ``weight[s, part]``, when given, weighs each slot's free (0) and occ (1) term (the robust
-    form's weights, :func:`_robust_weights`).
     """
     n_terms = 0
     t_start = np.empty(2 * sel.shape[0], np.int64)
@@ -773,8 +770,6 @@ def _stream_steps(
             else:
                 continue
             f = slope / tot
-            if weight is not None:
-                f *= weight[t_slot[t], t_part[t]]
             for q in range(t_start[t], t_start[t] + t_spans[t]):
                 fw = f * np.float64(sp_w[q])
                 c0 = sp_cell[q]
@@ -827,14 +822,13 @@ def _fold_terms(
     known_at: F64,
     drift: F64,
     fixed: F64,
-    weight: F64 | None = None,
 ) -> None:
     """Add to ``fixed`` the gradient of the terms of the slots ``gone`` at the map ``x``:
     each term linearised where it stands when its reading leaves (its slope on the side
     of X0 its X lies, as :func:`_stream_steps` takes it), so that it keeps pulling its
     cells as it did, without its reading. A term's X is summed again only when the
     known one (``known``, ``known_at``, ``drift``: see :func:`_stream_steps`) cannot
-    tell its side. ``weight``, when given, weighs the terms as in :func:`_stream_steps`."""
+    tell its side."""
     for s in gone:
         for part in range(2):
             if part == 0:
@@ -869,112 +863,12 @@ def _fold_terms(
             else:
                 continue
             f = slope / tot
-            if weight is not None:
-                f *= weight[s, part]
             for q in range(a, a + n):
                 c0 = sp_cell[q]
                 fw = f * np.float64(sp_w[q])
                 fs = fixed[c0 : c0 + sp_len[q]]
                 for i in range(sp_len[q]):
                     fs[i] += fw
-
-
-@nb.njit(cache=True)
-def _cover_evidence(
-    slots: npt.NDArray[np.int64],
-    sign: float,
-    fs_start: npt.NDArray[np.int64],
-    fs_len: npt.NDArray[np.int64],
-    os_start: npt.NDArray[np.int64],
-    os_len: npt.NDArray[np.int64],
-    echo: npt.NDArray[np.bool_],
-    sp_cell: npt.NDArray[np.int32],
-    sp_len: npt.NDArray[np.int32],
-    sp_w: npt.NDArray[np.float32],
-    detect: F64,
-    free_seen: F64,
-) -> None:
-    """Add ``sign`` times the slots' evidence to each cell's: ``detect`` the occ terms'
-    sensitivities w0 (in [0, 1]), ``free_seen`` the count of Omega_free entries (the
-    per-cell sums of :func:`~sonarmap.mappers._forward.robust_weights`)."""
-    for s in slots:
-        for q in range(fs_start[s], fs_start[s] + fs_len[s]):
-            c0 = sp_cell[q]
-            for i in range(sp_len[q]):
-                free_seen[c0 + i] += sign
-        if not echo[s]:
-            continue
-        for q in range(os_start[s], os_start[s] + os_len[s]):
-            c0 = sp_cell[q]
-            w = np.float64(sp_w[q])
-            for i in range(sp_len[q]):
-                detect[c0 + i] += sign * w
-
-
-@nb.njit(cache=True)
-def _robust_weights(
-    slots: npt.NDArray[np.int64],
-    fs_start: npt.NDArray[np.int64],
-    fs_len: npt.NDArray[np.int64],
-    os_start: npt.NDArray[np.int64],
-    os_len: npt.NDArray[np.int64],
-    f_len: npt.NDArray[np.int64],
-    o_len: npt.NDArray[np.int64],
-    f_sum: F64,
-    o_sum: F64,
-    echo: npt.NDArray[np.bool_],
-    sp_cell: npt.NDArray[np.int32],
-    sp_len: npt.NDArray[np.int32],
-    sp_w: npt.NDArray[np.float32],
-    x: F64,
-    detect: F64,
-    free_seen: F64,
-    a1: float,
-    a2: float,
-    tau: float,
-    support: float,
-    free_too: bool,
-    v: F64,
-) -> None:
-    """Set ``v[s, part]`` for the slots: the robust form's weight ``tau^2 / (tau + r)^2``
-    of each term from its residual r at the map ``x``, as
-    :func:`~sonarmap.mappers._forward.robust_weights` gives it with every other term
-    at weight 1 (its first round): an occ term's leave-one-out residual, a cell of its
-    band taken as 0 where the other bands' sensitivities (``detect`` less its own) sum
-    below ``support`` and some Omega_free covers it (``free_seen``); a free term's own
-    P_free (``free_too``; otherwise its weight is 1)."""
-    for s in slots:
-        for part in range(2):
-            v[s, part] = 1.0
-            if part == 0:
-                a, n, m, tot = fs_start[s], fs_len[s], f_len[s], f_sum[s]
-                if not free_too:
-                    continue
-            else:
-                if not echo[s]:
-                    continue
-                a, n, m, tot = os_start[s], os_len[s], o_len[s], o_sum[s]
-            if m == 0 or tot <= 0.0:
-                continue
-            x0 = 1.0 / tot
-            big = 0.0
-            for q in range(a, a + n):
-                c0 = sp_cell[q]
-                w = np.float64(sp_w[q])
-                for i in range(sp_len[q]):
-                    c = c0 + i
-                    if part == 1 and detect[c] - w < support and free_seen[c] > 0.0:
-                        continue
-                    big += w * x[c]
-            big_x = big / tot
-            if part == 0:
-                above = (1.0 - a1 * x0) / (1.0 - x0) if x0 < 1.0 else a1
-                r = a1 * big_x if big_x < x0 else a1 * x0 + above * (big_x - x0)
-            else:
-                below = (1.0 - a2 + a2 * x0) / x0
-                r = 1.0 - below * big_x if big_x < x0 else a2 * (1.0 - x0) - a2 * (big_x - x0)
-            r = min(max(r, 0.0), 1.0)
-            v[s, part] = tau * tau / ((tau + r) * (tau + r))
 
 
 def stream_step_sizes(step: float, k_cap: int = STREAM_STEP_CAP) -> F64:
@@ -1018,30 +912,16 @@ class GradientStream(StreamEngine):
         #: Per cell, the gradient of the terms of readings that have left (see _leave).
         self.fixed = np.zeros(self.grid.size)
         self.steps_ = 0
-        # The robust form (mapper's ``robust`` > 0): each slot's terms' weights (1 until
-        # weighed, when the reading leaves or at finish) and the per-cell evidence they
-        # are weighed against, of every reading that has entered (kept when folded).
-        self._robust = m.robust > 0
-        self._v = np.ones((self.pool.capacity, 2))
-        self._detect = np.zeros(self.grid.size if self._robust else 0)
-        self._free_seen = np.zeros(self.grid.size if self._robust else 0)
 
     def _leave(self, gone: npt.NDArray[np.int64]) -> None:
         # A leaving reading's terms keep pulling their cells, frozen at their slope of
         # the moment: without them a wall's cells lose their echoes when those leave,
         # and the long no-echo beams still in play clear them.
-        if len(gone) == 0:
+        if len(gone) == 0 or not self.fold:
             return
         m = self.mapper
         assert isinstance(m, GradientMapper)
         p = self.pool
-        if not self.fold:
-            if self._robust:
-                _cover_evidence(gone, -1.0, *self._evidence_args())
-            return
-        # Weighed now, against the map and the evidence of every reading so far: the
-        # offline form's first round, for the part of the map this reading leaves.
-        self._weigh(gone)
         _fold_terms(
             gone,
             *p.span_terms(),
@@ -1052,44 +932,6 @@ class GradientStream(StreamEngine):
             self._known_at,
             self._drift,
             self.fixed,
-            self._v,
-        )
-
-    def _evidence_args(
-        self,
-    ) -> tuple[
-        npt.NDArray[np.int64],
-        npt.NDArray[np.int64],
-        npt.NDArray[np.int64],
-        npt.NDArray[np.int64],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.int32],
-        npt.NDArray[np.int32],
-        npt.NDArray[np.float32],
-        F64,
-        F64,
-    ]:
-        t = self.pool.span_terms()
-        return (t[0], t[1], t[2], t[3], t[8], t[9], t[10], t[11], self._detect, self._free_seen)
-
-    def _weigh(self, slots: npt.NDArray[np.int64]) -> None:
-        """The robust form's weights of the slots' terms at the map now (when on)."""
-        m = self.mapper
-        assert isinstance(m, GradientMapper)
-        if not self._robust or len(slots) == 0:
-            return
-        _robust_weights(
-            slots,
-            *self.pool.span_terms(),
-            self.x,
-            self._detect,
-            self._free_seen,
-            m.a1,
-            m.a2,
-            m.robust,
-            m.robust_support,
-            m.robust_terms == "both",
-            self._v,
         )
 
     def _enter(self, new: npt.NDArray[np.int64]) -> None:
@@ -1098,12 +940,8 @@ class GradientStream(StreamEngine):
             grow = cap - len(self._known)
             self._known = np.concatenate([self._known, np.zeros((grow, 2))])
             self._known_at = np.concatenate([self._known_at, np.full((grow, 2), -np.inf)])
-            self._v = np.concatenate([self._v, np.ones((grow, 2))])
         # A slot's new reading is not the one its X was summed for.
         self._known_at[new] = -np.inf
-        self._v[new] = 1.0
-        if self._robust:
-            _cover_evidence(new, 1.0, *self._evidence_args())
 
     def _run(self, sel: npt.NDArray[np.int64], dirty: npt.NDArray[np.int64], n: int) -> None:
         m = self.mapper
@@ -1125,7 +963,6 @@ class GradientStream(StreamEngine):
             self._known_at,
             self._drift,
             self.fixed if self.fold else None,
-            self._v,
         )
         self.steps_ += n
 
@@ -1137,19 +974,12 @@ class GradientStream(StreamEngine):
 
     def finish(self, passes: int) -> int:
         # A cell takes a step only in the updates whose readings touch it, and most
-        # leave the window short of the optimum over the readings in play (on the
-        # training hall, 98 % of cells agreed with the offline plain map, 99.5 % after
-        # 100 passes over the window: docs/results/2026-12-06-streaming.md).
+        # leave the window short of the optimum over the readings in play.
         cells = np.flatnonzero(self.cov > 0).astype(np.int64)
         if len(cells) == 0 or passes < 1:
             return 0
         sel = self.pool.alive_slots()
-        for _ in range(passes // 2):
-            self._run(sel, cells, 1)
-        # The readings in play weighed at the map the first half brought to rest, and
-        # the second half taken with the weights (the offline form's re-solve).
-        self._weigh(sel)
-        for _ in range(passes - passes // 2):
+        for _ in range(passes):
             self._run(sel, cells, 1)
         return passes
 
