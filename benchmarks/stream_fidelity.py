@@ -8,8 +8,9 @@ truth. Reported per method: offline wall F1 and time, streamed wall F1, their ra
 the stream's real-time factor, the most readings it held and its state, and the load
 average of the machine (the real-time factors are wall-clock: a shared machine slows
 them; the CPU column divides the log's length by the process's CPU time instead, one
-numba thread, which other jobs slow less). ``--forget`` adds each folding method
-streamed with ``fold=False``. The stream ends with :meth:`StreamingMapper.finish`
+numba thread, which other jobs slow less). ``--forget`` adds each method that can fold
+streamed the other way round (``gradient`` folding, at its default ``no_echo``, and
+``em-thrun`` forgetting); each row says which. The stream ends with :meth:`StreamingMapper.finish`
 (counted in its time); ``--no-finish`` leaves it out.
 
 Scenes (``--scene``): ``office`` (the ``ring16`` rig, 16 Polaroid sonars at 20 Hz, the
@@ -45,7 +46,8 @@ from sonarmap.scenarios import Scenario, make_scenario
 from sonarmap.streaming import StreamingMapper, replay
 
 METHODS = ("inverse", "gradient", "em-thrun")
-#: The methods whose streams fold the readings that leave (``--forget`` turns it off).
+#: The methods whose streams can fold the readings that leave (``--forget`` adds the
+#: other way round).
 FOLDING = ("gradient", "em-thrun")
 
 
@@ -68,7 +70,7 @@ def method_row(
     window: str | None,
     period: float,
     offline: bool,
-    fold: bool = True,
+    fold: bool | None = None,
     profile: int = 0,
     finish: bool = True,
     params: dict[str, Any] | None = None,
@@ -84,7 +86,8 @@ def method_row(
         StreamingMapper(method, grid, rig, strategy=warm, fold=fold, **kw),
     )
     sm = StreamingMapper(method, grid, rig, strategy=window, fold=fold, **kw)
-    _log(f"{method}: streaming {len(r):,} readings ({sm.strategy.spec()}, fold {fold})")
+    folds = method in FOLDING and sm.engine.fold
+    _log(f"{method}: streaming {len(r):,} readings ({sm.strategy.spec()}, fold {folds})")
     prof = cProfile.Profile() if profile else None
     if prof is not None:
         prof.enable()
@@ -95,8 +98,10 @@ def method_row(
         prof.disable()
         pstats.Stats(prof, stream=sys.stderr).sort_stats("tottime").print_stats(profile)
     row: dict[str, Any] = {
-        "method": (method if fold else f"{method}, forgetting")
+        "method": method
+        + ("" if method not in FOLDING else ", folding" if folds else ", forgetting")
         + ("" if finish else ", unfinished"),
+        "fold": folds,
         "strategy": sm.strategy.spec(),
         "f1_streamed": score(sc.truth, sm.result()).f1_all,
         "realtime_factor": rep.realtime_factor,
@@ -167,7 +172,7 @@ def main() -> None:
     parser.add_argument(
         "--forget",
         action="store_true",
-        help="also stream gradient and em-thrun forgetting the readings that leave",
+        help="also stream gradient and em-thrun the other way round (folding or forgetting)",
     )
     parser.add_argument("--no-finish", action="store_true", help="end the streams without finish()")
     parser.add_argument(
@@ -209,7 +214,7 @@ def main() -> None:
                     args.window,
                     args.period,
                     False,
-                    fold=False,
+                    fold=not rows[-1]["fold"],
                     finish=not args.no_finish,
                     params=params,
                 )

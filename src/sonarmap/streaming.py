@@ -80,10 +80,11 @@ class StreamingMapper:
         Work per update: gradient steps (``gradient``), flip sweeps over the updated
         cells (``stochastic``), M-step sweeps at most (``em-thrun``); ignored by
         ``inverse``.
-    fold : bool
+    fold : bool, optional
         ``gradient``, ``em-thrun``: fold each reading that leaves into fixed per-cell
-        evidence (default) rather than forget it (see :mod:`sonarmap.mappers._stream`);
-        ignored by the other methods.
+        evidence rather than forget it (see :mod:`sonarmap.mappers._stream`); ignored by
+        the other methods. Default: the method's (``em-thrun`` folds; ``gradient`` folds
+        only when its no-echo readings clear their beams, ``no_echo="free"``).
     **params
         The method's parameters, when ``method`` is a name.
     """
@@ -96,7 +97,7 @@ class StreamingMapper:
         *,
         strategy: Strategy | str | None = None,
         effort: int = 1,
-        fold: bool = True,
+        fold: bool | None = None,
         **params: Any,
     ) -> None:
         if isinstance(method, Mapper):
@@ -109,7 +110,8 @@ class StreamingMapper:
             strategy = DEFAULT_STRATEGY.get(mapper.name, "cell:4")
         self.strategy = parse_strategy(strategy) if isinstance(strategy, str) else strategy
         self.engine: StreamEngine = mapper.stream(grid, sensor, self.strategy, effort=effort)
-        self.engine.fold = fold
+        if fold is not None:
+            self.engine.fold = fold
         self.mapper = mapper
         self.grid = grid
         self.n_readings = 0
