@@ -1,17 +1,18 @@
 """The streamed gradient map's end: each cell as its steps left it, settled, finished.
 
-For each training map the gradient method is streamed at its defaults (``last:1000``,
-one update per 0.25 s of log) without :meth:`~sonarmap.streaming.StreamingMapper.finish`,
-and its wall F1 read four ways: the cells' values as their steps left them ("steps",
-what the stream shows), with the cells no reading in play touches set to their folded
-terms' optimum, 0 or 1 by the sign of the fixed gradient ("settled", tried and not
-adopted), and both again after ``finish()`` ("finished", "finished, settled"); then the
-same stream forgetting the readings that leave (no folded terms, so nothing to settle),
-without and with ``finish()`` (the last: the default since, with ``no_echo="ignore"``). The inverse map of
-the same readings is the reference. The maps: single tours at the scenes' own pace,
-and long logs (``--long``: the ``suite`` and ``hall`` tours at 0.125 m/s with every
-sonar at 20 Hz, 40,000-132,000 readings, as a robot mapping for minutes gives).
-Training scenes only (seeds below 1000): this chooses the stream's ending.
+For each training map the gradient method is streamed (``last:1000``, one update per
+0.25 s of log) folding the readings that leave, without
+:meth:`~sonarmap.streaming.StreamingMapper.finish`, and its wall F1 read four ways: the
+cells' values as their steps left them ("steps"), with the cells no reading in play
+touches set to their folded terms' optimum, 0 or 1 by the sign of the fixed gradient
+("settled", tried and not adopted), and both again after ``finish()`` ("finished",
+"finished, settled"); then the same stream forgetting the readings that leave (no
+folded terms, so nothing to settle), without and with ``finish()`` (the last is the
+default since, with ``no_echo="ignore"``). The inverse map of the same readings is the
+reference. The maps: single tours at the scenes' own pace, or with ``--long`` long
+logs (the ``suite`` and ``hall`` tours at 0.125 m/s with every sonar at 20 Hz,
+40,000-132,000 readings, as minutes of mapping give). Training scenes only (seeds
+below 1000): this chooses the stream's ending.
 
 Run with ``python -m benchmarks.stream_finish``.
 """
