@@ -150,7 +150,8 @@ class StreamEngine(ABC):
     spans: ClassVar[bool] = False
     #: Whether a reading that leaves is folded into fixed per-cell evidence (its pull
     #: on each cell frozen as it stands when it leaves) rather than forgotten; for the
-    #: engines that keep readings and fold them (``gradient``, ``em-thrun``).
+    #: engines that keep readings and can fold them (``em-thrun``; ``gradient`` sets its
+    #: own default from its ``no_echo``).
     fold: bool = True
 
     def __init__(
