@@ -40,6 +40,12 @@ from .sensors import SensorModel
 
 __all__ = ["DEFAULT_STRATEGY", "ReplayReport", "StreamingMapper", "replay", "time_batches"]
 
+#: Passes of :meth:`StreamingMapper.finish` at the end of a :func:`replay`: on the
+#: training ``hall`` (MaxSonar rig, seeds 0-1) and ``suite`` (seed 0) the folding gradient
+#: stream's map agreed with the offline plain map on 97.9-98.6 % of cells without them,
+#: 99.2-99.4 % after 100 passes and 99.4-99.5 % after 300, at three times the cost.
+FINISH_PASSES = 100
+
 #: The strategy each method streams with unless told otherwise: ``inverse`` keeps no
 #: readings, so it folds in everything; ``gradient`` and ``stochastic`` keep the last
 #: 1000 readings. On the first two minutes of the ``office`` scene (``benchmarks/stream.py``)
@@ -74,10 +80,11 @@ class StreamingMapper:
         Work per update: gradient steps (``gradient``), flip sweeps over the updated
         cells (``stochastic``), M-step sweeps at most (``em-thrun``); ignored by
         ``inverse``.
-    fold : bool
+    fold : bool, optional
         ``gradient``, ``em-thrun``: fold each reading that leaves into fixed per-cell
-        evidence (default) rather than forget it (see :mod:`sonarmap.mappers._stream`);
-        ignored by the other methods.
+        evidence rather than forget it (see :mod:`sonarmap.mappers._stream`); ignored by
+        the other methods. Default: the method's (``em-thrun`` folds; ``gradient`` folds
+        only when its no-echo readings clear their beams, ``no_echo="free"``).
     **params
         The method's parameters, when ``method`` is a name.
     """
@@ -90,7 +97,7 @@ class StreamingMapper:
         *,
         strategy: Strategy | str | None = None,
         effort: int = 1,
-        fold: bool = True,
+        fold: bool | None = None,
         **params: Any,
     ) -> None:
         if isinstance(method, Mapper):
@@ -103,7 +110,8 @@ class StreamingMapper:
             strategy = DEFAULT_STRATEGY.get(mapper.name, "cell:4")
         self.strategy = parse_strategy(strategy) if isinstance(strategy, str) else strategy
         self.engine: StreamEngine = mapper.stream(grid, sensor, self.strategy, effort=effort)
-        self.engine.fold = fold
+        if fold is not None:
+            self.engine.fold = fold
         self.mapper = mapper
         self.grid = grid
         self.n_readings = 0
@@ -122,6 +130,13 @@ class StreamingMapper:
     def improve(self, budget: float) -> int:
         """Improve the map over every reading in play for up to ``budget`` seconds."""
         return self.engine.improve(budget)
+
+    def finish(self, passes: int = FINISH_PASSES) -> int:
+        """Bring the map to rest at the end of a log: ``passes`` passes of the method's
+        work over every reading in play (``gradient``: projected steps on every cell
+        they touch; the other methods have nothing to finish); returns the passes done.
+        The state stays bounded, and more readings may follow."""
+        return self.engine.finish(passes)
 
     @property
     def occupancy_(self) -> npt.NDArray[np.float32]:
@@ -161,6 +176,8 @@ class ReplayReport:
     #: How late the latest update finished (``realtime`` only), seconds.
     lag: float = 0.0
     improve_units: int = 0
+    #: Passes of :meth:`StreamingMapper.finish` at the end of the log.
+    finish_units: int = 0
     snapshot_time: float = 0.0
     #: The replay stopped early because ``stop()`` said so.
     interrupted: bool = False
@@ -193,6 +210,7 @@ class ReplayReport:
             "max_state_mb": round(self.max_state_bytes / 2**20, 2),
             "max_lag_ms": round(1e3 * self.max_lag, 3),
             "improve_units": self.improve_units,
+            "finish_units": self.finish_units,
             "snapshot_seconds": round(self.snapshot_time, 3),
             "interrupted": self.interrupted,
         }
@@ -244,6 +262,7 @@ def replay(
     on_warning: Callable[[str], None] | None = None,
     report: ReplayReport | None = None,
     on_update: Callable[[Readings, StreamingMapper], None] | None = None,
+    finish: bool = True,
 ) -> ReplayReport:
     """Play readings through ``streamer``, one update per ``period`` s of log time.
 
@@ -276,6 +295,9 @@ def replay(
     on_update : callable, optional
         Called with each batch and the streamer after the batch is in the map (to
         record the run, for instance); its time counts as snapshot time.
+    finish : bool
+        At the end of the log (not after a ``stop``), bring the map to rest with
+        :meth:`StreamingMapper.finish` (default True); its time counts in the replay's.
     """
     if not (speed > 0):
         raise ConfigError(f"replay speed must be > 0, got {speed}")
@@ -333,6 +355,8 @@ def replay(
                 next_snap += snapshot_every
         if progress is not None:
             progress(t_last - t_first)
+    if finish and not rep.interrupted and t_first is not None:
+        rep.finish_units = streamer.finish()
     rep.wall_time = time.perf_counter() - wall0 - rep.snapshot_time
     rep.data_duration = 0.0 if t_first is None else t_last - t_first
     if on_snapshot is not None and t_first is not None:

@@ -150,7 +150,8 @@ class StreamEngine(ABC):
     spans: ClassVar[bool] = False
     #: Whether a reading that leaves is folded into fixed per-cell evidence (its pull
     #: on each cell frozen as it stands when it leaves) rather than forgotten; for the
-    #: engines that keep readings and fold them (``gradient``, ``em-thrun``).
+    #: engines that keep readings and can fold them (``em-thrun``; ``gradient`` sets its
+    #: own default from its ``no_echo``).
     fold: bool = True
 
     def __init__(
@@ -209,6 +210,12 @@ class StreamEngine(ABC):
     def improve(self, budget: float) -> int:
         """Spend up to ``budget`` seconds improving the map over every reading in play;
         returns the units of work done (0 for methods with nothing to improve)."""
+        return 0
+
+    def finish(self, passes: int) -> int:
+        """Bring the map over the readings in play to rest at the end of a log: up to
+        ``passes`` units of the method's work over every reading in play; returns the
+        units done (0 for methods with nothing to finish)."""
         return 0
 
     def _improve_with(self, budget: float, one_pass: Callable[[I64, I64], object]) -> int:
