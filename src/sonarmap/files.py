@@ -12,6 +12,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator
@@ -283,6 +284,19 @@ def read_text(path: str | Path, what: str = "file") -> str:
         raise InputError(f"{what} is not text ({err.reason})", path=p) from err
 
 
+class _Loader(yaml.SafeLoader):
+    """The safe loader, reading numbers as YAML 1.2 and map_server's yaml-cpp do."""
+
+
+# YAML 1.1, which PyYAML implements, reads ``1e-3`` and ``1.0e9`` (no dot, or no sign
+# after the e) as strings; map_server, and users, take them for numbers.
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
 def read_yaml(path: str | Path, what: str = "file") -> Any:
     """Parse a YAML file with the safe loader.
 
@@ -307,7 +321,7 @@ def read_yaml(path: str | Path, what: str = "file") -> Any:
     p = Path(path)
     text = read_text(p, what)
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_Loader)  # a SafeLoader: plain data only
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         problem = getattr(err, "problem", None) or type(err).__name__
