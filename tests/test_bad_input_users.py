@@ -1,0 +1,294 @@
+"""Inputs a new user brings: map_server maps, CSV logs, CARMEN logs and rigs written by
+hand or by other tools. The odd but valid ones are read as their owners meant; the bad
+ones stop with one line naming the place, exit code 2 and nothing written."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from sonarmap.cli import main
+from sonarmap.errors import ConfigError, InputError
+from sonarmap.grid import Grid
+from sonarmap.io.carmen import read_carmen
+from sonarmap.io.rosmap import MAX_PIXELS, read_map
+from sonarmap.readings import read_readings, read_trajectory
+from sonarmap.rig import load_rig
+
+HEADER = "t,sensor,x,y,theta,range"
+ROWS = ["0.0,a,1.0,1.0,0.0,1.5", "0.1,b,1.1,1.0,1.57,2.0", "0.2,a,1.2,1.0,0.0,0.8"]
+
+
+def refused(args: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    """Run ``sonarmap ARGS`` in process; assert exit code 2 and one line; the line."""
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    assert e.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("sonarmap: error: ")
+    return lines[0]
+
+
+# --- CSV readings ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        # Comment lines before the header and between readings, blank lines anywhere.
+        "# logged by hand\n# rig: rig.yaml\n"
+        + HEADER
+        + "\n"
+        + ROWS[0]
+        + "\n# a note\n"
+        + "\n".join(ROWS[1:])
+        + "\n",
+        HEADER + "\n" + "\n".join(ROWS) + "\n\n\n",
+        HEADER + "\n" + ROWS[0] + "\n\n" + "\n".join(ROWS[1:]) + "\n",
+        # Spaces after the commas, in the header too (a spreadsheet's export).
+        ", ".join(HEADER.split(",")) + "\n" + "\n".join(", ".join(r.split(",")) for r in ROWS),
+        # A byte-order mark and Windows line ends.
+        "\ufeff" + "\r\n".join([HEADER, *ROWS]) + "\r\n",
+    ],
+    ids=["comments", "trailing-blank", "blank-between", "spaces", "bom-crlf"],
+)
+def test_odd_but_valid_readings_csvs_read_as_the_plain_one(tmp_path: Path, text: str) -> None:
+    plain = tmp_path / "plain.csv"
+    plain.write_text("\n".join([HEADER, *ROWS]) + "\n")
+    odd = tmp_path / "odd.csv"
+    odd.write_bytes(text.encode())
+    a, b = read_readings(plain, names=["a", "b"]), read_readings(odd, names=["a", "b"])
+    for field in ("t", "x", "y", "theta", "range", "sensor"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+
+
+def test_errors_after_comment_and_blank_lines_name_the_files_own_line(tmp_path: Path) -> None:
+    p = tmp_path / "r.csv"
+    p.write_text("# one\n\n" + HEADER + "\n" + ROWS[0] + "\n# two\n\n0.1,a,1,1,0,-3\n")
+    with pytest.raises(InputError, match=r"r.csv:7, field 'range': range is negative"):
+        read_readings(p, names=["a", "b"])
+    p.write_text("# one\n" + HEADER + "\n\n" + ROWS[0] + "\n0.1,c,1,1,0,1\n")
+    with pytest.raises(InputError, match=r"r.csv:5, field 'sensor': unknown sensor 'c'"):
+        read_readings(p, names=["a", "b"])
+
+
+def test_a_trajectory_with_comments_and_blank_lines_reads(tmp_path: Path) -> None:
+    p = tmp_path / "traj.csv"
+    p.write_text("# from the odometry\nt,x,y,theta\n0,1,2,0\n\n# stop\n1,1.5,2,0\n\n")
+    traj = read_trajectory(p)
+    assert traj.t.tolist() == [0.0, 1.0]
+    assert traj.x.tolist() == [1.0, 1.5]
+
+
+def test_a_pose_far_out_is_one_line_not_an_overflow(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A pose of 1e308 m made the grid's width infinite: OverflowError, exit 1."""
+    csv = tmp_path / "r.csv"
+    csv.write_text("\n".join([HEADER, ROWS[0], "0.1,a,1e308,1.0,0.0,1.5"]) + "\n")
+    rig = tmp_path / "rig.yaml"
+    rig.write_text(
+        "sensor: maxsonar-ez1\nsonars:\n  - {name: a, x: 0, y: 0, yaw_deg: 0}\n"
+        "  - {name: b, x: 0, y: 0, yaw_deg: 90}\n"
+    )
+    line = refused(
+        ["map", str(csv), "--rig", str(rig), "--resolution", "0.1", "-o", str(tmp_path / "m")],
+        capsys,
+    )
+    assert "the readings reach x 1 to 1e+308" in line
+    assert not list(tmp_path.glob("m.*"))
+
+
+@pytest.mark.parametrize(
+    "bounds", [(0.0, 0.0, math.inf, 1.0), (-1e308, 0.0, 1e308, 1.0), (0.0, 0.0, 1e12, 1.0)]
+)
+def test_grid_bounds_beyond_the_cell_limit_are_a_config_error(
+    bounds: tuple[float, float, float, float],
+) -> None:
+    with pytest.raises(ConfigError, match="limit 2\\*\\*31 cells"):
+        Grid.from_bounds(*bounds, 0.1)
+
+
+# --- map_server maps ---------------------------------------------------------------------
+
+
+def _image(tmp_path: Path) -> np.ndarray:
+    px = np.full((20, 30), 254, dtype=np.uint8)
+    px[:2, :] = px[-2:, :] = px[:, :2] = px[:, -2:] = 0
+    px[5:8, 20:25] = 205
+    Image.fromarray(px).save(tmp_path / "plan.pgm")
+    return px
+
+
+def test_numbers_in_exponent_form_are_numbers(tmp_path: Path) -> None:
+    """YAML 1.1 reads ``5e-2`` and ``1.0e-1`` as strings; map_server reads numbers."""
+    _image(tmp_path)
+    p = tmp_path / "m.yaml"
+    p.write_text("image: plan.pgm\nresolution: 5e-2\norigin: [-1.0e1, 2E0, 0]\n")
+    m = read_map(p)
+    assert m.grid.resolution == 0.05
+    assert m.grid.origin == (-10.0, 2.0)
+
+
+def test_a_rig_number_in_exponent_form_is_a_number(tmp_path: Path) -> None:
+    p = tmp_path / "rig.yaml"
+    p.write_text(
+        "sensor:\n  beam: {cone: {aperture_deg: 3e1}}\n  r_min: 1.5e-1\n  r_max: 6.0e0\n"
+        "  range_resolution: 2.54e-2\nsonars:\n  - {name: a, x: 1e-1, y: 0, yaw_deg: 0}\n"
+    )
+    rig = load_rig(p)
+    assert rig.sensor.r_min == 0.15
+    assert rig.mounts[0].x == 0.1
+
+
+def test_a_map_whose_resolution_makes_it_astronomical_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """resolution 1e300 overflowed in team run's world making (OverflowError, exit 1)."""
+    _image(tmp_path)
+    p = tmp_path / "m.yaml"
+    p.write_text("image: plan.pgm\nresolution: 1e300\norigin: [0, 0, 0]\n")
+    with pytest.raises(InputError, match=r"field 'resolution': .* 3e\+301 m across"):
+        read_map(p)
+    p.write_text("image: plan.pgm\nresolution: 0.1\norigin: [1e9, 0, 0]\n")
+    with pytest.raises(InputError, match=r"field 'origin': origin \(1e\+09, 0\)"):
+        read_map(p)
+    out = tmp_path / "team"
+    line = refused(["team", "run", "--map", str(p), "--duration", "5", "-o", str(out)], capsys)
+    assert "field 'origin'" in line
+    assert not out.exists()
+
+
+def test_a_huge_declared_image_is_refused_from_its_header(tmp_path: Path) -> None:
+    """A 10 001 x 10 000 header with no pixels: refused before any decoding."""
+    (tmp_path / "big.pgm").write_bytes(b"P5\n10001 10000\n255\n")
+    p = tmp_path / "m.yaml"
+    p.write_text("image: big.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    assert MAX_PIXELS < 10001 * 10000
+    with pytest.raises(InputError, match=r"big.pgm: image of 10001 x 10000 pixels; at most"):
+        read_map(p)
+
+
+def test_an_unsupported_image_mode_is_said_once(tmp_path: Path) -> None:
+    """The mode's message was wrapped in 'cannot read image (InputError: ...)', the path
+    twice."""
+    px = _image(tmp_path).astype(np.uint16) * 257
+    Image.fromarray(px).save(tmp_path / "deep.png")
+    p = tmp_path / "m.yaml"
+    p.write_text("image: deep.png\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    with pytest.raises(InputError) as e:
+        read_map(p)
+    assert str(e.value).count("deep.png") == 1
+    assert "unsupported image mode" in str(e.value)
+    assert "cannot read image" not in str(e.value)
+
+
+def test_an_image_path_that_is_a_folder_says_so(tmp_path: Path) -> None:
+    (tmp_path / "plan dir").mkdir()
+    p = tmp_path / "m.yaml"
+    p.write_text("image: plan dir\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    with pytest.raises(InputError, match="plan dir: map image is a folder"):
+        read_map(p)
+
+
+def test_a_rotated_map_is_refused_naming_its_yaw(tmp_path: Path) -> None:
+    _image(tmp_path)
+    p = tmp_path / "m.yaml"
+    p.write_text("image: plan.pgm\nresolution: 0.1\norigin: [0, 0, 0.3]\n")
+    with pytest.raises(InputError, match=r"field 'origin': rotated maps \(origin yaw 0.3 rad"):
+        read_map(p)
+
+
+@pytest.mark.parametrize("variant", ["ascii", "alpha", "negate", "spaces", "absolute"])
+def test_map_server_variants_read_as_the_plain_map(tmp_path: Path, variant: str) -> None:
+    px = _image(tmp_path)
+    (tmp_path / "plain.yaml").write_text("image: plan.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    image = "plan.pgm"
+    negate = 0
+    if variant == "ascii":
+        body = "\n".join(" ".join(str(v) for v in row) for row in px)
+        (tmp_path / "a.pgm").write_text(
+            f"P2\n# by hand\n{px.shape[1]} {px.shape[0]}\n255\n{body}\n"
+        )
+        image = "a.pgm"
+    elif variant == "alpha":
+        rgba = np.dstack([px, px, px, np.full_like(px, 255)])
+        Image.fromarray(rgba, "RGBA").save(tmp_path / "a.png")
+        image = "a.png"
+    elif variant == "negate":
+        Image.fromarray(255 - px).save(tmp_path / "a.pgm")
+        image, negate = "a.pgm", 1
+    elif variant == "spaces":
+        (tmp_path / "my maps").mkdir()
+        Image.fromarray(px).save(tmp_path / "my maps" / "floor 2.pgm")
+        image = "my maps/floor 2.pgm"
+    else:
+        image = str(tmp_path / "plan.pgm")
+    (tmp_path / "odd.yaml").write_text(
+        f"image: {image}\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: {negate}\n"
+        "mode: trinary\nmap_name: floor\n"
+    )
+    a, b = read_map(tmp_path / "plain.yaml"), read_map(tmp_path / "odd.yaml")
+    np.testing.assert_array_equal(a.classes(), b.classes())
+
+
+# --- CARMEN ------------------------------------------------------------------------------
+
+
+def _sonar(cone: float, t: float) -> str:
+    return f"SONAR {cone} 2 1.0 2.0 0.1 0.1 0.5 0.1 -0.1 -0.5 1.0 0.5 0.0 0 0 {t} h {t}"
+
+
+@pytest.mark.parametrize("cone", [0.0, -0.26, 7.0])
+def test_a_sonar_cone_angle_out_of_range_is_refused_not_clamped(
+    tmp_path: Path, cone: float
+) -> None:
+    """The cone became 0.05 or 179 degrees without a word."""
+    p = tmp_path / "log.log"
+    p.write_text(_sonar(cone, 1.0) + "\n")
+    with pytest.raises(InputError, match=r"log.log:1: SONAR cone angle must be in \(0, pi\)"):
+        read_carmen(p)
+
+
+def test_a_sonar_cone_that_changes_is_refused(tmp_path: Path) -> None:
+    """The rig kept the first message's cone and the second's was dropped silently."""
+    p = tmp_path / "log.log"
+    p.write_text(_sonar(0.26, 1.0) + "\n" + _sonar(0.5, 1.1) + "\n")
+    with pytest.raises(InputError, match=r"log.log:2: SONAR cone angle 0.5 rad, the first"):
+        read_carmen(p)
+    p.write_text(_sonar(0.26, 1.0) + "\n" + _sonar(0.26, 1.1) + "\n")
+    readings, _ = read_carmen(p)
+    assert len(readings) == 4
+
+
+# --- rigs --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("sonar", "match"),
+    [
+        ("{name: '', x: 0, y: 0, yaw_deg: 0}", r"sonars\[0\].name: '' is empty"),
+        ("{name: ' left', x: 0, y: 0, yaw_deg: 0}", r"sonars\[0\].name: ' left'"),
+        ("{name: null, x: 0, y: 0, yaw_deg: 0}", r"sonars\[0\].name: expected a name"),
+        ("{name: a, x: 0, y: 0, yaw_deg: 999}", r"sonars\[0\].yaw_deg: must be within"),
+        ("{name: a, x: 0, y: 0, yaw_deg: -400}", r"sonars\[0\].yaw_deg: must be within"),
+    ],
+)
+def test_bad_sonar_names_and_angles_are_refused(tmp_path: Path, sonar: str, match: str) -> None:
+    p = tmp_path / "rig.yaml"
+    p.write_text(f"sensor: maxsonar-ez1\nsonars:\n  - {sonar}\n")
+    with pytest.raises(InputError, match=match):
+        load_rig(p)
+
+
+def test_a_numeric_sonar_name_and_a_full_turn_are_kept(tmp_path: Path) -> None:
+    p = tmp_path / "rig.yaml"
+    p.write_text("sensor: maxsonar-ez1\nsonars:\n  - {name: 7, x: 0, y: 0, yaw_deg: -360}\n")
+    rig = load_rig(p)
+    assert rig.names == ("7",)
+    assert rig.mounts[0].yaw_deg == -360.0
