@@ -83,11 +83,11 @@ class Grid:
         if not (math.isfinite(resolution) and resolution > 0):
             raise ConfigError(f"resolution must be a positive number of metres, got {resolution}")
         span = max(xmax - xmin, ymax - ymin) / resolution
-        if not span < 2**31:
-            # Also catches infinite bounds, and spans whose float difference overflows.
+        if not math.isfinite(span):
+            # Infinite bounds, or a difference of finite ones that overflows.
             raise ConfigError(
-                f"bounds ({xmin:g}, {ymin:g}, {xmax:g}, {ymax:g}) span {span:.3g} cells "
-                f"of {resolution:g} m on a side (limit 2**31 cells)"
+                f"bounds ({xmin:g}, {ymin:g}, {xmax:g}, {ymax:g}) span more cells of "
+                f"{resolution:g} m than can be counted (limit 2**31 cells)"
             )
         # A tolerance keeps 6.0 / 0.05 from becoming 121 cells through rounding.
         cols = max(1, math.ceil((xmax - xmin) / resolution - 1e-9))
