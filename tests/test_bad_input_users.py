@@ -15,7 +15,9 @@ from sonarmap.cli import main
 from sonarmap.errors import ConfigError, InputError
 from sonarmap.grid import Grid
 from sonarmap.io.carmen import read_carmen
-from sonarmap.io.rosmap import MAX_PIXELS, read_map
+from sonarmap.io.rosmap import MAX_PIXELS, OccupancyMap, read_map
+from sonarmap.patrol.starts import read_starts
+from sonarmap.patrol.territory import Territory
 from sonarmap.readings import read_readings, read_trajectory
 from sonarmap.rig import load_rig
 
@@ -292,3 +294,37 @@ def test_a_numeric_sonar_name_and_a_full_turn_are_kept(tmp_path: Path) -> None:
     rig = load_rig(p)
     assert rig.names == ("7",)
     assert rig.mounts[0].yaw_deg == -360.0
+
+
+# --- patrol start files ------------------------------------------------------------------
+
+
+def test_a_start_file_listing_more_robots_than_its_count_is_refused(tmp_path: Path) -> None:
+    """'1' then two starts ran one robot and dropped the other without a word."""
+    g = Grid(resolution=0.1, origin=(0.0, 0.0), shape=(300, 400))
+    territory = Territory.from_map(OccupancyMap(g, np.zeros(g.shape, np.float32)))
+    p = tmp_path / "s.txt"
+    p.write_text("1\n100 50 0\n# the second robot\n200 250 1.57\n")
+    with pytest.raises(InputError, match=r"s.txt:4: the file says 1 robots but lists 2"):
+        read_starts(p, territory)
+    p.write_text("# two robots\n2\n100 50 0\n\n200 250 1.57\n")
+    assert read_starts(p, territory).shape == (2, 3)
+
+
+def test_an_empty_semaphore_file_is_named_not_called_missing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """It was 'crowding semaphores needs a semaphore file (--semaphores)', given one."""
+    plan = tmp_path / "plan.yaml"
+    px = np.full((300, 400), 254, dtype=np.uint8)
+    px[:3, :] = px[-3:, :] = px[:, :3] = px[:, -3:] = 0
+    Image.fromarray(px).save(tmp_path / "plan.pgm")
+    plan.write_text("image: plan.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    sem = tmp_path / "sem.txt"
+    sem.write_text("# none yet\n\n")
+    out = tmp_path / "run"
+    args = ["patrol", "run", "--map", str(plan), "--robots", "2", "--duration", "1"]
+    args += ["--crowding", "semaphores", "--semaphores", str(sem), "-o", str(out)]
+    line = refused(args, capsys)
+    assert line.endswith("sem.txt: the semaphore file holds no polygon")
+    assert not out.exists()
