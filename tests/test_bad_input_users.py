@@ -328,3 +328,14 @@ def test_an_empty_semaphore_file_is_named_not_called_missing(
     line = refused(args, capsys)
     assert line.endswith("sem.txt: the semaphore file holds no polygon")
     assert not out.exists()
+
+
+# --- peers -------------------------------------------------------------------------------
+
+
+def test_a_nest_too_deep_is_named_in_the_rejection() -> None:
+    """msgpack's StackError has no text: the log line read 'not msgpack: ' and nothing."""
+    from sonarmap.team.records import UnpackError, unpack_strict
+
+    with pytest.raises(UnpackError, match="not msgpack: StackError"):
+        unpack_strict(b"\x91" * 100_000 + b"\xc0", max_bin=9, max_str=9, max_array=9, max_map=9)
