@@ -206,7 +206,10 @@ def main(argv: list[str] | None = None) -> None:
     print(f"exit codes undisturbed {calm_codes}, attacked {codes}")
     print(f"frames sent by category: {sent}")
     print(f"robot 0 rejected_frames: {attacked.get('rejected_frames')}")
-    print(f"summary fields that differ, of {len(f0)} compared: {differ or 'none'}")
+    if attacked:
+        print(f"summary fields that differ, of {len(f0)} compared: {differ or 'none'}")
+    else:
+        print("robot 0 wrote no summary (see its log)")
     print(f"logs: {base}")
 
 
