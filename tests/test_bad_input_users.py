@@ -339,3 +339,14 @@ def test_a_nest_too_deep_is_named_in_the_rejection() -> None:
 
     with pytest.raises(UnpackError, match="not msgpack: StackError"):
         unpack_strict(b"\x91" * 100_000 + b"\xc0", max_bin=9, max_str=9, max_array=9, max_map=9)
+
+
+def test_a_sonar_named_like_a_number_survives_a_round_trip(tmp_path: Path) -> None:
+    """With numbers in exponent form read as numbers, a name "2e1" written bare would
+    come back the number 20.0; the writer quotes it."""
+    from sonarmap.rig import save_rig
+
+    p = tmp_path / "rig.yaml"
+    p.write_text("sensor: maxsonar-ez1\nsonars:\n  - {name: '2e1', x: 0, y: 0, yaw_deg: 0}\n")
+    save_rig(load_rig(p), tmp_path / "again.yaml")
+    assert load_rig(tmp_path / "again.yaml").names == ("2e1",)

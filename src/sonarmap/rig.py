@@ -21,11 +21,10 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import yaml
 
 from .checks import finite_number
 from .errors import ConfigError, InputError, quote
-from .files import read_yaml
+from .files import dump_yaml, read_yaml
 from .sensors import SensorModel, get_sensor, sensor_from_dict
 
 __all__ = ["RIG_PRESETS", "SIX_BEARINGS", "Mount", "Rig", "get_rig", "load_rig", "save_rig"]
@@ -185,7 +184,7 @@ def save_rig(rig: Rig, path: str | Path) -> None:
     """Write a rig as YAML (atomically)."""
     from .files import atomic_write_text
 
-    atomic_write_text(Path(path), yaml.safe_dump(rig.to_dict(), sort_keys=False))
+    atomic_write_text(Path(path), dump_yaml(rig.to_dict()))
 
 
 def _paper_synthetic() -> Rig:

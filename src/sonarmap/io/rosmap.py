@@ -28,11 +28,10 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import yaml
 from PIL import Image, UnidentifiedImageError
 
 from ..errors import InputError, quote
-from ..files import atomic_outputs, need_file, read_yaml
+from ..files import atomic_outputs, dump_yaml, need_file, read_yaml
 from ..grid import Grid
 
 __all__ = ["FREE", "OCCUPIED", "UNKNOWN", "OccupancyMap", "classify", "read_map", "write_map"]
@@ -397,7 +396,7 @@ def write_map(m: OccupancyMap, stem: str | Path, *, exact: bool = True) -> tuple
     pixels = to_pixels(m.occupancy)
     paths = (yaml_path, pgm_path, npy_path) if exact else (yaml_path, pgm_path)
     with atomic_outputs(*paths) as temps:
-        temps[0].write_text(yaml.safe_dump(meta, sort_keys=False))
+        temps[0].write_text(dump_yaml(meta))
         Image.fromarray(pixels).save(temps[1], format="PPM")
         if exact:
             with temps[2].open("wb") as f:
