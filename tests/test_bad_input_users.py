@@ -179,13 +179,13 @@ def test_a_huge_declared_image_is_refused_from_its_header(tmp_path: Path) -> Non
 def test_an_unsupported_image_mode_is_said_once(tmp_path: Path) -> None:
     """The mode's message was wrapped in 'cannot read image (InputError: ...)', the path
     twice."""
-    px = _image(tmp_path).astype(np.uint16) * 257
-    Image.fromarray(px).save(tmp_path / "deep.png")
+    px = _image(tmp_path).astype(np.float32)
+    Image.fromarray(px).save(tmp_path / "float.tif")
     p = tmp_path / "m.yaml"
-    p.write_text("image: deep.png\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    p.write_text("image: float.tif\nresolution: 0.1\norigin: [0, 0, 0]\n")
     with pytest.raises(InputError) as e:
         read_map(p)
-    assert str(e.value).count("deep.png") == 1
+    assert str(e.value).count("float.tif") == 1
     assert "unsupported image mode" in str(e.value)
     assert "cannot read image" not in str(e.value)
 
@@ -206,7 +206,9 @@ def test_a_rotated_map_is_refused_naming_its_yaw(tmp_path: Path) -> None:
         read_map(p)
 
 
-@pytest.mark.parametrize("variant", ["ascii", "alpha", "negate", "spaces", "absolute"])
+@pytest.mark.parametrize(
+    "variant", ["ascii", "alpha", "negate", "spaces", "absolute", "png16", "pgm16", "pgm1000"]
+)
 def test_map_server_variants_read_as_the_plain_map(tmp_path: Path, variant: str) -> None:
     px = _image(tmp_path)
     (tmp_path / "plain.yaml").write_text("image: plan.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
@@ -229,6 +231,16 @@ def test_map_server_variants_read_as_the_plain_map(tmp_path: Path, variant: str)
         (tmp_path / "my maps").mkdir()
         Image.fromarray(px).save(tmp_path / "my maps" / "floor 2.pgm")
         image = "my maps/floor 2.pgm"
+    elif variant == "png16":
+        # Refused before, read by Nav2's map_server: 16-bit grey on its own scale.
+        Image.fromarray(px.astype(np.uint16) * 257).save(tmp_path / "a.png")
+        image = "a.png"
+    elif variant.startswith("pgm"):
+        top = 65535 if variant == "pgm16" else 1000
+        deep = np.rint(px.astype(np.float64) * top / 255).astype(">u2")
+        head = f"P5\n{px.shape[1]} {px.shape[0]}\n{top}\n".encode()
+        (tmp_path / "a.pgm").write_bytes(head + deep.tobytes())
+        image = "a.pgm"
     else:
         image = str(tmp_path / "plan.pgm")
     (tmp_path / "odd.yaml").write_text(

@@ -5,7 +5,7 @@ The YAML keys follow map_server: ``image`` (path relative to the YAML file),
 ``negate``, ``occupied_thresh``, ``free_thresh`` and ``mode`` (``trinary``, ``scale``
 or ``raw``). Image row 0 is the top of the map. A pixel value ``v`` becomes
 ``p = (255 - v) / 255`` (or ``v / 255`` with ``negate: 1``); colour pixels use the mean
-of their channels, as map_server does.
+of their channels, and 16-bit grey pixels ``v / 257``, as map_server does.
 
 sonarmap writes ``NAME.yaml``, ``NAME.pgm`` (0 occupied, 254 free, 205 unknown: the
 values map_saver writes) and ``NAME.npy`` (float32 occupancy in [0, 1], NaN where
@@ -71,6 +71,11 @@ def classify(occupancy: npt.ArrayLike) -> npt.NDArray[np.int8]:
 
 
 _IMAGE_MODES = ("L", "LA", "RGB", "RGBA", "P", "1")
+#: 16-bit grey modes: Pillow's for a 16-bit PNG, and for a PGM of maxval above 255 ("I",
+#: its values scaled by Pillow to 0..65535 whatever the maxval).
+_DEEP_MODES = ("I;16", "I;16B", "I;16L")
+#: 65535 / 255: a 16-bit grey value to the 8-bit scale the thresholds are read on.
+_DEEP_SCALE = 257.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -310,10 +315,13 @@ def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uin
                     path=path,
                 )
             im.load()
+            if im.mode in _DEEP_MODES or (im.mode == "I" and im.format == "PPM"):
+                # map_server (Nav2) reads a 16-bit grey image on its own scale.
+                return np.asarray(im, dtype=np.float64) / _DEEP_SCALE, None
             if im.mode not in _IMAGE_MODES:
                 raise InputError(
                     f"unsupported image mode '{im.mode}'; expected 8-bit grey or colour "
-                    f"({', '.join(_IMAGE_MODES)})",
+                    f"({', '.join(_IMAGE_MODES)}) or 16-bit grey",
                     path=path,
                 )
             if im.mode == "P":
