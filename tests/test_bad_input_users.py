@@ -362,3 +362,14 @@ def test_a_sonar_named_like_a_number_survives_a_round_trip(tmp_path: Path) -> No
     p.write_text("sensor: maxsonar-ez1\nsonars:\n  - {name: '2e1', x: 0, y: 0, yaw_deg: 0}\n")
     save_rig(load_rig(p), tmp_path / "again.yaml")
     assert load_rig(tmp_path / "again.yaml").names == ("2e1",)
+
+
+def test_a_choice_cell_wider_than_the_map_is_one_block_not_a_memory_error() -> None:
+    """--choice-cell 1e9 padded the map to 2e9 x 2e9 cells: ArrayMemoryError, exit 1."""
+    from sonarmap.patrol.coarse import any_in_blocks
+
+    mask = np.zeros((3, 4), dtype=bool)
+    mask[2, 1] = True
+    assert any_in_blocks(mask, 2 * 10**9).tolist() == [[True]]
+    assert any_in_blocks(mask, 4).tolist() == [[True]]
+    assert any_in_blocks(~np.ones((3, 4), dtype=bool), 10**9).tolist() == [[False]]
