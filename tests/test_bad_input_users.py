@@ -373,3 +373,33 @@ def test_a_choice_cell_wider_than_the_map_is_one_block_not_a_memory_error() -> N
     assert any_in_blocks(mask, 2 * 10**9).tolist() == [[True]]
     assert any_in_blocks(mask, 4).tolist() == [[True]]
     assert any_in_blocks(~np.ones((3, 4), dtype=bool), 10**9).tolist() == [[False]]
+
+
+def _room(tmp_path: Path) -> Path:
+    """A 30 m x 30 m walled room at 0.5 m: room.yaml."""
+    px = np.full((60, 60), 254, dtype=np.uint8)
+    px[:2, :] = px[-2:, :] = px[:, :2] = px[:, -2:] = 0
+    Image.fromarray(px).save(tmp_path / "room.pgm")
+    (tmp_path / "room.yaml").write_text("image: room.pgm\nresolution: 0.5\norigin: [0, 0, 0]\n")
+    return tmp_path / "room.yaml"
+
+
+@pytest.mark.parametrize(
+    "option",
+    [
+        ["--refine", "--refine-window", "1e9"],
+        ["--refine", "--refine-side", "1e9"],
+        ["--weaken", "--weaken-r0", "1e9"],
+        ["--crowding", "obstacles", "--r-obst", "1e9"],
+    ],
+)
+def test_a_patrol_distance_past_the_map_is_refused_before_the_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], option: list[str]
+) -> None:
+    """Each allocated arrays of 1e9 m in cells (ArrayMemoryError, ValueError: exit 1) or,
+    --refine-side, searched for minutes."""
+    out = tmp_path / "run"
+    args = ["patrol", "run", "--map", str(_room(tmp_path)), "--robots", "2"]
+    line = refused([*args, "--duration", "1", *option, "-o", str(out)], capsys)
+    assert f"{option[-2]} 1e+09: at most the map's diagonal, 42.4 m" in line
+    assert not out.exists()
