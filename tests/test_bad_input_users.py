@@ -403,3 +403,22 @@ def test_a_patrol_distance_past_the_map_is_refused_before_the_run(
     line = refused([*args, "--duration", "1", *option, "-o", str(out)], capsys)
     assert f"{option[-2]} 1e+09: at most the map's diagonal, 42.4 m" in line
     assert not out.exists()
+
+
+def test_a_bandwidth_too_low_to_carry_a_message_is_refused_not_a_hang(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--bandwidth 1e-9 (a slip for 1e9) paid a message's schedule over 1e12 periods of
+    10 s: team run ran past two minutes on a 5 s mission."""
+    from sonarmap.team.network import NetworkParams
+
+    with pytest.raises(ConfigError, match=r"'bandwidth' 1e-09 B/s .* at least 0.105 B/s"):
+        NetworkParams(bandwidth=1e-9)
+    assert NetworkParams(bandwidth=0.2).bandwidth == 0.2
+    out = tmp_path / "team"
+    line = refused(
+        ["team", "run", "--map", "office", "--robots", "2", "--bandwidth", "1e-9", "-o", str(out)],
+        capsys,
+    )
+    assert line.startswith("sonarmap: error: --bandwidth: ")
+    assert not out.exists()
