@@ -422,3 +422,21 @@ def test_a_bandwidth_too_low_to_carry_a_message_is_refused_not_a_hang(
     )
     assert line.startswith("sonarmap: error: --bandwidth: ")
     assert not out.exists()
+
+
+def test_simulating_from_outside_the_plan_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A pose 5 m left of a 30 m room gave readings of its outer wall, written as data."""
+    traj = tmp_path / "traj.csv"
+    traj.write_text("# a route\nt,x,y,theta\n0,5,5,0\n0.1,-5,5,0\n")
+    out = tmp_path / "r.csv"
+    args = ["simulate", "--map", str(_room(tmp_path)), "--rig", "paper-real"]
+    line = refused([*args, "--trajectory", str(traj), "--model", "thrun", "-o", str(out)], capsys)
+    assert line.endswith(
+        "traj.csv: pose 2 (t = 0.1 s) at (-5, 5) m is outside the plan, x 0..30 m, y 0..30 m"
+    )
+    assert not out.exists()
+    traj.write_text("t,x,y,theta\n0,5,5,0\n0.1,6,5,0\n")
+    main([*args, "--trajectory", str(traj), "--model", "thrun", "-o", str(out)])
+    assert out.exists()
