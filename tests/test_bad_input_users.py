@@ -440,3 +440,19 @@ def test_simulating_from_outside_the_plan_is_refused(
     traj.write_text("t,x,y,theta\n0,5,5,0\n0.1,6,5,0\n")
     main([*args, "--trajectory", str(traj), "--model", "thrun", "-o", str(out)])
     assert out.exists()
+
+
+def test_a_team_route_outside_the_plan_is_refused_naming_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A route 40 m left of the plan ended 'built map has no occupied cell: nothing to
+    align', one at x = 1e308 'bounds must satisfy xmin < xmax': neither named the route."""
+    route = tmp_path / "route.csv"
+    out = tmp_path / "team"
+    args = ["team", "run", "--map", str(_room(tmp_path)), "--duration", "5", "-o", str(out)]
+    for x, shown in (("-40", "-40"), ("1e308", "1e+308")):
+        route.write_text(f"t,x,y,theta\n0,5,5,0\n10,{x},5,0\n")
+        line = refused([*args, "--route", str(route)], capsys)
+        where = f"route.csv: pose 2 (t = 10 s) at ({shown}, 5) m is outside the plan"
+        assert line.endswith(f"{where}, x 0..30 m, y 0..30 m")
+        assert not out.exists()

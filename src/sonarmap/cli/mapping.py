@@ -36,6 +36,7 @@ from .common import (
     MethodPreset,
     ReorderWindow,
     check_grid_size,
+    check_inside_plan,
     console,
     figure,
     named_check,
@@ -182,7 +183,7 @@ def simulate_cmd(
     world = resolve_map(map_, resolution, origin)
     r = load_rig(rig)
     traj = read_trajectory(trajectory)
-    _check_inside(traj, world.grid, trajectory)
+    check_inside_plan(traj.t, traj.x, traj.y, world.grid, trajectory)
     sonar = make_model(
         model.value,
         p_rand=p_rand,
@@ -203,22 +204,6 @@ def simulate_cmd(
         )
     write_readings(readings, out)
     console.print(f"wrote {len(readings)} readings to {out}")
-
-
-def _check_inside(traj: Any, grid: Any, path: Path) -> None:
-    """Refuse a trajectory that leaves the plan: its readings would be of a world
-    nobody drew (the sonars see the plan's edge from outside, or nothing)."""
-    import numpy as np
-
-    xmin, xmax, ymin, ymax = grid.extent
-    outside = ~((traj.x >= xmin) & (traj.x <= xmax) & (traj.y >= ymin) & (traj.y <= ymax))
-    if outside.any():
-        i = int(np.flatnonzero(outside)[0])
-        raise InputError(
-            f"pose {i + 1} (t = {traj.t[i]:g} s) at ({traj.x[i]:g}, {traj.y[i]:g}) m is "
-            f"outside the plan, x {xmin:g}..{xmax:g} m, y {ymin:g}..{ymax:g} m",
-            path=path,
-        )
 
 
 @app.command("map", epilog=EPILOG)
