@@ -109,9 +109,9 @@ def test_bad_map_files(tmp_path: Path, text: str, match: str) -> None:
 
 
 def test_wrong_image_mode_and_garbage(tmp_path: Path) -> None:
-    Image.fromarray(np.zeros((2, 2), dtype=np.uint16)).save(tmp_path / "w.png")
-    (tmp_path / "w.yaml").write_text("image: w.png\nresolution: 0.1\norigin: [0, 0, 0]\n")
-    with pytest.raises(InputError, match="unsupported image mode 'I;16'"):
+    Image.fromarray(np.zeros((2, 2), dtype=np.float32)).save(tmp_path / "w.tif")
+    (tmp_path / "w.yaml").write_text("image: w.tif\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    with pytest.raises(InputError, match="unsupported image mode 'F'"):
         read_map(tmp_path / "w.yaml")
     (tmp_path / "g.pgm").write_bytes(b"P5 garbage")
     (tmp_path / "g.yaml").write_text("image: g.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")

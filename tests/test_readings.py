@@ -70,7 +70,7 @@ def test_chunks_give_the_same_result(tmp_path: Path) -> None:
         (GOOD.replace("theta,range", "heading,range"), r"r.csv:1: missing column\(s\) theta"),
         (GOOD + "0.3,a,0.0,0.0\n", r"r.csv:5, field 'theta': missing value"),
         (GOOD + "0.3,a,0,0,0,1,9\n", r"r.csv:5: expected 6 fields, saw 7"),
-        (GOOD + "\n0.4,a,0,0,0,1\n", r"r.csv:5, field 't': missing value"),
+        (GOOD + "\n0.4,a,0,0,0,-1\n", r"r.csv:6, field 'range': range is negative"),
         ("", "file is empty"),
         ("t,sensor,x,y,theta,range\n", "no readings"),
     ],

@@ -21,10 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from .errors import InputError
-from .files import atomic_write_text, read_yaml
+from .files import atomic_write_text, dump_yaml, read_yaml
 
 __all__ = ["Passage", "SmallObstacle", "load_annotations", "write_annotations"]
 
@@ -97,7 +95,7 @@ def write_annotations(
             for o in obstacles
         ],
     }
-    atomic_write_text(path, yaml.safe_dump(ann, sort_keys=False))
+    atomic_write_text(path, dump_yaml(ann))
 
 
 def load_annotations(path: str | Path) -> tuple[tuple[Passage, ...], tuple[SmallObstacle, ...]]:

@@ -12,6 +12,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator
@@ -29,6 +30,7 @@ __all__ = [
     "atomic_write",
     "atomic_write_text",
     "check_writable",
+    "dump_yaml",
     "json_dumps",
     "live_outputs",
     "need_file",
@@ -283,6 +285,40 @@ def read_text(path: str | Path, what: str = "file") -> str:
         raise InputError(f"{what} is not text ({err.reason})", path=p) from err
 
 
+class _Loader(yaml.SafeLoader):
+    """The safe loader, reading numbers as YAML 1.2 and map_server's yaml-cpp do."""
+
+
+class _Dumper(yaml.SafeDumper):
+    """The safe dumper, quoting the strings :class:`_Loader` would read as numbers."""
+
+
+# YAML 1.1, which PyYAML implements, reads ``1e-3`` and ``1.0e9`` (no dot, or no sign
+# after the e) as strings; map_server, and users, take them for numbers. The dumper
+# knows it too, so that a name such as "1e5" is written quoted and read back a string.
+for _cls in (_Loader, _Dumper):
+    _cls.add_implicit_resolver(
+        "tag:yaml.org,2002:float",
+        re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+        list("-+0123456789."),
+    )
+
+
+def dump_yaml(data: Any) -> str:
+    """``data`` as YAML text, keys in their order, that :func:`read_yaml` reads back equal.
+
+    Parameters
+    ----------
+    data : Any
+        Plain data: mappings, lists, strings, numbers, booleans, None.
+
+    Returns
+    -------
+    str
+    """
+    return yaml.dump(data, Dumper=_Dumper, sort_keys=False)
+
+
 def read_yaml(path: str | Path, what: str = "file") -> Any:
     """Parse a YAML file with the safe loader.
 
@@ -307,7 +343,7 @@ def read_yaml(path: str | Path, what: str = "file") -> Any:
     p = Path(path)
     text = read_text(p, what)
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_Loader)  # a SafeLoader: plain data only
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         problem = getattr(err, "problem", None) or type(err).__name__

@@ -82,6 +82,13 @@ class Grid:
             )
         if not (math.isfinite(resolution) and resolution > 0):
             raise ConfigError(f"resolution must be a positive number of metres, got {resolution}")
+        span = max(xmax - xmin, ymax - ymin) / resolution
+        if not math.isfinite(span):
+            # Infinite bounds, or a difference of finite ones that overflows.
+            raise ConfigError(
+                f"bounds ({xmin:g}, {ymin:g}, {xmax:g}, {ymax:g}) span more cells of "
+                f"{resolution:g} m than can be counted (limit 2**31 cells)"
+            )
         # A tolerance keeps 6.0 / 0.05 from becoming 121 cells through rounding.
         cols = max(1, math.ceil((xmax - xmin) / resolution - 1e-9))
         rows = max(1, math.ceil((ymax - ymin) / resolution - 1e-9))

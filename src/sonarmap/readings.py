@@ -49,6 +49,8 @@ DEFAULT_CHUNK = 500_000
 REORDER_WINDOW = 2.0
 
 F64 = npt.NDArray[np.float64]
+#: The file line of each row of a parsed chunk.
+Lines = npt.NDArray[np.intp]
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,19 +259,25 @@ _TOKENIZE = re.compile(r"Expected (\d+) fields in line (\d+), saw (\d+)")
 
 def _chunks(
     path: Path, columns: Sequence[str], text_columns: Sequence[str], chunk_size: int
-) -> Iterator[tuple[int, dict[str, npt.NDArray[np.generic]]]]:
-    """Parse a CSV file with a header in chunks; yield (line of first row, columns).
+) -> Iterator[tuple[Lines, dict[str, npt.NDArray[np.generic]]]]:
+    """Parse a CSV file with a header in chunks; yield (file line of each row, columns).
+
+    Blank lines, and comment lines (``#`` first), are skipped anywhere in the file.
 
     Every value is checked: missing fields, non-numbers and non-finite numbers raise
     :class:`InputError` naming the file, line and field.
     """
     need_file(path, "CSV file")
+    head = _leading_comments(path)
     try:
         reader = pd.read_csv(
             path,
             dtype=str,
             keep_default_na=False,
+            # Blank and comment lines are dropped after parsing, so that the line
+            # numbers of errors stay the file's own.
             skip_blank_lines=False,
+            skiprows=head,
             chunksize=chunk_size,
             engine="c",
             compression="infer",
@@ -281,7 +289,41 @@ def _chunks(
     except (EOFError, OSError, UnicodeDecodeError) as err:
         raise InputError(f"cannot read file ({type(err).__name__}: {err})", path=path) from err
     with reader:
-        yield from _parse_chunks(path, reader, columns, text_columns)
+        yield from _parse_chunks(path, reader, columns, text_columns, first_line=2 + head)
+
+
+#: Lines of a CSV's head searched for its header past blank and comment lines.
+_HEAD_SCAN = 10_000
+
+
+def _leading_comments(path: Path) -> int:
+    """Lines before a CSV's header that are blank or comments (``#`` first), at most
+    :data:`_HEAD_SCAN`; 0 for a compression other than gzip, whose header is taken as
+    the first line."""
+    suffix = path.suffix.lower()
+    if suffix not in (".csv", ".txt", ".gz", ""):
+        return 0
+    opener = gzip.open if suffix == ".gz" else open
+    n = 0
+    try:
+        with opener(path, "rb") as f:
+            for raw in f:
+                text = raw.removeprefix(b"\xef\xbb\xbf") if n == 0 else raw
+                stripped = text.strip()
+                if (stripped and not stripped.startswith(b"#")) or n >= _HEAD_SCAN:
+                    break
+                n += 1
+    except (EOFError, OSError):
+        return 0  # the reader names the damage
+    return n
+
+
+def _content_rows(frame: pd.DataFrame) -> npt.NDArray[np.intp]:
+    """Positions of the rows that are neither blank (every field empty) nor a comment
+    (the first field starting with ``#``)."""
+    first = frame.iloc[:, 0].astype(str).str.lstrip()
+    blank = (frame == "").all(axis=1).to_numpy() | first.str.startswith("#").to_numpy()
+    return np.flatnonzero(~blank)
 
 
 def _parse_chunks(
@@ -289,21 +331,27 @@ def _parse_chunks(
     reader: Iterator[pd.DataFrame],
     columns: Sequence[str],
     text_columns: Sequence[str],
-) -> Iterator[tuple[int, dict[str, npt.NDArray[np.generic]]]]:
+    first_line: int = 2,
+) -> Iterator[tuple[Lines, dict[str, npt.NDArray[np.generic]]]]:
     try:
-        line = 2
+        line = first_line
         for k, frame in enumerate(reader):
+            frame.columns = [str(c).strip() for c in frame.columns]
             if k == 0:
-                _check_columns(path, list(frame.columns), columns)
+                _check_columns(path, list(frame.columns), columns, header_line=first_line - 1)
+            keep = _content_rows(frame)
+            # File line of each kept row, for the messages.
+            lines = line + keep
+            rows = frame.iloc[keep]
             out: dict[str, npt.NDArray[np.generic]] = {}
             for col in columns:
-                raw = frame[col]
+                raw = rows[col]
                 if col in text_columns:
                     values = raw.to_numpy(dtype=str)
                     bad = np.flatnonzero(values == "")
                     if len(bad):
                         raise InputError(
-                            "missing value", path=path, line=line + int(bad[0]), field=col
+                            "missing value", path=path, line=int(lines[bad[0]]), field=col
                         )
                     out[col] = values
                     continue
@@ -315,9 +363,10 @@ def _parse_chunks(
                     i = int(np.flatnonzero(bad_mask)[0])
                     text = str(raw.iloc[i]).strip()
                     why = "missing value" if text == "" else f"not a finite number ({quote(text)})"
-                    raise InputError(why, path=path, line=line + i, field=col)
+                    raise InputError(why, path=path, line=int(lines[i]), field=col)
                 out[col] = num
-            yield line, out
+            if len(keep):
+                yield lines, out
             line += len(frame)
     except pd.errors.EmptyDataError as err:
         raise InputError(
@@ -334,7 +383,9 @@ def _parse_chunks(
         raise InputError(f"cannot read file ({type(err).__name__}: {err})", path=path) from err
 
 
-def _check_columns(path: Path, found: list[str], expected: Sequence[str]) -> None:
+def _check_columns(
+    path: Path, found: list[str], expected: Sequence[str], header_line: int = 1
+) -> None:
     stripped = [c.strip() for c in found]
     missing = [c for c in expected if c not in stripped]
     extra = [c for c in stripped if c not in expected]
@@ -347,11 +398,13 @@ def _check_columns(path: Path, found: list[str], expected: Sequence[str]) -> Non
         if not parts:
             parts.append("duplicate columns")
         raise InputError(
-            f"{'; '.join(parts)}; expected header {','.join(expected)}", path=path, line=1
+            f"{'; '.join(parts)}; expected header {','.join(expected)}",
+            path=path,
+            line=header_line,
         )
 
 
-def _check_time(path: Path, t: F64, first_line: int, previous: float) -> None:
+def _check_time(path: Path, t: F64, lines: Lines, previous: float) -> None:
     prev = np.concatenate([[previous], t[:-1]])
     back = np.flatnonzero(t < prev)
     if len(back):
@@ -359,7 +412,7 @@ def _check_time(path: Path, t: F64, first_line: int, previous: float) -> None:
         raise InputError(
             f"time goes backwards ({t[i]} after {prev[i]})",
             path=path,
-            line=first_line + i,
+            line=int(lines[i]),
             field="t",
         )
 
@@ -395,18 +448,18 @@ def iter_readings(
         yield from in_time_order((r for _, r in raw), rep)
         return
     last_t = -np.inf
-    for line, r in raw:
-        _check_time(Path(path), r.t, line, last_t)
+    for lines, r in raw:
+        _check_time(Path(path), r.t, lines, last_t)
         last_t = float(r.t[-1]) if len(r) else last_t
         yield r
 
 
 def _parse_readings(
     p: Path, names: Sequence[str] | None, chunk_size: int
-) -> Iterator[tuple[int, Readings]]:
+) -> Iterator[tuple[Lines, Readings]]:
     known: list[str] = list(names) if names is not None else []
     lookup = {n: i for i, n in enumerate(known)}
-    for line, cols in _chunks(p, READINGS_COLUMNS, ("sensor",), chunk_size):
+    for lines, cols in _chunks(p, READINGS_COLUMNS, ("sensor",), chunk_size):
         labels = np.char.strip(cols["sensor"].astype(str))
         uniq, inverse = np.unique(labels, return_inverse=True)
         if names is not None:
@@ -416,7 +469,7 @@ def _parse_readings(
                 raise InputError(
                     f"unknown sensor '{labels[i]}'; the rig has {', '.join(known)}",
                     path=p,
-                    line=line + i,
+                    line=int(lines[i]),
                     field="sensor",
                 )
         codes = np.empty(len(uniq), dtype=np.int32)
@@ -433,9 +486,11 @@ def _parse_readings(
         neg = np.flatnonzero(rng < 0)
         if len(neg):
             i = int(neg[0])
-            raise InputError(f"range is negative ({rng[i]})", path=p, line=line + i, field="range")
+            raise InputError(
+                f"range is negative ({rng[i]})", path=p, line=int(lines[i]), field="range"
+            )
         yield (
-            line,
+            lines,
             Readings(
                 cols["t"].astype(np.float64),
                 codes[inverse].astype(np.int32),
@@ -467,9 +522,9 @@ def read_trajectory(path: str | Path, *, chunk_size: int = DEFAULT_CHUNK) -> Tra
     p = Path(path)
     cols: dict[str, list[F64]] = {c: [] for c in TRAJECTORY_COLUMNS}
     last_t = -np.inf
-    for line, chunk in _chunks(p, TRAJECTORY_COLUMNS, (), chunk_size):
+    for lines, chunk in _chunks(p, TRAJECTORY_COLUMNS, (), chunk_size):
         t = chunk["t"].astype(np.float64)
-        _check_time(p, t, line, last_t)
+        _check_time(p, t, lines, last_t)
         last_t = float(t[-1]) if len(t) else last_t
         for c in TRAJECTORY_COLUMNS:
             cols[c].append(chunk[c].astype(np.float64))

@@ -21,11 +21,10 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import yaml
 
 from .checks import finite_number
-from .errors import ConfigError, InputError
-from .files import read_yaml
+from .errors import ConfigError, InputError, quote
+from .files import dump_yaml, read_yaml
 from .sensors import SensorModel, get_sensor, sensor_from_dict
 
 __all__ = ["RIG_PRESETS", "SIX_BEARINGS", "Mount", "Rig", "get_rig", "load_rig", "save_rig"]
@@ -145,12 +144,25 @@ def rig_from_dict(d: Any, where: str = "rig", base_dir: Path | None = None) -> R
         for key in ("name", "x", "y", "yaw_deg"):
             if key not in s:
                 raise ConfigError(f"{w}: missing key '{key}'")
+        name = s["name"]
+        if isinstance(name, bool) or not isinstance(name, str | int):
+            raise ConfigError(f"{w}.name: expected a name, got {quote(name)}")
+        name = str(name)
+        # Readings name their sonar in a CSV field, read stripped of spaces.
+        if not name or name != name.strip() or "\n" in name:
+            raise ConfigError(
+                f"{w}.name: {quote(name)} is empty or has spaces at an end or a line break"
+            )
+        yaw = finite_number(s["yaw_deg"], f"{w}.yaw_deg")
+        if not -360.0 <= yaw <= 360.0:
+            # A mounting turns at most a full turn either way; more is a slip of the pen.
+            raise ConfigError(f"{w}.yaw_deg: must be within [-360, 360] degrees, got {yaw:g}")
         mounts.append(
             Mount(
-                name=str(s["name"]),
+                name=name,
                 x=finite_number(s["x"], f"{w}.x"),
                 y=finite_number(s["y"], f"{w}.y"),
-                yaw_deg=finite_number(s["yaw_deg"], f"{w}.yaw_deg"),
+                yaw_deg=yaw,
             )
         )
     return Rig(sensor=sensor, mounts=tuple(mounts))
@@ -172,7 +184,7 @@ def save_rig(rig: Rig, path: str | Path) -> None:
     """Write a rig as YAML (atomically)."""
     from .files import atomic_write_text
 
-    atomic_write_text(Path(path), yaml.safe_dump(rig.to_dict(), sort_keys=False))
+    atomic_write_text(Path(path), dump_yaml(rig.to_dict()))
 
 
 def _paper_synthetic() -> Rig:

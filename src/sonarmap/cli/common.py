@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Protocol, TypeVar, cast
 import typer
 from rich.console import Console
 
-from ..errors import ConfigError, quote
+from ..errors import ConfigError, InputError, quote
 
 if TYPE_CHECKING:
     from ..grid import Grid
@@ -44,6 +44,7 @@ __all__ = [
     "StopOnInterrupt",
     "Update",
     "check_grid_size",
+    "check_inside_plan",
     "config_from_options",
     "config_options",
     "console",
@@ -185,6 +186,24 @@ def resolve_map(
 #: library's :class:`~sonarmap.grid.Grid` takes up to 2^31 cells for callers that
 #: know their memory.
 MAX_MAP_CELLS = 100_000_000
+
+
+def check_inside_plan(t: Any, x: Any, y: Any, grid: Grid, path: Path) -> None:
+    """Refuse a trajectory or route (times ``t``, positions ``x``, ``y``, metres) that
+    leaves the plan's grid, naming ``path``, the first pose outside and the extent: the
+    readings or mission along it would be of a world nobody drew."""
+    import numpy as np
+
+    xmin, xmax, ymin, ymax = grid.extent
+    xs, ys = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    outside = ~((xs >= xmin) & (xs <= xmax) & (ys >= ymin) & (ys <= ymax))
+    if outside.any():
+        i = int(np.flatnonzero(outside)[0])
+        raise InputError(
+            f"pose {i + 1} (t = {float(t[i]):g} s) at ({xs[i]:g}, {ys[i]:g}) m is outside "
+            f"the plan, x {xmin:g}..{xmax:g} m, y {ymin:g}..{ymax:g} m",
+            path=path,
+        )
 
 
 def check_grid_size(grid: Grid, option: str) -> None:

@@ -36,6 +36,7 @@ from .common import (
     MethodPreset,
     ReorderWindow,
     check_grid_size,
+    check_inside_plan,
     console,
     figure,
     named_check,
@@ -182,6 +183,7 @@ def simulate_cmd(
     world = resolve_map(map_, resolution, origin)
     r = load_rig(rig)
     traj = read_trajectory(trajectory)
+    check_inside_plan(traj.t, traj.x, traj.y, world.grid, trajectory)
     sonar = make_model(
         model.value,
         p_rand=p_rand,

@@ -377,6 +377,7 @@ def run_cmd(
         },
     )
     territory = _territory(map_, resolve_map(map_, resolution, origin), config)
+    _check_reach(config, territory.grid)
     region = read_region(territory_file, territory.grid) if territory_file else None
     start = read_starts(starts, territory) if starts is not None else None
     if start is not None and starts is not None:
@@ -490,6 +491,26 @@ def _check_start_file(
         check_starts(start, territory, inside, config.min_separation)
     except InputError as err:
         raise InputError(err.reason, path=path) from None
+
+
+#: Options that size a window, a search or a ray in metres: each past the map's diagonal
+#: means nothing more, and allocated (or searched) arrays of that many cells.
+_REACH_OPTIONS = ("refine_window", "refine_side", "refine_goal", "weaken_r0", "r_obst")
+
+
+def _check_reach(config: PatrolConfig, grid: Any) -> None:
+    """Refuse, before the run, a distance option longer than the map's diagonal (and
+    its default, which a small map keeps)."""
+    diagonal = math.hypot(grid.rows, grid.cols) * grid.resolution
+    defaults = PatrolConfig()
+    for name in _REACH_OPTIONS:
+        value, default = float(getattr(config, name)), float(getattr(defaults, name))
+        limit = max(diagonal, default) if math.isfinite(default) else diagonal
+        if math.isfinite(value) and value > limit:
+            option = "--" + name.replace("_", "-")
+            raise ConfigError(
+                f"{option} {value:g}: at most the map's diagonal, {diagonal:.3g} m", field=name
+            )
 
 
 def _territory(path: Path, m: Any, config: PatrolConfig) -> Any:

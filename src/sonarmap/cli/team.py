@@ -40,6 +40,7 @@ from .common import (
     LivePortOption,
     LiveRateOption,
     Opt,
+    check_inside_plan,
     config_from_options,
     config_options,
     console,
@@ -650,6 +651,7 @@ def run_cmd(
             routes[0] = saved
     if route is not None:
         routes[0] = read_route(route)
+        check_inside_plan(routes[0][:, 0], routes[0][:, 1], routes[0][:, 2], plan.grid, route)
     config = _mission_config(duration, seed, store)
     if tour:
         # Each robot's seed as the mission draws its own route (seed + 7919 x robot).

@@ -205,6 +205,11 @@ def _robotlaser(tokens: list[str], path: Path, line: int) -> CarmenScan:
 def _sonar(tokens: list[str], path: Path, line: int) -> CarmenScan:
     _need(tokens, 3, path, line)
     cone = _floats(tokens[1:2], path, line, "cone angle")[0]
+    if not 0.0 < cone < math.pi:
+        # A sonar's opening is its beam: none, or a half plane or more, is no sonar.
+        raise InputError(
+            f"SONAR cone angle must be in (0, pi) radians, got {cone:g}", path=path, line=line
+        )
     n = _count(tokens, 2, path, line, "number of sonars")
     expected = 3 + n + 3 * n + 3 + 2 + 3
     if len(tokens) != expected:
@@ -352,8 +357,15 @@ def iter_carmen_readings(
         if sc.kind != kind:
             continue
         if rig is None:
-            rig = _rig(kind, sc, max_range)
+            rig, cone = _rig(kind, sc, max_range), sc.cone
         r = _scan_readings(sc, rig, max_range, p)
+        if sc.cone != cone:
+            # The rig has one beam: a log whose sonars change theirs has no single rig.
+            raise InputError(
+                f"{kind} cone angle {sc.cone:g} rad, the first message's was {cone:g}",
+                path=p,
+                line=sc.line,
+            )
         s.readings += len(r)
         yield r, rig
     if rig is None:

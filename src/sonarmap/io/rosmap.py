@@ -5,7 +5,7 @@ The YAML keys follow map_server: ``image`` (path relative to the YAML file),
 ``negate``, ``occupied_thresh``, ``free_thresh`` and ``mode`` (``trinary``, ``scale``
 or ``raw``). Image row 0 is the top of the map. A pixel value ``v`` becomes
 ``p = (255 - v) / 255`` (or ``v / 255`` with ``negate: 1``); colour pixels use the mean
-of their channels, as map_server does.
+of their channels, and 16-bit grey pixels ``v / 257``, as map_server does.
 
 sonarmap writes ``NAME.yaml``, ``NAME.pgm`` (0 occupied, 254 free, 205 unknown: the
 values map_saver writes) and ``NAME.npy`` (float32 occupancy in [0, 1], NaN where
@@ -20,6 +20,7 @@ that cannot be read, or is not float occupancy of the image's shape, is an error
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,11 +28,10 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import yaml
 from PIL import Image, UnidentifiedImageError
 
 from ..errors import InputError, quote
-from ..files import atomic_outputs, need_file, read_yaml
+from ..files import atomic_outputs, dump_yaml, need_file, read_yaml
 from ..grid import Grid
 
 __all__ = ["FREE", "OCCUPIED", "UNKNOWN", "OccupancyMap", "classify", "read_map", "write_map"]
@@ -71,6 +71,11 @@ def classify(occupancy: npt.ArrayLike) -> npt.NDArray[np.int8]:
 
 
 _IMAGE_MODES = ("L", "LA", "RGB", "RGBA", "P", "1")
+#: 16-bit grey modes: Pillow's for a 16-bit PNG, and for a PGM of maxval above 255 ("I",
+#: its values scaled by Pillow to 0..65535 whatever the maxval).
+_DEEP_MODES = ("I;16", "I;16B", "I;16L")
+#: 65535 / 255: a 16-bit grey value to the 8-bit scale the thresholds are read on.
+_DEEP_SCALE = 257.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,6 +126,14 @@ def _num(value: Any, path: Path, field: str) -> float:
 #: with every map (so map_server reads our classes back).
 OCCUPIED_THRESH = 0.65
 FREE_THRESH = 0.196
+
+#: Pixels of a map image read at most (10^8: 10 000 x 10 000), checked from the image's
+#: header before its pixels are decoded; the command line builds no larger map either.
+MAX_PIXELS = 100_000_000
+#: Metres a map may span, and its origin lie from 0, at most: 10 000 km (UTM
+#: coordinates fit; a resolution meant as centimetres but read as metres does not
+#: overflow the geometry that follows).
+MAX_EXTENT = 1e7
 
 #: Suffixes read as a bare image (a floor plan without its YAML).
 IMAGE_SUFFIXES = (".png", ".pgm", ".bmp", ".jpg", ".jpeg", ".gif", ".tif", ".tiff")
@@ -173,8 +186,12 @@ def read_map(
     if not isinstance(origin, list) or len(origin) not in (2, 3):
         raise InputError(f"expected [x, y, yaw], got {origin!r}", path=p, field="origin")
     ox, oy = (_num(v, p, "origin") for v in origin[:2])
-    if len(origin) == 3 and _num(origin[2], p, "origin") != 0.0:
-        raise InputError("rotated maps (origin yaw != 0) are not supported", path=p, field="origin")
+    if len(origin) == 3 and (yaw := _num(origin[2], p, "origin")) != 0.0:
+        raise InputError(
+            f"rotated maps (origin yaw {yaw:g} rad, not 0) are not supported",
+            path=p,
+            field="origin",
+        )
     negate = meta.get("negate", 0)
     if negate not in (0, 1, True, False):
         raise InputError(f"must be 0 or 1, got {negate!r}", path=p, field="negate")
@@ -192,6 +209,7 @@ def read_map(
 
     image_path = Path(image_name) if Path(image_name).is_absolute() else p.parent / image_name
     value, alpha = _read_image(image_path)
+    _check_extent(value.shape, resolution, (ox, oy), p)
     prob = value / 255.0 if negate else (255.0 - value) / 255.0
     occ = np.full(value.shape, np.nan, dtype=np.float64)
     if mode == "raw":
@@ -254,6 +272,7 @@ def _read_bare_image(
     if not all(math.isfinite(v) for v in origin):
         raise InputError(f"origin must be finite, got {origin}", path=path)
     value, _ = _read_image(need_file(path, "map image"))
+    _check_extent(value.shape, resolution, origin, path)
     prob = (255.0 - value) / 255.0
     occ = np.full(value.shape, np.nan, dtype=np.float32)
     occ[prob > OCCUPIED_THRESH] = 1.0
@@ -262,14 +281,47 @@ def _read_bare_image(
     return OccupancyMap(grid, occ)
 
 
+def _check_extent(
+    shape: tuple[int, ...], resolution: float, origin: tuple[float, float], path: Path
+) -> None:
+    """Refuse a map whose world size or origin is beyond :data:`MAX_EXTENT` metres."""
+    span = max(shape[0], shape[1]) * resolution
+    if span > MAX_EXTENT:
+        raise InputError(
+            f"resolution {resolution:g} m per pixel makes the map {span:.3g} m across "
+            f"(at most {MAX_EXTENT:.0e} m)",
+            path=path,
+            field="resolution",
+        )
+    if max(abs(origin[0]), abs(origin[1])) > MAX_EXTENT:
+        raise InputError(
+            f"origin ({origin[0]:g}, {origin[1]:g}) lies more than {MAX_EXTENT:.0e} m from 0",
+            path=path,
+            field="origin",
+        )
+
+
 def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8] | None]:
     try:
-        with Image.open(path) as im:
+        with warnings.catch_warnings():
+            # Pillow warns of a large image on opening; the size check below says more.
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(path)
+        with im:
+            width, height = im.size
+            if width * height > MAX_PIXELS:
+                raise InputError(
+                    f"image of {width} x {height} pixels; at most {MAX_PIXELS:.0e} pixels",
+                    path=path,
+                )
             im.load()
+            if im.mode in _DEEP_MODES or (im.mode == "I" and im.format == "PPM"):
+                # map_server (Nav2) reads a 16-bit grey image on its own scale.
+                return np.asarray(im, dtype=np.float64) / _DEEP_SCALE, None
             if im.mode not in _IMAGE_MODES:
                 raise InputError(
                     f"unsupported image mode '{im.mode}'; expected 8-bit grey or colour "
-                    f"({', '.join(_IMAGE_MODES)})",
+                    f"({', '.join(_IMAGE_MODES)}) or 16-bit grey",
                     path=path,
                 )
             if im.mode == "P":
@@ -278,8 +330,12 @@ def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uin
                 arr = np.asarray(im.convert("L"))
             else:
                 arr = np.asarray(im)
+    except InputError:
+        raise
     except FileNotFoundError as err:
         raise InputError("map image not found", path=path) from err
+    except IsADirectoryError as err:
+        raise InputError("map image is a folder, not an image file", path=path) from err
     except (
         UnidentifiedImageError,
         OSError,
@@ -348,7 +404,7 @@ def write_map(m: OccupancyMap, stem: str | Path, *, exact: bool = True) -> tuple
     pixels = to_pixels(m.occupancy)
     paths = (yaml_path, pgm_path, npy_path) if exact else (yaml_path, pgm_path)
     with atomic_outputs(*paths) as temps:
-        temps[0].write_text(yaml.safe_dump(meta, sort_keys=False))
+        temps[0].write_text(dump_yaml(meta))
         Image.fromarray(pixels).save(temps[1], format="PPM")
         if exact:
             with temps[2].open("wb") as f:

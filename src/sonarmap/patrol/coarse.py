@@ -48,6 +48,9 @@ def any_in_blocks(mask: npt.NDArray[np.bool_], block: int) -> npt.NDArray[np.boo
     if block < 1:
         raise ValueError(f"block: a side of >= 1 cells, got {block}")
     rows, cols = mask.shape
+    # A block past the grid's size is one block, the grid's: without the cap a choice
+    # cell of 1e9 m padded the mask to 2e9 x 2e9 cells.
+    block = min(block, max(rows, cols, 1))
     padded = np.zeros((-(-rows // block) * block, -(-cols // block) * block), dtype=bool)
     padded[:rows, :cols] = mask
     out = padded.reshape(padded.shape[0] // block, block, -1, block).any(axis=(1, 3))

@@ -29,7 +29,14 @@ __all__ = ["Semaphores", "polygon_cells", "read_semaphores"]
 
 
 def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]:
-    """The cells of each semaphore of a file (cell centres inside the polygon)."""
+    """The cells of each semaphore of a file (cell centres inside the polygon).
+
+    Raises
+    ------
+    InputError
+        Naming the file (and line): a line that is not three or more finite ``x y``
+        vertices, a polygon covering no cell, a file holding no polygon.
+    """
     p = Path(path)
     lines = read_text(p, "semaphore file").splitlines()
     out = []
@@ -54,6 +61,9 @@ def read_semaphores(path: str | Path, grid: Grid) -> list[npt.NDArray[np.bool_]]
         if not mask.any():
             raise InputError("the semaphore covers no cell of the map", path=p, line=number)
         out.append(mask)
+    if not out:
+        # Otherwise the run says no semaphore file was given, when it was.
+        raise InputError("the semaphore file holds no polygon", path=p)
     return out
 
 

@@ -65,7 +65,7 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
     ------
     InputError
         Naming the file and line: unreadable, a count that is not a whole number in
-        1..:data:`MAX_ROBOTS`, fewer lines than the count, a line that is not three
+        1..:data:`MAX_ROBOTS`, fewer or more lines than the count, a line that is not three
         finite numbers, a start outside the map.
     """
     p = Path(path)
@@ -84,6 +84,11 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
         raise InputError(f"robot count must be in 1..{MAX_ROBOTS}, got {n}", path=p, line=line)
     if len(body) - 1 < n:
         raise InputError(f"the file says {n} robots but lists {len(body) - 1}", path=p)
+    if len(body) - 1 > n:
+        # A count left behind when starts were added would drop robots without a word.
+        raise InputError(
+            f"the file says {n} robots but lists {len(body) - 1}", path=p, line=body[n + 1][0]
+        )
     rows = []
     for line, text in body[1 : n + 1]:
         parts = text.split()

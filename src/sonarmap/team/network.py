@@ -60,6 +60,8 @@ Bools = npt.NDArray[np.bool_]
 # Event kinds. Events at one time run in the order they were scheduled.
 _HOP_DONE = 0
 _ARRIVE = 1
+#: Bandwidth periods a link may take at most to carry the largest message.
+_MAX_PERIODS = 1e6
 #: Seed-sequence tag of the bandwidth factors, apart from the loss and jitter streams.
 _FACTOR_TAG = 0xBA4D
 #: Factors kept in memory at most; past that the cache restarts (they are recomputable).
@@ -78,7 +80,8 @@ class NetworkParams:
         Range (m) of a ``limited`` link: 70, as in the patrolling simulator.
     bandwidth : float or None
         Bytes/s of each directed link at factor 1; None: unlimited (messages leave at
-        once).
+        once). At least enough to carry ``max_message`` within 10^6 periods at
+        ``bandwidth_min_factor`` (0.105 B/s by default).
     bandwidth_min_factor : float
         Lowest capacity factor, in (0, 1]; 1 keeps the capacity constant.
     bandwidth_period : float
@@ -121,6 +124,19 @@ class NetworkParams:
         _check(self.bandwidth_min_factor, "bandwidth_min_factor", 0.0, 1.0, open_low=True)
         _check(self.bandwidth_period, "bandwidth_period", low=0.0, open_low=True)
         _check(self.burst, "burst", low=0.0)
+        if self.bandwidth is not None:
+            # A link's schedule is paid period by period: a rate that needs more periods
+            # than this for the largest message loops for hours, for nothing.
+            floor = self.max_message / (
+                _MAX_PERIODS * self.bandwidth_min_factor * self.bandwidth_period
+            )
+            if self.bandwidth < floor:
+                raise ConfigError(
+                    f"network parameter 'bandwidth' {self.bandwidth:g} B/s takes more than "
+                    f"{_MAX_PERIODS:.0e} periods of {self.bandwidth_period:g} s to carry the "
+                    f"largest message ({self.max_message} B): at least {floor:.3g} B/s",
+                    field="bandwidth",
+                )
         _check(self.loss, "loss", 0.0, 1.0)
         _check(self.delay, "delay", low=0.0)
         _check(self.jitter, "jitter", low=0.0)

@@ -105,7 +105,8 @@ def unpack_strict(data: bytes, *, max_bin: int, max_str: int, max_array: int, ma
         # msgpack's C unpacker reports short data as a plain ValueError.
         if "incomplete" in str(e):
             raise UnpackError("truncated", "the data end early") from None
-        raise UnpackError("msgpack", f"not msgpack: {e}") from None
+        # A nest too deep raises StackError with no text: its name says what happened.
+        raise UnpackError("msgpack", f"not msgpack: {str(e) or type(e).__name__}") from None
 
 
 def make_uid(robot: int, counter: int) -> int:

@@ -38,11 +38,10 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import yaml
 from scipy import ndimage
 
 from ..errors import ConfigError, InputError, quote
-from ..files import atomic_folder, need_file, read_text, read_yaml
+from ..files import atomic_folder, dump_yaml, need_file, read_text, read_yaml
 from ..floorplan import random_building
 from ..grid import Grid
 from ..io.rosmap import FREE, OCCUPIED, OccupancyMap, read_map, write_map
@@ -1010,7 +1009,7 @@ def save_world(world: World, route: npt.ArrayLike | None, folder: str | Path) ->
         (tmp / "landmarks.csv").write_text(_landmarks_csv(world))
         if r is not None:
             (tmp / "route.csv").write_text(_route_csv(r))
-        (tmp / "world.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+        (tmp / "world.yaml").write_text(dump_yaml(meta))
     return out / "world.yaml"
 
 
