@@ -155,9 +155,16 @@ class Mapper(ABC):
         return self
 
     def stream(
-        self, grid: Grid, sensor: SensorModel | Rig, strategy: Strategy, *, effort: int = 1
+        self,
+        grid: Grid,
+        sensor: SensorModel | Rig,
+        strategy: Strategy,
+        *,
+        effort: int = 1,
+        fold: bool | None = None,
     ) -> StreamEngine:
-        """A streaming map of this method on ``grid``, over the readings ``strategy`` keeps.
+        """A streaming map of this method on ``grid``, over the readings ``strategy`` keeps;
+        ``fold`` as :class:`sonarmap.streaming.StreamingMapper` takes it.
 
         See :mod:`sonarmap.streaming` for the public interface.
         """
@@ -168,7 +175,7 @@ class Mapper(ABC):
                 f"{', '.join(have)}"
             )
         model = self._model(sensor.sensor if isinstance(sensor, Rig) else sensor)
-        return self.streamer(self, grid, model, strategy, effort)
+        return self.streamer(self, grid, model, strategy, effort, fold=fold)
 
     def _model(self, sensor: SensorModel) -> SensorModel:
         """The sensor as the method models it (a method may, say, cap its range)."""

@@ -148,14 +148,20 @@ class StreamEngine(ABC):
     sort_band: ClassVar[bool] = False
     #: Whether the pool keeps the footprints as spans too (see :class:`ReadingPool`).
     spans: ClassVar[bool] = False
-    #: Whether a reading that leaves is folded into fixed per-cell evidence (its pull
-    #: on each cell frozen as it stands when it leaves) rather than forgotten; for the
-    #: engines that keep readings and can fold them (``em-thrun``; ``gradient`` sets its
-    #: own default from its ``no_echo``).
-    fold: bool = True
+    #: Whether the engine can fold a reading that leaves into fixed per-cell evidence
+    #: (its pull on each cell frozen as it stands when it leaves) rather than forget it:
+    #: ``gradient`` and ``em-thrun``.
+    can_fold: ClassVar[bool] = False
 
     def __init__(
-        self, mapper: Mapper, grid: Grid, sensor: SensorModel, strategy: Strategy, effort: int
+        self,
+        mapper: Mapper,
+        grid: Grid,
+        sensor: SensorModel,
+        strategy: Strategy,
+        effort: int,
+        *,
+        fold: bool | None = None,
     ) -> None:
         if getattr(mapper, "correlated", 0.0) > 0:
             raise ConfigError(
@@ -169,6 +175,12 @@ class StreamEngine(ABC):
             )
         if effort < 1:
             raise ConfigError(f"streaming effort must be >= 1, got {effort}")
+        if fold is not None and not self.can_fold:
+            raise ConfigError(
+                f"streaming '{mapper.name}' cannot fold the readings that leave; give fold "
+                "only for gradient or em-thrun"
+            )
+        self._fold = self.default_fold(mapper) if fold is None else bool(fold)
         self.mapper = mapper
         self.grid = grid
         self.sensor = sensor
@@ -187,7 +199,18 @@ class StreamEngine(ABC):
         strategy.start(grid.size)
         self._setup()
 
+    @property
+    def fold(self) -> bool:
+        """Whether readings that leave are folded into fixed per-cell evidence rather
+        than forgotten; set once, at construction (False for engines that cannot fold)."""
+        return self._fold
+
     # -- for subclasses ------------------------------------------------------------
+
+    def default_fold(self, mapper: Mapper) -> bool:
+        """Whether the engine folds when not told: as :attr:`can_fold` unless the
+        method decides by its parameters."""
+        return self.can_fold
 
     def _setup(self) -> None:  # noqa: B027 -- optional
         """Allocate the method's map."""
@@ -212,11 +235,40 @@ class StreamEngine(ABC):
         returns the units of work done (0 for methods with nothing to improve)."""
         return 0
 
-    def finish(self, passes: int) -> int:
-        """Bring the map over the readings in play to rest at the end of a log: up to
-        ``passes`` units of the method's work over every reading in play; returns the
-        units done (0 for methods with nothing to finish)."""
+    def finish(self, passes: int, stop: Callable[[], bool] | None = None) -> int:
+        """Bring the map over the readings in play to rest at the end of a log.
+
+        Only ``gradient`` has work to finish (its cells step only in the updates whose
+        readings touch them); the other engines return 0 at once.
+
+        Parameters
+        ----------
+        passes : int
+            Passes of the method's work over every reading in play, at most; >= 0.
+        stop : callable, optional
+            Asked before each pass; when it returns True the finish ends there.
+
+        Returns
+        -------
+        int
+            The passes done (fewer than ``passes`` when ``stop`` said so).
+        """
         return 0
+
+    def _finish_with(
+        self, passes: int, stop: Callable[[], bool] | None, one_pass: Callable[[I64, I64], object]
+    ) -> int:
+        """:meth:`finish` for a method whose unit of work is ``one_pass(slots, cells)``
+        over the readings in play and every cell a reading has covered."""
+        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
+        if len(cells) == 0:
+            return 0
+        sel = self.pool.alive_slots()
+        for n in range(passes):
+            if stop is not None and stop():
+                return n
+            one_pass(sel, cells)
+        return passes
 
     def _improve_with(self, budget: float, one_pass: Callable[[I64, I64], object]) -> int:
         """:meth:`improve` for a method whose unit of work is ``one_pass(slots, cells)``

@@ -659,6 +659,7 @@ class ThrunEMStream(StreamEngine):
     """
 
     sort_band = True
+    can_fold = True
 
     def _setup(self) -> None:
         m = self.mapper
@@ -765,7 +766,8 @@ class ThrunEMStream(StreamEngine):
         return self._seen_only(self.post)
 
     def nbytes(self) -> int:
-        return super().nbytes() + int(self.occ.nbytes + self.post.nbytes)
+        own = (self.occ, self.post, self.bias, self._local)
+        return super().nbytes() + sum(int(a.nbytes) for a in own)
 
 
 ThrunEMMapper.streamer = ThrunEMStream

@@ -47,6 +47,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from collections.abc import Callable
 
 import numba as nb
 import numpy as np
@@ -896,6 +897,7 @@ class GradientStream(StreamEngine):
     """
 
     spans = True
+    can_fold = True
 
     def _setup(self) -> None:
         m = self.mapper
@@ -912,12 +914,14 @@ class GradientStream(StreamEngine):
         #: Per cell, the gradient of the terms of readings that have left (see _leave).
         self.fixed = np.zeros(self.grid.size)
         self.steps_ = 0
+
+    def default_fold(self, mapper: Mapper) -> bool:
         # The fold keeps a wall's echoes against the no-echo beams that would clear it
         # once they have left; with no-echo readings ignored there are none, and the
-        # fold's frozen slopes cost walls over long logs: on 21 training maps forgetting
-        # scored 0.485 mean wall F1 against folding's 0.475 (0.566 against 0.530 on the
-        # seven long ones; benchmarks/stream_finish.py).
-        self.fold = m.no_echo == "free"
+        # fold's frozen slopes cost walls over long training logs (the measurements:
+        # docs/results/2026-12-06-streaming.md, "fifth pass").
+        assert isinstance(mapper, GradientMapper)
+        return mapper.no_echo == "free"
 
     def _leave(self, gone: npt.NDArray[np.int64]) -> None:
         # A leaving reading's terms keep pulling their cells, frozen at their slope of
@@ -978,16 +982,16 @@ class GradientStream(StreamEngine):
     def improve(self, budget: float) -> int:
         return self._improve_with(budget, lambda sel, cells: self._run(sel, cells, 1))
 
-    def finish(self, passes: int) -> int:
+    def finish(self, passes: int, stop: Callable[[], bool] | None = None) -> int:
         # A cell takes a step only in the updates whose readings touch it, and most
         # leave the window short of the optimum over the readings in play.
-        cells = np.flatnonzero(self.cov > 0).astype(np.int64)
-        if len(cells) == 0 or passes < 1:
-            return 0
-        sel = self.pool.alive_slots()
-        for _ in range(passes):
-            self._run(sel, cells, 1)
-        return passes
+        return self._finish_with(passes, stop, lambda sel, cells: self._run(sel, cells, 1))
+
+    def nbytes(self) -> int:
+        """Memory of the state: the base engine's plus the map, its gradient and step
+        counts, the folded evidence and each slot's summed terms."""
+        own = (self.x, self._g, self._k, self.fixed, self._known, self._known_at, self._steps)
+        return super().nbytes() + sum(int(a.nbytes) for a in own)
 
     def occupancy(self) -> npt.NDArray[np.float32]:
         # Not the folded terms' own optimum (0 or 1 by the sign of the fixed gradient)

@@ -259,7 +259,14 @@ class InverseStream(StreamEngine):
     keeps_readings = False
 
     def __init__(
-        self, mapper: Mapper, grid: Grid, sensor: SensorModel, strategy: Strategy, effort: int
+        self,
+        mapper: Mapper,
+        grid: Grid,
+        sensor: SensorModel,
+        strategy: Strategy,
+        effort: int,
+        *,
+        fold: bool | None = None,
     ) -> None:
         assert isinstance(mapper, InverseMapper)
         if strategy.bounded and mapper.falloff_deg > 0:
@@ -272,7 +279,7 @@ class InverseStream(StreamEngine):
                 "inverse no_echo_reach streams only with the 'all' strategy; for a "
                 "bounded window leave it unset"
             )
-        super().__init__(mapper, grid, sensor, strategy, effort)
+        super().__init__(mapper, grid, sensor, strategy, effort, fold=fold)
         self._exact = mapper if not strategy.bounded else None
         if self._exact is not None:
             self._exact.start(grid, sensor)
