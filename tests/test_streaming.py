@@ -17,6 +17,7 @@ import pytest
 from sonarmap.api import build_map
 from sonarmap.cli import main
 from sonarmap.errors import ConfigError
+from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.mappers import GradientMapper, make_mapper
 from sonarmap.mappers._pool import ReadingPool
@@ -328,6 +329,87 @@ def test_gradient_stream_folds_only_when_no_echo_readings_clear(doorways: Scenar
     assert StreamingMapper("em-thrun", g, rig).engine.fold
 
 
+def test_the_shipped_default_forgets_and_finishes(doorways: Scenario) -> None:
+    """The gradient stream as shipped: no-echo readings ignored, readings that leave
+    forgotten, replay ending with finish(); the finish is timed and moves the map."""
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    sm = StreamingMapper("gradient", g, rig, strategy="last:200")
+    assert sm.engine.fold is False
+    rep = replay([r], sm, period=0.5)
+    assert rep.finish_units == 100
+    assert rep.summary()["finish_seconds"] == round(rep.finish_time, 3) > 0
+    assert rep.finish_time <= rep.wall_time
+    assert isinstance(sm.engine, GradientStream)
+    assert not np.any(sm.engine.fixed)
+    by_hand = StreamingMapper("gradient", g, rig, strategy="last:200")
+    replay([r], by_hand, period=0.5, finish=False)
+    unfinished = by_hand.occupancy_
+    assert by_hand.finish(100) == 100
+    np.testing.assert_array_equal(by_hand.occupancy_, sm.occupancy_)
+    seen = ~np.isnan(unfinished)
+    assert np.abs(sm.occupancy_[seen] - unfinished[seen]).max() > 0.01
+
+
+def test_a_stop_skips_or_cuts_the_finish(doorways: Scenario) -> None:
+    g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
+    part = r.take(np.arange(600))
+    # Asked only once the whole log is in: the finish is skipped, the replay interrupted.
+    sm = StreamingMapper("gradient", g, rig, strategy="last:200")
+    rep = replay([part], sm, period=0.5, stop=lambda: sm.n_readings == len(part))
+    assert (rep.n_readings, rep.finish_units, rep.interrupted) == (len(part), 0, True)
+    # Asked during the finish: it stops between passes.
+    asked = 0
+
+    def after_seven_passes() -> bool:
+        nonlocal asked
+        if sm2.n_readings < len(part):
+            return False
+        asked += 1
+        return asked > 7
+
+    sm2 = StreamingMapper("gradient", g, rig, strategy="last:200")
+    rep = replay([part], sm2, period=0.5, stop=after_seven_passes)
+    assert (rep.finish_units, rep.interrupted) == (7, True)
+
+
+@pytest.mark.parametrize("passes", [-1, 1.5, True, "100"])
+def test_finish_refuses_passes_that_are_not_a_count(doorways: Scenario, passes: object) -> None:
+    sm = StreamingMapper("gradient", doorways.truth.grid, doorways.rig, strategy="last:50")
+    with pytest.raises(ConfigError, match="finish passes must be an integer >= 0"):
+        sm.finish(passes)  # type: ignore[arg-type]
+    assert sm.finish(0) == 0
+
+
+def test_fold_is_fixed_at_construction_and_only_for_methods_that_fold(
+    doorways: Scenario,
+) -> None:
+    g, rig = doorways.truth.grid, doorways.rig
+    sm = StreamingMapper("gradient", g, rig, strategy="last:50", fold=True)
+    assert sm.engine.fold is True
+    with pytest.raises(AttributeError):
+        sm.engine.fold = False  # type: ignore[misc]
+    for method in ("inverse", "stochastic"):
+        with pytest.raises(ConfigError, match=f"streaming '{method}' cannot fold"):
+            StreamingMapper(method, g, rig, fold=False)
+        assert StreamingMapper(method, g, rig).engine.fold is False
+
+
+def test_gradient_stream_memory_counts_its_per_cell_arrays(doorways: Scenario) -> None:
+    """The state grows by what the gradient stream keeps per cell: its map, gradient
+    and folded evidence (float64), step count (int32), and the base engine's coverage
+    (int32), seen and dirty marks (bool) and dirty list (int64): 42 bytes a cell."""
+    rig, r = doorways.rig, doorways.readings.take(np.arange(300))
+    sizes = []
+    g0 = doorways.truth.grid
+    for pad in (0, 40):
+        g = Grid(g0.resolution, g0.origin, (g0.shape[0] + pad, g0.shape[1] + pad))
+        sm = StreamingMapper("gradient", g, rig, strategy="last:100")
+        replay([r], sm, period=0.5, finish=False)
+        sizes.append((g.size, sm.nbytes(), sm.engine.pool.nbytes()))
+    (n0, b0, p0), (n1, b1, p1) = sizes
+    assert (b1 - p1) - (b0 - p0) >= 42 * (n1 - n0)
+
+
 def test_em_thrun_stream_keeps_the_offline_map_in_bounded_memory(doorways: Scenario) -> None:
     g, rig, r = doorways.truth.grid, doorways.rig, doorways.readings
     offline = score(doorways.truth, build_map(r, rig, g, "em-thrun")).f1_all
@@ -557,12 +639,34 @@ def test_stream_command_writes_map_snapshots_animation(
     assert info["readings"] == len(doorways.readings)
     assert info["strategy"] == "last:300"
     assert info["latency_p99_ms"] >= info["latency_median_ms"] > 0
+    assert info["finish_units"] == 100
+    assert 0 < info["finish_seconds"] <= info["wall_seconds"]
     assert len(list((o / "snapshots").glob("*.png"))) >= 4
     assert (o / "stream.gif").stat().st_size > 1000
     assert (o / "stream.gif").stat().st_mode & 0o777 == (o / "map.yaml").stat().st_mode & 0o777
     assert (o / "map.yaml").exists()
     assert "realtime_factor" in out
     assert not list(tmp_path.glob(".out.*"))
+
+
+def test_stream_command_no_finish_ends_at_the_last_update(
+    doorways: Scenario, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    doorways.write(tmp_path / "scene")
+    d = tmp_path / "scene"
+    args = ["stream", str(d / "readings.csv"), "--rig", str(d / "rig.yaml")]
+    args += ["--like", str(d / "truth.yaml"), "--window", "last:300", "--animation", ""]
+    args += ["--snapshot-every", "1000"]
+    maps = []
+    for flag, passes in (("--no-finish", 0), ("--finish", 100)):
+        o = tmp_path / flag.strip("-")
+        code, _, err = _run([*args, flag, "-o", str(o)], capsys)
+        assert code == 0, err
+        info = json.loads((o / "stream.json").read_text())
+        assert info["finish_units"] == passes
+        assert (info["finish_seconds"] > 0) == (passes > 0)
+        maps.append(np.load(o / "map.npy"))
+    assert not np.array_equal(maps[0], maps[1], equal_nan=True)
 
 
 def test_stream_command_bad_input_leaves_nothing(

@@ -128,6 +128,7 @@ def stream_log(
     stop: Callable[[], bool] | None = None,
     report: ReplayReport | None = None,
     on_update: Callable[[Readings, StreamingMapper], None] | None = None,
+    finish: bool = True,
 ) -> tuple[StreamingMapper, ReplayReport]:
     """Replay a readings CSV through a streaming map (see :func:`sonarmap.streaming.replay`).
 
@@ -135,7 +136,8 @@ def stream_log(
     :func:`sonarmap.readings.iter_readings`): memory is the streaming state's plus one
     chunk. ``on_note`` hears, at the end, how many readings fell wholly outside the grid
     (see :func:`off_grid`), and at once when a realtime replay falls behind; ``stop``,
-    ``report`` and ``on_update`` are passed to :func:`~sonarmap.streaming.replay`.
+    ``report``, ``on_update`` and ``finish`` are passed to
+    :func:`~sonarmap.streaming.replay`.
     """
     sm = StreamingMapper(method, grid, rig, strategy=strategy, effort=effort, **dict(params or {}))
 
@@ -168,6 +170,7 @@ def stream_log(
         on_warning=on_note,
         report=report,
         on_update=on_update,
+        finish=finish,
     )
     if rep.n_readings == 0 and not rep.interrupted:
         raise InputError("no readings (the file has a header only)", path=path)

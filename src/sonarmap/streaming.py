@@ -40,10 +40,8 @@ from .sensors import SensorModel
 
 __all__ = ["DEFAULT_STRATEGY", "ReplayReport", "StreamingMapper", "replay", "time_batches"]
 
-#: Passes of :meth:`StreamingMapper.finish` at the end of a :func:`replay`: on the
-#: training ``hall`` (MaxSonar rig, seeds 0-1) and ``suite`` (seed 0) the folding gradient
-#: stream's map agreed with the offline plain map on 97.9-98.6 % of cells without them,
-#: 99.2-99.4 % after 100 passes and 99.4-99.5 % after 300, at three times the cost.
+#: Passes of :meth:`StreamingMapper.finish` at the end of a :func:`replay` (chosen on
+#: training scenes: docs/results/2026-12-06-streaming.md, "fifth pass").
 FINISH_PASSES = 100
 
 #: The strategy each method streams with unless told otherwise: ``inverse`` keeps no
@@ -82,9 +80,15 @@ class StreamingMapper:
         ``inverse``.
     fold : bool, optional
         ``gradient``, ``em-thrun``: fold each reading that leaves into fixed per-cell
-        evidence rather than forget it (see :mod:`sonarmap.mappers._stream`); ignored by
-        the other methods. Default: the method's (``em-thrun`` folds; ``gradient`` folds
-        only when its no-echo readings clear their beams, ``no_echo="free"``).
+        evidence rather than forget it (see :mod:`sonarmap.mappers._stream`). Default:
+        the method's (``em-thrun`` folds; ``gradient`` folds only when its no-echo
+        readings clear their beams, ``no_echo="free"``). Fixed for the stream.
+
+    Raises
+    ------
+    ConfigError
+        ``fold`` given for a method that cannot fold (``inverse``, ``stochastic``), or a
+        parameter, strategy or effort the method cannot stream with.
     **params
         The method's parameters, when ``method`` is a name.
     """
@@ -109,9 +113,9 @@ class StreamingMapper:
         if strategy is None:
             strategy = DEFAULT_STRATEGY.get(mapper.name, "cell:4")
         self.strategy = parse_strategy(strategy) if isinstance(strategy, str) else strategy
-        self.engine: StreamEngine = mapper.stream(grid, sensor, self.strategy, effort=effort)
-        if fold is not None:
-            self.engine.fold = fold
+        self.engine: StreamEngine = mapper.stream(
+            grid, sensor, self.strategy, effort=effort, fold=fold
+        )
         self.mapper = mapper
         self.grid = grid
         self.n_readings = 0
@@ -131,12 +135,36 @@ class StreamingMapper:
         """Improve the map over every reading in play for up to ``budget`` seconds."""
         return self.engine.improve(budget)
 
-    def finish(self, passes: int = FINISH_PASSES) -> int:
-        """Bring the map to rest at the end of a log: ``passes`` passes of the method's
-        work over every reading in play (``gradient``: projected steps on every cell
-        they touch; the other methods have nothing to finish); returns the passes done.
-        The state stays bounded, and more readings may follow."""
-        return self.engine.finish(passes)
+    def finish(self, passes: int = FINISH_PASSES, stop: Callable[[], bool] | None = None) -> int:
+        """Bring the map to rest at the end of a log.
+
+        ``gradient`` takes ``passes`` projected steps on every cell the readings in play
+        touch (during the stream a cell steps only in the updates whose readings touch
+        it); the other methods have nothing to finish and return 0. The state stays
+        bounded, and more readings may follow.
+
+        Parameters
+        ----------
+        passes : int
+            Passes over every reading in play, at most; default :data:`FINISH_PASSES`.
+        stop : callable, optional
+            Asked before each pass; when it returns True the finish ends there, the map
+            as it is.
+
+        Returns
+        -------
+        int
+            The passes done: ``passes``, fewer if ``stop`` said so, 0 for the methods
+            with nothing to finish.
+
+        Raises
+        ------
+        ConfigError
+            ``passes`` is not an integer >= 0.
+        """
+        if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 0:
+            raise ConfigError(f"finish passes must be an integer >= 0, got {passes!r}")
+        return self.engine.finish(int(passes), stop)
 
     @property
     def occupancy_(self) -> npt.NDArray[np.float32]:
@@ -178,6 +206,8 @@ class ReplayReport:
     improve_units: int = 0
     #: Passes of :meth:`StreamingMapper.finish` at the end of the log.
     finish_units: int = 0
+    #: Wall time of that finish, seconds (counted in ``wall_time`` too).
+    finish_time: float = 0.0
     snapshot_time: float = 0.0
     #: The replay stopped early because ``stop()`` said so.
     interrupted: bool = False
@@ -211,6 +241,7 @@ class ReplayReport:
             "max_lag_ms": round(1e3 * self.max_lag, 3),
             "improve_units": self.improve_units,
             "finish_units": self.finish_units,
+            "finish_seconds": round(self.finish_time, 3),
             "snapshot_seconds": round(self.snapshot_time, 3),
             "interrupted": self.interrupted,
         }
@@ -283,9 +314,10 @@ def replay(
     progress : callable, optional
         Called with the log time after each update.
     stop : callable, optional
-        Asked before each update (and while waiting in ``realtime``); when it returns
-        True the replay ends there, the map as it is, and the report says
-        ``interrupted``.
+        Asked before each update (and while waiting in ``realtime``) and before each
+        pass of the finish; when it returns True the replay ends there, the map as it
+        is, and the report says ``interrupted`` (a stop before the log's end skips the
+        finish altogether).
     on_warning : callable, optional
         ``realtime``: told, in one line, when the map falls behind the log by more than
         :data:`LAG_WARNING` seconds, and again each time the lag doubles.
@@ -297,7 +329,8 @@ def replay(
         record the run, for instance); its time counts as snapshot time.
     finish : bool
         At the end of the log (not after a ``stop``), bring the map to rest with
-        :meth:`StreamingMapper.finish` (default True); its time counts in the replay's.
+        :meth:`StreamingMapper.finish` (default True); its time counts in the replay's
+        and is reported as ``finish_time``.
     """
     if not (speed > 0):
         raise ConfigError(f"replay speed must be > 0, got {speed}")
@@ -356,7 +389,10 @@ def replay(
         if progress is not None:
             progress(t_last - t_first)
     if finish and not rep.interrupted and t_first is not None:
-        rep.finish_units = streamer.finish()
+        t_fin = time.perf_counter()
+        rep.finish_units = streamer.finish(stop=stop)
+        rep.finish_time = time.perf_counter() - t_fin
+        rep.interrupted = stop is not None and rep.finish_units < FINISH_PASSES and stop()
     rep.wall_time = time.perf_counter() - wall0 - rep.snapshot_time
     rep.data_duration = 0.0 if t_first is None else t_last - t_first
     if on_snapshot is not None and t_first is not None:

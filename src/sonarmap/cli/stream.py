@@ -87,6 +87,14 @@ def stream_cmd(
             "sweeps at most (em-thrun)."
         ),
     ] = 1,
+    finish: Annotated[
+        bool,
+        typer.Option(
+            "--finish/--no-finish",
+            help="At the end of the log, bring the map to rest (gradient: 100 passes over "
+            "the readings in play; Ctrl-C skips or cuts it short).",
+        ),
+    ] = True,
     resolution: Annotated[float, typer.Option(help="Cell size, metres.")] = 0.05,
     bounds: Annotated[
         tuple[float, float, float, float] | None,
@@ -238,6 +246,7 @@ def stream_cmd(
                 stop=stopping.asked,
                 report=report,
                 on_update=record if rec is not None else None,
+                finish=finish,
             )
         say_order(order)
         if rec is not None and sm.last_batch is not None:
@@ -269,8 +278,11 @@ def stream_cmd(
         console.print(f"bag/: {rec.n_messages} messages")
     console.print(wrote_folder(out), markup=False)
     if rep.interrupted:
+        # A stop during the finish comes after the whole log: say which.
+        when = "in the finish, " if rep.finish_time > 0 else ""
         err_console.print(
-            f"interrupted after {rep.data_duration:.1f} s of log: kept the map so far in {out}"
+            f"interrupted {when}after {rep.data_duration:.1f} s of log: kept the map so far "
+            f"in {out}"
         )
         # Not typer.Exit: main() would report the interruption a second time.
         sys.exit(INTERRUPTED)
