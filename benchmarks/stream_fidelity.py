@@ -8,7 +8,7 @@ truth. Reported per method: offline wall F1 and time, streamed wall F1, their ra
 the stream's real-time factor, the most readings it held and its state, and the load
 average of the machine (the real-time factors are wall-clock: a shared machine slows
 them; the CPU column divides the log's length by the process's CPU time instead, one
-numba thread, which other jobs slow less). ``--forget`` adds each method that can fold
+numba thread, which other jobs slow less). ``--both-ways`` adds each method that can fold
 streamed the other way round (``gradient`` folding, at its default ``no_echo``, and
 ``em-thrun`` forgetting); each row says which. The stream ends with :meth:`StreamingMapper.finish`
 (counted in its time); ``--no-finish`` leaves it out.
@@ -46,7 +46,7 @@ from sonarmap.scenarios import Scenario, make_scenario
 from sonarmap.streaming import StreamingMapper, replay
 
 METHODS = ("inverse", "gradient", "em-thrun")
-#: The methods whose streams can fold the readings that leave (``--forget`` adds the
+#: The methods whose streams can fold the readings that leave (``--both-ways`` adds the
 #: other way round).
 FOLDING = ("gradient", "em-thrun")
 
@@ -170,7 +170,10 @@ def main() -> None:
     parser.add_argument("--period", type=float, default=0.25)
     parser.add_argument("--no-offline", action="store_true", help="stream only")
     parser.add_argument(
+        "--both-ways",
+        # The old name, in the commands of the results pages run before the rename.
         "--forget",
+        dest="both_ways",
         action="store_true",
         help="also stream gradient and em-thrun the other way round (folding or forgetting)",
     )
@@ -206,7 +209,7 @@ def main() -> None:
                 params=params,
             )
         )
-        if args.forget and m in FOLDING:
+        if args.both_ways and m in FOLDING:
             rows.append(
                 method_row(
                     sc,

@@ -37,8 +37,8 @@ from sonarmap.splits import check_training
 from sonarmap.streaming import StreamingMapper, replay
 
 _DOORWAYS: list[tuple[str, str | None, int]] = [("doorways", None, s) for s in (0, 1, 2)]
-#: (family, rig or None for the scene's own, seed): the corridor scene of the MaxSonar
-#: rig, and the hall and suite families walked by each preset rig.
+#: (family, rig or None for the scene's own, seed): the doorways scene (its own
+#: MaxSonar rig), and the hall and suite families walked by each preset rig.
 MAPS: list[tuple[str, str | None, int]] = (
     _DOORWAYS
     + [(f, rig, s) for rig in ("ez1-six", "hcsr04-six") for f in ("hall", "suite") for s in (0, 1)]
