@@ -13,8 +13,10 @@ from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.patrol.graph import reachable_cells
+from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.oneway import one_way, strong_sets, thin
 from sonarmap.patrol.paths import STEPS, Wave, path_to
+from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Car
 from sonarmap.patrol.simulation import PatrolConfig, run_patrol
 from sonarmap.patrol.territory import Territory
@@ -251,3 +253,16 @@ def test_cars_on_a_one_way_ring_do_not_turn_round() -> None:
 
     assert turns(False)[0] >= 3
     assert turns(True) == (1, 0)
+
+
+@pytest.mark.parametrize("site", [0, 3])
+def test_every_one_way_street_restricts_some_step(site: int) -> None:
+    # Corner spurs of the thinning (loops of a cell or two back to their junction) lie
+    # within the junction's reach, two-way throughout: part of the junction, not streets.
+    t = street_territory(site)
+    cfg = PatrolConfig(model="car", one_way=True, refine=True)
+    passable = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision).passable
+    ow = one_way(passable, t.clearance, t.grid.resolution, cfg.turn_radius)
+    assert ow.one_way.sum() >= 10
+    for s in np.flatnonzero(ow.one_way).tolist():
+        assert (ow.steps[ow.street == s] != 255).any(), s

@@ -10,7 +10,9 @@ map alone (no messages, deterministic):
    (8-connected groups of them one junction each), cells with one are ends. The skeleton
    with its junctions removed falls into segments: the streets, edges between the
    junctions (or an end) they touch; a ring of streets with no junction is cut at its
-   first cell, a junction of its own. Every passable cell belongs to the skeleton cell
+   first cell, a junction of its own, and a segment looping back to its own junction
+   within that junction's reach (a corner spur of the thinning) joins the junction.
+   Every passable cell belongs to the skeleton cell
    nearest it along the grid's paths, and so to a street or a junction.
 2. **Orientation** (Robbins' theorem): a street graph has a strongly connected
    orientation iff it is 2-edge-connected. Bridges (dead-end stubs, a lone street to a
@@ -332,6 +334,23 @@ def _trapped(graph: csr_matrix, index: I64, weak: I64, steps: npt.NDArray[np.uin
     return out
 
 
+def _touches(segment: I64, node_of: I64, n_segments: int) -> list[set[int]]:
+    """The junctions (``node_of`` >= 0) next to each segment (``segment`` >= 0)."""
+    rows, cols = segment.shape
+    touches: list[set[int]] = [set() for _ in range(n_segments)]
+    sr, sc = np.nonzero(segment >= 0)
+    for dr, dc in STEPS.tolist():
+        rr, cc = sr + dr, sc + dc
+        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+        nodes = np.full(len(sr), -1, dtype=np.int64)
+        nodes[ok] = node_of[rr[ok], cc[ok]]
+        for s, n in zip(
+            segment[sr, sc][nodes >= 0].tolist(), nodes[nodes >= 0].tolist(), strict=True
+        ):
+            touches[s].add(n)
+    return touches
+
+
 def one_way(
     passable: B,
     clearance: F64,
@@ -371,23 +390,28 @@ def one_way(
         pix = segment == s
         if not (pix & touching).any() and not (pix & (nbrs == 1)).any():
             junction[tuple(np.argwhere(pix)[0])] = True
+    # A loop back to its own junction that never leaves the junction's reach (a corner
+    # spur of the thinning, a cell or two) is part of the junction, not a street.
+    node_of, _ = ndimage.label(junction, structure=eight)
+    segment, n_segments = ndimage.label(skel & ~junction, structure=eight)
+    node_of = node_of.astype(np.int64) - 1
+    segment = segment.astype(np.int64) - 1
+    touches = _touches(segment, node_of, n_segments)
+    off_junction = ndimage.distance_transform_edt(~junction)
+    for s in range(n_segments):
+        pix = segment == s
+        if len(touches[s]) != 1 or (pix & (nbrs == 1)).any():
+            continue
+        (n,) = touches[s]
+        reach_cells = float(clearance[node_of == n].max()) / resolution + 1.0
+        if float(off_junction[pix].max()) <= reach_cells:
+            junction |= pix
     node_of, n_junctions = ndimage.label(junction, structure=eight)
     segment, n_segments = ndimage.label(skel & ~junction, structure=eight)
     node_of = node_of.astype(np.int64) - 1  # -1 off the junctions
     segment = segment.astype(np.int64) - 1
-    rows, cols = mask.shape
     # Each segment's junctions (the nodes touching it) and ends (skeleton ends).
-    touches: list[set[int]] = [set() for _ in range(n_segments)]
-    sr, sc = np.nonzero(segment >= 0)
-    for dr, dc in STEPS.tolist():
-        rr, cc = sr + dr, sc + dc
-        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-        nodes = np.full(len(sr), -1, dtype=np.int64)
-        nodes[ok] = node_of[rr[ok], cc[ok]]
-        for s, n in zip(
-            segment[sr, sc][nodes >= 0].tolist(), nodes[nodes >= 0].tolist(), strict=True
-        ):
-            touches[s].add(n)
+    touches = _touches(segment, node_of, n_segments)
     n_nodes = n_junctions
     ends: list[tuple[int, int]] = []
     tails: list[int] = []
