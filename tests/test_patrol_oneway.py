@@ -223,6 +223,9 @@ def test_one_way_is_for_tracking_cars_only() -> None:
         PatrolConfig(model="holonomic", one_way=True)
     with pytest.raises(ConfigError, match="one_way"):
         PatrolConfig(model="car", car_planner="thesis", one_way=True)
+    for paths in ("straight", "marching"):
+        with pytest.raises(ConfigError, match="one_way needs paths 'wave'"):
+            PatrolConfig(model="car", one_way=True, paths=paths)
 
 
 def test_cars_on_a_one_way_ring_do_not_turn_round() -> None:
