@@ -27,7 +27,8 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
-from sonarmap.patrol import PatrolConfig, run_patrol
+from benchmarks.patrol_cars import car_config
+from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.oneway import OneWay, one_way, strong_sets
@@ -44,21 +45,13 @@ def cell_class(ow: OneWay, r: int, c: int) -> str:
         return "stub"
     if not ow.one_way[e]:
         return "wide"
-    return "two-way end" if ow.steps[r, c] == 255 else "one-way"
+    return "two-way end" if ow.two_way[r, c] else "one-way"
 
 
 def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
     """One run's split (see the module's notes)."""
-    config = PatrolConfig(
-        model="car",
-        turn_penalty=10.0,
-        out_of_sight=True,
-        round_block=60.0,
-        one_way=True,
-        refine=True,
-        crowding="obstacles" if cars > 1 else "none",
-        duration=duration,
-    )
+    # The training runs' configuration (benchmarks.patrol_cars, one-way for teams).
+    config = car_config("track", cars, "obstacles", duration, one_way=True)
     t = street_territory(site)
     # The simulation's own passable cells, so the system is the one the cars use.
     passable = reach(t, config.radius, mode=config.reach, vision=config.vision).passable

@@ -269,3 +269,25 @@ def test_every_one_way_street_restricts_some_step(site: int) -> None:
     assert ow.one_way.sum() >= 10
     for s in np.flatnonzero(ow.one_way).tolist():
         assert (ow.steps[ow.street == s] != 255).any(), s
+
+
+def test_the_two_way_mask_marks_the_unrestricted_cells() -> None:
+    t = _four_blocks()
+    passable = t.passable(1.0)
+    ow = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    assert not ow.two_way[~passable].any()
+    # Every step between two two-way cells is allowed.
+    rows, cols = passable.shape
+    for j, (dr, dc) in enumerate(STEPS.tolist()):
+        for r, c in np.argwhere(ow.two_way).tolist():
+            rr, cc = r + dr, c + dc
+            if 0 <= rr < rows and 0 <= cc < cols and ow.two_way[rr, cc]:
+                assert (ow.steps[r, c] >> j) & 1
+    # Junctions and the ends of one-way streets are two-way, their middles not.
+    on = (ow.street >= 0) & ow.one_way[np.maximum(ow.street, 0)]
+    assert (ow.two_way & on).any()
+    assert (~ow.two_way & on).any()
+    assert ow.two_way[passable & (ow.street < 0)].all()
+    # Every segment of this map touches one or two junctions: all in the graph.
+    assert ow.in_graph.all()
+    assert not (ow.bridges & ow.one_way).any()

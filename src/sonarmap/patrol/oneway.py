@@ -146,7 +146,16 @@ class OneWay:
     widths : ndarray of float64, shape (streets,)
         Each street's width, metres (twice the median clearance on its skeleton).
     bridges : ndarray of bool, shape (streets,)
-        Which streets are bridges of the street graph (left two-way).
+        Which streets are left two-way as bridges of the street graph, and the streets
+        not in it (``in_graph`` False), which are left two-way too.
+    in_graph : ndarray of bool, shape (streets,)
+        Which streets are edges of the street graph: False for a segment touching no
+        junction or three of them.
+    two_way : ndarray of bool, shape grid
+        Passable cells where the street's direction does not hold: junctions, cells of
+        two-way streets, and a one-way street's cells within its junction's reach of
+        either end. Every step between two of them is allowed (a step from one of them
+        into the one-way part of a street still keeps to its direction).
     """
 
     steps: npt.NDArray[np.uint8]
@@ -155,6 +164,8 @@ class OneWay:
     one_way: B
     widths: F64
     bridges: B
+    in_graph: B
+    two_way: B
 
     @property
     def share(self) -> float:
@@ -527,4 +538,6 @@ def one_way(
         one_way=directed,
         widths=widths,
         bridges=bridge,
+        in_graph=np.array([e[0] >= 0 for e in ends], dtype=bool),
+        two_way=free & mask,
     )
