@@ -291,3 +291,49 @@ def test_the_two_way_mask_marks_the_unrestricted_cells() -> None:
     # Every segment of this map touches one or two junctions: all in the graph.
     assert ow.in_graph.all()
     assert not (ow.bridges & ow.one_way).any()
+
+
+def test_the_same_map_gives_the_same_system() -> None:
+    t = _four_blocks()
+    passable = t.passable(1.0)
+    before = passable.copy()
+    a = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    b = one_way(passable.copy(), t.clearance.copy(), RES, turn_radius=3.5)
+    assert (passable == before).all()
+    for name in ("steps", "street", "one_way", "widths", "bridges", "in_graph", "two_way"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert np.array_equal(a.along, b.along, equal_nan=True)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"resolution": 0.0}, "resolution must be > 0"),
+        ({"resolution": float("nan")}, "resolution must be > 0"),
+        ({"turn_radius": -1.0}, "turn_radius must be >= 0"),
+        ({"clearance": np.zeros((3, 3))}, r"clearance of shape \(3, 3\)"),
+        ({"passable": np.ones(5, dtype=bool)}, "must be a 2-D grid"),
+    ],
+)
+def test_bad_one_way_input_is_named(change: dict[str, object], match: str) -> None:
+    t = _ring()
+    args: dict[str, object] = {
+        "passable": t.passable(1.0),
+        "clearance": t.clearance,
+        "resolution": RES,
+        "turn_radius": 3.5,
+    }
+    args.update(change)
+    with pytest.raises(ValueError, match=match):
+        one_way(**args)  # type: ignore[arg-type]
+
+
+def test_bad_allowed_steps_are_named() -> None:
+    passable = np.ones((4, 5), dtype=bool)
+    with pytest.raises(ValueError, match=r"given allowed steps of \(5, 4\)"):
+        Wave((4, 5), np.full((5, 4), 255, dtype=np.uint8))
+    with pytest.raises(ValueError, match="allowed steps must be uint8 bit masks, got int64"):
+        Wave((4, 5), np.full((4, 5), 255, dtype=np.int64))
+    dist, _ = Wave((4, 5))(passable, (0, 0), RES)
+    with pytest.raises(ValueError, match=r"allowed steps of \(5, 4\) for a wave of \(4, 5\)"):
+        path_to(dist, (3, 4), RES, passable, np.full((5, 4), 255, dtype=np.uint8))

@@ -386,8 +386,25 @@ def one_way(
     -------
     OneWay
         Deterministic: the same map gives the same system.
+
+    Raises
+    ------
+    ValueError
+        If ``passable`` is not 2-D, ``clearance`` is not of its shape, ``resolution`` is
+        not > 0 or ``turn_radius`` not >= 0.
     """
     mask = np.asarray(passable, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"passable cells must be a 2-D grid, got shape {mask.shape}")
+    if np.shape(clearance) != mask.shape:
+        raise ValueError(
+            f"clearance of shape {np.shape(clearance)} for passable cells of {mask.shape}"
+        )
+    if not (math.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"resolution must be > 0 metres, got {resolution}")
+    if not (math.isfinite(turn_radius) and turn_radius >= 0):
+        raise ValueError(f"turn_radius must be >= 0 metres, got {turn_radius}")
+    clearance = np.asarray(clearance, dtype=np.float64)
     skel = thin(mask)
     nbrs = ndimage.convolve(skel.astype(np.int64), np.ones((3, 3), dtype=np.int64), mode="constant")
     nbrs = np.where(skel, nbrs - 1, 0)
