@@ -55,6 +55,35 @@ from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.robots import Car, Team
 
 
+def car_config(
+    planner: str,
+    cars: int,
+    crowding: str,
+    duration: float,
+    forward_wave: bool = False,
+    give_up: int = 3,
+    turn_penalty: float = 10.0,
+    out_of_sight: bool = True,
+    round_block: float = 60.0,
+    one_way: bool = False,
+) -> PatrolConfig:
+    """The cars' configuration of one run (see the module's notes): ``crowding`` only
+    with more than one car, refined paths."""
+    return PatrolConfig(
+        model="car",
+        car_planner=planner,
+        forward_wave=forward_wave,
+        give_up=give_up,
+        turn_penalty=turn_penalty,
+        out_of_sight=out_of_sight,
+        round_block=round_block,
+        one_way=one_way,
+        refine=True,
+        crowding=crowding if cars > 1 else "none",
+        duration=duration,
+    )
+
+
 def run_one(
     site: int,
     planner: str,
@@ -70,18 +99,17 @@ def run_one(
     one_way: bool = False,
 ) -> dict[str, Any]:
     """One run's figures (see the module's notes)."""
-    config = PatrolConfig(
-        model="car",
-        car_planner=planner,
+    config = car_config(
+        planner,
+        cars,
+        crowding,
+        duration,
         forward_wave=forward_wave,
         give_up=give_up,
         turn_penalty=turn_penalty,
         out_of_sight=out_of_sight,
         round_block=round_block,
         one_way=one_way,
-        refine=True,
-        crowding=crowding if cars > 1 else "none",
-        duration=duration,
     )
     t0 = time.perf_counter()
     last: list[Team] = []

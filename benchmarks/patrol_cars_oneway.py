@@ -9,7 +9,8 @@ car is on: a ``junction``, a ``stub`` (a bridge of the street graph, two-way), a
 time, so they add up to the run's DVT.
 
 Also printed: the sizes of the strongly connected sets of the reachable passable cells
-under the allowed steps (one set: every place reachable from every other).
+under the allowed steps, by the wave's own step rule
+(:func:`sonarmap.patrol.oneway.strong_sets`; one set: every place reachable from every other).
 
 Run with ``python -m benchmarks.patrol_cars_oneway --site 3 --cars 5 --duration 1200``;
 one process, one core (``NUMBA_NUM_THREADS=1``); prints one JSON line.
@@ -25,15 +26,12 @@ from typing import Any
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
-import numpy.typing as npt
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
-from sonarmap.patrol import PatrolConfig, run_patrol
+from benchmarks.patrol_cars import car_config
+from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
-from sonarmap.patrol.oneway import OneWay, one_way
-from sonarmap.patrol.paths import STEPS
+from sonarmap.patrol.oneway import OneWay, one_way, strong_sets
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import CAUSES, Car, Team
 
@@ -47,42 +45,13 @@ def cell_class(ow: OneWay, r: int, c: int) -> str:
         return "stub"
     if not ow.one_way[e]:
         return "wide"
-    return "two-way end" if ow.steps[r, c] == 255 else "one-way"
-
-
-def strong_sets(passable: npt.NDArray[np.bool_], steps: npt.NDArray[np.uint8]) -> list[int]:
-    """Sizes of the strongly connected sets of ``passable`` under ``steps``, largest first."""
-    rows, cols = passable.shape
-    idx = np.full(passable.shape, -1, dtype=np.int64)
-    idx[passable] = np.arange(int(passable.sum()))
-    rc = np.argwhere(passable)
-    src, dst = [], []
-    for j, (dr, dc) in enumerate(STEPS.tolist()):
-        rr, cc = rc[:, 0] + dr, rc[:, 1] + dc
-        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-        ok[ok] = passable[rr[ok], cc[ok]]
-        ok &= ((steps[rc[:, 0], rc[:, 1]] >> j) & 1).astype(bool)
-        src.append(idx[rc[ok, 0], rc[ok, 1]])
-        dst.append(idx[rr[ok], cc[ok]])
-    n = len(rc)
-    s, d = np.concatenate(src), np.concatenate(dst)
-    m = coo_matrix((np.ones(len(s)), (s, d)), shape=(n, n)).tocsr()
-    _, label = connected_components(m, directed=True, connection="strong")
-    return sorted(np.bincount(label).tolist(), reverse=True)
+    return "two-way end" if ow.two_way[r, c] else "one-way"
 
 
 def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
     """One run's split (see the module's notes)."""
-    config = PatrolConfig(
-        model="car",
-        turn_penalty=10.0,
-        out_of_sight=True,
-        round_block=60.0,
-        one_way=True,
-        refine=True,
-        crowding="obstacles" if cars > 1 else "none",
-        duration=duration,
-    )
+    # The training runs' configuration (benchmarks.patrol_cars, one-way for teams).
+    config = car_config("track", cars, "obstacles", duration, one_way=True)
     t = street_territory(site)
     # The simulation's own passable cells, so the system is the one the cars use.
     passable = reach(t, config.radius, mode=config.reach, vision=config.vision).passable
@@ -113,7 +82,7 @@ def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
         "streets": len(ow.one_way),
         "one_way_streets": int(ow.one_way.sum()),
         "bridges": int(ow.bridges.sum()),
-        "strongly_connected_sets": strong_sets(passable, ow.steps)[:5],
+        "strongly_connected_sets": strong_sets(passable, ow.steps)[:5].tolist(),
     }
 
 

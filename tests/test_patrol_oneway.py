@@ -5,14 +5,18 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 import pytest
+from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
-from sonarmap.patrol.oneway import one_way, thin
+from sonarmap.patrol.graph import reachable_cells
+from sonarmap.patrol.maps import street_territory
+from sonarmap.patrol.oneway import one_way, strong_sets, thin
 from sonarmap.patrol.paths import STEPS, Wave, path_to
+from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Car
 from sonarmap.patrol.simulation import PatrolConfig, run_patrol
 from sonarmap.patrol.territory import Territory
@@ -57,21 +61,33 @@ def _four_blocks() -> Territory:
 
 
 def _strongly_connected(passable: npt.NDArray[np.bool_], steps: npt.NDArray[np.uint8]) -> bool:
-    """Whether every passable cell reaches every other by allowed steps."""
-    rows, cols = passable.shape
-    idx = np.full(passable.shape, -1)
-    idx[passable] = np.arange(int(passable.sum()))
-    src, dst = [], []
-    for j, (dr, dc) in enumerate(STEPS.tolist()):
-        for r, c in np.argwhere(passable).tolist():
-            rr, cc = r + dr, c + dc
-            if 0 <= rr < rows and 0 <= cc < cols and passable[rr, cc] and (steps[r, c] >> j) & 1:
-                src.append(idx[r, c])
-                dst.append(idx[rr, cc])
-    n = int(passable.sum())
-    m = coo_matrix((np.ones(len(src)), (src, dst)), shape=(n, n)).tocsr()
-    k, _ = connected_components(m, directed=True, connection="strong")
-    return bool(k == 1)
+    """Whether every passable cell reaches every other by the wave's allowed steps."""
+    return len(strong_sets(passable, steps)) == 1
+
+
+def _random_streets(seed: int) -> tuple[npt.NDArray[np.bool_], Territory]:
+    """Streets 1.5 to 3 m wide between 7 random points, some diagonal: the passable
+    cells of the largest connected part, and the territory."""
+    rng = np.random.default_rng(seed)
+    occ = np.ones((100, 140), np.float32)
+    pts = rng.integers(8, [92, 132], size=(7, 2))
+    for a in range(len(pts)):
+        for b in range(a + 1, len(pts)):
+            if rng.random() < 0.35:
+                w = int(rng.integers(3, 7))
+                n = int(max(abs(pts[a] - pts[b]))) + 1
+                rr = np.round(np.linspace(pts[a][0], pts[b][0], n)).astype(int)
+                cc = np.round(np.linspace(pts[a][1], pts[b][1], n)).astype(int)
+                for r, c in zip(rr.tolist(), cc.tolist(), strict=True):
+                    occ[max(r - w, 1) : r + w, max(c - w, 1) : c + w] = 0.0
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=occ.shape)
+    t = Territory.from_map(OccupancyMap(g, occ))
+    p = t.passable(1.0)
+    lab, _ = ndimage.label(p, structure=np.ones((3, 3)))
+    big = lab == np.argmax(np.bincount(lab.ravel())[1:]) + 1
+    start = np.argwhere(big)[0]
+    return reachable_cells(p, [(int(start[0]), int(start[1]))], RES), t
 
 
 def test_thinning_keeps_a_ring_a_ring_one_cell_wide() -> None:
@@ -84,8 +100,6 @@ def test_thinning_keeps_a_ring_a_ring_one_cell_wide() -> None:
     # Still a ring: one component, and the block inside it is a hole.
     k, _ = connected_components(_adjacency(skel), directed=False)
     assert k == 1
-    from scipy import ndimage
-
     _, holes = ndimage.label(~skel)
     assert holes == 2  # outside and the block
 
@@ -125,6 +139,36 @@ def test_a_ring_of_narrow_streets_is_one_way_and_still_strongly_connected() -> N
     # One of the two ways is the short one, the other goes round the block.
     assert min(there, back) == pytest.approx(6.0)
     assert max(there, back) > 80.0
+
+
+def test_a_diagonal_only_pinch_leaves_no_place_unreachable() -> None:
+    # Seed 47: the skeleton crosses a pinch where two passable cells meet only at a
+    # corner, which the wave's steps cannot cut; the street graph saw a cycle through it.
+    passable, t = _random_streets(47)
+    pinch = (passable[:-1, :-1] & passable[1:, 1:] & ~passable[:-1, 1:] & ~passable[1:, :-1]) | (
+        passable[:-1, 1:] & passable[1:, :-1] & ~passable[:-1, :-1] & ~passable[1:, 1:]
+    )
+    assert pinch.any()
+    ow = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    assert _strongly_connected(passable, ow.steps)
+    w = Wave(passable.shape, ow.steps)
+    for start in np.argwhere(passable)[:: max(1, int(passable.sum()) // 10)].tolist():
+        dist, _ = w(passable, (start[0], start[1]), RES)
+        assert np.isfinite(dist[passable]).all()
+
+
+def test_strong_sets_follow_the_waves_steps() -> None:
+    # Two cells meeting only at a corner: 8-connected, but the wave cannot cut it.
+    passable = np.zeros((4, 4), dtype=bool)
+    passable[1, 1] = passable[2, 2] = True
+    steps = np.full(passable.shape, 255, dtype=np.uint8)
+    assert strong_sets(passable, steps).tolist() == [1, 1]
+    passable[1, 2] = True
+    assert strong_sets(passable, steps).tolist() == [3]
+    # Only the step east out of (1, 1): (1, 1) -> (1, 2) but nothing back.
+    steps[1, 1] = 1
+    steps[1, 2] = 255 & ~(1 << 4) & ~(1 << 5)
+    assert sorted(strong_sets(passable, steps).tolist()) == [1, 2]
 
 
 def test_streets_as_wide_as_the_turning_circle_stay_two_way() -> None:
@@ -179,6 +223,9 @@ def test_one_way_is_for_tracking_cars_only() -> None:
         PatrolConfig(model="holonomic", one_way=True)
     with pytest.raises(ConfigError, match="one_way"):
         PatrolConfig(model="car", car_planner="thesis", one_way=True)
+    for paths in ("straight", "marching"):
+        with pytest.raises(ConfigError, match="one_way needs paths 'wave'"):
+            PatrolConfig(model="car", one_way=True, paths=paths)
 
 
 def test_cars_on_a_one_way_ring_do_not_turn_round() -> None:
@@ -209,3 +256,84 @@ def test_cars_on_a_one_way_ring_do_not_turn_round() -> None:
 
     assert turns(False)[0] >= 3
     assert turns(True) == (1, 0)
+
+
+@pytest.mark.parametrize("site", [0, 3])
+def test_every_one_way_street_restricts_some_step(site: int) -> None:
+    # Corner spurs of the thinning (loops of a cell or two back to their junction) lie
+    # within the junction's reach, two-way throughout: part of the junction, not streets.
+    t = street_territory(site)
+    cfg = PatrolConfig(model="car", one_way=True, refine=True)
+    passable = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision).passable
+    ow = one_way(passable, t.clearance, t.grid.resolution, cfg.turn_radius)
+    assert ow.one_way.sum() >= 10
+    for s in np.flatnonzero(ow.one_way).tolist():
+        assert (ow.steps[ow.street == s] != 255).any(), s
+
+
+def test_the_two_way_mask_marks_the_unrestricted_cells() -> None:
+    t = _four_blocks()
+    passable = t.passable(1.0)
+    ow = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    assert not ow.two_way[~passable].any()
+    # Every step between two two-way cells is allowed.
+    rows, cols = passable.shape
+    for j, (dr, dc) in enumerate(STEPS.tolist()):
+        for r, c in np.argwhere(ow.two_way).tolist():
+            rr, cc = r + dr, c + dc
+            if 0 <= rr < rows and 0 <= cc < cols and ow.two_way[rr, cc]:
+                assert (ow.steps[r, c] >> j) & 1
+    # Junctions and the ends of one-way streets are two-way, their middles not.
+    on = (ow.street >= 0) & ow.one_way[np.maximum(ow.street, 0)]
+    assert (ow.two_way & on).any()
+    assert (~ow.two_way & on).any()
+    assert ow.two_way[passable & (ow.street < 0)].all()
+    # Every segment of this map touches one or two junctions: all in the graph.
+    assert ow.in_graph.all()
+    assert not (ow.bridges & ow.one_way).any()
+
+
+def test_the_same_map_gives_the_same_system() -> None:
+    t = _four_blocks()
+    passable = t.passable(1.0)
+    before = passable.copy()
+    a = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    b = one_way(passable.copy(), t.clearance.copy(), RES, turn_radius=3.5)
+    assert (passable == before).all()
+    for name in ("steps", "street", "one_way", "widths", "bridges", "in_graph", "two_way"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert np.array_equal(a.along, b.along, equal_nan=True)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"resolution": 0.0}, "resolution must be > 0"),
+        ({"resolution": float("nan")}, "resolution must be > 0"),
+        ({"turn_radius": -1.0}, "turn_radius must be >= 0"),
+        ({"clearance": np.zeros((3, 3))}, r"clearance of shape \(3, 3\)"),
+        ({"passable": np.ones(5, dtype=bool)}, "must be a 2-D grid"),
+    ],
+)
+def test_bad_one_way_input_is_named(change: dict[str, object], match: str) -> None:
+    t = _ring()
+    args: dict[str, object] = {
+        "passable": t.passable(1.0),
+        "clearance": t.clearance,
+        "resolution": RES,
+        "turn_radius": 3.5,
+    }
+    args.update(change)
+    with pytest.raises(ValueError, match=match):
+        one_way(**args)  # type: ignore[arg-type]
+
+
+def test_bad_allowed_steps_are_named() -> None:
+    passable = np.ones((4, 5), dtype=bool)
+    with pytest.raises(ValueError, match=r"given allowed steps of \(5, 4\)"):
+        Wave((4, 5), np.full((5, 4), 255, dtype=np.uint8))
+    with pytest.raises(ValueError, match="allowed steps must be uint8 bit masks, got int64"):
+        Wave((4, 5), np.full((4, 5), 255, dtype=np.int64))
+    dist, _ = Wave((4, 5))(passable, (0, 0), RES)
+    with pytest.raises(ValueError, match=r"allowed steps of \(5, 4\) for a wave of \(4, 5\)"):
+        path_to(dist, (3, 4), RES, passable, np.full((5, 4), 255, dtype=np.uint8))

@@ -10,7 +10,9 @@ map alone (no messages, deterministic):
    (8-connected groups of them one junction each), cells with one are ends. The skeleton
    with its junctions removed falls into segments: the streets, edges between the
    junctions (or an end) they touch; a ring of streets with no junction is cut at its
-   first cell, a junction of its own. Every passable cell belongs to the skeleton cell
+   first cell, a junction of its own, and a segment looping back to its own junction
+   within that junction's reach (a corner spur of the thinning) joins the junction.
+   Every passable cell belongs to the skeleton cell
    nearest it along the grid's paths, and so to a street or a junction.
 2. **Orientation** (Robbins' theorem): a street graph has a strongly connected
    orientation iff it is 2-edge-connected. Bridges (dead-end stubs, a lone street to a
@@ -19,6 +21,13 @@ map alone (no messages, deterministic):
    each 2-edge-connected part strongly connected. Streets as wide as the turning circle
    (twice their median clearance at least ``2 * turn_radius``) are then opened both ways
    again, which keeps every place reachable from every other.
+4. **Check.** The skeleton is 8-connected and may cross a diagonal-only pinch of the
+   passable cells that the wave's steps (no cutting of corners) cannot, so the street
+   graph can differ from the wave's. The allowed steps are therefore checked on the
+   wave's own step rule (:func:`strong_sets`): while some passable cells are not in the
+   largest strongly connected set of their (two-way) connected part, the one-way streets
+   on them and next to them are opened both ways again, and the check repeats (at most
+   once per street, and the last resort opens every street of that part).
 3. **Allowed steps.** A one-way street's cells carry their distance along it from its
    tail (:attr:`OneWay.along`). The wave's step from one of them to another of the same
    street must not lower that distance by more than half a cell (the nearest skeleton
@@ -42,12 +51,12 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 from scipy.sparse import coo_matrix, csr_matrix
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from .graph import cell_graph
 from .paths import STEPS
 
-__all__ = ["OneWay", "one_way", "thin"]
+__all__ = ["OneWay", "one_way", "strong_sets", "thin"]
 
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
@@ -137,7 +146,16 @@ class OneWay:
     widths : ndarray of float64, shape (streets,)
         Each street's width, metres (twice the median clearance on its skeleton).
     bridges : ndarray of bool, shape (streets,)
-        Which streets are bridges of the street graph (left two-way).
+        Which streets are left two-way as bridges of the street graph, and the streets
+        not in it (``in_graph`` False), which are left two-way too.
+    in_graph : ndarray of bool, shape (streets,)
+        Which streets are edges of the street graph: False for a segment touching no
+        junction or three of them.
+    two_way : ndarray of bool, shape grid
+        Passable cells where the street's direction does not hold: junctions, cells of
+        two-way streets, and a one-way street's cells within its junction's reach of
+        either end. Every step between two of them is allowed (a step from one of them
+        into the one-way part of a street still keeps to its direction).
     """
 
     steps: npt.NDArray[np.uint8]
@@ -146,6 +164,8 @@ class OneWay:
     one_way: B
     widths: F64
     bridges: B
+    in_graph: B
+    two_way: B
 
     @property
     def share(self) -> float:
@@ -252,6 +272,96 @@ def _chain_graph(mask: B) -> tuple[csr_matrix, I64]:
     return m.tocsr(), index
 
 
+def _step_index() -> I64:
+    """Index into :data:`STEPS` of each step, at (dr + 1) * 3 + dc + 1 (-1 for no step)."""
+    out = np.full(9, -1, dtype=np.int64)
+    for j, (dr, dc) in enumerate(STEPS.tolist()):
+        out[(dr + 1) * 3 + dc + 1] = j
+    return out
+
+
+def _labels(graph: csr_matrix, index: I64, steps: npt.NDArray[np.uint8]) -> I64:
+    """Strongly connected set of each node of the wave's ``graph`` (:func:`cell_graph`,
+    cells ``index``) keeping only the steps ``steps`` allows."""
+    coo = graph.tocoo()
+    rc = np.argwhere(index >= 0)
+    d = rc[coo.col] - rc[coo.row]
+    j = _step_index()[(d[:, 0] + 1) * 3 + d[:, 1] + 1]
+    keep = ((steps[rc[coo.row, 0], rc[coo.row, 1]].astype(np.int64) >> j) & 1).astype(bool)
+    n = len(rc)
+    m = coo_matrix((np.ones(int(keep.sum())), (coo.row[keep], coo.col[keep])), shape=(n, n))
+    _, label = connected_components(m.tocsr(), directed=True, connection="strong")
+    out: I64 = label.astype(np.int64)
+    return out
+
+
+def strong_sets(passable: B, steps: npt.NDArray[np.uint8]) -> I64:
+    """The strongly connected sets of ``passable`` under the allowed ``steps``.
+
+    A step is the wave's (:class:`~sonarmap.patrol.paths.Wave`): to one of the 8
+    neighbours, a diagonal only when both cells beside it are passable too, and only
+    where bit j of the cell's ``steps`` allows step :data:`~sonarmap.patrol.paths.STEPS`
+    [j].
+
+    Parameters
+    ----------
+    passable : ndarray of bool
+    steps : ndarray of uint8, same shape
+        Allowed steps out of each cell (:attr:`OneWay.steps`).
+
+    Returns
+    -------
+    ndarray of int64, shape (sets,)
+        Each set's number of cells, largest first (empty without passable cells). Every
+        passable cell reaches every other iff there is one set.
+    """
+    mask = np.asarray(passable, dtype=bool)
+    if steps.shape != mask.shape:
+        raise ValueError(f"allowed steps of {steps.shape} for passable cells of {mask.shape}")
+    if not mask.any():
+        return np.zeros(0, dtype=np.int64)
+    graph, index = cell_graph(mask, 1.0)
+    sizes: I64 = np.sort(np.bincount(_labels(graph, index, steps)))[::-1].astype(np.int64)
+    return sizes
+
+
+def _trapped(graph: csr_matrix, index: I64, weak: I64, steps: npt.NDArray[np.uint8]) -> B:
+    """Cells of ``index`` outside the largest strongly connected set of their connected
+    part (``weak``, per node) under ``steps``."""
+    strong = _labels(graph, index, steps)
+    n = len(strong)
+    # Size of each strong set, and the largest within each weak part.
+    size = np.bincount(strong)[strong]
+    # The largest set of each part; ties go to the set of the lowest node.
+    order = np.lexsort((np.arange(n), -size, weak))
+    keep = np.full(int(weak.max()) + 1 if n else 0, -1, dtype=np.int64)
+    for node in order.tolist():
+        if keep[weak[node]] < 0:
+            keep[weak[node]] = strong[node]
+    out = np.zeros(index.shape, dtype=bool)
+    rc = np.argwhere(index >= 0)
+    bad = strong != keep[weak]
+    out[rc[bad, 0], rc[bad, 1]] = True
+    return out
+
+
+def _touches(segment: I64, node_of: I64, n_segments: int) -> list[set[int]]:
+    """The junctions (``node_of`` >= 0) next to each segment (``segment`` >= 0)."""
+    rows, cols = segment.shape
+    touches: list[set[int]] = [set() for _ in range(n_segments)]
+    sr, sc = np.nonzero(segment >= 0)
+    for dr, dc in STEPS.tolist():
+        rr, cc = sr + dr, sc + dc
+        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+        nodes = np.full(len(sr), -1, dtype=np.int64)
+        nodes[ok] = node_of[rr[ok], cc[ok]]
+        for s, n in zip(
+            segment[sr, sc][nodes >= 0].tolist(), nodes[nodes >= 0].tolist(), strict=True
+        ):
+            touches[s].add(n)
+    return touches
+
+
 def one_way(
     passable: B,
     clearance: F64,
@@ -276,8 +386,25 @@ def one_way(
     -------
     OneWay
         Deterministic: the same map gives the same system.
+
+    Raises
+    ------
+    ValueError
+        If ``passable`` is not 2-D, ``clearance`` is not of its shape, ``resolution`` is
+        not > 0 or ``turn_radius`` not >= 0.
     """
     mask = np.asarray(passable, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"passable cells must be a 2-D grid, got shape {mask.shape}")
+    if np.shape(clearance) != mask.shape:
+        raise ValueError(
+            f"clearance of shape {np.shape(clearance)} for passable cells of {mask.shape}"
+        )
+    if not (math.isfinite(resolution) and resolution > 0):
+        raise ValueError(f"resolution must be > 0 metres, got {resolution}")
+    if not (math.isfinite(turn_radius) and turn_radius >= 0):
+        raise ValueError(f"turn_radius must be >= 0 metres, got {turn_radius}")
+    clearance = np.asarray(clearance, dtype=np.float64)
     skel = thin(mask)
     nbrs = ndimage.convolve(skel.astype(np.int64), np.ones((3, 3), dtype=np.int64), mode="constant")
     nbrs = np.where(skel, nbrs - 1, 0)
@@ -291,23 +418,28 @@ def one_way(
         pix = segment == s
         if not (pix & touching).any() and not (pix & (nbrs == 1)).any():
             junction[tuple(np.argwhere(pix)[0])] = True
+    # A loop back to its own junction that never leaves the junction's reach (a corner
+    # spur of the thinning, a cell or two) is part of the junction, not a street.
+    node_of, _ = ndimage.label(junction, structure=eight)
+    segment, n_segments = ndimage.label(skel & ~junction, structure=eight)
+    node_of = node_of.astype(np.int64) - 1
+    segment = segment.astype(np.int64) - 1
+    touches = _touches(segment, node_of, n_segments)
+    off_junction = ndimage.distance_transform_edt(~junction)
+    for s in range(n_segments):
+        pix = segment == s
+        if len(touches[s]) != 1 or (pix & (nbrs == 1)).any():
+            continue
+        (n,) = touches[s]
+        reach_cells = float(clearance[node_of == n].max()) / resolution + 1.0
+        if float(off_junction[pix].max()) <= reach_cells:
+            junction |= pix
     node_of, n_junctions = ndimage.label(junction, structure=eight)
     segment, n_segments = ndimage.label(skel & ~junction, structure=eight)
     node_of = node_of.astype(np.int64) - 1  # -1 off the junctions
     segment = segment.astype(np.int64) - 1
-    rows, cols = mask.shape
     # Each segment's junctions (the nodes touching it) and ends (skeleton ends).
-    touches: list[set[int]] = [set() for _ in range(n_segments)]
-    sr, sc = np.nonzero(segment >= 0)
-    for dr, dc in STEPS.tolist():
-        rr, cc = sr + dr, sc + dc
-        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-        nodes = np.full(len(sr), -1, dtype=np.int64)
-        nodes[ok] = node_of[rr[ok], cc[ok]]
-        for s, n in zip(
-            segment[sr, sc][nodes >= 0].tolist(), nodes[nodes >= 0].tolist(), strict=True
-        ):
-            touches[s].add(n)
+    touches = _touches(segment, node_of, n_segments)
     n_nodes = n_junctions
     ends: list[tuple[int, int]] = []
     tails: list[int] = []
@@ -387,13 +519,35 @@ def one_way(
     length = np.zeros(n_segments)
     for s in np.flatnonzero(directed).tolist():
         length[s] = float(np.nanmax(along_skel[segment == s]))
-    is_dir = (street >= 0) & directed[np.maximum(street, 0)]
-    along[~is_dir] = np.nan
     m = seg_margin[np.maximum(street, 0)]
     ln = length[np.maximum(street, 0)]
-    with np.errstate(invalid="ignore"):
-        free = ~is_dir | (along <= m) | (along >= ln - m)
-    steps = _allowed(street, np.nan_to_num(along, nan=0.0), free, STEPS, ALONG_SLACK)
+    _, weak = connected_components(g_all, directed=False)
+    weak = weak.astype(np.int64)
+    # Each round opens at least one street (the last resort all of a part): bounded.
+    for _ in range(n_segments + 1):
+        is_dir = (street >= 0) & directed[np.maximum(street, 0)]
+        with np.errstate(invalid="ignore"):
+            free = ~is_dir | (along <= m) | (along >= ln - m)
+        along_dir = np.where(is_dir, along, 0.0)
+        steps = _allowed(street, np.nan_to_num(along_dir, nan=0.0), free, STEPS, ALONG_SLACK)
+        if not directed.any():
+            break
+        trapped = _trapped(g_all, idx_all, weak, steps)
+        if not trapped.any():
+            break
+        near = ndimage.binary_dilation(trapped, structure=eight) & (street >= 0)
+        opened = np.unique(street[near])
+        opened = opened[directed[opened]]
+        if len(opened) == 0:
+            # No one-way street at the trap: open every one of its connected parts.
+            parts = np.unique(weak[idx_all[trapped]])
+            part_of = np.where(idx_all >= 0, weak[np.maximum(idx_all, 0)], -1)
+            opened = np.unique(street[(street >= 0) & np.isin(part_of, parts)])
+            opened = opened[directed[opened]]
+            if len(opened) == 0:
+                break
+        directed[opened] = False
+    along[~is_dir] = np.nan
     return OneWay(
         steps=steps,
         street=street,
@@ -401,4 +555,6 @@ def one_way(
         one_way=directed,
         widths=widths,
         bridges=bridge,
+        in_graph=np.array([e[0] >= 0 for e in ends], dtype=bool),
+        two_way=free & mask,
     )

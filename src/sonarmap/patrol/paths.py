@@ -350,6 +350,9 @@ class Wave:
         if allowed is not None:
             if allowed.shape != self.shape:
                 raise ValueError(f"a wave for {self.shape} given allowed steps of {allowed.shape}")
+            if allowed.dtype != np.uint8:
+                # Any other type would be cast silently, wrapping a mask like 256 to 0.
+                raise ValueError(f"allowed steps must be uint8 bit masks, got {allowed.dtype}")
             self._inner(self._allow)[...] = allowed
         self._dist = np.full(size, np.inf)
         self._first = np.full(size, -1, dtype=np.int8)

@@ -213,7 +213,8 @@ class PatrolConfig:
     #: direction, so that every place can still be reached from every other, and the
     #: cars' waves take its cells only that way: two cars never meet head-on in such a
     #: street, and a place behind is reached round the block. Every car derives the
-    #: same system from the map. False (the default): every street two-way.
+    #: same system from the map. Needs ``paths`` 'wave' (the only path-finding that
+    #: keeps to the allowed steps). False (the default): every street two-way.
     one_way: bool = False
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
@@ -341,6 +342,12 @@ class PatrolConfig:
             raise ConfigError(
                 "one_way applies to tracking cars only (model 'car', car_planner 'track')",
                 field="one_way",
+            )
+        if self.one_way and self.paths != "wave":
+            # Only the wave keeps to the allowed steps: straight and marching paths
+            # would drive against the streets.
+            raise ConfigError(
+                f"one_way needs paths 'wave', got paths {self.paths!r}", field="one_way"
             )
         if not (0 <= self.give_up <= 1000):
             raise ConfigError(f"give_up must be in 0..1000, got {self.give_up}", field="give_up")
