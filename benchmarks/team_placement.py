@@ -28,6 +28,12 @@ the received poses better (the graph started from odometry, as the robot's):
 - ``source-revisits``: the same, only closures between poses made more than 30 s apart
   (the source's revisits, not its closures to the pose just before).
 
+For the two closure levers it also prints what sending the added closures would cost:
+each as msgpack ``[a, b, transform, covariance]`` with the transform and the covariance's
+upper triangle as float32 bytes (57 bytes a closure, uncompressed; a message's deflate
+would take some off), per robot and minute and as points of the naive baseline's bytes
+added to the run's share.
+
 For each robot and start (or lever) it prints the map's F1 with the alignment the robot finds,
 the F1 of the same map placed by the best rigid fit of the estimates to the truth (no
 alignment error left), and the RMS position error after that one fit of the robot's own
@@ -53,6 +59,7 @@ from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
+import msgpack
 import numpy as np
 import numpy.typing as npt
 
@@ -72,7 +79,7 @@ from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.network import NetworkParams
 from sonarmap.team.patrolling import patrol_routes
 from sonarmap.team.presets import DEFAULT_PRESET, PRESETS
-from sonarmap.team.records import Pose, compose
+from sonarmap.team.records import ClosureEdge, Pose, compose
 from sonarmap.team.simulation import run_team
 from sonarmap.team.store import StoreParams
 from sonarmap.team.world import make_world
@@ -106,6 +113,19 @@ def _graph_poses(agent: RobotAgent, start: str) -> tuple[dict[int, Pose], list[A
             for uid, p in store.received[source].poses.items():
                 poses[uid] = replace(p, estimate=compose(frame, p.estimate))
     return poses, edges, anchor
+
+
+def closure_wire_bytes(c: ClosureEdge) -> int:
+    """Bytes of one closure sent as msgpack ``[a, b, transform, covariance]`` with the
+    transform and the covariance's upper triangle as float32 bytes."""
+    cov = np.asarray(c.covariance, dtype=np.float64).reshape(3, 3)[np.triu_indices(3)]
+    body = [
+        c.a,
+        c.b,
+        np.asarray(c.transform, dtype=np.float32).tobytes(),
+        cov.astype(np.float32).tobytes(),
+    ]
+    return len(msgpack.packb(body))
 
 
 def _lever(
@@ -159,6 +179,7 @@ def placement(
     extra: dict[str, Any] = {}
     if lever is not None:
         closures, extra = _lever(agent, team or [], poses, lever)
+    added = closures[len(store.closures) :]
     graph = optimise_graph(
         poses,
         edges,
@@ -192,6 +213,8 @@ def placement(
         "ate_own_m": float(np.sqrt(np.mean(err[own] ** 2))) if own.any() else None,
         "ate_received_m": float(np.sqrt(np.mean(err[~own] ** 2))) if (~own).any() else None,
         "closures": len(closures),
+        "closures_added": len(added),
+        "closures_added_bytes": sum(closure_wire_bytes(c) for c in added),
         "closures_rejected": len(graph.inconsistent),
     }
 
@@ -257,8 +280,20 @@ def main(argv: list[str] | None = None) -> int:
                 f"received {_m(row['ate_received_m'])}, closures {row['closures']}"
             )
         name = start if lever is None else lever
-        mean = np.mean([r["map_f1"] for r in rows if r["start"] == name])
-        print(f"{name:15s} mean F1 {mean:.4f}")
+        mine = [r for r in rows if r["start"] == name]
+        print(f"{name:15s} mean F1 {np.mean([r['map_f1'] for r in mine]):.4f}")
+        added = sum(r["closures_added_bytes"] for r in mine)
+        if added:
+            # Every robot receives what the others send: the bytes a robot sends, on
+            # the mean, are the bytes the team received over the team's size.
+            per_min = added / len(mine) / (args.duration / 60.0)
+            points = 100 * per_min / s["naive_bytes_per_robot_minute"]
+            print(
+                f"{name:15s} {sum(r['closures_added'] for r in mine)} closures added, "
+                f"{added} B: {per_min:.0f} B per robot-minute, +{points:.2f} points of "
+                f"naive's bytes ({100 * s['share_of_naive']:.1f} % -> "
+                f"{100 * s['share_of_naive'] + points:.1f} %)"
+            )
     if args.json:
         keys = ("map_f1_team", "map_f1_central", "share_of_naive", "duplicate_poses")
         team_row = {k: s[k] for k in (*keys, "identical_maps")}
