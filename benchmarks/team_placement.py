@@ -13,7 +13,28 @@ once per start of its pose graph (``--starts``):
 - ``placed``: our poses at ours, each received layer's moved into our frame by
   :func:`sonarmap.team.globalmap.layer_frames`.
 
-For each robot and start it prints the map's F1 with the alignment the robot finds,
+and, with ``--levers``, once per lever a multi-robot SLAM system would pull to place
+the received poses better (the graph started from odometry, as the robot's):
+
+- ``sent-shape``: each received layer held as a shape at the estimates its source sent
+  (:func:`~sonarmap.team.globalmap.optimise_graph`'s ``shapes``, sigma 0.2 m, 0.05 rad):
+  what a receiver can do today, at no byte;
+- ``fresh-shape``: the same shape at the source's estimates at the mission's end (an
+  upper bound of sending the source's optimised layer with its adverts: every estimate
+  fresh, no byte counted);
+- ``source-closures``: the source's closures between two poses the receiver holds, one
+  of them the source's, added to the receiver's graph (an upper bound of exchanging them:
+  every one delivered, no byte counted);
+- ``source-revisits``: the same, only closures between poses made more than 30 s apart
+  (the source's revisits, not its closures to the pose just before).
+
+For the two closure levers it also prints what sending the added closures would cost:
+each as msgpack ``[a, b, transform, covariance]`` with the transform and the covariance's
+upper triangle as float32 bytes (41 bytes and the two UIDs', 57 on the mean on the
+warehouse; uncompressed, a message's zstd would take some off), per robot and minute
+and as points of the naive baseline's bytes added to the run's share.
+
+For each robot and start (or lever) it prints the map's F1 with the alignment the robot finds,
 the F1 of the same map placed by the best rigid fit of the estimates to the truth (no
 alignment error left), and the RMS position error after that one fit of the robot's own
 poses and of its received poses (``ate_own``, ``ate_received``). Beside them, from the
@@ -23,7 +44,8 @@ bound) and the correct closures its graph batches dropped during the mission.
 Usage::
 
     python -m benchmarks.team_placement --map MAP [--robots 4] [--duration 600]
-        [--seed 0] [--starts odometry estimates placed] [--json FILE]
+        [--seed 0] [--starts odometry estimates placed]
+        [--levers sent-shape fresh-shape source-closures source-revisits] [--json FILE]
 """
 
 from __future__ import annotations
@@ -37,6 +59,7 @@ from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
+import msgpack
 import numpy as np
 import numpy.typing as npt
 
@@ -56,13 +79,18 @@ from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.network import NetworkParams
 from sonarmap.team.patrolling import patrol_routes
 from sonarmap.team.presets import DEFAULT_PRESET, PRESETS
-from sonarmap.team.records import Pose, compose
+from sonarmap.team.records import ClosureEdge, Pose, compose
 from sonarmap.team.simulation import run_team
 from sonarmap.team.store import StoreParams
 from sonarmap.team.world import make_world
 
 F64 = npt.NDArray[np.float64]
 STARTS = ("odometry", "estimates", "placed")
+LEVERS = ("sent-shape", "fresh-shape", "source-closures", "source-revisits")
+#: The shape's standard deviations (m, m, rad) for the two shape levers.
+SHAPE_SIGMA = (0.2, 0.2, 0.05)
+#: Closures between poses made at most this far apart (s) are not revisits.
+REVISIT_S = 30.0
 
 
 def _graph_poses(agent: RobotAgent, start: str) -> tuple[dict[int, Pose], list[Any], int]:
@@ -87,19 +115,78 @@ def _graph_poses(agent: RobotAgent, start: str) -> tuple[dict[int, Pose], list[A
     return poses, edges, anchor
 
 
+def closure_wire_bytes(c: ClosureEdge) -> int:
+    """Bytes of one closure sent as msgpack ``[a, b, transform, covariance]`` with the
+    transform and the covariance's upper triangle as float32 bytes."""
+    cov = np.asarray(c.covariance, dtype=np.float64).reshape(3, 3)[np.triu_indices(3)]
+    body = [
+        c.a,
+        c.b,
+        np.asarray(c.transform, dtype=np.float32).tobytes(),
+        cov.astype(np.float32).tobytes(),
+    ]
+    return len(msgpack.packb(body))
+
+
+def _lever(
+    agent: RobotAgent, team: list[RobotAgent], poses: dict[int, Pose], lever: str
+) -> tuple[list[Any], dict[str, Any]]:
+    """The closures and the extra arguments of :func:`optimise_graph` for ``lever``
+    (``poses`` is changed in place for ``fresh-shape``)."""
+    store = agent.store
+    closures = list(store.closures)
+    if lever in ("sent-shape", "fresh-shape"):
+        if lever == "fresh-shape":
+            for source, layer in store.received.items():
+                now = team[source].store.local.poses
+                for uid in layer.poses:
+                    if uid in now:
+                        poses[uid] = replace(poses[uid], estimate=now[uid].estimate.copy())
+        shapes = [list(store.received[s].poses) for s in sorted(store.received)]
+        return closures, {"shapes": shapes, "shape_sigma": SHAPE_SIGMA}
+    if lever in ("source-closures", "source-revisits"):
+        seen = {(c.a, c.b) for c in closures}
+        for source in sorted(store.received):
+            mine = store.received[source].poses
+            for c in team[source].store.closures:
+                if c.a not in poses or c.b not in poses or (c.a, c.b) in seen:
+                    continue
+                if c.a not in mine and c.b not in mine:
+                    continue
+                gap = abs(poses[c.a].time - poses[c.b].time)
+                if lever == "source-revisits" and gap <= REVISIT_S:
+                    continue
+                closures.append(c)
+                seen.add((c.a, c.b))
+    return closures, {}
+
+
 def placement(
-    agent: RobotAgent, truth: dict[int, F64], plan: OccupancyMap, start: str
+    agent: RobotAgent,
+    truth: dict[int, F64],
+    plan: OccupancyMap,
+    start: str,
+    *,
+    lever: str | None = None,
+    team: list[RobotAgent] | None = None,
 ) -> dict[str, Any]:
-    """The robot's final map rebuilt from its store with the graph started at ``start``:
-    F1 (found alignment and rigid fit to the truth) and the placement errors."""
+    """The robot's final map rebuilt from its store with the graph started at ``start``
+    (and, given ``lever``, one of :data:`LEVERS` pulled, from ``team``'s stores): F1
+    (found alignment and rigid fit to the truth) and the placement errors."""
     cfg, store = agent.cfg, agent.store
     poses, edges, anchor = _graph_poses(agent, start)
+    closures: list[Any] = list(store.closures)
+    extra: dict[str, Any] = {}
+    if lever is not None:
+        closures, extra = _lever(agent, team or [], poses, lever)
+    added = closures[len(store.closures) :]
     graph = optimise_graph(
         poses,
         edges,
-        store.closures,
+        closures,
         anchor=anchor,
         initial="odometry" if start == "odometry" else "estimates",
+        **extra,
     )
     est = graph.estimates
     grid = grid_around(est, cfg.local_size / 2, cfg.map_resolution, margin=1.0)
@@ -120,12 +207,14 @@ def placement(
     own = np.array([u in store.local.poses for u in uids])
     return {
         "robot": agent.robot,
-        "start": start,
+        "start": start if lever is None else lever,
         "map_f1": f1.f1_all,
         "map_f1_rigid_to_truth": f1_rigid.f1_all,
         "ate_own_m": float(np.sqrt(np.mean(err[own] ** 2))) if own.any() else None,
         "ate_received_m": float(np.sqrt(np.mean(err[~own] ** 2))) if (~own).any() else None,
-        "closures": len(store.closures),
+        "closures": len(closures),
+        "closures_added": len(added),
+        "closures_added_bytes": sum(closure_wire_bytes(c) for c in added),
         "closures_rejected": len(graph.inconsistent),
     }
 
@@ -142,6 +231,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=600.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--starts", nargs="+", choices=STARTS, default=list(STARTS))
+    parser.add_argument("--levers", nargs="*", choices=LEVERS, default=[])
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
     args = parser.parse_args(argv)
     plan = resolve_map(Path(args.map))
@@ -179,17 +269,31 @@ def main(argv: list[str] | None = None) -> int:
     for agent in team.agents:
         truth.update(agent.truth)
     rows = []
-    for start in args.starts:
+    runs = [(start, None) for start in args.starts] + [("odometry", v) for v in args.levers]
+    for start, lever in runs:
         for agent in team.agents:
-            row = placement(agent, truth, plan, start)
+            row = placement(agent, truth, plan, start, lever=lever, team=list(team.agents))
             rows.append(row)
             print(
-                f"{start:9s} robot {row['robot']}: F1 {row['map_f1']:.3f}, rigid to truth "
-                f"{row['map_f1_rigid_to_truth']:.3f}, ATE own {_m(row['ate_own_m'])}, "
-                f"received {_m(row['ate_received_m'])}"
+                f"{row['start']:15s} robot {row['robot']}: F1 {row['map_f1']:.3f}, rigid to "
+                f"truth {row['map_f1_rigid_to_truth']:.3f}, ATE own {_m(row['ate_own_m'])}, "
+                f"received {_m(row['ate_received_m'])}, closures {row['closures']}"
             )
-        mean = np.mean([r["map_f1"] for r in rows if r["start"] == start])
-        print(f"{start:9s} mean F1 {mean:.4f}")
+        name = start if lever is None else lever
+        mine = [r for r in rows if r["start"] == name]
+        print(f"{name:15s} mean F1 {np.mean([r['map_f1'] for r in mine]):.4f}")
+        added = sum(r["closures_added_bytes"] for r in mine)
+        if added:
+            # Every robot receives what the others send: the bytes a robot sends, on
+            # the mean, are the bytes the team received over the team's size.
+            per_min = added / len(mine) / (args.duration / 60.0)
+            points = 100 * per_min / s["naive_bytes_per_robot_minute"]
+            print(
+                f"{name:15s} {sum(r['closures_added'] for r in mine)} closures added, "
+                f"{added} B: {per_min:.0f} B per robot-minute, +{points:.2f} points of "
+                f"naive's bytes ({100 * s['share_of_naive']:.1f} % -> "
+                f"{100 * s['share_of_naive'] + points:.1f} %)"
+            )
     if args.json:
         keys = ("map_f1_team", "map_f1_central", "share_of_naive", "duplicate_poses")
         team_row = {k: s[k] for k in (*keys, "identical_maps")}
