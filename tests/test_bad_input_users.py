@@ -148,6 +148,39 @@ def test_a_rig_number_in_exponent_form_is_a_number(tmp_path: Path) -> None:
     assert rig.mounts[0].x == 0.1
 
 
+def test_yaml_1_1_strings_that_look_like_numbers_stay_strings_where_a_string_is_wanted(
+    tmp_path: Path,
+) -> None:
+    """The previous release wrote a sonar named 1e5 unquoted (yaml.safe_dump); a
+    YAML 1.2 loader read it back as the number 100000.0 and refused the rig."""
+    from sonarmap.files import read_yaml
+
+    p = tmp_path / "rig.yaml"
+    p.write_text("sensor: maxsonar-ez1\nsonars:\n  - {name: 1e5, x: 2e-1, y: 0, yaw_deg: 0}\n")
+    rig = load_rig(p)
+    assert rig.names == ("1e5",)
+    assert rig.mounts[0].x == 0.2
+    (tmp_path / "t.yaml").write_text("image: 1e3\nroute: 2e5\nn: 1_000e2\nm: +1e5\n")
+    assert read_yaml(tmp_path / "t.yaml") == {
+        "image": "1e3", "route": "2e5", "n": "1_000e2", "m": "+1e5"
+    }
+
+
+def test_a_quoted_number_where_a_number_is_wanted_reads_as_map_server_reads_it(
+    tmp_path: Path,
+) -> None:
+    _image(tmp_path)
+    p = tmp_path / "m.yaml"
+    p.write_text('image: plan.pgm\nresolution: "0.1"\norigin: ["-1e1", 0, 0]\n')
+    m = read_map(p)
+    assert m.grid.resolution == 0.1
+    assert m.grid.origin == (-10.0, 0.0)
+    for bad in ('"0x10"', '"1_0"', '"ten"', "yes", '"1:30"'):
+        p.write_text(f"image: plan.pgm\nresolution: {bad}\norigin: [0, 0, 0]\n")
+        with pytest.raises(InputError, match="field 'resolution': expected a number"):
+            read_map(p)
+
+
 def test_a_map_whose_resolution_makes_it_astronomical_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

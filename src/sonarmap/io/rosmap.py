@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image, UnidentifiedImageError
 
+from ..checks import as_number
 from ..errors import InputError, quote
 from ..files import atomic_outputs, dump_yaml, need_file, read_yaml
 from ..grid import Grid
@@ -114,9 +115,9 @@ def _key(d: Mapping[str, Any], key: str, path: Path) -> Any:
 
 
 def _num(value: Any, path: Path, field: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
+    v = as_number(value)
+    if v is None:
         raise InputError(f"expected a number, got {quote(value)}", path=path, field=field)
-    v = float(value)
     if not math.isfinite(v):
         raise InputError(f"expected a finite number, got {quote(value)}", path=path, field=field)
     return v
