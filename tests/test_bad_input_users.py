@@ -438,23 +438,21 @@ def test_a_patrol_distance_past_the_map_is_refused_before_the_run(
     assert not out.exists()
 
 
-def test_a_bandwidth_too_low_to_carry_a_message_is_refused_not_a_hang(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """--bandwidth 1e-9 (a slip for 1e9) paid a message's schedule over 1e12 periods of
-    10 s: team run ran past two minutes on a 5 s mission."""
-    from sonarmap.team.network import NetworkParams
+def test_a_low_bandwidth_runs_and_max_message_is_checked_first() -> None:
+    """A floor on the bandwidth (10^6 periods for the largest message) refused
+    plausible links (210 B/s at period 0.1 s, factor 0.05), and was computed before
+    max_message was checked (a TypeError for max_message="x")."""
+    from sonarmap.team.network import NetworkParams, SimNetwork
 
-    with pytest.raises(ConfigError, match=r"'bandwidth' 1e-09 B/s .* at least 0.105 B/s"):
-        NetworkParams(bandwidth=1e-9)
-    assert NetworkParams(bandwidth=0.2).bandwidth == 0.2
-    out = tmp_path / "team"
-    line = refused(
-        ["team", "run", "--map", "office", "--robots", "2", "--bandwidth", "1e-9", "-o", str(out)],
-        capsys,
-    )
-    assert line.startswith("sonarmap: error: --bandwidth: ")
-    assert not out.exists()
+    with pytest.raises(ConfigError, match="'max_message' must be an int"):
+        NetworkParams(bandwidth=1.0, max_message="x")  # type: ignore[arg-type]
+    p = NetworkParams(bandwidth=210.0, bandwidth_period=0.1, bandwidth_min_factor=0.05)
+    assert p.bandwidth == 210.0
+    # --bandwidth 1e-9 (a slip for 1e9): a constant rate is paid in closed form, so a
+    # message due in 10^15 s costs nothing to schedule; it does not arrive in the mission.
+    net = SimNetwork(NetworkParams(bandwidth=1e-9), 2)
+    assert net.send(0.0, 0, 1, b"x" * 1_000_000)
+    assert net.deliver(1e6) == []
 
 
 def test_simulating_from_outside_the_plan_is_refused(
