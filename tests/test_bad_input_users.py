@@ -424,6 +424,7 @@ def _room(tmp_path: Path) -> Path:
         ["--refine", "--refine-side", "1e9"],
         ["--weaken", "--weaken-r0", "1e9"],
         ["--crowding", "obstacles", "--r-obst", "1e9"],
+        ["--choice-cell", "1e9"],
     ],
 )
 def test_a_patrol_distance_past_the_map_is_refused_before_the_run(
@@ -434,8 +435,25 @@ def test_a_patrol_distance_past_the_map_is_refused_before_the_run(
     out = tmp_path / "run"
     args = ["patrol", "run", "--map", str(_room(tmp_path)), "--robots", "2"]
     line = refused([*args, "--duration", "1", *option, "-o", str(out)], capsys)
-    assert f"{option[-2]} 1e+09: at most the map's diagonal, 42.4 m" in line
+    name = option[-2][2:].replace("-", "_")
+    assert f"{option[-2]} / {name} 1e+09 m: at most the map's diagonal, 42.4 m" in line
     assert not out.exists()
+
+
+def test_a_patrol_distance_past_the_map_is_refused_by_the_library_for_every_caller(
+    tmp_path: Path,
+) -> None:
+    """Experiment files build PatrolConfig directly: r_obst 1e9 there ran out of memory,
+    the check being only in the command line."""
+    from sonarmap.io.rosmap import read_map
+    from sonarmap.patrol.simulation import PatrolConfig, run_patrol
+
+    territory = Territory.from_map(read_map(_room(tmp_path)), cell=0.5)
+    for name in ("r_obst", "choice_cell", "refine_window"):
+        config = PatrolConfig(duration=1.0, **{name: 1e9})
+        with pytest.raises(ConfigError, match=f"{name} 1e\\+09 m: at most") as err:
+            run_patrol(territory, config, robots=1, seed=0)
+        assert err.value.field == name
 
 
 def test_a_low_bandwidth_runs_and_max_message_is_checked_first() -> None:
