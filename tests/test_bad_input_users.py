@@ -56,8 +56,19 @@ def refused(args: list[str], capsys: pytest.CaptureFixture[str]) -> str:
         ", ".join(HEADER.split(",")) + "\n" + "\n".join(", ".join(r.split(",")) for r in ROWS),
         # A byte-order mark and Windows line ends.
         "\ufeff" + "\r\n".join([HEADER, *ROWS]) + "\r\n",
+        # Comments with commas, indented ones, lines of spaces or a tab (review).
+        "# note, with, many, commas, here, and, more, fields\n"
+        + HEADER
+        + "\n"
+        + ROWS[0]
+        + "\n# a, b, c, d, e, f, g, h\n   \n\t\n   # note, a, b\n"
+        + "\n".join(ROWS[1:])
+        + "\n",
+        # The same with CR line ends only.
+        "# a, b, c, d, e, f, g\r" + HEADER + "\r" + ROWS[0] + "\r  # x, y\r \t\r"
+        + "\r".join(ROWS[1:]) + "\r",
     ],
-    ids=["comments", "trailing-blank", "blank-between", "spaces", "bom-crlf"],
+    ids=["comments", "trailing-blank", "blank-between", "spaces", "bom-crlf", "commas", "cr"],
 )
 def test_odd_but_valid_readings_csvs_read_as_the_plain_one(tmp_path: Path, text: str) -> None:
     plain = tmp_path / "plain.csv"
@@ -77,6 +88,25 @@ def test_errors_after_comment_and_blank_lines_name_the_files_own_line(tmp_path: 
     p.write_text("# one\n" + HEADER + "\n\n" + ROWS[0] + "\n0.1,c,1,1,0,1\n")
     with pytest.raises(InputError, match=r"r.csv:5, field 'sensor': unknown sensor 'c'"):
         read_readings(p, names=["a", "b"])
+    p.write_text(HEADER + "\n" + ROWS[0] + "\n# a, b, c, d, e, f, g\n  \n0.1,a,1,1\n")
+    with pytest.raises(InputError, match=r"r.csv:5, field 'theta': missing value"):
+        read_readings(p, names=["a", "b"])
+
+
+@pytest.mark.parametrize("suffix", [".log", ".txt", ".gz", ".bz2", ".xz"])
+def test_comments_before_the_header_are_skipped_whatever_the_suffix(
+    tmp_path: Path, suffix: str
+) -> None:
+    """They were skipped only for .csv, .txt, .gz and no suffix (review)."""
+    import bz2
+    import gzip
+    import lzma
+
+    text = ("# a, b, c, d, e, f, g, h\n  # b\n" + HEADER + "\n" + "\n".join(ROWS) + "\n").encode()
+    pack = {".gz": gzip.compress, ".bz2": bz2.compress, ".xz": lzma.compress}
+    p = tmp_path / f"r{suffix}"
+    p.write_bytes(pack.get(suffix, bytes)(text))
+    assert len(read_readings(p, names=["a", "b"])) == 3
 
 
 def test_a_trajectory_with_comments_and_blank_lines_reads(tmp_path: Path) -> None:
