@@ -211,6 +211,27 @@ def test_a_quoted_number_where_a_number_is_wanted_reads_as_map_server_reads_it(
             read_map(p)
 
 
+def test_a_maps_extent_is_checked_from_the_image_header_before_decoding(tmp_path: Path) -> None:
+    """The extent was checked after the pixels were decoded: a damaged or huge image
+    was read (or failed) first."""
+    (tmp_path / "cut.pgm").write_bytes(b"P5\n100 100\n255\n" + bytes(10))  # pixels cut short
+    p = tmp_path / "m.yaml"
+    p.write_text("image: cut.pgm\nresolution: 1e6\norigin: [0, 0, 0]\n")
+    with pytest.raises(InputError, match=r"field 'resolution': .* 1e\+08 m across"):
+        read_map(p)
+
+
+def test_raw_mode_rounds_a_16_bit_pixel_as_nav2_does(tmp_path: Path) -> None:
+    from sonarmap.checks import MAX_MAP_CELLS
+
+    assert MAX_PIXELS == MAX_MAP_CELLS
+    px = np.full((4, 4), 50 * 257 + 200, dtype=np.uint16)  # 50.78 on the 8-bit scale
+    Image.fromarray(px).save(tmp_path / "raw.png")
+    p = tmp_path / "m.yaml"
+    p.write_text("image: raw.png\nresolution: 0.1\norigin: [0, 0, 0]\nmode: raw\n")
+    assert np.allclose(read_map(p, use_npy=False).occupancy, 0.51)
+
+
 def test_a_map_whose_resolution_makes_it_astronomical_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

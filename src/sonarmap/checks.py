@@ -8,7 +8,13 @@ from typing import Any
 
 from .errors import ConfigError, quote
 
-__all__ = ["as_number", "finite_number"]
+__all__ = ["MAX_MAP_CELLS", "as_number", "finite_number"]
+
+#: Cells of a map read or built at most: 10^8 (10 000 x 10 000, a kilometre square at
+#: 0.1 m), 800 MB for each float64 layer a method keeps. A map image's pixels and the
+#: command line's grids are held to it; the library's :class:`~sonarmap.grid.Grid`
+#: takes up to 2^31 cells for callers that know their memory.
+MAX_MAP_CELLS = 100_000_000
 
 # A decimal number as yaml-cpp and map_server read one: sign, digits, optional
 # fraction and exponent (no underscores, no hexadecimal, no base 60).
