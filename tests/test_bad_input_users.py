@@ -364,6 +364,23 @@ def test_a_sonar_cone_that_changes_is_refused(tmp_path: Path) -> None:
     assert len(readings) == 4
 
 
+def test_a_laser_whose_angular_step_is_rounded_differently_is_read(tmp_path: Path) -> None:
+    """The cone check, meant for SONAR messages, refused a ROBOTLASER1 log whose
+    resolution field was written 0.7854 in one message and 0.785398 in the next (a
+    laser's "cone" is its angular step, not a beam's opening)."""
+
+    def robotlaser(res: str, t: float) -> str:
+        return (
+            f"ROBOTLASER1 0 -1.5708 3.1416 {res} 50.0 0.01 0 5 1 2 3 2 1 "
+            f"1.1 2.0 0.5 1.0 2.0 0.5 0.0 0.0 0.5 0.5 0.0 {t} host {t}"
+        )
+
+    p = tmp_path / "log.log"
+    p.write_text(robotlaser("0.7854", 1.0) + "\n" + robotlaser("0.785398", 2.0) + "\n")
+    readings, _ = read_carmen(p)
+    assert len(readings) == 10
+
+
 # --- rigs --------------------------------------------------------------------------------
 
 
