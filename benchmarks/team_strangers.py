@@ -157,23 +157,28 @@ def run_team(
         MissionConfig(duration=5.0, seed=seed), ExchangeParams(), 30.0, None, 5.0, timing
     )
     addresses = [f"tcp://127.0.0.1:{_port()}" for _ in range(2)]
-    procs = []
-    for i in range(2):
-        cmd = [sys.executable, "-m", "sonarmap", "team", "node", "--id", str(i)]
-        cmd += ["--listen", addresses[i], "--peers", f"{1 - i}={addresses[1 - i]}"]
-        cmd += ["--map", str(folder / "plan.yaml"), "-o", str(folder / f"robot{i}"), *args]
-        with (folder / f"robot{i}.log").open("wb") as log:
-            procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT))
-    start = time.monotonic()
-    sent = _attack(addresses[0], identities, procs[0]) if identities is not None else {}
+    procs: list[subprocess.Popen[bytes]] = []
     codes: list[int | None] = []
-    for p in procs:
-        try:
-            codes.append(p.wait(timeout=max(1.0, 2 * LIMIT - (time.monotonic() - start))))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-            codes.append(None)
+    try:
+        for i in range(2):
+            cmd = [sys.executable, "-m", "sonarmap", "team", "node", "--id", str(i)]
+            cmd += ["--listen", addresses[i], "--peers", f"{1 - i}={addresses[1 - i]}"]
+            cmd += ["--map", str(folder / "plan.yaml"), "-o", str(folder / f"robot{i}"), *args]
+            with (folder / f"robot{i}.log").open("wb") as log:
+                procs.append(subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT))
+        start = time.monotonic()
+        sent = _attack(addresses[0], identities, procs[0]) if identities is not None else {}
+        for p in procs:
+            try:
+                codes.append(p.wait(timeout=max(1.0, 2 * LIMIT - (time.monotonic() - start))))
+            except subprocess.TimeoutExpired:
+                codes.append(None)
+    finally:
+        # An attack that raises (or ^C) must not leave the nodes running.
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
     summary = folder / "robot0" / SUMMARY_FILE
     return codes, json.loads(summary.read_text()) if summary.exists() else {}, sent
 

@@ -56,8 +56,19 @@ def refused(args: list[str], capsys: pytest.CaptureFixture[str]) -> str:
         ", ".join(HEADER.split(",")) + "\n" + "\n".join(", ".join(r.split(",")) for r in ROWS),
         # A byte-order mark and Windows line ends.
         "\ufeff" + "\r\n".join([HEADER, *ROWS]) + "\r\n",
+        # Comments with commas, indented ones, lines of spaces or a tab (review).
+        "# note, with, many, commas, here, and, more, fields\n"
+        + HEADER
+        + "\n"
+        + ROWS[0]
+        + "\n# a, b, c, d, e, f, g, h\n   \n\t\n   # note, a, b\n"
+        + "\n".join(ROWS[1:])
+        + "\n",
+        # The same with CR line ends only.
+        "# a, b, c, d, e, f, g\r" + HEADER + "\r" + ROWS[0] + "\r  # x, y\r \t\r"
+        + "\r".join(ROWS[1:]) + "\r",
     ],
-    ids=["comments", "trailing-blank", "blank-between", "spaces", "bom-crlf"],
+    ids=["comments", "trailing-blank", "blank-between", "spaces", "bom-crlf", "commas", "cr"],
 )
 def test_odd_but_valid_readings_csvs_read_as_the_plain_one(tmp_path: Path, text: str) -> None:
     plain = tmp_path / "plain.csv"
@@ -77,6 +88,25 @@ def test_errors_after_comment_and_blank_lines_name_the_files_own_line(tmp_path: 
     p.write_text("# one\n" + HEADER + "\n\n" + ROWS[0] + "\n0.1,c,1,1,0,1\n")
     with pytest.raises(InputError, match=r"r.csv:5, field 'sensor': unknown sensor 'c'"):
         read_readings(p, names=["a", "b"])
+    p.write_text(HEADER + "\n" + ROWS[0] + "\n# a, b, c, d, e, f, g\n  \n0.1,a,1,1\n")
+    with pytest.raises(InputError, match=r"r.csv:5, field 'theta': missing value"):
+        read_readings(p, names=["a", "b"])
+
+
+@pytest.mark.parametrize("suffix", [".log", ".txt", ".gz", ".bz2", ".xz"])
+def test_comments_before_the_header_are_skipped_whatever_the_suffix(
+    tmp_path: Path, suffix: str
+) -> None:
+    """They were skipped only for .csv, .txt, .gz and no suffix (review)."""
+    import bz2
+    import gzip
+    import lzma
+
+    text = ("# a, b, c, d, e, f, g, h\n  # b\n" + HEADER + "\n" + "\n".join(ROWS) + "\n").encode()
+    pack = {".gz": gzip.compress, ".bz2": bz2.compress, ".xz": lzma.compress}
+    p = tmp_path / f"r{suffix}"
+    p.write_bytes(pack.get(suffix, bytes)(text))
+    assert len(read_readings(p, names=["a", "b"])) == 3
 
 
 def test_a_trajectory_with_comments_and_blank_lines_reads(tmp_path: Path) -> None:
@@ -146,6 +176,60 @@ def test_a_rig_number_in_exponent_form_is_a_number(tmp_path: Path) -> None:
     rig = load_rig(p)
     assert rig.sensor.r_min == 0.15
     assert rig.mounts[0].x == 0.1
+
+
+def test_yaml_1_1_strings_that_look_like_numbers_stay_strings_where_a_string_is_wanted(
+    tmp_path: Path,
+) -> None:
+    """The previous release wrote a sonar named 1e5 unquoted (yaml.safe_dump); a
+    YAML 1.2 loader read it back as the number 100000.0 and refused the rig."""
+    from sonarmap.files import read_yaml
+
+    p = tmp_path / "rig.yaml"
+    p.write_text("sensor: maxsonar-ez1\nsonars:\n  - {name: 1e5, x: 2e-1, y: 0, yaw_deg: 0}\n")
+    rig = load_rig(p)
+    assert rig.names == ("1e5",)
+    assert rig.mounts[0].x == 0.2
+    (tmp_path / "t.yaml").write_text("image: 1e3\nroute: 2e5\nn: 1_000e2\nm: +1e5\n")
+    assert read_yaml(tmp_path / "t.yaml") == {
+        "image": "1e3", "route": "2e5", "n": "1_000e2", "m": "+1e5"
+    }
+
+
+def test_a_quoted_number_where_a_number_is_wanted_reads_as_map_server_reads_it(
+    tmp_path: Path,
+) -> None:
+    _image(tmp_path)
+    p = tmp_path / "m.yaml"
+    p.write_text('image: plan.pgm\nresolution: "0.1"\norigin: ["-1e1", 0, 0]\n')
+    m = read_map(p)
+    assert m.grid.resolution == 0.1
+    assert m.grid.origin == (-10.0, 0.0)
+    for bad in ('"0x10"', '"1_0"', '"ten"', "yes", '"1:30"'):
+        p.write_text(f"image: plan.pgm\nresolution: {bad}\norigin: [0, 0, 0]\n")
+        with pytest.raises(InputError, match="field 'resolution': expected a number"):
+            read_map(p)
+
+
+def test_a_maps_extent_is_checked_from_the_image_header_before_decoding(tmp_path: Path) -> None:
+    """The extent was checked after the pixels were decoded: a damaged or huge image
+    was read (or failed) first."""
+    (tmp_path / "cut.pgm").write_bytes(b"P5\n100 100\n255\n" + bytes(10))  # pixels cut short
+    p = tmp_path / "m.yaml"
+    p.write_text("image: cut.pgm\nresolution: 1e6\norigin: [0, 0, 0]\n")
+    with pytest.raises(InputError, match=r"field 'resolution': .* 1e\+08 m across"):
+        read_map(p)
+
+
+def test_raw_mode_rounds_a_16_bit_pixel_as_nav2_does(tmp_path: Path) -> None:
+    from sonarmap.checks import MAX_MAP_CELLS
+
+    assert MAX_PIXELS == MAX_MAP_CELLS
+    px = np.full((4, 4), 50 * 257 + 200, dtype=np.uint16)  # 50.78 on the 8-bit scale
+    Image.fromarray(px).save(tmp_path / "raw.png")
+    p = tmp_path / "m.yaml"
+    p.write_text("image: raw.png\nresolution: 0.1\norigin: [0, 0, 0]\nmode: raw\n")
+    assert np.allclose(read_map(p, use_npy=False).occupancy, 0.51)
 
 
 def test_a_map_whose_resolution_makes_it_astronomical_is_refused(
@@ -280,6 +364,23 @@ def test_a_sonar_cone_that_changes_is_refused(tmp_path: Path) -> None:
     assert len(readings) == 4
 
 
+def test_a_laser_whose_angular_step_is_rounded_differently_is_read(tmp_path: Path) -> None:
+    """The cone check, meant for SONAR messages, refused a ROBOTLASER1 log whose
+    resolution field was written 0.7854 in one message and 0.785398 in the next (a
+    laser's "cone" is its angular step, not a beam's opening)."""
+
+    def robotlaser(res: str, t: float) -> str:
+        return (
+            f"ROBOTLASER1 0 -1.5708 3.1416 {res} 50.0 0.01 0 5 1 2 3 2 1 "
+            f"1.1 2.0 0.5 1.0 2.0 0.5 0.0 0.0 0.5 0.5 0.0 {t} host {t}"
+        )
+
+    p = tmp_path / "log.log"
+    p.write_text(robotlaser("0.7854", 1.0) + "\n" + robotlaser("0.785398", 2.0) + "\n")
+    readings, _ = read_carmen(p)
+    assert len(readings) == 10
+
+
 # --- rigs --------------------------------------------------------------------------------
 
 
@@ -391,6 +492,7 @@ def _room(tmp_path: Path) -> Path:
         ["--refine", "--refine-side", "1e9"],
         ["--weaken", "--weaken-r0", "1e9"],
         ["--crowding", "obstacles", "--r-obst", "1e9"],
+        ["--choice-cell", "1e9"],
     ],
 )
 def test_a_patrol_distance_past_the_map_is_refused_before_the_run(
@@ -401,27 +503,42 @@ def test_a_patrol_distance_past_the_map_is_refused_before_the_run(
     out = tmp_path / "run"
     args = ["patrol", "run", "--map", str(_room(tmp_path)), "--robots", "2"]
     line = refused([*args, "--duration", "1", *option, "-o", str(out)], capsys)
-    assert f"{option[-2]} 1e+09: at most the map's diagonal, 42.4 m" in line
+    name = option[-2][2:].replace("-", "_")
+    assert f"{option[-2]} / {name} 1e+09 m: at most the map's diagonal, 42.4 m" in line
     assert not out.exists()
 
 
-def test_a_bandwidth_too_low_to_carry_a_message_is_refused_not_a_hang(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+def test_a_patrol_distance_past_the_map_is_refused_by_the_library_for_every_caller(
+    tmp_path: Path,
 ) -> None:
-    """--bandwidth 1e-9 (a slip for 1e9) paid a message's schedule over 1e12 periods of
-    10 s: team run ran past two minutes on a 5 s mission."""
-    from sonarmap.team.network import NetworkParams
+    """Experiment files build PatrolConfig directly: r_obst 1e9 there ran out of memory,
+    the check being only in the command line."""
+    from sonarmap.io.rosmap import read_map
+    from sonarmap.patrol.simulation import PatrolConfig, run_patrol
 
-    with pytest.raises(ConfigError, match=r"'bandwidth' 1e-09 B/s .* at least 0.105 B/s"):
-        NetworkParams(bandwidth=1e-9)
-    assert NetworkParams(bandwidth=0.2).bandwidth == 0.2
-    out = tmp_path / "team"
-    line = refused(
-        ["team", "run", "--map", "office", "--robots", "2", "--bandwidth", "1e-9", "-o", str(out)],
-        capsys,
-    )
-    assert line.startswith("sonarmap: error: --bandwidth: ")
-    assert not out.exists()
+    territory = Territory.from_map(read_map(_room(tmp_path)), cell=0.5)
+    for name in ("r_obst", "choice_cell", "refine_window"):
+        config = PatrolConfig(duration=1.0, **{name: 1e9})
+        with pytest.raises(ConfigError, match=f"{name} 1e\\+09 m: at most") as err:
+            run_patrol(territory, config, robots=1, seed=0)
+        assert err.value.field == name
+
+
+def test_a_low_bandwidth_runs_and_max_message_is_checked_first() -> None:
+    """A floor on the bandwidth (10^6 periods for the largest message) refused
+    plausible links (210 B/s at period 0.1 s, factor 0.05), and was computed before
+    max_message was checked (a TypeError for max_message="x")."""
+    from sonarmap.team.network import NetworkParams, SimNetwork
+
+    with pytest.raises(ConfigError, match="'max_message' must be an int"):
+        NetworkParams(bandwidth=1.0, max_message="x")  # type: ignore[arg-type]
+    p = NetworkParams(bandwidth=210.0, bandwidth_period=0.1, bandwidth_min_factor=0.05)
+    assert p.bandwidth == 210.0
+    # --bandwidth 1e-9 (a slip for 1e9): a constant rate is paid in closed form, so a
+    # message due in 10^15 s costs nothing to schedule; it does not arrive in the mission.
+    net = SimNetwork(NetworkParams(bandwidth=1e-9), 2)
+    assert net.send(0.0, 0, 1, b"x" * 1_000_000)
+    assert net.deliver(1e6) == []
 
 
 def test_simulating_from_outside_the_plan_is_refused(

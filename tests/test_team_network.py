@@ -5,6 +5,7 @@ broken links and counters that add up, all deterministic given the seed."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import numpy.typing as npt
@@ -177,6 +178,49 @@ def test_a_burst_lets_a_small_message_leave_at_once() -> None:
     net.send(100.0, 0, 1, b"z" * 1000)  # the bucket refilled to 400 while idle
     (d,) = net.deliver(200.0)
     assert d.arrived == pytest.approx(106.0)
+
+
+def _stepped(t0: float, need: float, rate: float, period: float) -> float:
+    """When a link of constant ``rate`` has carried ``need`` bytes from t0, paid period
+    by period as the network paid it before the closed form."""
+    t, k = t0, math.floor(t0 / period)
+    while True:
+        end = (k + 1) * period
+        if t + need / rate <= end:
+            return t + need / rate
+        need -= rate * max(0.0, end - t)
+        t, k = max(t, end), k + 1
+
+
+def test_a_constant_rate_delivers_when_stepping_period_by_period_did() -> None:
+    p = NetworkParams(bandwidth=210.0, bandwidth_period=0.1, delay=0.0)
+    net = SimNetwork(p, 2)
+    rng = np.random.default_rng(3)
+    sends = sorted(rng.uniform(0.0, 50.0, 12))
+    sizes = rng.integers(1, 5000, 12)
+    want, free = [], -math.inf
+    for t, size in zip(sends, sizes, strict=True):
+        assert net.send(float(t), 0, 1, b"x" * int(size))
+        free = _stepped(max(float(t), free), float(size), 210.0, 0.1)
+        want.append(free)
+    got = [d.arrived for d in net.deliver(1e4)]
+    assert got == pytest.approx(want, rel=1e-12, abs=1e-9)
+    assert len(got) == 12
+
+
+def test_a_message_a_varying_link_cannot_carry_within_the_horizon_never_arrives() -> None:
+    """Its schedule is stepped through MAX_PERIODS periods at most, not for hours."""
+    from sonarmap.team.network import MAX_PERIODS
+
+    p = NetworkParams(bandwidth=1e-6, bandwidth_min_factor=0.5, bandwidth_period=1.0)
+    net = SimNetwork(p, 2, seed=1)
+    assert net.send(0.0, 0, 1, b"x" * 1000)  # 10^9 s at the best factor
+    assert net.send(1.0, 0, 1, b"y")  # behind it, on a link busy for good
+    assert net.deliver(10.0 * MAX_PERIODS) == []
+    ok = SimNetwork(replace(p, bandwidth=1000.0), 2, seed=1)
+    assert ok.send(0.0, 0, 1, b"x" * 1000)
+    (d,) = ok.deliver(10.0)
+    assert 1.0 <= d.arrived <= 2.0  # at factors in [0.5, 1]
 
 
 def test_capacity_changes_over_time_and_sets_arrival_times() -> None:

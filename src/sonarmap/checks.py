@@ -3,15 +3,58 @@
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 from .errors import ConfigError, quote
 
-__all__ = ["finite_number"]
+__all__ = ["MAX_MAP_CELLS", "as_number", "finite_number"]
+
+#: Cells of a map read or built at most: 10^8 (10 000 x 10 000, a kilometre square at
+#: 0.1 m), 800 MB for each float64 layer a method keeps. A map image's pixels and the
+#: command line's grids are held to it; the library's :class:`~sonarmap.grid.Grid`
+#: takes up to 2^31 cells for callers that know their memory.
+MAX_MAP_CELLS = 100_000_000
+
+# A decimal number as yaml-cpp and map_server read one: sign, digits, optional
+# fraction and exponent (no underscores, no hexadecimal, no base 60).
+_DECIMAL = re.compile(r"[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][-+]?[0-9]+)?")
+
+
+def as_number(value: Any) -> float | None:
+    """``value`` as a float if it is a number, or a string written as a decimal number.
+
+    PyYAML reads YAML 1.1, where ``1e-3`` (no dot) and quoted ``"0.1"`` are strings;
+    map_server's yaml-cpp reads both as numbers where a number is expected. Strings
+    are accepted here, where a number is wanted, and nowhere else (a name ``1e5``
+    stays a name).
+
+    Parameters
+    ----------
+    value : Any
+        A parsed configuration value.
+
+    Returns
+    -------
+    float or None
+        The value (possibly infinite or NaN: finiteness is the caller's check), or
+        None if it is a bool, another type, or a string that is not a decimal number.
+    """
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int | float):
+        try:
+            return float(value)
+        except OverflowError:  # an int beyond the float range
+            return math.inf
+    if isinstance(value, str) and _DECIMAL.fullmatch(value.strip()):
+        return float(value)
+    return None
+
 
 
 def finite_number(value: Any, where: str) -> float:
-    """``value`` as a float if it is a finite int or float (not a bool).
+    """``value`` as a float if it is a finite number (:func:`as_number`).
 
     Parameters
     ----------
@@ -28,11 +71,11 @@ def finite_number(value: Any, where: str) -> float:
     Raises
     ------
     ConfigError
-        If ``value`` is not a number, is a bool, or is not finite.
+        If ``value`` is not a number (nor a string of one), is a bool, or is not finite.
     """
-    if isinstance(value, bool) or not isinstance(value, int | float):
+    v = as_number(value)
+    if v is None:
         raise ConfigError(f"{where}: expected a number, got {quote(value)}")
-    v = float(value)
     if not math.isfinite(v):
         raise ConfigError(f"{where}: expected a finite number, got {quote(value)}")
     return v

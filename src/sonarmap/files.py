@@ -285,27 +285,24 @@ def read_text(path: str | Path, what: str = "file") -> str:
         raise InputError(f"{what} is not text ({err.reason})", path=p) from err
 
 
-class _Loader(yaml.SafeLoader):
-    """The safe loader, reading numbers as YAML 1.2 and map_server's yaml-cpp do."""
-
-
 class _Dumper(yaml.SafeDumper):
-    """The safe dumper, quoting the strings :class:`_Loader` would read as numbers."""
+    """The safe dumper, also quoting strings in exponent form such as ``2e1``."""
 
 
-# YAML 1.1, which PyYAML implements, reads ``1e-3`` and ``1.0e9`` (no dot, or no sign
-# after the e) as strings; map_server, and users, take them for numbers. The dumper
-# knows it too, so that a name such as "1e5" is written quoted and read back a string.
-for _cls in (_Loader, _Dumper):
-    _cls.add_implicit_resolver(
-        "tag:yaml.org,2002:float",
-        re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-        list("-+0123456789."),
-    )
+# PyYAML's YAML 1.1 reads ``2e1`` (no dot) as a string, yaml-cpp (map_server) as a
+# number: quoted, a name "2e1" reads back a string in both.
+_Dumper.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
 
 
 def dump_yaml(data: Any) -> str:
     """``data`` as YAML text, keys in their order, that :func:`read_yaml` reads back equal.
+
+    Strings that a YAML 1.2 reader such as yaml-cpp would take for numbers (``2e1``)
+    are quoted, so other readers see the same strings.
 
     Parameters
     ----------
@@ -320,7 +317,11 @@ def dump_yaml(data: Any) -> str:
 
 
 def read_yaml(path: str | Path, what: str = "file") -> Any:
-    """Parse a YAML file with the safe loader.
+    """Parse a YAML file with PyYAML's safe loader (YAML 1.1).
+
+    Values such as ``1e-3`` (no dot) are strings in YAML 1.1; the number checks
+    (:func:`sonarmap.checks.as_number`) accept numeric strings, so they read as
+    numbers where a number is expected and stay strings (names, paths) elsewhere.
 
     Parameters
     ----------
@@ -343,7 +344,7 @@ def read_yaml(path: str | Path, what: str = "file") -> Any:
     p = Path(path)
     text = read_text(p, what)
     try:
-        return yaml.load(text, Loader=_Loader)  # a SafeLoader: plain data only
+        return yaml.safe_load(text)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         problem = getattr(err, "problem", None) or type(err).__name__

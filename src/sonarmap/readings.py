@@ -4,19 +4,24 @@ Readings CSV: ``t,sensor,x,y,theta,range`` -- time (s), sonar name, the sonar's 
 pose at the reading (metres, radians) and the range (metres). A range ``>= r_max``
 (``inf`` included) means no echo. Trajectory CSV: ``t,x,y,theta`` -- robot poses.
 
-Files are read in chunks (plain or gzip-compressed), so memory holds the parsed
-arrays, never the text of a large file.
+Files are read in chunks (plain, or compressed by gzip, bzip2 or xz, by suffix), so
+memory holds the parsed arrays, never the text of a large file. Blank lines, lines of
+spaces and ``#`` comment lines are skipped anywhere, the header's head included; errors
+name the file's own line.
 """
 
 from __future__ import annotations
 
+import bz2
 import gzip
+import io
+import lzma
 import re
 from collections import deque
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, BinaryIO, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -268,54 +273,105 @@ def _chunks(
     :class:`InputError` naming the file, line and field.
     """
     need_file(path, "CSV file")
-    head = _leading_comments(path)
+    try:
+        source = _Uncommented(_open_binary(path))
+    except OSError as err:
+        raise InputError(f"cannot read file ({type(err).__name__}: {err})", path=path) from err
     try:
         reader = pd.read_csv(
-            path,
+            source,
             dtype=str,
             keep_default_na=False,
-            # Blank and comment lines are dropped after parsing, so that the line
-            # numbers of errors stay the file's own.
+            # Comment lines are emptied and blank lines dropped after parsing, so that
+            # the line numbers of errors stay the file's own.
             skip_blank_lines=False,
-            skiprows=head,
             chunksize=chunk_size,
             engine="c",
-            compression="infer",
         )
     except pd.errors.EmptyDataError as err:
+        source.close()
         raise InputError(
             f"file is empty; expected a header {','.join(columns)}", path=path
         ) from err
-    except (EOFError, OSError, UnicodeDecodeError) as err:
+    except (EOFError, OSError, UnicodeDecodeError, lzma.LZMAError) as err:
+        source.close()
         raise InputError(f"cannot read file ({type(err).__name__}: {err})", path=path) from err
-    with reader:
-        yield from _parse_chunks(path, reader, columns, text_columns, first_line=2 + head)
+    with source, reader:
+        first = 2 + source.head
+        yield from _parse_chunks(path, reader, columns, text_columns, first_line=first)
 
 
-#: Lines of a CSV's head searched for its header past blank and comment lines.
-_HEAD_SCAN = 10_000
+#: Decompressors by file suffix; other files are read as they are.
+_OPENERS: dict[str, Callable[[Path, str], Any]] = {
+    ".gz": gzip.open,
+    ".bz2": bz2.open,
+    ".xz": lzma.open,
+}
+#: A line of spaces or tabs, or a comment (``#`` after them), up to its end; lines end
+#: in LF, CRLF or CR alike.
+_BLANK_OR_COMMENT = re.compile(rb"(?:(?<=[\r\n])|\A)[ \t]*(?:#[^\r\n]*)?(?=[\r\n]|\Z)")
+#: The blank and comment lines before the header, with a byte-order mark.
+_HEAD = re.compile(rb"\A(?:\xef\xbb\xbf)?(?:[ \t]*(?:#[^\r\n]*)?(?:\r\n|\r|\n))*")
 
 
-def _leading_comments(path: Path) -> int:
-    """Lines before a CSV's header that are blank or comments (``#`` first), at most
-    :data:`_HEAD_SCAN`; 0 for a compression other than gzip, whose header is taken as
-    the first line."""
-    suffix = path.suffix.lower()
-    if suffix not in (".csv", ".txt", ".gz", ""):
-        return 0
-    opener = gzip.open if suffix == ".gz" else open
-    n = 0
-    try:
-        with opener(path, "rb") as f:
-            for raw in f:
-                text = raw.removeprefix(b"\xef\xbb\xbf") if n == 0 else raw
-                stripped = text.strip()
-                if (stripped and not stripped.startswith(b"#")) or n >= _HEAD_SCAN:
-                    break
-                n += 1
-    except (EOFError, OSError):
-        return 0  # the reader names the damage
-    return n
+def _open_binary(path: Path) -> BinaryIO:
+    opener = _OPENERS.get(path.suffix.lower())
+    if opener is None:
+        return open(path, "rb")
+    handle: BinaryIO = opener(path, "rb")
+    return handle
+
+
+def _line_ends(text: bytes) -> int:
+    crlf = text.count(b"\r\n")
+    return text.count(b"\r") + text.count(b"\n") - crlf
+
+
+class _Uncommented(io.RawIOBase):
+    """A binary stream's bytes without the blank and comment lines before the header
+    (counted in :attr:`head`) and with later comment lines and lines of spaces emptied,
+    their line ends kept, so that the parser's line numbers stay the file's."""
+
+    _BLOCK = 1 << 20
+
+    def __init__(self, source: BinaryIO) -> None:
+        self._source = source
+        self._ready = b""
+        self._tail = b""
+        self._done = False
+        self._in_head = True
+        #: Lines before the header (so far read).
+        self.head = 0
+
+    def readable(self) -> bool:
+        return True
+
+    def close(self) -> None:
+        self._source.close()
+        super().close()
+
+    def readinto(self, buffer: bytearray | memoryview) -> int:  # type: ignore[override]
+        while not self._ready and not self._done:
+            block = self._tail + self._source.read(self._BLOCK)
+            if len(block) == len(self._tail):
+                self._done, cut = True, len(block)
+            else:
+                # A line that runs past the block waits for the next one; a CRLF is
+                # never split (CR-only files have no LF).
+                lf = block.rfind(b"\n")
+                cut = lf + 1 if lf >= 0 else block.rfind(b"\r") + 1
+            part, self._tail = block[:cut], block[cut:]
+            if self._in_head:
+                skipped = _HEAD.match(part)
+                n = skipped.end() if skipped is not None else 0
+                self.head += _line_ends(part[:n])
+                part = part[n:]
+                self._in_head = not part
+            self._ready = _BLANK_OR_COMMENT.sub(b"", part)
+        n = min(len(buffer), len(self._ready))
+        buffer[:n] = self._ready[:n]
+        self._ready = self._ready[n:]
+        return n
 
 
 def _content_rows(frame: pd.DataFrame) -> npt.NDArray[np.intp]:

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Protocol, TypeVar, cast
 import typer
 from rich.console import Console
 
+from ..checks import MAX_MAP_CELLS
 from ..errors import ConfigError, InputError, quote
 
 if TYPE_CHECKING:
@@ -180,12 +181,6 @@ def resolve_map(
     return read_plan(path, resolution, origin)
 
 
-#: Cells of a map a command builds at most: 10^8 (10 000 x 10 000, a kilometre square
-#: at 0.1 m), 800 MB for each float64 layer a method keeps. A resolution given in
-#: centimetres for metres would otherwise allocate for minutes before failing. The
-#: library's :class:`~sonarmap.grid.Grid` takes up to 2^31 cells for callers that
-#: know their memory.
-MAX_MAP_CELLS = 100_000_000
 
 
 def check_inside_plan(t: Any, x: Any, y: Any, grid: Grid, path: Path) -> None:

@@ -493,24 +493,14 @@ def _check_start_file(
         raise InputError(err.reason, path=path) from None
 
 
-#: Options that size a window, a search or a ray in metres: each past the map's diagonal
-#: means nothing more, and allocated (or searched) arrays of that many cells.
-_REACH_OPTIONS = ("refine_window", "refine_side", "refine_goal", "weaken_r0", "r_obst")
-
-
 def _check_reach(config: PatrolConfig, grid: Any) -> None:
-    """Refuse, before the run, a distance option longer than the map's diagonal (and
-    its default, which a small map keeps)."""
-    diagonal = math.hypot(grid.rows, grid.cols) * grid.resolution
-    defaults = PatrolConfig()
-    for name in _REACH_OPTIONS:
-        value, default = float(getattr(config, name)), float(getattr(defaults, name))
-        limit = max(diagonal, default) if math.isfinite(default) else diagonal
-        if math.isfinite(value) and value > limit:
-            option = "--" + name.replace("_", "-")
-            raise ConfigError(
-                f"{option} {value:g}: at most the map's diagonal, {diagonal:.3g} m", field=name
-            )
+    """The library's check (:meth:`PatrolConfig.check_reach`), made before the run with
+    the option's name beside the field's (the value may come from --config)."""
+    try:
+        config.check_reach(grid)
+    except ConfigError as err:
+        option = "--" + str(err.field).replace("_", "-")
+        raise ConfigError(f"{option} / {err.reason}") from None
 
 
 def _territory(path: Path, m: Any, config: PatrolConfig) -> Any:

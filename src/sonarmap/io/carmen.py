@@ -359,8 +359,10 @@ def iter_carmen_readings(
         if rig is None:
             rig, cone = _rig(kind, sc, max_range), sc.cone
         r = _scan_readings(sc, rig, max_range, p)
-        if sc.cone != cone:
+        if kind == "SONAR" and sc.cone != cone:
             # The rig has one beam: a log whose sonars change theirs has no single rig.
+            # A laser's "cone" is its angular step, which a log may round differently
+            # from message to message; its beams are thin either way.
             raise InputError(
                 f"{kind} cone angle {sc.cone:g} rad, the first message's was {cone:g}",
                 path=p,

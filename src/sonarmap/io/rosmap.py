@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 from PIL import Image, UnidentifiedImageError
 
+from ..checks import MAX_MAP_CELLS, as_number
 from ..errors import InputError, quote
 from ..files import atomic_outputs, dump_yaml, need_file, read_yaml
 from ..grid import Grid
@@ -114,9 +115,9 @@ def _key(d: Mapping[str, Any], key: str, path: Path) -> Any:
 
 
 def _num(value: Any, path: Path, field: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
+    v = as_number(value)
+    if v is None:
         raise InputError(f"expected a number, got {quote(value)}", path=path, field=field)
-    v = float(value)
     if not math.isfinite(v):
         raise InputError(f"expected a finite number, got {quote(value)}", path=path, field=field)
     return v
@@ -127,9 +128,9 @@ def _num(value: Any, path: Path, field: str) -> float:
 OCCUPIED_THRESH = 0.65
 FREE_THRESH = 0.196
 
-#: Pixels of a map image read at most (10^8: 10 000 x 10 000), checked from the image's
-#: header before its pixels are decoded; the command line builds no larger map either.
-MAX_PIXELS = 100_000_000
+#: Pixels of a map image read at most, checked from the image's header before its
+#: pixels are decoded: the command line's own map limit (10^8, 10 000 x 10 000).
+MAX_PIXELS = MAX_MAP_CELLS
 #: Metres a map may span, and its origin lie from 0, at most: 10 000 km (UTM
 #: coordinates fit; a resolution meant as centimetres but read as metres does not
 #: overflow the geometry that follows).
@@ -208,11 +209,15 @@ def read_map(
         raise InputError(f"unknown mode {mode!r}; valid: {', '.join(_MODES)}", path=p, field="mode")
 
     image_path = Path(image_name) if Path(image_name).is_absolute() else p.parent / image_name
-    value, alpha = _read_image(image_path)
-    _check_extent(value.shape, resolution, (ox, oy), p)
+    value, alpha, deep = _read_image(
+        image_path, lambda shape: _check_extent(shape, resolution, (ox, oy), p)
+    )
     prob = value / 255.0 if negate else (255.0 - value) / 255.0
     occ = np.full(value.shape, np.nan, dtype=np.float64)
     if mode == "raw":
+        if deep:
+            # Nav2 takes a 16-bit pixel's value in raw mode as round(v / 257).
+            value = np.rint(value)
         ok = value <= 100
         occ[ok] = value[ok] / 100.0
     else:
@@ -271,8 +276,9 @@ def _read_bare_image(
         raise InputError(f"resolution must be > 0 metres per pixel, got {resolution}", path=path)
     if not all(math.isfinite(v) for v in origin):
         raise InputError(f"origin must be finite, got {origin}", path=path)
-    value, _ = _read_image(need_file(path, "map image"))
-    _check_extent(value.shape, resolution, origin, path)
+    value, _, _ = _read_image(
+        need_file(path, "map image"), lambda shape: _check_extent(shape, resolution, origin, path)
+    )
     prob = (255.0 - value) / 255.0
     occ = np.full(value.shape, np.nan, dtype=np.float32)
     occ[prob > OCCUPIED_THRESH] = 1.0
@@ -301,7 +307,12 @@ def _check_extent(
         )
 
 
-def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8] | None]:
+def _read_image(
+    path: Path, check_shape: Callable[[tuple[int, int]], None]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uint8] | None, bool]:
+    """Grey values on 0..255 (16-bit ones divided by 257), the alpha channel if any,
+    and whether the image was 16-bit; ``check_shape((rows, cols))`` is called from the
+    header, before the pixels are decoded."""
     try:
         with warnings.catch_warnings():
             # Pillow warns of a large image on opening; the size check below says more.
@@ -314,10 +325,11 @@ def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uin
                     f"image of {width} x {height} pixels; at most {MAX_PIXELS:.0e} pixels",
                     path=path,
                 )
+            check_shape((height, width))
             im.load()
             if im.mode in _DEEP_MODES or (im.mode == "I" and im.format == "PPM"):
                 # map_server (Nav2) reads a 16-bit grey image on its own scale.
-                return np.asarray(im, dtype=np.float64) / _DEEP_SCALE, None
+                return np.asarray(im, dtype=np.float64) / _DEEP_SCALE, None, True
             if im.mode not in _IMAGE_MODES:
                 raise InputError(
                     f"unsupported image mode '{im.mode}'; expected 8-bit grey or colour "
@@ -346,10 +358,10 @@ def _read_image(path: Path) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.uin
         # Pillow reports malformed headers and truncated pixel data in several ways.
         raise InputError(f"cannot read image ({type(err).__name__}: {err})", path=path) from err
     if arr.ndim == 2:
-        return arr.astype(np.float64), None
+        return arr.astype(np.float64), None, False
     alpha = arr[..., -1] if arr.shape[-1] in (2, 4) else None
     colour = arr[..., :1] if arr.shape[-1] <= 2 else arr[..., :3]
-    return colour.astype(np.float64).mean(axis=-1), alpha
+    return colour.astype(np.float64).mean(axis=-1), alpha, False
 
 
 def map_paths(stem: str | Path) -> tuple[Path, Path, Path]:

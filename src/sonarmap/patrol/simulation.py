@@ -61,6 +61,7 @@ from .walkers import WALKERS, GraphWalkers
 __all__ = [
     "CROWDING",
     "MODELS",
+    "REACH_FIELDS",
     "PatrolConfig",
     "PatrolResult",
     "run_patrol",
@@ -118,6 +119,11 @@ F64 = npt.NDArray[np.float64]
 COARSE_SLACK = (1.25, 2.0)
 #: The most steps one run may take (about 58 days at 0.5 s): more is a typo.
 MAX_STEPS = 10_000_000
+
+
+#: PatrolConfig's lengths in metres that size a window, a search, a ray or a block:
+#: :meth:`PatrolConfig.check_reach` refuses them past the map's diagonal.
+REACH_FIELDS = ("choice_cell", "refine_window", "refine_side", "refine_goal", "weaken_r0", "r_obst")
 
 
 @dataclass(frozen=True)
@@ -398,6 +404,29 @@ class PatrolConfig:
             )
         if self.warmup is not None and not (0 <= self.warmup < self.duration):
             raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}", field="warmup")
+
+    def check_reach(self, grid: Grid) -> None:
+        """Refuse a length in metres (:data:`REACH_FIELDS`) longer than ``grid``'s
+        diagonal and than the field's default (which a small map keeps).
+
+        Past the diagonal a window, search, ray or choice block means nothing more,
+        and it allocated (or searched) that many cells: 1e9 m ran out of memory.
+
+        Raises
+        ------
+        ConfigError
+            Naming the first such field.
+        """
+        diagonal = math.hypot(grid.rows, grid.cols) * grid.resolution
+        defaults = PatrolConfig()
+        for name in REACH_FIELDS:
+            value, default = float(getattr(self, name)), float(getattr(defaults, name))
+            limit = max(diagonal, default) if math.isfinite(default) else diagonal
+            if math.isfinite(value) and value > limit:
+                raise ConfigError(
+                    f"{name} {value:g} m: at most the map's diagonal, {diagonal:.3g} m",
+                    field=name,
+                )
 
     @property
     def warmup_s(self) -> float:
@@ -902,6 +931,7 @@ def run_patrol(
         raise ConfigError(f"seed must be >= 0, got {seed}")
     if config.crowding == "semaphores" and not semaphores:
         raise ConfigError("crowding 'semaphores' needs a semaphore file (--semaphores)")
+    config.check_reach(territory.grid)
     sems = Semaphores(semaphores or [])
     if starts is None:
         if robots is None or robots < 1:
