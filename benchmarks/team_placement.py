@@ -29,10 +29,12 @@ the received poses better (the graph started from odometry, as the robot's):
   (the source's revisits, not its closures to the pose just before).
 
 For the two closure levers it also prints what sending the added closures would cost:
-each as msgpack ``[a, b, transform, covariance]`` with the transform and the covariance's
-upper triangle as float32 bytes (41 bytes and the two UIDs', 57 on the mean on the
-warehouse; uncompressed, a message's zstd would take some off), per robot and minute
-and as points of the naive baseline's bytes added to the run's share.
+each closure as its record's msgpack encoding (:func:`sonarmap.team.records.encode`, the
+form an answer carries odometry edges in), without its feature matches, which the
+receiver's graph does not use; uncompressed (the exchange compresses each message's
+body in one zstd frame, and how closures would be batched into messages is not built).
+It prints them per robot and minute and as points of the naive baseline's bytes added
+to the run's share.
 
 For each robot and start (or lever) it prints the map's F1 with the alignment the robot finds,
 the F1 of the same map placed by the best rigid fit of the estimates to the truth (no
@@ -59,7 +61,6 @@ from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-import msgpack
 import numpy as np
 import numpy.typing as npt
 
@@ -79,7 +80,7 @@ from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.network import NetworkParams
 from sonarmap.team.patrolling import patrol_routes
 from sonarmap.team.presets import DEFAULT_PRESET, PRESETS
-from sonarmap.team.records import ClosureEdge, Pose, compose
+from sonarmap.team.records import ClosureEdge, Pose, compose, encode
 from sonarmap.team.simulation import run_team
 from sonarmap.team.store import StoreParams
 from sonarmap.team.world import make_world
@@ -116,16 +117,9 @@ def _graph_poses(agent: RobotAgent, start: str) -> tuple[dict[int, Pose], list[A
 
 
 def closure_wire_bytes(c: ClosureEdge) -> int:
-    """Bytes of one closure sent as msgpack ``[a, b, transform, covariance]`` with the
-    transform and the covariance's upper triangle as float32 bytes."""
-    cov = np.asarray(c.covariance, dtype=np.float64).reshape(3, 3)[np.triu_indices(3)]
-    body = [
-        c.a,
-        c.b,
-        np.asarray(c.transform, dtype=np.float32).tobytes(),
-        cov.astype(np.float32).tobytes(),
-    ]
-    return len(msgpack.packb(body))
+    """Bytes of one closure sent as its record (:func:`~sonarmap.team.records.encode`)
+    without its feature matches, uncompressed."""
+    return len(encode(replace(c, matches=())))
 
 
 def _lever(
