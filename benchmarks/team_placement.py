@@ -17,8 +17,9 @@ and, with ``--levers``, once per lever a multi-robot SLAM system would pull to p
 the received poses better (the graph started from odometry, as the robot's):
 
 - ``sent-shape``: each received layer held as a shape at the estimates its source sent
-  (:func:`~sonarmap.team.globalmap.optimise_graph`'s ``shapes``, sigma 0.2 m, 0.05 rad):
-  what a receiver can do today, at no byte;
+  (:func:`shape_edges`: an edge from the layer's oldest pose to each other one at their
+  estimates' relative pose, :data:`SHAPE_SIGMA`, which the graph takes as odometry, a
+  known inlier): what a receiver can do today, at no byte;
 - ``fresh-shape``: the same shape at the source's estimates at the mission's end (an
   upper bound of sending the source's optimised layer with its adverts: every estimate
   fresh, no byte counted);
@@ -54,7 +55,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -80,7 +83,7 @@ from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.network import NetworkParams
 from sonarmap.team.patrolling import patrol_routes
 from sonarmap.team.presets import DEFAULT_PRESET, PRESETS
-from sonarmap.team.records import ClosureEdge, Pose, compose, encode
+from sonarmap.team.records import ClosureEdge, OdometryEdge, Pose, compose, encode, invert
 from sonarmap.team.simulation import run_team
 from sonarmap.team.store import StoreParams
 from sonarmap.team.world import make_world
@@ -122,11 +125,34 @@ def closure_wire_bytes(c: ClosureEdge) -> int:
     return len(encode(replace(c, matches=())))
 
 
+def shape_edges(
+    layer: Mapping[int, Pose], sigma: tuple[float, float, float] = SHAPE_SIGMA
+) -> list[OdometryEdge]:
+    """Edges that hold ``layer`` at the shape of its poses' estimates (one frame, its
+    source's): from its oldest pose (smallest time, then UID) to each other one, the
+    transform their estimates' relative pose and the covariance diag(``sigma``^2)
+    (m, m, rad). :func:`~sonarmap.team.globalmap.optimise_graph` takes them as odometry
+    edges: known inliers. A layer of fewer than two poses gives none."""
+    if len(layer) < 2:
+        return []
+    root = min(layer.values(), key=lambda p: (p.time, p.uid))
+    to_root = invert(root.estimate)
+    cov = tuple(np.diag(np.square(np.asarray(sigma, dtype=np.float64))).ravel().tolist())
+    edges = []
+    for uid in sorted(layer):
+        if uid == root.uid:
+            continue
+        t = compose(to_root, layer[uid].estimate)
+        # A shape, not a motion: no distance or turn bound applies.
+        edges.append(OdometryEdge(root.uid, uid, (t[0], t[1], t[2]), cov, math.inf))
+    return edges
+
+
 def _lever(
-    agent: RobotAgent, team: list[RobotAgent], poses: dict[int, Pose], lever: str
-) -> tuple[list[Any], dict[str, Any]]:
-    """The closures and the extra arguments of :func:`optimise_graph` for ``lever``
-    (``poses`` is changed in place for ``fresh-shape``)."""
+    agent: RobotAgent, team: Mapping[int, RobotAgent], poses: dict[int, Pose], lever: str
+) -> tuple[list[ClosureEdge], list[OdometryEdge]]:
+    """The closures and the extra edges of the graph for ``lever`` (``poses`` is changed
+    in place for ``fresh-shape``)."""
     store = agent.store
     closures = list(store.closures)
     if lever in ("sent-shape", "fresh-shape"):
@@ -136,8 +162,10 @@ def _lever(
                 for uid in layer.poses:
                     if uid in now:
                         poses[uid] = replace(poses[uid], estimate=now[uid].estimate.copy())
-        shapes = [list(store.received[s].poses) for s in sorted(store.received)]
-        return closures, {"shapes": shapes, "shape_sigma": SHAPE_SIGMA}
+        shape: list[OdometryEdge] = []
+        for source in sorted(store.received):
+            shape.extend(shape_edges({u: poses[u] for u in store.received[source].poses}))
+        return closures, shape
     if lever in ("source-closures", "source-revisits"):
         seen = {(c.a, c.b) for c in closures}
         for source in sorted(store.received):
@@ -152,7 +180,7 @@ def _lever(
                     continue
                 closures.append(c)
                 seen.add((c.a, c.b))
-    return closures, {}
+    return closures, []
 
 
 def placement(
@@ -162,25 +190,33 @@ def placement(
     start: str,
     *,
     lever: str | None = None,
-    team: list[RobotAgent] | None = None,
+    team: Mapping[int, RobotAgent] | None = None,
 ) -> dict[str, Any]:
     """The robot's final map rebuilt from its store with the graph started at ``start``
-    (and, given ``lever``, one of :data:`LEVERS` pulled, from ``team``'s stores): F1
-    (found alignment and rigid fit to the truth) and the placement errors."""
+    (and, given ``lever``, one of :data:`LEVERS` pulled, from the stores of ``team``,
+    every robot by its number): F1 (found alignment and rigid fit to the truth) and the
+    placement errors.
+
+    Raises
+    ------
+    ValueError
+        ``lever`` given without ``team``, or not one of :data:`LEVERS`.
+    """
     cfg, store = agent.cfg, agent.store
     poses, edges, anchor = _graph_poses(agent, start)
-    closures: list[Any] = list(store.closures)
-    extra: dict[str, Any] = {}
+    closures: list[ClosureEdge] = list(store.closures)
+    extra: list[OdometryEdge] = []
     if lever is not None:
-        closures, extra = _lever(agent, team or [], poses, lever)
+        if team is None or lever not in LEVERS:
+            raise ValueError(f"lever {lever!r} needs a team and one of {', '.join(LEVERS)}")
+        closures, extra = _lever(agent, team, poses, lever)
     added = closures[len(store.closures) :]
     graph = optimise_graph(
         poses,
-        edges,
+        edges + extra,
         closures,
         anchor=anchor,
         initial="odometry" if start == "odometry" else "estimates",
-        **extra,
     )
     est = graph.estimates
     grid = grid_around(est, cfg.local_size / 2, cfg.map_resolution, margin=1.0)
@@ -262,11 +298,12 @@ def main(argv: list[str] | None = None) -> int:
     truth: dict[int, F64] = {}
     for agent in team.agents:
         truth.update(agent.truth)
+    by_robot = {agent.robot: agent for agent in team.agents}
     rows = []
     runs = [(start, None) for start in args.starts] + [("odometry", v) for v in args.levers]
     for start, lever in runs:
         for agent in team.agents:
-            row = placement(agent, truth, plan, start, lever=lever, team=list(team.agents))
+            row = placement(agent, truth, plan, start, lever=lever, team=by_robot)
             rows.append(row)
             print(
                 f"{row['start']:15s} robot {row['robot']}: F1 {row['map_f1']:.3f}, rigid to "
