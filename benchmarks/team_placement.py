@@ -20,12 +20,12 @@ the received poses better (the graph started from odometry, as the robot's):
   (:func:`shape_edges`: an edge from the layer's oldest pose to each other one at their
   estimates' relative pose, :data:`SHAPE_SIGMA`, which the graph takes as odometry, a
   known inlier): what a receiver can do today, at no byte;
-- ``fresh-shape``: the same shape at the source's estimates at the mission's end (an
-  upper bound of sending the source's optimised layer with its adverts: every estimate
-  fresh, no byte counted);
+- ``fresh-shape``: the same shape at the source's estimates at the mission's end
+  (sending the source's optimised layer with its adverts, with ideal delivery: every
+  estimate arrives, fresh, with no loss and no delay; no byte counted);
 - ``source-closures``: the source's closures between two poses the receiver holds, one
-  of them the source's, added to the receiver's graph (an upper bound of exchanging them:
-  every one delivered, no byte counted);
+  of them the source's, added to the receiver's graph (exchanging them with ideal
+  delivery: every one arrives, with no loss and no delay; bytes counted apart);
 - ``source-revisits``: the same, only closures between poses made more than 30 s apart
   (the source's revisits, not its closures to the pose just before).
 
