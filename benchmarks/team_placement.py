@@ -57,7 +57,7 @@ import argparse
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -148,13 +148,68 @@ def shape_edges(
     return edges
 
 
+def source_closures(
+    held: Sequence[ClosureEdge],
+    poses: Mapping[int, Pose],
+    layers: Mapping[int, Collection[int]],
+    sources: Mapping[int, Sequence[ClosureEdge]],
+    *,
+    min_gap: float = 0.0,
+) -> tuple[list[ClosureEdge], int]:
+    """The sources' closures a receiver would add to the ``held`` ones, and how many were
+    dropped as duplicates.
+
+    Parameters
+    ----------
+    held : sequence of ClosureEdge
+        The receiver's closures.
+    poses : mapping of UID to Pose
+        Every pose the receiver holds.
+    layers : mapping of robot number to collection of UID
+        The UIDs of each source's poses the receiver holds.
+    sources : mapping of robot number to sequence of ClosureEdge
+        Each source's closures.
+    min_gap : float
+        Only closures between poses made more than this apart (s); default 0, all.
+
+    Returns
+    -------
+    added : list of ClosureEdge
+        A source's closures between two held poses, one of them that source's, the
+        first of each pair of poses (in either direction) not in ``held``.
+    duplicates : int
+        Closures that passed the other tests but join a pair of poses already joined.
+    """
+    seen = {frozenset((c.a, c.b)) for c in held}
+    added: list[ClosureEdge] = []
+    duplicates = 0
+    for source in sorted(sources):
+        mine = layers.get(source, ())
+        for c in sources[source]:
+            if c.a not in poses or c.b not in poses:
+                continue
+            if c.a not in mine and c.b not in mine:
+                continue
+            if min_gap > 0 and abs(poses[c.a].time - poses[c.b].time) <= min_gap:
+                continue
+            pair = frozenset((c.a, c.b))
+            if pair in seen:
+                duplicates += 1
+                continue
+            added.append(c)
+            seen.add(pair)
+    return added, duplicates
+
+
 def _lever(
     agent: RobotAgent, team: Mapping[int, RobotAgent], poses: dict[int, Pose], lever: str
-) -> tuple[list[ClosureEdge], list[OdometryEdge]]:
+) -> tuple[list[ClosureEdge], list[OdometryEdge], int]:
     """The closures and the extra edges of the graph for ``lever`` (``poses`` is changed
-    in place for ``fresh-shape``)."""
+    in place for ``fresh-shape``), and how many of the source's closures were dropped as
+    duplicates: the same pair of poses, in either direction, as a closure already in."""
     store = agent.store
     closures = list(store.closures)
+    dropped = 0
     if lever in ("sent-shape", "fresh-shape"):
         if lever == "fresh-shape":
             for source, layer in store.received.items():
@@ -165,22 +220,17 @@ def _lever(
         shape: list[OdometryEdge] = []
         for source in sorted(store.received):
             shape.extend(shape_edges({u: poses[u] for u in store.received[source].poses}))
-        return closures, shape
+        return closures, shape, 0
     if lever in ("source-closures", "source-revisits"):
-        seen = {(c.a, c.b) for c in closures}
-        for source in sorted(store.received):
-            mine = store.received[source].poses
-            for c in team[source].store.closures:
-                if c.a not in poses or c.b not in poses or (c.a, c.b) in seen:
-                    continue
-                if c.a not in mine and c.b not in mine:
-                    continue
-                gap = abs(poses[c.a].time - poses[c.b].time)
-                if lever == "source-revisits" and gap <= REVISIT_S:
-                    continue
-                closures.append(c)
-                seen.add((c.a, c.b))
-    return closures, []
+        added, dropped = source_closures(
+            closures,
+            poses,
+            {s: store.received[s].poses.keys() for s in store.received},
+            {s: team[s].store.closures for s in store.received},
+            min_gap=REVISIT_S if lever == "source-revisits" else 0.0,
+        )
+        closures.extend(added)
+    return closures, [], dropped
 
 
 def placement(
@@ -202,14 +252,15 @@ def placement(
     ValueError
         ``lever`` given without ``team``, or not one of :data:`LEVERS`.
     """
+    if lever is not None and (team is None or lever not in LEVERS):
+        raise ValueError(f"lever {lever!r}: one of {', '.join(LEVERS)}, with the team")
     cfg, store = agent.cfg, agent.store
     poses, edges, anchor = _graph_poses(agent, start)
     closures: list[ClosureEdge] = list(store.closures)
     extra: list[OdometryEdge] = []
-    if lever is not None:
-        if team is None or lever not in LEVERS:
-            raise ValueError(f"lever {lever!r} needs a team and one of {', '.join(LEVERS)}")
-        closures, extra = _lever(agent, team, poses, lever)
+    duplicates = 0
+    if lever is not None and team is not None:
+        closures, extra, duplicates = _lever(agent, team, poses, lever)
     added = closures[len(store.closures) :]
     graph = optimise_graph(
         poses,
@@ -245,6 +296,7 @@ def placement(
         "closures": len(closures),
         "closures_added": len(added),
         "closures_added_bytes": sum(closure_wire_bytes(c) for c in added),
+        "closures_duplicate_dropped": duplicates,
         "closures_rejected": len(graph.inconsistent),
     }
 
@@ -320,7 +372,8 @@ def main(argv: list[str] | None = None) -> int:
             per_min = added / len(mine) / (args.duration / 60.0)
             points = 100 * per_min / s["naive_bytes_per_robot_minute"]
             print(
-                f"{name:15s} {sum(r['closures_added'] for r in mine)} closures added, "
+                f"{name:15s} {sum(r['closures_added'] for r in mine)} closures added "
+                f"({sum(r['closures_duplicate_dropped'] for r in mine)} duplicates dropped), "
                 f"{added} B: {per_min:.0f} B per robot-minute, +{points:.2f} points of "
                 f"naive's bytes ({100 * s['share_of_naive']:.1f} % -> "
                 f"{100 * s['share_of_naive'] + points:.1f} %)"

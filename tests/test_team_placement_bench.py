@@ -5,12 +5,21 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
-from benchmarks.team_placement import closure_wire_bytes, shape_edges
+import pytest
+from benchmarks.team_placement import (
+    closure_wire_bytes,
+    placement,
+    shape_edges,
+    source_closures,
+)
 
+from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.team.globalmap import optimise_graph
+from sonarmap.team.mission import RobotAgent
 from sonarmap.team.records import (
     ClosureEdge,
     Landmarks,
@@ -125,3 +134,53 @@ def test_a_received_layer_held_at_its_shape_does_not_drift_with_its_odometry() -
     assert _rms(plain.estimates, far) > 5 * _rms(held.estimates, far)
     assert _rms(held.estimates, our_truth) < 0.05
     assert held.inconsistent == ()
+
+
+# --- the closure levers --------------------------------------------------------------
+
+
+def test_a_sources_closures_are_added_once_per_pair_of_poses_in_either_direction() -> None:
+    ours = [make_uid(1, k) for k in range(2)]
+    two = [make_uid(2, k) for k in range(3)]
+    three = [make_uid(3, k) for k in range(2)]
+    times = {ours[0]: 0.0, ours[1]: 50.0, two[0]: 1.0, two[1]: 2.0, two[2]: 90.0}
+    times.update({three[0]: 5.0, three[1]: 70.0})
+    poses = {u: _pose(u, t, np.zeros(3)) for u, t in times.items()}
+    unheld = make_uid(2, 99)
+
+    def closure(a: int, b: int) -> ClosureEdge:
+        return ClosureEdge(a, b, (1.0, 0.0, 0.0), CLO_COV, 20, 0.1)
+
+    held = [closure(ours[0], two[0])]
+    sources = {
+        2: [
+            closure(two[0], ours[0]),  # ours, reversed: a duplicate
+            closure(two[0], two[2]),  # its revisit: added
+            closure(two[2], two[0]),  # the same, reversed: a duplicate
+            closure(two[0], two[1]),  # to the pose a second before: added unless revisits
+            closure(two[1], unheld),  # to a pose we do not hold: skipped
+            closure(three[0], three[1]),  # between robot 3's poses: not robot 2's to send
+        ],
+        3: [closure(three[1], ours[1])],  # robot 3's to ours: added
+    }
+    layers = {2: set(two), 3: set(three)}
+    added, duplicates = source_closures(held, poses, layers, sources)
+    assert [(c.a, c.b) for c in added] == [
+        (two[0], two[2]),
+        (two[0], two[1]),
+        (three[1], ours[1]),
+    ]
+    assert duplicates == 2
+    revisits, duplicates = source_closures(held, poses, layers, sources, min_gap=30.0)
+    assert [(c.a, c.b) for c in revisits] == [(two[0], two[2])]
+    # The reversed duplicate of ours is 1 s apart: not a revisit, so not counted either.
+    assert duplicates == 1
+
+
+def test_a_lever_without_the_team_is_refused_before_anything_is_built() -> None:
+    plan = cast(OccupancyMap, None)
+    agent = cast(RobotAgent, None)  # never reached: the arguments are checked first
+    with pytest.raises(ValueError, match=r"source-closures.*with the team"):
+        placement(agent, {}, plan, "odometry", lever="source-closures")
+    with pytest.raises(ValueError, match="'shape'"):
+        placement(agent, {}, plan, "odometry", lever="shape", team={})
