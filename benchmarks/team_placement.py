@@ -24,8 +24,10 @@ the received poses better (the graph started from odometry, as the robot's):
   (sending the source's optimised layer with its adverts, with ideal delivery: every
   estimate arrives, fresh, with no loss and no delay; no byte counted);
 - ``source-closures``: the source's closures between two poses the receiver holds, one
-  of them the source's, added to the receiver's graph (exchanging them with ideal
-  delivery: every one arrives, with no loss and no delay; bytes counted apart);
+  of them the source's, added to the receiver's graph unless it joins a pair of poses
+  already joined, in either direction (:func:`source_closures`; the duplicates dropped
+  are printed): exchanging them with ideal delivery, every one arriving with no loss
+  and no delay, the bytes counted apart;
 - ``source-revisits``: the same, only closures between poses made more than 30 s apart
   (the source's revisits, not its closures to the pose just before).
 
@@ -155,7 +157,7 @@ def source_closures(
     sources: Mapping[int, Sequence[ClosureEdge]],
     *,
     min_gap: float = 0.0,
-) -> tuple[list[ClosureEdge], int]:
+) -> tuple[list[ClosureEdge], int, int]:
     """The sources' closures a receiver would add to the ``held`` ones, and how many were
     dropped as duplicates.
 
@@ -179,10 +181,14 @@ def source_closures(
         first of each pair of poses (in either direction) not in ``held``.
     duplicates : int
         Closures that passed the other tests but join a pair of poses already joined.
+    reversed_only : int
+        Those of ``duplicates`` whose pair was joined only the other way round (``b`` to
+        ``a``).
     """
     seen = {frozenset((c.a, c.b)) for c in held}
+    directed = {(c.a, c.b) for c in held}
     added: list[ClosureEdge] = []
-    duplicates = 0
+    duplicates = reversed_only = 0
     for source in sorted(sources):
         mine = layers.get(source, ())
         for c in sources[source]:
@@ -195,21 +201,23 @@ def source_closures(
             pair = frozenset((c.a, c.b))
             if pair in seen:
                 duplicates += 1
+                reversed_only += (c.a, c.b) not in directed
                 continue
             added.append(c)
             seen.add(pair)
-    return added, duplicates
+            directed.add((c.a, c.b))
+    return added, duplicates, reversed_only
 
 
 def _lever(
     agent: RobotAgent, team: Mapping[int, RobotAgent], poses: dict[int, Pose], lever: str
-) -> tuple[list[ClosureEdge], list[OdometryEdge], int]:
+) -> tuple[list[ClosureEdge], list[OdometryEdge], int, int]:
     """The closures and the extra edges of the graph for ``lever`` (``poses`` is changed
-    in place for ``fresh-shape``), and how many of the source's closures were dropped as
-    duplicates: the same pair of poses, in either direction, as a closure already in."""
+    in place for ``fresh-shape``), and the counts of :func:`source_closures`
+    (``duplicates``, ``reversed_only``)."""
     store = agent.store
     closures = list(store.closures)
-    dropped = 0
+    dropped = reversed_only = 0
     if lever in ("sent-shape", "fresh-shape"):
         if lever == "fresh-shape":
             for source, layer in store.received.items():
@@ -220,9 +228,9 @@ def _lever(
         shape: list[OdometryEdge] = []
         for source in sorted(store.received):
             shape.extend(shape_edges({u: poses[u] for u in store.received[source].poses}))
-        return closures, shape, 0
+        return closures, shape, 0, 0
     if lever in ("source-closures", "source-revisits"):
-        added, dropped = source_closures(
+        added, dropped, reversed_only = source_closures(
             closures,
             poses,
             {s: store.received[s].poses.keys() for s in store.received},
@@ -230,7 +238,7 @@ def _lever(
             min_gap=REVISIT_S if lever == "source-revisits" else 0.0,
         )
         closures.extend(added)
-    return closures, [], dropped
+    return closures, [], dropped, reversed_only
 
 
 def placement(
@@ -258,9 +266,9 @@ def placement(
     poses, edges, anchor = _graph_poses(agent, start)
     closures: list[ClosureEdge] = list(store.closures)
     extra: list[OdometryEdge] = []
-    duplicates = 0
+    duplicates = reversed_only = 0
     if lever is not None and team is not None:
-        closures, extra, duplicates = _lever(agent, team, poses, lever)
+        closures, extra, duplicates, reversed_only = _lever(agent, team, poses, lever)
     added = closures[len(store.closures) :]
     graph = optimise_graph(
         poses,
@@ -297,6 +305,7 @@ def placement(
         "closures_added": len(added),
         "closures_added_bytes": sum(closure_wire_bytes(c) for c in added),
         "closures_duplicate_dropped": duplicates,
+        "closures_duplicate_reversed": reversed_only,
         "closures_rejected": len(graph.inconsistent),
     }
 
@@ -373,7 +382,9 @@ def main(argv: list[str] | None = None) -> int:
             points = 100 * per_min / s["naive_bytes_per_robot_minute"]
             print(
                 f"{name:15s} {sum(r['closures_added'] for r in mine)} closures added "
-                f"({sum(r['closures_duplicate_dropped'] for r in mine)} duplicates dropped), "
+                f"({sum(r['closures_duplicate_dropped'] for r in mine)} duplicates dropped, "
+                f"{sum(r['closures_duplicate_reversed'] for r in mine)} of them joined only "
+                "the other way round), "
                 f"{added} B: {per_min:.0f} B per robot-minute, +{points:.2f} points of "
                 f"naive's bytes ({100 * s['share_of_naive']:.1f} % -> "
                 f"{100 * s['share_of_naive'] + points:.1f} %)"

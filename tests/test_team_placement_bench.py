@@ -155,6 +155,7 @@ def test_a_sources_closures_are_added_once_per_pair_of_poses_in_either_direction
     sources = {
         2: [
             closure(two[0], ours[0]),  # ours, reversed: a duplicate
+            closure(ours[0], two[0]),  # ours, the same way round: a duplicate
             closure(two[0], two[2]),  # its revisit: added
             closure(two[2], two[0]),  # the same, reversed: a duplicate
             closure(two[0], two[1]),  # to the pose a second before: added unless revisits
@@ -164,17 +165,19 @@ def test_a_sources_closures_are_added_once_per_pair_of_poses_in_either_direction
         3: [closure(three[1], ours[1])],  # robot 3's to ours: added
     }
     layers = {2: set(two), 3: set(three)}
-    added, duplicates = source_closures(held, poses, layers, sources)
+    added, duplicates, reversed_only = source_closures(held, poses, layers, sources)
     assert [(c.a, c.b) for c in added] == [
         (two[0], two[2]),
         (two[0], two[1]),
         (three[1], ours[1]),
     ]
-    assert duplicates == 2
-    revisits, duplicates = source_closures(held, poses, layers, sources, min_gap=30.0)
+    assert (duplicates, reversed_only) == (3, 2)
+    revisits, duplicates, reversed_only = source_closures(
+        held, poses, layers, sources, min_gap=30.0
+    )
     assert [(c.a, c.b) for c in revisits] == [(two[0], two[2])]
-    # The reversed duplicate of ours is 1 s apart: not a revisit, so not counted either.
-    assert duplicates == 1
+    # Both duplicates of ours are 1 s apart: not revisits, so not counted either.
+    assert (duplicates, reversed_only) == (1, 1)
 
 
 def test_a_lever_without_the_team_is_refused_before_anything_is_built() -> None:
