@@ -17,22 +17,27 @@ and, with ``--levers``, once per lever a multi-robot SLAM system would pull to p
 the received poses better (the graph started from odometry, as the robot's):
 
 - ``sent-shape``: each received layer held as a shape at the estimates its source sent
-  (:func:`~sonarmap.team.globalmap.optimise_graph`'s ``shapes``, sigma 0.2 m, 0.05 rad):
-  what a receiver can do today, at no byte;
-- ``fresh-shape``: the same shape at the source's estimates at the mission's end (an
-  upper bound of sending the source's optimised layer with its adverts: every estimate
-  fresh, no byte counted);
+  (:func:`shape_edges`: an edge from the layer's oldest pose to each other one at their
+  estimates' relative pose, :data:`SHAPE_SIGMA`, which the graph takes as odometry, a
+  known inlier): what a receiver can do today, at no byte;
+- ``fresh-shape``: the same shape at the source's estimates at the mission's end
+  (sending the source's optimised layer with its adverts, with ideal delivery: every
+  estimate arrives, fresh, with no loss and no delay; no byte counted);
 - ``source-closures``: the source's closures between two poses the receiver holds, one
-  of them the source's, added to the receiver's graph (an upper bound of exchanging them:
-  every one delivered, no byte counted);
+  of them the source's, added to the receiver's graph unless it joins a pair of poses
+  already joined, in either direction (:func:`source_closures`; the duplicates dropped
+  are printed): exchanging them with ideal delivery, every one arriving with no loss
+  and no delay, the bytes counted apart;
 - ``source-revisits``: the same, only closures between poses made more than 30 s apart
   (the source's revisits, not its closures to the pose just before).
 
 For the two closure levers it also prints what sending the added closures would cost:
-each as msgpack ``[a, b, transform, covariance]`` with the transform and the covariance's
-upper triangle as float32 bytes (41 bytes and the two UIDs', 57 on the mean on the
-warehouse; uncompressed, a message's zstd would take some off), per robot and minute
-and as points of the naive baseline's bytes added to the run's share.
+each closure as its record's msgpack encoding (:func:`sonarmap.team.records.encode`, the
+form an answer carries odometry edges in), without its feature matches, which the
+receiver's graph does not use; uncompressed (the exchange compresses each message's
+body in one zstd frame, and how closures would be batched into messages is not built).
+It prints them per robot and minute and as points of the naive baseline's bytes added
+to the run's share.
 
 For each robot and start (or lever) it prints the map's F1 with the alignment the robot finds,
 the F1 of the same map placed by the best rigid fit of the estimates to the truth (no
@@ -52,14 +57,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-import msgpack
 import numpy as np
 import numpy.typing as npt
 
@@ -79,7 +85,7 @@ from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.network import NetworkParams
 from sonarmap.team.patrolling import patrol_routes
 from sonarmap.team.presets import DEFAULT_PRESET, PRESETS
-from sonarmap.team.records import ClosureEdge, Pose, compose
+from sonarmap.team.records import ClosureEdge, OdometryEdge, Pose, compose, encode, invert
 from sonarmap.team.simulation import run_team
 from sonarmap.team.store import StoreParams
 from sonarmap.team.world import make_world
@@ -116,25 +122,102 @@ def _graph_poses(agent: RobotAgent, start: str) -> tuple[dict[int, Pose], list[A
 
 
 def closure_wire_bytes(c: ClosureEdge) -> int:
-    """Bytes of one closure sent as msgpack ``[a, b, transform, covariance]`` with the
-    transform and the covariance's upper triangle as float32 bytes."""
-    cov = np.asarray(c.covariance, dtype=np.float64).reshape(3, 3)[np.triu_indices(3)]
-    body = [
-        c.a,
-        c.b,
-        np.asarray(c.transform, dtype=np.float32).tobytes(),
-        cov.astype(np.float32).tobytes(),
-    ]
-    return len(msgpack.packb(body))
+    """Bytes of one closure sent as its record (:func:`~sonarmap.team.records.encode`)
+    without its feature matches, uncompressed."""
+    return len(encode(replace(c, matches=())))
+
+
+def shape_edges(
+    layer: Mapping[int, Pose], sigma: tuple[float, float, float] = SHAPE_SIGMA
+) -> list[OdometryEdge]:
+    """Edges that hold ``layer`` at the shape of its poses' estimates (one frame, its
+    source's): from its oldest pose (smallest time, then UID) to each other one, the
+    transform their estimates' relative pose and the covariance diag(``sigma``^2)
+    (m, m, rad). :func:`~sonarmap.team.globalmap.optimise_graph` takes them as odometry
+    edges: known inliers. A layer of fewer than two poses gives none."""
+    if len(layer) < 2:
+        return []
+    root = min(layer.values(), key=lambda p: (p.time, p.uid))
+    to_root = invert(root.estimate)
+    cov = tuple(np.diag(np.square(np.asarray(sigma, dtype=np.float64))).ravel().tolist())
+    edges = []
+    for uid in sorted(layer):
+        if uid == root.uid:
+            continue
+        t = compose(to_root, layer[uid].estimate)
+        # A shape, not a motion: no distance or turn bound applies.
+        edges.append(OdometryEdge(root.uid, uid, (t[0], t[1], t[2]), cov, math.inf))
+    return edges
+
+
+def source_closures(
+    held: Sequence[ClosureEdge],
+    poses: Mapping[int, Pose],
+    layers: Mapping[int, Collection[int]],
+    sources: Mapping[int, Sequence[ClosureEdge]],
+    *,
+    min_gap: float = 0.0,
+) -> tuple[list[ClosureEdge], int, int]:
+    """The sources' closures a receiver would add to the ``held`` ones, and how many were
+    dropped as duplicates.
+
+    Parameters
+    ----------
+    held : sequence of ClosureEdge
+        The receiver's closures.
+    poses : mapping of UID to Pose
+        Every pose the receiver holds.
+    layers : mapping of robot number to collection of UID
+        The UIDs of each source's poses the receiver holds.
+    sources : mapping of robot number to sequence of ClosureEdge
+        Each source's closures.
+    min_gap : float
+        Only closures between poses made more than this apart (s); default 0, all.
+
+    Returns
+    -------
+    added : list of ClosureEdge
+        A source's closures between two held poses, one of them that source's, the
+        first of each pair of poses (in either direction) not in ``held``.
+    duplicates : int
+        Closures that passed the other tests but join a pair of poses already joined.
+    reversed_only : int
+        Those of ``duplicates`` whose pair was joined only the other way round (``b`` to
+        ``a``).
+    """
+    seen = {frozenset((c.a, c.b)) for c in held}
+    directed = {(c.a, c.b) for c in held}
+    added: list[ClosureEdge] = []
+    duplicates = reversed_only = 0
+    for source in sorted(sources):
+        mine = layers.get(source, ())
+        for c in sources[source]:
+            if c.a not in poses or c.b not in poses:
+                continue
+            if c.a not in mine and c.b not in mine:
+                continue
+            if min_gap > 0 and abs(poses[c.a].time - poses[c.b].time) <= min_gap:
+                continue
+            pair = frozenset((c.a, c.b))
+            if pair in seen:
+                duplicates += 1
+                reversed_only += (c.a, c.b) not in directed
+                continue
+            added.append(c)
+            seen.add(pair)
+            directed.add((c.a, c.b))
+    return added, duplicates, reversed_only
 
 
 def _lever(
-    agent: RobotAgent, team: list[RobotAgent], poses: dict[int, Pose], lever: str
-) -> tuple[list[Any], dict[str, Any]]:
-    """The closures and the extra arguments of :func:`optimise_graph` for ``lever``
-    (``poses`` is changed in place for ``fresh-shape``)."""
+    agent: RobotAgent, team: Mapping[int, RobotAgent], poses: dict[int, Pose], lever: str
+) -> tuple[list[ClosureEdge], list[OdometryEdge], int, int]:
+    """The closures and the extra edges of the graph for ``lever`` (``poses`` is changed
+    in place for ``fresh-shape``), and the counts of :func:`source_closures`
+    (``duplicates``, ``reversed_only``)."""
     store = agent.store
     closures = list(store.closures)
+    dropped = reversed_only = 0
     if lever in ("sent-shape", "fresh-shape"):
         if lever == "fresh-shape":
             for source, layer in store.received.items():
@@ -142,23 +225,20 @@ def _lever(
                 for uid in layer.poses:
                     if uid in now:
                         poses[uid] = replace(poses[uid], estimate=now[uid].estimate.copy())
-        shapes = [list(store.received[s].poses) for s in sorted(store.received)]
-        return closures, {"shapes": shapes, "shape_sigma": SHAPE_SIGMA}
-    if lever in ("source-closures", "source-revisits"):
-        seen = {(c.a, c.b) for c in closures}
+        shape: list[OdometryEdge] = []
         for source in sorted(store.received):
-            mine = store.received[source].poses
-            for c in team[source].store.closures:
-                if c.a not in poses or c.b not in poses or (c.a, c.b) in seen:
-                    continue
-                if c.a not in mine and c.b not in mine:
-                    continue
-                gap = abs(poses[c.a].time - poses[c.b].time)
-                if lever == "source-revisits" and gap <= REVISIT_S:
-                    continue
-                closures.append(c)
-                seen.add((c.a, c.b))
-    return closures, {}
+            shape.extend(shape_edges({u: poses[u] for u in store.received[source].poses}))
+        return closures, shape, 0, 0
+    if lever in ("source-closures", "source-revisits"):
+        added, dropped, reversed_only = source_closures(
+            closures,
+            poses,
+            {s: store.received[s].poses.keys() for s in store.received},
+            {s: team[s].store.closures for s in store.received},
+            min_gap=REVISIT_S if lever == "source-revisits" else 0.0,
+        )
+        closures.extend(added)
+    return closures, [], dropped, reversed_only
 
 
 def placement(
@@ -168,25 +248,34 @@ def placement(
     start: str,
     *,
     lever: str | None = None,
-    team: list[RobotAgent] | None = None,
+    team: Mapping[int, RobotAgent] | None = None,
 ) -> dict[str, Any]:
     """The robot's final map rebuilt from its store with the graph started at ``start``
-    (and, given ``lever``, one of :data:`LEVERS` pulled, from ``team``'s stores): F1
-    (found alignment and rigid fit to the truth) and the placement errors."""
+    (and, given ``lever``, one of :data:`LEVERS` pulled, from the stores of ``team``,
+    every robot by its number): F1 (found alignment and rigid fit to the truth) and the
+    placement errors.
+
+    Raises
+    ------
+    ValueError
+        ``lever`` given without ``team``, or not one of :data:`LEVERS`.
+    """
+    if lever is not None and (team is None or lever not in LEVERS):
+        raise ValueError(f"lever {lever!r}: one of {', '.join(LEVERS)}, with the team")
     cfg, store = agent.cfg, agent.store
     poses, edges, anchor = _graph_poses(agent, start)
-    closures: list[Any] = list(store.closures)
-    extra: dict[str, Any] = {}
-    if lever is not None:
-        closures, extra = _lever(agent, team or [], poses, lever)
+    closures: list[ClosureEdge] = list(store.closures)
+    extra: list[OdometryEdge] = []
+    duplicates = reversed_only = 0
+    if lever is not None and team is not None:
+        closures, extra, duplicates, reversed_only = _lever(agent, team, poses, lever)
     added = closures[len(store.closures) :]
     graph = optimise_graph(
         poses,
-        edges,
+        edges + extra,
         closures,
         anchor=anchor,
         initial="odometry" if start == "odometry" else "estimates",
-        **extra,
     )
     est = graph.estimates
     grid = grid_around(est, cfg.local_size / 2, cfg.map_resolution, margin=1.0)
@@ -215,6 +304,8 @@ def placement(
         "closures": len(closures),
         "closures_added": len(added),
         "closures_added_bytes": sum(closure_wire_bytes(c) for c in added),
+        "closures_duplicate_dropped": duplicates,
+        "closures_duplicate_reversed": reversed_only,
         "closures_rejected": len(graph.inconsistent),
     }
 
@@ -268,11 +359,12 @@ def main(argv: list[str] | None = None) -> int:
     truth: dict[int, F64] = {}
     for agent in team.agents:
         truth.update(agent.truth)
+    by_robot = {agent.robot: agent for agent in team.agents}
     rows = []
     runs = [(start, None) for start in args.starts] + [("odometry", v) for v in args.levers]
     for start, lever in runs:
         for agent in team.agents:
-            row = placement(agent, truth, plan, start, lever=lever, team=list(team.agents))
+            row = placement(agent, truth, plan, start, lever=lever, team=by_robot)
             rows.append(row)
             print(
                 f"{row['start']:15s} robot {row['robot']}: F1 {row['map_f1']:.3f}, rigid to "
@@ -289,7 +381,10 @@ def main(argv: list[str] | None = None) -> int:
             per_min = added / len(mine) / (args.duration / 60.0)
             points = 100 * per_min / s["naive_bytes_per_robot_minute"]
             print(
-                f"{name:15s} {sum(r['closures_added'] for r in mine)} closures added, "
+                f"{name:15s} {sum(r['closures_added'] for r in mine)} closures added "
+                f"({sum(r['closures_duplicate_dropped'] for r in mine)} duplicates dropped, "
+                f"{sum(r['closures_duplicate_reversed'] for r in mine)} of them joined only "
+                "the other way round), "
                 f"{added} B: {per_min:.0f} B per robot-minute, +{points:.2f} points of "
                 f"naive's bytes ({100 * s['share_of_naive']:.1f} % -> "
                 f"{100 * s['share_of_naive'] + points:.1f} %)"

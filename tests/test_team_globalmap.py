@@ -10,7 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from sonarmap.errors import ConfigError, InputError
+from sonarmap.errors import InputError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.metrics import score
@@ -152,8 +152,6 @@ def test_bad_graph_input() -> None:
     flat = OdometryEdge(odo[0].a, odo[0].b, (1.0, 0.0, 0.0), (0.0,) * 9, 25.0)
     with pytest.raises(InputError, match="positive definite"):
         optimise_graph(poses, [flat], [])
-    with pytest.raises(ConfigError, match="shape_sigma"):
-        optimise_graph(poses, odo, [], shapes=[sorted(poses)], shape_sigma=(0.2, 0.0, 0.05))
 
 
 # --- fusion --------------------------------------------------------------------------
@@ -342,46 +340,3 @@ def test_a_received_layers_frame_is_found_from_its_closures_to_own_poses_despite
     assert set(frames) == {1}  # layer 3 shares no closure with ours: left out
     assert np.hypot(*(frames[1][:2] - frame[:2])) < 0.05
     assert abs(math.remainder(frames[1][2] - frame[2], 2 * math.pi)) < math.radians(0.5)
-
-
-def test_shape_of_a_received_layer_holds_it_where_its_odometry_drifts() -> None:
-    # The received layer: the biased loop, its stored estimates (its source's, after
-    # its own closures) near the truth in a frame off ours; none of its source's
-    # closures is in our graph. Our layer: four poses, joined to the layer's first
-    # three by closures.
-    loop, odo, _, truth, _ = _loop()
-    rng = np.random.default_rng(3)
-    off = np.array([3.0, -2.0, 0.7])
-    received = {
-        u: _pose(u, 100.0 + p.time, compose(off, truth[u]) + rng.normal(0, [0.03, 0.03, 0.005]))
-        for u, p in loop.items()
-    }
-    ours = [make_uid(5, k) for k in range(4)]
-    our_truth = {u: np.array([2.0 * k, 0.5, 0.0]) for k, u in enumerate(ours)}
-    poses = {u: _pose(u, float(k), our_truth[u]) for k, u in enumerate(ours)}
-    poses.update(received)
-    our_odo = [
-        OdometryEdge(a, b, (2.0, 0.0, 0.0), ODO_COV, 25.0) for a, b in itertools.pairwise(ours)
-    ]
-    layer = sorted(received)
-    links = [
-        ClosureEdge(
-            ours[k],
-            layer[k],
-            tuple(compose(invert(our_truth[ours[k]]), truth[layer[k]])),
-            CLO_COV,
-            30,
-            0.1,
-        )
-        for k in range(3)
-    ]
-    far = {u: truth[u] for u in layer[20:]}
-    plain = optimise_graph(poses, our_odo + odo, links, anchor=ours[0])
-    held = optimise_graph(poses, our_odo + odo, links, anchor=ours[0], shapes=[layer, ours[:1]])
-    assert _ate({u: held.estimates[u] for u in far}, far) < 0.15
-    assert _ate({u: plain.estimates[u] for u in far}, far) > 3 * _ate(
-        {u: held.estimates[u] for u in far}, far
-    )
-    # Our own poses stay where the anchor and odometry put them.
-    assert _ate({u: held.estimates[u] for u in ours}, our_truth) < 0.05
-    assert held.inconsistent == ()

@@ -216,8 +216,6 @@ def optimise_graph(
     free_sigma: tuple[float, float, float] = (1e3, 1e3, 10.0),
     initial: Literal["odometry", "estimates"] = "odometry",
     max_iterations: int = 100,
-    shapes: Sequence[Sequence[int]] = (),
-    shape_sigma: tuple[float, float, float] = (0.2, 0.2, 0.05),
 ) -> GraphResult:
     """Optimise the pose graph and judge the closures.
 
@@ -257,16 +255,6 @@ def optimise_graph(
     max_iterations : int
         Iteration cap of each Levenberg-Marquardt run (GNC's outer loop keeps gtsam's
         default, 100: gtsam warns against changing it).
-    shapes : sequence of sequence of int
-        Groups of UIDs (a received layer each) whose stored estimates, in one frame of
-        their own (their source's), are held as a shape: one unknown frame per group
-        and, for each pose, a between-factor from that frame to the pose at its stored
-        estimate. The source's closures between its own poses reach the receiver's
-        graph this way without being sent. UIDs not in ``poses`` are ignored; a group
-        of fewer than two poses adds nothing. Known inliers. Default none.
-    shape_sigma : tuple of float
-        Standard deviations (m, m, rad) of each pose about its place in its group's
-        shape; default (0.2, 0.2, 0.05), a choice made on a training map.
 
     Returns
     -------
@@ -291,11 +279,7 @@ def optimise_graph(
         raise ConfigError(f"gate must be > 0, got {gate}")
     if max_iterations < 1:
         raise ConfigError(f"max_iterations must be >= 1, got {max_iterations}")
-    for name, sig in (
-        ("anchor_sigma", anchor_sigma),
-        ("free_sigma", free_sigma),
-        ("shape_sigma", shape_sigma),
-    ):
+    for name, sig in (("anchor_sigma", anchor_sigma), ("free_sigma", free_sigma)):
         if len(sig) != 3 or not all(math.isfinite(s) and s > 0 for s in sig):
             raise ConfigError(f"{name} must be three positive numbers, got {sig}")
     table = _pose_dict(poses)
@@ -346,7 +330,6 @@ def optimise_graph(
         )
     for e in odometry:
         graph.add(_between(e, key))
-    frames = _add_shapes(graph, shapes, table, key, init, shape_sigma)
     n_known = graph.size()
     for i in used:
         graph.add(_between(closures[i], key))
@@ -354,8 +337,6 @@ def optimise_graph(
     values = gtsam.Values()
     for u in uids:
         values.insert(key[u], gtsam.Pose2(*init[u]))
-    for k, frame in frames.items():
-        values.insert(k, gtsam.Pose2(*frame))
     error_initial = float(graph.error(values))
 
     lm = gtsam.LevenbergMarquardtParams()
@@ -403,31 +384,6 @@ def optimise_graph(
         error_final=float(final.error(result)),
         iterations=iterations,
     )
-
-
-def _add_shapes(
-    graph: Any,
-    shapes: Sequence[Sequence[int]],
-    table: Mapping[int, Pose],
-    key: Mapping[int, int],
-    init: Mapping[int, F64],
-    sigma: tuple[float, float, float],
-) -> dict[int, F64]:
-    """Add each group's shape factors to ``graph``; the initial value of each group's
-    frame variable, by its key (after the poses' keys)."""
-    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array(sigma, dtype=np.float64))
-    frames: dict[int, F64] = {}
-    for group in shapes:
-        members = sorted(u for u in set(group) if u in table)
-        if len(members) < 2:
-            continue
-        k = len(key) + len(frames)
-        root = _oldest(members, table)
-        # The frame that puts the oldest member at its initial value.
-        frames[k] = compose(init[root], invert(table[root].estimate))
-        for u in members:
-            graph.add(gtsam.BetweenFactorPose2(k, key[u], gtsam.Pose2(*table[u].estimate), noise))
-    return frames
 
 
 def layer_frames(
