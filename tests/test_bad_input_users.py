@@ -65,8 +65,13 @@ def refused(args: list[str], capsys: pytest.CaptureFixture[str]) -> str:
         + "\n".join(ROWS[1:])
         + "\n",
         # The same with CR line ends only.
-        "# a, b, c, d, e, f, g\r" + HEADER + "\r" + ROWS[0] + "\r  # x, y\r \t\r"
-        + "\r".join(ROWS[1:]) + "\r",
+        "# a, b, c, d, e, f, g\r"
+        + HEADER
+        + "\r"
+        + ROWS[0]
+        + "\r  # x, y\r \t\r"
+        + "\r".join(ROWS[1:])
+        + "\r",
     ],
     ids=["comments", "trailing-blank", "blank-between", "spaces", "bom-crlf", "commas", "cr"],
 )
@@ -192,7 +197,10 @@ def test_yaml_1_1_strings_that_look_like_numbers_stay_strings_where_a_string_is_
     assert rig.mounts[0].x == 0.2
     (tmp_path / "t.yaml").write_text("image: 1e3\nroute: 2e5\nn: 1_000e2\nm: +1e5\n")
     assert read_yaml(tmp_path / "t.yaml") == {
-        "image": "1e3", "route": "2e5", "n": "1_000e2", "m": "+1e5"
+        "image": "1e3",
+        "route": "2e5",
+        "n": "1_000e2",
+        "m": "+1e5",
     }
 
 

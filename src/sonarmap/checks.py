@@ -52,7 +52,6 @@ def as_number(value: Any) -> float | None:
     return None
 
 
-
 def finite_number(value: Any, where: str) -> float:
     """``value`` as a float if it is a finite number (:func:`as_number`).
 

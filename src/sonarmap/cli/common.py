@@ -181,8 +181,6 @@ def resolve_map(
     return read_plan(path, resolution, origin)
 
 
-
-
 def check_inside_plan(t: Any, x: Any, y: Any, grid: Grid, path: Path) -> None:
     """Refuse a trajectory or route (times ``t``, positions ``x``, ``y``, metres) that
     leaves the plan's grid, naming ``path``, the first pose outside and the extent: the
