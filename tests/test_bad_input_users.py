@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -106,9 +107,14 @@ def test_comments_before_the_header_are_skipped_whatever_the_suffix(
     import bz2
     import gzip
     import lzma
+    from collections.abc import Callable
 
     text = ("# a, b, c, d, e, f, g, h\n  # b\n" + HEADER + "\n" + "\n".join(ROWS) + "\n").encode()
-    pack = {".gz": gzip.compress, ".bz2": bz2.compress, ".xz": lzma.compress}
+    pack: dict[str, Callable[[bytes], bytes]] = {
+        ".gz": gzip.compress,
+        ".bz2": bz2.compress,
+        ".xz": lzma.compress,
+    }
     p = tmp_path / f"r{suffix}"
     p.write_bytes(pack.get(suffix, bytes)(text))
     assert len(read_readings(p, names=["a", "b"])) == 3
@@ -526,7 +532,8 @@ def test_a_patrol_distance_past_the_map_is_refused_by_the_library_for_every_call
 
     territory = Territory.from_map(read_map(_room(tmp_path)), cell=0.5)
     for name in ("r_obst", "choice_cell", "refine_window"):
-        config = PatrolConfig(duration=1.0, **{name: 1e9})
+        far: dict[str, Any] = {name: 1e9}
+        config = PatrolConfig(duration=1.0, **far)
         with pytest.raises(ConfigError, match=f"{name} 1e\\+09 m: at most") as err:
             run_patrol(territory, config, robots=1, seed=0)
         assert err.value.field == name
