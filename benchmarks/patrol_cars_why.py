@@ -9,10 +9,16 @@ place that leaves forwards (the cells up to 4 m behind the car closed,
 
 - ``near``: the place is under 4 m away along the path;
 - ``dead end``: no route leaves forwards even with no other robot about;
-- ``others shut forward, same way`` / ``head-on``: one does, but not with the discs
-  round the other robots (artificial obstacles, 3 m) closed; it does again with only
-  the discs round robots ahead going the car's way left open (``same way``), or not;
+- ``others shut forward, same way`` / ``oncoming far`` / ``head-on``: one does, but
+  not with the discs round the other robots (artificial obstacles, ``r_obst``) closed;
+  it does again with the discs round the robots ahead going the car's way open
+  (``same way``); or only with those round the robots ahead coming the other way
+  farther than ``ONCOMING_NEAR`` open too, as a car driving on round the block leaves
+  them (``oncoming far``); or not (``head-on``);
 - ``forward longer``: one does with every disc closed, but it is longer.
+
+The discs are the cars' own (:func:`sonarmap.patrol.simulation.obstacle_discs`, halved
+as the run halves them), so this account cannot drift from the rule the cars follow.
 
 Reported: the count of each class, the DVT each accounts for (% of the team's time,
 every step of the manoeuvre), the extra length of the forward routes (m), and per car
@@ -37,12 +43,13 @@ import numpy as np
 import numpy.typing as npt
 
 from sonarmap.patrol import PatrolConfig, run_patrol
-from sonarmap.patrol.fog import Fog, disc_cells, disc_offsets
+from sonarmap.patrol.fog import Fog, disc_offsets
 from sonarmap.patrol.manoeuvre import behind_cells
 from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.paths import Wave
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Car, Team
+from sonarmap.patrol.simulation import ONCOMING_NEAR, halves_discs, obstacle_discs
 
 
 def watch_run(site: int, cars: int, duration: float, round_block: float) -> dict[str, Any]:
@@ -61,6 +68,7 @@ def watch_run(site: int, cars: int, duration: float, round_block: float) -> dict
     g = t.grid
     wave = Wave(passable.shape)
     obst = disc_offsets(cfg.r_obst, g.resolution)
+    halve = halves_discs(cfg)
     seen: dict[int, object] = {}
     current: dict[int, str] = {}
     count: Counter[str] = Counter()
@@ -70,9 +78,14 @@ def watch_run(site: int, cars: int, duration: float, round_block: float) -> dict
     driven = np.zeros(cars)
     still = np.zeros(cars, dtype=np.int64)
 
-    def disc(team: Team, j: int) -> npt.NDArray[np.intp]:
-        r, c = (int(v) for v in g.world_to_cell(team.x[j], team.y[j]))
-        return np.column_stack(disc_cells(obst, r, c, passable.shape))
+    def discs(
+        team: Team, i: int, following: bool, near: float = ONCOMING_NEAR
+    ) -> list[npt.NDArray[np.intp]]:
+        r, c = g.world_to_cell(team.x, team.y)
+        cells = np.column_stack([np.asarray(r), np.asarray(c)])
+        return obstacle_discs(
+            team, i, cells, obst, passable.shape, halve=halve, following=following, near=near
+        )
 
     def classify(team: Car, i: int, route: npt.NDArray[np.float64]) -> str:
         x, y, h = float(team.x[i]), float(team.y[i]), float(team.heading[i])
@@ -86,21 +99,20 @@ def watch_run(site: int, cars: int, duration: float, round_block: float) -> dict
         tgt[goal] = True
         back = behind_cells(x, y, h, g)
 
-        def forward(others: list[int]) -> float:
-            shut = np.concatenate([back, *(disc(team, j) for j in others)])
+        def forward(closed: list[npt.NDArray[np.intp]]) -> float:
+            shut = np.concatenate([back, *closed])
             return wave.to(passable, start, goal, g.resolution, tgt, shut)
 
         if not np.isfinite(forward([])):
             return "dead end"
-        everyone = [j for j in range(len(team)) if j != i]
-        with_all = forward(everyone)
+        with_all = forward(discs(team, i, following=False))
         if np.isfinite(with_all):
             extra.append(with_all - length)
             return "forward longer"
-        along = (team.x - x) * np.cos(h) + (team.y - y) * np.sin(h)
-        same = (along > 0) & (np.cos(team.heading - h) > 0)
-        if np.isfinite(forward([j for j in everyone if not same[j]])):
+        if np.isfinite(forward(discs(team, i, following=True, near=np.inf))):
             return "others shut forward, same way"
+        if np.isfinite(forward(discs(team, i, following=True))):
+            return "others shut forward, oncoming far"
         return "others shut forward, head-on"
 
     def on_step(_t: float, team: Team, _fog: Fog) -> None:

@@ -23,8 +23,13 @@ from sonarmap.patrol.manoeuvre import (
 )
 from sonarmap.patrol.maps import street_site, street_territory
 from sonarmap.patrol.paths import STEP_UNITS, Wave
-from sonarmap.patrol.robots import Car
-from sonarmap.patrol.simulation import PatrolConfig, run_patrol
+from sonarmap.patrol.robots import Car, Holonomic
+from sonarmap.patrol.simulation import (
+    PatrolConfig,
+    halves_discs,
+    obstacle_discs,
+    run_patrol,
+)
 from sonarmap.patrol.territory import Territory, move_clear
 
 
@@ -434,3 +439,60 @@ def test_two_cars_closer_than_their_obstacles_part_by_default() -> None:
     # Without round_block (the library's default) the whole discs shut both cars in
     # (0 of 59 steps moving); tracking cars now always close only the other's side.
     assert _steps_moving(0.0) >= 50  # measured: 59 of 59
+
+
+def _disc_team() -> tuple[Holonomic, npt.NDArray[np.intp]]:
+    """Robot 0 at (10, 20) heading east (cells: row y, column x at 1 m), with one
+    robot ahead going its way (1), one ahead coming the other way 20 m off (2) and
+    4 m off (3), and one behind it (4)."""
+    x = np.array([10.0, 15.0, 30.0, 14.0, 5.0])
+    y = np.array([20.0, 20.0, 20.0, 20.0, 20.0])
+    heading = np.array([0.0, 0.0, math.pi, math.pi, 0.0])
+    cells = np.column_stack([y, x]).astype(np.intp)
+    return Holonomic(x, y, heading), cells
+
+
+def _centres(discs: list[npt.NDArray[np.intp]]) -> list[tuple[int, int]]:
+    return [(round(d[:, 0].mean()), round(d[:, 1].mean())) for d in discs]
+
+
+def test_obstacle_discs_leave_open_the_robots_a_car_driving_on_follows() -> None:
+    team, cells = _disc_team()
+    disc = disc_offsets(3.0, 1.0)
+    shape = (40, 40)
+
+    def closed(
+        following: bool = False, near: float = 10.0, heard: npt.NDArray[np.bool_] | None = None
+    ) -> list[tuple[int, int]]:
+        discs = obstacle_discs(
+            team, 0, cells, disc, shape, halve=False, following=following, near=near, heard=heard
+        )
+        return _centres(discs)
+
+    assert closed() == [(20, 15), (20, 30), (20, 14), (20, 5)]
+    # Driving on: not the one ahead going its way, nor the one coming 20 m off.
+    assert closed(following=True) == [(20, 14), (20, 5)]
+    assert closed(following=True, near=math.inf) == [(20, 30), (20, 14), (20, 5)]
+    assert closed(following=True, near=3.0) == [(20, 5)]
+    heard = np.array([True, False, True, True, False])
+    assert closed(heard=heard) == [(20, 30), (20, 14)]
+
+
+def test_obstacle_discs_halved_keep_the_cells_nearer_the_other_robot() -> None:
+    team, cells = _disc_team()
+    disc = disc_offsets(6.0, 1.0)
+    whole = obstacle_discs(team, 0, cells, disc, (40, 40), halve=False)
+    half = obstacle_discs(team, 0, cells, disc, (40, 40), halve=True)
+    me = cells[0]
+    for j, w, h in zip([1, 2, 3, 4], whole, half, strict=True):
+        to_them = np.hypot(*(h - cells[j]).T)
+        to_me = np.hypot(*(h - me).T)
+        assert (to_them < to_me).all()
+        # Robot 2 is 20 m off: all its disc is nearer it.
+        assert len(h) == len(w) if j == 2 else 0 < len(h) < len(w)
+    # Robot 1, 5 m off, has robot 0's cell inside its whole disc but not its half.
+    assert (whole[0] == me).all(axis=1).any()
+    assert not (half[0] == me).all(axis=1).any()
+    assert halves_discs(PatrolConfig(model="car"))
+    assert not halves_discs(PatrolConfig(model="car", car_planner="thesis"))
+    assert not halves_discs(PatrolConfig())

@@ -41,6 +41,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage, special
 
+from .checks import numbers_where_floats
 from .errors import ConfigError
 from .grid import Grid
 from .io.rosmap import OCCUPIED, OccupancyMap
@@ -132,7 +133,7 @@ class AcousticModel:
         bad = sorted(set(d) - set(valid))
         if bad:
             raise ConfigError(f"{where}: unknown parameter(s) {bad}; valid: {', '.join(valid)}")
-        return cls(**d)
+        return cls(**numbers_where_floats(d, cls))
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 import re
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from .errors import ConfigError, quote
 
-__all__ = ["MAX_MAP_CELLS", "as_number", "finite_number"]
+__all__ = ["MAX_MAP_CELLS", "as_number", "finite_number", "numbers_where_floats"]
 
 #: Cells of a map read or built at most: 10^8 (10 000 x 10 000, a kilometre square at
 #: 0.1 m), 800 MB for each float64 layer a method keeps. A map image's pixels and the
@@ -50,6 +52,47 @@ def as_number(value: Any) -> float | None:
     if isinstance(value, str) and _DECIMAL.fullmatch(value.strip()):
         return float(value)
     return None
+
+
+def _number_or_same(value: Any) -> Any:
+    v = as_number(value) if isinstance(value, str) else None
+    return value if v is None else v
+
+
+def numbers_where_floats(params: Mapping[str, Any], fn: Callable[..., Any]) -> dict[str, Any]:
+    """``params`` with the strings :func:`as_number` reads turned to floats, where
+    ``fn`` takes a float.
+
+    The keyword arguments a configuration file gives a function pass through here, so
+    that ``1e-2`` read as a string by PyYAML is the number it was written as; the
+    function's own checks then see a float. A parameter annotated ``float`` (alone,
+    optional, or a sequence of floats) is converted, its list items one by one; any
+    other parameter, and a string that is not a decimal number, is left as given, for
+    the function's checks to refuse by name.
+
+    Parameters
+    ----------
+    params : Mapping
+        Keyword arguments for ``fn``, as parsed.
+    fn : callable
+        The function (or class) they are for; its annotations decide.
+
+    Returns
+    -------
+    dict
+        A new mapping, the same keys.
+    """
+    sig = inspect.signature(fn).parameters
+    out = dict(params)
+    for name, value in params.items():
+        # Annotations are strings under postponed evaluation; an int is not a float.
+        if name not in sig or "float" not in str(sig[name].annotation):
+            continue
+        if isinstance(value, list | tuple):
+            out[name] = type(value)(_number_or_same(v) for v in value)
+        else:
+            out[name] = _number_or_same(value)
+    return out
 
 
 def finite_number(value: Any, where: str) -> float:

@@ -52,6 +52,7 @@ import numpy as np
 
 from .acoustics import AcousticModel
 from .annotations import Passage, SmallObstacle, load_annotations, write_annotations
+from .checks import numbers_where_floats
 from .errors import ConfigError
 from .floorplan import FloorPlan
 from .io.rosmap import OccupancyMap, write_map
@@ -148,7 +149,9 @@ def model_from_dict(d: dict[str, Any], where: str = "model") -> SonarModel:
         bad = sorted(set(params) - {"p_rand", "p_hit", "sigma"})
         if bad:
             raise ConfigError(f"{where}: unknown parameter(s) {bad}; valid: p_hit, p_rand, sigma")
-        return Noise(**{"p_rand": 0.0, "p_hit": 1.0, "sigma": 0.0, **params})
+        return Noise(
+            **numbers_where_floats({"p_rand": 0.0, "p_hit": 1.0, "sigma": 0.0, **params}, Noise)
+        )
     if kind == "acoustic":
         return AcousticModel.from_dict(params, where)
     raise ConfigError(f"{where}: kind must be acoustic or thrun, got {kind!r}")
@@ -1119,7 +1122,7 @@ def make_scenario(name: str, **params: Any) -> Scenario:
         raise ConfigError(
             f"unknown parameter(s) {sorted(bad)} for scenario '{name}'; valid: {', '.join(valid)}"
         )
-    return fn(**params)
+    return fn(**numbers_where_floats(params, fn))
 
 
 def load_scene(

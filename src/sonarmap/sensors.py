@@ -14,6 +14,7 @@ weight ``w0 = min(s / S, 1)``.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -23,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .checks import finite_number
-from .errors import ConfigError, InputError
+from .errors import ConfigError, InputError, quote
 
 __all__ = [
     "SENSOR_PRESETS",
@@ -164,6 +165,11 @@ class Noise:
     sigma: float = 0.0
 
     def __post_init__(self) -> None:
+        for name in ("p_rand", "p_hit", "sigma"):
+            v = getattr(self, name)
+            # A string of a number is for the configuration readers to convert.
+            if isinstance(v, bool) or not isinstance(v, numbers.Real):
+                raise ConfigError(f"{name} must be a number, got {quote(v)}")
         if not (0.0 <= self.p_rand <= 1.0):
             raise ConfigError(f"p_rand must be in [0, 1], got {self.p_rand}")
         if not (0.0 < self.p_hit <= 1.0):

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from .checks import numbers_where_floats
 from .errors import ConfigError, InputError
 from .files import read_yaml
 from .mappers import MAPPERS, make_mapper
@@ -208,6 +209,8 @@ def _parse(data: Any) -> SweepConfig:
                 )
             if not isinstance(values, list) or not values:
                 raise ConfigError(f"methods.{name}.{key}: expected a non-empty list of values")
+            # Stored converted, so that the results name 0.01 for a 1e-2 the file gave.
+            grid[key] = [numbers_where_floats({key: v}, MAPPERS[name])[key] for v in values]
         for combo in itertools.product(*grid.values()):
             make_mapper(name, **dict(zip(grid, combo, strict=True)))  # validates ranges
         methods[str(name)] = grid

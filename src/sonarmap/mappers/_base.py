@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Self
 import numpy as np
 import numpy.typing as npt
 
+from ..checks import numbers_where_floats
 from ..errors import ConfigError, SonarmapError, quote
 from ..grid import Grid
 from ..io.rosmap import OccupancyMap
@@ -400,6 +401,10 @@ def _lookup(method: str) -> type[Mapper]:
 def make_mapper(method: str, **params: Any) -> Mapper:
     """A mapper by registered name, with keyword parameters.
 
+    A float parameter given as a string written as a decimal number (``"1e-2"``, as
+    PyYAML reads it from a sweep or experiment file) is that number
+    (:func:`sonarmap.checks.numbers_where_floats`).
+
     Examples
     --------
     >>> make_mapper("inverse", p_occ=0.8).p_occ
@@ -412,4 +417,4 @@ def make_mapper(method: str, **params: Any) -> Mapper:
             f"unknown parameter(s) {bad} for method '{method}'; valid: "
             f"{', '.join(cls.param_names())}"
         )
-    return cls(**params)
+    return cls(**numbers_where_floats(params, cls))

@@ -61,9 +61,12 @@ from .walkers import WALKERS, GraphWalkers
 __all__ = [
     "CROWDING",
     "MODELS",
+    "ONCOMING_NEAR",
     "REACH_FIELDS",
     "PatrolConfig",
     "PatrolResult",
+    "halves_discs",
+    "obstacle_discs",
     "run_patrol",
 ]
 
@@ -841,6 +844,73 @@ def _followed(team: Team, i: int, near: float = ONCOMING_NEAR) -> npt.NDArray[np
     return out
 
 
+def halves_discs(config: PatrolConfig) -> bool:
+    """Whether a robot's artificial obstacles are only the other robot's side of each
+    disc (:func:`obstacle_discs`): tracking cars. A whole disc round each of two of
+    them nearer than ``2 r_obst`` shuts every cell about both, and neither has a path
+    or a direction: both stand for good. The thesis's car escapes at random instead,
+    and keeps the thesis's whole discs."""
+    return config.model == "car" and config.car_planner == "track"
+
+
+def obstacle_discs(
+    team: Team,
+    i: int,
+    cells: npt.NDArray[np.intp],
+    disc: npt.NDArray[np.int64],
+    shape: tuple[int, int],
+    *,
+    halve: bool,
+    following: bool = False,
+    near: float = ONCOMING_NEAR,
+    heard: npt.NDArray[np.bool_] | None = None,
+) -> list[npt.NDArray[np.intp]]:
+    """The cells robot i closes round the other robots with artificial obstacles.
+
+    Parameters
+    ----------
+    team : Team
+        The robots (positions and headings, world metres and radians).
+    i : int
+        The robot planning.
+    cells : ndarray of int, shape (N, 2)
+        Every robot's (row, column) cell.
+    disc : ndarray of int, shape (K, 2)
+        The disc's cell offsets (:func:`~sonarmap.patrol.fog.disc_offsets` of ``r_obst``).
+    shape : tuple of int
+        The map's (rows, columns); cells off it are dropped.
+    halve : bool
+        Keep only each disc's cells nearer the other robot than robot i
+        (:func:`halves_discs`).
+    following : bool
+        For a car driving on rather than turning round (``round_block``): no disc
+        round the robots ahead of it going its way, nor round those ahead farther than
+        ``near`` (default False: a disc round every other robot).
+    near : float
+        Metres beyond which a robot ahead coming the other way is followed too
+        (default :data:`ONCOMING_NEAR`; ``inf``: only those going its way).
+    heard : ndarray of bool, shape (N,), optional
+        The robots robot i hears of (default: all).
+
+    Returns
+    -------
+    list of ndarray of int, shape (K_j, 2)
+        One array of (row, column) pairs per robot closed, in robot order.
+    """
+    n = len(team)
+    ahead = _followed(team, i, near) if following else np.zeros(n, dtype=np.bool_)
+    others = np.ones(n, dtype=np.bool_) if heard is None else heard
+    mine = (int(cells[i, 0]), int(cells[i, 1]))
+    out: list[npt.NDArray[np.intp]] = []
+    for j in np.flatnonzero(others & ~ahead).tolist():
+        if j == i:
+            continue
+        theirs = (int(cells[j, 0]), int(cells[j, 1]))
+        closed = np.column_stack(disc_cells(disc, theirs[0], theirs[1], shape))
+        out.append(_their_side(closed, mine, theirs) if halve else closed)
+    return out
+
+
 def _their_side(
     cells: npt.NDArray[np.intp], mine: tuple[int, int], theirs: tuple[int, int]
 ) -> npt.NDArray[np.intp]:
@@ -999,10 +1069,7 @@ def run_patrol(
     dvt = np.empty(steps)
 
     obst = disc_offsets(config.r_obst, g.resolution)
-    # A whole disc round each of two tracking cars nearer than 2 r_obst shuts every cell
-    # about both, and neither has a path or a direction: both stand for good. The thesis's
-    # car escapes at random instead, and keeps the thesis's whole discs.
-    halve = config.model == "car" and config.car_planner == "track"
+    halve = halves_discs(config)
     forward = config.forward_wave and isinstance(team, Car) and team.planner == "track"
     # Forward waves: from which step other robots have shut each car's way ahead.
     shut = np.full(len(team), -1, dtype=np.int64)
@@ -1060,14 +1127,10 @@ def run_patrol(
         if config.crowding == "semaphores":
             parts.append(sems.closed_cells(i, heard))
         if config.crowding == "obstacles" and len(team) > 1:
-            ahead = _followed(team, i) if following else np.zeros(len(team), dtype=bool)
-            for j in np.flatnonzero(heard & ~ahead).tolist():
-                if j == i:
-                    continue
-                cells = np.column_stack(disc_cells(obst, int(r[j]), int(c[j]), passable.shape))
-                if halve:
-                    cells = _their_side(cells, (int(r[i]), int(c[i])), (int(r[j]), int(c[j])))
-                parts.append(cells)
+            rc = np.column_stack([np.asarray(r), np.asarray(c)])
+            parts += obstacle_discs(
+                team, i, rc, obst, passable.shape, halve=halve, following=following, heard=heard
+            )
         if forward and not following:
             back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
             start = (int(r[i]), int(c[i]))
