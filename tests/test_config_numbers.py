@@ -66,8 +66,7 @@ def test_scenario_parameters_in_exponent_form_simulate_the_same() -> None:
             r"parameter 'p_occ' must be a finite number, got '1e-2e'$",
         ),
         (
-            "scenarios: {d: {scenario: doorways, model: {sigma: 1e-2x}}}\n"
-            "methods: {inverse: {}}\n",
+            "scenarios: {d: {scenario: doorways, model: {sigma: 1e-2x}}}\nmethods: {inverse: {}}\n",
             r"acoustic model: sigma must be a number, got '1e-2x'$",
         ),
         (
