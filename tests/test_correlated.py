@@ -340,7 +340,7 @@ def test_unit_weights_change_no_bit(method: str) -> None:
         (-0.1, r"parameter 'correlated' must be in \[0.0, inf\], got -0.1"),
         (math.nan, r"parameter 'correlated' must be a finite number, got nan"),
         (math.inf, r"parameter 'correlated' must be a finite number, got inf"),
-        ("0.1", r"parameter 'correlated' must be a finite number, got '0.1'"),
+        ("lots", r"parameter 'correlated' must be a finite number, got 'lots'"),
         (True, r"parameter 'correlated' must be a finite number, got True"),
     ],
 )
