@@ -90,12 +90,14 @@ def lattice_cells(territory: Territory, passable: B, vision: float) -> I64:
     return np.array(out, dtype=np.int64).reshape(-1, 2)
 
 
-def cell_graph(mask: B, resolution: float) -> tuple[csr_matrix, I64]:
+def cell_graph(mask: B, resolution: float, *, corners: bool = False) -> tuple[csr_matrix, I64]:
     """The wave's grid graph on the cells of ``mask``, as a sparse matrix.
 
     Steps of one cell (``resolution`` metres) to the 4 side neighbours and of sqrt(2)
     cells to the diagonal ones, a diagonal only when both cells beside it are in
-    ``mask`` too (no cutting of corners, as :func:`~sonarmap.patrol.paths.wave`).
+    ``mask`` too (no cutting of corners, as :func:`~sonarmap.patrol.paths.wave`), unless
+    ``corners`` (default False): then every diagonal between two cells of ``mask``, as
+    along a one-cell-wide skeleton, whose diagonal steps have no cells beside them.
 
     Returns
     -------
@@ -118,7 +120,7 @@ def cell_graph(mask: B, resolution: float) -> tuple[csr_matrix, I64]:
         a = mask[r0:r1, c0:c1]
         b = mask[r0 + dr : r1 + dr, c0 + dc : c1 + dc]
         ok = a & b
-        if dr and dc:
+        if dr and dc and not corners:
             ok &= mask[r0:r1, c0 + dc : c1 + dc] & mask[r0 + dr : r1 + dr, c0:c1]
         src.append(index[r0:r1, c0:c1][ok])
         dst.append(index[r0 + dr : r1 + dr, c0 + dc : c1 + dc][ok])

@@ -251,27 +251,6 @@ def _allowed(street: I64, along: F64, free: B, steps: I64, slack: float) -> npt.
     return out
 
 
-def _chain_graph(mask: B) -> tuple[csr_matrix, I64]:
-    """The 8-connected graph of ``mask``'s cells, steps 1 and sqrt(2) cells long,
-    diagonals allowed past corners (a skeleton is one cell wide: its diagonal steps
-    have no side cells); and each cell's node (-1 off the mask)."""
-    index = np.full(mask.shape, -1, dtype=np.int64)
-    index[mask] = np.arange(int(mask.sum()))
-    rc = np.argwhere(mask)
-    rows, cols = mask.shape
-    src, dst, w = [], [], []
-    for dr, dc in STEPS.tolist():
-        rr, cc = rc[:, 0] + dr, rc[:, 1] + dc
-        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
-        ok[ok] = mask[rr[ok], cc[ok]]
-        src.append(index[rc[ok, 0], rc[ok, 1]])
-        dst.append(index[rr[ok], cc[ok]])
-        w.append(np.full(int(ok.sum()), math.hypot(dr, dc)))
-    n = len(rc)
-    m = coo_matrix((np.concatenate(w), (np.concatenate(src), np.concatenate(dst))), shape=(n, n))
-    return m.tocsr(), index
-
-
 def _step_index() -> I64:
     """Index into :data:`STEPS` of each step, at (dr + 1) * 3 + dc + 1 (-1 for no step)."""
     out = np.full(9, -1, dtype=np.int64)
@@ -491,7 +470,7 @@ def one_way(
             cand = np.argwhere(near_tail)
             near_tail = np.zeros(mask.shape, dtype=bool)
             near_tail[tuple(cand[0])] = True
-        g_s, idx_s = _chain_graph(pix)
+        g_s, idx_s = cell_graph(pix, 1.0, corners=True)
         starts = idx_s[near_tail]
         d = dijkstra(g_s, directed=False, indices=starts, min_only=True)
         along_skel[pix] = d[idx_s[pix]]
