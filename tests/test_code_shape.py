@@ -1,4 +1,4 @@
-"""The code's shape: modules talk through public names.
+"""The code's shape: modules talk through public names, and the code map lists every module.
 
 `lint-imports` (``make lint``) checks which module may import which; these tests check what
 an import graph cannot see. A checker walks ``src/sonarmap`` with :mod:`ast` and reports
@@ -19,13 +19,17 @@ caller's module but compiled on its own) and the ``_replace``/``_asdict``/``_fie
 from __future__ import annotations
 
 import ast
+import re
 import textwrap
+import tomllib
 from pathlib import Path
 from typing import NamedTuple
 
 import pytest
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "src"
+CODE_MAP = ROOT / "docs" / "reference" / "code-map.md"
 
 KERNEL_DECORATORS = frozenset({"njit", "jit", "vectorize", "guvectorize", "stencil", "cfunc"})
 NAMEDTUPLE_API = frozenset({"_replace", "_asdict", "_fields", "_make", "_field_defaults"})
@@ -271,3 +275,23 @@ def test_src_uses_no_private_name_across_a_boundary() -> None:
     stale = sorted(ALLOWED - found.keys())
     assert not unexpected, "\n".join(unexpected)
     assert not stale, f"allow-list entries no longer found: {stale}"
+
+
+def test_code_map_lists_every_module() -> None:
+    modules = load_package(SRC, "sonarmap")
+    text = CODE_MAP.read_text(encoding="utf-8")
+    listed = set(re.findall(r"`(sonarmap(?:\.\w+)*)`", text))
+    missing = sorted(set(modules) - listed)
+    unknown = sorted(listed - set(modules))
+    assert not missing, f"modules missing from {CODE_MAP.name}: {missing}"
+    assert not unknown, f"{CODE_MAP.name} names modules that do not exist: {unknown}"
+
+
+def test_code_map_shows_the_contract_layers() -> None:
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    contracts = config["tool"]["importlinter"]["contracts"]
+    (layers,) = [c["layers"] for c in contracts if c["type"] == "layers"]
+    text = CODE_MAP.read_text(encoding="utf-8")
+    rows = re.findall(r"^\| `([^`]+)` \|", text, flags=re.MULTILINE)
+    shown = [row.replace("\\|", "|") for row in rows if not row.startswith("sonarmap")]
+    assert shown == layers
