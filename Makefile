@@ -49,4 +49,4 @@ bench-mrpt: $(STAMP)
 	$(BIN)/python -m benchmarks.mrpt.run --install --minutes 10
 
 clean:
-	rm -rf $(VENV) out site .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) out site .pytest_cache .mypy_cache .ruff_cache .import_linter_cache
