@@ -16,9 +16,11 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/sonarmap demo -o out
 
+# ruff, then lint-imports: the layers and import rules of pyproject's [tool.importlinter].
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks
 	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/lint-imports
 
 typecheck: $(STAMP)
 	$(BIN)/mypy
@@ -47,4 +49,4 @@ bench-mrpt: $(STAMP)
 	$(BIN)/python -m benchmarks.mrpt.run --install --minutes 10
 
 clean:
-	rm -rf $(VENV) out site .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) out site .pytest_cache .mypy_cache .ruff_cache .import_linter_cache

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from .files import atomic_write_text
+from .version import __version__
 
 __all__ = ["Report"]
 
@@ -90,8 +91,6 @@ class Report:
         self.parts.append(f"<pre>{html.escape(json.dumps(params, indent=2, default=str))}</pre>")
 
     def write(self, path: Path) -> Path:
-        from . import __version__
-
         stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
         foot = (
             f"<p class='note'>sonarmap {__version__}, Python {platform.python_version()}, "

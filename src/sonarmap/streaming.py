@@ -30,9 +30,7 @@ import numpy.typing as npt
 from .errors import ConfigError
 from .grid import Grid
 from .io.rosmap import OccupancyMap
-from .mappers import Mapper, make_mapper
-from .mappers._base import check_ranges
-from .mappers._stream import StreamEngine
+from .mappers import Mapper, StreamEngine, check_ranges, make_mapper
 from .readings import Readings
 from .rig import Rig
 from .selection import Strategy, parse_strategy

@@ -611,11 +611,10 @@ def _reason(err: ConfigError) -> str:
 def _install_plain_types() -> None:
     """``--help``'s value column in a user's words: nothing after a plain flag (typer
     prints ``<bool>``), a repeatable value's element (``<str>...``, not ``<list[str]>``).
-    Typer has no setting for either, so its two display methods are wrapped once."""
+    Typer has no setting for either, so its two display methods are wrapped, once per import
+    of this module; wrapping twice would change nothing, as both wrappers are idempotent."""
     from typer.core import TyperArgument, TyperOption
 
-    if getattr(TyperOption, "_sonarmap_plain", False):
-        return
     shown_rich = TyperOption.display_type_rich
 
     def option_rich(self: Any, ctx: Any) -> str | None:
@@ -634,7 +633,6 @@ def _install_plain_types() -> None:
 
         cls.display_type = display  # type: ignore[method-assign]
     TyperOption.display_type_rich = option_rich  # type: ignore[method-assign]
-    TyperOption._sonarmap_plain = True  # type: ignore[attr-defined]
 
 
 _install_plain_types()

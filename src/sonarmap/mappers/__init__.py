@@ -9,11 +9,13 @@ from ._base import (
     MAPPERS,
     Mapper,
     NotFittedError,
+    check_ranges,
     make_mapper,
     parse_params,
     preset_params,
     register,
 )
+from ._stream import StreamEngine
 from .counting import CountingMapper
 from .em import EMMapper
 from .em_thrun import ThrunEMMapper
@@ -30,7 +32,9 @@ __all__ = [
     "Mapper",
     "NotFittedError",
     "StochasticMapper",
+    "StreamEngine",
     "ThrunEMMapper",
+    "check_ranges",
     "counting",
     "em",
     "em_thrun",
