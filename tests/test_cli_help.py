@@ -6,8 +6,9 @@ import re
 
 import pytest
 import typer
+from typer.testing import CliRunner
 
-from sonarmap.cli import COMMANDS, load_command, main
+from sonarmap.cli import COMMANDS, app, load_command, main
 
 #: What a reader of --help should never see.
 FORBIDDEN = (":func:", ":mod:", ":class:", ":data:", "``", "<bool>", "<list[")
@@ -31,6 +32,15 @@ def test_help_has_no_markup(path: list[str], capsys: pytest.CaptureFixture[str])
     found = [bad for bad in FORBIDDEN if bad in text]
     assert not found, f"sonarmap {' '.join(path)} --help shows {found}"
     assert "docs/" in text, f"sonarmap {' '.join(path)} --help points to no docs page"
+
+
+def test_stream_help_through_typer_shows_no_python_types() -> None:
+    # typer's own runner on the app, not main(): cli.common's display wrappers must hold
+    # for any caller of the click command, not only for the sonarmap script.
+    result = CliRunner().invoke(app, ["stream", "--help"])
+    assert result.exit_code == 0, result.output
+    assert "--window" in result.output
+    assert [bad for bad in ("<bool>", "<list[") if bad in result.output] == []
 
 
 def test_root_help_lines_are_the_commands_own() -> None:
