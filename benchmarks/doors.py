@@ -112,7 +112,7 @@ def evidence(rigs: Sequence[str], seeds: Sequence[int]) -> pd.DataFrame:
                 assert cs.bearing is not None
                 w = np.exp(-(cs.bearing.astype(np.float64) ** 2) / (2 * sigma**2))
                 sums.append(np.bincount(cs.cells, weights=w, minlength=g.size))
-            parts = _free_parts(fp.free, r.range[echo], sigma, g.size)
+            parts = free_parts(fp.free, r.range[echo], sigma, g.size)
             jamb = jamb_walls(scene)
             seen = observed_walls(scene.truth, scene.rig, r).reshape(-1)
             for group, cells in (("beside a jamb", jamb), ("other observed walls", seen & ~jamb)):
@@ -135,7 +135,7 @@ def evidence(rigs: Sequence[str], seeds: Sequence[int]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _free_parts(
+def free_parts(
     free: CellSet, ranges: npt.NDArray[np.float64], sigma: float, n_cells: int
 ) -> dict[str, npt.NDArray[np.float64]]:
     """Per cell, the fall-off weight of the free regions that hold it, split by how far
@@ -152,7 +152,10 @@ def _free_parts(
         f"from_echo_beyond_{mid}m": beyond >= mid,
         "from_on_axis": np.abs(b) <= sigma,
     }
-    return {k: np.bincount(free.cells, weights=w * m, minlength=n_cells) for k, m in masks.items()}
+    return {
+        k: np.bincount(free.cells, weights=w * m, minlength=n_cells).astype(np.float64)
+        for k, m in masks.items()
+    }
 
 
 def run(rigs: Sequence[str], seeds: Sequence[int], variants: Sequence[str]) -> pd.DataFrame:
