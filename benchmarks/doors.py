@@ -11,7 +11,11 @@ With ``--evidence`` it weighs instead what the inverse model (at its defaults) a
 the walls beside the jambs (the 0.3 m next to each jamb that the detection asks to be
 closed) and to the other observed wall cells: per cell, the summed fall-off weights of
 the readings whose echo band holds it and of those whose free region holds it, and the
-log-odds they add up to (before clamping).
+log-odds they add up to (before clamping). Where a wall cell's free weight comes from
+is split by how far beyond the cell the reading's echo lay (:data:`BEYOND`, metres) and
+by the cell's angle off the beam's axis (within the fall-off's standard deviation or
+not), as shares of that free weight (the ``from_`` columns). No-echo readings take no
+part: the inverse ignores them at its defaults.
 
 Run with ``python -m benchmarks.doors [--seeds 0 1] [--rigs ...] --variant "METHOD K=V"
 ... -o out/doors``; writes ``doors.csv`` there and prints the counts per rig and setting
@@ -40,7 +44,7 @@ from benchmarks.rigs import OFFICE_MODEL, RIGS, parse_variant
 from sonarmap.mappers import make_mapper
 from sonarmap.mappers.inverse import InverseMapper
 from sonarmap.metrics import JAMB_LENGTH, PassageResult, measure_passage, observed_walls
-from sonarmap.raster import rasterise
+from sonarmap.raster import CellSet, rasterise
 from sonarmap.scenarios import Scenario, make_scenario, model_from_dict
 
 
@@ -53,6 +57,12 @@ def verdict(r: PassageResult) -> str:
     if not r.open:
         return "walls"
     return "width"
+
+
+#: Bins of how far beyond a wall cell the echo of a reading whose free region holds the
+#: cell lay, metres: an echo just behind the wall (the wall's far side or the band's
+#: edge), one from a surface near it, one from far down the beam (the wall missed).
+BEYOND = (0.3, 1.0)
 
 
 def jamb_walls(scene: Scenario) -> npt.NDArray[np.bool_]:
@@ -102,12 +112,16 @@ def evidence(rigs: Sequence[str], seeds: Sequence[int]) -> pd.DataFrame:
                 assert cs.bearing is not None
                 w = np.exp(-(cs.bearing.astype(np.float64) ** 2) / (2 * sigma**2))
                 sums.append(np.bincount(cs.cells, weights=w, minlength=g.size))
+            parts = free_parts(fp.free, r.range[echo], sigma, g.size)
             jamb = jamb_walls(scene)
             seen = observed_walls(scene.truth, scene.rig, r).reshape(-1)
             for group, cells in (("beside a jamb", jamb), ("other observed walls", seen & ~jamb)):
                 occ, free = sums[0][cells], sums[1][cells]
+                total = max(float(free.sum()), 1e-12)
+                shares = {k: float(v[cells].sum()) / total for k, v in parts.items()}
                 rows.append(
-                    {
+                    shares
+                    | {
                         "rig": rig,
                         "seed": seed,
                         "cells": group,
@@ -119,6 +133,29 @@ def evidence(rigs: Sequence[str], seeds: Sequence[int]) -> pd.DataFrame:
                     }
                 )
     return pd.DataFrame(rows)
+
+
+def free_parts(
+    free: CellSet, ranges: npt.NDArray[np.float64], sigma: float, n_cells: int
+) -> dict[str, npt.NDArray[np.float64]]:
+    """Per cell, the fall-off weight of the free regions that hold it, split by how far
+    beyond the cell the echo lay (:data:`BEYOND`) and by the cell's angle off the axis
+    (within ``sigma`` radians or not)."""
+    assert free.bearing is not None
+    b = free.bearing.astype(np.float64)
+    w = np.exp(-(b**2) / (2 * sigma**2))
+    beyond = ranges[free.reading_index()] - free.distance.astype(np.float64)
+    near, mid = BEYOND
+    masks = {
+        f"from_echo_within_{near}m": beyond < near,
+        f"from_echo_{near}_{mid}m": (beyond >= near) & (beyond < mid),
+        f"from_echo_beyond_{mid}m": beyond >= mid,
+        "from_on_axis": np.abs(b) <= sigma,
+    }
+    return {
+        k: np.bincount(free.cells, weights=w * m, minlength=n_cells).astype(np.float64)
+        for k, m in masks.items()
+    }
 
 
 def run(rigs: Sequence[str], seeds: Sequence[int], variants: Sequence[str]) -> pd.DataFrame:
@@ -167,6 +204,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         args.out.mkdir(parents=True, exist_ok=True)
         ev.to_csv(args.out / "evidence.csv", index=False)
         cols = ["n", "occupied_weight", "free_weight", "log_odds", "share_positive"]
+        cols += [c for c in ev.columns if c.startswith("from_")]
         print(ev.groupby(["rig", "cells"], sort=False)[cols].mean().round(3).to_string())
         return
     if not args.variant:

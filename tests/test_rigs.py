@@ -328,3 +328,31 @@ def test_jamb_walls_are_the_walls_beside_each_door() -> None:
     mids = np.array([((p.a[0] + p.b[0]) / 2, (p.a[1] + p.b[1]) / 2) for p in scene.passages])
     d = np.min(np.hypot(x[:, None] - mids[:, 0], y[:, None] - mids[:, 1]), axis=1)
     assert np.all(d <= max(p.width for p in scene.passages) / 2 + 0.3 + 2 * h)
+
+
+def test_free_parts_split_a_cells_free_weight_by_where_the_echo_lay() -> None:
+    """Two readings cross cell 3: one whose echo lay 0.1 m beyond it on its axis, one
+    whose echo lay 2 m beyond it 10 degrees off its axis; the parts split each cell's
+    fall-off weight between the bins of :data:`benchmarks.doors.BEYOND`, and the bins
+    add up to the whole."""
+    from benchmarks.doors import free_parts
+
+    from sonarmap.raster import CellSet
+
+    sigma = math.radians(5.0)
+    free = CellSet(
+        offsets=np.array([0, 2, 4], np.int64),
+        cells=np.array([3, 4, 3, 5], np.int32),
+        distance=np.array([1.0, 0.5, 1.0, 0.5], np.float32),
+        weight=np.ones(4, np.float32),
+        bearing=np.radians(np.array([0.0, 0.0, 10.0, 10.0])).astype(np.float32),
+    )
+    parts = free_parts(free, np.array([1.1, 3.0]), sigma, 8)
+    off_axis = math.exp(-2.0)  # 10 degrees at a 5-degree standard deviation
+    assert parts["from_echo_within_0.3m"][3] == pytest.approx(1.0)
+    assert parts["from_echo_beyond_1.0m"][3] == pytest.approx(off_axis, rel=1e-6)
+    assert parts["from_echo_0.3_1.0m"][4] == pytest.approx(1.0)
+    assert parts["from_on_axis"][3] == pytest.approx(1.0)
+    bins = [k for k in parts if k.startswith("from_echo")]
+    total = sum(parts[k] for k in bins)
+    np.testing.assert_allclose(total, [0, 0, 0, 1 + off_axis, 1, off_axis, 0, 0], rtol=1e-6)
