@@ -187,8 +187,8 @@ def test_default_scale_keeps_walls_the_former_one_emptied() -> None:
     """Issue 39, sixth pass: on the training ``doorways`` scene (seed 0, the MaxSonar
     rig) the default tau (0.1) keeps more of the walls the sonars heard than the former
     0.03 (0.904 against 0.841 in sweeps/rigs6-robust.yaml) and detects at least as many
-    of its doors: a lower tau down-weights a wide beam's wall readings whose band the
-    other readings see through, and their walls go."""
+    of its doors. Why was not measured term by term; one hypothesis is that a lower tau
+    down-weights a wide beam's wall readings whose band the other readings see through."""
     scene = make_scenario("doorways", seed=0)
     observed = observed_walls(scene.truth, scene.rig, scene.readings)
 

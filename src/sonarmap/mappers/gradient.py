@@ -110,17 +110,10 @@ class GradientMapper(Mapper):
     sweeps/tune.yaml``: its defaults and 60 settings of a1, a2, c1, c2, band, no-echo
     handling, solver and stopping rule, on the ten training scenes every method was
     tuned on (0.307; the runner-up 0.237).
-    The robust form's defaults (tau 0.03, both kinds of term, 2 rounds, support 3) had
-    the highest mean quality in ``sonarmap sweep sweeps/robust.yaml`` (the plain model
-    and 60 settings of the four robust parameters, the same ten scenes): 0.355 against
-    the plain model's 0.307 (runner-up 0.352); ``robust=0`` is the plain model.
-    tau 0.1 had the highest in ``sonarmap sweep sweeps/rigs6-robust.yaml`` (tau 0.03,
-    0.05, 0.1, 0.2, 0.3 and 1, with the plain model, on 16 training maps: halls, rooms
-    off a corridor, ``doorways`` and ``passages`` walked by MaxSonar EZ1s, HC-SR04s and
-    a ring of Polaroid sonars; issue 39): 0.330 against 0.269 at 0.03, observed-wall
-    recall 0.73 against 0.62. The best tau was the same for the 45-degree beams (EZ1)
-    as for the 15-degree ones (HC-SR04, Polaroid), within 0.002 of quality, so the scale
-    does not follow the beam's width.
+    The robust form's defaults (tau 0.1, both kinds of term, 2 rounds, support 3) were
+    chosen on training scenes (``sweeps/robust.yaml``, ``sweeps/rigs6-robust.yaml``); see
+    docs/results/2026-11-23-gradient-issue-14.md and
+    docs/results/2026-12-06-rig-defaults.md. ``robust=0`` is the plain model.
     a1 0.3, c2 1 and the band moved half a cell behind the echo (the rasteriser's
     half-width) had the highest in ``sonarmap sweep sweeps/band.yaml`` (the defaults
     before and 60 settings of the band's offset and half-width, a1, a2 and c2): 0.358
