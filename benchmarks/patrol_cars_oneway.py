@@ -12,7 +12,8 @@ Also printed: the sizes of the strongly connected sets of the reachable passable
 under the allowed steps, by the wave's own step rule
 (:func:`sonarmap.patrol.oneway.strong_sets`; one set: every place reachable from every other).
 
-Run with ``python -m benchmarks.patrol_cars_oneway --site 3 --cars 5 --duration 1200``;
+Run with ``python -m benchmarks.patrol_cars_oneway --site 3 --cars 5 --duration 1200
+[--stub-sight]``;
 one process, one core (``NUMBA_NUM_THREADS=1``); prints one JSON line.
 """
 
@@ -48,10 +49,10 @@ def cell_class(ow: OneWay, r: int, c: int) -> str:
     return "two-way end" if ow.two_way[r, c] else "one-way"
 
 
-def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
+def watch_run(site: int, cars: int, duration: float, stub_sight: bool = False) -> dict[str, Any]:
     """One run's split (see the module's notes)."""
     # The training runs' configuration (benchmarks.patrol_cars, one-way for teams).
-    config = car_config("track", cars, "obstacles", duration, one_way=True)
+    config = car_config("track", cars, "obstacles", duration, one_way=True, stub_sight=stub_sight)
     t = street_territory(site)
     # The simulation's own passable cells, so the system is the one the cars use.
     passable = reach(t, config.radius, mode=config.reach, vision=config.vision).passable
@@ -75,6 +76,7 @@ def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
         "site": site,
         "cars": cars,
         "duration": duration,
+        "stub_sight": stub_sight,
         "dvt": round(float(result.summary()["dvt"]), 2),
         "dvt_by_cause_and_cell": {
             k: round(100.0 * v / steps, 2) for k, v in sorted(counts.items())
@@ -93,8 +95,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--site", type=int, default=3)
     ap.add_argument("--cars", type=int, default=5)
     ap.add_argument("--duration", type=float, default=1200.0)
+    ap.add_argument("--stub-sight", action="store_true")
     a = ap.parse_args(argv)
-    print(json.dumps(watch_run(a.site, a.cars, a.duration)))
+    print(json.dumps(watch_run(a.site, a.cars, a.duration, a.stub_sight)))
     return 0
 
 
