@@ -11,7 +11,10 @@ that is at most 60 m longer, following the cars ahead going their way
 (``--round-block 60``; 0 is the library's default, the shortest path); ``--one-way
 teams`` drives every street narrower than the turning circle one way only
 (:mod:`sonarmap.patrol.oneway`) in the runs of more than one car (``all``: every run;
-``off``, the default: none). For each site,
+``off``, the default: none); ``--stub-sight`` has a car look down a dead-end stub
+from its junction rather than drive in for a place it sees from there, and
+``--stub-delay S`` has the places it must enter a stub to see pull as if seen S
+seconds later (:mod:`sonarmap.patrol.stubs`; both off by default). For each site,
 planner, team size and seed one run of ``--duration`` simulated seconds, reporting:
 
 - ``DVT``: the team's mean share of time in the dead-end escape mode, %;
@@ -32,6 +35,7 @@ planner, team size and seed one run of ``--duration`` simulated seconds, reporti
 Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
 [--planners track thesis] [--crowding obstacles] [--forward-wave] [--give-up 3]
 [--turn-penalty 10] [--no-out-of-sight] [--round-block 60] [--one-way off|teams|all]
+[--stub-sight] [--stub-delay 0]
 [--seeds 0]
 [--duration 3600]
 [--json F]``; one process, one core (``NUMBA_NUM_THREADS=1``). Each run prints one
@@ -66,6 +70,8 @@ def car_config(
     out_of_sight: bool = True,
     round_block: float = 60.0,
     one_way: bool = False,
+    stub_sight: bool = False,
+    stub_delay: float = 0.0,
 ) -> PatrolConfig:
     """The cars' configuration of one run (see the module's notes): ``crowding`` only
     with more than one car, refined paths."""
@@ -78,6 +84,8 @@ def car_config(
         out_of_sight=out_of_sight,
         round_block=round_block,
         one_way=one_way,
+        stub_sight=stub_sight,
+        stub_delay=stub_delay,
         refine=True,
         crowding=crowding if cars > 1 else "none",
         duration=duration,
@@ -97,6 +105,8 @@ def run_one(
     out_of_sight: bool = True,
     round_block: float = 60.0,
     one_way: bool = False,
+    stub_sight: bool = False,
+    stub_delay: float = 0.0,
 ) -> dict[str, Any]:
     """One run's figures (see the module's notes)."""
     config = car_config(
@@ -110,6 +120,8 @@ def run_one(
         out_of_sight=out_of_sight,
         round_block=round_block,
         one_way=one_way,
+        stub_sight=stub_sight,
+        stub_delay=stub_delay,
     )
     t0 = time.perf_counter()
     last: list[Team] = []
@@ -137,6 +149,8 @@ def run_one(
         "out_of_sight": out_of_sight,
         "round_block": round_block,
         "one_way": one_way,
+        "stub_sight": stub_sight,
+        "stub_delay": stub_delay,
         "seed": seed,
         "duration": duration,
         "dvt": round(float(s["dvt"]), 2),
@@ -162,6 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-out-of-sight", dest="out_of_sight", action="store_false")
     ap.add_argument("--round-block", type=float, default=60.0)
     ap.add_argument("--one-way", choices=["off", "teams", "all"], default="off")
+    ap.add_argument("--stub-sight", action="store_true")
+    ap.add_argument("--stub-delay", type=float, default=0.0)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--json", type=Path)
@@ -184,6 +200,8 @@ def main(argv: list[str] | None = None) -> int:
                         a.out_of_sight,
                         a.round_block,
                         a.one_way == "all" or (a.one_way == "teams" and cars > 1),
+                        a.stub_sight,
+                        a.stub_delay,
                     )
                     print(json.dumps(row), flush=True)
                     rows.append(row)

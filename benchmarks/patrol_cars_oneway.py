@@ -8,11 +8,14 @@ car is on: a ``junction``, a ``stub`` (a bridge of the street graph, two-way), a
 ``one-way`` part of a street, or a ``wide`` two-way street. Figures are % of the team's
 time, so they add up to the run's DVT.
 
-Also printed: the sizes of the strongly connected sets of the reachable passable cells
-under the allowed steps, by the wave's own step rule
+Also printed: the watched places in dead-end stubs and how many of them a car sees from
+the junction the stub opens on (those with a stand point,
+:func:`sonarmap.patrol.stubs.stand_points`), and the sizes of the strongly connected
+sets of the reachable passable cells under the allowed steps, by the wave's own step rule
 (:func:`sonarmap.patrol.oneway.strong_sets`; one set: every place reachable from every other).
 
-Run with ``python -m benchmarks.patrol_cars_oneway --site 3 --cars 5 --duration 1200``;
+Run with ``python -m benchmarks.patrol_cars_oneway --site 3 --cars 5 --duration 1200
+[--stub-sight] [--stub-delay 0]``;
 one process, one core (``NUMBA_NUM_THREADS=1``); prints one JSON line.
 """
 
@@ -34,6 +37,8 @@ from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.oneway import OneWay, one_way, strong_sets
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import CAUSES, Car, Team
+from sonarmap.patrol.simulation import SIGHT_MARGIN
+from sonarmap.patrol.stubs import stand_points, stub_places
 
 
 def cell_class(ow: OneWay, r: int, c: int) -> str:
@@ -48,14 +53,28 @@ def cell_class(ow: OneWay, r: int, c: int) -> str:
     return "two-way end" if ow.two_way[r, c] else "one-way"
 
 
-def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
+def watch_run(
+    site: int, cars: int, duration: float, stub_sight: bool = False, stub_delay: float = 0.0
+) -> dict[str, Any]:
     """One run's split (see the module's notes)."""
     # The training runs' configuration (benchmarks.patrol_cars, one-way for teams).
-    config = car_config("track", cars, "obstacles", duration, one_way=True)
+    config = car_config(
+        "track",
+        cars,
+        "obstacles",
+        duration,
+        one_way=True,
+        stub_sight=stub_sight,
+        stub_delay=stub_delay,
+    )
     t = street_territory(site)
     # The simulation's own passable cells, so the system is the one the cars use.
-    passable = reach(t, config.radius, mode=config.reach, vision=config.vision).passable
+    where = reach(t, config.radius, mode=config.reach, vision=config.vision)
+    passable = where.passable
     ow = one_way(passable, t.clearance, t.grid.resolution, config.turn_radius)
+    stands = stand_points(
+        passable, where.watched, ow, t.grid.resolution, config.vision - SIGHT_MARGIN
+    )
     before = {k: np.zeros(cars, dtype=np.int64) for k in CAUSES}
     counts: dict[str, int] = {}
 
@@ -75,6 +94,8 @@ def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
         "site": site,
         "cars": cars,
         "duration": duration,
+        "stub_sight": stub_sight,
+        "stub_delay": stub_delay,
         "dvt": round(float(result.summary()["dvt"]), 2),
         "dvt_by_cause_and_cell": {
             k: round(100.0 * v / steps, 2) for k, v in sorted(counts.items())
@@ -82,6 +103,8 @@ def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
         "streets": len(ow.one_way),
         "one_way_streets": int(ow.one_way.sum()),
         "bridges": int(ow.bridges.sum()),
+        "stub_places": int(stub_places(passable, where.watched, ow).sum()),
+        "stub_places_with_stand_point": int((stands >= 0).sum()),
         "strongly_connected_sets": strong_sets(passable, ow.steps)[:5].tolist(),
     }
 
@@ -93,8 +116,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--site", type=int, default=3)
     ap.add_argument("--cars", type=int, default=5)
     ap.add_argument("--duration", type=float, default=1200.0)
+    ap.add_argument("--stub-sight", action="store_true")
+    ap.add_argument("--stub-delay", type=float, default=0.0)
     a = ap.parse_args(argv)
-    print(json.dumps(watch_run(a.site, a.cars, a.duration)))
+    print(json.dumps(watch_run(a.site, a.cars, a.duration, a.stub_sight, a.stub_delay)))
     return 0
 
 

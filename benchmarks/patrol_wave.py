@@ -9,7 +9,8 @@ that row is coarsened from a 5 cm drawing). Paths run over the cells a robot of 
 wave is run from each of the map's five robot starts (Table 4's largest team); a figure
 is the mean over the five of the best of ``--repeat`` runs, in ms per wave:
 
-- ``heap``: the former kernel (binary heap with lazy deletion), kept here for comparison;
+- ``heap``: the former kernel (binary heap with lazy deletion), kept here for comparison,
+  with the simulator's step rule (a target cell off the passable ones ends a path);
 - ``wave()``: the bucket-queue wave, allocating its arrays on each call;
 - ``Wave``: the same reusing its buffers (only the cells the last wave reached are
   cleared);
@@ -62,7 +63,8 @@ def _wave_heap(
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int8]]:
     """The former wave: Dijkstra with a binary heap of (distance, cell) and lazy
     deletion, distances in cells (as in ``sonarmap.patrol.paths`` before the bucket
-    queue)."""
+    queue), with today's step rule: paths cross passable cells only and take one last
+    step onto a target cell."""
     rows, cols = passable.shape
     dist = np.full((rows, cols), np.inf)
     first = np.full((rows, cols), -1, dtype=np.int8)
@@ -99,12 +101,14 @@ def _wave_heap(
         c = cell % cols
         if d > dist[r, c]:
             continue
+        if not passable[r, c]:
+            # A target cell off the passable ones ends its path (the simulator's rule
+            # since the wave took one last step onto a target cell, never across them).
+            continue
         for k in range(8):
             rr = r + steps[k, 0]
             cc = c + steps[k, 1]
             if rr < 0 or rr >= rows or cc < 0 or cc >= cols or not target[rr, cc]:
-                continue
-            if passable[rr, cc] and not passable[r, c]:
                 continue
             if k % 2 == 1:
                 if not target[r, cc] or not target[rr, c]:

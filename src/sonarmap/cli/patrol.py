@@ -242,6 +242,13 @@ PATROL_OPTIONS = (
         off="--two-way",
     ),
     Opt(
+        "stub_sight",
+        "Tracking cars: a place in a dead-end stub seen from the junction it opens on "
+        "(within the vision less 1 m of it) is looked at from there, not driven to; "
+        "--enter-stubs: the route runs to the place.",
+        off="--enter-stubs",
+    ),
+    Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
         "nearest obstacle, in order; the last D may be inf.",

@@ -54,6 +54,7 @@ from .regions import Regions
 from .robots import SPEED_BANDS, Car, Holonomic, Team
 from .semaphores import Semaphores
 from .starts import check_starts, format_starts, spread_starts
+from .stubs import stand_points, stub_places
 from .territory import Territory, move_clear
 from .tour import plan_tour
 from .walkers import WALKERS, GraphWalkers
@@ -107,6 +108,9 @@ FOLLOW_TIME = 10.0
 ONCOMING_NEAR = 10.0
 #: Metres around a place the cars give up within which the never-seen places go too.
 GIVE_UP_RADIUS = 2.0
+#: Metres short of the vision radius within which a place in a stub must lie of its
+#: stand point (``stub_sight``): a car passing a cell beside that point still sees it.
+SIGHT_MARGIN = 1.0
 #: Policies the path motion can follow.
 PATH_POLICIES = ("potential", "reactive", "gravity", "cycle", *WALKERS)
 #: Path-finders built once per run for the static map (:mod:`.regions`, :mod:`.marching`).
@@ -225,6 +229,19 @@ class PatrolConfig:
     #: same system from the map. Needs ``paths`` 'wave' (the only path-finding that
     #: keeps to the allowed steps). False (the default): every street two-way.
     one_way: bool = False
+    #: Track: a car does not drive into a dead-end stub (a bridge of the street graph,
+    #: :mod:`.oneway`) for a place it can see from the junction the stub opens on: its
+    #: route to a place in a stub within ``vision`` less :data:`SIGHT_MARGIN` of that
+    #: junction's skeleton cell ends there (:func:`~sonarmap.patrol.stubs.stand_points`).
+    #: Needs ``line_of_sight`` False (a place within the disc is then in sight). False
+    #: (the default): the route runs to the place.
+    stub_sight: bool = False
+    #: Track: seconds later than it was that a place in a dead-end stub a car must enter
+    #: to see (one without a stand point, :func:`~sonarmap.patrol.stubs.stand_points`)
+    #: pulls as if seen: backing out of a stub is a reversing manoeuvre, so such places
+    #: are gone for less often. 0 (the default): they pull as any place. Needs
+    #: ``line_of_sight`` False.
+    stub_delay: float = 0.0
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
     vision: float = 10.0
@@ -352,6 +369,27 @@ class PatrolConfig:
                 "one_way applies to tracking cars only (model 'car', car_planner 'track')",
                 field="one_way",
             )
+        if self.stub_sight and not (self.model == "car" and self.car_planner == "track"):
+            raise ConfigError(
+                "stub_sight applies to tracking cars only (model 'car', car_planner 'track')",
+                field="stub_sight",
+            )
+        if not (math.isfinite(self.stub_delay) and self.stub_delay >= 0):
+            raise ConfigError(
+                f"stub_delay must be >= 0 seconds, got {self.stub_delay}", field="stub_delay"
+            )
+        if self.stub_delay > 0 and not (
+            self.model == "car" and self.car_planner == "track" and not self.line_of_sight
+        ):
+            raise ConfigError(
+                "stub_delay applies to tracking cars seeing a disc (model 'car', "
+                "car_planner 'track', line_of_sight False)",
+                field="stub_delay",
+            )
+        if self.stub_sight and self.line_of_sight:
+            # Behind a wall a place within the disc is not in sight: a car standing at
+            # the junction might never see it.
+            raise ConfigError("stub_sight needs line_of_sight False", field="stub_sight")
         if self.one_way and self.paths != "wave":
             # Only the wave keeps to the allowed steps: straight and marching paths
             # would drive against the streets.
@@ -806,9 +844,14 @@ def _car_carrot(
     config: PatrolConfig,
     targets: npt.NDArray[np.bool_] | None = None,
     closed: Callable[[], npt.NDArray[np.intp] | None] | None = None,
+    stand: npt.NDArray[np.int64] | None = None,
 ) -> tuple[float, float] | None:
     """Car i's route (the wave's shortest path to ``cell``, set on the car) and its
     pure-pursuit point ``config.lookahead`` metres along it; None when there is none.
+
+    ``stand`` (:func:`~sonarmap.patrol.stubs.stand_points`): a place in a stub with a
+    stand point the wave has reached (not the car's own cell) is gone for by the route
+    to that point instead, from which the car sees it.
 
     With ``config.round_block`` a route whose pursuit point lies behind the car is
     replaced by the shortest one that leaves forwards (:func:`_forward_route`), when
@@ -817,6 +860,10 @@ def _car_carrot(
     going the car's way, which it follows). ``waver`` may then hold that wave."""
     assert isinstance(team, Car)
     team.routes[i] = None
+    if stand is not None and cell is not None and stand[cell] >= 0:
+        at = (int(stand[cell]) // stand.shape[1], int(stand[cell]) % stand.shape[1])
+        if np.isfinite(waver.dist[at]) and waver.dist[at] > 0:
+            cell = at
     if cell is None or not np.isfinite(waver.dist[cell]) or waver.dist[cell] <= 0:
         return None
     x, y = float(team.x[i]), float(team.y[i])
@@ -1177,10 +1224,22 @@ def run_patrol(
         target = (np.arange(len(team)) * len(tour)) // len(team)
     streets = (
         one_way(passable, territory.clearance, g.resolution, config.turn_radius)
-        if config.one_way
+        if config.one_way or config.stub_sight or config.stub_delay > 0
         else None
     )
-    waver = Wave(passable.shape, None if streets is None else streets.steps)
+    waver = Wave(passable.shape, streets.steps if streets is not None and config.one_way else None)
+    stands = (
+        stand_points(passable, watched, streets, g.resolution, config.vision - SIGHT_MARGIN)
+        if streets is not None and (config.stub_sight or config.stub_delay > 0)
+        else None
+    )
+    stand = stands if config.stub_sight else None
+    # The places a car must drive into a stub to see, pulling as if seen later.
+    deep = (
+        stub_places(passable, watched, streets) & (stands < 0)
+        if streets is not None and stands is not None and config.stub_delay > 0
+        else None
+    )
     n_watched = int(watched.sum())
     # Wall-side cells no wave reaches pull from the nearest cell one does, so that no
     # place of the territory is left without a pull (on real maps a fifth of the cells
@@ -1253,6 +1312,11 @@ def run_patrol(
         r, c = g.world_to_cell(team.x, team.y)
         # Each fog dilated once a step (with the full network, one for the whole team).
         dilated = [dilate(f.tb, config.dilation) for f in own] if config.dilation else None
+        if deep is not None:
+            dilated = [
+                np.where(deep, np.maximum(tb - config.stub_delay, 0.0), tb)
+                for tb in (dilated if dilated is not None else [f.tb for f in own])
+            ]
         tops = [f.mtb() for f in own]
 
         for i in range(len(team)):
@@ -1284,6 +1348,7 @@ def run_patrol(
                         _car_carrot,
                         targets=targets,
                         closed=partial(closed_cells, i, r, c, k, True),
+                        stand=stand,
                     )
                     if tracking
                     else _path_goal,
@@ -1501,6 +1566,7 @@ def run_patrol(
                         config,
                         targets=pulling,
                         closed=partial(closed_cells, i, r, c, k, True),
+                        stand=stand,
                     )
                 )
                 if goals[-1] is not None:
