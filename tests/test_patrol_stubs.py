@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from sonarmap.cli import main
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
@@ -192,3 +196,42 @@ def test_stub_sight_is_for_tracking_cars_seeing_through_walls() -> None:
         PatrolConfig(stub_sight=True)
     with pytest.raises(ConfigError, match="stub_sight"):
         PatrolConfig(model="car", line_of_sight=True, stub_sight=True)
+
+
+def test_stub_delay_is_refused_past_the_mission_and_with_too_little_vision() -> None:
+    with pytest.raises(ConfigError, match="stub_delay must be at most duration") as e:
+        PatrolConfig(model="car", duration=600.0, stub_delay=1e300)
+    assert e.value.field == "stub_delay"
+    PatrolConfig(model="car", duration=600.0, stub_delay=600.0)
+    for kw in ({"stub_sight": True}, {"stub_delay": 120.0}):
+        with pytest.raises(ConfigError, match=r"vision must be >= 1\.0 m") as e:
+            PatrolConfig(model="car", vision=0.8, **kw)  # type: ignore[arg-type]
+        assert e.value.field == "vision"
+    # Without stubs a short sight is a car's own business.
+    PatrolConfig(model="car", vision=0.8)
+
+
+def test_the_cli_takes_a_stub_delay_from_the_command_line_and_a_settings_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    base = ["patrol", "run", "--map", "open-field", "--model", "car", "--robots", "1"]
+    main([*base, "--duration", "2", "--stub-delay", "1.5", "-o", str(tmp_path / "a")])
+    params = json.loads((tmp_path / "a" / "summary.json").read_text())["params"]
+    assert params["stub_delay"] == 1.5
+    (tmp_path / "p.yaml").write_text("duration: 2\nstub_delay: 2\n")
+    main([*base, "--config", str(tmp_path / "p.yaml"), "-o", str(tmp_path / "b")])
+    params = json.loads((tmp_path / "b" / "summary.json").read_text())["params"]
+    assert params["stub_delay"] == 2.0
+    capsys.readouterr()
+    for extra, field in (
+        (["--vision", "0.8", "--stub-sight"], "vision"),
+        (["--vision", "0.8", "--stub-delay", "1"], "vision"),
+        (["--duration", "2", "--stub-delay", "1e300"], "stub-delay"),
+    ):
+        with pytest.raises(SystemExit) as ex:
+            main([*base, *extra, "-o", str(tmp_path / "bad")])
+        assert ex.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1
+        assert field in err[0]
+        assert not (tmp_path / "bad").exists()

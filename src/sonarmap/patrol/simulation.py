@@ -386,6 +386,19 @@ class PatrolConfig:
                 "car_planner 'track', line_of_sight False)",
                 field="stub_delay",
             )
+        if self.stub_delay > self.duration:
+            # A delay past the mission's end never wears off: the place never pulls.
+            raise ConfigError(
+                f"stub_delay must be at most duration ({self.duration} s), got {self.stub_delay}",
+                field="stub_delay",
+            )
+        if (self.stub_sight or self.stub_delay > 0) and self.vision < SIGHT_MARGIN:
+            # Stand points lie within vision less SIGHT_MARGIN of a place.
+            raise ConfigError(
+                f"vision must be >= {SIGHT_MARGIN} m with stub_sight or stub_delay "
+                f"(stand points within vision less {SIGHT_MARGIN} m), got {self.vision}",
+                field="vision",
+            )
         if self.stub_sight and self.line_of_sight:
             # Behind a wall a place within the disc is not in sight: a car standing at
             # the junction might never see it.
@@ -1240,6 +1253,8 @@ def run_patrol(
         if streets is not None and stands is not None and config.stub_delay > 0
         else None
     )
+    if deep is not None and not deep.any():
+        deep = None  # nothing delayed: no per-step copies of the fogs
     n_watched = int(watched.sum())
     # Wall-side cells no wave reaches pull from the nearest cell one does, so that no
     # place of the territory is left without a pull (on real maps a fifth of the cells

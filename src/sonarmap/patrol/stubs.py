@@ -73,7 +73,7 @@ def stand_points(passable: B, watched: B, streets: OneWay, resolution: float, re
     if watched.shape != passable.shape:
         raise ValueError(f"watched cells of {watched.shape}, passable of {passable.shape}")
     if not (np.isfinite(resolution) and resolution > 0 and np.isfinite(reach) and reach >= 0):
-        raise ValueError(f"resolution and reach must be > 0 metres, got {resolution}, {reach}")
+        raise ValueError(f"resolution must be > 0 and reach >= 0 metres, got {resolution}, {reach}")
     stand = np.full(passable.shape, -1, dtype=np.int64)
     stub = stub_cells(passable, streets)
     core = thin(passable) & passable & ~stub
