@@ -205,7 +205,7 @@ def test_stub_delay_is_refused_past_the_mission_and_with_too_little_vision() -> 
     PatrolConfig(model="car", duration=600.0, stub_delay=600.0)
     for kw in ({"stub_sight": True}, {"stub_delay": 120.0}):
         with pytest.raises(ConfigError, match=r"vision must be >= 1\.0 m") as e:
-            PatrolConfig(model="car", vision=0.8, **kw)  # type: ignore[arg-type]
+            PatrolConfig(model="car", vision=0.8, **kw)
         assert e.value.field == "vision"
     # Without stubs a short sight is a car's own business.
     PatrolConfig(model="car", vision=0.8)
@@ -235,3 +235,29 @@ def test_the_cli_takes_a_stub_delay_from_the_command_line_and_a_settings_file(
         assert len(err) == 1
         assert field in err[0]
         assert not (tmp_path / "bad").exists()
+
+
+def _corridor() -> Territory:
+    """A plain 40 x 4 m corridor, walled round: no junction, no dead end off a street."""
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(6 / RES), int(42 / RES)))
+    occ = np.ones(g.shape, np.float32)
+    occ[2:-2, 2:-2] = 0.0
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def test_a_plain_corridor_has_no_stubs_and_a_wide_dead_end_is_none() -> None:
+    t = _corridor()
+    passable = t.passable(1.0)
+    assert passable.sum() > 50
+    streets = one_way(passable, t.clearance, RES, 3.5)
+    assert not stub_cells(passable, streets).any()
+    assert not stub_places(passable, t.free, streets).any()
+    assert (stand_points(passable, t.free, streets, RES, 9.0) == -1).all()
+    # The ring's 4 m stubs are stubs for a 3.5 m turning radius, not for a 1.5 m one
+    # (a car turns round in them): the same bridges, narrower than neither circle.
+    ring = _ring_with_stubs()
+    passable = ring.passable(1.0)
+    tight, loose = (one_way(passable, ring.clearance, RES, r) for r in (3.5, 1.5))
+    assert tight.stubs.sum() == 2
+    assert (tight.bridges == loose.bridges).all()
+    assert not stub_cells(passable, loose).any()

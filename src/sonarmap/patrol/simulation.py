@@ -64,6 +64,7 @@ __all__ = [
     "MODELS",
     "ONCOMING_NEAR",
     "REACH_FIELDS",
+    "SIGHT_MARGIN",
     "PatrolConfig",
     "PatrolResult",
     "halves_discs",
@@ -229,10 +230,11 @@ class PatrolConfig:
     #: same system from the map. Needs ``paths`` 'wave' (the only path-finding that
     #: keeps to the allowed steps). False (the default): every street two-way.
     one_way: bool = False
-    #: Track: a car does not drive into a dead-end stub (a bridge of the street graph,
-    #: :mod:`.oneway`) for a place it can see from the junction the stub opens on: its
-    #: route to a place in a stub within ``vision`` less :data:`SIGHT_MARGIN` of that
-    #: junction's skeleton cell ends there (:func:`~sonarmap.patrol.stubs.stand_points`).
+    #: Track: a car does not drive into a dead-end stub (narrower than the turning
+    #: circle, :attr:`~sonarmap.patrol.oneway.OneWay.stubs`) for a place it can see from
+    #: the junction the stub opens on: its route to a place in a stub within ``vision``
+    #: less :data:`SIGHT_MARGIN` of that junction's skeleton cell ends there
+    #: (:func:`~sonarmap.patrol.stubs.stand_points`).
     #: Needs ``line_of_sight`` False (a place within the disc is then in sight). False
     #: (the default): the route runs to the place.
     stub_sight: bool = False
