@@ -282,3 +282,28 @@ def test_a_plain_corridor_has_no_stubs_and_a_wide_dead_end_is_none() -> None:
     assert tight.stubs.sum() == 2
     assert (tight.bridges == loose.bridges).all()
     assert not stub_cells(passable, loose).any()
+
+
+def test_a_narrow_street_between_two_loops_is_a_bridge_but_no_stub() -> None:
+    # Two 5 m ring streets (blocks 18 x 18 m) joined by a 4 m street 12 m long: the
+    # joining street is a bridge of the street graph with a loop on either side, so a
+    # car that drives in drives out the other end.
+    w, h = 70.0, 30.0
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
+    occ = np.ones(g.shape, np.float32)
+
+    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
+        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
+
+    box(1.0, 1.0, 29.0, 29.0, 0.0)
+    box(6.0, 6.0, 24.0, 24.0, 1.0)
+    box(41.0, 1.0, 69.0, 29.0, 0.0)
+    box(46.0, 6.0, 64.0, 24.0, 1.0)
+    box(29.0, 13.0, 41.0, 17.0, 0.0)
+    t = Territory.from_map(OccupancyMap(g, occ))
+    passable = t.passable(1.0)
+    streets = one_way(passable, t.clearance, RES, 3.5)
+    middle = g.world_to_cell(35.0, 15.0)
+    assert streets.bridges[streets.street[middle]]
+    assert not streets.stubs.any()
+    assert not stub_cells(passable, streets).any()
