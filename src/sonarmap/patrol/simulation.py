@@ -241,8 +241,9 @@ class PatrolConfig:
     #: Track: seconds later than it was that a place in a dead-end stub a car must enter
     #: to see (one without a stand point, :func:`~sonarmap.patrol.stubs.stand_points`)
     #: pulls as if seen: backing out of a stub is a reversing manoeuvre, so such places
-    #: are gone for less often. 0 (the default): they pull as any place. Needs
-    #: ``line_of_sight`` False.
+    #: are gone for less often. 0 (the default): they pull as any place; at most
+    #: ``duration``. Needs ``line_of_sight`` False; with it or ``stub_sight``, ``vision``
+    #: must be at least :data:`SIGHT_MARGIN`.
     stub_delay: float = 0.0
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
