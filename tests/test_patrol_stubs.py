@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
+from sonarmap.cli import main
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
@@ -97,19 +101,39 @@ def test_stand_points_check_their_inputs() -> None:
         stand_points(passable, t.free, streets, RES, float("nan"))
 
 
-def test_a_car_looks_down_a_short_stub_from_the_junction_instead_of_driving_in() -> None:
-    # One car in the west street heading south towards the south street, the short
-    # stub's end unseen: with stub_sight its route never ends in the stub (it goes for
-    # the junction in front of it) and its centre never enters it, yet it sees the
-    # stub's end; without, its route to the stub's end runs into the stub (measured:
-    # on 1 step of 80; the car saw the end from the junction all the same).
-    t = _ring_with_stubs()
+def _thin_ring_with_a_stub() -> Territory:
+    """5 m streets round a 40 x 3 m block (walled round, 60 x 26 m): from the north
+    street a car sees the south street across the block but not the far end of a 4 m
+    wide, 6 m deep dead-end stub cut south from the south street's middle (x 28-32 m)."""
+    w, h = 60.0, 26.0
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
+    occ = np.ones(g.shape, np.float32)
+
+    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
+        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
+
+    box(5.0, 9.0, 55.0, 22.0, 0.0)
+    box(10.0, 14.0, 50.0, 17.0, 1.0)
+    box(28.0, 3.0, 32.0, 9.0, 0.0)
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def test_a_car_looks_down_a_stub_from_the_junction_instead_of_driving_in() -> None:
+    # One car on the north street, 120 s: the stub's far end is the place it most often
+    # has out of sight. Without stub_sight its route runs into the stub whenever it goes
+    # for that end (measured: on 40 steps of 240); with stub_sight the route ends at the
+    # stand point on the south street on every step, the car's centre never enters the
+    # stub, and the stub's end is seen all the same.
+    t = _thin_ring_with_a_stub()
     g = t.grid
     passable = t.passable(1.0)
-    stub = stub_cells(passable, one_way(passable, t.clearance, RES, 3.5))
-    end = g.world_to_cell(12.0, 10.5)
+    streets = one_way(passable, t.clearance, RES, 3.5)
+    stub = stub_cells(passable, streets)
+    end = g.world_to_cell(30.0, 3.5)
+    assert stub.any()
+    assert stand_points(passable, t.free, streets, RES, 9.0)[end] >= 0
 
-    def run(stub_sight: bool) -> tuple[int, int, float]:
+    def run(stub_sight: bool) -> tuple[int, int, float, float]:
         inside = [0, 0]
         seen = [0.0]
 
@@ -125,21 +149,22 @@ def test_a_car_looks_down_a_short_stub_from_the_junction_instead_of_driving_in()
 
         cfg = PatrolConfig(
             model="car",
-            duration=40.0,
+            duration=120.0,
             turn_penalty=10.0,
             out_of_sight=True,
             stub_sight=stub_sight,
         )
-        start = np.array([[2.5, 15.0, -np.pi / 2]])
-        run_patrol(t, cfg, starts=start, seed=0, on_step=keep)
-        return inside[0], inside[1], seen[0]
+        start = np.array([[30.0, 19.5, 0.0]])
+        s = run_patrol(t, cfg, starts=start, seed=0, on_step=keep).summary()
+        return inside[0], inside[1], seen[0], float(s["never_seen"])
 
-    centre_in, route_in, seen = run(True)
+    centre_in, route_in, seen, never = run(True)
     assert centre_in == 0
     assert route_in == 0
     assert seen > 0.0  # the stub's end was seen from the street
-    _, route_in_before, _ = run(False)
-    assert route_in_before > 0
+    assert never == 0.0
+    _, route_in_before, _, _ = run(False)
+    assert route_in_before >= 10
 
 
 def test_a_car_enters_a_deep_stub_less_with_a_stub_delay_and_still_sees_it() -> None:
@@ -192,3 +217,93 @@ def test_stub_sight_is_for_tracking_cars_seeing_through_walls() -> None:
         PatrolConfig(stub_sight=True)
     with pytest.raises(ConfigError, match="stub_sight"):
         PatrolConfig(model="car", line_of_sight=True, stub_sight=True)
+
+
+def test_stub_delay_is_refused_past_the_mission_and_with_too_little_vision() -> None:
+    with pytest.raises(ConfigError, match="stub_delay must be at most duration") as e:
+        PatrolConfig(model="car", duration=600.0, stub_delay=1e300)
+    assert e.value.field == "stub_delay"
+    PatrolConfig(model="car", duration=600.0, stub_delay=600.0)
+    for kw in ({"stub_sight": True}, {"stub_delay": 120.0}):
+        with pytest.raises(ConfigError, match=r"vision must be >= 1\.0 m") as e:
+            PatrolConfig(model="car", vision=0.8, **kw)
+        assert e.value.field == "vision"
+    # Without stubs a short sight is a car's own business.
+    PatrolConfig(model="car", vision=0.8)
+
+
+def test_the_cli_takes_a_stub_delay_from_the_command_line_and_a_settings_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    base = ["patrol", "run", "--map", "open-field", "--model", "car", "--robots", "1"]
+    main([*base, "--duration", "2", "--stub-delay", "1.5", "-o", str(tmp_path / "a")])
+    params = json.loads((tmp_path / "a" / "summary.json").read_text())["params"]
+    assert params["stub_delay"] == 1.5
+    (tmp_path / "p.yaml").write_text("duration: 2\nstub_delay: 2\n")
+    main([*base, "--config", str(tmp_path / "p.yaml"), "-o", str(tmp_path / "b")])
+    params = json.loads((tmp_path / "b" / "summary.json").read_text())["params"]
+    assert params["stub_delay"] == 2.0
+    capsys.readouterr()
+    for extra, field in (
+        (["--vision", "0.8", "--stub-sight"], "vision"),
+        (["--vision", "0.8", "--stub-delay", "1"], "vision"),
+        (["--duration", "2", "--stub-delay", "1e300"], "stub-delay"),
+    ):
+        with pytest.raises(SystemExit) as ex:
+            main([*base, *extra, "-o", str(tmp_path / "bad")])
+        assert ex.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1
+        assert field in err[0]
+        assert not (tmp_path / "bad").exists()
+
+
+def _corridor() -> Territory:
+    """A plain 40 x 4 m corridor, walled round: no junction, no dead end off a street."""
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(6 / RES), int(42 / RES)))
+    occ = np.ones(g.shape, np.float32)
+    occ[2:-2, 2:-2] = 0.0
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def test_a_plain_corridor_has_no_stubs_and_a_wide_dead_end_is_none() -> None:
+    t = _corridor()
+    passable = t.passable(1.0)
+    assert passable.sum() > 50
+    streets = one_way(passable, t.clearance, RES, 3.5)
+    assert not stub_cells(passable, streets).any()
+    assert not stub_places(passable, t.free, streets).any()
+    assert (stand_points(passable, t.free, streets, RES, 9.0) == -1).all()
+    # The ring's 4 m stubs are stubs for a 3.5 m turning radius, not for a 1.5 m one
+    # (a car turns round in them): the same bridges, narrower than neither circle.
+    ring = _ring_with_stubs()
+    passable = ring.passable(1.0)
+    tight, loose = (one_way(passable, ring.clearance, RES, r) for r in (3.5, 1.5))
+    assert tight.stubs.sum() == 2
+    assert (tight.bridges == loose.bridges).all()
+    assert not stub_cells(passable, loose).any()
+
+
+def test_a_narrow_street_between_two_loops_is_a_bridge_but_no_stub() -> None:
+    # Two 5 m ring streets (blocks 18 x 18 m) joined by a 4 m street 12 m long: the
+    # joining street is a bridge of the street graph with a loop on either side, so a
+    # car that drives in drives out the other end.
+    w, h = 70.0, 30.0
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
+    occ = np.ones(g.shape, np.float32)
+
+    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
+        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
+
+    box(1.0, 1.0, 29.0, 29.0, 0.0)
+    box(6.0, 6.0, 24.0, 24.0, 1.0)
+    box(41.0, 1.0, 69.0, 29.0, 0.0)
+    box(46.0, 6.0, 64.0, 24.0, 1.0)
+    box(29.0, 13.0, 41.0, 17.0, 0.0)
+    t = Territory.from_map(OccupancyMap(g, occ))
+    passable = t.passable(1.0)
+    streets = one_way(passable, t.clearance, RES, 3.5)
+    middle = g.world_to_cell(35.0, 15.0)
+    assert streets.bridges[streets.street[middle]]
+    assert not streets.stubs.any()
+    assert not stub_cells(passable, streets).any()

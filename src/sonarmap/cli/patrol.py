@@ -249,6 +249,13 @@ PATROL_OPTIONS = (
         off="--enter-stubs",
     ),
     Opt(
+        "stub_delay",
+        "Tracking cars seeing a disc: seconds later than it was that a place in a "
+        "dead-end stub a car must drive into to see pulls as if seen (at most --duration); "
+        "0: it pulls as any place.",
+        kind=float,
+    ),
+    Opt(
         "speed_bands",
         "Cars' speed rule: 'D:KMH,...', KMH below D metres from the "
         "nearest obstacle, in order; the last D may be inf.",

@@ -148,6 +148,11 @@ class OneWay:
     bridges : ndarray of bool, shape (streets,)
         Which streets are left two-way as bridges of the street graph, and the streets
         not in it (``in_graph`` False), which are left two-way too.
+    stubs : ndarray of bool, shape (streets,)
+        The dead-end stubs: streets of the street graph that are bridges of it with a
+        side holding no cycle of streets (a dead end, which a car that drives in leaves
+        the way it came), narrower than the turning circle (``widths`` below
+        ``2 * turn_radius``), so that a car must reverse to leave.
     in_graph : ndarray of bool, shape (streets,)
         Which streets are edges of the street graph: False for a segment touching no
         junction or three of them.
@@ -164,6 +169,7 @@ class OneWay:
     one_way: B
     widths: F64
     bridges: B
+    stubs: B
     in_graph: B
     two_way: B
 
@@ -223,6 +229,29 @@ def _orient(n_nodes: int, ends: list[tuple[int, int]]) -> tuple[B, B]:
                 seen[v] = True
                 stack.append((v, iter(sorted(incident[v]))))
     return forward, bridge
+
+
+def _dead_ends(n_nodes: int, ends: list[tuple[int, int]], bridge: B) -> B:
+    """Which edges ``ends`` (u, v) of a multigraph over nodes 0..n-1 are bridges
+    (``bridge``) with a dead-end side: without the edge, the part of one of its ends
+    holds no edge that is not a bridge (no cycle: loops and parallel edges are none)."""
+    g = nx.MultiGraph()
+    g.add_nodes_from(range(n_nodes))
+    for k, (u, v) in enumerate(ends):
+        g.add_edge(u, v, key=k)
+    on_cycle = np.zeros(n_nodes, dtype=bool)
+    for k, (u, v) in enumerate(ends):
+        if not bridge[k]:
+            on_cycle[u] = on_cycle[v] = True
+    out = np.zeros(len(ends), dtype=bool)
+    for k in np.flatnonzero(bridge).tolist():
+        u, v = ends[k]
+        g.remove_edge(u, v, key=k)
+        out[k] = any(
+            not on_cycle[sorted(nx.node_connected_component(g, side))].any() for side in (u, v)
+        )
+        g.add_edge(u, v, key=k)
+    return out
 
 
 @nb.njit(cache=True)
@@ -444,10 +473,12 @@ def one_way(
     valid = [k for k, e in enumerate(ends) if e[0] >= 0]
     forward = np.ones(n_segments, dtype=bool)
     bridge = np.ones(n_segments, dtype=bool)
+    dead_end = np.zeros(n_segments, dtype=bool)
     if valid:
         f, b = _orient(n_nodes, [ends[k] for k in valid])
         forward[valid] = f
         bridge[valid] = b
+        dead_end[valid] = _dead_ends(n_nodes, [ends[k] for k in valid], b)
     widths = np.zeros(n_segments)
     for s in range(n_segments):
         widths[s] = 2.0 * float(np.median(clearance[segment == s]))
@@ -534,6 +565,7 @@ def one_way(
         one_way=directed,
         widths=widths,
         bridges=bridge,
+        stubs=dead_end & (widths < 2.0 * turn_radius),
         in_graph=np.array([e[0] >= 0 for e in ends], dtype=bool),
         two_way=free & mask,
     )

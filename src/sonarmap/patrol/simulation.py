@@ -64,6 +64,7 @@ __all__ = [
     "MODELS",
     "ONCOMING_NEAR",
     "REACH_FIELDS",
+    "SIGHT_MARGIN",
     "PatrolConfig",
     "PatrolResult",
     "halves_discs",
@@ -229,18 +230,20 @@ class PatrolConfig:
     #: same system from the map. Needs ``paths`` 'wave' (the only path-finding that
     #: keeps to the allowed steps). False (the default): every street two-way.
     one_way: bool = False
-    #: Track: a car does not drive into a dead-end stub (a bridge of the street graph,
-    #: :mod:`.oneway`) for a place it can see from the junction the stub opens on: its
-    #: route to a place in a stub within ``vision`` less :data:`SIGHT_MARGIN` of that
-    #: junction's skeleton cell ends there (:func:`~sonarmap.patrol.stubs.stand_points`).
+    #: Track: a car does not drive into a dead-end stub (narrower than the turning
+    #: circle, :attr:`~sonarmap.patrol.oneway.OneWay.stubs`) for a place it can see from
+    #: the junction the stub opens on: its route to a place in a stub within ``vision``
+    #: less :data:`SIGHT_MARGIN` of that junction's skeleton cell ends there
+    #: (:func:`~sonarmap.patrol.stubs.stand_points`).
     #: Needs ``line_of_sight`` False (a place within the disc is then in sight). False
     #: (the default): the route runs to the place.
     stub_sight: bool = False
     #: Track: seconds later than it was that a place in a dead-end stub a car must enter
     #: to see (one without a stand point, :func:`~sonarmap.patrol.stubs.stand_points`)
     #: pulls as if seen: backing out of a stub is a reversing manoeuvre, so such places
-    #: are gone for less often. 0 (the default): they pull as any place. Needs
-    #: ``line_of_sight`` False.
+    #: are gone for less often. 0 (the default): they pull as any place; at most
+    #: ``duration``. Needs ``line_of_sight`` False; with it or ``stub_sight``, ``vision``
+    #: must be at least :data:`SIGHT_MARGIN`.
     stub_delay: float = 0.0
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
@@ -385,6 +388,19 @@ class PatrolConfig:
                 "stub_delay applies to tracking cars seeing a disc (model 'car', "
                 "car_planner 'track', line_of_sight False)",
                 field="stub_delay",
+            )
+        if self.stub_delay > self.duration:
+            # A delay past the mission's end never wears off: the place never pulls.
+            raise ConfigError(
+                f"stub_delay must be at most duration ({self.duration} s), got {self.stub_delay}",
+                field="stub_delay",
+            )
+        if (self.stub_sight or self.stub_delay > 0) and self.vision < SIGHT_MARGIN:
+            # Stand points lie within vision less SIGHT_MARGIN of a place.
+            raise ConfigError(
+                f"vision must be >= {SIGHT_MARGIN} m with stub_sight or stub_delay "
+                f"(stand points within vision less {SIGHT_MARGIN} m), got {self.vision}",
+                field="vision",
             )
         if self.stub_sight and self.line_of_sight:
             # Behind a wall a place within the disc is not in sight: a car standing at
@@ -1240,6 +1256,8 @@ def run_patrol(
         if streets is not None and stands is not None and config.stub_delay > 0
         else None
     )
+    if deep is not None and not deep.any():
+        deep = None  # nothing delayed: no per-step copies of the fogs
     n_watched = int(watched.sum())
     # Wall-side cells no wave reaches pull from the nearest cell one does, so that no
     # place of the territory is left without a pull (on real maps a fifth of the cells

@@ -1,7 +1,9 @@
 """Dead-end stubs seen from the street: where a car stands to see a place in a stub.
 
-A dead-end stub (a bridge of the street graph, :mod:`.oneway`) narrower than a car's
-turning circle is one a car that drives in must back out of. A real patrol does not
+A dead-end stub (:attr:`~sonarmap.patrol.oneway.OneWay.stubs`: a bridge of the street
+graph with a side holding no cycle of streets, narrower than a car's turning circle) is
+one a car that drives in must back out of; a street with no junction (a plain corridor)
+or a bridge between two loops of streets is none. A real patrol does not
 drive into a cul-de-sac whose end it sees from the junction: it looks down it in
 passing. So a place in a stub has a *stand point*: the skeleton cell of the streets it
 leaves from (the graph's other streets and junctions) nearest it along the passable
@@ -30,19 +32,54 @@ I64 = npt.NDArray[np.int64]
 
 
 def stub_cells(passable: B, streets: OneWay) -> B:
-    """The passable cells of the dead-end stubs: cells of streets that are bridges of
-    the street graph (:attr:`OneWay.bridges`)."""
+    """The passable cells of the dead-end stubs (:attr:`OneWay.stubs`).
+
+    Parameters
+    ----------
+    passable : ndarray of bool, shape grid
+        Cells a car's centre may occupy.
+    streets : OneWay
+        The street system of ``passable`` (:func:`~sonarmap.patrol.oneway.one_way`).
+
+    Returns
+    -------
+    ndarray of bool, shape grid
+        The passable cells whose street is a stub.
+
+    Raises
+    ------
+    ValueError
+        If ``passable`` and the streets' grid differ in shape.
+    """
     if passable.shape != streets.street.shape:
         raise ValueError(f"passable cells of {passable.shape}, streets of {streets.street.shape}")
     on = streets.street >= 0
     out = np.zeros(passable.shape, dtype=bool)
-    out[on] = streets.bridges[streets.street[on]]
+    out[on] = streets.stubs[streets.street[on]]
     return out & passable
 
 
 def stub_places(passable: B, watched: B, streets: OneWay) -> B:
     """The watched places in the dead-end stubs: those whose nearest passable cell (their
-    own, or the one beside their wall) is a stub cell (:func:`stub_cells`)."""
+    own, or the one beside their wall) is a stub cell (:func:`stub_cells`).
+
+    Parameters
+    ----------
+    passable, watched : ndarray of bool, shape grid
+        Cells a car's centre may occupy; places to be seen.
+    streets : OneWay
+        The street system of ``passable`` (:func:`~sonarmap.patrol.oneway.one_way`).
+
+    Returns
+    -------
+    ndarray of bool, shape grid
+        The watched places in stubs.
+
+    Raises
+    ------
+    ValueError
+        If ``watched``, ``passable`` and the streets' grid differ in shape.
+    """
     if watched.shape != passable.shape:
         raise ValueError(f"watched cells of {watched.shape}, passable of {passable.shape}")
     stub = stub_cells(passable, streets)
@@ -68,12 +105,23 @@ def stand_points(passable: B, watched: B, streets: OneWay, resolution: float, re
         Cell side, metres.
     reach : float
         How far from its stand point a place may lie, metres (a car's vision less a
-        margin).
+        margin), >= 0.
+
+    Returns
+    -------
+    ndarray of int64, shape grid
+        Flat index of each place's stand point, -1 where it has none.
+
+    Raises
+    ------
+    ValueError
+        If ``watched``, ``passable`` and the streets' grid differ in shape, or
+        ``resolution`` is not > 0 or ``reach`` not >= 0 (or either not finite).
     """
     if watched.shape != passable.shape:
         raise ValueError(f"watched cells of {watched.shape}, passable of {passable.shape}")
     if not (np.isfinite(resolution) and resolution > 0 and np.isfinite(reach) and reach >= 0):
-        raise ValueError(f"resolution and reach must be > 0 metres, got {resolution}, {reach}")
+        raise ValueError(f"resolution must be > 0 and reach >= 0 metres, got {resolution}, {reach}")
     stand = np.full(passable.shape, -1, dtype=np.int64)
     stub = stub_cells(passable, streets)
     core = thin(passable) & passable & ~stub
