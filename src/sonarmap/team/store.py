@@ -969,6 +969,36 @@ class RobotStore:
         self._update_stamps(closures)
         self._note_peak()
 
+    def add_peer_closures(self, closures: Iterable[ClosureEdge]) -> tuple[int, int, int]:
+        """Closures another robot found, as they arrive with its poses
+        (:mod:`.peerclosures`): each is stored if the store holds both its poses and no
+        closure already joins them, in either direction, so that a closure received
+        twice, found here too or sent back is one factor. Time stamps and reliabilities
+        do not change (a peer's closure carries no landmark matches).
+
+        Returns
+        -------
+        (added, duplicates, unheld) : tuple of int
+            Closures stored; refused as joining a pair already joined; refused as naming
+            a pose the store does not hold.
+        """
+        held = set(self.local.poses).union(*(ly.poses for ly in self.received.values()))
+        joined = {frozenset((c.a, c.b)) for c in self.closures}
+        added = duplicates = unheld = 0
+        for c in closures:
+            pair = frozenset((c.a, c.b))
+            if c.a == c.b or not pair <= held:
+                unheld += 1
+            elif pair in joined:
+                duplicates += 1
+            else:
+                self.closures.append(c)
+                joined.add(pair)
+                added += 1
+        if added:
+            self._note_peak()
+        return added, duplicates, unheld
+
     def remove_received_pose(self, source: int, uid: int) -> Pose:
         """Remove a pose of received layer ``source`` (the exchange: its source no longer
         has it) with the odometry edges and the closures touching it. The patch keeps its
