@@ -137,10 +137,11 @@ class StoreParams:
         2.3.2). N > 0: besides, two own poses merge as soon as a closure joins them with
         at least N inliers and the other merge conditions hold (``merge_radius``,
         ``merge_max_std``, ``merge_max_angle_std``, one region, neither the newest).
-        The closure store is never exchanged, so another robot holding the two poses
-        sees the loop only if it finds the closure again from their landmarks; a merge
-        puts the loop into the local layer itself, which is exchanged (the edges of
-        both poses now meet at the merged one).
+        Without ``ExchangeParams.send_closures`` the closure store is never exchanged,
+        so another robot holding the two poses sees the loop only if it finds the
+        closure again from their landmarks; a merge puts the loop into the local layer
+        itself, which is exchanged (the edges of both poses now meet at the merged
+        one).
     fold : bool
         When compression deletes a pose, add its local map to that of its nearest
         odometry neighbour in the local layer (:meth:`RobotStore.fold_target`), resampled
@@ -768,8 +769,9 @@ class RobotStore:
     received : dict of int to Layer
         By source robot; changed only in landmark time stamps (and by the exchange).
     closures : list of ClosureEdge
-        Never exchanged. Their ``matches`` follow the poses' landmarks through
-        compression and merging.
+        The closures this robot found, and those peers sent with their poses
+        (:meth:`add_peer_closures`; those carry no matches). Their ``matches`` follow
+        the poses' landmarks through compression and merging.
     peak_bytes, peak_local_bytes : int
         The largest :meth:`bytes` and ``local.bytes()`` seen, measured once a new pose
         is compressed (step 5) and before its region is, and again after.
