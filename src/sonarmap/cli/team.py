@@ -246,7 +246,9 @@ EXCHANGE_OPTIONS = (
     Opt(
         "send_closures",
         "Answers carry the answerer's loop closures that touch the poses sent "
-        "(compact, checked on receipt; the thesis keeps closures private).",
+        "(compact, checked on receipt; the thesis keeps closures private; "
+        "--no-send-closures: the thesis's private closure store).",
+        off="--no-send-closures",
     ),
 )
 #: Options that set :class:`~sonarmap.team.store.StoreParams`.

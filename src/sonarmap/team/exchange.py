@@ -276,8 +276,9 @@ class ExchangeParams:
 #: The lean exchange (``team run --lean``, with the store's ``fold`` and
 #: :data:`LEAN_MERGE_ON_CLOSURE`): landmarks on every 12th pose and while under 15 % of
 #: the naive baseline's bytes, poses offered once 30 s old, 3-bit descriptors, ternary
-#: maps, adverts every 10 s (whole every 60 s). How it was chosen on training plans and
-#: how it does on held-out ones: the team results pages of the docs.
+#: maps, adverts every 10 s (whole every 60 s), the answerer's closures with the poses
+#: they touch (``send_closures``). How it was chosen on training plans and how it does
+#: on held-out ones: the team results pages of the docs.
 LEAN = ExchangeParams(
     advert_every=10.0,
     full_advert_every=60.0,
@@ -286,6 +287,7 @@ LEAN = ExchangeParams(
     hold=30.0,
     descriptor_bits=3,
     ternary_maps=True,
+    send_closures=True,
 )
 #: The store's ``merge_on_closure`` with :data:`LEAN`: own poses merge at closures of 8 or
 #: more inliers, so that receivers, which hold most poses bare, get the robot's loops as
