@@ -7,7 +7,8 @@ and reaches the decoders. It sends ``--frames`` frames drawn from a seeded gener
 maps re-encoded with fields swapped or retyped, bad versions, headers declaring huge
 sizes, a compression bomb, multi-part and spoofed envelopes, forged ``hello`` claims,
 and exchanger bodies mutated alike inside well-formed numbered frames (these reach the
-exchanger's decoder). Then it ends the mission honestly: a ``done`` marker for every
+exchanger's decoder; half the answers carry a closure,
+:mod:`sonarmap.team.peerclosures`). Then it ends the mission honestly: a ``done`` marker for every
 tick and a ``bye``, sending again what the node asks for. The node must exit 0 within
 the time limit, having counted the rejections in its summary, with bounded peak RSS.
 
@@ -44,7 +45,8 @@ from sonarmap.team.keys import TeamKey, make_team_key, read_team_key
 from sonarmap.team.launcher import KEY_FILE, node_args
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.node import SUMMARY_FILE, LockstepParams
-from sonarmap.team.records import Landmarks, Pose, encode, make_uid
+from sonarmap.team.peerclosures import encode_closures
+from sonarmap.team.records import ClosureEdge, Landmarks, Pose, encode, make_uid
 from sonarmap.team.transport import ZmqTransport, encode_envelope
 from sonarmap.team.wire import KINDS, PRESET_DICTIONARY, VERSION, pack
 
@@ -64,6 +66,13 @@ def _answer(rng: np.random.Generator) -> bytes:
     pose = encode(Pose(uid, float(rng.random()), 0, np.zeros(3), Landmarks.empty()))
     row = {"src": 1, "r": 0, "s": 1.0, "short": [uid], "full": None}
     row |= {"poses": [pose], "edges": []}
+    if rng.random() < 0.5:
+        # A closure from the pose sent to one of the node's own, so that mutations
+        # reach the closures' decoder too.
+        tf = tuple(float(v) for v in rng.normal(0.0, 1.0, 3))
+        other = make_uid(0, int(rng.integers(0, 1000)))
+        cov = (1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-5)
+        row["c"] = encode_closures([ClosureEdge(uid, other, (tf[0], tf[1], tf[2]), cov, 9, 0.1)])
     return _pack({"v": VERSION, "id": int(rng.integers(0, 9)), "mode": "good", "patches": [row]})
 
 

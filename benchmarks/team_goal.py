@@ -11,7 +11,8 @@ Usage::
 
     python -m benchmarks.team_goal --plan building:8 --robots 3 --seeds 0 1 2 [--lean]
         [--anchors K] [--loop-anchors] [--anchor-share S] [--hold S] [--descriptor-bits B]
-        [--ternary-maps] [--fold] [--merge-on-closure N] [--duration 300] [--jobs 2] [--json FILE]
+        [--ternary-maps] [--fold] [--merge-on-closure N] [--send-closures yes|no]
+        [--duration 300] [--jobs 2] [--json FILE]
 
 Prints one line per seed (F1, central, gap, share, holds) and the means.
 """
@@ -22,7 +23,7 @@ import argparse
 import json
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from typing import Any
 
 import numpy as np
@@ -115,6 +116,12 @@ def main() -> None:
         help="Merge two own poses at every closure with >= N inliers (0: off; default 0, "
         "or exchange.LEAN_MERGE_ON_CLOSURE with --lean).",
     )
+    parser.add_argument(
+        "--send-closures",
+        choices=("yes", "no"),
+        default=None,
+        help="ExchangeParams.send_closures over the setting's own (default: the setting's).",
+    )
     parser.add_argument("--jobs", type=int, default=2, help="Seeds at once (processes).")
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
     args = parser.parse_args()
@@ -123,6 +130,8 @@ def main() -> None:
     plan_by_name(args.plan)  # a bad --plan fails before any run
     try:
         ex, store = _setting(args)
+        if args.send_closures is not None:
+            ex = replace(ex, send_closures=args.send_closures == "yes")
     except ConfigError as e:
         raise SystemExit(f"team_goal: {e}") from None
     todo = [(args.plan, args.robots, args.duration, s, ex, store) for s in args.seeds]

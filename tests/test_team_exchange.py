@@ -702,6 +702,76 @@ def _request_body(drop: Sequence[str] = (), **changes: Any) -> bytes:
     return pack({**d, "patches": [row]})
 
 
+#: A travelling closure's covariance (peerclosures' layout: xx, xy, xt, yy, yt, tt).
+CLOSURE_COV = struct.pack("<6f", 1e-4, 0.0, 0.0, 1e-4, 0.0, 1e-5)
+
+
+def _closure_row(**changes: Any) -> list[Any]:
+    """A valid travelling closure from B's pose 0 (sent) to A's own pose 0, changed."""
+    row = {
+        "a": make_uid(1, 0),
+        "b": make_uid(0, 0),
+        "x": 500,
+        "y": -20,
+        "t": 100,
+        "cov": CLOSURE_COV,
+        "inliers": 12,
+    }
+    row.update(changes)
+    return list(row.values())
+
+
+def _bad_closure_bodies(rid: int, entry: dict[str, Any]) -> dict[str, tuple[str, bytes, str]]:
+    """A peer's bad or forged closures riding on a good entry: name -> (kind, body,
+    reason)."""
+
+    def body(rows: Any) -> bytes:
+        return _answer(rid, {**entry, "c": rows})
+
+    nan_cov = struct.pack("<6f", math.nan, 0.0, 0.0, 1e-4, 0.0, 1e-5)
+    indefinite = struct.pack("<6f", 1e-4, 1.0, 0.0, 1e-4, 0.0, 1e-5)
+    return {
+        "closures not a list": ("answer", body({"a": 1}), "type"),
+        "closure short": ("answer", body([_closure_row()[:6]]), "type"),
+        "closure covariance nan": ("answer", body([_closure_row(cov=nan_cov)]), "range"),
+        "closure covariance not definite": (
+            "answer",
+            body([_closure_row(cov=indefinite)]),
+            "range",
+        ),
+        "closure covariance tiny": (
+            "answer",
+            body([_closure_row(cov=struct.pack("<6f", 1e-20, 0, 0, 1e-20, 0, 1e-20))]),
+            "range",
+        ),
+        "closure covariance as list": ("answer", body([_closure_row(cov=[1e-4] * 6)]), "type"),
+        "closure covariance cut": ("answer", body([_closure_row(cov=CLOSURE_COV[:20])]), "range"),
+        "closure touching no pose sent": (
+            "answer",
+            body([_closure_row(a=make_uid(1, 2), b=make_uid(0, 0))]),
+            "inconsistent",
+        ),
+        "closure to itself": (
+            "answer",
+            body([_closure_row(b=make_uid(1, 0))]),
+            "inconsistent",
+        ),
+        "closure uid past 2^63": ("answer", body([_closure_row(b=2**64 - 1)]), "range"),
+        "closure 10 km long": ("answer", body([_closure_row(x=10**7)]), "range"),
+        "closure 150 m long": ("answer", body([_closure_row(x=100_000, y=100_000)]), "range"),
+        "closure turn past pi": ("answer", body([_closure_row(t=40_000)]), "range"),
+        "closure x as float": ("answer", body([_closure_row(x=0.5)]), "type"),
+        "closure a as bool": ("answer", body([_closure_row(a=True)]), "type"),
+        "closure inliers negative": ("answer", body([_closure_row(inliers=-1)]), "range"),
+        "closure pair twice": (
+            "answer",
+            body([_closure_row(), _closure_row(a=make_uid(0, 0), b=make_uid(1, 0))]),
+            "duplicate",
+        ),
+        "closures oversized": ("answer", body([_closure_row()] * 129), "oversized"),
+    }
+
+
 def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
     """name -> (kind, body, reason)."""
     good = _answer(rid, _good_entry(b, [0, 1]))
@@ -837,6 +907,59 @@ def test_bad_bodies_are_rejected_counted_logged_and_change_nothing(
     assert uids(a.received[1]) == {make_uid(1, 0), make_uid(1, 1)}
     assert not ex.outstanding
     check_consistent(a)
+
+
+def test_bad_closures_are_rejected_counted_logged_and_change_nothing(
+    asking: tuple[Exchanger, SimTransport, RobotStore, int], caplog: pytest.LogCaptureFixture
+) -> None:
+    ex, tb, b, rid = asking
+    a = ex.store
+    bad = _bad_closure_bodies(rid, _good_entry(b, [0, 1]))
+    before = snapshot(a)
+    expected: dict[str, int] = defaultdict(int)
+    with caplog.at_level(logging.WARNING, logger=LOGGER):
+        for name, (kind, body, reason) in bad.items():
+            assert tb.send(0, body, kind=kind), name
+            expected[reason] += 1
+            ex.step(ex.now)
+            assert ex.stats.rejected == expected, name
+            assert snapshot(a) == before, name
+    records = [r for r in caplog.records if r.name == LOGGER]
+    assert len(records) == len(bad)
+    assert all(".c[" in r.getMessage() or ".c:" in r.getMessage() for r in records)
+    assert ex.outstanding
+    # The real answer, with a good closure, is still taken afterwards.
+    tb.send(0, _answer(rid, {**_good_entry(b, [0, 1]), "c": [_closure_row()]}), kind="answer")
+    ex.step(ex.now)
+    assert uids(a.received[1]) == {make_uid(1, 0), make_uid(1, 1)}
+    assert len(a.closures) == 1
+    check_consistent(a)
+
+
+def test_a_peers_closure_is_taken_once_whichever_way_and_however_often_it_comes(
+    asking: tuple[Exchanger, SimTransport, RobotStore, int],
+) -> None:
+    ex, tb, b, rid = asking
+    a = ex.store
+    entry = _good_entry(b, [0, 1])
+    # A closure to A's own pose, and one to a pose of robot 2 that A does not hold.
+    rows = [_closure_row(), _closure_row(b=make_uid(2, 9))]
+    tb.send(0, _answer(rid, {**entry, "c": rows}), kind="answer")
+    ex.step(ex.now)
+    assert not ex.stats.rejected
+    (got,) = a.closures
+    assert (got.a, got.b, got.inliers, got.matches) == (make_uid(1, 0), make_uid(0, 0), 12, ())
+    assert got.transform == pytest.approx((0.5, -0.02, 0.01))
+    assert got.cov() == pytest.approx(np.diag([1e-4, 1e-4, 1e-5]), rel=1e-6)
+    assert (ex.stats.closures_received, ex.stats.closures_added) == (2, 1)
+    assert ex.stats.closures_unheld == 1
+    check_consistent(a)
+    # The same closure again, and the other way round (as the receiver would find it
+    # itself, or a peer would send it back): one factor still.
+    back = ClosureEdge(got.b, got.a, (-0.5, 0.02, -0.01), got.covariance, 9, 0.1)
+    before = snapshot(a)
+    assert a.add_peer_closures([got, back]) == (0, 2, 0)
+    assert snapshot(a) == before
 
 
 def test_decoders_raise_an_input_error_with_the_reason() -> None:
@@ -1197,3 +1320,23 @@ def test_bodies_are_compressed_with_the_preset_dictionary() -> None:
     with pytest.raises(zstandard.ZstdError):
         zstandard.ZstdDecompressor().decompress(body)  # a reader without the dictionary
     assert decode_advert(plain) == decode_advert(body) == advert
+
+
+@pytest.mark.parametrize("mode", ["good", "limited"])
+@pytest.mark.parametrize("send", [True, False])
+def test_a_sources_closures_travel_with_its_poses_only_when_asked(mode: str, send: bool) -> None:
+    a, c = own_store(0, [0, 1]), own_store(2, [1])
+    b = own_store(1, [0, 0, 1, 0])
+    loop = ClosureEdge(make_uid(1, 0), make_uid(1, 3), (3.0, 0.0, 0.0), COV, 15, 0.2)
+    b.closures.append(loop)
+    team = Team([a, b, c], mode=mode, cap_bytes=10**6, send_closures=send)
+    team.run(12)
+    assert converged(team)
+    for s in (a, c):
+        check_consistent(s)
+        got = [x for x in s.closures if {x.a, x.b} == {loop.a, loop.b}]
+        assert len(got) == (1 if send else 0)  # one factor, though relays may send it too
+        if send:
+            assert got[0].transform == pytest.approx(loop.transform, abs=1e-3)
+    assert (team.ex[1].stats.closures_sent > 0) == send
+    assert sum(e.stats.closures_added for e in team.ex) == (2 if send else 0)

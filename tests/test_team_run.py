@@ -72,6 +72,7 @@ def test_a_team_runs_the_lean_exchange_by_default(tmp_path: Path, plan: Occupanc
     assert (ex["anchor_every"], ex["anchor_share"], ex["hold"]) == (12, 0.15, 30.0)
     assert (ex["descriptor_bits"], ex["ternary_maps"]) == (3, True)
     assert (ex["advert_every"], ex["full_advert_every"]) == (10.0, 60.0)
+    assert ex["send_closures"] is True
     assert s["robots"][0]["parameters"]["store"]["merge_on_closure"] == 8
     assert s["duplicate_poses"] == 0
     assert s["identical_maps"] is True  # everything is published when the routes end
@@ -82,12 +83,13 @@ def test_a_team_runs_the_lean_exchange_by_default(tmp_path: Path, plan: Occupanc
     ("args", "preset", "want"),
     [
         # The thesis's settings, by name.
-        (["--preset", "classic"], "classic", (1, 0.0, 0.0, 8, False, 0, False)),
+        (["--preset", "classic"], "classic", (1, 0.0, 0.0, 8, False, 0, False, False)),
         # Options given under the default preset win over it; the rest stays lean.
-        (["--anchors", "4", "--no-fold"], "lean", (4, 0.15, 30.0, 3, True, 8, False)),
+        (["--anchors", "4", "--no-fold"], "lean", (4, 0.15, 30.0, 3, True, 8, False, True)),
+        (["--no-send-closures"], "lean", (12, 0.15, 30.0, 3, True, 8, True, False)),
         # One robot and the naive baseline get no preset unless they name one: the
         # exchange's and the store's defaults (the store folds by default).
-        (["--exchange", "naive"], None, (1, 0.0, 0.0, 8, False, 0, True)),
+        (["--exchange", "naive"], None, (1, 0.0, 0.0, 8, False, 0, True, False)),
     ],
 )
 def test_presets_and_the_options_given_under_them(
@@ -104,7 +106,8 @@ def test_presets_and_the_options_given_under_them(
     s = json.loads((out / "summary.json").read_text())
     ex, store = s["exchange"], s["robots"][0]["parameters"]["store"]
     got = (ex["anchor_every"], ex["anchor_share"], ex["hold"], ex["descriptor_bits"],
-           ex["ternary_maps"], store["merge_on_closure"], store["fold"])  # fmt: skip
+           ex["ternary_maps"], store["merge_on_closure"], store["fold"],
+           ex["send_closures"])  # fmt: skip
     assert s["preset"] == preset
     assert got == want
 
@@ -127,6 +130,7 @@ def test_presets_and_the_options_given_under_them(
         (["--lean", "--fold"], "--lean"),
         (["--lean", "--anchors", "1"], "--anchors"),  # a default given is still given
         (["--lean", "--loop-anchors"], "--loop-anchors"),
+        (["--lean", "--no-send-closures"], "drop --send-closures"),
         (["--lean", "--merge-on-closure", "0"], "--merge-on-closure"),
         (["--merge-on-closure", "-1"], "--merge-on-closure"),
         (

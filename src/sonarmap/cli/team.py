@@ -243,6 +243,13 @@ EXCHANGE_OPTIONS = (
         "Local maps travel as free / occupied / unknown, each class at its "
         "mean log-odds in that map.",
     ),
+    Opt(
+        "send_closures",
+        "Answers carry the answerer's loop closures that touch the poses sent "
+        "(compact, checked on receipt; the thesis keeps closures private; "
+        "--no-send-closures: the thesis's private closure store).",
+        off="--no-send-closures",
+    ),
 )
 #: Options that set :class:`~sonarmap.team.store.StoreParams`.
 STORE_OPTIONS = (

@@ -76,8 +76,9 @@ from typing import Any
 
 from ..errors import ConfigError, InputError
 from .outgoing import OutgoingPolicy
+from .peerclosures import closures_to_send, encode_closures
 from .quantise import check_quantisation
-from .records import ClosureEdge, OdometryEdge, Pose, encode, size_of
+from .records import ClosureEdge, OdometryEdge, Pose, encode, robot_of, size_of
 from .rejects import RejectLog
 from .store import Layer, Patch, RobotStore, compress_for_sending
 from .transport import Message, SimTransport, Transport, ZmqTransport
@@ -198,6 +199,10 @@ class ExchangeParams:
     ternary_maps : bool
         Local maps travel as free, occupied and unknown, each class at its mean
         log-odds in that map (:func:`.quantise.ternary_logodds`). Default False.
+    send_closures : bool
+        Answers carry the answerer's loop closures that touch the poses sent, in a
+        compact form (:mod:`.peerclosures`; the thesis keeps closures private). A robot
+        takes the closures it receives whatever its own setting. Default False.
     """
 
     mode: str = "good"
@@ -218,6 +223,7 @@ class ExchangeParams:
     hold: float = 0.0
     descriptor_bits: int = 8
     ternary_maps: bool = False
+    send_closures: bool = False
 
     def __post_init__(self) -> None:
         if self.mode not in PROTOCOLS:
@@ -226,7 +232,7 @@ class ExchangeParams:
                 field="mode",
             )
         for f in fields(self):
-            if f.name in ("mode", "ternary_maps", "loop_anchors"):
+            if f.name in ("mode", "ternary_maps", "loop_anchors", "send_closures"):
                 continue
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -253,11 +259,12 @@ class ExchangeParams:
                 "exchange: anchor_share needs anchor_every > 1 (with 1 every pose travels whole)",
                 field="anchor_share",
             )
-        if not isinstance(self.loop_anchors, bool):
-            raise ConfigError(
-                f"exchange: loop_anchors must be true or false, got {self.loop_anchors!r}",
-                field="loop_anchors",
-            )
+        for name in ("loop_anchors", "send_closures"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(
+                    f"exchange: {name} must be true or false, got {getattr(self, name)!r}",
+                    field=name,
+                )
         if self.peer_timeout < self.advert_every:
             raise ConfigError(
                 f"exchange: peer_timeout {self.peer_timeout} s is below advert_every "
@@ -269,8 +276,9 @@ class ExchangeParams:
 #: The lean exchange (``team run --lean``, with the store's ``fold`` and
 #: :data:`LEAN_MERGE_ON_CLOSURE`): landmarks on every 12th pose and while under 15 % of
 #: the naive baseline's bytes, poses offered once 30 s old, 3-bit descriptors, ternary
-#: maps, adverts every 10 s (whole every 60 s). How it was chosen on training plans and
-#: how it does on held-out ones: the team results pages of the docs.
+#: maps, adverts every 10 s (whole every 60 s), the answerer's closures with the poses
+#: they touch (``send_closures``). How it was chosen on training plans and how it does
+#: on held-out ones: the team results pages of the docs.
 LEAN = ExchangeParams(
     advert_every=10.0,
     full_advert_every=60.0,
@@ -279,6 +287,7 @@ LEAN = ExchangeParams(
     hold=30.0,
     descriptor_bits=3,
     ternary_maps=True,
+    send_closures=True,
 )
 #: The store's ``merge_on_closure`` with :data:`LEAN`: own poses merge at closures of 8 or
 #: more inliers, so that receivers, which hold most poses bare, get the robot's loops as
@@ -309,6 +318,15 @@ class ExchangeStats:
         Adverts ignored because one sent later had already arrived.
     refused : int
         Messages the transport would not take (no route, too large, closed).
+    closures_sent : int
+        Closures in the answers sent (``send_closures``).
+    closures_received : int
+        Closures in the valid answers received.
+    closures_added : int
+        Of those, the ones the store took (:meth:`.store.RobotStore.add_peer_closures`).
+    closures_duplicate, closures_unheld : int
+        Of those, the ones refused as joining two poses already joined (either
+        direction) and as naming a pose the store does not hold.
     rejected : Counter
         Messages rejected, by reason (``"truncated"``, ``"type"``, ``"unsolicited"``...).
     bytes_by_kind : Counter
@@ -329,6 +347,11 @@ class ExchangeStats:
     stale: int = 0
     stale_adverts: int = 0
     refused: int = 0
+    closures_sent: int = 0
+    closures_received: int = 0
+    closures_added: int = 0
+    closures_duplicate: int = 0
+    closures_unheld: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     bytes_by_kind: Counter[str] = field(default_factory=Counter)
 
@@ -424,6 +447,7 @@ class _Out:
     row: dict[str, Any]
     size: int
     poses: int
+    closures: int = 0
 
 
 def check_pair(store: RobotStore, transport: Transport) -> None:
@@ -976,7 +1000,7 @@ class Exchanger:
     ) -> _Out:
         poses = [encode(self.outgoing.wire(layer.poses[u])) for u in send]
         edges = self._edges_for(layer, p, send)
-        row = {
+        row: dict[str, Any] = {
             "src": p.source,
             "r": p.region,
             "s": stamp_or_none(stamp),
@@ -985,7 +1009,25 @@ class Exchanger:
             "poses": poses,
             "edges": [encode(e) for e in edges],
         }
-        return _Out(row, len(pack(row)), len(poses))
+        closures = self._closures_for(layer, p, send) if self.params.send_closures else []
+        if closures:
+            row["c"] = encode_closures(closures)
+        return _Out(row, len(pack(row)), len(poses), len(closures))
+
+    def _closures_for(
+        self, layer: Layer, p: PatchRequest, send: Collection[int]
+    ) -> list[ClosureEdge]:
+        """Our closures that go with the poses ``send`` of patch ``p``
+        (:func:`.peerclosures.closures_to_send`): the requester lacks a pose of the patch
+        its short list does not name, and an own pose we have not offered yet."""
+        poses, offered = layer.poses, self.outgoing.offered.poses
+
+        def may_hold(u: int) -> bool:
+            if u in poses and poses[u].region == p.region:
+                return u in p.short
+            return robot_of(u) != self.robot or u in offered
+
+        return closures_to_send(self.store.closures, set(send), may_hold)
 
     @staticmethod
     def _edges_for(layer: Layer, p: PatchRequest, send: Collection[int]) -> list[OdometryEdge]:
@@ -1129,6 +1171,7 @@ class Exchanger:
             )
             if self._send(peer, "answer", body):
                 self.stats.poses_sent += sum(o.poses for o in batch)
+                self.stats.closures_sent += sum(o.closures for o in batch)
 
     # --- taking answers ------------------------------------------------------------------
 
@@ -1190,7 +1233,7 @@ class Exchanger:
             self.stats.stale += 1
             if self.params.mode == "good":
                 return False
-            e = PatchAnswer(e.source, e.region, None, None, None, e.poses, e.edges)
+            e = PatchAnswer(e.source, e.region, None, None, None, e.poses, e.edges, e.closures)
             listed = None
         if e.stamp is None and (patch is None or not patch.full):
             return False  # poses offered against a full list we do not have
@@ -1224,6 +1267,12 @@ class Exchanger:
             if x.a in layer.poses and x.b in layer.poses and x not in layer.edges:
                 layer.add_edge(x)
                 changed = True
+        if e.closures:
+            added, duplicate, unheld = self.store.add_peer_closures(e.closures)
+            self.stats.closures_received += len(e.closures)
+            self.stats.closures_added += added
+            self.stats.closures_duplicate += duplicate
+            self.stats.closures_unheld += unheld
         return changed
 
     # --- state ---------------------------------------------------------------------------

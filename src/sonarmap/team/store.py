@@ -137,10 +137,11 @@ class StoreParams:
         2.3.2). N > 0: besides, two own poses merge as soon as a closure joins them with
         at least N inliers and the other merge conditions hold (``merge_radius``,
         ``merge_max_std``, ``merge_max_angle_std``, one region, neither the newest).
-        The closure store is never exchanged, so another robot holding the two poses
-        sees the loop only if it finds the closure again from their landmarks; a merge
-        puts the loop into the local layer itself, which is exchanged (the edges of
-        both poses now meet at the merged one).
+        Without ``ExchangeParams.send_closures`` the closure store is never exchanged,
+        so another robot holding the two poses sees the loop only if it finds the
+        closure again from their landmarks; a merge puts the loop into the local layer
+        itself, which is exchanged (the edges of both poses now meet at the merged
+        one).
     fold : bool
         When compression deletes a pose, add its local map to that of its nearest
         odometry neighbour in the local layer (:meth:`RobotStore.fold_target`), resampled
@@ -768,8 +769,9 @@ class RobotStore:
     received : dict of int to Layer
         By source robot; changed only in landmark time stamps (and by the exchange).
     closures : list of ClosureEdge
-        Never exchanged. Their ``matches`` follow the poses' landmarks through
-        compression and merging.
+        The closures this robot found, and those peers sent with their poses
+        (:meth:`add_peer_closures`; those carry no matches). Their ``matches`` follow
+        the poses' landmarks through compression and merging.
     peak_bytes, peak_local_bytes : int
         The largest :meth:`bytes` and ``local.bytes()`` seen, measured once a new pose
         is compressed (step 5) and before its region is, and again after.
@@ -968,6 +970,36 @@ class RobotStore:
         self.closures.extend(closures)
         self._update_stamps(closures)
         self._note_peak()
+
+    def add_peer_closures(self, closures: Iterable[ClosureEdge]) -> tuple[int, int, int]:
+        """Closures another robot found, as they arrive with its poses
+        (:mod:`.peerclosures`): each is stored if the store holds both its poses and no
+        closure already joins them, in either direction, so that a closure received
+        twice, found here too or sent back is one factor. Time stamps and reliabilities
+        do not change (a peer's closure carries no landmark matches).
+
+        Returns
+        -------
+        (added, duplicates, unheld) : tuple of int
+            Closures stored; refused as joining a pair already joined; refused as naming
+            a pose the store does not hold.
+        """
+        held = set(self.local.poses).union(*(ly.poses for ly in self.received.values()))
+        joined = {frozenset((c.a, c.b)) for c in self.closures}
+        added = duplicates = unheld = 0
+        for c in closures:
+            pair = frozenset((c.a, c.b))
+            if c.a == c.b or not pair <= held:
+                unheld += 1
+            elif pair in joined:
+                duplicates += 1
+            else:
+                self.closures.append(c)
+                joined.add(pair)
+                added += 1
+        if added:
+            self._note_peak()
+        return added, duplicates, unheld
 
     def remove_received_pose(self, source: int, uid: int) -> Pose:
         """Remove a pose of received layer ``source`` (the exchange: its source no longer

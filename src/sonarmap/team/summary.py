@@ -42,6 +42,11 @@ class _Stats(Protocol):
     bytes_received: int
     messages_sent: int
     messages_received: int
+    closures_sent: int
+    closures_received: int
+    closures_added: int
+    closures_duplicate: int
+    closures_unheld: int
 
     @property
     def bytes_by_kind(self) -> Mapping[str, int]: ...
@@ -95,6 +100,13 @@ def robot_row(
             "poses_received": sum(len(x.poses) for x in store.received.values()),
             "received_closures": agent.received_closures,
             "received_closures_correct": agent.received_correct,
+            "peer_closures": {
+                "sent": stats.closures_sent,
+                "received": stats.closures_received,
+                "added": stats.closures_added,
+                "duplicate": stats.closures_duplicate,
+                "unheld": stats.closures_unheld,
+            },
         }
     )
     if links is not None:

@@ -25,7 +25,9 @@ descriptors hardly shrink):
 ``"answer"``
     Per requested patch: the answerer's stamp, its short (good mode) or full (limited
     mode) list when it is newer, the poses sent and the odometry edges attached, poses
-    and edges as their records' own msgpack encodings (:func:`.records.encode`).
+    and edges as their records' own msgpack encodings (:func:`.records.encode`); and,
+    only when the answerer sends closures (``ExchangeParams.send_closures``), the key
+    ``c``: its closures touching the poses sent, in :mod:`.peerclosures`' compact form.
 
 Every body is decoded strictly: every field type- and range-checked, UIDs checked to be
 the source's, poses to lie in their patch's region; a bad body raises
@@ -48,7 +50,9 @@ import numpy as np
 import zstandard
 
 from ..errors import InputError
+from .peerclosures import PeerClosureError, decode_closures, encode_closures
 from .records import (
+    ClosureEdge,
     Landmarks,
     LocalMap,
     OdometryEdge,
@@ -228,7 +232,8 @@ class PatchAnswer:
     Good mode: ``stamp`` and ``short`` (the answerer's short list) when the answerer is
     the source or newer, else all None and no poses. Limited mode: ``stamp`` and
     ``full`` when the answerer is newer, else None; ``short`` is always None. ``poses``
-    and ``edges`` are what was sent.
+    and ``edges`` are what was sent; ``closures``, the answerer's closures that touch a
+    pose sent (:mod:`.peerclosures`; none unless it sends closures).
     """
 
     source: int
@@ -238,6 +243,7 @@ class PatchAnswer:
     full: frozenset[int] | None
     poses: tuple[Pose, ...] = ()
     edges: tuple[OdometryEdge, ...] = ()
+    closures: tuple[ClosureEdge, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -373,7 +379,8 @@ def encode_request(request: Request) -> bytes:
 def answer_row(
     p: PatchAnswer, poses: Sequence[bytes] | None = None, edges: Sequence[bytes] | None = None
 ) -> dict[str, Any]:
-    return {
+    """One patch's entry of an answer as its wire map (``c`` only with closures)."""
+    row: dict[str, Any] = {
         "src": p.source,
         "r": p.region,
         "s": stamp_or_none(p.stamp),
@@ -382,6 +389,9 @@ def answer_row(
         "poses": list(poses) if poses is not None else [encode(q) for q in p.poses],
         "edges": list(edges) if edges is not None else [encode(e) for e in p.edges],
     }
+    if p.closures:
+        row["c"] = encode_closures(p.closures)
+    return row
 
 
 def encode_answer(answer: Answer) -> bytes:
@@ -676,7 +686,8 @@ def read_record(data: Any, kind: type[Pose] | type[OdometryEdge], where: str) ->
 def _answer_entry(row: Any, mode: str, where: str, regions: Collection[int] | None) -> PatchAnswer:
     if not isinstance(row, dict):
         raise ExchangeError("type", f"{where}: a map expected")
-    check_keys(row, ("src", "r", "s", "short", "full", "poses", "edges"), where)
+    keys = ("src", "r", "s", "short", "full", "poses", "edges")
+    check_keys(row, (*keys, "c") if "c" in row else keys, where)
     src = _int(row["src"], f"{where}.src", ROBOT_LIMIT)
     region = _region(row["r"], f"{where}.r", regions)
     stamp = _stamp(row["s"], f"{where}.s", optional=True)
@@ -715,7 +726,13 @@ def _answer_entry(row: Any, mode: str, where: str, regions: Collection[int] | No
         extra = sorted(p.uid for p in poses if p.uid not in listed)
         if extra:
             raise ExchangeError("inconsistent", f"{where}: pose {extra[0]} is not in its list")
-    return PatchAnswer(src, region, stamp, short, full, tuple(poses), tuple(edges))
+    closures: tuple[ClosureEdge, ...] = ()
+    if "c" in row:
+        try:
+            closures = decode_closures(row["c"], {p.uid for p in poses}, f"{where}.c")
+        except PeerClosureError as e:
+            raise ExchangeError(e.code, str(e)) from None
+    return PatchAnswer(src, region, stamp, short, full, tuple(poses), tuple(edges), closures)
 
 
 @strict_decoder
