@@ -602,7 +602,9 @@ class Car(Team):
 
     def _near(self, i: int) -> npt.NDArray[np.bool_]:
         """The other cars within 2 m of car i's separation: those that can hold it up."""
-        near = np.hypot(self.x - self.x[i], self.y - self.y[i]) < self.min_separation + 2.0
+        near: npt.NDArray[np.bool_] = (
+            np.hypot(self.x - self.x[i], self.y - self.y[i]) < self.min_separation + 2.0
+        )
         near[i] = False
         return near
 
