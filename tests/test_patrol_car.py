@@ -118,7 +118,8 @@ def test_clear_goals_lie_on_passable_cells_within_reach_and_clear_of_the_others(
     passable = t.passable(1.0)
     away = np.array([[16.15, 16.06]])
     goals = clear_goals(13.87, 16.07, away, passable, t.grid, clear=5.5, reach=6.0)
-    assert len(goals) > 0 and np.isnan(goals[:, 2]).all()
+    assert len(goals) > 0
+    assert np.isnan(goals[:, 2]).all()
     r, c = t.grid.world_to_cell(goals[:, 0], goals[:, 1])
     assert passable[r, c].all()
     assert (np.hypot(goals[:, 0] - 13.87, goals[:, 1] - 16.07) <= 6.0).all()
