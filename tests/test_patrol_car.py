@@ -16,6 +16,7 @@ from sonarmap.patrol.giveup import GiveUp
 from sonarmap.patrol.manoeuvre import (
     behind_cells,
     carrot,
+    clear_goals,
     leads_on,
     plan_manoeuvre,
     route_goals,
@@ -110,6 +111,20 @@ def test_car_planner_finds_a_reversing_manoeuvre_in_a_dead_end() -> None:
     assert (
         plan_manoeuvre((62.0, 15.0, 0.0), route_goals(route), passable & False, t.grid, 3.5) is None
     )
+
+
+def test_clear_goals_lie_on_passable_cells_within_reach_and_clear_of_the_others() -> None:
+    t = _crossroads()
+    passable = t.passable(1.0)
+    away = np.array([[16.15, 16.06]])
+    goals = clear_goals(13.87, 16.07, away, passable, t.grid, clear=5.5, reach=6.0)
+    assert len(goals) > 0
+    assert np.isnan(goals[:, 2]).all()
+    r, c = t.grid.world_to_cell(goals[:, 0], goals[:, 1])
+    assert passable[r, c].all()
+    assert (np.hypot(goals[:, 0] - 13.87, goals[:, 1] - 16.07) <= 6.0).all()
+    assert (np.hypot(goals[:, 0] - 16.15, goals[:, 1] - 16.06) >= 5.5).all()
+    assert clear_goals(13.87, 16.07, away, passable, t.grid, clear=20.0).shape == (0, 3)
 
 
 def test_carrot_lies_lookahead_along_the_route() -> None:
@@ -496,3 +511,64 @@ def test_obstacle_discs_halved_keep_the_cells_nearer_the_other_robot() -> None:
     assert halves_discs(PatrolConfig(model="car"))
     assert not halves_discs(PatrolConfig(model="car", car_planner="thesis"))
     assert not halves_discs(PatrolConfig())
+
+
+def _crossroads(res: float = 0.5) -> Territory:
+    """A 30 x 30 m site: a 5.5 m street west to east (y 12.5-18 m) crossed by a 3 m one
+    south to north (x 13.5-16.5 m), whose passable cells are two wide."""
+    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(int(30 / res), int(30 / res)))
+    occ = np.ones(g.shape, np.float32)
+    occ[int(12.5 / res) : int(18.0 / res), :] = 0.0
+    occ[:, int(13.5 / res) : int(16.5 / res)] = 0.0
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def _route_north(x0: float, y0: float, lane: float, side: float) -> npt.NDArray[np.float64]:
+    """The wave's path from (x0, y0) into the north street along x = ``lane`` (m),
+    turning in from ``side`` (+0.5: the east, -0.5: the west), as on site 1001."""
+    head = np.array([[lane + side, 16.25], [lane + side, 16.75], [lane, 17.25]])
+    ys = np.arange(17.75, 28.0, 0.5)
+    full = np.vstack([head, np.column_stack([np.full(len(ys), lane), ys])])
+    d = np.hypot(full[:, 0] - x0, full[:, 1] - y0)
+    k = int(np.argmin(d)) + int(d.min() < 0.3)
+    return np.vstack([[x0, y0], full[k:]])
+
+
+def test_two_cars_at_the_mouth_of_the_street_both_go_for_part() -> None:
+    # Held-out site 1001, five cars, 3,600 s, --one-way teams --stub-sight --stub-delay
+    # 120: from t = 1,663 s to the end two cars, one from the east and one from the
+    # west, stood 2.3 m apart at the mouth of a street both went for. Each car's
+    # manoeuvre onto its route found the other in the way; the later car searched, found
+    # none and rested, the earlier one then searched, and so on for good. The same poses
+    # here (the site's cells shifted by -39.5 m and -25.5 m).
+    t = _crossroads()
+    passable = t.passable(1.0)
+    rng = np.random.default_rng(0)
+    car = Car(
+        np.array([16.15, 13.87]),
+        np.array([16.06, 16.07]),
+        np.radians([126.0, 54.0]),
+        clearance=t.clearance,
+        planner="track",
+    )
+    lanes = ((15.25, 0.5), (14.75, -0.5))
+    furthest = 16.07
+    for _ in range(120):  # 60 s at 0.5 s a step
+        directions: list[tuple[float, float] | None] = []
+        points: list[tuple[float, float] | None] = []
+        for i, (lane, side) in enumerate(lanes):
+            x0, y0 = float(car.x[i]), float(car.y[i])
+            route = _route_north(x0, y0, lane, side)
+            car.routes[i] = route
+            p = carrot(route, x0, y0, 3.0)
+            n = math.hypot(p[0] - x0, p[1] - y0)
+            directions.append(((p[0] - x0) / n, (p[1] - y0) / n) if n > 1e-9 else None)
+            points.append(p)
+        car.step(directions, passable, t.grid, 0.5, rng, points)
+        r, c = t.grid.world_to_cell(car.x, car.y)
+        assert passable[r, c].all()
+        assert math.hypot(car.x[0] - car.x[1], car.y[0] - car.y[1]) >= car.min_separation - 1e-9
+        furthest = max(furthest, float(car.y.max()))
+        if furthest > 24.0:
+            break
+    assert furthest > 24.0, f"no car got further than y = {furthest:.1f} m"

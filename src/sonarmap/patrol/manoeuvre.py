@@ -37,6 +37,7 @@ __all__ = [
     "Manoeuvre",
     "behind_cells",
     "carrot",
+    "clear_goals",
     "leads_on",
     "plan_manoeuvre",
     "route_goals",
@@ -168,6 +169,37 @@ def route_goals(route: F64, near: float = 3.0, far: float = 10.0) -> F64:
         h = math.atan2(route[b, 1] - route[a, 1], route[b, 0] - route[a, 0])
         out.append((route[k, 0], route[k, 1], h))
     return np.array(out, dtype=np.float64)
+
+
+def clear_goals(
+    x: float,
+    y: float,
+    away: F64,
+    passable: npt.NDArray[np.bool_],
+    grid: Grid,
+    clear: float,
+    reach: float = 6.0,
+) -> F64:
+    """Poses (M, 3: x, y, heading NaN, any heading will do) at the centres of the
+    ``passable`` cells within ``reach`` metres of (x, y) that lie at least ``clear``
+    metres from every point of ``away`` (K, 2, world metres): where a car held up by
+    the robots at ``away`` can back off to, so that they can pass. Empty (0, 3) when
+    there is no such cell."""
+    res = grid.resolution
+    k = math.ceil(reach / res)
+    r0, c0 = (int(v) for v in grid.world_to_cell(x, y))
+    dr, dc = np.mgrid[-k : k + 1, -k : k + 1]
+    rr, cc = (r0 + dr).ravel(), (c0 + dc).ravel()
+    inside = grid.contains(rr, cc)
+    rr, cc = rr[inside], cc[inside]
+    rr, cc = rr[passable[rr, cc]], cc[passable[rr, cc]]
+    px, py = grid.cell_centres(rr, cc)
+    keep = np.hypot(px - x, py - y) <= reach
+    for ax, ay in away.tolist():
+        keep &= np.hypot(px - ax, py - ay) >= clear
+    return np.column_stack([px[keep], py[keep], np.full(int(keep.sum()), math.nan)]).astype(
+        np.float64
+    )
 
 
 def _primitives(turn_radius: float) -> tuple[F64, F64, F64, list[tuple[float, float]]]:

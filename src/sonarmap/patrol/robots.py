@@ -26,7 +26,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
-from .manoeuvre import Manoeuvre, carrot, plan_manoeuvre, route_goals
+from .manoeuvre import Manoeuvre, carrot, clear_goals, plan_manoeuvre, route_goals
 from .paths import STEPS, nearest_step
 from .territory import move_clear
 
@@ -592,13 +592,52 @@ class Car(Team):
         only one manoeuvres (both would otherwise back off and meet again). A later car
         that found no way out (resting) does not count: were car i to wait for it,
         neither would ever move."""
-        near = np.hypot(self.x - self.x[i], self.y - self.y[i]) < self.min_separation + 2.0
+        near = self._near(i)
         near[: i + 1] = False
         held = (self.held > 0) & (self.rest == 0)
         traffic = np.array(
             [p is not None and c == "traffic" for p, c in zip(self.plans, self.cause, strict=True)]
         )
         return bool((near & (held | traffic)).any())
+
+    def _near(self, i: int) -> npt.NDArray[np.bool_]:
+        """The other cars within 2 m of car i's separation: those that can hold it up."""
+        near: npt.NDArray[np.bool_] = (
+            np.hypot(self.x - self.x[i], self.y - self.y[i]) < self.min_separation + 2.0
+        )
+        near[i] = False
+        return near
+
+    def _back_off(
+        self, i: int, passable: npt.NDArray[np.bool_], grid: Grid, others: F64
+    ) -> Manoeuvre | None:
+        """A manoeuvre taking car i a turning radius beyond the separation from the cars
+        near it (:meth:`_near`), wherever that is: two cars that both make for the
+        street one of them stands at the mouth of find no manoeuvre onto their routes
+        (each sees the other in the way), and would hold each other for good."""
+        near = self._near(i)
+        if not near.any():
+            return None
+        x, y = float(self.x[i]), float(self.y[i])
+        goals = clear_goals(
+            x,
+            y,
+            np.column_stack([self.x[near], self.y[near]]),
+            passable,
+            grid,
+            clear=self.min_separation + self.turn_radius,
+        )
+        if not len(goals):
+            return None
+        return plan_manoeuvre(
+            (x, y, float(self.heading[i])),
+            goals,
+            passable,
+            grid,
+            self.turn_radius,
+            others=others,
+            separation=self.min_separation + 0.5,
+        )
 
     def _plan(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid, cause: str) -> bool:
         """Plan a manoeuvre for car i onto its route, for ``cause`` (of :data:`CAUSES`);
@@ -618,6 +657,10 @@ class Car(Team):
             # is held again at once.
             separation=self.min_separation + 0.5,
         )
+        if (plan is None or not plan.arcs) and cause == "traffic":
+            # No way onto the route past the cars in the way: make way for them instead
+            # (only the car :meth:`_yielded_to` picks plans for traffic, so one parts).
+            plan = self._back_off(i, passable, grid, others)
         if plan is None or not plan.arcs:
             # No way out from here: searching again next step would find none either.
             self.rest[i] = self.patience
