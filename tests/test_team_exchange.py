@@ -808,6 +808,8 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
         "missing key": ("answer", pack({"v": VERSION, "id": rid, "mode": "good"}), "keys"),
         "extra key": ("answer", _answer(rid, entry, pickle=b"cos\nsystem"), "keys"),
         "version": ("answer", _answer(rid, entry, v=VERSION + 1), "version"),
+        # A peer of wire version 6 knows no closures: refused by version, not by keys.
+        "older version": ("answer", _answer(rid, entry, v=VERSION - 1), "version"),
         "id as str": ("answer", _answer(rid, entry, id=str(rid)), "type"),
         "stamp as int": ("answer", _answer(rid, {**entry, "s": 2}), "type"),
         "stamp nan": ("answer", _answer(rid, {**entry, "s": math.nan}), "range"),
