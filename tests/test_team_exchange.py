@@ -769,6 +769,24 @@ def _bad_closure_bodies(rid: int, entry: dict[str, Any]) -> dict[str, tuple[str,
             "duplicate",
         ),
         "closures oversized": ("answer", body([_closure_row()] * 129), "oversized"),
+        # Variances of 1e-4, but x and y nearly one direction: an eigenvalue near 2e-11.
+        "closure covariance nearly singular": (
+            "answer",
+            body([_closure_row(cov=struct.pack("<6f", 1e-4, 1e-4 * (1 - 2e-7), 0, 1e-4, 0, 1e-4))]),
+            "range",
+        ),
+        "closure covariance infinite": (
+            "answer",
+            body([_closure_row(cov=struct.pack("<6f", math.inf, 0, 0, 1e-4, 0, 1e-4))]),
+            "range",
+        ),
+        "closure a negative": ("answer", body([_closure_row(a=-1)]), "range"),
+        "closure inliers 65,536": ("answer", body([_closure_row(inliers=65_536)]), "range"),
+        "closures on an entry with no poses": (
+            "answer",
+            _answer(rid, {**entry, "poses": [], "edges": [], "c": [_closure_row()]}),
+            "inconsistent",
+        ),
     }
 
 
@@ -790,6 +808,8 @@ def _bad_bodies(b: RobotStore, rid: int) -> dict[str, tuple[str, bytes, str]]:
         "missing key": ("answer", pack({"v": VERSION, "id": rid, "mode": "good"}), "keys"),
         "extra key": ("answer", _answer(rid, entry, pickle=b"cos\nsystem"), "keys"),
         "version": ("answer", _answer(rid, entry, v=VERSION + 1), "version"),
+        # A peer of wire version 6 knows no closures: refused by version, not by keys.
+        "older version": ("answer", _answer(rid, entry, v=VERSION - 1), "version"),
         "id as str": ("answer", _answer(rid, entry, id=str(rid)), "type"),
         "stamp as int": ("answer", _answer(rid, {**entry, "s": 2}), "type"),
         "stamp nan": ("answer", _answer(rid, {**entry, "s": math.nan}), "range"),
@@ -1340,3 +1360,30 @@ def test_a_sources_closures_travel_with_its_poses_only_when_asked(mode: str, sen
             assert got[0].transform == pytest.approx(loop.transform, abs=1e-3)
     assert (team.ex[1].stats.closures_sent > 0) == send
     assert sum(e.stats.closures_added for e in team.ex) == (2 if send else 0)
+
+
+def test_a_sender_sends_only_closures_the_receiver_takes_each_once_an_answer() -> None:
+    a = own_store(0, [0])
+    b = own_store(1, [0, 0, 1, 1])
+    good = ClosureEdge(make_uid(1, 0), make_uid(1, 3), (3.0, 0.0, 0.0), COV, 15, 0.2)
+    # Finite and positive definite, so the store takes it, but nearly singular: a
+    # receiver refuses it, and with it the answer.
+    thin = np.array([[1e-4, 1e-4 * (1 - 2e-7), 0], [1e-4 * (1 - 2e-7), 1e-4, 0], [0, 0, 1e-4]])
+    bad = ClosureEdge(make_uid(1, 1), make_uid(1, 2), (1.0, 0.0, 0.0), tuple(thin.ravel()), 9, 0.1)
+    b.closures.extend([good, bad])
+    team = Team([a, b], send_closures=True, cap_bytes=10**6)
+    answers = record_sends(team.transports[1])
+    team.run(12)
+    assert converged(team)
+    assert not team.ex[0].stats.rejected
+    assert team.ex[1].stats.closures_withheld > 0
+    assert [(x.a, x.b) for x in a.closures] == [(good.a, good.b)]
+    check_consistent(a)
+    # The good closure joins region 0's pose 0 to region 1's pose 3: both regions go in
+    # one answer, the closure in only one of its entries.
+    bodies = [decode_answer(body) for body in answers]
+    both = [x for x in bodies if {e.region for e in x.patches if e.poses} == {0, 1}]
+    assert both
+    for x in both:
+        assert sum(len(e.closures) for e in x.patches) == 1
+    assert team.ex[0].stats.closures_unheld == 0

@@ -76,7 +76,7 @@ from typing import Any
 
 from ..errors import ConfigError, InputError
 from .outgoing import OutgoingPolicy
-from .peerclosures import closures_to_send, encode_closures
+from .peerclosures import closures_to_send, encode_closures, pair_of
 from .quantise import check_quantisation
 from .records import ClosureEdge, OdometryEdge, Pose, encode, robot_of, size_of
 from .rejects import RejectLog
@@ -327,6 +327,9 @@ class ExchangeStats:
     closures_duplicate, closures_unheld : int
         Of those, the ones refused as joining two poses already joined (either
         direction) and as naming a pose the store does not hold.
+    closures_withheld : int
+        Closures that would have gone with an answer but that a receiver refuses
+        (:func:`.peerclosures.closures_to_send`: a rule broken, or past the cap per pose).
     rejected : Counter
         Messages rejected, by reason (``"truncated"``, ``"type"``, ``"unsolicited"``...).
     bytes_by_kind : Counter
@@ -352,6 +355,7 @@ class ExchangeStats:
     closures_added: int = 0
     closures_duplicate: int = 0
     closures_unheld: int = 0
+    closures_withheld: int = 0
     rejected: Counter[str] = field(default_factory=Counter)
     bytes_by_kind: Counter[str] = field(default_factory=Counter)
 
@@ -971,10 +975,12 @@ class Exchanger:
             raise ExchangeError("mode", f"a {request.mode} request to a {self.params.mode} robot")
         if any(p.source == peer for p in request.patches):
             raise ExchangeError("own", f"robot {peer} asks for its own poses")
+        # A closure between poses of two patches of one answer travels once.
+        pairs: set[frozenset[int]] = set()
         if self.params.mode == "good":
-            outs = [self._good_entry(p, now) for p in request.patches]
+            outs = [self._good_entry(p, now, pairs) for p in request.patches]
         else:
-            outs = self._limited_entries(request.patches, now)
+            outs = self._limited_entries(request.patches, now, pairs)
         self._send_answer(peer, request, outs)
 
     def _patch_of(self, source: int, region: int) -> tuple[Layer | None, Patch | None]:
@@ -997,7 +1003,10 @@ class Exchanger:
         short: Collection[int] | None,
         full: Collection[int] | None,
         send: Sequence[int],
+        pairs: set[frozenset[int]],
     ) -> _Out:
+        """The entry for patch ``p`` sending ``send``; its closures' pairs join ``pairs``
+        (the ones already in this answer, which it does not carry again)."""
         poses = [encode(self.outgoing.wire(layer.poses[u])) for u in send]
         edges = self._edges_for(layer, p, send)
         row: dict[str, Any] = {
@@ -1009,17 +1018,23 @@ class Exchanger:
             "poses": poses,
             "edges": [encode(e) for e in edges],
         }
-        closures = self._closures_for(layer, p, send) if self.params.send_closures else []
+        closures = self._closures_for(layer, p, send, pairs) if self.params.send_closures else []
+        pairs.update(pair_of(c) for c in closures)
         if closures:
             row["c"] = encode_closures(closures)
         return _Out(row, len(pack(row)), len(poses), len(closures))
 
     def _closures_for(
-        self, layer: Layer, p: PatchRequest, send: Collection[int]
+        self,
+        layer: Layer,
+        p: PatchRequest,
+        send: Collection[int],
+        skip: Collection[frozenset[int]],
     ) -> list[ClosureEdge]:
-        """Our closures that go with the poses ``send`` of patch ``p``
-        (:func:`.peerclosures.closures_to_send`): the requester lacks a pose of the patch
-        its short list does not name, and an own pose we have not offered yet."""
+        """Our closures that go with the poses ``send`` of patch ``p`` and are not in
+        ``skip`` (:func:`.peerclosures.closures_to_send`): the requester lacks a pose of
+        the patch its short list does not name, and an own pose we have not offered yet.
+        Those the receiver's rules would refuse are counted in ``closures_withheld``."""
         poses, offered = layer.poses, self.outgoing.offered.poses
 
         def may_hold(u: int) -> bool:
@@ -1027,7 +1042,9 @@ class Exchanger:
                 return u in p.short
             return robot_of(u) != self.robot or u in offered
 
-        return closures_to_send(self.store.closures, set(send), may_hold)
+        chosen = closures_to_send(self.store.closures, set(send), may_hold, skip)
+        self.stats.closures_withheld += chosen.dropped
+        return chosen.closures
 
     @staticmethod
     def _edges_for(layer: Layer, p: PatchRequest, send: Collection[int]) -> list[OdometryEdge]:
@@ -1048,7 +1065,7 @@ class Exchanger:
                 out.add(e)
         return sorted(out, key=lambda e: (e.a, e.b, e.transform))
 
-    def _good_entry(self, p: PatchRequest, now: float) -> _Out:
+    def _good_entry(self, p: PatchRequest, now: float, pairs: set[frozenset[int]]) -> _Out:
         """Good network: nothing if we are not the source and not newer; else the poses
         of the patch the requester lacks, our short list and our stamp."""
         layer, patch = self._patch_of(p.source, p.region)
@@ -1064,9 +1081,11 @@ class Exchanger:
             if p.stamp is not None and stamp <= p.stamp:
                 return self._empty(p)
         send = sorted(short - p.short, key=lambda u: (layer.poses[u].time, u))
-        return self._entry(layer, p, stamp, short, None, send)
+        return self._entry(layer, p, stamp, short, None, send, pairs)
 
-    def _limited_entries(self, patches: Sequence[PatchRequest], now: float) -> list[_Out]:
+    def _limited_entries(
+        self, patches: Sequence[PatchRequest], now: float, pairs: set[frozenset[int]]
+    ) -> list[_Out]:
         """Limited network: per patch by stamps (ours older: offer what the requester's
         full list names and it lacks, then adopt its full list; newer: our full list and
         stamp and the short-list poses it lacks; equal: those poses), then the subset of
@@ -1118,7 +1137,7 @@ class Exchanger:
                 continue
             send = sorted(q.offer & chosen, key=lambda u: (layer.poses[u].time, u))
             full_out = q.listed if q.case == "newer" else None
-            outs.append(self._entry(layer, q.request, q.stamp, None, full_out, send))
+            outs.append(self._entry(layer, q.request, q.stamp, None, full_out, send, pairs))
         # Older than the requester: adopt its full list and stamp, after the answer is
         # built (the poses offered are in that list, so none of them goes).
         for q in plans:
@@ -1193,12 +1212,18 @@ class Exchanger:
         self.stats.poses_received += sum(len(e.poses) for e in answer.patches)
         advert = self._adverts.get(peer, (0.0, {}))[1]
         changed = False
+        closures: list[ClosureEdge] = []
         for e in answer.patches:
             key = (e.source, e.region)
             pending.patches.discard(key)
             if self._waiting.get(key) == answer.id:
                 del self._waiting[key]
-            changed = self._apply(e, now) or changed
+            took, carried_closures = self._apply(e, now)
+            changed = took or changed
+            closures.extend(carried_closures)
+        # After every entry: a closure may join poses of two entries of the answer.
+        if closures:
+            self._take_closures(closures)
         # A peer whose answer brought nothing is not asked for these patches again until
         # its advert or our patch changes (a capped answer spent on sibling patches is
         # not a futile one).
@@ -1220,23 +1245,24 @@ class Exchanger:
             self._pending.pop(answer.id, None)
             self._expired.pop(answer.id, None)
 
-    def _apply(self, e: PatchAnswer, now: float) -> bool:
-        """Apply one patch's answer (whole); True if the store changed."""
+    def _apply(self, e: PatchAnswer, now: float) -> tuple[bool, tuple[ClosureEdge, ...]]:
+        """Apply one patch's answer (whole) but its closures: whether the store changed,
+        and the closures to take (none when the entry is not applied)."""
         layer = self.store.received.get(e.source)
         patch = None if layer is None else layer.patches.get(e.region)
         current = patch.stamp if patch is not None else -math.inf
         listed = e.short if self.params.mode == "good" else e.full
         if e.stamp is None and not e.poses:
-            return False
+            return False, ()
         if e.stamp is not None and e.stamp < current:
             # The patch became newer meanwhile (another answer came first).
             self.stats.stale += 1
             if self.params.mode == "good":
-                return False
+                return False, ()
             e = PatchAnswer(e.source, e.region, None, None, None, e.poses, e.edges, e.closures)
             listed = None
         if e.stamp is None and (patch is None or not patch.full):
-            return False  # poses offered against a full list we do not have
+            return False, ()  # poses offered against a full list we do not have
         if layer is None:
             layer = self.store.received.setdefault(e.source, Layer(e.source))
         patch = layer.patch(e.region)
@@ -1267,13 +1293,14 @@ class Exchanger:
             if x.a in layer.poses and x.b in layer.poses and x not in layer.edges:
                 layer.add_edge(x)
                 changed = True
-        if e.closures:
-            added, duplicate, unheld = self.store.add_peer_closures(e.closures)
-            self.stats.closures_received += len(e.closures)
-            self.stats.closures_added += added
-            self.stats.closures_duplicate += duplicate
-            self.stats.closures_unheld += unheld
-        return changed
+        return changed, e.closures
+
+    def _take_closures(self, closures: Sequence[ClosureEdge]) -> None:
+        added, duplicate, unheld = self.store.add_peer_closures(closures)
+        self.stats.closures_received += len(closures)
+        self.stats.closures_added += added
+        self.stats.closures_duplicate += duplicate
+        self.stats.closures_unheld += unheld
 
     # --- state ---------------------------------------------------------------------------
 

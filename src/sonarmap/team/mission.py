@@ -49,7 +49,9 @@ Decisions where the thesis is silent:
   (``removed_true``: the stage's cost in recall) and kept although not
   (``kept_false``: what the later stages must still remove). For ``graph``, the closures
   accepted, those the optimised graph found inconsistent, how many of them were correct,
-  and the wrong closures left in the store at the end.
+  and the wrong closures left in the store at the end (``kept_false``) and those it
+  cannot judge, a pose's true origin unknown (``kept_unscored``: a peer's merged pose
+  whose merge chain the robot was not sent).
 """
 
 from __future__ import annotations

@@ -17,9 +17,11 @@ receiver's graph uses neither): a received closure has no matches and error 0.
 
 Every closure is checked on receipt (:func:`decode_closures`): types, UIDs, one end a
 pose of the entry, no pair twice, the translation within :data:`MAX_REACH` metres, the
-covariance finite, symmetric positive definite with variances in
-[:data:`MIN_VARIANCE`, :data:`MAX_VARIANCE`], at most :data:`MAX_PER_POSE` closures
-per pose of the entry. A bad one raises :class:`PeerClosureError` naming the field.
+covariance finite and symmetric with variances at most :data:`MAX_VARIANCE` and every
+eigenvalue at least :data:`MIN_VARIANCE`, at most :data:`MAX_PER_POSE` closures per
+pose of the entry. A bad one raises :class:`PeerClosureError` naming the field. The
+sender applies the same rules (:func:`closures_to_send` checks each closure's wire form
+with the decoder's own check), so an honest answer is never refused for its closures.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Callable, Collection, Iterable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -41,6 +43,7 @@ __all__ = [
     "TURN_STEP",
     "XY_STEP",
     "PeerClosureError",
+    "Selection",
     "closures_to_send",
     "decode_closures",
     "encode_closure",
@@ -56,10 +59,14 @@ TURN_STEP = 1e-4
 #: landmarks are a few sonar or camera ranges apart (8 m each by default), so anything
 #: past this is a forged or broken closure, not a loop.
 MAX_REACH = 100.0
-#: Variances (m^2 and rad^2) a travelling covariance's diagonal may hold: below the
-#: floor one forged closure would outweigh every other factor; above the ceiling it
+#: Smallest eigenvalue (m^2 or rad^2) a travelling covariance may have: below it one
+#: forged closure would outweigh every other factor along some direction. Association
+#: adds 0.01 m to x and y and 0.002 rad to theta of every closure
+#: (``AssociationParams.min_sigma_xy``, ``min_sigma_theta``), so an honest one has
+#: eigenvalues of 4e-6 or more; the floor leaves room for fused or carried closures.
+MIN_VARIANCE = 1e-6
+#: Largest variance a travelling covariance's diagonal may hold: above it the closure
 #: says nothing.
-MIN_VARIANCE = 1e-10
 MAX_VARIANCE = 1e4
 #: Closures one entry may carry per pose it sends.
 MAX_PER_POSE = 64
@@ -99,14 +106,27 @@ def encode_closure(c: ClosureEdge) -> list[Any]:
     ]
 
 
+class Selection(NamedTuple):
+    """The closures an answer entry carries and how many it could not."""
+
+    #: The closures to send, sorted by (a, b).
+    closures: list[ClosureEdge]
+    #: Closures that would go but break a receiver's rule (:func:`decode_closures`) or
+    #: exceed :data:`MAX_PER_POSE` per pose sent.
+    dropped: int
+
+
 def closures_to_send(
     closures: Iterable[ClosureEdge],
     sent: Collection[int],
     may_hold: Callable[[int], bool],
-) -> list[ClosureEdge]:
+    skip: Collection[frozenset[int]] = (),
+) -> Selection:
     """The closures that go with the poses ``sent`` in one answer entry: those with an
     end in ``sent`` whose other end is sent too or one the requester may hold
-    (``may_hold(uid)``), each pair once, sorted by (a, b).
+    (``may_hold(uid)``), each pair once and none in ``skip``, each one whose wire form
+    passes the receiver's check (:func:`decode_closures`); of those at most
+    :data:`MAX_PER_POSE` per pose sent, the ones with most inliers.
 
     Parameters
     ----------
@@ -118,16 +138,37 @@ def closures_to_send(
         ``may_hold(uid) -> bool`` for a pose not sent: False when the answerer knows the
         requester lacks it (a pose of the same patch missing from its short list, an
         own pose not yet offered).
+    skip : collection of frozenset of int
+        Pairs (:func:`pair_of`) already carried by another entry of the same answer
+        (default none).
+
+    Returns
+    -------
+    Selection
+        The closures, sorted by (a, b), and the count dropped for breaking a rule or the
+        cap.
     """
     out: dict[frozenset[int], ClosureEdge] = {}
+    dropped = 0
     for c in closures:
         if c.a == c.b or (c.a not in sent and c.b not in sent):
             continue
         other = c.b if c.a in sent else c.a
         if other not in sent and not may_hold(other):
             continue
-        out.setdefault(pair_of(c), c)
-    return sorted(out.values(), key=lambda c: (c.a, c.b))
+        pair = pair_of(c)
+        if pair in skip or pair in out:
+            continue
+        try:
+            _decode_row(encode_closure(c), sent, "c")
+        except (PeerClosureError, ValueError, OverflowError):  # a non-finite transform
+            dropped += 1
+            continue
+        out[pair] = c
+    kept = sorted(out.values(), key=lambda c: (-c.inliers, c.a, c.b))
+    cap = MAX_PER_POSE * max(1, len(sent))
+    dropped += max(0, len(kept) - cap)
+    return Selection(sorted(kept[:cap], key=lambda c: (c.a, c.b)), dropped)
 
 
 def _int(v: Any, where: str, low: int, high: int) -> int:
@@ -147,16 +188,15 @@ def _covariance(v: Any, where: str) -> tuple[float, ...]:
     m = np.array([[xx, xy, xt], [xy, yy, yt], [xt, yt, tt]])
     if not np.isfinite(m).all():
         raise PeerClosureError("range", f"{where}: not finite")
-    d = np.diag(m)
-    if (d < MIN_VARIANCE).any() or (d > MAX_VARIANCE).any():
+    if (np.diag(m) > MAX_VARIANCE).any():
+        raise PeerClosureError("range", f"{where}: a variance above {MAX_VARIANCE:g}")
+    # The diagonal alone does not bound the information: a nearly singular matrix has
+    # large variances yet almost none along one direction.
+    low = float(np.linalg.eigvalsh(m)[0])
+    if not low >= MIN_VARIANCE:
         raise PeerClosureError(
-            "range", f"{where}: a variance outside [{MIN_VARIANCE:g}, {MAX_VARIANCE:g}]"
+            "range", f"{where}: smallest eigenvalue {low:.3g} below {MIN_VARIANCE:g}"
         )
-    # Cholesky succeeds only on a symmetric positive definite matrix.
-    try:
-        np.linalg.cholesky(m)
-    except np.linalg.LinAlgError:
-        raise PeerClosureError("range", f"{where}: not positive definite") from None
     return tuple(float(u) for u in m.ravel())
 
 
@@ -165,8 +205,22 @@ def _uid(v: Any, where: str) -> int:
 
 
 def decode_closures(rows: Any, sent: Collection[int], where: str) -> tuple[ClosureEdge, ...]:
-    """The closures of an entry's wire list ``rows``, each checked (the module's rules);
-    ``sent`` are the UIDs of the poses the entry carries.
+    """The closures of an entry's wire list ``rows``, each checked (the module's rules).
+
+    Parameters
+    ----------
+    rows : Any
+        The entry's ``c`` as received: a list of ``[a, b, x, y, theta, covariance,
+        inliers]``.
+    sent : collection of int
+        The UIDs of the poses the entry carries; an entry with none carries no closure.
+    where : str
+        The message's position, for the error (``answer.patches[3].c``).
+
+    Returns
+    -------
+    tuple of ClosureEdge
+        In the order sent, without matches and with error 0.
 
     Raises
     ------
@@ -175,7 +229,9 @@ def decode_closures(rows: Any, sent: Collection[int], where: str) -> tuple[Closu
     """
     if not isinstance(rows, list):
         raise PeerClosureError("type", f"{where}: {type(rows).__name__} where list expected")
-    if len(rows) > MAX_PER_POSE * max(1, len(sent)):
+    if not sent:
+        raise PeerClosureError("inconsistent", f"{where}: closures on an entry with no poses")
+    if len(rows) > MAX_PER_POSE * len(sent):
         raise PeerClosureError(
             "oversized",
             f"{where}: {len(rows)} closures for {len(sent)} poses, at most {MAX_PER_POSE} a pose",
@@ -184,28 +240,33 @@ def decode_closures(rows: Any, sent: Collection[int], where: str) -> tuple[Closu
     pairs: set[frozenset[int]] = set()
     for k, row in enumerate(rows):
         at = f"{where}[{k}]"
-        if not isinstance(row, list) or len(row) != 7:
-            raise PeerClosureError(
-                "type", f"{at}: [a, b, x, y, theta, covariance, inliers] expected"
-            )
-        a, b = _uid(row[0], f"{at}.a"), _uid(row[1], f"{at}.b")
-        if a == b:
-            raise PeerClosureError("inconsistent", f"{at}: joins pose {a} to itself")
-        if a not in sent and b not in sent:
-            raise PeerClosureError("inconsistent", f"{at}: touches no pose of the entry")
-        x = _int(row[2], f"{at}.x", -_XY_LIMIT, _XY_LIMIT) * XY_STEP
-        y = _int(row[3], f"{at}.y", -_XY_LIMIT, _XY_LIMIT) * XY_STEP
-        if math.hypot(x, y) > MAX_REACH:
-            raise PeerClosureError("range", f"{at}: spans {math.hypot(x, y):.0f} m > {MAX_REACH}")
-        t = _int(row[4], f"{at}.theta", -_TURN_LIMIT, _TURN_LIMIT) * TURN_STEP
-        cov = _covariance(row[5], f"{at}.covariance")
-        inliers = _int(row[6], f"{at}.inliers", 0, _INLIER_LIMIT - 1)
-        pair = frozenset((a, b))
+        c = _decode_row(row, sent, at)
+        pair = pair_of(c)
         if pair in pairs:
-            raise PeerClosureError("duplicate", f"{at}: poses {a} and {b} are joined twice")
+            raise PeerClosureError("duplicate", f"{at}: poses {c.a} and {c.b} are joined twice")
         pairs.add(pair)
-        out.append(ClosureEdge(a, b, (x, y, math.remainder(t, 2 * math.pi)), cov, inliers, 0.0))
+        out.append(c)
     return tuple(out)
+
+
+def _decode_row(row: Any, sent: Collection[int], at: str) -> ClosureEdge:
+    """One checked closure of wire form ``row`` (the module's rules but the count and
+    pair ones, which need the whole entry)."""
+    if not isinstance(row, list) or len(row) != 7:
+        raise PeerClosureError("type", f"{at}: [a, b, x, y, theta, covariance, inliers] expected")
+    a, b = _uid(row[0], f"{at}.a"), _uid(row[1], f"{at}.b")
+    if a == b:
+        raise PeerClosureError("inconsistent", f"{at}: joins pose {a} to itself")
+    if a not in sent and b not in sent:
+        raise PeerClosureError("inconsistent", f"{at}: touches no pose of the entry")
+    x = _int(row[2], f"{at}.x", -_XY_LIMIT, _XY_LIMIT) * XY_STEP
+    y = _int(row[3], f"{at}.y", -_XY_LIMIT, _XY_LIMIT) * XY_STEP
+    if math.hypot(x, y) > MAX_REACH:
+        raise PeerClosureError("range", f"{at}: spans {math.hypot(x, y):.0f} m > {MAX_REACH}")
+    t = _int(row[4], f"{at}.theta", -_TURN_LIMIT, _TURN_LIMIT) * TURN_STEP
+    cov = _covariance(row[5], f"{at}.covariance")
+    inliers = _int(row[6], f"{at}.inliers", 0, _INLIER_LIMIT - 1)
+    return ClosureEdge(a, b, (x, y, math.remainder(t, 2 * math.pi)), cov, inliers, 0.0)
 
 
 def encode_closures(closures: Sequence[ClosureEdge]) -> list[list[Any]]:

@@ -47,6 +47,7 @@ class _Stats(Protocol):
     closures_added: int
     closures_duplicate: int
     closures_unheld: int
+    closures_withheld: int
 
     @property
     def bytes_by_kind(self) -> Mapping[str, int]: ...
@@ -106,6 +107,7 @@ def robot_row(
                 "added": stats.closures_added,
                 "duplicate": stats.closures_duplicate,
                 "unheld": stats.closures_unheld,
+                "withheld": stats.closures_withheld,
             },
         }
     )

@@ -115,8 +115,9 @@ MODES = ("good", "limited")
 #: The bodies' version, field ``v`` (2: requests carry an edge digest per patch; 3: bodies
 #: are deflated; 4: edge fingerprints instead of the digest; 5: delta adverts, adverts
 #: stamped with their send time, odometry edges in float32, a preset deflate dictionary;
-#: 6: zstd instead of deflate, with the same dictionary).
-VERSION = 6
+#: 6: zstd instead of deflate, with the same dictionary; 7: answer entries may carry
+#: closures, key ``c``).
+VERSION = 7
 #: Bytes a body may expand to at most; a compressed body that would grow past it (a
 #: decompression bomb) is refused before it is expanded.
 MAX_INFLATED = 64 << 20
