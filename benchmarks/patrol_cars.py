@@ -92,37 +92,24 @@ def car_config(
     )
 
 
-def run_one(
-    site: int,
-    planner: str,
-    cars: int,
-    crowding: str,
-    seed: int,
-    duration: float,
-    forward_wave: bool = False,
-    give_up: int = 3,
-    turn_penalty: float = 10.0,
-    out_of_sight: bool = True,
-    round_block: float = 60.0,
-    one_way: bool = False,
-    stub_sight: bool = False,
-    stub_delay: float = 0.0,
-) -> dict[str, Any]:
-    """One run's figures (see the module's notes)."""
-    config = car_config(
-        planner,
-        cars,
-        crowding,
-        duration,
-        forward_wave=forward_wave,
-        give_up=give_up,
-        turn_penalty=turn_penalty,
-        out_of_sight=out_of_sight,
-        round_block=round_block,
-        one_way=one_way,
-        stub_sight=stub_sight,
-        stub_delay=stub_delay,
-    )
+#: The configuration's knobs each row records after the planner and the number of cars,
+#: under the row's key.
+RECORDED = {
+    "crowding": "crowding",
+    "forward_wave": "forward_wave",
+    "give_up": "give_up",
+    "turn_penalty": "turn_penalty",
+    "out_of_sight": "out_of_sight",
+    "round_block": "round_block",
+    "one_way": "one_way",
+    "stub_sight": "stub_sight",
+    "stub_delay": "stub_delay",
+}
+
+
+def run_one(site: int, cars: int, seed: int, config: PatrolConfig) -> dict[str, Any]:
+    """One run's figures (see the module's notes), for ``cars`` cars driven by
+    ``config`` (:func:`car_config`) on street site ``site``."""
     t0 = time.perf_counter()
     last: list[Team] = []
 
@@ -132,7 +119,7 @@ def run_one(
     result = run_patrol(street_territory(site), config, robots=cars, seed=seed, on_step=keep)
     s = result.summary()
     causes = {}
-    if last and isinstance(last[0], Car) and planner == "track":
+    if last and isinstance(last[0], Car) and config.car_planner == "track":
         causes = {
             k: round(float(100.0 * v.mean() / len(result.t)), 2)
             for k, v in last[0].escape_causes.items()
@@ -140,19 +127,11 @@ def run_one(
     return {
         "site": site,
         "split": "held-out" if site >= 1000 else "training",
-        "planner": planner,
+        "planner": config.car_planner,
         "cars": cars,
-        "crowding": config.crowding,
-        "forward_wave": forward_wave,
-        "give_up": give_up,
-        "turn_penalty": turn_penalty,
-        "out_of_sight": out_of_sight,
-        "round_block": round_block,
-        "one_way": one_way,
-        "stub_sight": stub_sight,
-        "stub_delay": stub_delay,
+        **{key: getattr(config, field) for key, field in RECORDED.items()},
         "seed": seed,
-        "duration": duration,
+        "duration": config.duration,
         "dvt": round(float(s["dvt"]), 2),
         "mean_idleness": round(float(s["mean_idleness"]), 1),
         "blocked": round(100 * float(s["blocked_share"]), 2),
@@ -187,22 +166,21 @@ def main(argv: list[str] | None = None) -> int:
         for planner in a.planners:
             for cars in a.cars:
                 for seed in a.seeds:
-                    row = run_one(
-                        site,
+                    config = car_config(
                         planner,
                         cars,
                         a.crowding,
-                        seed,
                         a.duration,
-                        a.forward_wave,
-                        a.give_up,
-                        a.turn_penalty,
-                        a.out_of_sight,
-                        a.round_block,
-                        a.one_way == "all" or (a.one_way == "teams" and cars > 1),
-                        a.stub_sight,
-                        a.stub_delay,
+                        forward_wave=a.forward_wave,
+                        give_up=a.give_up,
+                        turn_penalty=a.turn_penalty,
+                        out_of_sight=a.out_of_sight,
+                        round_block=a.round_block,
+                        one_way=a.one_way == "all" or (a.one_way == "teams" and cars > 1),
+                        stub_sight=a.stub_sight,
+                        stub_delay=a.stub_delay,
                     )
+                    row = run_one(site, cars, seed, config)
                     print(json.dumps(row), flush=True)
                     rows.append(row)
                     if a.json:
