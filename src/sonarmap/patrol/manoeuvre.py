@@ -180,11 +180,30 @@ def clear_goals(
     clear: float,
     reach: float = 6.0,
 ) -> F64:
-    """Poses (M, 3: x, y, heading NaN, any heading will do) at the centres of the
-    ``passable`` cells within ``reach`` metres of (x, y) that lie at least ``clear``
-    metres from every point of ``away`` (K, 2, world metres): where a car held up by
-    the robots at ``away`` can back off to, so that they can pass. Empty (0, 3) when
-    there is no such cell."""
+    """Where a car held up by the robots at ``away`` can back off to, so that they can
+    pass.
+
+    Parameters
+    ----------
+    x, y : float
+        The car's position, world metres.
+    away : ndarray of float, shape (K, 2)
+        The positions of the robots to make way for, world metres.
+    passable : ndarray of bool, shape grid
+        Cells a car's centre may occupy.
+    grid : Grid
+        The grid of ``passable``.
+    clear : float
+        How far from every point of ``away`` a goal must lie, metres.
+    reach : float, optional
+        How far from (x, y) a goal may lie, metres; default 6.
+
+    Returns
+    -------
+    ndarray of float, shape (M, 3)
+        Goal poses (x, y, heading) at the centres of the qualifying cells, heading NaN
+        (any heading will do); (0, 3) when there is no such cell.
+    """
     res = grid.resolution
     k = math.ceil(reach / res)
     r0, c0 = (int(v) for v in grid.world_to_cell(x, y))
