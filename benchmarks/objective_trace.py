@@ -31,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sonarmap.errors import ConfigError
-from sonarmap.mappers._forward import ForwardProblem
+from sonarmap.mappers import ForwardProblem
 from sonarmap.mappers.gradient import GradientMapper
 from sonarmap.metrics import score
 from sonarmap.raster import rasterise

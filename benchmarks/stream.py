@@ -144,7 +144,7 @@ def offline_rows(sc: Scenario, minutes: float, bandwidth: float) -> dict[str, An
     problem = mapper.problem(r)
     t_build = time.perf_counter() - t0
     x0 = np.full(problem.n_cells, 0.5)
-    x, n_iter, _ = mapper._solve(problem, x0, None)
+    x, n_iter, _ = mapper.solve(problem, x0)
     t_total = time.perf_counter() - t0
     occ = np.full(grid.size, np.nan, dtype=np.float32)
     occ[problem.cells] = np.clip(x, 0, 1)

@@ -15,6 +15,7 @@ from ._base import (
     preset_params,
     register,
 )
+from ._forward import ForwardProblem
 from ._stream import StreamEngine
 from .counting import CountingMapper
 from .em import EMMapper
@@ -27,6 +28,7 @@ __all__ = [
     "MAPPERS",
     "CountingMapper",
     "EMMapper",
+    "ForwardProblem",
     "GradientMapper",
     "InverseMapper",
     "Mapper",

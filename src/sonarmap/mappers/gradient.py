@@ -334,7 +334,7 @@ class GradientMapper(Mapper):
             pairs = zip(problem.cells.tolist(), x.tolist(), strict=True)
             x = np.array([old.get(c, v) for c, v in pairs])
         start = x
-        x, self.n_iter_, self.history_ = self._solve(problem, start, progress)
+        x, self.n_iter_, self.history_ = self.solve(problem, start, progress)
         prior = np.ones(problem.n_terms) if problem.v is None else problem.v
         if self.robust > 0 and problem.n_cells > 0:
             for _ in range(self.robust_rounds):
@@ -343,7 +343,7 @@ class GradientMapper(Mapper):
                 # From the same start, not warm: the tent drives cells to 0 or 1, where
                 # a down-weighted term's cells would stay (the free terms' pull on a cell
                 # at 1 is only a1 w0 / sum w0).
-                x, n, hist = self._solve(problem, start, progress)
+                x, n, hist = self.solve(problem, start, progress)
                 self.n_iter_ += n
                 self.history_ += hist
         self._x = x
@@ -384,9 +384,31 @@ class GradientMapper(Mapper):
             math.radians(self.specular_deg),
         )
 
-    def _solve(
-        self, problem: ForwardProblem, x: F64, progress: Progress | None
+    def solve(
+        self, problem: ForwardProblem, x: F64, progress: Progress | None = None
     ) -> tuple[F64, int, list[float]]:
+        """Descend ``problem`` from ``x`` with the mapper's solver and stopping rule.
+
+        One solve, without the robust rounds :meth:`fit` adds (``robust``).
+
+        Parameters
+        ----------
+        problem : ForwardProblem
+            The objective, from :meth:`problem`.
+        x : ndarray of float64, shape (problem.n_cells,)
+            The start, occupancy in [0, 1] per cell of ``problem.cells``; not modified.
+        progress : Progress or None, optional
+            Told of each iteration (default None: silent).
+
+        Returns
+        -------
+        x : ndarray of float64, shape (problem.n_cells,)
+            The solution, unclipped.
+        n_iter : int
+            Iterations taken (0 when the problem has no cells).
+        history : list of float
+            The objective after each iteration.
+        """
         if problem.n_cells == 0:
             return x, 0, []
         solve = {"gd": _gd, "pgd": _pgd, "lbfgs": _lbfgs, "ccp": _ccp}[self.solver]
