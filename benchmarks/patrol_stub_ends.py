@@ -7,7 +7,9 @@ whose streets are all stubs, and :func:`sonarmap.patrol.stubs.stub_cells` counts
 in the stub. Printed per site: the stubs, the junctions beyond them (8-connected
 groups of ``stub_ends`` cells) with their sizes in cells, the watched places there
 (those whose nearest passable cell is one) and how many of those have a stand point,
-and all the watched places in stubs.
+and all the watched places in stubs and how many have a stand point; the last two also
+as they were with those junctions left out of the stubs (``stub_ends`` all False), with
+how many of those stand points lay on such a junction, inside the dead end.
 
 The cars are ``benchmarks.patrol_cars``'s (the simulation's own passable cells and
 watched places, turning radius 3.5 m, vision 10 m).
@@ -19,6 +21,7 @@ one process, one core (``NUMBA_NUM_THREADS=1``); prints one JSON line a site.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 
@@ -48,6 +51,12 @@ def count(site: int) -> dict[str, object]:
     stands = stand_points(
         passable, where.watched, ow, t.grid.resolution, config.vision - SIGHT_MARGIN
     )
+    # As it was before stub_ends: the same street system with none marked.
+    old = dataclasses.replace(ow, stub_ends=np.zeros_like(ow.stub_ends))
+    stands_old = stand_points(
+        passable, where.watched, old, t.grid.resolution, config.vision - SIGHT_MARGIN
+    )
+    has_old = stands_old >= 0
     return {
         "site": site,
         "stubs": int(ow.stubs.sum()),
@@ -56,6 +65,14 @@ def count(site: int) -> dict[str, object]:
         "their_places": int(at_ends.sum()),
         "their_places_with_stand_point": int((at_ends & (stands >= 0)).sum()),
         "stub_places": int(stub_places(passable, where.watched, ow).sum()),
+        "stub_places_with_stand_point": int((stands >= 0).sum()),
+        "without_stub_ends": {
+            "stub_places": int(stub_places(passable, where.watched, old).sum()),
+            "stub_places_with_stand_point": int(has_old.sum()),
+            "stand_point_on_a_junction_beyond_a_stub": int(
+                ow.stub_ends.ravel()[stands_old[has_old]].sum()
+            ),
+        },
     }
 
 
