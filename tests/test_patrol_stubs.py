@@ -143,7 +143,7 @@ def test_a_junction_beyond_a_stub_belongs_to_the_stub() -> None:
     assert streets.street[mouth] == -1
     assert not stub[mouth]
     assert not streets.stub_ends[mouth]
-    # Its far places (the bar's ends, 12 m from the south street) have no stand point.
+    # The bar's far end has no stand point; the stub's near part still has one.
     stand = stand_points(passable, t.free, streets, RES, 9.0)
     assert stand[g.world_to_cell(21.0, 17.0)] == -1
     assert stand[g.world_to_cell(30.0, 9.0)] >= 0
