@@ -554,7 +554,7 @@ class Car(Team):
         if move is None and left == s:
             # Not even a start: a manoeuvre from here would fail the same way.
             self.plans[i] = None
-            self.rest[i] = self.patience
+            self._rest_and_retry(i)
             return None
         if not plan.arcs:
             self.plans[i] = None
