@@ -3,9 +3,10 @@
 Setting: one run of ``benchmarks.patrol_cars``'s cars with one-way streets
 (:mod:`sonarmap.patrol.oneway`) on a street site. Every step a car spends on a
 manoeuvre (by :data:`sonarmap.patrol.robots.CAUSES`) is put in one class by the cell the
-car is on: a ``junction``, a ``stub`` (a bridge of the street graph, two-way), a
-``two-way end`` of a one-way street (within its junction's reach of either end), the
-``one-way`` part of a street, or a ``wide`` two-way street. Figures are % of the team's
+car is on: a ``junction``, a ``stub`` (a bridge of the street graph, two-way, or a
+junction beyond one, :attr:`sonarmap.patrol.oneway.OneWay.stub_ends`), a ``two-way
+end`` of a one-way street (within its junction's reach of either end), the ``one-way``
+part of a street, or a ``wide`` two-way street. Figures are % of the team's
 time, so they add up to the run's DVT.
 
 Also printed: the watched places in dead-end stubs and how many of them a car sees from
@@ -44,6 +45,8 @@ from sonarmap.patrol.stubs import stand_points, stub_places
 def cell_class(ow: OneWay, r: int, c: int) -> str:
     """The class of cell (r, c) (see the module's notes)."""
     e = int(ow.street[r, c])
+    if ow.stub_ends[r, c]:
+        return "stub"  # a junction beyond a stub: as much a dead end
     if e < 0:
         return "junction"
     if ow.bridges[e]:

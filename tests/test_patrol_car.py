@@ -572,3 +572,101 @@ def test_two_cars_at_the_mouth_of_the_street_both_go_for_part() -> None:
         if furthest > 24.0:
             break
     assert furthest > 24.0, f"no car got further than y = {furthest:.1f} m"
+
+
+def test_of_two_cars_held_at_the_mouth_only_one_backs_off() -> None:
+    # The same two cars. Both rest after their first search (each found no manoeuvre
+    # onto its route); the earlier car used to read the later one's rest before the
+    # later one counted it down, took it for resting, and both planned for traffic on
+    # the same step: both backed off, side by side, for 5 steps.
+    t = _crossroads()
+    passable = t.passable(1.0)
+    rng = np.random.default_rng(0)
+    car = Car(
+        np.array([16.15, 13.87]),
+        np.array([16.06, 16.07]),
+        np.radians([126.0, 54.0]),
+        clearance=t.clearance,
+        planner="track",
+    )
+    lanes = ((15.25, 0.5), (14.75, -0.5))
+    both = 0
+    traffic = np.zeros(2, dtype=np.int64)
+    for _ in range(60):  # 30 s at 0.5 s a step
+        directions: list[tuple[float, float] | None] = []
+        points: list[tuple[float, float] | None] = []
+        for i, (lane, side) in enumerate(lanes):
+            x0, y0 = float(car.x[i]), float(car.y[i])
+            route = _route_north(x0, y0, lane, side)
+            car.routes[i] = route
+            p = carrot(route, x0, y0, 3.0)
+            n = math.hypot(p[0] - x0, p[1] - y0)
+            directions.append(((p[0] - x0) / n, (p[1] - y0) / n) if n > 1e-9 else None)
+            points.append(p)
+        car.step(directions, passable, t.grid, 0.5, rng, points)
+        driving = [
+            p is not None and c == "traffic" for p, c in zip(car.plans, car.cause, strict=True)
+        ]
+        both += all(driving)
+        traffic += np.array(driving)
+    assert traffic.sum() > 0, "neither car planned for traffic: the scene does not test the rule"
+    assert both == 0, f"both cars drove a traffic manoeuvre on {both} steps"
+    # The later car is the one that makes way.
+    assert traffic[0] == 0 < traffic[1]
+
+
+def _dead_end_corridor(res: float = 0.5) -> Territory:
+    """A 15 x 30 m yard (x < 15 m) with a 3.5 m wide corridor east from it to a dead
+    end at x = 35 m (y 13-16.5 m), in a 40 x 30 m map."""
+    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(int(30 / res), int(40 / res)))
+    occ = np.ones(g.shape, np.float32)
+    occ[:, : int(15 / res)] = 0.0
+    occ[int(13 / res) : int(16.5 / res), : int(35 / res)] = 0.0
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def test_a_held_car_with_no_room_to_back_off_rests_and_the_other_makes_way() -> None:
+    # Car 1 (the later, the one the traffic rule picks) has its back to the dead end:
+    # no cell within 6 m of it lies 5.5 m from car 0, so it can neither get past nor
+    # back off. It rests and searches again later; car 0, which went for the dead end,
+    # must not wait for it but back off itself.
+    t = _dead_end_corridor()
+    g = t.grid
+    passable = t.passable(1.0)
+    y = 14.75
+    car = Car(
+        np.array([30.0, 32.3]),
+        np.array([y, y]),
+        np.array([0.0, math.pi]),
+        clearance=t.clearance,
+        planner="track",
+    )
+    assert not len(clear_goals(32.3, y, np.array([[30.0, y]]), passable, g, 5.5))
+    assert len(clear_goals(30.0, y, np.array([[32.3, y]]), passable, g, 5.5))
+    rng = np.random.default_rng(0)
+    rested = False
+    backed: list[float] = []
+    for _ in range(2 * car.patience + 2):
+        routes = [
+            np.array([[car.x[0], car.y[0]], [33.5, y]]),
+            np.array([[car.x[1], car.y[1]], [5.0, y], [5.0, 5.0]]),
+        ]
+        directions: list[tuple[float, float] | None] = []
+        points: list[tuple[float, float] | None] = []
+        for i, route in enumerate(routes):
+            x0, y0 = float(car.x[i]), float(car.y[i])
+            car.routes[i] = route
+            p = carrot(route, x0, y0, 3.0)
+            n = math.hypot(p[0] - x0, p[1] - y0)
+            directions.append(((p[0] - x0) / n, (p[1] - y0) / n) if n > 1e-9 else None)
+            points.append(p)
+        x_before = float(car.x[0])
+        car.step(directions, passable, g, 0.5, rng, points)
+        rested |= bool(car.rest[1] > 0)
+        assert car.plans[1] is None or car.cause[1] != "traffic"
+        plan = car.plans[0]
+        if plan is not None and car.cause[0] == "traffic":
+            backed.append(x_before - float(car.x[0]))
+    assert rested
+    assert backed, "car 0 waited for the resting car"
+    assert sum(backed) > 1.0  # reversing west, away from the dead end

@@ -101,6 +101,61 @@ def test_stand_points_check_their_inputs() -> None:
         stand_points(passable, t.free, streets, RES, float("nan"))
 
 
+def _ring_with_a_t_shaped_stub() -> Territory:
+    """5 m streets round a 50 x 20 m block (walled round, 60 x 30 m), with a 4 m wide
+    dead end cut north into the block from the south street's middle (x 28-32 m, 10 m
+    deep) that ends in a 4 m wide bar from x = 20 to 40 m: a T the street graph gives a
+    junction of its own, beyond the stub."""
+    w, h = 60.0, 30.0
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
+    occ = np.zeros(g.shape, np.float32)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
+
+    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
+        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
+
+    box(5.0, 5.0, 55.0, 25.0, 1.0)
+    box(28.0, 5.0, 32.0, 15.0, 0.0)
+    box(20.0, 15.0, 40.0, 19.0, 0.0)
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def test_a_junction_beyond_a_stub_belongs_to_the_stub() -> None:
+    # Training sites 5, 7, 9 and 11 have such junctions (a dead end that bends or
+    # branches): their cells belonged to no street, so to no stub, and the places there
+    # were neither looked at from the mouth nor delayed.
+    t = _ring_with_a_t_shaped_stub()
+    g = t.grid
+    passable = t.passable(1.0)
+    streets = one_way(passable, t.clearance, RES, 3.5)
+    stub = stub_cells(passable, streets)
+    tee = g.world_to_cell(30.0, 17.0)
+    assert streets.street[tee] == -1  # a junction of the street graph
+    assert streets.stub_ends[tee]
+    # Every passable cell of the T and of the stub leading to it is a stub cell.
+    r0, c0 = g.world_to_cell(20.0, 19.0)
+    r1, c1 = g.world_to_cell(40.0, 7.5)
+    box = np.zeros_like(passable)
+    box[r0 : r1 + 1, c0 : c1 + 1] = True
+    assert stub[box & passable].all()
+    # The junction where the stub opens on the south street is no stub's.
+    mouth = g.world_to_cell(30.0, 2.5)
+    assert streets.street[mouth] == -1
+    assert not stub[mouth]
+    assert not streets.stub_ends[mouth]
+    # The bar's far end has no stand point; the stub's near part still has one.
+    stand = stand_points(passable, t.free, streets, RES, 9.0)
+    assert stand[g.world_to_cell(21.0, 17.0)] == -1
+    assert stand[g.world_to_cell(30.0, 9.0)] >= 0
+
+
+def test_a_ring_of_streets_has_no_stub_ends() -> None:
+    t = _ring_with_stubs()
+    passable = t.passable(1.0)
+    streets = one_way(passable, t.clearance, RES, 3.5)
+    assert not streets.stub_ends.any()
+
+
 def _thin_ring_with_a_stub() -> Territory:
     """5 m streets round a 40 x 3 m block (walled round, 60 x 26 m): from the north
     street a car sees the south street across the block but not the far end of a 4 m

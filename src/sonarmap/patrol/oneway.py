@@ -156,6 +156,11 @@ class OneWay:
     in_graph : ndarray of bool, shape (streets,)
         Which streets are edges of the street graph: False for a segment touching no
         junction or three of them.
+    stub_ends : ndarray of bool, shape grid
+        The passable cells of the junctions that lie beyond a stub (cut off by it
+        from every cycle of streets) and whose streets are all stubs: where a dead end
+        bends or branches, or the thinning forks at its far end, the graph makes a
+        junction there, whose cells belong to no street but are as much a dead end.
     two_way : ndarray of bool, shape grid
         Passable cells where the street's direction does not hold: junctions, cells of
         two-way streets, and a one-way street's cells within its junction's reach of
@@ -172,6 +177,7 @@ class OneWay:
     stubs: B
     in_graph: B
     two_way: B
+    stub_ends: B
 
     @property
     def share(self) -> float:
@@ -229,6 +235,31 @@ def _orient(n_nodes: int, ends: list[tuple[int, int]]) -> tuple[B, B]:
                 seen[v] = True
                 stack.append((v, iter(sorted(incident[v]))))
     return forward, bridge
+
+
+def _beyond(n_nodes: int, ends: list[tuple[int, int]], bridge: B, stub: B) -> B:
+    """Which nodes of a multigraph over nodes 0..n-1 with edges ``ends`` (u, v) lie
+    beyond a ``stub`` edge (a ``bridge``): without it, on the side holding no cycle
+    while the other side holds one. In a graph with no cycle no node does (no side is
+    the street's far end)."""
+    g = nx.MultiGraph()
+    g.add_nodes_from(range(n_nodes))
+    for k, (u, v) in enumerate(ends):
+        g.add_edge(u, v, key=k)
+    on_cycle = np.zeros(n_nodes, dtype=bool)
+    for k, (u, v) in enumerate(ends):
+        if not bridge[k]:
+            on_cycle[u] = on_cycle[v] = True
+    out = np.zeros(n_nodes, dtype=bool)
+    for k in np.flatnonzero(stub & bridge).tolist():
+        u, v = ends[k]
+        g.remove_edge(u, v, key=k)
+        sides = [sorted(nx.node_connected_component(g, side)) for side in (u, v)]
+        g.add_edge(u, v, key=k)
+        cyclic = [bool(on_cycle[side].any()) for side in sides]
+        if cyclic[0] != cyclic[1]:
+            out[sides[1] if cyclic[0] else sides[0]] = True
+    return out
 
 
 def _dead_ends(n_nodes: int, ends: list[tuple[int, int]], bridge: B) -> B:
@@ -483,6 +514,17 @@ def one_way(
     for s in range(n_segments):
         widths[s] = 2.0 * float(np.median(clearance[segment == s]))
     directed = ~bridge & (widths < 2.0 * turn_radius)
+    stubs = dead_end & (widths < 2.0 * turn_radius)
+    # A junction beyond a stub whose streets are all stubs: the stub's far end.
+    end_node = np.zeros(n_junctions, dtype=bool)
+    if valid:
+        far = _beyond(n_nodes, [ends[k] for k in valid], bridge[valid], stubs[valid])
+        end_node = far[:n_junctions].copy()
+        for k, (u, v) in enumerate(ends):
+            if u >= 0 and not stubs[k]:
+                for x in (u, v):
+                    if x < n_junctions:
+                        end_node[x] = False
     # Distance along each directed segment from the cell touching its tail junction.
     along_skel = np.full(mask.shape, np.nan)
     reach = np.zeros(n_nodes)
@@ -524,8 +566,11 @@ def one_way(
     src_rc = flat_rc[np.maximum(source, 0)]
     seg_of = np.where(src_ok, segment[src_rc[:, 0], src_rc[:, 1]], -1)
     al = np.where(src_ok, along_skel[src_rc[:, 0], src_rc[:, 1]], np.nan)
+    node_at = np.where(src_ok, node_of[src_rc[:, 0], src_rc[:, 1]], -1)
     street[mask] = seg_of
     along[mask] = al
+    stub_ends = np.zeros(mask.shape, dtype=bool)
+    stub_ends[mask] = np.append(end_node, False)[node_at]  # node -1 (none): the False
     length = np.zeros(n_segments)
     for s in np.flatnonzero(directed).tolist():
         length[s] = float(np.nanmax(along_skel[segment == s]))
@@ -565,7 +610,8 @@ def one_way(
         one_way=directed,
         widths=widths,
         bridges=bridge,
-        stubs=dead_end & (widths < 2.0 * turn_radius),
+        stubs=stubs,
         in_graph=np.array([e[0] >= 0 for e in ends], dtype=bool),
         two_way=free & mask,
+        stub_ends=stub_ends,
     )

@@ -554,7 +554,7 @@ class Car(Team):
         if move is None and left == s:
             # Not even a start: a manoeuvre from here would fail the same way.
             self.plans[i] = None
-            self.rest[i] = self.patience
+            self._rest_and_retry(i)
             return None
         if not plan.arcs:
             self.plans[i] = None
@@ -639,6 +639,16 @@ class Car(Team):
             separation=self.min_separation + 0.5,
         )
 
+    def _rest_and_retry(self, i: int) -> None:
+        """Car i found no manoeuvre from where it stands (onto its route, nor, held
+        for traffic, back off to room within 6 m): it rests ``patience`` steps before
+        it searches again, since searching next step would find none either. A car
+        that held it and yielded to it (:meth:`_yielded_to`) does not wait for a
+        resting car: it plans in turn, onto its route or backing off itself, so of two
+        cars holding each other the one with room makes way. Two with no room either
+        way stand and search by turns."""
+        self.rest[i] = self.patience
+
     def _plan(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid, cause: str) -> bool:
         """Plan a manoeuvre for car i onto its route, for ``cause`` (of :data:`CAUSES`);
         True when one was found."""
@@ -662,8 +672,7 @@ class Car(Team):
             # (only the car :meth:`_yielded_to` picks plans for traffic, so one parts).
             plan = self._back_off(i, passable, grid, others)
         if plan is None or not plan.arcs:
-            # No way out from here: searching again next step would find none either.
-            self.rest[i] = self.patience
+            self._rest_and_retry(i)
             return False
         self.plans[i] = plan
         self.cause[i] = cause
@@ -686,9 +695,13 @@ class Car(Team):
         kmax = 1.0 / self.turn_radius
         # The manoeuvres as they were, for the cars the collision rule holds back.
         saved: dict[int, list[tuple[float, float]]] = {}
+        # Every car's rest counts down before any car plans: :meth:`_yielded_to` reads
+        # the later cars' rest, which a count-down inside the loop would leave a step
+        # stale (car i would take a later car about to search again for a resting one,
+        # and both would back off on the same step).
+        self.rest = np.maximum(self.rest - 1, 0)
         for i, d in enumerate(directions):
             s = self.speed_of(i, grid) * dt
-            self.rest[i] = max(0, self.rest[i] - 1)
             if (
                 self.plans[i] is None
                 and self.held[i] >= self.patience

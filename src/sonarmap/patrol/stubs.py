@@ -32,7 +32,8 @@ I64 = npt.NDArray[np.int64]
 
 
 def stub_cells(passable: B, streets: OneWay) -> B:
-    """The passable cells of the dead-end stubs (:attr:`OneWay.stubs`).
+    """The passable cells of the dead-end stubs (:attr:`OneWay.stubs`), with the
+    junctions the street graph makes at their far ends (:attr:`OneWay.stub_ends`).
 
     Parameters
     ----------
@@ -56,7 +57,7 @@ def stub_cells(passable: B, streets: OneWay) -> B:
     on = streets.street >= 0
     out = np.zeros(passable.shape, dtype=bool)
     out[on] = streets.stubs[streets.street[on]]
-    return out & passable
+    return (out | streets.stub_ends) & passable
 
 
 def stub_places(passable: B, watched: B, streets: OneWay) -> B:
