@@ -39,7 +39,7 @@ F64 = npt.NDArray[np.float64]
 MAX_HEADING_BIAS = 0.05
 
 
-def debias(transform: Sequence[float], bias: float) -> tuple[float, float, float]:
+def debias(transform: Sequence[float] | F64, bias: float) -> tuple[float, float, float]:
     """An odometry step ``(x, y, theta)`` (the second pose in the first's frame) with
     ``bias`` radians per metre removed: the heading change less ``bias`` times the
     step's length, the translation turned back by half of that (the bias turned the

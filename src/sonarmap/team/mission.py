@@ -21,6 +21,9 @@ Decisions where the thesis is silent:
   (docs/results/2026-12-03-team-code-notes.md).
 - **Odometry edges** carry the odometry model's covariance and the hard bound top
   speed x elapsed time (``max_speed``, 1.0 m/s: twice the route's speed).
+- **Odometry calibration.** A robot alone estimates its odometry's heading bias (rad
+  per metre) on each batch's graph and stores its edges corrected by it
+  (:mod:`.calibration`); a team's robots do not (``calibrate=False``).
 - **Association** is tried against every pose in the store. The thesis's hard bound
   (top speed x elapsed time) removes nothing once a minute has passed in a building,
   so each candidate also gets the prior of the current estimates: the new pose's
@@ -483,14 +486,13 @@ class RobotAgent:
         uid = make_uid(self.robot, self.counter)
         self.counter += 1
         # The odometry since the previous pose, which the store keeps until this one.
-        step = None
+        step: F64 | None = None
         estimate = self.believed(k)
         if prev_uid is not None and prev_uid in store.local.poses:
             assert prev_k is not None
-            # The odometry since the previous pose, corrected by the calibration so far.
-            step = np.array(
-                debias(compose(invert(odo[prev_k, 1:4]), odo[k, 1:4]), self.heading_bias)
-            )
+            # Corrected by the calibration so far.
+            measured = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
+            step = np.array(debias(measured, self.heading_bias), dtype=np.float64)
             estimate = compose(store.local.poses[prev_uid].estimate, step)
         readings, mounts, steps = self.sensing.readings_up_to(-1 if prev_k is None else prev_k, k)
         local = _local_map(
