@@ -21,6 +21,9 @@ Decisions where the thesis is silent:
   (docs/results/2026-12-03-team-code-notes.md).
 - **Odometry edges** carry the odometry model's covariance and the hard bound top
   speed x elapsed time (``max_speed``, 1.0 m/s: twice the route's speed).
+- **Odometry calibration.** A robot alone estimates its odometry's heading bias (rad
+  per metre) on each batch's graph and stores its edges corrected by it
+  (:mod:`.calibration`); a team's robots do not (``calibrate=False``).
 - **Association** is tried against every pose in the store. The thesis's hard bound
   (top speed x elapsed time) removes nothing once a minute has passed in a building,
   so each candidate also gets the prior of the current estimates: the new pose's
@@ -76,6 +79,7 @@ from .association import (
     Prior,
     associate,
 )
+from .calibration import MAX_HEADING_BIAS, debias, debias_edges, heading_bias_step
 from .config import MissionConfig
 from .evaluation import MissionEvaluator
 from .globalmap import (
@@ -248,6 +252,10 @@ class RobotAgent:
         The robot's id: its UIDs' source and its seeds.
     record : bool
         Keep a :class:`~sonarmap.team.animation.Frame` per pose made.
+    calibrate : bool
+        Calibrate the odometry's heading bias from the pose graph while the store holds
+        no other robot's layer (:meth:`batch`, :mod:`.calibration`; True). A team's
+        robots pass False: their edges, once offered to the others, must not change.
 
     Attributes
     ----------
@@ -260,6 +268,10 @@ class RobotAgent:
         The prior map's region of each route step.
     k : int
         The next route step :meth:`step` processes.
+    heading_bias : float
+        The odometry's heading bias as estimated so far, rad per metre (0 until a batch
+        measures it): every own odometry edge in the store, and each new one, is
+        corrected by it.
     """
 
     def __init__(
@@ -272,6 +284,7 @@ class RobotAgent:
         world: World | None = None,
         robot: int = 0,
         record: bool = False,
+        calibrate: bool = True,
     ) -> None:
         cfg = MissionConfig() if config is None else config
         prior = plan if prior is None else prior
@@ -283,6 +296,7 @@ class RobotAgent:
         self.prior = prior
         self.robot = robot
         self.record = record
+        self.calibrate = calibrate
         world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
         self.world = world
         self.sensing = sensing = RobotSensing(plan, cfg, world, robot, route)
@@ -311,6 +325,7 @@ class RobotAgent:
         self.drift_of: dict[int, F64] = {}
         self.prev_k: int | None = None
         self.prev_uid: int | None = None
+        self.heading_bias = 0.0
         self.counter = 0
         self.k = 0
 
@@ -430,7 +445,20 @@ class RobotAgent:
         graph, dropped = _optimise(self.store)
         self.evaluator.dropped(dropped)
         self.graph = graph
+        if self.calibrate and not self.store.received:
+            self._calibrate(graph)
         return graph
+
+    def _calibrate(self, graph: GraphResult) -> None:
+        """Add the heading bias the optimised ``graph`` still shows on the own odometry
+        edges to :attr:`heading_bias`, and correct every stored edge by the change, so
+        that every edge carries the same calibration (compression composes them)."""
+        layer = self.store.local
+        new = self.heading_bias + heading_bias_step(layer.edges, graph.estimates)
+        new = min(MAX_HEADING_BIAS, max(-MAX_HEADING_BIAS, new))
+        # Records are replaced, not edited: the layer re-measures their bytes.
+        layer.edges = debias_edges(layer.edges, new - self.heading_bias)
+        self.heading_bias = new
 
     def advance_to(self, t: float) -> int:
         """Process every route step up to mission time ``t``; the poses made."""
@@ -458,11 +486,13 @@ class RobotAgent:
         uid = make_uid(self.robot, self.counter)
         self.counter += 1
         # The odometry since the previous pose, which the store keeps until this one.
-        step = None
+        step: F64 | None = None
         estimate = self.believed(k)
         if prev_uid is not None and prev_uid in store.local.poses:
             assert prev_k is not None
-            step = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
+            # Corrected by the calibration so far.
+            measured = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
+            step = np.array(debias(measured, self.heading_bias), dtype=np.float64)
             estimate = compose(store.local.poses[prev_uid].estimate, step)
         readings, mounts, steps = self.sensing.readings_up_to(-1 if prev_k is None else prev_k, k)
         local = _local_map(
@@ -563,6 +593,7 @@ class RobotAgent:
         d: dict[str, Any] = {name: getattr(self, name) for name in self.PLAIN_STATE}
         d["made"] = [encode(p) for p in self.made.values()]
         d["drift"] = [float(v) for v in np.asarray(self.drift).ravel()]
+        d["heading_bias"] = float(self.heading_bias)
         d["drift_of"] = [[u, [float(v) for v in m.ravel()]] for u, m in self.drift_of.items()]
         d.update(self.evaluator.state())
         return d
@@ -576,6 +607,7 @@ class RobotAgent:
         made = [decode_as(b, Pose) for b in d["made"]]
         self.made = {p.uid: p for p in made}
         self.drift = np.array(d["drift"], dtype=np.float64).reshape(3, 3)
+        self.heading_bias = float(d.get("heading_bias", 0.0))
         self.drift_of = {
             int(u): np.array(m, dtype=np.float64).reshape(3, 3) for u, m in d.get("drift_of", [])
         }
@@ -648,6 +680,8 @@ class RobotAgent:
             "regions_used": len({p.region for p in store.local.poses.values()}),
             **scores,
             "alignment_score_m": float(alignment.score),
+            # The odometry calibration's estimate at the end, rad per metre (0 in a team).
+            "odometry_heading_bias": float(self.heading_bias),
             "association_ms_median": float(np.median(assoc) * 1e3) if len(assoc) else math.nan,
             "association_ms_p99": float(np.percentile(assoc, 99) * 1e3) if len(assoc) else math.nan,
             "pose_interval_s": float(cfg.duration / max(counter, 1)),

@@ -380,7 +380,9 @@ class _Node:
             raise ConfigError(f"routes: {len(given)} given for a team of {len(ids)}")
         world = make_world(plan, seed=cfg.seed, duration=cfg.duration)
         own = None if given is None else given[robot]
-        self.agent = agent = RobotAgent(plan, cfg, prior=prior, world=world, robot=robot, route=own)
+        self.agent = agent = RobotAgent(
+            plan, cfg, prior=prior, world=world, robot=robot, route=own, calibrate=False
+        )
         routes = [agent.route]
         others_truth: dict[int, F64] = {}
         for j in self.others:

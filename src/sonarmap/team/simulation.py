@@ -351,6 +351,7 @@ def run_team(
             robot=i,
             route=None if routes is None else routes[i],
             record=record,
+            calibrate=False,
         )
         for i in range(robots)
     ]
