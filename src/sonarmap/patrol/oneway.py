@@ -156,6 +156,11 @@ class OneWay:
     in_graph : ndarray of bool, shape (streets,)
         Which streets are edges of the street graph: False for a segment touching no
         junction or three of them.
+    two_way : ndarray of bool, shape grid
+        Passable cells where the street's direction does not hold: junctions, cells of
+        two-way streets, and a one-way street's cells within its junction's reach of
+        either end. Every step between two of them is allowed (a step from one of them
+        into the one-way part of a street still keeps to its direction).
     stub_ends : ndarray of bool, shape grid
         The passable cells of the junctions that lie beyond a stub (cut off by it
         from every cycle of streets) and whose streets are all stubs: where a dead end
@@ -163,11 +168,6 @@ class OneWay:
         junction there, whose cells belong to no street but are as much a dead end.
         A junction touched by a street that is no stub (one a car turns round in, or
         one left out of the street graph) is none.
-    two_way : ndarray of bool, shape grid
-        Passable cells where the street's direction does not hold: junctions, cells of
-        two-way streets, and a one-way street's cells within its junction's reach of
-        either end. Every step between two of them is allowed (a step from one of them
-        into the one-way part of a street still keeps to its direction).
     """
 
     steps: npt.NDArray[np.uint8]
