@@ -149,6 +149,49 @@ def test_a_junction_beyond_a_stub_belongs_to_the_stub() -> None:
     assert stand[g.world_to_cell(30.0, 9.0)] >= 0
 
 
+def _ring_with_a_stub_to_a_wide_dead_end() -> Territory:
+    """5 m streets round a 50 x 20 m block (walled round, 60 x 30 m), with a 4 m wide
+    stub cut north into the block from the south street (x 28-32 m, 9 m deep) that ends
+    in a T: a 4 m wide bar west to x = 18 m and an 8 m wide dead end east to x = 50 m,
+    wider than a 3.5 m turning circle (a car turns round in it), so no stub."""
+    w, h = 60.0, 30.0
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
+    occ = np.zeros(g.shape, np.float32)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
+
+    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
+        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
+
+    box(5.0, 5.0, 55.0, 25.0, 1.0)
+    box(28.0, 5.0, 32.0, 14.0, 0.0)
+    box(18.0, 14.0, 32.0, 18.0, 0.0)
+    box(32.0, 12.0, 50.0, 20.0, 0.0)
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def test_a_junction_beyond_a_stub_with_a_wide_street_is_no_stub_end() -> None:
+    # Both junctions of the T lie beyond the stub from the south street; the one where
+    # the wide dead end begins has a street that is no stub, so it is no stub end.
+    t = _ring_with_a_stub_to_a_wide_dead_end()
+    g = t.grid
+    passable = t.passable(1.0)
+    streets = one_way(passable, t.clearance, RES, 3.5)
+    wide = streets.street[g.world_to_cell(42.0, 16.0)]
+    assert wide >= 0
+    assert streets.widths[wide] >= 2.0 * 3.5
+    assert not streets.stubs[wide]
+    assert streets.stubs[streets.street[g.world_to_cell(30.0, 9.0)]]
+    opening = g.world_to_cell(35.5, 15.5)
+    assert passable[opening]
+    assert streets.street[opening] == -1  # a junction of the street graph
+    assert not streets.stub_ends[opening]
+    assert not stub_cells(passable, streets)[opening]
+    # The junction where the stub meets the narrow bar is all stubs: a stub end.
+    corner = g.world_to_cell(30.5, 15.0)
+    assert streets.street[corner] == -1
+    assert streets.stub_ends[corner]
+
+
 def test_a_ring_of_streets_has_no_stub_ends() -> None:
     t = _ring_with_stubs()
     passable = t.passable(1.0)

@@ -156,16 +156,18 @@ class OneWay:
     in_graph : ndarray of bool, shape (streets,)
         Which streets are edges of the street graph: False for a segment touching no
         junction or three of them.
-    stub_ends : ndarray of bool, shape grid
-        The passable cells of the junctions that lie beyond a stub (cut off by it
-        from every cycle of streets) and whose streets are all stubs: where a dead end
-        bends or branches, or the thinning forks at its far end, the graph makes a
-        junction there, whose cells belong to no street but are as much a dead end.
     two_way : ndarray of bool, shape grid
         Passable cells where the street's direction does not hold: junctions, cells of
         two-way streets, and a one-way street's cells within its junction's reach of
         either end. Every step between two of them is allowed (a step from one of them
         into the one-way part of a street still keeps to its direction).
+    stub_ends : ndarray of bool, shape grid
+        The passable cells of the junctions that lie beyond a stub (cut off by it
+        from every cycle of streets) and whose streets are all stubs: where a dead end
+        bends or branches, or the thinning forks at its far end, the graph makes a
+        junction there, whose cells belong to no street but are as much a dead end.
+        A junction touched by a street that is no stub (one a car turns round in, or
+        one left out of the street graph) is none.
     """
 
     steps: npt.NDArray[np.uint8]
@@ -520,11 +522,11 @@ def one_way(
     if valid:
         far = _beyond(n_nodes, [ends[k] for k in valid], bridge[valid], stubs[valid])
         end_node = far[:n_junctions].copy()
-        for k, (u, v) in enumerate(ends):
-            if u >= 0 and not stubs[k]:
-                for x in (u, v):
-                    if x < n_junctions:
-                        end_node[x] = False
+        # Read from the cells the segments touch, not the graph's ends: a segment left
+        # out of the graph (glued to three junctions) is no stub and clears them too.
+        for k in np.flatnonzero(~stubs).tolist():
+            for x in touches[k]:
+                end_node[x] = False
     # Distance along each directed segment from the cell touching its tail junction.
     along_skel = np.full(mask.shape, np.nan)
     reach = np.zeros(n_nodes)

@@ -641,12 +641,20 @@ class Car(Team):
 
     def _rest_and_retry(self, i: int) -> None:
         """Car i found no manoeuvre from where it stands (onto its route, nor, held
-        for traffic, back off to room within 6 m): it rests ``patience`` steps before
-        it searches again, since searching next step would find none either. A car
-        that held it and yielded to it (:meth:`_yielded_to`) does not wait for a
-        resting car: it plans in turn, onto its route or backing off itself, so of two
-        cars holding each other the one with room makes way. Two with no room either
-        way stand and search by turns."""
+        for traffic, back off to room within 6 m; :meth:`_plan`), or has one whose
+        first step cannot be driven (:meth:`_drive_plan`, which drops it): it rests.
+        ``rest`` is set to ``patience`` and counts down at the start of each step, so
+        the car skips the search on the next ``patience - 1`` steps and searches again
+        on the ``patience``-th, since searching sooner would find none either; while
+        resting it plans none (it takes a pursuit arc clear for the step, else the
+        fallback on the thesis's escape). A car that held it and yielded to it
+        (:meth:`_yielded_to`) does not wait for a resting car: it plans in turn, onto
+        its route or backing off itself, so of two cars holding each other the one
+        with room makes way. Two with no room either way stand and search by turns.
+        In a dead-end corridor this does not settle which car leaves first: the car
+        that made way backs off about a turning radius, the other follows it out,
+        they meet again, and the one that rested, now with room behind it, backs off
+        in turn; the two take turns backing off."""
         self.rest[i] = self.patience
 
     def _plan(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid, cause: str) -> bool:
