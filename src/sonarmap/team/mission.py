@@ -86,6 +86,7 @@ from .globalmap import (
     grid_around,
     optimise_graph,
 )
+from .layergate import LayerPlacement, gate_closures, layer_placements
 from .records import (
     ClosureEdge,
     LocalMap,
@@ -309,6 +310,8 @@ class RobotAgent:
         self.drift = np.zeros((3, 3))
         #: The drift each stored own pose was made with (3 x 3, by UID).
         self.drift_of: dict[int, F64] = {}
+        #: Where each received layer lies in our frame, as of the last batch (by source).
+        self.placements: dict[int, LayerPlacement] = {}
         self.prev_k: int | None = None
         self.prev_uid: int | None = None
         self.counter = 0
@@ -430,7 +433,57 @@ class RobotAgent:
         graph, dropped = _optimise(self.store)
         self.evaluator.dropped(dropped)
         self.graph = graph
+        if self.cfg.layer_gate and self.store.received:
+            self.placements = layer_placements(
+                {u: p.estimate for u, p in self.store.local.poses.items()},
+                {
+                    s: {u: p.estimate for u, p in layer.poses.items()}
+                    for s, layer in self.store.received.items()
+                },
+                self.store.closures,
+            )
         return graph
+
+    def _gate(
+        self, closures: list[ClosureEdge], new: Pose, source: int | None, drift: F64 | None
+    ) -> list[ClosureEdge]:
+        """The closures of pose ``new`` (of layer ``source``, None for our own) that
+        pass the layer gate; those between two layers that disagree with where the robot
+        places the layers are told to the evaluator and left out. ``drift`` is the
+        covariance of an own new pose's estimate (None: a stored pose's, whose spread the
+        placements already hold)."""
+        if not self.cfg.layer_gate or not self.placements:
+            return closures
+        store = self.store
+        placed: dict[int, tuple[F64, F64]] = {}
+
+        def place(uid: int, layer: int | None, estimate: F64, extra: F64 | None) -> None:
+            if layer is None:
+                placed[uid] = (estimate, np.zeros((3, 3)) if extra is None else extra)
+            elif layer in self.placements:
+                at = self.placements[layer]
+                placed[uid] = (compose(at.frame, estimate), at.covariance())
+
+        place(new.uid, source, new.estimate, drift)
+        inter = []
+        for c in closures:
+            if c.a in store.local.poses:
+                layer = None
+                if source is None:
+                    continue
+                place(c.a, layer, store.local.poses[c.a].estimate, None)
+            else:
+                held = next((s for s, x in store.received.items() if c.a in x.poses), None)
+                if held is None or held == source:
+                    continue
+                place(c.a, held, store.received[held].poses[c.a].estimate, None)
+            inter.append(c)
+        _, rejected = gate_closures(inter, placed)
+        if not rejected:
+            return closures
+        gone = {id(c) for c in rejected}
+        self.evaluator.gated(rejected, own=source is None)
+        return [c for c in closures if id(c) not in gone]
 
     def advance_to(self, t: float) -> int:
         """Process every route step up to mission time ``t``; the poses made."""
@@ -515,6 +568,8 @@ class RobotAgent:
             )
             if np.trace(via) < np.trace(self.drift):
                 self.drift = via
+        # Received poses have no odometry prior: the layer gate judges their closures.
+        closures = self._gate(closures, pose, None, self.drift)
         self.assoc_seconds.append(time.perf_counter() - t0)
         self.evaluator.associated(pose, stored, closures, stats, t)
         store.add_own_pose(pose, edge, closures, t)
@@ -548,6 +603,7 @@ class RobotAgent:
         them apart from the own poses' scores."""
         stored = [p for p in self._candidates() if p.uid != pose.uid]
         closures, _ = associate(pose, stored, None, self.cfg.association)
+        closures = self._gate(closures, pose, source, None)
         self.evaluator.received(pose, closures)
         return closures
 
