@@ -620,6 +620,12 @@ class RobotAgent:
         d["made"] = [encode(p) for p in self.made.values()]
         d["drift"] = [float(v) for v in np.asarray(self.drift).ravel()]
         d["drift_of"] = [[u, [float(v) for v in m.ravel()]] for u, m in self.drift_of.items()]
+        # The layers' placements as of the last batch: a restarted node must gate as the
+        # robot did, not as a batch at restart would.
+        d["placements"] = [
+            [s, [float(v) for v in at.frame], at.sigma_xy, at.sigma_theta, at.support]
+            for s, at in self.placements.items()
+        ]
         d.update(self.evaluator.state())
         return d
 
@@ -634,6 +640,10 @@ class RobotAgent:
         self.drift = np.array(d["drift"], dtype=np.float64).reshape(3, 3)
         self.drift_of = {
             int(u): np.array(m, dtype=np.float64).reshape(3, 3) for u, m in d.get("drift_of", [])
+        }
+        self.placements = {
+            int(s): LayerPlacement(np.array(f, dtype=np.float64), float(sx), float(st), int(n))
+            for s, f, sx, st, n in d.get("placements", [])
         }
         self.evaluator.restore(d)
 
