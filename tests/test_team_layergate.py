@@ -145,7 +145,8 @@ def test_a_repeated_structure_match_is_rejected_and_the_true_one_kept() -> None:
 def test_an_unplaced_pose_passes_untested() -> None:
     c = ClosureEdge(1, 2, (100.0, 0.0, 0.0), tuple(np.eye(3).ravel() * 1e-4), 20, 0.01)
     kept, rejected = gate_closures([c], {1: (np.zeros(3), np.zeros((3, 3)))})
-    assert kept == [c] and rejected == []
+    assert kept == [c]
+    assert rejected == []
 
 
 @pytest.mark.parametrize("shift", [0.0, 0.5])
