@@ -50,12 +50,21 @@ def test_placement_recovers_the_layer_frame() -> None:
     placed = layer_placements(own, {1: layer}, closures)
     assert set(placed) == {1}
     at = placed[1]
-    assert at.support == len(closures)
-    np.testing.assert_allclose(at.frame[:2], FRAME[:2], atol=0.1)
-    assert abs(math.remainder(at.frame[2] - FRAME[2], 2 * math.pi)) < 0.02
+    assert len(at.proposals) == len(closures)
+    u = make_uid(1, 7)
+    where, cov = at.place(layer[u])
+    np.testing.assert_allclose(where[:2], compose(FRAME, layer[u])[:2], atol=0.1)
     # The spread is measured from the residuals: of the closures' noise's order.
-    assert 0.0 < at.sigma_xy < 0.2
-    assert 0.0 < at.sigma_theta < 0.05
+    assert 0.0 < cov[0, 0] < 0.2**2
+    assert 0.0 < cov[2, 2] < 0.05**2
+
+
+def test_placement_spread_grows_away_from_its_closures() -> None:
+    own, layer, closures = _corridor(np.random.default_rng(2))
+    at = layer_placements(own, {1: layer}, closures)[1]
+    near = at.place(layer[make_uid(1, 10)])[1]
+    far = at.place(compose(invert(FRAME), np.array([60.0, 0.2, 0.05])))[1]
+    assert far[0, 0] > 4 * near[0, 0]
 
 
 def test_a_layer_with_too_few_closures_is_not_placed() -> None:
@@ -131,11 +140,10 @@ def test_a_repeated_structure_match_is_rejected_and_the_true_one_kept() -> None:
     truly = compose(invert(at_w), at_r)
     assert math.hypot(*(np.asarray(wrong.transform[:2]) - truly[:2])) > PERIOD - 1.0
 
-    at = placements[1]
     placed = {
         a.uid: (a.estimate, np.zeros((3, 3))),
         w.uid: (w.estimate, np.zeros((3, 3))),
-        r_uid: (compose(at.frame, r.estimate), at.covariance()),
+        r_uid: placements[1].place(r.estimate),
     }
     kept, rejected = gate_closures(found, placed)
     assert [c.a for c in kept] == [a.uid]

@@ -2,22 +2,25 @@
 the robot currently places the layers it joins?
 
 A robot holds its own layer and one received layer per other robot. A received pose's
-estimate is in its source's frame; the robot places the whole layer in its own frame by
-the closures joining the layer's poses to its own poses
-(:func:`~.globalmap.layer_frames`, a median, so that a few wrong closures do not move it).
-With the layer placed, a new closure between two layers predicts nothing new about where
-the layers lie: its transform should agree with the relative pose the placements give,
-within the closure's covariance and the placement's own spread. Repeated structure (the
-same shelf, door or pillar every few metres) gives closures that fit their landmarks well
-and put the pose a period away; those disagree with the placement by metres.
+estimate is in its source's frame; each closure joining a layer's pose to an own pose
+proposes where the layer's frame lies in the robot's (as :func:`~.globalmap.layer_frames`
+uses them). With a layer placed, a new closure between two layers predicts nothing new
+about where the layers lie: its transform should agree with the relative pose the
+placements give, within the closure's covariance and the placement's own spread.
+Repeated structure (the same shelf, door or pillar every few metres) gives closures that
+fit their landmarks well and put the pose a period away; those disagree with the
+placement by metres.
 
-The test is a chi-square test at 99 % with 3 degrees of freedom on the closure's
-residual against the placements (the same quantile the graph's GNC and gate use,
-:data:`~.globalmap.CHI2_99_3DOF`). A layer's placement spread is measured, not set: the
-residuals of the closures that place it, scaled robustly (the normal-consistent median
-of absolute values, so the wrong closures among them do not inflate it). A layer with
-fewer than ``min_support`` closures to the robot's own poses is not placed, and closures
-to it pass untested.
+A pose is placed by the ``min_support`` proposals made nearest it in its layer's frame
+(:class:`LayerPlacement`): a layer's shape as sent is not rigid, so one frame for the
+whole layer would fit its far ends badly. The test is a chi-square test at 99 % with 3
+degrees of freedom on the closure's residual against the placements (the quantile the
+graph's GNC and gate use, :data:`~.globalmap.CHI2_99_3DOF`). A placement's spread is
+measured, not set: the residuals of the proposals that place it, scaled robustly (the
+normal-consistent median of absolute values, so wrong closures among them do not
+inflate it), the heading's carried over the distance to them. A layer with fewer than
+``min_support`` closures to the robot's own poses is not placed, and closures to it
+pass untested.
 
 Closures between two poses of one layer are never tested here: the single-robot path
 (odometry priors, :func:`~.association.associate`) judges those.
@@ -32,8 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 from scipy import stats
+from scipy.spatial import cKDTree
 
-from .globalmap import CHI2_99_3DOF, layer_frames
+from .globalmap import CHI2_99_3DOF
 from .records import ClosureEdge, compose, invert
 
 __all__ = [
@@ -53,33 +57,84 @@ MIN_SUPPORT = 10
 _NORMAL_MAD = float(1.0 / stats.norm.ppf(0.75))
 
 
-@dataclass(frozen=True)
-class LayerPlacement:
-    """Where a received layer lies in the robot's frame, and how well that holds.
+def _heading_median(theta: F64) -> float:
+    return math.atan2(float(np.median(np.sin(theta))), float(np.median(np.cos(theta))))
 
-    Attributes
+
+@dataclass
+class LayerPlacement:
+    """Where a received layer lies in the robot's frame, near each of its poses, and how
+    well that holds there.
+
+    A layer's shape as its source sent it is not rigid (each pose's estimate is the
+    source's when it was sent, before later revisits bent its trajectory into place), so
+    one frame for the whole layer fits its far ends badly. Each closure joining the
+    layer to an own pose proposes a frame (``est_own (+) T (+) inv(est_layer)``); a pose
+    of the layer is placed by the ``support`` proposals made nearest it in the layer's
+    frame: their median frame, with the robust spread of their residuals about it, and
+    the heading's spread carried over the distance from those closures' poses to the
+    pose placed.
+
+    Parameters
     ----------
-    frame : ndarray (3,)
-        ``(x, y, theta)`` of the layer's frame (its source's) in the robot's: a pose of
-        the layer at estimate ``e`` lies at ``frame (+) e``.
-    sigma_xy : float
-        Robust standard deviation (m) of the position residuals of the closures that
-        place the layer (x and y pooled).
-    sigma_theta : float
-        Likewise of the heading residuals (rad).
+    at : ndarray (n, 2)
+        Each supporting closure's layer pose's position in the layer's frame (m).
+    proposals : ndarray (n, 3)
+        The frame each closure proposes, ``(x, y, theta)`` of the layer's frame in ours.
     support : int
-        Closures between the layer and the robot's own poses that placed it.
+        Proposals that place a pose (at most ``n``).
     """
 
-    frame: F64
-    sigma_xy: float
-    sigma_theta: float
-    support: int
+    at: F64
+    proposals: F64
+    support: int = 10
 
-    def covariance(self) -> F64:
-        """The placement's spread as a 3 x 3 covariance (isotropic in x and y, so the
-        same in every pose's frame)."""
-        return np.diag([self.sigma_xy**2, self.sigma_xy**2, self.sigma_theta**2])
+    def __post_init__(self) -> None:
+        self.at = np.asarray(self.at, dtype=np.float64).reshape(-1, 2)
+        self.proposals = np.asarray(self.proposals, dtype=np.float64).reshape(-1, 3)
+        self._tree = cKDTree(self.at) if len(self.at) else None
+
+    def place(self, estimate: F64) -> tuple[F64, F64]:
+        """A pose of the layer in the robot's frame, and the covariance of that place.
+
+        Parameters
+        ----------
+        estimate : ndarray (3,)
+            The pose's estimate in the layer's (its source's) frame.
+
+        Returns
+        -------
+        at : ndarray (3,)
+            ``frame (+) estimate``, ``frame`` the median of the nearest proposals.
+        covariance : ndarray (3, 3)
+            ``diag(s_xy^2 + (s_theta d)^2, same, s_theta^2)``: ``s_xy`` and
+            ``s_theta`` the normal-consistent median absolute residuals of those
+            proposals' closures (position pooled over x and y; heading), ``d`` the
+            distance (m) from the pose to their poses' centroid in the layer's frame.
+        """
+        est = np.asarray(estimate, dtype=np.float64)
+        k = min(self.support, len(self.at))
+        assert self._tree is not None
+        _, idx = self._tree.query(est[:2], k=k)
+        idx = np.atleast_1d(idx)
+        props = self.proposals[idx]
+        frame = np.array(
+            [np.median(props[:, 0]), np.median(props[:, 1]), _heading_median(props[:, 2])]
+        )
+        # Each proposal's disagreement with the frame, at its own pose (so a heading
+        # difference counts by how far it moves that pose).
+        res = np.array(
+            [
+                compose(invert(compose(frame, np.r_[a, 0.0])), compose(p, np.r_[a, 0.0]))
+                for a, p in zip(self.at[idx], props, strict=True)
+            ]
+        )
+        res[:, 2] = np.remainder(res[:, 2] + math.pi, 2 * math.pi) - math.pi
+        s_xy = _NORMAL_MAD * float(np.median(np.abs(res[:, :2])))
+        s_t = _NORMAL_MAD * float(np.median(np.abs(res[:, 2])))
+        d = float(np.hypot(*(est[:2] - self.at[idx].mean(axis=0))))
+        var_xy = s_xy**2 + (s_t * d) ** 2
+        return compose(frame, est), np.diag([var_xy, var_xy, s_t**2])
 
 
 def closure_residual(at_a: F64, at_b: F64, transform: Sequence[float] | F64) -> F64:
@@ -124,43 +179,30 @@ def layer_placements(
     closures : sequence of ClosureEdge
         The closure store; only closures joining an own pose to a layer's count.
     min_support : int
-        Closures a layer needs to be placed (default :data:`MIN_SUPPORT`).
+        Closures a layer needs to be placed, and the nearest of them that place each of
+        its poses (default :data:`MIN_SUPPORT`).
 
     Returns
     -------
     dict of int to LayerPlacement
     """
-    frames = layer_frames(own, layers, closures)
     owner = {u: s for s, poses in layers.items() for u in poses}
-    residuals: dict[int, list[F64]] = {}
+    at: dict[int, list[F64]] = {}
+    proposals: dict[int, list[F64]] = {}
     for c in closures:
-        if c.a in own and c.b in owner:
-            source = owner[c.b]
-            if source not in frames:
-                continue
-            at_b = compose(frames[source], np.asarray(layers[source][c.b], dtype=np.float64))
-            r = closure_residual(np.asarray(own[c.a], dtype=np.float64), at_b, c.transform)
-        elif c.b in own and c.a in owner:
-            source = owner[c.a]
-            if source not in frames:
-                continue
-            at_a = compose(frames[source], np.asarray(layers[source][c.a], dtype=np.float64))
-            r = closure_residual(at_a, np.asarray(own[c.b], dtype=np.float64), c.transform)
-        else:
-            continue
-        residuals.setdefault(source, []).append(r)
-    out: dict[int, LayerPlacement] = {}
-    for source, rows in residuals.items():
-        if len(rows) < min_support:
-            continue
-        arr = np.array(rows)
-        out[source] = LayerPlacement(
-            frame=np.asarray(frames[source], dtype=np.float64),
-            sigma_xy=_NORMAL_MAD * float(np.median(np.abs(arr[:, :2]))),
-            sigma_theta=_NORMAL_MAD * float(np.median(np.abs(arr[:, 2]))),
-            support=len(rows),
-        )
-    return out
+        t = np.array(c.transform, dtype=np.float64)
+        for a, b, ab in ((c.a, c.b, t), (c.b, c.a, invert(t))):
+            if a in own and b in owner:
+                source = owner[b]
+                est_b = np.asarray(layers[source][b], dtype=np.float64)
+                where = compose(np.asarray(own[a], dtype=np.float64), ab)
+                proposals.setdefault(source, []).append(compose(where, invert(est_b)))
+                at.setdefault(source, []).append(est_b[:2])
+    return {
+        source: LayerPlacement(np.array(at[source]), np.array(props), min_support)
+        for source, props in proposals.items()
+        if len(props) >= min_support
+    }
 
 
 def gate_closures(

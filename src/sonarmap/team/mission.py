@@ -461,8 +461,7 @@ class RobotAgent:
             if layer is None:
                 placed[uid] = (estimate, np.zeros((3, 3)) if extra is None else extra)
             elif layer in self.placements:
-                at = self.placements[layer]
-                placed[uid] = (compose(at.frame, estimate), at.covariance())
+                placed[uid] = self.placements[layer].place(estimate)
 
         place(new.uid, source, new.estimate, drift)
         inter = []
@@ -623,7 +622,7 @@ class RobotAgent:
         # The layers' placements as of the last batch: a restarted node must gate as the
         # robot did, not as a batch at restart would.
         d["placements"] = [
-            [s, [float(v) for v in at.frame], at.sigma_xy, at.sigma_theta, at.support]
+            [s, at.at.ravel().tolist(), at.proposals.ravel().tolist(), at.support]
             for s, at in self.placements.items()
         ]
         d.update(self.evaluator.state())
@@ -642,8 +641,8 @@ class RobotAgent:
             int(u): np.array(m, dtype=np.float64).reshape(3, 3) for u, m in d.get("drift_of", [])
         }
         self.placements = {
-            int(s): LayerPlacement(np.array(f, dtype=np.float64), float(sx), float(st), int(n))
-            for s, f, sx, st, n in d.get("placements", [])
+            int(s): LayerPlacement(np.array(a, dtype=np.float64), np.array(p), int(n))
+            for s, a, p, n in d.get("placements", [])
         }
         self.evaluator.restore(d)
 
