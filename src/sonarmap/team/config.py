@@ -120,6 +120,12 @@ class MissionConfig:
     gate_floor: float = 0.5
     gate_sigmas: float = 3.0
     gate_turn_floor: float = 0.1
+    #: The layer gate (:mod:`~sonarmap.team.layergate`): a closure between two layers
+    #: (an own pose and a received one, or two received layers) must agree, by a
+    #: chi-square test at 99 %, with where the robot currently places those layers.
+    #: Off: on the training warehouse it left out 121 closures, 119 of them right
+    #: (docs/results/2026-12-07-team-received-closures.md).
+    layer_gate: bool = False
 
     def __post_init__(self) -> None:
         for name in (

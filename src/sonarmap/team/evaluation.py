@@ -66,6 +66,12 @@ class MissionEvaluator:
         passes views over every robot's).
     received_closures, received_correct : int
         Closures found for received poses, and how many were right.
+    inter_closures, inter_correct : int
+        Of the closures found for own poses, those to another robot's pose, and how
+        many were right.
+    gate_rejected : dict of str to list of int
+        Closures the layer gate left out (:mod:`~sonarmap.team.layergate`), for own
+        poses (``"own"``) and received ones (``"received"``): ``[left out, right]``.
     """
 
     #: Attributes kept as plain msgpack values in :meth:`state`.
@@ -77,6 +83,9 @@ class MissionEvaluator:
         "n_same_place",
         "received_closures",
         "received_correct",
+        "inter_closures",
+        "inter_correct",
+        "gate_rejected",
         "wrong",
         "stage_removed",
         "stages",
@@ -105,6 +114,9 @@ class MissionEvaluator:
         self.n_same_place = 0
         self.received_closures = 0
         self.received_correct = 0
+        self.inter_closures = 0
+        self.inter_correct = 0
+        self.gate_rejected: dict[str, list[int]] = {"own": [0, 0], "received": [0, 0]}
         self.wrong: list[dict[str, Any]] = []
         self.stage_removed: dict[str, list[int]] = {}
         self.stages = {
@@ -192,7 +204,11 @@ class MissionEvaluator:
         by_uid: dict[int, Pose] = {}
         for p in stored:
             by_uid.setdefault(p.uid, p)
+        made = self._made()
         for c in closures:
+            if c.a not in made:
+                self.inter_closures += 1
+                self.inter_correct += self.correct(c)
             self.n_same_place += same_landmarks(c, by_uid.get(c.a), pose)
             right = self.correct(c)
             oa = self._origin_any(c.a)
@@ -220,6 +236,12 @@ class MissionEvaluator:
         """The robot associated a pose another robot sent it."""
         self.received_closures += len(closures)
         self.received_correct += sum(self.correct(c) for c in closures)
+
+    def gated(self, closures: Sequence[ClosureEdge], *, own: bool) -> None:
+        """The layer gate left these closures of an own (``own``) or received pose out."""
+        row = self.gate_rejected["own" if own else "received"]
+        row[0] += len(closures)
+        row[1] += sum(self.correct(c) for c in closures)
 
     def dropped(self, closures: Sequence[ClosureEdge]) -> None:
         """The robot's graph found these closures inconsistent and dropped them."""
@@ -310,6 +332,19 @@ class MissionEvaluator:
             "closures_found": n,
             "closures_correct": self.n_correct,
             "closures_wrong": self.wrong,
+            # The own poses' closures split by the other end's layer: ours, or a peer's.
+            "closures_inter_robot": self.inter_closures,
+            "closures_inter_robot_correct": self.inter_correct,
+            "association_precision_own_layer": (self.n_correct - self.inter_correct)
+            / (n - self.inter_closures)
+            if n > self.inter_closures
+            else math.nan,
+            "association_precision_inter_robot": self.inter_correct / self.inter_closures
+            if self.inter_closures
+            else math.nan,
+            "layer_gate_rejected": {
+                k: {"closures": v[0], "correct": v[1]} for k, v in self.gate_rejected.items()
+            },
             "true_pairs": self.n_true_pairs,
             "association_removed_matches": {k: int(sum(v)) for k, v in self.stage_removed.items()},
             "association_stages": stages,

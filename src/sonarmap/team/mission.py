@@ -90,6 +90,7 @@ from .globalmap import (
     grid_around,
     optimise_graph,
 )
+from .layergate import LayerPlacement, gate_closures, layer_placements
 from .records import (
     ClosureEdge,
     LocalMap,
@@ -323,6 +324,8 @@ class RobotAgent:
         self.drift = np.zeros((3, 3))
         #: The drift each stored own pose was made with (3 x 3, by UID).
         self.drift_of: dict[int, F64] = {}
+        #: Where each received layer lies in our frame, as of the last batch (by source).
+        self.placements: dict[int, LayerPlacement] = {}
         self.prev_k: int | None = None
         self.prev_uid: int | None = None
         self.heading_bias = 0.0
@@ -447,6 +450,15 @@ class RobotAgent:
         self.graph = graph
         if self.calibrate and not self.store.received:
             self._calibrate(graph)
+        if self.cfg.layer_gate and self.store.received:
+            self.placements = layer_placements(
+                {u: p.estimate for u, p in self.store.local.poses.items()},
+                {
+                    s: {u: p.estimate for u, p in layer.poses.items()}
+                    for s, layer in self.store.received.items()
+                },
+                self.store.closures,
+            )
         return graph
 
     def _calibrate(self, graph: GraphResult) -> None:
@@ -459,6 +471,46 @@ class RobotAgent:
         # Records are replaced, not edited: the layer re-measures their bytes.
         layer.edges = debias_edges(layer.edges, new - self.heading_bias)
         self.heading_bias = new
+
+    def _gate(
+        self, closures: list[ClosureEdge], new: Pose, source: int | None, drift: F64 | None
+    ) -> list[ClosureEdge]:
+        """The closures of pose ``new`` (of layer ``source``, None for our own) that
+        pass the layer gate; those between two layers that disagree with where the robot
+        places the layers are told to the evaluator and left out. ``drift`` is the
+        covariance of an own new pose's estimate (None: a stored pose's, whose spread the
+        placements already hold)."""
+        if not self.cfg.layer_gate or not self.placements:
+            return closures
+        store = self.store
+        placed: dict[int, tuple[F64, F64]] = {}
+
+        def place(uid: int, layer: int | None, estimate: F64, extra: F64 | None) -> None:
+            if layer is None:
+                placed[uid] = (estimate, np.zeros((3, 3)) if extra is None else extra)
+            elif layer in self.placements:
+                placed[uid] = self.placements[layer].place(estimate)
+
+        place(new.uid, source, new.estimate, drift)
+        inter = []
+        for c in closures:
+            if c.a in store.local.poses:
+                layer = None
+                if source is None:
+                    continue
+                place(c.a, layer, store.local.poses[c.a].estimate, None)
+            else:
+                held = next((s for s, x in store.received.items() if c.a in x.poses), None)
+                if held is None or held == source:
+                    continue
+                place(c.a, held, store.received[held].poses[c.a].estimate, None)
+            inter.append(c)
+        _, rejected = gate_closures(inter, placed)
+        if not rejected:
+            return closures
+        gone = {id(c) for c in rejected}
+        self.evaluator.gated(rejected, own=source is None)
+        return [c for c in closures if id(c) not in gone]
 
     def advance_to(self, t: float) -> int:
         """Process every route step up to mission time ``t``; the poses made."""
@@ -545,6 +597,8 @@ class RobotAgent:
             )
             if np.trace(via) < np.trace(self.drift):
                 self.drift = via
+        # Received poses have no odometry prior: the layer gate judges their closures.
+        closures = self._gate(closures, pose, None, self.drift)
         self.assoc_seconds.append(time.perf_counter() - t0)
         self.evaluator.associated(pose, stored, closures, stats, t)
         store.add_own_pose(pose, edge, closures, t)
@@ -578,6 +632,7 @@ class RobotAgent:
         them apart from the own poses' scores."""
         stored = [p for p in self._candidates() if p.uid != pose.uid]
         closures, _ = associate(pose, stored, None, self.cfg.association)
+        closures = self._gate(closures, pose, source, None)
         self.evaluator.received(pose, closures)
         return closures
 
@@ -595,6 +650,12 @@ class RobotAgent:
         d["drift"] = [float(v) for v in np.asarray(self.drift).ravel()]
         d["heading_bias"] = float(self.heading_bias)
         d["drift_of"] = [[u, [float(v) for v in m.ravel()]] for u, m in self.drift_of.items()]
+        # The layers' placements as of the last batch: a restarted node must gate as the
+        # robot did, not as a batch at restart would.
+        d["placements"] = [
+            [s, at.at.ravel().tolist(), at.proposals.ravel().tolist(), at.support]
+            for s, at in self.placements.items()
+        ]
         d.update(self.evaluator.state())
         return d
 
@@ -610,6 +671,10 @@ class RobotAgent:
         self.heading_bias = float(d.get("heading_bias", 0.0))
         self.drift_of = {
             int(u): np.array(m, dtype=np.float64).reshape(3, 3) for u, m in d.get("drift_of", [])
+        }
+        self.placements = {
+            int(s): LayerPlacement(np.array(a, dtype=np.float64), np.array(p), int(n))
+            for s, a, p, n in d.get("placements", [])
         }
         self.evaluator.restore(d)
 
