@@ -11,6 +11,7 @@ import pytest
 from sonarmap.team.association import AssociationParams, associate
 from sonarmap.team.layergate import (
     MIN_SUPPORT,
+    LayerPlacement,
     closure_residual,
     gate_closures,
     layer_placements,
@@ -167,3 +168,10 @@ def test_gate_scales_with_the_placement_spread(shift: float) -> None:
     loose = {1: (np.zeros(3), np.zeros((3, 3))), 2: (b, np.diag([0.5**2, 0.5**2, 0.05**2]))}
     assert len(gate_closures([c], tight)[0]) == (1 if shift == 0.0 else 0)
     assert len(gate_closures([c], loose)[0]) == 1
+
+
+def test_a_placement_without_proposals_is_refused() -> None:
+    with pytest.raises(ValueError, match="at least one"):
+        LayerPlacement(np.zeros((0, 2)), np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="one proposal per supporting pose"):
+        LayerPlacement(np.zeros((2, 2)), np.zeros((1, 3)))

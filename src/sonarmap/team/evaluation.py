@@ -206,11 +206,11 @@ class MissionEvaluator:
             by_uid.setdefault(p.uid, p)
         made = self._made()
         for c in closures:
-            if c.a not in made:
-                self.inter_closures += 1
-                self.inter_correct += self.correct(c)
             self.n_same_place += same_landmarks(c, by_uid.get(c.a), pose)
             right = self.correct(c)
+            if c.a not in made:
+                self.inter_closures += 1
+                self.inter_correct += right
             oa = self._origin_any(c.a)
             if not right and oa is not None:
                 err = np.asarray(c.transform) - compose(invert(self._true_of(oa)), self.truth[uid])

@@ -61,7 +61,7 @@ def _heading_median(theta: F64) -> float:
     return math.atan2(float(np.median(np.sin(theta))), float(np.median(np.cos(theta))))
 
 
-@dataclass
+@dataclass(eq=False)
 class LayerPlacement:
     """Where a received layer lies in the robot's frame, near each of its poses, and how
     well that holds there.
@@ -92,7 +92,12 @@ class LayerPlacement:
     def __post_init__(self) -> None:
         self.at = np.asarray(self.at, dtype=np.float64).reshape(-1, 2)
         self.proposals = np.asarray(self.proposals, dtype=np.float64).reshape(-1, 3)
-        self._tree = cKDTree(self.at) if len(self.at) else None
+        if not len(self.at) or len(self.at) != len(self.proposals):
+            raise ValueError(
+                f"a placement needs one proposal per supporting pose and at least one: "
+                f"{len(self.at)} poses, {len(self.proposals)} proposals"
+            )
+        self._tree = cKDTree(self.at)
 
     def place(self, estimate: F64) -> tuple[F64, F64]:
         """A pose of the layer in the robot's frame, and the covariance of that place.
@@ -114,7 +119,6 @@ class LayerPlacement:
         """
         est = np.asarray(estimate, dtype=np.float64)
         k = min(self.support, len(self.at))
-        assert self._tree is not None
         _, idx = self._tree.query(est[:2], k=k)
         idx = np.atleast_1d(idx)
         props = self.proposals[idx]
@@ -151,7 +155,7 @@ def closure_residual(at_a: F64, at_b: F64, transform: Sequence[float] | F64) -> 
     -------
     ndarray (3,)
         ``inv(inv(at_a) (+) at_b) (+) transform``, in the predicted ``b``'s frame (the
-        frame the closure's covariance is kept in), theta wrapped to [-pi, pi).
+        frame the closure's covariance is kept in), theta wrapped to [-pi, pi].
     """
     predicted = compose(invert(np.asarray(at_a, dtype=np.float64)), at_b)
     r = np.asarray(compose(invert(predicted), np.asarray(transform, dtype=np.float64)))

@@ -597,7 +597,7 @@ class RobotAgent:
             )
             if np.trace(via) < np.trace(self.drift):
                 self.drift = via
-        # Received poses have no odometry prior: the layer gate judges their closures.
+        # Closures to received poses have no odometry prior: the layer gate judges them.
         closures = self._gate(closures, pose, None, self.drift)
         self.assoc_seconds.append(time.perf_counter() - t0)
         self.evaluator.associated(pose, stored, closures, stats, t)
