@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,8 +12,14 @@ import pytest
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
-from sonarmap.team.calibration import debias, debias_edges, heading_bias_step
-from sonarmap.team.mission import MissionConfig, RobotAgent
+from sonarmap.team.calibration import (
+    calibrated_bias,
+    debias,
+    debias_edges,
+    heading_bias_fit,
+    heading_bias_step,
+)
+from sonarmap.team.mission import MissionConfig, RobotAgent, run_mission
 from sonarmap.team.records import OdometryEdge, compose, invert
 from sonarmap.team.world import ODOMETRY_NOISE, make_world, patrol_route
 
@@ -74,28 +81,70 @@ def test_the_bias_step_recovers_a_bias_and_vanishes_once_it_is_taken_out() -> No
     assert debias_edges(edges, 0.0) == edges
 
 
+def test_the_bias_step_is_taken_only_when_significant() -> None:
+    truth = _loop()
+    lengths = np.array([math.hypot(*e.transform[:2]) for e in _edges(truth, 0.0)])
+    # Heading noise of 0.01 rad per edge, made orthogonal to the lengths: it alone
+    # fits a slope of 0 with a standard error above 0.
+    noise = np.random.default_rng(5).normal(0.0, 0.01, len(lengths))
+    noise -= (noise @ lengths) / (lengths @ lengths) * lengths
+
+    def noisy(bias: float) -> list[OdometryEdge]:
+        return [
+            replace(e, transform=(e.transform[0], e.transform[1], e.transform[2] + n))
+            for e, n in zip(_edges(truth, bias), noise, strict=True)
+        ]
+
+    fit = heading_bias_fit(noisy(0.0), truth)
+    assert fit.edges == len(lengths)
+    assert abs(fit.step) < 1e-6
+    assert 0.0 < fit.stderr < 0.01
+    assert calibrated_bias(0.0, noisy(0.0), truth) == 0.0
+    # A bias of 1.5 standard errors is not applied, one of 3 is.
+    se = fit.stderr
+    assert calibrated_bias(0.0, noisy(1.5 * se), truth) == 0.0
+    assert calibrated_bias(0.0, noisy(3 * se), truth) == pytest.approx(3 * se, rel=0.05)
+    # The edges corrected by 3 standard errors: the step is 0 and the estimate stays;
+    # corrected by 3 where there is none, the estimate is taken back to 0.
+    assert calibrated_bias(3 * se, debias_edges(noisy(3 * se), 3 * se), truth) == (
+        pytest.approx(3 * se, rel=0.05)
+    )
+    assert calibrated_bias(3 * se, debias_edges(noisy(0.0), 3 * se), truth) == 0.0
+    # No edge with a length: nothing to fit.
+    assert heading_bias_fit([], truth).stderr == math.inf
+
+
 @pytest.fixture(scope="module")
 def plan() -> OccupancyMap:
     return office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
 
 
-def _agent(plan: OccupancyMap, calibrate: bool, run: bool = True) -> RobotAgent:
+def _agent(
+    plan: OccupancyMap, calibrate: bool, run: bool = True, sim_bias: float | None = None
+) -> RobotAgent:
     cfg = MissionConfig(duration=300.0, seed=1)
+    noise = dict(ODOMETRY_NOISE)
+    if sim_bias is not None:
+        noise["bias_theta"] = sim_bias
     agent = RobotAgent(
         plan,
         cfg,
         route=patrol_route(plan, 300.0, seed=1, style="waypoints"),
         world=make_world(plan, seed=1, duration=300.0, faces="all"),
         calibrate=calibrate,
+        odometry_noise=noise,
     )
     if run:
         agent.run()
     return agent
 
 
-def test_a_robot_alone_finds_its_odometrys_bias_and_the_trajectory_gains(
-    plan: OccupancyMap,
-) -> None:
+def _stored_bias(agent: RobotAgent) -> float:
+    """The heading bias left in the robot's stored odometry edges, against the truth."""
+    return heading_bias_fit(agent.store.local.edges, agent.truth).step
+
+
+def test_a_robot_alone_takes_its_odometrys_bias_out_of_its_edges(plan: OccupancyMap) -> None:
     alone = _agent(plan, calibrate=True)
     fixed = _agent(plan, calibrate=False)
     s, s0 = alone.finish().summary, fixed.finish().summary
@@ -104,11 +153,38 @@ def test_a_robot_alone_finds_its_odometrys_bias_and_the_trajectory_gains(
     assert s["odometry_heading_bias"] == pytest.approx(true_bias, rel=0.35), s[
         "odometry_heading_bias"
     ]
+    assert s["parameters"]["calibrate_odometry"] is True
     assert s0["odometry_heading_bias"] == 0.0
-    assert s["ate_m"] < s0["ate_m"], (s["ate_m"], s0["ate_m"])
-    # The calibration survives a checkpoint.
+    assert s0["parameters"]["calibrate_odometry"] is False
+    # The edges as stored (composed ones included) against the truth: the bias is in
+    # the uncalibrated robot's and out of the calibrated one's.
+    assert _stored_bias(fixed) > 0.002, _stored_bias(fixed)
+    assert abs(_stored_bias(alone)) < 0.0008, _stored_bias(alone)
+    # The calibration survives a checkpoint, and a robot that does not calibrate does
+    # not take it back.
     state = alone.state()
     assert state["heading_bias"] == s["odometry_heading_bias"]
     again = _agent(plan, calibrate=True, run=False)
     again.restore(state)
     assert again.heading_bias == alone.heading_bias
+    other = _agent(plan, calibrate=False, run=False)
+    other.restore(state)
+    assert other.heading_bias == 0.0
+
+
+def test_an_odometry_without_the_bias_is_left_as_measured(plan: OccupancyMap) -> None:
+    alone = _agent(plan, calibrate=True, sim_bias=0.0)
+    assert abs(alone.heading_bias) < 0.001, alone.heading_bias
+    # Not significant on the final graph: every edge is the odometry's own again.
+    s = alone.finish().summary
+    assert s["odometry_heading_bias"] == 0.0, s["odometry_heading_bias"]
+    assert abs(_stored_bias(alone)) < 0.0008, _stored_bias(alone)
+
+
+def test_a_robot_agent_calibrates_only_when_asked_and_run_mission_does(
+    plan: OccupancyMap,
+) -> None:
+    cfg = MissionConfig(duration=60.0, seed=1)
+    assert RobotAgent(plan, cfg).calibrate is False
+    r = run_mission(plan, cfg)
+    assert r.summary["parameters"]["calibrate_odometry"] is True

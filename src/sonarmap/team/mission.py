@@ -21,9 +21,12 @@ Decisions where the thesis is silent:
   (docs/results/2026-12-03-team-code-notes.md).
 - **Odometry edges** carry the odometry model's covariance and the hard bound top
   speed x elapsed time (``max_speed``, 1.0 m/s: twice the route's speed).
-- **Odometry calibration.** A robot alone estimates its odometry's heading bias (rad
-  per metre) on each batch's graph and stores its edges corrected by it
-  (:mod:`.calibration`); a team's robots do not (``calibrate=False``).
+- **Odometry calibration.** A robot alone (:func:`run_mission`) estimates its
+  odometry's heading bias (rad per metre) on each batch's graph, applies it only when
+  it is significant, and stores its edges corrected by it (:mod:`.calibration`). A
+  :class:`RobotAgent` does not unless asked (``calibrate=True``): a team's robots must
+  not change edges they have offered. The edges' covariance still counts the
+  simulator's bias magnitude (:func:`~.world.odometry_covariance`), calibrated or not.
 - **Association** is tried against every pose in the store. The thesis's hard bound
   (top speed x elapsed time) removes nothing once a minute has passed in a building,
   so each candidate also gets the prior of the current estimates: the new pose's
@@ -79,7 +82,7 @@ from .association import (
     Prior,
     associate,
 )
-from .calibration import MAX_HEADING_BIAS, debias, debias_edges, heading_bias_step
+from .calibration import calibrated_bias, debias, debias_edges
 from .config import MissionConfig
 from .evaluation import MissionEvaluator
 from .globalmap import (
@@ -254,9 +257,15 @@ class RobotAgent:
     record : bool
         Keep a :class:`~sonarmap.team.animation.Frame` per pose made.
     calibrate : bool
-        Calibrate the odometry's heading bias from the pose graph while the store holds
-        no other robot's layer (:meth:`batch`, :mod:`.calibration`; True). A team's
-        robots pass False: their edges, once offered to the others, must not change.
+        Calibrate the odometry's heading bias from the pose graph (:meth:`batch`,
+        :mod:`.calibration`; False). Only for a robot that offers its edges to no other:
+        a team's robots keep False, since an edge offered must stay the copy the others
+        hold. :func:`run_mission` passes True.
+    odometry_noise : mapping of str to float, optional
+        The simulator's odometry noise (:func:`~.world.odometry`'s keywords; default
+        :data:`~.world.ODOMETRY_NOISE`). The robot's own model of it, for the edges'
+        covariance, stays :data:`~.world.ODOMETRY_NOISE`: to test the calibration
+        against an odometry it does not expect.
 
     Attributes
     ----------
@@ -285,7 +294,8 @@ class RobotAgent:
         world: World | None = None,
         robot: int = 0,
         record: bool = False,
-        calibrate: bool = True,
+        calibrate: bool = False,
+        odometry_noise: Mapping[str, float] | None = None,
     ) -> None:
         cfg = MissionConfig() if config is None else config
         prior = plan if prior is None else prior
@@ -300,7 +310,9 @@ class RobotAgent:
         self.calibrate = calibrate
         world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
         self.world = world
-        self.sensing = sensing = RobotSensing(plan, cfg, world, robot, route)
+        self.sensing = sensing = RobotSensing(
+            plan, cfg, world, robot, route, odometry_noise=odometry_noise
+        )
         self.seed = sensing.seed
         self.route = sensing.route
         self.odo = sensing.odometry()
@@ -448,7 +460,7 @@ class RobotAgent:
         graph, dropped = _optimise(self.store)
         self.evaluator.dropped(dropped)
         self.graph = graph
-        if self.calibrate and not self.store.received:
+        if self.calibrate:
             self._calibrate(graph)
         if self.cfg.layer_gate and self.store.received:
             self.placements = layer_placements(
@@ -463,11 +475,12 @@ class RobotAgent:
 
     def _calibrate(self, graph: GraphResult) -> None:
         """Add the heading bias the optimised ``graph`` still shows on the own odometry
-        edges to :attr:`heading_bias`, and correct every stored edge by the change, so
-        that every edge carries the same calibration (compression composes them)."""
+        edges to :attr:`heading_bias`, or set it to 0 when the total is not significant
+        (:func:`~.calibration.calibrated_bias`), and correct every stored edge by the
+        change, so that every edge carries the same calibration (compression composes
+        them)."""
         layer = self.store.local
-        new = self.heading_bias + heading_bias_step(layer.edges, graph.estimates)
-        new = min(MAX_HEADING_BIAS, max(-MAX_HEADING_BIAS, new))
+        new = calibrated_bias(self.heading_bias, layer.edges, graph.estimates)
         # Records are replaced, not edited: the layer re-measures their bytes.
         layer.edges = debias_edges(layer.edges, new - self.heading_bias)
         self.heading_bias = new
@@ -542,7 +555,8 @@ class RobotAgent:
         estimate = self.believed(k)
         if prev_uid is not None and prev_uid in store.local.poses:
             assert prev_k is not None
-            # Corrected by the calibration so far.
+            # The store composes edges and carries closures through them when it
+            # deletes a pose, so a bias left in for the graph to fix would stay there.
             measured = compose(invert(odo[prev_k, 1:4]), odo[k, 1:4])
             step = np.array(debias(measured, self.heading_bias), dtype=np.float64)
             estimate = compose(store.local.poses[prev_uid].estimate, step)
@@ -668,7 +682,9 @@ class RobotAgent:
         made = [decode_as(b, Pose) for b in d["made"]]
         self.made = {p.uid: p for p in made}
         self.drift = np.array(d["drift"], dtype=np.float64).reshape(3, 3)
-        self.heading_bias = float(d.get("heading_bias", 0.0))
+        # A state saved while calibrating, taken back by a robot that is not, must not
+        # correct its edges.
+        self.heading_bias = float(d.get("heading_bias", 0.0)) if self.calibrate else 0.0
         self.drift_of = {
             int(u): np.array(m, dtype=np.float64).reshape(3, 3) for u, m in d.get("drift_of", [])
         }
@@ -745,7 +761,8 @@ class RobotAgent:
             "regions_used": len({p.region for p in store.local.poses.values()}),
             **scores,
             "alignment_score_m": float(alignment.score),
-            # The odometry calibration's estimate at the end, rad per metre (0 in a team).
+            # The odometry calibration's estimate at the end, rad per metre (0 when the
+            # robot does not calibrate: parameters.calibrate_odometry tells which).
             "odometry_heading_bias": float(self.heading_bias),
             "association_ms_median": float(np.median(assoc) * 1e3) if len(assoc) else math.nan,
             "association_ms_p99": float(np.percentile(assoc, 99) * 1e3) if len(assoc) else math.nan,
@@ -754,7 +771,7 @@ class RobotAgent:
             "sim_seconds": float(self.route[-1, 0] - self.route[0, 0]),
             "wall_seconds": time.perf_counter() - self.wall0,
             "seed": cfg.seed,
-            "parameters": _parameters(cfg),
+            "parameters": {**_parameters(cfg), "calibrate_odometry": self.calibrate},
         }
         return MissionResult(
             cfg,
@@ -790,10 +807,18 @@ def run_mission(
     route (random waypoints drawn from the seed and the robot's number). ``record``
     keeps a :class:`~sonarmap.team.animation.Frame` per pose made, for an animation;
     ``on_step(t, agent)`` is called after each route step (:meth:`RobotAgent.run`).
-    A thin loop over a :class:`RobotAgent`.
+    A thin loop over a :class:`RobotAgent` that calibrates its odometry (alone, it
+    offers its edges to no one).
     """
     agent = RobotAgent(
-        plan, config, prior=prior, route=route, world=world, robot=robot, record=record
+        plan,
+        config,
+        prior=prior,
+        route=route,
+        world=world,
+        robot=robot,
+        record=record,
+        calibrate=True,
     )
     agent.run(progress, on_step)
     return agent.finish()

@@ -11,6 +11,8 @@ mission's ``start_error``); the truth (:attr:`RobotSensing.route`,
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 import numpy.typing as npt
 
@@ -41,6 +43,9 @@ class RobotSensing:
         The robot's id: its seeds are ``config.seed + 7919 robot`` and the next three.
     route : ndarray (T, 4), optional
         ``t, x, y, theta``; replaces the patrol route drawn from the seed.
+    odometry_noise : mapping of str to float, optional
+        :func:`~.world.odometry`'s noise keywords; :data:`~.world.ODOMETRY_NOISE` unless
+        given.
 
     Attributes
     ----------
@@ -68,6 +73,8 @@ class RobotSensing:
         world: World,
         robot: int,
         route: F64 | None = None,
+        *,
+        odometry_noise: Mapping[str, float] | None = None,
     ) -> None:
         cfg = config
         self.world = world
@@ -76,7 +83,8 @@ class RobotSensing:
         true = np.asarray(true, dtype=np.float64)
         true = true[true[:, 0] <= true[0, 0] + cfg.duration]
         self.route = true
-        odo, _ = odometry(true, seed=seed + 1, **ODOMETRY_NOISE)
+        noise = ODOMETRY_NOISE if odometry_noise is None else odometry_noise
+        odo, _ = odometry(true, seed=seed + 1, **noise)
         self.odo = odo
         self.rig = get_rig(cfg.rig)
         readings = sonar_readings(plan, true, rig=self.rig, seed=seed + 2)

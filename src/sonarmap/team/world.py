@@ -792,9 +792,10 @@ def odometry(
     after one metre; variances add up with distance, so the drift does not depend on the
     rate), and the turn ``sqrt(sigma_theta**2 * a + sigma_theta_dist**2 * s)`` (0.01 rad
     per radian turned, 0.002 rad per metre) plus a systematic ``bias_theta * s`` (0.003
-    rad per metre: an uncalibrated wheel base, which makes the drift grow along the
-    route). The thesis gives no odometry model; these are typical of a small wheeled
-    robot. The first pose is the true one.
+    rad per metre: wheels of unequal diameter, which make the drift grow along the
+    route; an error of the wheel base would instead turn in proportion to the angle
+    turned, and is not simulated). The thesis gives no odometry model; these are
+    typical of a small wheeled robot. The first pose is the true one.
 
     Returns
     -------
@@ -1165,7 +1166,9 @@ def load_world(folder: str | Path) -> tuple[World, F64 | None]:
 
 def odometry_covariance(odo: F64, j: int, k: int, noise: dict[str, float]) -> F64:
     """Covariance of the odometry between route steps j and k, from the odometry
-    model's own noise (its bias counted as noise: the robot does not know it)."""
+    model's own noise (its bias counted as noise: the robot does not know its value,
+    but ``noise["bias_theta"]`` is the simulator's magnitude, so the heading variance
+    relies on the simulation's bias size, calibrated or not)."""
     d = np.diff(odo[j : k + 1, 1:3], axis=0)
     s = float(np.hypot(d[:, 0], d[:, 1]).sum())
     turn = float(np.abs(np.diff(np.unwrap(odo[j : k + 1, 3]))).sum())
