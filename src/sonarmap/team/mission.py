@@ -7,7 +7,8 @@ Decisions where the thesis is silent:
 
 - **Frames.** The robot knows its start in the prior map only roughly (``start_error``:
   1 m and 10 degrees, drawn with the seed); its global frame is its odometry frame
-  started there. The alignment to the prior map must find the rest.
+  started there. The alignment to the prior map must find the rest; its guess is that
+  belief, weighed about the believed start (:meth:`RobotAgent.align`).
 - **When a pose is made**: after ``pose_every`` metres (1.0) or ``pose_turn`` radians
   (0.5) of odometry since the last pose.
 - **The local map** of a pose is built by a sonarmap mapper (``mapper``: the inverse
