@@ -34,7 +34,7 @@ import numpy as np
 
 from sonarmap.cli.common import resolve_map
 from sonarmap.metrics import score
-from sonarmap.team.globalmap import align_to_prior, fuse_local_maps, grid_around
+from sonarmap.team.globalmap import fuse_local_maps, grid_around
 from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.records import compose
 
@@ -68,9 +68,7 @@ def trace(plan_path: str, duration: float, seed: int, coarse: Sequence[float]) -
     for c in coarse:
         tracemalloc.start()
         t0 = time.perf_counter()
-        al = align_to_prior(
-            built, agent.prior, seed=cfg.seed, guess=(0.0, 0.0, 0.0), coarse_resolution=c
-        )
+        al = agent.align(built, coarse_resolution=c)
         seconds = time.perf_counter() - t0
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()

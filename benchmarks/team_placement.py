@@ -75,7 +75,6 @@ from sonarmap.metrics import score
 from sonarmap.team.association import estimate_planar
 from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.globalmap import (
-    align_to_prior,
     fuse_local_maps,
     grid_around,
     layer_frames,
@@ -280,9 +279,7 @@ def placement(
     est = graph.estimates
     grid = grid_around(est, cfg.local_size / 2, cfg.map_resolution, margin=1.0)
     built = fuse_local_maps(poses, est, grid)
-    found = np.asarray(
-        align_to_prior(built, agent.prior, seed=cfg.seed, guess=(0.0, 0.0, 0.0)).transform
-    )
+    found = np.asarray(agent.align(built).transform)
     f1 = score(
         plan, fuse_local_maps(poses, {u: compose(found, e) for u, e in est.items()}, plan.grid)
     )

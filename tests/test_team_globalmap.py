@@ -10,7 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from sonarmap.errors import InputError
+from sonarmap.errors import ConfigError, InputError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.metrics import score
@@ -292,6 +292,60 @@ def test_alignment_on_a_fine_prior_searches_coarse_cells_and_refines(coarse: flo
     al = align_to_prior(built, plan, coarse_resolution=coarse)
     assert math.hypot(*(al.transform[:2] - tf[:2])) < 0.1
     assert abs(math.degrees(math.remainder(al.transform[2] - tf[2], 2 * math.pi))) < 1.0
+
+
+def _two_rooms(centres: tuple[tuple[float, float], ...]) -> OccupancyMap:
+    """Alike 4 x 3 m rooms (0.2 m walls, a door gap and a stub wall that make each
+    one-sided) centred at ``centres``, axis-aligned, on a 0.1 m plan."""
+    g = Grid.from_bounds(10.0, -10.0, 30.0, 5.0, 0.1)
+    x, y = g.all_centres()
+    occ = np.zeros(g.shape, dtype=bool)
+    for cx, cy in centres:
+        u, v = x - cx, y - cy
+        inside = (np.abs(u) < 2.1) & (np.abs(v) < 1.6)
+        ring = inside & ((np.abs(u) > 1.9) | (np.abs(v) > 1.4))
+        ring &= ~((np.abs(v + 1.5) < 0.2) & (u > 0.5) & (u < 1.5))
+        stub = (np.abs(u + 0.8) < 0.1) & (v > 0.0) & (v < 1.5)
+        occ |= ring | stub
+    return OccupancyMap(g, occ.astype(np.float32))
+
+
+def test_guess_turns_the_map_about_the_believed_start() -> None:
+    # The robot believes it started at (0, 0) heading 0; it started there but turned
+    # by 15 degrees, and mapped room A 20 m away. Turned by 15 degrees about its
+    # centroid, the map lands where the robot thinks it is -- on the alike room B;
+    # about the believed start, on A.
+    room_a = (20.0, 0.0)
+    tf = np.array([0.0, 0.0, math.radians(15.0)])
+    unturned = compose(invert(tf), np.array([*room_a, 0.0]))[:2]
+    room_b = (round(float(unturned[0]), 1), round(float(unturned[1]), 1))
+    plan = _two_rooms((room_a, room_b))
+    built = _built_from(_two_rooms((room_a,)), tf)
+    centre = np.array(room_a)
+
+    def lands(al_tf: F64) -> F64:
+        # Where the alignment puts the point truly at room A's centre.
+        return compose(al_tf, compose(invert(tf), np.array([*room_a, 0.0])))[:2]
+
+    # One hypothesis: the weighted correlation's best peak alone seeds the refinement
+    # (with more, the alike rooms' walls fit equally well and the guess cannot choose).
+    old = align_to_prior(built, plan, guess=(0.0, 0.0, 0.0), n_best=1)
+    assert math.hypot(*(lands(old.transform) - np.array(room_b))) < 0.3
+    new = align_to_prior(built, plan, guess=(0.0, 0.0, 0.0), guess_start=(0.0, 0.0), n_best=1)
+    assert math.hypot(*(lands(new.transform) - centre)) < 0.2
+    assert abs(math.degrees(math.remainder(new.transform[2] - tf[2], 2 * math.pi))) < 1.0
+    # Without a guess the rooms' two peaks score alike: the weight, not the walls, chose.
+    free = align_to_prior(built, plan, n_best=2)
+    first, second = free.hypotheses
+    assert second.score > 0.9 * first.score
+    found = sorted(float(lands(np.array(hp.transform))[1]) for hp in free.hypotheses)
+    assert found == pytest.approx([room_b[1], room_a[1]], abs=0.3)
+
+
+def test_guess_start_must_be_finite() -> None:
+    plan = _plan()
+    with pytest.raises(ConfigError, match="guess_start must be finite"):
+        align_to_prior(plan, plan, guess=(0.0, 0.0, 0.0), guess_start=(math.nan, 0.0))
 
 
 def test_alignment_needs_occupied_cells() -> None:

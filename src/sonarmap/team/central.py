@@ -46,7 +46,6 @@ from .association import Prior, associate
 from .globalmap import (
     Alignment,
     GraphResult,
-    align_to_prior,
     fuse_local_maps,
     grid_around,
     optimise_graph,
@@ -153,7 +152,7 @@ def central_map(
         raise ValueError("central_map needs at least one robot")
     wall0 = time.perf_counter()
     lead = agents[0]
-    cfg, plan, prior = lead.cfg, lead.plan, lead.prior
+    cfg, plan = lead.cfg, lead.plan
     check_quantisation(descriptor_bits, ternary_maps)
     by_robot = [
         [quantise_pose(p, descriptor_bits, ternary_maps) for p in raw_poses(a)] for a in agents
@@ -183,10 +182,8 @@ def central_map(
         graph.estimates,
         grid_around(graph.estimates, cfg.local_size / 2, cfg.map_resolution, margin=1.0),
     )
-    # Robot 0 believes its frame is the prior's, as each robot does alone.
-    alignment = align_to_prior(
-        built, prior, seed=cfg.seed if seed is None else seed, guess=(0.0, 0.0, 0.0)
-    )
+    # Robot 0's frame (its first pose anchors the graph), with its belief of its start.
+    alignment = lead.align(built, seed=seed)
     a = np.asarray(alignment.transform, dtype=np.float64)
     in_prior = {u: compose(a, e) for u, e in graph.estimates.items()}
     global_map = fuse_local_maps(poses, in_prior, plan.grid)

@@ -694,10 +694,17 @@ def _weigh(
     centroid: F64,
     guess: tuple[float, float, float],
     sigma: tuple[float, float],
+    start: F64,
 ) -> tuple[float, F64, int, int]:
-    """One heading's correlation map times the Gaussian belief in the guess."""
+    """One heading's correlation map times the Gaussian belief in the guess.
+
+    At heading ``theta`` the believed start still lands where the guess puts it, so
+    the centroid is expected there plus the start-to-centroid arm turned by
+    ``theta``: a heading error moves the map by its lever arm, not about its centroid.
+    """
     theta, corr, roff, coff = m
-    expected = _rot(guess[2]) @ centroid + np.asarray(guess[:2], dtype=np.float64)
+    landed = _rot(guess[2]) @ start + np.asarray(guess[:2], dtype=np.float64)
+    expected = landed + _rot(theta) @ (centroid - start)
     x, _ = grid.cell_centres(0, np.arange(corr.shape[1]) - coff)
     _, y = grid.cell_centres(np.arange(corr.shape[0]) - roff, 0)
     turn = math.remainder(theta - guess[2], 2 * math.pi)
@@ -798,6 +805,7 @@ def align_to_prior(
     seed: int = 0,
     guess: tuple[float, float, float] | None = None,
     guess_sigma: tuple[float, float] = (3.0, math.radians(30.0)),
+    guess_start: tuple[float, float] | None = None,
     coarse_resolution: float = 0.1,
 ) -> Alignment:
     """Align the built map (robot's global frame) to the prior map.
@@ -857,6 +865,13 @@ def align_to_prior(
         radians; 3 m and 30 degrees), so that a partial map of one of several alike
         rooms goes to the room the robot is in. Without it every alignment is equally
         likely, as the thesis has it.
+    guess_start : (x, y), optional
+        Metres, in the built map's frame: where the robot believes it started, the
+        point the guess is surest of. At each heading the centroid is expected where
+        the guess puts this point plus the point-to-centroid arm turned by the
+        heading, so that a start heading off by ``d`` moves the expected map by
+        ``d`` times its distance from the start. Default the built map's centroid
+        (the heading then turns the map about itself: no lever arm).
 
     Returns
     -------
@@ -882,6 +897,8 @@ def align_to_prior(
     ):
         if not (math.isfinite(f) and f > 0):
             raise ConfigError(f"{name} must be > 0, got {f}")
+    if guess_start is not None and not all(math.isfinite(v) for v in guess_start):
+        raise ConfigError(f"guess_start must be finite, got {guess_start}")
     step = 2.0 * math.pi / angles
     nms_angle = 2.0 * step if nms_angle is None else nms_angle
     pts = _occupied_points(built, "built")
@@ -900,7 +917,8 @@ def align_to_prior(
     maps = _correlate_all(pts, near_c, grid_c, angles)
     if guess is not None:
         g = guess
-        maps = (_weigh(m, grid_c, centroid, g, guess_sigma) for m in maps)
+        about = centroid if guess_start is None else np.asarray(guess_start, dtype=np.float64)
+        maps = (_weigh(m, grid_c, centroid, g, guess_sigma, about) for m in maps)
     hyps = _peaks(maps, grid_c, centroid, n_best, nms_distance, nms_angle)
 
     # Particles carry (where the centroid lands, heading): a heading change then

@@ -7,7 +7,8 @@ Decisions where the thesis is silent:
 
 - **Frames.** The robot knows its start in the prior map only roughly (``start_error``:
   1 m and 10 degrees, drawn with the seed); its global frame is its odometry frame
-  started there. The alignment to the prior map must find the rest.
+  started there. The alignment to the prior map must find the rest; its guess is that
+  belief, weighed about the believed start (:meth:`RobotAgent.align`).
 - **When a pose is made**: after ``pose_every`` metres (1.0) or ``pose_turn`` radians
   (0.5) of odometry since the last pose.
 - **The local map** of a pose is built by a sonarmap mapper (``mapper``: the inverse
@@ -116,10 +117,16 @@ from .world import (
     odometry_covariance,
 )
 
-__all__ = ["MissionConfig", "MissionResult", "RobotAgent", "run_mission"]
+__all__ = ["GUESS_SIGMAS", "MissionConfig", "MissionResult", "RobotAgent", "run_mission"]
 
 F64 = npt.NDArray[np.float64]
 Progress = Callable[[int, int], None]
+
+#: The alignment's guess weighs places by a Gaussian this many standard deviations of
+#: the start's error wide (3 m and 30 degrees by default): wide enough that a start
+#: two deviations off still weighs 0.8 (the guess only breaks ties between alike
+#: places), narrow enough that an alike room a building away does not tie.
+GUESS_SIGMAS = 3.0
 
 
 @dataclass
@@ -452,6 +459,43 @@ class RobotAgent:
         """The robot's belief of route step ``k``'s pose: dead reckoning from its start."""
         return compose(self.start_believed, compose(invert(self.odo[0, 1:4]), self.odo[k, 1:4]))
 
+    def align(
+        self, built: OccupancyMap, *, seed: int | None = None, coarse_resolution: float = 0.1
+    ) -> Alignment:
+        """The map ``built`` (in this robot's global frame) aligned to its prior map,
+        the guess being the robot's belief: its frame is the prior's, its start where it
+        believes it.
+
+        The guess's weight is :data:`GUESS_SIGMAS` standard deviations of the start's
+        error (``MissionConfig.start_error``) wide, about the believed start: a start
+        heading off by ``d`` moves the expected map by ``d`` times its distance from
+        the start (:func:`~.globalmap.align_to_prior`'s ``guess_start``).
+
+        Parameters
+        ----------
+        built : OccupancyMap
+            The fused map, in this robot's global frame.
+        seed : int, optional
+            The alignment's; default the mission's.
+        coarse_resolution : float
+            Metres: the correlation's cell (0.1).
+
+        Returns
+        -------
+        Alignment
+        """
+        cfg = self.cfg
+        start = (float(self.start_believed[0]), float(self.start_believed[1]))
+        return align_to_prior(
+            built,
+            self.prior,
+            seed=cfg.seed if seed is None else seed,
+            guess=(0.0, 0.0, 0.0),
+            guess_sigma=(GUESS_SIGMAS * cfg.start_error[0], GUESS_SIGMAS * cfg.start_error[1]),
+            guess_start=start,
+            coarse_resolution=coarse_resolution,
+        )
+
     # --- the robot -----------------------------------------------------------------------
 
     def batch(self) -> GraphResult:
@@ -725,8 +769,7 @@ class RobotAgent:
             grid_around(graph.estimates, cfg.local_size / 2, cfg.map_resolution, margin=1.0),
         )
         batch_seconds = time.perf_counter() - t_batch
-        # The robot believes its frame is the prior's (it started where it thinks).
-        alignment = align_to_prior(built, self.prior, seed=cfg.seed, guess=(0.0, 0.0, 0.0))
+        alignment = self.align(built)
         a = np.asarray(alignment.transform, dtype=np.float64)
         # The map in the plan's frame, by the found alignment.
         in_prior = {u: compose(a, graph.estimates[u]) for u in poses if u in graph.estimates}
