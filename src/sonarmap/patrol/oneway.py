@@ -239,11 +239,9 @@ def _orient(n_nodes: int, ends: list[tuple[int, int]]) -> tuple[B, B]:
     return forward, bridge
 
 
-def _beyond(n_nodes: int, ends: list[tuple[int, int]], bridge: B, stub: B) -> B:
-    """Which nodes of a multigraph over nodes 0..n-1 with edges ``ends`` (u, v) lie
-    beyond a ``stub`` edge (a ``bridge``): without it, on the side holding no cycle
-    while the other side holds one. In a graph with no cycle no node does (no side is
-    the street's far end)."""
+def _multigraph(n_nodes: int, ends: list[tuple[int, int]], bridge: B) -> tuple[nx.MultiGraph, B]:
+    """The multigraph over nodes 0..n-1 with edges ``ends`` (u, v), keyed by index, and
+    which nodes end an edge that is not a ``bridge`` (lie on a cycle)."""
     g = nx.MultiGraph()
     g.add_nodes_from(range(n_nodes))
     for k, (u, v) in enumerate(ends):
@@ -252,6 +250,15 @@ def _beyond(n_nodes: int, ends: list[tuple[int, int]], bridge: B, stub: B) -> B:
     for k, (u, v) in enumerate(ends):
         if not bridge[k]:
             on_cycle[u] = on_cycle[v] = True
+    return g, on_cycle
+
+
+def _beyond(n_nodes: int, ends: list[tuple[int, int]], bridge: B, stub: B) -> B:
+    """Which nodes of a multigraph over nodes 0..n-1 with edges ``ends`` (u, v) lie
+    beyond a ``stub`` edge (a ``bridge``): without it, on the side holding no cycle
+    while the other side holds one. In a graph with no cycle no node does (no side is
+    the street's far end)."""
+    g, on_cycle = _multigraph(n_nodes, ends, bridge)
     out = np.zeros(n_nodes, dtype=bool)
     for k in np.flatnonzero(stub & bridge).tolist():
         u, v = ends[k]
@@ -268,14 +275,7 @@ def _dead_ends(n_nodes: int, ends: list[tuple[int, int]], bridge: B) -> B:
     """Which edges ``ends`` (u, v) of a multigraph over nodes 0..n-1 are bridges
     (``bridge``) with a dead-end side: without the edge, the part of one of its ends
     holds no edge that is not a bridge (no cycle: loops and parallel edges are none)."""
-    g = nx.MultiGraph()
-    g.add_nodes_from(range(n_nodes))
-    for k, (u, v) in enumerate(ends):
-        g.add_edge(u, v, key=k)
-    on_cycle = np.zeros(n_nodes, dtype=bool)
-    for k, (u, v) in enumerate(ends):
-        if not bridge[k]:
-            on_cycle[u] = on_cycle[v] = True
+    g, on_cycle = _multigraph(n_nodes, ends, bridge)
     out = np.zeros(len(ends), dtype=bool)
     for k in np.flatnonzero(bridge).tolist():
         u, v = ends[k]
