@@ -86,8 +86,8 @@ class PeerClosureError(ValueError):
 
 
 def pair_of(c: ClosureEdge) -> frozenset[int]:
-    """The two poses a closure joins, in either direction."""
-    return frozenset((c.a, c.b))
+    """The two poses a closure joins, in either direction (:attr:`ClosureEdge.pair`)."""
+    return c.pair
 
 
 def encode_closure(c: ClosureEdge) -> list[Any]:

@@ -360,6 +360,12 @@ class ClosureEdge:
     def cov(self) -> F64:
         return np.array(self.covariance, dtype=np.float64).reshape(3, 3)
 
+    @property
+    def pair(self) -> frozenset[int]:
+        """The two poses the closure joins, in either direction: a closure and its
+        reverse, found by two robots, join the same pair."""
+        return frozenset((self.a, self.b))
+
 
 # --- encoding ------------------------------------------------------------------------
 

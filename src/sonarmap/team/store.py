@@ -985,10 +985,10 @@ class RobotStore:
             a pose the store does not hold.
         """
         held = set(self.local.poses).union(*(ly.poses for ly in self.received.values()))
-        joined = {frozenset((c.a, c.b)) for c in self.closures}
+        joined = {c.pair for c in self.closures}
         added = duplicates = unheld = 0
         for c in closures:
-            pair = frozenset((c.a, c.b))
+            pair = c.pair
             if c.a == c.b or not pair <= held:
                 unheld += 1
             elif pair in joined:
