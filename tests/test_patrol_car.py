@@ -534,6 +534,36 @@ def _route_north(x0: float, y0: float, lane: float, side: float) -> npt.NDArray[
     return np.vstack([[x0, y0], full[k:]])
 
 
+def _two_cars_at_the_mouth(t: Territory) -> Car:
+    """The two cars at the mouth of the north street of :func:`_crossroads`, at held-out
+    site 1001's poses (its cells shifted by -39.5 m and -25.5 m)."""
+    return Car(
+        np.array([16.15, 13.87]),
+        np.array([16.06, 16.07]),
+        np.radians([126.0, 54.0]),
+        clearance=t.clearance,
+        planner="track",
+    )
+
+
+def _step_into_the_north_street(
+    car: Car, t: Territory, passable: npt.NDArray[np.bool_], rng: np.random.Generator
+) -> None:
+    """One 0.5 s step of both cars of :func:`_two_cars_at_the_mouth`, each tracking the
+    wave's path into the north street from its own side (car 0 from the east)."""
+    directions: list[tuple[float, float] | None] = []
+    points: list[tuple[float, float] | None] = []
+    for i, (lane, side) in enumerate(((15.25, 0.5), (14.75, -0.5))):
+        x0, y0 = float(car.x[i]), float(car.y[i])
+        route = _route_north(x0, y0, lane, side)
+        car.routes[i] = route
+        p = carrot(route, x0, y0, 3.0)
+        n = math.hypot(p[0] - x0, p[1] - y0)
+        directions.append(((p[0] - x0) / n, (p[1] - y0) / n) if n > 1e-9 else None)
+        points.append(p)
+    car.step(directions, passable, t.grid, 0.5, rng, points)
+
+
 def test_two_cars_at_the_mouth_of_the_street_both_go_for_part() -> None:
     # Held-out site 1001, five cars, 3,600 s, --one-way teams --stub-sight --stub-delay
     # 120: from t = 1,663 s to the end two cars, one from the east and one from the
@@ -544,27 +574,10 @@ def test_two_cars_at_the_mouth_of_the_street_both_go_for_part() -> None:
     t = _crossroads()
     passable = t.passable(1.0)
     rng = np.random.default_rng(0)
-    car = Car(
-        np.array([16.15, 13.87]),
-        np.array([16.06, 16.07]),
-        np.radians([126.0, 54.0]),
-        clearance=t.clearance,
-        planner="track",
-    )
-    lanes = ((15.25, 0.5), (14.75, -0.5))
+    car = _two_cars_at_the_mouth(t)
     furthest = 16.07
     for _ in range(120):  # 60 s at 0.5 s a step
-        directions: list[tuple[float, float] | None] = []
-        points: list[tuple[float, float] | None] = []
-        for i, (lane, side) in enumerate(lanes):
-            x0, y0 = float(car.x[i]), float(car.y[i])
-            route = _route_north(x0, y0, lane, side)
-            car.routes[i] = route
-            p = carrot(route, x0, y0, 3.0)
-            n = math.hypot(p[0] - x0, p[1] - y0)
-            directions.append(((p[0] - x0) / n, (p[1] - y0) / n) if n > 1e-9 else None)
-            points.append(p)
-        car.step(directions, passable, t.grid, 0.5, rng, points)
+        _step_into_the_north_street(car, t, passable, rng)
         r, c = t.grid.world_to_cell(car.x, car.y)
         assert passable[r, c].all()
         assert math.hypot(car.x[0] - car.x[1], car.y[0] - car.y[1]) >= car.min_separation - 1e-9
@@ -582,28 +595,11 @@ def test_of_two_cars_held_at_the_mouth_only_one_backs_off() -> None:
     t = _crossroads()
     passable = t.passable(1.0)
     rng = np.random.default_rng(0)
-    car = Car(
-        np.array([16.15, 13.87]),
-        np.array([16.06, 16.07]),
-        np.radians([126.0, 54.0]),
-        clearance=t.clearance,
-        planner="track",
-    )
-    lanes = ((15.25, 0.5), (14.75, -0.5))
+    car = _two_cars_at_the_mouth(t)
     both = 0
     traffic = np.zeros(2, dtype=np.int64)
     for _ in range(60):  # 30 s at 0.5 s a step
-        directions: list[tuple[float, float] | None] = []
-        points: list[tuple[float, float] | None] = []
-        for i, (lane, side) in enumerate(lanes):
-            x0, y0 = float(car.x[i]), float(car.y[i])
-            route = _route_north(x0, y0, lane, side)
-            car.routes[i] = route
-            p = carrot(route, x0, y0, 3.0)
-            n = math.hypot(p[0] - x0, p[1] - y0)
-            directions.append(((p[0] - x0) / n, (p[1] - y0) / n) if n > 1e-9 else None)
-            points.append(p)
-        car.step(directions, passable, t.grid, 0.5, rng, points)
+        _step_into_the_north_street(car, t, passable, rng)
         driving = [
             p is not None and c == "traffic" for p, c in zip(car.plans, car.cause, strict=True)
         ]
