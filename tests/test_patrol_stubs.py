@@ -22,22 +22,40 @@ from sonarmap.patrol.territory import Territory
 RES = 0.5
 
 
+def _drawn(
+    w: float,
+    h: float,
+    boxes: list[tuple[float, float, float, float, float]],
+    *,
+    background: float,
+    walled: bool,
+) -> Territory:
+    """A ``w`` x ``h`` m map at ``RES`` of occupancy ``background``, walled round if
+    ``walled``, with each box ``(x0, y0, x1, y1, v)`` (m, y up) set to ``v`` in order."""
+    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
+    occ = np.full(g.shape, background, np.float32)
+    if walled:
+        occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
+    for x0, y0, x1, y1, v in boxes:
+        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
 def _ring_with_stubs() -> Territory:
     """5 m streets round a 50 x 20 m block (walled round, 60 x 30 m), with two 4 m wide
     dead-end stubs cut into the block from the south street: a short one (6 m deep,
     x 10-14 m) and a deep one (17 m, x 40-44 m)."""
-    w, h = 60.0, 30.0
-    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
-    occ = np.zeros(g.shape, np.float32)
-    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
-
-    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
-        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
-
-    box(5.0, 5.0, 55.0, 25.0, 1.0)
-    box(10.0, 5.0, 14.0, 11.0, 0.0)
-    box(40.0, 5.0, 44.0, 22.0, 0.0)
-    return Territory.from_map(OccupancyMap(g, occ))
+    return _drawn(
+        60.0,
+        30.0,
+        [
+            (5.0, 5.0, 55.0, 25.0, 1.0),
+            (10.0, 5.0, 14.0, 11.0, 0.0),
+            (40.0, 5.0, 44.0, 22.0, 0.0),
+        ],
+        background=0.0,
+        walled=True,
+    )
 
 
 def _stands(t: Territory, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -106,18 +124,17 @@ def _ring_with_a_t_shaped_stub() -> Territory:
     dead end cut north into the block from the south street's middle (x 28-32 m, 10 m
     deep) that ends in a 4 m wide bar from x = 20 to 40 m: a T the street graph gives a
     junction of its own, beyond the stub."""
-    w, h = 60.0, 30.0
-    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
-    occ = np.zeros(g.shape, np.float32)
-    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
-
-    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
-        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
-
-    box(5.0, 5.0, 55.0, 25.0, 1.0)
-    box(28.0, 5.0, 32.0, 15.0, 0.0)
-    box(20.0, 15.0, 40.0, 19.0, 0.0)
-    return Territory.from_map(OccupancyMap(g, occ))
+    return _drawn(
+        60.0,
+        30.0,
+        [
+            (5.0, 5.0, 55.0, 25.0, 1.0),
+            (28.0, 5.0, 32.0, 15.0, 0.0),
+            (20.0, 15.0, 40.0, 19.0, 0.0),
+        ],
+        background=0.0,
+        walled=True,
+    )
 
 
 def test_a_junction_beyond_a_stub_belongs_to_the_stub() -> None:
@@ -154,19 +171,18 @@ def _ring_with_a_stub_to_a_wide_dead_end() -> Territory:
     stub cut north into the block from the south street (x 28-32 m, 9 m deep) that ends
     in a T: a 4 m wide bar west to x = 18 m and an 8 m wide dead end east to x = 50 m,
     wider than a 3.5 m turning circle (a car turns round in it), so no stub."""
-    w, h = 60.0, 30.0
-    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
-    occ = np.zeros(g.shape, np.float32)
-    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
-
-    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
-        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
-
-    box(5.0, 5.0, 55.0, 25.0, 1.0)
-    box(28.0, 5.0, 32.0, 14.0, 0.0)
-    box(18.0, 14.0, 32.0, 18.0, 0.0)
-    box(32.0, 12.0, 50.0, 20.0, 0.0)
-    return Territory.from_map(OccupancyMap(g, occ))
+    return _drawn(
+        60.0,
+        30.0,
+        [
+            (5.0, 5.0, 55.0, 25.0, 1.0),
+            (28.0, 5.0, 32.0, 14.0, 0.0),
+            (18.0, 14.0, 32.0, 18.0, 0.0),
+            (32.0, 12.0, 50.0, 20.0, 0.0),
+        ],
+        background=0.0,
+        walled=True,
+    )
 
 
 def test_a_junction_beyond_a_stub_with_a_wide_street_is_no_stub_end() -> None:
@@ -203,17 +219,17 @@ def _thin_ring_with_a_stub() -> Territory:
     """5 m streets round a 40 x 3 m block (walled round, 60 x 26 m): from the north
     street a car sees the south street across the block but not the far end of a 4 m
     wide, 6 m deep dead-end stub cut south from the south street's middle (x 28-32 m)."""
-    w, h = 60.0, 26.0
-    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
-    occ = np.ones(g.shape, np.float32)
-
-    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
-        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
-
-    box(5.0, 9.0, 55.0, 22.0, 0.0)
-    box(10.0, 14.0, 50.0, 17.0, 1.0)
-    box(28.0, 3.0, 32.0, 9.0, 0.0)
-    return Territory.from_map(OccupancyMap(g, occ))
+    return _drawn(
+        60.0,
+        26.0,
+        [
+            (5.0, 9.0, 55.0, 22.0, 0.0),
+            (10.0, 14.0, 50.0, 17.0, 1.0),
+            (28.0, 3.0, 32.0, 9.0, 0.0),
+        ],
+        background=1.0,
+        walled=False,
+    )
 
 
 def test_a_car_looks_down_a_stub_from_the_junction_instead_of_driving_in() -> None:
@@ -386,22 +402,22 @@ def test_a_narrow_street_between_two_loops_is_a_bridge_but_no_stub() -> None:
     # Two 5 m ring streets (blocks 18 x 18 m) joined by a 4 m street 12 m long: the
     # joining street is a bridge of the street graph with a loop on either side, so a
     # car that drives in drives out the other end.
-    w, h = 70.0, 30.0
-    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
-    occ = np.ones(g.shape, np.float32)
-
-    def box(x0: float, y0: float, x1: float, y1: float, v: float) -> None:
-        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = v
-
-    box(1.0, 1.0, 29.0, 29.0, 0.0)
-    box(6.0, 6.0, 24.0, 24.0, 1.0)
-    box(41.0, 1.0, 69.0, 29.0, 0.0)
-    box(46.0, 6.0, 64.0, 24.0, 1.0)
-    box(29.0, 13.0, 41.0, 17.0, 0.0)
-    t = Territory.from_map(OccupancyMap(g, occ))
+    t = _drawn(
+        70.0,
+        30.0,
+        [
+            (1.0, 1.0, 29.0, 29.0, 0.0),
+            (6.0, 6.0, 24.0, 24.0, 1.0),
+            (41.0, 1.0, 69.0, 29.0, 0.0),
+            (46.0, 6.0, 64.0, 24.0, 1.0),
+            (29.0, 13.0, 41.0, 17.0, 0.0),
+        ],
+        background=1.0,
+        walled=False,
+    )
     passable = t.passable(1.0)
     streets = one_way(passable, t.clearance, RES, 3.5)
-    middle = g.world_to_cell(35.0, 15.0)
+    middle = t.grid.world_to_cell(35.0, 15.0)
     assert streets.bridges[streets.street[middle]]
     assert not streets.stubs.any()
     assert not stub_cells(passable, streets).any()
