@@ -8,18 +8,16 @@ OctoMap, with its clamping bounds [0.12, 0.97].
 
 The increments are not OctoMap's laser values (0.7 / 0.4): with a wide beam, the
 occupied arc of one reading covers many free cells, and strong occupied increments
-paint the space in front of walls. The defaults (p_occ 0.52, p_free 0.46, a 5-degree
-Gaussian fall-off off the axis, no-echo readings ignored, a band 5 cm either side of a
-point 0.75 of a cell behind the echo) had the highest quality (the geometric mean of
-wall F1, passage F1 and observed-wall recall; :func:`sonarmap.metrics.quality`) in
-``sonarmap sweep sweeps/rigs.yaml`` (issue 39): the defaults before (p_free 0.48, a
-10-degree fall-off, the rasteriser's band) and 60 settings of p_occ, p_free, fall-off
-and band, on training scenes mapped by six MaxSonar EZ1s, six HC-SR04s and a ring of
-16 Polaroid sonars: 0.275 against 0.271, observed-wall recall 0.62 against 0.56 (4
-passages of 17 detected against 8). No setting kept both walls and doors there: every
-one with p_occ 0.6 or more recovered 0.68-0.98 of the observed walls and detected no
-passage. A sonar's no-echo
-readings are mostly beams a smooth wall mirrored away, not free space.
+paint the space in front of walls. A sonar's no-echo readings are mostly beams a smooth
+wall mirrored away, not free space, and so are many of the echoes' free regions where
+they cross a wall at a slant: by default a free increment is weighed by how well a
+surface at the cell would face the beam (``specular_deg``, Konolige 1997). The defaults
+(p_occ 0.52, p_free 0.46, a 5-degree Gaussian fall-off off the axis, a 30-degree
+incidence width, no-echo readings ignored, a band 5 cm either side of a point 0.75 of a
+cell behind the echo) had the highest quality (the geometric mean of wall F1, passage F1
+and observed-wall recall; :func:`sonarmap.metrics.quality`) on the training scenes of
+issue 39 (``sweeps/rigs.yaml``, ``sweeps/rigs7-inverse-specular.yaml``; the figures are
+in docs/results/2026-12-06-rig-defaults.md and 2026-12-07-inverse-specular.md).
 """
 
 from __future__ import annotations
@@ -108,7 +106,7 @@ class InverseMapper(Mapper):
         training scenes) 2 cm tied with off (quality 0.309 both), 5 cm scored 0.289 and
         10-20 cm 0.18-0.21.
     specular_deg : float
-        Angular width of a smooth surface's echo, degrees, in [0, 90); 0 (default) is off.
+        Angular width of a smooth surface's echo, degrees, in [0, 90) (30); 0 is off.
         With a width, each free increment is scaled by how well a surface at the
         cell would face the beam (Konolige 1997): surface normals are estimated from
         all the echoes' bands, and a cell that only echoes and slanted beams have met
@@ -118,7 +116,7 @@ class InverseMapper(Mapper):
         unchanged. The normals depend on every reading, so :meth:`partial_fit` then
         keeps the readings and rebuilds the map from all of them (still exactly one
         fit's map), and holds every reading's cells while it inserts them; streaming
-        ignores it (the streamed map is the map without it). Off by default.
+        ignores it (the streamed map is the map without it).
     """
 
     name = "inverse"
@@ -142,7 +140,7 @@ class InverseMapper(Mapper):
         dr: float | None = 0.05,
         band_offset: float | None = None,
         correlated: float = 0.0,
-        specular_deg: float = 0.0,
+        specular_deg: float = 30.0,
     ) -> None:
         self.p_occ = p_occ
         self.p_free = p_free
