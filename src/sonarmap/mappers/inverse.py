@@ -44,9 +44,10 @@ from ._stream import StreamEngine
 
 __all__ = ["PRESETS", "TRADITIONAL", "InverseMapper"]
 
-#: Laser-style log-odds (OctoMap's increments, no fall-off, no-echo beams cleared) on the
-#: 5 cm band centred on the echo that the tuned inverse had before the band offset: the
-#: kind of baseline the research compared against (``--preset traditional``).
+#: Laser-style log-odds (OctoMap's increments, no fall-off, no-echo beams cleared, free
+#: increments not weighed by incidence) on the 5 cm band centred on the echo that the
+#: tuned inverse had before the band offset: the kind of baseline the research compared
+#: against (``--preset traditional``).
 TRADITIONAL: dict[str, Any] = {
     "p_occ": 0.7,
     "p_free": 0.4,
@@ -54,6 +55,7 @@ TRADITIONAL: dict[str, Any] = {
     "no_echo": "free",
     "dr": 0.05,
     "band_offset": 0.0,
+    "specular_deg": 0.0,
 }
 
 #: Named parameter sets (``--preset NAME``).
