@@ -60,7 +60,6 @@ OLD_DEFAULTS: dict[str, dict[str, Any]] = {
         "falloff_deg": 10.0,
         "no_echo": "ignore",
         "dr": None,
-        "specular_deg": 0.0,
     },
     "counting": {"no_echo": "ignore", "dr": 0.025, "band_offset": None},
     "gradient": {"a1": 0.3, "a2": 0.03, "c1": 10.0, "c2": 1.0, "no_echo": "free"},

@@ -124,8 +124,7 @@ def bench_inverse(repeat: int) -> list[dict[str, Any]]:
     r = random_readings(20_000, size, "polaroid-6500")
     rows = []
     for falloff in (0.0, 15.0):
-        # The insertion kernel alone: no first pass over the echoes.
-        mapper = make_mapper("inverse", falloff_deg=falloff, specular_deg=0.0)
+        mapper = make_mapper("inverse", falloff_deg=falloff)
 
         def run(mapper: Mapper = mapper) -> Mapper:
             return mapper.fit(r, grid, rig)

@@ -252,8 +252,6 @@ def reference_map(mapper: InverseMapper, readings: Readings, grid: Grid, rig: Ri
 
 
 def assert_same_map(mapper: InverseMapper, readings: Readings, grid: Grid, rig: Rig) -> None:
-    # The reference has no incidence weighting (tests/test_inverse_specular.py has it).
-    assert mapper.specular_deg == 0
     want, want_t = reference_map(mapper, readings, grid, rig)
     mapper.fit(readings, grid, rig)
     np.testing.assert_array_equal(mapper.touched_, want_t)
@@ -270,7 +268,7 @@ def assert_same_map(mapper: InverseMapper, readings: Readings, grid: Grid, rig: 
 def test_mapper_defaults_match_the_reference_on_doorways(
     doorways: Scenario, params: dict[str, object]
 ) -> None:
-    mapper = make_mapper("inverse", **params, specular_deg=0.0)
+    mapper = make_mapper("inverse", **params)
     assert isinstance(mapper, InverseMapper)
     assert_same_map(mapper, doorways.readings, doorways.truth.grid, doorways.rig)
 
@@ -279,7 +277,7 @@ def test_mapper_matches_the_reference_with_no_echo_readings() -> None:
     scene = make_scenario("room-turn")
     assert (scene.readings.range >= scene.rig.sensor.r_max).any()
     for no_echo in ("free", "ignore"):
-        mapper = make_mapper("inverse", no_echo=no_echo, specular_deg=0.0)
+        mapper = make_mapper("inverse", no_echo=no_echo)
         assert isinstance(mapper, InverseMapper)
         assert_same_map(mapper, scene.readings, scene.truth.grid, scene.rig)
 
@@ -304,6 +302,6 @@ def test_mapper_matches_the_reference_for_cone_sonars(name: str) -> None:
         ("s",),
     )
     for no_echo in ("free", "ignore"):
-        mapper = make_mapper("inverse", no_echo=no_echo, specular_deg=0.0)
+        mapper = make_mapper("inverse", no_echo=no_echo)
         assert isinstance(mapper, InverseMapper)
         assert_same_map(mapper, readings, grid, rig)

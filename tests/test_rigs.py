@@ -231,7 +231,7 @@ def test_observed_wall_recall_on_maps_built_to_fool_it() -> None:
 
 #: Each method's defaults before issue 39, where they differ from today's.
 OLD_DEFAULTS: dict[str, dict[str, Any]] = {
-    "inverse": {"p_free": 0.48, "falloff_deg": 10.0, "dr": None, "specular_deg": 0.0},
+    "inverse": {"p_free": 0.48, "falloff_deg": 10.0, "dr": None},
     "gradient": {"a2": 0.03, "no_echo": "free"},
 }
 
@@ -249,10 +249,9 @@ def maxsonar_hall() -> tuple[Scenario, npt.NDArray[np.bool_]]:
 def test_default_maps_keep_the_walls_a_maxsonar_rig_hears(
     maxsonar_hall: tuple[Scenario, npt.NDArray[np.bool_]], method: str, least: float
 ) -> None:
-    # Measured: inverse 0.69 (0.60 without its incidence weighting, 0.46 at the old
-    # defaults), gradient 0.46 (0.11: its no-echo beams cleared the walls they crossed).
-    # Issue 39 asks for 0.7; neither default reaches it
-    # (docs/results/2026-12-06-rig-defaults.md, 2026-12-07-inverse-specular.md).
+    # Measured: inverse 0.60 (0.46 at the old defaults), gradient 0.46 (0.11: its
+    # no-echo beams cleared the walls they crossed). Issue 39 asks for 0.7; neither
+    # default reaches it (docs/results/2026-12-06-rig-defaults.md).
     scene, observed = maxsonar_hall
 
     def recall(**params: Any) -> float:

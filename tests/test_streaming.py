@@ -184,12 +184,9 @@ def test_pool_sums_and_boxes_follow_each_reading(doorways: Scenario) -> None:
 
 
 def test_inverse_stream_with_all_readings_is_the_offline_map(doorways: Scenario) -> None:
-    # At the defaults: the stream leaves out the incidence weighting, which needs every
-    # echo before the first free increment.
     sm = StreamingMapper("inverse", doorways.truth.grid, doorways.rig, strategy="all")
     replay([doorways.readings], sm, period=0.3)
-    g = doorways.truth.grid
-    offline = build_map(doorways.readings, doorways.rig, g, "inverse", {"specular_deg": 0.0})
+    offline = build_map(doorways.readings, doorways.rig, doorways.truth.grid, "inverse")
     np.testing.assert_array_equal(sm.occupancy_, offline.occupancy)
 
 

@@ -165,46 +165,23 @@ def main(argv: list[str] | None = None) -> int:
         exe = build(Path(tmp))
         t_mrpt, m_mrpt = run_mrpt(exe, sc, Path(tmp), args.repeat)
     t_ours, m_ours = run_ours(sc, args.repeat)
-    # The default weighs free increments by incidence, which takes a first pass over
-    # every echo; without it the insertion is one pass of the kernel, as MRPT's.
-    t_plain, m_plain = run_ours(sc, args.repeat, specular_deg=0.0)
     # The tuned default weighs cells by their angle off the axis; the same kernel
     # without the fall-off shows what that weighting costs.
-    t_flat, m_flat = run_ours(sc, args.repeat, falloff_deg=0.0, specular_deg=0.0)
+    t_flat, m_flat = run_ours(sc, args.repeat, falloff_deg=0.0)
     # MRPT's default increments in our terms: free logit(0.35), occupied 3 logit(0.65).
     p_occ = 1 / (1 + math.exp(-3 * math.log(0.65 / 0.35)))
-    t_like, m_like = run_ours(
-        sc, args.repeat, p_occ=p_occ, p_free=0.35, falloff_deg=0.0, specular_deg=0.0
-    )
+    t_like, m_like = run_ours(sc, args.repeat, p_occ=p_occ, p_free=0.35, falloff_deg=0.0)
     cores = int(os.environ.get("NUMBA_NUM_THREADS", os.cpu_count() or 1))
-    defaults = make_mapper("inverse").get_params()
-    fall, spec = defaults["falloff_deg"], defaults["specular_deg"]
+    fall = make_mapper("inverse").get_params()["falloff_deg"]
     entries = [
         ("MRPT COccupancyGridMap2D (defaults), 1 thread", t_mrpt, m_mrpt),
-        (
-            f"sonarmap inverse (defaults: {fall:g}-degree fall-off, {spec:g}-degree "
-            "incidence), 1 thread",
-            t_ours,
-            m_ours,
-        ),
-        (
-            f"sonarmap inverse (defaults but no incidence weighting: {fall:g}-degree "
-            "fall-off), 1 thread",
-            t_plain,
-            m_plain,
-        ),
-        ("sonarmap inverse (no fall-off, no incidence), 1 thread", t_flat, m_flat),
-        (
-            "sonarmap inverse (MRPT's increments, no fall-off, no incidence), 1 thread",
-            t_like,
-            m_like,
-        ),
+        (f"sonarmap inverse (defaults: {fall:g}-degree fall-off), 1 thread", t_ours, m_ours),
+        ("sonarmap inverse (no fall-off), 1 thread", t_flat, m_flat),
+        ("sonarmap inverse (MRPT's increments, no fall-off), 1 thread", t_like, m_like),
     ]
     if cores > 1:
-        t_par, m_par = run_ours(sc, args.repeat, threads=cores, specular_deg=0.0)
-        entries.append(
-            (f"sonarmap inverse (defaults, no incidence), {cores} threads", t_par, m_par)
-        )
+        t_par, m_par = run_ours(sc, args.repeat, threads=cores)
+        entries.append((f"sonarmap inverse (defaults), {cores} threads", t_par, m_par))
     rows: list[dict[str, Any]] = []
     for name, t, m in entries:
         agree, n = agreement(m, m_mrpt)

@@ -688,10 +688,8 @@ LASER_REFERENCE: dict[str, Any] = {
     "p_free": 0.4,
     "falloff_deg": 0.0,
     "no_echo": "ignore",
-    # The reference stays as it was measured with: band centred on the echo, and a
-    # laser's free increments not weighed by incidence.
+    # The reference stays as it was measured with: band centred on the echo.
     "band_offset": 0.0,
-    "specular_deg": 0.0,
 }
 
 

@@ -9,15 +9,15 @@ OctoMap, with its clamping bounds [0.12, 0.97].
 The increments are not OctoMap's laser values (0.7 / 0.4): with a wide beam, the
 occupied arc of one reading covers many free cells, and strong occupied increments
 paint the space in front of walls. A sonar's no-echo readings are mostly beams a smooth
-wall mirrored away, not free space, and so are many of the echoes' free regions where
-they cross a wall at a slant: by default a free increment is weighed by how well a
-surface at the cell would face the beam (``specular_deg``, Konolige 1997). The defaults
-(p_occ 0.52, p_free 0.46, a 5-degree Gaussian fall-off off the axis, a 30-degree
-incidence width, no-echo readings ignored, a band 5 cm either side of a point 0.75 of a
-cell behind the echo) had the highest quality (the geometric mean of wall F1, passage F1
-and observed-wall recall; :func:`sonarmap.metrics.quality`) on the training scenes of
-issue 39 (``sweeps/rigs.yaml``, ``sweeps/rigs7-inverse-specular.yaml``; the figures are
-in docs/results/2026-12-06-rig-defaults.md and 2026-12-07-inverse-specular.md).
+wall mirrored away, not free space. The defaults (p_occ 0.52, p_free 0.46, a 5-degree
+Gaussian fall-off off the axis, no-echo readings ignored, a band 5 cm either side of a
+point 0.75 of a cell behind the echo) had the highest quality (the geometric mean of
+wall F1, passage F1 and observed-wall recall; :func:`sonarmap.metrics.quality`) on the
+training scenes of issue 39 (``sweeps/rigs.yaml``; docs/results/2026-12-06-rig-defaults.md).
+
+An option, off by default, weighs each free increment by how well a surface at the cell
+would face the beam (``specular_deg``, Konolige 1997); when it helps and what it costs
+is in docs/results/2026-12-07-inverse-specular.md.
 """
 
 from __future__ import annotations
@@ -44,10 +44,9 @@ from ._stream import StreamEngine
 
 __all__ = ["PRESETS", "TRADITIONAL", "InverseMapper"]
 
-#: Laser-style log-odds (OctoMap's increments, no fall-off, no-echo beams cleared, free
-#: increments not weighed by incidence) on the 5 cm band centred on the echo that the
-#: tuned inverse had before the band offset: the kind of baseline the research compared
-#: against (``--preset traditional``).
+#: Laser-style log-odds (OctoMap's increments, no fall-off, no-echo beams cleared) on the
+#: 5 cm band centred on the echo that the tuned inverse had before the band offset: the
+#: kind of baseline the research compared against (``--preset traditional``).
 TRADITIONAL: dict[str, Any] = {
     "p_occ": 0.7,
     "p_free": 0.4,
@@ -55,7 +54,6 @@ TRADITIONAL: dict[str, Any] = {
     "no_echo": "free",
     "dr": 0.05,
     "band_offset": 0.0,
-    "specular_deg": 0.0,
 }
 
 #: Named parameter sets (``--preset NAME``).
@@ -108,7 +106,7 @@ class InverseMapper(Mapper):
         training scenes) 2 cm tied with off (quality 0.309 both), 5 cm scored 0.289 and
         10-20 cm 0.18-0.21.
     specular_deg : float
-        Angular width of a smooth surface's echo, degrees, in [0, 90) (30); 0 is off.
+        Angular width of a smooth surface's echo, degrees, in [0, 90); 0 (default) is off.
         With a width, each free increment is scaled by how well a surface at the
         cell would face the beam (Konolige 1997): surface normals are estimated from
         all the echoes' bands, and a cell that only echoes and slanted beams have met
@@ -118,7 +116,10 @@ class InverseMapper(Mapper):
         unchanged. The normals depend on every reading, so :meth:`partial_fit` then
         keeps the readings and rebuilds the map from all of them (still exactly one
         fit's map), and holds every reading's cells while it inserts them; streaming
-        ignores it (the streamed map is the map without it).
+        ignores it (the streamed map is the map without it). Off by default: it keeps
+        walls met at a slant but closes doorways, and holds the whole log in memory;
+        turn it on for wide-beam rigs where walls matter more than doors and the log
+        fits in memory (docs/results/2026-12-07-inverse-specular.md).
     """
 
     name = "inverse"
@@ -142,7 +143,7 @@ class InverseMapper(Mapper):
         dr: float | None = 0.05,
         band_offset: float | None = None,
         correlated: float = 0.0,
-        specular_deg: float = 30.0,
+        specular_deg: float = 0.0,
     ) -> None:
         self.p_occ = p_occ
         self.p_free = p_free

@@ -93,9 +93,6 @@ class MissionConfig:
             "dr": 0.05,
             # The inverse mapper's default: its band 0.75 cell behind the echo.
             "band_offset": None,
-            # Free increments not weighed by incidence: the local maps were tuned
-            # without it, and a pose's few readings give the normals little to go on.
-            "specular_deg": 0.0,
         }
     )
     mapping_range: float = 3.0
