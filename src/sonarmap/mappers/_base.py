@@ -243,10 +243,23 @@ class Mapper(ABC):
         dr: float | None = None,
         offset: float = 0.0,
         progress: Progress | None = None,
+        with_bearing: bool = False,
+        no_echo_reach: float | None = None,
     ) -> Iterator[tuple[int, Footprint]]:
         """Rasterise readings chunk by chunk; yields (index of first reading, footprint)."""
         for a, r in self._chunks(readings, progress):
-            fp = rasterise(self.grid, self.sensor, r.x, r.y, r.theta, r.range, dr=dr, offset=offset)
+            fp = rasterise(
+                self.grid,
+                self.sensor,
+                r.x,
+                r.y,
+                r.theta,
+                r.range,
+                dr=dr,
+                offset=offset,
+                with_bearing=with_bearing,
+                no_echo_reach=no_echo_reach,
+            )
             yield a, fp
 
     def _chunks(
@@ -262,7 +275,13 @@ class Mapper(ABC):
                 progress(b, n)
 
     def kept_footprints(
-        self, readings: Readings, *, dr: float | None, offset: float = 0.0
+        self,
+        readings: Readings,
+        *,
+        dr: float | None,
+        offset: float = 0.0,
+        with_bearing: bool = False,
+        no_echo_reach: float | None = None,
     ) -> list[Footprint]:
         """Every reading's footprint, for methods whose objective couples them all.
 
@@ -274,6 +293,11 @@ class Mapper(ABC):
             Width of the band about the range (metres); None for the sensor's default.
         offset : float, default 0.0
             How far the band is moved behind the range (metres).
+        with_bearing : bool, default False
+            Also keep each cell's angle off the beam axis.
+        no_echo_reach : float or None, default None
+            How far a no-echo reading's free cells reach (metres, less ``dr``); None:
+            ``r_max`` (see :func:`~sonarmap.raster.rasterise`).
 
         Returns
         -------
@@ -288,7 +312,9 @@ class Mapper(ABC):
         """
         out: list[Footprint] = []
         total = 0
-        for a, fp in self._footprints(readings, dr=dr, offset=offset):
+        for a, fp in self._footprints(
+            readings, dr=dr, offset=offset, with_bearing=with_bearing, no_echo_reach=no_echo_reach
+        ):
             total += fp.n_entries
             if total > MAX_ENTRIES:
                 raise ConfigError(

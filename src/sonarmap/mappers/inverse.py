@@ -8,22 +8,21 @@ OctoMap, with its clamping bounds [0.12, 0.97].
 
 The increments are not OctoMap's laser values (0.7 / 0.4): with a wide beam, the
 occupied arc of one reading covers many free cells, and strong occupied increments
-paint the space in front of walls. The defaults (p_occ 0.52, p_free 0.46, a 5-degree
+paint the space in front of walls. A sonar's no-echo readings are mostly beams a smooth
+wall mirrored away, not free space. The defaults (p_occ 0.52, p_free 0.46, a 5-degree
 Gaussian fall-off off the axis, no-echo readings ignored, a band 5 cm either side of a
 point 0.75 of a cell behind the echo) had the highest quality (the geometric mean of
-wall F1, passage F1 and observed-wall recall; :func:`sonarmap.metrics.quality`) in
-``sonarmap sweep sweeps/rigs.yaml`` (issue 39): the defaults before (p_free 0.48, a
-10-degree fall-off, the rasteriser's band) and 60 settings of p_occ, p_free, fall-off
-and band, on training scenes mapped by six MaxSonar EZ1s, six HC-SR04s and a ring of
-16 Polaroid sonars: 0.275 against 0.271, observed-wall recall 0.62 against 0.56 (4
-passages of 17 detected against 8). No setting kept both walls and doors there: every
-one with p_occ 0.6 or more recovered 0.68-0.98 of the observed walls and detected no
-passage. A sonar's no-echo
-readings are mostly beams a smooth wall mirrored away, not free space.
+wall F1, passage F1 and observed-wall recall; :func:`sonarmap.metrics.quality`) on the
+training scenes of issue 39 (``sweeps/rigs.yaml``; docs/results/2026-12-06-rig-defaults.md).
+
+An option, off by default, weighs each free increment by how well a surface at the cell
+would face the beam (``specular_deg``, Konolige 1997); when it helps and what it costs
+is in docs/results/2026-12-07-inverse-specular.md.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -33,13 +32,14 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
-from ..raster import accumulate
+from ..raster import CellSet, accumulate
 from ..readings import Readings
 from ..selection import Strategy
 from ..sensors import SensorModel
 from ._base import Mapper, Progress, register
 from ._checks import choice, number
 from ._correlated import reading_weights
+from ._incidence import free_factors
 from ._stream import StreamEngine
 
 __all__ = ["PRESETS", "TRADITIONAL", "InverseMapper"]
@@ -105,6 +105,21 @@ class InverseMapper(Mapper):
         ``sonarmap sweep sweeps/correlated.yaml`` (bins of 2, 5, 10 and 20 cm, the ten
         training scenes) 2 cm tied with off (quality 0.309 both), 5 cm scored 0.289 and
         10-20 cm 0.18-0.21.
+    specular_deg : float
+        Angular width of a smooth surface's echo, degrees, in [0, 90); 0 (default) is off.
+        With a width, each free increment is scaled by how well a surface at the
+        cell would face the beam (Konolige 1997): surface normals are estimated from
+        all the echoes' bands, and a cell that only echoes and slanted beams have met
+        takes little free evidence from a beam crossing it at a slant, while one that
+        beams have crossed head-on (a doorway) takes it in full (see
+        :func:`~sonarmap.mappers._incidence.free_factors`). Occupied increments are
+        unchanged. The normals depend on every reading, so :meth:`partial_fit` then
+        keeps the readings and rebuilds the map from all of them (still exactly one
+        fit's map), and holds every reading's cells while it inserts them; streaming
+        ignores it (the streamed map is the map without it). Off by default: it keeps
+        walls met at a slant but closes doorways, and holds the whole log in memory;
+        turn it on for wide-beam rigs where walls matter more than doors and the log
+        fits in memory (docs/results/2026-12-07-inverse-specular.md).
     """
 
     name = "inverse"
@@ -128,6 +143,7 @@ class InverseMapper(Mapper):
         dr: float | None = 0.05,
         band_offset: float | None = None,
         correlated: float = 0.0,
+        specular_deg: float = 0.0,
     ) -> None:
         self.p_occ = p_occ
         self.p_free = p_free
@@ -139,6 +155,7 @@ class InverseMapper(Mapper):
         self.dr = dr
         self.band_offset = band_offset
         self.correlated = correlated
+        self.specular_deg = specular_deg
         number("p_occ", p_occ, 0.5, 1.0, lo_open=True, hi_open=True)
         number("p_free", p_free, 0.0, 0.5, lo_open=True, hi_open=True)
         number("clamp_min", clamp_min, 0.0, 0.5, lo_open=True, hi_open=True)
@@ -157,16 +174,18 @@ class InverseMapper(Mapper):
         if band_offset is not None:
             number("band_offset", band_offset, 0.0, None)
         number("correlated", correlated, 0.0, None)
+        number("specular_deg", specular_deg, 0.0, 90.0, hi_open=True)
 
     def _reset(self) -> None:
         self._logodds = np.zeros(self.grid.size, dtype=np.float64)
         self._touched = np.zeros(self.grid.size, dtype=np.bool_)
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
-        if self.correlated > 0:
-            # A reading's weight depends on the readings that repeat it, later ones
-            # too: the map is rebuilt from every reading so far, so that partial_fit
-            # still gives one fit's map.
+        if self.correlated > 0 or self.specular_deg > 0:
+            # A reading's weight depends on the readings that repeat it, and a free
+            # increment's on the normals of all the echoes, later ones too: the map is
+            # rebuilt from every reading so far, so that partial_fit still gives one
+            # fit's map.
             readings = self._accumulate(readings)
             self._reset()
         if self.no_echo == "ignore":
@@ -180,6 +199,9 @@ class InverseMapper(Mapper):
             weights = reading_weights(readings, self.correlated, self.sensor.r_max)
         l_free, l_occ = _logit(self.p_free), _logit(self.p_occ)
         lo, hi = _logit(self.clamp_min), _logit(self.clamp_max)
+        if self.specular_deg > 0:
+            self._insert_slanted(readings, weights, (l_free, l_occ), (lo, hi), progress)
+            return
         # Nothing is stored per reading, fall-off or not: the insertion kernel weighs
         # each cell by its angle off the axis as it visits it.
         for a, r in self._chunks(readings, progress):
@@ -202,6 +224,71 @@ class InverseMapper(Mapper):
                 no_echo_reach=self.no_echo_reach,
             )
 
+    def _insert_slanted(
+        self,
+        readings: Readings,
+        weights: npt.NDArray[np.float64] | None,
+        inc: tuple[float, float],
+        clamp: tuple[float, float],
+        progress: Progress | None,
+    ) -> None:
+        """Insert ``readings`` with each free increment scaled by its cell's incidence
+        factor (``specular_deg``).
+
+        Two passes over kept footprints: the first piles every echo's band to estimate
+        the surfaces' normals and the factors, the second adds the increments reading
+        by reading, clamping after each, as :func:`~sonarmap.raster.accumulate` does.
+        """
+        fps = self.kept_footprints(
+            readings,
+            dr=self.dr,
+            offset=self.band_offset_for(self.grid),
+            with_bearing=self.falloff_deg > 0,
+            no_echo_reach=self.no_echo_reach,
+        )
+        bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
+        pairs = list(itertools.pairwise(bounds))
+        factors = free_factors(
+            self.grid,
+            [fp.free for fp in fps],
+            [fp.occ for fp in fps],
+            [readings.x[a:b] for a, b in pairs],
+            [readings.y[a:b] for a, b in pairs],
+            math.radians(self.specular_deg),
+        )
+        sigma = math.radians(self.falloff_deg)
+        for (a, b), fp, f in zip(pairs, fps, factors, strict=True):
+            w = None if weights is None else weights[a:b]
+            inc_free = inc[0] * f * self._entry_weights(fp.free, sigma, w)
+            inc_occ = inc[1] * self._entry_weights(fp.occ, sigma, w)
+            _insert(
+                fp.free.offsets,
+                fp.free.cells,
+                inc_free,
+                fp.occ.offsets,
+                fp.occ.cells,
+                inc_occ,
+                self._logodds,
+                self._touched,
+                *clamp,
+            )
+            if progress is not None:
+                progress(int(b), len(readings))
+
+    @staticmethod
+    def _entry_weights(
+        cs: CellSet, sigma: float, weights: npt.NDArray[np.float64] | None
+    ) -> npt.NDArray[np.float64]:
+        """Per entry of ``cs``, the fall-off at its bearing times its reading's weight."""
+        out = np.ones(len(cs.cells))
+        if sigma > 0:
+            assert cs.bearing is not None
+            b = cs.bearing.astype(np.float64)
+            out = np.exp(-(b * b) / (2.0 * sigma * sigma))
+        if weights is not None:
+            out = out * weights[cs.reading_index()]
+        return out
+
     @property
     def log_odds_(self) -> npt.NDArray[np.float64]:
         """Each cell's log-odds of occupancy, flat over the grid (0 where untouched).
@@ -222,6 +309,32 @@ class InverseMapper(Mapper):
         p = 1.0 / (1.0 + np.exp(-self._logodds))
         p[~self._touched] = np.nan
         return np.asarray(p, dtype=np.float32)
+
+
+@nb.njit(cache=True)
+def _insert(
+    f_off: npt.NDArray[np.int64],
+    f_cell: npt.NDArray[np.int32],
+    f_inc: npt.NDArray[np.float64],
+    o_off: npt.NDArray[np.int64],
+    o_cell: npt.NDArray[np.int32],
+    o_inc: npt.NDArray[np.float64],
+    values: npt.NDArray[np.float64],
+    touched: npt.NDArray[np.bool_],
+    lo: float,
+    hi: float,
+) -> None:
+    # Reading by reading, clamping each cell after its addition: a reading's free and
+    # occupied cells are disjoint, so this is the insertion kernel's order.
+    for i in range(len(f_off) - 1):
+        for j in range(f_off[i], f_off[i + 1]):
+            c = f_cell[j]
+            values[c] = min(max(values[c] + f_inc[j], lo), hi)
+            touched[c] = True
+        for j in range(o_off[i], o_off[i + 1]):
+            c = o_cell[j]
+            values[c] = min(max(values[c] + o_inc[j], lo), hi)
+            touched[c] = True
 
 
 @nb.njit(cache=True)
@@ -253,7 +366,9 @@ class InverseStream(StreamEngine):
     that touch it -- added as readings enter, subtracted as they leave -- clamped when
     read; a cell that no reading in play touches keeps its last value. That forgets old
     evidence, which lets the map follow a changing scene. The fall-off option needs
-    the ``all`` strategy.
+    the ``all`` strategy. Either way the stream leaves out the incidence weighting
+    (``specular_deg``): it needs every echo's band before the first free increment, so
+    the streamed map is the offline map with ``specular_deg=0``.
     """
 
     keeps_readings = False
@@ -269,6 +384,11 @@ class InverseStream(StreamEngine):
         fold: bool | None = None,
     ) -> None:
         assert isinstance(mapper, InverseMapper)
+        if mapper.specular_deg > 0:
+            # The normals depend on readings still to come, and rebuilding the map at
+            # every batch would cost the stream its real time: it streams the model
+            # without the incidence weighting, exactly.
+            mapper = InverseMapper(**{**mapper.get_params(), "specular_deg": 0.0})
         if strategy.bounded and mapper.falloff_deg > 0:
             raise ConfigError(
                 "inverse fall-off streams only with the 'all' strategy; for a bounded "
