@@ -289,6 +289,12 @@ class RobotAgent:
         The odometry's heading bias as estimated so far, rad per metre (0 until a batch
         measures it): every own odometry edge in the store, and each new one, is
         corrected by it.
+    calibration_batches : int
+        The batches whose graph the calibration fitted (0 unless ``calibrate``).
+    calibration_batches_applied : int
+        Of those, the batches that ended with a nonzero :attr:`heading_bias` (the
+        estimate passed the significance gate): with an unbiased odometry, how often
+        the gate fires.
     """
 
     def __init__(
@@ -348,6 +354,8 @@ class RobotAgent:
         self.prev_k: int | None = None
         self.prev_uid: int | None = None
         self.heading_bias = 0.0
+        self.calibration_batches = 0
+        self.calibration_batches_applied = 0
         self.counter = 0
         self.k = 0
 
@@ -528,6 +536,8 @@ class RobotAgent:
         # Records are replaced, not edited: the layer re-measures their bytes.
         layer.edges = debias_edges(layer.edges, new - self.heading_bias)
         self.heading_bias = new
+        self.calibration_batches += 1
+        self.calibration_batches_applied += new != 0.0
 
     def _gate(
         self, closures: list[ClosureEdge], new: Pose, source: int | None, drift: F64 | None
@@ -707,6 +717,7 @@ class RobotAgent:
         d["made"] = [encode(p) for p in self.made.values()]
         d["drift"] = [float(v) for v in np.asarray(self.drift).ravel()]
         d["heading_bias"] = float(self.heading_bias)
+        d["calibration_batches"] = [self.calibration_batches, self.calibration_batches_applied]
         d["drift_of"] = [[u, [float(v) for v in m.ravel()]] for u, m in self.drift_of.items()]
         # The layers' placements as of the last batch: a restarted node must gate as the
         # robot did, not as a batch at restart would.
@@ -729,6 +740,8 @@ class RobotAgent:
         # A state saved while calibrating, taken back by a robot that is not, must not
         # correct its edges.
         self.heading_bias = float(d.get("heading_bias", 0.0)) if self.calibrate else 0.0
+        batches, applied = d.get("calibration_batches", (0, 0)) if self.calibrate else (0, 0)
+        self.calibration_batches, self.calibration_batches_applied = int(batches), int(applied)
         self.drift_of = {
             int(u): np.array(m, dtype=np.float64).reshape(3, 3) for u, m in d.get("drift_of", [])
         }
