@@ -13,11 +13,20 @@ from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
 from sonarmap.team.calibration import (
+    HEADING_BIAS_PRIOR,
+    SIGNIFICANCE,
+    BiasFit,
+    batches,
+    bias_fit,
     calibrated_bias,
+    critical_value,
     debias,
     debias_edges,
+    gated_bias,
     heading_bias_fit,
     heading_bias_step,
+    remaining_bias_sd,
+    slope_stderr,
 )
 from sonarmap.team.mission import MissionConfig, RobotAgent, run_mission
 from sonarmap.team.records import OdometryEdge, compose, invert
@@ -99,17 +108,18 @@ def test_the_bias_step_is_taken_only_when_significant() -> None:
     assert fit.edges == len(lengths)
     assert abs(fit.step) < 1e-6
     assert 0.0 < fit.stderr < 0.01
+    assert fit.dof == batches(len(lengths)) - 1
     assert calibrated_bias(0.0, noisy(0.0), truth) == 0.0
-    # A bias of 1.5 standard errors is not applied, one of 3 is.
-    se = fit.stderr
-    assert calibrated_bias(0.0, noisy(1.5 * se), truth) == 0.0
-    assert calibrated_bias(0.0, noisy(3 * se), truth) == pytest.approx(3 * se, rel=0.05)
-    # The edges corrected by 3 standard errors: the step is 0 and the estimate stays;
-    # corrected by 3 where there is none, the estimate is taken back to 0.
-    assert calibrated_bias(3 * se, debias_edges(noisy(3 * se), 3 * se), truth) == (
-        pytest.approx(3 * se, rel=0.05)
+    # A bias of 0.75 the gate's threshold is not applied, one of 1.5 is.
+    gate = critical_value(fit.dof) * fit.stderr
+    assert calibrated_bias(0.0, noisy(0.75 * gate), truth) == 0.0
+    assert calibrated_bias(0.0, noisy(1.5 * gate), truth) == pytest.approx(1.5 * gate, rel=0.05)
+    # The edges corrected by it: the step is 0 and the estimate stays; corrected by it
+    # where there is none, the estimate is taken back to 0.
+    assert calibrated_bias(1.5 * gate, debias_edges(noisy(1.5 * gate), 1.5 * gate), truth) == (
+        pytest.approx(1.5 * gate, rel=0.05)
     )
-    assert calibrated_bias(3 * se, debias_edges(noisy(0.0), 3 * se), truth) == 0.0
+    assert calibrated_bias(1.5 * gate, debias_edges(noisy(0.0), 1.5 * gate), truth) == 0.0
     # No edge with a length: nothing to fit.
     assert heading_bias_fit([], truth).stderr == math.inf
 
@@ -160,6 +170,10 @@ def test_a_robot_alone_takes_its_odometrys_bias_out_of_its_edges(plan: Occupancy
     # the uncalibrated robot's and out of the calibrated one's.
     assert _stored_bias(fixed) > 0.002, _stored_bias(fixed)
     assert abs(_stored_bias(alone)) < 0.0008, _stored_bias(alone)
+    # The new edges' covariance counts what the calibration leaves of the bias, not
+    # the robot's prior (which a robot that does not calibrate keeps).
+    assert fixed.heading_bias_sd == HEADING_BIAS_PRIOR
+    assert 0.0 < alone.heading_bias_sd < HEADING_BIAS_PRIOR / 3, alone.heading_bias_sd
     # The calibration survives a checkpoint, and a robot that does not calibrate does
     # not take it back.
     state = alone.state()
@@ -167,6 +181,8 @@ def test_a_robot_alone_takes_its_odometrys_bias_out_of_its_edges(plan: Occupancy
     again = _agent(plan, calibrate=True, run=False)
     again.restore(state)
     assert again.heading_bias == alone.heading_bias
+    assert again.heading_bias_sd == alone.heading_bias_sd
+    assert again.calibration_batches == alone.calibration_batches > 0
     other = _agent(plan, calibrate=False, run=False)
     other.restore(state)
     assert other.heading_bias == 0.0
@@ -188,3 +204,69 @@ def test_a_robot_agent_calibrates_only_when_asked_and_run_mission_does(
     assert RobotAgent(plan, cfg).calibrate is False
     r = run_mission(plan, cfg)
     assert r.summary["parameters"]["calibrate_odometry"] is True
+
+
+def _ar1(rng: np.random.Generator, n: int, phi: float) -> np.ndarray:
+    """AR(1) noise, lag-one correlation ``phi``, standard deviation 0.01 (rad)."""
+    eps = rng.normal(0.0, 0.01 * math.sqrt(1 - phi**2), n)
+    out = np.empty(n)
+    out[0] = rng.normal(0.0, 0.01)
+    for t in range(1, n):
+        out[t] = phi * out[t - 1] + eps[t]
+    return out
+
+
+def test_the_gate_holds_its_level_when_the_residuals_are_correlated() -> None:
+    rng = np.random.default_rng(11)
+    draws, n = 400, 300
+    fired = fired_iid = found = 0
+    for _ in range(draws):
+        d = rng.uniform(0.5, 1.0, n)
+        # No bias: heading residuals correlated along the route (lag-one 0.9), as an
+        # optimised graph's are.
+        fit = bias_fit(d, _ar1(rng, n, 0.9))
+        fired += gated_bias(0.0, fit) != 0.0
+        fired_iid += abs(fit.step) > SIGNIFICANCE * fit.stderr_iid
+        # A bias of 0.03 rad per metre in the same noise (about 8 standard errors).
+        fit = bias_fit(d, -0.03 * d + _ar1(rng, n, 0.9))
+        found += gated_bias(0.0, fit) == pytest.approx(0.03, abs=0.015)
+    # The gate's nominal level is 4.6 %; the error that takes the residuals as
+    # independent lets about 60 % through.
+    assert fired / draws < 0.09, fired
+    assert fired_iid / draws > 0.4, fired_iid
+    assert found / draws > 0.9, found
+    # The same through the edges: a route whose odometry's heading has that noise.
+    truth = _loop(n + 1)
+    edges = [
+        replace(e, transform=(e.transform[0], e.transform[1], e.transform[2] + v))
+        for e, v in zip(_edges(truth, 0.0), _ar1(rng, n, 0.9), strict=True)
+    ]
+    fit = heading_bias_fit(edges, truth)
+    lengths = np.array([math.hypot(*e.transform[:2]) for e in edges])
+    residuals = np.array([truth[e.b][2] - truth[e.a][2] - e.transform[2] for e in edges])
+    again = bias_fit(lengths, np.remainder(residuals + math.pi, 2 * math.pi) - math.pi)
+    assert (fit.edges, fit.dof) == (again.edges, again.dof) == (n, batches(n) - 1)
+    assert (fit.step, fit.stderr, fit.stderr_iid) == pytest.approx(
+        (again.step, again.stderr, again.stderr_iid), rel=1e-4
+    )
+
+
+def test_the_batch_means_error_counts_whole_stretches() -> None:
+    d = np.ones(12)
+    # Residuals constant over each third: four edges agree, so they count as one.
+    e = np.repeat([1.0, -2.0, 1.0], 4) * 1e-3
+    # Batch sums 4, -8, 4 (x 1e-3); B / (B - 1) = 1.5; sum d^2 = 12.
+    assert slope_stderr(d, e, 3) == pytest.approx(math.sqrt(1.5 * 96e-6) / 12)
+    assert slope_stderr(d, e, 1) == math.inf
+    assert critical_value(10_000) == pytest.approx(2.0, abs=0.01)
+    assert critical_value(2) > 4.0
+    assert critical_value(0) == math.inf
+
+
+def test_the_edges_covariance_counts_what_the_calibration_leaves() -> None:
+    fit = BiasFit(step=0.001, stderr=0.0002, edges=100, dof=4)
+    # Applied: only its error is left; not applied: the estimate counts in full.
+    assert remaining_bias_sd(0.002, fit, 0.003) == pytest.approx(0.0002)
+    assert remaining_bias_sd(0.002, fit, 0.0) == pytest.approx(math.hypot(0.003, 0.0002))
+    # Before any fit with an error, the prior.
+    assert remaining_bias_sd(0.0, BiasFit(0.0, math.inf, 0), 0.0) == HEADING_BIAS_PRIOR

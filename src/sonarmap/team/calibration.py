@@ -9,10 +9,17 @@ square of the stretch's length. The robot cannot know the bias in advance, but e
 optimised graph measures it: each odometry edge's heading change as the optimised
 estimates give it, minus the edge's own, is ``-bias x length`` plus noise. The least
 squares slope over the robot's own edges, with its standard error, is one step of the
-estimate (:func:`heading_bias_fit`). The estimate so far plus the step is applied only
-when it exceeds :data:`SIGNIFICANCE` standard errors, and is otherwise 0
-(:func:`calibrated_bias`), so an odometry without the bias is left as measured unless
-the graph shows one. A robot alone (:class:`~sonarmap.team.mission.RobotAgent`) updates
+estimate (:func:`heading_bias_fit`). The residuals are neither independent (the graph
+spreads a closure's correction over a stretch of consecutive edges) nor alike (a
+composed edge is long and noisy), so the standard error is a batch-means one over
+contiguous stretches of the trajectory (:func:`slope_stderr`), not the ordinary one,
+which understates it. The estimate so far plus the step is applied only when it exceeds
+the Student-t threshold at the :data:`SIGNIFICANCE` level (:func:`critical_value`), and
+is otherwise 0 (:func:`gated_bias`), so an odometry without the bias is left as
+measured unless the graph shows one. What the calibration leaves of the bias (its
+standard error, or the estimate not applied) is counted as noise in each new edge's
+covariance in place of the robot's prior (:func:`remaining_bias_sd`,
+:data:`HEADING_BIAS_PRIOR`). A robot alone (:class:`~sonarmap.team.mission.RobotAgent`) updates
 its estimate batch after batch, corrects every odometry edge it stores by each change
 (:func:`debias_edges`) and each new one by the estimate so far, as an odometry
 calibration from loop closures does. The store composes edges when it deletes a pose,
@@ -34,18 +41,27 @@ from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
+from scipy.stats import norm as normal
+from scipy.stats import t as student_t
 
 from .records import OdometryEdge
 
 __all__ = [
+    "HEADING_BIAS_PRIOR",
     "MAX_HEADING_BIAS",
     "SIGNIFICANCE",
     "BiasFit",
+    "batches",
+    "bias_fit",
     "calibrated_bias",
+    "critical_value",
     "debias",
     "debias_edges",
+    "gated_bias",
     "heading_bias_fit",
     "heading_bias_step",
+    "remaining_bias_sd",
+    "slope_stderr",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -55,8 +71,18 @@ F64 = npt.NDArray[np.float64]
 #: 0.003 is still far beyond a robot that drives straight enough to patrol).
 MAX_HEADING_BIAS = 0.05
 
-#: Standard errors a step of the estimate must exceed to be taken: about the two-sided
-#: 5 % level, a statistical convention, not a tuned value.
+#: Radians per metre: the robot's prior on the size of its heading bias, the standard
+#: deviation its edges' covariance counts before a calibration measures it, and always
+#: when the robot does not calibrate (:func:`~sonarmap.team.world.odometry_covariance`).
+#: Wheels matched to 0.1 % in diameter on a 0.3 m wheel base turn 0.0033 rad per metre;
+#: a robot's maker can state that, not the bias itself. (The simulator's default bias is
+#: the same 0.003, :data:`~sonarmap.team.world.ODOMETRY_NOISE`; the prior is not read
+#: from it.)
+HEADING_BIAS_PRIOR = 0.003
+
+#: The significance gate's level as a normal's standard errors: about the two-sided 5 %
+#: level, a statistical convention, not a tuned value. A step of the estimate must
+#: exceed the Student-t quantile at the same level (:func:`critical_value`).
 SIGNIFICANCE = 2.0
 
 
@@ -68,15 +94,24 @@ class BiasFit(NamedTuple):
     step : float
         Radians per metre to add to the bias the edges were corrected with.
     stderr : float
-        The slope's standard error, radians per metre (inf with fewer than two edges
-        of nonzero length).
+        The slope's standard error allowing for the residuals' correlation along the
+        trajectory and their unequal variances (batch means, :func:`slope_stderr`),
+        radians per metre; inf with fewer than two edges of nonzero length. The
+        significance gate's.
     edges : int
         The edges the fit used.
+    stderr_iid : float
+        The ordinary least-squares standard error, which takes the residuals as
+        independent, radians per metre (reported, not used).
+    dof : int
+        ``stderr``'s degrees of freedom: the batches less one (:func:`critical_value`).
     """
 
     step: float
     stderr: float
     edges: int
+    stderr_iid: float = math.inf
+    dof: int = 0
 
 
 def debias(transform: Sequence[float] | F64, bias: float) -> tuple[float, float, float]:
@@ -122,13 +157,86 @@ def debias_edges(edges: Sequence[OdometryEdge], bias: float) -> list[OdometryEdg
     return [replace(e, transform=debias(e.transform, bias)) for e in edges]
 
 
+def batches(n: int) -> int:
+    """The contiguous stretches :func:`slope_stderr` cuts ``n`` edges into.
+
+    Parameters
+    ----------
+    n : int
+        Edges.
+
+    Returns
+    -------
+    int
+        ``round(n^(1/3))``, at least 2 and at most ``n``: batches of about ``n^(2/3)``
+        edges, the usual batch-means rule (batches long against the correlation, enough
+        of them to estimate the variance; Flegal and Jones, Annals of Statistics 38(2),
+        2010), stated, not tuned.
+    """
+    return max(2, min(n, round(math.cbrt(n))))
+
+
+def slope_stderr(d: F64, e: F64, count: int) -> float:
+    """The batch-means standard error of a least-squares slope through the origin.
+
+    Parameters
+    ----------
+    d : ndarray (n,)
+        The regressor (edge lengths, metres), in trajectory order.
+    e : ndarray (n,)
+        The fit's residuals, in the same order.
+    count : int
+        The batches ``B``: contiguous stretches of (nearly) equal edge counts.
+
+    Returns
+    -------
+    float
+        ``sqrt(B / (B - 1) sum_k (sum_{t in k} d_t e_t)^2) / sum_t d_t^2``: the slope's
+        sandwich variance with the scores summed within each stretch, so the residuals'
+        correlation along the trajectory and their unequal variances (a composed edge
+        is long and noisy) both count, as long as the stretches are long against the
+        correlation. The ratio of the slope to it is Student-t with ``B - 1`` degrees of
+        freedom (the cluster-robust variance of a regression on ``B`` clusters). Inf
+        with fewer than two batches or no length.
+    """
+    n = len(d)
+    den = float(d @ d)
+    if count < 2 or n < count or den <= 0:
+        return math.inf
+    u = d * e
+    sums = np.array([float(part.sum()) for part in np.array_split(u, count)])
+    return math.sqrt(float(sums @ sums) * count / (count - 1)) / den
+
+
+def critical_value(dof: int) -> float:
+    """The significance gate's threshold in standard errors.
+
+    Parameters
+    ----------
+    dof : int
+        The standard error's degrees of freedom (batches less one).
+
+    Returns
+    -------
+    float
+        The Student-t quantile with ``dof`` degrees of freedom at the normal's
+        :data:`SIGNIFICANCE` quantile (two-sided 4.6 % at 2): 2.0 for many batches, 2.3
+        for 9, 4.5 for 2; inf for none.
+    """
+    if dof < 1:
+        return math.inf
+    return float(student_t.ppf(normal.cdf(SIGNIFICANCE), dof))
+
+
 def heading_bias_fit(edges: Sequence[OdometryEdge], estimates: Mapping[int, F64]) -> BiasFit:
     """Fit the heading bias the optimised estimates still show on the edges.
 
     Parameters
     ----------
     edges : sequence of OdometryEdge
-        The robot's own odometry edges, as stored (corrected by the bias so far).
+        The robot's own odometry edges, as stored (corrected by the bias so far), in any
+        order: they are taken in trajectory order (their first pose's UID, which a robot
+        numbers as it goes).
     estimates : mapping of int to ndarray (3,)
         The optimised poses ``x, y, theta`` by UID; edges naming a pose without one are
         skipped.
@@ -138,28 +246,51 @@ def heading_bias_fit(edges: Sequence[OdometryEdge], estimates: Mapping[int, F64]
     BiasFit
         The least-squares slope through the origin of each edge's heading residual (the
         estimates' heading change less the edge's, radians) on its length (metres),
-        negated, and its standard error. A step of 0 and an infinite error when no edge
-        has a length.
+        negated; its batch-means standard error (:func:`slope_stderr` over
+        :func:`batches` stretches of the trajectory), since the optimised graph spreads
+        a closure's correction over a stretch of consecutive edges, whose residuals are
+        therefore correlated, and composed edges are longer and noisier than the rest;
+        and the ordinary (independent, equal residuals) standard error, for comparison.
+        A step of 0 and infinite errors when no edge has a length.
     """
     r_list: list[float] = []
     d_list: list[float] = []
-    for e in edges:
+    for e in sorted(edges, key=lambda e: (e.a, e.b)):
         a, b = estimates.get(e.a), estimates.get(e.b)
         if a is None or b is None:
             continue
         d_list.append(math.hypot(e.transform[0], e.transform[1]))
         r_list.append(math.remainder(float(b[2]) - float(a[2]) - e.transform[2], 2 * math.pi))
-    d, r = np.array(d_list), np.array(r_list)
+    return bias_fit(np.array(d_list), np.array(r_list))
+
+
+def bias_fit(d: F64, r: F64) -> BiasFit:
+    """:func:`heading_bias_fit` on its edges' lengths and heading residuals.
+
+    Parameters
+    ----------
+    d : ndarray (n,)
+        The edges' lengths, metres, in trajectory order.
+    r : ndarray (n,)
+        Their heading residuals (the estimates' heading change less the edge's),
+        radians.
+
+    Returns
+    -------
+    BiasFit
+        As :func:`heading_bias_fit`.
+    """
     den = float(d @ d) if len(d) else 0.0
     if den <= 0:
-        return BiasFit(0.0, math.inf, 0)
+        return BiasFit(0.0, math.inf, 0, math.inf, 0)
     slope = float(r @ d) / den
     n = int(np.count_nonzero(d))
     if n < 2:
-        return BiasFit(-slope, math.inf, n)
+        return BiasFit(-slope, math.inf, n, math.inf, 0)
     resid = r - slope * d
-    stderr = math.sqrt(float(resid @ resid) / (len(d) - 1) / den)
-    return BiasFit(-slope, stderr, n)
+    iid = math.sqrt(float(resid @ resid) / (len(d) - 1) / den)
+    count = batches(len(d))
+    return BiasFit(-slope, slope_stderr(d, resid, count), n, iid, count - 1)
 
 
 def heading_bias_step(edges: Sequence[OdometryEdge], estimates: Mapping[int, F64]) -> float:
@@ -178,6 +309,31 @@ def heading_bias_step(edges: Sequence[OdometryEdge], estimates: Mapping[int, F64
     return heading_bias_fit(edges, estimates).step
 
 
+def gated_bias(current: float, fit: BiasFit) -> float:
+    """The heading bias to correct the odometry by, given one more fit.
+
+    Parameters
+    ----------
+    current : float
+        The bias the fitted edges were corrected with, radians per metre.
+    fit : BiasFit
+        :func:`heading_bias_fit` on those edges.
+
+    Returns
+    -------
+    float
+        ``current`` plus the fit's step when that total exceeds
+        :func:`critical_value` standard errors of the fit's slope
+        (:attr:`BiasFit.stderr`, :attr:`BiasFit.dof`), else 0 (an estimate
+        the graph cannot tell from noise is not applied, and one applied earlier is
+        taken back), clipped to :data:`MAX_HEADING_BIAS`; radians per metre.
+    """
+    total = current + fit.step
+    if not abs(total) > critical_value(fit.dof) * fit.stderr:
+        return 0.0
+    return min(MAX_HEADING_BIAS, max(-MAX_HEADING_BIAS, total))
+
+
 def calibrated_bias(
     current: float, edges: Sequence[OdometryEdge], estimates: Mapping[int, F64]
 ) -> float:
@@ -193,13 +349,31 @@ def calibrated_bias(
     Returns
     -------
     float
-        ``current`` plus the fit's step when that total exceeds :data:`SIGNIFICANCE`
-        standard errors of the fit's slope, else 0 (an estimate the graph cannot tell
-        from noise is not applied, and one applied earlier is taken back), clipped to
-        :data:`MAX_HEADING_BIAS`; radians per metre.
+        :func:`gated_bias` of :func:`heading_bias_fit`, radians per metre.
     """
-    fit = heading_bias_fit(edges, estimates)
-    total = current + fit.step
-    if not abs(total) > SIGNIFICANCE * fit.stderr:
-        return 0.0
-    return min(MAX_HEADING_BIAS, max(-MAX_HEADING_BIAS, total))
+    return gated_bias(current, heading_bias_fit(edges, estimates))
+
+
+def remaining_bias_sd(current: float, fit: BiasFit, applied: float) -> float:
+    """The robot's uncertainty about the heading bias left once ``applied`` is taken out.
+
+    Parameters
+    ----------
+    current : float
+        The bias the fitted edges were corrected with, radians per metre.
+    fit : BiasFit
+        :func:`heading_bias_fit` on those edges.
+    applied : float
+        The bias now applied (:func:`gated_bias`), radians per metre.
+
+    Returns
+    -------
+    float
+        ``hypot(current + step - applied, stderr)``, radians per metre: the root mean
+        square of the bias left, with the estimate ``current + step`` and its standard
+        error (the estimate not applied counts in full); :data:`HEADING_BIAS_PRIOR`
+        when the fit has no finite error yet.
+    """
+    if not math.isfinite(fit.stderr):
+        return HEADING_BIAS_PRIOR
+    return math.hypot(current + fit.step - applied, fit.stderr)

@@ -43,6 +43,7 @@ import numpy.typing as npt
 from ..io.rosmap import OccupancyMap
 from ..metrics import score
 from .association import Prior, associate
+from .calibration import HEADING_BIAS_PRIOR
 from .globalmap import (
     Alignment,
     GraphResult,
@@ -54,7 +55,7 @@ from .mission import RobotAgent
 from .quantise import check_quantisation, quantise_pose
 from .records import ClosureEdge, OdometryEdge, Pose, compose, invert
 from .scoring import closure_correct, rigid_ate
-from .world import ODOMETRY_NOISE, observe, odometry_covariance
+from .world import ODOMETRY_MODEL, observe, odometry_covariance
 
 __all__ = ["CentralResult", "central_map", "raw_poses"]
 
@@ -109,7 +110,7 @@ def _odometry_edges(agent: RobotAgent, poses: Sequence[Pose]) -> list[OdometryEd
         ka = int(np.searchsorted(t, a.time))
         kb = int(np.searchsorted(t, b.time))
         step = compose(invert(odo[ka, 1:4]), odo[kb, 1:4])
-        cov = odometry_covariance(odo, ka, kb, ODOMETRY_NOISE)
+        cov = odometry_covariance(odo, ka, kb, ODOMETRY_MODEL, bias_sd=HEADING_BIAS_PRIOR)
         out.append(
             OdometryEdge(
                 a.uid,

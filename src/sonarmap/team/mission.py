@@ -26,8 +26,10 @@ Decisions where the thesis is silent:
   odometry's heading bias (rad per metre) on each batch's graph, applies it only when
   it is significant, and stores its edges corrected by it (:mod:`.calibration`). A
   :class:`RobotAgent` does not unless asked (``calibrate=True``): a team's robots must
-  not change edges they have offered. The edges' covariance still counts the
-  simulator's bias magnitude (:func:`~.world.odometry_covariance`), calibrated or not.
+  not change edges they have offered. The edges' covariance counts the bias the robot
+  does not know as noise (:func:`~.world.odometry_covariance`): its prior
+  (:data:`~.calibration.HEADING_BIAS_PRIOR`) when it does not calibrate, and once a
+  batch has measured it, the uncertainty the calibration leaves.
 - **Association** is tried against every pose in the store. The thesis's hard bound
   (top speed x elapsed time) removes nothing once a minute has passed in a building,
   so each candidate also gets the prior of the current estimates: the new pose's
@@ -83,7 +85,14 @@ from .association import (
     Prior,
     associate,
 )
-from .calibration import calibrated_bias, debias, debias_edges
+from .calibration import (
+    HEADING_BIAS_PRIOR,
+    debias,
+    debias_edges,
+    gated_bias,
+    heading_bias_fit,
+    remaining_bias_sd,
+)
 from .config import MissionConfig
 from .evaluation import MissionEvaluator
 from .globalmap import (
@@ -111,7 +120,7 @@ from .regions import mission_regions, region_of, region_sizes
 from .sensing import RobotSensing
 from .store import RobotStore, local_bound, region_limits
 from .world import (
-    ODOMETRY_NOISE,
+    ODOMETRY_MODEL,
     World,
     make_world,
     odometry_covariance,
@@ -271,8 +280,8 @@ class RobotAgent:
     odometry_noise : mapping of str to float, optional
         The simulator's odometry noise (:func:`~.world.odometry`'s keywords; default
         :data:`~.world.ODOMETRY_NOISE`). The robot's own model of it, for the edges'
-        covariance, stays :data:`~.world.ODOMETRY_NOISE`: to test the calibration
-        against an odometry it does not expect.
+        covariance, stays :data:`~.world.ODOMETRY_MODEL` and :attr:`heading_bias_sd`:
+        to test the calibration against an odometry it does not expect.
 
     Attributes
     ----------
@@ -289,6 +298,18 @@ class RobotAgent:
         The odometry's heading bias as estimated so far, rad per metre (0 until a batch
         measures it): every own odometry edge in the store, and each new one, is
         corrected by it.
+    heading_bias_sd : float
+        The robot's uncertainty about the heading bias left in a new odometry edge, rad
+        per metre, which its covariance counts (:func:`~.world.odometry_covariance`):
+        the prior :data:`~.calibration.HEADING_BIAS_PRIOR` until a calibrating batch
+        measures it, then what the calibration leaves
+        (:func:`~.calibration.remaining_bias_sd`). Edges already stored keep theirs.
+    calibration_batches : int
+        The batches whose graph the calibration fitted (0 unless ``calibrate``).
+    calibration_batches_applied : int
+        Of those, the batches that ended with a nonzero :attr:`heading_bias` (the
+        estimate passed the significance gate): with an unbiased odometry, how often
+        the gate fires.
     """
 
     def __init__(
@@ -348,6 +369,9 @@ class RobotAgent:
         self.prev_k: int | None = None
         self.prev_uid: int | None = None
         self.heading_bias = 0.0
+        self.heading_bias_sd = HEADING_BIAS_PRIOR
+        self.calibration_batches = 0
+        self.calibration_batches_applied = 0
         self.counter = 0
         self.k = 0
 
@@ -524,10 +548,14 @@ class RobotAgent:
         change, so that every edge carries the same calibration (compression composes
         them)."""
         layer = self.store.local
-        new = calibrated_bias(self.heading_bias, layer.edges, graph.estimates)
+        fit = heading_bias_fit(layer.edges, graph.estimates)
+        new = gated_bias(self.heading_bias, fit)
+        self.heading_bias_sd = remaining_bias_sd(self.heading_bias, fit, new)
         # Records are replaced, not edited: the layer re-measures their bytes.
         layer.edges = debias_edges(layer.edges, new - self.heading_bias)
         self.heading_bias = new
+        self.calibration_batches += 1
+        self.calibration_batches_applied += new != 0.0
 
     def _gate(
         self, closures: list[ClosureEdge], new: Pose, source: int | None, drift: F64 | None
@@ -618,7 +646,7 @@ class RobotAgent:
         if step is not None:
             assert prev_k is not None
             assert prev_uid is not None
-            cov = odometry_covariance(odo, prev_k, k, ODOMETRY_NOISE)
+            cov = odometry_covariance(odo, prev_k, k, ODOMETRY_MODEL, bias_sd=self.heading_bias_sd)
             edge = OdometryEdge(
                 prev_uid,
                 uid,
@@ -707,6 +735,8 @@ class RobotAgent:
         d["made"] = [encode(p) for p in self.made.values()]
         d["drift"] = [float(v) for v in np.asarray(self.drift).ravel()]
         d["heading_bias"] = float(self.heading_bias)
+        d["heading_bias_sd"] = float(self.heading_bias_sd)
+        d["calibration_batches"] = [self.calibration_batches, self.calibration_batches_applied]
         d["drift_of"] = [[u, [float(v) for v in m.ravel()]] for u, m in self.drift_of.items()]
         # The layers' placements as of the last batch: a restarted node must gate as the
         # robot did, not as a batch at restart would.
@@ -729,6 +759,13 @@ class RobotAgent:
         # A state saved while calibrating, taken back by a robot that is not, must not
         # correct its edges.
         self.heading_bias = float(d.get("heading_bias", 0.0)) if self.calibrate else 0.0
+        self.heading_bias_sd = (
+            float(d.get("heading_bias_sd", HEADING_BIAS_PRIOR))
+            if self.calibrate
+            else HEADING_BIAS_PRIOR
+        )
+        batches, applied = d.get("calibration_batches", (0, 0)) if self.calibrate else (0, 0)
+        self.calibration_batches, self.calibration_batches_applied = int(batches), int(applied)
         self.drift_of = {
             int(u): np.array(m, dtype=np.float64).reshape(3, 3) for u, m in d.get("drift_of", [])
         }

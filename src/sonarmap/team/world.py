@@ -61,6 +61,7 @@ __all__ = [
     "BUILTIN_PLANS",
     "FACES",
     "LANDMARK_COLUMNS",
+    "ODOMETRY_MODEL",
     "ODOMETRY_NOISE",
     "ROUTE_COLUMNS",
     "ROUTE_STYLES",
@@ -1164,25 +1165,53 @@ def load_world(folder: str | Path) -> tuple[World, F64 | None]:
     return world, route
 
 
-def odometry_covariance(odo: F64, j: int, k: int, noise: dict[str, float]) -> F64:
-    """Covariance of the odometry between route steps j and k, from the odometry
-    model's own noise (its bias counted as noise: the robot does not know its value,
-    but ``noise["bias_theta"]`` is the simulator's magnitude, so the heading variance
-    relies on the simulation's bias size, calibrated or not)."""
+def odometry_covariance(
+    odo: F64, j: int, k: int, model: Mapping[str, float], bias_sd: float
+) -> F64:
+    """Covariance of the odometry between route steps j and k, from the robot's model of
+    its odometry.
+
+    Parameters
+    ----------
+    odo : ndarray (T, 4)
+        ``t, x, y, theta`` as dead-reckoned.
+    j, k : int
+        The route steps, ``j <= k``.
+    model : mapping of str to float
+        The random noise's sizes ``sigma_xy``, ``sigma_theta``, ``sigma_theta_dist``
+        (:func:`odometry`'s keywords; :data:`ODOMETRY_MODEL`); other keys are ignored.
+    bias_sd : float
+        Radians per metre: the robot's uncertainty about the heading bias left in the
+        step (its prior :data:`~sonarmap.team.calibration.HEADING_BIAS_PRIOR`, or what
+        a calibration leaves), counted as noise ``(bias_sd * s)^2`` on the heading.
+
+    Returns
+    -------
+    ndarray (3, 3)
+        Diagonal: x and y variance ``sigma_xy^2 s`` (m^2), heading ``sigma_theta^2 a +
+        sigma_theta_dist^2 s + (bias_sd s)^2`` (rad^2), for ``s`` metres driven and ``a``
+        radians turned, plus small floors.
+    """
     d = np.diff(odo[j : k + 1, 1:3], axis=0)
     s = float(np.hypot(d[:, 0], d[:, 1]).sum())
     turn = float(np.abs(np.diff(np.unwrap(odo[j : k + 1, 3]))).sum())
-    var_xy = noise["sigma_xy"] ** 2 * s + 1e-6
+    var_xy = model["sigma_xy"] ** 2 * s + 1e-6
     var_t = (
-        noise["sigma_theta"] ** 2 * turn
-        + noise["sigma_theta_dist"] ** 2 * s
-        + (noise["bias_theta"] * s) ** 2
+        model["sigma_theta"] ** 2 * turn
+        + model["sigma_theta_dist"] ** 2 * s
+        + (bias_sd * s) ** 2
         + 1e-8
     )
     return np.diag([var_xy, var_xy, var_t])
 
 
-#: The odometry model's noise (:func:`~sonarmap.team.world.odometry`'s defaults).
+#: The robot's model of its odometry's random noise, for its edges' covariance
+#: (:func:`odometry_covariance`): sizes a robot's maker states, here the simulator's
+#: defaults. Its heading bias is not in it: a robot does not know that in advance (see
+#: :mod:`~sonarmap.team.calibration`).
+ODOMETRY_MODEL = {"sigma_xy": 0.02, "sigma_theta": 0.01, "sigma_theta_dist": 0.002}
+
+#: The simulator's odometry noise (:func:`~sonarmap.team.world.odometry`'s defaults).
 ODOMETRY_NOISE = {
     "sigma_xy": 0.02,
     "sigma_theta": 0.01,
