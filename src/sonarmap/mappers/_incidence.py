@@ -41,6 +41,8 @@ F64 = npt.NDArray[np.float64]
 #: two cells, so the normal at its crest is averaged from them).
 SMOOTH = 1.0
 INTEGRATE = 2.0
+#: Entries :func:`head_on` computes at once (its temporaries: about 10 float64 each).
+SLICE = 1 << 20
 
 
 class Normals:
@@ -125,11 +127,28 @@ def head_on(grid: Grid, cs: CellSet, x: F64, y: F64, normals: Normals, spread: f
     ndarray of float64, shape (entries,)
     """
     reading = cs.reading_index()
-    rows, cols = grid.unravel(cs.cells)
+    out = np.empty(len(cs.cells))
+    # In slices of entries: the arithmetic is per entry, so the map is the same, and
+    # a batch's temporaries stay bounded by the slice, not by its entries.
+    for a in range(0, len(out), SLICE):
+        b = min(a + SLICE, len(out))
+        out[a:b] = _head_on(grid, cs.cells[a:b], reading[a:b], x, y, normals, spread)
+    return out
+
+
+def _head_on(
+    grid: Grid,
+    cells: npt.NDArray[np.int32],
+    reading: npt.NDArray[np.int64],
+    x: F64,
+    y: F64,
+    normals: Normals,
+    spread: float,
+) -> F64:
+    rows, cols = grid.unravel(cells)
     cx, cy = grid.cell_centres(rows, cols)
     dx, dy = cx - x[reading], cy - y[reading]
     norm = np.hypot(dx, dy)
-    cells = cs.cells
     cos_a = np.abs(dx * normals.nx[cells] + dy * normals.ny[cells])
     cos_a = np.divide(cos_a, norm, out=np.ones_like(norm), where=norm > 0)
     alpha = np.arccos(np.clip(cos_a, 0.0, 1.0))
