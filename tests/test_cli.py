@@ -376,6 +376,24 @@ def test_scenario_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
             ],
             r"strategy 'last' needs a count >= 1, got 0",
         ),
+        *[
+            (
+                [
+                    "stream",
+                    "{d}/readings.csv",
+                    "--rig",
+                    "{d}/rig.yaml",
+                    "--method",
+                    method,
+                    "--param",
+                    "specular_deg=30",
+                    "-o",
+                    "{d}/st",
+                ],
+                rf"streaming '{method}' cannot .*set specular_deg=0",
+            )
+            for method in ("inverse", "gradient")
+        ],
     ],
 )
 def test_errors_are_one_line_exit_2_no_output(

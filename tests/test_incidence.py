@@ -140,16 +140,25 @@ def test_a_convex_start_must_be_a_flag() -> None:
     assert make_mapper("gradient", convex_start=True).convex_start is True  # type: ignore[attr-defined]
 
 
-def test_the_stream_ignores_both_offline_options() -> None:
+def test_the_stream_ignores_convex_start() -> None:
     from sonarmap.scenarios import make_scenario
     from sonarmap.streaming import StreamingMapper
 
     sc = make_scenario("doorways", seed=0)
     maps = []
-    options: list[dict[str, Any]] = [{}, {"specular_deg": 15.0, "convex_start": True}]
+    options: list[dict[str, Any]] = [{}, {"convex_start": True}]
     for p in options:
         s = StreamingMapper("gradient", sc.truth.grid, sc.rig, **p)
         s.add(sc.readings.take(np.arange(300)))
         maps.append(s.occupancy_)
     assert np.count_nonzero(np.isfinite(maps[0])) > 0
     np.testing.assert_array_equal(maps[0], maps[1])
+
+
+def test_the_stream_refuses_the_incidence_weighting() -> None:
+    from sonarmap.scenarios import make_scenario
+    from sonarmap.streaming import StreamingMapper
+
+    sc = make_scenario("doorways", seed=0)
+    with pytest.raises(ConfigError, match="specular_deg=0"):
+        StreamingMapper("gradient", sc.truth.grid, sc.rig, specular_deg=15.0)

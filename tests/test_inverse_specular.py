@@ -9,6 +9,7 @@ second pass looks straight through the doorway to an echo beyond it.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -16,6 +17,8 @@ import pytest
 
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
+from sonarmap.mappers import _base as base
+from sonarmap.mappers import _incidence as incidence
 from sonarmap.mappers import make_mapper
 from sonarmap.mappers.inverse import InverseMapper
 from sonarmap.readings import Readings
@@ -111,9 +114,58 @@ def test_a_bad_specular_angle_names_the_parameter(bad: float) -> None:
         make_mapper("inverse", specular_deg=bad)
 
 
-def test_the_stream_leaves_the_option_out() -> None:
+def test_the_stream_refuses_the_option() -> None:
+    with pytest.raises(ConfigError, match="specular_deg=0"):
+        StreamingMapper("inverse", GRID, SENSOR, specular_deg=15.0)
+
+
+def test_a_refused_batch_leaves_the_map_and_the_kept_readings_as_they_were(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     r = _readings()
-    plain = make_mapper("inverse", specular_deg=0.0).fit(r, GRID, SENSOR)
-    s = StreamingMapper("inverse", GRID, SENSOR, specular_deg=15.0)
-    s.add(r)
-    np.testing.assert_array_equal(s.occupancy_, plain.occupancy_)
+    first, second = r.take(slice(0, 30)), r.take(slice(30, len(r)))
+    m = make_mapper("inverse", specular_deg=15.0).start(GRID, SENSOR)
+    assert isinstance(m, InverseMapper)
+    m.partial_fit(first)
+    size = sum(fp.n_entries for fp in m.kept_footprints(first, dr=m.dr))
+    logodds, touched = m.log_odds_.copy(), m.touched_.copy()
+    monkeypatch.setattr(base, "MAX_ENTRIES", size + 10)
+    with pytest.raises(ConfigError, match=r"specular_deg=0"):
+        m.partial_fit(second)
+    np.testing.assert_array_equal(m.log_odds_, logodds)
+    np.testing.assert_array_equal(m.touched_, touched)
+    # The readings kept are the first batch's alone: with the limit back, the second
+    # batch gives the map of one fit of the two.
+    monkeypatch.undo()
+    m.partial_fit(second)
+    np.testing.assert_array_equal(m.log_odds_, _log_odds(specular_deg=15.0))
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        {},
+        {"falloff_deg": 0.0},
+        {"correlated": 0.05},
+        {"no_echo": "free"},
+        {"p_occ": 0.7},
+    ],
+)
+def test_with_factors_of_one_it_is_the_kernels_map(
+    monkeypatch: pytest.MonkeyPatch, params: dict[str, Any]
+) -> None:
+    # Far echoes, beyond r_max: no-echo readings for no_echo="free".
+    r = _readings()
+    far = np.where(np.arange(len(r)) % 7 == 0, SENSOR.r_max, r.range)
+    r = Readings(t=r.t, sensor=r.sensor, x=r.x, y=r.y, theta=r.theta, range=far, names=r.names)
+    plain = make_mapper("inverse", **params).fit(r, GRID, SENSOR)
+    monkeypatch.setattr(incidence.Shield, "factors", lambda self, cs, x, y: np.ones(len(cs.cells)))
+    monkeypatch.setattr(InverseMapper, "chunk_size", 16)
+    forced = make_mapper("inverse", specular_deg=15.0, **params).fit(r, GRID, SENSOR)
+    assert isinstance(plain, InverseMapper)
+    assert isinstance(forced, InverseMapper)
+    np.testing.assert_array_equal(forced.touched_, plain.touched_)
+    np.testing.assert_allclose(forced.log_odds_, plain.log_odds_, atol=1e-6, rtol=0)
+    if params.get("p_occ") == 0.7:
+        hi = math.log(0.97 / 0.03)
+        assert np.isclose(plain.log_odds_, hi).any()  # the clamp was reached

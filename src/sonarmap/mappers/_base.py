@@ -152,7 +152,14 @@ class Mapper(ABC):
         if self._grid is None:
             raise NotFittedError(f"{type(self).__name__}: call start() or fit() first")
         check_ranges(readings)
-        self._add(readings, progress)
+        kept = len(self._batches)
+        try:
+            self._add(readings, progress)
+        except ConfigError:
+            # A refused batch is not kept: the next partial_fit rebuilds from the
+            # batches taken before it.
+            del self._batches[kept:]
+            raise
         return self
 
     def stream(
@@ -282,6 +289,7 @@ class Mapper(ABC):
         offset: float = 0.0,
         with_bearing: bool = False,
         no_echo_reach: float | None = None,
+        advice: str | None = None,
     ) -> list[Footprint]:
         """Every reading's footprint, for methods whose objective couples them all.
 
@@ -298,6 +306,9 @@ class Mapper(ABC):
         no_echo_reach : float or None, default None
             How far a no-echo reading's free cells reach (metres, less ``dr``); None:
             ``r_max`` (see :func:`~sonarmap.raster.rasterise`).
+        advice : str or None, default None
+            What the refusal suggests doing instead; None: fewer readings at once,
+            coarser cells or no-echo readings dropped.
 
         Returns
         -------
@@ -320,10 +331,13 @@ class Mapper(ABC):
                 raise ConfigError(
                     f"method '{self.name}': the first {a + fp.free.n_readings:,} of "
                     f"{len(readings):,} readings already touch {total / 1e6:.0f} M cells "
-                    f"(the limit is {MAX_ENTRIES / 1e6:.0f} M, about 10 GB); map fewer "
-                    "readings at once (sonarmap stream keeps a bounded window), use "
-                    "coarser cells, or drop the no-echo readings (no_echo=ignore, where "
-                    "the method has it)"
+                    f"(the limit is {MAX_ENTRIES / 1e6:.0f} M, about 10 GB); "
+                    + (
+                        advice
+                        or "map fewer readings at once (sonarmap stream keeps a bounded "
+                        "window), use coarser cells, or drop the no-echo readings "
+                        "(no_echo=ignore, where the method has it)"
+                    )
                 )
             out.append(fp)
         return out

@@ -29,9 +29,9 @@ import numpy.typing as npt
 from scipy import ndimage
 
 from ..grid import Grid
-from ..raster import CellSet
+from ..raster import CellSet, Footprint
 
-__all__ = ["Normals", "echo_normals", "free_factors", "head_on"]
+__all__ = ["Normals", "Shield", "echo_normals", "free_factors", "head_on", "shield"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -41,6 +41,8 @@ F64 = npt.NDArray[np.float64]
 #: two cells, so the normal at its crest is averaged from them).
 SMOOTH = 1.0
 INTEGRATE = 2.0
+#: Entries :func:`head_on` computes at once (its temporaries: about 10 float64 each).
+SLICE = 1 << 20
 
 
 class Normals:
@@ -125,15 +127,94 @@ def head_on(grid: Grid, cs: CellSet, x: F64, y: F64, normals: Normals, spread: f
     ndarray of float64, shape (entries,)
     """
     reading = cs.reading_index()
-    rows, cols = grid.unravel(cs.cells)
+    out = np.empty(len(cs.cells))
+    # In slices of entries: the arithmetic is per entry, so the map is the same, and
+    # a batch's temporaries stay bounded by the slice, not by its entries.
+    for a in range(0, len(out), SLICE):
+        b = min(a + SLICE, len(out))
+        out[a:b] = _head_on(grid, cs.cells[a:b], reading[a:b], x, y, normals, spread)
+    return out
+
+
+def _head_on(
+    grid: Grid,
+    cells: npt.NDArray[np.int32],
+    reading: npt.NDArray[np.int64],
+    x: F64,
+    y: F64,
+    normals: Normals,
+    spread: float,
+) -> F64:
+    rows, cols = grid.unravel(cells)
     cx, cy = grid.cell_centres(rows, cols)
     dx, dy = cx - x[reading], cy - y[reading]
     norm = np.hypot(dx, dy)
-    cells = cs.cells
     cos_a = np.abs(dx * normals.nx[cells] + dy * normals.ny[cells])
     cos_a = np.divide(cos_a, norm, out=np.ones_like(norm), where=norm > 0)
     alpha = np.arccos(np.clip(cos_a, 0.0, 1.0))
     return np.asarray(np.exp(-((alpha / spread) ** 2)), dtype=np.float64)
+
+
+class Shield:
+    """Per grid cell, how much a slanted beam's free evidence there is held back: the
+    coherence of the cell's normal times the echoes' share of its evidence (see
+    :func:`free_factors`). Grid-sized, so a log's factors can be recomputed batch by
+    batch (:meth:`factors`) instead of kept for every entry.
+
+    Attributes
+    ----------
+    grid : Grid
+        The map grid.
+    normals : Normals
+        From :func:`echo_normals`.
+    level : ndarray of float64, shape (cells,)
+        ``c g`` per cell, in [0, 1].
+    spread : float
+        Angular width of a surface's echo, radians (> 0).
+    """
+
+    def __init__(self, grid: Grid, normals: Normals, level: F64, spread: float) -> None:
+        self.grid = grid
+        self.normals = normals
+        self.level = level
+        self.spread = spread
+
+    def factors(self, cs: CellSet, x: F64, y: F64) -> F64:
+        """Per entry of ``cs`` (cells of N readings at sensor positions ``x``, ``y``,
+        metres, shape (N,)), the factor in (0, 1] its free weight is scaled by."""
+        e = head_on(self.grid, cs, x, y, self.normals, self.spread)
+        return np.maximum(1.0 - self.level[cs.cells] * (1.0 - e), 1e-6)
+
+
+def shield(grid: Grid, fps: list[Footprint], x: F64, y: F64, spread: float) -> Shield:
+    """The :class:`Shield` of a log's footprints, one grid-sized pass over them.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map grid.
+    fps : list of Footprint
+        Consecutive batches of the readings' Omega_free and Omega_occ.
+    x, y : ndarray of float64, shape (N,)
+        The readings' sensor positions, metres, N the footprints' readings in all.
+    spread : float
+        Angular width of a surface's echo, radians (> 0).
+
+    Returns
+    -------
+    Shield
+    """
+    normals = echo_normals(grid, [fp.occ for fp in fps])
+    passed = np.zeros(grid.size)
+    a = 0
+    for fp in fps:
+        b = a + fp.free.n_readings
+        e = head_on(grid, fp.free, x[a:b], y[a:b], normals, spread)
+        passed += np.bincount(fp.free.cells, weights=fp.free.weight * e, minlength=grid.size)
+        a = b
+    total = normals.pile + passed
+    share = np.divide(normals.pile, total, out=np.zeros_like(total), where=total > 0)
+    return Shield(grid, normals, normals.coherence * share, spread)
 
 
 def free_factors(
@@ -152,7 +233,7 @@ def free_factors(
     head-on (``sum w0 e`` over the free entries). A cell that beams have passed
     head-on is one a surface would have echoed from, so it is not shielded from the
     slanted beams either (a doorway in a wall's line); a cell only echoes and slanted
-    beams met keeps its echoes' say.
+    beams met keeps its echoes' say. Floored at 1e-6.
 
     Parameters
     ----------
@@ -170,15 +251,7 @@ def free_factors(
     list of ndarray of float64
         Per batch, one factor in (0, 1] per Omega_free entry.
     """
-    normals = echo_normals(grid, bands)
-    e = [head_on(grid, cs, x, y, normals, spread) for cs, x, y in zip(free, xs, ys, strict=True)]
-    passed = np.zeros(grid.size)
-    for cs, eb in zip(free, e, strict=True):
-        passed += np.bincount(cs.cells, weights=cs.weight * eb, minlength=grid.size)
-    total = normals.pile + passed
-    share = np.divide(normals.pile, total, out=np.zeros_like(total), where=total > 0)
-    shield = normals.coherence * share
-    return [
-        np.maximum(1.0 - shield[cs.cells] * (1.0 - eb), 1e-6)
-        for cs, eb in zip(free, e, strict=True)
-    ]
+    fps = [Footprint(f, o, 0.0) for f, o in zip(free, bands, strict=True)]
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    sh = shield(grid, fps, x, y, spread)
+    return [sh.factors(cs, xb, yb) for cs, xb, yb in zip(free, xs, ys, strict=True)]

@@ -168,6 +168,11 @@ class StreamEngine(ABC):
                 f"streaming '{mapper.name}' cannot down-weight correlated readings (a "
                 "reading's weight depends on readings still to come); set correlated=0"
             )
+        if getattr(mapper, "specular_deg", 0.0) > 0:
+            raise ConfigError(
+                f"streaming '{mapper.name}' cannot weigh free evidence by incidence (the "
+                "surfaces' normals depend on echoes still to come); set specular_deg=0"
+            )
         if self.keeps_readings and not strategy.bounded:
             raise ConfigError(
                 f"streaming '{mapper.name}' keeps readings in play; give a bounded strategy "

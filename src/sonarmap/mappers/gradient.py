@@ -69,7 +69,7 @@ from ._forward import (
     build_problem,
     robust_weights,
 )
-from ._incidence import free_factors
+from ._incidence import shield
 from ._stream import StreamEngine
 
 __all__ = ["GradientMapper"]
@@ -204,7 +204,7 @@ class GradientMapper(Mapper):
         and a cell that only echoes and slanted beams have met counts little to a beam
         crossing it at a slant (see :func:`~sonarmap.mappers._incidence.free_factors`).
         The weights are scaled after the normalisation, so X0 stays one detectable
-        obstacle of the whole beam. Offline only: streaming ignores it. Off by default:
+        obstacle of the whole beam. Offline only: streaming refuses it. Off by default:
         on the training scenes it kept more of the observed walls but detected fewer
         passages, a lower quality (docs/results/2026-12-06-rig-defaults.md).
     convex_start : bool
@@ -374,15 +374,10 @@ class GradientMapper(Mapper):
     ) -> list[F64]:
         """Per batch, each Omega_free entry's detectability at the beam's incidence
         (``specular_deg``; see :func:`~sonarmap.mappers._incidence.free_factors`)."""
-        pairs = list(itertools.pairwise(bounds))
-        return free_factors(
-            self.grid,
-            [fp.free for fp in fps],
-            [fp.occ for fp in fps],
-            [readings.x[a:b] for a, b in pairs],
-            [readings.y[a:b] for a, b in pairs],
-            math.radians(self.specular_deg),
-        )
+        x, y = readings.x, readings.y
+        sh = shield(self.grid, fps, x, y, math.radians(self.specular_deg))
+        pairs = itertools.pairwise(bounds)
+        return [sh.factors(fp.free, x[a:b], y[a:b]) for (a, b), fp in zip(pairs, fps, strict=True)]
 
     def solve(
         self, problem: ForwardProblem, x: F64, progress: Progress | None = None

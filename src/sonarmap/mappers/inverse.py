@@ -22,7 +22,6 @@ is in docs/results/2026-12-07-inverse-specular.md.
 
 from __future__ import annotations
 
-import itertools
 import math
 from typing import Any
 
@@ -32,14 +31,14 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
-from ..raster import CellSet, accumulate
+from ..raster import CellSet, Footprint, accumulate
 from ..readings import Readings
 from ..selection import Strategy
 from ..sensors import SensorModel
 from ._base import Mapper, Progress, register
 from ._checks import choice, number
 from ._correlated import reading_weights
-from ._incidence import free_factors
+from ._incidence import shield
 from ._stream import StreamEngine
 
 __all__ = ["PRESETS", "TRADITIONAL", "InverseMapper"]
@@ -111,12 +110,12 @@ class InverseMapper(Mapper):
         cell would face the beam (Konolige 1997): surface normals are estimated from
         all the echoes' bands, and a cell that only echoes and slanted beams have met
         takes little free evidence from a beam crossing it at a slant, while one that
-        beams have crossed head-on (a doorway) takes it in full (see
+        beams have crossed head-on (a doorway) keeps most of it (see
         :func:`~sonarmap.mappers._incidence.free_factors`). Occupied increments are
         unchanged. The normals depend on every reading, so :meth:`partial_fit` then
         keeps the readings and rebuilds the map from all of them (still exactly one
         fit's map), and holds every reading's cells while it inserts them; streaming
-        ignores it (the streamed map is the map without it). Off by default: it keeps
+        refuses it. Off by default: it keeps
         walls met at a slant but closes doorways, and holds the whole log in memory;
         turn it on for wide-beam rigs where walls matter more than doors and the log
         fits in memory (docs/results/2026-12-07-inverse-specular.md).
@@ -181,13 +180,13 @@ class InverseMapper(Mapper):
         self._touched = np.zeros(self.grid.size, dtype=np.bool_)
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
-        if self.correlated > 0 or self.specular_deg > 0:
+        rebuild = self.correlated > 0 or self.specular_deg > 0
+        if rebuild:
             # A reading's weight depends on the readings that repeat it, and a free
             # increment's on the normals of all the echoes, later ones too: the map is
             # rebuilt from every reading so far, so that partial_fit still gives one
-            # fit's map.
+            # fit's map. (partial_fit forgets the batch again if this refuses it.)
             readings = self._accumulate(readings)
-            self._reset()
         if self.no_echo == "ignore":
             # Dropped before inserting: a no-echo beam is the longest there is.
             readings = self._echoes(readings)
@@ -200,8 +199,22 @@ class InverseMapper(Mapper):
         l_free, l_occ = _logit(self.p_free), _logit(self.p_occ)
         lo, hi = _logit(self.clamp_min), _logit(self.clamp_max)
         if self.specular_deg > 0:
-            self._insert_slanted(readings, weights, (l_free, l_occ), (lo, hi), progress)
+            # Built (and their size checked) before the map is cleared: a refused
+            # batch leaves the map as it was.
+            fps = self.kept_footprints(
+                readings,
+                dr=self.dr,
+                offset=self.band_offset_for(self.grid),
+                with_bearing=self.falloff_deg > 0,
+                no_echo_reach=self.no_echo_reach,
+                advice="turn the incidence weighting off (specular_deg=0), map fewer "
+                "readings at once, or use coarser cells",
+            )
+            self._reset()
+            self._insert_slanted(readings, fps, weights, (l_free, l_occ), (lo, hi), progress)
             return
+        if rebuild:
+            self._reset()
         # Nothing is stored per reading, fall-off or not: the insertion kernel weighs
         # each cell by its angle off the axis as it visits it.
         for a, r in self._chunks(readings, progress):
@@ -227,39 +240,29 @@ class InverseMapper(Mapper):
     def _insert_slanted(
         self,
         readings: Readings,
+        fps: list[Footprint],
         weights: npt.NDArray[np.float64] | None,
         inc: tuple[float, float],
         clamp: tuple[float, float],
         progress: Progress | None,
     ) -> None:
-        """Insert ``readings`` with each free increment scaled by its cell's incidence
-        factor (``specular_deg``).
+        """Insert ``readings`` (footprints ``fps``) with each free increment scaled by
+        its cell's incidence factor (``specular_deg``).
 
-        Two passes over kept footprints: the first piles every echo's band to estimate
-        the surfaces' normals and the factors, the second adds the increments reading
-        by reading, clamping after each, as :func:`~sonarmap.raster.accumulate` does.
+        Two passes over the footprints: the first keeps only grid-sized sums (the
+        echoes' normals and how much each cell is shielded), the second recomputes the
+        factors batch by batch and adds the increments reading by reading, clamping
+        after each, as :func:`~sonarmap.raster.accumulate` does.
         """
-        fps = self.kept_footprints(
-            readings,
-            dr=self.dr,
-            offset=self.band_offset_for(self.grid),
-            with_bearing=self.falloff_deg > 0,
-            no_echo_reach=self.no_echo_reach,
-        )
-        bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
-        pairs = list(itertools.pairwise(bounds))
-        factors = free_factors(
-            self.grid,
-            [fp.free for fp in fps],
-            [fp.occ for fp in fps],
-            [readings.x[a:b] for a, b in pairs],
-            [readings.y[a:b] for a, b in pairs],
-            math.radians(self.specular_deg),
-        )
+        x, y = readings.x, readings.y
+        sh = shield(self.grid, fps, x, y, math.radians(self.specular_deg))
         sigma = math.radians(self.falloff_deg)
-        for (a, b), fp, f in zip(pairs, fps, factors, strict=True):
+        a = 0
+        for fp in fps:
+            b = a + fp.free.n_readings
             w = None if weights is None else weights[a:b]
-            inc_free = inc[0] * f * self._entry_weights(fp.free, sigma, w)
+            inc_free = inc[0] * sh.factors(fp.free, x[a:b], y[a:b])
+            inc_free *= self._entry_weights(fp.free, sigma, w)
             inc_occ = inc[1] * self._entry_weights(fp.occ, sigma, w)
             _insert(
                 fp.free.offsets,
@@ -272,8 +275,10 @@ class InverseMapper(Mapper):
                 self._touched,
                 *clamp,
             )
+            del inc_free, inc_occ
+            a = b
             if progress is not None:
-                progress(int(b), len(readings))
+                progress(b, len(readings))
 
     @staticmethod
     def _entry_weights(
@@ -366,9 +371,8 @@ class InverseStream(StreamEngine):
     that touch it -- added as readings enter, subtracted as they leave -- clamped when
     read; a cell that no reading in play touches keeps its last value. That forgets old
     evidence, which lets the map follow a changing scene. The fall-off option needs
-    the ``all`` strategy. Either way the stream leaves out the incidence weighting
-    (``specular_deg``): it needs every echo's band before the first free increment, so
-    the streamed map is the offline map with ``specular_deg=0``.
+    the ``all`` strategy. The incidence weighting (``specular_deg``) is refused: it
+    needs every echo's band before the first free increment.
     """
 
     keeps_readings = False
@@ -384,11 +388,6 @@ class InverseStream(StreamEngine):
         fold: bool | None = None,
     ) -> None:
         assert isinstance(mapper, InverseMapper)
-        if mapper.specular_deg > 0:
-            # The normals depend on readings still to come, and rebuilding the map at
-            # every batch would cost the stream its real time: it streams the model
-            # without the incidence weighting, exactly.
-            mapper = InverseMapper(**{**mapper.get_params(), "specular_deg": 0.0})
         if strategy.bounded and mapper.falloff_deg > 0:
             raise ConfigError(
                 "inverse fall-off streams only with the 'all' strategy; for a bounded "
