@@ -440,9 +440,9 @@ def _behind_steps(turn_time: float) -> list[int]:
 
 
 def test_cars_turn_round_less_when_places_just_seen_behind_do_not_pull() -> None:
-    # Both cars turn round at the start (16 steps each, the places behind them never
-    # seen, the street ahead shut by the other's disc), the same with and without
-    # turn_time for the first 40 s; over 60 s the later turns are fewer with it.
+    # Both cars turn round at the start (16 reversing steps each, the places behind
+    # them never seen), with and without turn_time, and no more in the first 40 s;
+    # over 60 s the later turns are fewer with it.
     before = _behind_steps(0.0)
     after = _behind_steps(30.0)
     assert sum(before) >= 60  # measured: 36 + 32
