@@ -6,9 +6,11 @@ and above held out), cars (turning radius 3.5 m, the thesis's speed rule), refin
 mode, artificial obstacles, starts spread by farthest point (by seed); tracking cars
 choose among the places out of their sight with places behind them damped
 (``--turn-penalty 10``; ``--turn-penalty 0 --no-out-of-sight`` is the library's
-default, the thesis's pulls) and drive on round the block rather than turn round when
-that is at most 60 m longer, following the cars ahead going their way
-(``--round-block 60``; 0 is the library's default, the shortest path); ``--one-way
+default, the thesis's pulls), not for places they saw less than 30 s ago behind them
+(``--turn-time 30``, the one value tried on the training sites; 0 is the library's
+default) and drive on round the block rather than turn round when that is at most
+60 m longer, following the cars ahead going their way (``--round-block 60``; 0 is
+the library's default, the shortest path); ``--one-way
 teams`` drives every street narrower than the turning circle one way only
 (:mod:`sonarmap.patrol.oneway`) in the runs of more than one car (``all``: every run;
 ``off``, the default: none); ``--stub-sight`` has a car look down a dead-end stub
@@ -34,7 +36,8 @@ planner, team size and seed one run of ``--duration`` simulated seconds, reporti
 
 Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
 [--planners track thesis] [--crowding obstacles] [--forward-wave] [--give-up 3]
-[--turn-penalty 10] [--no-out-of-sight] [--round-block 60] [--one-way off|teams|all]
+[--turn-penalty 10] [--turn-time 30] [--no-out-of-sight] [--round-block 60]
+[--one-way off|teams|all]
 [--stub-sight] [--stub-delay 0]
 [--seeds 0]
 [--duration 3600]
@@ -67,6 +70,7 @@ def car_config(
     forward_wave: bool = False,
     give_up: int = 3,
     turn_penalty: float = 10.0,
+    turn_time: float = 0.0,
     out_of_sight: bool = True,
     round_block: float = 60.0,
     one_way: bool = False,
@@ -81,6 +85,7 @@ def car_config(
         forward_wave=forward_wave,
         give_up=give_up,
         turn_penalty=turn_penalty,
+        turn_time=turn_time,
         out_of_sight=out_of_sight,
         round_block=round_block,
         one_way=one_way,
@@ -99,6 +104,7 @@ RECORDED = {
     "forward_wave": "forward_wave",
     "give_up": "give_up",
     "turn_penalty": "turn_penalty",
+    "turn_time": "turn_time",
     "out_of_sight": "out_of_sight",
     "round_block": "round_block",
     "one_way": "one_way",
@@ -152,6 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--forward-wave", action="store_true")
     ap.add_argument("--give-up", type=int, default=3)
     ap.add_argument("--turn-penalty", type=float, default=10.0)
+    ap.add_argument("--turn-time", type=float, default=30.0)
     ap.add_argument("--no-out-of-sight", dest="out_of_sight", action="store_false")
     ap.add_argument("--round-block", type=float, default=60.0)
     ap.add_argument("--one-way", choices=["off", "teams", "all"], default="off")
@@ -174,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
                         forward_wave=a.forward_wave,
                         give_up=a.give_up,
                         turn_penalty=a.turn_penalty,
+                        turn_time=a.turn_time,
                         out_of_sight=a.out_of_sight,
                         round_block=a.round_block,
                         one_way=a.one_way == "all" or (a.one_way == "teams" and cars > 1),

@@ -17,6 +17,7 @@ from sonarmap.patrol.manoeuvre import (
     behind_cells,
     carrot,
     clear_goals,
+    fresh_behind,
     leads_on,
     plan_manoeuvre,
     route_goals,
@@ -381,6 +382,71 @@ def test_a_car_drives_round_the_block_rather_than_turn_round_when_allowed() -> N
     assert turned >= 10  # steps reversing (measured: 20)
     assert east > 54.0  # on round the block (measured: 56.8 m)
     assert looped <= turned // 2  # the first step's turn only (measured: 4)
+
+
+def test_fresh_behind_is_what_was_just_seen_behind_the_car() -> None:
+    # A car at (20, 15) heading east on the 40 x 30 m room's grid; every cell seen
+    # 5 s ago but a column of cells 10 m behind it seen 100 s ago and the corridor,
+    # never watched.
+    t = _corridor_map()
+    g = t.grid
+    last = np.full(g.shape, 95.0)
+    rr, cc = np.mgrid[0 : g.shape[0], 0 : g.shape[1]]
+    px, py = g.cell_centres(rr, cc)
+    last[np.abs(px - 10.25) < 0.3] = 0.0
+    last[px > 40.0] = np.inf
+    fresh = fresh_behind(last, 100.0, 20.0, 15.0, 0.0, g, 1.75, 30.0)
+    off = np.abs(np.arctan2(py - 15.0, px - 20.0))
+    assert fresh.any()
+    # Just seen and more than 1.75 rad off the heading: all of them, and only them.
+    assert np.array_equal(fresh, (off > 1.75) & (last == 95.0))
+    assert not fresh[np.abs(px - 10.25) < 0.3].any()  # seen too long ago
+    assert not fresh[px > 20.0].any()  # ahead
+    # Seen 5 s ago counts as fresh for a turn of 10 s, not of 5 s.
+    assert not fresh_behind(last, 100.0, 20.0, 15.0, 0.0, g, 1.75, 5.0).any()
+
+
+def test_turn_time_must_be_a_duration() -> None:
+    with pytest.raises(ConfigError, match="turn_time"):
+        PatrolConfig(model="car", turn_time=-1.0)
+    with pytest.raises(ConfigError, match="turn_time"):
+        PatrolConfig(model="car", turn_time=math.nan)
+
+
+def _behind_steps(turn_time: float) -> list[int]:
+    """Reversing steps each of two tracking cars spends on manoeuvres planned because
+    their path lay behind them, in 60 s on the 5 m ring, artificial obstacles: they
+    start in the south street 18 m apart, nose to nose."""
+    t = _ring_map()
+    steps: list[int] = []
+
+    def keep(_t: float, team: object, _fog: Fog) -> None:
+        assert isinstance(team, Car)
+        steps[:] = team.escape_causes["behind"].tolist()
+
+    cfg = PatrolConfig(
+        model="car",
+        duration=60.0,
+        vision=5.0,
+        turn_penalty=10.0,
+        out_of_sight=True,
+        round_block=60.0,
+        crowding="obstacles",
+        turn_time=turn_time,
+    )
+    starts = np.array([[12.0, 2.5, 0.0], [30.0, 2.5, math.pi]])
+    run_patrol(t, cfg, starts=starts, seed=0, on_step=keep)
+    return steps
+
+
+def test_cars_turn_round_less_when_places_just_seen_behind_do_not_pull() -> None:
+    # Both cars turn round at the start (16 reversing steps each, the places behind
+    # them never seen), with and without turn_time, and no more in the first 40 s;
+    # over 60 s the later turns are fewer with it.
+    before = _behind_steps(0.0)
+    after = _behind_steps(30.0)
+    assert sum(before) >= 60  # measured: 36 + 32
+    assert sum(after) <= 0.75 * sum(before)  # measured: 22 + 22
 
 
 def test_round_block_must_be_a_length() -> None:

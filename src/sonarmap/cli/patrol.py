@@ -225,6 +225,11 @@ PATROL_OPTIONS = (
         "(over 100 deg off its heading) needs over the places ahead; 0: none.",
     ),
     Opt(
+        "turn_time",
+        "Tracking cars: seconds a turn-round costs; places seen less than this long ago "
+        "behind a car (over 100 deg off its heading) do not pull on it; 0: they do.",
+    ),
+    Opt(
         "out_of_sight",
         "Tracking cars: only places out of sight (not seen this step) pull on a car; "
         "--every-place-pulls: every watched place does (the thesis's).",

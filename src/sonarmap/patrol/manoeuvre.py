@@ -38,6 +38,7 @@ __all__ = [
     "behind_cells",
     "carrot",
     "clear_goals",
+    "fresh_behind",
     "leads_on",
     "plan_manoeuvre",
     "route_goals",
@@ -125,6 +126,40 @@ def turn_weights(heading: float, behind: float, penalty: float) -> F64:
     angle = np.arctan2(STEP_UNITS[:, 1], STEP_UNITS[:, 0])
     off = np.abs((angle - heading + math.pi) % (2 * math.pi) - math.pi)
     return np.where(off > behind, math.exp(-penalty), 1.0).astype(np.float64)
+
+
+def fresh_behind(
+    last: F64,
+    now: float,
+    x: float,
+    y: float,
+    heading: float,
+    grid: Grid,
+    behind: float,
+    turn_time: float,
+) -> npt.NDArray[np.bool_]:
+    """The cells (a mask of ``last``'s shape) seen less than ``turn_time`` seconds
+    before ``now`` whose centres lie more than ``behind`` radians off the ``heading``
+    of a car at (x, y), metres.
+
+    A car goes for such a place only by turning round, which on a street narrower
+    than its turning circle is a reversing manoeuvre taking some seconds: going there
+    sees the place about that much later than it was last seen, so it gains nothing
+    (:attr:`~sonarmap.patrol.simulation.PatrolConfig.turn_time`). ``last`` holds the
+    time each cell was last seen (seconds; ``inf`` for cells never watched). The car's
+    own cell is never among them.
+    """
+    age = now - last
+    out = np.zeros(last.shape, dtype=np.bool_)
+    rr, cc = np.nonzero((age < turn_time) & np.isfinite(last))
+    if not len(rr):
+        return out
+    px, py = grid.cell_centres(rr, cc)
+    dx, dy = np.asarray(px) - x, np.asarray(py) - y
+    off = np.abs((np.arctan2(dy, dx) - heading + math.pi) % (2 * math.pi) - math.pi)
+    keep = (off > behind) & (np.hypot(dx, dy) > 1e-9)
+    out[rr[keep], cc[keep]] = True
+    return out
 
 
 #: 8-connected, as the wave's steps are.

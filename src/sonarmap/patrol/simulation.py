@@ -40,7 +40,7 @@ from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force, sector_pulls, step_direction
 from .giveup import GiveUp
 from .graph import PatrolGraph
-from .manoeuvre import behind_cells, carrot, leads_on, turn_weights
+from .manoeuvre import behind_cells, carrot, fresh_behind, leads_on, turn_weights
 from .marching import Marching
 from .monitor import Monitor
 from .network import NETWORKS, components
@@ -205,6 +205,16 @@ class PatrolConfig:
     #: sites: docs/results/2026-12-06-cars.md). 0 (the default): every place pulls as
     #: the thesis has it.
     turn_penalty: float = 0.0
+    #: Track: seconds a car's turning round costs. The places it saw less than this
+    #: long ago that lie more than its ``behind`` angle off its heading
+    #: (:func:`~sonarmap.patrol.manoeuvre.fresh_behind`) do not pull on it: going for
+    #: one it turns round, a reversing manoeuvre on streets narrower than its turning
+    #: circle, and sees it about that much later than it was last seen, gaining
+    #: nothing. A car that has everything ahead in its team's sight (a car coming the
+    #: other way, the street ahead just driven) otherwise goes for the nearest place
+    #: out of sight, just behind its own vision's edge. When no other place pulls,
+    #: they pull as before. 0 (the default): every place pulls, as the thesis has it.
+    turn_time: float = 0.0
     #: Track: only the places out of a car's sight (not seen on this step) pull on it
     #: (all do when every place is in sight); False: every watched place does, as the
     #: thesis has it. A place in sight pulls (f(0) = 1 under f3), and by the mass of
@@ -362,6 +372,10 @@ class PatrolConfig:
         if not (math.isfinite(self.turn_penalty) and self.turn_penalty >= 0):
             raise ConfigError(
                 f"turn_penalty must be >= 0, got {self.turn_penalty}", field="turn_penalty"
+            )
+        if not (math.isfinite(self.turn_time) and self.turn_time >= 0):
+            raise ConfigError(
+                f"turn_time must be >= 0 seconds, got {self.turn_time}", field="turn_time"
             )
         if not (math.isfinite(self.round_block) and self.round_block >= 0):
             raise ConfigError(
@@ -1399,6 +1413,24 @@ def run_patrol(
                 mine_fog = own[0 if shared else i]
                 unseen = targets & (mine_fog.last < mine_fog.t)
                 pulling = unseen if unseen.any() else targets
+            # The places pulling before the turn-time rule took the fresh ones behind
+            # out (None: it took none).
+            unmasked: npt.NDArray[np.bool_] | None = None
+            if tracking and config.turn_time > 0:
+                assert isinstance(team, Car)
+                mine_fog = own[0 if shared else i]
+                ahead = pulling & ~fresh_behind(
+                    mine_fog.last,
+                    mine_fog.t,
+                    float(team.x[i]),
+                    float(team.y[i]),
+                    float(team.heading[i]),
+                    g,
+                    team.behind,
+                    config.turn_time,
+                )
+                if ahead.any() and not np.array_equal(ahead, pulling):
+                    unmasked, pulling = pulling, ahead
             if config.policy == "random":
                 tbv = lengths = ux = uy = np.empty(0)
             elif config.paths == "wave" or config.policy == "cycle" or walkers is not None:
@@ -1444,6 +1476,20 @@ def run_patrol(
                     # Only the places near the robot can change its choice (see
                     # Force.pull_limit): the wave stops there unless told not to.
                     j = 0 if shared else i
+                    pull_args: dict[str, Any] = {
+                        "closed": closed,
+                        "prune": config.prune,
+                        "certify": config.direction == "mode" and (direct or certify_goal),
+                        "weights": weights,
+                        "goal": certify_goal,
+                        "places": places,
+                        "shadows": shade,
+                        **(
+                            {"tb": dilated[j]}
+                            if dilated is not None
+                            else {"last_seen": own[j].last, "now": own[j].t}
+                        ),
+                    }
                     strength = sector_pulls(
                         waver,
                         passable,
@@ -1452,20 +1498,25 @@ def run_patrol(
                         pulling,
                         config.force,
                         top,
-                        closed=closed,
-                        prune=config.prune,
                         n_watched=n_watched if pulling is watched else None,
-                        certify=config.direction == "mode" and (direct or certify_goal),
-                        weights=weights,
-                        goal=certify_goal,
-                        places=places,
-                        shadows=shade,
-                        **(
-                            {"tb": dilated[j]}
-                            if dilated is not None
-                            else {"last_seen": own[j].last, "now": own[j].t}
-                        ),
+                        **pull_args,
                     )
+                    if unmasked is not None and not strength.any():
+                        # Only places just seen behind the car are within its reach (a
+                        # car nose to nose with another): they pull as before, or it
+                        # would stand until they age.
+                        pulling = unmasked
+                        strength = sector_pulls(
+                            waver,
+                            passable,
+                            start,
+                            g.resolution,
+                            pulling,
+                            config.force,
+                            top,
+                            n_watched=n_watched if pulling is watched else None,
+                            **pull_args,
+                        )
                     if direct:
                         directions.append(step_direction(strength, config.direction, weights))
                         goals.append(None)
