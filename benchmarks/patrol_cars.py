@@ -78,7 +78,9 @@ def car_config(
     stub_delay: float = 0.0,
 ) -> PatrolConfig:
     """The cars' configuration of one run (see the module's notes): ``crowding`` only
-    with more than one car, refined paths."""
+    with more than one car, refined paths. ``turn_time`` defaults to 0 (no turn-time
+    rule), unlike this module's ``--turn-time`` (30 s): ``patrol_stub_ends`` and
+    ``patrol_cars_oneway`` build their cars here and were measured without the rule."""
     return PatrolConfig(
         model="car",
         car_planner=planner,

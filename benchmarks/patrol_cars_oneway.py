@@ -7,7 +7,9 @@ car is on: a ``junction``, a ``stub`` (a bridge of the street graph, two-way, or
 junction beyond one, :attr:`sonarmap.patrol.oneway.OneWay.stub_ends`), a ``two-way
 end`` of a one-way street (within its junction's reach of either end), the ``one-way``
 part of a street, or a ``wide`` two-way street. Figures are % of the team's
-time, so they add up to the run's DVT.
+time, so they add up to the run's DVT. The cars run without the turn-time rule
+(``car_config``'s ``turn_time`` 0, which predates the rule and keeps this benchmark's
+figures as measured; only ``patrol_cars``'s command line sets 30 s).
 
 Also printed: the watched places in dead-end stubs and how many of them a car sees from
 the junction the stub opens on (those with a stand point,

@@ -12,7 +12,10 @@ as they were with those junctions left out of the stubs (``stub_ends`` all False
 how many of those stand points lay on such a junction, inside the dead end.
 
 The cars are ``benchmarks.patrol_cars``'s (the simulation's own passable cells and
-watched places, turning radius 3.5 m, vision 10 m).
+watched places, turning radius 3.5 m, vision 10 m), built by its ``car_config``
+without the turn-time rule (``turn_time`` 0, that function's default, which predates
+the rule and keeps this page's figures as measured; only ``patrol_cars``'s command line
+sets 30 s).
 
 Run with ``python -m benchmarks.patrol_stub_ends --sites 0 1 2 3 4 5 6 7 8 9 10 11``;
 one process, one core (``NUMBA_NUM_THREADS=1``); prints one JSON line a site.

@@ -137,21 +137,26 @@ def fresh_behind(
     grid: Grid,
     behind: float,
     turn_time: float,
+    never_seen: npt.NDArray[np.bool_] | None = None,
 ) -> npt.NDArray[np.bool_]:
     """The cells (a mask of ``last``'s shape) seen less than ``turn_time`` seconds
     before ``now`` whose centres lie more than ``behind`` radians off the ``heading``
-    of a car at (x, y), metres.
+    of a car at (x, y), metres; the cells of ``never_seen`` (a mask of ``last``'s
+    shape, e.g. :meth:`~sonarmap.patrol.fog.Fog.never_seen`; None: none) are never
+    among them, whatever ``last`` says of them.
 
     A car goes for such a place only by turning round, which on a street narrower
     than its turning circle is a reversing manoeuvre taking some seconds: going there
     sees the place about that much later than it was last seen, so it gains nothing
     (:attr:`~sonarmap.patrol.simulation.PatrolConfig.turn_time`). ``last`` holds the
-    time each cell was last seen (seconds; ``inf`` for cells never watched). The car's
-    own cell is never among them.
+    time each cell was last seen (seconds; ``inf`` for cells never watched).
     """
     age = now - last
     out = np.zeros(last.shape, dtype=np.bool_)
-    rr, cc = np.nonzero((age < turn_time) & np.isfinite(last))
+    fresh = (age < turn_time) & np.isfinite(last)
+    if never_seen is not None:
+        fresh &= ~never_seen
+    rr, cc = np.nonzero(fresh)
     if not len(rr):
         return out
     px, py = grid.cell_centres(rr, cc)

@@ -205,8 +205,9 @@ class PatrolConfig:
     #: sites: docs/results/2026-12-06-cars.md). 0 (the default): every place pulls as
     #: the thesis has it.
     turn_penalty: float = 0.0
-    #: Track: seconds a car's turning round costs. The places it saw less than this
-    #: long ago that lie more than its ``behind`` angle off its heading
+    #: Track: seconds a car's turning round costs. The places its fog saw less than
+    #: this long ago (the team's sight when the fog is shared; never the places never
+    #: seen) that lie more than its ``behind`` angle off its heading
     #: (:func:`~sonarmap.patrol.manoeuvre.fresh_behind`) do not pull on it: going for
     #: one it turns round, a reversing manoeuvre on streets narrower than its turning
     #: circle, and sees it about that much later than it was last seen, gaining
@@ -376,6 +377,12 @@ class PatrolConfig:
         if not (math.isfinite(self.turn_time) and self.turn_time >= 0):
             raise ConfigError(
                 f"turn_time must be >= 0 seconds, got {self.turn_time}", field="turn_time"
+            )
+        if self.turn_time > 0 and (self.policy != "potential" or self.paths != "wave"):
+            raise ConfigError(
+                "turn_time > 0 needs policy 'potential' and paths 'wave', got "
+                f"{self.policy!r} and {self.paths!r}",
+                field="turn_time",
             )
         if not (math.isfinite(self.round_block) and self.round_block >= 0):
             raise ConfigError(
@@ -1419,7 +1426,7 @@ def run_patrol(
             if tracking and config.turn_time > 0:
                 assert isinstance(team, Car)
                 mine_fog = own[0 if shared else i]
-                ahead = pulling & ~fresh_behind(
+                dropped = pulling & fresh_behind(
                     mine_fog.last,
                     mine_fog.t,
                     float(team.x[i]),
@@ -1428,9 +1435,18 @@ def run_patrol(
                     g,
                     team.behind,
                     config.turn_time,
+                    # A never-seen place's ``last`` is -start: it looks fresh only
+                    # until t + start reaches turn_time, so the mask is needed only then.
+                    never_seen=(
+                        mine_fog.never_seen()
+                        if mine_fog.t + mine_fog.start < config.turn_time
+                        else None
+                    ),
                 )
-                if ahead.any() and not np.array_equal(ahead, pulling):
-                    unmasked, pulling = pulling, ahead
+                if dropped.any():
+                    ahead = pulling & ~dropped
+                    if ahead.any():
+                        unmasked, pulling = pulling, ahead
             if config.policy == "random":
                 tbv = lengths = ux = uy = np.empty(0)
             elif config.paths == "wave" or config.policy == "cycle" or walkers is not None:
