@@ -101,8 +101,10 @@ def run(
     row.update({k: s[k] for k in KEYS})
     row["ate_ratio"] = s["ate_m"] / s["ate_odometry_m"]
     row["map_f1_ratio"] = s["map_f1"] / s["map_f1_true_poses"]
-    # How often the significance gate fired: batches fitted, batches that ended with a
-    # nonzero estimate (with --sim-heading-bias 0, each is a false alarm).
+    # Batches fitted, and batches that ended with a nonzero estimate applied (with
+    # --sim-heading-bias 0, each is a batch spent with a false bias applied; one gate
+    # firing kept over several batches counts in each, so this is not the count of
+    # gate firings).
     row["calibration_batches"] = agent.calibration_batches
     row["calibration_batches_applied"] = agent.calibration_batches_applied
     row["wall_s"] = round(time.perf_counter() - t0, 1)

@@ -307,9 +307,11 @@ class RobotAgent:
     calibration_batches : int
         The batches whose graph the calibration fitted (0 unless ``calibrate``).
     calibration_batches_applied : int
-        Of those, the batches that ended with a nonzero :attr:`heading_bias` (the
-        estimate passed the significance gate): with an unbiased odometry, how often
-        the gate fires.
+        Of those, the batches that ended with a nonzero :attr:`heading_bias`: a batch
+        counts whenever a bias is applied after it, whether its own fit passed the
+        significance gate or it kept one applied earlier (too few batches to fit), so
+        one early firing that is never taken back counts in every later batch; not the
+        number of times the gate fired.
     """
 
     def __init__(
@@ -543,8 +545,9 @@ class RobotAgent:
 
     def _calibrate(self, graph: GraphResult) -> None:
         """Add the heading bias the optimised ``graph`` still shows on the own odometry
-        edges to :attr:`heading_bias`, or set it to 0 when the total is not significant
-        (:func:`~.calibration.calibrated_bias`), and correct every stored edge by the
+        edges (:func:`~.calibration.heading_bias_fit`) to :attr:`heading_bias`, or set
+        it to 0 when the total is not significant, or leave it when the fit has too few
+        batches (:func:`~.calibration.gated_bias`), and correct every stored edge by the
         change, so that every edge carries the same calibration (compression composes
         them)."""
         layer = self.store.local
