@@ -69,7 +69,7 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -126,7 +126,20 @@ from .world import (
     odometry_covariance,
 )
 
-__all__ = ["GUESS_SIGMAS", "MissionConfig", "MissionResult", "RobotAgent", "run_mission"]
+__all__ = [
+    "BIAS_SD_CHOICES",
+    "GUESS_SIGMAS",
+    "BiasSd",
+    "MissionConfig",
+    "MissionResult",
+    "RobotAgent",
+    "run_mission",
+]
+
+#: The heading-bias standard deviation a calibrating robot's odometry edges carry
+#: (:class:`RobotAgent`'s ``bias_sd``).
+BiasSd = Literal["remaining", "prior"]
+BIAS_SD_CHOICES: tuple[BiasSd, ...] = ("remaining", "prior")
 
 F64 = npt.NDArray[np.float64]
 Progress = Callable[[int, int], None]
@@ -282,6 +295,13 @@ class RobotAgent:
         :data:`~.world.ODOMETRY_NOISE`). The robot's own model of it, for the edges'
         covariance, stays :data:`~.world.ODOMETRY_MODEL` and :attr:`heading_bias_sd`:
         to test the calibration against an odometry it does not expect.
+    bias_sd : {"remaining", "prior"}
+        The heading-bias standard deviation a calibrating robot's new odometry edges
+        carry after its first batch (:attr:`heading_bias_sd`): ``"remaining"`` (default)
+        what the calibration leaves (:func:`~.calibration.remaining_bias_sd`);
+        ``"prior"`` the prior :data:`~.calibration.HEADING_BIAS_PRIOR` throughout, whose
+        larger variance also covers heading errors the calibration does not model
+        (wheel base, per turn). The bias estimate corrects the edges either way.
 
     Attributes
     ----------
@@ -324,7 +344,12 @@ class RobotAgent:
         record: bool = False,
         calibrate: bool = False,
         odometry_noise: Mapping[str, float] | None = None,
+        bias_sd: BiasSd = "remaining",
     ) -> None:
+        if bias_sd not in BIAS_SD_CHOICES:
+            raise InputError(
+                f"bias_sd {bias_sd!r} is not one of {', '.join(BIAS_SD_CHOICES)}", field="bias_sd"
+            )
         cfg = MissionConfig() if config is None else config
         prior = plan if prior is None else prior
         if not (plan.classes() == 0).any() or not (prior.classes() == 0).any():
@@ -336,6 +361,7 @@ class RobotAgent:
         self.robot = robot
         self.record = record
         self.calibrate = calibrate
+        self.bias_sd: BiasSd = bias_sd
         world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
         self.world = world
         self.sensing = sensing = RobotSensing(
@@ -550,7 +576,8 @@ class RobotAgent:
         layer = self.store.local
         fit = heading_bias_fit(layer.edges, graph.estimates)
         new = gated_bias(self.heading_bias, fit)
-        self.heading_bias_sd = remaining_bias_sd(self.heading_bias, fit, new)
+        if self.bias_sd == "remaining":
+            self.heading_bias_sd = remaining_bias_sd(self.heading_bias, fit, new)
         # Records are replaced, not edited: the layer re-measures their bytes.
         layer.edges = debias_edges(layer.edges, new - self.heading_bias)
         self.heading_bias = new
