@@ -9,9 +9,10 @@ the fused map's wall F1 against the map of the same readings at the true poses a
 the kept local maps at their true poses, the alignment's error, the store against its
 bound and the bias estimated. ``--sim-heading-bias`` sets the simulator's heading bias
 (rad per metre; the robot's model of its odometry keeps 0.003), so that an odometry
-without the bias, or with another one, is one command. ``--bias-sd prior`` holds the
-prior heading-bias variance in the calibrating robot's edges (:class:`RobotAgent`'s
-``bias_sd``).
+without the bias, or with another one, is one command. ``--bias-sd`` is
+:class:`RobotAgent`'s ``bias_sd`` (``prior``, the default, holds the prior heading-bias
+variance in the calibrating robot's edges; ``remaining`` counts what the calibration
+leaves).
 
 Maps: a map_server YAML, ``office`` or ``building:SEED`` (the built-in plans),
 ``scanned:SEED`` (the 40 x 30 m scanned-plan stand-in of :mod:`benchmarks.team_world`,
@@ -23,7 +24,7 @@ Usage::
 
     python -m benchmarks.team_calibration --maps scanned:1 scanned:2 [--seeds 0 1]
         [--duration 1200] [--only on|off] [--sim-heading-bias 0.0]
-        [--bias-sd remaining|prior] [--json F]
+        [--bias-sd prior|remaining] [--json F]
 """
 
 from __future__ import annotations
@@ -88,7 +89,7 @@ def run(
     duration: float,
     calibrate: bool,
     sim_bias: float | None = None,
-    bias_sd: BiasSd = "remaining",
+    bias_sd: BiasSd = "prior",
 ) -> dict[str, Any]:
     """One mission's row; ``sim_bias`` (rad per metre) replaces the simulator's
     ``bias_theta`` when given; ``bias_sd`` is :class:`RobotAgent`'s."""
@@ -121,7 +122,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=1200.0)
     ap.add_argument("--only", choices=("on", "off"), default=None)
     ap.add_argument("--sim-heading-bias", type=float, default=None)
-    ap.add_argument("--bias-sd", choices=BIAS_SD_CHOICES, default="remaining")
+    ap.add_argument("--bias-sd", choices=BIAS_SD_CHOICES, default="prior")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args()
     if a.sim_heading_bias is not None and not math.isfinite(a.sim_heading_bias):
