@@ -9,7 +9,10 @@ the fused map's wall F1 against the map of the same readings at the true poses a
 the kept local maps at their true poses, the alignment's error, the store against its
 bound and the bias estimated. ``--sim-heading-bias`` sets the simulator's heading bias
 (rad per metre; the robot's model of its odometry keeps 0.003), so that an odometry
-without the bias, or with another one, is one command.
+without the bias, or with another one, is one command. ``--bias-sd`` is
+:class:`RobotAgent`'s ``bias_sd`` (``prior``, the default, holds the prior heading-bias
+variance in the calibrating robot's edges; ``remaining`` counts what the calibration
+leaves).
 
 Maps: a map_server YAML, ``office`` or ``building:SEED`` (the built-in plans),
 ``scanned:SEED`` (the 40 x 30 m scanned-plan stand-in of :mod:`benchmarks.team_world`,
@@ -20,7 +23,8 @@ batches the calibration fitted and those that ended with a nonzero estimate.
 Usage::
 
     python -m benchmarks.team_calibration --maps scanned:1 scanned:2 [--seeds 0 1]
-        [--duration 1200] [--only on|off] [--sim-heading-bias 0.0] [--json F]
+        [--duration 1200] [--only on|off] [--sim-heading-bias 0.0]
+        [--bias-sd prior|remaining] [--json F]
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ from typing import Any
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 from sonarmap.io.rosmap import OccupancyMap, read_map
-from sonarmap.team.mission import MissionConfig, RobotAgent
+from sonarmap.team.mission import BIAS_SD_CHOICES, BiasSd, MissionConfig, RobotAgent
 from sonarmap.team.world import ODOMETRY_NOISE, builtin_plan
 
 from .team_bound import standin_plan
@@ -85,19 +89,21 @@ def run(
     duration: float,
     calibrate: bool,
     sim_bias: float | None = None,
+    bias_sd: BiasSd = "prior",
 ) -> dict[str, Any]:
     """One mission's row; ``sim_bias`` (rad per metre) replaces the simulator's
-    ``bias_theta`` when given."""
+    ``bias_theta`` when given; ``bias_sd`` is :class:`RobotAgent`'s."""
     t0 = time.perf_counter()
     noise = dict(ODOMETRY_NOISE)
     if sim_bias is not None:
         noise["bias_theta"] = sim_bias
     cfg = MissionConfig(duration=duration, seed=seed)
-    agent = RobotAgent(plan, cfg, calibrate=calibrate, odometry_noise=noise)
+    agent = RobotAgent(plan, cfg, calibrate=calibrate, odometry_noise=noise, bias_sd=bias_sd)
     agent.run()
     s = agent.finish().summary
     row: dict[str, Any] = {"map": name, "seed": seed, "calibrate": calibrate}
     row["sim_heading_bias"] = noise["bias_theta"]
+    row["bias_sd"] = bias_sd
     row.update({k: s[k] for k in KEYS})
     row["ate_ratio"] = s["ate_m"] / s["ate_odometry_m"]
     row["map_f1_ratio"] = s["map_f1"] / s["map_f1_true_poses"]
@@ -118,6 +124,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=1200.0)
     ap.add_argument("--only", choices=("on", "off"), default=None)
     ap.add_argument("--sim-heading-bias", type=float, default=None)
+    ap.add_argument("--bias-sd", choices=BIAS_SD_CHOICES, default="prior")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args()
     if a.sim_heading_bias is not None and not math.isfinite(a.sim_heading_bias):
@@ -128,7 +135,7 @@ def main() -> None:
         plan = map_of(name)
         for seed in a.seeds:
             for calibrate in modes:
-                row = run(plan, name, seed, a.duration, calibrate, a.sim_heading_bias)
+                row = run(plan, name, seed, a.duration, calibrate, a.sim_heading_bias, a.bias_sd)
                 print(json.dumps(row), flush=True)
                 rows.append(row)
     if a.json is not None:

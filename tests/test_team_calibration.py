@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from sonarmap.errors import InputError
 from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.scenarios import office
 from sonarmap.sensors import Noise
@@ -29,7 +30,7 @@ from sonarmap.team.calibration import (
     remaining_bias_sd,
     slope_stderr,
 )
-from sonarmap.team.mission import MissionConfig, RobotAgent, run_mission
+from sonarmap.team.mission import BiasSd, MissionConfig, RobotAgent, run_mission
 from sonarmap.team.records import OdometryEdge, compose, invert
 from sonarmap.team.world import ODOMETRY_NOISE, make_world, patrol_route
 
@@ -132,7 +133,11 @@ def plan() -> OccupancyMap:
 
 
 def _agent(
-    plan: OccupancyMap, calibrate: bool, run: bool = True, sim_bias: float | None = None
+    plan: OccupancyMap,
+    calibrate: bool,
+    run: bool = True,
+    sim_bias: float | None = None,
+    bias_sd: BiasSd = "prior",
 ) -> RobotAgent:
     cfg = MissionConfig(duration=300.0, seed=1)
     noise = dict(ODOMETRY_NOISE)
@@ -145,6 +150,7 @@ def _agent(
         world=make_world(plan, seed=1, duration=300.0, faces="all"),
         calibrate=calibrate,
         odometry_noise=noise,
+        bias_sd=bias_sd,
     )
     if run:
         agent.run()
@@ -157,7 +163,7 @@ def _stored_bias(agent: RobotAgent) -> float:
 
 
 def test_a_robot_alone_takes_its_odometrys_bias_out_of_its_edges(plan: OccupancyMap) -> None:
-    alone = _agent(plan, calibrate=True)
+    alone = _agent(plan, calibrate=True, bias_sd="remaining")
     fixed = _agent(plan, calibrate=False)
     s, s0 = alone.finish().summary, fixed.finish().summary
     # The simulator turns bias_theta rad per metre; the robot was never told.
@@ -172,15 +178,15 @@ def test_a_robot_alone_takes_its_odometrys_bias_out_of_its_edges(plan: Occupancy
     # the uncalibrated robot's and out of the calibrated one's.
     assert _stored_bias(fixed) > 0.002, _stored_bias(fixed)
     assert abs(_stored_bias(alone)) < 0.0008, _stored_bias(alone)
-    # The new edges' covariance counts what the calibration leaves of the bias, not
-    # the robot's prior (which a robot that does not calibrate keeps).
+    # Told to, the new edges' covariance counts what the calibration leaves of the
+    # bias, not the robot's prior (which a robot that does not calibrate keeps).
     assert fixed.heading_bias_sd == HEADING_BIAS_PRIOR
     assert 0.0 < alone.heading_bias_sd < HEADING_BIAS_PRIOR / 3, alone.heading_bias_sd
     # The calibration survives a checkpoint, and a robot that does not calibrate does
     # not take it back.
     state = alone.state()
     assert state["heading_bias"] == s["odometry_heading_bias"]
-    again = _agent(plan, calibrate=True, run=False)
+    again = _agent(plan, calibrate=True, run=False, bias_sd="remaining")
     again.restore(state)
     assert again.heading_bias == alone.heading_bias
     assert again.heading_bias_sd == alone.heading_bias_sd
@@ -188,6 +194,23 @@ def test_a_robot_alone_takes_its_odometrys_bias_out_of_its_edges(plan: Occupancy
     other = _agent(plan, calibrate=False, run=False)
     other.restore(state)
     assert other.heading_bias == 0.0
+
+
+def test_a_calibrating_robot_keeps_the_priors_variance_by_default(plan: OccupancyMap) -> None:
+    held = _agent(plan, calibrate=True)
+    # The estimate still corrects the edges...
+    true_bias = ODOMETRY_NOISE["bias_theta"]
+    assert held.heading_bias == pytest.approx(true_bias, rel=0.35), held.heading_bias
+    assert held.calibration_batches_applied > 0
+    assert abs(_stored_bias(held)) < 0.0008, _stored_bias(held)
+    # ...but the new edges' covariance keeps the prior, through a checkpoint too.
+    assert held.heading_bias_sd == HEADING_BIAS_PRIOR
+    again = _agent(plan, calibrate=True, run=False)
+    again.restore(held.state())
+    assert again.heading_bias_sd == HEADING_BIAS_PRIOR
+    assert again.heading_bias == held.heading_bias
+    with pytest.raises(InputError, match="bias_sd"):
+        RobotAgent(plan, MissionConfig(duration=60.0, seed=1), bias_sd="both")  # type: ignore[arg-type]
 
 
 def test_an_odometry_without_the_bias_is_left_as_measured(plan: OccupancyMap) -> None:

@@ -17,12 +17,13 @@ understates it; but with few stretches the batch sums can cancel and that error
 collapses, so the gate takes the larger of the two and needs :data:`MIN_BATCHES`
 stretches. The estimate so far plus the step is applied only when it exceeds the
 Student-t threshold at the :data:`SIGNIFICANCE` level (:func:`critical_value`) times
-that error, and is otherwise 0 (:func:`gated_bias`), so an odometry without the bias is left as
-measured unless the graph shows one. What the calibration leaves of the bias (its
-standard error, or the estimate not applied) is counted as noise in each new edge's
-covariance in place of the robot's prior (:func:`remaining_bias_sd`,
-:data:`HEADING_BIAS_PRIOR`). A robot alone (:class:`~sonarmap.team.mission.RobotAgent`) updates
-its estimate batch after batch, corrects every odometry edge it stores by each change
+that error, and is otherwise 0 (:func:`gated_bias`), so an odometry without the bias is
+left as measured unless the graph shows one. Each new edge's covariance counts the
+robot's prior :data:`HEADING_BIAS_PRIOR` as noise, calibrating or not, or, if the robot
+is told to (``RobotAgent(bias_sd="remaining")``), what the calibration leaves of the
+bias (its standard error, or the estimate not applied; :func:`remaining_bias_sd`). A
+robot alone (:class:`~sonarmap.team.mission.RobotAgent`) updates its estimate batch
+after batch, corrects every odometry edge it stores by each change
 (:func:`debias_edges`) and each new one by the estimate so far, as an odometry
 calibration from loop closures does. The store composes edges when it deletes a pose,
 so the edges are corrected where they are kept, not only in the graph.

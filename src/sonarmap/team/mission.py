@@ -28,8 +28,9 @@ Decisions where the thesis is silent:
   :class:`RobotAgent` does not unless asked (``calibrate=True``): a team's robots must
   not change edges they have offered. The edges' covariance counts the bias the robot
   does not know as noise (:func:`~.world.odometry_covariance`): its prior
-  (:data:`~.calibration.HEADING_BIAS_PRIOR`) when it does not calibrate, and once a
-  batch has measured it, the uncertainty the calibration leaves.
+  (:data:`~.calibration.HEADING_BIAS_PRIOR`) by default, calibrating or not, since it
+  also covers heading errors the calibration does not model; ``bias_sd="remaining"``
+  counts, once a batch has measured the bias, the uncertainty the calibration leaves.
 - **Association** is tried against every pose in the store. The thesis's hard bound
   (top speed x elapsed time) removes nothing once a minute has passed in a building,
   so each candidate also gets the prior of the current estimates: the new pose's
@@ -69,7 +70,7 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -126,7 +127,20 @@ from .world import (
     odometry_covariance,
 )
 
-__all__ = ["GUESS_SIGMAS", "MissionConfig", "MissionResult", "RobotAgent", "run_mission"]
+__all__ = [
+    "BIAS_SD_CHOICES",
+    "GUESS_SIGMAS",
+    "BiasSd",
+    "MissionConfig",
+    "MissionResult",
+    "RobotAgent",
+    "run_mission",
+]
+
+#: The heading-bias standard deviation a calibrating robot's odometry edges carry
+#: (:class:`RobotAgent`'s ``bias_sd``).
+BiasSd = Literal["remaining", "prior"]
+BIAS_SD_CHOICES: tuple[BiasSd, ...] = ("prior", "remaining")
 
 F64 = npt.NDArray[np.float64]
 Progress = Callable[[int, int], None]
@@ -282,6 +296,14 @@ class RobotAgent:
         :data:`~.world.ODOMETRY_NOISE`). The robot's own model of it, for the edges'
         covariance, stays :data:`~.world.ODOMETRY_MODEL` and :attr:`heading_bias_sd`:
         to test the calibration against an odometry it does not expect.
+    bias_sd : {"prior", "remaining"}
+        The heading-bias standard deviation a calibrating robot's new odometry edges
+        carry after its first batch (:attr:`heading_bias_sd`): ``"prior"`` (default) the
+        prior :data:`~.calibration.HEADING_BIAS_PRIOR` throughout, whose larger variance
+        also covers heading errors the calibration does not model (wheel base, per
+        turn); ``"remaining"`` what the calibration leaves
+        (:func:`~.calibration.remaining_bias_sd`). The bias estimate corrects the edges
+        either way.
 
     Attributes
     ----------
@@ -301,9 +323,10 @@ class RobotAgent:
     heading_bias_sd : float
         The robot's uncertainty about the heading bias left in a new odometry edge, rad
         per metre, which its covariance counts (:func:`~.world.odometry_covariance`):
-        the prior :data:`~.calibration.HEADING_BIAS_PRIOR` until a calibrating batch
-        measures it, then what the calibration leaves
-        (:func:`~.calibration.remaining_bias_sd`). Edges already stored keep theirs.
+        the prior :data:`~.calibration.HEADING_BIAS_PRIOR`, or with
+        ``bias_sd="remaining"``, once a calibrating batch has measured it, what the
+        calibration leaves (:func:`~.calibration.remaining_bias_sd`). Edges already
+        stored keep theirs.
     calibration_batches : int
         The batches whose graph the calibration fitted (0 unless ``calibrate``).
     calibration_batches_applied : int
@@ -326,7 +349,12 @@ class RobotAgent:
         record: bool = False,
         calibrate: bool = False,
         odometry_noise: Mapping[str, float] | None = None,
+        bias_sd: BiasSd = "prior",
     ) -> None:
+        if bias_sd not in BIAS_SD_CHOICES:
+            raise InputError(
+                f"bias_sd {bias_sd!r} is not one of {', '.join(BIAS_SD_CHOICES)}", field="bias_sd"
+            )
         cfg = MissionConfig() if config is None else config
         prior = plan if prior is None else prior
         if not (plan.classes() == 0).any() or not (prior.classes() == 0).any():
@@ -338,6 +366,7 @@ class RobotAgent:
         self.robot = robot
         self.record = record
         self.calibrate = calibrate
+        self.bias_sd: BiasSd = bias_sd
         world = make_world(plan, seed=cfg.seed, duration=cfg.duration) if world is None else world
         self.world = world
         self.sensing = sensing = RobotSensing(
@@ -553,7 +582,8 @@ class RobotAgent:
         layer = self.store.local
         fit = heading_bias_fit(layer.edges, graph.estimates)
         new = gated_bias(self.heading_bias, fit)
-        self.heading_bias_sd = remaining_bias_sd(self.heading_bias, fit, new)
+        if self.bias_sd == "remaining":
+            self.heading_bias_sd = remaining_bias_sd(self.heading_bias, fit, new)
         # Records are replaced, not edited: the layer re-measures their bytes.
         layer.edges = debias_edges(layer.edges, new - self.heading_bias)
         self.heading_bias = new
