@@ -1506,22 +1506,11 @@ def run_patrol(
                             else {"last_seen": own[j].last, "now": own[j].t}
                         ),
                     }
-                    strength = sector_pulls(
-                        waver,
-                        passable,
-                        start,
-                        g.resolution,
-                        pulling,
-                        config.force,
-                        top,
-                        n_watched=n_watched if pulling is watched else None,
-                        **pull_args,
-                    )
-                    if unmasked is not None and not strength.any():
-                        # Only places just seen behind the car are within its reach (a
-                        # car nose to nose with another): they pull as before, or it
-                        # would stand until they age.
-                        pulling = unmasked
+                    # When only places just seen behind the car are within its reach (a
+                    # car nose to nose with another), they pull as before, or it would
+                    # stand until they age.
+                    tries = [pulling] if unmasked is None else [pulling, unmasked]
+                    for pulling in tries:
                         strength = sector_pulls(
                             waver,
                             passable,
@@ -1533,6 +1522,8 @@ def run_patrol(
                             n_watched=n_watched if pulling is watched else None,
                             **pull_args,
                         )
+                        if strength.any():
+                            break
                     if direct:
                         directions.append(step_direction(strength, config.direction, weights))
                         goals.append(None)
