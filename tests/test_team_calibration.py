@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from benchmarks.calibration_gate_null import ar1
 
 from sonarmap.errors import InputError
 from sonarmap.io.rosmap import OccupancyMap
@@ -231,16 +232,6 @@ def test_a_robot_agent_calibrates_only_when_asked_and_run_mission_does(
     assert r.summary["parameters"]["calibrate_odometry"] is True
 
 
-def _ar1(rng: np.random.Generator, n: int, phi: float) -> np.ndarray:
-    """AR(1) noise, lag-one correlation ``phi``, standard deviation 0.01 (rad)."""
-    eps = rng.normal(0.0, 0.01 * math.sqrt(1 - phi**2), n)
-    out = np.empty(n)
-    out[0] = rng.normal(0.0, 0.01)
-    for t in range(1, n):
-        out[t] = phi * out[t - 1] + eps[t]
-    return out
-
-
 def test_the_gate_fires_under_twice_its_nominal_level_on_correlated_residuals() -> None:
     rng = np.random.default_rng(11)
     draws, n = 400, 300
@@ -249,11 +240,11 @@ def test_the_gate_fires_under_twice_its_nominal_level_on_correlated_residuals() 
         d = rng.uniform(0.5, 1.0, n)
         # No bias: heading residuals correlated along the route (lag-one 0.9), as an
         # optimised graph's are.
-        fit = bias_fit(d, _ar1(rng, n, 0.9))
+        fit = bias_fit(d, ar1(rng, n, 0.9))
         fired += gated_bias(0.0, fit) != 0.0
         fired_iid += abs(fit.step) > SIGNIFICANCE * fit.stderr_iid
         # A bias of 0.03 rad per metre in the same noise (about 8 standard errors).
-        fit = bias_fit(d, -0.03 * d + _ar1(rng, n, 0.9))
+        fit = bias_fit(d, -0.03 * d + ar1(rng, n, 0.9))
         found += gated_bias(0.0, fit) == pytest.approx(0.03, abs=0.015)
     # The gate's nominal level is 4.6 %; at 300 edges (7 batches) it fires more often
     # (6.6 % over 1,500 draws: python -m benchmarks.calibration_gate_null), so the bound
@@ -266,7 +257,7 @@ def test_the_gate_fires_under_twice_its_nominal_level_on_correlated_residuals() 
     truth = _loop(n + 1)
     edges = [
         replace(e, transform=(e.transform[0], e.transform[1], e.transform[2] + v))
-        for e, v in zip(_edges(truth, 0.0), _ar1(rng, n, 0.9), strict=True)
+        for e, v in zip(_edges(truth, 0.0), ar1(rng, n, 0.9), strict=True)
     ]
     fit = heading_bias_fit(edges, truth)
     lengths = np.array([math.hypot(*e.transform[:2]) for e in edges])
