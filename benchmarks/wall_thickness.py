@@ -10,7 +10,8 @@ false-occupied cell (occupied in the map, free in the truth) is counted by
   sensor position within the sensor's range reaches its centre without crossing a true
   obstacle cell (the side the beams come from), *behind* otherwise (a cell the wall
   shadows);
-- which readings reach it, in the gradient method's problem at its defaults: some
+- which readings reach it, in the gradient method's problem (with ``--param`` when the
+  method is the gradient's, at its defaults otherwise): some
   Omega_free (a beam crosses it), only Omega_occ bands (no reading says it is empty),
   or none;
 - whether part of it is wall in the scene's fine geometry (the truth marks a cell
@@ -18,7 +19,7 @@ false-occupied cell (occupied in the map, free in the truth) is counted by
 
 Then, per map, the median number of echo bands and free beams reaching the cells next
 to a wall that the map gets right and wrong, and the bands' detectability ``sum v w0``;
-and, for the gradient method's map at its defaults, what emptying each occupied cell
+and, for that gradient map, what emptying each occupied cell
 alone would change in its objective (:func:`~sonarmap.mappers.gradient.emptying_costs`),
 for the false cells next to a wall, the wall's surface cells and the wall's cells behind
 its surface; with ``--polish L1 ...``, the scores of that map polished
@@ -119,10 +120,10 @@ def wall_share(scene: Scenario) -> F64 | None:
     return np.asarray(pad.reshape(g.rows, k, g.cols, k).mean(axis=(1, 3)), dtype=np.float64)
 
 
-def gradient_problem(scene: Scenario) -> tuple[ForwardProblem, F64]:
-    """The gradient method's problem at its defaults, with the robust form's final
-    weights, and its solution, both over the problem's cells."""
-    m = GradientMapper().fit(scene.readings, scene.truth.grid, scene.rig)
+def gradient_problem(scene: Scenario, params: dict[str, Any]) -> tuple[ForwardProblem, F64]:
+    """The gradient method's problem with ``params`` (its defaults otherwise), with the
+    robust form's final weights, and its solution, both over the problem's cells."""
+    m = GradientMapper(**params).fit(scene.readings, scene.truth.grid, scene.rig)
     p = dataclasses.replace(m.problem(scene.readings), v=m.term_weights_)
     x = m.solution_
     assert x is not None
@@ -166,8 +167,8 @@ def diagnose(
 ) -> None:
     """Print one map's counts (see the module notes)."""
     g = scene.truth.grid
-    p, x = gradient_problem(scene)
-    if method == "gradient" and not params:
+    p, x = gradient_problem(scene, params if method == "gradient" else {})
+    if method == "gradient":
         res = on_grid(scene, p, x)
     else:
         res = make_mapper(method, **params).fit(scene.readings, g, scene.rig).result()
