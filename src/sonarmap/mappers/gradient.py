@@ -127,10 +127,10 @@ class GradientMapper(Mapper):
     0.32. An acoustic sonar's no-echo reading is mostly a beam a smooth wall mirrored
     away; clearing its whole beam erased the walls it crossed.
     The band three quarters of a cell behind the echo (half a cell before) had the
-    highest wall F1 and, within 0.001 of a whole cell's, the highest quality in
+    highest wall F1, and a quality within 0.001 of the best (a whole cell's), in
     ``sonarmap sweep sweeps/rigs8-band.yaml`` (issue 39, the sixth pass's 16 training
     maps; docs/results/2026-12-07-gradient-wall-thickness.md). Half a cell behind, the
-    cells just in front of a wall's surface lay in as many echoes' bands as the
+    cells just in front of a wall's surface were often in as many echoes' bands as the
     surface's own, and the objective kept them occupied: the walls came out a cell
     thick on the side the beams come from.
 
@@ -236,7 +236,7 @@ class GradientMapper(Mapper):
         occupied cell, cheapest first, is emptied when that lowers ``S(x) + l1 sum x``,
         the objective with the sparsity term (see :func:`polish`). The descent from 0.5
         settles each cell by its first subgradients, and a cell just in front of a wall
-        that echo bands reach as often as the wall itself ends occupied: emptying it
+        that echo bands reach about as often as the wall itself ends occupied: emptying it
         alone raises S, by less than emptying the wall's own cells does. Offline only:
         streaming ignores it.
 
