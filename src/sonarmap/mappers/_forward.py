@@ -4,11 +4,14 @@ Readings become rows of one sparse matrix ``W`` over the touched cells: a row pe
 non-empty Omega_free (a "free" term) and per non-empty Omega_occ (an "occ" term), with
 weights ``w = w0 / sum(w0)`` and threshold ``X0 = 1 / sum(w0)``. With ``X = W x``:
 
-    S(x) = sum_free P_free(X) + sum_occ P_occ(X) + sum_cells R1(x) + R2(x)
+    S(x) = sum_free P_free(X) + sum_occ P_occ(X) + sum_cells R1(x) + R2(x) + L(x)
 
 R2 is the tent ``c2 (0.5 - |x - 0.5|)`` on [0, 1] (thesis 000), or, for reproducing
 paper 001 and thesis 002 as printed, ``c2 |x - 0.5|`` on [0, 1] (``r2="abs"``), which
-pulls towards 0.5 instead of away from it. Derivatives at the kinks (X0, 0, 0.5, 1) are
+pulls towards 0.5 instead of away from it. L is the sparsity term ``l1 x`` per cell
+(``Penalties.l1``, 0 by default: the documents' model has none): a constant cost per unit
+of occupancy, so that among maps the readings explain equally well the one with the
+fewest occupied cells is cheaper. Derivatives at the kinks (X0, 0, 0.5, 1) are
 0 by convention.
 
 Robust form (``GradientMapper(robust=tau)``): every term t carries a weight v_t (1 in the
@@ -37,14 +40,16 @@ R2_FORMS = ("tent", "abs")
 
 @dataclass(frozen=True)
 class Penalties:
-    """The model's constants: P slopes ``a1``, ``a2``, regulariser weights ``c1``, ``c2``
-    and the form of R2 (one of :data:`R2_FORMS`)."""
+    """The model's constants: P slopes ``a1``, ``a2``, regulariser weights ``c1``, ``c2``,
+    the form of R2 (one of :data:`R2_FORMS`) and the sparsity weight ``l1`` (>= 0; the
+    cost per cell of occupancy 1, linear in x)."""
 
     a1: float
     a2: float
     c1: float
     c2: float
     r2: str = "tent"
+    l1: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -129,7 +134,8 @@ class ForwardProblem:
         dev = np.abs(x - 0.5)
         shape = dev if self.pen.r2 == "abs" else 0.5 - dev
         r2 = c2 * np.where((x >= 0) & (x <= 1), shape, 0.0)
-        return p + float(np.sum(r1) + np.sum(r2))
+        sparse = self.pen.l1 * float(np.sum(x)) if self.pen.l1 else 0.0
+        return p + float(np.sum(r1) + np.sum(r2)) + sparse
 
     def term_slopes(self, X: F64) -> F64:
         """P'(X) of each term, 0 at X0."""
@@ -137,13 +143,15 @@ class ForwardProblem:
         return np.where(X < self.X0, below, np.where(X > self.X0, above, 0.0))
 
     def reg_grad(self, x: F64, *, box: bool = True) -> F64:
-        """R1'(x) + R2'(x), 0 at the kinks; without R1 when ``box`` is False."""
+        """R1'(x) + R2'(x) + L'(x), 0 at the kinks; without R1 when ``box`` is False."""
         c1, c2 = self.pen.c1, self.pen.c2
         # The tent rises towards 0.5, the absolute value falls towards it.
         up = -c2 if self.pen.r2 == "abs" else c2
         g = np.where((x > 0) & (x < 0.5), up, np.where((x > 0.5) & (x < 1), -up, 0.0))
         if box:
             g = g + np.where(x > 1, c1, np.where(x < 0, -c1, 0.0))
+        if self.pen.l1:
+            g = g + self.pen.l1
         return g
 
     def grad(self, x: F64, X: F64 | None = None, *, box: bool = True) -> F64:

@@ -126,6 +126,13 @@ class GradientMapper(Mapper):
     16 Polaroid sonars): 0.353 against 0.191 before, observed-wall recall 0.69 against
     0.32. An acoustic sonar's no-echo reading is mostly a beam a smooth wall mirrored
     away; clearing its whole beam erased the walls it crossed.
+    The band three quarters of a cell behind the echo (half a cell before) had the
+    highest wall F1, and a quality within 0.001 of the best (a whole cell's), in
+    ``sonarmap sweep sweeps/rigs8-band.yaml`` (issue 39, the sixth pass's 16 training
+    maps; docs/results/2026-12-07-gradient-wall-thickness.md). Half a cell behind, the
+    cells just in front of a wall's surface were often in as many echoes' bands as the
+    surface's own, and the objective kept them occupied: the walls came out a cell
+    thick on the side the beams come from.
 
     Parameters
     ----------
@@ -156,7 +163,7 @@ class GradientMapper(Mapper):
         Half-width of the Omega_occ band, metres; None (default): the rasteriser's.
     band_offset : float or None
         How far behind the echo the Omega_occ band's centre lies, metres (>= 0); None
-        (default): 0.5 of a cell. See :mod:`sonarmap.raster` for why.
+        (default): 0.75 of a cell. See :mod:`sonarmap.raster` for why.
     robust : float
         Scale tau of the robust form, >= 0 (0.1); 0 is the plain model. With tau > 0
         the map is solved, then ``robust_rounds`` times each term's weight is set to
@@ -214,6 +221,24 @@ class GradientMapper(Mapper):
         tent binarises each cell by the sign of its first subgradients; from the convex
         optimum, by where the readings together put it. Off by default, for the same
         trade on the same training scenes. Offline only.
+    sparsity : float
+        Weight l1 >= 0 of a sparsity term ``l1 x`` per cell (the cost of occupancy 1),
+        added to the objective (0, off: the documents' model has none). The P_occ terms
+        ask for one detectable obstacle in each echo's band and no more; from the start
+        at 0.5 nothing else tells the band's cells apart where no beam crosses them (the
+        cells just behind a surface) or only slanted ones do, and the tent takes them
+        all to 1, a wall one cell thicker than the surface. With l1 > 0 each occupied
+        cell has to be paid for by the echoes it explains, so the map keeps the fewest
+        cells that explain them. Too large a weight empties walls as well.
+        Offline only: streaming ignores it.
+    polish : float
+        Sparsity weight l1 >= 0 of a last pass over the solved map (0, off): each
+        occupied cell, cheapest first, is emptied when that lowers ``S(x) + l1 sum x``,
+        the objective with the sparsity term (see :func:`polish`). The descent from 0.5
+        settles each cell by its first subgradients, and a cell just in front of a wall
+        that echo bands reach about as often as the wall itself ends occupied: emptying it
+        alone raises S, by less than emptying the wall's own cells does. Offline only:
+        streaming ignores it.
 
     Attributes
     ----------
@@ -230,7 +255,7 @@ class GradientMapper(Mapper):
     """
 
     name = "gradient"
-    offset_cells = 0.5
+    offset_cells = 0.75
     presets = PRESETS
 
     def __init__(
@@ -257,6 +282,8 @@ class GradientMapper(Mapper):
         init: str = "uniform",
         specular_deg: float = 0.0,
         convex_start: bool = False,
+        sparsity: float = 0.0,
+        polish: float = 0.0,
     ) -> None:
         self.a1 = a1
         self.a2 = a2
@@ -279,6 +306,8 @@ class GradientMapper(Mapper):
         self.init = init
         self.specular_deg = specular_deg
         self.convex_start = convex_start
+        self.sparsity = sparsity
+        self.polish = polish
         number("a1", a1, 0.0, 1.0, lo_open=True, hi_open=True)
         number("a2", a2, 0.0, 1.0, lo_open=True, hi_open=True)
         number("c1", c1, 0.0, None)
@@ -302,6 +331,8 @@ class GradientMapper(Mapper):
         number("correlated", correlated, 0.0, None)
         choice("init", init, ("uniform", "inverse"))
         number("specular_deg", specular_deg, 0.0, 90.0, hi_open=True)
+        number("sparsity", sparsity, 0.0, None)
+        number("polish", polish, 0.0, None)
         if not isinstance(convex_start, bool):
             got = repr(convex_start)
             raise ConfigError(f"parameter 'convex_start' must be true or false, got {got}")
@@ -346,6 +377,8 @@ class GradientMapper(Mapper):
                 x, n, hist = self.solve(problem, start, progress)
                 self.n_iter_ += n
                 self.history_ += hist
+        if self.polish > 0 and problem.n_cells > 0:
+            x = polish(problem, x, self.polish)
         self._x = x
         self.term_weights_ = np.ones(problem.n_terms) if problem.v is None else problem.v
         self._cells = problem.cells
@@ -360,7 +393,7 @@ class GradientMapper(Mapper):
         bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
         scale = self._slanted(readings, fps, bounds) if self.specular_deg > 0 else None
         echo = [readings.range[a:b] < self.sensor.r_max for a, b in itertools.pairwise(bounds)]
-        pen = Penalties(self.a1, self.a2, self.c1, self.c2, self.r2)
+        pen = Penalties(self.a1, self.a2, self.c1, self.c2, self.r2, self.sparsity)
         problem = build_problem(fps, echo, self.grid.size, pen, scale)
         if self.correlated > 0 and problem.reading is not None:
             # Scaled to mean 1: 1 / n alone weakens every term against the unscaled
@@ -428,6 +461,103 @@ class GradientMapper(Mapper):
         if self._x is not None:
             out[self._cells] = np.clip(self._x, 0.0, 1.0)
         return out
+
+
+def emptying_costs(p: ForwardProblem, x: F64, l1: float = 0.0) -> F64:
+    """Per cell, how much emptying it alone changes ``S(x) + l1 sum x``.
+
+    Parameters
+    ----------
+    p : ForwardProblem
+        The objective (its terms' weights ``p.v`` count).
+    x : ndarray of float64, shape (p.n_cells,)
+        A map in [0, 1].
+    l1 : float
+        Cost of occupancy 1 in a cell, >= 0 (default 0: the objective alone).
+
+    Returns
+    -------
+    ndarray of float64, shape (p.n_cells,)
+        The change of the objective when the cell is set to 0 and nothing else moves
+        (negative: emptying it lowers the objective); 0 where x is 0.
+    """
+    return _Emptying(p, x, l1).all()
+
+
+def polish(p: ForwardProblem, x: F64, l1: float) -> F64:
+    """Empty the occupied cells of ``x`` whose emptying lowers ``S(x) + l1 sum x``.
+
+    One pass over the cells above 0.5, in the order of :func:`emptying_costs` at ``x``
+    (cheapest first); each change is recomputed at the map as it stands when the cell's
+    turn comes (earlier cells may have been emptied), and the cell set to 0 when the
+    objective with the sparsity term falls. The terms' weights ``p.v`` count; the box
+    R1 does not change (``x`` in [0, 1]) and R2 is counted.
+
+    Parameters
+    ----------
+    p : ForwardProblem
+        The objective.
+    x : ndarray of float64, shape (p.n_cells,)
+        The solved map; not modified (clipped to [0, 1] in the copy returned).
+    l1 : float
+        Cost of occupancy 1 in a cell, >= 0.
+
+    Returns
+    -------
+    ndarray of float64, shape (p.n_cells,)
+        The polished map.
+    """
+    e = _Emptying(p, np.clip(x, 0.0, 1.0), l1)
+    full = np.flatnonzero(e.x > 0.5)
+    first = e.all()[full]
+    for j in full[np.argsort(first, kind="stable")].tolist():
+        if e.change(j) < 0.0:
+            e.empty(j)
+    return e.x
+
+
+class _Emptying:
+    """A map, its term sums ``X = W x`` and what emptying one cell changes."""
+
+    def __init__(self, p: ForwardProblem, x: F64, l1: float) -> None:
+        self.p, self.l1 = p, l1
+        self.x = np.array(x, dtype=np.float64)
+        self.X = np.asarray(p.W @ self.x, dtype=np.float64)
+        W = p.W.tocsc()
+        self.ptr, self.rows, self.data = W.indptr, W.indices, W.data
+
+    def _r2(self, v: float) -> float:
+        c2 = self.p.pen.c2
+        return c2 * (0.5 - abs(v - 0.5)) if self.p.pen.r2 == "tent" else c2 * abs(v - 0.5)
+
+    def change(self, j: int) -> float:
+        """``S + l1 sum x`` with cell j emptied, minus as it is."""
+        r = self.rows[self.ptr[j] : self.ptr[j + 1]]
+        w = self.data[self.ptr[j] : self.ptr[j + 1]]
+        xj = float(self.x[j])
+        sub = _terms(self.p, r)
+        before = sub.term_values(self.X[r])
+        after = sub.term_values(self.X[r] - w * xj)
+        terms = float(np.sum(after) - np.sum(before))
+        return terms + self._r2(0.0) - self._r2(xj) - self.l1 * xj
+
+    def all(self) -> F64:
+        """:meth:`change` of every cell (0 where the cell is empty already)."""
+        out = np.zeros(len(self.x))
+        for j in np.flatnonzero(self.x > 0.0).tolist():
+            out[j] = self.change(j)
+        return out
+
+    def empty(self, j: int) -> None:
+        """Set cell j to 0."""
+        r = self.rows[self.ptr[j] : self.ptr[j + 1]]
+        self.X[r] -= self.data[self.ptr[j] : self.ptr[j + 1]] * self.x[j]
+        self.x[j] = 0.0
+
+
+def _terms(p: ForwardProblem, r: npt.NDArray[np.int32]) -> ForwardProblem:
+    """The problem's terms ``r`` alone (for their values; ``W`` left out)."""
+    return dataclasses.replace(p, X0=p.X0[r], is_occ=p.is_occ[r], v=None if p.v is None else p.v[r])
 
 
 def _stalled(history: list[float], tol: float, patience: int) -> bool:
@@ -503,6 +633,7 @@ def _lbfgs(
     base = p.bases()
     # The absolute value's kink smoothed like the tent's, with the opposite sign.
     c2 = -m.c2 if m.r2 == "abs" else m.c2
+    l1 = p.pen.l1
     history = [p.value(x)]
     total = 0
     for rnd, kappa in enumerate((0.5, 0.15, 0.03)):
@@ -518,7 +649,8 @@ def _lbfgs(
             root = np.sqrt(u * u + eps * eps)
             r2 = c2 * (0.5 - (root - eps))
             dr2 = -c2 * u / root
-            return float(np.sum(f) + np.sum(r2)), np.asarray(p.WT @ dfdX) + dr2
+            value = float(np.sum(f) + np.sum(r2)) + l1 * float(np.sum(z))
+            return value, np.asarray(p.WT @ dfdX) + dr2 + l1
 
         res = so.minimize(
             fun,
@@ -566,7 +698,8 @@ def _ccp(
     history = [p.value(x)]
     k = 0
     for k in range(1, min(m.max_iter, 30) + 1):
-        g = np.zeros(n) if convex else p.reg_grad(x, box=False)
+        # reg_grad holds the sparsity term's slope; the convex form's LP needs it alone.
+        g = np.full(n, p.pen.l1) if convex else p.reg_grad(x, box=False)
         c = np.concatenate([g, np.ones(t), np.full(s_n, m.c2)])
         res = so.linprog(c, A_ub=A, b_ub=b, bounds=bounds, method="highs")
         if res.status != 0:
