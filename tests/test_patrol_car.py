@@ -498,6 +498,9 @@ def _behind_steps(turn_time: float) -> list[int]:
         round_block=60.0,
         crowding="obstacles",
         turn_time=turn_time,
+        # Measured before the forward wave and one-way streets were the cars' defaults.
+        forward_wave=False,
+        one_way=False,
     )
     starts = np.array([[12.0, 2.5, 0.0], [30.0, 2.5, math.pi]])
     run_patrol(t, cfg, starts=starts, seed=0, on_step=keep)
@@ -546,6 +549,11 @@ def test_a_car_follows_a_car_ahead_going_its_way_round_the_block() -> None:
         out_of_sight=True,
         crowding="obstacles",
         round_block=150.0,
+        # Measured before the forward wave, turn_time and one-way streets were the
+        # cars' defaults.
+        forward_wave=False,
+        turn_time=0.0,
+        one_way=False,
     )
     starts = np.array([[32.0, 2.5, 0.0], [40.0, 2.5, 0.0]])
     run_patrol(t, cfg, starts=starts, seed=0, on_step=keep)
