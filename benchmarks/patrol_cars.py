@@ -3,17 +3,22 @@
 Setting (issue 36, goal 4): street sites of blocks with 3-6 m streets and dead-end stubs
 (:func:`sonarmap.patrol.maps.street_site`; seeds below 1000 are training sites, 1000
 and above held out), cars (turning radius 3.5 m, the thesis's speed rule), refinement,
-mode, artificial obstacles, starts spread by farthest point (by seed); tracking cars
-choose among the places out of their sight with places behind them damped
-(``--turn-penalty 10``; ``--turn-penalty 0 --no-out-of-sight`` is the library's
-default, the thesis's pulls), not for places they saw less than 30 s ago behind them
-(``--turn-time 30``, the one value tried on the training sites; 0 is the library's
-default) and drive on round the block rather than turn round when that is at most
-60 m longer, following the cars ahead going their way (``--round-block 60``; 0 is
-the library's default, the shortest path); ``--one-way
-teams`` drives every street narrower than the turning circle one way only
-(:mod:`sonarmap.patrol.oneway`) in the runs of more than one car (``all``: every run;
-``off``, the default: none); ``--stub-sight`` has a car look down a dead-end stub
+mode, artificial obstacles, starts spread by farthest point (by seed). The tracking
+cars' tuning defaults to the library's defaults for them
+(:data:`sonarmap.patrol.simulation.CAR_DEFAULTS`, chosen on the training sites:
+docs/results/2026-12-07-cars-defaults.md): they choose among the places out of their
+sight with places behind them damped (``--turn-penalty 10``; ``--turn-penalty 0
+--no-out-of-sight`` are the thesis's pulls), not for places they saw less than 30 s
+ago behind them (``--turn-time 30``; 0: they do), drive on round the block rather
+than turn round when that is at most 60 m longer, following the cars ahead going
+their way (``--round-block 60``; 0: the shortest path), and their waves leave
+forwards while the way ahead leads on (``--forward-wave``; ``--no-forward-wave``:
+in every direction) but in every direction on the steps when the worst time since
+seen exceeds 10 times the mean over the places seen at least once
+(``--forward-stale 10``; 0: never); ``--one-way teams`` (the default) drives every
+street narrower than the turning circle one way only (:mod:`sonarmap.patrol.oneway`)
+in the runs of more than one car (``all``: every run; ``off``: none); ``--stub-sight``
+has a car look down a dead-end stub
 from its junction rather than drive in for a place it sees from there, and
 ``--stub-delay S`` has the places it must enter a stub to see pull as if seen S
 seconds later (:mod:`sonarmap.patrol.stubs`; both off by default). For each site,
@@ -35,7 +40,8 @@ planner, team size and seed one run of ``--duration`` simulated seconds, reporti
   arc ahead, no manoeuvre found), %.
 
 Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
-[--planners track thesis] [--crowding obstacles] [--forward-wave] [--give-up 3]
+[--planners track thesis] [--crowding obstacles] [--no-forward-wave]
+[--forward-stale 10] [--give-up 3]
 [--turn-penalty 10] [--turn-time 30] [--no-out-of-sight] [--round-block 60]
 [--one-way off|teams|all]
 [--stub-sight] [--stub-delay 0]
@@ -60,6 +66,7 @@ from sonarmap.patrol import PatrolConfig, run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.robots import Car, Team
+from sonarmap.patrol.simulation import CAR_DEFAULTS
 
 
 def car_config(
@@ -68,6 +75,7 @@ def car_config(
     crowding: str,
     duration: float,
     forward_wave: bool = False,
+    forward_stale: float = 0.0,
     give_up: int = 3,
     turn_penalty: float = 10.0,
     turn_time: float = 0.0,
@@ -78,13 +86,15 @@ def car_config(
     stub_delay: float = 0.0,
 ) -> PatrolConfig:
     """The cars' configuration of one run (see the module's notes): ``crowding`` only
-    with more than one car, refined paths. ``turn_time`` defaults to 0 (no turn-time
-    rule), unlike this module's ``--turn-time`` (30 s): ``patrol_stub_ends`` and
-    ``patrol_cars_oneway`` build their cars here and were measured without the rule."""
+    with more than one car, refined paths. Every knob is given, with this function's
+    defaults (no forward wave, no turn-time rule, two-way streets), unlike this
+    module's command line (the library's car defaults): ``patrol_stub_ends`` and
+    ``patrol_cars_oneway`` build their cars here and were measured so."""
     return PatrolConfig(
         model="car",
         car_planner=planner,
         forward_wave=forward_wave,
+        forward_stale=forward_stale,
         give_up=give_up,
         turn_penalty=turn_penalty,
         turn_time=turn_time,
@@ -104,6 +114,7 @@ def car_config(
 RECORDED = {
     "crowding": "crowding",
     "forward_wave": "forward_wave",
+    "forward_stale": "forward_stale",
     "give_up": "give_up",
     "turn_penalty": "turn_penalty",
     "turn_time": "turn_time",
@@ -157,13 +168,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cars", type=int, nargs="+", default=[1, 3, 5])
     ap.add_argument("--planners", nargs="+", default=["track"])
     ap.add_argument("--crowding", default="obstacles")
-    ap.add_argument("--forward-wave", action="store_true")
+    ap.add_argument(
+        "--forward-wave",
+        action=argparse.BooleanOptionalAction,
+        default=bool(CAR_DEFAULTS["forward_wave"]),
+    )
+    ap.add_argument("--forward-stale", type=float, default=float(CAR_DEFAULTS["forward_stale"]))
     ap.add_argument("--give-up", type=int, default=3)
-    ap.add_argument("--turn-penalty", type=float, default=10.0)
-    ap.add_argument("--turn-time", type=float, default=30.0)
+    ap.add_argument("--turn-penalty", type=float, default=float(CAR_DEFAULTS["turn_penalty"]))
+    ap.add_argument("--turn-time", type=float, default=float(CAR_DEFAULTS["turn_time"]))
     ap.add_argument("--no-out-of-sight", dest="out_of_sight", action="store_false")
-    ap.add_argument("--round-block", type=float, default=60.0)
-    ap.add_argument("--one-way", choices=["off", "teams", "all"], default="off")
+    ap.add_argument("--round-block", type=float, default=float(CAR_DEFAULTS["round_block"]))
+    ap.add_argument("--one-way", choices=["off", "teams", "all"], default="teams")
     ap.add_argument("--stub-sight", action="store_true")
     ap.add_argument("--stub-delay", type=float, default=0.0)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
@@ -181,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
                         a.crowding,
                         a.duration,
                         forward_wave=a.forward_wave,
+                        # No forward wave, nothing to lift.
+                        forward_stale=a.forward_stale if a.forward_wave else 0.0,
                         give_up=a.give_up,
                         turn_penalty=a.turn_penalty,
                         turn_time=a.turn_time,

@@ -335,6 +335,9 @@ def test_tracking_cars_do_not_manoeuvre_for_places_in_sight() -> None:
             duration=300.0,
             turn_penalty=0.0,
             out_of_sight=out_of_sight,
+            # Measured before turn_time and round_block: the pulls alone.
+            turn_time=0.0,
+            round_block=0.0,
         )
         run_patrol(t, cfg, robots=3, seed=0, on_step=watch)
         return counts[0], counts[1]
@@ -472,7 +475,7 @@ def test_turn_time_must_be_a_duration() -> None:
     with pytest.raises(ConfigError, match="turn_time"):
         PatrolConfig(model="car", turn_time=-1.0)
     with pytest.raises(ConfigError, match="turn_time"):
-        PatrolConfig(model="car", turn_time=math.nan)
+        PatrolConfig(model="car", turn_time=math.inf)
 
 
 def _behind_steps(turn_time: float) -> list[int]:
@@ -495,6 +498,9 @@ def _behind_steps(turn_time: float) -> list[int]:
         round_block=60.0,
         crowding="obstacles",
         turn_time=turn_time,
+        # Measured before the forward wave and one-way streets were the cars' defaults.
+        forward_wave=False,
+        one_way=False,
     )
     starts = np.array([[12.0, 2.5, 0.0], [30.0, 2.5, math.pi]])
     run_patrol(t, cfg, starts=starts, seed=0, on_step=keep)
@@ -518,7 +524,7 @@ def test_round_block_must_be_a_length() -> None:
     with pytest.raises(ConfigError, match="round_block"):
         PatrolConfig(model="car", round_block=-1.0)
     with pytest.raises(ConfigError, match="round_block"):
-        PatrolConfig(model="car", round_block=math.nan)
+        PatrolConfig(model="car", round_block=math.inf)
 
 
 def test_a_car_follows_a_car_ahead_going_its_way_round_the_block() -> None:
@@ -543,6 +549,11 @@ def test_a_car_follows_a_car_ahead_going_its_way_round_the_block() -> None:
         out_of_sight=True,
         crowding="obstacles",
         round_block=150.0,
+        # Measured before the forward wave, turn_time and one-way streets were the
+        # cars' defaults.
+        forward_wave=False,
+        turn_time=0.0,
+        one_way=False,
     )
     starts = np.array([[32.0, 2.5, 0.0], [40.0, 2.5, 0.0]])
     run_patrol(t, cfg, starts=starts, seed=0, on_step=keep)

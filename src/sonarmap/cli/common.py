@@ -429,9 +429,11 @@ def _parameters(cls: type, opt: Opt) -> list[inspect.Parameter]:
     if opt.default is not _UNSET:
         default = opt.default
     kind = opt.kind if opt.kind is not None else annotation
+    # A switch left unset (bool | None) keeps its on/off pair.
+    switch = kind is bool or kind == bool | None
     if opt.unset_as is not _UNSET:
         kind, default = kind | None, None
-    names = [opt.name] if opt.off is None or kind is not bool else [f"{opt.name}/{opt.off}"]
+    names = [opt.name] if opt.off is None or not switch else [f"{opt.name}/{opt.off}"]
     info = typer.Option(*names, help=opt.help, metavar=opt.metavar, show_default=True)
     out = [
         inspect.Parameter(

@@ -210,9 +210,18 @@ PATROL_OPTIONS = (
     Opt(
         "forward_wave",
         "Tracking cars: paths leave forwards (cells up to 4 m behind the car closed on "
-        "its wave) unless the way ahead is a dead end; off by default (it helps one car, "
-        "not a team of five, and costs a whole-map labelling a step).",
+        "its wave) unless the way ahead is a dead end (a whole-map labelling a step). "
+        "Default: on for tracking cars on the potential field's wave paths, else off.",
         off="--no-forward-wave",
+        unset_as=None,
+    ),
+    Opt(
+        "forward_stale",
+        "Tracking cars with --forward-wave: on a step when the worst time since seen "
+        "exceeds this many times the mean over the places seen at least once, the wave "
+        "runs in every direction; 0: never. Default: 10 for tracking cars on the "
+        "potential field's wave paths with --forward-wave, else 0.",
+        unset_as=math.nan,
     ),
     Opt(
         "give_up",
@@ -222,29 +231,39 @@ PATROL_OPTIONS = (
     Opt(
         "turn_penalty",
         "Tracking cars: the lead in log pull a place whose path leaves behind the car "
-        "(over 100 deg off its heading) needs over the places ahead; 0: none.",
+        "(over 100 deg off its heading) needs over the places ahead; 0: none. Default: 10 "
+        "for tracking cars on the potential field's wave paths, else 0.",
+        unset_as=math.nan,
     ),
     Opt(
         "turn_time",
         "Tracking cars: seconds a turn-round costs; places seen less than this long ago "
-        "behind a car (over 100 deg off its heading) do not pull on it; 0: they do.",
+        "behind a car (over 100 deg off its heading) do not pull on it; 0: they do. "
+        "Default: 30 for tracking cars on the potential field's wave paths, else 0.",
+        unset_as=math.nan,
     ),
     Opt(
         "out_of_sight",
         "Tracking cars: only places out of sight (not seen this step) pull on a car; "
-        "--every-place-pulls: every watched place does (the thesis's).",
+        "--every-place-pulls: every watched place does (the thesis's). Default: the "
+        "former for tracking cars on the potential field's wave paths, else the latter.",
         off="--every-place-pulls",
+        unset_as=None,
     ),
     Opt(
         "round_block",
         "Tracking cars: metres of extra path a car accepts to drive on round the block "
-        "rather than turn round for a path behind it; 0: the shortest path.",
+        "rather than turn round for a path behind it; 0: the shortest path. Default: 60 "
+        "for tracking cars on the potential field's wave paths, else 0.",
+        unset_as=math.nan,
     ),
     Opt(
         "one_way",
         "Tracking cars: one-way streets, every street narrower than the turning circle "
-        "but dead-end stubs driven one way only, derived from the map.",
+        "but dead-end stubs driven one way only, derived from the map. Default: one-way "
+        "for two or more tracking cars on the potential field's wave paths, else two-way.",
         off="--two-way",
+        unset_as=None,
     ),
     Opt(
         "stub_sight",

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -60,9 +60,11 @@ from .tour import plan_tour
 from .walkers import WALKERS, GraphWalkers
 
 __all__ = [
+    "CAR_DEFAULTS",
     "CROWDING",
     "MODELS",
     "ONCOMING_NEAR",
+    "PLAIN_DEFAULTS",
     "REACH_FIELDS",
     "SIGHT_MARGIN",
     "PatrolConfig",
@@ -118,6 +120,33 @@ PATH_POLICIES = ("potential", "reactive", "gravity", "cycle", *WALKERS)
 FINDERS: dict[str, type[PathFinder]] = {"regions": Regions, "marching": Marching}
 #: Every path-finding: the wave, straight lines (open space) and the static finders.
 PATHS = ("wave", "straight", *FINDERS)
+#: A tracking car's defaults on the potential field's wave paths (``car_planner``
+#: 'track', ``policy`` 'potential', ``paths`` 'wave'): the setting chosen on the
+#: training street sites (docs/results/2026-12-07-cars-defaults.md). A field left unset
+#: (NaN, or None for a switch) takes its value here for such a car and its
+#: :data:`PLAIN_DEFAULTS` value (the thesis's) for every other robot.
+CAR_DEFAULTS: dict[str, float | bool] = {
+    "forward_wave": True,
+    "forward_stale": 10.0,
+    "turn_penalty": 10.0,
+    "turn_time": 30.0,
+    "out_of_sight": True,
+    "round_block": 60.0,
+    # For a team of more than one car (:meth:`PatrolConfig.for_team`); a lone car
+    # drives every street both ways.
+    "one_way": True,
+}
+#: The values of :data:`CAR_DEFAULTS`'s fields for every other robot: the thesis's
+#: pulls and shortest paths.
+PLAIN_DEFAULTS: dict[str, float | bool] = {
+    "forward_wave": False,
+    "forward_stale": 0.0,
+    "turn_penalty": 0.0,
+    "turn_time": 0.0,
+    "out_of_sight": False,
+    "round_block": 0.0,
+    "one_way": False,
+}
 
 F64 = npt.NDArray[np.float64]
 #: A place chosen on blocks (:class:`~sonarmap.patrol.coarse.CoarseChoice`) is refused,
@@ -189,10 +218,17 @@ class PatrolConfig:
     lookahead: float = 3.0
     #: Track: a car's wave leaves forwards (the cells up to 4 m behind it closed,
     #: :func:`~sonarmap.patrol.manoeuvre.behind_cells`) unless the way ahead is a dead
-    #: end; False (the default) runs it from the car's cell in every direction. Off by
-    #: default: it helps a lone car out of dead ends but holds teams of five up in
-    #: each other's streets, and its dead-end test labels the whole map every step.
-    forward_wave: bool = False
+    #: end; False runs it from the car's cell in every direction. Its dead-end test
+    #: labels the whole map every step. None (the default): True for a tracking car on
+    #: the potential field's wave paths (:data:`CAR_DEFAULTS`), else False.
+    forward_wave: bool | None = None
+    #: Track with ``forward_wave``: on a step when the worst time since seen of the
+    #: places in a car's fog exceeds this many times their mean over the places seen at
+    #: least once, the car's wave runs in every direction (the forward wave lifted), so
+    #: that a place the driving-on paths never lead to is still gone for. 0: never
+    #: lifted. NaN (the default): 10 for a tracking car on the potential field's wave
+    #: paths with ``forward_wave`` (:data:`CAR_DEFAULTS`), else 0.
+    forward_stale: float = math.nan
     #: Track: reversing manoeuvres on the way to a never-seen place after which the cars
     #: stop going for it and the never-seen places within :data:`GIVE_UP_RADIUS` (until
     #: one is seen; they still count in every metric); 0: never give up.
@@ -201,10 +237,10 @@ class PatrolConfig:
     #: place whose path leaves more than the car's ``behind`` angle off its heading
     #: needs over the places ahead (:func:`~sonarmap.patrol.manoeuvre.turn_weights`):
     #: turning round takes a reversing manoeuvre on streets narrower than a car's
-    #: turning circle (10 in ``benchmarks.patrol_cars``, chosen on the training street
-    #: sites: docs/results/2026-12-06-cars.md). 0 (the default): every place pulls as
-    #: the thesis has it.
-    turn_penalty: float = 0.0
+    #: turning circle. 0: every place pulls as the thesis has it. NaN (the default):
+    #: 10 for a tracking car on the potential field's wave paths (:data:`CAR_DEFAULTS`),
+    #: else 0.
+    turn_penalty: float = math.nan
     #: Track: seconds a car's turning round costs. The places its fog saw less than
     #: this long ago (the team's sight when the fog is shared; never the places never
     #: seen) that lie more than its ``behind`` angle off its heading
@@ -214,33 +250,39 @@ class PatrolConfig:
     #: nothing. A car that has everything ahead in its team's sight (a car coming the
     #: other way, the street ahead just driven) otherwise goes for the nearest place
     #: out of sight, just behind its own vision's edge. When no other place pulls,
-    #: they pull as before. 0 (the default): every place pulls, as the thesis has it.
-    turn_time: float = 0.0
+    #: they pull as before. 0: every place pulls, as the thesis has it. NaN (the
+    #: default): 30 for a tracking car on the potential field's wave paths
+    #: (:data:`CAR_DEFAULTS`), else 0.
+    turn_time: float = math.nan
     #: Track: only the places out of a car's sight (not seen on this step) pull on it
     #: (all do when every place is in sight); False: every watched place does, as the
     #: thesis has it. A place in sight pulls (f(0) = 1 under f3), and by the mass of
     #: such places near the car the mode can name a place the car is looking at: going
     #: for it a car turns on the spot, which on streets narrower than its turning circle
-    #: is a reversing manoeuvre. Off by default: on the fig. 3.2 stand-in it raised the
-    #: mean MTB (docs/results/2026-12-06-cars.md); ``benchmarks.patrol_cars`` turns it on
-    #: for the street sites.
-    out_of_sight: bool = False
+    #: is a reversing manoeuvre. None (the default): True for a tracking car on the
+    #: potential field's wave paths (:data:`CAR_DEFAULTS`), else False.
+    out_of_sight: bool | None = None
     #: Track: metres of extra path a car accepts to drive on and round the block
     #: rather than turn round: when its path leaves more than its ``behind`` angle off
     #: its heading, it takes instead the shortest path that leaves forwards (the cells
     #: up to 4 m behind it closed, :func:`~sonarmap.patrol.manoeuvre.behind_cells`) if
     #: that is at most this much longer. On a street grid a loop round a block has no
     #: reversing, where turning round on a street narrower than the turning circle
-    #: does. 0 (the default): the shortest path, as the thesis's wave has it.
-    round_block: float = 0.0
+    #: does. 0: the shortest path, as the thesis's wave has it. NaN (the default): 60
+    #: for a tracking car on the potential field's wave paths (:data:`CAR_DEFAULTS`),
+    #: else 0.
+    round_block: float = math.nan
     #: Track: one-way streets (:mod:`.oneway`): every street narrower than the cars'
     #: turning circle that is no bridge of the street graph (dead-end stubs are) gets a
     #: direction, so that every place can still be reached from every other, and the
     #: cars' waves take its cells only that way: two cars never meet head-on in such a
     #: street, and a place behind is reached round the block. Every car derives the
     #: same system from the map. Needs ``paths`` 'wave' (the only path-finding that
-    #: keeps to the allowed steps). False (the default): every street two-way.
-    one_way: bool = False
+    #: keeps to the allowed steps). False: every street two-way. None (the default):
+    #: True for a team of more than one tracking car on the potential field's wave
+    #: paths (:data:`CAR_DEFAULTS`), else False, settled by :meth:`for_team`
+    #: (:func:`run_patrol` does) once the number of robots is known.
+    one_way: bool | None = None
     #: Track: a car does not drive into a dead-end stub (narrower than the turning
     #: circle, :attr:`~sonarmap.patrol.oneway.OneWay.stubs`) for a place it can see from
     #: the junction the stub opens on: its route to a place in a stub within ``vision``
@@ -285,6 +327,16 @@ class PatrolConfig:
             object.__setattr__(self, "r_obst", 3.0 * self.radius)
         if math.isnan(self.cell):
             object.__setattr__(self, "cell", min(0.5, self.radius / 2))
+        defaults = CAR_DEFAULTS if self.car_tuned else PLAIN_DEFAULTS
+        for name, value in defaults.items():
+            now = getattr(self, name)
+            if name == "one_way" or not (
+                now is None or (isinstance(now, float) and math.isnan(now))
+            ):
+                continue  # one_way waits for the team (for_team); a value given wins
+            if name == "forward_stale" and not self.forward_wave:
+                value = PLAIN_DEFAULTS[name]
+            object.__setattr__(self, name, value)
         if self.direction not in ("mode", "vector"):
             raise ConfigError(
                 f"unknown direction {self.direction!r}; valid: mode, vector", field="direction"
@@ -384,6 +436,12 @@ class PatrolConfig:
                 f"{self.policy!r} and {self.paths!r}",
                 field="turn_time",
             )
+        if not (math.isfinite(self.forward_stale) and self.forward_stale >= 0):
+            raise ConfigError(
+                f"forward_stale must be >= 0, got {self.forward_stale}", field="forward_stale"
+            )
+        if self.forward_stale > 0 and not self.forward_wave:
+            raise ConfigError("forward_stale needs forward_wave", field="forward_stale")
         if not (math.isfinite(self.round_block) and self.round_block >= 0):
             raise ConfigError(
                 f"round_block must be >= 0 metres, got {self.round_block}", field="round_block"
@@ -482,6 +540,37 @@ class PatrolConfig:
             )
         if self.warmup is not None and not (0 <= self.warmup < self.duration):
             raise ConfigError(f"warmup must be in [0, duration), got {self.warmup}", field="warmup")
+
+    @property
+    def car_tuned(self) -> bool:
+        """Whether the fields left unset take :data:`CAR_DEFAULTS` (a tracking car on
+        the potential field's wave paths) rather than :data:`PLAIN_DEFAULTS`."""
+        return (
+            self.model == "car"
+            and self.car_planner == "track"
+            and self.policy == "potential"
+            and self.paths == "wave"
+        )
+
+    def for_team(self, robots: int) -> PatrolConfig:
+        """This configuration for a team of ``robots``, ``one_way`` settled when left
+        unset (None): :data:`CAR_DEFAULTS`'s for more than one tracking car on the
+        potential field's wave paths, else False.
+
+        Parameters
+        ----------
+        robots : int
+            The number of robots.
+
+        Returns
+        -------
+        PatrolConfig
+            This one when ``one_way`` is set, else a copy with it set.
+        """
+        if self.one_way is not None:
+            return self
+        on = self.car_tuned and robots > 1 and bool(CAR_DEFAULTS["one_way"])
+        return replace(self, one_way=on)
 
     def check_reach(self, grid: Grid) -> None:
         """Refuse a length in metres (:data:`REACH_FIELDS`) longer than ``grid``'s
@@ -806,6 +895,15 @@ def _path_goal(
     return reach
 
 
+def _mean_seen_tb(fog: Fog) -> float:
+    """The mean time since seen over ``fog``'s watched places seen at least once
+    (inf when none has been)."""
+    seen = fog.watched & ~fog.never_seen()
+    if not seen.any():
+        return math.inf
+    return float(fog.t - fog.last[seen].mean())
+
+
 def _held_goal(
     team: Team,
     i: int,
@@ -1086,6 +1184,8 @@ def run_patrol(
     if config.crowding == "semaphores" and not semaphores:
         raise ConfigError("crowding 'semaphores' needs a semaphore file (--semaphores)")
     config.check_reach(territory.grid)
+    if starts is not None or robots is not None:
+        config = config.for_team(len(starts) if starts is not None else int(robots or 0))
     sems = Semaphores(semaphores or [])
     if starts is None:
         if robots is None or robots < 1:
@@ -1157,6 +1257,9 @@ def run_patrol(
     forward = config.forward_wave and isinstance(team, Car) and team.planner == "track"
     # Forward waves: from which step other robots have shut each car's way ahead.
     shut = np.full(len(team), -1, dtype=np.int64)
+    # Forward waves: whether each fog's stalest place lifts them this step
+    # (``config.forward_stale``).
+    lifted = np.zeros(len(own), dtype=np.bool_)
     follow_steps = round(FOLLOW_TIME / config.dt)
     penalty = (
         obstacle_penalty(territory.free, g.resolution, config.refine_window)
@@ -1215,7 +1318,7 @@ def run_patrol(
             parts += obstacle_discs(
                 team, i, rc, obst, passable.shape, halve=halve, following=following, heard=heard
             )
-        if forward and not following:
+        if forward and not following and not lifted[0 if shared else i]:
             back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
             start = (int(r[i]), int(c[i]))
             if leads_on(passable, np.concatenate([back, *parts]), start):
@@ -1357,6 +1460,9 @@ def run_patrol(
                 for tb in (dilated if dilated is not None else [f.tb for f in own])
             ]
         tops = [f.mtb() for f in own]
+        if forward and config.forward_stale > 0:
+            for j, f in enumerate(own):
+                lifted[j] = tops[j] > config.forward_stale * _mean_seen_tb(f)
 
         for i in range(len(team)):
             held = aims[i]
