@@ -190,3 +190,16 @@ def test_too_few_to_judge_keeps_all(max_per_pair: int) -> None:
         max_per_pair = 40
     result = pcm_gate(closures, layer_of, estimates.__getitem__, chains, max_per_pair=max_per_pair)
     assert result.rejected == []
+
+
+def test_the_zmq_nodes_get_the_pcm_setting() -> None:
+    from sonarmap.team.config import MissionConfig
+    from sonarmap.team.exchange import ExchangeParams
+    from sonarmap.team.launcher import node_args
+    from sonarmap.team.node import LockstepParams
+
+    on = node_args(MissionConfig(pcm=True), ExchangeParams(), 30.0, None, 120.0, LockstepParams())
+    off = node_args(MissionConfig(), ExchangeParams(), 30.0, None, 120.0, LockstepParams())
+    assert "--pcm" in on
+    assert "--pcm" not in off
+    assert "--no-pcm" in off
