@@ -413,10 +413,23 @@ def _check_preset(chosen: str | None) -> None:
         )
 
 
-def _mission_config(duration: float, seed: int, store: StoreParams) -> MissionConfig:
+PcmOption = Annotated[
+    bool,
+    typer.Option(
+        "--pcm/--no-pcm",
+        help="Pairwise consistency: before each graph batch keep, for each pair of robots' "
+        "layers, the largest set of closures whose loops with the odometry agree (chi-square "
+        "99 %), reject the rest.",
+    ),
+]
+
+
+def _mission_config(
+    duration: float, seed: int, store: StoreParams, pcm: bool = False
+) -> MissionConfig:
     """The mission's config; a store bound too small for one pose names its option."""
     try:
-        return MissionConfig(duration=duration, seed=seed, store=store)
+        return MissionConfig(duration=duration, seed=seed, store=store, pcm=pcm)
     except ConfigError as err:
         names = {o.field: o.name for o in STORE_OPTIONS}
         if err.field in names:
@@ -589,6 +602,7 @@ def run_cmd(
         typer.Option("--patrol", help="Drive the robots by the potential-field patroller."),
     ] = False,
     tour: TourOption = False,
+    pcm: PcmOption = False,
     bag: BagOption = False,
     live: LiveOption = False,
     live_port: LivePortOption = 8765,
@@ -659,7 +673,7 @@ def run_cmd(
     if route is not None:
         routes[0] = read_route(route)
         check_inside_plan(routes[0][:, 0], routes[0][:, 1], routes[0][:, 2], plan.grid, route)
-    config = _mission_config(duration, seed, store)
+    config = _mission_config(duration, seed, store, pcm)
     if tour:
         # Each robot's seed as the mission draws its own route (seed + 7919 x robot).
         routes = {
@@ -862,6 +876,7 @@ def node_cmd(
     ] = None,
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
+    pcm: PcmOption = False,
 ) -> None:
     """One robot of a team over ZeroMQ (TCP), on the team's lock-step clock: the same
     results as 'team run' on a full network; killed and started again on its --state
@@ -899,7 +914,7 @@ def node_cmd(
     key = None if key_file is None else read_team_key(key_file)
     plan = resolve_map(map_, resolution, origin)
     prior, _ = _prior(plan, prior_path, None, seed, resolution, origin)
-    config = _mission_config(duration, seed, store)
+    config = _mission_config(duration, seed, store, pcm)
     with progress(f"robot {robot}") as update:
         s = run_node(
             plan,

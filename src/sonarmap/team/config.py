@@ -126,6 +126,10 @@ class MissionConfig:
     #: Off: on the training warehouse it left out 121 closures, 119 of them right
     #: (docs/results/2026-12-07-team-received-closures.md).
     layer_gate: bool = False
+    #: Pairwise consistency (:mod:`~sonarmap.team.pcm`): before each batch's graph,
+    #: keep each pair of layers' largest set of closures whose loops with the layers'
+    #: odometry pass a chi-square test at 99 %, reject the rest.
+    pcm: bool = False
 
     def __post_init__(self) -> None:
         for name in (

@@ -12,7 +12,7 @@ from the same readings at the true and at the odometry poses, and the alignment'
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -72,6 +72,9 @@ class MissionEvaluator:
     gate_rejected : dict of str to list of int
         Closures the layer gate left out (:mod:`~sonarmap.team.layergate`), for own
         poses (``"own"``) and received ones (``"received"``): ``[left out, right]``.
+    pcm_rejected : dict of str to list of int
+        Closures pairwise consistency left out (:mod:`~sonarmap.team.pcm`), both ends
+        own poses (``"own_layer"``) or not (``"between_layers"``): ``[left out, right]``.
     """
 
     #: Attributes kept as plain msgpack values in :meth:`state`.
@@ -117,6 +120,7 @@ class MissionEvaluator:
         self.inter_closures = 0
         self.inter_correct = 0
         self.gate_rejected: dict[str, list[int]] = {"own": [0, 0], "received": [0, 0]}
+        self.pcm_rejected: dict[str, list[int]] = {"own_layer": [0, 0], "between_layers": [0, 0]}
         self.wrong: list[dict[str, Any]] = []
         self.stage_removed: dict[str, list[int]] = {}
         self.stages = {
@@ -243,6 +247,14 @@ class MissionEvaluator:
         row[0] += len(closures)
         row[1] += sum(self.correct(c) for c in closures)
 
+    def pcm(self, closures: Sequence[ClosureEdge], own: Collection[int]) -> None:
+        """Pairwise consistency (:mod:`.pcm`) left these closures out; ``own`` holds the
+        robot's own poses (a closure with both ends there is its own layer's)."""
+        for c in closures:
+            row = self.pcm_rejected["own_layer" if c.a in own and c.b in own else "between_layers"]
+            row[0] += 1
+            row[1] += self.correct(c)
+
     def dropped(self, closures: Sequence[ClosureEdge]) -> None:
         """The robot's graph found these closures inconsistent and dropped them."""
         for c in closures:
@@ -345,6 +357,9 @@ class MissionEvaluator:
             "layer_gate_rejected": {
                 k: {"closures": v[0], "correct": v[1]} for k, v in self.gate_rejected.items()
             },
+            "pcm_rejected": {
+                k: {"closures": v[0], "correct": v[1]} for k, v in self.pcm_rejected.items()
+            },
             "true_pairs": self.n_true_pairs,
             "association_removed_matches": {k: int(sum(v)) for k, v in self.stage_removed.items()},
             "association_stages": stages,
@@ -384,6 +399,7 @@ class MissionEvaluator:
         d["truth"] = [[u, [float(v) for v in x]] for u, x in self.truth.items()]
         d["odo_poses"] = [[u, [float(v) for v in x]] for u, x in self.odo_poses.items()]
         d["graph_dropped"] = [[k[0], k[1], v] for k, v in self.graph_dropped.items()]
+        d["pcm_rejected"] = {k: list(v) for k, v in self.pcm_rejected.items()}
         return d
 
     def restore(self, d: Mapping[str, Any]) -> None:
@@ -394,3 +410,8 @@ class MissionEvaluator:
         self.truth = {int(u): np.array(x, dtype=np.float64) for u, x in d["truth"]}
         self.odo_poses = {int(u): np.array(x, dtype=np.float64) for u, x in d["odo_poses"]}
         self.graph_dropped = {(int(x), int(y)): bool(v) for x, y, v in d["graph_dropped"]}
+        # A state saved before pairwise consistency existed has none rejected.
+        pcm = d.get("pcm_rejected", {})
+        self.pcm_rejected = {
+            k: [int(x) for x in pcm.get(k, (0, 0))] for k in ("own_layer", "between_layers")
+        }

@@ -114,11 +114,12 @@ def node_args(
             fold=cfg.store.fold,
             merge_on_closure=cfg.store.merge_on_closure,
         ),
+        pcm=cfg.pcm,
     )
     if base != cfg:
         raise ConfigError(
             "run_zmq_team: the nodes take only the mission's duration, seed, pose_limit, "
-            "region_limit, region_density, store_limit, fold and merge_on_closure; other "
+            "region_limit, region_density, store_limit, fold, merge_on_closure and pcm; other "
             "MissionConfig settings differ from their defaults"
         )
     args = [
@@ -135,6 +136,7 @@ def node_args(
         "--store-limit",
         str(cfg.store.store_limit),
         "--fold" if cfg.store.fold else "--no-fold",
+        "--pcm" if cfg.pcm else "--no-pcm",
         "--merge-on-closure",
         str(cfg.store.merge_on_closure),
         "--lookahead",

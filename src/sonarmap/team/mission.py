@@ -105,6 +105,7 @@ from .globalmap import (
     optimise_graph,
 )
 from .layergate import LayerPlacement, gate_closures, layer_placements
+from .pcm import LayerChain, pcm_gate
 from .records import (
     ClosureEdge,
     LocalMap,
@@ -555,7 +556,10 @@ class RobotAgent:
 
     def batch(self) -> GraphResult:
         """One batch of the global map (every layer's poses, our oldest the anchor); the
-        closures the graph drops are told to the evaluator."""
+        closures the graph drops are told to the evaluator. With ``MissionConfig.pcm``
+        the closures go through pairwise consistency first (:meth:`_pcm`)."""
+        if self.cfg.pcm:
+            self._pcm()
         graph, dropped = _optimise(self.store)
         self.evaluator.dropped(dropped)
         self.graph = graph
@@ -571,6 +575,24 @@ class RobotAgent:
                 self.store.closures,
             )
         return graph
+
+    def _pcm(self) -> None:
+        """Leave out the closures pairwise consistency rejects (:func:`~.pcm.pcm_gate`,
+        every layer's poses at their current estimates in its own frame), and tell the
+        evaluator."""
+        store = self.store
+        layers = {self.robot: store.local, **store.received}
+        layer_of = {u: s for s, layer in layers.items() for u in layer.poses}
+        poses = self.all_poses()
+        result = pcm_gate(
+            store.closures,
+            layer_of,
+            lambda u: poses[u].estimate,
+            {s: LayerChain(layer.edges) for s, layer in layers.items()},
+        )
+        if result.rejected:
+            store.closures = result.kept
+            self.evaluator.pcm(result.rejected, store.local.poses.keys())
 
     def _calibrate(self, graph: GraphResult) -> None:
         """Add the heading bias the optimised ``graph`` still shows on the own odometry
