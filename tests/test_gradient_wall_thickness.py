@@ -5,6 +5,7 @@ quarters of a cell behind the echo by default, and the sparsity options tried (a
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -137,8 +138,10 @@ def test_the_stream_refuses_the_sparsity_options(option: str) -> None:
     from sonarmap.streaming import StreamingMapper
 
     assert StreamingMapper("gradient", GRID, get_rig("ez1-six")) is not None
+    params: dict[str, Any] = {option: 0.1}
+    mapper = GradientMapper(**params)
     with pytest.raises(ConfigError, match=f"streaming 'gradient' .*{option}.*; set {option}=0"):
-        StreamingMapper("gradient", GRID, get_rig("ez1-six"), **{option: 0.1})
+        StreamingMapper(mapper, GRID, get_rig("ez1-six"))
 
 
 def test_polish_counts_the_problems_own_sparsity() -> None:

@@ -126,13 +126,12 @@ class GradientMapper(Mapper):
     16 Polaroid sonars): 0.353 against 0.191 before, observed-wall recall 0.69 against
     0.32. An acoustic sonar's no-echo reading is mostly a beam a smooth wall mirrored
     away; clearing its whole beam erased the walls it crossed.
-    The band three quarters of a cell behind the echo (half a cell before) had the
-    highest wall F1, and a quality within 0.001 of the best (a whole cell's), in
-    ``sonarmap sweep sweeps/rigs8-band.yaml`` (issue 39, the sixth pass's 16 training
-    maps; docs/results/2026-12-07-gradient-wall-thickness.md). Half a cell behind, the
-    cells just in front of a wall's surface were often in as many echoes' bands as the
-    surface's own, and the objective kept them occupied: the walls came out a cell
-    thick on the side the beams come from.
+    The band three quarters of a cell behind the echo (half a cell before) was chosen
+    on training maps (``sonarmap sweep sweeps/rigs8-band.yaml``, issue 39; the figures,
+    the tie it broke and what it cost: docs/results/2026-12-07-gradient-wall-thickness.md).
+    Half a cell behind, the cells just in front of a wall's surface were often in as
+    many echoes' bands as the surface's own, and the objective kept them occupied: the
+    walls came out a cell thick on the side the beams come from.
 
     Parameters
     ----------
