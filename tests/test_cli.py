@@ -394,6 +394,24 @@ def test_scenario_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
             )
             for method in ("inverse", "gradient")
         ],
+        *[
+            (
+                [
+                    "stream",
+                    "{d}/readings.csv",
+                    "--rig",
+                    "{d}/rig.yaml",
+                    "--method",
+                    "gradient",
+                    "--param",
+                    f"{option}=0.1",
+                    "-o",
+                    "{d}/st",
+                ],
+                rf"streaming 'gradient' does not implement {option} .*set {option}=0",
+            )
+            for option in ("sparsity", "polish")
+        ],
     ],
 )
 def test_errors_are_one_line_exit_2_no_output(

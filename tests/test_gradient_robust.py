@@ -183,20 +183,17 @@ def test_at_todays_defaults_the_tent_keeps_pgd_from_the_outlier() -> None:
     assert np.sum(np.nan_to_num(exact.occupancy_.ravel()[near]) > 0.5) > 0
 
 
-def test_default_scale_keeps_walls_the_former_one_emptied() -> None:
-    """Issue 39, sixth pass: on the training ``doorways`` scene (seed 0, the MaxSonar
-    rig) the default tau (0.1) keeps more of the walls the sonars heard than the former
-    0.03 (0.904 against 0.841 in sweeps/rigs6-robust.yaml) and detects at least as many
-    of its doors. Why was not measured term by term; one hypothesis is that a lower tau
-    down-weights a wide beam's wall readings whose band the other readings see through.
-    Measured with the band half a cell behind the echo, the default then (three quarters
-    since issue 39's thick walls, where tau 0.1 detects fewer of this scene's doors than
-    0.03: passage F1 0.5 against 0.667), so both maps here keep that band."""
+def scale_claim(band_offset: float | None) -> None:
+    """The claim of the tests below: on the training ``doorways`` scene (seed 0, the
+    MaxSonar rig) the default tau (0.1) keeps more of the walls the sonars heard than the
+    former 0.03 (by more than 0.03 of observed-wall recall) and detects at least as many
+    of its doors, both maps with the band ``band_offset`` behind the echo (None: the
+    mapper's default)."""
     scene = make_scenario("doorways", seed=0)
     observed = observed_walls(scene.truth, scene.rig, scene.readings)
 
     def scored(**params: Any) -> tuple[float, float]:
-        m = GradientMapper(band_offset=0.025, **params)
+        m = GradientMapper(band_offset=band_offset, **params)
         m.fit(scene.readings, scene.truth.grid, scene.rig)
         s = score(scene.truth, m.result(), scene.passages, scene.obstacles, observed)
         d = s.as_dict()
@@ -207,3 +204,22 @@ def test_default_scale_keeps_walls_the_former_one_emptied() -> None:
     walls_old, doors_old = scored(robust=0.03)
     assert walls_new > walls_old + 0.03
     assert doors_new >= doors_old
+
+
+def test_default_scale_keeps_walls_the_former_one_emptied_at_the_band_of_the_time() -> None:
+    """Issue 39, sixth pass: 0.904 against 0.841 of the observed walls in
+    sweeps/rigs6-robust.yaml, with the band half a cell behind the echo (the default
+    then, before 2026-12-07), which both maps here keep. Why was not measured term by
+    term; one hypothesis is that a lower tau down-weights a wide beam's wall readings
+    whose band the other readings see through."""
+    scale_claim(band_offset=0.025)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="at the band three quarters of a cell behind the echo (the default since "
+    "2026-12-07) tau 0.1 detects fewer of this scene's doors than 0.03 (passage F1 0.5 "
+    "against 0.667); tau was not re-chosen at the new band",
+)
+def test_default_scale_keeps_walls_the_former_one_emptied_at_the_default_band() -> None:
+    scale_claim(band_offset=None)

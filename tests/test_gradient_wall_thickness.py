@@ -132,16 +132,38 @@ def test_the_options_must_not_be_negative() -> None:
         GradientMapper(polish=-0.1)
 
 
-def test_the_stream_ignores_the_sparsity_options() -> None:
-    from sonarmap.scenarios import make_scenario
+@pytest.mark.parametrize("option", ["sparsity", "polish"])
+def test_the_stream_refuses_the_sparsity_options(option: str) -> None:
+    """Offline only: the stream refuses them rather than ignore them."""
     from sonarmap.streaming import StreamingMapper
 
-    sc = make_scenario("doorways", seed=0)
-    maps = []
-    options: list[dict[str, Any]] = [{}, {"sparsity": 0.1, "polish": 0.1}]
-    for extra in options:
-        sm = StreamingMapper("gradient", sc.truth.grid, sc.rig, **extra)
-        sm.add(sc.readings.take(np.arange(300)))
-        maps.append(sm.occupancy_)
-    assert np.count_nonzero(np.isfinite(maps[0])) > 0
-    np.testing.assert_array_equal(maps[0], maps[1])
+    assert StreamingMapper("gradient", GRID, get_rig("ez1-six")) is not None
+    params: dict[str, Any] = {option: 0.1}
+    mapper = GradientMapper(**params)
+    with pytest.raises(ConfigError, match=f"streaming 'gradient' .*{option}.*; set {option}=0"):
+        StreamingMapper(mapper, GRID, get_rig("ez1-six"))
+
+
+def test_polish_counts_the_problems_own_sparsity() -> None:
+    """With ``sparsity`` and ``polish`` both set, the emptying costs are the change of
+    ``S + polish sum x`` where S already holds ``sparsity sum x``: emptying a cell saves
+    both weights. (Before the fix the costs left the problem's own weight out.)"""
+    readings = wall_readings(2.02, HCSR04, [0.0, 1.0], [0.0, 0.3], 0.01)
+    m = GradientMapper(band_offset=HALF_CELL, max_iter=60, sparsity=0.2, polish=0.02)
+    m.fit(readings, GRID, HCSR04)
+    p = dataclasses.replace(m.problem(readings), v=m.term_weights_)
+    assert p.pen.l1 == 0.2
+    with_polish = dataclasses.replace(p, pen=dataclasses.replace(p.pen, l1=0.2 + 0.02))
+    x = np.clip(np.asarray(m.solution_), 0.0, 1.0)
+    cost = emptying_costs(p, x, 0.02)
+    for j in [*np.flatnonzero(x > 0.5)[:5].tolist(), int(np.argmax(x))]:
+        emptied = x.copy()
+        emptied[j] = 0.0
+        assert cost[j] == pytest.approx(with_polish.value(emptied) - with_polish.value(x))
+    alone = emptying_costs(p, x)
+    j = int(np.argmax(x))
+    emptied = x.copy()
+    emptied[j] = 0.0
+    assert alone[j] == pytest.approx(p.value(emptied) - p.value(x))
+    y = polish(p, x, 0.02)
+    assert with_polish.value(y) <= with_polish.value(x)

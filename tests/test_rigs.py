@@ -229,10 +229,11 @@ def test_observed_wall_recall_on_maps_built_to_fool_it() -> None:
     assert speckle.quality < 0.6
 
 
-#: Each method's defaults before issue 39, where they differ from today's.
+#: Each method's defaults before issue 39, where they differ from today's (the
+#: gradient's band was half a 5 cm cell behind the echo until 2026-12-07).
 OLD_DEFAULTS: dict[str, dict[str, Any]] = {
     "inverse": {"p_free": 0.48, "falloff_deg": 10.0, "dr": None},
-    "gradient": {"a2": 0.03, "no_echo": "free"},
+    "gradient": {"a2": 0.03, "no_echo": "free", "band_offset": 0.025},
 }
 
 
@@ -273,26 +274,49 @@ def test_the_rigs_sweep_spans_the_sensor_presets() -> None:
     assert config.metrics[0] == "quality"
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("params", [{"convex_start": True}, {"specular_deg": 15.0}])
-def test_the_gradient_options_keep_more_walls_than_its_default(
-    maxsonar_hall: tuple[Scenario, npt.NDArray[np.bool_]], params: dict[str, Any]
+def options_claim(
+    hall: tuple[Scenario, npt.NDArray[np.bool_]],
+    params: dict[str, Any],
+    band_offset: float | None,
 ) -> None:
-    # Measured: default 0.463, convex start 0.484, specular 15 degrees 0.496; passage
-    # F1 0.25 for all three. Neither is the default: on the training scenes both lost
-    # more passages than they gained walls (docs/results/2026-12-06-rig-defaults.md,
-    # third pass). Measured with the band half a cell behind the echo, the default then
-    # (three quarters since 2026-12-07, where convex_start keeps 0.651 of the walls
-    # against the default's 0.641), so every map here keeps that band.
-    scene, observed = maxsonar_hall
+    """The claim of the tests below: on the held-out MaxSonar hall the option keeps at
+    least 0.015 more of the observed walls than the gradient's default, both maps with
+    the band ``band_offset`` behind the echo (None: the mapper's default)."""
+    scene, observed = hall
 
     def recall(**p: Any) -> float:
-        m = make_mapper("gradient", band_offset=0.025, **p)
+        m = make_mapper("gradient", band_offset=band_offset, **p)
         m.fit(scene.readings, scene.truth.grid, scene.rig)
         s = score(scene.truth, m.result(), scene.passages, scene.obstacles, observed)
         return s.observed_wall_recall
 
     assert recall(**params) >= recall() + 0.015
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("params", [{"convex_start": True}, {"specular_deg": 15.0}])
+def test_the_gradient_options_keep_more_walls_than_its_default_at_the_band_of_the_time(
+    maxsonar_hall: tuple[Scenario, npt.NDArray[np.bool_]], params: dict[str, Any]
+) -> None:
+    # Measured: default 0.463, convex start 0.484, specular 15 degrees 0.496; passage
+    # F1 0.25 for all three. Neither is the default: on the training scenes both lost
+    # more passages than they gained walls (docs/results/2026-12-06-rig-defaults.md,
+    # third pass). Measured with the band half a cell behind the echo (the default then,
+    # before 2026-12-07), which every map here keeps.
+    options_claim(maxsonar_hall, params, band_offset=0.025)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="at the band three quarters of a cell behind the echo (the default since "
+    "2026-12-07) convex_start keeps 0.651 of the observed walls against the default's "
+    "0.641, less than the 0.015 more claimed",
+)
+def test_convex_start_keeps_more_walls_than_the_default_at_the_default_band(
+    maxsonar_hall: tuple[Scenario, npt.NDArray[np.bool_]],
+) -> None:
+    options_claim(maxsonar_hall, {"convex_start": True}, band_offset=None)
 
 
 def test_door_verdict_names_the_first_test_failed() -> None:

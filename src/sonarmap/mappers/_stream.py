@@ -11,7 +11,8 @@ has seen while the objective stays bounded.
 No engine down-weights correlated readings (the mappers' ``correlated``): a reading's
 weight depends on every reading that repeats it, including readings not yet come and
 readings that have left the window, so each update would re-weight, and re-fold, readings
-throughout the pool. Engines refuse ``correlated > 0`` rather than ignore it.
+throughout the pool. Engines refuse ``correlated > 0`` rather than ignore it, and
+likewise the gradient's offline-only ``sparsity`` and ``polish``.
 """
 
 from __future__ import annotations
@@ -173,6 +174,12 @@ class StreamEngine(ABC):
                 f"streaming '{mapper.name}' cannot weigh free evidence by incidence (the "
                 "surfaces' normals depend on echoes still to come); set specular_deg=0"
             )
+        for option in ("sparsity", "polish"):
+            if getattr(mapper, option, 0.0) > 0:
+                raise ConfigError(
+                    f"streaming '{mapper.name}' does not implement {option} (offline "
+                    f"only); set {option}=0"
+                )
         if self.keeps_readings and not strategy.bounded:
             raise ConfigError(
                 f"streaming '{mapper.name}' keeps readings in play; give a bounded strategy "

@@ -126,13 +126,12 @@ class GradientMapper(Mapper):
     16 Polaroid sonars): 0.353 against 0.191 before, observed-wall recall 0.69 against
     0.32. An acoustic sonar's no-echo reading is mostly a beam a smooth wall mirrored
     away; clearing its whole beam erased the walls it crossed.
-    The band three quarters of a cell behind the echo (half a cell before) had the
-    highest wall F1, and a quality within 0.001 of the best (a whole cell's), in
-    ``sonarmap sweep sweeps/rigs8-band.yaml`` (issue 39, the sixth pass's 16 training
-    maps; docs/results/2026-12-07-gradient-wall-thickness.md). Half a cell behind, the
-    cells just in front of a wall's surface were often in as many echoes' bands as the
-    surface's own, and the objective kept them occupied: the walls came out a cell
-    thick on the side the beams come from.
+    The band three quarters of a cell behind the echo (half a cell before) was chosen
+    on training maps (``sonarmap sweep sweeps/rigs8-band.yaml``, issue 39; the figures,
+    the tie it broke and what it cost: docs/results/2026-12-07-gradient-wall-thickness.md).
+    Half a cell behind, the cells just in front of a wall's surface were often in as
+    many echoes' bands as the surface's own, and the objective kept them occupied: the
+    walls came out a cell thick on the side the beams come from.
 
     Parameters
     ----------
@@ -230,7 +229,7 @@ class GradientMapper(Mapper):
         all to 1, a wall one cell thicker than the surface. With l1 > 0 each occupied
         cell has to be paid for by the echoes it explains, so the map keeps the fewest
         cells that explain them. Too large a weight empties walls as well.
-        Offline only: streaming ignores it.
+        Offline only: streaming refuses it (:class:`~sonarmap.errors.ConfigError`).
     polish : float
         Sparsity weight l1 >= 0 of a last pass over the solved map (0, off): each
         occupied cell, cheapest first, is emptied when that lowers ``S(x) + l1 sum x``,
@@ -238,7 +237,7 @@ class GradientMapper(Mapper):
         settles each cell by its first subgradients, and a cell just in front of a wall
         that echo bands reach about as often as the wall itself ends occupied: emptying it
         alone raises S, by less than emptying the wall's own cells does. Offline only:
-        streaming ignores it.
+        streaming refuses it (:class:`~sonarmap.errors.ConfigError`).
 
     Attributes
     ----------
@@ -469,7 +468,8 @@ def emptying_costs(p: ForwardProblem, x: F64, l1: float = 0.0) -> F64:
     Parameters
     ----------
     p : ForwardProblem
-        The objective (its terms' weights ``p.v`` count).
+        The objective S, ``p.value`` (its terms' weights ``p.v`` and its own sparsity
+        weight ``p.pen.l1`` count; ``l1`` is added to the latter).
     x : ndarray of float64, shape (p.n_cells,)
         A map in [0, 1].
     l1 : float
@@ -496,7 +496,8 @@ def polish(p: ForwardProblem, x: F64, l1: float) -> F64:
     Parameters
     ----------
     p : ForwardProblem
-        The objective.
+        The objective S, ``p.value`` (with its own sparsity term ``p.pen.l1 sum x``,
+        to which ``l1`` is added).
     x : ndarray of float64, shape (p.n_cells,)
         The solved map; not modified (clipped to [0, 1] in the copy returned).
     l1 : float
@@ -520,7 +521,9 @@ class _Emptying:
     """A map, its term sums ``X = W x`` and what emptying one cell changes."""
 
     def __init__(self, p: ForwardProblem, x: F64, l1: float) -> None:
-        self.p, self.l1 = p, l1
+        # The problem's own sparsity term is part of S (``p.value``): emptying a cell
+        # saves it as well as the extra ``l1``.
+        self.p, self.l1 = p, l1 + p.pen.l1
         self.x = np.array(x, dtype=np.float64)
         self.X = np.asarray(p.W @ self.x, dtype=np.float64)
         W = p.W.tocsc()
@@ -531,7 +534,8 @@ class _Emptying:
         return c2 * (0.5 - abs(v - 0.5)) if self.p.pen.r2 == "tent" else c2 * abs(v - 0.5)
 
     def change(self, j: int) -> float:
-        """``S + l1 sum x`` with cell j emptied, minus as it is."""
+        """``S + l1 sum x`` with cell j emptied, minus as it is (S with its own
+        sparsity term ``p.pen.l1 sum x``)."""
         r = self.rows[self.ptr[j] : self.ptr[j + 1]]
         w = self.data[self.ptr[j] : self.ptr[j + 1]]
         xj = float(self.x[j])
