@@ -94,9 +94,14 @@ def _summary_params(tmp_path: Path, *extra: str) -> dict[str, object]:
 
 
 @pytest.mark.slow
+def test_the_cli_gives_no_model_the_plain_defaults(tmp_path: Path) -> None:
+    # No model given: holonomic robots, the plain (thesis's) values.
+    assert _summary_params(tmp_path) == PLAIN_DEFAULTS
+
+
+@pytest.mark.slow
 def test_the_cli_gives_a_car_the_car_defaults_and_options_win(tmp_path: Path) -> None:
-    # Two cars: one-way streets (run_patrol settles one_way by the team). Holonomic
-    # robots' resolution is checked above and by the golden patrol/open-field run.
+    # Two cars: one-way streets (run_patrol settles one_way by the team).
     assert _summary_params(tmp_path / "car", "--model", "car") == CAR_DEFAULTS
     given = _summary_params(
         tmp_path / "given",
@@ -131,6 +136,17 @@ def test_the_cli_refuses_forward_stale_without_the_forward_wave(
     assert len(err.strip().splitlines()) == 1, err
     assert "--forward-stale" in err, err
     assert not out.exists()
+
+
+def test_the_cars_benchmark_refuses_forward_stale_without_the_forward_wave(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from benchmarks.patrol_cars import main as cars_main
+
+    assert cars_main(["--no-forward-wave", "--forward-stale", "5"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "--forward-stale" in err, err
 
 
 @pytest.mark.slow
