@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -74,6 +75,20 @@ def test_an_option_given_wins_over_the_car_defaults() -> None:
     assert _values(car) == {**CAR_DEFAULTS, "turn_time": 5.0, "one_way": False}
     # And a holonomic robot's given value is its own.
     assert PatrolConfig(crowding="obstacles", round_block=0.0).round_block == 0.0
+
+
+def test_replace_passes_on_the_settled_values_as_the_class_documents() -> None:
+    # dataclasses.replace does not settle the unset fields again (PatrolConfig's
+    # docstring): the car's settled forward_stale 10 stays without its forward wave...
+    with pytest.raises(ConfigError, match="forward_stale"):
+        replace(PatrolConfig(model="car"), forward_wave=False)
+    assert replace(PatrolConfig(model="car"), forward_wave=False, forward_stale=0.0).for_team(
+        3
+    ) == PatrolConfig(model="car", forward_wave=False).for_team(3)
+    # ...and a plain configuration made a car keeps the plain values.
+    made = replace(PatrolConfig(motion="straight"), model="car")
+    assert made.car_tuned
+    assert _values(made.for_team(3)) == {**PLAIN_DEFAULTS, "one_way": True}
 
 
 def test_forward_stale_needs_the_forward_wave_and_a_finite_ratio() -> None:

@@ -174,8 +174,9 @@ class PatrolConfig:
     :func:`dataclasses.replace` does not settle them again: it passes on the settled
     values as if given, so ``replace(PatrolConfig(model="car"), forward_wave=False)``
     is refused (``forward_stale`` 10 without a forward wave) and
-    ``replace(PatrolConfig(), model="car")`` keeps the plain values though
-    :attr:`car_tuned` is then True. To change the robot, policy, paths or one of
+    ``replace(PatrolConfig(motion="straight"), model="car")`` keeps the plain values
+    though :attr:`car_tuned` is then True (all but ``one_way``, still unset, which
+    :meth:`for_team` settles for a car). To change the robot, policy, paths or one of
     :data:`CAR_DEFAULTS`'s fields, build a new configuration from the fields given
     (or set every dependent field in the ``replace`` call).
     """
