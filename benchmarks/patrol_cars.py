@@ -56,6 +56,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -173,7 +174,12 @@ def main(argv: list[str] | None = None) -> int:
         action=argparse.BooleanOptionalAction,
         default=bool(CAR_DEFAULTS["forward_wave"]),
     )
-    ap.add_argument("--forward-stale", type=float, default=float(CAR_DEFAULTS["forward_stale"]))
+    ap.add_argument(
+        "--forward-stale",
+        type=float,
+        default=None,
+        help=f"default: {CAR_DEFAULTS['forward_stale']:g} with --forward-wave, else 0",
+    )
     ap.add_argument("--give-up", type=int, default=3)
     ap.add_argument("--turn-penalty", type=float, default=float(CAR_DEFAULTS["turn_penalty"]))
     ap.add_argument("--turn-time", type=float, default=float(CAR_DEFAULTS["turn_time"]))
@@ -186,6 +192,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--json", type=Path)
     a = ap.parse_args(argv)
+    if a.forward_stale is None:
+        a.forward_stale = float(CAR_DEFAULTS["forward_stale"]) if a.forward_wave else 0.0
+    elif a.forward_stale > 0 and not a.forward_wave:
+        # As the library refuses it: there is no forward wave to lift.
+        print("patrol_cars: --forward-stale needs --forward-wave", file=sys.stderr)
+        return 2
     rows = []
     for site in a.sites:
         for planner in a.planners:
@@ -197,8 +209,7 @@ def main(argv: list[str] | None = None) -> int:
                         a.crowding,
                         a.duration,
                         forward_wave=a.forward_wave,
-                        # No forward wave, nothing to lift.
-                        forward_stale=a.forward_stale if a.forward_wave else 0.0,
+                        forward_stale=a.forward_stale,
                         give_up=a.give_up,
                         turn_penalty=a.turn_penalty,
                         turn_time=a.turn_time,

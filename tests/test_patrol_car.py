@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import pytest
+from scipy import ndimage
 
 from sonarmap.cli import main as cli_main
 from sonarmap.errors import ConfigError
@@ -80,6 +81,46 @@ def test_the_way_ahead_leads_on_unless_it_is_a_dead_end() -> None:
     # Facing the corridor's end: ahead is a dead end; facing the room: it leads on.
     assert not leads_on(passable, behind_cells(55.0, 15.0, 0.0, t.grid), start)
     assert leads_on(passable, behind_cells(55.0, 15.0, math.pi, t.grid), start)
+
+
+def _leads_on_by_labels(
+    passable: npt.NDArray[np.bool_],
+    closed: npt.NDArray[np.intp],
+    start: tuple[int, int],
+    share: float = 0.5,
+) -> bool:
+    # The former leads_on, which labelled the whole map: the reference the flood fill
+    # must agree with.
+    if not len(closed):
+        return True
+    open_ = passable.copy()
+    open_[closed[:, 0], closed[:, 1]] = False
+    open_[start] = True
+    labels, _ = ndimage.label(open_, structure=np.ones((3, 3), dtype=bool))
+    mine = labels[start]
+    return bool(np.count_nonzero(labels == mine) >= share * np.count_nonzero(passable))
+
+
+def test_leads_on_answers_as_labelling_the_whole_map_does() -> None:
+    rng = np.random.default_rng(36)
+    answers = set()
+    for trial in range(400):
+        rows, cols = int(rng.integers(1, 30)), int(rng.integers(1, 30))
+        passable = rng.random((rows, cols)) < rng.uniform(0.3, 0.95)
+        k = int(rng.integers(0, rows * cols // 2 + 2))
+        closed = np.column_stack([rng.integers(0, rows, k), rng.integers(0, cols, k)]).astype(
+            np.intp
+        )
+        start = (int(rng.integers(0, rows)), int(rng.integers(0, cols)))
+        if trial % 3 == 0 and len(closed):
+            closed[0] = start  # the start stays open even when closed
+        share = float(rng.choice([0.0, 0.1, 0.5, 0.9, 1.0]))
+        want = _leads_on_by_labels(passable, closed, start, share)
+        n = int(np.count_nonzero(passable))
+        assert leads_on(passable, closed, start, share) == want
+        assert leads_on(passable, closed, start, share, n_passable=n) == want
+        answers.add(want)
+    assert answers == {True, False}
 
 
 def test_a_forward_wave_reaches_a_place_behind_around_the_block() -> None:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -76,6 +77,20 @@ def test_an_option_given_wins_over_the_car_defaults() -> None:
     assert PatrolConfig(crowding="obstacles", round_block=0.0).round_block == 0.0
 
 
+def test_replace_passes_on_the_settled_values_as_the_class_documents() -> None:
+    # dataclasses.replace does not settle the unset fields again (PatrolConfig's
+    # docstring): the car's settled forward_stale 10 stays without its forward wave...
+    with pytest.raises(ConfigError, match="forward_stale"):
+        replace(PatrolConfig(model="car"), forward_wave=False)
+    assert replace(PatrolConfig(model="car"), forward_wave=False, forward_stale=0.0).for_team(
+        3
+    ) == PatrolConfig(model="car", forward_wave=False).for_team(3)
+    # ...and a plain configuration made a car keeps the plain values.
+    made = replace(PatrolConfig(motion="straight"), model="car")
+    assert made.car_tuned
+    assert _values(made.for_team(3)) == {**PLAIN_DEFAULTS, "one_way": True}
+
+
 def test_forward_stale_needs_the_forward_wave_and_a_finite_ratio() -> None:
     with pytest.raises(ConfigError, match="forward_stale"):
         PatrolConfig(model="car", forward_wave=False, forward_stale=5.0)
@@ -94,9 +109,14 @@ def _summary_params(tmp_path: Path, *extra: str) -> dict[str, object]:
 
 
 @pytest.mark.slow
+def test_the_cli_gives_no_model_the_plain_defaults(tmp_path: Path) -> None:
+    # No model given: holonomic robots, the plain (thesis's) values.
+    assert _summary_params(tmp_path) == PLAIN_DEFAULTS
+
+
+@pytest.mark.slow
 def test_the_cli_gives_a_car_the_car_defaults_and_options_win(tmp_path: Path) -> None:
-    # Two cars: one-way streets (run_patrol settles one_way by the team). Holonomic
-    # robots' resolution is checked above and by the golden patrol/open-field run.
+    # Two cars: one-way streets (run_patrol settles one_way by the team).
     assert _summary_params(tmp_path / "car", "--model", "car") == CAR_DEFAULTS
     given = _summary_params(
         tmp_path / "given",
@@ -131,6 +151,17 @@ def test_the_cli_refuses_forward_stale_without_the_forward_wave(
     assert len(err.strip().splitlines()) == 1, err
     assert "--forward-stale" in err, err
     assert not out.exists()
+
+
+def test_the_cars_benchmark_refuses_forward_stale_without_the_forward_wave(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from benchmarks.patrol_cars import main as cars_main
+
+    assert cars_main(["--no-forward-wave", "--forward-stale", "5"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert "--forward-stale" in err, err
 
 
 @pytest.mark.slow

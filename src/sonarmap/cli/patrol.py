@@ -210,7 +210,8 @@ PATROL_OPTIONS = (
     Opt(
         "forward_wave",
         "Tracking cars: paths leave forwards (cells up to 4 m behind the car closed on "
-        "its wave) unless the way ahead is a dead end (a whole-map labelling a step). "
+        "its wave) unless the way ahead is a dead end (a flood fill over up to half the "
+        "map a step). "
         "Default: on for tracking cars on the potential field's wave paths, else off.",
         off="--no-forward-wave",
         unset_as=None,
@@ -219,8 +220,10 @@ PATROL_OPTIONS = (
         "forward_stale",
         "Tracking cars with --forward-wave: on a step when the worst time since seen "
         "exceeds this many times the mean over the places seen at least once, the wave "
-        "runs in every direction; 0: never. Default: 10 for tracking cars on the "
-        "potential field's wave paths with --forward-wave, else 0.",
+        "runs in every direction; 0: never. Never-seen places count in the worst (time "
+        "since the start) but not the mean, given-up ones too; tested on the fog of the "
+        "step before. Default: 10 for tracking cars on the potential field's wave paths "
+        "with --forward-wave, else 0.",
         unset_as=math.nan,
     ),
     Opt(

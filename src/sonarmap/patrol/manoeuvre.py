@@ -26,9 +26,9 @@ import heapq
 import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
 
 from ..grid import Grid
 from .paths import STEP_UNITS
@@ -167,8 +167,39 @@ def fresh_behind(
     return out
 
 
-#: 8-connected, as the wave's steps are.
-_EIGHT = np.ones((3, 3), dtype=bool)
+@nb.njit(cache=True)
+def _reaches(open_: npt.NDArray[np.bool_], r0: int, c0: int, need: float) -> bool:
+    # Depth-first flood over the 8-connected open cells from (r0, c0), clearing each
+    # cell of ``open_`` as it is pushed so that none is pushed twice; it stops as soon
+    # as ``need`` cells are reached, so a way ahead that leads on (the usual answer)
+    # costs only that share of the map, not a labelling of all of it.
+    rows, cols = open_.shape
+    stack = np.empty(open_.size, dtype=np.int64)
+    open_[r0, c0] = False
+    stack[0] = r0 * cols + c0
+    top = 1
+    count = 1
+    if count >= need:
+        return True
+    while top > 0:
+        top -= 1
+        r = stack[top] // cols
+        c = stack[top] - r * cols
+        for dr in range(-1, 2):
+            rr = r + dr
+            if rr < 0 or rr >= rows:
+                continue
+            for dc in range(-1, 2):
+                cc = c + dc
+                if cc < 0 or cc >= cols or not open_[rr, cc]:
+                    continue
+                open_[rr, cc] = False
+                stack[top] = rr * cols + cc
+                top += 1
+                count += 1
+                if count >= need:
+                    return True
+    return False
 
 
 def leads_on(
@@ -176,18 +207,22 @@ def leads_on(
     closed: npt.NDArray[np.intp],
     start: tuple[int, int],
     share: float = 0.5,
+    n_passable: int | None = None,
 ) -> bool:
     """Whether, with the ``closed`` cells (K, 2) shut, the passable cells still joined to
     ``start`` are at least ``share`` of all passable cells: False when the way ahead is
-    a dead end (the car has to turn round) and the way out lay behind."""
+    a dead end (the car has to turn round) and the way out lay behind.
+
+    Cells join 8-connected, as the wave's steps do; ``start`` counts as open (and joined)
+    whatever ``passable`` and ``closed`` say of it. ``n_passable`` is
+    ``np.count_nonzero(passable)``, for a caller asking many times of one map (None:
+    counted here)."""
     if not len(closed):
         return True
+    total = int(np.count_nonzero(passable)) if n_passable is None else n_passable
     open_ = passable.copy()
     open_[closed[:, 0], closed[:, 1]] = False
-    open_[start] = True
-    labels, _ = ndimage.label(open_, structure=_EIGHT)
-    mine = labels[start]
-    return bool(np.count_nonzero(labels == mine) >= share * np.count_nonzero(passable))
+    return bool(_reaches(open_, int(start[0]), int(start[1]), share * total))
 
 
 def route_goals(route: F64, near: float = 3.0, far: float = 10.0) -> F64:

@@ -165,7 +165,21 @@ REACH_FIELDS = ("choice_cell", "refine_window", "refine_side", "refine_goal", "w
 
 @dataclass(frozen=True)
 class PatrolConfig:
-    """Every number of a patrol run, with the thesis's defaults."""
+    """Every number of a patrol run, with the thesis's defaults.
+
+    The fields left unset (NaN, or None for a switch) are settled once, at
+    construction: the lengths by the robot's ``radius``, ``motion`` and ``traffic``
+    ('auto') by the robots and paths, and :data:`CAR_DEFAULTS`'s fields by
+    :attr:`car_tuned` (``one_way`` alone waits for :meth:`for_team`). A copy made with
+    :func:`dataclasses.replace` does not settle them again: it passes on the settled
+    values as if given, so ``replace(PatrolConfig(model="car"), forward_wave=False)``
+    is refused (``forward_stale`` 10 without a forward wave) and
+    ``replace(PatrolConfig(motion="straight"), model="car")`` keeps the plain values
+    though :attr:`car_tuned` is then True (all but ``one_way``, still unset, which
+    :meth:`for_team` settles for a car). To change the robot, policy, paths or one of
+    :data:`CAR_DEFAULTS`'s fields, build a new configuration from the fields given
+    (or set every dependent field in the ``replace`` call).
+    """
 
     policy: str = "potential"
     model: str = "holonomic"
@@ -219,15 +233,22 @@ class PatrolConfig:
     #: Track: a car's wave leaves forwards (the cells up to 4 m behind it closed,
     #: :func:`~sonarmap.patrol.manoeuvre.behind_cells`) unless the way ahead is a dead
     #: end; False runs it from the car's cell in every direction. Its dead-end test
-    #: labels the whole map every step. None (the default): True for a tracking car on
-    #: the potential field's wave paths (:data:`CAR_DEFAULTS`), else False.
+    #: floods the map from the car every step, up to half of it. None (the default):
+    #: True for a tracking car on the potential field's wave paths
+    #: (:data:`CAR_DEFAULTS`), else False.
     forward_wave: bool | None = None
     #: Track with ``forward_wave``: on a step when the worst time since seen of the
-    #: places in a car's fog exceeds this many times their mean over the places seen at
-    #: least once, the car's wave runs in every direction (the forward wave lifted), so
-    #: that a place the driving-on paths never lead to is still gone for. 0: never
-    #: lifted. NaN (the default): 10 for a tracking car on the potential field's wave
-    #: paths with ``forward_wave`` (:data:`CAR_DEFAULTS`), else 0.
+    #: watched places in a car's fog exceeds this many times the mean time since seen
+    #: over those seen at least once, the car's wave runs in every direction (the
+    #: forward wave lifted), so that a place the driving-on paths never lead to is still
+    #: gone for. A place never seen counts in the worst (its time since the start, plus
+    #: ``start_fog``) but not in the mean; the places given up (``give_up``) count as
+    #: every watched place does, so one given up and never seen keeps the wave lifted
+    #: once it is stale enough. The test reads the fog as the step's choice does, as
+    #: the robots saw at the end of the step before: a lift ends one step after the
+    #: stale place is seen. 0: never lifted. NaN (the default): 10 for a tracking car
+    #: on the potential field's wave paths with ``forward_wave`` (:data:`CAR_DEFAULTS`),
+    #: else 0.
     forward_stale: float = math.nan
     #: Track: reversing manoeuvres on the way to a never-seen place after which the cars
     #: stop going for it and the never-seen places within :data:`GIVE_UP_RADIUS` (until
@@ -281,7 +302,9 @@ class PatrolConfig:
     #: keeps to the allowed steps). False: every street two-way. None (the default):
     #: True for a team of more than one tracking car on the potential field's wave
     #: paths (:data:`CAR_DEFAULTS`), else False, settled by :meth:`for_team`
-    #: (:func:`run_patrol` does) once the number of robots is known.
+    #: (:func:`run_patrol` does) once the number of robots is known: until then it
+    #: stays None, on the configuration and in :meth:`as_dict` (a run's summary holds
+    #: the settled value, its configuration having been through :meth:`for_team`).
     one_way: bool | None = None
     #: Track: a car does not drive into a dead-end stub (narrower than the turning
     #: circle, :attr:`~sonarmap.patrol.oneway.OneWay.stubs`) for a place it can see from
@@ -600,6 +623,8 @@ class PatrolConfig:
         return self.duration / 5 if self.warmup is None else self.warmup
 
     def as_dict(self) -> dict[str, Any]:
+        """The fields as plain values, the force as its name and parameters and
+        ``warmup`` in seconds; ``one_way`` is None until :meth:`for_team` settles it."""
         d = asdict(self)
         d["force"] = self.force.name
         d["force_a"], d["force_b_dm"] = self.force.a, self.force.b
@@ -1255,6 +1280,8 @@ def run_patrol(
     obst = disc_offsets(config.r_obst, g.resolution)
     halve = halves_discs(config)
     forward = config.forward_wave and isinstance(team, Car) and team.planner == "track"
+    # The map does not change during a run: the dead-end test counts it once.
+    n_open = int(np.count_nonzero(passable))
     # Forward waves: from which step other robots have shut each car's way ahead.
     shut = np.full(len(team), -1, dtype=np.int64)
     # Forward waves: whether each fog's stalest place lifts them this step
@@ -1321,10 +1348,10 @@ def run_patrol(
         if forward and not following and not lifted[0 if shared else i]:
             back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
             start = (int(r[i]), int(c[i]))
-            if leads_on(passable, np.concatenate([back, *parts]), start):
+            if leads_on(passable, np.concatenate([back, *parts]), start, n_passable=n_open):
                 parts.append(back)
                 shut[i] = -1
-            elif leads_on(passable, back, start):
+            elif leads_on(passable, back, start, n_passable=n_open):
                 # Only other robots shut the way ahead: they are often on their way, so
                 # follow them for FOLLOW_TIME before turning round (nose to nose, a car
                 # turns round after that).
