@@ -109,6 +109,14 @@ def test_chain_covariance_is_the_composed_odometry_covariance() -> None:
     np.testing.assert_allclose(got, c, rtol=1e-9, atol=1e-12)
     # Two poses on no common chain: untestable.
     assert chain.covariance(4, 99) is None
+    assert chain.relative(4, 99) is None
+    rel = chain.relative(4, 17)
+    assert rel is not None
+    np.testing.assert_allclose(rel[0], x, atol=1e-12)
+    # Two closures sharing a pose on no chain: the stretch there is empty, not unknown.
+    same = chain.relative(99, 99)
+    assert same is not None
+    assert not same[0].any()
 
 
 def test_pcm_keeps_the_consistent_closures_and_rejects_the_forged() -> None:

@@ -163,6 +163,8 @@ class LayerChain:
         dead-reckoned chain, not any estimate a graph has moved) and its covariance in
         ``w``'s frame; None when the two are not on one chain. ``w`` may come before
         ``u``."""
+        if u == w:  # the same pose, on a chain or not (as covariance() has it)
+            return np.zeros(3), np.zeros((3, 3))
         cov = self.covariance(u, w)
         if cov is None:
             return None
