@@ -982,6 +982,32 @@ def test_a_peers_closure_is_taken_once_whichever_way_and_however_often_it_comes(
     assert snapshot(a) == before
 
 
+def test_a_closure_pcm_rejected_is_not_taken_back_from_a_peer(
+    asking: tuple[Exchanger, SimTransport, RobotStore, int],
+) -> None:
+    ex, tb, b, rid = asking
+    a = ex.store
+    tb.send(0, _answer(rid, {**_good_entry(b, [0, 1]), "c": [_closure_row()]}), kind="answer")
+    ex.step(ex.now)
+    (got,) = a.closures
+    # Pairwise consistency rejects it (as MissionRobot._pcm does): the pair is counted
+    # once however often it is rejected, and a peer cannot bring it back either way.
+    a.closures = []
+    assert a.reject_closures([got]) == [got]
+    back = ClosureEdge(got.b, got.a, (-0.5, 0.02, -0.01), got.covariance, 9, 0.1)
+    assert a.reject_closures([back]) == []
+    assert a.add_peer_closures([got, back]) == (0, 2, 0)
+    assert a.closures == []
+    # The rejected pairs survive state()/restore(); a state saved before they were kept
+    # restores with none.
+    state = a.state()
+    a.restore(state)
+    assert a.add_peer_closures([got]) == (0, 1, 0)
+    old = {k: v for k, v in state.items() if k != "rejected_pairs"}
+    a.restore(old)
+    assert a.add_peer_closures([got]) == (1, 0, 0)
+
+
 def test_decoders_raise_an_input_error_with_the_reason() -> None:
     with pytest.raises(ExchangeError, match="the body ends early") as err:
         decode_answer(encode_answer(Answer(1, "good", ()))[:-1])

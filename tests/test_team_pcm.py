@@ -109,11 +109,19 @@ def test_chain_covariance_is_the_composed_odometry_covariance() -> None:
     np.testing.assert_allclose(got, c, rtol=1e-9, atol=1e-12)
     # Two poses on no common chain: untestable.
     assert chain.covariance(4, 99) is None
+    assert chain.relative(4, 99) is None
+    rel = chain.relative(4, 17)
+    assert rel is not None
+    np.testing.assert_allclose(rel[0], x, atol=1e-12)
+    # Two closures sharing a pose on no chain: the stretch there is empty, not unknown.
+    same = chain.relative(99, 99)
+    assert same is not None
+    assert not same[0].any()
 
 
 def test_pcm_keeps_the_consistent_closures_and_rejects_the_forged() -> None:
-    estimates, layer_of, chains, closures, forged = _corridor()
-    result = pcm_gate(closures, layer_of, estimates.__getitem__, chains)
+    _, layer_of, chains, closures, forged = _corridor()
+    result = pcm_gate(closures, layer_of, chains)
     rejected = {i for i, c in enumerate(closures) if any(c is r for r in result.rejected)}
     assert rejected == forged
     assert len(result.kept) == len(closures) - len(forged)
@@ -121,19 +129,15 @@ def test_pcm_keeps_the_consistent_closures_and_rejects_the_forged() -> None:
 
 
 def test_a_forged_closure_fails_its_loop_with_a_true_neighbour() -> None:
-    estimates, _, chains, closures, forged = _corridor()
+    _, _, chains, closures, forged = _corridor()
 
     def oriented(c: ClosureEdge) -> Oriented:
         return (c.a, c.b, np.asarray(c.transform), c.cov())
 
     true_ = [c for i, c in enumerate(closures) if i not in forged]
     bad = [c for i, c in enumerate(closures) if i in forged]
-    d_true = loop_distance(
-        oriented(true_[2]), oriented(true_[3]), estimates.__getitem__, *chains.values()
-    )
-    d_bad = loop_distance(
-        oriented(bad[0]), oriented(true_[3]), estimates.__getitem__, *chains.values()
-    )
+    d_true = loop_distance(oriented(true_[2]), oriented(true_[3]), *chains.values())
+    d_bad = loop_distance(oriented(bad[0]), oriented(true_[3]), *chains.values())
     assert d_true is not None
     assert d_true < CHI2_99_3DOF
     assert d_bad is not None
@@ -166,13 +170,13 @@ def test_pcm_within_one_layer_and_orientation() -> None:
         closures.append(c)
     forged = _closure(10, 31 + 10, truth[10], truth[31 + 10], rng, off=(4.0, 0.0))
     closures.insert(5, forged)
-    result = pcm_gate(closures, dict.fromkeys(est, 0), est.__getitem__, {0: LayerChain(edges)})
+    result = pcm_gate(closures, dict.fromkeys(est, 0), {0: LayerChain(edges)})
     assert [c is forged for c in result.rejected] == [True]
 
 
 def test_only_the_newest_closures_of_a_pair_are_judged() -> None:
-    estimates, layer_of, chains, closures, forged = _corridor()
-    result = pcm_gate(closures, layer_of, estimates.__getitem__, chains, max_per_pair=8)
+    _, layer_of, chains, closures, forged = _corridor()
+    result = pcm_gate(closures, layer_of, chains, max_per_pair=8)
     assert result.judged == 8
     # The window is the last 8: 3 true closures and the 5 forged ones, which agree with
     # each other (each is the same 5 m period off): the larger set wins, PCM's known
@@ -182,13 +186,101 @@ def test_only_the_newest_closures_of_a_pair_are_judged() -> None:
     assert [id(c) for c in result.rejected] == [id(c) for c in closures[-8:-5]]
 
 
-@pytest.mark.parametrize("max_per_pair", [1, 0])
-def test_too_few_to_judge_keeps_all(max_per_pair: int) -> None:
-    estimates, layer_of, chains, closures, _ = _corridor()
-    if max_per_pair == 0:
-        closures = closures[:1]
-        max_per_pair = 40
-    result = pcm_gate(closures, layer_of, estimates.__getitem__, chains, max_per_pair=max_per_pair)
+def test_too_few_to_judge_keeps_all() -> None:
+    _, layer_of, chains, closures, _ = _corridor()
+    assert pcm_gate(closures, layer_of, chains, max_per_pair=1).rejected == []
+    assert pcm_gate(closures[:1], layer_of, chains).rejected == []
+
+
+@pytest.mark.parametrize("max_per_pair", [0, -3])
+def test_max_per_pair_below_one_is_refused(max_per_pair: int) -> None:
+    _, layer_of, chains, closures, _ = _corridor()
+    with pytest.raises(ValueError, match="max_per_pair"):
+        pcm_gate(closures, layer_of, chains, max_per_pair=max_per_pair)
+
+
+def test_the_loop_goes_through_the_odometry_not_the_estimates() -> None:
+    """A graph pulled by forged closures moves robot 1's later poses 5 m along the
+    corridor; a loop through those estimates finds a forged closure consistent with a
+    true one, the loop through the odometry does not."""
+    estimates, layer_of, chains, closures, forged = _corridor()
+    first_forged = min(forged)
+    c_true = closures[2]  # robot 0's pose 4 with robot 1's pose 1004
+    c_bad = closures[first_forged]  # robot 0's pose 5 with robot 1's pose 1000
+    assert (c_true.a, c_true.b, c_bad.a, c_bad.b) == (4, 1004, 5, 1000)
+    pulled = dict(estimates)
+    along = compose(invert(estimates[1000]), estimates[1005])
+    for k in range(1000, 1004):  # robot 1's poses 0..3 pulled 5 m forward
+        pulled[k] = compose(estimates[k], along)
+    # The chain the old code used: the estimates' relative poses, the odometry's noise.
+    uids = sorted(u for u in pulled if u >= 1000)
+    from_estimates = LayerChain(
+        OdometryEdge(
+            u,
+            w,
+            _t3(compose(invert(pulled[u]), pulled[w])),
+            tuple(float(v) for v in STEP_COV.ravel()),
+            10.0,
+        )
+        for u, w in itertools.pairwise(uids)
+    )
+
+    def oriented(c: ClosureEdge) -> Oriented:
+        return (c.a, c.b, np.asarray(c.transform), c.cov())
+
+    d_old = loop_distance(oriented(c_true), oriented(c_bad), chains[0], from_estimates)
+    d_new = loop_distance(oriented(c_true), oriented(c_bad), chains[0], chains[1])
+    assert d_old is not None
+    assert d_old < CHI2_99_3DOF
+    assert d_new is not None
+    assert d_new > CHI2_99_3DOF
+    result = pcm_gate([c_true, closures[3], c_bad], layer_of, chains)
+    assert [c is c_bad for c in result.rejected] == [True]
+
+
+def _noisy_lap_twice(rng: np.random.Generator) -> tuple[F64, list[OdometryEdge]]:
+    """A 5 m circle driven twice (62 poses), odometry edges the truth plus their noise."""
+    lap = [
+        [5 * math.cos(a), 5 * math.sin(a), a + math.pi / 2]
+        for a in np.linspace(0, 2 * math.pi, 32)[:-1]
+    ]
+    truth = np.array(lap + lap)
+    chol = np.linalg.cholesky(STEP_COV)
+    edges = []
+    for k in range(len(truth) - 1):
+        t = compose(invert(truth[k]), truth[k + 1]) + chol @ rng.normal(size=3)
+        edges.append(OdometryEdge(k, k + 1, _t3(t), tuple(float(v) for v in STEP_COV.ravel()), 1))
+    return truth, edges
+
+
+def test_a_reversed_true_pair_within_one_layer_passes() -> None:
+    """Two true revisits stored one each way, (5 -> 36) and (41 -> 10): as stored, the
+    loop's two odometry stretches (10..36 and 5..41) overlap and are taken as
+    independent (30 of these 200 draws fail then); oriented earlier to later, the
+    stretches (5..10 and 36..41) are apart and the pair fails about as often as the
+    1 % the quantile allows."""
+    fails = untestable = 0
+    runs = 200
+    for seed in range(runs):
+        rng = np.random.default_rng(seed)
+        truth, edges = _noisy_lap_twice(rng)
+        c1 = _closure(5, 36, truth[5], truth[36], rng)
+        c2 = _closure(41, 10, truth[41], truth[10], rng)
+        result = pcm_gate([c1, c2], dict.fromkeys(range(len(truth)), 0), {0: LayerChain(edges)})
+        fails += bool(result.rejected)
+        untestable += result.loops_untestable
+    assert untestable == 0
+    assert fails <= 0.05 * runs
+
+
+def test_interleaved_revisits_within_one_layer_are_untestable() -> None:
+    rng = np.random.default_rng(0)
+    truth, edges = _noisy_lap_twice(rng)
+    # Oriented, the loop's stretches are 5..25 and 20..40: they share the edges 20..25.
+    c1 = _closure(5, 20, truth[5], truth[20], rng)
+    c2 = _closure(25, 40, truth[25], truth[40], rng, off=(4.0, 0.0))
+    result = pcm_gate([c1, c2], dict.fromkeys(range(len(truth)), 0), {0: LayerChain(edges)})
+    assert (result.loops_tested, result.loops_untestable) == (0, 1)
     assert result.rejected == []
 
 

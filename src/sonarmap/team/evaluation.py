@@ -31,7 +31,12 @@ from .sensing import RobotSensing
 from .store import RobotStore
 from .world import World
 
-__all__ = ["HALVES", "STAGES", "MissionEvaluator"]
+__all__ = ["HALVES", "PCM_LOOP_KEYS", "STAGES", "MissionEvaluator"]
+
+#: What :attr:`MissionEvaluator.pcm_loops` sums over pairwise consistency passes: the
+#: closures judged, the pairs of them whose loop was tested and those whose loop could
+#: not be (:class:`~.pcm.PcmResult`).
+PCM_LOOP_KEYS = ("judged", "loops_tested", "loops_untestable")
 
 F64 = npt.NDArray[np.float64]
 
@@ -74,7 +79,8 @@ class MissionEvaluator:
         poses (``"own"``) and received ones (``"received"``): ``[left out, right]``.
     pcm_rejected : dict of str to list of int
         Closures pairwise consistency left out (:mod:`~sonarmap.team.pcm`), both ends
-        own poses (``"own_layer"``) or not (``"between_layers"``): ``[left out, right]``.
+        own poses (``"own_layer"``) or not (``"not_own"``: between two layers or within a
+        received one), each closure once: ``[left out, right]``.
     """
 
     #: Attributes kept as plain msgpack values in :meth:`state`.
@@ -120,7 +126,9 @@ class MissionEvaluator:
         self.inter_closures = 0
         self.inter_correct = 0
         self.gate_rejected: dict[str, list[int]] = {"own": [0, 0], "received": [0, 0]}
-        self.pcm_rejected: dict[str, list[int]] = {"own_layer": [0, 0], "between_layers": [0, 0]}
+        self.pcm_rejected: dict[str, list[int]] = {"own_layer": [0, 0], "not_own": [0, 0]}
+        #: Summed over PCM passes: closures judged, loops tested, loops untestable.
+        self.pcm_loops: dict[str, int] = dict.fromkeys(PCM_LOOP_KEYS, 0)
         self.wrong: list[dict[str, Any]] = []
         self.stage_removed: dict[str, list[int]] = {}
         self.stages = {
@@ -247,11 +255,19 @@ class MissionEvaluator:
         row[0] += len(closures)
         row[1] += sum(self.correct(c) for c in closures)
 
-    def pcm(self, closures: Sequence[ClosureEdge], own: Collection[int]) -> None:
+    def pcm(
+        self,
+        closures: Sequence[ClosureEdge],
+        own: Collection[int],
+        loops: Mapping[str, int] | None = None,
+    ) -> None:
         """Pairwise consistency (:mod:`.pcm`) left these closures out; ``own`` holds the
-        robot's own poses (a closure with both ends there is its own layer's)."""
+        robot's own poses (a closure with both ends there is its own layer's). ``loops``
+        adds a pass's counts (keys :data:`PCM_LOOP_KEYS`) to :attr:`pcm_loops`."""
+        for k, v in (loops or {}).items():
+            self.pcm_loops[k] += int(v)
         for c in closures:
-            row = self.pcm_rejected["own_layer" if c.a in own and c.b in own else "between_layers"]
+            row = self.pcm_rejected["own_layer" if c.a in own and c.b in own else "not_own"]
             row[0] += 1
             row[1] += self.correct(c)
 
@@ -360,6 +376,7 @@ class MissionEvaluator:
             "pcm_rejected": {
                 k: {"closures": v[0], "correct": v[1]} for k, v in self.pcm_rejected.items()
             },
+            "pcm_loops": dict(self.pcm_loops),
             "true_pairs": self.n_true_pairs,
             "association_removed_matches": {k: int(sum(v)) for k, v in self.stage_removed.items()},
             "association_stages": stages,
@@ -400,6 +417,7 @@ class MissionEvaluator:
         d["odo_poses"] = [[u, [float(v) for v in x]] for u, x in self.odo_poses.items()]
         d["graph_dropped"] = [[k[0], k[1], v] for k, v in self.graph_dropped.items()]
         d["pcm_rejected"] = {k: list(v) for k, v in self.pcm_rejected.items()}
+        d["pcm_loops"] = dict(self.pcm_loops)
         return d
 
     def restore(self, d: Mapping[str, Any]) -> None:
@@ -410,8 +428,13 @@ class MissionEvaluator:
         self.truth = {int(u): np.array(x, dtype=np.float64) for u, x in d["truth"]}
         self.odo_poses = {int(u): np.array(x, dtype=np.float64) for u, x in d["odo_poses"]}
         self.graph_dropped = {(int(x), int(y)): bool(v) for x, y, v in d["graph_dropped"]}
-        # A state saved before pairwise consistency existed has none rejected.
-        pcm = d.get("pcm_rejected", {})
+        # A state saved before pairwise consistency existed has none rejected; one saved
+        # before the row's rename calls "not_own" "between_layers".
+        pcm = dict(d.get("pcm_rejected", {}))
+        if "between_layers" in pcm:
+            pcm.setdefault("not_own", pcm.pop("between_layers"))
         self.pcm_rejected = {
-            k: [int(x) for x in pcm.get(k, (0, 0))] for k in ("own_layer", "between_layers")
+            k: [int(x) for x in pcm.get(k, (0, 0))] for k in ("own_layer", "not_own")
         }
+        loops = d.get("pcm_loops", {})
+        self.pcm_loops = {k: int(loops.get(k, 0)) for k in PCM_LOOP_KEYS}

@@ -578,21 +578,27 @@ class RobotAgent:
 
     def _pcm(self) -> None:
         """Leave out the closures pairwise consistency rejects (:func:`~.pcm.pcm_gate`,
-        every layer's poses at their current estimates in its own frame), and tell the
-        evaluator."""
+        every layer's loops through its own odometry), remember them in the store so that
+        no peer brings them back (:meth:`~.store.RobotStore.reject_closures`), and tell
+        the evaluator those rejected for the first time."""
         store = self.store
         layers = {self.robot: store.local, **store.received}
         layer_of = {u: s for s, layer in layers.items() for u in layer.poses}
-        poses = self.all_poses()
         result = pcm_gate(
             store.closures,
             layer_of,
-            lambda u: poses[u].estimate,
             {s: LayerChain(layer.edges) for s, layer in layers.items()},
         )
+        new: list[ClosureEdge] = []
         if result.rejected:
             store.closures = result.kept
-            self.evaluator.pcm(result.rejected, store.local.poses.keys())
+            new = store.reject_closures(result.rejected)
+        loops = {
+            "judged": result.judged,
+            "loops_tested": result.loops_tested,
+            "loops_untestable": result.loops_untestable,
+        }
+        self.evaluator.pcm(new, store.local.poses.keys(), loops)
 
     def _calibrate(self, graph: GraphResult) -> None:
         """Add the heading bias the optimised ``graph`` still shows on the own odometry

@@ -5,15 +5,21 @@ closures, reject the rest.
 Two closures joining the same two layers (robot A's and robot B's, or A's with
 itself) close a loop with those layers' trajectories: ``a1 -> b1`` by the first
 closure, ``b1 -> b2`` along B, ``b2 -> a2`` by the second closure inverted, ``a2 ->
-a1`` along A. The relative poses along a layer are the current estimates'; their
-covariance is the layer's odometry edges composed between the two poses
-(:class:`LayerChain`), the uncertainty those poses would have with no closure at all
-(PCM's choice: a closure is not judged by the closures it is judged against). The two
+a1`` along A. The relative poses along a layer, mean and covariance, are the layer's
+odometry edges composed between the two poses (:meth:`LayerChain.relative`), what
+those poses would be with no closure at all (PCM's choice: a closure is not judged by
+the closures it is judged against, nor by a graph they have moved). The two
 closures are consistent when the loop's squared Mahalanobis distance is within the
 chi-square quantile at 99 % for 3 degrees of freedom (:data:`~.globalmap.CHI2_99_3DOF`,
 the graph's own), a fact of the test, not a tuned number. Two poses with no odometry
 chain between them (a layer received with a gap, different layers' chains) give a loop
 that cannot be tested: the two closures count as consistent.
+
+Within one layer each closure is oriented from its earlier pose to its later one (by
+their places on the chain), so that the loop's two odometry stretches are apart for
+two revisits of one place however they were stored; two closures whose stretches still
+share edges (the revisits interleave) give a loop that is not tested either, since the
+stretches would not be independent.
 
 The closures kept are a maximum clique of the consistency graph
 (:func:`networkx.max_weight_clique`, exact, unweighted). Exact maximum clique is
@@ -31,7 +37,7 @@ PCM judges closures against each other, through the odometry alone, before the g
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import networkx as nx
@@ -71,8 +77,8 @@ def _rot3(theta: float) -> F64:
 
 
 class LayerChain:
-    """The odometry chains of one layer, for the covariance of the relative pose of
-    any two of its poses on one chain.
+    """The odometry chains of one layer, for the relative pose (mean and covariance)
+    of any two of its poses on one chain by the odometry alone.
 
     Each chain is dead-reckoned from its first pose (its own frame); the noise of edge
     ``k`` (covariance in its end's frame, as every edge keeps it) moves pose ``j > k``
@@ -152,6 +158,29 @@ class LayerChain:
         rel = compose(invert(poses[j]), poses[i])
         return invert_covariance(rel, cov)
 
+    def relative(self, u: int, w: int) -> tuple[F64, F64] | None:
+        """Pose ``w`` in pose ``u``'s frame by the odometry between them (the
+        dead-reckoned chain, not any estimate a graph has moved) and its covariance in
+        ``w``'s frame; None when the two are not on one chain. ``w`` may come before
+        ``u``."""
+        if u == w:  # the same pose, on a chain or not (as covariance() has it)
+            return np.zeros(3), np.zeros((3, 3))
+        cov = self.covariance(u, w)
+        if cov is None:
+            return None
+        (chain, i), (_, j) = self.where[u], self.where[w]
+        poses = self._pose[chain]
+        mean = np.asarray(compose(invert(poses[i]), poses[j]), dtype=np.float64)
+        return mean, cov
+
+    def stretch(self, u: int, w: int) -> tuple[int, int, int] | None:
+        """The chain holding poses ``u`` and ``w`` and their places on it, lower first;
+        None when they are not on one chain."""
+        cu, cw = self.where.get(u), self.where.get(w)
+        if cu is None or cw is None or cu[0] != cw[0]:
+            return None
+        return cu[0], min(cu[1], cw[1]), max(cu[1], cw[1])
+
 
 def _oriented(c: ClosureEdge, flip: bool) -> tuple[int, int, F64, F64]:
     t = np.asarray(c.transform, dtype=np.float64)
@@ -160,25 +189,36 @@ def _oriented(c: ClosureEdge, flip: bool) -> tuple[int, int, F64, F64]:
     return c.b, c.a, np.asarray(invert(t), dtype=np.float64), invert_covariance(t, c.cov())
 
 
+def _orient(
+    c: ClosureEdge, la: int, layer_of: Mapping[int, int], chain: LayerChain
+) -> tuple[int, int, F64, F64]:
+    """Closure ``c`` from layer ``la`` to the other; within layer ``la`` itself, from
+    its earlier pose to its later one on their chain (as stored when on none)."""
+    if layer_of[c.a] != layer_of[c.b]:
+        return _oriented(c, layer_of[c.a] != la)
+    ca, cb = chain.where.get(c.a), chain.where.get(c.b)
+    flip = ca is not None and cb is not None and ca[0] == cb[0] and ca[1] > cb[1]
+    return _oriented(c, flip)
+
+
 def loop_distance(
     c1: tuple[int, int, F64, F64],
     c2: tuple[int, int, F64, F64],
-    estimate: Callable[[int], F64],
     chain_a: LayerChain,
     chain_b: LayerChain,
 ) -> float | None:
     """The squared Mahalanobis distance of the loop two closures close, or None when it
-    cannot be tested (a pair of poses on no common chain).
+    cannot be tested (a pair of poses on no common chain, or, within one layer, two
+    odometry stretches that share edges).
 
     Parameters
     ----------
     c1, c2 : (a, b, transform, covariance)
         Closures oriented from layer A's pose ``a`` to layer B's pose ``b``
         (``transform`` ``b`` in ``a``'s frame, covariance in ``b``'s).
-    estimate : callable
-        A pose's current estimate (in its layer's frame) by UID.
     chain_a, chain_b : LayerChain
-        The two layers' chains (the same for a layer with itself).
+        The two layers' chains (the same object for a layer with itself); the loop's
+        stretches along them are the odometry's (:meth:`LayerChain.relative`).
 
     Returns
     -------
@@ -188,12 +228,17 @@ def loop_distance(
     """
     a1, b1, t1, s1 = c1
     a2, b2, t2, s2 = c2
-    cov_b = chain_b.covariance(b1, b2)
-    cov_a = chain_a.covariance(a2, a1)
-    if cov_b is None or cov_a is None:
+    along_b = chain_b.relative(b1, b2)
+    along_a = chain_a.relative(a2, a1)
+    if along_b is None or along_a is None:
         return None
-    rel_b = compose(invert(estimate(b1)), estimate(b2))
-    rel_a = compose(invert(estimate(a2)), estimate(a1))
+    if chain_a is chain_b:
+        sa, sb = chain_a.stretch(a1, a2), chain_b.stretch(b1, b2)
+        # Stretches sharing an edge are not independent: their covariances don't add.
+        if sa and sb and sa[0] == sb[0] and sa[1] < sb[2] and sb[1] < sa[2]:
+            return None
+    rel_b, cov_b = along_b
+    rel_a, cov_a = along_a
     inv_t2 = invert(t2)
     loop, cov = t1, s1
     for step, step_cov in (
@@ -223,12 +268,13 @@ class PcmResult:
     judged: int
     #: Pairs of closures whose loop could be tested.
     loops_tested: int
+    #: Pairs of closures whose loop could not be tested (counted consistent).
+    loops_untestable: int = 0
 
 
 def pcm_gate(
     closures: Sequence[ClosureEdge],
     layer_of: Mapping[int, int],
-    estimate: Callable[[int], F64],
     chains: Mapping[int, LayerChain],
     *,
     max_per_pair: int = MAX_PER_PAIR,
@@ -243,13 +289,11 @@ def pcm_gate(
     layer_of : mapping of UID to int
         Each pose's layer (its source robot). A closure with a pose in none is kept,
         unjudged.
-    estimate : callable
-        A pose's current estimate in its layer's frame, by UID.
     chains : mapping of int to LayerChain
-        Each layer's odometry chains.
+        Each layer's odometry chains (the loops' means and covariances).
     max_per_pair : int
-        Newest closures of a pair of layers judged (default :data:`MAX_PER_PAIR`);
-        the older ones are kept.
+        Newest closures of a pair of layers judged (default :data:`MAX_PER_PAIR`, at
+        least 1); the older ones are kept.
     threshold : float
         Largest squared Mahalanobis distance of a consistent loop; default the 0.99
         chi-square quantile with 3 degrees of freedom.
@@ -257,7 +301,14 @@ def pcm_gate(
     Returns
     -------
     PcmResult
+
+    Raises
+    ------
+    ValueError
+        If ``max_per_pair`` is below 1.
     """
+    if max_per_pair < 1:
+        raise ValueError(f"pcm_gate: max_per_pair must be at least 1, got {max_per_pair}")
     groups: dict[tuple[int, int], list[int]] = {}
     for i, c in enumerate(closures):
         la, lb = layer_of.get(c.a), layer_of.get(c.b)
@@ -265,21 +316,22 @@ def pcm_gate(
             continue
         groups.setdefault((min(la, lb), max(la, lb)), []).append(i)
     rejected: set[int] = set()
-    judged = tested = 0
+    judged = tested = untestable = 0
     for (la, lb), idx in sorted(groups.items()):
         window = idx[-max_per_pair:]
         judged += len(window)
         if len(window) < 2:
             continue
-        # Orient every closure from layer la to layer lb (within one layer: as stored).
-        oriented = [_oriented(closures[i], layer_of[closures[i].a] != la) for i in window]
+        oriented = [_orient(closures[i], la, layer_of, chains[la]) for i in window]
         g: nx.Graph = nx.Graph()
         g.add_nodes_from(range(len(window)))
         for p in range(len(window)):
             for q in range(p + 1, len(window)):
-                d2 = loop_distance(oriented[p], oriented[q], estimate, chains[la], chains[lb])
+                d2 = loop_distance(oriented[p], oriented[q], chains[la], chains[lb])
                 if d2 is not None:
                     tested += 1
+                else:
+                    untestable += 1
                 if d2 is None or d2 <= threshold:
                     g.add_edge(p, q)
         clique, _ = nx.max_weight_clique(g, weight=None)
@@ -287,4 +339,4 @@ def pcm_gate(
         rejected.update(window[p] for p in range(len(window)) if p not in keep)
     kept = [c for i, c in enumerate(closures) if i not in rejected]
     gone = [c for i, c in enumerate(closures) if i in rejected]
-    return PcmResult(kept, gone, judged, tested)
+    return PcmResult(kept, gone, judged, tested, untestable)

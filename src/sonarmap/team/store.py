@@ -800,6 +800,8 @@ class RobotStore:
         self._newest: int | None = None
         #: Own poses another robot may hold (:meth:`share`): the fold leaves them as sent.
         self._shared: set[int] = set()
+        #: Pose pairs whose closure pairwise consistency rejected (:meth:`reject_closures`).
+        self._rejected_pairs: set[frozenset[int]] = set()
 
     # state
 
@@ -814,6 +816,7 @@ class RobotStore:
             "merges": self._merges,
             "newest": self._newest,
             "shared": sorted(self._shared),
+            "rejected_pairs": sorted(sorted(p) for p in self._rejected_pairs),
         }
 
     def restore(self, state: Mapping[str, Any]) -> None:
@@ -829,6 +832,10 @@ class RobotStore:
         self._merges = int(state["merges"])
         self._newest = None if state["newest"] is None else int(state["newest"])
         self._shared = {int(u) for u in state.get("shared", ())}
+        # A state saved before the rejected pairs were kept has none.
+        self._rejected_pairs = {
+            frozenset(int(u) for u in p) for p in state.get("rejected_pairs", ())
+        }
 
     def region_limit(self, region: int) -> int:
         """Bytes region ``region`` of the local layer may hold: :func:`region_limits` of
@@ -971,21 +978,38 @@ class RobotStore:
         self._update_stamps(closures)
         self._note_peak()
 
+    def reject_closures(self, closures: Iterable[ClosureEdge]) -> list[ClosureEdge]:
+        """Remember the pose pairs of closures pairwise consistency rejected
+        (:mod:`.pcm`), so that :meth:`add_peer_closures` refuses them hereafter.
+
+        Returns
+        -------
+        list of ClosureEdge
+            The closures whose pair was not rejected before (each pair once).
+        """
+        new = []
+        for c in closures:
+            if c.pair not in self._rejected_pairs:
+                self._rejected_pairs.add(c.pair)
+                new.append(c)
+        return new
+
     def add_peer_closures(self, closures: Iterable[ClosureEdge]) -> tuple[int, int, int]:
         """Closures another robot found, as they arrive with its poses
         (:mod:`.peerclosures`): each is stored if the store holds both its poses and no
         closure already joins them, in either direction, so that a closure received
-        twice, found here too or sent back is one factor. Time stamps and reliabilities
-        do not change (a peer's closure carries no landmark matches).
+        twice, found here too or sent back is one factor. A pair pairwise consistency
+        rejected here (:meth:`reject_closures`) is refused too. Time stamps and
+        reliabilities do not change (a peer's closure carries no landmark matches).
 
         Returns
         -------
         (added, duplicates, unheld) : tuple of int
-            Closures stored; refused as joining a pair already joined; refused as naming
-            a pose the store does not hold.
+            Closures stored; refused as joining a pair already joined or rejected;
+            refused as naming a pose the store does not hold.
         """
         held = set(self.local.poses).union(*(ly.poses for ly in self.received.values()))
-        joined = {c.pair for c in self.closures}
+        joined = {c.pair for c in self.closures} | self._rejected_pairs
         added = duplicates = unheld = 0
         for c in closures:
             pair = c.pair
