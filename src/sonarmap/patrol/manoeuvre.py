@@ -174,7 +174,9 @@ def _reaches(open_: npt.NDArray[np.bool_], r0: int, c0: int, need: float) -> boo
     # as ``need`` cells are reached, so a way ahead that leads on (the usual answer)
     # costs only that share of the map, not a labelling of all of it.
     rows, cols = open_.shape
-    stack = np.empty(open_.size, dtype=np.int64)
+    # Every push counts a cell and the flood stops at ``need`` cells, so the stack never
+    # holds more than that: no whole-map buffer per call on a large map.
+    stack = np.empty(max(1, min(open_.size, math.ceil(need))), dtype=np.int64)
     open_[r0, c0] = False
     stack[0] = r0 * cols + c0
     top = 1
