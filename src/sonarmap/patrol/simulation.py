@@ -40,7 +40,7 @@ from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force, sector_pulls, step_direction
 from .giveup import GiveUp
 from .graph import PatrolGraph
-from .manoeuvre import behind_cells, carrot, fresh_behind, leads_on, turn_weights
+from .manoeuvre import DeadEnds, behind_cells, carrot, fresh_behind, turn_weights
 from .marching import Marching
 from .monitor import Monitor
 from .network import NETWORKS, components
@@ -1280,8 +1280,8 @@ def run_patrol(
     obst = disc_offsets(config.r_obst, g.resolution)
     halve = halves_discs(config)
     forward = config.forward_wave and isinstance(team, Car) and team.planner == "track"
-    # The map does not change during a run: the dead-end test counts it once.
-    n_open = int(np.count_nonzero(passable))
+    # The map does not change during a run: the dead-end test labels it once.
+    dead_ends = DeadEnds(passable) if forward else None
     # Forward waves: from which step other robots have shut each car's way ahead.
     shut = np.full(len(team), -1, dtype=np.int64)
     # Forward waves: whether each fog's stalest place lifts them this step
@@ -1345,13 +1345,13 @@ def run_patrol(
             parts += obstacle_discs(
                 team, i, rc, obst, passable.shape, halve=halve, following=following, heard=heard
             )
-        if forward and not following and not lifted[0 if shared else i]:
+        if dead_ends is not None and not following and not lifted[0 if shared else i]:
             back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
             start = (int(r[i]), int(c[i]))
-            if leads_on(passable, np.concatenate([back, *parts]), start, n_passable=n_open):
+            if dead_ends.leads_on(np.concatenate([back, *parts]), start):
                 parts.append(back)
                 shut[i] = -1
-            elif leads_on(passable, back, start, n_passable=n_open):
+            elif dead_ends.leads_on(back, start):
                 # Only other robots shut the way ahead: they are often on their way, so
                 # follow them for FOLLOW_TIME before turning round (nose to nose, a car
                 # turns round after that).
