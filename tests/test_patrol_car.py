@@ -21,6 +21,7 @@ from sonarmap.patrol.manoeuvre import (
     behind_cells,
     carrot,
     clear_goals,
+    drop_fresh_behind,
     fresh_behind,
     leads_on,
     plan_manoeuvre,
@@ -584,6 +585,39 @@ def test_fresh_behind_is_what_was_just_seen_behind_the_car() -> None:
     assert not fresh[px > 20.0].any()  # ahead
     # Seen 5 s ago counts as fresh for a turn of 10 s, not of 5 s.
     assert not fresh_behind(last, 100.0, 20.0, 15.0, 0.0, g, 1.75, 5.0).any()
+
+
+@pytest.mark.parametrize("start", [0.0, 20.0])
+def test_drop_fresh_behind_drops_what_fresh_behind_names(start: float) -> None:
+    # Random looks on a fog with a block grid cut short at the edges; cars anywhere,
+    # at cell centres and heading along the axes too (cells exactly on the line of
+    # ``behind`` = pi / 2 go to numpy), young fogs (never-seen cells look fresh) and
+    # old ones.
+    rng = np.random.default_rng(int(start) + 5)
+    shape = (83, 70)
+    g = Grid(resolution=0.25, origin=(-3.0, 1.5), shape=shape)
+    watched = rng.random(shape) > 0.2
+    fog = Fog(g, watched, start)
+    disc = disc_offsets(2.0, 0.25)
+    dropped = 0
+    for k in range(50):
+        fog.advance(1.0)
+        fog.observe(rng.integers(0, shape[0], 2), rng.integers(0, shape[1], 2), disc)
+        for heading, behind in ((rng.uniform(-4, 4), 1.75), (0.0, math.pi / 2), (-math.pi, 1.75)):
+            if k % 2:
+                x, y = (float(v[0]) for v in g.cell_centres([rng.integers(0, 83)], [40]))
+            else:
+                x, y = rng.uniform(-3.0, 14.5), rng.uniform(1.5, 22.25)
+            mask = (rng.random(shape) > 0.3) & watched
+            want = mask & ~fresh_behind(
+                fog.last, fog.t, x, y, heading, g, behind, 10.0, fog.never_seen()
+            )
+            got = mask.copy()
+            n = drop_fresh_behind(got, fog, x, y, heading, g, behind, 10.0)
+            np.testing.assert_array_equal(got, want)
+            assert n == int(mask.sum() - want.sum())
+            dropped += n
+    assert dropped > 1000
 
 
 @pytest.mark.parametrize("heading", [math.pi / 2, -2.5])

@@ -31,6 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..grid import Grid
+from .fog import Fog
 from .paths import STEP_UNITS
 
 __all__ = [
@@ -39,6 +40,7 @@ __all__ = [
     "behind_cells",
     "carrot",
     "clear_goals",
+    "drop_fresh_behind",
     "fresh_behind",
     "leads_on",
     "plan_manoeuvre",
@@ -160,12 +162,157 @@ def fresh_behind(
     rr, cc = np.nonzero(fresh)
     if not len(rr):
         return out
+    keep = _off_heading(rr, cc, x, y, heading, grid, behind)
+    out[rr[keep], cc[keep]] = True
+    return out
+
+
+def _off_heading(
+    rr: npt.NDArray[np.intp],
+    cc: npt.NDArray[np.intp],
+    x: float,
+    y: float,
+    heading: float,
+    grid: Grid,
+    behind: float,
+) -> npt.NDArray[np.bool_]:
+    """Whether the centres of cells (rr, cc) lie more than ``behind`` radians off the
+    ``heading`` of a car at (x, y), metres (the car's own point never)."""
     px, py = grid.cell_centres(rr, cc)
     dx, dy = np.asarray(px) - x, np.asarray(py) - y
     off = np.abs((np.arctan2(dy, dx) - heading + math.pi) % (2 * math.pi) - math.pi)
-    keep = (off > behind) & (np.hypot(dx, dy) > 1e-9)
-    out[rr[keep], cc[keep]] = True
-    return out
+    keep: npt.NDArray[np.bool_] = (off > behind) & (np.hypot(dx, dy) > 1e-9)
+    return keep
+
+
+#: Cells whose side of :func:`fresh_behind`'s angle the kernel of
+#: :func:`drop_fresh_behind` leaves to numpy (as many as it may note at once).
+UNSURE_CELLS = 4096
+
+
+@nb.njit(cache=True)
+def _drop_fresh_behind(
+    mask: npt.NDArray[np.bool_],
+    last: npt.NDArray[np.float64],
+    latest: npt.NDArray[np.float64],
+    b: int,
+    now: float,
+    turn_time: float,
+    never: float,
+    x: float,
+    y: float,
+    hx: float,
+    hy: float,
+    cos_behind: float,
+    ox: float,
+    oy: float,
+    res: float,
+    unsure: npt.NDArray[np.int64],
+) -> tuple[int, int]:
+    # fresh_behind's cells set False in ``mask``, looking only in the blocks seen less
+    # than ``turn_time`` before ``now``. The angle off the heading is compared by its
+    # cosine, (d . h) / |d| against cos(behind); a cell within 1e-9 of that (or at the
+    # car) is noted in ``unsure`` for numpy's arctan2 to decide, so that every answer
+    # is fresh_behind's. Returns the cells set False and the unsure ones.
+    rows, cols = last.shape
+    n = 0
+    k = 0
+    # With ``behind`` past a right angle, a cell ahead of the car's side line (d . h
+    # > 0) is never behind: (d . h) / |d| - cos(behind) >= -cos(behind) > 1e-9. Whole
+    # blocks ahead of it are passed over (the extremes of d . h over a block lie at
+    # its corner cells; a hair of slack for their rounding), and such cells.
+    ahead_is_out = cos_behind < -1e-6
+    for br in range(latest.shape[0]):
+        for bc in range(latest.shape[1]):
+            if not now - latest[br, bc] < turn_time:
+                continue
+            r_lo, r_hi = br * b, min((br + 1) * b, rows) - 1
+            c_lo, c_hi = bc * b, min((bc + 1) * b, cols) - 1
+            if ahead_is_out:
+                lowest = np.inf
+                for r in (r_lo, r_hi):
+                    for c in (c_lo, c_hi):
+                        dot = (ox + (c + 0.5) * res - x) * hx + (
+                            oy + (rows - 1 - r + 0.5) * res - y
+                        ) * hy
+                        lowest = min(lowest, dot)
+                if lowest > 1e-6:
+                    continue
+            for r in range(r_lo, r_hi + 1):
+                py = oy + (rows - 1 - r + 0.5) * res
+                for c in range(c_lo, c_hi + 1):
+                    if not mask[r, c]:
+                        continue
+                    v = last[r, c]
+                    if not (now - v < turn_time) or not np.isfinite(v) or v == never:
+                        continue
+                    dx = ox + (c + 0.5) * res - x
+                    dy = py - y
+                    if ahead_is_out and dx * hx + dy * hy > 1e-6:
+                        continue
+                    d = math.sqrt(dx * dx + dy * dy)
+                    diff = 0.0 if d < 1e-6 else (dx * hx + dy * hy) / d - cos_behind
+                    if abs(diff) < 1e-9:
+                        if k < unsure.shape[0]:
+                            unsure[k] = r * cols + c
+                        k += 1
+                    elif diff < 0.0:
+                        mask[r, c] = False
+                        n += 1
+    return n, k
+
+
+def drop_fresh_behind(
+    mask: npt.NDArray[np.bool_],
+    fog: Fog,
+    x: float,
+    y: float,
+    heading: float,
+    grid: Grid,
+    behind: float,
+    turn_time: float,
+) -> int:
+    """Set to False, in ``mask`` (written in place), the cells of
+    :func:`fresh_behind` for ``fog``'s last-seen times at its time, never-seen cells
+    excluded; returns how many of ``mask``'s True cells that were.
+
+    The same cells as ``mask & fresh_behind(fog.last, fog.t, x, y, heading, grid,
+    behind, turn_time, fog.never_seen())``, found in the fog's blocks seen less than
+    ``turn_time`` seconds ago (:meth:`~sonarmap.patrol.fog.Fog.latest_blocks`), without
+    a pass over the whole map."""
+    unsure = np.empty(UNSURE_CELLS, dtype=np.int64)
+    ox, oy = grid.origin
+    n, k = _drop_fresh_behind(
+        mask,
+        fog.last,
+        np.ascontiguousarray(fog.latest_blocks()),
+        fog.BLOCK,
+        fog.t,
+        turn_time,
+        -fog.start,
+        x,
+        y,
+        math.cos(heading),
+        math.sin(heading),
+        math.cos(behind),
+        float(ox),
+        float(oy),
+        grid.resolution,
+        unsure,
+    )
+    if k > len(unsure):
+        # Too many to note: fresh_behind decides every cell.
+        fresh = mask & fresh_behind(
+            fog.last, fog.t, x, y, heading, grid, behind, turn_time, fog.never_seen()
+        )
+        mask &= ~fresh
+        return n + int(np.count_nonzero(fresh))
+    if k:
+        rr, cc = np.divmod(unsure[:k], mask.shape[1])
+        keep = _off_heading(rr, cc, x, y, heading, grid, behind)
+        mask[rr[keep], cc[keep]] = False
+        n += int(np.count_nonzero(keep))
+    return int(n)
 
 
 @nb.njit(cache=True)
