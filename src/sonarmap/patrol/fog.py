@@ -224,12 +224,13 @@ class Fog:
             if self.t != -self.start:
                 self._n_never -= int(np.count_nonzero(self.last[rr, cc] == -self.start))
             self.last[rr, cc] = self.t
+            self._block_max[rr // self.BLOCK, cc // self.BLOCK] = self.t
             self._renew_blocks(int(rr.min()), int(rr.max()), int(cc.min()), int(cc.max()))
 
     def _renew_blocks(self, r0: int, r1: int, c0: int, c1: int) -> None:
         """Recompute the earliest last-seen time of the blocks over rows r0..r1 and
         columns c0..c1 (inclusive)."""
-        _renew(self.last, self._block_min, self._block_max, self.BLOCK, r0, r1, c0, c1)
+        _renew(self.last, self._block_min, self.BLOCK, r0, r1, c0, c1)
 
     def mtb(self) -> float:
         """Max of TB over the watched cells."""
@@ -244,7 +245,6 @@ class Fog:
 def _renew(
     last: npt.NDArray[np.float64],
     block_min: npt.NDArray[np.float64],
-    block_max: npt.NDArray[np.float64],
     b: int,
     r0: int,
     r1: int,
@@ -252,22 +252,18 @@ def _renew(
     c1: int,
 ) -> None:
     """The earliest of ``last`` over each ``b`` x ``b`` block touching rows r0..r1 and
-    columns c0..c1 (inclusive) into ``block_min``, and the latest of its finite values
-    into ``block_max`` (blocks cut short by the grid's edge over their cells inside)."""
+    columns c0..c1 (inclusive) into ``block_min`` (blocks cut short by the grid's edge
+    over their cells inside)."""
     rows, cols = last.shape
     for br in range(r0 // b, r1 // b + 1):
         for bc in range(c0 // b, c1 // b + 1):
             m = np.inf
-            top = -np.inf
             for r in range(br * b, min((br + 1) * b, rows)):
                 for c in range(bc * b, min((bc + 1) * b, cols)):
                     v = last[r, c]
                     if v < m:
                         m = v
-                    if v > top and v < np.inf:
-                        top = v
             block_min[br, bc] = m
-            block_max[br, bc] = top
 
 
 @nb.njit(cache=True)
@@ -302,12 +298,14 @@ def _see_disc(
         if last[rr, cc] == never and t != never:
             first += 1
         last[rr, cc] = t
+        # No cell is seen later than now: the block's latest.
+        block_max[rr // b, cc // b] = t
         lo_r = min(lo_r, rr)
         hi_r = max(hi_r, rr)
         lo_c = min(lo_c, cc)
         hi_c = max(hi_c, cc)
     if n:
-        _renew(last, block_min, block_max, b, lo_r, hi_r, lo_c, hi_c)
+        _renew(last, block_min, b, lo_r, hi_r, lo_c, hi_c)
     return n, first
 
 
