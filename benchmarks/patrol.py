@@ -8,6 +8,9 @@ direction choice, one core. For each cell size (``--cells``, default the thesis'
 
 - ``x real time``: simulated seconds per wall-clock second over ``--duration`` (1200 s)
   simulated seconds (the target is 20: one simulated hour in 3 minutes);
+- ``CPU s`` and ``x per CPU s``: the CPU seconds of this process over the same run
+  (``time.process_time``, the run's set-up included), and simulated seconds per CPU
+  second: on a shared machine, what the wall clock cannot tell;
 - ``same as whole-map waves``: the first ``--check`` (120) seconds run again with every
   wave over the whole map (``prune=False``); the MTB and DVT of every step and the
   final positions must be identical;
@@ -35,7 +38,7 @@ from sonarmap.patrol.simulation import PatrolResult
 from sonarmap.patrol.starts import starts_from_dm
 
 
-def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolResult, float]:
+def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolResult, float, float]:
     territory, starts = builtin_territory("fig3-10", cell)
     config = PatrolConfig(
         model="car",
@@ -47,9 +50,9 @@ def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolRe
         cell=cell,
         prune=prune,
     )
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     res = run_patrol(territory, config, starts=starts_from_dm(starts[:5], territory), seed=seed)
-    return res, time.perf_counter() - t0
+    return res, time.perf_counter() - t0, time.process_time() - c0
 
 
 def _same(a: PatrolResult, b: PatrolResult) -> bool:
@@ -64,15 +67,17 @@ def measure(cell: float, duration: float, check: float, seed: int) -> dict[str, 
     """One cell size: speed over ``duration``, identity with whole-map waves over
     ``check`` seconds."""
     _run(cell, 5.0, True, seed)  # compile and build the territory before timing
-    res, wall = _run(cell, duration, True, seed)
-    short, _ = _run(cell, check, True, seed)
-    full, full_wall = _run(cell, check, False, seed)
+    res, wall, cpu = _run(cell, duration, True, seed)
+    short, _, _ = _run(cell, check, True, seed)
+    full, full_wall, _ = _run(cell, check, False, seed)
     s = res.summary()
     return {
         "cell_m": cell,
         "simulated_s": duration,
         "wall_s": round(res.wall_seconds, 2),
         "x_real_time": round(duration / res.wall_seconds, 2),
+        "cpu_s": round(cpu, 2),
+        "x_per_cpu_s": round(duration / cpu, 2),
         "target_met": duration / res.wall_seconds >= 20.0,
         "same_as_whole_map_waves": _same(short, full),
         "whole_map_x_real_time": round(check / full.wall_seconds, 2),
@@ -93,7 +98,8 @@ def main() -> None:
     args = parser.parse_args()
     rows = [measure(c, args.duration, args.check, args.seed) for c in args.cells]
     head = (
-        f"{'cell':>5} {'x real time':>11} {'target':>7} {'same':>5} {'whole-map x':>11} "
+        f"{'cell':>5} {'x real time':>11} {'CPU s':>7} {'x per CPU s':>11} {'target':>7} "
+        f"{'same':>5} {'whole-map x':>11} "
         f"{'mean MTB':>9} {'DVT %':>6} {'unseen':>7}"
     )
     print(f"patrol, Table 4 setting (fig3-10, 5 cars), {platform.processor() or 'cpu'}")
@@ -102,7 +108,8 @@ def main() -> None:
         met = "yes" if r["target_met"] else "no"
         same = "yes" if r["same_as_whole_map_waves"] else "NO"
         print(
-            f"{r['cell_m']:>5g} {r['x_real_time']:>11.1f} {met:>7} {same:>5} "
+            f"{r['cell_m']:>5g} {r['x_real_time']:>11.1f} {r['cpu_s']:>7.1f} "
+            f"{r['x_per_cpu_s']:>11.1f} {met:>7} {same:>5} "
             f"{r['whole_map_x_real_time']:>11.1f} {r['mean_mtb']:>9.1f} {r['dvt']:>6.2f} "
             f"{r['never_seen']:>7.4f}"
         )

@@ -929,6 +929,42 @@ def test_the_fog_sees_the_discs_watched_cells_and_keeps_its_mean() -> None:
         assert fog.mtb() == fog.tb[watched].max()
 
 
+@pytest.mark.parametrize("start", [0.0, 2.0])
+def test_the_fog_keeps_its_latest_blocks_just_seen_cells_and_mean_over_seen_ones(
+    start: float,
+) -> None:
+    """latest_blocks is the latest last-seen time of each block's watched cells;
+    clear_just_seen clears exactly the mask's cells seen at the fog's time; the running
+    mean over the cells seen at least once equals the plain one (with start 0 a cell
+    seen at time 0 counts as never seen, as never_seen says)."""
+    rng = np.random.default_rng(int(start) + 11)
+    shape = (70, 45)
+    watched = rng.random(shape) > 0.3
+    fog = Fog(Grid(resolution=0.1, origin=(0.0, 0.0), shape=shape), watched, start)
+    disc = disc_offsets(1.0, 0.1)
+    b = Fog.BLOCK
+    assert fog.mean_seen_tb() == math.inf
+    fog.observe(np.array([10]), np.array([10]), disc)  # at time 0
+    for k in range(40):
+        fog.advance(0.5)
+        fog.observe(rng.integers(0, shape[0], 2), rng.integers(0, shape[1], 2), disc)
+        padded = np.full((-(-shape[0] // b) * b, -(-shape[1] // b) * b), -np.inf)
+        padded[: shape[0], : shape[1]] = np.where(watched, fog.last, -np.inf)
+        latest = padded.reshape(padded.shape[0] // b, b, -1, b).max(axis=(1, 3))
+        np.testing.assert_array_equal(fog.latest_blocks(), latest)
+        mask = (rng.random(shape) > 0.5) & watched  # places: watched cells
+        want = mask & (fog.last < fog.t)
+        n_cleared = int((mask & ~want).sum())
+        assert n_cleared > 0
+        assert fog.clear_just_seen(mask) == n_cleared
+        np.testing.assert_array_equal(mask, want)
+        seen = watched & ~fog.never_seen()
+        if k % 10 == 0:
+            assert fog.mean_seen_tb() == pytest.approx(
+                float(fog.t - fog.last[seen].mean()), rel=1e-12
+            )
+
+
 def test_move_clear_samples_both_ends_and_the_pieces_midpoints() -> None:
     """move_clear is clear exactly when both ends and the midpoints of the quarter-cell
     pieces of the segment lie on clear cells inside the grid (segments leaving the

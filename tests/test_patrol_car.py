@@ -17,9 +17,11 @@ from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.patrol.fog import Fog, disc_offsets
 from sonarmap.patrol.giveup import GiveUp
 from sonarmap.patrol.manoeuvre import (
+    DeadEnds,
     behind_cells,
     carrot,
     clear_goals,
+    drop_fresh_behind,
     fresh_behind,
     leads_on,
     plan_manoeuvre,
@@ -116,11 +118,144 @@ def test_leads_on_answers_as_labelling_the_whole_map_does() -> None:
             closed[0] = start  # the start stays open even when closed
         share = float(rng.choice([0.0, 0.1, 0.5, 0.9, 1.0]))
         want = _leads_on_by_labels(passable, closed, start, share)
-        n = int(np.count_nonzero(passable))
         assert leads_on(passable, closed, start, share) == want
-        assert leads_on(passable, closed, start, share, n_passable=n) == want
+        ends = DeadEnds(passable)
+        assert ends.leads_on(closed, start, share) == want
+        assert ends.leads_on(closed, start, share) == want  # its scratch left clean
         answers.add(want)
     assert answers == {True, False}
+
+
+def test_one_dead_end_test_answers_many_questions_of_a_map_as_labelling_does() -> None:
+    # Corridors and rooms, as the cars' maps are, and the cars' closed sets: a half disc
+    # behind a cell, sometimes with discs round other cars; one DeadEnds for every call.
+    rng = np.random.default_rng(3636)
+    for _ in range(6):
+        rows, cols = int(rng.integers(20, 60)), int(rng.integers(20, 60))
+        passable = np.zeros((rows, cols), dtype=bool)
+        for _ in range(int(rng.integers(2, 8))):  # corridors
+            if rng.random() < 0.5:
+                r = int(rng.integers(0, rows - 2))
+                passable[r : r + int(rng.integers(1, 4)), int(rng.integers(0, cols)) :] = True
+            else:
+                c = int(rng.integers(0, cols - 2))
+                passable[: int(rng.integers(1, rows)), c : c + int(rng.integers(1, 4))] = True
+        passable[rng.random((rows, cols)) < 0.03] = False  # speckle
+        ends = DeadEnds(passable)
+        rr, cc = np.nonzero(passable)
+        dr, dc = np.mgrid[-4:5, -4:5]
+        for _ in range(60):
+            k = int(rng.integers(0, len(rr)))
+            start = (int(rr[k]), int(cc[k]))
+            h = rng.uniform(-math.pi, math.pi)
+            half = (dr * math.cos(h) + dc * math.sin(h) < 0) & (dr**2 + dc**2 <= 16)
+            closed = np.column_stack([dr[half] + start[0], dc[half] + start[1]])
+            if rng.random() < 0.3:
+                other = (int(rng.integers(0, rows)), int(rng.integers(0, cols)))
+                closed = np.concatenate([closed, np.column_stack([dr.ravel(), dc.ravel()]) + other])
+            inside = (closed[:, 0] >= 0) & (closed[:, 0] < rows)
+            inside &= (closed[:, 1] >= 0) & (closed[:, 1] < cols)
+            closed = closed[inside].astype(np.intp)
+            for share in (0.05, 0.3, 0.5):
+                want = _leads_on_by_labels(passable, closed, start, share)
+                assert ends.leads_on(closed, start, share) == want
+        _assert_clean(ends)
+
+
+def _assert_clean(ends: DeadEnds) -> None:
+    """The dead-end test left its scratch as it found it."""
+    assert not ends.mark.any()
+    assert not ends.seen.any()
+    assert not ends.touched.any()
+
+
+def _plus_map(south: bool = True) -> npt.NDArray[np.bool_]:
+    """A plus of 3-cell corridors: arms of 10 (west), 20 (east), 30 (north) and 40
+    (south) cells from a 3 x 3 centre at rows and columns 40-42: 9 + 3 x 100 cells;
+    without the ``south`` arm a T of 189."""
+    passable = np.zeros((83, 83), dtype=bool)
+    passable[40:43, 30:63] = True  # west 10, centre 3, east 20
+    passable[10 : 83 if south else 43, 40:43] = True  # north 30, centre 3, south 40
+    return passable
+
+
+def _cut(rows: range, cols: range) -> npt.NDArray[np.intp]:
+    return np.array([(r, c) for r in rows for c in cols], dtype=np.intp)
+
+
+# The centre and a cell of each arm round it: 8-connected, the arms touch diagonally.
+CENTRE = _cut(range(39, 44), range(39, 44))
+
+
+@pytest.mark.parametrize(
+    ("south", "closed", "start", "piece"),
+    [
+        # None: the closed cells cut nothing off (the end of the west arm).
+        (True, _cut(range(40, 43), range(30, 31)), (41, 41), 306),
+        # In two: the west arm cut off at its root; the car in it, or in the rest.
+        (True, _cut(range(40, 43), range(39, 40)), (41, 35), 27),
+        (True, _cut(range(40, 43), range(39, 40)), (41, 50), 279),
+        # In three (the T's centre closed) and four (the plus's): the car in an arm.
+        (False, CENTRE, (41, 50), 57),
+        (False, CENTRE, (30, 41), 87),
+        (False, CENTRE, (41, 35), 27),
+        (True, CENTRE, (41, 50), 57),
+        (True, CENTRE, (60, 41), 117),
+        # The car on the closed set's border, and inside it (it stays open: alone, or
+        # joined to the cells west of the closed ones).
+        (True, _cut(range(40, 43), range(36, 39)), (41, 39), 282),
+        (True, _cut(range(40, 43), range(36, 39)), (41, 37), 1),
+        (True, _cut(range(40, 43), range(36, 39)), (41, 36), 19),
+    ],
+)
+def test_dead_end_pieces_are_counted_exactly(
+    south: bool, closed: npt.NDArray[np.intp], start: tuple[int, int], piece: int
+) -> None:
+    passable = _plus_map(south)
+    n = int(passable.sum())
+    assert n == (309 if south else 189)
+    ends = DeadEnds(passable)
+    # The start's piece holds ``piece`` cells: at the share it leads on (the largest
+    # share of n at most ``piece`` cells in float64, ``piece`` exactly when there is
+    # one), just above it it does not.
+    at = _share(piece, n)
+    above = float(np.nextafter(at, 1.0))
+    assert at * n <= piece < above * n
+    assert ends.leads_on(closed, start, at)
+    assert not ends.leads_on(closed, start, above)
+    assert _leads_on_by_labels(passable, closed, start, at)
+    assert not _leads_on_by_labels(passable, closed, start, above)
+    _assert_clean(ends)
+
+
+def _share(cells: int, n: int) -> float:
+    """The largest float64 share whose product with ``n`` is at most ``cells``."""
+    share = cells / n
+    while share * n > cells:
+        share = float(np.nextafter(share, 0.0))
+    while float(np.nextafter(share, 1.0)) * n <= cells:
+        share = float(np.nextafter(share, 1.0))
+    return share
+
+
+def test_dead_end_test_from_a_cell_off_the_passable_ones() -> None:
+    # A start off ``passable`` joins what touches it; a second component elsewhere.
+    passable = _plus_map()
+    passable[0:5, 0:5] = True  # 25 cells apart
+    passable[41, 28] = True  # joined to the west arm only through the start (41, 29)
+    assert not passable[41, 29]
+    ends = DeadEnds(passable)
+    n = int(passable.sum())
+    closed = _cut(range(40, 43), range(39, 40))
+    for share in (1 / n, 2 / n, 29 / n, 30 / n, 0.5):
+        want = _leads_on_by_labels(passable, closed, (41, 29), share)
+        assert ends.leads_on(closed, (41, 29), share) == want
+    # The start, (41, 28) and the 27 cells of the west arm west of the closed ones.
+    assert ends.leads_on(closed, (41, 29), _share(29, n))
+    assert not ends.leads_on(closed, (41, 29), float(np.nextafter(_share(29, n), 1.0)))
+    assert ends.leads_on(closed, (2, 2), _share(25, n))
+    assert not ends.leads_on(closed, (2, 2), float(np.nextafter(_share(25, n), 1.0)))
+    _assert_clean(ends)
 
 
 def test_a_forward_wave_reaches_a_place_behind_around_the_block() -> None:
@@ -450,6 +585,39 @@ def test_fresh_behind_is_what_was_just_seen_behind_the_car() -> None:
     assert not fresh[px > 20.0].any()  # ahead
     # Seen 5 s ago counts as fresh for a turn of 10 s, not of 5 s.
     assert not fresh_behind(last, 100.0, 20.0, 15.0, 0.0, g, 1.75, 5.0).any()
+
+
+@pytest.mark.parametrize("start", [0.0, 20.0])
+def test_drop_fresh_behind_drops_what_fresh_behind_names(start: float) -> None:
+    # Random looks on a fog with a block grid cut short at the edges; cars anywhere,
+    # at cell centres and heading along the axes too (cells exactly on the line of
+    # ``behind`` = pi / 2 go to numpy), young fogs (never-seen cells look fresh) and
+    # old ones.
+    rng = np.random.default_rng(int(start) + 5)
+    shape = (83, 70)
+    g = Grid(resolution=0.25, origin=(-3.0, 1.5), shape=shape)
+    watched = rng.random(shape) > 0.2
+    fog = Fog(g, watched, start)
+    disc = disc_offsets(2.0, 0.25)
+    dropped = 0
+    for k in range(50):
+        fog.advance(1.0)
+        fog.observe(rng.integers(0, shape[0], 2), rng.integers(0, shape[1], 2), disc)
+        for heading, behind in ((rng.uniform(-4, 4), 1.75), (0.0, math.pi / 2), (-math.pi, 1.75)):
+            if k % 2:
+                x, y = (float(v[0]) for v in g.cell_centres([rng.integers(0, 83)], [40]))
+            else:
+                x, y = rng.uniform(-3.0, 14.5), rng.uniform(1.5, 22.25)
+            mask = (rng.random(shape) > 0.3) & watched
+            want = mask & ~fresh_behind(
+                fog.last, fog.t, x, y, heading, g, behind, 10.0, fog.never_seen()
+            )
+            got = mask.copy()
+            n = drop_fresh_behind(got, fog, x, y, heading, g, behind, 10.0)
+            np.testing.assert_array_equal(got, want)
+            assert n == int(mask.sum() - want.sum())
+            dropped += n
+    assert dropped > 1000
 
 
 @pytest.mark.parametrize("heading", [math.pi / 2, -2.5])

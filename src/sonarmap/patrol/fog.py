@@ -97,9 +97,11 @@ class Fog:
     """TB over a grid; cells outside ``watched`` stay at 0 and never count.
 
     Kept as the time each cell was last seen, so that time passing costs nothing, with
-    the earliest of those times per block of :attr:`BLOCK` x :attr:`BLOCK` cells, so that
-    MTB costs one pass over the blocks and a robot's look renews only the blocks its
-    vision touches (unwatched cells are "last seen" at +inf).
+    the earliest and the latest of those times per block of :attr:`BLOCK` x
+    :attr:`BLOCK` cells, so that MTB costs one pass over the blocks, the cells seen
+    lately are found among the blocks seen lately (:meth:`latest_blocks`), and a
+    robot's look renews only the blocks its vision touches (unwatched cells are "last
+    seen" at +inf and count in neither).
 
     Parameters
     ----------
@@ -125,9 +127,13 @@ class Fog:
         padded = np.full((-(-rows // b) * b, -(-cols // b) * b), np.inf)
         padded[:rows, :cols] = self.last
         self._block_min = padded.reshape(padded.shape[0] // b, b, -1, b).min(axis=(1, 3))
+        padded[~np.isfinite(padded)] = -np.inf
+        self._block_max = padded.reshape(padded.shape[0] // b, b, -1, b).max(axis=(1, 3))
         self._n = int(watched.sum())
         # Sum of ``last`` over the watched cells, kept as cells are seen.
         self._sum = -float(start) * self._n
+        # Watched cells whose ``last`` is still -start (never seen), kept as cells are.
+        self._n_never = self._n
         # The ages of the cells one look sees, before it (a buffer for the kernel).
         self._ages = np.empty(0)
 
@@ -146,6 +152,31 @@ class Fog:
     ) -> npt.NDArray[np.float64]:
         """TB of watched cells (rows, cols)."""
         return np.asarray(self.t - self.last[rows, cols], dtype=np.float64)
+
+    def mean_seen_tb(self) -> float:
+        """Mean TB over the watched cells seen at least once (:meth:`never_seen` not),
+        inf when none has been; from the running sum of the cells' last-seen times, so
+        it may differ from the mean of those cells' TB in the last bits."""
+        seen = self._n - self._n_never
+        if seen <= 0:
+            return float(np.inf)
+        return self.t - (self._sum + self.start * self._n_never) / seen
+
+    def latest_blocks(self) -> npt.NDArray[np.float64]:
+        """The latest last-seen time of each :attr:`BLOCK` x :attr:`BLOCK` block's
+        watched cells (-inf for a block with none; block (i, j) holds cells from row
+        i x BLOCK and column j x BLOCK): a view, not to be written. No cell of a block
+        whose entry is t0 was seen after t0."""
+        out: npt.NDArray[np.float64] = self._block_max.view()
+        out.flags.writeable = False
+        return out
+
+    def clear_just_seen(self, mask: npt.NDArray[np.bool_]) -> int:
+        """Set to False, in ``mask`` (of the grid's shape, written in place), the
+        watched cells seen at time :attr:`t` (by the last look: ``last`` not below
+        ``t``), looking only in the blocks seen then; returns how many cells of
+        ``mask`` it set to False (those that were True)."""
+        return int(_clear_recent(mask, self.last, self._block_max, self.BLOCK, self.t))
 
     def advance(self, dt: float) -> None:
         """Time passes: every watched cell's TB grows by ``dt``."""
@@ -166,7 +197,7 @@ class Fog:
             if disc is not None:
                 # A plain disc: one pass in a kernel. The ages are summed by numpy, as
                 # before, so that the mean TB keeps its rounding.
-                n = _see_disc(
+                n, first = _see_disc(
                     self.last,
                     self.watched,
                     disc,
@@ -175,10 +206,13 @@ class Fog:
                     self.t,
                     self._ages,
                     self._block_min,
+                    self._block_max,
                     self.BLOCK,
+                    -self.start,
                 )
                 if n:
                     self._sum += float(np.sum(self._ages[:n]))
+                    self._n_never -= first
                 continue
             assert isinstance(vision, Vision)
             rr, cc = vision.seen(r, c, shape)
@@ -187,7 +221,10 @@ class Fog:
             if not len(rr):
                 continue
             self._sum += float(np.sum(self.t - self.last[rr, cc]))
+            if self.t != -self.start:
+                self._n_never -= int(np.count_nonzero(self.last[rr, cc] == -self.start))
             self.last[rr, cc] = self.t
+            self._block_max[rr // self.BLOCK, cc // self.BLOCK] = self.t
             self._renew_blocks(int(rr.min()), int(rr.max()), int(cc.min()), int(cc.max()))
 
     def _renew_blocks(self, r0: int, r1: int, c0: int, c1: int) -> None:
@@ -239,13 +276,17 @@ def _see_disc(
     t: float,
     ages: npt.NDArray[np.float64],
     block_min: npt.NDArray[np.float64],
+    block_max: npt.NDArray[np.float64],
     b: int,
-) -> int:
+    never: float,
+) -> tuple[int, int]:
     """A robot at cell (r, c) sees the watched cells of ``disc`` (offsets) inside the
     grid: their ages before the look (seconds) into ``ages`` in the disc's order, their
-    ``last`` set to ``t``, their blocks renewed. Returns how many it saw."""
+    ``last`` set to ``t``, their blocks renewed. Returns how many it saw, and how many
+    of those it saw first (their ``last`` was ``never`` and is no longer)."""
     rows, cols = last.shape
     n = 0
+    first = 0
     lo_r, hi_r, lo_c, hi_c = rows, -1, cols, -1
     for k in range(disc.shape[0]):
         rr = disc[k, 0] + r
@@ -254,11 +295,40 @@ def _see_disc(
             continue
         ages[n] = t - last[rr, cc]
         n += 1
+        if last[rr, cc] == never and t != never:
+            first += 1
         last[rr, cc] = t
+        # No cell is seen later than now: the block's latest.
+        block_max[rr // b, cc // b] = t
         lo_r = min(lo_r, rr)
         hi_r = max(hi_r, rr)
         lo_c = min(lo_c, cc)
         hi_c = max(hi_c, cc)
     if n:
         _renew(last, block_min, b, lo_r, hi_r, lo_c, hi_c)
+    return n, first
+
+
+@nb.njit(cache=True)
+def _clear_recent(
+    mask: npt.NDArray[np.bool_],
+    last: npt.NDArray[np.float64],
+    block_max: npt.NDArray[np.float64],
+    b: int,
+    t: float,
+) -> int:
+    """``mask`` False where ``last`` is not below ``t`` (and finite), looking only in
+    the blocks whose latest time is not below ``t``; how many were True."""
+    rows, cols = last.shape
+    n = 0
+    for br in range(block_max.shape[0]):
+        for bc in range(block_max.shape[1]):
+            if block_max[br, bc] < t:
+                continue
+            for r in range(br * b, min((br + 1) * b, rows)):
+                for c in range(bc * b, min((bc + 1) * b, cols)):
+                    v = last[r, c]
+                    if v >= t and v < np.inf and mask[r, c]:
+                        mask[r, c] = False
+                        n += 1
     return n

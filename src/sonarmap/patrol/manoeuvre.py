@@ -31,13 +31,16 @@ import numpy as np
 import numpy.typing as npt
 
 from ..grid import Grid
+from .fog import Fog
 from .paths import STEP_UNITS
 
 __all__ = [
+    "DeadEnds",
     "Manoeuvre",
     "behind_cells",
     "carrot",
     "clear_goals",
+    "drop_fresh_behind",
     "fresh_behind",
     "leads_on",
     "plan_manoeuvre",
@@ -159,49 +162,457 @@ def fresh_behind(
     rr, cc = np.nonzero(fresh)
     if not len(rr):
         return out
-    px, py = grid.cell_centres(rr, cc)
-    dx, dy = np.asarray(px) - x, np.asarray(py) - y
-    off = np.abs((np.arctan2(dy, dx) - heading + math.pi) % (2 * math.pi) - math.pi)
-    keep = (off > behind) & (np.hypot(dx, dy) > 1e-9)
+    keep = _off_heading(rr, cc, x, y, heading, grid, behind)
     out[rr[keep], cc[keep]] = True
     return out
 
 
+def _off_heading(
+    rr: npt.NDArray[np.intp],
+    cc: npt.NDArray[np.intp],
+    x: float,
+    y: float,
+    heading: float,
+    grid: Grid,
+    behind: float,
+) -> npt.NDArray[np.bool_]:
+    """Whether the centres of cells (rr, cc) lie more than ``behind`` radians off the
+    ``heading`` of a car at (x, y), metres (the car's own point never)."""
+    px, py = grid.cell_centres(rr, cc)
+    dx, dy = np.asarray(px) - x, np.asarray(py) - y
+    off = np.abs((np.arctan2(dy, dx) - heading + math.pi) % (2 * math.pi) - math.pi)
+    keep: npt.NDArray[np.bool_] = (off > behind) & (np.hypot(dx, dy) > 1e-9)
+    return keep
+
+
+#: Cells whose side of :func:`fresh_behind`'s angle the kernel of
+#: :func:`drop_fresh_behind` leaves to numpy (as many as it may note at once).
+UNSURE_CELLS = 4096
+
+
 @nb.njit(cache=True)
-def _reaches(open_: npt.NDArray[np.bool_], r0: int, c0: int, need: float) -> bool:
-    # Depth-first flood over the 8-connected open cells from (r0, c0), clearing each
-    # cell of ``open_`` as it is pushed so that none is pushed twice; it stops as soon
-    # as ``need`` cells are reached, so a way ahead that leads on (the usual answer)
-    # costs only that share of the map, not a labelling of all of it.
-    rows, cols = open_.shape
-    # Every push counts a cell and the flood stops at ``need`` cells, so the stack never
-    # holds more than that: no whole-map buffer per call on a large map.
-    stack = np.empty(max(1, min(open_.size, math.ceil(need))), dtype=np.int64)
-    open_[r0, c0] = False
-    stack[0] = r0 * cols + c0
-    top = 1
-    count = 1
-    if count >= need:
-        return True
-    while top > 0:
-        top -= 1
-        r = stack[top] // cols
-        c = stack[top] - r * cols
-        for dr in range(-1, 2):
-            rr = r + dr
-            if rr < 0 or rr >= rows:
+def _drop_fresh_behind(
+    mask: npt.NDArray[np.bool_],
+    last: npt.NDArray[np.float64],
+    latest: npt.NDArray[np.float64],
+    b: int,
+    now: float,
+    turn_time: float,
+    never: float,
+    x: float,
+    y: float,
+    hx: float,
+    hy: float,
+    cos_behind: float,
+    ox: float,
+    oy: float,
+    res: float,
+    unsure: npt.NDArray[np.int64],
+) -> tuple[int, int]:
+    # fresh_behind's cells set False in ``mask``, looking only in the blocks seen less
+    # than ``turn_time`` before ``now``. The angle off the heading is compared by its
+    # cosine, (d . h) / |d| against cos(behind); a cell within 1e-9 of that (or at the
+    # car) is noted in ``unsure`` for numpy's arctan2 to decide, so that every answer
+    # is fresh_behind's. Returns the cells set False and the unsure ones.
+    rows, cols = last.shape
+    n = 0
+    k = 0
+    # With ``behind`` past a right angle, a cell ahead of the car's side line (d . h
+    # > 0) is never behind: (d . h) / |d| - cos(behind) >= -cos(behind) > 1e-9. Whole
+    # blocks ahead of it are passed over (the extremes of d . h over a block lie at
+    # its corner cells; a hair of slack for their rounding), and such cells.
+    ahead_is_out = cos_behind < -1e-6
+    for br in range(latest.shape[0]):
+        for bc in range(latest.shape[1]):
+            if not now - latest[br, bc] < turn_time:
                 continue
-            for dc in range(-1, 2):
-                cc = c + dc
-                if cc < 0 or cc >= cols or not open_[rr, cc]:
+            r_lo, r_hi = br * b, min((br + 1) * b, rows) - 1
+            c_lo, c_hi = bc * b, min((bc + 1) * b, cols) - 1
+            if ahead_is_out:
+                lowest = np.inf
+                for r in (r_lo, r_hi):
+                    for c in (c_lo, c_hi):
+                        dot = (ox + (c + 0.5) * res - x) * hx + (
+                            oy + (rows - 1 - r + 0.5) * res - y
+                        ) * hy
+                        lowest = min(lowest, dot)
+                if lowest > 1e-6:
                     continue
-                open_[rr, cc] = False
-                stack[top] = rr * cols + cc
-                top += 1
+            for r in range(r_lo, r_hi + 1):
+                py = oy + (rows - 1 - r + 0.5) * res
+                for c in range(c_lo, c_hi + 1):
+                    if not mask[r, c]:
+                        continue
+                    v = last[r, c]
+                    if not (now - v < turn_time) or not np.isfinite(v) or v == never:
+                        continue
+                    dx = ox + (c + 0.5) * res - x
+                    dy = py - y
+                    if ahead_is_out and dx * hx + dy * hy > 1e-6:
+                        continue
+                    d = math.sqrt(dx * dx + dy * dy)
+                    diff = 0.0 if d < 1e-6 else (dx * hx + dy * hy) / d - cos_behind
+                    if abs(diff) < 1e-9:
+                        if k < unsure.shape[0]:
+                            unsure[k] = r * cols + c
+                        k += 1
+                    elif diff < 0.0:
+                        mask[r, c] = False
+                        n += 1
+    return n, k
+
+
+def drop_fresh_behind(
+    mask: npt.NDArray[np.bool_],
+    fog: Fog,
+    x: float,
+    y: float,
+    heading: float,
+    grid: Grid,
+    behind: float,
+    turn_time: float,
+) -> int:
+    """Set to False, in ``mask`` (written in place), the cells of
+    :func:`fresh_behind` for ``fog``'s last-seen times at its time, never-seen cells
+    excluded; returns how many of ``mask``'s True cells that were.
+
+    The same cells as ``mask & fresh_behind(fog.last, fog.t, x, y, heading, grid,
+    behind, turn_time, fog.never_seen())``, found in the fog's blocks seen less than
+    ``turn_time`` seconds ago (:meth:`~sonarmap.patrol.fog.Fog.latest_blocks`), without
+    a pass over the whole map."""
+    unsure = np.empty(UNSURE_CELLS, dtype=np.int64)
+    ox, oy = grid.origin
+    n, k = _drop_fresh_behind(
+        mask,
+        fog.last,
+        np.ascontiguousarray(fog.latest_blocks()),
+        fog.BLOCK,
+        fog.t,
+        turn_time,
+        -fog.start,
+        x,
+        y,
+        math.cos(heading),
+        math.sin(heading),
+        math.cos(behind),
+        float(ox),
+        float(oy),
+        grid.resolution,
+        unsure,
+    )
+    if k > len(unsure):
+        # Too many to note: fresh_behind decides every cell.
+        fresh = mask & fresh_behind(
+            fog.last, fog.t, x, y, heading, grid, behind, turn_time, fog.never_seen()
+        )
+        mask &= ~fresh
+        return n + int(np.count_nonzero(fresh))
+    if k:
+        rr, cc = np.divmod(unsure[:k], mask.shape[1])
+        keep = _off_heading(rr, cc, x, y, heading, grid, behind)
+        mask[rr[keep], cc[keep]] = False
+        n += int(np.count_nonzero(keep))
+    return int(n)
+
+
+@nb.njit(cache=True)
+def _block_pieces(
+    passable: npt.NDArray[np.bool_], b: int
+) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    # The pieces of every b x b block: the 8-connected components of its passable cells
+    # joined inside the block. Returns each cell's piece (-1 off ``passable``), and each
+    # piece's block (flat, row-major over the blocks) and cell count.
+    rows, cols = passable.shape
+    nbc = (cols + b - 1) // b
+    piece = np.full((rows, cols), -1, dtype=np.int32)
+    block = np.empty(rows * cols, dtype=np.int64)
+    size = np.empty(rows * cols, dtype=np.int64)
+    stack = np.empty(b * b, dtype=np.int64)
+    n = 0
+    for r in range(rows):
+        for c in range(cols):
+            if not passable[r, c] or piece[r, c] >= 0:
+                continue
+            br, bc = r // b, c // b
+            piece[r, c] = n
+            stack[0] = r * cols + c
+            top = 1
+            count = 0
+            while top > 0:
+                top -= 1
+                rr = stack[top] // cols
+                cc = stack[top] - rr * cols
                 count += 1
-                if count >= need:
-                    return True
-    return False
+                for dr in range(-1, 2):
+                    r2 = rr + dr
+                    if r2 < 0 or r2 >= rows or r2 // b != br:
+                        continue
+                    for dc in range(-1, 2):
+                        c2 = cc + dc
+                        if c2 < 0 or c2 >= cols or c2 // b != bc:
+                            continue
+                        if passable[r2, c2] and piece[r2, c2] < 0:
+                            piece[r2, c2] = n
+                            stack[top] = r2 * cols + c2
+                            top += 1
+            block[n] = br * nbc + bc
+            size[n] = count
+            n += 1
+    return piece, block[:n], size[:n]
+
+
+@nb.njit(cache=True)
+def _piece_links(
+    piece: npt.NDArray[np.int32], n: int, b: int
+) -> tuple[
+    npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]
+]:
+    # The pieces of neighbouring blocks that touch (8-connected): for each piece u,
+    # links[link_ptr[u]:link_ptr[u + 1]] are the pieces it touches, and for each of
+    # those links, cells[cell_ptr[k]:cell_ptr[k + 1]] the cells (flat) of the other
+    # piece next to a cell of u.
+    rows, cols = piece.shape
+    # Every (u, cell of another block next to u) pair, once per pair.
+    m = 0
+    for r in range(rows):
+        for c in range(cols):
+            if piece[r, c] < 0:
+                continue
+            for dr in range(-1, 2):
+                for dc in range(-1, 2):
+                    r2, c2 = r + dr, c + dc
+                    if r2 < 0 or r2 >= rows or c2 < 0 or c2 >= cols or piece[r2, c2] < 0:
+                        continue
+                    if r2 // b != r // b or c2 // b != c // b:
+                        m += 1
+    pu = np.empty(m, dtype=np.int64)
+    pv = np.empty(m, dtype=np.int64)
+    pc = np.empty(m, dtype=np.int64)
+    k = 0
+    for r in range(rows):
+        for c in range(cols):
+            if piece[r, c] < 0:
+                continue
+            for dr in range(-1, 2):
+                for dc in range(-1, 2):
+                    r2, c2 = r + dr, c + dc
+                    if r2 < 0 or r2 >= rows or c2 < 0 or c2 >= cols or piece[r2, c2] < 0:
+                        continue
+                    if r2 // b != r // b or c2 // b != c // b:
+                        pu[k] = piece[r, c]
+                        pv[k] = piece[r2, c2]
+                        pc[k] = r2 * cols + c2
+                        k += 1
+    order = np.argsort(pu * n + pv, kind="mergesort")
+    pu, pv, pc = pu[order], pv[order], pc[order]
+    # Cells of one (u, v) link may repeat (next to two cells of u): keep each once.
+    link_ptr = np.zeros(n + 1, dtype=np.int64)
+    links = np.empty(m, dtype=np.int64)
+    cell_ptr = np.empty(m + 1, dtype=np.int64)
+    cells = np.empty(m, dtype=np.int64)
+    n_links = 0
+    n_cells = 0
+    i = 0
+    while i < m:
+        j = i
+        while j < m and pu[j] == pu[i] and pv[j] == pv[i]:
+            j += 1
+        links[n_links] = pv[i]
+        link_ptr[pu[i] + 1] += 1
+        cell_ptr[n_links] = n_cells
+        uniq = np.unique(pc[i:j])
+        cells[n_cells : n_cells + len(uniq)] = uniq
+        n_cells += len(uniq)
+        n_links += 1
+        i = j
+    cell_ptr[n_links] = n_cells
+    for u in range(n):
+        link_ptr[u + 1] += link_ptr[u]
+    return link_ptr, links[:n_links], cell_ptr[: n_links + 1], cells[:n_cells]
+
+
+@nb.njit(cache=True)
+def _reaches(
+    passable: npt.NDArray[np.bool_],
+    piece: npt.NDArray[np.int32],
+    piece_block: npt.NDArray[np.int64],
+    piece_size: npt.NDArray[np.int64],
+    link_ptr: npt.NDArray[np.int64],
+    links: npt.NDArray[np.int64],
+    cell_ptr: npt.NDArray[np.int64],
+    cells: npt.NDArray[np.int64],
+    b: int,
+    mark: npt.NDArray[np.int8],
+    seen: npt.NDArray[np.bool_],
+    touched: npt.NDArray[np.bool_],
+    queue: npt.NDArray[np.int64],
+    closed: npt.NDArray[np.int64],
+    r0: int,
+    c0: int,
+    need: float,
+) -> bool:
+    # A flood from (r0, c0) over the open cells (passable, not closed; the start always
+    # open) that stops at ``need`` cells. Cell by cell in the blocks the closed cells
+    # (and the start) touch, a block's piece at a time elsewhere: a piece of an
+    # untouched block is open and joined through, so reaching one of its cells
+    # reaches all. ``mark`` (1 closed, 2 reached), ``seen`` (pieces) and ``touched``
+    # (blocks) are all False on entry and left so. ``queue`` holds cells (flat) as
+    # k >= 0 and pieces as -1 - u.
+    rows, cols = passable.shape
+    nbc = (cols + b - 1) // b
+    n_closed = closed.shape[0]
+    for k in range(n_closed):
+        r, c = closed[k, 0], closed[k, 1]
+        if r < 0:  # as numpy indexes
+            r += rows
+        if c < 0:
+            c += cols
+        touched[(r // b) * nbc + c // b] = True
+        if r != r0 or c != c0:
+            mark[r, c] = 1
+    touched[(r0 // b) * nbc + c0 // b] = True
+    mark[r0, c0] = 2
+    queue[0] = r0 * cols + c0
+    tail = 1
+    head = 0
+    count = 1
+    result = count >= need
+    while not result and head < tail:
+        q = queue[head]
+        head += 1
+        if q >= 0:
+            r = q // cols
+            c = q - r * cols
+            for dr in range(-1, 2):
+                r2 = r + dr
+                if r2 < 0 or r2 >= rows:
+                    continue
+                for dc in range(-1, 2):
+                    c2 = c + dc
+                    if c2 < 0 or c2 >= cols or not passable[r2, c2] or mark[r2, c2]:
+                        continue
+                    if touched[(r2 // b) * nbc + c2 // b]:
+                        mark[r2, c2] = 2
+                        queue[tail] = r2 * cols + c2
+                        tail += 1
+                        count += 1
+                    else:
+                        v = piece[r2, c2]
+                        if seen[v]:
+                            continue
+                        seen[v] = True
+                        queue[tail] = -1 - v
+                        tail += 1
+                        count += piece_size[v]
+        else:
+            u = -1 - q
+            for k in range(link_ptr[u], link_ptr[u + 1]):
+                v = links[k]
+                if not touched[piece_block[v]]:
+                    if not seen[v]:
+                        seen[v] = True
+                        queue[tail] = -1 - v
+                        tail += 1
+                        count += piece_size[v]
+                    continue
+                for j in range(cell_ptr[k], cell_ptr[k + 1]):
+                    r2 = cells[j] // cols
+                    c2 = cells[j] - r2 * cols
+                    if not mark[r2, c2]:
+                        mark[r2, c2] = 2
+                        queue[tail] = cells[j]
+                        tail += 1
+                        count += 1
+        result = count >= need
+    for k in range(tail):
+        q = queue[k]
+        if q >= 0:
+            mark[q // cols, q % cols] = 0
+        else:
+            seen[-1 - q] = False
+    for k in range(n_closed):
+        r, c = closed[k, 0], closed[k, 1]
+        r = r + rows if r < 0 else r
+        c = c + cols if c < 0 else c
+        mark[r, c] = 0
+        touched[(r // b) * nbc + c // b] = False
+    touched[(r0 // b) * nbc + c0 // b] = False
+    return result
+
+
+class DeadEnds:
+    """The forward wave's dead-end test on one map, asked many times
+    (:meth:`leads_on`).
+
+    Built once per map: the map cut into :attr:`BLOCK` x :attr:`BLOCK` blocks, the
+    pieces of each block (its passable cells joined inside it, 8-connected) and which
+    pieces of neighbouring blocks touch, and scratch arrays that every call leaves as
+    it found them (the object holds no state between calls).
+
+    Parameters
+    ----------
+    passable : ndarray of bool, shape (rows, cols)
+        Cells a car's centre may occupy; not copied, and must not change while this
+        object is used.
+    """
+
+    #: Side of the blocks, in cells.
+    BLOCK = 16
+
+    def __init__(self, passable: npt.NDArray[np.bool_]) -> None:
+        self.passable = np.ascontiguousarray(passable, dtype=np.bool_)
+        b = self.BLOCK
+        self.piece, self.piece_block, self.piece_size = _block_pieces(self.passable, b)
+        n = len(self.piece_size)
+        self.link_ptr, self.links, self.cell_ptr, self.cells = _piece_links(self.piece, n, b)
+        self.n_passable = int(self.piece_size.sum())
+        rows, cols = passable.shape
+        self.mark = np.zeros(passable.shape, dtype=np.int8)
+        self.seen = np.zeros(max(1, n), dtype=np.bool_)
+        self.touched = np.zeros(-(-rows // b) * -(-cols // b), dtype=np.bool_)
+        # A flood holds at most every passable cell and piece, and the start.
+        self.queue = np.empty(self.n_passable + n + 1, dtype=np.int64)
+
+    def leads_on(
+        self, closed: npt.NDArray[np.intp], start: tuple[int, int], share: float = 0.5
+    ) -> bool:
+        """Whether, with the ``closed`` cells (K, 2; inside the map) shut, the passable
+        cells still joined to ``start`` are at least ``share`` of all passable cells:
+        False when the way ahead is a dead end (the car has to turn round) and the way
+        out lay behind.
+
+        Cells join 8-connected, as the wave's steps do; ``start`` counts as open (and
+        joined) whatever ``passable`` and ``closed`` say of it.
+
+        A flood from ``start`` that stops as soon as it has ``share`` of the cells: cell
+        by cell only in the blocks the closed cells or the start touch, elsewhere a
+        block's piece at a time (nothing is closed there, so a piece reached is reached
+        whole). A way ahead that leads on costs about half the map's pieces, not half
+        its cells.
+        """
+        if not len(closed):
+            return True
+        return bool(
+            _reaches(
+                self.passable,
+                self.piece,
+                self.piece_block,
+                self.piece_size,
+                self.link_ptr,
+                self.links,
+                self.cell_ptr,
+                self.cells,
+                self.BLOCK,
+                self.mark,
+                self.seen,
+                self.touched,
+                self.queue,
+                np.ascontiguousarray(closed, dtype=np.int64),
+                int(start[0]),
+                int(start[1]),
+                share * self.n_passable,
+            )
+        )
 
 
 def leads_on(
@@ -209,22 +620,14 @@ def leads_on(
     closed: npt.NDArray[np.intp],
     start: tuple[int, int],
     share: float = 0.5,
-    n_passable: int | None = None,
 ) -> bool:
     """Whether, with the ``closed`` cells (K, 2) shut, the passable cells still joined to
-    ``start`` are at least ``share`` of all passable cells: False when the way ahead is
-    a dead end (the car has to turn round) and the way out lay behind.
-
-    Cells join 8-connected, as the wave's steps do; ``start`` counts as open (and joined)
-    whatever ``passable`` and ``closed`` say of it. ``n_passable`` is
-    ``np.count_nonzero(passable)``, for a caller asking many times of one map (None:
-    counted here)."""
+    ``start`` are at least ``share`` of all passable cells (:meth:`DeadEnds.leads_on`),
+    for one question of a map; a caller asking many times of one map builds a
+    :class:`DeadEnds` once."""
     if not len(closed):
         return True
-    total = int(np.count_nonzero(passable)) if n_passable is None else n_passable
-    open_ = passable.copy()
-    open_[closed[:, 0], closed[:, 1]] = False
-    return bool(_reaches(open_, int(start[0]), int(start[1]), share * total))
+    return DeadEnds(passable).leads_on(closed, start, share)
 
 
 def route_goals(route: F64, near: float = 3.0, far: float = 10.0) -> F64:

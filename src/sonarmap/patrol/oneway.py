@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import networkx as nx
 import numba as nb
@@ -321,14 +322,32 @@ def _step_index() -> I64:
     return out
 
 
+@nb.njit(cache=True)
+def _kept_steps(
+    row: npt.NDArray[np.int32],
+    col: npt.NDArray[np.int32],
+    rc: I64,
+    steps: npt.NDArray[np.uint8],
+    step_index: I64,
+) -> B:
+    """Whether each edge (``row`` -> ``col``, nodes at cells ``rc``) is a step its
+    tail cell's ``steps`` allows (bit :func:`_step_index` of the step)."""
+    out = np.empty(len(row), dtype=np.bool_)
+    for k in range(len(row)):
+        a, b = row[k], col[k]
+        dr = rc[b, 0] - rc[a, 0]
+        dc = rc[b, 1] - rc[a, 1]
+        j = step_index[(dr + 1) * 3 + dc + 1]
+        out[k] = ((np.int64(steps[rc[a, 0], rc[a, 1]]) >> j) & 1) == 1
+    return out
+
+
 def _labels(graph: csr_matrix, index: I64, steps: npt.NDArray[np.uint8]) -> I64:
     """Strongly connected set of each node of the wave's ``graph`` (:func:`cell_graph`,
     cells ``index``) keeping only the steps ``steps`` allows."""
     coo = graph.tocoo()
     rc = np.argwhere(index >= 0)
-    d = rc[coo.col] - rc[coo.row]
-    j = _step_index()[(d[:, 0] + 1) * 3 + d[:, 1] + 1]
-    keep = ((steps[rc[coo.row, 0], rc[coo.row, 1]].astype(np.int64) >> j) & 1).astype(bool)
+    keep = _kept_steps(coo.row, coo.col, rc, steps, _step_index())
     n = len(rc)
     m = coo_matrix((np.ones(int(keep.sum())), (coo.row[keep], coo.col[keep])), shape=(n, n))
     _, label = connected_components(m.tocsr(), directed=True, connection="strong")
@@ -455,10 +474,13 @@ def one_way(
     # cell, so that it is a loop with two ends like any other.
     segment, n_segments = ndimage.label(skel & ~junction, structure=eight)
     touching = ndimage.binary_dilation(junction, structure=eight)
-    for s in range(1, n_segments + 1):
-        pix = segment == s
-        if not (pix & touching).any() and not (pix & (nbrs == 1)).any():
-            junction[tuple(np.argwhere(pix)[0])] = True
+    # Each label's cells are looked for in its bounding box only (the first in
+    # row-major order there is the first in the map).
+    for s, box in enumerate(ndimage.find_objects(segment), start=1):
+        pix = segment[box] == s
+        if not (pix & touching[box]).any() and not (pix & (nbrs[box] == 1)).any():
+            at = np.argwhere(pix)[0]
+            junction[box[0].start + at[0], box[1].start + at[1]] = True
     # A loop back to its own junction that never leaves the junction's reach (a corner
     # spur of the thinning, a cell or two) is part of the junction, not a street.
     node_of, _ = ndimage.label(junction, structure=eight)
@@ -467,14 +489,20 @@ def one_way(
     segment = segment.astype(np.int64) - 1
     touches = _touches(segment, node_of, n_segments)
     off_junction = ndimage.distance_transform_edt(~junction)
+    seg_box = ndimage.find_objects(segment + 1)
+    node_box = ndimage.find_objects(node_of + 1)
     for s in range(n_segments):
-        pix = segment == s
-        if len(touches[s]) != 1 or (pix & (nbrs == 1)).any():
+        box = seg_box[s]
+        assert box is not None
+        pix = segment[box] == s
+        if len(touches[s]) != 1 or (pix & (nbrs[box] == 1)).any():
             continue
         (n,) = touches[s]
-        reach_cells = float(clearance[node_of == n].max()) / resolution + 1.0
-        if float(off_junction[pix].max()) <= reach_cells:
-            junction |= pix
+        nbox = node_box[n]
+        assert nbox is not None
+        reach_cells = float(clearance[nbox][node_of[nbox] == n].max()) / resolution + 1.0
+        if float(off_junction[box][pix].max()) <= reach_cells:
+            junction[box] |= pix
     node_of, n_junctions = ndimage.label(junction, structure=eight)
     segment, n_segments = ndimage.label(skel & ~junction, structure=eight)
     node_of = node_of.astype(np.int64) - 1  # -1 off the junctions
@@ -512,9 +540,19 @@ def one_way(
         forward[valid] = f
         bridge[valid] = b
         dead_end[valid] = _dead_ends(n_nodes, [ends[k] for k in valid], b)
+    seg_box = ndimage.find_objects(segment + 1)
+    node_box = ndimage.find_objects(node_of + 1)
+
+    def cells_of(labels: I64, boxes: list[Any], k: int) -> tuple[tuple[slice, slice], B]:
+        # Label k's bounding box and its cells there (row-major, as in the map).
+        box = boxes[k]
+        assert box is not None
+        return box, labels[box] == k
+
     widths = np.zeros(n_segments)
     for s in range(n_segments):
-        widths[s] = 2.0 * float(np.median(clearance[segment == s]))
+        box, pix = cells_of(segment, seg_box, s)
+        widths[s] = 2.0 * float(np.median(clearance[box][pix]))
     directed = ~bridge & (widths < 2.0 * turn_radius)
     stubs = dead_end & (widths < 2.0 * turn_radius)
     # A junction beyond a stub whose streets are all stubs: the stub's far end.
@@ -531,24 +569,31 @@ def one_way(
     along_skel = np.full(mask.shape, np.nan)
     reach = np.zeros(n_nodes)
     for n in range(n_junctions):
-        reach[n] = float(clearance[node_of == n].max()) + resolution
+        box, here = cells_of(node_of, node_box, n)
+        reach[n] = float(clearance[box][here].max()) + resolution
     seg_margin = np.zeros(n_segments)
+    rows, cols = mask.shape
     for s in np.flatnonzero(directed).tolist():
         u, v = ends[s]
         tail, head = (u, v) if forward[s] else (v, u)
-        pix = segment == s
-        near_tail = np.zeros(mask.shape, dtype=bool)
-        near_tail[node_of == tail] = True
+        # The segment's bounding box and one cell round it: all a cell of it touches.
+        box = seg_box[s]
+        assert box is not None
+        r0, r1 = max(box[0].start - 1, 0), min(box[0].stop + 1, rows)
+        c0, c1 = max(box[1].start - 1, 0), min(box[1].stop + 1, cols)
+        win = (slice(r0, r1), slice(c0, c1))
+        pix = segment[win] == s
+        near_tail = node_of[win] == tail
         near_tail = ndimage.binary_dilation(near_tail, structure=eight) & pix
         if u == v:
             # A loop: start at its cells next to the junction with the lowest index.
             cand = np.argwhere(near_tail)
-            near_tail = np.zeros(mask.shape, dtype=bool)
+            near_tail = np.zeros(pix.shape, dtype=bool)
             near_tail[tuple(cand[0])] = True
         g_s, idx_s = cell_graph(pix, 1.0, corners=True)
         starts = idx_s[near_tail]
         d = dijkstra(g_s, directed=False, indices=starts, min_only=True)
-        along_skel[pix] = d[idx_s[pix]]
+        along_skel[win][pix] = d[idx_s[pix]]
         ends_reach = [reach[x] if x < n_junctions else 0.0 for x in (tail, head)]
         seg_margin[s] = max(ends_reach) / resolution
     # Every passable cell takes the skeleton cell nearest it along the grid's paths.
@@ -575,7 +620,8 @@ def one_way(
     stub_ends[mask] = np.append(end_node, False)[node_at]  # node -1 (none): the False
     length = np.zeros(n_segments)
     for s in np.flatnonzero(directed).tolist():
-        length[s] = float(np.nanmax(along_skel[segment == s]))
+        box, pix = cells_of(segment, seg_box, s)
+        length[s] = float(np.nanmax(along_skel[box][pix]))
     m = seg_margin[np.maximum(street, 0)]
     ln = length[np.maximum(street, 0)]
     _, weak = connected_components(g_all, directed=False)

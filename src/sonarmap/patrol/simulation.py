@@ -40,7 +40,7 @@ from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import Force, sector_pulls, step_direction
 from .giveup import GiveUp
 from .graph import PatrolGraph
-from .manoeuvre import behind_cells, carrot, fresh_behind, leads_on, turn_weights
+from .manoeuvre import DeadEnds, behind_cells, carrot, drop_fresh_behind, turn_weights
 from .marching import Marching
 from .monitor import Monitor
 from .network import NETWORKS, components
@@ -929,6 +929,20 @@ def _mean_seen_tb(fog: Fog) -> float:
     return float(fog.t - fog.last[seen].mean())
 
 
+def _stale(top: float, ratio: float, fog: Fog) -> bool:
+    """Whether ``top`` (the fog's MTB) exceeds ``ratio`` times the mean time since seen
+    of the places ``fog`` has seen (:func:`_mean_seen_tb`; ``config.forward_stale``).
+
+    Decided on the fog's running mean (:meth:`~sonarmap.patrol.fog.Fog.mean_seen_tb`)
+    unless that is within a millionth of the line, where its last bits could matter:
+    then on the mean of the cells, as the rule is stated."""
+    mean = fog.mean_seen_tb()
+    line = ratio * mean
+    if math.isfinite(line) and abs(top - line) <= 1e-6 * max(abs(top), abs(line), 1.0):
+        return top > ratio * _mean_seen_tb(fog)
+    return top > line
+
+
 def _held_goal(
     team: Team,
     i: int,
@@ -1280,8 +1294,8 @@ def run_patrol(
     obst = disc_offsets(config.r_obst, g.resolution)
     halve = halves_discs(config)
     forward = config.forward_wave and isinstance(team, Car) and team.planner == "track"
-    # The map does not change during a run: the dead-end test counts it once.
-    n_open = int(np.count_nonzero(passable))
+    # The map does not change during a run: the dead-end test labels it once.
+    dead_ends = DeadEnds(passable) if forward else None
     # Forward waves: from which step other robots have shut each car's way ahead.
     shut = np.full(len(team), -1, dtype=np.int64)
     # Forward waves: whether each fog's stalest place lifts them this step
@@ -1345,13 +1359,13 @@ def run_patrol(
             parts += obstacle_discs(
                 team, i, rc, obst, passable.shape, halve=halve, following=following, heard=heard
             )
-        if forward and not following and not lifted[0 if shared else i]:
+        if dead_ends is not None and not following and not lifted[0 if shared else i]:
             back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
             start = (int(r[i]), int(c[i]))
-            if leads_on(passable, np.concatenate([back, *parts]), start, n_passable=n_open):
+            if dead_ends.leads_on(np.concatenate([back, *parts]), start):
                 parts.append(back)
                 shut[i] = -1
-            elif leads_on(passable, back, start, n_passable=n_open):
+            elif dead_ends.leads_on(back, start):
                 # Only other robots shut the way ahead: they are often on their way, so
                 # follow them for FOLLOW_TIME before turning round (nose to nose, a car
                 # turns round after that).
@@ -1475,6 +1489,8 @@ def run_patrol(
     giving_up = tracking and config.give_up > 0
     quitter = GiveUp(watched, max(1, config.give_up), disc_offsets(GIVE_UP_RADIUS, g.resolution))
     turns = team.turns.copy() if isinstance(team, Car) else np.zeros(0, dtype=np.int64)
+    # How many places ``targets`` holds (counted again when it is another array).
+    counted, n_targets = watched, n_watched
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
         goals: list[tuple[float, float] | None] = []
@@ -1489,7 +1505,9 @@ def run_patrol(
         tops = [f.mtb() for f in own]
         if forward and config.forward_stale > 0:
             for j, f in enumerate(own):
-                lifted[j] = tops[j] > config.forward_stale * _mean_seen_tb(f)
+                lifted[j] = _stale(tops[j], config.forward_stale, f)
+        if targets is not counted:
+            counted, n_targets = targets, int(np.count_nonzero(targets))
 
         for i in range(len(team)):
             held = aims[i]
@@ -1547,39 +1565,39 @@ def run_patrol(
                 turn = turn_weights(float(team.heading[i]), team.behind, config.turn_penalty)
                 weights = turn if weights is None else weights * turn
             step: npt.NDArray[np.int8] | None = None
-            # The places this robot's choice weighs.
+            # The places this robot's choice weighs, and how many they are.
             pulling = targets
+            n_pulling = n_targets
             if tracking and config.out_of_sight:
                 mine_fog = own[0 if shared else i]
-                unseen = targets & (mine_fog.last < mine_fog.t)
-                pulling = unseen if unseen.any() else targets
+                # targets & (last < t): the places its fog saw at the last look out.
+                # A new array: the wave keeps its codes for the same array object.
+                unseen = targets.copy()
+                n_unseen = n_targets - mine_fog.clear_just_seen(unseen)
+                if n_unseen:
+                    pulling, n_pulling = unseen, n_unseen
             # The places pulling before the turn-time rule took the fresh ones behind
             # out (None: it took none).
             unmasked: npt.NDArray[np.bool_] | None = None
+            n_unmasked = 0
             if tracking and config.turn_time > 0:
                 assert isinstance(team, Car)
                 mine_fog = own[0 if shared else i]
-                dropped = pulling & fresh_behind(
-                    mine_fog.last,
-                    mine_fog.t,
+                # pulling & ~fresh_behind(...), without a pass over the whole map.
+                ahead = pulling.copy()
+                n_dropped = drop_fresh_behind(
+                    ahead,
+                    mine_fog,
                     float(team.x[i]),
                     float(team.y[i]),
                     float(team.heading[i]),
                     g,
                     team.behind,
                     config.turn_time,
-                    # A never-seen place's ``last`` is -start: it looks fresh only
-                    # until t + start reaches turn_time, so the mask is needed only then.
-                    never_seen=(
-                        mine_fog.never_seen()
-                        if mine_fog.t + mine_fog.start < config.turn_time
-                        else None
-                    ),
                 )
-                if dropped.any():
-                    ahead = pulling & ~dropped
-                    if ahead.any():
-                        unmasked, pulling = pulling, ahead
+                if n_dropped and n_pulling > n_dropped:
+                    unmasked, n_unmasked = pulling, n_pulling
+                    pulling, n_pulling = ahead, n_pulling - n_dropped
             if config.policy == "random":
                 tbv = lengths = ux = uy = np.empty(0)
             elif config.paths == "wave" or config.policy == "cycle" or walkers is not None:
@@ -1642,8 +1660,12 @@ def run_patrol(
                     # When only places just seen behind the car are within its reach (a
                     # car nose to nose with another), they pull as before, or it would
                     # stand until they age.
-                    tries = [pulling] if unmasked is None else [pulling, unmasked]
-                    for pulling in tries:
+                    tries = (
+                        [(pulling, n_pulling)]
+                        if unmasked is None
+                        else [(pulling, n_pulling), (unmasked, n_unmasked)]
+                    )
+                    for pulling, n_pulling in tries:
                         strength = sector_pulls(
                             waver,
                             passable,
@@ -1652,7 +1674,7 @@ def run_patrol(
                             pulling,
                             config.force,
                             top,
-                            n_watched=n_watched if pulling is watched else None,
+                            n_watched=n_pulling,
                             **pull_args,
                         )
                         if strength.any():
