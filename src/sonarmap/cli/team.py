@@ -8,6 +8,8 @@ from functools import partial
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
+import numpy.typing as npt
 import typer
 
 from ..errors import ConfigError, InputError, quote
@@ -25,6 +27,7 @@ from ..team.prior import ERROR_KEYS, check_prior, degrade_plan, parse_prior_erro
 from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
 from ..team.store import StoreParams
+from ..team.territory import territory_reach, territory_record
 from ..team.world import (
     load_world,
     make_world,
@@ -90,6 +93,37 @@ TourOption = Annotated[
         "the mission per lap) instead of random waypoints, so places are passed again.",
     ),
 ]
+TerritoryOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--territory",
+        help="Map only inside this mask, as 'patrol run --territory': a map_server YAML "
+        "(its free cells) or a polygon file ('x y' metres a line, a blank line between "
+        "polygons). Routes, starts and landmarks stay in the largest area a robot fits in "
+        "inside it (default: the whole map's; on a drawn plan whose outside is free, that "
+        "may be the outside).",
+    ),
+]
+
+
+def _territory(
+    path: Path | None, plan: OccupancyMap
+) -> tuple[npt.NDArray[np.bool_] | None, dict[str, Any] | None]:
+    """``--territory``: the mask on the plan's cells and what summary.json records of
+    it (None, None without one). A bad file fails as the patrol's does, naming the file;
+    a mask that leaves no place a robot fits in names the option."""
+    if path is None:
+        return None, None
+    from ..patrol.region import read_region
+
+    region = read_region(path, plan.grid)
+    try:
+        territory_reach(plan, region)
+    except InputError as err:
+        raise ConfigError(f"--territory {path}: {err.reason}") from None
+    return region, territory_record(path, plan, region)
+
+
 #: Summary figures averaged over the robots at the top level of summary.json.
 MEAN_KEYS = (
     "association_precision",
@@ -119,6 +153,7 @@ def world_cmd(
         float, typer.Option(help="Share of landmarks that vanish (and as many that appear).")
     ] = 0.1,
     tour: TourOption = False,
+    territory: TerritoryOption = None,
 ) -> None:
     """Make a mission's world: landmarks with their changes, a patrol route, the truth."""
     _check_duration(duration)
@@ -126,6 +161,7 @@ def world_cmd(
         if not (0.0 <= share <= 1.0):
             raise ConfigError(f"{name} {share:g}: must be in [0, 1]")
     plan = resolve_map(map_, resolution, origin)
+    region, _ = _territory(territory, plan)
     world = make_world(
         plan,
         seed=seed,
@@ -133,8 +169,11 @@ def world_cmd(
         texture_share=texture_share,
         change_share=change_share,
         plan_path=map_.resolve() if map_.exists() else None,
+        region=region,
     )
-    route = patrol_route(plan, duration, seed=seed, style="tour" if tour else "waypoints")
+    route = patrol_route(
+        plan, duration, seed=seed, style="tour" if tour else "waypoints", region=region
+    )
     save_world(world, route, out)
     console.print(f"{len(world)} landmarks, route of {len(route)} poses")
     console.print(wrote_folder(out), markup=False)
@@ -457,6 +496,8 @@ def _run_zmq_team(
     routes: list[Any],
     prior: OccupancyMap | None,
     prior_desc: dict[str, Any] | None,
+    territory: Path | None = None,
+    territory_desc: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The team as local ZeroMQ processes (:func:`sonarmap.team.launcher.run_zmq_team`):
     the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json``.
@@ -464,7 +505,8 @@ def _run_zmq_team(
     ``preset`` is the preset applied (None for none); ``routes`` one route (ndarray
     (T, 4): t, x, y, theta) or None per robot (None: the node's seeded patrol route);
     ``prior`` the robots' prior map (None: the plan) and ``prior_desc`` what the
-    summary records of it, as the simulated team's."""
+    summary records of it, as the simulated team's; ``territory`` the --territory file
+    the launcher hands every node, ``territory_desc`` what the summary records of it."""
     # Imported here: the node module pulls in the process machinery only zmq needs.
     from ..team.launcher import run_zmq_team
 
@@ -480,8 +522,11 @@ def _run_zmq_team(
             folder=tmp / "nodes",
             routes=routes,
             prior=prior,
+            territory=territory,
         )
         result.summary["preset"] = preset
+        if territory_desc is not None:
+            result.summary["territory"] = territory_desc
         if prior_desc is not None:
             result.summary["prior"] = prior_desc
         if prior is not None:
@@ -528,18 +573,26 @@ def _prior(
 
 
 def _drawn(
-    plan: OccupancyMap, map_: Path, duration: float, seed: int, routes: dict[int, Any], robots: int
+    plan: OccupancyMap,
+    map_: Path,
+    duration: float,
+    seed: int,
+    routes: dict[int, Any],
+    robots: int,
+    region: npt.NDArray[np.bool_] | None = None,
 ) -> Any:
     """The world and the missing seeded routes the missions would draw themselves (the
-    same seeds, so the same runs), drawn here so that a map with no wall for a landmark
-    or no territory for a route fails in one line naming --map before any work."""
+    same seeds, so the same runs), inside the --territory mask ``region`` when given,
+    drawn here so that a map with no wall for a landmark or no territory for a route
+    fails in one line naming --map (and --territory) before any work."""
     try:
-        world = make_world(plan, seed=seed, duration=duration)
+        world = make_world(plan, seed=seed, duration=duration, region=region)
         for i in range(robots):
             if routes.get(i) is None:
-                routes[i] = patrol_route(plan, duration, seed=seed + 7919 * i)
+                routes[i] = patrol_route(plan, duration, seed=seed + 7919 * i, region=region)
     except (InputError, ConfigError) as err:
-        raise ConfigError(f"--map {map_}: {err.reason}") from None
+        within = "" if region is None else " inside --territory"
+        raise ConfigError(f"--map {map_}{within}: {err.reason}") from None
     return world
 
 
@@ -602,6 +655,7 @@ def run_cmd(
         typer.Option("--patrol", help="Drive the robots by the potential-field patroller."),
     ] = False,
     tour: TourOption = False,
+    territory: TerritoryOption = None,
     pcm: PcmOption = False,
     bag: BagOption = False,
     live: LiveOption = False,
@@ -662,7 +716,13 @@ def run_cmd(
         )
     if not (math.isfinite(map_every) and map_every > 0):
         raise ConfigError(f"--map-every must be > 0 seconds, got {map_every}")
+    if territory is not None and world_dir is not None:
+        raise ConfigError(
+            "--world carries its own landmarks and route: give --territory to 'team world' "
+            "instead, or drop --world"
+        )
     plan = resolve_map(map_, resolution, origin)
+    region, territory_desc = _territory(territory, plan)
     prior, prior_desc = _prior(plan, prior_path, prior_error, seed, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
@@ -677,15 +737,15 @@ def run_cmd(
     if tour:
         # Each robot's seed as the mission draws its own route (seed + 7919 x robot).
         routes = {
-            i: patrol_route(plan, duration, seed=seed + 7919 * i, style="tour")
+            i: patrol_route(plan, duration, seed=seed + 7919 * i, style="tour", region=region)
             for i in range(robots)
         }
     if patrol:
         # The patrol replaces any route, a saved world's included.
-        patrolled, _ = patrol_routes(plan, robots, duration, seed=seed)
+        patrolled, _ = patrol_routes(plan, robots, duration, seed=seed, region=region)
         routes = dict(enumerate(patrolled))
     if transport == "sim" and world is None:
-        world = _drawn(plan, map_, duration, seed, routes, robots)
+        world = _drawn(plan, map_, duration, seed, routes, robots, region)
     if transport == "zmq":
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
         with progress("team") as update:
@@ -703,6 +763,8 @@ def run_cmd(
                 routes=[routes.get(i) for i in range(robots)],
                 prior=prior,
                 prior_desc=prior_desc,
+                territory=territory,
+                territory_desc=territory_desc,
             )
         console.print(
             f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
@@ -758,11 +820,17 @@ def run_cmd(
                 update(0, 0, "maps, pictures" + (" and animations" if animate else ""))
                 if prior_desc is not None:
                     team.summary["prior"] = prior_desc
+                if territory_desc is not None:
+                    team.summary["territory"] = territory_desc
                 team.summary["preset"] = preset_used
                 write_team(tmp, plan, team, animate=animate)
         else:
-            extra = None if prior_desc is None else {"prior": prior_desc}
-            s0, _ = write_missions(tmp, plan, [result], animate=animate, extra=extra)
+            extra: dict[str, Any] = {}
+            if prior_desc is not None:
+                extra["prior"] = prior_desc
+            if territory_desc is not None:
+                extra["territory"] = territory_desc
+            s0, _ = write_missions(tmp, plan, [result], animate=animate, extra=extra or None)
         if prior is not None:
             # The prior the robots were given, beside the truth they were scored on.
             write_map(prior, tmp / "prior")
@@ -877,6 +945,7 @@ def node_cmd(
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
     pcm: PcmOption = False,
+    territory: TerritoryOption = None,
 ) -> None:
     """One robot of a team over ZeroMQ (TCP), on the team's lock-step clock: the same
     results as 'team run' on a full network; killed and started again on its --state
@@ -913,6 +982,7 @@ def node_cmd(
     fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
     key = None if key_file is None else read_team_key(key_file)
     plan = resolve_map(map_, resolution, origin)
+    region, _ = _territory(territory, plan)
     prior, _ = _prior(plan, prior_path, None, seed, resolution, origin)
     config = _mission_config(duration, seed, store, pcm)
     with progress(f"robot {robot}") as update:
@@ -934,6 +1004,7 @@ def node_cmd(
             key=key,
             insecure=insecure,
             prior=prior,
+            region=region,
         )
     console.print(
         f"robot {robot}: {s['row']['poses_local']} own poses, {len(s['held'])} held, "

@@ -37,6 +37,7 @@ from .prior import check_prior
 from .simulation import map_agreement
 from .store import StoreParams
 from .summary import mission_figures, team_figures
+from .territory import read_territory
 from .transport import DEFAULT_MAX_MESSAGE
 from .world import patrol_route
 
@@ -184,6 +185,7 @@ def run_zmq_team(
     python: str | None = None,
     routes: Sequence[F64 | None] | None = None,
     prior: OccupancyMap | None = None,
+    territory: str | Path | None = None,
 ) -> ZmqTeamResult:
     """Run ``robots`` robots as local processes (``python -m sonarmap team node``) on
     loopback ports, exchanging over ZeroMQ; the same mission as :func:`run_team`.
@@ -224,6 +226,10 @@ def run_zmq_team(
     prior : OccupancyMap, optional
         Every robot's prior map, as run_team's (written beside the plan and handed to
         every node); the plan itself when not given.
+    territory : str or Path, optional
+        A territory mask file (:mod:`.territory`; the patrol's formats): the routes
+        drawn here and every node's landmarks and routes stay inside it; each node is
+        handed the file (``--territory``). None: the whole plan.
 
     Returns
     -------
@@ -259,8 +265,9 @@ def run_zmq_team(
             plan = read_map(plan_path)
         if routes is not None and len(routes) != robots:
             raise ConfigError(f"routes: {len(routes)} given for {robots} robots")
+        region = None if territory is None else read_territory(territory, plan)
         drawn = [
-            patrol_route(plan, cfg.duration, seed=cfg.seed + 7919 * i)
+            patrol_route(plan, cfg.duration, seed=cfg.seed + 7919 * i, region=region)
             if routes is None or routes[i] is None
             else routes[i]
             for i in range(robots)
@@ -270,6 +277,8 @@ def run_zmq_team(
         # not be able to join it or pose as one of its robots.
         make_team_key(robots).write(where / KEY_FILE)
         args = [*args, "--routes", str(where / "routes"), "--key", str(where / KEY_FILE)]
+        if territory is not None:
+            args += ["--territory", str(Path(territory).resolve())]
         if prior is not None:
             check_prior(plan, prior, "prior")
             write_map(prior, where / "prior")

@@ -276,9 +276,10 @@ def _fingerprint(
     ex: ExchangeParams,
     routes: Sequence[F64],
     prior: OccupancyMap | None = None,
+    region: npt.NDArray[np.bool_] | None = None,
 ) -> str:
-    """What a state file must belong to: the same plan, prior, mission, team, routes
-    and exchange."""
+    """What a state file must belong to: the same plan, prior, mission, team, routes,
+    exchange and territory mask (the landmarks are drawn inside it)."""
     h = hashlib.sha256()
     for m in (plan,) if prior is None else (plan, prior):
         # The frame too: the same cells at another origin or resolution are another map.
@@ -288,6 +289,10 @@ def _fingerprint(
     for r in routes:
         h.update(np.ascontiguousarray(r, dtype=np.float64).tobytes())
     h.update(json.dumps([asdict(cfg), robot, list(ids), asdict(ex)], default=str).encode())
+    if region is not None:
+        # Only with a mask: the state files of missions without one keep their prints.
+        h.update(b"territory")
+        h.update(np.packbits(region).tobytes())
     return h.hexdigest()
 
 
@@ -340,6 +345,7 @@ class _Node:
         key: TeamKey | None = None,
         insecure: bool = False,
         prior: OccupancyMap | None = None,
+        region: npt.NDArray[np.bool_] | None = None,
     ) -> None:
         ids = _check_team(robot, peers)
         if key is not None and key.robots < len(ids):
@@ -362,7 +368,7 @@ class _Node:
             robot, listen, peers, max_message=max_message + LOCK_SLACK, key=key, insecure=insecure
         )
         try:
-            self._setup(plan, ids, max_message, routes, prior)
+            self._setup(plan, ids, max_message, routes, prior, region)
         except BaseException:
             self.zmq.close()
             raise
@@ -374,11 +380,21 @@ class _Node:
         max_message: int,
         given: Sequence[F64 | None] | None,
         prior: OccupancyMap | None,
+        region: npt.NDArray[np.bool_] | None,
     ) -> None:
         cfg, robot = self.cfg, self.robot
+        self.territory_cells = None if region is None else int(region.sum())
         if given is not None and len(given) != len(ids):
             raise ConfigError(f"routes: {len(given)} given for a team of {len(ids)}")
-        world = make_world(plan, seed=cfg.seed, duration=cfg.duration)
+        world = make_world(plan, seed=cfg.seed, duration=cfg.duration, region=region)
+        if region is not None:
+            # Every route drawn here inside the mask, as the launcher draws them.
+            given = [
+                patrol_route(plan, cfg.duration, seed=cfg.seed + 7919 * j, region=region)
+                if given is None or given[k] is None
+                else given[k]
+                for k, j in enumerate(ids)
+            ]
         own = None if given is None else given[robot]
         self.agent = agent = RobotAgent(
             plan, cfg, prior=prior, world=world, robot=robot, route=own, calibrate=False
@@ -420,7 +436,7 @@ class _Node:
             settle=self.settle,
             request_every=self.exchange.request_every,
         )
-        self.fingerprint = _fingerprint(plan, cfg, robot, ids, self.exchange, routes, prior)
+        self.fingerprint = _fingerprint(plan, cfg, robot, ids, self.exchange, routes, prior, region)
         self.last_checkpoint = time.monotonic()
 
     def _views(self) -> None:
@@ -585,6 +601,9 @@ class _Node:
             "local_digest": store_digest(agent.store),
             "rejected_frames": self.link.rejected + sum(self.zmq.stats.rejected.values()),
         }
+        if self.territory_cells is not None:
+            # The mask's cells on the plan (only with one: the same as the launcher's).
+            node["territory_cells"] = self.territory_cells
         return node, result
 
     def linger(self) -> None:
@@ -625,6 +644,7 @@ def run_node(
     key: TeamKey | None = None,
     insecure: bool = False,
     prior: OccupancyMap | None = None,
+    region: npt.NDArray[np.bool_] | None = None,
 ) -> dict[str, Any]:
     """Run robot ``robot_id``'s mission as one node of a team over ZeroMQ.
 
@@ -643,7 +663,8 @@ def run_node(
         Every other robot's listen address.
     out : Path
         Folder for ``summary.json`` (this robot's row of run_team's summary, its held
-        pose UIDs, :func:`store_digest` and the clock's figures) and ``map.*``.
+        pose UIDs, :func:`store_digest`, the clock's figures and, with a ``region``,
+        ``territory_cells``: its cells on the plan) and ``map.*``.
     exchange : ExchangeParams, optional
     state_dir : Path, optional
         Folder of the checkpoint; a node started on a folder holding one resumes.
@@ -665,6 +686,9 @@ def run_node(
     prior : OccupancyMap, optional
         The robot's prior map (:mod:`.prior`), as :func:`~.simulation.run_team`'s: its
         regions and the frame of its global map; scored against ``plan`` all the same.
+    region : ndarray of bool, optional
+        A user's territory mask on the plan's cells (:mod:`.territory`): the world's
+        landmarks and the routes the node draws stay inside it. None: the whole plan.
 
     Returns
     -------
@@ -701,6 +725,7 @@ def run_node(
             key=key,
             insecure=insecure,
             prior=prior,
+            region=region,
         )
 
 
@@ -724,6 +749,7 @@ def _run(
     key: TeamKey | None,
     insecure: bool,
     prior: OccupancyMap | None,
+    region: npt.NDArray[np.bool_] | None,
 ) -> dict[str, Any]:
     ex = exchange
     node = _Node(
@@ -744,6 +770,7 @@ def _run(
         key=key,
         insecure=insecure,
         prior=prior,
+        region=region,
     )
     try:
         finished = node.load()

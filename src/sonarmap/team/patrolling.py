@@ -19,7 +19,9 @@ routes' 0.3 m robots at 0.5 m/s, poses at 2 Hz):
   default (potential field, mode direction, full network among the patrollers: the
   patrol's own coordination is not the mapping exchange's network);
 - starts are the patroller's random starts (free cells, 2 radii apart), drawn from
-  ``seed``;
+  ``seed``; with a user's territory mask (``region``, :mod:`.territory`), on the
+  largest piece a robot fits in inside it, and the patrol stays inside it (its
+  ``--territory``);
 - the heading is the direction of the last move (the holonomic patroller turns on the
   spot), kept while a robot stands still; before its first move a robot faces its
   first move's direction.
@@ -35,11 +37,13 @@ import numpy.typing as npt
 from ..errors import ConfigError
 from ..io.rosmap import OccupancyMap
 from ..patrol.fog import Fog
+from ..patrol.reach import reach
 from ..patrol.robots import Team
 from ..patrol.simulation import PatrolConfig, PatrolResult, run_patrol
 from ..patrol.starts import random_starts
 from ..patrol.territory import Territory
 from .config import check_team_size
+from .territory import mask_on
 
 __all__ = ["patrol_config", "patrol_routes"]
 
@@ -92,6 +96,7 @@ def patrol_routes(
     *,
     seed: int = 0,
     config: PatrolConfig | None = None,
+    region: npt.NDArray[np.bool_] | None = None,
 ) -> tuple[list[F64], PatrolResult]:
     """Each robot's route as the potential-field patroller drives the team.
 
@@ -107,6 +112,9 @@ def patrol_routes(
         The patrol's seed (starts and random moves).
     config : PatrolConfig, optional
         Default :func:`patrol_config` (``duration`` then unused).
+    region : ndarray of bool, optional
+        A user's territory mask on the plan's cells: the starts and the patrol stay
+        inside it (the patrol's ``region``). None (default): the whole plan.
 
     Returns
     -------
@@ -129,10 +137,14 @@ def patrol_routes(
         ys.append(team.y.copy())
 
     # The starts drawn here, as run_patrol would, so that the routes can begin at them.
-    starts = random_starts(
-        robots, territory, territory.passable(cfg.radius), cfg.min_separation, seed
+    inside = None if region is None else mask_on(region, plan.grid, territory.grid)
+    where = (
+        territory.passable(cfg.radius)
+        if inside is None
+        else reach(territory, cfg.radius, region=inside).passable
     )
-    result = run_patrol(territory, cfg, starts=starts, seed=seed, on_step=keep)
+    starts = random_starts(robots, territory, where, cfg.min_separation, seed)
+    result = run_patrol(territory, cfg, starts=starts, seed=seed, on_step=keep, region=inside)
     x0 = np.asarray(starts, dtype=np.float64)
     tt = np.concatenate([[0.0], np.asarray(t, dtype=np.float64)])
     X = np.vstack([x0[:, 0], *xs])

@@ -56,6 +56,7 @@ from ..sensors import Noise
 from ..simulate import SonarModel, simulate
 from .config import MAX_DURATION
 from .records import Landmarks
+from .territory import mask_on
 
 __all__ = [
     "BUILTIN_PLANS",
@@ -256,6 +257,7 @@ def facing_cells(
     radius: float = 0.3,
     margin: float = 0.5,
     starts: npt.NDArray[np.intp] | None = None,
+    region: npt.NDArray[np.bool_] | None = None,
 ) -> npt.NDArray[np.bool_]:
     """Free cells a robot of ``radius`` metres sees a wall across: those within
     ``radius + margin`` metres (0.3 + 0.5) of where its centre can get to, by steps over
@@ -263,11 +265,13 @@ def facing_cells(
 
     Where its centre can get to is :func:`~sonarmap.patrol.reach.reach`'s: the pieces
     of the map holding ``starts`` (rows, cols), or the largest piece; unknown cells
-    are never free. Left out: a real map's outside behind its outer wall, the inside of
-    a shelf drawn as an outline, a room behind a door narrower than the robot.
+    are never free; with a ``region`` (a user's territory mask on the plan's cells,
+    :mod:`.territory`) only its inside. Left out: a real map's outside behind its outer
+    wall, the inside of a shelf drawn as an outline, a room behind a door narrower than
+    the robot.
     """
     terr = Territory.from_map(plan)
-    passable = reach(terr, radius, starts=starts).passable
+    passable = reach(terr, radius, starts=starts, region=region).passable
     steps = max(1, math.ceil((radius + margin) / plan.grid.resolution))
     grown = ndimage.binary_dilation(
         passable, structure=np.ones((3, 3), dtype=bool), iterations=steps, mask=terr.free
@@ -276,23 +280,37 @@ def facing_cells(
 
 
 def territory_faces(
-    plan: OccupancyMap, radius: float = 0.3, speckle_area: float = 0.01
+    plan: OccupancyMap,
+    radius: float = 0.3,
+    speckle_area: float = 0.01,
+    region: npt.NDArray[np.bool_] | None = None,
 ) -> tuple[F64, F64, F64]:
     """The :func:`wall_faces` a robot of ``radius`` metres can see: those whose free
-    cell is one of :func:`facing_cells` (of the largest piece where it fits), on an
-    obstacle that is not a speck (:func:`speckle_mask` of ``speckle_area`` m^2). Same
-    arrays as :func:`wall_faces`.
+    cell is one of :func:`facing_cells` (of the largest piece where it fits, inside
+    ``region`` when one is given), on an obstacle that is not a speck
+    (:func:`speckle_mask` of ``speckle_area`` m^2). Same arrays as :func:`wall_faces`.
     """
     starts, dirs, normals = wall_faces(plan)
     if len(starts) == 0:
         return starts, dirs, normals
     grid = plan.grid
     h = grid.resolution
-    seen = facing_cells(plan, radius)
+    seen = facing_cells(plan, radius, region=region)
     centre = starts + 0.5 * h * dirs
     fr, fc = grid.world_to_cell(*(centre + 0.5 * h * normals).T)
     orow, ocol = grid.world_to_cell(*(centre - 0.5 * h * normals).T)
     keep = seen[fr, fc] & ~speckle_mask(plan, speckle_area)[orow, ocol]
+    return starts[keep], dirs[keep], normals[keep]
+
+
+def _faces_inside(
+    plan: OccupancyMap, sides: tuple[F64, F64, F64], region: npt.NDArray[np.bool_]
+) -> tuple[F64, F64, F64]:
+    """The faces of ``sides`` whose free cell lies inside ``region``."""
+    starts, dirs, normals = sides
+    h = plan.grid.resolution
+    fr, fc = plan.grid.world_to_cell(*(starts + 0.5 * h * dirs + 0.5 * h * normals).T)
+    keep = region[fr, fc]
     return starts[keep], dirs[keep], normals[keep]
 
 
@@ -368,6 +386,7 @@ def make_world(
     faces: str = "territory",
     radius: float = 0.3,
     speckle_area: float = 0.01,
+    region: npt.NDArray[np.bool_] | None = None,
 ) -> World:
     """Landmarks on the obstacle surfaces of ``plan``, with repeated textures and changes.
 
@@ -407,6 +426,10 @@ def make_world(
         none facing free space it cannot reach: a real map's outside, the inside of a
         shelf, a room behind a door narrower than the robot); ``all``: every face of an
         occupied cell on a free one.
+    region : ndarray of bool, optional
+        A user's territory mask on the plan's cells (:mod:`.territory`): ``territory``
+        faces are then those of the largest piece a robot fits in inside it, ``all``
+        faces those whose free cell lies inside it. None (default): the whole plan.
 
     Returns
     -------
@@ -436,11 +459,17 @@ def make_world(
         raise ConfigError(f"faces must be one of {', '.join(FACES)}, got {quote(faces)}")
     _check_positive(radius=radius, speckle_area=speckle_area)
     rng = np.random.default_rng(seed)
-    sides = wall_faces(plan) if faces == "all" else territory_faces(plan, radius, speckle_area)
+    if faces == "all":
+        sides = wall_faces(plan)
+        if region is not None:
+            sides = _faces_inside(plan, sides, region)
+    else:
+        sides = territory_faces(plan, radius, speckle_area, region)
     starts, dirs, _ = sides
     h = plan.grid.resolution
     if len(starts) == 0:
         where = "" if faces == "all" else f" that a robot of radius {radius:g} m can reach"
+        where += "" if region is None else " inside the territory mask"
         raise InputError(f"the plan has no obstacle facing free space{where} to put landmarks on")
     n_base = max(1, round(len(starts) * h / landmark_spacing))
     n_new = round(change_share * n_base)
@@ -489,6 +518,9 @@ def make_world(
         "radius": radius,
         "speckle_area": speckle_area,
     }
+    if region is not None:
+        # Only when given: worlds made without a mask keep the parameters they had.
+        params["territory_cells"] = int(region.sum())
     return World(
         plan,
         np.column_stack([xy, z]),
@@ -637,14 +669,23 @@ def _largest_area(ok: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
     return np.asarray(comps == int(np.argmax(sizes)))
 
 
-def _tour_points(plan: OccupancyMap, radius: float, budget: float, spacing: float) -> F64:
+def _tour_points(
+    plan: OccupancyMap,
+    radius: float,
+    budget: float,
+    spacing: float,
+    region: npt.NDArray[np.bool_] | None = None,
+) -> F64:
     """World points (K, 2) of a cyclic tour over the largest area a robot of ``radius``
-    fits in, in tour order, its lattice as fine as ``spacing`` metres allows while the
-    tour stays within ``budget`` metres (coarser until it does)."""
+    fits in (inside ``region``, a mask on the plan's cells, when given), in tour order,
+    its lattice as fine as ``spacing`` metres allows while the tour stays within
+    ``budget`` metres (coarser until it does)."""
     # On cells of about 0.1 m: a wave per waypoint, so the map's own 3-5 cm cells would
     # cost ten times the time for the same tour.
     terr = Territory.from_map(plan, cell=max(0.1, plan.grid.resolution))
     ok = terr.passable(radius)
+    if region is not None:
+        ok = ok & mask_on(region, plan.grid, terr.grid)
     if not ok.any():
         raise ConfigError(f"no cell of the plan lets a robot of radius {radius} m pass")
     area = _largest_area(ok)
@@ -674,11 +715,14 @@ def patrol_route(
     style: str = "waypoints",
     laps: float = 3.0,
     spacing: float = 2.0,
+    region: npt.NDArray[np.bool_] | None = None,
 ) -> F64:
     """A stand-in for the patroller: random waypoints, or a tour driven lap after lap.
 
     The robot starts on a random cell of the largest connected area where it fits
-    (unknown cells are never free). With ``style="waypoints"`` (default) it then heads
+    (unknown cells are never free; with a ``region``, a user's territory mask on the
+    plan's cells (:mod:`.territory`), the largest such area inside it, and every leg
+    stays inside it). With ``style="waypoints"`` (default) it then heads
     for random cells of that area at least ``min_leg`` metres (3) away, one after the
     other; it rarely passes a place the same way twice. With ``style="tour"`` it drives
     one cyclic tour of that area again and again, the same way round, so that it passes
@@ -701,7 +745,7 @@ def patrol_route(
     ------
     ConfigError
         An unknown ``style``, ``laps`` or ``spacing`` not > 0, or an area too small to
-        drive in.
+        drive in (inside the mask too).
     """
     _check_positive(duration=duration, speed=speed, rate=rate, laps=laps, spacing=spacing)
     _check_duration(duration)
@@ -710,6 +754,14 @@ def patrol_route(
             f"route style must be one of {', '.join(ROUTE_STYLES)}, got {quote(style)}"
         )
     grid, ok = _passable(plan, radius)
+    if region is not None:
+        if region.shape != grid.shape:
+            raise ValueError(f"a territory mask of {region.shape} for a plan of {grid.shape}")
+        ok = ok & region
+        if not ok.any():
+            raise ConfigError(
+                f"no cell inside the territory mask lets a robot of radius {radius} m pass"
+            )
     area = _largest_area(ok)
     rows, cols = np.nonzero(area)
     rng = np.random.default_rng(seed)
@@ -718,7 +770,7 @@ def patrol_route(
     cells = [(int(rows[k]), int(cols[k]))]
     need = speed * duration
     if style == "tour":
-        pts = _tour_points(plan, radius, need / laps, spacing)
+        pts = _tour_points(plan, radius, need / laps, spacing, region)
         loop = [_snap(grid, area, float(x), float(y)) for x, y in pts]
         loop = [c for i, c in enumerate(loop) if c != loop[i - 1]] or loop[:1]
         near = int(np.argmin([math.hypot(r - cells[0][0], c - cells[0][1]) for r, c in loop]))

@@ -1,0 +1,182 @@
+"""Team missions inside a territory mask on drawn plans (issue 37, item 1;
+``docs/results/2026-12-07-team-territory.md``).
+
+The training stand-ins for a scanned plan whose outside is drawn free (``scanned:1``,
+``scanned:2``: :func:`benchmarks.team_world.scanned_standin`; ``standin:0``:
+:func:`benchmarks.team_bound.standin_plan`) and the mask a user would draw for each: the
+building's outline as a polygon file.
+
+Run with ``python -m benchmarks.team_territory --out DIR [--seeds 0 1] [--drawn]``:
+
+- writes ``DIR/maps/{scanned1,scanned2,standin0}.yaml`` and the outlines
+  ``DIR/maps/{scanned,standin0}-inside.txt``, for ``sonarmap team run --territory``;
+- prints, per map and seed, the share of robot 0's route (as ``team run`` draws it,
+  1,200 s) and of the world's landmarks inside the outline (shrunk by half a cell, so a
+  landmark on the outer wall's outer face counts as outside), without and with the
+  mask, and what the mask leaves the robot (``territory_record``);
+- draws ``DIR/standin0.png``: standin:0's route and landmarks without and with the mask;
+- with ``--drawn``, the candidate default of item 3 measured against its rule: whether a
+  map "looks drawn" (under 1 % unknown, at least half its border free) and what leaving
+  out the free cells connected to the border would leave out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+
+from benchmarks.team_bound import standin_plan
+from benchmarks.team_world import scanned_standin
+from sonarmap.builtins import builtin_plan
+from sonarmap.errors import InputError
+from sonarmap.io.rosmap import FREE, UNKNOWN, OccupancyMap, read_map, write_map
+from sonarmap.team.territory import read_territory, territory_reach, territory_record
+from sonarmap.team.world import make_world, patrol_route
+
+SHARED = Path("/work/shared/data/maps")
+#: Map label -> (file stem, outline stem, the building's outline x0, y0, x1, y1 in metres).
+STANDINS = {
+    "scanned:1": ("scanned1", "scanned-inside", (0.0, 0.0, 40.0, 30.0)),
+    "scanned:2": ("scanned2", "scanned-inside", (0.0, 0.0, 40.0, 30.0)),
+    "standin:0": ("standin0", "standin0-inside", (0.0, 0.0, 100.0, 80.0)),
+}
+DURATION = 1200.0
+
+
+def _plan(label: str) -> OccupancyMap:
+    kind, _, seed = label.partition(":")
+    return scanned_standin(int(seed)) if kind == "scanned" else standin_plan(int(seed))
+
+
+def write_inputs(folder: Path) -> None:
+    """The stand-ins as map files and their outlines as polygon files, as a user has them."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for label, (stem, outline, (x0, y0, x1, y1)) in STANDINS.items():
+        write_map(_plan(label), folder / stem)
+        (folder / f"{outline}.txt").write_text(
+            f"# the building's outline ({label}), metres in the map's frame\n"
+            f"{x0:g} {y0:g}\n{x1:g} {y0:g}\n{x1:g} {y1:g}\n{x0:g} {y1:g}\n"
+        )
+
+
+def _inside(xy: npt.NDArray[np.float64], box: tuple[float, ...], pad: float) -> float:
+    x0, y0, x1, y1 = box
+    x, y = xy[:, 0], xy[:, 1]
+    ok = (x > x0 + pad) & (x < x1 - pad) & (y > y0 + pad) & (y < y1 - pad)
+    return float(ok.mean()) if len(ok) else float("nan")
+
+
+def shares(folder: Path, seeds: list[int], picture: Path | None) -> None:
+    """The routes' and landmarks' shares inside the outline, without and with the mask."""
+    print("| map | seed | route inside, none -> mask | landmarks inside, none -> mask |")
+    print("|---|---|---|---|")
+    for label, (stem, outline, box) in STANDINS.items():
+        plan = read_map(folder / f"{stem}.yaml")
+        mask = folder / f"{outline}.txt"
+        region = read_territory(mask, plan)
+        half = 0.5 * plan.grid.resolution
+        for seed in seeds:
+            r0 = patrol_route(plan, DURATION, seed=seed)
+            r1 = patrol_route(plan, DURATION, seed=seed, region=region)
+            w0 = make_world(plan, seed=seed, duration=DURATION)
+            w1 = make_world(plan, seed=seed, duration=DURATION, region=region)
+            print(
+                f"| {label} | {seed} | {_inside(r0[:, 1:3], box, half):.3f} -> "
+                f"{_inside(r1[:, 1:3], box, half):.3f} | "
+                f"{_inside(w0.points[:, :2], box, half):.3f} (of {len(w0):,}) -> "
+                f"{_inside(w1.points[:, :2], box, half):.3f} (of {len(w1):,}) |",
+                flush=True,
+            )
+            if picture is not None and label == "standin:0" and seed == seeds[0]:
+                _draw(plan, [(r0, w0.points), (r1, w1.points)], picture)
+        print(f"{label}: {territory_record(mask, plan, region)}", flush=True)
+
+
+def _draw(
+    plan: OccupancyMap,
+    runs: list[tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]],
+    path: Path,
+) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    g = plan.grid
+    x0, y0 = g.origin
+    extent = (x0, x0 + g.cols * g.resolution, y0, y0 + g.rows * g.resolution)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
+    titles = ("no mask", "--territory (outline)")
+    for ax, (route, points), title in zip(axes, runs, titles, strict=True):
+        ax.imshow(plan.classes() != FREE, cmap="Greys", extent=extent, origin="upper")
+        ax.plot(route[:, 1], route[:, 2], color="tab:blue", lw=0.6)
+        ax.scatter(points[:, 0], points[:, 1], s=1, color="tab:green")
+        ax.set_title(f"standin:0, robot 0's route (1,200 s) and landmarks: {title}")
+        ax.set_aspect("equal")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def drawn(folder: Path) -> None:
+    """Item 3's candidate default measured against the rule stated before measuring."""
+    maps: dict[str, tuple[OccupancyMap, Path | None]] = {}
+    for label, (stem, outline, _) in STANDINS.items():
+        maps[label] = (read_map(folder / f"{stem}.yaml"), folder / f"{outline}.txt")
+    for name in ("depot", "warehouse", "tb3_sandbox"):
+        maps[name] = (read_map(SHARED / f"{name}.yaml"), None)
+    for name in ("office", "building:1"):
+        maps[name] = (builtin_plan(name), None)
+    eight = np.ones((3, 3), dtype=bool)
+    print("| map | unknown | border free | drawn | free connected to the border | "
+          "left out: outside / inside | largest piece as the outline's |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|")
+    for label, (plan, mask) in maps.items():
+        cls = plan.classes()
+        free = cls == FREE
+        border = np.zeros_like(free)
+        border[0, :] = border[-1, :] = border[:, 0] = border[:, -1] = True
+        unknown, edge = float((cls == UNKNOWN).mean()), float(free[border].mean())
+        labels, _ = ndimage.label(free, structure=eight)
+        touching = np.unique(labels[border & free])
+        outside = np.isin(labels, touching[touching > 0])
+        cells = [f"{unknown:.3f}", f"{edge:.3f}", str(unknown < 0.01 and edge >= 0.5)]
+        cells.append(f"{outside.sum() / max(1, free.sum()):.3f}")
+        if mask is None:
+            cells += ["-", "-"]
+        else:
+            region = read_territory(mask, plan)
+            fin, fout = free & region, free & ~region
+            cells.append(f"{(outside & fout).sum() / fout.sum():.3f} / "
+                         f"{(outside & fin).sum() / fin.sum():.3f}")  # fmt: skip
+            try:
+                a = territory_reach(plan, ~outside).passable
+                b = territory_reach(plan, region).passable
+                cells.append(f"{int((a & b).sum())} of {int(a.sum())} / {int(b.sum())} cells")
+            except InputError:
+                cells.append("no place left")
+        print(f"| {label} | " + " | ".join(cells) + " |", flush=True)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    p.add_argument("--drawn", action="store_true", help="item 3's rule, measured")
+    a = p.parse_args(argv)
+    folder = a.out / "maps"
+    write_inputs(folder)
+    shares(folder, a.seeds, a.out / "standin0.png")
+    if a.drawn:
+        drawn(folder)
+
+
+if __name__ == "__main__":
+    main()
