@@ -165,10 +165,14 @@ def test_the_cars_benchmark_refuses_forward_stale_without_the_forward_wave(
 
 
 @pytest.mark.slow
-def test_forward_stale_sends_the_cars_to_the_places_the_forward_wave_leaves() -> None:
+def test_site_6s_corner_is_seen_with_the_lift_and_without_it() -> None:
     # Training site 6, five cars, one-way streets, forward wave: the north-west corner
-    # (about a tenth of the site) was never seen in 1,200 s without the lift, already
-    # so at 350 s; with forward_stale 10 every place was seen by then (measured).
+    # (about a tenth of the site) was never seen in 1,200 s without the lift for stale
+    # places (forward_stale 0), already so at 350 s, and the lift was built for it.
+    # Since a car whose forward wave finds nothing to go for runs it in every direction
+    # (cars stood for good at one-way junctions on the fig. 3.10 map,
+    # docs/results/2026-12-07-cars-fig310.md), every place is seen by 400 s without the
+    # lift too (measured; before that change more than 5 % was left by 400 s).
     def never_seen(stale: float) -> float:
         config = PatrolConfig(
             model="car",
@@ -180,5 +184,5 @@ def test_forward_stale_sends_the_cars_to_the_places_the_forward_wave_leaves() ->
         result = run_patrol(street_territory(6), config, robots=5, seed=0)
         return float(result.summary()["never_seen"])
 
-    assert never_seen(0.0) > 0.05
+    assert never_seen(0.0) == 0.0
     assert never_seen(10.0) == 0.0

@@ -1301,6 +1301,12 @@ def run_patrol(
     # Forward waves: whether each fog's stalest place lifts them this step
     # (``config.forward_stale``).
     lifted = np.zeros(len(own), dtype=np.bool_)
+    # Forward waves: whether each car's closed cells this step hold the cells behind
+    # it while the way ahead leads on (not while it follows the robots that shut it,
+    # which ends after FOLLOW_TIME), and whether that left it nothing to go for, so
+    # that its wave runs in every direction instead (see the choice below).
+    closed_behind = np.zeros(len(team), dtype=np.bool_)
+    stranded = np.zeros(len(team), dtype=np.bool_)
     follow_steps = round(FOLLOW_TIME / config.dt)
     penalty = (
         obstacle_penalty(territory.free, g.resolution, config.refine_window)
@@ -1359,11 +1365,18 @@ def run_patrol(
             parts += obstacle_discs(
                 team, i, rc, obst, passable.shape, halve=halve, following=following, heard=heard
             )
-        if dead_ends is not None and not following and not lifted[0 if shared else i]:
+        closed_behind[i] = False
+        if (
+            dead_ends is not None
+            and not following
+            and not lifted[0 if shared else i]
+            and not stranded[i]
+        ):
             back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
             start = (int(r[i]), int(c[i]))
             if dead_ends.leads_on(np.concatenate([back, *parts]), start):
                 parts.append(back)
+                closed_behind[i] = True
                 shut[i] = -1
             elif dead_ends.leads_on(back, start):
                 # Only other robots shut the way ahead: they are often on their way, so
@@ -1510,6 +1523,7 @@ def run_patrol(
             counted, n_targets = targets, int(np.count_nonzero(targets))
 
         for i in range(len(team)):
+            stranded[i] = False
             held = aims[i]
             mine_fog = own[0 if shared else i]
             closed: npt.NDArray[np.intp] | None = None
@@ -1665,20 +1679,30 @@ def run_patrol(
                         if unmasked is None
                         else [(pulling, n_pulling), (unmasked, n_unmasked)]
                     )
-                    for pulling, n_pulling in tries:
-                        strength = sector_pulls(
-                            waver,
-                            passable,
-                            start,
-                            g.resolution,
-                            pulling,
-                            config.force,
-                            top,
-                            n_watched=n_pulling,
-                            **pull_args,
-                        )
-                        if strength.any():
+                    # The dead-end test floods the passable cells, not the wave's
+                    # allowed steps: a car facing the wrong way into a one-way street
+                    # passes it while its forward wave, keeping to the one-way steps,
+                    # reaches only a pocket of places in sight. Then nothing pulls and
+                    # it would stand for good, so its wave runs in every direction.
+                    for _ in range(2):
+                        for pulling, n_pulling in tries:
+                            strength = sector_pulls(
+                                waver,
+                                passable,
+                                start,
+                                g.resolution,
+                                pulling,
+                                config.force,
+                                top,
+                                n_watched=n_pulling,
+                                **pull_args,
+                            )
+                            if strength.any():
+                                break
+                        if strength.any() or not closed_behind[i]:
                             break
+                        stranded[i] = True
+                        pull_args["closed"] = closed_cells(i, r, c, k)
                     if direct:
                         directions.append(step_direction(strength, config.direction, weights))
                         goals.append(None)
