@@ -1,6 +1,7 @@
 """The one-way street system on the thesis-scale map: CPU time of one build.
 
-Setting: the built-in ``fig3-10`` map at ``--cell`` metres (0.1, as Table 4), the
+Setting: a built-in map (``--map``, default ``fig3-10``) at ``--cell`` metres (0.1,
+as Table 4), the
 places the car defaults patrol from the map's first five starts (as
 ``benchmarks.patrol`` runs them), the cars' turning radius. :func:`~sonarmap.patrol.
 oneway.one_way` is built once untimed (numba's kernels compiled or loaded), then
@@ -14,7 +15,7 @@ version's sources (``PYTHONPATH=OTHER/src``) times that version on the same inpu
 and equal digests mean equal systems. Whether the system equals the former
 whole-map code's is the tests' question (``tests/test_patrol_oneway.py``).
 
-Run with ``python -m benchmarks.one_way [--cell 0.1] [--repeat 3]``.
+Run with ``python -m benchmarks.one_way [--map fig3-10] [--cell 0.1] [--repeat 3]``.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import numpy as np
 
 import sonarmap
 from sonarmap.patrol import PatrolConfig
-from sonarmap.patrol.maps import builtin_territory
+from sonarmap.patrol.maps import BUILTIN_MAPS, builtin_territory
 from sonarmap.patrol.oneway import OneWay, one_way
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.starts import starts_from_dm
@@ -49,12 +50,13 @@ def digest(ow: OneWay) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.one_way", description=__doc__)
+    ap.add_argument("--map", default="fig3-10", choices=sorted(BUILTIN_MAPS))
     ap.add_argument("--cell", type=float, default=0.1)
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args(argv)
     if a.repeat < 1:
         ap.error(f"--repeat must be >= 1, got {a.repeat}")
-    territory, starts = builtin_territory("fig3-10", a.cell)
+    territory, starts = builtin_territory(a.map, a.cell)
     cfg = PatrolConfig(model="car", cell=a.cell)
     xy = starts_from_dm(starts[:5], territory)
     g = territory.grid
@@ -63,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     args = (passable, territory.clearance, g.resolution, cfg.turn_radius)
     want = digest(one_way(*args))
     print(
-        f"fig3-10 at {a.cell} m: {passable.shape[0]} x {passable.shape[1]} cells, "
+        f"{a.map} at {a.cell} m: {passable.shape[0]} x {passable.shape[1]} cells, "
         f"{int(passable.sum())} passable, turn radius {cfg.turn_radius} m; "
         f"sonarmap from {os.path.dirname(sonarmap.__file__)}"
     )
