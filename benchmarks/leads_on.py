@@ -4,9 +4,11 @@ Setting: the built-in ``fig3-10`` map at ``--cell`` metres (0.1, as Table 4), th
 cells a car of radius 1 m may stand on, ``--calls`` cars at random passable cells
 facing random headings (seeded), the cells up to 4 m behind each closed
 (:func:`~sonarmap.patrol.manoeuvre.behind_cells`). For each call: CPU seconds of
-:meth:`~sonarmap.patrol.manoeuvre.DeadEnds.leads_on` (the floods from the closed
-cells' borders, on one :class:`~sonarmap.patrol.manoeuvre.DeadEnds` built once as the
-simulator builds it; its build's CPU time is printed apart) and of the former
+:meth:`~sonarmap.patrol.manoeuvre.DeadEnds.leads_on` (a flood from the car's cell
+that stops at half the passable cells, cell by cell in the 16-cell blocks the closed
+cells and the car touch and a block's piece at a time outside them, on one
+:class:`~sonarmap.patrol.manoeuvre.DeadEnds` built once as the simulator builds it;
+its build's CPU time is printed apart) and of the former
 whole-map labelling (``ndimage.label``, here only to compare), and whether their
 answers agree (they must, every call).
 

@@ -17,14 +17,22 @@ direction choice, one core. For each cell size (``--cells``, default the thesis'
 - mean MTB, DVT and the share never seen, so the two cell sizes can be compared.
 
 Run with ``python -m benchmarks.patrol [--cells 0.1 0.5] [--duration 1200] [--json F]``.
+
+With ``--profile SECONDS`` it measures nothing of the above: for each cell size it runs
+5 simulated seconds untimed (numba's kernels compiled or loaded, the territory built),
+then ``SECONDS`` simulated seconds of the same setting under ``cProfile``, and prints
+that run's CPU seconds and the profile's 30 lines of most time spent in a function
+itself (``tottime``).
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
 import json
 import os
 import platform
+import pstats
 import time
 from typing import Any
 
@@ -88,6 +96,21 @@ def measure(cell: float, duration: float, check: float, seed: int) -> dict[str, 
     }
 
 
+def profile(cell: float, duration: float, seed: int, lines: int = 30) -> None:
+    """Print the CPU seconds and the ``lines`` largest ``tottime`` entries of a profiled
+    run of ``duration`` simulated seconds at ``cell`` metres (after an untimed 5 s)."""
+    _run(cell, 5.0, True, seed)
+    prof = cProfile.Profile()
+    prof.enable()
+    _, wall, cpu = _run(cell, duration, True, seed)
+    prof.disable()
+    print(
+        f"profile: fig3-10 at {cell} m, {duration:g} simulated s, seed {seed}: "
+        f"{cpu:.1f} s CPU, {wall:.1f} s wall (under the profiler)"
+    )
+    pstats.Stats(prof).sort_stats("tottime").print_stats(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--cells", type=float, nargs="+", default=[0.1, 0.5])
@@ -95,7 +118,19 @@ def main() -> None:
     parser.add_argument("--check", type=float, default=120.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
+    parser.add_argument(
+        "--profile",
+        type=float,
+        metavar="SECONDS",
+        help="Profile a run of this many simulated seconds per cell size instead.",
+    )
     args = parser.parse_args()
+    if args.profile is not None:
+        if not args.profile > 0:
+            parser.error(f"--profile must be > 0 simulated seconds, got {args.profile}")
+        for c in args.cells:
+            profile(c, args.profile, args.seed)
+        return
     rows = [measure(c, args.duration, args.check, args.seed) for c in args.cells]
     head = (
         f"{'cell':>5} {'x real time':>11} {'CPU s':>7} {'x per CPU s':>11} {'target':>7} "

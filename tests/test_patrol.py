@@ -965,6 +965,59 @@ def test_the_fog_keeps_its_latest_blocks_just_seen_cells_and_mean_over_seen_ones
             )
 
 
+@pytest.mark.parametrize("start", [0.0, 3.0])
+def test_a_restored_fog_answers_as_the_original(start: float) -> None:
+    """A fog restored from state() (into a fresh fog of the same grid) answers
+    latest_blocks, clear_just_seen, mean_seen_tb, mean_tb and mtb exactly as the
+    original, then and after more looks (its derived caches rebuilt from last)."""
+    rng = np.random.default_rng(int(start) + 5)
+    shape = (75, 50)
+    grid = Grid(resolution=0.1, origin=(0.0, 0.0), shape=shape)
+    watched = rng.random(shape) > 0.25
+    clear = rng.random(shape) > 0.1
+    disc = disc_offsets(1.2, 0.1)
+    vision = Vision(1.2, 0.1, clear)
+    fog = Fog(grid, watched, start)
+
+    def look(f: Fog, k: int, rr: np.ndarray, cc: np.ndarray) -> None:
+        f.advance(0.5)
+        f.observe(rr, cc, disc if k % 2 else vision)
+
+    def same(a: Fog, b: Fog) -> None:
+        np.testing.assert_array_equal(a.latest_blocks(), b.latest_blocks())
+        assert a.mean_seen_tb() == b.mean_seen_tb()
+        assert a.mean_tb() == b.mean_tb()
+        assert a.mtb() == b.mtb()
+        np.testing.assert_array_equal(a.never_seen(), b.never_seen())
+        mask = rng.random(shape) > 0.4
+        mask_b = mask.copy()
+        assert a.clear_just_seen(mask) == b.clear_just_seen(mask_b)
+        np.testing.assert_array_equal(mask, mask_b)
+
+    for k in range(12):
+        look(fog, k, rng.integers(0, shape[0], 2), rng.integers(0, shape[1], 2))
+    saved = fog.state()
+    back = Fog(grid, watched, 0.0 if start else 7.0)  # restore sets start too
+    back.restore(saved)
+    assert back.t == fog.t
+    assert back.start == fog.start
+    same(fog, back)
+    assert fog.mean_seen_tb() != math.inf
+    assert fog.never_seen().any()
+    # The state is a copy: later looks of the original leave it (and the copy) alone.
+    for k in range(12, 30):
+        rr, cc = rng.integers(0, shape[0], 3), rng.integers(0, shape[1], 3)
+        look(fog, k, rr, cc)
+        look(back, k, rr, cc)
+        same(fog, back)
+    again = Fog(grid, watched, start)
+    again.restore(saved)
+    assert again.t == 6.0
+    assert again.mtb() != fog.mtb()
+    with pytest.raises(ValueError, match="shape"):
+        again.restore({**saved, "last": saved["last"][:-1]})
+
+
 def test_move_clear_samples_both_ends_and_the_pieces_midpoints() -> None:
     """move_clear is clear exactly when both ends and the midpoints of the quarter-cell
     pieces of the segment lie on clear cells inside the grid (segments leaving the

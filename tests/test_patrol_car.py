@@ -126,6 +126,34 @@ def test_leads_on_answers_as_labelling_the_whole_map_does() -> None:
     assert answers == {True, False}
 
 
+def test_the_dead_end_test_reads_indices_as_numpy_does() -> None:
+    rng = np.random.default_rng(7)
+    passable = rng.random((20, 37)) < 0.7
+    ends = DeadEnds(passable)
+    rows, cols = passable.shape
+    # Negative rows and columns count from the end, in the closed cells and the start.
+    for _ in range(50):
+        k = int(rng.integers(1, 60))
+        closed = np.column_stack(
+            [rng.integers(-rows, rows, k), rng.integers(-cols, cols, k)]
+        ).astype(np.intp)
+        start = (int(rng.integers(-rows, rows)), int(rng.integers(-cols, cols)))
+        want = _leads_on_by_labels(passable, closed, start)
+        assert ends.leads_on(closed, start) == want
+        assert leads_on(passable, closed, start, n_passable=12345) == want  # ignored
+    # Outside the map: IndexError, as numpy's indexing raised, and the scratch left clean.
+    inside = np.array([[3, 4]], dtype=np.intp)
+    for cell in ([rows, 0], [0, cols], [-rows - 1, 0], [0, -cols - 1], [rows + 40, cols + 9]):
+        with pytest.raises(IndexError, match="outside the 20 x 37 map"):
+            ends.leads_on(np.array([[1, 1], cell], dtype=np.intp), (5, 5))
+    for start in ((rows, 2), (2, cols), (-rows - 1, 2), (2, -cols - 1)):
+        with pytest.raises(IndexError, match="outside"):
+            ends.leads_on(inside, start)
+        with pytest.raises(IndexError, match="outside"):
+            leads_on(passable, inside, start)
+    assert ends.leads_on(inside, (5, 5)) == _leads_on_by_labels(passable, inside, (5, 5))
+
+
 def test_one_dead_end_test_answers_many_questions_of_a_map_as_labelling_does() -> None:
     # Corridors and rooms, as the cars' maps are, and the cars' closed sets: a half disc
     # behind a cell, sometimes with discs round other cars; one DeadEnds for every call.

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -12,9 +15,10 @@ from scipy.sparse.csgraph import connected_components
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.patrol import oneway
 from sonarmap.patrol.graph import reachable_cells
 from sonarmap.patrol.maps import street_territory
-from sonarmap.patrol.oneway import one_way, strong_sets, thin
+from sonarmap.patrol.oneway import OneWay, one_way, strong_sets, thin
 from sonarmap.patrol.paths import STEPS, Wave, path_to
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Car
@@ -337,3 +341,84 @@ def test_bad_allowed_steps_are_named() -> None:
     dist, _ = Wave((4, 5))(passable, (0, 0), RES)
     with pytest.raises(ValueError, match=r"allowed steps of \(5, 4\) for a wave of \(4, 5\)"):
         path_to(dist, (3, 4), RES, passable, np.full((5, 4), 255, dtype=np.uint8))
+
+
+def _whole_map_one_way(
+    passable: npt.NDArray[np.bool_],
+    clearance: npt.NDArray[np.float64],
+    resolution: float,
+    turn_radius: float,
+    monkeypatch: pytest.MonkeyPatch,
+) -> tuple[OneWay, int]:
+    """The former ``one_way`` (main 3a5fca8), which looked for each street's and
+    junction's cells over the whole label map and filtered the allowed steps in numpy:
+    the same code with every bounding box the whole map and the numpy filter put back.
+    Also how many bounding boxes were asked for (none would mean the code no longer
+    takes them, and this reference no longer differs from it)."""
+    asked = [0]
+
+    def whole_map_boxes(labels: npt.NDArray[np.int64]) -> list[tuple[slice, slice]]:
+        # A box for every label 1..max, as ndimage.find_objects, each the whole map.
+        asked[0] += 1
+        n = int(labels.max()) if labels.size else 0
+        return [(slice(0, labels.shape[0]), slice(0, labels.shape[1]))] * max(n, 0)
+
+    def numpy_kept_steps(
+        row: npt.NDArray[np.int32],
+        col: npt.NDArray[np.int32],
+        rc: npt.NDArray[np.int64],
+        steps: npt.NDArray[np.uint8],
+        step_index: npt.NDArray[np.int64],
+    ) -> npt.NDArray[np.bool_]:
+        d = rc[col] - rc[row]
+        j = step_index[(d[:, 0] + 1) * 3 + d[:, 1] + 1]
+        keep: npt.NDArray[np.bool_] = (
+            (steps[rc[row, 0], rc[row, 1]].astype(np.int64) >> j) & 1
+        ).astype(bool)
+        return keep
+
+    fake: Any = SimpleNamespace(**{k: getattr(ndimage, k) for k in dir(ndimage) if k[0] != "_"})
+    fake.find_objects = whole_map_boxes
+    with monkeypatch.context() as m:
+        m.setattr(oneway, "ndimage", fake)
+        m.setattr("sonarmap.patrol.oneway._kept_steps", numpy_kept_steps)
+        ref = one_way(passable, clearance, resolution, turn_radius)
+    return ref, asked[0]
+
+
+def _case(name: str) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64], float, float]:
+    """A map's passable cells, clearance, cell side and turning radius: a random street
+    site at the cars' radius, the ring round a block, a one-cell ring with no junction
+    or the diagonal-only pinch (the check reopens streets)."""
+    if name.startswith("site"):
+        t = street_territory(int(name[4:]))
+        cfg = PatrolConfig(model="car", one_way=True, refine=True)
+        passable = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision).passable
+        return passable, t.clearance, t.grid.resolution, cfg.turn_radius
+    if name == "ring":
+        t = _ring()
+        return t.passable(1.0), t.clearance, RES, 3.5
+    if name == "diamond":
+        # A ring one cell wide with no junction at all (the thinning keeps it as it is),
+        # away from the map's corner: cut at its first cell.
+        rr, cc = np.mgrid[0:60, 0:80]
+        passable = (np.abs(rr - 31) + np.abs(cc - 44)) == 20
+        clearance = ndimage.distance_transform_edt(passable) * RES
+        return passable, np.asarray(clearance, dtype=np.float64), RES, 3.5
+    passable, t = _random_streets(47)
+    return passable, t.clearance, RES, 3.5
+
+
+@pytest.mark.parametrize("case", ["site1", "site4", "site6", "ring", "diamond", "pinch"])
+def test_one_way_is_the_whole_map_references(case: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every field of one_way's system equals the former whole-map code's on random
+    street sites (their loops, stubs and one-way streets), rings and a diagonal-only
+    pinch."""
+    passable, clearance, res, turn_radius = _case(case)
+    got = one_way(passable, clearance, res, turn_radius)
+    want, asked = _whole_map_one_way(passable, clearance, res, turn_radius, monkeypatch)
+    assert asked >= 3
+    # Streets whose direction the boxes decide (at the pinch the check reopens all).
+    assert got.one_way.any() or case == "pinch"
+    for name in OneWay.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)

@@ -7,6 +7,9 @@ MTB(t) = max of TB over the free cells; the thesis's criterion is its time avera
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import numba as nb
 import numpy as np
 import numpy.typing as npt
@@ -111,6 +114,15 @@ class Fog:
     start : float
         TB of every watched cell at time 0 (the thesis's START_FOG, not given; 0 means
         the patrol starts from a territory just seen).
+
+    Attributes
+    ----------
+    t : float
+        The fog's time, seconds (:meth:`advance`).
+    last : ndarray of float64, shape grid
+        The time each cell was last seen, seconds. Read freely; written only through
+        :meth:`observe` or :meth:`restore`, which keep the per-block times and the
+        running sums with it (a direct write leaves them stale).
     """
 
     #: Side of the blocks whose earliest last-seen time is kept, in cells.
@@ -121,7 +133,20 @@ class Fog:
         self.watched = watched
         self.t = 0.0
         self.start = float(start)
+        # -start for a watched cell never seen, +inf off the watched cells; written
+        # only by observe() and restore() (see the class's Attributes).
         self.last = np.where(watched, -float(start), np.inf)
+        self._n = int(watched.sum())
+        # Sum of ``last`` over the watched cells, kept as cells are seen.
+        self._sum = -float(start) * self._n
+        self._rebuild()
+        # The ages of the cells one look sees, before it (a buffer for the kernel).
+        self._ages = np.empty(0)
+
+    def _rebuild(self) -> None:
+        """Derive from :attr:`last` the earliest and latest time of each block and the
+        count of the watched cells never seen (the running sum is not derived: its
+        rounding follows the looks)."""
         b = self.BLOCK
         rows, cols = self.last.shape
         padded = np.full((-(-rows // b) * b, -(-cols // b) * b), np.inf)
@@ -129,13 +154,33 @@ class Fog:
         self._block_min = padded.reshape(padded.shape[0] // b, b, -1, b).min(axis=(1, 3))
         padded[~np.isfinite(padded)] = -np.inf
         self._block_max = padded.reshape(padded.shape[0] // b, b, -1, b).max(axis=(1, 3))
-        self._n = int(watched.sum())
-        # Sum of ``last`` over the watched cells, kept as cells are seen.
-        self._sum = -float(start) * self._n
         # Watched cells whose ``last`` is still -start (never seen), kept as cells are.
-        self._n_never = self._n
-        # The ages of the cells one look sees, before it (a buffer for the kernel).
-        self._ages = np.empty(0)
+        self._n_never = int(np.count_nonzero(self.watched & (self.last == -self.start)))
+
+    def state(self) -> dict[str, Any]:
+        """What a checkpoint keeps (:meth:`restore` reads it): the time ``t``, the
+        ``start`` TB, a copy of :attr:`last` and the running sum of its watched
+        cells (kept, not recomputed, so that :meth:`mean_tb` and
+        :meth:`mean_seen_tb` answer to the last bit as before)."""
+        return {"t": self.t, "start": self.start, "last": self.last.copy(), "sum": self._sum}
+
+    def restore(self, state: Mapping[str, Any]) -> None:
+        """Take back a :meth:`state` of a fog on the same grid and watched cells; the
+        per-block times and the never-seen count are rebuilt from ``last``.
+
+        Raises
+        ------
+        ValueError
+            If the state's ``last`` is not of the grid's shape.
+        """
+        last = np.array(state["last"], dtype=np.float64)
+        if last.shape != self.last.shape:
+            raise ValueError(f"fog state: last has shape {last.shape}, the grid {self.last.shape}")
+        self.t = float(state["t"])
+        self.start = float(state["start"])
+        self.last = last
+        self._sum = float(state["sum"])
+        self._rebuild()
 
     def never_seen(self) -> npt.NDArray[np.bool_]:
         """Watched cells not seen since time 0: a new array."""

@@ -552,8 +552,10 @@ class DeadEnds:
     Parameters
     ----------
     passable : ndarray of bool, shape (rows, cols)
-        Cells a car's centre may occupy; not copied, and must not change while this
-        object is used.
+        Cells a car's centre may occupy. Kept without a copy when it is already a
+        C-contiguous bool array (then it must not change while this object is used);
+        any other array (another dtype, a strided view) is copied once, here, and
+        later changes to it are not seen.
     """
 
     #: Side of the blocks, in cells.
@@ -576,10 +578,14 @@ class DeadEnds:
     def leads_on(
         self, closed: npt.NDArray[np.intp], start: tuple[int, int], share: float = 0.5
     ) -> bool:
-        """Whether, with the ``closed`` cells (K, 2; inside the map) shut, the passable
+        """Whether, with the ``closed`` cells (K, 2; row, column) shut, the passable
         cells still joined to ``start`` are at least ``share`` of all passable cells:
         False when the way ahead is a dead end (the car has to turn round) and the way
         out lay behind.
+
+        Indices as numpy reads them: a negative row or column counts from the map's
+        end; one outside ``-rows .. rows - 1`` (or ``-cols .. cols - 1``), in
+        ``closed`` or ``start``, raises :class:`IndexError`.
 
         Cells join 8-connected, as the wave's steps do; ``start`` counts as open (and
         joined) whatever ``passable`` and ``closed`` say of it.
@@ -592,6 +598,15 @@ class DeadEnds:
         """
         if not len(closed):
             return True
+        shut = np.ascontiguousarray(closed, dtype=np.int64)
+        rows, cols = self.passable.shape
+        r0, c0 = int(start[0]), int(start[1])
+        # The kernel writes its scratch at these cells unchecked: one check here.
+        bad = (shut[:, 0] < -rows) | (shut[:, 0] >= rows) | (shut[:, 1] < -cols)
+        bad |= shut[:, 1] >= cols
+        if bad.any() or not (-rows <= r0 < rows and -cols <= c0 < cols):
+            at = (r0, c0) if not bad.any() else tuple(shut[int(np.argmax(bad))].tolist())
+            raise IndexError(f"cell {at} is outside the {rows} x {cols} map")
         return bool(
             _reaches(
                 self.passable,
@@ -607,9 +622,9 @@ class DeadEnds:
                 self.seen,
                 self.touched,
                 self.queue,
-                np.ascontiguousarray(closed, dtype=np.int64),
-                int(start[0]),
-                int(start[1]),
+                shut,
+                r0 + rows if r0 < 0 else r0,
+                c0 + cols if c0 < 0 else c0,
                 share * self.n_passable,
             )
         )
@@ -620,11 +635,35 @@ def leads_on(
     closed: npt.NDArray[np.intp],
     start: tuple[int, int],
     share: float = 0.5,
+    n_passable: int | None = None,
 ) -> bool:
     """Whether, with the ``closed`` cells (K, 2) shut, the passable cells still joined to
-    ``start`` are at least ``share`` of all passable cells (:meth:`DeadEnds.leads_on`),
-    for one question of a map; a caller asking many times of one map builds a
-    :class:`DeadEnds` once."""
+    ``start`` are at least ``share`` of all passable cells (:meth:`DeadEnds.leads_on`).
+
+    Each call builds a whole :class:`DeadEnds` of ``passable`` (its blocks, pieces and
+    links) for one question: a caller asking many questions of one map builds a
+    :class:`DeadEnds` once and asks it.
+
+    Parameters
+    ----------
+    passable : ndarray of bool, shape (rows, cols)
+        Cells a car's centre may occupy.
+    closed : ndarray of int, shape (K, 2)
+        Cells shut (row, column), as :meth:`DeadEnds.leads_on` reads them.
+    start : tuple of int
+        The car's cell (row, column); counts as open.
+    share : float, optional
+        Share of the passable cells to reach; default 0.5.
+    n_passable : int or None, optional
+        Ignored (the count of ``passable`` cells is taken by :class:`DeadEnds`); kept
+        so that callers passing it still work. Default None.
+
+    Raises
+    ------
+    IndexError
+        If a cell of ``closed`` or ``start`` lies outside the map.
+    """
+    del n_passable  # accepted for the callers of the former signature, not used
     if not len(closed):
         return True
     return DeadEnds(passable).leads_on(closed, start, share)
