@@ -13,7 +13,10 @@ Run with ``python -m benchmarks.team_territory --out DIR [--seeds 0 1] [--drawn]
 - prints, per map and seed, the share of robot 0's route (as ``team run`` draws it,
   1,200 s) and of the world's landmarks inside the outline (shrunk by half a cell, so a
   landmark on the outer wall's outer face counts as outside), without and with the
-  mask, and what the mask leaves the robot (``territory_record``);
+  mask, and where the masked world's landmarks counted outside lie;
+- prints, per map, what the mask leaves the robot (``territory_record``), the area a
+  robot reaches without a mask (``territory_reach(plan, None)``) and the pieces a robot
+  fits in inside the mask (8-connected passable cells, their areas largest first);
 - draws ``DIR/standin0.png``: standin:0's route and landmarks without and with the mask;
 - with ``--drawn``, the candidate default of item 3 measured against its rule: whether a
   map "looks drawn" (under 1 % unknown, at least half its border free) and what leaving
@@ -37,7 +40,13 @@ from benchmarks.team_world import scanned_standin
 from sonarmap.builtins import builtin_plan
 from sonarmap.errors import InputError
 from sonarmap.io.rosmap import FREE, UNKNOWN, OccupancyMap, read_map, write_map
-from sonarmap.team.territory import read_territory, territory_reach, territory_record
+from sonarmap.patrol.territory import Territory
+from sonarmap.team.territory import (
+    ROBOT_RADIUS,
+    read_territory,
+    territory_reach,
+    territory_record,
+)
 from sonarmap.team.world import make_world, patrol_route
 
 SHARED = Path("/work/shared/data/maps")
@@ -73,6 +82,35 @@ def _inside(xy: npt.NDArray[np.float64], box: tuple[float, ...], pad: float) -> 
     return float(ok.mean()) if len(ok) else float("nan")
 
 
+def _outside(xy: npt.NDArray[np.float64], box: tuple[float, ...], pad: float) -> str:
+    """The points counted outside the shrunk outline, as their x and y ranges, metres."""
+    x0, y0, x1, y1 = box
+    x, y = xy[:, 0], xy[:, 1]
+    out = ~((x > x0 + pad) & (x < x1 - pad) & (y > y0 + pad) & (y < y1 - pad))
+    if not out.any():
+        return "none"
+    return (
+        f"{int(out.sum())} at x = {x[out].min():.2f}-{x[out].max():.2f} m, "
+        f"y = {y[out].min():.2f}-{y[out].max():.2f} m"
+    )
+
+
+def pieces(plan: OccupancyMap, region: npt.NDArray[np.bool_]) -> None:
+    """The reached area without a mask and the pieces a robot fits in inside the mask."""
+    cell = plan.grid.resolution**2
+    free = territory_reach(plan, None).watched
+    print(f"  without a mask: reached {free.sum() * cell:,.1f} m^2", flush=True)
+    ok = Territory.from_map(plan).passable(ROBOT_RADIUS) & region
+    labels, n = ndimage.label(ok, structure=np.ones((3, 3), dtype=bool))
+    sizes = np.sort(np.bincount(labels.ravel(), minlength=n + 1)[1:])[::-1] * cell
+    shown = ", ".join(f"{a:,.1f}" for a in sizes[:8])
+    print(
+        f"  inside the mask: {n} passable pieces, {shown}{', ...' if n > 8 else ''} m^2 "
+        f"(passable cells' area), {sizes.sum():,.1f} m^2 in all",
+        flush=True,
+    )
+
+
 def shares(folder: Path, seeds: list[int], picture: Path | None) -> None:
     """The routes' and landmarks' shares inside the outline, without and with the mask."""
     print("| map | seed | route inside, none -> mask | landmarks inside, none -> mask |")
@@ -94,9 +132,11 @@ def shares(folder: Path, seeds: list[int], picture: Path | None) -> None:
                 f"{_inside(w1.points[:, :2], box, half):.3f} (of {len(w1):,}) |",
                 flush=True,
             )
+            print(f"  masked landmarks outside: {_outside(w1.points[:, :2], box, half)}")
             if picture is not None and label == "standin:0" and seed == seeds[0]:
                 _draw(plan, [(r0, w0.points), (r1, w1.points)], picture)
         print(f"{label}: {territory_record(mask, plan, region)}", flush=True)
+        pieces(plan, region)
 
 
 def _draw(

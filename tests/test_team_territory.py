@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 from sonarmap.cli import main
+from sonarmap.errors import InputError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap, write_map
 from sonarmap.team.launcher import run_zmq_team
 from sonarmap.team.mission import MissionConfig
-from sonarmap.team.node import load_routes
+from sonarmap.team.node import load_routes, run_node
 from sonarmap.team.patrolling import patrol_routes
 from sonarmap.team.territory import mask_on, read_territory
 from sonarmap.team.world import make_world, patrol_route
@@ -82,13 +83,14 @@ def test_routes_tours_and_landmarks_stay_inside_the_mask(files: Path) -> None:
     assert not _inside(unmasked.points[:, :2], pad=0.05).any()
 
 
+@pytest.mark.slow  # the patroller's first call compiles it: about 25 s at load 4
 def test_a_patrolling_team_starts_and_patrols_inside_the_mask(files: Path) -> None:
     plan = _drawn_plan()
     region = read_territory(files / "inside.txt", plan)
-    routes, _ = patrol_routes(plan, 2, 30.0, seed=1, region=region)
+    routes, _ = patrol_routes(plan, 2, 20.0, seed=1, region=region)
     for r in routes:
         assert _inside(r[:, 1:3], pad=0.2).all()
-    free, _ = patrol_routes(plan, 2, 30.0, seed=1)
+    free, _ = patrol_routes(plan, 2, 20.0, seed=1)
     assert not any(_inside(r[:, 1:3]).any() for r in free)
 
 
@@ -163,6 +165,54 @@ def test_bad_territory_files_are_one_line_and_exit_2(
         assert not out.exists()
 
 
+def test_a_route_off_the_masks_reach_is_refused_in_one_line(
+    files: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A user's --route round the outside with the building's outline: refused before
+    any work, naming both options, nothing written."""
+    plan = _drawn_plan()
+    outside = patrol_route(plan, 20.0, seed=0)
+    assert not _inside(outside[:, 1:3]).any()
+    path = tmp_path / "route.csv"
+    lines = ["t,x,y,theta", *(",".join(f"{v:.6f}" for v in row) for row in outside)]
+    path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as e:
+        main(["team", "run", "--map", str(files / "plan.yaml"), "--duration", "20",
+              "--route", str(path), "--territory", str(files / "inside.txt"),
+              "-o", str(out)])  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2
+    for part in ("--route", "--territory", "pose 1 "):
+        assert part in err, err
+    assert len(err.splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_a_node_state_belongs_to_its_territory_mask(files: Path, tmp_path: Path) -> None:
+    """A one-robot team's node saved with the outline resumes with the same mask and is
+    refused with another one or none (its landmarks were drawn inside the mask)."""
+    plan = _drawn_plan()
+    mask = read_territory(files / "inside.txt", plan)
+    left = mask & (plan.grid.all_centres()[0] < 4.0)
+    cfg = MissionConfig(duration=5.0, seed=1)
+    route = patrol_route(plan, cfg.duration, seed=cfg.seed, region=left)
+    state = tmp_path / "state"
+
+    def node(region: np.ndarray | None) -> dict[str, object]:
+        return run_node(plan, cfg, 0, "tcp://127.0.0.1:0", {}, out=tmp_path / "out",
+                        state_dir=state, routes=[route], region=region,
+                        insecure=True)  # fmt: skip
+
+    first = node(mask)
+    for other in (left, None):
+        with pytest.raises(InputError, match="territory mask"):
+            node(other)
+    again = node(mask)
+    assert again["local_digest"] == first["local_digest"]
+    assert again["held"] == first["held"]
+
+
 def test_a_saved_world_and_a_mask_are_refused_together(
     files: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -173,6 +223,7 @@ def test_a_saved_world_and_a_mask_are_refused_together(
     assert "--territory" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # two node processes, each importing and compiling: about 24 s at load 4
 def test_the_launcher_hands_every_node_the_mask(files: Path, tmp_path: Path) -> None:
     """The routes the launcher draws stay inside, and every node reads the file it is
     handed (``team node --territory``): its landmarks are drawn inside the same mask."""
@@ -191,6 +242,9 @@ def test_the_launcher_hands_every_node_the_mask(files: Path, tmp_path: Path) -> 
     region = read_territory(mask, plan)
     for node in z.nodes:
         assert node["territory_cells"] == int(region.sum())
+        # The node drew its world inside the mask: without it every landmark lies on the
+        # outer faces, which a robot inside never sees (0 landmarks on these routes).
+        assert node["row"]["landmarks"] > 0, node["row"]
     for r in load_routes(tmp_path / "zmq" / "routes", 2):
         assert _inside(r[:, 1:3], pad=0.3).all()
     assert z.summary["duplicate_poses"] == 0

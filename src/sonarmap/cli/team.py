@@ -27,7 +27,7 @@ from ..team.prior import ERROR_KEYS, check_prior, degrade_plan, parse_prior_erro
 from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
 from ..team.store import StoreParams
-from ..team.territory import territory_reach, territory_record
+from ..team.territory import MissionTerritory, load_territory
 from ..team.world import (
     load_world,
     make_world,
@@ -101,27 +101,40 @@ TerritoryOption = Annotated[
         "(its free cells) or a polygon file ('x y' metres a line, a blank line between "
         "polygons). Routes, starts and landmarks stay in the largest area a robot fits in "
         "inside it (default: the whole map's; on a drawn plan whose outside is free, that "
-        "may be the outside).",
+        "may be the outside). A --route must keep to that area (refused otherwise); "
+        "--world is refused with it. The store's regions are not masked: they are still "
+        "cut from the whole prior, outside included.",
     ),
 ]
 
 
-def _territory(
-    path: Path | None, plan: OccupancyMap
-) -> tuple[npt.NDArray[np.bool_] | None, dict[str, Any] | None]:
-    """``--territory``: the mask on the plan's cells and what summary.json records of
-    it (None, None without one). A bad file fails as the patrol's does, naming the file;
-    a mask that leaves no place a robot fits in names the option."""
+def _territory(path: Path | None, plan: OccupancyMap) -> MissionTerritory | None:
+    """``--territory``: the mask read onto the plan's cells, what a robot reaches inside
+    it and what summary.json records of it
+    (:func:`~sonarmap.team.territory.load_territory`; None without one). Its errors name
+    the option and the file (and the line, for a malformed one)."""
     if path is None:
-        return None, None
-    from ..patrol.region import read_region
-
-    region = read_region(path, plan.grid)
+        return None
     try:
-        territory_reach(plan, region)
+        return load_territory(path, plan)
     except InputError as err:
-        raise ConfigError(f"--territory {path}: {err.reason}") from None
-    return region, territory_record(path, plan, region)
+        where = str(err) if err.path is not None else f"{path}: {err.reason}"
+        raise ConfigError(f"--territory {where}") from None
+
+
+def _check_route_inside(
+    route: Any, plan: OccupancyMap, mask: MissionTerritory, path: Path, territory: Any
+) -> None:
+    """Refuse a ``--route`` (ndarray (T, 4): t, x, y, theta) with a pose off the area a
+    robot reaches inside the ``--territory`` mask: the mission would map a place the
+    mask leaves out while summary.json records the mask."""
+    i = mask.first_outside(plan, route[:, 1], route[:, 2])
+    if i >= 0:
+        raise ConfigError(
+            f"--route {path}: pose {i + 1} (t = {route[i, 0]:g} s) at ({route[i, 1]:g}, "
+            f"{route[i, 2]:g}) m is off the area a robot reaches inside --territory "
+            f"{territory}"
+        )
 
 
 #: Summary figures averaged over the robots at the top level of summary.json.
@@ -161,7 +174,8 @@ def world_cmd(
         if not (0.0 <= share <= 1.0):
             raise ConfigError(f"{name} {share:g}: must be in [0, 1]")
     plan = resolve_map(map_, resolution, origin)
-    region, _ = _territory(territory, plan)
+    mask = _territory(territory, plan)
+    region = None if mask is None else mask.region
     world = make_world(
         plan,
         seed=seed,
@@ -580,18 +594,21 @@ def _drawn(
     routes: dict[int, Any],
     robots: int,
     region: npt.NDArray[np.bool_] | None = None,
+    territory: Path | None = None,
 ) -> Any:
     """The world and the missing seeded routes the missions would draw themselves (the
-    same seeds, so the same runs), inside the --territory mask ``region`` when given,
-    drawn here so that a map with no wall for a landmark or no territory for a route
-    fails in one line naming --map (and --territory) before any work."""
+    same seeds, so the same runs), inside the --territory mask ``region`` (read from the
+    file ``territory``) when given, drawn here so that a map with no wall for a landmark
+    or no territory for a route fails in one line naming --map (and --territory) before
+    any work."""
     try:
         world = make_world(plan, seed=seed, duration=duration, region=region)
         for i in range(robots):
             if routes.get(i) is None:
                 routes[i] = patrol_route(plan, duration, seed=seed + 7919 * i, region=region)
     except (InputError, ConfigError) as err:
-        within = "" if region is None else " inside --territory"
+        # The reason itself says when the mask is what left no room.
+        within = "" if territory is None else f", --territory {territory}"
         raise ConfigError(f"--map {map_}{within}: {err.reason}") from None
     return world
 
@@ -722,7 +739,9 @@ def run_cmd(
             "instead, or drop --world"
         )
     plan = resolve_map(map_, resolution, origin)
-    region, territory_desc = _territory(territory, plan)
+    mask = _territory(territory, plan)
+    region = None if mask is None else mask.region
+    territory_desc = None if mask is None else mask.record
     prior, prior_desc = _prior(plan, prior_path, prior_error, seed, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
@@ -733,6 +752,8 @@ def run_cmd(
     if route is not None:
         routes[0] = read_route(route)
         check_inside_plan(routes[0][:, 0], routes[0][:, 1], routes[0][:, 2], plan.grid, route)
+        if mask is not None:
+            _check_route_inside(routes[0], plan, mask, route, territory)
     config = _mission_config(duration, seed, store, pcm)
     if tour:
         # Each robot's seed as the mission draws its own route (seed + 7919 x robot).
@@ -745,7 +766,7 @@ def run_cmd(
         patrolled, _ = patrol_routes(plan, robots, duration, seed=seed, region=region)
         routes = dict(enumerate(patrolled))
     if transport == "sim" and world is None:
-        world = _drawn(plan, map_, duration, seed, routes, robots, region)
+        world = _drawn(plan, map_, duration, seed, routes, robots, region, territory)
     if transport == "zmq":
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
         with progress("team") as update:
@@ -982,7 +1003,8 @@ def node_cmd(
     fixed_routes = None if routes_dir is None else load_routes(routes_dir, len(peer_map) + 1)
     key = None if key_file is None else read_team_key(key_file)
     plan = resolve_map(map_, resolution, origin)
-    region, _ = _territory(territory, plan)
+    mask = _territory(territory, plan)
+    region = None if mask is None else mask.region
     prior, _ = _prior(plan, prior_path, None, seed, resolution, origin)
     config = _mission_config(duration, seed, store, pcm)
     with progress(f"robot {robot}") as update:

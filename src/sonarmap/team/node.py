@@ -489,7 +489,8 @@ class _Node:
                 raise InputError("not a node state of this version")
             if s["fingerprint"] != self.fingerprint:
                 raise InputError(
-                    "the state belongs to another mission (plan, prior, settings, robot or team)"
+                    "the state belongs to another mission (plan, prior, territory mask, settings, "
+                    "robot or team)"
                 )
             self.link.restore(s["link"])
             self.clock.restore(s["clock"])

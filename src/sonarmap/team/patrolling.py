@@ -43,7 +43,7 @@ from ..patrol.simulation import PatrolConfig, PatrolResult, run_patrol
 from ..patrol.starts import random_starts
 from ..patrol.territory import Territory
 from .config import check_team_size
-from .territory import mask_on
+from .territory import ROBOT_RADIUS, mask_on
 
 __all__ = ["patrol_config", "patrol_routes"]
 
@@ -55,7 +55,7 @@ def patrol_config(
     *,
     rate: float = 2.0,
     speed: float = 0.5,
-    radius: float = 0.3,
+    radius: float = ROBOT_RADIUS,
     vision: float = 3.0,
 ) -> PatrolConfig:
     """The patroller's settings for mapping robots (see the module's choices)."""

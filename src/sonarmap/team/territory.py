@@ -13,6 +13,7 @@ is what ``summary.json`` says of it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,11 +27,51 @@ from ..patrol.reach import Reach, reach
 from ..patrol.region import read_region
 from ..patrol.territory import Territory
 
-__all__ = ["ROBOT_RADIUS", "mask_on", "read_territory", "territory_reach", "territory_record"]
+__all__ = [
+    "ROBOT_RADIUS",
+    "MissionTerritory",
+    "load_territory",
+    "mask_on",
+    "read_territory",
+    "territory_reach",
+    "territory_record",
+]
 
 #: The mission robots' radius, metres: the one :func:`~.world.patrol_route`,
-#: :func:`~.world.make_world` and :func:`~.patrolling.patrol_config` default to.
+#: :func:`~.world.route_from_waypoints`, :func:`~.world.make_world` (and its
+#: :func:`~.world.facing_cells`, :func:`~.world.territory_faces`) and
+#: :func:`~.patrolling.patrol_config` default to.
 ROBOT_RADIUS = 0.3
+
+
+@dataclass(frozen=True)
+class MissionTerritory:
+    """A mission's territory mask as read once (:func:`load_territory`).
+
+    Attributes
+    ----------
+    region : ndarray of bool
+        The mask on the plan's cells.
+    reach : Reach
+        What a robot of :data:`ROBOT_RADIUS` reaches inside it (:func:`territory_reach`).
+    record : dict
+        What ``summary.json`` records of it (:func:`territory_record`).
+    """
+
+    region: npt.NDArray[np.bool_]
+    reach: Reach
+    record: dict[str, Any]
+
+    def first_outside(self, plan: OccupancyMap, x: npt.ArrayLike, y: npt.ArrayLike) -> int:
+        """Index of the first position (``x``, ``y`` metres, arrays of the same length)
+        off the reached area (:attr:`Reach.watched`: where the robot's body can be once
+        its centre is on the largest piece inside the mask), or -1 when none is."""
+        xs, ys = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        r, c = plan.grid.world_to_cell(xs, ys)
+        ok = plan.grid.contains(r, c)
+        ok[ok] = self.reach.watched[r[ok], c[ok]]
+        bad = np.flatnonzero(~ok)
+        return int(bad[0]) if len(bad) else -1
 
 
 def mask_on(region: npt.NDArray[np.bool_], src: Grid, dst: Grid) -> npt.NDArray[np.bool_]:
@@ -76,21 +117,46 @@ def read_territory(
         Naming the file: unreadable or malformed, a mask that covers no cell of the plan,
         or one that leaves no place a robot of ``radius`` metres (0.3) fits in.
     """
+    return _read(path, plan, radius)[0]
+
+
+def load_territory(path: str | Path, plan: OccupancyMap) -> MissionTerritory:
+    """:func:`read_territory` and :func:`territory_record` of the file, with the robots'
+    reach worked out once.
+
+    Raises
+    ------
+    InputError
+        As :func:`read_territory`.
+    """
+    region, where = _read(path, plan, ROBOT_RADIUS)
+    return MissionTerritory(region, where, territory_record(path, plan, region, where))
+
+
+def _read(
+    path: str | Path, plan: OccupancyMap, radius: float
+) -> tuple[npt.NDArray[np.bool_], Reach]:
     region = read_region(path, plan.grid)
     try:
-        territory_reach(plan, region, radius)
+        where = territory_reach(plan, region, radius)
     except InputError as err:
         raise InputError(err.reason, path=path) from None
-    return region
+    return region, where
 
 
 def territory_record(
-    path: str | Path, plan: OccupancyMap, region: npt.NDArray[np.bool_]
+    path: str | Path,
+    plan: OccupancyMap,
+    region: npt.NDArray[np.bool_],
+    where: Reach | None = None,
 ) -> dict[str, Any]:
     """What ``summary.json`` records of the mask a mission used: its file, the free
     area inside it, the area the robots' largest piece covers there (m^2), and the
-    patrol's shares of what was left out (:meth:`~sonarmap.patrol.reach.Reach.summary`)."""
-    where = territory_reach(plan, region)
+    patrol's shares of what was left out (:meth:`~sonarmap.patrol.reach.Reach.summary`).
+    ``where`` is :func:`territory_reach` of ``region`` when already worked out (default:
+    worked out here)."""
+    if where is None:
+        where = territory_reach(plan, region)
     cell = plan.grid.resolution**2
     free = Territory.from_map(plan).free
     return {

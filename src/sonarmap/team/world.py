@@ -56,7 +56,7 @@ from ..sensors import Noise
 from ..simulate import SonarModel, simulate
 from .config import MAX_DURATION
 from .records import Landmarks
-from .territory import mask_on
+from .territory import ROBOT_RADIUS, mask_on
 
 __all__ = [
     "BUILTIN_PLANS",
@@ -254,7 +254,7 @@ FACES = ("territory", "all")
 
 def facing_cells(
     plan: OccupancyMap,
-    radius: float = 0.3,
+    radius: float = ROBOT_RADIUS,
     margin: float = 0.5,
     starts: npt.NDArray[np.intp] | None = None,
     region: npt.NDArray[np.bool_] | None = None,
@@ -281,7 +281,7 @@ def facing_cells(
 
 def territory_faces(
     plan: OccupancyMap,
-    radius: float = 0.3,
+    radius: float = ROBOT_RADIUS,
     speckle_area: float = 0.01,
     region: npt.NDArray[np.bool_] | None = None,
 ) -> tuple[F64, F64, F64]:
@@ -293,24 +293,32 @@ def territory_faces(
     starts, dirs, normals = wall_faces(plan)
     if len(starts) == 0:
         return starts, dirs, normals
-    grid = plan.grid
-    h = grid.resolution
     seen = facing_cells(plan, radius, region=region)
-    centre = starts + 0.5 * h * dirs
-    fr, fc = grid.world_to_cell(*(centre + 0.5 * h * normals).T)
-    orow, ocol = grid.world_to_cell(*(centre - 0.5 * h * normals).T)
+    fr, fc = _side_cells(plan.grid, (starts, dirs, normals), 1.0)
+    orow, ocol = _side_cells(plan.grid, (starts, dirs, normals), -1.0)
     keep = seen[fr, fc] & ~speckle_mask(plan, speckle_area)[orow, ocol]
     return starts[keep], dirs[keep], normals[keep]
+
+
+def _side_cells(
+    grid: Grid, sides: tuple[F64, F64, F64], side: float
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """Rows and columns of the cell beside each face's midpoint: its free cell for
+    ``side`` +1, the obstacle's for -1 (half a cell along the normal)."""
+    starts, dirs, normals = sides
+    h = grid.resolution
+    centre = starts + 0.5 * h * dirs
+    r, c = grid.world_to_cell(*(centre + side * 0.5 * h * normals).T)
+    return r, c
 
 
 def _faces_inside(
     plan: OccupancyMap, sides: tuple[F64, F64, F64], region: npt.NDArray[np.bool_]
 ) -> tuple[F64, F64, F64]:
     """The faces of ``sides`` whose free cell lies inside ``region``."""
-    starts, dirs, normals = sides
-    h = plan.grid.resolution
-    fr, fc = plan.grid.world_to_cell(*(starts + 0.5 * h * dirs + 0.5 * h * normals).T)
+    fr, fc = _side_cells(plan.grid, sides, 1.0)
     keep = region[fr, fc]
+    starts, dirs, normals = sides
     return starts[keep], dirs[keep], normals[keep]
 
 
@@ -384,7 +392,7 @@ def make_world(
     duration: float = 600.0,
     plan_path: str | Path | None = None,
     faces: str = "territory",
-    radius: float = 0.3,
+    radius: float = ROBOT_RADIUS,
     speckle_area: float = 0.01,
     region: npt.NDArray[np.bool_] | None = None,
 ) -> World:
@@ -633,7 +641,7 @@ def route_from_waypoints(
     *,
     speed: float = 0.5,
     rate: float = 2.0,
-    radius: float = 0.3,
+    radius: float = ROBOT_RADIUS,
     smooth: float = 0.5,
 ) -> F64:
     """A route through ``waypoints`` along shortest paths.
@@ -709,7 +717,7 @@ def patrol_route(
     seed: int = 0,
     speed: float = 0.5,
     rate: float = 2.0,
-    radius: float = 0.3,
+    radius: float = ROBOT_RADIUS,
     min_leg: float = 3.0,
     smooth: float = 0.5,
     style: str = "waypoints",
