@@ -7,12 +7,19 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+import numpy.typing as npt
 import pytest
 
 from sonarmap.cli import main as cli_main
 from sonarmap.errors import ConfigError
+from sonarmap.grid import Grid
+from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
+from sonarmap.patrol.robots import Team
 from sonarmap.patrol.simulation import CAR_DEFAULTS, PLAIN_DEFAULTS, PatrolConfig, run_patrol
+from sonarmap.patrol.territory import Territory
 
 #: The fields CAR_DEFAULTS sets once the team is known.
 FIELDS = tuple(CAR_DEFAULTS)
@@ -186,3 +193,54 @@ def test_site_6s_corner_is_seen_with_the_lift_and_without_it() -> None:
 
     assert never_seen(0.0) == 0.0
     assert never_seen(10.0) == 0.0
+
+
+def _four_blocks() -> Territory:
+    """A 44 x 44 m site walled round at 0.5 m cells: four blocks between 3 m edge
+    streets, a 3 m cross street and an 8 m middle street."""
+    res, side = 0.5, 44.0
+    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(int(side / res), int(side / res)))
+    occ = np.zeros(g.shape, np.float32)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
+    for x0, y0, x1, y1 in [
+        (3.0, 3.0, 20.0, 16.0),
+        (23.0, 3.0, 41.0, 16.0),
+        (3.0, 24.0, 20.0, 41.0),
+        (23.0, 24.0, 41.0, 41.0),
+    ]:
+        occ[int((side - y1) / res) : int((side - y0) / res), int(x0 / res) : int(x1 / res)] = 1.0
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def test_the_lift_runs_the_wave_in_every_direction_while_places_are_stale() -> None:
+    # A lone car in the cross street heading north, the places long unseen
+    # (``start_fog`` 60 s): the worst time since seen (60 s and more) stays above 10
+    # times the mean over the places the car has seen (at most its 20 s) for the whole
+    # run, so the lift (``forward_stale`` 10, the default) fires on every step. The
+    # car then drives exactly as a car with no forward wave at all (its wave in every
+    # direction); with the lift off it drives otherwise (measured: 24 m apart at the
+    # end, the tracks parting after 9.5 s).
+    site = _four_blocks()
+    start = np.array([(21.5, 10.0, np.pi / 2)])
+
+    def drive(**knobs: float | bool) -> tuple[npt.NDArray[np.float64], list[bool]]:
+        poses: list[tuple[float, float, float]] = []
+        stale: list[bool] = []
+
+        def keep(_t: float, team: Team, fog: Fog) -> None:
+            poses.append((float(team.x[0]), float(team.y[0]), float(team.heading[0])))
+            # The lift's test, on the fog the next step decides on.
+            stale.append(fog.mtb() > 10.0 * fog.mean_seen_tb())
+
+        cfg = PatrolConfig(model="car", duration=20.0, start_fog=60.0, **knobs)  # type: ignore[arg-type]
+        run_patrol(site, cfg, starts=start, seed=0, on_step=keep)
+        return np.array(poses), stale
+
+    lifted, stale = drive()
+    assert PatrolConfig(model="car").forward_stale == 10.0  # the default under test
+    assert all(stale)
+    every_way, _ = drive(forward_wave=False, forward_stale=0.0)
+    forwards, _ = drive(forward_stale=0.0)
+    assert np.array_equal(lifted, every_way)
+    apart = np.hypot(*(lifted[:, :2] - forwards[:, :2]).T)
+    assert apart.max() > 5.0

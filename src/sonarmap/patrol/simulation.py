@@ -1301,12 +1301,6 @@ def run_patrol(
     # Forward waves: whether each fog's stalest place lifts them this step
     # (``config.forward_stale``).
     lifted = np.zeros(len(own), dtype=np.bool_)
-    # Forward waves: whether each car's closed cells this step hold the cells behind
-    # it while the way ahead leads on (not while it follows the robots that shut it,
-    # which ends after FOLLOW_TIME), and whether that left it nothing to go for, so
-    # that its wave runs in every direction instead (see the choice below).
-    closed_behind = np.zeros(len(team), dtype=np.bool_)
-    stranded = np.zeros(len(team), dtype=np.bool_)
     follow_steps = round(FOLLOW_TIME / config.dt)
     penalty = (
         obstacle_penalty(territory.free, g.resolution, config.refine_window)
@@ -1339,17 +1333,26 @@ def run_patrol(
         c: npt.NDArray[np.intp],
         now: int,
         following: bool = False,
-    ) -> npt.NDArray[np.intp] | None:
-        """Cells closed on robot i's path-finding map, as (row, column) pairs: the
-        crowding rule closes the active semaphores it does not hold, or discs around
-        the other robots it hears of; a robot giving way closes discs around the
-        earlier robots near it (its own cell stays open); a tracking car's forward wave
-        closes the cells behind it while the way ahead leads on (``config.forward_wave``,
-        :data:`FOLLOW_TIME`). ``following``: for a car driving on rather than turning
-        round (``config.round_block``): no disc round the robots ahead of it going its
-        way (they clear the street as it follows) nor round those ahead farther than
+        open_behind: bool = False,
+    ) -> tuple[npt.NDArray[np.intp] | None, bool]:
+        """Cells closed on robot i's path-finding map, as (row, column) pairs (None:
+        none), and whether they hold the cells behind the car because the way ahead
+        leads on.
+
+        The crowding rule closes the active semaphores it does not hold, or discs
+        around the other robots it hears of; a robot giving way closes discs around
+        the earlier robots near it (its own cell stays open); a tracking car's forward
+        wave closes the cells behind it while the way ahead leads on
+        (``config.forward_wave``; the flag is True then) or, for
+        :data:`FOLLOW_TIME`, while only other robots shut the way ahead (the flag
+        stays False: those cells are the robots', not a forward wave's choice).
+        ``following``: for a car driving on rather than turning round
+        (``config.round_block``): no disc round the robots ahead of it going its way
+        (they clear the street as it follows) nor round those ahead farther than
         :data:`ONCOMING_NEAR` (they may turn off before they meet it), and no forward
-        wave."""
+        wave. ``open_behind``: no forward wave either, nor any change to when other
+        robots shut the car's way (the rerun of a wave whose closed cells behind left
+        the car nothing to go for, in the choice below); the flag is then False."""
         heard = label == label[i]
         parts: list[npt.NDArray[np.intp]] = []
         if yielding[i] >= now:
@@ -1365,18 +1368,18 @@ def run_patrol(
             parts += obstacle_discs(
                 team, i, rc, obst, passable.shape, halve=halve, following=following, heard=heard
             )
-        closed_behind[i] = False
+        behind = False
         if (
             dead_ends is not None
             and not following
             and not lifted[0 if shared else i]
-            and not stranded[i]
+            and not open_behind
         ):
             back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
             start = (int(r[i]), int(c[i]))
             if dead_ends.leads_on(np.concatenate([back, *parts]), start):
                 parts.append(back)
-                closed_behind[i] = True
+                behind = True
                 shut[i] = -1
             elif dead_ends.leads_on(back, start):
                 # Only other robots shut the way ahead: they are often on their way, so
@@ -1387,7 +1390,17 @@ def run_patrol(
                     parts.append(back)
             else:
                 shut[i] = -1  # a dead end: the way out lies behind
-        return np.concatenate(parts) if parts else None
+        return (np.concatenate(parts) if parts else None), behind
+
+    def closed_only(
+        i: int,
+        r: npt.NDArray[np.intp],
+        c: npt.NDArray[np.intp],
+        now: int,
+        following: bool = False,
+    ) -> npt.NDArray[np.intp] | None:
+        """:func:`closed_cells`'s cells alone, for the callers that take a cell list."""
+        return closed_cells(i, r, c, now, following)[0]
 
     look()
     wall0 = time.perf_counter()
@@ -1523,7 +1536,6 @@ def run_patrol(
             counted, n_targets = targets, int(np.count_nonzero(targets))
 
         for i in range(len(team)):
-            stranded[i] = False
             held = aims[i]
             mine_fog = own[0 if shared else i]
             closed: npt.NDArray[np.intp] | None = None
@@ -1536,7 +1548,7 @@ def run_patrol(
                 )
             ):
                 start = (int(r[i]), int(c[i]))
-                closed = closed_cells(i, r, c, k)
+                closed = closed_only(i, r, c, k)
                 towards = _held_goal(
                     team,
                     i,
@@ -1551,7 +1563,7 @@ def run_patrol(
                     partial(
                         _car_carrot,
                         targets=targets,
-                        closed=partial(closed_cells, i, r, c, k, True),
+                        closed=partial(closed_only, i, r, c, k, True),
                         stand=stand,
                     )
                     if tracking
@@ -1616,7 +1628,7 @@ def run_patrol(
                 tbv = lengths = ux = uy = np.empty(0)
             elif config.paths == "wave" or config.policy == "cycle" or walkers is not None:
                 start = (int(r[i]), int(c[i]))
-                closed = closed_cells(i, r, c, k)
+                closed, behind = closed_cells(i, r, c, k)
                 j = 0 if shared else i
                 if (
                     coarse is not None
@@ -1699,10 +1711,9 @@ def run_patrol(
                             )
                             if strength.any():
                                 break
-                        if strength.any() or not closed_behind[i]:
+                        if strength.any() or not behind:
                             break
-                        stranded[i] = True
-                        pull_args["closed"] = closed_cells(i, r, c, k)
+                        pull_args["closed"], behind = closed_cells(i, r, c, k, open_behind=True)
                     if direct:
                         directions.append(step_direction(strength, config.direction, weights))
                         goals.append(None)
@@ -1820,7 +1831,7 @@ def run_patrol(
                         passable,
                         config,
                         targets=pulling,
-                        closed=partial(closed_cells, i, r, c, k, True),
+                        closed=partial(closed_only, i, r, c, k, True),
                         stand=stand,
                     )
                 )
