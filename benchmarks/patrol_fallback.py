@@ -20,7 +20,9 @@ within 6 m; with ``--png F`` a map of the site with the fallback steps marked (c
 car).
 
 Run with ``python -m benchmarks.patrol_fallback --site 1027 --cars 3 --duration 3600
-[--png F] [--json F]``; one process, one core (``NUMBA_NUM_THREADS=1``).
+[--png F] [--json F]``, or ``--starts-only SITE [SITE ...]`` for no run but, per site
+and team of 1, 3 and 5 cars, the starts from which no step's arc is clear
+(:func:`boxed_starts`); one process, one core (``NUMBA_NUM_THREADS=1``).
 """
 
 from __future__ import annotations
