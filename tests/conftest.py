@@ -6,10 +6,14 @@ import math
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import settings
 from hypothesis import strategies as st
 
+from sonarmap.grid import Grid
+from sonarmap.io.rosmap import OccupancyMap
+from sonarmap.patrol.territory import Territory
 from sonarmap.scenarios import Scenario, make_scenario
 from sonarmap.sensors import Region, SensorModel
 
@@ -57,3 +61,27 @@ def doorways() -> Scenario:
 @pytest.fixture(scope="session")
 def small_passages() -> Scenario:
     return make_scenario("passages", widths=(0.3, 0.6))
+
+
+#: Four 17-18 x 13-17 m blocks of a 44 x 44 m site (x0, y0, x1, y1 metres): 3 m edge
+#: streets, a 3 m cross street (x 20-23 m) and an 8 m middle street (y 16-24 m).
+CROSS_STREET_BLOCKS = [
+    (3.0, 3.0, 20.0, 16.0),
+    (23.0, 3.0, 41.0, 16.0),
+    (3.0, 24.0, 20.0, 41.0),
+    (23.0, 24.0, 41.0, 41.0),
+]
+
+
+def walled_site(
+    blocks: list[tuple[float, float, float, float]], w: float, h: float, res: float = 0.5
+) -> Territory:
+    """A ``w`` x ``h`` m street site walled round at ``res`` m cells, with solid blocks
+    (x0, y0, x1, y1) metres, origin at (0, 0)."""
+    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(int(h / res), int(w / res)))
+    occ = np.zeros(g.shape, np.float32)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
+    for x0, y0, x1, y1 in blocks:
+        # Rows grow downwards: y = h at row 0.
+        occ[int((h - y1) / res) : int((h - y0) / res), int(x0 / res) : int(x1 / res)] = 1.0
+    return Territory.from_map(OccupancyMap(g, occ))

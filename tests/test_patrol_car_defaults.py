@@ -11,10 +11,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from conftest import CROSS_STREET_BLOCKS, walled_site
 from sonarmap.cli import main as cli_main
 from sonarmap.errors import ConfigError
-from sonarmap.grid import Grid
-from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.robots import Team
@@ -196,20 +195,8 @@ def test_site_6s_corner_is_seen_with_the_lift_and_without_it() -> None:
 
 
 def _four_blocks() -> Territory:
-    """A 44 x 44 m site walled round at 0.5 m cells: four blocks between 3 m edge
-    streets, a 3 m cross street and an 8 m middle street."""
-    res, side = 0.5, 44.0
-    g = Grid(resolution=res, origin=(0.0, 0.0), shape=(int(side / res), int(side / res)))
-    occ = np.zeros(g.shape, np.float32)
-    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
-    for x0, y0, x1, y1 in [
-        (3.0, 3.0, 20.0, 16.0),
-        (23.0, 3.0, 41.0, 16.0),
-        (3.0, 24.0, 20.0, 41.0),
-        (23.0, 24.0, 41.0, 41.0),
-    ]:
-        occ[int((side - y1) / res) : int((side - y0) / res), int(x0 / res) : int(x1 / res)] = 1.0
-    return Territory.from_map(OccupancyMap(g, occ))
+    """The 44 x 44 m four-block site at 0.5 m cells (``conftest.CROSS_STREET_BLOCKS``)."""
+    return walled_site(CROSS_STREET_BLOCKS, 44.0, 44.0)
 
 
 def test_the_lift_runs_the_wave_in_every_direction_while_places_are_stale() -> None:

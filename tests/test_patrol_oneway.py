@@ -12,6 +12,7 @@ from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from conftest import walled_site
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
@@ -30,13 +31,7 @@ RES = 0.5
 
 def _site(blocks: list[tuple[float, float, float, float]], w: float, h: float) -> Territory:
     """A ``w`` x ``h`` m site walled round, with solid blocks (x0, y0, x1, y1) metres."""
-    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
-    occ = np.zeros(g.shape, np.float32)
-    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
-    for x0, y0, x1, y1 in blocks:
-        # Rows grow downwards: y = h at row 0.
-        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = 1.0
-    return Territory.from_map(OccupancyMap(g, occ))
+    return walled_site(blocks, w, h, RES)
 
 
 def _cell(g: Grid, x: float, y: float) -> tuple[int, int]:

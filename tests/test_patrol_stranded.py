@@ -7,8 +7,7 @@ import math
 
 import numpy as np
 
-from sonarmap.grid import Grid
-from sonarmap.io.rosmap import OccupancyMap
+from conftest import CROSS_STREET_BLOCKS, walled_site
 from sonarmap.patrol.manoeuvre import behind_cells, leads_on
 from sonarmap.patrol.oneway import one_way
 from sonarmap.patrol.paths import Wave
@@ -24,20 +23,8 @@ TRAPPED = (26.25, 1.75, 0.0)
 
 
 def _site() -> Territory:
-    """A 44 x 44 m site walled round: four blocks between 3 m edge streets, a 3 m
-    cross street and an 8 m middle street."""
-    w = h = 44.0
-    g = Grid(resolution=RES, origin=(0.0, 0.0), shape=(int(h / RES), int(w / RES)))
-    occ = np.zeros(g.shape, np.float32)
-    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
-    for x0, y0, x1, y1 in [
-        (3.0, 3.0, 20.0, 16.0),
-        (23.0, 3.0, 41.0, 16.0),
-        (3.0, 24.0, 20.0, 41.0),
-        (23.0, 24.0, 41.0, 41.0),
-    ]:
-        occ[int((h - y1) / RES) : int((h - y0) / RES), int(x0 / RES) : int(x1 / RES)] = 1.0
-    return Territory.from_map(OccupancyMap(g, occ))
+    """The 44 x 44 m four-block site (``conftest.CROSS_STREET_BLOCKS``)."""
+    return walled_site(CROSS_STREET_BLOCKS, 44.0, 44.0, RES)
 
 
 def test_the_junction_traps_the_forward_wave() -> None:
