@@ -12,8 +12,9 @@ is what ``summary.json`` says of it.
 
 Without a mask a mission's territory is the default (:func:`default_territory`): on a
 drawn plan whose outside is free (:func:`footprint`: no unknown cell, a free margin all
-round, one building), the building's footprint, its walls closed by a disc a door wide
-so that an open entrance does not join the inside to the outside; elsewhere (a SLAM map,
+round, one building), the building's footprint, its walls grown by a disc a door wide
+before their holes are filled, so that an open entrance does not join the inside to the
+outside; elsewhere (a SLAM map,
 the built-in maps) the whole map.
 """
 
@@ -40,6 +41,7 @@ __all__ = [
     "ROBOT_RADIUS",
     "Footprint",
     "MissionTerritory",
+    "building_footprint",
     "default_territory",
     "footprint",
     "load_territory",
@@ -56,7 +58,7 @@ __all__ = [
 ROBOT_RADIUS = 0.3
 
 #: Metres: the widest opening in a drawn plan's outer wall (an entrance) that
-#: :func:`footprint` closes, the diameter of its closing disc.
+#: :func:`building_footprint` bridges, the diameter of its disc.
 DOOR_WIDTH = 1.5
 
 #: What ``--territory`` takes for "no mask, not even the default": the whole map.
@@ -202,9 +204,8 @@ class Footprint:
     Attributes
     ----------
     region : ndarray of bool
-        The footprint on the plan's cells: the walls closed by a disc :data:`DOOR_WIDTH`
-        wide, holes filled (all False when the plan's checks stopped before it was
-        worked out).
+        The footprint on the plan's cells (:func:`building_footprint`; all False when
+        the plan's checks stopped before it was worked out).
     drawn : bool
         The plan is a drawn plan with a free outside: the footprint is its default
         territory.
@@ -243,31 +244,33 @@ def _border(shape: tuple[int, ...]) -> npt.NDArray[np.bool_]:
     return edge
 
 
-def closed_walls(plan: OccupancyMap, door_width: float = DOOR_WIDTH) -> npt.NDArray[np.bool_]:
-    """The plan's occupied cells closed by a disc ``door_width`` metres across (radius
-    ``ceil(door_width / 2 / resolution)`` cells): an opening in a wall up to a door
-    wide is shut. Worked out by distance transforms on the map padded by the radius, so
-    that the image's edge does not cut the disc."""
+def building_footprint(plan: OccupancyMap, door_width: float = DOOR_WIDTH) -> npt.NDArray[np.bool_]:
+    """The plan's building footprint: its occupied cells grown by a disc ``door_width``
+    metres across (radius ``ceil(door_width / 2 / resolution)`` cells), which bridges any
+    opening in a wall up to a door wide, thin walls' included; the holes of that filled;
+    and the whole shrunk back by the same disc, so that its outer edge returns to the
+    outer wall (an opening keeps a notch a few cells deep). A closing with the holes
+    filled between its halves; a plain closing would leave an opening in a one-cell
+    wall open. Distance transforms on the map padded by the radius, so that the image's
+    edge does not cut the disc."""
     r = int(np.ceil(0.5 * door_width / plan.grid.resolution - 1e-9))
     walls = np.pad(plan.classes() == OCCUPIED, r + 1)
-    # Dilation: within r of a wall; erosion of that: farther than r from its outside.
     grown = ndimage.distance_transform_edt(~walls) <= r
-    closed = ndimage.distance_transform_edt(grown) > r
-    return np.asarray(
-        closed[r + 1 : -r - 1, r + 1 : -r - 1] | walls[r + 1 : -r - 1, r + 1 : -r - 1]
-    )
+    filled = ndimage.binary_fill_holes(grown)
+    shrunk = (ndimage.distance_transform_edt(filled) > r) | walls
+    return np.asarray(shrunk[r + 1 : -r - 1, r + 1 : -r - 1], dtype=bool)
 
 
 def footprint(
     plan: OccupancyMap, door_width: float = DOOR_WIDTH, radius: float = ROBOT_RADIUS
 ) -> Footprint:
-    """The plan's building footprint (its walls closed by a disc ``door_width`` metres
-    across, holes filled) and whether the plan is a drawn plan with a free outside: at
-    most 1 % of its cells unknown, at least 99 % of its border cells free and off the
-    footprint (a drawing's margin), at least 90 % of its occupied cells in the
-    footprint's largest 8-connected piece (one building), and room inside the footprint
-    for a robot of ``radius`` metres. The cheap checks come first, so a SLAM map with
-    unknown cells or a walled border costs no closing."""
+    """The plan's building footprint (:func:`building_footprint`) and whether the
+    plan is a drawn plan with a free outside: at most 1 % of its cells unknown, at
+    least 99 % of its border cells free and off the footprint (a drawing's margin), at
+    least 90 % of its occupied cells in the footprint's largest 8-connected piece (one
+    building), and room inside the footprint for a robot of ``radius`` metres. The
+    cheap checks come first, so a SLAM map with unknown cells or a walled border costs
+    no footprint."""
     cls = plan.classes()
     nan = float("nan")
     none = np.zeros(cls.shape, dtype=bool)
@@ -278,7 +281,7 @@ def footprint(
     if float((cls[edge] == FREE).mean()) < _MARGIN_SHARE:
         why = "border not free all round: not a drawn plan with a free outside"
         return Footprint(none, False, why, unknown, float((cls[edge] == FREE).mean()), nan)
-    region = np.asarray(ndimage.binary_fill_holes(closed_walls(plan, door_width)), dtype=bool)
+    region = building_footprint(plan, door_width)
     margin = float(((cls == FREE) & ~region)[edge].mean())
     walls = cls == OCCUPIED
     labels, n = ndimage.label(region, structure=np.ones((3, 3), dtype=bool))
