@@ -227,7 +227,7 @@ def footprints(folder: Path) -> None:
     for label, (plan, mask) in _maps(folder).items():
         fp = footprint(plan)
         f = fp.figures()
-        cells = [str(f["unknown_share"]), str(f["margin_share"]), str(f["building_share"])]
+        cells = [str(f["plan_unknown_share"]), str(f["margin_share"]), str(f["building_share"])]
         cells.append(f"{'yes' if fp.drawn else 'no'} ({fp.why})")
         if mask is None:
             cells += ["-", "-"]

@@ -123,6 +123,8 @@ def test_team_run_takes_the_footprint_by_default_and_none_turns_it_off(
     assert t["file"] is None
     assert 40 < t["free_area_inside_m2"] < 47
     assert t["left_out_free_area_m2"] > 200
+    assert t["plan_unknown_share"] == 0.0
+    assert t["margin_share"] == 1.0
     off = tmp_path / "off"
     main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
           "--territory", "none", "-o", str(off)])  # fmt: skip

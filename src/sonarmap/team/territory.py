@@ -225,10 +225,12 @@ class Footprint:
     building_share: float
 
     def figures(self) -> dict[str, Any]:
-        """The checks' figures, rounded for ``summary.json``."""
+        """The checks' figures, rounded for ``summary.json`` (the unknown share as
+        ``plan_unknown_share``: :meth:`~sonarmap.patrol.reach.Reach.summary` has an
+        ``unknown_share`` of its own in the same record)."""
         return {
             "why": self.why,
-            "unknown_share": _rounded(self.unknown_share),
+            "plan_unknown_share": _rounded(self.unknown_share),
             "margin_share": _rounded(self.margin_share),
             "building_share": _rounded(self.building_share),
         }
