@@ -20,7 +20,13 @@ Run with ``python -m benchmarks.team_territory --out DIR [--seeds 0 1] [--drawn]
 - draws ``DIR/standin0.png``: standin:0's route and landmarks without and with the mask;
 - with ``--drawn``, the candidate default of item 3 measured against its rule: whether a
   map "looks drawn" (under 1 % unknown, at least half its border free) and what leaving
-  out the free cells connected to the border would leave out.
+  out the free cells connected to the border would leave out;
+- with ``--footprint``, the building-footprint default
+  (``docs/results/2026-12-07-team-footprint.md``) measured against the rule stated there
+  before measuring: the detector's call and figures per map
+  (:func:`sonarmap.team.territory.footprint`), the share of the outside's and the
+  inside's free area it leaves out, and whether the largest piece a robot fits in is the
+  outline's; ``--no-shares`` skips the route and landmark shares (the slow part).
 """
 
 from __future__ import annotations
@@ -43,6 +49,7 @@ from sonarmap.io.rosmap import FREE, UNKNOWN, OccupancyMap, read_map, write_map
 from sonarmap.patrol.territory import Territory
 from sonarmap.team.territory import (
     ROBOT_RADIUS,
+    footprint,
     read_territory,
     territory_reach,
     territory_record,
@@ -167,13 +174,7 @@ def _draw(
 
 def drawn(folder: Path) -> None:
     """Item 3's candidate default measured against the rule stated before measuring."""
-    maps: dict[str, tuple[OccupancyMap, Path | None]] = {}
-    for label, (stem, outline, _) in STANDINS.items():
-        maps[label] = (read_map(folder / f"{stem}.yaml"), folder / f"{outline}.txt")
-    for name in ("depot", "warehouse", "tb3_sandbox"):
-        maps[name] = (read_map(SHARED / f"{name}.yaml"), None)
-    for name in ("office", "building:1"):
-        maps[name] = (builtin_plan(name), None)
+    maps = _maps(folder)
     eight = np.ones((3, 3), dtype=bool)
     print("| map | unknown | border free | drawn | free connected to the border | "
           "left out: outside / inside | largest piece as the outline's |")  # fmt: skip
@@ -205,17 +206,63 @@ def drawn(folder: Path) -> None:
         print(f"| {label} | " + " | ".join(cells) + " |", flush=True)
 
 
+def _maps(folder: Path) -> dict[str, tuple[OccupancyMap, Path | None]]:
+    maps: dict[str, tuple[OccupancyMap, Path | None]] = {}
+    for label, (stem, outline, _) in STANDINS.items():
+        maps[label] = (read_map(folder / f"{stem}.yaml"), folder / f"{outline}.txt")
+    for name in ("depot", "warehouse", "tb3_sandbox"):
+        maps[name] = (read_map(SHARED / f"{name}.yaml"), None)
+    for name in ("office", "building:1"):
+        maps[name] = (builtin_plan(name), None)
+    return maps
+
+
+def footprints(folder: Path) -> None:
+    """The footprint default measured against its rule (stated before measuring)."""
+    print(
+        "| map | unknown | border free, off the footprint | walls in the largest piece "
+        "| drawn (why) | left out: outside / inside | largest piece as the outline's |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for label, (plan, mask) in _maps(folder).items():
+        fp = footprint(plan)
+        f = fp.figures()
+        cells = [str(f["plan_unknown_share"]), str(f["margin_share"]), str(f["building_share"])]
+        cells.append(f"{'yes' if fp.drawn else 'no'} ({fp.why})")
+        if mask is None:
+            cells += ["-", "-"]
+        else:
+            free = plan.classes() == FREE
+            region = read_territory(mask, plan)
+            fin, fout = free & region, free & ~region
+            left = free & ~fp.region
+            cells.append(f"{(left & fout).sum() / fout.sum():.3f} / "
+                         f"{(left & fin).sum() / fin.sum():.3f}")  # fmt: skip
+            try:
+                a = territory_reach(plan, fp.region).passable
+                b = territory_reach(plan, region).passable
+                cells.append(f"{int((a & b).sum())} of {int(a.sum())} / {int(b.sum())} cells")
+            except InputError:
+                cells.append("no place left")
+        print(f"| {label} | " + " | ".join(cells) + " |", flush=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     p.add_argument("--drawn", action="store_true", help="item 3's rule, measured")
+    p.add_argument("--footprint", action="store_true", help="the footprint's rule, measured")
+    p.add_argument("--no-shares", action="store_true", help="skip the route/landmark shares")
     a = p.parse_args(argv)
     folder = a.out / "maps"
     write_inputs(folder)
-    shares(folder, a.seeds, a.out / "standin0.png")
+    if not a.no_shares:
+        shares(folder, a.seeds, a.out / "standin0.png")
     if a.drawn:
         drawn(folder)
+    if a.footprint:
+        footprints(folder)
 
 
 if __name__ == "__main__":

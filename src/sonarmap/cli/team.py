@@ -27,7 +27,12 @@ from ..team.prior import ERROR_KEYS, check_prior, degrade_plan, parse_prior_erro
 from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
 from ..team.store import StoreParams
-from ..team.territory import MissionTerritory, load_territory
+from ..team.territory import (
+    NO_TERRITORY,
+    MissionTerritory,
+    default_territory,
+    load_territory,
+)
 from ..team.world import (
     load_world,
     make_world,
@@ -99,27 +104,51 @@ TerritoryOption = Annotated[
         "--territory",
         help="Map only inside this mask, as 'patrol run --territory': a map_server YAML "
         "(its free cells) or a polygon file ('x y' metres a line, a blank line between "
-        "polygons). Routes, starts and landmarks stay in the largest area a robot fits in "
-        "inside it (default: the whole map's; on a drawn plan whose outside is free, that "
-        "may be the outside). A --route must keep to that area (refused otherwise); "
-        "--world is refused with it. The store's regions are not masked: they are still "
-        "cut from the whole prior, outside included.",
+        "polygons); 'none': the whole map. Routes, starts and landmarks stay in the "
+        "largest area a robot fits in inside it. Default: on a drawn plan whose outside "
+        "is free (no unknown cells, a free margin all round, one building) the building's "
+        "footprint, its walls bridged across openings up to 1.5 m, so the outside is left "
+        "out (unless --route or --world is given); elsewhere the whole map. A --route must "
+        "keep to a given mask's area (refused otherwise); --world is refused with a mask. "
+        "The store's regions are not masked: they are still cut from the whole prior, "
+        "outside included.",
     ),
 ]
 
 
-def _territory(path: Path | None, plan: OccupancyMap) -> MissionTerritory | None:
+def _territory(
+    path: Path | None, plan: OccupancyMap, *, default: bool = True
+) -> MissionTerritory | None:
     """``--territory``: the mask read onto the plan's cells, what a robot reaches inside
     it and what summary.json records of it
-    (:func:`~sonarmap.team.territory.load_territory`; None without one). Its errors name
-    the option and the file (and the line, for a malformed one)."""
+    (:func:`~sonarmap.team.territory.load_territory`). Without the option, the default
+    when ``default`` (:func:`~sonarmap.team.territory.default_territory`: the building's
+    footprint on a drawn plan whose outside is free, told in one line; None elsewhere);
+    ``--territory none``: None, the whole map. Its errors name the option and the file
+    (and the line, for a malformed one)."""
     if path is None:
+        mask = default_territory(plan) if default else None
+        if mask is not None:
+            r = mask.record
+            console.print(
+                f"territory: {r['why']}; left out its free outside, "
+                f"{r['left_out_free_area_m2']:,.1f} m^2 (the building's footprint; "
+                "--territory none keeps the whole map)",
+                markup=False,
+            )
+        return mask
+    if str(path) == NO_TERRITORY:
         return None
     try:
         return load_territory(path, plan)
     except InputError as err:
         where = str(err) if err.path is not None else f"{path}: {err.reason}"
         raise ConfigError(f"--territory {where}") from None
+
+
+def _territory_file(path: Path | None) -> Path | None:
+    """The --territory file itself, None for the default or ``none``."""
+    return None if path is None or str(path) == NO_TERRITORY else path
 
 
 def _check_route_inside(
@@ -609,6 +638,10 @@ def _drawn(
     except (InputError, ConfigError) as err:
         # The reason itself says when the mask is what left no room.
         within = "" if territory is None else f", --territory {territory}"
+        if territory is None and region is not None:
+            within = (
+                ", inside the building's footprint (the default; --territory none: the whole map)"
+            )
         raise ConfigError(f"--map {map_}{within}: {err.reason}") from None
     return world
 
@@ -733,15 +766,18 @@ def run_cmd(
         )
     if not (math.isfinite(map_every) and map_every > 0):
         raise ConfigError(f"--map-every must be > 0 seconds, got {map_every}")
-    if territory is not None and world_dir is not None:
+    if _territory_file(territory) is not None and world_dir is not None:
         raise ConfigError(
             "--world carries its own landmarks and route: give --territory to 'team world' "
             "instead, or drop --world"
         )
     plan = resolve_map(map_, resolution, origin)
-    mask = _territory(territory, plan)
+    # A route or a saved world of the user's own: the default footprint does not apply.
+    mask = _territory(territory, plan, default=route is None and world_dir is None)
     region = None if mask is None else mask.region
     territory_desc = None if mask is None else mask.record
+    if territory is not None and _territory_file(territory) is None:
+        territory_desc = {"file": None, "default": "off (--territory none)"}
     prior, prior_desc = _prior(plan, prior_path, prior_error, seed, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
@@ -784,7 +820,10 @@ def run_cmd(
                 routes=[routes.get(i) for i in range(robots)],
                 prior=prior,
                 prior_desc=prior_desc,
-                territory=territory,
+                # The nodes work the default footprint out as this command did; none
+                # when it did not apply (a --route of the user's, say).
+                territory=_territory_file(territory)
+                or (None if mask is not None else Path(NO_TERRITORY)),
                 territory_desc=territory_desc,
             )
         console.print(

@@ -37,7 +37,7 @@ from .prior import check_prior
 from .simulation import map_agreement
 from .store import StoreParams
 from .summary import mission_figures, team_figures
-from .territory import read_territory
+from .territory import NO_TERRITORY, default_territory, read_territory
 from .transport import DEFAULT_MAX_MESSAGE
 from .world import patrol_route
 
@@ -229,7 +229,11 @@ def run_zmq_team(
     territory : str or Path, optional
         A territory mask file (:mod:`.territory`; the patrol's formats): the routes
         drawn here and every node's landmarks and routes stay inside it; each node is
-        handed the file (``--territory``). None: the whole plan.
+        handed the file (``--territory``). ``"none"`` (:data:`.territory.NO_TERRITORY`):
+        the whole plan, and so for every node. None: the default
+        (:func:`.territory.default_territory`: the building's footprint on a drawn
+        plan whose outside is free, the whole plan elsewhere), which every node works
+        out alike.
 
     Returns
     -------
@@ -265,7 +269,13 @@ def run_zmq_team(
             plan = read_map(plan_path)
         if routes is not None and len(routes) != robots:
             raise ConfigError(f"routes: {len(routes)} given for {robots} robots")
-        region = None if territory is None else read_territory(territory, plan)
+        if territory is None:
+            default = default_territory(plan)
+            region = None if default is None else default.region
+        elif str(territory) == NO_TERRITORY:
+            region = None
+        else:
+            region = read_territory(territory, plan)
         drawn = [
             patrol_route(plan, cfg.duration, seed=cfg.seed + 7919 * i, region=region)
             if routes is None or routes[i] is None
@@ -277,7 +287,9 @@ def run_zmq_team(
         # not be able to join it or pose as one of its robots.
         make_team_key(robots).write(where / KEY_FILE)
         args = [*args, "--routes", str(where / "routes"), "--key", str(where / KEY_FILE)]
-        if territory is not None:
+        if territory is not None and str(territory) == NO_TERRITORY:
+            args += ["--territory", NO_TERRITORY]
+        elif territory is not None:
             args += ["--territory", str(Path(territory).resolve())]
         if prior is not None:
             check_prior(plan, prior, "prior")

@@ -9,6 +9,13 @@ patrol: :func:`read_territory` reads it onto the plan's cells and refuses a mask
 leaves no place a robot fits in; :func:`mask_on` carries it onto another grid of the
 same frame (the tour's and the patroller's coarser cells); :func:`territory_record`
 is what ``summary.json`` says of it.
+
+Without a mask a mission's territory is the default (:func:`default_territory`): on a
+drawn plan whose outside is free (:func:`footprint`: no unknown cell, a free margin all
+round, one building), the building's footprint, its walls grown by a disc a door wide
+before their holes are filled, so that an open entrance does not join the inside to the
+outside; elsewhere (a SLAM map,
+the built-in maps) the whole map.
 """
 
 from __future__ import annotations
@@ -19,17 +26,24 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from scipy import ndimage
 
 from ..errors import InputError
 from ..grid import Grid
-from ..io.rosmap import OccupancyMap
+from ..io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 from ..patrol.reach import Reach, reach
 from ..patrol.region import read_region
 from ..patrol.territory import Territory
 
 __all__ = [
+    "DOOR_WIDTH",
+    "NO_TERRITORY",
     "ROBOT_RADIUS",
+    "Footprint",
     "MissionTerritory",
+    "building_footprint",
+    "default_territory",
+    "footprint",
     "load_territory",
     "mask_on",
     "read_territory",
@@ -42,6 +56,20 @@ __all__ = [
 #: :func:`~.world.facing_cells`, :func:`~.world.territory_faces`) and
 #: :func:`~.patrolling.patrol_config` default to.
 ROBOT_RADIUS = 0.3
+
+#: Metres: the widest opening in a drawn plan's outer wall (an entrance) that
+#: :func:`building_footprint` bridges, the diameter of its disc.
+DOOR_WIDTH = 1.5
+
+#: What ``--territory`` takes for "no mask, not even the default": the whole map.
+NO_TERRITORY = "none"
+
+#: A drawn plan (:func:`footprint`): at most this share of its cells unknown ...
+_UNKNOWN_SHARE = 0.01
+#: ... at least this share of its border cells free and off the footprint ...
+_MARGIN_SHARE = 0.99
+#: ... and at least this share of its occupied cells in the footprint's largest piece.
+_BUILDING_SHARE = 0.9
 
 
 @dataclass(frozen=True)
@@ -145,14 +173,15 @@ def _read(
 
 
 def territory_record(
-    path: str | Path,
+    path: str | Path | None,
     plan: OccupancyMap,
     region: npt.NDArray[np.bool_],
     where: Reach | None = None,
 ) -> dict[str, Any]:
-    """What ``summary.json`` records of the mask a mission used: its file, the free
-    area inside it, the area the robots' largest piece covers there (m^2), and the
-    patrol's shares of what was left out (:meth:`~sonarmap.patrol.reach.Reach.summary`).
+    """What ``summary.json`` records of the mask a mission used: its file (None for the
+    default footprint), the free area inside it, the area the robots' largest piece
+    covers there (m^2), and the patrol's shares of what was left out
+    (:meth:`~sonarmap.patrol.reach.Reach.summary`).
     ``where`` is :func:`territory_reach` of ``region`` when already worked out (default:
     worked out here)."""
     if where is None:
@@ -160,8 +189,138 @@ def territory_record(
     cell = plan.grid.resolution**2
     free = Territory.from_map(plan).free
     return {
-        "file": str(path),
+        "file": None if path is None else str(path),
         "free_area_inside_m2": round(float((free & region).sum()) * cell, 3),
         "reached_area_m2": round(float(where.watched.sum()) * cell, 3),
         **where.summary(),
     }
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """A plan's building footprint and whether the plan is a drawn one whose outside is
+    free (:func:`footprint`).
+
+    Attributes
+    ----------
+    region : ndarray of bool
+        The footprint on the plan's cells (:func:`building_footprint`; all False when
+        the plan's checks stopped before it was worked out).
+    drawn : bool
+        The plan is a drawn plan with a free outside: the footprint is its default
+        territory.
+    why : str
+        Why (or why not), one phrase naming the check that decided.
+    unknown_share, margin_share, building_share : float
+        The plan's unknown share of cells, the share of its border cells free and off the
+        footprint, and the share of its occupied cells in the footprint's largest piece
+        (NaN when not worked out).
+    """
+
+    region: npt.NDArray[np.bool_]
+    drawn: bool
+    why: str
+    unknown_share: float
+    margin_share: float
+    building_share: float
+
+    def figures(self) -> dict[str, Any]:
+        """The checks' figures, rounded for ``summary.json`` (the unknown share as
+        ``plan_unknown_share``: :meth:`~sonarmap.patrol.reach.Reach.summary` has an
+        ``unknown_share`` of its own in the same record)."""
+        return {
+            "why": self.why,
+            "plan_unknown_share": _rounded(self.unknown_share),
+            "margin_share": _rounded(self.margin_share),
+            "building_share": _rounded(self.building_share),
+        }
+
+
+def _rounded(x: float) -> float | None:
+    return None if np.isnan(x) else round(float(x), 4)
+
+
+def _border(shape: tuple[int, ...]) -> npt.NDArray[np.bool_]:
+    edge = np.zeros(shape, dtype=bool)
+    edge[0, :] = edge[-1, :] = edge[:, 0] = edge[:, -1] = True
+    return edge
+
+
+def building_footprint(plan: OccupancyMap, door_width: float = DOOR_WIDTH) -> npt.NDArray[np.bool_]:
+    """The plan's building footprint: its occupied cells grown by a disc ``door_width``
+    metres across (radius ``ceil(door_width / 2 / resolution)`` cells), which bridges any
+    opening in a wall up to a door wide, thin walls' included; the holes of that filled;
+    and the whole shrunk back by the same disc, so that its outer edge returns to the
+    outer wall (an opening keeps a notch a few cells deep). A closing with the holes
+    filled between its halves; a plain closing would leave an opening in a one-cell
+    wall open. Distance transforms on the map padded by the radius, so that the image's
+    edge does not cut the disc."""
+    r = int(np.ceil(0.5 * door_width / plan.grid.resolution - 1e-9))
+    walls = np.pad(plan.classes() == OCCUPIED, r + 1)
+    grown = ndimage.distance_transform_edt(~walls) <= r
+    filled = ndimage.binary_fill_holes(grown)
+    shrunk = (ndimage.distance_transform_edt(filled) > r) | walls
+    return np.asarray(shrunk[r + 1 : -r - 1, r + 1 : -r - 1], dtype=bool)
+
+
+def footprint(
+    plan: OccupancyMap, door_width: float = DOOR_WIDTH, radius: float = ROBOT_RADIUS
+) -> Footprint:
+    """The plan's building footprint (:func:`building_footprint`) and whether the
+    plan is a drawn plan with a free outside: at most 1 % of its cells unknown, at
+    least 99 % of its border cells free and off the footprint (a drawing's margin), at
+    least 90 % of its occupied cells in the footprint's largest 8-connected piece (one
+    building), and room inside the footprint for a robot of ``radius`` metres. The
+    cheap checks come first, so a SLAM map with unknown cells or a walled border costs
+    no footprint."""
+    cls = plan.classes()
+    nan = float("nan")
+    none = np.zeros(cls.shape, dtype=bool)
+    unknown = float((cls == UNKNOWN).mean())
+    if unknown > _UNKNOWN_SHARE:
+        return Footprint(none, False, "unknown cells: not a drawn plan", unknown, nan, nan)
+    edge = _border(cls.shape)
+    if float((cls[edge] == FREE).mean()) < _MARGIN_SHARE:
+        why = "border not free all round: not a drawn plan with a free outside"
+        return Footprint(none, False, why, unknown, float((cls[edge] == FREE).mean()), nan)
+    region = building_footprint(plan, door_width)
+    margin = float(((cls == FREE) & ~region)[edge].mean())
+    walls = cls == OCCUPIED
+    labels, n = ndimage.label(region, structure=np.ones((3, 3), dtype=bool))
+    per = np.bincount(labels[walls], minlength=n + 1)[1:] if n else np.zeros(1)
+    building = float(per.max() / max(1, walls.sum()))
+    if margin < _MARGIN_SHARE:
+        why = "the footprint reaches the border: not a drawn plan with a free outside"
+        return Footprint(region, False, why, unknown, margin, building)
+    if building < _BUILDING_SHARE:
+        why = "walls in pieces, not one building"
+        return Footprint(region, False, why, unknown, margin, building)
+    try:
+        territory_reach(plan, region, radius)
+    except InputError:
+        why = "no room for a robot inside the footprint"
+        return Footprint(region, False, why, unknown, margin, building)
+    why = "a drawn plan: no unknown cells, a free margin all round, one building"
+    return Footprint(region, True, why, unknown, margin, building)
+
+
+def default_territory(plan: OccupancyMap) -> MissionTerritory | None:
+    """A mission's territory when no mask is given: the building's footprint on a drawn
+    plan whose outside is free (:func:`footprint`), None (the whole map) elsewhere. Its
+    record adds to :func:`territory_record`'s the default's name, the free area left out
+    (m^2) and the checks' figures (:meth:`Footprint.figures`)."""
+    fp = footprint(plan)
+    if not fp.drawn:
+        return None
+    where = territory_reach(plan, fp.region)
+    free = plan.classes() == FREE
+    record = {
+        "default": "footprint",
+        **territory_record(None, plan, fp.region, where),
+        "left_out_free_area_m2": round(
+            float((free & ~fp.region).sum()) * plan.grid.resolution**2, 3
+        ),
+        "door_width_m": DOOR_WIDTH,
+        **fp.figures(),
+    }
+    return MissionTerritory(fp.region, where, record)

@@ -1,0 +1,133 @@
+"""The default territory of a team mission: on a drawn plan whose outside is free, the
+building's footprint leaves the outside out even through an open entrance; a SLAM-like
+map (its outside unknown), a map whose walls reach the image's edge and a drawing with
+its walls in pieces are left whole."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from sonarmap.cli import main
+from sonarmap.grid import Grid
+from sonarmap.io.rosmap import FREE, OccupancyMap, write_map
+from sonarmap.team.territory import default_territory, footprint
+from sonarmap.team.world import make_world, patrol_route
+
+#: The building: 8 x 6 m, one-cell walls, a 1.2 m entrance in its south wall and a
+#: 1.2 m door between its two rooms, drawn at 0.1 m with 5 m of free outside all round.
+BUILDING = (0.0, 0.0, 8.0, 6.0)
+
+
+def _plan(outside: float = 0.0, entrance: bool = True) -> OccupancyMap:
+    """The building drawn with its outside at ``outside`` (0 free, 0.5 unknown)."""
+    grid = Grid.from_bounds(-5.0, -5.0, 13.0, 11.0, 0.1)
+    occ = np.full(grid.shape, outside, dtype=np.float32)
+    x, y = grid.all_centres()
+    x0, y0, x1, y1 = BUILDING
+    ring = (x > x0) & (x < x1) & (y > y0) & (y < y1)
+    inner = (x > x0 + 0.1) & (x < x1 - 0.1) & (y > y0 + 0.1) & (y < y1 - 0.1)
+    occ[ring] = 0.0
+    occ[ring & ~inner] = 1.0
+    if entrance:
+        occ[ring & (y < y0 + 0.1) & (x > 5.4) & (x < 6.6)] = 0.0
+    occ[ring & (np.abs(x - 4.05) < 0.05) & ~((y > 2.4) & (y < 3.6))] = 1.0
+    return OccupancyMap(grid, occ)
+
+
+def _inside(plan: OccupancyMap) -> np.ndarray:
+    x, y = plan.grid.all_centres()
+    x0, y0, x1, y1 = BUILDING
+    return np.asarray((x > x0) & (x < x1) & (y > y0) & (y < y1))
+
+
+def test_the_entrance_joins_inside_and_outside() -> None:
+    """Why a flood fill from the border is not enough: every free cell reaches it."""
+    free = _plan().classes() == FREE
+    _, n = ndimage.label(free, structure=np.ones((3, 3), dtype=bool))
+    assert n == 1
+
+
+def test_the_footprint_leaves_out_a_drawn_outside_through_an_open_entrance() -> None:
+    plan = _plan()
+    fp = footprint(plan)
+    assert fp.drawn, fp.why
+    free, inside = plan.classes() == FREE, _inside(plan)
+    left = free & ~fp.region
+    assert (left & ~inside).sum() / (free & ~inside).sum() > 0.99
+    # At most the notch at the entrance: under 1 % of the inside's free area.
+    assert (left & inside).sum() / (free & inside).sum() < 0.01
+    mask = default_territory(plan)
+    assert mask is not None
+    assert mask.record["default"] == "footprint"
+    assert mask.record["left_out_free_area_m2"] > 200
+    # The robot's route and the world's landmarks are inside, both rooms reached.
+    route = patrol_route(plan, 120.0, seed=3, region=mask.region)
+    x, y = route[:, 1], route[:, 2]
+    assert ((x > 0.3) & (x < 7.7) & (y > 0.3) & (y < 5.7)).all()
+    assert (x < 4.0).any()
+    assert (x > 4.1).any()
+    world = make_world(plan, seed=0, duration=60.0, region=mask.region)
+    lx, ly = world.points[:, 0], world.points[:, 1]
+    # Inner faces only, but for the entrance's jambs and its outer face beside it.
+    near = (np.abs(ly) < 0.9) & (lx > 4.5) & (lx < 7.5)
+    assert ((lx > 0.05) & (lx < 7.95) & (ly > 0.05) & (ly < 5.95) | near).all()
+
+
+def _walled_border() -> OccupancyMap:
+    """The plan with walls on the image's edge: no free margin all round."""
+    occ = np.asarray(_plan().occupancy).copy()
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
+    return OccupancyMap(_plan().grid, occ)
+
+
+@pytest.mark.parametrize(
+    ("plan", "why"), [(_plan(outside=0.5), "unknown cells"), (_walled_border(), "border")]
+)
+def test_maps_that_are_not_drawn_plans_are_left_whole(plan: OccupancyMap, why: str) -> None:
+    fp = footprint(plan)
+    assert not fp.drawn
+    assert why in fp.why
+    assert default_territory(plan) is None
+
+
+def test_a_drawing_with_its_walls_in_pieces_is_left_whole() -> None:
+    plan = _plan()
+    occ = np.asarray(plan.occupancy).copy()
+    # 0.3 m posts over the outside north of the building, 2 m apart (farther than a
+    # door): not one building.
+    for r in range(5, 45, 20):
+        for c in range(5, 175, 20):
+            occ[r : r + 3, c : c + 3] = 1.0
+    fp = footprint(OccupancyMap(plan.grid, occ))
+    assert not fp.drawn
+    assert "pieces" in fp.why
+
+
+def test_team_run_takes_the_footprint_by_default_and_none_turns_it_off(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    write_map(_plan(), tmp_path / "plan")
+    out = tmp_path / "run"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
+          "-o", str(out)])  # fmt: skip
+    said = capsys.readouterr().out
+    assert "territory: a drawn plan" in said
+    assert "--territory none" in said
+    t = json.loads((out / "summary.json").read_text())["territory"]
+    assert t["default"] == "footprint"
+    assert t["file"] is None
+    assert 40 < t["free_area_inside_m2"] < 47
+    assert t["left_out_free_area_m2"] > 200
+    assert t["plan_unknown_share"] == 0.0
+    assert t["margin_share"] == 1.0
+    off = tmp_path / "off"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
+          "--territory", "none", "-o", str(off)])  # fmt: skip
+    assert "territory: a drawn plan" not in capsys.readouterr().out
+    t = json.loads((off / "summary.json").read_text())["territory"]
+    assert t["default"].startswith("off")
