@@ -27,7 +27,9 @@ held-out families and seeds are refused.
 
 Run with ``python -m benchmarks.hcsr04_margin [--sweep sweeps/rigs8-band.yaml] [--only
 hcsr04] [--methods inverse gradient em em-thrun stochastic] [--param K=V ...]
-[--reach]``.
+[--reach]``. ``--report CSV ...`` instead prints, from sweeps' ``results.csv`` files
+over those 16 maps, the gradient's means per rig and setting and its margin over the
+inverse on the HC-SR04 maps (the page's acceptance rule's figures).
 """
 
 from __future__ import annotations
@@ -193,6 +195,45 @@ def table(rows: list[tuple[str, int, str, float, dict[str, int]]], base: str) ->
     return "\n".join(lines)
 
 
+#: The rig of each training scene of ``sweeps/rigs8-band.yaml`` (the others: MaxSonar).
+SCENE_RIG = {
+    "hall-hcsr04": "hcsr04",
+    "suite-hcsr04": "hcsr04",
+    "hall-ring16": "ring16",
+    "suite-ring16": "ring16",
+}
+
+
+def report(paths: Sequence[str]) -> str:
+    """The gradient's means per setting and rig, and its HC-SR04 margin over the
+    inverse, from sweeps' ``results.csv``."""
+    import pandas as pd
+
+    d = pd.concat([pd.read_csv(p) for p in paths], ignore_index=True)
+    d["rig"] = d["scenario"].map(lambda s: SCENE_RIG.get(s, "ez1"))
+    inverse = d[d["method"] == "inverse"].groupby("rig")["f1_all"].mean()
+    g = d[d["method"] == "gradient"]
+    cols = ["f1_all", "quality", "precision_all", "recall_all", "passage_f1"]
+    lines = [
+        "| setting | rig | maps | wall F1 | quality | precision | recall | passage F1 "
+        "| minus inverse |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for (params, rig), part in g.groupby(["params", "rig"], sort=True):
+        r = part[cols].mean()
+        margin = f"{r.f1_all - inverse[rig]:+.3f}" if rig in inverse else ""
+        lines.append(
+            f"| {params} | {rig} | {len(part)} | {r.f1_all:.3f} | {r.quality:.3f} | "
+            f"{r.precision_all:.3f} | {r.recall_all:.3f} | {r.passage_f1:.3f} | {margin} |"
+        )
+    for params, part in g.groupby("params", sort=True):
+        lines.append(
+            f"| {params} | all | {len(part)} | {part['f1_all'].mean():.3f} | "
+            f"{part['quality'].mean():.3f} | | | | |"
+        )
+    return "\n".join(lines)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sweep", default="sweeps/rigs8-band.yaml")
@@ -202,7 +243,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     ap.add_argument("--param", action="append", default=[], help="gradient K=V (repeatable)")
     ap.add_argument("--reach", action="store_true", help="print the gradient's reach counts")
+    ap.add_argument("--report", nargs="+", help="sweeps' results.csv: print their means")
     args = ap.parse_args(argv)
+    if args.report:
+        print(report(args.report))
+        return
     _, params = parse_variant(" ".join(["gradient", *args.param]))
     rows = run(args.sweep, args.only, args.methods, params, args.reach)
     print(table(rows, "inverse"))
