@@ -37,7 +37,7 @@ from __future__ import annotations
 import argparse
 import os
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -211,7 +211,10 @@ def report(paths: Sequence[str]) -> str:
 
     d = pd.concat([pd.read_csv(p) for p in paths], ignore_index=True)
     d["rig"] = d["scenario"].map(lambda s: SCENE_RIG.get(s, "ez1"))
-    inverse = d[d["method"] == "inverse"].groupby("rig")["f1_all"].mean()
+    inverse = {
+        str(k): float(v)
+        for k, v in d[d["method"] == "inverse"].groupby("rig")["f1_all"].mean().items()
+    }
     g = d[d["method"] == "gradient"]
     cols = ["f1_all", "quality", "precision_all", "recall_all", "passage_f1"]
     lines = [
@@ -219,16 +222,17 @@ def report(paths: Sequence[str]) -> str:
         "| minus inverse |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    for (params, rig), part in g.groupby(["params", "rig"], sort=True):
+    for key, part in g.groupby(["params", "rig"], sort=True):
+        params, rig = (str(k) for k in cast(tuple[Any, Any], key))
         r = part[cols].mean()
         margin = f"{r.f1_all - inverse[rig]:+.3f}" if rig in inverse else ""
         lines.append(
             f"| {params} | {rig} | {len(part)} | {r.f1_all:.3f} | {r.quality:.3f} | "
             f"{r.precision_all:.3f} | {r.recall_all:.3f} | {r.passage_f1:.3f} | {margin} |"
         )
-    for params, part in g.groupby("params", sort=True):
+    for setting, part in g.groupby("params", sort=True):
         lines.append(
-            f"| {params} | all | {len(part)} | {part['f1_all'].mean():.3f} | "
+            f"| {setting!s} | all | {len(part)} | {part['f1_all'].mean():.3f} | "
             f"{part['quality'].mean():.3f} | | | | |"
         )
     return "\n".join(lines)
