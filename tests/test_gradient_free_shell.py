@@ -5,6 +5,7 @@ when on, refused by the stream."""
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 
 from sonarmap.errors import ConfigError
@@ -94,3 +95,21 @@ def test_the_option_is_checked_and_offline_only() -> None:
         GradientMapper(free_shell=-0.1)
     with pytest.raises(ConfigError, match=r"streaming 'gradient' .*free_shell.*; set free_shell=0"):
         StreamingMapper(GradientMapper(free_shell=0.1), GRID, get_rig("hcsr04-six"))
+
+
+def test_the_shells_multiply_the_incidence_factors() -> None:
+    """With ``specular_deg`` as well, each free weight is the plain one times both
+    factors: the shells' ratio is the same with and without the incidence's."""
+    readings = readings_at_a_wall()
+    readings = readings.take(np.r_[np.arange(len(readings)), np.arange(len(readings))])
+    readings.theta[len(readings) // 2 :] = 0.3
+
+    def free(**kw: float) -> npt.NDArray[np.float64]:
+        p = GradientMapper(**kw).start(GRID, HCSR04).problem(readings)
+        return np.asarray(p.W[~p.is_occ].toarray())
+
+    plain, shells = free(), free(free_shell=0.2)
+    slanted, both = free(specular_deg=30.0), free(specular_deg=30.0, free_shell=0.2)
+    assert not np.allclose(slanted, plain)
+    on = plain > 0
+    assert both[on] / slanted[on] == pytest.approx(shells[on] / plain[on])
