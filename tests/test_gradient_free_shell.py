@@ -4,6 +4,8 @@ when on, refused by the stream."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -104,7 +106,7 @@ def test_the_shells_multiply_the_incidence_factors() -> None:
     readings = readings.take(np.r_[np.arange(len(readings)), np.arange(len(readings))])
     readings.theta[len(readings) // 2 :] = 0.3
 
-    def free(**kw: float) -> npt.NDArray[np.float64]:
+    def free(**kw: Any) -> npt.NDArray[np.float64]:
         p = GradientMapper(**kw).start(GRID, HCSR04).problem(readings)
         return np.asarray(p.W[~p.is_occ].toarray())
 
