@@ -258,6 +258,48 @@ def _rows(
     return data[entry_use], cols, offsets, 1.0 / sums[use], np.flatnonzero(use).astype(np.int64)
 
 
+def shell_factors(free: CellSet, width: float, gain: float) -> F64:
+    """Per Omega_free entry, the factor that adds first-return evidence per range shell.
+
+    The free term weighs a cell by ``w0 / sum(w0)`` over the whole beam, so one
+    detectable obstacle in the beam costs each free term only ``a1 X0``, and one cell's
+    pull shrinks with the beam's area (about the range squared) while an echo band's
+    pull on its cells shrinks with the band's (about the range): far along a beam the
+    bands outvote the beams that pass. A detectable obstacle anywhere in Omega_free
+    would have returned the echo at its own distance, so each shell of the beam
+    ``width`` deep (the echo band's width) is a region that should hold none. The
+    factor ``1 + gain * sum(w0) / sum(w0 over the entry's shell)`` adds ``gain`` times
+    those shells' own normalised weights to the beam's, in the same term: a cell weighs
+    about ``gain`` over the number of cells its shell holds, as a band's cell weighs one
+    over the band's. It scales with the beam's width and the range through the shells'
+    sizes and with the cell size and the sensor's resolution through ``width``.
+
+    Parameters
+    ----------
+    free : CellSet
+        A batch's Omega_free (with distances).
+    width : float
+        Depth of a shell, metres (> 0): the echo band's full width ``2 dr``.
+    gain : float
+        Weight of the shells' evidence against the beam's, >= 0 (0: every factor 1).
+
+    Returns
+    -------
+    ndarray of float64, shape (entries,)
+        One factor >= 1 per entry.
+    """
+    if gain == 0 or len(free.cells) == 0:
+        return np.ones(len(free.cells))
+    reading = free.reading_index()
+    w = free.weight.astype(np.float64)
+    shell = np.floor(free.distance.astype(np.float64) / width).astype(np.int64)
+    key = reading * (int(shell.max()) + 1) + shell
+    _, inverse = np.unique(key, return_inverse=True)
+    shell_sum = np.bincount(inverse, weights=w)[inverse]
+    beam_sum = np.bincount(reading, weights=w, minlength=free.n_readings)[reading]
+    return np.asarray(1.0 + gain * beam_sum / shell_sum, dtype=np.float64)
+
+
 def build_problem(
     footprints: list[Footprint],
     echo: list[npt.NDArray[np.bool_]],

@@ -12,7 +12,7 @@ No engine down-weights correlated readings (the mappers' ``correlated``): a read
 weight depends on every reading that repeats it, including readings not yet come and
 readings that have left the window, so each update would re-weight, and re-fold, readings
 throughout the pool. Engines refuse ``correlated > 0`` rather than ignore it, and
-likewise the gradient's offline-only ``sparsity`` and ``polish``.
+likewise the gradient's offline-only ``sparsity``, ``polish`` and ``free_shell``.
 """
 
 from __future__ import annotations
@@ -174,7 +174,7 @@ class StreamEngine(ABC):
                 f"streaming '{mapper.name}' cannot weigh free evidence by incidence (the "
                 "surfaces' normals depend on echoes still to come); set specular_deg=0"
             )
-        for option in ("sparsity", "polish"):
+        for option in ("sparsity", "polish", "free_shell"):
             if getattr(mapper, option, 0.0) > 0:
                 raise ConfigError(
                     f"streaming '{mapper.name}' does not implement {option} (offline "

@@ -68,6 +68,7 @@ from ._forward import (
     Penalties,
     build_problem,
     robust_weights,
+    shell_factors,
 )
 from ._incidence import shield
 from ._stream import StreamEngine
@@ -230,6 +231,15 @@ class GradientMapper(Mapper):
         cell has to be paid for by the echoes it explains, so the map keeps the fewest
         cells that explain them. Too large a weight empties walls as well.
         Offline only: streaming refuses it (:class:`~sonarmap.errors.ConfigError`).
+    free_shell : float
+        Weight >= 0 of the first-return evidence per range shell (0, off: the
+        documents' model weighs a free cell by its share of the whole beam). With
+        g > 0 each Omega_free entry's weight is scaled by ``1 + g sum(w0) / sum(w0 over
+        its shell)``, a shell being the beam's cells at the entry's distance within one
+        echo band's width ``2 dr`` (see
+        :func:`~sonarmap.mappers._forward.shell_factors`), so that a cell passed by a
+        beam weighs against it about g over its shell's size, as an echo band's cell
+        weighs for it one over the band's. Offline only: streaming refuses it.
     polish : float
         Sparsity weight l1 >= 0 of a last pass over the solved map (0, off): each
         occupied cell, cheapest first, is emptied when that lowers ``S(x) + l1 sum x``,
@@ -282,6 +292,7 @@ class GradientMapper(Mapper):
         specular_deg: float = 0.0,
         convex_start: bool = False,
         sparsity: float = 0.0,
+        free_shell: float = 0.0,
         polish: float = 0.0,
     ) -> None:
         self.a1 = a1
@@ -306,6 +317,7 @@ class GradientMapper(Mapper):
         self.specular_deg = specular_deg
         self.convex_start = convex_start
         self.sparsity = sparsity
+        self.free_shell = free_shell
         self.polish = polish
         number("a1", a1, 0.0, 1.0, lo_open=True, hi_open=True)
         number("a2", a2, 0.0, 1.0, lo_open=True, hi_open=True)
@@ -331,6 +343,7 @@ class GradientMapper(Mapper):
         choice("init", init, ("uniform", "inverse"))
         number("specular_deg", specular_deg, 0.0, 90.0, hi_open=True)
         number("sparsity", sparsity, 0.0, None)
+        number("free_shell", free_shell, 0.0, None)
         number("polish", polish, 0.0, None)
         if not isinstance(convex_start, bool):
             got = repr(convex_start)
@@ -391,6 +404,9 @@ class GradientMapper(Mapper):
         fps = self.kept_footprints(readings, dr=self.dr, offset=self.band_offset_for(self.grid))
         bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
         scale = self._slanted(readings, fps, bounds) if self.specular_deg > 0 else None
+        if self.free_shell > 0:
+            shells = [shell_factors(fp.free, 2.0 * fp.dr, self.free_shell) for fp in fps]
+            scale = shells if scale is None else [a * b for a, b in zip(scale, shells, strict=True)]
         echo = [readings.range[a:b] < self.sensor.r_max for a, b in itertools.pairwise(bounds)]
         pen = Penalties(self.a1, self.a2, self.c1, self.c2, self.r2, self.sparsity)
         problem = build_problem(fps, echo, self.grid.size, pen, scale)
