@@ -235,8 +235,8 @@ class GradientMapper(Mapper):
         Weight >= 0 of the first-return evidence per range shell (0, off: the
         documents' model weighs a free cell by its share of the whole beam). With
         g > 0 each Omega_free entry's weight is scaled by ``1 + g sum(w0) / sum(w0 over
-        its shell)``, a shell being the beam's cells at the entry's distance within one
-        echo band's width ``2 dr`` (see
+        its shell)``, the beam's shells being fixed slices of distance from the sensor,
+        ``[k 2 dr, (k + 1) 2 dr)``, one echo band's width deep (see
         :func:`~sonarmap.mappers._forward.shell_factors`), so that a cell passed by a
         beam weighs against it about g over its shell's size, as an echo band's cell
         weighs for it one over the band's. Offline only: streaming refuses it.
