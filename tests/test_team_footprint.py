@@ -23,8 +23,9 @@ from sonarmap.team.world import make_world, patrol_route
 BUILDING = (0.0, 0.0, 8.0, 6.0)
 
 
-def _plan(outside: float = 0.0, entrance: bool = True) -> OccupancyMap:
-    """The building drawn with its outside at ``outside`` (0 free, 0.5 unknown)."""
+def _plan(outside: float = 0.0, entrance: bool = True, width: float = 1.2) -> OccupancyMap:
+    """The building drawn with its outside at ``outside`` (0 free, 0.5 unknown) and its
+    entrance ``width`` metres wide (centred at x = 6 m)."""
     grid = Grid.from_bounds(-5.0, -5.0, 13.0, 11.0, 0.1)
     occ = np.full(grid.shape, outside, dtype=np.float32)
     x, y = grid.all_centres()
@@ -34,7 +35,7 @@ def _plan(outside: float = 0.0, entrance: bool = True) -> OccupancyMap:
     occ[ring] = 0.0
     occ[ring & ~inner] = 1.0
     if entrance:
-        occ[ring & (y < y0 + 0.1) & (x > 5.4) & (x < 6.6)] = 0.0
+        occ[ring & (y < y0 + 0.1) & (np.abs(x - 6.0) < 0.5 * width)] = 0.0
     occ[ring & (np.abs(x - 4.05) < 0.05) & ~((y > 2.4) & (y < 3.6))] = 1.0
     return OccupancyMap(grid, occ)
 
@@ -131,3 +132,25 @@ def test_team_run_takes_the_footprint_by_default_and_none_turns_it_off(
     assert "territory: a drawn plan" not in capsys.readouterr().out
     t = json.loads((off / "summary.json").read_text())["territory"]
     assert t["default"].startswith("off")
+
+
+@pytest.mark.parametrize("width", [2.0, 3.0])
+def test_an_entrance_wider_than_a_door_leaves_the_plan_whole(width: float) -> None:
+    """The door-wide disc does not bridge it, so its footprint would leave the rooms
+    behind out with the outside; the 4 m disc's footprint keeps them, and the two
+    disagree."""
+    plan = _plan(width=width)
+    fp = footprint(plan)
+    free, inside = plan.classes() == FREE, _inside(plan)
+    # What the footprint alone would cut: over a third of the inside's free area.
+    assert (free & inside & ~fp.region).sum() / (free & inside).sum() > 0.3
+    assert not fp.drawn
+    assert "4 m disc" in fp.why
+    assert default_territory(plan) is None
+
+
+def test_a_door_wide_entrance_is_still_cut() -> None:
+    fp = footprint(_plan(width=1.2))
+    assert fp.drawn, fp.why
+    assert fp.disagreement < 0.01
+    assert fp.reach is not None
