@@ -15,8 +15,9 @@ from scipy import ndimage
 from sonarmap.cli import main
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import FREE, OccupancyMap, write_map
-from sonarmap.team.territory import default_territory, footprint
-from sonarmap.team.world import make_world, patrol_route
+from sonarmap.team.launcher import node_territory
+from sonarmap.team.territory import default_territory, footprint, read_territory, territory_of
+from sonarmap.team.world import make_world, patrol_route, world_territory
 
 #: The building: 8 x 6 m, one-cell walls, a 1.2 m entrance in its south wall and a
 #: 1.2 m door between its two rooms, drawn at 0.1 m with 5 m of free outside all round.
@@ -131,7 +132,63 @@ def test_team_run_takes_the_footprint_by_default_and_none_turns_it_off(
           "--territory", "none", "-o", str(off)])  # fmt: skip
     assert "territory: a drawn plan" not in capsys.readouterr().out
     t = json.loads((off / "summary.json").read_text())["territory"]
-    assert t["default"].startswith("off")
+    assert t == {"file": None, "default": "none"}
+
+
+def test_a_users_route_skips_the_default_and_says_so(tmp_path: Path) -> None:
+    plan = _plan()
+    write_map(plan, tmp_path / "plan")
+    route = patrol_route(plan, 8.0, seed=0)
+    path = tmp_path / "route.csv"
+    lines = ["t,x,y,theta", *(",".join(f"{v:.6f}" for v in row) for row in route)]
+    path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "run"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
+          "--route", str(path), "-o", str(out)])  # fmt: skip
+    t = json.loads((out / "summary.json").read_text())["territory"]
+    assert t["default"] == "skipped"
+    assert "--route" in t["why"]
+    assert t["footprint_would_leave_out_free_area_m2"] > 200
+
+
+def test_a_world_made_inside_the_footprint_keeps_it_in_team_run(tmp_path: Path) -> None:
+    """'team world' applies the default; 'team run --world' reuses the mask it wrote."""
+    plan = _plan()
+    write_map(plan, tmp_path / "plan")
+    world = tmp_path / "world"
+    main(["team", "world", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
+          "-o", str(world)])  # fmt: skip
+    saved = world_territory(world)
+    assert saved is not None
+    mask, source = saved
+    assert source == "footprint"
+    default = default_territory(plan)
+    assert default is not None
+    assert np.array_equal(read_territory(mask, plan), default.region)
+    out = tmp_path / "run"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
+          "--world", str(world), "-o", str(out)])  # fmt: skip
+    t = json.loads((out / "summary.json").read_text())["territory"]
+    assert t["default"] == "world"
+    assert t["world_territory_from"] == "footprint"
+    assert t["free_area_inside_m2"] == default.record["free_area_inside_m2"]
+
+
+def test_the_launchers_node_arguments_give_the_nodes_its_mask(tmp_path: Path) -> None:
+    """The mask the launcher draws routes in is the one its nodes' --territory (as
+    'team node' reads it) gives, for no option, 'none' and a file."""
+    plan = _plan()
+    outline = tmp_path / "inside.txt"
+    outline.write_text("0 0\n8 0\n8 6\n0 6\n")
+    for value in (None, "none", outline):
+        region, args = node_territory(value, plan)
+        given = args[args.index("--territory") + 1] if "--territory" in args else None
+        node = territory_of(given, plan)
+        assert (region is None) == (node is None), value
+        if region is not None and node is not None:
+            assert np.array_equal(region, node.region), value
+    assert node_territory(None, plan)[0] is not None
+    assert node_territory("none", plan) == (None, ["--territory", "none"])
 
 
 @pytest.mark.parametrize("width", [2.0, 3.0])

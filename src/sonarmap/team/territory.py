@@ -44,9 +44,11 @@ __all__ = [
     "building_footprint",
     "default_territory",
     "footprint",
+    "is_no_territory",
     "load_territory",
     "mask_on",
     "read_territory",
+    "territory_of",
     "territory_reach",
     "territory_record",
 ]
@@ -63,6 +65,13 @@ DOOR_WIDTH = 1.5
 
 #: What ``--territory`` takes for "no mask, not even the default": the whole map.
 NO_TERRITORY = "none"
+
+
+def is_no_territory(path: str | Path | None) -> bool:
+    """Whether a ``--territory`` value is :data:`NO_TERRITORY` (the whole map); False
+    for None (the default) and for a mask file."""
+    return path is not None and str(path) == NO_TERRITORY
+
 
 #: A drawn plan (:func:`footprint`): at most this share of its cells unknown ...
 _UNKNOWN_SHARE = 0.01
@@ -355,3 +364,21 @@ def default_territory(plan: OccupancyMap) -> MissionTerritory | None:
         **fp.figures(),
     }
     return MissionTerritory(fp.region, where, record)
+
+
+def territory_of(value: str | Path | None, plan: OccupancyMap) -> MissionTerritory | None:
+    """A ``--territory`` value's mask on ``plan``, as ``team run``, ``team world`` and
+    ``team node`` read it: None (the option not given) is the default
+    (:func:`default_territory`), :data:`NO_TERRITORY` the whole map (None), anything
+    else a mask file (:func:`load_territory`).
+
+    Raises
+    ------
+    InputError
+        As :func:`load_territory`.
+    """
+    if value is None:
+        return default_territory(plan)
+    if is_no_territory(value):
+        return None
+    return load_territory(value, plan)
