@@ -132,18 +132,16 @@ NodeTerritoryOption = Annotated[
 ]
 
 
-def _territory(
-    path: Path | None, plan: OccupancyMap, *, default: bool = True
-) -> MissionTerritory | None:
+def _territory(path: Path | None, plan: OccupancyMap) -> MissionTerritory | None:
     """``--territory``: the mask read onto the plan's cells, what a robot reaches inside
     it and what summary.json records of it
-    (:func:`~sonarmap.team.territory.load_territory`). Without the option, the default
-    when ``default`` (:func:`~sonarmap.team.territory.default_territory`: the building's
-    footprint on a drawn plan whose outside is free, told in one line; None elsewhere);
+    (:func:`~sonarmap.team.territory.territory_of`). Without the option, the default
+    (:func:`~sonarmap.team.territory.default_territory`: the building's footprint on a
+    drawn plan whose outside is free, told in one line; None elsewhere);
     ``--territory none``: None, the whole map. Its errors name the option and the file
     (and the line, for a malformed one)."""
     if path is None:
-        mask = territory_of(None, plan) if default else None
+        mask = territory_of(None, plan)
         if mask is not None:
             r = mask.record
             console.print(
