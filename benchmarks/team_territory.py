@@ -26,7 +26,9 @@ Run with ``python -m benchmarks.team_territory --out DIR [--seeds 0 1] [--drawn]
   before measuring: the detector's call and figures per map
   (:func:`sonarmap.team.territory.footprint`), the share of the outside's and the
   inside's free area it leaves out, and whether the largest piece a robot fits in is the
-  outline's; ``--no-shares`` skips the route and landmark shares (the slow part).
+  outline's; ``--no-shares`` skips the route and landmark shares (the slow part);
+  ``--maps A.yaml B.yaml`` measures those maps instead (held-out ones), against the
+  scanned stand-ins' outline or ``--outline FILE``.
 """
 
 from __future__ import annotations
@@ -217,27 +219,40 @@ def _maps(folder: Path) -> dict[str, tuple[OccupancyMap, Path | None]]:
     return maps
 
 
-def footprints(folder: Path) -> None:
-    """The footprint default measured against its rule (stated before measuring)."""
+def footprints(folder: Path, extra: list[Path] | None = None, outline: Path | None = None) -> None:
+    """The footprint default measured against its rule (stated before measuring), on the
+    training maps or, given ``extra`` (map YAMLs), on those, against ``outline`` (default:
+    the scanned stand-ins' outline)."""
+    maps: dict[str, tuple[OccupancyMap, Path | None]]
+    if extra:
+        mask_of = outline or folder / "scanned-inside.txt"
+        maps = {m.stem: (read_map(m), mask_of) for m in extra}
+    else:
+        maps = _maps(folder)
     print(
         "| map | unknown | border free, off the footprint | walls in the largest piece "
-        "| drawn (why) | left out: outside / inside | largest piece as the outline's |"
+        "| 4 m disc's footprint: differs by | drawn (why) "
+        "| left out: outside / inside (cells of the inside's free) "
+        "| left out, m^2 | largest piece as the outline's |"
     )
-    print("|---|---|---|---|---|---|---|")
-    for label, (plan, mask) in _maps(folder).items():
+    print("|---|---|---|---|---|---|---|---|---|")
+    for label, (plan, mask) in maps.items():
         fp = footprint(plan)
         f = fp.figures()
         cells = [str(f["plan_unknown_share"]), str(f["margin_share"]), str(f["building_share"])]
+        cells.append(str(f["wide_disc_disagreement"]))
         cells.append(f"{'yes' if fp.drawn else 'no'} ({fp.why})")
         if mask is None:
-            cells += ["-", "-"]
+            cells += ["-", "-", "-"]
         else:
             free = plan.classes() == FREE
             region = read_territory(mask, plan)
             fin, fout = free & region, free & ~region
             left = free & ~fp.region
             cells.append(f"{(left & fout).sum() / fout.sum():.3f} / "
-                         f"{(left & fin).sum() / fin.sum():.3f}")  # fmt: skip
+                         f"{(left & fin).sum() / fin.sum():.4f} "
+                         f"({int((left & fin).sum())} of {int(fin.sum())})")  # fmt: skip
+            cells.append(f"{left.sum() * plan.grid.resolution**2:,.1f}")
             try:
                 a = territory_reach(plan, fp.region).passable
                 b = territory_reach(plan, region).passable
@@ -254,6 +269,18 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--drawn", action="store_true", help="item 3's rule, measured")
     p.add_argument("--footprint", action="store_true", help="the footprint's rule, measured")
     p.add_argument("--no-shares", action="store_true", help="skip the route/landmark shares")
+    p.add_argument(
+        "--maps",
+        type=Path,
+        nargs="+",
+        help="with --footprint: measure these map YAMLs (held-out ones) instead of the "
+        "training maps, against --outline",
+    )
+    p.add_argument(
+        "--outline",
+        type=Path,
+        help="with --maps: the building's outline (default: the scanned stand-ins')",
+    )
     a = p.parse_args(argv)
     folder = a.out / "maps"
     write_inputs(folder)
@@ -262,7 +289,7 @@ def main(argv: list[str] | None = None) -> None:
     if a.drawn:
         drawn(folder)
     if a.footprint:
-        footprints(folder)
+        footprints(folder, a.maps, a.outline)
 
 
 if __name__ == "__main__":

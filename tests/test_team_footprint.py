@@ -15,16 +15,18 @@ from scipy import ndimage
 from sonarmap.cli import main
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import FREE, OccupancyMap, write_map
-from sonarmap.team.territory import default_territory, footprint
-from sonarmap.team.world import make_world, patrol_route
+from sonarmap.team.launcher import node_territory
+from sonarmap.team.territory import default_territory, footprint, read_territory, territory_of
+from sonarmap.team.world import make_world, patrol_route, world_territory
 
 #: The building: 8 x 6 m, one-cell walls, a 1.2 m entrance in its south wall and a
 #: 1.2 m door between its two rooms, drawn at 0.1 m with 5 m of free outside all round.
 BUILDING = (0.0, 0.0, 8.0, 6.0)
 
 
-def _plan(outside: float = 0.0, entrance: bool = True) -> OccupancyMap:
-    """The building drawn with its outside at ``outside`` (0 free, 0.5 unknown)."""
+def _plan(outside: float = 0.0, entrance: bool = True, width: float = 1.2) -> OccupancyMap:
+    """The building drawn with its outside at ``outside`` (0 free, 0.5 unknown) and its
+    entrance ``width`` metres wide (centred at x = 6 m)."""
     grid = Grid.from_bounds(-5.0, -5.0, 13.0, 11.0, 0.1)
     occ = np.full(grid.shape, outside, dtype=np.float32)
     x, y = grid.all_centres()
@@ -34,7 +36,7 @@ def _plan(outside: float = 0.0, entrance: bool = True) -> OccupancyMap:
     occ[ring] = 0.0
     occ[ring & ~inner] = 1.0
     if entrance:
-        occ[ring & (y < y0 + 0.1) & (x > 5.4) & (x < 6.6)] = 0.0
+        occ[ring & (y < y0 + 0.1) & (np.abs(x - 6.0) < 0.5 * width)] = 0.0
     occ[ring & (np.abs(x - 4.05) < 0.05) & ~((y > 2.4) & (y < 3.6))] = 1.0
     return OccupancyMap(grid, occ)
 
@@ -130,4 +132,82 @@ def test_team_run_takes_the_footprint_by_default_and_none_turns_it_off(
           "--territory", "none", "-o", str(off)])  # fmt: skip
     assert "territory: a drawn plan" not in capsys.readouterr().out
     t = json.loads((off / "summary.json").read_text())["territory"]
-    assert t["default"].startswith("off")
+    assert t == {"file": None, "default": "none"}
+
+
+def test_a_users_route_skips_the_default_and_says_so(tmp_path: Path) -> None:
+    plan = _plan()
+    write_map(plan, tmp_path / "plan")
+    route = patrol_route(plan, 8.0, seed=0)
+    path = tmp_path / "route.csv"
+    lines = ["t,x,y,theta", *(",".join(f"{v:.6f}" for v in row) for row in route)]
+    path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "run"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
+          "--route", str(path), "-o", str(out)])  # fmt: skip
+    t = json.loads((out / "summary.json").read_text())["territory"]
+    assert t["default"] == "skipped"
+    assert "--route" in t["why"]
+    assert t["footprint_would_leave_out_free_area_m2"] > 200
+
+
+def test_a_world_made_inside_the_footprint_keeps_it_in_team_run(tmp_path: Path) -> None:
+    """'team world' applies the default; 'team run --world' reuses the mask it wrote."""
+    plan = _plan()
+    write_map(plan, tmp_path / "plan")
+    world = tmp_path / "world"
+    main(["team", "world", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
+          "-o", str(world)])  # fmt: skip
+    saved = world_territory(world)
+    assert saved is not None
+    mask, source = saved
+    assert source == "footprint"
+    default = default_territory(plan)
+    assert default is not None
+    assert np.array_equal(read_territory(mask, plan), default.region)
+    out = tmp_path / "run"
+    main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
+          "--world", str(world), "-o", str(out)])  # fmt: skip
+    t = json.loads((out / "summary.json").read_text())["territory"]
+    assert t["default"] == "world"
+    assert t["world_territory_from"] == "footprint"
+    assert t["free_area_inside_m2"] == default.record["free_area_inside_m2"]
+
+
+def test_the_launchers_node_arguments_give_the_nodes_its_mask(tmp_path: Path) -> None:
+    """The mask the launcher draws routes in is the one its nodes' --territory (as
+    'team node' reads it) gives, for no option, 'none' and a file."""
+    plan = _plan()
+    outline = tmp_path / "inside.txt"
+    outline.write_text("0 0\n8 0\n8 6\n0 6\n")
+    for value in (None, "none", outline):
+        region, args = node_territory(value, plan)
+        given = args[args.index("--territory") + 1] if "--territory" in args else None
+        node = territory_of(given, plan)
+        assert (region is None) == (node is None), value
+        if region is not None and node is not None:
+            assert np.array_equal(region, node.region), value
+    assert node_territory(None, plan)[0] is not None
+    assert node_territory("none", plan) == (None, ["--territory", "none"])
+
+
+@pytest.mark.parametrize("width", [2.0, 3.0])
+def test_an_entrance_wider_than_a_door_leaves_the_plan_whole(width: float) -> None:
+    """The door-wide disc does not bridge it, so its footprint would leave the rooms
+    behind out with the outside; the 4 m disc's footprint keeps them, and the two
+    disagree."""
+    plan = _plan(width=width)
+    fp = footprint(plan)
+    free, inside = plan.classes() == FREE, _inside(plan)
+    # What the footprint alone would cut: over a third of the inside's free area.
+    assert (free & inside & ~fp.region).sum() / (free & inside).sum() > 0.3
+    assert not fp.drawn
+    assert "4 m disc" in fp.why
+    assert default_territory(plan) is None
+
+
+def test_a_door_wide_entrance_is_still_cut() -> None:
+    fp = footprint(_plan(width=1.2))
+    assert fp.drawn, fp.why
+    assert fp.disagreement < 0.01
+    assert fp.reach is not None

@@ -31,7 +31,9 @@ from ..team.territory import (
     NO_TERRITORY,
     MissionTerritory,
     default_territory,
+    is_no_territory,
     load_territory,
+    territory_of,
 )
 from ..team.world import (
     load_world,
@@ -39,6 +41,7 @@ from ..team.world import (
     patrol_route,
     read_route,
     save_world,
+    world_territory,
 )
 from .common import (
     BagOption,
@@ -108,26 +111,37 @@ TerritoryOption = Annotated[
         "largest area a robot fits in inside it. Default: on a drawn plan whose outside "
         "is free (no unknown cells, a free margin all round, one building) the building's "
         "footprint, its walls bridged across openings up to 1.5 m, so the outside is left "
-        "out (unless --route or --world is given); elsewhere the whole map. A --route must "
-        "keep to a given mask's area (refused otherwise); --world is refused with a mask. "
-        "The store's regions are not masked: they are still cut from the whole prior, "
-        "outside included.",
+        "out (unless --route is given; with --world, the mask 'team world' made it in); "
+        "elsewhere the whole map. A --route must keep to a given mask's area (refused "
+        "otherwise); --world is refused with a mask. The store's regions are not masked: "
+        "they are still cut from the whole prior, outside included.",
+    ),
+]
+NodeTerritoryOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--territory",
+        help="Map only inside this mask, as 'team run --territory': a map_server YAML "
+        "(its free cells) or a polygon file; 'none': the whole map. The node's landmarks "
+        "(and routes, without --routes) stay in the largest area a robot fits in inside "
+        "it. Default: as 'team run' (the building's footprint on a drawn plan whose "
+        "outside is free, elsewhere the whole map), with --routes too, since the launcher "
+        "hands its nodes routes drawn inside that same default; give 'none' to map the "
+        "whole plan along routes of your own.",
     ),
 ]
 
 
-def _territory(
-    path: Path | None, plan: OccupancyMap, *, default: bool = True
-) -> MissionTerritory | None:
+def _territory(path: Path | None, plan: OccupancyMap) -> MissionTerritory | None:
     """``--territory``: the mask read onto the plan's cells, what a robot reaches inside
     it and what summary.json records of it
-    (:func:`~sonarmap.team.territory.load_territory`). Without the option, the default
-    when ``default`` (:func:`~sonarmap.team.territory.default_territory`: the building's
-    footprint on a drawn plan whose outside is free, told in one line; None elsewhere);
+    (:func:`~sonarmap.team.territory.territory_of`). Without the option, the default
+    (:func:`~sonarmap.team.territory.default_territory`: the building's footprint on a
+    drawn plan whose outside is free, told in one line; None elsewhere);
     ``--territory none``: None, the whole map. Its errors name the option and the file
     (and the line, for a malformed one)."""
     if path is None:
-        mask = default_territory(plan) if default else None
+        mask = territory_of(None, plan)
         if mask is not None:
             r = mask.record
             console.print(
@@ -137,10 +151,8 @@ def _territory(
                 markup=False,
             )
         return mask
-    if str(path) == NO_TERRITORY:
-        return None
     try:
-        return load_territory(path, plan)
+        return territory_of(path, plan)
     except InputError as err:
         where = str(err) if err.path is not None else f"{path}: {err.reason}"
         raise ConfigError(f"--territory {where}") from None
@@ -148,7 +160,44 @@ def _territory(
 
 def _territory_file(path: Path | None) -> Path | None:
     """The --territory file itself, None for the default or ``none``."""
-    return None if path is None or str(path) == NO_TERRITORY else path
+    return None if path is None or is_no_territory(path) else path
+
+
+def _run_territory(
+    territory: Path | None, plan: OccupancyMap, route: Path | None, world_dir: Path | None
+) -> tuple[MissionTerritory | None, dict[str, Any] | None]:
+    """``team run``'s territory mask and what summary.json records of it: a mask file;
+    ``none`` (recorded as ``"default": "none"``); with the user's ``--route`` the default
+    is skipped (recorded, with why, when the plan is a drawn one); with ``--world`` the
+    mask 'team world' made the world in (none when it was made on the whole map);
+    otherwise the default (:func:`_territory`)."""
+    if is_no_territory(territory):
+        return None, {"file": None, "default": NO_TERRITORY}
+    if territory is not None:
+        mask = _territory(territory, plan)
+        return mask, None if mask is None else mask.record
+    if route is not None:
+        skipped = default_territory(plan)
+        if skipped is None:
+            return None, None
+        return None, {
+            "file": None,
+            "default": "skipped",
+            "why": "a --route of the user's: followed as given, on the whole map",
+            "footprint_would_leave_out_free_area_m2": skipped.record["left_out_free_area_m2"],
+        }
+    if world_dir is not None:
+        saved = world_territory(world_dir)
+        if saved is None:
+            return None, None
+        mask = load_territory(saved[0], plan)
+        console.print(
+            f"territory: the --world's, made inside {saved[1] or 'a mask'} ({saved[0]})",
+            markup=False,
+        )
+        return mask, {**mask.record, "default": "world", "world_territory_from": saved[1]}
+    mask = _territory(None, plan)
+    return mask, None if mask is None else mask.record
 
 
 def _check_route_inside(
@@ -217,7 +266,10 @@ def world_cmd(
     route = patrol_route(
         plan, duration, seed=seed, style="tour" if tour else "waypoints", region=region
     )
-    save_world(world, route, out)
+    source = None
+    if mask is not None:
+        source = mask.record["file"] or str(mask.record.get("default", "footprint"))
+    save_world(world, route, out, region=region, territory=source)
     console.print(f"{len(world)} landmarks, route of {len(route)} poses")
     console.print(wrote_folder(out), markup=False)
 
@@ -772,12 +824,8 @@ def run_cmd(
             "instead, or drop --world"
         )
     plan = resolve_map(map_, resolution, origin)
-    # A route or a saved world of the user's own: the default footprint does not apply.
-    mask = _territory(territory, plan, default=route is None and world_dir is None)
+    mask, territory_desc = _run_territory(territory, plan, route, world_dir)
     region = None if mask is None else mask.region
-    territory_desc = None if mask is None else mask.record
-    if territory is not None and _territory_file(territory) is None:
-        territory_desc = {"file": None, "default": "off (--territory none)"}
     prior, prior_desc = _prior(plan, prior_path, prior_error, seed, resolution, origin)
     world = None
     routes: dict[int, Any] = {}
@@ -1005,7 +1053,7 @@ def node_cmd(
     resolution: ImageResolution = None,
     origin: ImageOrigin = (0.0, 0.0),
     pcm: PcmOption = False,
-    territory: TerritoryOption = None,
+    territory: NodeTerritoryOption = None,
 ) -> None:
     """One robot of a team over ZeroMQ (TCP), on the team's lock-step clock: the same
     results as 'team run' on a full network; killed and started again on its --state

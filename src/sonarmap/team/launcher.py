@@ -37,7 +37,7 @@ from .prior import check_prior
 from .simulation import map_agreement
 from .store import StoreParams
 from .summary import mission_figures, team_figures
-from .territory import NO_TERRITORY, default_territory, read_territory
+from .territory import NO_TERRITORY, is_no_territory, territory_of
 from .transport import DEFAULT_MAX_MESSAGE
 from .world import patrol_route
 
@@ -166,6 +166,22 @@ def _last_line(path: Path) -> str:
     return lines[-1].strip() if lines else ""
 
 
+def node_territory(
+    territory: str | Path | None, plan: OccupancyMap
+) -> tuple[npt.NDArray[np.bool_] | None, list[str]]:
+    """The territory mask the launcher draws its routes in (on the plan's cells; None:
+    the whole plan) and the ``team node`` arguments that make every node work out the
+    same one (:func:`.territory.territory_of`): none for the default, ``--territory
+    none`` for the whole plan, ``--territory FILE`` (absolute) for a mask file."""
+    mask = territory_of(territory, plan)
+    region = None if mask is None else mask.region
+    if territory is None:
+        return region, []
+    if is_no_territory(territory):
+        return region, ["--territory", NO_TERRITORY]
+    return region, ["--territory", str(Path(territory).resolve())]
+
+
 def run_zmq_team(
     plan: OccupancyMap | Path,
     cfg: MissionConfig,
@@ -269,13 +285,7 @@ def run_zmq_team(
             plan = read_map(plan_path)
         if routes is not None and len(routes) != robots:
             raise ConfigError(f"routes: {len(routes)} given for {robots} robots")
-        if territory is None:
-            default = default_territory(plan)
-            region = None if default is None else default.region
-        elif str(territory) == NO_TERRITORY:
-            region = None
-        else:
-            region = read_territory(territory, plan)
+        region, territory_args = node_territory(territory, plan)
         drawn = [
             patrol_route(plan, cfg.duration, seed=cfg.seed + 7919 * i, region=region)
             if routes is None or routes[i] is None
@@ -287,10 +297,7 @@ def run_zmq_team(
         # not be able to join it or pose as one of its robots.
         make_team_key(robots).write(where / KEY_FILE)
         args = [*args, "--routes", str(where / "routes"), "--key", str(where / KEY_FILE)]
-        if territory is not None and str(territory) == NO_TERRITORY:
-            args += ["--territory", NO_TERRITORY]
-        elif territory is not None:
-            args += ["--territory", str(Path(territory).resolve())]
+        args += territory_args
         if prior is not None:
             check_prior(plan, prior, "prior")
             write_map(prior, where / "prior")

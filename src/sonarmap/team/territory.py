@@ -12,10 +12,10 @@ is what ``summary.json`` says of it.
 
 Without a mask a mission's territory is the default (:func:`default_territory`): on a
 drawn plan whose outside is free (:func:`footprint`: no unknown cell, a free margin all
-round, one building), the building's footprint, its walls grown by a disc a door wide
-before their holes are filled, so that an open entrance does not join the inside to the
-outside; elsewhere (a SLAM map,
-the built-in maps) the whole map.
+round, one building, and a footprint that a much wider disc confirms), the building's
+footprint, its walls grown by a disc a door wide before their holes are filled, so that
+an open entrance does not join the inside to the outside; elsewhere (a SLAM map, the
+built-in maps, a plan whose entrance is wider than a door) the whole map.
 """
 
 from __future__ import annotations
@@ -44,9 +44,11 @@ __all__ = [
     "building_footprint",
     "default_territory",
     "footprint",
+    "is_no_territory",
     "load_territory",
     "mask_on",
     "read_territory",
+    "territory_of",
     "territory_reach",
     "territory_record",
 ]
@@ -64,12 +66,26 @@ DOOR_WIDTH = 1.5
 #: What ``--territory`` takes for "no mask, not even the default": the whole map.
 NO_TERRITORY = "none"
 
+
+def is_no_territory(path: str | Path | None) -> bool:
+    """Whether a ``--territory`` value is :data:`NO_TERRITORY` (the whole map); False
+    for None (the default) and for a mask file."""
+    return path is not None and str(path) == NO_TERRITORY
+
+
 #: A drawn plan (:func:`footprint`): at most this share of its cells unknown ...
 _UNKNOWN_SHARE = 0.01
 #: ... at least this share of its border cells free and off the footprint ...
 _MARGIN_SHARE = 0.99
-#: ... and at least this share of its occupied cells in the footprint's largest piece.
+#: ... at least this share of its occupied cells in the footprint's largest piece ...
 _BUILDING_SHARE = 0.9
+#: ... and the free cells its footprint leaves out the same, within this share of the
+#: free cells inside either footprint, as those left out by the footprint of a disc this
+#: many metres across: an entrance wider than :data:`DOOR_WIDTH` joins the inside to the outside
+#: for the door-wide disc but not for the wide one, and the two then disagree by the
+#: inside's free area.
+_AGREE_SHARE = 0.01
+_CHECK_WIDTH = 4.0
 
 
 @dataclass(frozen=True)
@@ -215,6 +231,12 @@ class Footprint:
         The plan's unknown share of cells, the share of its border cells free and off the
         footprint, and the share of its occupied cells in the footprint's largest piece
         (NaN when not worked out).
+    disagreement : float
+        The free cells left out by this footprint or by the 4 m disc's but not by both,
+        as a share of the free cells inside either (NaN when not worked out).
+    reach : Reach or None
+        What a robot reaches inside the footprint (:func:`territory_reach`), when the
+        plan is drawn; None otherwise.
     """
 
     region: npt.NDArray[np.bool_]
@@ -223,6 +245,8 @@ class Footprint:
     unknown_share: float
     margin_share: float
     building_share: float
+    disagreement: float = float("nan")
+    reach: Reach | None = None
 
     def figures(self) -> dict[str, Any]:
         """The checks' figures, rounded for ``summary.json`` (the unknown share as
@@ -233,6 +257,8 @@ class Footprint:
             "plan_unknown_share": _rounded(self.unknown_share),
             "margin_share": _rounded(self.margin_share),
             "building_share": _rounded(self.building_share),
+            "wide_disc_disagreement": _rounded(self.disagreement),
+            "wide_disc_width_m": _CHECK_WIDTH,
         }
 
 
@@ -270,7 +296,10 @@ def footprint(
     plan is a drawn plan with a free outside: at most 1 % of its cells unknown, at
     least 99 % of its border cells free and off the footprint (a drawing's margin), at
     least 90 % of its occupied cells in the footprint's largest 8-connected piece (one
-    building), and room inside the footprint for a robot of ``radius`` metres. The
+    building), the free cells it leaves out the same, within 1 % of the free cells
+    inside either footprint, as those a 4 m disc's footprint leaves out (an entrance
+    wider than a door: the narrow disc would leave the rooms behind it out, the wide one
+    would not), and room inside the footprint for a robot of ``radius`` metres. The
     cheap checks come first, so a SLAM map with unknown cells or a walled border costs
     no footprint."""
     cls = plan.classes()
@@ -295,13 +324,24 @@ def footprint(
     if building < _BUILDING_SHARE:
         why = "walls in pieces, not one building"
         return Footprint(region, False, why, unknown, margin, building)
+    free = cls == FREE
+    wide = building_footprint(plan, max(door_width, _CHECK_WIDTH))
+    # Of the free cells inside either footprint, not of the plan's: a wide margin
+    # round a small building must not dilute a lost room.
+    differ = float((free & (region != wide)).sum() / max(1, (free & (region | wide)).sum()))
+    if differ >= _AGREE_SHARE:
+        why = (
+            f"the footprint of a {_CHECK_WIDTH:g} m disc differs by {100 * differ:.1f} % of "
+            f"its free cells: an opening wider than {door_width:g} m joins inside and outside"
+        )
+        return Footprint(region, False, why, unknown, margin, building, differ)
     try:
-        territory_reach(plan, region, radius)
+        where = territory_reach(plan, region, radius)
     except InputError:
         why = "no room for a robot inside the footprint"
-        return Footprint(region, False, why, unknown, margin, building)
+        return Footprint(region, False, why, unknown, margin, building, differ)
     why = "a drawn plan: no unknown cells, a free margin all round, one building"
-    return Footprint(region, True, why, unknown, margin, building)
+    return Footprint(region, True, why, unknown, margin, building, differ, where)
 
 
 def default_territory(plan: OccupancyMap) -> MissionTerritory | None:
@@ -310,9 +350,9 @@ def default_territory(plan: OccupancyMap) -> MissionTerritory | None:
     record adds to :func:`territory_record`'s the default's name, the free area left out
     (m^2) and the checks' figures (:meth:`Footprint.figures`)."""
     fp = footprint(plan)
-    if not fp.drawn:
+    if not fp.drawn or fp.reach is None:
         return None
-    where = territory_reach(plan, fp.region)
+    where = fp.reach
     free = plan.classes() == FREE
     record = {
         "default": "footprint",
@@ -324,3 +364,21 @@ def default_territory(plan: OccupancyMap) -> MissionTerritory | None:
         **fp.figures(),
     }
     return MissionTerritory(fp.region, where, record)
+
+
+def territory_of(value: str | Path | None, plan: OccupancyMap) -> MissionTerritory | None:
+    """A ``--territory`` value's mask on ``plan``, as ``team run``, ``team world`` and
+    ``team node`` read it: None (the option not given) is the default
+    (:func:`default_territory`), :data:`NO_TERRITORY` the whole map (None), anything
+    else a mask file (:func:`load_territory`).
+
+    Raises
+    ------
+    InputError
+        As :func:`load_territory`.
+    """
+    if value is None:
+        return default_territory(plan)
+    if is_no_territory(value):
+        return None
+    return load_territory(value, plan)

@@ -82,6 +82,7 @@ __all__ = [
     "speckle_mask",
     "territory_faces",
     "wall_faces",
+    "world_territory",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -1045,11 +1046,21 @@ def _route_csv(route: F64) -> str:
     return "\n".join(lines) + "\n"
 
 
-def save_world(world: World, route: npt.ArrayLike | None, folder: str | Path) -> Path:
+def save_world(
+    world: World,
+    route: npt.ArrayLike | None,
+    folder: str | Path,
+    region: npt.NDArray[np.bool_] | None = None,
+    territory: str | None = None,
+) -> Path:
     """Write a world (and a route) into ``folder``, all files or none.
 
     The plan is referred to by its path when the world has one, else written into the
-    folder as ``plan.yaml`` (+ ``.pgm``, ``.npy``). Returns the ``world.yaml`` path.
+    folder as ``plan.yaml`` (+ ``.pgm``, ``.npy``). ``region`` (a territory mask on the
+    plan's cells the world was made inside; default None, the whole plan) is written as
+    a map_server mask ``territory.yaml`` (its free cells inside, a ``--territory`` file)
+    and named in ``world.yaml`` with ``territory`` (where the mask came from: the
+    default's name or the user's file). Returns the ``world.yaml`` path.
     """
     out = Path(folder)
     r = None if route is None else np.asarray(route, dtype=np.float64)
@@ -1065,7 +1076,16 @@ def save_world(world: World, route: npt.ArrayLike | None, folder: str | Path) ->
         "route": None if r is None else "route.csv",
         "params": dict(world.params),
     }
+    if region is not None:
+        if region.shape != world.plan.grid.shape:
+            raise ValueError(
+                f"a territory mask of {region.shape} for a plan of {world.plan.grid.shape}"
+            )
+        meta["territory"] = {"mask": "territory.yaml", "from": territory}
     with atomic_folder(out) as tmp:
+        if region is not None:
+            mask = np.where(region, 0.0, 1.0).astype(np.float32)
+            write_map(OccupancyMap(world.plan.grid, mask), tmp / "territory")
         if world.plan_path is None:
             write_map(world.plan, tmp / "plan")
         (tmp / "landmarks.csv").write_text(_landmarks_csv(world))
@@ -1194,6 +1214,23 @@ def _meta_key(meta: Mapping[str, Any], key: str, kind: type | tuple[type, ...], 
     if isinstance(v, bool) or not isinstance(v, kind):
         raise InputError(f"unexpected value {quote(v)}", path=p, field=key)
     return v
+
+
+def world_territory(folder: str | Path) -> tuple[Path, str | None] | None:
+    """The territory mask :func:`save_world` wrote into ``folder`` (its ``territory.yaml``
+    path and where the mask came from), None for a world made on the whole plan; a bad
+    ``world.yaml`` raises InputError naming it."""
+    p = need_file(Path(folder) / "world.yaml", "world file")
+    meta = read_yaml(p, "world file")
+    if not isinstance(meta, Mapping):
+        raise InputError("expected a YAML mapping", path=p)
+    t = meta.get("territory")
+    if t is None:
+        return None
+    if not (isinstance(t, Mapping) and isinstance(t.get("mask"), str)):
+        raise InputError(f"unexpected value {t!r}", path=p, field="territory")
+    source = t.get("from")
+    return Path(folder) / t["mask"], None if source is None else str(source)
 
 
 def load_world(folder: str | Path) -> tuple[World, F64 | None]:
