@@ -20,8 +20,8 @@ within 6 m; with ``--png F`` a map of the site with the fallback steps marked (c
 car).
 
 Run with ``python -m benchmarks.patrol_fallback --site 1027 --cars 3 --duration 3600
-[--png F] [--json F]``, or ``--starts-only SITE [SITE ...]`` for no run but, per site
-and team of 1, 3 and 5 cars, the starts from which no step's arc is clear
+[--png F] [--json F]``, or ``--starts-only SITE [SITE ...] [--plus-x]`` for no run but,
+per site and team of 1, 3 and 5 cars, the starts from which no step's arc is clear
 (:func:`boxed_starts`); one process, one core (``NUMBA_NUM_THREADS=1``).
 """
 
@@ -46,7 +46,7 @@ from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.oneway import one_way
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import SPEED_BANDS, Car, Team, arc, band_speed
-from sonarmap.patrol.simulation import CAR_DEFAULTS
+from sonarmap.patrol.simulation import CAR_DEFAULTS, car_starts
 from sonarmap.patrol.starts import spread_starts
 
 #: Seconds a step lasts in the simulation (the simulation's 0.5 s step).
@@ -149,16 +149,21 @@ def watch_run(site: int, cars: int, duration: float) -> tuple[dict[str, Any], li
     return summary, steps, (where.passable, t.grid)
 
 
-def boxed_starts(site: int, cars: int) -> list[dict[str, Any]]:
+def boxed_starts(site: int, cars: int, plus_x: bool = False) -> list[dict[str, Any]]:
     """The starts of a run of ``cars`` cars on ``site`` (seed 0, as
-    :func:`sonarmap.patrol.run_patrol` spreads them, facing +x) from which no arc of
-    one step's length (the speed rule's speed at the start's clearance, for the 0.5 s
-    step), of 9 curvatures from -1 to +1 over the turning radius, forward or in
-    reverse, stays on the passable cells: a car there can never move."""
+    :func:`sonarmap.patrol.run_patrol` spreads them and faces them,
+    :func:`sonarmap.patrol.simulation.car_starts`; with ``plus_x`` as spread before
+    cars had start headings: every cell, facing +x) from which no arc of one step's
+    length (the speed rule's speed at the start's clearance, for the 0.5 s step), of 9
+    curvatures from -1 to +1 over the turning radius, forward or in reverse, stays on
+    the passable cells: a car there can never move."""
     config = car_config("track", cars, "obstacles", 60.0, one_way=cars > 1)
     t = street_territory(site)
     where = reach(t, config.radius, mode=config.reach, vision=config.vision)
-    starts = spread_starts(cars, t, where.passable, config.min_separation, 0)
+    if plus_x:
+        starts = spread_starts(cars, t, where.passable, config.min_separation, 0)
+    else:
+        starts = car_starts(t, where.passable, config).spread(cars, config.min_separation, 0)
     g = t.grid
     kmax = 1.0 / config.turn_radius
     out = []
@@ -302,11 +307,17 @@ def main(argv: list[str] | None = None) -> int:
         metavar="SITE",
         help="no run: print, per site of these and team size of 1, 3, 5, the boxed starts",
     )
+    ap.add_argument(
+        "--plus-x",
+        action="store_true",
+        help="with --starts-only: the starts as spread before cars had start headings",
+    )
     a = ap.parse_args(argv)
     if a.starts_only:
         for site in a.starts_only:
             for cars in (1, 3, 5):
-                print(json.dumps({"site": site, "cars": cars, "boxed": boxed_starts(site, cars)}))
+                boxed = boxed_starts(site, cars, a.plus_x)
+                print(json.dumps({"site": site, "cars": cars, "boxed": boxed}))
         return 0
     summary, steps, (passable, grid) = watch_run(a.site, a.cars, a.duration)
     print(json.dumps(summary))

@@ -523,6 +523,8 @@ def _check_start_file(
 ) -> None:
     """The start file's robots on free, passable cells of the territory (and its mask),
     far enough apart: the run's own check, made here so that its message names the file."""
+    from ..patrol.reach import reach
+    from ..patrol.simulation import car_starts
     from ..patrol.starts import check_starts
 
     inside = territory.passable(config.radius)
@@ -530,6 +532,18 @@ def _check_start_file(
         inside = inside & region
     try:
         check_starts(start, territory, inside, config.min_separation)
+        if config.model == "car":
+            # A car that can never move from its start would waste the run.
+            rc = np.column_stack(territory.grid.world_to_cell(start[:, 0], start[:, 1]))
+            where = reach(
+                territory,
+                config.radius,
+                starts=rc,
+                region=region,
+                mode=config.reach,
+                vision=config.vision,
+            )
+            car_starts(territory, where.passable, config).check(start)
     except InputError as err:
         raise InputError(err.reason, path=path) from None
 

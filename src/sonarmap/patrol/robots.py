@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -50,6 +51,12 @@ CAUSES = ("traffic", "behind", "ahead", "fallback")
 #: Track: the most steps a fallback on the thesis's escape runs before the car plans
 #: again (10 s at 0.5 s a step); it ends once the car is aligned.
 ESCAPE_STEPS = 20
+#: Track: the finer manoeuvre search of a stalled car (:meth:`Car.unstall`; the
+#: keywords of :func:`~sonarmap.patrol.manoeuvre.plan_manoeuvre`): arcs of a 64th of
+#: the turning circle (0.34 m at 3.5 m) and 0.25 m position bins, so that a car askew
+#: in a street whose passable cells are one wide (where the ordinary search's 1.4 m
+#: arcs leave the cells at once) can straighten up by short shunts.
+UNSTALL_SEARCH: dict[str, int | float] = {"headings": 64, "bin_size": 0.25, "budget": 6000}
 
 
 @dataclass
@@ -375,6 +382,20 @@ class Car(Team):
     turns: npt.NDArray[np.int64] = field(init=False)
     #: Track: steps each car's fallback on the thesis's escape may still run.
     stuck: npt.NDArray[np.int64] = field(init=False)
+    #: Track: metres a car with a route must get from where it stood
+    #: (:attr:`anchor`) for its time there not to count as a stall.
+    stall_radius: float = 1.0
+    #: Track: steps (10 s at 0.5 s a step) a car with a route may stay within
+    #: ``stall_radius`` of one spot, not held by the collision rule nor driving a
+    #: manoeuvre, before it searches
+    #: for a way out with the finer manoeuvre search (:data:`UNSTALL_SEARCH`).
+    stall_steps: int = 20
+    #: Track: where each car's current stay began (K, 2 world metres).
+    anchor: F64 = field(init=False)
+    #: Track: steps each car has stayed within ``stall_radius`` of its anchor.
+    still: npt.NDArray[np.int64] = field(init=False)
+    #: Track: stalls each car was found in (:attr:`stall_steps` reached).
+    stalls: npt.NDArray[np.int64] = field(init=False)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -395,6 +416,52 @@ class Car(Team):
         self.escape_causes = {c: np.zeros(len(self.x), dtype=np.int64) for c in CAUSES}
         self.turns = np.zeros(len(self.x), dtype=np.int64)
         self.stuck = np.zeros(len(self.x), dtype=np.int64)
+        if self.stall_steps < 1 or not self.stall_radius > 0:
+            raise ConfigError(
+                f"stall_steps must be >= 1 and stall_radius > 0, got {self.stall_steps}, "
+                f"{self.stall_radius}"
+            )
+        self.anchor = np.column_stack([self.x, self.y]).astype(np.float64)
+        self.still = np.zeros(len(self.x), dtype=np.int64)
+        self.stalls = np.zeros(len(self.x), dtype=np.int64)
+
+    def state(self) -> dict[str, Any]:
+        """Everything a car's next steps depend on, copied (:meth:`restore` takes it
+        back): poses, the escape's and the planner's per-car state, the counts."""
+        return {
+            "x": self.x.copy(),
+            "y": self.y.copy(),
+            "heading": self.heading.copy(),
+            "blocked": self.blocked.copy(),
+            "escaping": self.escaping.copy(),
+            "goal": self.goal.copy(),
+            "gear": self.gear.copy(),
+            "routes": [None if r is None else r.copy() for r in self.routes],
+            "plans": [None if p is None else Manoeuvre(list(p.arcs)) for p in self.plans],
+            "held": self.held.copy(),
+            "rest": self.rest.copy(),
+            "cause": list(self.cause),
+            "escape_causes": {k: v.copy() for k, v in self.escape_causes.items()},
+            "turns": self.turns.copy(),
+            "stuck": self.stuck.copy(),
+            "anchor": self.anchor.copy(),
+            "still": self.still.copy(),
+            "stalls": self.stalls.copy(),
+        }
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Take back a :meth:`state` (of a team of as many cars), copied again."""
+        if len(state["x"]) != len(self):
+            raise ConfigError(f"a state of {len(state['x'])} cars for a team of {len(self)}")
+        fresh = dict(state)
+        fresh["routes"] = [None if r is None else np.array(r) for r in state["routes"]]
+        fresh["plans"] = [None if p is None else Manoeuvre(list(p.arcs)) for p in state["plans"]]
+        fresh["cause"] = list(state["cause"])
+        fresh["escape_causes"] = {k: np.array(v) for k, v in state["escape_causes"].items()}
+        for name, value in fresh.items():
+            if isinstance(value, np.ndarray):
+                value = value.copy()
+            setattr(self, name, value)
 
     def speed_of(self, i: int, grid: Grid) -> float:
         r, c = grid.world_to_cell(self.x[i], self.y[i])
@@ -504,6 +571,55 @@ class Car(Team):
             moving, (end[:, 2] + math.pi) % (2 * math.pi) - math.pi, self.heading
         )
         return moving
+
+    def _watch_stalls(self) -> None:
+        """Count, per car, the steps it has stayed within ``stall_radius`` of where its
+        stay began; a car held by the collision rule (traffic's to settle), without a
+        route (nowhere to go) or driving a manoeuvre (a turn round in a few shunts
+        stays within a metre for a while) starts a new stay where it is."""
+        xy = np.column_stack([self.x, self.y])
+        away = np.hypot(*(xy - self.anchor).T) > self.stall_radius
+        idle = np.array([r is None or len(r) < 2 for r in self.routes])
+        planned = np.array([p is not None for p in self.plans])
+        fresh = away | self.blocked | idle | planned
+        self.anchor[fresh] = xy[fresh]
+        self.still = np.where(fresh, 0, self.still + 1)
+
+    def unstall(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid) -> bool:
+        """Car i has stayed within ``stall_radius`` of one spot for ``stall_steps``
+        steps, not held by another car: a lock no ordinary step gets it out of (as a
+        car askew in a street whose passable cells are one wide, swinging between two
+        poses). It searches for a manoeuvre onto its route with the finer search
+        (:data:`UNSTALL_SEARCH`), whatever its rest, and drives it as a ``fallback``
+        (its steps in reverse count as dead-end escape); its stay starts anew either
+        way. True when a manoeuvre was found."""
+        self.stalls[i] += 1
+        self.still[i] = 0
+        self.anchor[i] = (float(self.x[i]), float(self.y[i]))
+        route = self.routes[i]
+        if route is None or len(route) < 2:
+            return False
+        others = np.column_stack([np.delete(self.x, i), np.delete(self.y, i)])
+        plan = plan_manoeuvre(
+            (float(self.x[i]), float(self.y[i]), float(self.heading[i])),
+            route_goals(route),
+            passable,
+            grid,
+            self.turn_radius,
+            others=others,
+            separation=self.min_separation + 0.5,
+            headings=int(UNSTALL_SEARCH["headings"]),
+            bin_size=float(UNSTALL_SEARCH["bin_size"]),
+            budget=int(UNSTALL_SEARCH["budget"]),
+        )
+        if plan is None or not plan.arcs:
+            return False
+        self.plans[i] = plan
+        self.cause[i] = "fallback"
+        self.turns[i] += plan.reverses
+        self.stuck[i] = 0
+        self.rest[i] = 0
+        return True
 
     def _escape_move(
         self, i: int, s: float, passable: npt.NDArray[np.bool_], grid: Grid
@@ -710,6 +826,8 @@ class Car(Team):
         self.rest = np.maximum(self.rest - 1, 0)
         for i, d in enumerate(directions):
             s = self.speed_of(i, grid) * dt
+            if self.still[i] >= self.stall_steps:
+                self.unstall(i, passable, grid)
             if (
                 self.plans[i] is None
                 and self.held[i] >= self.patience
@@ -808,4 +926,5 @@ class Car(Team):
         self.heading = np.where(
             moving, (end[:, 2] + math.pi) % (2 * math.pi) - math.pi, self.heading
         )
+        self._watch_stalls()
         return moving

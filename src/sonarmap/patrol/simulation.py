@@ -53,7 +53,7 @@ from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .regions import Regions
 from .robots import SPEED_BANDS, Car, Holonomic, Team
 from .semaphores import Semaphores
-from .starts import check_starts, format_starts, spread_starts
+from .starts import CarStarts, check_starts, format_starts, spread_starts
 from .stubs import stand_points, stub_places
 from .territory import Territory, move_clear
 from .tour import plan_tour
@@ -69,6 +69,7 @@ __all__ = [
     "SIGHT_MARGIN",
     "PatrolConfig",
     "PatrolResult",
+    "car_starts",
     "halves_discs",
     "obstacle_discs",
     "run_patrol",
@@ -1178,6 +1179,15 @@ def _forward_route(
     return _route(team, i, path_to(waver.dist, cell, g.resolution, passable, waver.allowed), g)
 
 
+def car_starts(
+    territory: Territory, passable: npt.NDArray[np.bool_], config: PatrolConfig
+) -> CarStarts:
+    """Where ``config``'s cars can start on ``passable`` and facing where
+    (:class:`~sonarmap.patrol.starts.CarStarts`: its turning radius, speed rule and
+    step)."""
+    return CarStarts(territory, passable, config.turn_radius, config.speed_bands, config.dt)
+
+
 def run_patrol(
     territory: Territory,
     config: PatrolConfig,
@@ -1232,7 +1242,12 @@ def run_patrol(
         where = reach(
             territory, config.radius, region=region, mode=config.reach, vision=config.vision
         )
-        starts = spread_starts(robots, territory, where.passable, config.min_separation, seed)
+        if config.model == "car":
+            starts = car_starts(territory, where.passable, config).spread(
+                robots, config.min_separation, seed
+            )
+        else:
+            starts = spread_starts(robots, territory, where.passable, config.min_separation, seed)
     else:
         inside = territory.passable(config.radius)
         if region is not None:
@@ -1247,6 +1262,8 @@ def run_patrol(
             mode=config.reach,
             vision=config.vision,
         )
+        if config.model == "car":
+            car_starts(territory, where.passable, config).check(starts)
     passable = where.passable
     team: Team
     if config.model == "car":

@@ -6,13 +6,16 @@ X and Y in decimetres from the map's top-left corner (Y down), phi in radians. R
 without one spread the robots over the reachable territory by farthest-point sampling
 on path lengths (the first robot at a cell drawn with the seed, each next one at the
 cell farthest by path from those already placed) and write the starts they used, in
-the same format, so that the run can be repeated.
+the same format, so that the run can be repeated. Cars (:class:`CarStarts`) start only
+where they can move and face along the street they stand in; a start file's car that
+cannot move from its pose is refused.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,11 +24,14 @@ import numpy.typing as npt
 from ..errors import ConfigError, InputError, quote
 from ..files import read_text
 from .paths import Wave
-from .robots import close_pairs
+from .robots import arc, band_speed, close_pairs
 from .territory import Territory
 
 __all__ = [
     "MAX_ROBOTS",
+    "START_HEADINGS",
+    "START_RUN",
+    "CarStarts",
     "check_robot_count",
     "check_starts",
     "format_starts",
@@ -180,14 +186,21 @@ def random_starts(
 
 
 def spread_starts(
-    n: int, territory: Territory, passable: npt.NDArray[np.bool_], sep: float, seed: int
+    n: int,
+    territory: Territory,
+    passable: npt.NDArray[np.bool_],
+    sep: float,
+    seed: int,
+    fits: Callable[[int, int], bool] | None = None,
 ) -> F64:
     """``n`` starts spread over ``passable`` by farthest-point sampling on path lengths.
 
     The first start is a passable cell drawn with ``seed``; each next one is the cell
     whose path to the nearest start so far is longest (cells less than ``sep`` metres
     from a start in a straight line never qualify). Headings face +x. Deterministic for
-    a seed.
+    a seed. With ``fits`` (row, column -> bool; default: every cell fits), a cell it
+    turns down is skipped: the first start is drawn again, a next one is the farthest
+    cell that fits.
 
     Raises
     ------
@@ -201,12 +214,19 @@ def spread_starts(
         raise InputError("no cell has room for a robot")
     rng = np.random.default_rng(seed)
     first = cells[int(rng.integers(len(cells)))]
+    if fits is not None and not fits(int(first[0]), int(first[1])):
+        # Drawn again from the same generator: deterministic for the seed.
+        good = [k for k in rng.permutation(len(cells)).tolist() if fits(*cells[k].tolist())][:1]
+        if not good:
+            raise InputError("no cell has room for a robot to move from")
+        first = cells[good[0]]
     chosen: list[tuple[int, int]] = [(int(first[0]), int(first[1]))]
     waver = Wave(passable.shape)
     nearest = waver(passable, chosen[0], res)[0].copy()
     cx, cy = territory.grid.all_centres()
+    refused = np.zeros(passable.shape, dtype=bool)
     while len(chosen) < n:
-        score = np.where(np.isfinite(nearest), nearest, -1.0)
+        score = np.where(np.isfinite(nearest) & ~refused, nearest, -1.0)
         for r, c in chosen:
             too_near = np.hypot(cx - cx[r, c], cy - cy[r, c]) < sep
             score[too_near] = -1.0
@@ -217,9 +237,151 @@ def spread_starts(
                 f"territory, not {n}"
             )
         rc = (k // passable.shape[1], k % passable.shape[1])
+        if fits is not None and not fits(*rc):
+            refused[rc] = True
+            continue
         chosen.append(rc)
         np.minimum(nearest, waver(passable, rc, res)[0], out=nearest)
     rows = np.array([r for r, _ in chosen])
     cols = np.array([c for _, c in chosen])
     x, y = territory.grid.cell_centres(rows, cols)
     return np.column_stack([x, y, np.zeros(n)]).astype(np.float64)
+
+
+#: Headings a car's start is tried at (every 11.25 degrees, from +x anticlockwise).
+START_HEADINGS = 32
+#: Metres of a start heading's straight run looked at: the longest run wins.
+START_RUN = 20.0
+
+
+@dataclass(frozen=True)
+class CarStarts:
+    """Where a car can start: the headings it can move from, and the one it takes.
+
+    A car at (x, y) facing ``h`` can move when some arc of one step's length (the speed
+    rule's speed at the cell's clearance times ``dt``), of 9 curvatures from -1 to +1
+    over ``turn_radius``, forward or in reverse, keeps its centre on ``passable``
+    cells: otherwise neither the pursuit, a manoeuvre nor the escape can ever take it
+    anywhere (a car facing across the tip of a street one passable cell wide). Its
+    start heading (:meth:`heading`) is, of :data:`START_HEADINGS` headings it can move
+    from, the one with the longest straight run forward on passable cells (up to
+    :data:`START_RUN` metres; ties: the first from +x anticlockwise): along the street
+    it stands in, towards its open end.
+
+    Parameters
+    ----------
+    territory : Territory
+        The map (its grid and clearance, metres).
+    passable : ndarray of bool
+        Cells a car's centre may be on.
+    turn_radius : float
+        The car's turning radius, metres.
+    bands : tuple of (float, float)
+        The speed rule (:data:`~sonarmap.patrol.robots.SPEED_BANDS`).
+    dt : float
+        Seconds a step lasts.
+    """
+
+    territory: Territory
+    passable: npt.NDArray[np.bool_]
+    turn_radius: float
+    bands: tuple[tuple[float, float], ...]
+    dt: float
+
+    def step(self, x: float, y: float) -> float:
+        """Metres a car at (x, y) drives in one step."""
+        g = self.territory.grid
+        r, c = g.world_to_cell(x, y)
+        if not g.contains(r, c):
+            return band_speed(0.0, self.bands) * self.dt
+        return band_speed(float(self.territory.clearance[int(r), int(c)]), self.bands) * self.dt
+
+    def _clear(self, px: F64, py: F64) -> bool:
+        g = self.territory.grid
+        r, c = g.world_to_cell(px, py)
+        return bool(g.contains(r, c).all()) and bool(self.passable[r, c].all())
+
+    def moves(self, x: float, y: float, heading: float) -> bool:
+        """Whether a car at (x, y) facing ``heading`` can move (class notes)."""
+        s = self.step(x, y)
+        kmax = 1.0 / self.turn_radius
+        n = math.ceil(s / (self.territory.grid.resolution * 0.25)) + 1
+        for length in (s, -s):
+            for k in np.linspace(-kmax, kmax, 9).tolist():
+                px, py, _ = arc(x, y, heading, length, k, n)
+                if self._clear(px, py):
+                    return True
+        return False
+
+    def run(self, x: float, y: float, heading: float) -> float:
+        """Metres (up to :data:`START_RUN`) a car at (x, y) can drive straight on facing
+        ``heading`` with its centre on passable cells."""
+        g = self.territory.grid
+        u = np.arange(0.0, START_RUN + 1e-9, g.resolution * 0.25)
+        r, c = g.world_to_cell(x + u * math.cos(heading), y + u * math.sin(heading))
+        ok = g.contains(r, c)
+        ok[ok] = self.passable[r[ok], c[ok]]
+        bad = np.flatnonzero(~ok)
+        return float(u[bad[0] - 1]) if len(bad) else float(u[-1])
+
+    def heading(self, x: float, y: float) -> float | None:
+        """The start heading at (x, y) (class notes); None when a car there cannot move
+        at any heading."""
+        best: tuple[float, float] | None = None
+        for j in range(START_HEADINGS):
+            h = _wrap(2.0 * math.pi * j / START_HEADINGS)
+            if not self.moves(x, y, h):
+                continue
+            run = self.run(x, y, h)
+            if best is None or run > best[0] + 1e-9:
+                best = (run, h)
+        return None if best is None else best[1]
+
+    def fits(self, r: int, c: int) -> bool:
+        """Whether a car can move from the centre of cell (r, c) at some heading."""
+        x, y = self.territory.grid.cell_centres(np.array([r]), np.array([c]))
+        return self.heading(float(x[0]), float(y[0])) is not None
+
+    def spread(self, n: int, sep: float, seed: int) -> F64:
+        """:func:`spread_starts` over the cells a car can move from, each facing its
+        start heading (class notes).
+
+        Raises
+        ------
+        InputError
+            As :func:`spread_starts`.
+        """
+        starts = spread_starts(n, self.territory, self.passable, sep, seed, fits=self.fits)
+        for row in starts:
+            h = self.heading(float(row[0]), float(row[1]))
+            assert h is not None  # spread_starts took only cells that fit
+            row[2] = h
+        return starts
+
+    def check(self, starts: F64) -> None:
+        """Refuse starts a car cannot move from at the heading given.
+
+        Raises
+        ------
+        InputError
+            Naming the robot, where it is and, when there is one, a heading it could
+            move from.
+        """
+        for i, (x, y, h) in enumerate(starts.tolist()):
+            if self.moves(x, y, h):
+                continue
+            better = self.heading(x, y)
+            hint = (
+                f"; heading {better:.4g} rad would let it"
+                if better is not None
+                else "; no heading would: choose another place"
+            )
+            raise InputError(
+                f"robot {i + 1} at ({x:g}, {y:g}) m facing {h:g} rad: a car can move neither "
+                f"forward nor in reverse from there (turning radius {self.turn_radius:g} m)"
+                f"{hint}"
+            )
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
