@@ -216,10 +216,13 @@ def spread_starts(
     first = cells[int(rng.integers(len(cells)))]
     if fits is not None and not fits(int(first[0]), int(first[1])):
         # Drawn again from the same generator: deterministic for the seed.
-        good = [k for k in rng.permutation(len(cells)).tolist() if fits(*cells[k].tolist())][:1]
-        if not good:
+        # The first that fits, not every one (each test costs milliseconds).
+        good = next(
+            (k for k in rng.permutation(len(cells)).tolist() if fits(*cells[k].tolist())), None
+        )
+        if good is None:
             raise InputError("no cell has room for a robot to move from")
-        first = cells[good[0]]
+        first = cells[good]
     chosen: list[tuple[int, int]] = [(int(first[0]), int(first[1]))]
     waver = Wave(passable.shape)
     nearest = waver(passable, chosen[0], res)[0].copy()
