@@ -4,12 +4,15 @@ a car locked askew in a street one passable cell wide getting out."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import walled_site
+from sonarmap.cli import main
 from sonarmap.errors import InputError
+from sonarmap.io.rosmap import OccupancyMap, write_map
 from sonarmap.patrol.manoeuvre import carrot
 from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.reach import reach
@@ -140,3 +143,25 @@ def test_car_state_restores() -> None:
     assert np.array_equal(car.y, after[1])
     assert np.array_equal(car.heading, after[2])
     assert np.array_equal(car.stalls, after[3])
+
+
+def test_the_command_line_names_the_start_file_line_and_pose_of_a_boxed_car(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    t = _stub_site()
+    write_map(OccupancyMap(t.grid, (~t.free).astype(np.float32)), tmp_path / "stub")
+    # Robot 2 at the stub's tip facing +x: (14.75, 38.25) m is (147.5, 17.5) dm, Y down.
+    (tmp_path / "s.txt").write_text("# two cars\n2\n172.5 372.5 0\n147.5 17.5 0\n")
+    args = ["patrol", "run", "--map", str(tmp_path / "stub.yaml"), "--model", "car"]
+    args += ["--duration", "2", "--starts", str(tmp_path / "s.txt")]
+    with pytest.raises(SystemExit) as e:
+        main([*args, "-o", str(tmp_path / "a")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "s.txt:4:" in err[0]
+    assert "robot 2 at (147.5, 17.5) dm facing 0 rad" in err[0]
+    assert not (tmp_path / "a").exists()
+    # --robots 1 runs the file's first car only: the boxed second is not checked.
+    main([*args, "--robots", "1", "-o", str(tmp_path / "b")])
+    assert (tmp_path / "b" / "summary.json").exists()

@@ -53,7 +53,7 @@ from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .regions import Regions
 from .robots import SPEED_BANDS, Car, Holonomic, Team
 from .semaphores import Semaphores
-from .starts import CarStarts, check_starts, format_starts, spread_starts
+from .starts import CarStarts, StartSource, check_starts, format_starts, spread_starts
 from .stubs import stand_points, stub_places
 from .territory import Territory, move_clear
 from .tour import plan_tour
@@ -70,6 +70,7 @@ __all__ = [
     "PatrolConfig",
     "PatrolResult",
     "car_starts",
+    "check_given_starts",
     "halves_discs",
     "obstacle_discs",
     "run_patrol",
@@ -1188,6 +1189,62 @@ def car_starts(
     return CarStarts(territory, passable, config.turn_radius, config.speed_bands, config.dt)
 
 
+def check_given_starts(
+    starts: F64,
+    territory: Territory,
+    config: PatrolConfig,
+    region: npt.NDArray[np.bool_] | None = None,
+    source: StartSource | None = None,
+) -> Reach:
+    """Refuse given starts the run cannot use; the territory reachable from them.
+
+    Every start inside the map (and ``region``), on a free cell the robot's radius fits,
+    ``config.min_separation`` from the others; for cars, a pose some step's arc leaves
+    (:meth:`~sonarmap.patrol.starts.CarStarts.check`).
+
+    Parameters
+    ----------
+    starts : ndarray (N, 3)
+        World (x, y, heading) per robot.
+    territory : Territory
+        The map.
+    config : PatrolConfig
+        The run's configuration (radius, separation, reach, the car's turning).
+    region : ndarray of bool, optional
+        The user's territory mask on the territory's grid; default None (the whole map).
+    source : StartSource, optional
+        Where the starts came from, for the message (a start file's path and lines);
+        default: world poses.
+
+    Returns
+    -------
+    Reach
+        What the team can patrol from these starts (:func:`~sonarmap.patrol.reach.reach`).
+
+    Raises
+    ------
+    InputError
+        The first start refused, naming the robot and its pose (and file and line).
+    """
+    inside = territory.passable(config.radius)
+    if region is not None:
+        inside = inside & region
+    check_starts(starts, territory, inside, config.min_separation, source)
+    rc = np.column_stack(territory.grid.world_to_cell(starts[:, 0], starts[:, 1]))
+    where = reach(
+        territory,
+        config.radius,
+        starts=rc,
+        region=region,
+        mode=config.reach,
+        vision=config.vision,
+    )
+    if config.model == "car":
+        # A car that can never move from its start would waste the run.
+        car_starts(territory, where.passable, config).check(starts, source)
+    return where
+
+
 def run_patrol(
     territory: Territory,
     config: PatrolConfig,
@@ -1200,6 +1257,7 @@ def run_patrol(
     semaphores: list[npt.NDArray[np.bool_]] | None = None,
     region: npt.NDArray[np.bool_] | None = None,
     graph: bool = False,
+    start_source: StartSource | None = None,
 ) -> PatrolResult:
     """Patrol ``territory`` for ``config.duration`` seconds.
 
@@ -1221,6 +1279,9 @@ def run_patrol(
         on the patrol graph of the reachable territory
         (:meth:`~sonarmap.patrol.graph.PatrolGraph.from_territory`, vertices spaced by
         the vision radius), every step; default False.
+    start_source : StartSource, optional
+        Where ``starts`` came from (a start file's path and lines), named when one is
+        refused (:func:`check_given_starts`); default: world poses.
 
     Raises
     ------
@@ -1249,21 +1310,7 @@ def run_patrol(
         else:
             starts = spread_starts(robots, territory, where.passable, config.min_separation, seed)
     else:
-        inside = territory.passable(config.radius)
-        if region is not None:
-            inside = inside & region
-        check_starts(starts, territory, inside, config.min_separation)
-        rc = np.column_stack(territory.grid.world_to_cell(starts[:, 0], starts[:, 1]))
-        where = reach(
-            territory,
-            config.radius,
-            starts=rc,
-            region=region,
-            mode=config.reach,
-            vision=config.vision,
-        )
-        if config.model == "car":
-            car_starts(territory, where.passable, config).check(starts)
+        where = check_given_starts(starts, territory, config, region, start_source)
     passable = where.passable
     team: Team
     if config.model == "car":

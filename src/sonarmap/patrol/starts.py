@@ -32,10 +32,12 @@ __all__ = [
     "START_HEADINGS",
     "START_RUN",
     "CarStarts",
+    "StartSource",
     "check_robot_count",
     "check_starts",
     "format_starts",
     "random_starts",
+    "read_start_lines",
     "read_starts",
     "spread_starts",
     "starts_from_dm",
@@ -66,6 +68,44 @@ def check_robot_count(n: int) -> None:
 
 def read_starts(path: str | Path, territory: Territory) -> F64:
     """A start file: world (x, y, heading) per robot (module notes for the format).
+
+    Parameters
+    ----------
+    path : str or Path
+        The start file.
+    territory : Territory
+        The map the file's decimetres are on.
+
+    Returns
+    -------
+    ndarray (N, 3)
+        World x and y (metres) and heading (radians) per robot.
+
+    Raises
+    ------
+    InputError
+        As :func:`read_start_lines`.
+    """
+    return read_start_lines(path, territory)[0]
+
+
+def read_start_lines(path: str | Path, territory: Territory) -> tuple[F64, list[int]]:
+    """A start file's starts (:func:`read_starts`) and the line each robot is on.
+
+    Parameters
+    ----------
+    path : str or Path
+        The start file.
+    territory : Territory
+        The map the file's decimetres are on.
+
+    Returns
+    -------
+    starts : ndarray (N, 3)
+        World x and y (metres) and heading (radians) per robot.
+    lines : list of int
+        The 1-based line of the file each robot's start is on (for messages:
+        :class:`StartSource`).
 
     Raises
     ------
@@ -113,7 +153,7 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
                 line=line,
             )
         rows.append((xd, yd, phi))
-    return starts_from_dm(rows, territory)
+    return starts_from_dm(rows, territory), [line for line, _ in body[1 : n + 1]]
 
 
 def starts_from_dm(rows: Sequence[tuple[float, float, float]], territory: Territory) -> F64:
@@ -141,31 +181,114 @@ def format_starts(starts: F64, territory: Territory) -> str:
     return "\n".join(lines) + "\n"
 
 
+@dataclass(frozen=True)
+class StartSource:
+    """Where given starts came from, for the messages refusing them.
+
+    Without a path the starts are world poses (metres, radians) and a message says so;
+    with one they came from that start file and a message gives the file, the robot's
+    line and its pose in the file's units (decimetres from the top-left corner, Y down).
+
+    Parameters
+    ----------
+    territory : Territory
+        The map (for the file's units).
+    path : Path, optional
+        The start file; default None (starts given as world poses).
+    lines : tuple of int
+        The file's line of each robot (:func:`read_start_lines`); default none.
+    """
+
+    territory: Territory
+    path: Path | None = None
+    lines: tuple[int, ...] = ()
+
+    def pose(self, starts: F64, i: int) -> str:
+        """Robot i's pose as the user gave it.
+
+        Parameters
+        ----------
+        starts : ndarray (N, 3)
+            World (x, y, heading) per robot.
+        i : int
+            The robot (0-based).
+
+        Returns
+        -------
+        str
+            E.g. ``"robot 2 at (12.5, 3) m facing 0 rad"``, in decimetres for a file.
+        """
+        if self.path is None:
+            x, y, h = (float(v) for v in starts[i])
+            unit = "m"
+        else:
+            x, y, h = (float(v) for v in starts_to_dm(starts[i : i + 1], self.territory)[0])
+            unit = "dm"
+        return f"robot {i + 1} at ({x:g}, {y:g}) {unit} facing {h:g} rad"
+
+    def error(self, message: str, i: int | None = None) -> InputError:
+        """An :class:`~sonarmap.errors.InputError` naming the file and, for robot i, its
+        line.
+
+        Parameters
+        ----------
+        message : str
+            What is wrong.
+        i : int, optional
+            The robot (0-based) it is about; default None (no line).
+
+        Returns
+        -------
+        InputError
+            To raise.
+        """
+        line = self.lines[i] if i is not None and i < len(self.lines) else None
+        return InputError(message, path=self.path, line=line)
+
+
 def check_starts(
-    starts: F64, territory: Territory, passable: npt.NDArray[np.bool_], sep: float
+    starts: F64,
+    territory: Territory,
+    passable: npt.NDArray[np.bool_],
+    sep: float,
+    source: StartSource | None = None,
 ) -> None:
     """Every start inside the map, on a passable cell and ``sep`` metres from the others.
+
+    Parameters
+    ----------
+    starts : ndarray (N, 3)
+        World (x, y, heading) per robot.
+    territory : Territory
+        The map.
+    passable : ndarray of bool
+        Cells a robot's centre may be on.
+    sep : float
+        Metres robots must start apart.
+    source : StartSource, optional
+        Where the starts came from (for the message); default: world poses.
 
     Raises
     ------
     InputError
-        Naming the robot and where it is.
+        Naming the robot and where it is (and the file and line, from ``source``).
     """
+    src = source if source is not None else StartSource(territory)
     if not np.isfinite(starts).all():
-        raise InputError("every start must be finite numbers")
+        raise src.error("every start must be finite numbers")
     r, c = territory.grid.world_to_cell(starts[:, 0], starts[:, 1])
     for i in range(len(starts)):
-        where = f"robot {i + 1} at ({starts[i, 0]:g}, {starts[i, 1]:g}) m"
+        where = src.pose(starts, i)
         if not territory.grid.contains(r[i], c[i]):
-            raise InputError(f"{where} is outside the map")
+            raise src.error(f"{where} is outside the map", i)
         if not territory.free[r[i], c[i]]:
-            raise InputError(f"{where} is in an obstacle or unknown space, not on a free cell")
+            raise src.error(f"{where} is in an obstacle or unknown space, not on a free cell", i)
         if not passable[r[i], c[i]]:
-            raise InputError(f"{where} is too near an obstacle for the robot's radius")
+            raise src.error(f"{where} is too near an obstacle for the robot's radius", i)
     near = close_pairs(starts[:, 0], starts[:, 1], sep)
     if near:
         a, b = near[0]
-        raise InputError(f"robots {a + 1} and {b + 1} start closer than {sep:g} m")
+        raise src.error(f"robots {a + 1} and {b + 1} start closer than {sep:g} m", max(a, b))
 
 
 def random_starts(
@@ -361,15 +484,23 @@ class CarStarts:
             row[2] = h
         return starts
 
-    def check(self, starts: F64) -> None:
+    def check(self, starts: F64, source: StartSource | None = None) -> None:
         """Refuse starts a car cannot move from at the heading given.
+
+        Parameters
+        ----------
+        starts : ndarray (N, 3)
+            World (x, y, heading) per car.
+        source : StartSource, optional
+            Where the starts came from (for the message); default: world poses.
 
         Raises
         ------
         InputError
-            Naming the robot, where it is and, when there is one, a heading it could
-            move from.
+            Naming the robot, its pose and, when there is one, a heading it could move
+            from (and the file and line, from ``source``).
         """
+        src = source if source is not None else StartSource(self.territory)
         for i, (x, y, h) in enumerate(starts.tolist()):
             if self.moves(x, y, h):
                 continue
@@ -379,10 +510,10 @@ class CarStarts:
                 if better is not None
                 else "; no heading would: choose another place"
             )
-            raise InputError(
-                f"robot {i + 1} at ({x:g}, {y:g}) m facing {h:g} rad: a car can move neither "
-                f"forward nor in reverse from there (turning radius {self.turn_radius:g} m)"
-                f"{hint}"
+            raise src.error(
+                f"{src.pose(starts, i)}: a car can move neither forward nor in reverse from "
+                f"there (turning radius {self.turn_radius:g} m){hint}",
+                i,
             )
 
 
