@@ -665,6 +665,12 @@ class PatrolResult:
     monitor: Monitor | None = None
     #: Share of the watched cells the cars had given up at the end (:mod:`.giveup`).
     given_up: float = 0.0
+    #: Tracking cars: the stalls each car was found in (:meth:`.robots.Car.unstall`);
+    #: None for other robots.
+    stalls: npt.NDArray[np.int64] | None = None
+    #: Tracking cars: the stall watch's ``stall_radius`` (m) and ``stall_steps``,
+    #: recorded in ``summary.json``'s params; None for other robots.
+    stall_watch: tuple[float, int] | None = None
 
     def dvt_per_robot(self) -> F64:
         """Share of the run each robot spent escaping dead ends, in %."""
@@ -692,6 +698,11 @@ class PatrolResult:
             "wall_seconds": round(self.wall_seconds, 3),
             "robots": len(self.positions),
             **({"graph": self.monitor.summary()} if self.monitor is not None else {}),
+            **(
+                {"stalls": int(self.stalls.sum()), "stalls_per_robot": self.stalls.tolist()}
+                if self.stalls is not None
+                else {}
+            ),
         }
 
     def metrics_csv(self) -> str:
@@ -784,7 +795,14 @@ class PatrolResult:
                 "map": source,
                 "cell_m": territory.grid.resolution,  # the cell used (whole map pixels)
                 "seed": seed,
-                "params": self.config.as_dict(),
+                "params": {
+                    **self.config.as_dict(),
+                    **(
+                        {"stall_radius": self.stall_watch[0], "stall_steps": self.stall_watch[1]}
+                        if self.stall_watch is not None
+                        else {}
+                    ),
+                },
             }
             atomic_write_text(tmp / "summary.json", json_dumps(summary) + "\n")
             if self.monitor is not None:
@@ -1966,6 +1984,7 @@ def run_patrol(
         if progress is not None:
             progress(k + 1, steps)
     never = fog.never_seen()
+    stall_team = team if isinstance(team, Car) and team.planner == "track" else None
     return PatrolResult(
         t_out,
         mtb,
@@ -1984,4 +2003,8 @@ def run_patrol(
         never_seen=never,
         monitor=monitor,
         given_up=float(quitter.given[watched].mean()),
+        stalls=stall_team.stalls.copy() if stall_team is not None else None,
+        stall_watch=(stall_team.stall_radius, stall_team.stall_steps)
+        if stall_team is not None
+        else None,
     )

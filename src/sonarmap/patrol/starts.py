@@ -24,7 +24,7 @@ import numpy.typing as npt
 from ..errors import ConfigError, InputError, quote
 from ..files import read_text
 from .paths import Wave
-from .robots import arc, band_speed, close_pairs
+from .robots import arc, band_speed, close_pairs, wrap_angle
 from .territory import Territory
 
 __all__ = [
@@ -448,14 +448,17 @@ class CarStarts:
         ok = g.contains(r, c)
         ok[ok] = self.passable[r[ok], c[ok]]
         bad = np.flatnonzero(~ok)
-        return float(u[bad[0] - 1]) if len(bad) else float(u[-1])
+        if not len(bad):
+            return float(u[-1])
+        # Not u[-1] (what bad[0] - 1 would index) when the start itself is not passable.
+        return float(u[bad[0] - 1]) if bad[0] > 0 else 0.0
 
     def heading(self, x: float, y: float) -> float | None:
         """The start heading at (x, y) (class notes); None when a car there cannot move
         at any heading."""
         best: tuple[float, float] | None = None
         for j in range(START_HEADINGS):
-            h = _wrap(2.0 * math.pi * j / START_HEADINGS)
+            h = wrap_angle(2.0 * math.pi * j / START_HEADINGS)
             if not self.moves(x, y, h):
                 continue
             run = self.run(x, y, h)
@@ -515,7 +518,3 @@ class CarStarts:
                 f"there (turning radius {self.turn_radius:g} m){hint}",
                 i,
             )
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
