@@ -415,7 +415,19 @@ class CarStarts:
     dt: float
 
     def step(self, x: float, y: float) -> float:
-        """Metres a car at (x, y) drives in one step."""
+        """Metres a car at (x, y) drives in one step.
+
+        Parameters
+        ----------
+        x, y : float
+            World position, metres.
+
+        Returns
+        -------
+        float
+            The speed rule's speed at the cell's clearance (the slowest band off the
+            map) times ``dt``.
+        """
         g = self.territory.grid
         r, c = g.world_to_cell(x, y)
         if not g.contains(r, c):
@@ -428,7 +440,21 @@ class CarStarts:
         return bool(g.contains(r, c).all()) and bool(self.passable[r, c].all())
 
     def moves(self, x: float, y: float, heading: float) -> bool:
-        """Whether a car at (x, y) facing ``heading`` can move (class notes)."""
+        """Whether a car at (x, y) facing ``heading`` can move (class notes).
+
+        Parameters
+        ----------
+        x, y : float
+            World position, metres.
+        heading : float
+            Radians from +x, anticlockwise.
+
+        Returns
+        -------
+        bool
+            True when some arc of one step's length keeps the car's centre on passable
+            cells.
+        """
         s = self.step(x, y)
         kmax = 1.0 / self.turn_radius
         n = math.ceil(s / (self.territory.grid.resolution * 0.25)) + 1
@@ -440,8 +466,22 @@ class CarStarts:
         return False
 
     def run(self, x: float, y: float, heading: float) -> float:
-        """Metres (up to :data:`START_RUN`) a car at (x, y) can drive straight on facing
-        ``heading`` with its centre on passable cells."""
+        """Metres a car at (x, y) can drive straight on facing ``heading`` with its
+        centre on passable cells.
+
+        Parameters
+        ----------
+        x, y : float
+            World position, metres.
+        heading : float
+            Radians from +x, anticlockwise.
+
+        Returns
+        -------
+        float
+            Up to :data:`START_RUN` metres, in quarter cells; 0 when (x, y) itself is
+            not passable.
+        """
         g = self.territory.grid
         u = np.arange(0.0, START_RUN + 1e-9, g.resolution * 0.25)
         r, c = g.world_to_cell(x + u * math.cos(heading), y + u * math.sin(heading))
@@ -454,8 +494,18 @@ class CarStarts:
         return float(u[bad[0] - 1]) if bad[0] > 0 else 0.0
 
     def heading(self, x: float, y: float) -> float | None:
-        """The start heading at (x, y) (class notes); None when a car there cannot move
-        at any heading."""
+        """The start heading at (x, y) (class notes).
+
+        Parameters
+        ----------
+        x, y : float
+            World position, metres.
+
+        Returns
+        -------
+        float or None
+            Radians in [-pi, pi); None when a car there cannot move at any heading.
+        """
         best: tuple[float, float] | None = None
         for j in range(START_HEADINGS):
             h = wrap_angle(2.0 * math.pi * j / START_HEADINGS)
@@ -467,13 +517,38 @@ class CarStarts:
         return None if best is None else best[1]
 
     def fits(self, r: int, c: int) -> bool:
-        """Whether a car can move from the centre of cell (r, c) at some heading."""
+        """Whether a car can move from the centre of cell (r, c) at some heading.
+
+        Parameters
+        ----------
+        r, c : int
+            The cell's row and column.
+
+        Returns
+        -------
+        bool
+            True when :meth:`heading` finds one.
+        """
         x, y = self.territory.grid.cell_centres(np.array([r]), np.array([c]))
         return self.heading(float(x[0]), float(y[0])) is not None
 
     def spread(self, n: int, sep: float, seed: int) -> F64:
         """:func:`spread_starts` over the cells a car can move from, each facing its
         start heading (class notes).
+
+        Parameters
+        ----------
+        n : int
+            Cars.
+        sep : float
+            Metres they start apart at least.
+        seed : int
+            The seed of the first start.
+
+        Returns
+        -------
+        ndarray (n, 3)
+            World x and y (metres) and heading (radians) per car.
 
         Raises
         ------
