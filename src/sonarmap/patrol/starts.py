@@ -203,7 +203,7 @@ class StartSource:
     path: Path | None = None
     lines: tuple[int, ...] = ()
 
-    def pose(self, starts: F64, i: int) -> str:
+    def pose(self, starts: F64, i: int, heading: bool = True) -> str:
         """Robot i's pose as the user gave it.
 
         Parameters
@@ -212,6 +212,8 @@ class StartSource:
             World (x, y, heading) per robot.
         i : int
             The robot (0-based).
+        heading : bool
+            Also the heading; default True.
 
         Returns
         -------
@@ -224,7 +226,8 @@ class StartSource:
         else:
             x, y, h = (float(v) for v in starts_to_dm(starts[i : i + 1], self.territory)[0])
             unit = "dm"
-        return f"robot {i + 1} at ({x:g}, {y:g}) {unit} facing {h:g} rad"
+        facing = f" facing {h:g} rad" if heading else ""
+        return f"robot {i + 1} at ({x:g}, {y:g}) {unit}{facing}"
 
     def error(self, message: str, i: int | None = None) -> InputError:
         """An :class:`~sonarmap.errors.InputError` naming the file and, for robot i, its
@@ -278,7 +281,7 @@ def check_starts(
         raise src.error("every start must be finite numbers")
     r, c = territory.grid.world_to_cell(starts[:, 0], starts[:, 1])
     for i in range(len(starts)):
-        where = src.pose(starts, i)
+        where = src.pose(starts, i, heading=False)
         if not territory.grid.contains(r[i], c[i]):
             raise src.error(f"{where} is outside the map", i)
         if not territory.free[r[i], c[i]]:
