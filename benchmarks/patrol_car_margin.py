@@ -7,8 +7,12 @@ before), the manoeuvre search's arc check (``--samples N``: points checked per m
 64 now, 16 before) and the stall watch (``--no-unstall``: a stalled car never searches
 again). Printed: one JSON line (DVT %, its causes, the stalls).
 
+With ``--fallback-setting`` the setting is instead ``benchmarks.patrol_fallback``'s
+(the library's car defaults, artificial obstacles; its 1,200 s training table).
+
 Run with ``python -m benchmarks.patrol_car_margin [--plus-x] [--samples 16]
-[--no-unstall]``; one process, one core (``NUMBA_NUM_THREADS=1``).
+[--no-unstall] [--fallback-setting] [--duration S]``; one process, one core
+(``NUMBA_NUM_THREADS=1``).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 import numpy.typing as npt
 
+from benchmarks.patrol_fallback import fallback_config
 from sonarmap.grid import Grid
 from sonarmap.patrol import manoeuvre, run_patrol
 from sonarmap.patrol.maps import street_territory
@@ -39,6 +44,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--plus-x", action="store_true", help="the spread start faces +x")
     ap.add_argument("--samples", type=int, default=manoeuvre.SAMPLES_PER_M)
     ap.add_argument("--no-unstall", action="store_true", help="a stalled car never searches")
+    ap.add_argument("--fallback-setting", action="store_true", help="patrol_fallback's setting")
     a = ap.parse_args(argv)
     # Module constants switched for this process only: the benchmark's whole point.
     manoeuvre.SAMPLES_PER_M = a.samples
@@ -50,7 +56,11 @@ def main(argv: list[str] | None = None) -> None:
 
         Car.unstall = never  # type: ignore[method-assign]  # the point of --no-unstall
     t = street_territory(a.site)
-    cfg = PatrolConfig(model="car", refine=True, duration=a.duration, forward_wave=True)
+    cfg = (
+        fallback_config(1, a.duration)
+        if a.fallback_setting
+        else PatrolConfig(model="car", refine=True, duration=a.duration, forward_wave=True)
+    )
     starts = None
     if a.plus_x:
         where = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision)
@@ -71,6 +81,7 @@ def main(argv: list[str] | None = None) -> None:
         "plus_x": a.plus_x,
         "samples_per_m": a.samples,
         "unstall": not a.no_unstall,
+        "setting": "patrol_fallback" if a.fallback_setting else "test",
         "start": [round(float(v), 4) for v in res.starts[0]],
         "dvt": round(float(s["dvt"]), 2),
         "dvt_by_cause": {

@@ -46,7 +46,7 @@ from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.oneway import one_way
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Car, Team
-from sonarmap.patrol.simulation import CAR_DEFAULTS, car_starts
+from sonarmap.patrol.simulation import CAR_DEFAULTS, PatrolConfig, car_starts
 from sonarmap.patrol.starts import spread_starts
 
 #: Seconds a step lasts in the simulation (the simulation's 0.5 s step).
@@ -79,10 +79,9 @@ def route_angle(team: Car, i: int) -> float:
     return abs(math.degrees((h + math.pi) % (2 * math.pi) - math.pi))
 
 
-def watch_run(site: int, cars: int, duration: float) -> tuple[dict[str, Any], list[Any], Any]:
-    """One run's fallback record (see the module's notes): the summary, the steps and
-    the territory's passable cells with the grid."""
-    config = car_config(
+def fallback_config(cars: int, duration: float) -> PatrolConfig:
+    """The runs' setting (the module's notes) for ``cars`` cars and ``duration`` s."""
+    return car_config(
         "track",
         cars,
         "obstacles",
@@ -95,6 +94,12 @@ def watch_run(site: int, cars: int, duration: float) -> tuple[dict[str, Any], li
         round_block=float(CAR_DEFAULTS["round_block"]),
         one_way=cars > 1,
     )
+
+
+def watch_run(site: int, cars: int, duration: float) -> tuple[dict[str, Any], list[Any], Any]:
+    """One run's fallback record (see the module's notes): the summary, the steps and
+    the territory's passable cells with the grid."""
+    config = fallback_config(cars, duration)
     t = street_territory(site)
     where = reach(t, config.radius, mode=config.reach, vision=config.vision)
     ow = one_way(where.passable, t.clearance, t.grid.resolution, config.turn_radius)
