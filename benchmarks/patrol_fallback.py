@@ -45,8 +45,8 @@ from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.oneway import one_way
 from sonarmap.patrol.reach import reach
-from sonarmap.patrol.robots import SPEED_BANDS, Car, Team, arc, band_speed
-from sonarmap.patrol.simulation import CAR_DEFAULTS, car_starts
+from sonarmap.patrol.robots import Car, Team
+from sonarmap.patrol.simulation import CAR_DEFAULTS, PatrolConfig, car_starts
 from sonarmap.patrol.starts import spread_starts
 
 #: Seconds a step lasts in the simulation (the simulation's 0.5 s step).
@@ -79,10 +79,9 @@ def route_angle(team: Car, i: int) -> float:
     return abs(math.degrees((h + math.pi) % (2 * math.pi) - math.pi))
 
 
-def watch_run(site: int, cars: int, duration: float) -> tuple[dict[str, Any], list[Any], Any]:
-    """One run's fallback record (see the module's notes): the summary, the steps and
-    the territory's passable cells with the grid."""
-    config = car_config(
+def fallback_config(cars: int, duration: float) -> PatrolConfig:
+    """The runs' setting (the module's notes) for ``cars`` cars and ``duration`` s."""
+    return car_config(
         "track",
         cars,
         "obstacles",
@@ -95,6 +94,12 @@ def watch_run(site: int, cars: int, duration: float) -> tuple[dict[str, Any], li
         round_block=float(CAR_DEFAULTS["round_block"]),
         one_way=cars > 1,
     )
+
+
+def watch_run(site: int, cars: int, duration: float) -> tuple[dict[str, Any], list[Any], Any]:
+    """One run's fallback record (see the module's notes): the summary, the steps and
+    the territory's passable cells with the grid."""
+    config = fallback_config(cars, duration)
     t = street_territory(site)
     where = reach(t, config.radius, mode=config.reach, vision=config.vision)
     ow = one_way(where.passable, t.clearance, t.grid.resolution, config.turn_radius)
@@ -160,24 +165,15 @@ def boxed_starts(site: int, cars: int, plus_x: bool = False) -> list[dict[str, A
     config = car_config("track", cars, "obstacles", 60.0, one_way=cars > 1)
     t = street_territory(site)
     where = reach(t, config.radius, mode=config.reach, vision=config.vision)
+    cars_at = car_starts(t, where.passable, config)
     if plus_x:
         starts = spread_starts(cars, t, where.passable, config.min_separation, 0)
     else:
-        starts = car_starts(t, where.passable, config).spread(cars, config.min_separation, 0)
-    g = t.grid
-    kmax = 1.0 / config.turn_radius
+        starts = cars_at.spread(cars, config.min_separation, 0)
     out = []
     for i, (x, y, h) in enumerate(starts.tolist()):
-        r, c = g.world_to_cell(x, y)
-        s = band_speed(float(t.clearance[int(r), int(c)]), SPEED_BANDS) * STEP
-        clear = 0
-        for length in (s, -s):
-            for k in np.linspace(-kmax, kmax, 9).tolist():
-                n = math.ceil(abs(length) / (g.resolution * 0.25)) + 1
-                px, py, _ = arc(x, y, h, length, k, n)
-                rr, cc = g.world_to_cell(px, py)
-                clear += bool(g.contains(rr, cc).all()) and bool(where.passable[rr, cc].all())
-        if not clear:
+        # The library's own test (CarStarts.moves: the config's speed rule and step).
+        if not cars_at.moves(x, y, h):
             out.append(
                 {"car": i, "x": round(x, 2), "y": round(y, 2), "heading_deg": math.degrees(h)}
             )

@@ -323,7 +323,7 @@ def _patrol_files(d: Path, plan: Path) -> None:
         (["--starts", "nan.txt"], r"nan\.txt:2: expected finite numbers"),
         (["--starts", "far.txt"], r"far\.txt:2: start \(10, 1e\+09\) dm is outside the map"),
         (["--starts", "huge.txt"], r"huge\.txt:2: expected finite numbers, got '1111.*\.\.\."),
-        (["--starts", "wall.txt"], r"wall\.txt: robot 1 at \(0\.1, 5\.9\) m is in an obstacle"),
+        (["--starts", "wall.txt"], r"wall\.txt:2: robot 1 at \(1, 1\) dm is in an obstacle"),
         (
             ["--robots", "1", "--crowding", "semaphores", "--semaphores", "sem_nan.txt"],
             r"sem_nan\.txt:1: expected finite numbers",

@@ -270,7 +270,8 @@ def test_patrol_run_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
             ]
         )
     assert e.value.code == 2
-    assert "robot 1 at (20, 15) m is in an obstacle" in capsys.readouterr().err
+    # The file, the robot's line and its start in the file's units.
+    assert "starts.txt:2: robot 1 at (200, 150) dm is in an obstacle" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
 
 

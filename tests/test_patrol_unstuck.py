@@ -4,12 +4,15 @@ a car locked askew in a street one passable cell wide getting out."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from conftest import walled_site
-from sonarmap.errors import InputError
+from sonarmap.cli import main
+from sonarmap.errors import ConfigError, InputError
+from sonarmap.io.rosmap import OccupancyMap, write_map
 from sonarmap.patrol.manoeuvre import carrot
 from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.reach import reach
@@ -140,3 +143,90 @@ def test_car_state_restores() -> None:
     assert np.array_equal(car.y, after[1])
     assert np.array_equal(car.heading, after[2])
     assert np.array_equal(car.stalls, after[3])
+
+
+def test_a_state_restored_into_a_new_car_drives_on_equal() -> None:
+    car = _locked_car(20)
+    _drive(car, 25)  # past its first stall: the stall watch's state is not the fresh one
+    assert int(car.stalls[0]) >= 1
+    twin = _locked_car(20)
+    twin.restore(car.state())
+    for _ in range(4):
+        _drive(car, 10)
+        _drive(twin, 10)
+        for name, value in car.state().items():
+            if isinstance(value, np.ndarray):
+                assert np.array_equal(value, twin.state()[name]), name
+    assert math.hypot(float(twin.x[0]) - LOCK[0], float(twin.y[0]) - LOCK[1]) > 1.0
+
+
+def test_a_car_refuses_a_state_not_its_own() -> None:
+    car = _locked_car(20)
+    state = car.state()
+    del state["wait"]
+    with pytest.raises(ConfigError, match=r"missing \['wait'\]"):
+        car.restore(state)
+    with pytest.raises(ConfigError, match=r"unknown \['speed'\]"):
+        car.restore({**car.state(), "speed": 1.0})
+
+
+def test_the_command_line_names_the_start_file_line_and_pose_of_a_boxed_car(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    t = _stub_site()
+    write_map(OccupancyMap(t.grid, (~t.free).astype(np.float32)), tmp_path / "stub")
+    # Robot 2 at the stub's tip facing +x: (14.75, 38.25) m is (147.5, 17.5) dm, Y down.
+    (tmp_path / "s.txt").write_text("# two cars\n2\n172.5 372.5 0\n147.5 17.5 0\n")
+    args = ["patrol", "run", "--map", str(tmp_path / "stub.yaml"), "--model", "car"]
+    args += ["--duration", "2", "--starts", str(tmp_path / "s.txt")]
+    with pytest.raises(SystemExit) as e:
+        main([*args, "-o", str(tmp_path / "a")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert "s.txt:4:" in err[0]
+    assert "robot 2 at (147.5, 17.5) dm facing 0 rad" in err[0]
+    assert not (tmp_path / "a").exists()
+    # --robots 1 runs the file's first car only: the boxed second is not checked.
+    main([*args, "--robots", "1", "-o", str(tmp_path / "b")])
+    assert (tmp_path / "b" / "summary.json").exists()
+
+
+def test_a_car_no_search_frees_waits_longer_each_time(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Boxed at the stub's tip facing +x (no step's arc is clear), every search failing:
+    # it searches after 10 s, then 20, 40, 80 s and at most every 160 s, not every 10 s.
+    import sonarmap.patrol.robots as robots
+
+    fine: list[int] = []
+
+    def fail(*_: object, headings: int = 16, **__: object) -> None:
+        if headings == robots.UNSTALL_SEARCH.headings:
+            fine.append(headings)
+
+    monkeypatch.setattr(robots, "plan_manoeuvre", fail)
+    t = _stub_site()
+    passable = t.passable(1.0)
+    car = Car(
+        np.array([TIP[0]]), np.array([TIP[1]]), np.array([0.0]), clearance=t.clearance,
+        planner="track",
+    )  # fmt: skip
+    route = np.array([(TIP[0], TIP[1] - k) for k in range(8)])
+    rng = np.random.default_rng(0)
+    for _ in range(700):
+        car.routes = [route]
+        car.step([(0.0, -1.0)], passable, t.grid, 0.5, rng, [(TIP[0], TIP[1] - 3.0)])
+    assert math.hypot(float(car.x[0]) - TIP[0], float(car.y[0]) - TIP[1]) < 0.5
+    # Searches at steps 20, 60, 140, 300 and 620 (waits 20, 40, 80, 160, 320 = cap).
+    assert int(car.stalls[0]) == len(fine) == 5
+    assert int(car.wait[0]) == robots.STALL_WAIT_CAP * car.stall_steps
+
+
+def test_the_straight_run_from_a_cell_not_passable_is_nothing() -> None:
+    t = _stub_site()
+    cfg = PatrolConfig(model="car")
+    where = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision)
+    cars = car_starts(t, where.passable, cfg)
+    # Inside the block west of the stub, facing east into the stub: 0, not 20 m.
+    assert cars.run(12.75, 20.25, 0.0) == 0.0
+    # From the stub's tip facing down it: most of its 29 m, capped at 20.
+    assert cars.run(*TIP, -math.pi / 2) == pytest.approx(20.0)

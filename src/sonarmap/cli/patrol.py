@@ -394,11 +394,12 @@ def run_cmd(
     The model, the force laws and the metrics (MTB: the worst time since a place was
     last seen; DVT: time spent escaping dead ends) are explained in docs/patrol.md."""
     from ..io.record import make_recorder
-    from ..patrol import parse_force, read_starts, run_patrol
+    from ..patrol import parse_force, run_patrol
     from ..patrol.publish import PatrolPublisher
     from ..patrol.region import read_region
     from ..patrol.robots import parse_speed_bands
     from ..patrol.semaphores import read_semaphores
+    from ..patrol.starts import StartSource, read_start_lines
 
     extra: dict[str, Any] = ctx.meta.get("patrol_setup", {})
     if map_ is None:
@@ -420,13 +421,16 @@ def run_cmd(
     territory = _territory(map_, resolve_map(map_, resolution, origin), config)
     _check_reach(config, territory.grid)
     region = read_region(territory_file, territory.grid) if territory_file else None
-    start = read_starts(starts, territory) if starts is not None else None
-    if start is not None and starts is not None:
-        _check_start_file(starts, start, territory, config, region)
-    if start is not None and robots is not None:
-        if robots > len(start):
-            raise ConfigError(f"{robots} robots asked for, the start file has {len(start)}")
-        start = start[:robots]  # robot_number: the first N of the start file
+    start, source = None, None
+    if starts is not None:
+        start, lines = read_start_lines(starts, territory)
+        if robots is not None:
+            if robots > len(start):
+                raise ConfigError(f"{robots} robots asked for, the start file has {len(start)}")
+            start = start[:robots]  # robot_number: the first N of the start file
+        # The run checks the starts it uses (a robot beyond --robots is not one) and
+        # names the file and line of one it refuses.
+        source = StartSource(territory, starts, tuple(lines[: len(start)]))
     areas = read_semaphores(semaphores, territory.grid) if semaphores is not None else None
     anim: Any = None
     every = max(1, round(config.duration / config.dt) // 200)
@@ -487,6 +491,7 @@ def run_cmd(
                     semaphores=areas,
                     region=region,
                     graph=graph,
+                    start_source=source,
                 )
         with progress("writing") as cb:
             cb(0, 0, "patrol.gif" if anim is not None else "")
@@ -516,36 +521,6 @@ def run_cmd(
             f"{m['interference_events']} interference events"
         )
     console.print(wrote(out, names))
-
-
-def _check_start_file(
-    path: Path, start: Any, territory: Any, config: PatrolConfig, region: Any
-) -> None:
-    """The start file's robots on free, passable cells of the territory (and its mask),
-    far enough apart: the run's own check, made here so that its message names the file."""
-    from ..patrol.reach import reach
-    from ..patrol.simulation import car_starts
-    from ..patrol.starts import check_starts
-
-    inside = territory.passable(config.radius)
-    if region is not None:
-        inside = inside & region
-    try:
-        check_starts(start, territory, inside, config.min_separation)
-        if config.model == "car":
-            # A car that can never move from its start would waste the run.
-            rc = np.column_stack(territory.grid.world_to_cell(start[:, 0], start[:, 1]))
-            where = reach(
-                territory,
-                config.radius,
-                starts=rc,
-                region=region,
-                mode=config.reach,
-                vision=config.vision,
-            )
-            car_starts(territory, where.passable, config).check(start)
-    except InputError as err:
-        raise InputError(err.reason, path=path) from None
 
 
 def _check_reach(config: PatrolConfig, grid: Any) -> None:

@@ -19,6 +19,7 @@ two robots meeting in a corridor keeps its way (:func:`cancel_collisions`).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,13 +34,17 @@ from .territory import move_clear
 
 __all__ = [
     "SPEED_BANDS",
+    "STALL_WAIT_CAP",
+    "UNSTALL_SEARCH",
     "Car",
+    "FineSearch",
     "Holonomic",
     "Team",
     "arc",
     "band_speed",
     "cancel_collisions",
     "close_pairs",
+    "wrap_angle",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -51,12 +56,37 @@ CAUSES = ("traffic", "behind", "ahead", "fallback")
 #: Track: the most steps a fallback on the thesis's escape runs before the car plans
 #: again (10 s at 0.5 s a step); it ends once the car is aligned.
 ESCAPE_STEPS = 20
-#: Track: the finer manoeuvre search of a stalled car (:meth:`Car.unstall`; the
-#: keywords of :func:`~sonarmap.patrol.manoeuvre.plan_manoeuvre`): arcs of a 64th of
-#: the turning circle (0.34 m at 3.5 m) and 0.25 m position bins, so that a car askew
-#: in a street whose passable cells are one wide (where the ordinary search's 1.4 m
-#: arcs leave the cells at once) can straighten up by short shunts.
-UNSTALL_SEARCH: dict[str, int | float] = {"headings": 64, "bin_size": 0.25, "budget": 6000}
+
+
+@dataclass(frozen=True)
+class FineSearch:
+    """The finer manoeuvre search of a stalled car (:meth:`Car.unstall`): the keywords
+    of :func:`~sonarmap.patrol.manoeuvre.plan_manoeuvre` it changes.
+
+    Parameters
+    ----------
+    headings : int
+        Heading bins; each arc turns by one (a 64th of the turning circle: 0.34 m at
+        3.5 m). Default 64.
+    bin_size : float
+        Side of the position bins, metres; default 0.25.
+    budget : int
+        Expansions at most; default 6,000.
+    """
+
+    headings: int = 64
+    bin_size: float = 0.25
+    budget: int = 6000
+
+
+#: Track: the finer search of a stalled car: short arcs and small bins, so that a car
+#: askew in a street whose passable cells are one wide (where the ordinary search's
+#: 1.4 m arcs leave the cells at once) can straighten up by short shunts.
+UNSTALL_SEARCH = FineSearch()
+#: Track: after each failed search of a stalled car (:meth:`Car.unstall`) its wait
+#: before the next doubles, up to this many times ``stall_steps`` (160 s at the
+#: defaults): a car no search frees does not run one every 10 s for the whole run.
+STALL_WAIT_CAP = 16
 
 
 @dataclass
@@ -306,7 +336,8 @@ def arc(
     return px, py, heading + curvature * length
 
 
-def _wrap(a: float) -> float:
+def wrap_angle(a: float) -> float:
+    """The angle ``a`` (radians) in [-pi, pi)."""
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
@@ -388,14 +419,19 @@ class Car(Team):
     #: Track: steps (10 s at 0.5 s a step) a car with a route may stay within
     #: ``stall_radius`` of one spot, not held by the collision rule nor driving a
     #: manoeuvre, before it searches
-    #: for a way out with the finer manoeuvre search (:data:`UNSTALL_SEARCH`).
+    #: for a way out with the finer manoeuvre search (:data:`UNSTALL_SEARCH`); after
+    #: each failed search its wait doubles (:data:`STALL_WAIT_CAP`).
     stall_steps: int = 20
     #: Track: where each car's current stay began (K, 2 world metres).
     anchor: F64 = field(init=False)
     #: Track: steps each car has stayed within ``stall_radius`` of its anchor.
     still: npt.NDArray[np.int64] = field(init=False)
-    #: Track: stalls each car was found in (:attr:`stall_steps` reached).
+    #: Track: stalls each car was found in (its :attr:`wait` reached).
     stalls: npt.NDArray[np.int64] = field(init=False)
+    #: Track: steps each car stays before it searches (``stall_steps``, doubled after
+    #: each failed search up to :data:`STALL_WAIT_CAP` times it; back to ``stall_steps``
+    #: once the car gets ``stall_radius`` away or a search finds a way).
+    wait: npt.NDArray[np.int64] = field(init=False)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -424,10 +460,17 @@ class Car(Team):
         self.anchor = np.column_stack([self.x, self.y]).astype(np.float64)
         self.still = np.zeros(len(self.x), dtype=np.int64)
         self.stalls = np.zeros(len(self.x), dtype=np.int64)
+        self.wait = np.full(len(self.x), self.stall_steps, dtype=np.int64)
 
     def state(self) -> dict[str, Any]:
-        """Everything a car's next steps depend on, copied (:meth:`restore` takes it
-        back): poses, the escape's and the planner's per-car state, the counts."""
+        """Everything the cars' next steps depend on, copied.
+
+        Returns
+        -------
+        dict
+            Per car: the pose, the escape's and the planner's state, the stall watch's
+            and the counts, by attribute name (:meth:`restore` takes it back).
+        """
         return {
             "x": self.x.copy(),
             "y": self.y.copy(),
@@ -447,10 +490,27 @@ class Car(Team):
             "anchor": self.anchor.copy(),
             "still": self.still.copy(),
             "stalls": self.stalls.copy(),
+            "wait": self.wait.copy(),
         }
 
-    def restore(self, state: dict[str, Any]) -> None:
-        """Take back a :meth:`state` (of a team of as many cars), copied again."""
+    def restore(self, state: Mapping[str, Any]) -> None:
+        """Take back a :meth:`state`, copied again.
+
+        Parameters
+        ----------
+        state : mapping
+            A :meth:`state` of a team of as many cars, with exactly its keys.
+
+        Raises
+        ------
+        ConfigError
+            A state with other keys (of another version or kind of team) or of another
+            number of cars.
+        """
+        want = set(self.state())
+        if set(state) != want:
+            missing, extra = sorted(want - set(state)), sorted(set(state) - want)
+            raise ConfigError(f"not a car team's state: missing {missing}, unknown {extra}")
         if len(state["x"]) != len(self):
             raise ConfigError(f"a state of {len(state['x'])} cars for a team of {len(self)}")
         fresh = dict(state)
@@ -520,7 +580,7 @@ class Car(Team):
         boxed: list[int] = []
         end = np.column_stack([self.x, self.y, self.heading]).astype(np.float64)
         for i, d in enumerate(directions):
-            if self.escaping[i] and abs(_wrap(self.goal[i] - self.heading[i])) <= self.align:
+            if self.escaping[i] and abs(wrap_angle(self.goal[i] - self.heading[i])) <= self.align:
                 self.escaping[i] = False
             if self.escaping[i] and self.blocked[i] and rng.random() < self.p_random:
                 self.goal[i] = rng.uniform(-math.pi, math.pi)
@@ -530,7 +590,7 @@ class Car(Team):
             want[i] = True
             if not self.escaping[i]:
                 assert d is not None
-                error = _wrap(math.atan2(d[1], d[0]) - float(self.heading[i]))
+                error = wrap_angle(math.atan2(d[1], d[0]) - float(self.heading[i]))
                 move = self._try(i, s, self._arcs(error, s), passable, grid)
                 if move is not None:
                     end[i] = move
@@ -538,7 +598,7 @@ class Car(Team):
                 self.escaping[i] = True  # a dead end: forward motion is impossible
                 self.goal[i] = math.atan2(d[1], d[0])
                 self.gear[i] = -1
-            error = _wrap(float(self.goal[i] - self.heading[i]))
+            error = wrap_angle(float(self.goal[i] - self.heading[i]))
             move = None
             for _ in range(2):
                 length = s * float(self.gear[i])
@@ -579,6 +639,7 @@ class Car(Team):
         stays within a metre for a while) starts a new stay where it is."""
         xy = np.column_stack([self.x, self.y])
         away = np.hypot(*(xy - self.anchor).T) > self.stall_radius
+        self.wait[away] = self.stall_steps
         idle = np.array([r is None or len(r) < 2 for r in self.routes])
         planned = np.array([p is not None for p in self.plans])
         fresh = away | self.blocked | idle | planned
@@ -586,19 +647,39 @@ class Car(Team):
         self.still = np.where(fresh, 0, self.still + 1)
 
     def unstall(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid) -> bool:
-        """Car i has stayed within ``stall_radius`` of one spot for ``stall_steps``
-        steps, not held by another car: a lock no ordinary step gets it out of (as a
-        car askew in a street whose passable cells are one wide, swinging between two
-        poses). It searches for a manoeuvre onto its route with the finer search
+        """Search car i a way out of a stall.
+
+        Car i has stayed within ``stall_radius`` of one spot for its :attr:`wait`,
+        not held by another car: a lock no ordinary step gets it out of (as a car askew
+        in a street whose passable cells are one wide, swinging between two poses). It
+        searches for a manoeuvre onto its route with the finer search
         (:data:`UNSTALL_SEARCH`), whatever its rest, and drives it as a ``fallback``
         (its steps in reverse count as dead-end escape); its stay starts anew either
-        way. True when a manoeuvre was found."""
+        way. A failed search doubles its wait, up to :data:`STALL_WAIT_CAP` times
+        ``stall_steps``; a found one sets it back to ``stall_steps``.
+
+        Parameters
+        ----------
+        i : int
+            The car.
+        passable : ndarray of bool
+            Cells a car's centre may be on.
+        grid : Grid
+            The map's grid.
+
+        Returns
+        -------
+        bool
+            True when a manoeuvre was found.
+        """
         self.stalls[i] += 1
         self.still[i] = 0
         self.anchor[i] = (float(self.x[i]), float(self.y[i]))
         route = self.routes[i]
         if route is None or len(route) < 2:
             return False
+        # Doubled now, set back below if a way is found.
+        self.wait[i] = min(2 * int(self.wait[i]), STALL_WAIT_CAP * self.stall_steps)
         others = np.column_stack([np.delete(self.x, i), np.delete(self.y, i)])
         plan = plan_manoeuvre(
             (float(self.x[i]), float(self.y[i]), float(self.heading[i])),
@@ -608,9 +689,9 @@ class Car(Team):
             self.turn_radius,
             others=others,
             separation=self.min_separation + 0.5,
-            headings=int(UNSTALL_SEARCH["headings"]),
-            bin_size=float(UNSTALL_SEARCH["bin_size"]),
-            budget=int(UNSTALL_SEARCH["budget"]),
+            headings=UNSTALL_SEARCH.headings,
+            bin_size=UNSTALL_SEARCH.bin_size,
+            budget=UNSTALL_SEARCH.budget,
         )
         if plan is None or not plan.arcs:
             return False
@@ -619,6 +700,7 @@ class Car(Team):
         self.turns[i] += plan.reverses
         self.stuck[i] = 0
         self.rest[i] = 0
+        self.wait[i] = self.stall_steps
         return True
 
     def _escape_move(
@@ -626,7 +708,7 @@ class Car(Team):
     ) -> tuple[float, float, float] | None:
         """One step of the thesis's escape: reverse (or forward, once reverse is
         blocked) steering towards the target heading ``goal[i]``."""
-        error = _wrap(float(self.goal[i] - self.heading[i]))
+        error = wrap_angle(float(self.goal[i] - self.heading[i]))
         for _ in range(2):
             length = s * float(self.gear[i])
             move = self._try(i, length, self._arcs(error, length), passable, grid)
@@ -683,7 +765,7 @@ class Car(Team):
         dx, dy = point[0] - float(self.x[i]), point[1] - float(self.y[i])
         if math.hypot(dx, dy) <= 1e-9:
             return False
-        return abs(_wrap(math.atan2(dy, dx) - float(self.heading[i]))) > self.behind
+        return abs(wrap_angle(math.atan2(dy, dx) - float(self.heading[i]))) > self.behind
 
     def _street_axis(self, i: int, towards: float) -> float:
         """The heading car i's fallback aligns with: its route's direction from 1 to
@@ -699,8 +781,8 @@ class Car(Team):
         if math.hypot(bx - ax, by - ay) < 1.0:
             return towards
         h = math.atan2(by - ay, bx - ax)
-        ahead = abs(_wrap(h - float(self.heading[i]))) <= math.pi / 2
-        return h if ahead else _wrap(h + math.pi)
+        ahead = abs(wrap_angle(h - float(self.heading[i]))) <= math.pi / 2
+        return h if ahead else wrap_angle(h + math.pi)
 
     def _yielded_to(self, i: int) -> bool:
         """Whether a later car near car i, held too or already manoeuvring round
@@ -826,7 +908,7 @@ class Car(Team):
         self.rest = np.maximum(self.rest - 1, 0)
         for i, d in enumerate(directions):
             s = self.speed_of(i, grid) * dt
-            if self.still[i] >= self.stall_steps:
+            if self.still[i] >= self.wait[i]:
                 self.unstall(i, passable, grid)
             if (
                 self.plans[i] is None
@@ -839,7 +921,7 @@ class Car(Team):
                 # The fallback runs until the car is aligned (at most ESCAPE_STEPS):
                 # one step of it, then pursuit again, can swing a car between two
                 # poses for good in a street whose passable cells are one wide.
-                if abs(_wrap(float(self.goal[i] - self.heading[i]))) <= self.align:
+                if abs(wrap_angle(float(self.goal[i] - self.heading[i]))) <= self.align:
                     self.stuck[i] = 0
                 else:
                     self.stuck[i] -= 1
@@ -852,7 +934,7 @@ class Car(Team):
             if self.plans[i] is None:
                 self.escaping[i] = False
             if self.plans[i] is None and d is not None:
-                error = _wrap(math.atan2(d[1], d[0]) - float(self.heading[i]))
+                error = wrap_angle(math.atan2(d[1], d[0]) - float(self.heading[i]))
                 p = goals[i] if goals is not None else None
                 ahead = math.hypot(p[0] - self.x[i], p[1] - self.y[i]) if p is not None else s
                 arcs: list[float] = []

@@ -53,7 +53,7 @@ from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .regions import Regions
 from .robots import SPEED_BANDS, Car, Holonomic, Team
 from .semaphores import Semaphores
-from .starts import CarStarts, check_starts, format_starts, spread_starts
+from .starts import CarStarts, StartSource, check_starts, format_starts, spread_starts
 from .stubs import stand_points, stub_places
 from .territory import Territory, move_clear
 from .tour import plan_tour
@@ -70,6 +70,7 @@ __all__ = [
     "PatrolConfig",
     "PatrolResult",
     "car_starts",
+    "check_given_starts",
     "halves_discs",
     "obstacle_discs",
     "run_patrol",
@@ -664,6 +665,12 @@ class PatrolResult:
     monitor: Monitor | None = None
     #: Share of the watched cells the cars had given up at the end (:mod:`.giveup`).
     given_up: float = 0.0
+    #: Tracking cars: the stalls each car was found in (:meth:`.robots.Car.unstall`);
+    #: None for other robots.
+    stalls: npt.NDArray[np.int64] | None = None
+    #: Tracking cars: the stall watch's ``stall_radius`` (m) and ``stall_steps``,
+    #: recorded in ``summary.json``'s params; None for other robots.
+    stall_watch: tuple[float, int] | None = None
 
     def dvt_per_robot(self) -> F64:
         """Share of the run each robot spent escaping dead ends, in %."""
@@ -691,6 +698,11 @@ class PatrolResult:
             "wall_seconds": round(self.wall_seconds, 3),
             "robots": len(self.positions),
             **({"graph": self.monitor.summary()} if self.monitor is not None else {}),
+            **(
+                {"stalls": int(self.stalls.sum()), "stalls_per_robot": self.stalls.tolist()}
+                if self.stalls is not None
+                else {}
+            ),
         }
 
     def metrics_csv(self) -> str:
@@ -783,7 +795,14 @@ class PatrolResult:
                 "map": source,
                 "cell_m": territory.grid.resolution,  # the cell used (whole map pixels)
                 "seed": seed,
-                "params": self.config.as_dict(),
+                "params": {
+                    **self.config.as_dict(),
+                    **(
+                        {"stall_radius": self.stall_watch[0], "stall_steps": self.stall_watch[1]}
+                        if self.stall_watch is not None
+                        else {}
+                    ),
+                },
             }
             atomic_write_text(tmp / "summary.json", json_dumps(summary) + "\n")
             if self.monitor is not None:
@@ -1188,6 +1207,62 @@ def car_starts(
     return CarStarts(territory, passable, config.turn_radius, config.speed_bands, config.dt)
 
 
+def check_given_starts(
+    starts: F64,
+    territory: Territory,
+    config: PatrolConfig,
+    region: npt.NDArray[np.bool_] | None = None,
+    source: StartSource | None = None,
+) -> Reach:
+    """Refuse given starts the run cannot use; the territory reachable from them.
+
+    Every start inside the map (and ``region``), on a free cell the robot's radius fits,
+    ``config.min_separation`` from the others; for cars, a pose some step's arc leaves
+    (:meth:`~sonarmap.patrol.starts.CarStarts.check`).
+
+    Parameters
+    ----------
+    starts : ndarray (N, 3)
+        World (x, y, heading) per robot.
+    territory : Territory
+        The map.
+    config : PatrolConfig
+        The run's configuration (radius, separation, reach, the car's turning).
+    region : ndarray of bool, optional
+        The user's territory mask on the territory's grid; default None (the whole map).
+    source : StartSource, optional
+        Where the starts came from, for the message (a start file's path and lines);
+        default: world poses.
+
+    Returns
+    -------
+    Reach
+        What the team can patrol from these starts (:func:`~sonarmap.patrol.reach.reach`).
+
+    Raises
+    ------
+    InputError
+        The first start refused, naming the robot and its pose (and file and line).
+    """
+    inside = territory.passable(config.radius)
+    if region is not None:
+        inside = inside & region
+    check_starts(starts, territory, inside, config.min_separation, source)
+    rc = np.column_stack(territory.grid.world_to_cell(starts[:, 0], starts[:, 1]))
+    where = reach(
+        territory,
+        config.radius,
+        starts=rc,
+        region=region,
+        mode=config.reach,
+        vision=config.vision,
+    )
+    if config.model == "car":
+        # A car that can never move from its start would waste the run.
+        car_starts(territory, where.passable, config).check(starts, source)
+    return where
+
+
 def run_patrol(
     territory: Territory,
     config: PatrolConfig,
@@ -1200,6 +1275,7 @@ def run_patrol(
     semaphores: list[npt.NDArray[np.bool_]] | None = None,
     region: npt.NDArray[np.bool_] | None = None,
     graph: bool = False,
+    start_source: StartSource | None = None,
 ) -> PatrolResult:
     """Patrol ``territory`` for ``config.duration`` seconds.
 
@@ -1221,6 +1297,9 @@ def run_patrol(
         on the patrol graph of the reachable territory
         (:meth:`~sonarmap.patrol.graph.PatrolGraph.from_territory`, vertices spaced by
         the vision radius), every step; default False.
+    start_source : StartSource, optional
+        Where ``starts`` came from (a start file's path and lines), named when one is
+        refused (:func:`check_given_starts`); default: world poses.
 
     Raises
     ------
@@ -1249,21 +1328,7 @@ def run_patrol(
         else:
             starts = spread_starts(robots, territory, where.passable, config.min_separation, seed)
     else:
-        inside = territory.passable(config.radius)
-        if region is not None:
-            inside = inside & region
-        check_starts(starts, territory, inside, config.min_separation)
-        rc = np.column_stack(territory.grid.world_to_cell(starts[:, 0], starts[:, 1]))
-        where = reach(
-            territory,
-            config.radius,
-            starts=rc,
-            region=region,
-            mode=config.reach,
-            vision=config.vision,
-        )
-        if config.model == "car":
-            car_starts(territory, where.passable, config).check(starts)
+        where = check_given_starts(starts, territory, config, region, start_source)
     passable = where.passable
     team: Team
     if config.model == "car":
@@ -1919,6 +1984,7 @@ def run_patrol(
         if progress is not None:
             progress(k + 1, steps)
     never = fog.never_seen()
+    stall_team = team if isinstance(team, Car) and team.planner == "track" else None
     return PatrolResult(
         t_out,
         mtb,
@@ -1937,4 +2003,8 @@ def run_patrol(
         never_seen=never,
         monitor=monitor,
         given_up=float(quitter.given[watched].mean()),
+        stalls=stall_team.stalls.copy() if stall_team is not None else None,
+        stall_watch=(stall_team.stall_radius, stall_team.stall_steps)
+        if stall_team is not None
+        else None,
     )

@@ -24,7 +24,7 @@ import numpy.typing as npt
 from ..errors import ConfigError, InputError, quote
 from ..files import read_text
 from .paths import Wave
-from .robots import arc, band_speed, close_pairs
+from .robots import arc, band_speed, close_pairs, wrap_angle
 from .territory import Territory
 
 __all__ = [
@@ -32,10 +32,12 @@ __all__ = [
     "START_HEADINGS",
     "START_RUN",
     "CarStarts",
+    "StartSource",
     "check_robot_count",
     "check_starts",
     "format_starts",
     "random_starts",
+    "read_start_lines",
     "read_starts",
     "spread_starts",
     "starts_from_dm",
@@ -66,6 +68,44 @@ def check_robot_count(n: int) -> None:
 
 def read_starts(path: str | Path, territory: Territory) -> F64:
     """A start file: world (x, y, heading) per robot (module notes for the format).
+
+    Parameters
+    ----------
+    path : str or Path
+        The start file.
+    territory : Territory
+        The map the file's decimetres are on.
+
+    Returns
+    -------
+    ndarray (N, 3)
+        World x and y (metres) and heading (radians) per robot.
+
+    Raises
+    ------
+    InputError
+        As :func:`read_start_lines`.
+    """
+    return read_start_lines(path, territory)[0]
+
+
+def read_start_lines(path: str | Path, territory: Territory) -> tuple[F64, list[int]]:
+    """A start file's starts (:func:`read_starts`) and the line each robot is on.
+
+    Parameters
+    ----------
+    path : str or Path
+        The start file.
+    territory : Territory
+        The map the file's decimetres are on.
+
+    Returns
+    -------
+    starts : ndarray (N, 3)
+        World x and y (metres) and heading (radians) per robot.
+    lines : list of int
+        The 1-based line of the file each robot's start is on (for messages:
+        :class:`StartSource`).
 
     Raises
     ------
@@ -113,7 +153,7 @@ def read_starts(path: str | Path, territory: Territory) -> F64:
                 line=line,
             )
         rows.append((xd, yd, phi))
-    return starts_from_dm(rows, territory)
+    return starts_from_dm(rows, territory), [line for line, _ in body[1 : n + 1]]
 
 
 def starts_from_dm(rows: Sequence[tuple[float, float, float]], territory: Territory) -> F64:
@@ -141,31 +181,117 @@ def format_starts(starts: F64, territory: Territory) -> str:
     return "\n".join(lines) + "\n"
 
 
+@dataclass(frozen=True)
+class StartSource:
+    """Where given starts came from, for the messages refusing them.
+
+    Without a path the starts are world poses (metres, radians) and a message says so;
+    with one they came from that start file and a message gives the file, the robot's
+    line and its pose in the file's units (decimetres from the top-left corner, Y down).
+
+    Parameters
+    ----------
+    territory : Territory
+        The map (for the file's units).
+    path : Path, optional
+        The start file; default None (starts given as world poses).
+    lines : tuple of int
+        The file's line of each robot (:func:`read_start_lines`); default none.
+    """
+
+    territory: Territory
+    path: Path | None = None
+    lines: tuple[int, ...] = ()
+
+    def pose(self, starts: F64, i: int, heading: bool = True) -> str:
+        """Robot i's pose as the user gave it.
+
+        Parameters
+        ----------
+        starts : ndarray (N, 3)
+            World (x, y, heading) per robot.
+        i : int
+            The robot (0-based).
+        heading : bool
+            Also the heading; default True.
+
+        Returns
+        -------
+        str
+            E.g. ``"robot 2 at (12.5, 3) m facing 0 rad"``, in decimetres for a file.
+        """
+        if self.path is None:
+            x, y, h = (float(v) for v in starts[i])
+            unit = "m"
+        else:
+            x, y, h = (float(v) for v in starts_to_dm(starts[i : i + 1], self.territory)[0])
+            unit = "dm"
+        facing = f" facing {h:g} rad" if heading else ""
+        return f"robot {i + 1} at ({x:g}, {y:g}) {unit}{facing}"
+
+    def error(self, message: str, i: int | None = None) -> InputError:
+        """An :class:`~sonarmap.errors.InputError` naming the file and, for robot i, its
+        line.
+
+        Parameters
+        ----------
+        message : str
+            What is wrong.
+        i : int, optional
+            The robot (0-based) it is about; default None (no line).
+
+        Returns
+        -------
+        InputError
+            To raise.
+        """
+        line = self.lines[i] if i is not None and i < len(self.lines) else None
+        return InputError(message, path=self.path, line=line)
+
+
 def check_starts(
-    starts: F64, territory: Territory, passable: npt.NDArray[np.bool_], sep: float
+    starts: F64,
+    territory: Territory,
+    passable: npt.NDArray[np.bool_],
+    sep: float,
+    source: StartSource | None = None,
 ) -> None:
     """Every start inside the map, on a passable cell and ``sep`` metres from the others.
+
+    Parameters
+    ----------
+    starts : ndarray (N, 3)
+        World (x, y, heading) per robot.
+    territory : Territory
+        The map.
+    passable : ndarray of bool
+        Cells a robot's centre may be on.
+    sep : float
+        Metres robots must start apart.
+    source : StartSource, optional
+        Where the starts came from (for the message); default: world poses.
 
     Raises
     ------
     InputError
-        Naming the robot and where it is.
+        Naming the robot and where it is (and the file and line, from ``source``).
     """
+    src = source if source is not None else StartSource(territory)
     if not np.isfinite(starts).all():
-        raise InputError("every start must be finite numbers")
+        raise src.error("every start must be finite numbers")
     r, c = territory.grid.world_to_cell(starts[:, 0], starts[:, 1])
     for i in range(len(starts)):
-        where = f"robot {i + 1} at ({starts[i, 0]:g}, {starts[i, 1]:g}) m"
+        where = src.pose(starts, i, heading=False)
         if not territory.grid.contains(r[i], c[i]):
-            raise InputError(f"{where} is outside the map")
+            raise src.error(f"{where} is outside the map", i)
         if not territory.free[r[i], c[i]]:
-            raise InputError(f"{where} is in an obstacle or unknown space, not on a free cell")
+            raise src.error(f"{where} is in an obstacle or unknown space, not on a free cell", i)
         if not passable[r[i], c[i]]:
-            raise InputError(f"{where} is too near an obstacle for the robot's radius")
+            raise src.error(f"{where} is too near an obstacle for the robot's radius", i)
     near = close_pairs(starts[:, 0], starts[:, 1], sep)
     if near:
         a, b = near[0]
-        raise InputError(f"robots {a + 1} and {b + 1} start closer than {sep:g} m")
+        raise src.error(f"robots {a + 1} and {b + 1} start closer than {sep:g} m", max(a, b))
 
 
 def random_starts(
@@ -216,10 +342,13 @@ def spread_starts(
     first = cells[int(rng.integers(len(cells)))]
     if fits is not None and not fits(int(first[0]), int(first[1])):
         # Drawn again from the same generator: deterministic for the seed.
-        good = [k for k in rng.permutation(len(cells)).tolist() if fits(*cells[k].tolist())][:1]
-        if not good:
+        # The first that fits, not every one (each test costs milliseconds).
+        good = next(
+            (k for k in rng.permutation(len(cells)).tolist() if fits(*cells[k].tolist())), None
+        )
+        if good is None:
             raise InputError("no cell has room for a robot to move from")
-        first = cells[good[0]]
+        first = cells[good]
     chosen: list[tuple[int, int]] = [(int(first[0]), int(first[1]))]
     waver = Wave(passable.shape)
     nearest = waver(passable, chosen[0], res)[0].copy()
@@ -289,7 +418,19 @@ class CarStarts:
     dt: float
 
     def step(self, x: float, y: float) -> float:
-        """Metres a car at (x, y) drives in one step."""
+        """Metres a car at (x, y) drives in one step.
+
+        Parameters
+        ----------
+        x, y : float
+            World position, metres.
+
+        Returns
+        -------
+        float
+            The speed rule's speed at the cell's clearance (the slowest band off the
+            map) times ``dt``.
+        """
         g = self.territory.grid
         r, c = g.world_to_cell(x, y)
         if not g.contains(r, c):
@@ -302,7 +443,21 @@ class CarStarts:
         return bool(g.contains(r, c).all()) and bool(self.passable[r, c].all())
 
     def moves(self, x: float, y: float, heading: float) -> bool:
-        """Whether a car at (x, y) facing ``heading`` can move (class notes)."""
+        """Whether a car at (x, y) facing ``heading`` can move (class notes).
+
+        Parameters
+        ----------
+        x, y : float
+            World position, metres.
+        heading : float
+            Radians from +x, anticlockwise.
+
+        Returns
+        -------
+        bool
+            True when some arc of one step's length keeps the car's centre on passable
+            cells.
+        """
         s = self.step(x, y)
         kmax = 1.0 / self.turn_radius
         n = math.ceil(s / (self.territory.grid.resolution * 0.25)) + 1
@@ -314,22 +469,49 @@ class CarStarts:
         return False
 
     def run(self, x: float, y: float, heading: float) -> float:
-        """Metres (up to :data:`START_RUN`) a car at (x, y) can drive straight on facing
-        ``heading`` with its centre on passable cells."""
+        """Metres a car at (x, y) can drive straight on facing ``heading`` with its
+        centre on passable cells.
+
+        Parameters
+        ----------
+        x, y : float
+            World position, metres.
+        heading : float
+            Radians from +x, anticlockwise.
+
+        Returns
+        -------
+        float
+            Up to :data:`START_RUN` metres, in quarter cells; 0 when (x, y) itself is
+            not passable.
+        """
         g = self.territory.grid
         u = np.arange(0.0, START_RUN + 1e-9, g.resolution * 0.25)
         r, c = g.world_to_cell(x + u * math.cos(heading), y + u * math.sin(heading))
         ok = g.contains(r, c)
         ok[ok] = self.passable[r[ok], c[ok]]
         bad = np.flatnonzero(~ok)
-        return float(u[bad[0] - 1]) if len(bad) else float(u[-1])
+        if not len(bad):
+            return float(u[-1])
+        # Not u[-1] (what bad[0] - 1 would index) when the start itself is not passable.
+        return float(u[bad[0] - 1]) if bad[0] > 0 else 0.0
 
     def heading(self, x: float, y: float) -> float | None:
-        """The start heading at (x, y) (class notes); None when a car there cannot move
-        at any heading."""
+        """The start heading at (x, y) (class notes).
+
+        Parameters
+        ----------
+        x, y : float
+            World position, metres.
+
+        Returns
+        -------
+        float or None
+            Radians in [-pi, pi); None when a car there cannot move at any heading.
+        """
         best: tuple[float, float] | None = None
         for j in range(START_HEADINGS):
-            h = _wrap(2.0 * math.pi * j / START_HEADINGS)
+            h = wrap_angle(2.0 * math.pi * j / START_HEADINGS)
             if not self.moves(x, y, h):
                 continue
             run = self.run(x, y, h)
@@ -338,13 +520,38 @@ class CarStarts:
         return None if best is None else best[1]
 
     def fits(self, r: int, c: int) -> bool:
-        """Whether a car can move from the centre of cell (r, c) at some heading."""
+        """Whether a car can move from the centre of cell (r, c) at some heading.
+
+        Parameters
+        ----------
+        r, c : int
+            The cell's row and column.
+
+        Returns
+        -------
+        bool
+            True when :meth:`heading` finds one.
+        """
         x, y = self.territory.grid.cell_centres(np.array([r]), np.array([c]))
         return self.heading(float(x[0]), float(y[0])) is not None
 
     def spread(self, n: int, sep: float, seed: int) -> F64:
         """:func:`spread_starts` over the cells a car can move from, each facing its
         start heading (class notes).
+
+        Parameters
+        ----------
+        n : int
+            Cars.
+        sep : float
+            Metres they start apart at least.
+        seed : int
+            The seed of the first start.
+
+        Returns
+        -------
+        ndarray (n, 3)
+            World x and y (metres) and heading (radians) per car.
 
         Raises
         ------
@@ -358,15 +565,23 @@ class CarStarts:
             row[2] = h
         return starts
 
-    def check(self, starts: F64) -> None:
+    def check(self, starts: F64, source: StartSource | None = None) -> None:
         """Refuse starts a car cannot move from at the heading given.
+
+        Parameters
+        ----------
+        starts : ndarray (N, 3)
+            World (x, y, heading) per car.
+        source : StartSource, optional
+            Where the starts came from (for the message); default: world poses.
 
         Raises
         ------
         InputError
-            Naming the robot, where it is and, when there is one, a heading it could
-            move from.
+            Naming the robot, its pose and, when there is one, a heading it could move
+            from (and the file and line, from ``source``).
         """
+        src = source if source is not None else StartSource(self.territory)
         for i, (x, y, h) in enumerate(starts.tolist()):
             if self.moves(x, y, h):
                 continue
@@ -376,12 +591,8 @@ class CarStarts:
                 if better is not None
                 else "; no heading would: choose another place"
             )
-            raise InputError(
-                f"robot {i + 1} at ({x:g}, {y:g}) m facing {h:g} rad: a car can move neither "
-                f"forward nor in reverse from there (turning radius {self.turn_radius:g} m)"
-                f"{hint}"
+            raise src.error(
+                f"{src.pose(starts, i)}: a car can move neither forward nor in reverse from "
+                f"there (turning radius {self.turn_radius:g} m){hint}",
+                i,
             )
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
