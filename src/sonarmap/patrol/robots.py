@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -680,19 +680,7 @@ class Car(Team):
             return False
         # Doubled now, set back below if a way is found.
         self.wait[i] = min(2 * int(self.wait[i]), STALL_WAIT_CAP * self.stall_steps)
-        others = np.column_stack([np.delete(self.x, i), np.delete(self.y, i)])
-        plan = plan_manoeuvre(
-            (float(self.x[i]), float(self.y[i]), float(self.heading[i])),
-            route_goals(route),
-            passable,
-            grid,
-            self.turn_radius,
-            others=others,
-            separation=self.min_separation + 0.5,
-            headings=UNSTALL_SEARCH.headings,
-            bin_size=UNSTALL_SEARCH.bin_size,
-            budget=UNSTALL_SEARCH.budget,
-        )
+        plan, _ = self._search(i, route, passable, grid, UNSTALL_SEARCH)
         if plan is None or not plan.arcs:
             return False
         self.plans[i] = plan
@@ -855,13 +843,38 @@ class Car(Team):
         in turn; the two take turns backing off."""
         self.rest[i] = self.patience
 
-    def _plan(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid, cause: str) -> bool:
-        """Plan a manoeuvre for car i onto its route, for ``cause`` (of :data:`CAUSES`);
-        True when one was found."""
-        route = self.routes[i]
-        if route is None or len(route) < 2:
-            return False
+    def _search(
+        self,
+        i: int,
+        route: F64,
+        passable: npt.NDArray[np.bool_],
+        grid: Grid,
+        search: FineSearch | None = None,
+    ) -> tuple[Manoeuvre | None, F64]:
+        """The manoeuvre search for car i onto ``route``, clear of the other cars.
+
+        Parameters
+        ----------
+        i : int
+            The car.
+        route : ndarray (M, 2)
+            Its route, world metres.
+        passable : ndarray of bool
+            Cells a car's centre may be on.
+        grid : Grid
+            The map's grid.
+        search : FineSearch, optional
+            The search's bins and budget; default None (:func:`plan_manoeuvre`'s).
+
+        Returns
+        -------
+        plan : Manoeuvre or None
+            The manoeuvre found, None when the search found none.
+        others : ndarray (K - 1, 2)
+            The other cars' positions, world metres.
+        """
         others = np.column_stack([np.delete(self.x, i), np.delete(self.y, i)])
+        bins: dict[str, Any] = {} if search is None else asdict(search)
         plan = plan_manoeuvre(
             (float(self.x[i]), float(self.y[i]), float(self.heading[i])),
             route_goals(route),
@@ -872,7 +885,17 @@ class Car(Team):
             # Some room to spare: a car that ends its manoeuvre just clear of another
             # is held again at once.
             separation=self.min_separation + 0.5,
+            **bins,
         )
+        return plan, others
+
+    def _plan(self, i: int, passable: npt.NDArray[np.bool_], grid: Grid, cause: str) -> bool:
+        """Plan a manoeuvre for car i onto its route, for ``cause`` (of :data:`CAUSES`);
+        True when one was found."""
+        route = self.routes[i]
+        if route is None or len(route) < 2:
+            return False
+        plan, others = self._search(i, route, passable, grid)
         if (plan is None or not plan.arcs) and cause == "traffic":
             # No way onto the route past the cars in the way: make way for them instead
             # (only the car :meth:`_yielded_to` picks plans for traffic, so one parts).
