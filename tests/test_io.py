@@ -152,3 +152,25 @@ def test_bare_image_maps(tmp_path: Path) -> None:
     write_map(m, tmp_path / "plan")
     with pytest.raises(InputError, match="a resolution is given only with a bare image"):
         read_map(tmp_path / "plan.yaml", resolution=0.1)
+
+
+def test_a_failed_atomic_folder_leaves_no_folder_it_made(tmp_path: Path) -> None:
+    from sonarmap.files import atomic_folder
+
+    kept = tmp_path / "kept"
+    kept.mkdir()
+
+    def fail(out: Path) -> None:
+        with atomic_folder(out) as tmp:
+            (tmp / "half.txt").write_text("half")
+            raise RuntimeError("the job failed")
+
+    for out in (tmp_path / "new" / "deeper" / "run", kept / "run"):
+        with pytest.raises(RuntimeError):
+            fail(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
+    assert list(kept.iterdir()) == []
+    with atomic_folder(tmp_path / "new" / "run") as tmp:
+        (tmp / "whole.txt").write_text("whole")
+    assert (tmp_path / "new" / "run" / "whole.txt").read_text() == "whole"
+    assert [p.name for p in (tmp_path / "new").iterdir()] == ["run"]

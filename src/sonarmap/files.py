@@ -169,7 +169,8 @@ def atomic_folder(path: Path) -> Iterator[Path]:
     ------
     Path
         The temporary folder. On success every file written under it is moved to the
-        same relative place under ``path``; on an exception it is all deleted.
+        same relative place under ``path``; on an exception it is all deleted, and so
+        are the parent folders this call created (a failed run leaves nothing behind).
 
     Raises
     ------
@@ -178,6 +179,7 @@ def atomic_folder(path: Path) -> Iterator[Path]:
     """
     if path.exists() and not path.is_dir():
         raise OutputError("is a file; give a folder", path=path)
+    made = [p for p in [path.parent, *path.parent.parents] if not p.exists()]
     with _as_output_error(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
@@ -185,6 +187,9 @@ def atomic_folder(path: Path) -> Iterator[Path]:
         yield tmp
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        for folder in made:  # deepest first; one another job filled since stays
+            with contextlib.suppress(OSError):
+                folder.rmdir()
         raise
     for src in sorted(tmp.rglob("*")):
         if src.is_file():
