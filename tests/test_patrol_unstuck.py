@@ -4,6 +4,7 @@ a car locked askew in a street one passable cell wide getting out."""
 from __future__ import annotations
 
 import math
+import socket
 from pathlib import Path
 
 import numpy as np
@@ -179,10 +180,17 @@ def test_the_command_line_names_the_start_file_line_and_pose_of_a_boxed_car(
     (tmp_path / "s.txt").write_text("# two cars\n2\n172.5 372.5 0\n147.5 17.5 0\n")
     args = ["patrol", "run", "--map", str(tmp_path / "stub.yaml"), "--model", "car"]
     args += ["--duration", "2", "--starts", str(tmp_path / "s.txt")]
+    with socket.socket() as free:
+        free.bind(("127.0.0.1", 0))
+        port = free.getsockname()[1]
+    live = ["--live", "--live-port", str(port)]
     with pytest.raises(SystemExit) as e:
-        main([*args, "-o", str(tmp_path / "a")])
+        main([*args, *live, "-o", str(tmp_path / "a")])
     assert e.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
+    said = capsys.readouterr()
+    # The live server's address is not announced for a run that never starts.
+    assert "live:" not in said.out
+    err = said.err.strip().splitlines()
     assert len(err) == 1, err
     assert "s.txt:4:" in err[0]
     assert "robot 2 at (147.5, 17.5) dm facing 0 rad" in err[0]

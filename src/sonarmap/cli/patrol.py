@@ -469,13 +469,17 @@ def run_cmd(
                 observers.append(
                     PatrolPublisher(rec, territory, config, semaphores=areas, fog_every=fog_every)
                 )
-            if live:
-                console.print(
-                    f"live: {rec.url} (Foxglove: Open connection), {live_rate:g}x real time",
-                    markup=False,
-                )
+            said = {"live": not live}
 
             def step(t: float, team: Team, fog: Fog) -> None:
+                # Said at the first step, once the run has accepted its starts: a refused
+                # start file is then the run's only line.
+                if not said["live"]:
+                    said["live"] = True
+                    console.print(
+                        f"live: {rec.url} (Foxglove: Open connection), {live_rate:g}x real time",
+                        markup=False,
+                    )
                 for observe in observers:
                     observe(t, team, fog)
 
