@@ -106,7 +106,7 @@ def diagnose(scene: Scenario, inv: InverseMapper) -> dict[str, float]:
     w_free = {
         k: np.bincount(fp.free.cells, weights=wf * m, minlength=g.size) for k, m in parts.items()
     }
-    free = sum(w_free.values())
+    free = w_free["near"] + w_free["mid"] + w_free["far"]
     l_occ, l_free = math.log(inv.p_occ / (1 - inv.p_occ)), math.log(inv.p_free / (1 - inv.p_free))
     total = w_occ * l_occ + free * l_free
     kept = np.nan_to_num(occ_map, nan=0.0) > 0.5
@@ -132,12 +132,12 @@ def diagnose(scene: Scenario, inv: InverseMapper) -> dict[str, float]:
         # The recall the unclamped sums would give without this part of the free weight.
         out[f"recall_without_{k}"] = float(((total - v * l_free)[seen] > 0).mean())
     rel = beyond / r.range[echo][fp.free.reading_index()]
-    for k in STOPS:
-        # Without the free weight of the readings whose echo lay less than k of its
-        # range beyond the cell: a free region that stops k of the range short.
-        v = np.bincount(fp.free.cells, weights=wf * (rel < k), minlength=g.size)
-        out[f"outvoted_free_within_{k}r"] = float(v[outvoted].sum()) / fo
-        out[f"recall_stop_{k}r"] = float(((total - v * l_free)[seen] > 0).mean())
+    for stop in STOPS:
+        # Without the free weight of the readings whose echo lay less than ``stop`` of
+        # its range beyond the cell: a free region that stops that share short.
+        near_r = np.bincount(fp.free.cells, weights=wf * (rel < stop), minlength=g.size)
+        out[f"outvoted_free_within_{stop}r"] = float(near_r[outvoted].sum()) / fo
+        out[f"recall_stop_{stop}r"] = float(((total - near_r * l_free)[seen] > 0).mean())
     return out
 
 
@@ -158,13 +158,66 @@ def run(sweep: Path, scenes: Sequence[str], params: dict[str, Any]) -> pd.DataFr
     return pd.DataFrame(rows)
 
 
+#: The rig of each training map of the sweep (its scene's name).
+RIG_OF = {
+    "hall-ez1": "ez1-six",
+    "suite-ez1": "ez1-six",
+    "doorways": "ez1-six",
+    "passages-noisy": "ez1-six",
+    "hall-hcsr04": "hcsr04-six",
+    "suite-hcsr04": "hcsr04-six",
+    "hall-ring16": "ring16",
+    "suite-ring16": "ring16",
+}
+
+
+def rule_table(inverse: pd.DataFrame, gradient: pd.DataFrame) -> pd.DataFrame:
+    """Per inverse setting of sweep results ``inverse``, the acceptance rule's training
+    figures (docs/results/2026-12-07-inverse-walls.md), the forward margin against the
+    gradient rows of ``gradient``; the defaults' row first."""
+    inv = inverse.assign(rig=inverse["scenario"].map(RIG_OF))
+    grad = gradient.assign(rig=gradient["scenario"].map(RIG_OF)).groupby("rig")["f1_all"].mean()
+    rows = []
+    for setting, d in inv.groupby("params", sort=False):
+        per_rig = d.groupby("rig")
+        f1 = per_rig["f1_all"].mean()
+        row: dict[str, Any] = {
+            "setting": setting,
+            "quality": d["quality"].mean(),
+            "ez1_hall_observed": d.loc[d.scenario == "hall-ez1", "observed_wall_recall"].mean(),
+            "ez1_observed": d.loc[d.rig == "ez1-six", "observed_wall_recall"].mean(),
+            "passages": int(d["passages_detected"].sum()),
+        }
+        for rig in ("ez1-six", "hcsr04-six", "ring16"):
+            row[f"f1_{rig}"] = f1[rig]
+            row[f"passages_{rig}"] = int(per_rig["passages_detected"].sum()[rig])
+            row[f"margin_{rig}"] = grad[rig] - f1[rig]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--out", type=Path, default=Path("out/inverse-walls"))
     ap.add_argument("--sweep", type=Path, default=SWEEP)
     ap.add_argument("--scenes", nargs="*", default=[])
     ap.add_argument("--param", nargs="*", default=[], help="inverse K=V ...")
+    ap.add_argument(
+        "--rule",
+        type=Path,
+        nargs="+",
+        help="GRADIENT_CSV INVERSE_CSV ...: print the acceptance rule's training figures "
+        "of the sweeps' inverse settings and run nothing",
+    )
     args = ap.parse_args(argv)
+    if args.rule:
+        grad = pd.read_csv(args.rule[0])
+        inv = pd.concat([pd.read_csv(p) for p in args.rule[1:]], ignore_index=True)
+        with pd.option_context("display.width", 250, "display.max_columns", 30):
+            print(
+                rule_table(inv[inv.method == "inverse"], grad[grad.method == "gradient"]).round(3)
+            )
+        return
     _, params = parse_variant(" ".join(["inverse", *args.param]))
     df = run(args.sweep, args.scenes, params)
     args.out.mkdir(parents=True, exist_ok=True)
