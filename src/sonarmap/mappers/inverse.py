@@ -124,11 +124,12 @@ class InverseMapper(Mapper):
         echo's range, in [0, 1); 0 (default): at the band's near edge. ``"beam"``:
         ``1 - cos(a)``, a the beam's widest angle off the axis -- the echo's place on
         its arc is not known, and a surface facing the sonar through any point of the
-        arc reaches no nearer than ``r cos(a)`` along the beam. The wall cells that an
-        echo just beyond them frees are the most of what a default map loses of the
-        walls the sonars heard on the training scenes
-        (docs/results/2026-12-07-inverse-walls.md). Streams with the ``all`` strategy
-        only.
+        arc reaches no nearer than ``r cos(a)`` along the beam. The cells between the
+        free region and the band take nothing. Off by default: it keeps the walls
+        a wide beam meets at a slant but leaves the band's spill in front of the walls
+        occupied, which narrows and closes doorways, and it inserts each reading with
+        two kernel calls (docs/results/2026-12-07-inverse-walls.md). Streams with the
+        ``all`` strategy only.
     """
 
     name = "inverse"
