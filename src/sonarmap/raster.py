@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -210,6 +211,7 @@ def rasterise(
     offset: float = 0.0,
     with_bearing: bool = False,
     no_echo_reach: float | None = None,
+    free_stop: float = 0.0,
 ) -> Footprint:
     """Omega_free and Omega_occ of each reading.
 
@@ -232,6 +234,9 @@ def rasterise(
     no_echo_reach : float, optional
         How far (metres) a no-echo reading's Omega_free reaches, less ``dr``; default
         (None) ``r_max``.
+    free_stop : float
+        How far short of the band an echo's Omega_free stops, as a fraction of its range,
+        in [0, 1) (default 0: at the band's near edge). No-echo readings are not moved.
 
     Returns
     -------
@@ -250,7 +255,14 @@ def rasterise(
     """
     sx, sy, st, r = _poses(x, y, theta, ranges)
     d, free_lim, occ_hi = _limits(grid, sensor, r, dr, offset, no_echo_reach)
-    f, o = _run(grid, sensor, sx, sy, st, free_lim, occ_hi, with_bearing)
+    if free_stop == 0:
+        f, o = _run(grid, sensor, sx, sy, st, free_lim, occ_hi, with_bearing)
+        return Footprint(free=f, occ=o, dr=d)
+    # The kernel's band starts where the free region ends: the free cells and the band
+    # are listed by two runs, leaving the cells between them out of both.
+    short = _stopped(sensor, r, free_lim, free_stop)
+    f, _ = _run(grid, sensor, sx, sy, st, short, np.full_like(occ_hi, -np.inf), with_bearing)
+    _, o = _run(grid, sensor, sx, sy, st, free_lim, occ_hi, with_bearing)
     return Footprint(free=f, occ=o, dr=d)
 
 
@@ -280,6 +292,15 @@ def _limits(
     return d, free_lim, occ_hi
 
 
+def _stopped(
+    sensor: SensorModel, r: npt.NDArray[np.float64], free_lim: npt.NDArray[np.float64], stop: float
+) -> npt.NDArray[np.float64]:
+    """``free_lim`` of the echoes moved ``stop * r`` towards the sensor."""
+    if not (math.isfinite(stop) and 0.0 <= stop < 1.0):
+        raise ConfigError(f"free_stop must be a fraction of the range in [0, 1), got {stop}")
+    return np.where(r < sensor.r_max, free_lim - stop * r, free_lim)
+
+
 def accumulate(
     grid: Grid,
     sensor: SensorModel,
@@ -298,6 +319,7 @@ def accumulate(
     falloff: float = 0.0,
     weights: npt.ArrayLike | None = None,
     no_echo_reach: float | None = None,
+    free_stop: float = 0.0,
 ) -> int:
     """Add to the Omega_free and Omega_occ cells of each reading, in place.
 
@@ -334,6 +356,10 @@ def accumulate(
         mappers' correlation weights; None (default) adds them as given, at no cost.
     no_echo_reach : float, optional
         How far (metres) a no-echo reading's free cells reach, as for :func:`rasterise`.
+    free_stop : float
+        How far short of the band an echo's free cells stop, as for :func:`rasterise`;
+        the cells between are marked touched with nothing added (even odds). With a
+        stop each reading takes two kernel calls of its own (slower).
 
     Returns
     -------
@@ -371,10 +397,14 @@ def accumulate(
     )
     threads = nb.get_num_threads()
     positive = falloff_positive(sensor, falloff)
+    w = None
     if weights is not None:
         w = np.ascontiguousarray(weights, dtype=np.float64).reshape(-1)
         if len(w) != len(sx) or not (np.isfinite(w).all() and (w >= 0).all()):
             raise ConfigError(f"weights must be {len(sx)} finite numbers >= 0, one per reading")
+    if free_stop != 0:
+        return _accumulate_stopped(args, _stopped(sensor, r, free_lim, free_stop), w, positive)
+    if w is not None:
         if threads > 1 and len(sx) >= 64:
             return int(accumulate_parallel(*args, threads, w, positive))
         return int(accumulate_kernel(*args, weight=w, positive=positive))
@@ -383,6 +413,50 @@ def accumulate(
     if threads > 1 and len(sx) >= 64:
         return int(accumulate_parallel(*args, threads, None, positive))
     return int(accumulate_kernel(*args, positive=positive))
+
+
+def _accumulate_stopped(
+    args: tuple[Any, ...],
+    short: npt.NDArray[np.float64],
+    w: npt.NDArray[np.float64] | None,
+    positive: bool,
+) -> int:
+    """:func:`accumulate` with the free cells ending at ``short``: reading by reading,
+    its free cells (no band) and then its band (free increment 0), so that each cell
+    takes the readings in order and is clamped after each, as in one run.
+
+    One kernel call per reading and part: only for the ``free_stop`` option, never on
+    the default path ``make bench-mrpt`` times.
+    """
+    head, tail = args[:10], args[12:]
+    free_lim, occ_hi = args[10], args[11]
+    inc_free, inc_occ = tail[2], tail[3]
+    none = np.full(1, -np.inf)
+    n = 0
+    for i in range(len(short)):
+        one = tuple(a[i : i + 1] for a in head[7:10])
+        kw: dict[str, Any] = {"positive": positive}
+        if w is not None:
+            kw["weight"] = w[i : i + 1]
+        n += int(
+            accumulate_kernel(  # type: ignore[call-arg]
+                *head[:7], *one, short[i : i + 1], none, *tail[:2], inc_free, 0.0, *tail[4:], **kw
+            )
+        )
+        n += int(
+            accumulate_kernel(  # type: ignore[call-arg]
+                *head[:7],
+                *one,
+                free_lim[i : i + 1],
+                occ_hi[i : i + 1],
+                *tail[:2],
+                0.0,
+                inc_occ,
+                *tail[4:],
+                **kw,
+            )
+        )
+    return n
 
 
 # Numbers of coefficients the fall-off fit tries, fewest first; the insertion kernel is
@@ -400,6 +474,19 @@ FIT_MARGIN = 0.01
 # for the polynomial's sign: a thousand times FIT_TOL, which leaves room for the fit's
 # error between the points it is checked at.
 POSITIVE_FLOOR = 1e3 * FIT_TOL
+
+
+def beam_half_angle(sensor: SensorModel) -> float:
+    """The widest angle off the axis (radians) of a point of the sensor's beam; pi when
+    the beam surrounds the sensor.
+
+    Examples
+    --------
+    >>> from sonarmap.sensors import get_sensor
+    >>> round(math.degrees(beam_half_angle(get_sensor("hc-sr04"))), 6)
+    15.0
+    """
+    return _beam_half_angle(sensor)
 
 
 def _beam_half_angle(sensor: SensorModel) -> float:

@@ -252,6 +252,7 @@ class Mapper(ABC):
         progress: Progress | None = None,
         with_bearing: bool = False,
         no_echo_reach: float | None = None,
+        free_stop: float = 0.0,
     ) -> Iterator[tuple[int, Footprint]]:
         """Rasterise readings chunk by chunk; yields (index of first reading, footprint)."""
         for a, r in self._chunks(readings, progress):
@@ -266,6 +267,7 @@ class Mapper(ABC):
                 offset=offset,
                 with_bearing=with_bearing,
                 no_echo_reach=no_echo_reach,
+                free_stop=free_stop,
             )
             yield a, fp
 
@@ -289,6 +291,7 @@ class Mapper(ABC):
         offset: float = 0.0,
         with_bearing: bool = False,
         no_echo_reach: float | None = None,
+        free_stop: float = 0.0,
         advice: str | None = None,
     ) -> list[Footprint]:
         """Every reading's footprint, for methods whose objective couples them all.
@@ -306,6 +309,9 @@ class Mapper(ABC):
         no_echo_reach : float or None, default None
             How far a no-echo reading's free cells reach (metres, less ``dr``); None:
             ``r_max`` (see :func:`~sonarmap.raster.rasterise`).
+        free_stop : float, default 0.0
+            How far short of the band an echo's free cells stop, as a fraction of its
+            range (see :func:`~sonarmap.raster.rasterise`).
         advice : str or None, default None
             What the refusal suggests doing instead; None: fewer readings at once,
             coarser cells or no-echo readings dropped.
@@ -324,7 +330,12 @@ class Mapper(ABC):
         out: list[Footprint] = []
         total = 0
         for a, fp in self._footprints(
-            readings, dr=dr, offset=offset, with_bearing=with_bearing, no_echo_reach=no_echo_reach
+            readings,
+            dr=dr,
+            offset=offset,
+            with_bearing=with_bearing,
+            no_echo_reach=no_echo_reach,
+            free_stop=free_stop,
         ):
             total += fp.n_entries
             if total > MAX_ENTRIES:

@@ -31,7 +31,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
-from ..raster import CellSet, Footprint, accumulate
+from ..raster import CellSet, Footprint, accumulate, beam_half_angle
 from ..readings import Readings
 from ..selection import Strategy
 from ..sensors import SensorModel
@@ -119,6 +119,17 @@ class InverseMapper(Mapper):
         walls met at a slant but closes doorways, and holds the whole log in memory;
         turn it on for wide-beam rigs where walls matter more than doors and the log
         fits in memory (docs/results/2026-12-07-inverse-specular.md).
+    free_stop : float or "beam"
+        How far short of the band an echo's Omega_free stops, as a fraction of the
+        echo's range, in [0, 1); 0 (default): at the band's near edge. ``"beam"``:
+        ``1 - cos(a)``, a the beam's widest angle off the axis -- the echo's place on
+        its arc is not known, and a surface facing the sonar through any point of the
+        arc reaches no nearer than ``r cos(a)`` along the beam. The cells between the
+        free region and the band take nothing. Off by default: it keeps the walls
+        a wide beam meets at a slant but leaves the band's spill in front of the walls
+        occupied, which narrows and closes doorways, and it inserts each reading with
+        two kernel calls (docs/results/2026-12-07-inverse-walls.md). Streams with the
+        ``all`` strategy only.
     """
 
     name = "inverse"
@@ -143,6 +154,7 @@ class InverseMapper(Mapper):
         band_offset: float | None = None,
         correlated: float = 0.0,
         specular_deg: float = 0.0,
+        free_stop: float | str = 0.0,
     ) -> None:
         self.p_occ = p_occ
         self.p_free = p_free
@@ -155,6 +167,7 @@ class InverseMapper(Mapper):
         self.band_offset = band_offset
         self.correlated = correlated
         self.specular_deg = specular_deg
+        self.free_stop = free_stop
         number("p_occ", p_occ, 0.5, 1.0, lo_open=True, hi_open=True)
         number("p_free", p_free, 0.0, 0.5, lo_open=True, hi_open=True)
         number("clamp_min", clamp_min, 0.0, 0.5, lo_open=True, hi_open=True)
@@ -174,6 +187,17 @@ class InverseMapper(Mapper):
             number("band_offset", band_offset, 0.0, None)
         number("correlated", correlated, 0.0, None)
         number("specular_deg", specular_deg, 0.0, 90.0, hi_open=True)
+        if isinstance(free_stop, str):
+            choice("free_stop", free_stop, ("beam",))
+        else:
+            number("free_stop", free_stop, 0.0, 1.0, hi_open=True)
+
+    def free_stop_for(self, sensor: SensorModel) -> float:
+        """The fraction of an echo's range its Omega_free stops short of the band, for
+        ``sensor`` (``free_stop``, with ``"beam"`` resolved)."""
+        if isinstance(self.free_stop, str):
+            return 1.0 - math.cos(min(beam_half_angle(sensor), math.pi / 2))
+        return float(self.free_stop)
 
     def _reset(self) -> None:
         self._logodds = np.zeros(self.grid.size, dtype=np.float64)
@@ -207,6 +231,7 @@ class InverseMapper(Mapper):
                 offset=self.band_offset_for(self.grid),
                 with_bearing=self.falloff_deg > 0,
                 no_echo_reach=self.no_echo_reach,
+                free_stop=self.free_stop_for(self.sensor),
                 advice="turn the incidence weighting off (specular_deg=0), map fewer "
                 "readings at once, or use coarser cells",
             )
@@ -235,6 +260,7 @@ class InverseMapper(Mapper):
                 falloff=math.radians(self.falloff_deg),
                 weights=None if weights is None else weights[a : a + len(r)],
                 no_echo_reach=self.no_echo_reach,
+                free_stop=self.free_stop_for(self.sensor),
             )
 
     def _insert_slanted(
@@ -392,6 +418,11 @@ class InverseStream(StreamEngine):
             raise ConfigError(
                 "inverse fall-off streams only with the 'all' strategy; for a bounded "
                 "window set falloff_deg=0"
+            )
+        if strategy.bounded and mapper.free_stop_for(sensor) > 0:
+            raise ConfigError(
+                "inverse free_stop streams only with the 'all' strategy; for a bounded "
+                "window set free_stop=0"
             )
         if strategy.bounded and mapper.no_echo == "free" and mapper.no_echo_reach is not None:
             raise ConfigError(

@@ -1,0 +1,230 @@
+"""Why the inverse misses the walls the sonars heard (issue 39, diagnostic, training only).
+
+For each training map of a sweep file (by default ``sweeps/rigs7-inverse-specular.yaml``:
+the hall, ``suite``, ``doorways`` and noisy ``passages`` scenes of issue 39, seeds 0 and
+1), maps the scene with the inverse at the given setting (its defaults unless
+``--param``) and sorts every observed wall cell (:func:`sonarmap.metrics.observed_walls`)
+the map does not mark occupied by why, from the increments the model adds to it (the
+fall-off weights of the readings whose echo band holds the cell and of those whose free
+region holds it, as :mod:`benchmarks.doors` weighs them):
+
+- ``faint``: the bands that hold it weigh less than :data:`FAINT` in all (the cell lies
+  far off the axis of every echo that put its range on it: the fall-off);
+- ``outvoted``: the log-odds the increments add up to (before clamping) are <= 0 --
+  the free regions of other readings outweigh the bands;
+- ``order``: they add up to more than 0 but the clamped, reading-by-reading sum is not
+  (the clamping bounds and the readings' order);
+- (a missed cell no reading touched cannot be observed.)
+
+For the ``outvoted`` cells, the free weight is split by how far beyond the cell the
+reading's echo lay (:data:`benchmarks.doors.BEYOND`): an echo under 0.3 m beyond is the
+free arc stopping just short of a wall (its own far side or the band's near edge);
+farther, a beam that crossed the wall without an echo from it. Also the observed-wall
+recall the unclamped sums would give with each part of the free weight taken away
+(what each part costs).
+
+Run with ``python -m benchmarks.inverse_walls [--sweep FILE] [--scenes NAME ...]
+[--param K=V ...] -o out/inverse-walls``; writes ``walls.csv`` and prints the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+if __name__ == "__main__":
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from benchmarks.doors import BEYOND
+from benchmarks.rigs import parse_variant
+from sonarmap.mappers.inverse import InverseMapper
+from sonarmap.metrics import observed_walls
+from sonarmap.raster import rasterise
+from sonarmap.scenarios import Scenario, make_scenario, model_from_dict
+from sonarmap.sweep import load_sweep
+
+#: Total band weight below which a missed cell counts as ``faint``.
+FAINT = 0.05
+#: Fractions of the echo's range for the stop-short counterfactuals.
+STOPS = (0.05, 0.1, 0.15, 0.2)
+SWEEP = Path("sweeps/rigs7-inverse-specular.yaml")
+
+
+def scene_of(params: dict[str, Any], seed: int) -> Scenario:
+    """The sweep entry ``params`` (its ``scenario`` key the family) at ``seed``."""
+    p = dict(params)
+    kind = p.pop("scenario")
+    if "model" in p:
+        p["model"] = model_from_dict(dict(p["model"]))
+    return make_scenario(kind, seed=seed, **p)
+
+
+def diagnose(scene: Scenario, inv: InverseMapper) -> dict[str, float]:
+    """The observed wall cells of ``scene`` the map of ``inv`` keeps and misses, by why."""
+    g, r, sensor = scene.truth.grid, scene.readings, scene.rig.sensor
+    occ_map = inv.fit(r, g, scene.rig).result().occupancy.reshape(-1)
+    seen = observed_walls(scene.truth, scene.rig, r).reshape(-1)
+    echo = r.range < sensor.r_max
+    fp = rasterise(
+        g,
+        sensor,
+        r.x[echo],
+        r.y[echo],
+        r.theta[echo],
+        r.range[echo],
+        dr=inv.dr,
+        offset=inv.band_offset_for(g),
+        with_bearing=True,
+        free_stop=inv.free_stop_for(sensor),
+    )
+    sigma = math.radians(inv.falloff_deg)
+
+    def fall(b: np.ndarray[Any, np.dtype[np.float32]] | None) -> np.ndarray[Any, Any]:
+        assert b is not None
+        if sigma == 0:
+            return np.ones(len(b))
+        bb = b.astype(np.float64)
+        return np.exp(-(bb * bb) / (2 * sigma * sigma))
+
+    w_occ = np.bincount(fp.occ.cells, weights=fall(fp.occ.bearing), minlength=g.size)
+    wf = fall(fp.free.bearing)
+    beyond = r.range[echo][fp.free.reading_index()] - fp.free.distance.astype(np.float64)
+    near, mid = BEYOND
+    parts = {
+        "near": beyond < near,
+        "mid": (beyond >= near) & (beyond < mid),
+        "far": beyond >= mid,
+    }
+    w_free = {
+        k: np.bincount(fp.free.cells, weights=wf * m, minlength=g.size) for k, m in parts.items()
+    }
+    free = w_free["near"] + w_free["mid"] + w_free["far"]
+    l_occ, l_free = math.log(inv.p_occ / (1 - inv.p_occ)), math.log(inv.p_free / (1 - inv.p_free))
+    total = w_occ * l_occ + free * l_free
+    kept = np.nan_to_num(occ_map, nan=0.0) > 0.5
+    missed = seen & ~kept
+    faint = missed & (w_occ < FAINT)
+    outvoted = missed & ~faint & (total <= 0)
+    order = missed & ~faint & (total > 0)
+    n = max(int(seen.sum()), 1)
+    fo = max(float(free[outvoted].sum()), 1e-12)
+    out: dict[str, float] = {
+        "observed": float(seen.sum()),
+        "recall": float(kept[seen].mean()),
+        "recall_unclamped": float((total[seen] > 0).mean()),
+        "faint": float(faint.sum()) / n,
+        "outvoted": float(outvoted.sum()) / n,
+        "order": float(order.sum()) / n,
+        "occ_weight_kept": float(w_occ[seen & kept].mean()) if (seen & kept).any() else math.nan,
+        "occ_weight_outvoted": float(w_occ[outvoted].mean()) if outvoted.any() else math.nan,
+        "free_weight_outvoted": float(free[outvoted].mean()) if outvoted.any() else math.nan,
+    }
+    for k, v in w_free.items():
+        out[f"outvoted_free_{k}"] = float(v[outvoted].sum()) / fo
+        # The recall the unclamped sums would give without this part of the free weight.
+        out[f"recall_without_{k}"] = float(((total - v * l_free)[seen] > 0).mean())
+    rel = beyond / r.range[echo][fp.free.reading_index()]
+    for stop in STOPS:
+        # Without the free weight of the readings whose echo lay less than ``stop`` of
+        # its range beyond the cell: a free region that stops that share short.
+        near_r = np.bincount(fp.free.cells, weights=wf * (rel < stop), minlength=g.size)
+        out[f"outvoted_free_within_{stop}r"] = float(near_r[outvoted].sum()) / fo
+        out[f"recall_stop_{stop}r"] = float(((total - near_r * l_free)[seen] > 0).mean())
+    return out
+
+
+def run(sweep: Path, scenes: Sequence[str], params: dict[str, Any]) -> pd.DataFrame:
+    cfg = load_sweep(sweep)
+    rows = []
+    for name, sp in cfg.scenarios.items():
+        if scenes and name not in scenes:
+            continue
+        for seed in cfg.seeds:
+            row = diagnose(scene_of(sp, seed), InverseMapper(**params))
+            rows.append({"scene": name, "seed": seed} | row)
+            print(
+                f"{name} {seed}: recall {row['recall']:.3f}, faint {row['faint']:.3f}, "
+                f"outvoted {row['outvoted']:.3f}, order {row['order']:.3f}",
+                flush=True,
+            )
+    return pd.DataFrame(rows)
+
+
+#: The rig of each training map of the sweep (its scene's name).
+RIG_OF = {
+    "hall-ez1": "ez1-six",
+    "suite-ez1": "ez1-six",
+    "doorways": "ez1-six",
+    "passages-noisy": "ez1-six",
+    "hall-hcsr04": "hcsr04-six",
+    "suite-hcsr04": "hcsr04-six",
+    "hall-ring16": "ring16",
+    "suite-ring16": "ring16",
+}
+
+
+def rule_table(inverse: pd.DataFrame, gradient: pd.DataFrame) -> pd.DataFrame:
+    """Per inverse setting of sweep results ``inverse``, the acceptance rule's training
+    figures (docs/results/2026-12-07-inverse-walls.md), the forward margin against the
+    gradient rows of ``gradient``; the defaults' row first."""
+    inv = inverse.assign(rig=inverse["scenario"].map(RIG_OF))
+    grad = gradient.assign(rig=gradient["scenario"].map(RIG_OF)).groupby("rig")["f1_all"].mean()
+    rows = []
+    for setting, d in inv.groupby("params", sort=False):
+        per_rig = d.groupby("rig")
+        f1 = per_rig["f1_all"].mean()
+        row: dict[str, Any] = {
+            "setting": setting,
+            "quality": d["quality"].mean(),
+            "ez1_hall_observed": d.loc[d.scenario == "hall-ez1", "observed_wall_recall"].mean(),
+            "ez1_observed": d.loc[d.rig == "ez1-six", "observed_wall_recall"].mean(),
+            "passages": int(d["passages_detected"].sum()),
+        }
+        for rig in ("ez1-six", "hcsr04-six", "ring16"):
+            row[f"f1_{rig}"] = f1[rig]
+            row[f"passages_{rig}"] = int(per_rig["passages_detected"].sum()[rig])
+            row[f"margin_{rig}"] = grad[rig] - f1[rig]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("-o", "--out", type=Path, default=Path("out/inverse-walls"))
+    ap.add_argument("--sweep", type=Path, default=SWEEP)
+    ap.add_argument("--scenes", nargs="*", default=[])
+    ap.add_argument("--param", nargs="*", default=[], help="inverse K=V ...")
+    ap.add_argument(
+        "--rule",
+        type=Path,
+        nargs="+",
+        help="GRADIENT_CSV INVERSE_CSV ...: print the acceptance rule's training figures "
+        "of the sweeps' inverse settings and run nothing",
+    )
+    args = ap.parse_args(argv)
+    if args.rule:
+        grad = pd.read_csv(args.rule[0])
+        inv = pd.concat([pd.read_csv(p) for p in args.rule[1:]], ignore_index=True)
+        with pd.option_context("display.width", 250, "display.max_columns", 30):
+            print(
+                rule_table(inv[inv.method == "inverse"], grad[grad.method == "gradient"]).round(3)
+            )
+        return
+    _, params = parse_variant(" ".join(["inverse", *args.param]))
+    df = run(args.sweep, args.scenes, params)
+    args.out.mkdir(parents=True, exist_ok=True)
+    df.to_csv(args.out / "walls.csv", index=False)
+    with pd.option_context("display.width", 250, "display.max_columns", 30):
+        print(df.groupby("scene", sort=False).mean(numeric_only=True).drop(columns="seed").round(3))
+
+
+if __name__ == "__main__":
+    main()
