@@ -155,7 +155,9 @@ def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.patrol_cars_behind", description=__doc__)
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.patrol_cars_behind", description=__doc__
+    )
     ap.add_argument("--site", type=int, default=6)
     ap.add_argument("--cars", type=int, default=5)
     ap.add_argument("--duration", type=float, default=1200.0)
