@@ -151,6 +151,34 @@ def test_wave_object_reuses_its_buffers() -> None:
         w(np.zeros((30, 40), dtype=bool), (1, 1), 0.1)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_targets_changed_in_place_are_read_afresh(seed: int) -> None:
+    """One Wave, one passable map, one target array changed in place between calls
+    (cells along the walls, where the wave reads targets, as well as passable ones;
+    closed cells on some calls): every call gives the plain reference's lengths and
+    first steps for the targets as they are then."""
+    passable, free = _maps(seed)
+    rng = np.random.default_rng(100 + seed)
+    w = Wave(passable.shape)
+    target = free.copy()
+    starts = np.argwhere(passable)
+    for i in range(8):
+        flip = rng.random(target.shape) < 0.2
+        target[flip] = ~target[flip]
+        r, c = starts[rng.integers(len(starts))].tolist()
+        closed = np.argwhere(passable & (rng.random(passable.shape) < 0.05)) if i % 2 else None
+        d, f = w(passable, (r, c), 1.0, target, closed=closed)
+        shut = passable.copy()
+        if closed is not None:
+            shut[closed[:, 0], closed[:, 1]] = False
+            shut[r, c] = True
+        ref_d, ref_f = _reference(shut, (r, c), target | (passable & ~shut))
+        np.testing.assert_array_equal(np.isfinite(d), np.isfinite(ref_d))
+        fin = np.isfinite(ref_d)
+        np.testing.assert_allclose(d[fin], ref_d[fin], rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(f, ref_f)
+
+
 def test_comb_of_corridors() -> None:
     """Many corridors reached at the same lengths (long wave fronts, many ties)."""
     passable = np.zeros((50, 81), dtype=bool)

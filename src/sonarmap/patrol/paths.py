@@ -97,6 +97,47 @@ def _fill_codes(
             code[base + c] = np.uint8(p) + np.uint8(p or target[r, c])
 
 
+@nb.njit(cache=True)
+def _rim(passable: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """The cells off ``passable`` with a passable cell among their 8 neighbours: their
+    indices into the padded flat codes and into the grid's own flat (row-major) cells."""
+    rows, cols = passable.shape
+    width = cols + 2
+    pad = np.empty(rows * cols, dtype=np.int64)
+    inner = np.empty(rows * cols, dtype=np.int64)
+    n = 0
+    for r in range(rows):
+        for c in range(cols):
+            if passable[r, c]:
+                continue
+            near = False
+            for dr in range(-1, 2):
+                rr = r + dr
+                if rr < 0 or rr >= rows:
+                    continue
+                for dc in range(-1, 2):
+                    cc = c + dc
+                    if 0 <= cc < cols and passable[rr, cc]:
+                        near = True
+            if near:
+                pad[n] = (r + 1) * width + c + 1
+                inner[n] = r * cols + c
+                n += 1
+    return pad[:n].copy(), inner[:n].copy()
+
+
+@nb.njit(cache=True)
+def _fill_rim(
+    code: npt.NDArray[np.uint8],
+    pad: npt.NDArray[np.int64],
+    inner: npt.NDArray[np.int64],
+    target: npt.NDArray[np.bool_],
+) -> None:
+    """The codes of the rim cells (:func:`_rim`): 1 where ``target`` (flat), else 0."""
+    for i in range(pad.shape[0]):
+        code[pad[i]] = np.uint8(target[inner[i]])
+
+
 #: Lowest set bit of a byte (0 for 0).
 _LOWEST = np.array([((i & -i).bit_length() - 1) if i else 0 for i in range(256)], dtype=np.int64)
 _S = math.sqrt(0.5)
@@ -333,7 +374,8 @@ class Wave:
     A call returns views of those buffers: they hold until the next call (copy them to
     keep them longer). Only the cells the last wave reached are cleared before the next,
     so a wave cut short by ``limit`` costs about the cells it reaches, plus one pass
-    over the grid to read the passable mask.
+    over the targets of the cells off the passable mask that border it (a pass over the
+    whole grid when the passable mask is another array than the last call's).
     """
 
     def __init__(
@@ -359,8 +401,10 @@ class Wave:
         self._order = np.empty(size, dtype=np.int32)
         self._ring = np.empty((3, max(64, 4 * (rows + cols))), dtype=np.int32)
         self._n = 0
-        # The (passable, target) arrays whose codes _code holds.
-        self._held: tuple[object, object] | None = None
+        # The passable array whose codes _code holds, and its rim (see __call__).
+        self._held: object | None = None
+        self._rim_pad = np.empty(0, dtype=np.int64)
+        self._rim_inner = np.empty(0, dtype=np.int64)
 
     def __call__(
         self,
@@ -381,9 +425,9 @@ class Wave:
 
         ``closed`` (row, column pairs, shape (K, 2)) edits the map for this call only:
         those cells are taken off ``passable`` (they stay targets), as if ``passable``
-        had them False; the start stays open. The codes of ``passable`` and ``target``
-        are kept between calls given the same two arrays (by identity): do not change
-        them in place between calls.
+        had them False; the start stays open. The codes of ``passable`` are kept between
+        calls given the same array (by identity): do not change it in place between
+        calls. ``target`` is read afresh at every call (it may be changed in place).
         """
         if passable.shape != self.shape:
             raise ValueError(f"a wave for {self.shape} given a map of {passable.shape}")
@@ -398,14 +442,21 @@ class Wave:
         else:
             _reset(self._dist, self._first.view(np.uint8), self._order, self._n)
         self._n = 0
-        held = self._held
-        if held is None or held[0] is not passable or held[1] is not target:
+        if target is not None and target.shape != self.shape:
+            raise ValueError(f"a wave for {self.shape} given targets of {target.shape}")
+        if self._held is not passable:
             ok = np.ascontiguousarray(passable, dtype=np.bool_)
-            tg = ok if target is None else np.ascontiguousarray(target, dtype=np.bool_)
-            if tg.shape != self.shape:
-                raise ValueError(f"a wave for {self.shape} given targets of {tg.shape}")
-            _fill_codes(ok, tg, self._code)
-            self._held = (passable, target)
+            _fill_codes(ok, ok, self._code)
+            self._rim_pad, self._rim_inner = _rim(ok)
+            self._held = passable
+        # The wave reads codes only on the passable cells (2 whatever the targets) and
+        # their neighbours, so of the targets only the rim's count: read afresh every
+        # call, a pass over a thin band along the walls instead of the whole map.
+        if target is None:
+            self._code[self._rim_pad] = 0
+        else:
+            tg = np.ascontiguousarray(target, dtype=np.bool_).reshape(-1)
+            _fill_rim(self._code, self._rim_pad, self._rim_inner, tg)
         start_flat = (r0 + 1) * self._width + c0 + 1
         edits = np.empty(0, dtype=np.int64)
         saved = np.empty(0, dtype=np.uint8)
