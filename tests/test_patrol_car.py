@@ -653,6 +653,43 @@ def test_drop_fresh_behind_drops_what_fresh_behind_names(start: float) -> None:
     assert dropped > 1000
 
 
+@pytest.mark.parametrize("behind", [1.75, math.pi / 2 + 1e-5, 2.2, 2.9])
+def test_drop_fresh_behind_on_blocks_wholly_behind(behind: float) -> None:
+    # A fog of many blocks (32 cells a side) seen in long sweeps, cars inside and
+    # outside it and at block corners: many blocks lie wholly behind the car, whose
+    # cells the kernel drops without an angle each (down to a cone just past a right
+    # angle, whose blocks near the car it must leave to the angle).
+    rng = np.random.default_rng(round(behind * 1000))
+    shape = (200, 180)
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
+    watched = rng.random(shape) > 0.1
+    fog = Fog(g, watched, 0.0)
+    disc = disc_offsets(6.0, 0.25)
+    fog.advance(1.0)
+    fog.observe(np.arange(0, 200, 8), np.full(25, 90), disc)
+    dropped = 0
+    for k in range(12):
+        fog.advance(1.0)
+        fog.observe(rng.integers(0, shape[0], 6), rng.integers(0, shape[1], 6), disc)
+        for heading in (rng.uniform(-4, 4), 0.0, math.pi / 2, -3 * math.pi / 4):
+            if k % 3 == 0:
+                x, y = 8.0 * int(rng.integers(0, 6)), 8.0 * int(rng.integers(0, 7))  # corners
+            elif k % 3 == 1:
+                x, y = (float(v[0]) for v in g.cell_centres([rng.integers(0, 200)], [90]))
+            else:
+                x, y = float(rng.uniform(-20.0, 65.0)), float(rng.uniform(-20.0, 70.0))
+            mask = (rng.random(shape) > 0.2) & watched
+            want = mask & ~fresh_behind(
+                fog.last, fog.t, x, y, heading, g, behind, 10.0, fog.never_seen()
+            )
+            got = mask.copy()
+            n = drop_fresh_behind(got, fog, x, y, heading, g, behind, 10.0)
+            np.testing.assert_array_equal(got, want)
+            assert n == int(mask.sum() - want.sum())
+            dropped += n
+    assert dropped > 20000
+
+
 @pytest.mark.parametrize("heading", [math.pi / 2, -2.5])
 def test_fresh_behind_follows_the_heading(heading: float) -> None:
     # Every cell of the room seen 5 s ago; a car at (20, 15): the cells more than
