@@ -79,63 +79,42 @@ def nearest_step(dx: float, dy: float) -> int:
     return round(math.atan2(dy, dx) / (math.pi / 4)) % 8
 
 
-# Cell code of the wave's padded map for a cell neither passable (2) nor target (1).
+# Cell codes of the wave's padded map: 2 passable, 1 target only (a closed passable
+# cell), 0 neither, and _RIM for a cell off the passable mask next to a passable one,
+# whose code (1 or 0) the wave reads from the call's targets when it gets there.
 _CLOSED = 0
+_RIM = 3
 
 
 @nb.njit(cache=True)
-def _fill_codes(
-    passable: npt.NDArray[np.bool_], target: npt.NDArray[np.bool_], code: npt.NDArray[np.uint8]
-) -> None:
-    """Padded codes: 2 passable, 1 target only, 0 neither (and the one-cell border)."""
+def _fill_codes(passable: npt.NDArray[np.bool_], code: npt.NDArray[np.uint8]) -> None:
+    """Padded codes of ``passable``: 2 passable, :data:`_RIM` off it with a passable
+    cell among the 8 neighbours, 0 elsewhere (and the one-cell border)."""
     rows, cols = passable.shape
     width = cols + 2
     for r in range(rows):
         base = (r + 1) * width + 1
         for c in range(cols):
-            p = passable[r, c]
-            code[base + c] = np.uint8(p) + np.uint8(p or target[r, c])
-
-
-@nb.njit(cache=True)
-def _rim(passable: npt.NDArray[np.bool_]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-    """The cells off ``passable`` with a passable cell among their 8 neighbours: their
-    indices into the padded flat codes and into the grid's own flat (row-major) cells."""
-    rows, cols = passable.shape
-    width = cols + 2
-    pad = np.empty(rows * cols, dtype=np.int64)
-    inner = np.empty(rows * cols, dtype=np.int64)
-    n = 0
-    for r in range(rows):
-        for c in range(cols):
             if passable[r, c]:
+                code[base + c] = 2
                 continue
             near = False
             for dr in range(-1, 2):
                 rr = r + dr
-                if rr < 0 or rr >= rows:
-                    continue
-                for dc in range(-1, 2):
-                    cc = c + dc
-                    if 0 <= cc < cols and passable[rr, cc]:
-                        near = True
-            if near:
-                pad[n] = (r + 1) * width + c + 1
-                inner[n] = r * cols + c
-                n += 1
-    return pad[:n].copy(), inner[:n].copy()
+                if 0 <= rr < rows:
+                    for dc in range(-1, 2):
+                        cc = c + dc
+                        if 0 <= cc < cols and passable[rr, cc]:
+                            near = True
+            code[base + c] = _RIM if near else 0
 
 
 @nb.njit(cache=True)
-def _fill_rim(
-    code: npt.NDArray[np.uint8],
-    pad: npt.NDArray[np.int64],
-    inner: npt.NDArray[np.int64],
-    target: npt.NDArray[np.bool_],
-) -> None:
-    """The codes of the rim cells (:func:`_rim`): 1 where ``target`` (flat), else 0."""
-    for i in range(pad.shape[0]):
-        code[pad[i]] = np.uint8(target[inner[i]])
+def _rim_code(target: npt.NDArray[np.bool_], v: int, width: int, inv_width: float) -> int:
+    """The code of rim cell ``v`` (padded flat index) for the targets ``target`` (the
+    grid's own cells, flat): 1 target, 0 not."""
+    r = int((v + 0.5) * inv_width)
+    return 1 if target[(r - 1) * (width - 2) + v - r * width - 1] else 0
 
 
 #: Lowest set bit of a byte (0 for 0).
@@ -155,6 +134,7 @@ _UNITS = np.array(
 @nb.njit
 def _dial(
     code: npt.NDArray[np.uint8],
+    target: npt.NDArray[np.bool_],
     allow: npt.NDArray[np.uint8],
     width: int,
     start: int,
@@ -168,7 +148,8 @@ def _dial(
     ctx: Any,
 ) -> tuple[int, npt.NDArray[np.int32]]:
     """The wave on padded flat arrays (``dist`` all inf and ``first`` all 255 on entry);
-    ``allow`` holds per cell the steps out of it the wave may take (bit j for step j).
+    ``target`` (the grid's own cells, flat) gives the rim cells' codes; ``allow`` holds
+    per cell the steps out of it the wave may take (bit j for step j).
 
     Fills ``dist`` (metres) and ``first`` for the cells within ``limit`` metres, lists
     them in ``order`` (in the order taken) and returns their count and the bucket ring
@@ -264,7 +245,7 @@ def _dial(
                         pick = j
                 first[u] = pick
             cu = code[u]
-            if cu < 2:
+            if cu != 2:
                 # A place off the passable cells is reached in one step from a cell the
                 # centre may be on, never through others like it: a strip of such
                 # places along a wall or through a gap narrower than the robot would
@@ -276,15 +257,23 @@ def _dial(
                     continue
                 v = u + step[j]
                 cv = code[v]
+                if cv == _RIM:
+                    cv = _rim_code(target, v, width, inv_width)
                 # Once a path leaves the cells the robot's centre may cross (to reach a
                 # place near a wall), it does not come back: paths between passable
-                # cells stay passable.
-                if cv == _CLOSED or cv > cu:
+                # cells stay passable (the cell taken is passable, 2: none is higher).
+                if cv == _CLOSED:
                     continue
                 if j & 1:
                     # A diagonal step may not cut the corner of a cell it could not
                     # enter itself.
-                    if code[u + side_a[j]] < cv or code[u + side_b[j]] < cv:
+                    ca = code[u + side_a[j]]
+                    if ca == _RIM:
+                        ca = _rim_code(target, u + side_a[j], width, inv_width)
+                    cb = code[u + side_b[j]]
+                    if cb == _RIM:
+                        cb = _rim_code(target, u + side_b[j], width, inv_width)
+                    if ca < cv or cb < cv:
                         continue
                     nd = d + w2
                 else:
@@ -373,9 +362,8 @@ class Wave:
 
     A call returns views of those buffers: they hold until the next call (copy them to
     keep them longer). Only the cells the last wave reached are cleared before the next,
-    so a wave cut short by ``limit`` costs about the cells it reaches, plus one pass
-    over the targets of the cells off the passable mask that border it (a pass over the
-    whole grid when the passable mask is another array than the last call's).
+    so a wave cut short by ``limit`` costs about the cells it reaches (and a pass over
+    the grid when the passable mask is another array than the last call's).
     """
 
     def __init__(
@@ -401,10 +389,9 @@ class Wave:
         self._order = np.empty(size, dtype=np.int32)
         self._ring = np.empty((3, max(64, 4 * (rows + cols))), dtype=np.int32)
         self._n = 0
-        # The passable array whose codes _code holds, and its rim (see __call__).
+        # The passable array whose codes _code holds, and its cells (flat).
         self._held: object | None = None
-        self._rim_pad = np.empty(0, dtype=np.int64)
-        self._rim_inner = np.empty(0, dtype=np.int64)
+        self._passable = np.zeros(rows * cols, dtype=np.bool_)
 
     def __call__(
         self,
@@ -446,17 +433,16 @@ class Wave:
             raise ValueError(f"a wave for {self.shape} given targets of {target.shape}")
         if self._held is not passable:
             ok = np.ascontiguousarray(passable, dtype=np.bool_)
-            _fill_codes(ok, ok, self._code)
-            self._rim_pad, self._rim_inner = _rim(ok)
-            self._held = passable
+            _fill_codes(ok, self._code)
+            self._held, self._passable = passable, ok.reshape(-1)
         # The wave reads codes only on the passable cells (2 whatever the targets) and
-        # their neighbours, so of the targets only the rim's count: read afresh every
-        # call, a pass over a thin band along the walls instead of the whole map.
-        if target is None:
-            self._code[self._rim_pad] = 0
-        else:
-            tg = np.ascontiguousarray(target, dtype=np.bool_).reshape(-1)
-            _fill_rim(self._code, self._rim_pad, self._rim_inner, tg)
+        # their neighbours, so of the targets only the rim's count, and only those the
+        # wave gets to: it reads them from the targets themselves as it goes.
+        tg = (
+            self._passable
+            if target is None
+            else np.ascontiguousarray(target, dtype=np.bool_).reshape(-1)
+        )
         start_flat = (r0 + 1) * self._width + c0 + 1
         edits = np.empty(0, dtype=np.int64)
         saved = np.empty(0, dtype=np.uint8)
@@ -465,10 +451,12 @@ class Wave:
             edits = (rc[:, 0] + 1) * self._width + rc[:, 1] + 1
             edits = edits[edits != start_flat]
             saved = self._code[edits].copy()
-            self._code[edits] = np.minimum(saved, 1)
+            # Off the passable cells, staying targets: 2 -> 1; others keep their code.
+            self._code[edits] = np.where(saved == 2, np.uint8(1), saved)
         try:
             self._n, self._ring = _dial(
                 self._code,
+                tg,
                 self._allow,
                 self._width,
                 start_flat,
