@@ -14,7 +14,7 @@ from sonarmap.cli import main as cli_main
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
-from sonarmap.patrol.fog import Fog, disc_offsets
+from sonarmap.patrol.fog import Fog, disc_cells, disc_offsets, disc_side
 from sonarmap.patrol.giveup import GiveUp
 from sonarmap.patrol.manoeuvre import (
     DeadEnds,
@@ -931,6 +931,34 @@ def test_obstacle_discs_halved_keep_the_cells_nearer_the_other_robot() -> None:
     assert not (half[0] == me).all(axis=1).any()
     assert halves_discs(PatrolConfig(model="car"))
     assert not halves_discs(PatrolConfig(model="car", car_planner="thesis"))
+
+
+def test_disc_side_is_numpys_disc_and_half() -> None:
+    # Discs cut by the grid's edges, the planning robot's cell anywhere (inside the
+    # disc, far off, on its centre, on lattice points equidistant from both): the
+    # kernel's cells and their order are numpy's disc_cells and hypot comparison.
+    rng = np.random.default_rng(11)
+    shape = (120, 90)
+    halves = 0
+    for k in range(400):
+        disc = disc_offsets(float(rng.uniform(0.5, 40.0)), 1.0)
+        r, c = int(rng.integers(-5, 125)), int(rng.integers(-5, 95))
+        if k % 4 == 0:
+            mine = (r, c)
+        elif k % 4 == 1:
+            mine = (r + int(rng.integers(-3, 4)) * 2, c + int(rng.integers(-3, 4)) * 2)
+        else:
+            mine = (int(rng.integers(-3000, 3000)), int(rng.integers(-3000, 3000)))
+        cells = np.column_stack(disc_cells(disc, r, c, shape))
+        np.testing.assert_array_equal(disc_side(disc, r, c, shape), cells)
+        near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
+        near_them = np.hypot(cells[:, 0] - r, cells[:, 1] - c)
+        want = cells[near_them < near_me]
+        got = disc_side(disc, r, c, shape, mine)
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, want)
+        halves += 0 < len(want) < len(cells)
+    assert halves > 50
     assert not halves_discs(PatrolConfig())
 
 

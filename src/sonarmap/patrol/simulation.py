@@ -36,7 +36,7 @@ from ..errors import ConfigError
 from ..grid import Grid
 from .coarse import CoarseChoice
 from .finders import PathFinder
-from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
+from .fog import Fog, Vision, dilate, disc_cells, disc_offsets, disc_side
 from .forces import Force, sector_pulls, step_direction
 from .giveup import GiveUp
 from .graph import PatrolGraph
@@ -1146,22 +1146,11 @@ def obstacle_discs(
     for j in np.flatnonzero(others & ~ahead).tolist():
         if j == i:
             continue
-        theirs = (int(cells[j, 0]), int(cells[j, 1]))
-        closed = np.column_stack(disc_cells(disc, theirs[0], theirs[1], shape))
-        out.append(_their_side(closed, mine, theirs) if halve else closed)
-    return out
-
-
-def _their_side(
-    cells: npt.NDArray[np.intp], mine: tuple[int, int], theirs: tuple[int, int]
-) -> npt.NDArray[np.intp]:
-    """Of ``cells`` (K, 2) round another robot's cell ``theirs``, those nearer it than
-    the planning robot's cell ``mine``: an artificial obstacle that never shuts the
-    cells about the robot planning, so two robots closer than twice its radius can
-    still part."""
-    near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
-    near_them = np.hypot(cells[:, 0] - theirs[0], cells[:, 1] - theirs[1])
-    out: npt.NDArray[np.intp] = cells[near_them < near_me]
+        # With ``halve``, the disc's cells nearer the other robot than robot i: an
+        # artificial obstacle that never shuts the cells about the robot planning, so
+        # two robots closer than twice its radius can still part.
+        side = disc_side(disc, int(cells[j, 0]), int(cells[j, 1]), shape, mine if halve else None)
+        out.append(side.astype(np.intp, copy=False))
     return out
 
 
