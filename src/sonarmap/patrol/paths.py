@@ -353,6 +353,70 @@ def _reset(
         first[order[i]] = 255
 
 
+@nb.njit(cache=True)
+def _close(
+    code: npt.NDArray[np.uint8],
+    rc: npt.NDArray[np.int64],
+    width: int,
+    start: int,
+    shut: npt.NDArray[np.int64],
+) -> int:
+    """Take the cells ``rc`` (row, column pairs) off the passable cells in the padded
+    ``code`` (2 -> 1: they stay targets), all but ``start``: their padded flat indices
+    (as numpy would index them) go into ``shut``; returns how many, or -1 - k with
+    nothing changed when pair k lies off the padded codes."""
+    size = code.shape[0]
+    for k in range(rc.shape[0]):
+        u = (rc[k, 0] + 1) * width + rc[k, 1] + 1
+        if u < -size or u >= size:
+            return -1 - k
+    n = 0
+    for k in range(rc.shape[0]):
+        u = (rc[k, 0] + 1) * width + rc[k, 1] + 1
+        if u == start:
+            continue
+        if u < 0:
+            u += size
+        if code[u] == 2:
+            code[u] = 1
+            shut[n] = u
+            n += 1
+    return n
+
+
+@nb.njit(cache=True)
+def _reached_in(
+    order: npt.NDArray[np.int32],
+    n: int,
+    first: npt.NDArray[np.uint8],
+    dist: npt.NDArray[np.float64],
+    mask: npt.NDArray[np.bool_],
+    width: int,
+) -> tuple[
+    npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.int8], npt.NDArray[np.float64]
+]:
+    rows = np.empty(n, dtype=np.intp)
+    cols = np.empty(n, dtype=np.intp)
+    steps = np.empty(n, dtype=np.int8)
+    lengths = np.empty(n, dtype=np.float64)
+    k = 0
+    for i in range(n):
+        u = order[i]
+        f = first[u]
+        if f > 7:
+            continue  # the start (-1)
+        r = u // width - 1
+        c = u % width - 1
+        if not mask[r, c]:
+            continue
+        rows[k] = r
+        cols[k] = c
+        steps[k] = f
+        lengths[k] = dist[u]
+        k += 1
+    return rows[:k].copy(), cols[:k].copy(), steps[:k].copy(), lengths[:k].copy()
+
+
 class Wave:
     """The wave on grids of one shape, keeping its buffers between calls.
 
@@ -444,15 +508,14 @@ class Wave:
             else np.ascontiguousarray(target, dtype=np.bool_).reshape(-1)
         )
         start_flat = (r0 + 1) * self._width + c0 + 1
-        edits = np.empty(0, dtype=np.int64)
-        saved = np.empty(0, dtype=np.uint8)
+        shut = np.empty(0, dtype=np.int64)
         if closed is not None and len(closed):
             rc = np.asarray(closed, dtype=np.int64).reshape(-1, 2)
-            edits = (rc[:, 0] + 1) * self._width + rc[:, 1] + 1
-            edits = edits[edits != start_flat]
-            saved = self._code[edits].copy()
-            # Off the passable cells, staying targets: 2 -> 1; others keep their code.
-            self._code[edits] = np.where(saved == 2, np.uint8(1), saved)
+            shut = np.empty(len(rc), dtype=np.int64)
+            n_shut = _close(self._code, rc, self._width, start_flat, shut)
+            if n_shut < 0:
+                raise IndexError(f"closed cell {tuple(rc[-1 - n_shut].tolist())} is off the map")
+            shut = shut[:n_shut]
         try:
             self._n, self._ring = _dial(
                 self._code,
@@ -469,8 +532,7 @@ class Wave:
                 *(visit if visit is not None else (no_visit, ())),
             )
         finally:
-            # Cells listed twice were saved already edited: restore in reverse order.
-            self._code[edits[::-1]] = saved[::-1]
+            self._code[shut] = 2
         return self.dist, self.first
 
     def to(
@@ -519,6 +581,27 @@ class Wave:
         order of path length (within one cell)."""
         flat = self._order[: self._n].astype(np.intp)
         return flat // self._width - 1, flat % self._width - 1
+
+    def reached_in(
+        self, mask: npt.NDArray[np.bool_]
+    ) -> tuple[
+        npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.int8], npt.NDArray[np.float64]
+    ]:
+        """The cells the last wave reached that ``mask`` (bool, the grid's shape) holds,
+        the start left out, in the order of :meth:`reached`: their rows, columns, first
+        steps and path lengths (metres). In one pass: the same as ``rr, cc =
+        reached()``, ``keep = mask[rr, cc] & (first[rr, cc] >= 0)`` and those cells'
+        :attr:`first` and :attr:`dist`."""
+        if mask.shape != self.shape:
+            raise ValueError(f"a wave for {self.shape} given a mask of {mask.shape}")
+        return _reached_in(
+            self._order,
+            self._n,
+            self._first.view(np.uint8),
+            self._dist,
+            np.asarray(mask, dtype=np.bool_),
+            self._width,
+        )
 
 
 def wave(

@@ -1817,11 +1817,7 @@ def run_patrol(
                         continue
                 else:
                     waver(passable, start, g.resolution, pulling, None, closed)
-                rr, cc = waver.reached()
-                step = waver.first[rr, cc]
-                keep = pulling[rr, cc] & (step >= 0)
-                rr, cc, step = rr[keep], cc[keep], step[keep]
-                lengths = waver.dist[rr, cc]
+                rr, cc, step, lengths = waver.reached_in(pulling)
                 tbv = tb_of(i, rr, cc, dilated)
                 ux = STEP_UNITS[step, 0]
                 uy = STEP_UNITS[step, 1]
