@@ -267,12 +267,14 @@ def _dial(
                 if j & 1:
                     # A diagonal step may not cut the corner of a cell it could not
                     # enter itself.
+                    # A rim cell (1 or 0) stops a step onto a passable cell (2) without
+                    # its target bit being read.
                     ca = code[u + side_a[j]]
                     if ca == _RIM:
-                        ca = _rim_code(target, u + side_a[j], width, inv_width)
+                        ca = 0 if cv == 2 else _rim_code(target, u + side_a[j], width, inv_width)
                     cb = code[u + side_b[j]]
                     if cb == _RIM:
-                        cb = _rim_code(target, u + side_b[j], width, inv_width)
+                        cb = 0 if cv == 2 else _rim_code(target, u + side_b[j], width, inv_width)
                     if ca < cv or cb < cv:
                         continue
                     nd = d + w2
