@@ -14,7 +14,7 @@ from sonarmap.cli import main as cli_main
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import OccupancyMap
-from sonarmap.patrol.fog import Fog, disc_offsets
+from sonarmap.patrol.fog import Fog, disc_cells, disc_offsets, disc_side
 from sonarmap.patrol.giveup import GiveUp
 from sonarmap.patrol.manoeuvre import (
     DeadEnds,
@@ -653,6 +653,43 @@ def test_drop_fresh_behind_drops_what_fresh_behind_names(start: float) -> None:
     assert dropped > 1000
 
 
+@pytest.mark.parametrize("behind", [1.75, math.pi / 2 + 1e-5, 2.2, 2.9])
+def test_drop_fresh_behind_on_blocks_wholly_behind(behind: float) -> None:
+    # A fog of many blocks (32 cells a side) seen in long sweeps, cars inside and
+    # outside it and at block corners: many blocks lie wholly behind the car, whose
+    # cells the kernel drops without an angle each (down to a cone just past a right
+    # angle, whose blocks near the car it must leave to the angle).
+    rng = np.random.default_rng(round(behind * 1000))
+    shape = (200, 180)
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
+    watched = rng.random(shape) > 0.1
+    fog = Fog(g, watched, 0.0)
+    disc = disc_offsets(6.0, 0.25)
+    fog.advance(1.0)
+    fog.observe(np.arange(0, 200, 8), np.full(25, 90), disc)
+    dropped = 0
+    for k in range(12):
+        fog.advance(1.0)
+        fog.observe(rng.integers(0, shape[0], 6), rng.integers(0, shape[1], 6), disc)
+        for heading in (rng.uniform(-4, 4), 0.0, math.pi / 2, -3 * math.pi / 4):
+            if k % 3 == 0:
+                x, y = 8.0 * int(rng.integers(0, 6)), 8.0 * int(rng.integers(0, 7))  # corners
+            elif k % 3 == 1:
+                x, y = (float(v[0]) for v in g.cell_centres([rng.integers(0, 200)], [90]))
+            else:
+                x, y = float(rng.uniform(-20.0, 65.0)), float(rng.uniform(-20.0, 70.0))
+            mask = (rng.random(shape) > 0.2) & watched
+            want = mask & ~fresh_behind(
+                fog.last, fog.t, x, y, heading, g, behind, 10.0, fog.never_seen()
+            )
+            got = mask.copy()
+            n = drop_fresh_behind(got, fog, x, y, heading, g, behind, 10.0)
+            np.testing.assert_array_equal(got, want)
+            assert n == int(mask.sum() - want.sum())
+            dropped += n
+    assert dropped > 20000
+
+
 @pytest.mark.parametrize("heading", [math.pi / 2, -2.5])
 def test_fresh_behind_follows_the_heading(heading: float) -> None:
     # Every cell of the room seen 5 s ago; a car at (20, 15): the cells more than
@@ -894,6 +931,34 @@ def test_obstacle_discs_halved_keep_the_cells_nearer_the_other_robot() -> None:
     assert not (half[0] == me).all(axis=1).any()
     assert halves_discs(PatrolConfig(model="car"))
     assert not halves_discs(PatrolConfig(model="car", car_planner="thesis"))
+
+
+def test_disc_side_is_numpys_disc_and_half() -> None:
+    # Discs cut by the grid's edges, the planning robot's cell anywhere (inside the
+    # disc, far off, on its centre, on lattice points equidistant from both): the
+    # kernel's cells and their order are numpy's disc_cells and hypot comparison.
+    rng = np.random.default_rng(11)
+    shape = (120, 90)
+    halves = 0
+    for k in range(400):
+        disc = disc_offsets(float(rng.uniform(0.5, 40.0)), 1.0)
+        r, c = int(rng.integers(-5, 125)), int(rng.integers(-5, 95))
+        if k % 4 == 0:
+            mine = (r, c)
+        elif k % 4 == 1:
+            mine = (r + int(rng.integers(-3, 4)) * 2, c + int(rng.integers(-3, 4)) * 2)
+        else:
+            mine = (int(rng.integers(-3000, 3000)), int(rng.integers(-3000, 3000)))
+        cells = np.column_stack(disc_cells(disc, r, c, shape))
+        np.testing.assert_array_equal(disc_side(disc, r, c, shape), cells)
+        near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
+        near_them = np.hypot(cells[:, 0] - r, cells[:, 1] - c)
+        want = cells[near_them < near_me]
+        got = disc_side(disc, r, c, shape, mine)
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, want)
+        halves += 0 < len(want) < len(cells)
+    assert halves > 50
     assert not halves_discs(PatrolConfig())
 
 

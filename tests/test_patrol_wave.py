@@ -151,6 +151,79 @@ def test_wave_object_reuses_its_buffers() -> None:
         w(np.zeros((30, 40), dtype=bool), (1, 1), 0.1)
 
 
+def test_reached_in_is_the_masked_reached_cells() -> None:
+    """reached_in(mask) gives, in reached() order, the cells of the mask with a first
+    step, and their first steps and lengths, after waves of every kind."""
+    rng = np.random.default_rng(3)
+    w = Wave((30, 40))
+    for i in range(10):
+        passable, free = _maps(i)
+        starts = np.argwhere(passable)
+        start = (int(starts[i * 31 % len(starts), 0]), int(starts[i * 31 % len(starts), 1]))
+        limit = None if i % 2 else float(rng.uniform(0.5, 3.0))
+        w(passable, start, 0.1, free if i % 3 else None, limit=limit)
+        mask = rng.random(passable.shape) < 0.7
+        mask[start] = True
+        rr, cc = w.reached()
+        step = w.first[rr, cc]
+        keep = mask[rr, cc] & (step >= 0)
+        got: tuple[npt.NDArray[np.generic], ...] = w.reached_in(mask)
+        want: tuple[npt.NDArray[np.generic], ...] = (
+            rr[keep],
+            cc[keep],
+            step[keep],
+            w.dist[rr[keep], cc[keep]],
+        )
+        assert 0 < len(got[0]) < len(rr)
+        for a, b in zip(got, want, strict=True):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="a mask of"):
+        w.reached_in(np.ones((5, 5), dtype=bool))
+
+
+def test_closed_cells_off_the_map_change_nothing() -> None:
+    """A closed cell off the padded map is refused before any cell is closed: the
+    next wave is a fresh wave's."""
+    passable, free = _maps(2)
+    w = Wave(passable.shape)
+    near = np.argwhere(passable)[:50]
+    with pytest.raises(IndexError, match="off the map"):
+        w(passable, (15, 20), 0.1, free, closed=np.vstack([near, [[500, 3]]]))
+    d, f = w(passable, (15, 20), 0.1, free)
+    d0, f0 = wave(passable, (15, 20), 0.1, free)
+    np.testing.assert_array_equal(d, d0)
+    np.testing.assert_array_equal(f, f0)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_targets_changed_in_place_are_read_afresh(seed: int) -> None:
+    """One Wave, one passable map, one target array changed in place between calls
+    (cells along the walls, where the wave reads targets, as well as passable ones;
+    closed cells on some calls): every call gives the plain reference's lengths and
+    first steps for the targets as they are then."""
+    passable, free = _maps(seed)
+    rng = np.random.default_rng(100 + seed)
+    w = Wave(passable.shape)
+    target = free.copy()
+    starts = np.argwhere(passable)
+    for i in range(8):
+        flip = rng.random(target.shape) < 0.2
+        target[flip] = ~target[flip]
+        r, c = starts[rng.integers(len(starts))].tolist()
+        closed = np.argwhere(passable & (rng.random(passable.shape) < 0.05)) if i % 2 else None
+        d, f = w(passable, (r, c), 1.0, target, closed=closed)
+        shut = passable.copy()
+        if closed is not None:
+            shut[closed[:, 0], closed[:, 1]] = False
+            shut[r, c] = True
+        ref_d, ref_f = _reference(shut, (r, c), target | (passable & ~shut))
+        np.testing.assert_array_equal(np.isfinite(d), np.isfinite(ref_d))
+        fin = np.isfinite(ref_d)
+        np.testing.assert_allclose(d[fin], ref_d[fin], rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(f, ref_f)
+
+
 def test_comb_of_corridors() -> None:
     """Many corridors reached at the same lengths (long wave fronts, many ties)."""
     passable = np.zeros((50, 81), dtype=bool)

@@ -7,6 +7,7 @@ MTB(t) = max of TB over the free cells; the thesis's criterion is its time avera
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -17,7 +18,7 @@ from scipy import ndimage
 
 from ..grid import Grid
 
-__all__ = ["Fog", "Vision", "dilate", "disc_cells", "disc_offsets"]
+__all__ = ["Fog", "Vision", "dilate", "disc_cells", "disc_offsets", "disc_side"]
 
 
 def disc_offsets(radius: float, resolution: float) -> npt.NDArray[np.int64]:
@@ -38,6 +39,50 @@ def disc_cells(
     cols = disc[:, 1] + c
     ok = (rows >= 0) & (rows < shape[0]) & (cols >= 0) & (cols < shape[1])
     return rows[ok], cols[ok]
+
+
+@nb.njit(cache=True)
+def _disc_side(
+    disc: npt.NDArray[np.int64],
+    r: int,
+    c: int,
+    rows: int,
+    cols: int,
+    mine_r: int,
+    mine_c: int,
+    halve: bool,
+) -> npt.NDArray[np.int64]:
+    out = np.empty((disc.shape[0], 2), dtype=np.int64)
+    n = 0
+    for k in range(disc.shape[0]):
+        rr = disc[k, 0] + r
+        cc = disc[k, 1] + c
+        if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
+            continue
+        # libm's hypot, as numpy's: the same comparison as np.hypot's.
+        if halve:
+            them = math.hypot(float(rr - r), float(cc - c))
+            if not them < math.hypot(float(rr - mine_r), float(cc - mine_c)):
+                continue
+        out[n, 0] = rr
+        out[n, 1] = cc
+        n += 1
+    return out[:n].copy()
+
+
+def disc_side(
+    disc: npt.NDArray[np.int64],
+    r: int,
+    c: int,
+    shape: tuple[int, int],
+    mine: tuple[int, int] | None = None,
+) -> npt.NDArray[np.int64]:
+    """(row, column) pairs, shape (K, 2), of the ``disc`` offsets around cell (r, c)
+    inside a grid of ``shape``, in the disc's order; with ``mine`` (a cell), only those
+    whose centres lie nearer (r, c) than ``mine`` (by ``np.hypot`` of the cell
+    offsets). Without ``mine``: ``np.column_stack(disc_cells(disc, r, c, shape))``."""
+    mr, mc = (0, 0) if mine is None else (int(mine[0]), int(mine[1]))
+    return _disc_side(disc, int(r), int(c), int(shape[0]), int(shape[1]), mr, mc, mine is not None)
 
 
 class Vision:

@@ -229,16 +229,34 @@ def _drop_fresh_behind(
                 continue
             r_lo, r_hi = br * b, min((br + 1) * b, rows) - 1
             c_lo, c_hi = bc * b, min((bc + 1) * b, cols) - 1
-            if ahead_is_out:
-                lowest = np.inf
-                for r in (r_lo, r_hi):
-                    for c in (c_lo, c_hi):
-                        dot = (ox + (c + 0.5) * res - x) * hx + (
-                            oy + (rows - 1 - r + 0.5) * res - y
-                        ) * hy
-                        lowest = min(lowest, dot)
-                if lowest > 1e-6:
-                    continue
+            lowest = np.inf
+            # Whether every corner cell lies behind by a margin: the points whose
+            # (d . h) / |d| - cos(behind) is at most -1e-6 form a convex cone when
+            # cos(behind) < 0, so every cell centre of the block (inside its corner
+            # centres' rectangle) lies in it too, and at least -cos(behind) times the
+            # nearest corner's distance from the car (|d| >= -d . h): behind, clear of
+            # the unsure cells, with no angle to work out.
+            inside = cos_behind < -1e-6
+            for r in (r_lo, r_hi):
+                for c in (c_lo, c_hi):
+                    dx = ox + (c + 0.5) * res - x
+                    dy = oy + (rows - 1 - r + 0.5) * res - y
+                    dot = dx * hx + dy * hy
+                    lowest = min(lowest, dot)
+                    d = math.sqrt(dx * dx + dy * dy)
+                    if not (d * -cos_behind > 2e-6 and dot / d - cos_behind < -1e-6):
+                        inside = False
+            if ahead_is_out and lowest > 1e-6:
+                continue
+            if inside:
+                for r in range(r_lo, r_hi + 1):
+                    for c in range(c_lo, c_hi + 1):
+                        if mask[r, c]:
+                            v = last[r, c]
+                            if now - v < turn_time and np.isfinite(v) and v != never:
+                                mask[r, c] = False
+                                n += 1
+                continue
             for r in range(r_lo, r_hi + 1):
                 py = oy + (rows - 1 - r + 0.5) * res
                 for c in range(c_lo, c_hi + 1):

@@ -79,22 +79,42 @@ def nearest_step(dx: float, dy: float) -> int:
     return round(math.atan2(dy, dx) / (math.pi / 4)) % 8
 
 
-# Cell code of the wave's padded map for a cell neither passable (2) nor target (1).
+# Cell codes of the wave's padded map: 2 passable, 1 target only (a closed passable
+# cell), 0 neither, and _RIM for a cell off the passable mask next to a passable one,
+# whose code (1 or 0) the wave reads from the call's targets when it gets there.
 _CLOSED = 0
+_RIM = 3
 
 
 @nb.njit(cache=True)
-def _fill_codes(
-    passable: npt.NDArray[np.bool_], target: npt.NDArray[np.bool_], code: npt.NDArray[np.uint8]
-) -> None:
-    """Padded codes: 2 passable, 1 target only, 0 neither (and the one-cell border)."""
+def _fill_codes(passable: npt.NDArray[np.bool_], code: npt.NDArray[np.uint8]) -> None:
+    """Padded codes of ``passable``: 2 passable, :data:`_RIM` off it with a passable
+    cell among the 8 neighbours, 0 elsewhere (and the one-cell border)."""
     rows, cols = passable.shape
     width = cols + 2
     for r in range(rows):
         base = (r + 1) * width + 1
         for c in range(cols):
-            p = passable[r, c]
-            code[base + c] = np.uint8(p) + np.uint8(p or target[r, c])
+            if passable[r, c]:
+                code[base + c] = 2
+                continue
+            near = False
+            for dr in range(-1, 2):
+                rr = r + dr
+                if 0 <= rr < rows:
+                    for dc in range(-1, 2):
+                        cc = c + dc
+                        if 0 <= cc < cols and passable[rr, cc]:
+                            near = True
+            code[base + c] = _RIM if near else 0
+
+
+@nb.njit(cache=True)
+def _rim_code(target: npt.NDArray[np.bool_], v: int, width: int, inv_width: float) -> int:
+    """The code of rim cell ``v`` (padded flat index) for the targets ``target`` (the
+    grid's own cells, flat): 1 target, 0 not."""
+    r = int((v + 0.5) * inv_width)
+    return 1 if target[(r - 1) * (width - 2) + v - r * width - 1] else 0
 
 
 #: Lowest set bit of a byte (0 for 0).
@@ -114,6 +134,7 @@ _UNITS = np.array(
 @nb.njit
 def _dial(
     code: npt.NDArray[np.uint8],
+    target: npt.NDArray[np.bool_],
     allow: npt.NDArray[np.uint8],
     width: int,
     start: int,
@@ -127,7 +148,8 @@ def _dial(
     ctx: Any,
 ) -> tuple[int, npt.NDArray[np.int32]]:
     """The wave on padded flat arrays (``dist`` all inf and ``first`` all 255 on entry);
-    ``allow`` holds per cell the steps out of it the wave may take (bit j for step j).
+    ``target`` (the grid's own cells, flat) gives the rim cells' codes; ``allow`` holds
+    per cell the steps out of it the wave may take (bit j for step j).
 
     Fills ``dist`` (metres) and ``first`` for the cells within ``limit`` metres, lists
     them in ``order`` (in the order taken) and returns their count and the bucket ring
@@ -223,7 +245,7 @@ def _dial(
                         pick = j
                 first[u] = pick
             cu = code[u]
-            if cu < 2:
+            if cu != 2:
                 # A place off the passable cells is reached in one step from a cell the
                 # centre may be on, never through others like it: a strip of such
                 # places along a wall or through a gap narrower than the robot would
@@ -235,15 +257,25 @@ def _dial(
                     continue
                 v = u + step[j]
                 cv = code[v]
+                if cv == _RIM:
+                    cv = _rim_code(target, v, width, inv_width)
                 # Once a path leaves the cells the robot's centre may cross (to reach a
                 # place near a wall), it does not come back: paths between passable
-                # cells stay passable.
-                if cv == _CLOSED or cv > cu:
+                # cells stay passable (the cell taken is passable, 2: none is higher).
+                if cv == _CLOSED:
                     continue
                 if j & 1:
                     # A diagonal step may not cut the corner of a cell it could not
                     # enter itself.
-                    if code[u + side_a[j]] < cv or code[u + side_b[j]] < cv:
+                    # A rim cell (1 or 0) stops a step onto a passable cell (2) without
+                    # its target bit being read.
+                    ca = code[u + side_a[j]]
+                    if ca == _RIM:
+                        ca = 0 if cv == 2 else _rim_code(target, u + side_a[j], width, inv_width)
+                    cb = code[u + side_b[j]]
+                    if cb == _RIM:
+                        cb = 0 if cv == 2 else _rim_code(target, u + side_b[j], width, inv_width)
+                    if ca < cv or cb < cv:
                         continue
                     nd = d + w2
                 else:
@@ -323,6 +355,70 @@ def _reset(
         first[order[i]] = 255
 
 
+@nb.njit(cache=True)
+def _close(
+    code: npt.NDArray[np.uint8],
+    rc: npt.NDArray[np.int64],
+    width: int,
+    start: int,
+    shut: npt.NDArray[np.int64],
+) -> int:
+    """Take the cells ``rc`` (row, column pairs) off the passable cells in the padded
+    ``code`` (2 -> 1: they stay targets), all but ``start``: their padded flat indices
+    (as numpy would index them) go into ``shut``; returns how many, or -1 - k with
+    nothing changed when pair k lies off the padded codes."""
+    size = code.shape[0]
+    for k in range(rc.shape[0]):
+        u = (rc[k, 0] + 1) * width + rc[k, 1] + 1
+        if u < -size or u >= size:
+            return -1 - k
+    n = 0
+    for k in range(rc.shape[0]):
+        u = (rc[k, 0] + 1) * width + rc[k, 1] + 1
+        if u == start:
+            continue
+        if u < 0:
+            u += size
+        if code[u] == 2:
+            code[u] = 1
+            shut[n] = u
+            n += 1
+    return n
+
+
+@nb.njit(cache=True)
+def _reached_in(
+    order: npt.NDArray[np.int32],
+    n: int,
+    first: npt.NDArray[np.uint8],
+    dist: npt.NDArray[np.float64],
+    mask: npt.NDArray[np.bool_],
+    width: int,
+) -> tuple[
+    npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.int8], npt.NDArray[np.float64]
+]:
+    rows = np.empty(n, dtype=np.intp)
+    cols = np.empty(n, dtype=np.intp)
+    steps = np.empty(n, dtype=np.int8)
+    lengths = np.empty(n, dtype=np.float64)
+    k = 0
+    for i in range(n):
+        u = order[i]
+        f = first[u]
+        if f > 7:
+            continue  # the start (-1)
+        r = u // width - 1
+        c = u % width - 1
+        if not mask[r, c]:
+            continue
+        rows[k] = r
+        cols[k] = c
+        steps[k] = f
+        lengths[k] = dist[u]
+        k += 1
+    return rows[:k].copy(), cols[:k].copy(), steps[:k].copy(), lengths[:k].copy()
+
+
 class Wave:
     """The wave on grids of one shape, keeping its buffers between calls.
 
@@ -332,8 +428,8 @@ class Wave:
 
     A call returns views of those buffers: they hold until the next call (copy them to
     keep them longer). Only the cells the last wave reached are cleared before the next,
-    so a wave cut short by ``limit`` costs about the cells it reaches, plus one pass
-    over the grid to read the passable mask.
+    so a wave cut short by ``limit`` costs about the cells it reaches (and a pass over
+    the grid when the passable mask is another array than the last call's).
     """
 
     def __init__(
@@ -359,8 +455,9 @@ class Wave:
         self._order = np.empty(size, dtype=np.int32)
         self._ring = np.empty((3, max(64, 4 * (rows + cols))), dtype=np.int32)
         self._n = 0
-        # The (passable, target) arrays whose codes _code holds.
-        self._held: tuple[object, object] | None = None
+        # The passable array whose codes _code holds, and its cells (flat).
+        self._held: object | None = None
+        self._passable = np.zeros(rows * cols, dtype=np.bool_)
 
     def __call__(
         self,
@@ -381,9 +478,9 @@ class Wave:
 
         ``closed`` (row, column pairs, shape (K, 2)) edits the map for this call only:
         those cells are taken off ``passable`` (they stay targets), as if ``passable``
-        had them False; the start stays open. The codes of ``passable`` and ``target``
-        are kept between calls given the same two arrays (by identity): do not change
-        them in place between calls.
+        had them False; the start stays open. The codes of ``passable`` are kept between
+        calls given the same array (by identity): do not change it in place between
+        calls. ``target`` is read afresh at every call (it may be changed in place).
         """
         if passable.shape != self.shape:
             raise ValueError(f"a wave for {self.shape} given a map of {passable.shape}")
@@ -398,26 +495,33 @@ class Wave:
         else:
             _reset(self._dist, self._first.view(np.uint8), self._order, self._n)
         self._n = 0
-        held = self._held
-        if held is None or held[0] is not passable or held[1] is not target:
+        if target is not None and target.shape != self.shape:
+            raise ValueError(f"a wave for {self.shape} given targets of {target.shape}")
+        if self._held is not passable:
             ok = np.ascontiguousarray(passable, dtype=np.bool_)
-            tg = ok if target is None else np.ascontiguousarray(target, dtype=np.bool_)
-            if tg.shape != self.shape:
-                raise ValueError(f"a wave for {self.shape} given targets of {tg.shape}")
-            _fill_codes(ok, tg, self._code)
-            self._held = (passable, target)
+            _fill_codes(ok, self._code)
+            self._held, self._passable = passable, ok.reshape(-1)
+        # The wave reads codes only on the passable cells (2 whatever the targets) and
+        # their neighbours, so of the targets only the rim's count, and only those the
+        # wave gets to: it reads them from the targets themselves as it goes.
+        tg = (
+            self._passable
+            if target is None
+            else np.ascontiguousarray(target, dtype=np.bool_).reshape(-1)
+        )
         start_flat = (r0 + 1) * self._width + c0 + 1
-        edits = np.empty(0, dtype=np.int64)
-        saved = np.empty(0, dtype=np.uint8)
+        shut = np.empty(0, dtype=np.int64)
         if closed is not None and len(closed):
             rc = np.asarray(closed, dtype=np.int64).reshape(-1, 2)
-            edits = (rc[:, 0] + 1) * self._width + rc[:, 1] + 1
-            edits = edits[edits != start_flat]
-            saved = self._code[edits].copy()
-            self._code[edits] = np.minimum(saved, 1)
+            shut = np.empty(len(rc), dtype=np.int64)
+            n_shut = _close(self._code, rc, self._width, start_flat, shut)
+            if n_shut < 0:
+                raise IndexError(f"closed cell {tuple(rc[-1 - n_shut].tolist())} is off the map")
+            shut = shut[:n_shut]
         try:
             self._n, self._ring = _dial(
                 self._code,
+                tg,
                 self._allow,
                 self._width,
                 start_flat,
@@ -430,8 +534,7 @@ class Wave:
                 *(visit if visit is not None else (no_visit, ())),
             )
         finally:
-            # Cells listed twice were saved already edited: restore in reverse order.
-            self._code[edits[::-1]] = saved[::-1]
+            self._code[shut] = 2
         return self.dist, self.first
 
     def to(
@@ -480,6 +583,27 @@ class Wave:
         order of path length (within one cell)."""
         flat = self._order[: self._n].astype(np.intp)
         return flat // self._width - 1, flat % self._width - 1
+
+    def reached_in(
+        self, mask: npt.NDArray[np.bool_]
+    ) -> tuple[
+        npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.int8], npt.NDArray[np.float64]
+    ]:
+        """The cells the last wave reached that ``mask`` (bool, the grid's shape) holds,
+        the start left out, in the order of :meth:`reached`: their rows, columns, first
+        steps and path lengths (metres). In one pass: the same as ``rr, cc =
+        reached()``, ``keep = mask[rr, cc] & (first[rr, cc] >= 0)`` and those cells'
+        :attr:`first` and :attr:`dist`."""
+        if mask.shape != self.shape:
+            raise ValueError(f"a wave for {self.shape} given a mask of {mask.shape}")
+        return _reached_in(
+            self._order,
+            self._n,
+            self._first.view(np.uint8),
+            self._dist,
+            np.asarray(mask, dtype=np.bool_),
+            self._width,
+        )
 
 
 def wave(

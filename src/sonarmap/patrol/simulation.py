@@ -36,7 +36,7 @@ from ..errors import ConfigError
 from ..grid import Grid
 from .coarse import CoarseChoice
 from .finders import PathFinder
-from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
+from .fog import Fog, Vision, dilate, disc_cells, disc_offsets, disc_side
 from .forces import Force, sector_pulls, step_direction
 from .giveup import GiveUp
 from .graph import PatrolGraph
@@ -1146,22 +1146,11 @@ def obstacle_discs(
     for j in np.flatnonzero(others & ~ahead).tolist():
         if j == i:
             continue
-        theirs = (int(cells[j, 0]), int(cells[j, 1]))
-        closed = np.column_stack(disc_cells(disc, theirs[0], theirs[1], shape))
-        out.append(_their_side(closed, mine, theirs) if halve else closed)
-    return out
-
-
-def _their_side(
-    cells: npt.NDArray[np.intp], mine: tuple[int, int], theirs: tuple[int, int]
-) -> npt.NDArray[np.intp]:
-    """Of ``cells`` (K, 2) round another robot's cell ``theirs``, those nearer it than
-    the planning robot's cell ``mine``: an artificial obstacle that never shuts the
-    cells about the robot planning, so two robots closer than twice its radius can
-    still part."""
-    near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
-    near_them = np.hypot(cells[:, 0] - theirs[0], cells[:, 1] - theirs[1])
-    out: npt.NDArray[np.intp] = cells[near_them < near_me]
+        # With ``halve``, the disc's cells nearer the other robot than robot i: an
+        # artificial obstacle that never shuts the cells about the robot planning, so
+        # two robots closer than twice its radius can still part.
+        side = disc_side(disc, int(cells[j, 0]), int(cells[j, 1]), shape, mine if halve else None)
+        out.append(side.astype(np.intp, copy=False))
     return out
 
 
@@ -1599,6 +1588,14 @@ def run_patrol(
     turns = team.turns.copy() if isinstance(team, Car) else np.zeros(0, dtype=np.int64)
     # How many places ``targets`` holds (counted again when it is another array).
     counted, n_targets = watched, n_watched
+    # Tracking cars' masks, in buffers kept for the run (a fresh map-sized array per
+    # car and step cost more than filling it): per fog the places out of sight and the
+    # step they were made on, and the places ahead of the car being decided for.
+    pulls_masks = tracking and (config.out_of_sight or config.turn_time > 0)
+    unseen_of = [np.empty_like(watched) for _ in own] if pulls_masks else []
+    n_unseen = np.zeros(len(own), dtype=np.int64)
+    unseen_step = np.full(len(own), -1, dtype=np.int64)
+    ahead_buffer = np.empty_like(watched) if pulls_masks else watched
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
         goals: list[tuple[float, float] | None] = []
@@ -1677,13 +1674,15 @@ def run_patrol(
             pulling = targets
             n_pulling = n_targets
             if tracking and config.out_of_sight:
-                mine_fog = own[0 if shared else i]
-                # targets & (last < t): the places its fog saw at the last look out.
-                # A new array: the wave keeps its codes for the same array object.
-                unseen = targets.copy()
-                n_unseen = n_targets - mine_fog.clear_just_seen(unseen)
-                if n_unseen:
-                    pulling, n_pulling = unseen, n_unseen
+                j = 0 if shared else i
+                if unseen_step[j] != k:
+                    # targets & (last < t): the places its fog saw at the last look out;
+                    # the same for every car sharing the fog, so once a step per fog.
+                    np.copyto(unseen_of[j], targets)
+                    n_unseen[j] = n_targets - own[j].clear_just_seen(unseen_of[j])
+                    unseen_step[j] = k
+                if n_unseen[j]:
+                    pulling, n_pulling = unseen_of[j], int(n_unseen[j])
             # The places pulling before the turn-time rule took the fresh ones behind
             # out (None: it took none).
             unmasked: npt.NDArray[np.bool_] | None = None
@@ -1692,7 +1691,8 @@ def run_patrol(
                 assert isinstance(team, Car)
                 mine_fog = own[0 if shared else i]
                 # pulling & ~fresh_behind(...), without a pass over the whole map.
-                ahead = pulling.copy()
+                ahead = ahead_buffer
+                np.copyto(ahead, pulling)
                 n_dropped = drop_fresh_behind(
                     ahead,
                     mine_fog,
@@ -1817,11 +1817,7 @@ def run_patrol(
                         continue
                 else:
                     waver(passable, start, g.resolution, pulling, None, closed)
-                rr, cc = waver.reached()
-                step = waver.first[rr, cc]
-                keep = pulling[rr, cc] & (step >= 0)
-                rr, cc, step = rr[keep], cc[keep], step[keep]
-                lengths = waver.dist[rr, cc]
+                rr, cc, step, lengths = waver.reached_in(pulling)
                 tbv = tb_of(i, rr, cc, dilated)
                 ux = STEP_UNITS[step, 0]
                 uy = STEP_UNITS[step, 1]
