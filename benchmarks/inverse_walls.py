@@ -8,12 +8,14 @@ the map does not mark occupied by why, from the increments the model adds to it 
 fall-off weights of the readings whose echo band holds the cell and of those whose free
 region holds it, as :mod:`benchmarks.doors` weighs them):
 
-- ``faint``: the bands that hold it weigh less than :data:`FAINT` in all (the cell lies
-  far off the axis of every echo that put its range on it: the fall-off);
-- ``outvoted``: the log-odds the increments add up to (before clamping) are <= 0 --
+- ``order``: the log-odds the increments add up to (before clamping) are > 0 but the
+  clamped, reading-by-reading sum is not (the clamping bounds and the readings' order);
+  tested first, so that a faint cell the clamps lost counts here;
+- ``faint``: otherwise, the bands that hold it weigh less than :data:`FAINT` in all
+  (the cell lies far off the axis of every echo that put its range on it: the
+  fall-off);
+- ``outvoted``: otherwise (the unclamped sum is <= 0 and the bands are not faint) --
   the free regions of other readings outweigh the bands;
-- ``order``: they add up to more than 0 but the clamped, reading-by-reading sum is not
-  (the clamping bounds and the readings' order);
 - (a missed cell no reading touched cannot be observed.)
 
 For the ``outvoted`` cells, the free weight is split by how far beyond the cell the
@@ -111,9 +113,11 @@ def diagnose(scene: Scenario, inv: InverseMapper) -> dict[str, float]:
     total = w_occ * l_occ + free * l_free
     kept = np.nan_to_num(occ_map, nan=0.0) > 0.5
     missed = seen & ~kept
-    faint = missed & (w_occ < FAINT)
-    outvoted = missed & ~faint & (total <= 0)
-    order = missed & ~faint & (total > 0)
+    # The clamps first: a cell whose unclamped sum is positive was lost to them and the
+    # readings' order, however faint its bands.
+    order = missed & (total > 0)
+    faint = missed & ~order & (w_occ < FAINT)
+    outvoted = missed & ~order & ~faint
     n = max(int(seen.sum()), 1)
     fo = max(float(free[outvoted].sum()), 1e-12)
     out: dict[str, float] = {

@@ -500,6 +500,29 @@ def test_map_tells_what_it_left_out(floor_plan: Path, capsys: pytest.CaptureFixt
     assert m.grid.shape == (40, 50)
 
 
+def test_a_word_for_a_number_or_word_parameter(
+    floor_plan: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``free_stop`` takes a number or ``beam``: the word reaches the mapper, which
+    names a word it does not know."""
+    d = floor_plan
+    args = ["simulate", "--map", f"{d}/plan.yaml", "--rig", f"{d}/rig.yaml"]
+    run([*args, "--trajectory", f"{d}/traj.csv", "-o", f"{d}/r.csv"], capsys)
+    base = ["map", f"{d}/r.csv", "--rig", f"{d}/rig.yaml", "--method", "inverse"]
+    base += ["--resolution", "0.1", "--bounds", "-1,-1,4,3"]
+    code, _out, err = run([*base, "--param", "free_stop=beam", "-o", f"{d}/m"], capsys)
+    assert code == 0, err
+    code, _out, err = run([*base, "-o", f"{d}/n"], capsys)
+    assert code == 0, err
+    # The option took: the free regions stopped short change the map.
+    assert not np.array_equal(read_map(d / "m.yaml").occupancy, read_map(d / "n.yaml").occupancy)
+    code, _out, err = run([*base, "--param", "free_stop=wide", "-o", f"{d}/w"], capsys)
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1, err
+    assert "'free_stop' must be one of beam; got 'wide'" in err, err
+    assert not (d / "w.yaml").exists()
+
+
 def test_ctrl_c_is_exit_130_and_leaves_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -358,8 +359,8 @@ def accumulate(
         How far (metres) a no-echo reading's free cells reach, as for :func:`rasterise`.
     free_stop : float
         How far short of the band an echo's free cells stop, as for :func:`rasterise`;
-        the cells between are marked touched with nothing added (even odds). With a
-        stop each reading takes two kernel calls of its own (slower).
+        the cells between take nothing and are not marked touched. With a stop each
+        reading takes two kernel calls of its own (slower).
 
     Returns
     -------
@@ -403,7 +404,15 @@ def accumulate(
         if len(w) != len(sx) or not (np.isfinite(w).all() and (w >= 0).all()):
             raise ConfigError(f"weights must be {len(sx)} finite numbers >= 0, one per reading")
     if free_stop != 0:
-        return _accumulate_stopped(args, _stopped(sensor, r, free_lim, free_stop), w, positive)
+        short = _stopped(sensor, r, free_lim, free_stop)
+
+        def bands(a: int, b: int) -> CellSet:
+            # Readings a..b's bands, listed as rasterise lists them (its band run also
+            # walks the free cells: a few readings at a time keeps that small).
+            sl = slice(a, b)
+            return _run(grid, sensor, sx[sl], sy[sl], st[sl], free_lim[sl], occ_hi[sl], False)[1]
+
+        return _accumulate_stopped(args, short, bands, w, positive)
     if w is not None:
         if threads > 1 and len(sx) >= 64:
             return int(accumulate_parallel(*args, threads, w, positive))
@@ -415,15 +424,23 @@ def accumulate(
     return int(accumulate_kernel(*args, positive=positive))
 
 
+# Readings whose bands _accumulate_stopped lists at a time.
+_STOP_BLOCK = 256
+
+
 def _accumulate_stopped(
     args: tuple[Any, ...],
     short: npt.NDArray[np.float64],
+    bands: Callable[[int, int], CellSet],
     w: npt.NDArray[np.float64] | None,
     positive: bool,
 ) -> int:
     """:func:`accumulate` with the free cells ending at ``short``: reading by reading,
-    its free cells (no band) and then its band (free increment 0), so that each cell
-    takes the readings in order and is clamped after each, as in one run.
+    its free cells (no band) and then its band (free increment 0), so that each
+    cell takes the readings in order and is clamped after each, as in one run. The
+    cells between the two are left as they were, untouched if no reading touched them,
+    as :func:`rasterise` leaves them out of both sets: only the cells ``bands(a, b)``
+    lists for readings a..b are marked touched with the band.
 
     One kernel call per reading and part: only for the ``free_stop`` option, never on
     the default path ``make bench-mrpt`` times.
@@ -431,21 +448,38 @@ def _accumulate_stopped(
     head, tail = args[:10], args[12:]
     free_lim, occ_hi = args[10], args[11]
     inc_free, inc_occ = tail[2], tail[3]
+    touched = head[1]
+    # The band's kernel call also visits the cells nearer than the band (adding 0,
+    # which leaves their values as they are); its marks go to a spare array, and only
+    # the band's cells are marked in ``touched``.
+    spare = np.zeros_like(touched)
     none = np.full(1, -np.inf)
     n = 0
-    for i in range(len(short)):
-        one = tuple(a[i : i + 1] for a in head[7:10])
-        kw: dict[str, Any] = {"positive": positive}
-        if w is not None:
-            kw["weight"] = w[i : i + 1]
-        n += int(
-            accumulate_kernel(  # type: ignore[call-arg]
-                *head[:7], *one, short[i : i + 1], none, *tail[:2], inc_free, 0.0, *tail[4:], **kw
+    for start in range(0, len(short), _STOP_BLOCK):
+        stop = min(start + _STOP_BLOCK, len(short))
+        band = bands(start, stop)
+        for i in range(start, stop):
+            one = tuple(a[i : i + 1] for a in head[7:10])
+            kw: dict[str, Any] = {"positive": positive}
+            if w is not None:
+                kw["weight"] = w[i : i + 1]
+            n += int(
+                accumulate_kernel(  # type: ignore[call-arg]
+                    *head[:7],
+                    *one,
+                    short[i : i + 1],
+                    none,
+                    *tail[:2],
+                    inc_free,
+                    0.0,
+                    *tail[4:],
+                    **kw,
+                )
             )
-        )
-        n += int(
             accumulate_kernel(  # type: ignore[call-arg]
-                *head[:7],
+                head[0],
+                spare,
+                *head[2:7],
                 *one,
                 free_lim[i : i + 1],
                 occ_hi[i : i + 1],
@@ -455,7 +489,9 @@ def _accumulate_stopped(
                 *tail[4:],
                 **kw,
             )
-        )
+            cells = band.of(i - start)
+            touched[cells] = True
+            n += len(cells)
     return n
 
 

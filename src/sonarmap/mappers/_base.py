@@ -375,7 +375,9 @@ def check_ranges(readings: Readings, *, offset: int = 0) -> None:
         raise ConfigError(f"reading {offset + i}: range must be a number >= 0, got {r[i]}")
 
 
-def _coerce(value: str, default: Any, key: str) -> Any:
+def _coerce(value: str, default: Any, key: str, annotation: str = "") -> Any:
+    # ``annotation`` is the parameter's annotation as a string: a number that may also
+    # be a word (``float | str``) passes a word on for the mapper's own check to name.
     if isinstance(default, bool):
         if value.lower() in ("1", "true", "yes", "on"):
             return True
@@ -393,7 +395,7 @@ def _coerce(value: str, default: Any, key: str) -> Any:
         try:
             return float(value)
         except ValueError:
-            if default is None:
+            if default is None or "str" in (t.strip() for t in annotation.split("|")):
                 return value
             raise ConfigError(f"parameter '{key}' expects a number, got {quote(value)}") from None
     return value
@@ -436,7 +438,7 @@ def parse_params(
         if v.strip().lower() == "none" and "None" in str(sig[k].annotation):
             out[k] = None
         else:
-            out[k] = _coerce(v, defaults[k], k)
+            out[k] = _coerce(v, defaults[k], k, str(sig[k].annotation))
     return out
 
 

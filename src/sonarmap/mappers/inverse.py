@@ -124,8 +124,9 @@ class InverseMapper(Mapper):
         echo's range, in [0, 1); 0 (default): at the band's near edge. ``"beam"``:
         ``1 - cos(a)``, a the beam's widest angle off the axis -- the echo's place on
         its arc is not known, and a surface facing the sonar through any point of the
-        arc reaches no nearer than ``r cos(a)`` along the beam. The cells between the
-        free region and the band take nothing. Off by default: it keeps the walls
+        arc reaches no nearer than ``r cos(a)`` along the beam; refused for a beam that
+        reaches 90 degrees or more. The cells between the free region and the band take
+        nothing: unknown unless another reading touches them. Off by default: it keeps the walls
         a wide beam meets at a slant but leaves the band's spill in front of the walls
         occupied, which narrows and closes doorways, and it inserts each reading with
         two kernel calls (docs/results/2026-12-07-inverse-walls.md). Streams with the
@@ -194,9 +195,22 @@ class InverseMapper(Mapper):
 
     def free_stop_for(self, sensor: SensorModel) -> float:
         """The fraction of an echo's range its Omega_free stops short of the band, for
-        ``sensor`` (``free_stop``, with ``"beam"`` resolved)."""
+        ``sensor`` (``free_stop``, with ``"beam"`` resolved).
+
+        Raises
+        ------
+        ConfigError
+            ``"beam"`` for a sensor whose beam reaches 90 degrees or more off its axis
+            (it would stop the free region at the sonar).
+        """
         if isinstance(self.free_stop, str):
-            return 1.0 - math.cos(min(beam_half_angle(sensor), math.pi / 2))
+            a = beam_half_angle(sensor)
+            if a >= math.pi / 2:
+                raise ConfigError(
+                    f"free_stop='beam' needs a beam narrower than 90 degrees off its axis; "
+                    f"sensor '{sensor.name}' reaches {math.degrees(a):.0f}: give a number"
+                )
+            return 1.0 - math.cos(a)
         return float(self.free_stop)
 
     def _reset(self) -> None:
