@@ -28,8 +28,8 @@ held-out families and seeds are refused.
 Run with ``python -m benchmarks.hcsr04_margin [--sweep sweeps/rigs8-band.yaml] [--only
 hcsr04] [--methods inverse gradient em em-thrun stochastic] [--param K=V ...]
 [--reach]``. ``--report CSV ...`` instead prints, from sweeps' ``results.csv`` files
-over those 16 maps, the gradient's means per rig and setting and its margin over the
-inverse on the HC-SR04 maps (the page's acceptance rule's figures).
+over those 16 maps, the gradient's means per rig and setting, the passages it detected
+(summed) and its margin over the inverse per rig (the pages' acceptance rules' figures).
 """
 
 from __future__ import annotations
@@ -205,8 +205,8 @@ SCENE_RIG = {
 
 
 def report(paths: Sequence[str]) -> str:
-    """The gradient's means per setting and rig, and its HC-SR04 margin over the
-    inverse, from sweeps' ``results.csv``."""
+    """The gradient's means per setting and rig, the passages it detected and its
+    margin over the inverse per rig, from sweeps' ``results.csv``."""
     import pandas as pd
 
     d = pd.concat([pd.read_csv(p) for p in paths], ignore_index=True)
@@ -219,8 +219,8 @@ def report(paths: Sequence[str]) -> str:
     cols = ["f1_all", "quality", "precision_all", "recall_all", "passage_f1"]
     lines = [
         "| setting | rig | maps | wall F1 | quality | precision | recall | passage F1 "
-        "| minus inverse |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| passages detected | minus inverse |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for key, part in g.groupby(["params", "rig"], sort=True):
         params, rig = (str(k) for k in cast(tuple[Any, Any], key))
@@ -228,12 +228,13 @@ def report(paths: Sequence[str]) -> str:
         margin = f"{r.f1_all - inverse[rig]:+.3f}" if rig in inverse else ""
         lines.append(
             f"| {params} | {rig} | {len(part)} | {r.f1_all:.3f} | {r.quality:.3f} | "
-            f"{r.precision_all:.3f} | {r.recall_all:.3f} | {r.passage_f1:.3f} | {margin} |"
+            f"{r.precision_all:.3f} | {r.recall_all:.3f} | {r.passage_f1:.3f} | "
+            f"{int(part['passages_detected'].sum())} | {margin} |"
         )
     for setting, part in g.groupby("params", sort=True):
         lines.append(
             f"| {setting!s} | all | {len(part)} | {part['f1_all'].mean():.3f} | "
-            f"{part['quality'].mean():.3f} | | | | |"
+            f"{part['quality'].mean():.3f} | | | | {int(part['passages_detected'].sum())} | |"
         )
     return "\n".join(lines)
 

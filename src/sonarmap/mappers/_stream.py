@@ -180,6 +180,12 @@ class StreamEngine(ABC):
                     f"streaming '{mapper.name}' does not implement {option} (offline "
                     f"only); set {option}=0"
                 )
+        for option in ("no_echo_share", "no_echo_weight"):
+            if getattr(mapper, option, 1.0) < 1.0:
+                raise ConfigError(
+                    f"streaming '{mapper.name}' does not implement {option} (offline "
+                    f"only); set {option}=1"
+                )
         if self.keeps_readings and not strategy.bounded:
             raise ConfigError(
                 f"streaming '{mapper.name}' keeps readings in play; give a bounded strategy "

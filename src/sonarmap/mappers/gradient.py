@@ -159,6 +159,17 @@ class GradientMapper(Mapper):
     no_echo : {"free", "ignore"}
         Whether no-echo readings contribute Omega_free terms (default ``ignore``: they
         do not).
+    no_echo_share : float
+        How far a no-echo reading's Omega_free reaches, as a share of the sensor's
+        ``r_max``, in (0, 1] (default 1: out to ``r_max`` less the band's half-width,
+        as :func:`~sonarmap.raster.rasterise` has it). A reading that heard nothing says
+        that no surface *facing* the sensor lies in the beam; a wall met at a slant
+        mirrors the pulse at any range, so the nearer part of the beam is the surer.
+        Needs ``no_echo="free"``. Offline only: streaming refuses it.
+    no_echo_weight : float
+        Weight of a no-echo reading's Omega_free term, in (0, 1] (default 1: as an
+        echo's). The robust form's and ``correlated``'s weights multiply it. Needs
+        ``no_echo="free"``. Offline only: streaming refuses it.
     dr : float or None
         Half-width of the Omega_occ band, metres; None (default): the rasteriser's.
     band_offset : float or None
@@ -281,6 +292,8 @@ class GradientMapper(Mapper):
         tol: float = 1e-4,
         patience: int = 100,
         no_echo: str = "ignore",
+        no_echo_share: float = 1.0,
+        no_echo_weight: float = 1.0,
         dr: float | None = None,
         band_offset: float | None = None,
         robust: float = 0.1,
@@ -306,6 +319,8 @@ class GradientMapper(Mapper):
         self.tol = tol
         self.patience = patience
         self.no_echo = no_echo
+        self.no_echo_share = no_echo_share
+        self.no_echo_weight = no_echo_weight
         self.dr = dr
         self.band_offset = band_offset
         self.robust = robust
@@ -331,6 +346,13 @@ class GradientMapper(Mapper):
         number("tol", tol, 0.0, None)
         integer("patience", patience, 1)
         choice("no_echo", no_echo, ("free", "ignore"))
+        number("no_echo_share", no_echo_share, 0.0, 1.0, lo_open=True)
+        number("no_echo_weight", no_echo_weight, 0.0, 1.0, lo_open=True)
+        if no_echo == "ignore" and (no_echo_share < 1.0 or no_echo_weight < 1.0):
+            raise ConfigError(
+                "no_echo_share and no_echo_weight bound the evidence of no-echo readings: "
+                "they need no_echo='free', got no_echo='ignore'"
+            )
         if dr is not None:
             number("dr", dr, 0.0, None)
         if band_offset is not None:
@@ -401,7 +423,10 @@ class GradientMapper(Mapper):
         if self.no_echo == "ignore":
             # A no-echo reading has only an Omega_free term; ignoring it drops the reading.
             readings = self._echoes(readings)
-        fps = self.kept_footprints(readings, dr=self.dr, offset=self.band_offset_for(self.grid))
+        reach = self.no_echo_share * self.sensor.r_max if self.no_echo_share < 1.0 else None
+        fps = self.kept_footprints(
+            readings, dr=self.dr, offset=self.band_offset_for(self.grid), no_echo_reach=reach
+        )
         bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
         scale = self._slanted(readings, fps, bounds) if self.specular_deg > 0 else None
         if self.free_shell > 0:
@@ -410,11 +435,15 @@ class GradientMapper(Mapper):
         echo = [readings.range[a:b] < self.sensor.r_max for a, b in itertools.pairwise(bounds)]
         pen = Penalties(self.a1, self.a2, self.c1, self.c2, self.r2, self.sparsity)
         problem = build_problem(fps, echo, self.grid.size, pen, scale)
+        if self.no_echo_weight < 1.0 and problem.reading is not None:
+            quiet = readings.range[problem.reading] >= self.sensor.r_max
+            problem = dataclasses.replace(problem, v=np.where(quiet, self.no_echo_weight, 1.0))
         if self.correlated > 0 and problem.reading is not None:
             # Scaled to mean 1: 1 / n alone weakens every term against the unscaled
             # R2, and walls lose to the tent (training quality 0.14 at 10 cm bins).
             c = reading_weights(readings, self.correlated, self.sensor.r_max)
-            problem = dataclasses.replace(problem, v=c[problem.reading])
+            v = c[problem.reading] if problem.v is None else problem.v * c[problem.reading]
+            problem = dataclasses.replace(problem, v=v)
         return problem
 
     def _slanted(
