@@ -445,6 +445,10 @@ def _reached_in(
 ) -> tuple[
     npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.int8], npt.NDArray[np.float64]
 ]:
+    """The cells ``order[:n]`` (padded flat indices, ``width`` columns) that ``mask``
+    (the grid's own cells, 2-D) holds and that have a first step (0-7 in ``first``;
+    the start's 255 is left out), in that order: their rows and columns in the grid,
+    first steps and lengths from ``dist`` (metres). See :meth:`Wave.reached_in`."""
     rows = np.empty(n, dtype=np.intp)
     cols = np.empty(n, dtype=np.intp)
     steps = np.empty(n, dtype=np.int8)
@@ -656,11 +660,30 @@ class Wave:
     ) -> tuple[
         npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.int8], npt.NDArray[np.float64]
     ]:
-        """The cells the last wave reached that ``mask`` (bool, the grid's shape) holds,
-        the start left out, in the order of :meth:`reached`: their rows, columns, first
-        steps and path lengths (metres). In one pass: the same as ``rr, cc =
-        reached()``, ``keep = mask[rr, cc] & (first[rr, cc] >= 0)`` and those cells'
-        :attr:`first` and :attr:`dist`."""
+        """The cells the last wave reached that ``mask`` holds, the start left out.
+
+        In one pass: the same as ``rr, cc = reached()``, ``keep = mask[rr, cc] &
+        (first[rr, cc] >= 0)`` and those cells' :attr:`first` and :attr:`dist`.
+
+        Parameters
+        ----------
+        mask : ndarray of bool, the grid's shape
+            The cells wanted.
+
+        Returns
+        -------
+        rows, cols : ndarray of intp, shape (K,)
+            The cells, in the order of :meth:`reached` (path length, within one cell).
+        steps : ndarray of int8, shape (K,)
+            Each cell's first step (an index into :data:`STEPS`).
+        lengths : ndarray of float64, shape (K,)
+            Each cell's path length (metres).
+
+        Raises
+        ------
+        ValueError
+            When ``mask`` is not of the grid's shape.
+        """
         if mask.shape != self.shape:
             raise ValueError(f"a wave for {self.shape} given a mask of {mask.shape}")
         return _reached_in(
