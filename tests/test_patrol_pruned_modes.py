@@ -5,6 +5,8 @@ ahead pull (their targets are run buffers changed in place every step)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -20,14 +22,14 @@ from sonarmap.patrol.maps import street_territory
     ],
     ids=["holonomic-own-fogs", "car-out-of-sight"],
 )
-def test_pruned_waves_give_the_whole_map_waves_answers(settings: dict[str, object]) -> None:
+def test_pruned_waves_give_the_whole_map_waves_answers(settings: dict[str, Any]) -> None:
     t = street_territory(0)
     runs = [
         run_patrol(
             t,
             PatrolConfig(
                 duration=60.0 if settings["model"] == "car" else 20.0, prune=prune, **settings
-            ),  # type: ignore[arg-type]
+            ),
             robots=3,
             seed=0,
         )
