@@ -690,6 +690,51 @@ def test_drop_fresh_behind_on_blocks_wholly_behind(behind: float) -> None:
     assert dropped > 20000
 
 
+@pytest.mark.parametrize("behind", [1.75, 2.9])
+def test_drop_fresh_behind_takes_a_block_wholly_behind_without_an_angle_per_cell(
+    monkeypatch: pytest.MonkeyPatch, behind: float
+) -> None:
+    # One block (32 x 32 cells, the top-left one) seen 5 s ago, the rest long ago; the
+    # car 22 m east of it heading east: the block lies wholly behind it. The kernel's
+    # Python twin, with math.sqrt counted, drops all 1024 cells after working out only
+    # the block's 4 corner distances, where the per-cell path would need one a cell:
+    # it fails if the whole-block path is removed or never taken.
+    import types
+
+    import sonarmap.patrol.manoeuvre as manoeuvre
+
+    calls = [0]
+
+    def sqrt(v: float) -> float:
+        calls[0] += 1
+        return math.sqrt(v)
+
+    fake = types.SimpleNamespace(
+        **{k: getattr(math, k) for k in dir(math) if not k.startswith("_")}
+    )
+    fake.sqrt = sqrt
+    shape = (64, 64)
+    last = np.zeros(shape)
+    last[:32, :32] = 95.0
+    latest = np.array([[95.0, 0.0], [0.0, 0.0]])
+    mask = np.ones(shape, dtype=np.bool_)
+    unsure = np.empty(16, dtype=np.int64)
+    monkeypatch.setattr(manoeuvre, "math", fake)
+    n, k = manoeuvre._drop_fresh_behind.py_func(
+        mask, last, latest, 32, 100.0, 10.0, -1.0, 30.0, 12.0, 1.0, 0.0,
+        math.cos(behind), 0.0, 0.0, 0.25, unsure,
+    )  # fmt: skip
+    monkeypatch.undo()
+    assert (n, k) == (1024, 0)
+    assert not mask[:32, :32].any()
+    assert mask.sum() == 64 * 64 - 1024
+    assert calls[0] == 4
+    # The same cells as fresh_behind names.
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
+    want = ~fresh_behind(last, 100.0, 30.0, 12.0, 0.0, g, behind, 10.0)
+    np.testing.assert_array_equal(mask, want)
+
+
 @pytest.mark.parametrize("heading", [math.pi / 2, -2.5])
 def test_fresh_behind_follows_the_heading(heading: float) -> None:
     # Every cell of the room seen 5 s ago; a car at (20, 15): the cells more than

@@ -197,19 +197,26 @@ def test_closed_cells_off_the_map_change_nothing() -> None:
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
-def test_targets_changed_in_place_are_read_afresh(seed: int) -> None:
-    """One Wave, one passable map, one target array changed in place between calls
-    (cells along the walls, where the wave reads targets, as well as passable ones;
-    closed cells on some calls): every call gives the plain reference's lengths and
-    first steps for the targets as they are then."""
+@pytest.mark.parametrize("how", ["in place, forgotten", "new array", "unchanged"])
+def test_targets_kept_between_calls_give_the_reference(seed: int, how: str) -> None:
+    """One Wave, one passable map, targets (cells along the walls, where the wave reads
+    targets, as well as passable ones) changed between calls in place (then
+    ``forget_targets``), as a new array, or not at all (the wave keeps the rim codes
+    it read); closed cells on some calls: every call gives the plain reference's
+    lengths and first steps for the targets as they are then."""
     passable, free = _maps(seed)
     rng = np.random.default_rng(100 + seed)
     w = Wave(passable.shape)
     target = free.copy()
     starts = np.argwhere(passable)
     for i in range(8):
-        flip = rng.random(target.shape) < 0.2
-        target[flip] = ~target[flip]
+        if how != "unchanged":
+            flip = rng.random(target.shape) < 0.2
+            if how == "new array":
+                target = target.copy()
+            target[flip] = ~target[flip]
+            if how == "in place, forgotten":
+                w.forget_targets()
         r, c = starts[rng.integers(len(starts))].tolist()
         closed = np.argwhere(passable & (rng.random(passable.shape) < 0.05)) if i % 2 else None
         d, f = w(passable, (r, c), 1.0, target, closed=closed)

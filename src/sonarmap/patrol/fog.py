@@ -77,10 +77,28 @@ def disc_side(
     shape: tuple[int, int],
     mine: tuple[int, int] | None = None,
 ) -> npt.NDArray[np.int64]:
-    """(row, column) pairs, shape (K, 2), of the ``disc`` offsets around cell (r, c)
-    inside a grid of ``shape``, in the disc's order; with ``mine`` (a cell), only those
-    whose centres lie nearer (r, c) than ``mine`` (by ``np.hypot`` of the cell
-    offsets). Without ``mine``: ``np.column_stack(disc_cells(disc, r, c, shape))``."""
+    """The cells of a disc around a cell that lie inside the grid, optionally only
+    those nearer it than another cell.
+
+    Parameters
+    ----------
+    disc : ndarray of int64, shape (M, 2)
+        (row, column) offsets of the disc's cells, as :func:`disc_offsets` gives them.
+    r, c : int
+        Row and column of the disc's centre cell.
+    shape : tuple of int
+        (rows, columns) of the grid; offsets landing outside it are left out.
+    mine : tuple of int, optional
+        A cell (row, column): when given, only the cells whose centres lie strictly
+        nearer (r, c) than ``mine`` are kept (by ``np.hypot`` of the cell offsets).
+        Default None: every cell inside the grid.
+
+    Returns
+    -------
+    ndarray of int64, shape (K, 2)
+        (row, column) of the cells kept, in the disc's order. Without ``mine``:
+        ``np.column_stack(disc_cells(disc, r, c, shape))``.
+    """
     mr, mc = (0, 0) if mine is None else (int(mine[0]), int(mine[1]))
     return _disc_side(disc, int(r), int(c), int(shape[0]), int(shape[1]), mr, mc, mine is not None)
 

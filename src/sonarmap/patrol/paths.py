@@ -84,6 +84,8 @@ def nearest_step(dx: float, dy: float) -> int:
 # whose code (1 or 0) the wave reads from the call's targets when it gets there.
 _CLOSED = 0
 _RIM = 3
+#: A marker no target array is: the kept target codes are stale.
+_CHANGED = object()
 
 
 @nb.njit(cache=True)
@@ -117,6 +119,37 @@ def _rim_code(target: npt.NDArray[np.bool_], v: int, width: int, inv_width: floa
     return 1 if target[(r - 1) * (width - 2) + v - r * width - 1] else 0
 
 
+@nb.njit(cache=True)
+def _resolve(
+    code: npt.NDArray[np.uint8],
+    target: npt.NDArray[np.bool_],
+    v: int,
+    width: int,
+    inv_width: float,
+    done: npt.NDArray[np.int32],
+    n_done: npt.NDArray[np.int64],
+) -> int:
+    """The code of rim cell ``v`` (as :func:`_rim_code`), written into ``code`` so that
+    later reads (this wave's and the next ones' for the same targets) skip the targets;
+    ``v`` is appended to ``done`` (its count in ``n_done[0]``) to be reset to
+    :data:`_RIM` when the targets change."""
+    c = _rim_code(target, v, width, inv_width)
+    code[v] = c
+    done[n_done[0]] = v
+    n_done[0] += 1
+    return c
+
+
+@nb.njit(cache=True)
+def _unresolve(
+    code: npt.NDArray[np.uint8], done: npt.NDArray[np.int32], n_done: npt.NDArray[np.int64]
+) -> None:
+    """Reset the rim cells :func:`_resolve` wrote back to :data:`_RIM`."""
+    for i in range(n_done[0]):
+        code[done[i]] = _RIM
+    n_done[0] = 0
+
+
 #: Lowest set bit of a byte (0 for 0).
 _LOWEST = np.array([((i & -i).bit_length() - 1) if i else 0 for i in range(256)], dtype=np.int64)
 _S = math.sqrt(0.5)
@@ -144,12 +177,15 @@ def _dial(
     first: npt.NDArray[np.uint8],
     order: npt.NDArray[np.int32],
     ring: npt.NDArray[np.int32],
+    done: npt.NDArray[np.int32],
+    n_done: npt.NDArray[np.int64],
     visit: Any,
     ctx: Any,
 ) -> tuple[int, npt.NDArray[np.int32]]:
     """The wave on padded flat arrays (``dist`` all inf and ``first`` all 255 on entry);
-    ``target`` (the grid's own cells, flat) gives the rim cells' codes; ``allow`` holds
-    per cell the steps out of it the wave may take (bit j for step j).
+    ``target`` (the grid's own cells, flat) gives the rim cells' codes, each read once
+    and then kept in ``code`` (listed in ``done``, see :func:`_resolve`); ``allow``
+    holds per cell the steps out of it the wave may take (bit j for step j).
 
     Fills ``dist`` (metres) and ``first`` for the cells within ``limit`` metres, lists
     them in ``order`` (in the order taken) and returns their count and the bucket ring
@@ -258,7 +294,7 @@ def _dial(
                 v = u + step[j]
                 cv = code[v]
                 if cv == _RIM:
-                    cv = _rim_code(target, v, width, inv_width)
+                    cv = _resolve(code, target, v, width, inv_width, done, n_done)
                 # Once a path leaves the cells the robot's centre may cross (to reach a
                 # place near a wall), it does not come back: paths between passable
                 # cells stay passable (the cell taken is passable, 2: none is higher).
@@ -271,10 +307,22 @@ def _dial(
                     # its target bit being read.
                     ca = code[u + side_a[j]]
                     if ca == _RIM:
-                        ca = 0 if cv == 2 else _rim_code(target, u + side_a[j], width, inv_width)
+                        ca = (
+                            0
+                            if cv == 2
+                            else _resolve(
+                                code, target, u + side_a[j], width, inv_width, done, n_done
+                            )
+                        )
                     cb = code[u + side_b[j]]
                     if cb == _RIM:
-                        cb = 0 if cv == 2 else _rim_code(target, u + side_b[j], width, inv_width)
+                        cb = (
+                            0
+                            if cv == 2
+                            else _resolve(
+                                code, target, u + side_b[j], width, inv_width, done, n_done
+                            )
+                        )
                     if ca < cv or cb < cv:
                         continue
                     nd = d + w2
@@ -397,6 +445,10 @@ def _reached_in(
 ) -> tuple[
     npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.int8], npt.NDArray[np.float64]
 ]:
+    """The cells ``order[:n]`` (padded flat indices, ``width`` columns) that ``mask``
+    (the grid's own cells, 2-D) holds and that have a first step (0-7 in ``first``;
+    the start's 255 is left out), in that order: their rows and columns in the grid,
+    first steps and lengths from ``dist`` (metres). See :meth:`Wave.reached_in`."""
     rows = np.empty(n, dtype=np.intp)
     cols = np.empty(n, dtype=np.intp)
     steps = np.empty(n, dtype=np.int8)
@@ -458,6 +510,11 @@ class Wave:
         # The passable array whose codes _code holds, and its cells (flat).
         self._held: object | None = None
         self._passable = np.zeros(rows * cols, dtype=np.bool_)
+        # The targets whose rim codes _code holds once read (None: the passable cells),
+        # the padded indices of those read (to reset them) and their count.
+        self._held_target: object | None = None
+        self._done = np.empty(size, dtype=np.int32)
+        self._n_done = np.zeros(1, dtype=np.int64)
 
     def __call__(
         self,
@@ -478,9 +535,10 @@ class Wave:
 
         ``closed`` (row, column pairs, shape (K, 2)) edits the map for this call only:
         those cells are taken off ``passable`` (they stay targets), as if ``passable``
-        had them False; the start stays open. The codes of ``passable`` are kept between
-        calls given the same array (by identity): do not change it in place between
-        calls. ``target`` is read afresh at every call (it may be changed in place).
+        had them False; the start stays open. The codes of ``passable``, and those of
+        the ``target`` cells the wave has read, are kept between calls given the same
+        arrays (by identity): do not change either in place between calls (pass a new
+        array instead).
         """
         if passable.shape != self.shape:
             raise ValueError(f"a wave for {self.shape} given a map of {passable.shape}")
@@ -501,6 +559,12 @@ class Wave:
             ok = np.ascontiguousarray(passable, dtype=np.bool_)
             _fill_codes(ok, self._code)
             self._held, self._passable = passable, ok.reshape(-1)
+            self._n_done[0] = 0
+            self._held_target = target
+        elif self._held_target is not target:
+            # Only the rim cells read for the last targets differ from fresh codes.
+            _unresolve(self._code, self._done, self._n_done)
+            self._held_target = target
         # The wave reads codes only on the passable cells (2 whatever the targets) and
         # their neighbours, so of the targets only the rim's count, and only those the
         # wave gets to: it reads them from the targets themselves as it goes.
@@ -531,11 +595,18 @@ class Wave:
                 self._first.view(np.uint8),
                 self._order,
                 self._ring,
+                self._done,
+                self._n_done,
                 *(visit if visit is not None else (no_visit, ())),
             )
         finally:
             self._code[shut] = 2
         return self.dist, self.first
+
+    def forget_targets(self) -> None:
+        """Drop the target codes kept from earlier calls: call it after changing in
+        place an array given as ``target``, before the next call with it."""
+        self._held_target = _CHANGED
 
     def to(
         self,
@@ -589,11 +660,30 @@ class Wave:
     ) -> tuple[
         npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.int8], npt.NDArray[np.float64]
     ]:
-        """The cells the last wave reached that ``mask`` (bool, the grid's shape) holds,
-        the start left out, in the order of :meth:`reached`: their rows, columns, first
-        steps and path lengths (metres). In one pass: the same as ``rr, cc =
-        reached()``, ``keep = mask[rr, cc] & (first[rr, cc] >= 0)`` and those cells'
-        :attr:`first` and :attr:`dist`."""
+        """The cells the last wave reached that ``mask`` holds, the start left out.
+
+        In one pass: the same as ``rr, cc = reached()``, ``keep = mask[rr, cc] &
+        (first[rr, cc] >= 0)`` and those cells' :attr:`first` and :attr:`dist`.
+
+        Parameters
+        ----------
+        mask : ndarray of bool, the grid's shape
+            The cells wanted.
+
+        Returns
+        -------
+        rows, cols : ndarray of intp, shape (K,)
+            The cells, in the order of :meth:`reached` (path length, within one cell).
+        steps : ndarray of int8, shape (K,)
+            Each cell's first step (an index into :data:`STEPS`).
+        lengths : ndarray of float64, shape (K,)
+            Each cell's path length (metres).
+
+        Raises
+        ------
+        ValueError
+            When ``mask`` is not of the grid's shape.
+        """
         if mask.shape != self.shape:
             raise ValueError(f"a wave for {self.shape} given a mask of {mask.shape}")
         return _reached_in(

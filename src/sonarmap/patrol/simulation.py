@@ -1595,7 +1595,7 @@ def run_patrol(
     unseen_of = [np.empty_like(watched) for _ in own] if pulls_masks else []
     n_unseen = np.zeros(len(own), dtype=np.int64)
     unseen_step = np.full(len(own), -1, dtype=np.int64)
-    ahead_buffer = np.empty_like(watched) if pulls_masks else watched
+    ahead_buffer = np.empty_like(watched) if pulls_masks else None
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
         goals: list[tuple[float, float] | None] = []
@@ -1680,6 +1680,7 @@ def run_patrol(
                     # the same for every car sharing the fog, so once a step per fog.
                     np.copyto(unseen_of[j], targets)
                     n_unseen[j] = n_targets - own[j].clear_just_seen(unseen_of[j])
+                    waver.forget_targets()
                     unseen_step[j] = k
                 if n_unseen[j]:
                     pulling, n_pulling = unseen_of[j], int(n_unseen[j])
@@ -1692,6 +1693,7 @@ def run_patrol(
                 mine_fog = own[0 if shared else i]
                 # pulling & ~fresh_behind(...), without a pass over the whole map.
                 ahead = ahead_buffer
+                assert ahead is not None
                 np.copyto(ahead, pulling)
                 n_dropped = drop_fresh_behind(
                     ahead,
@@ -1703,6 +1705,7 @@ def run_patrol(
                     team.behind,
                     config.turn_time,
                 )
+                waver.forget_targets()
                 if n_dropped and n_pulling > n_dropped:
                     unmasked, n_unmasked = pulling, n_pulling
                     pulling, n_pulling = ahead, n_pulling - n_dropped
