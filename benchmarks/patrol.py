@@ -39,14 +39,22 @@ from typing import Any
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
+import numpy.typing as npt
 
 from sonarmap.patrol import PatrolConfig, run_patrol
 from sonarmap.patrol.maps import builtin_territory
 from sonarmap.patrol.simulation import PatrolResult
 from sonarmap.patrol.starts import starts_from_dm
+from sonarmap.patrol.territory import Territory
 
 
-def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolResult, float, float]:
+def table4(
+    cell: float, duration: float, prune: bool = True
+) -> tuple[Territory, PatrolConfig, npt.NDArray[np.float64]]:
+    """Table 4's setting: the ``fig3-10`` map at ``cell`` metres, the car defaults with
+    refinement, crowding by obstacles and the mode's direction, ``duration`` seconds,
+    and the map's first 5 starts (world x, y, heading). ``prune``: waves limited to
+    what they need (default True; False: whole-map waves, the reference)."""
     territory, starts = builtin_territory("fig3-10", cell)
     config = PatrolConfig(
         model="car",
@@ -58,8 +66,13 @@ def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolRe
         cell=cell,
         prune=prune,
     )
+    return territory, config, starts_from_dm(starts[:5], territory)
+
+
+def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolResult, float, float]:
+    territory, config, starts = table4(cell, duration, prune)
     t0, c0 = time.perf_counter(), time.process_time()
-    res = run_patrol(territory, config, starts=starts_from_dm(starts[:5], territory), seed=seed)
+    res = run_patrol(territory, config, starts=starts, seed=seed)
     return res, time.perf_counter() - t0, time.process_time() - c0
 
 

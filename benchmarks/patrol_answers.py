@@ -26,9 +26,8 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
-from sonarmap.patrol import PatrolConfig, run_patrol
-from sonarmap.patrol.maps import builtin_territory
-from sonarmap.patrol.starts import starts_from_dm
+from benchmarks.patrol import table4
+from sonarmap.patrol import run_patrol
 
 #: The answers kept, as :class:`~sonarmap.patrol.simulation.PatrolResult` names them.
 FIELDS = (
@@ -46,18 +45,9 @@ FIELDS = (
 
 def save(path: str, duration: float, cell: float, seed: int) -> None:
     """Run the setting and write its answers to ``path``."""
-    territory, starts = builtin_territory("fig3-10", cell)
-    config = PatrolConfig(
-        model="car",
-        refine=True,
-        crowding="obstacles",
-        direction="mode",
-        paths="wave",
-        duration=duration,
-        cell=cell,
-    )
+    territory, config, starts = table4(cell, duration)
     c0 = time.process_time()
-    res = run_patrol(territory, config, starts=starts_from_dm(starts[:5], territory), seed=seed)
+    res = run_patrol(territory, config, starts=starts, seed=seed)
     cpu = time.process_time() - c0
     answers = {name: np.asarray(getattr(res, name)) for name in FIELDS}
     with open(path, "wb") as f:
