@@ -141,6 +141,26 @@ def _resolve(
 
 
 @nb.njit(cache=True)
+def _corner(
+    code: npt.NDArray[np.uint8],
+    target: npt.NDArray[np.bool_],
+    w: int,
+    cv: int,
+    width: int,
+    inv_width: float,
+    done: npt.NDArray[np.int32],
+    n_done: npt.NDArray[np.int64],
+) -> int:
+    """The code of cell ``w``, a corner a diagonal step onto a cell of code ``cv`` passes:
+    a rim cell (1 or 0) stops a step onto a passable cell (2) without its target bit
+    being read, and is read (:func:`_resolve`) for a step onto a target."""
+    c = int(code[w])
+    if c != _RIM:
+        return c
+    return 0 if cv == 2 else _resolve(code, target, w, width, inv_width, done, n_done)
+
+
+@nb.njit(cache=True)
 def _unresolve(
     code: npt.NDArray[np.uint8], done: npt.NDArray[np.int32], n_done: npt.NDArray[np.int64]
 ) -> None:
@@ -303,26 +323,8 @@ def _dial(
                 if j & 1:
                     # A diagonal step may not cut the corner of a cell it could not
                     # enter itself.
-                    # A rim cell (1 or 0) stops a step onto a passable cell (2) without
-                    # its target bit being read.
-                    ca = code[u + side_a[j]]
-                    if ca == _RIM:
-                        ca = (
-                            0
-                            if cv == 2
-                            else _resolve(
-                                code, target, u + side_a[j], width, inv_width, done, n_done
-                            )
-                        )
-                    cb = code[u + side_b[j]]
-                    if cb == _RIM:
-                        cb = (
-                            0
-                            if cv == 2
-                            else _resolve(
-                                code, target, u + side_b[j], width, inv_width, done, n_done
-                            )
-                        )
+                    ca = _corner(code, target, u + side_a[j], cv, width, inv_width, done, n_done)
+                    cb = _corner(code, target, u + side_b[j], cv, width, inv_width, done, n_done)
                     if ca < cv or cb < cv:
                         continue
                     nd = d + w2
