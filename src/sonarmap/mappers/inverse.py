@@ -88,7 +88,9 @@ class InverseMapper(Mapper):
         fall-off confines the free evidence to where the no-wall claim is surest. With
         a value other than ``falloff_deg`` each chunk of readings is rasterised with
         its bearings and inserted from that footprint, slower than the insertion
-        kernel, which weighs both increments with one fall-off
+        kernel, which weighs both increments with one fall-off. Off by default: a
+        narrower free fall-off keeps the walls a wide beam meets at a slant but leaves
+        more cells in front of the walls occupied and closes doorways
         (docs/results/2026-12-07-inverse-free-falloff.md). Streams with the ``all``
         strategy only.
     no_echo : {"free", "ignore"}
