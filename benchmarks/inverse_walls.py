@@ -6,7 +6,8 @@ the hall, ``suite``, ``doorways`` and noisy ``passages`` scenes of issue 39, see
 ``--param``) and sorts every observed wall cell (:func:`sonarmap.metrics.observed_walls`)
 the map does not mark occupied by why, from the increments the model adds to it (the
 fall-off weights of the readings whose echo band holds the cell and of those whose free
-region holds it, as :mod:`benchmarks.doors` weighs them):
+region holds it, as :mod:`benchmarks.doors` weighs them; the free ones by the free
+increment's own fall-off when the setting gives one, ``falloff_free_deg``):
 
 - ``order``: the log-odds the increments add up to (before clamping) are > 0 but the
   clamped, reading-by-reading sum is not (the clamping bounds and the readings' order);
@@ -88,16 +89,18 @@ def diagnose(scene: Scenario, inv: InverseMapper) -> dict[str, float]:
         free_stop=inv.free_stop_for(sensor),
     )
     sigma = math.radians(inv.falloff_deg)
+    # The free increment's own fall-off, when the mapper has one (falloff_free_deg).
+    free_deg = inv.falloff_deg if inv.falloff_free_deg is None else inv.falloff_free_deg
 
-    def fall(b: np.ndarray[Any, np.dtype[np.float32]] | None) -> np.ndarray[Any, Any]:
+    def fall(b: np.ndarray[Any, np.dtype[np.float32]] | None, sigma: float) -> np.ndarray[Any, Any]:
         assert b is not None
         if sigma == 0:
             return np.ones(len(b))
         bb = b.astype(np.float64)
         return np.exp(-(bb * bb) / (2 * sigma * sigma))
 
-    w_occ = np.bincount(fp.occ.cells, weights=fall(fp.occ.bearing), minlength=g.size)
-    wf = fall(fp.free.bearing)
+    w_occ = np.bincount(fp.occ.cells, weights=fall(fp.occ.bearing, sigma), minlength=g.size)
+    wf = fall(fp.free.bearing, math.radians(free_deg))
     beyond = r.range[echo][fp.free.reading_index()] - fp.free.distance.astype(np.float64)
     near, mid = BEYOND
     parts = {

@@ -77,7 +77,22 @@ class InverseMapper(Mapper):
         Occupancy clamping bounds, ``0 < clamp_min < 0.5 < clamp_max < 1``.
     falloff_deg : float
         Standard deviation (degrees) of a Gaussian fall-off of both increments with the angle
-        off the beam axis (5); 0 applies them uniformly over the beam.
+        off the beam axis (5); 0 applies them uniformly over the beam. With
+        ``falloff_free_deg`` set, of the occupied increment alone.
+    falloff_free_deg : float or None
+        Standard deviation (degrees, >= 0) of a Gaussian fall-off of the free increment
+        alone; 0 applies it uniformly over the beam; None (default): ``falloff_deg``, one
+        fall-off for both. A wide beam hears a surface off its axis less well than on
+        it, so that an echo's range says most surely "nothing nearer" near the axis,
+        while where on its arc the echo came from is not known: a narrower free
+        fall-off confines the free evidence to where the no-wall claim is surest. With
+        a value other than ``falloff_deg`` each chunk of readings is rasterised with
+        its bearings and inserted from that footprint, slower than the insertion
+        kernel, which weighs both increments with one fall-off. Off by default: a
+        narrower free fall-off keeps the walls a wide beam meets at a slant but leaves
+        more cells in front of the walls occupied and closes doorways
+        (docs/results/2026-12-07-inverse-free-falloff.md). Streams with the ``all``
+        strategy only.
     no_echo : {"free", "ignore"}
         A reading with no echo clears its beam up to ``no_echo_reach - dr`` (``free``) or
         is skipped (``ignore``).
@@ -149,6 +164,7 @@ class InverseMapper(Mapper):
         clamp_min: float = 0.12,
         clamp_max: float = 0.97,
         falloff_deg: float = 5.0,
+        falloff_free_deg: float | None = None,
         no_echo: str = "ignore",
         no_echo_reach: float | None = None,
         dr: float | None = 0.05,
@@ -162,6 +178,7 @@ class InverseMapper(Mapper):
         self.clamp_min = clamp_min
         self.clamp_max = clamp_max
         self.falloff_deg = falloff_deg
+        self.falloff_free_deg = falloff_free_deg
         self.no_echo = no_echo
         self.no_echo_reach = no_echo_reach
         self.dr = dr
@@ -174,6 +191,8 @@ class InverseMapper(Mapper):
         number("clamp_min", clamp_min, 0.0, 0.5, lo_open=True, hi_open=True)
         number("clamp_max", clamp_max, 0.5, 1.0, lo_open=True, hi_open=True)
         number("falloff_deg", falloff_deg, 0.0, None)
+        if falloff_free_deg is not None:
+            number("falloff_free_deg", falloff_free_deg, 0.0, None)
         choice("no_echo", no_echo, ("free", "ignore"))
         if no_echo_reach is not None:
             number("no_echo_reach", no_echo_reach, 0.0, None, lo_open=True)
@@ -243,7 +262,7 @@ class InverseMapper(Mapper):
                 readings,
                 dr=self.dr,
                 offset=self.band_offset_for(self.grid),
-                with_bearing=self.falloff_deg > 0,
+                with_bearing=self.falloff_deg > 0 or self._free_sigma() > 0,
                 no_echo_reach=self.no_echo_reach,
                 free_stop=self.free_stop_for(self.sensor),
                 advice="turn the incidence weighting off (specular_deg=0), map fewer "
@@ -254,6 +273,9 @@ class InverseMapper(Mapper):
             return
         if rebuild:
             self._reset()
+        if self._free_sigma() != math.radians(self.falloff_deg):
+            self._insert_split(readings, weights, (l_free, l_occ), (lo, hi), progress)
+            return
         # Nothing is stored per reading, fall-off or not: the insertion kernel weighs
         # each cell by its angle off the axis as it visits it.
         for a, r in self._chunks(readings, progress):
@@ -277,6 +299,48 @@ class InverseMapper(Mapper):
                 free_stop=self.free_stop_for(self.sensor),
             )
 
+    def _free_sigma(self) -> float:
+        """The free increment's fall-off, radians (``falloff_free_deg``, else
+        ``falloff_deg``)."""
+        deg = self.falloff_deg if self.falloff_free_deg is None else self.falloff_free_deg
+        return math.radians(deg)
+
+    def _insert_split(
+        self,
+        readings: Readings,
+        weights: npt.NDArray[np.float64] | None,
+        inc: tuple[float, float],
+        clamp: tuple[float, float],
+        progress: Progress | None,
+    ) -> None:
+        """Insert ``readings`` with the free and occupied increments under their own
+        fall-offs (``falloff_free_deg``): chunk by chunk from footprints with bearings,
+        reading by reading and clamping after each, as
+        :func:`~sonarmap.raster.accumulate` does; no footprint outlives its chunk."""
+        sig_free, sig_occ = self._free_sigma(), math.radians(self.falloff_deg)
+        for a, fp in self._footprints(
+            readings,
+            dr=self.dr,
+            offset=self.band_offset_for(self.grid),
+            progress=progress,
+            with_bearing=True,
+            no_echo_reach=self.no_echo_reach,
+            free_stop=self.free_stop_for(self.sensor),
+        ):
+            b = a + fp.free.n_readings
+            w = None if weights is None else weights[a:b]
+            _insert(
+                fp.free.offsets,
+                fp.free.cells,
+                inc[0] * self._entry_weights(fp.free, sig_free, w),
+                fp.occ.offsets,
+                fp.occ.cells,
+                inc[1] * self._entry_weights(fp.occ, sig_occ, w),
+                self._logodds,
+                self._touched,
+                *clamp,
+            )
+
     def _insert_slanted(
         self,
         readings: Readings,
@@ -296,13 +360,13 @@ class InverseMapper(Mapper):
         """
         x, y = readings.x, readings.y
         sh = shield(self.grid, fps, x, y, math.radians(self.specular_deg))
-        sigma = math.radians(self.falloff_deg)
+        sigma, sig_free = math.radians(self.falloff_deg), self._free_sigma()
         a = 0
         for fp in fps:
             b = a + fp.free.n_readings
             w = None if weights is None else weights[a:b]
             inc_free = inc[0] * sh.factors(fp.free, x[a:b], y[a:b])
-            inc_free *= self._entry_weights(fp.free, sigma, w)
+            inc_free *= self._entry_weights(fp.free, sig_free, w)
             inc_occ = inc[1] * self._entry_weights(fp.occ, sigma, w)
             _insert(
                 fp.free.offsets,
@@ -432,6 +496,11 @@ class InverseStream(StreamEngine):
             raise ConfigError(
                 "inverse fall-off streams only with the 'all' strategy; for a bounded "
                 "window set falloff_deg=0"
+            )
+        if strategy.bounded and mapper.falloff_free_deg:
+            raise ConfigError(
+                "inverse falloff_free_deg streams only with the 'all' strategy; for a "
+                "bounded window leave it unset"
             )
         if strategy.bounded and mapper.free_stop_for(sensor) > 0:
             raise ConfigError(
