@@ -12,7 +12,9 @@ free / occupied boundary is in Omega_occ, so results do not change when the worl
 the pose are rotated together. The ``offset`` (0 unless asked for) moves the band
 behind the echo: a cell is occupied when its centre is inside an obstacle, so the
 first occupied cell behind a surface heard at r has its centre between r and about
-r + h, not around r (the mappers' ``band_offset``). A reading with ``r >= r_max`` (no
+r + h, not around r (the mappers' ``band_offset``). With a ``band_growth`` g > 0 each
+echo's half-width is its own, ``max(dr, g r)``: a sonar's range error and the patch of
+wall an echo may come from both grow with the range. A reading with ``r >= r_max`` (no
 echo) has no Omega_occ and its Omega_free reaches ``r_max - dr`` (methods.md, Notation).
 
 The weight is the sensitivity weight ``w0 = min(s / S, 1)`` of methods.md section 2,
@@ -98,7 +100,11 @@ class CellSet:
 
 @dataclass(frozen=True, eq=False)
 class Footprint:
-    """Omega_free and Omega_occ of a batch of readings (see :func:`rasterise`)."""
+    """Omega_free and Omega_occ of a batch of readings (see :func:`rasterise`).
+
+    ``dr`` is the band's half-width in metres; with a ``band_growth`` it is the least
+    one, that of the nearer echoes.
+    """
 
     free: CellSet
     occ: CellSet
@@ -213,6 +219,7 @@ def rasterise(
     with_bearing: bool = False,
     no_echo_reach: float | None = None,
     free_stop: float = 0.0,
+    band_growth: float = 0.0,
 ) -> Footprint:
     """Omega_free and Omega_occ of each reading.
 
@@ -238,6 +245,10 @@ def rasterise(
     free_stop : float
         How far short of the band an echo's Omega_free stops, as a fraction of its range,
         in [0, 1) (default 0: at the band's near edge). No-echo readings are not moved.
+    band_growth : float
+        Growth of an echo's band half-width with its range, metres per metre (>= 0;
+        default 0: every band ``dr``). With g > 0 the echo at range r has the half-width
+        ``max(dr, g r)``; no-echo readings' free regions still end at ``reach - dr``.
 
     Returns
     -------
@@ -255,7 +266,7 @@ def rasterise(
     ([0, 1, 2], [3])
     """
     sx, sy, st, r = _poses(x, y, theta, ranges)
-    d, free_lim, occ_hi = _limits(grid, sensor, r, dr, offset, no_echo_reach)
+    d, free_lim, occ_hi = _limits(grid, sensor, r, dr, offset, no_echo_reach, band_growth)
     if free_stop == 0:
         f, o = _run(grid, sensor, sx, sy, st, free_lim, occ_hi, with_bearing)
         return Footprint(free=f, occ=o, dr=d)
@@ -274,6 +285,7 @@ def _limits(
     dr: float | None,
     offset: float = 0.0,
     no_echo_reach: float | None = None,
+    band_growth: float = 0.0,
 ) -> tuple[float, npt.NDArray[np.float64], npt.NDArray[np.float64]]:
     if (r < 0).any():
         raise InputError("ranges must be >= 0", field="range")
@@ -284,12 +296,19 @@ def _limits(
         raise ConfigError(f"the band offset must be a non-negative number of metres, got {offset}")
     if no_echo_reach is not None and not (math.isfinite(no_echo_reach) and no_echo_reach > 0):
         raise ConfigError(f"no_echo_reach must be a positive number of metres, got {no_echo_reach}")
+    if not (math.isfinite(band_growth) and band_growth >= 0):
+        raise ConfigError(
+            f"band_growth must be a non-negative number of metres per metre, got {band_growth}"
+        )
     echo = r < sensor.r_max
     # A no-echo reading has no band to move: its free region ends at r_max - dr, or
     # at the reach asked for when that is nearer.
     reach = sensor.r_max if no_echo_reach is None else min(no_echo_reach, sensor.r_max)
-    free_lim = np.where(echo, r + offset - d, reach - d)
-    occ_hi = np.where(echo, r + offset + d, -np.inf)
+    # The kernel takes each reading's own limits, so a per-reading band costs nothing
+    # there; at g = 0 the arithmetic is the fixed band's, to the bit.
+    band = np.maximum(d, band_growth * r) if band_growth > 0 else d
+    free_lim = np.where(echo, r + offset - band, reach - d)
+    occ_hi = np.where(echo, r + offset + band, -np.inf)
     return d, free_lim, occ_hi
 
 

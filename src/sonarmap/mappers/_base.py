@@ -253,6 +253,7 @@ class Mapper(ABC):
         with_bearing: bool = False,
         no_echo_reach: float | None = None,
         free_stop: float = 0.0,
+        band_growth: float = 0.0,
     ) -> Iterator[tuple[int, Footprint]]:
         """Rasterise readings chunk by chunk; yields (index of first reading, footprint)."""
         for a, r in self._chunks(readings, progress):
@@ -268,6 +269,7 @@ class Mapper(ABC):
                 with_bearing=with_bearing,
                 no_echo_reach=no_echo_reach,
                 free_stop=free_stop,
+                band_growth=band_growth,
             )
             yield a, fp
 
@@ -292,6 +294,7 @@ class Mapper(ABC):
         with_bearing: bool = False,
         no_echo_reach: float | None = None,
         free_stop: float = 0.0,
+        band_growth: float = 0.0,
         advice: str | None = None,
     ) -> list[Footprint]:
         """Every reading's footprint, for methods whose objective couples them all.
@@ -312,6 +315,10 @@ class Mapper(ABC):
         free_stop : float, default 0.0
             How far short of the band an echo's free cells stop, as a fraction of its
             range (see :func:`~sonarmap.raster.rasterise`).
+        band_growth : float, default 0.0
+            Growth of an echo's band half-width with its range, metres per metre: the
+            half-width ``max(dr, band_growth * range)`` (see
+            :func:`~sonarmap.raster.rasterise`).
         advice : str or None, default None
             What the refusal suggests doing instead; None: fewer readings at once,
             coarser cells or no-echo readings dropped.
@@ -336,6 +343,7 @@ class Mapper(ABC):
             with_bearing=with_bearing,
             no_echo_reach=no_echo_reach,
             free_stop=free_stop,
+            band_growth=band_growth,
         ):
             total += fp.n_entries
             if total > MAX_ENTRIES:

@@ -207,6 +207,9 @@ class StreamEngine(ABC):
         #: Band half-width to rasterise with: the mapper's ``dr`` (None for the
         #: rasteriser's default); engines of other models set their own in ``_setup``.
         self.dr: float | None = getattr(mapper, "dr", None)
+        #: Growth of the band's half-width with the range, metres per metre (the
+        #: mapper's ``band_growth``; 0 for methods without one).
+        self.band_growth: float = float(getattr(mapper, "band_growth", 0.0))
         self.offset = mapper.band_offset_for(grid)
         self.pool = ReadingPool(grid.cols, sort_band=self.sort_band, spans=self.spans)
         self.cov = np.zeros(grid.size, np.int32)
@@ -333,6 +336,7 @@ class StreamEngine(ABC):
             readings.range,
             dr=self.dr,
             offset=self.offset,
+            band_growth=self.band_growth,
         )
         z = np.minimum(readings.range, self.sensor.r_max)
         p = self.pool

@@ -175,6 +175,13 @@ class GradientMapper(Mapper):
     band_offset : float or None
         How far behind the echo the Omega_occ band's centre lies, metres (>= 0); None
         (default): 0.75 of a cell. See :mod:`sonarmap.raster` for why.
+    band_growth : float
+        Growth of the Omega_occ band's half-width with the echo's range, metres per
+        metre (>= 0; default 0: every band ``dr`` wide either side). With g > 0 an echo
+        at range r has the half-width ``max(dr, g r)``: a sonar's range error (the
+        speed of sound, the timing of a weakening echo) grows with the range, and so
+        does the patch of a wall across the beam whose points lie within a band of the
+        nearest one. Streaming takes it as well.
     robust : float
         Scale tau of the robust form, >= 0 (0.1); 0 is the plain model. With tau > 0
         the map is solved, then ``robust_rounds`` times each term's weight is set to
@@ -296,6 +303,7 @@ class GradientMapper(Mapper):
         no_echo_weight: float = 1.0,
         dr: float | None = None,
         band_offset: float | None = None,
+        band_growth: float = 0.0,
         robust: float = 0.1,
         robust_terms: str = "both",
         robust_rounds: int = 2,
@@ -323,6 +331,7 @@ class GradientMapper(Mapper):
         self.no_echo_weight = no_echo_weight
         self.dr = dr
         self.band_offset = band_offset
+        self.band_growth = band_growth
         self.robust = robust
         self.robust_terms = robust_terms
         self.robust_rounds = robust_rounds
@@ -357,6 +366,7 @@ class GradientMapper(Mapper):
             number("dr", dr, 0.0, None)
         if band_offset is not None:
             number("band_offset", band_offset, 0.0, None)
+        number("band_growth", band_growth, 0.0, None)
         number("robust", robust, 0.0, None)
         choice("robust_terms", robust_terms, ROBUST_TERMS)
         integer("robust_rounds", robust_rounds, 1)
@@ -425,7 +435,11 @@ class GradientMapper(Mapper):
             readings = self._echoes(readings)
         reach = self.no_echo_share * self.sensor.r_max if self.no_echo_share < 1.0 else None
         fps = self.kept_footprints(
-            readings, dr=self.dr, offset=self.band_offset_for(self.grid), no_echo_reach=reach
+            readings,
+            dr=self.dr,
+            offset=self.band_offset_for(self.grid),
+            no_echo_reach=reach,
+            band_growth=self.band_growth,
         )
         bounds = np.cumsum([0] + [fp.free.n_readings for fp in fps])
         scale = self._slanted(readings, fps, bounds) if self.specular_deg > 0 else None
