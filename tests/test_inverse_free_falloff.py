@@ -181,6 +181,15 @@ def test_bad_values_and_a_bounded_stream_are_refused() -> None:
             falloff_deg=0.0,
             falloff_free_deg=2.0,
         )
+    # 0, as falloff_deg=0, weighs nothing by its bearing: a bounded window takes it.
+    StreamingMapper(
+        "inverse",
+        GRID,
+        get_sensor(SENSOR),
+        strategy="cell:4",
+        falloff_deg=0.0,
+        falloff_free_deg=0.0,
+    )
 
 
 def _sweep(settings: dict[str, dict[str, Any]]) -> pd.DataFrame:
