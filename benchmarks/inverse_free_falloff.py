@@ -20,12 +20,16 @@ Issue 14's training gaps and doorways (the rule's part 6) are mapped with
 ``--issue14 passages|doorways -o DIR --setting K=V,K=V ...`` (the defaults beside the
 settings given) and read with ``python -m benchmarks.issue14_goals``.
 
-Run with ``python -m benchmarks.inverse_free_falloff out/invwalls-freefall/results.csv``.
+Run with ``python -m benchmarks.inverse_free_falloff out/invwalls-freefall/results.csv``
+(one sweep's file: each setting is scored against the defaults' rows of the same sweep,
+and a file in which a setting has a map count other than the defaults' or a figure is
+missing is refused).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -36,7 +40,10 @@ if __name__ == "__main__":
 
 import pandas as pd
 
-from benchmarks.inverse_walls import RIG_OF
+from benchmarks.inverse_walls import RIGS, rig_figures
+from sonarmap.errors import ConfigError
+from sonarmap.experiments import MethodSpec, run_experiment
+from sonarmap.mappers import make_mapper
 
 #: Rule 1: the observed-wall recall the MaxSonar training maps must reach.
 BAR = 0.70
@@ -46,40 +53,44 @@ F1_DROP = 0.01
 PRECISION_DROP = 0.05
 #: Rule 5: how far the mean quality may fall.
 QUALITY_DROP = 0.005
-RIGS = ("ez1-six", "hcsr04-six", "ring16")
 DEFAULTS = "(defaults)"
 
 
 def figures(df: pd.DataFrame) -> pd.DataFrame:
     """Per inverse setting of sweep results ``df``, the rule's training figures."""
-    inv = df[df.method == "inverse"].assign(rig=lambda d: d["scenario"].map(RIG_OF))
     rows = []
-    for setting, d in inv.groupby("params", sort=False):
-        per_rig = d.groupby("rig")
-        row: dict[str, Any] = {
-            "setting": setting,
-            "maps": len(d),
-            "quality": d["quality"].mean(),
-            "ez1_hall_observed": d.loc[d.scenario == "hall-ez1", "observed_wall_recall"].mean(),
-            "ez1_observed": d.loc[d.rig == "ez1-six", "observed_wall_recall"].mean(),
-            "precision": d["precision_all"].mean(),
-            "passages": int(d["passages_detected"].sum()),
-        }
-        for rig in RIGS:
-            row[f"passages_{rig}"] = int(per_rig["passages_detected"].sum()[rig])
-        for rig in RIGS:
-            row[f"f1_{rig}"] = per_rig["f1_all"].mean()[rig]
+    for setting, d in df[df.method == "inverse"].groupby("params", sort=False):
+        row: dict[str, Any] = {"setting": setting, "maps": len(d), **rig_figures(d)}
+        row["precision"] = d["precision_all"].mean()
         rows.append(row)
     return pd.DataFrame(rows)
 
 
 def verdicts(fig: pd.DataFrame) -> pd.DataFrame:
     """``fig`` (:func:`figures`) with the rule's parts 1-5 each setting fails, against
-    the row of the defaults."""
+    the row of the defaults.
+
+    Raises
+    ------
+    ValueError
+        No row of the defaults; a setting mapped on a number of maps other than the
+        defaults' (e.g. the rows of several sweeps pooled, or a sweep cut short); a
+        figure that is NaN (a scene or rig with no rows), which no comparison would
+        catch.
+    """
     base = fig.loc[fig.setting == DEFAULTS]
     if len(base) != 1:
-        raise SystemExit("the sweep has no row of the defaults: run it with include_defaults")
+        raise ValueError("no row of the defaults: run the sweep with include_defaults")
     b = base.iloc[0]
+    for _, r in fig.iterrows():
+        if r.maps != b.maps:
+            raise ValueError(
+                f"setting {r.setting!r} has {r.maps} maps, the defaults {b.maps}: "
+                "give one complete sweep's results.csv"
+            )
+        nan = [str(k) for k, v in r.items() if isinstance(v, float) and math.isnan(v)]
+        if nan:
+            raise ValueError(f"setting {r.setting!r}: no figure for {', '.join(nan)}")
     fails = []
     for _, r in fig.iterrows():
         f = []
@@ -99,46 +110,83 @@ def verdicts(fig: pd.DataFrame) -> pd.DataFrame:
     return fig.assign(fails=fails)
 
 
+#: The columns of a sweep's results.csv the rule reads.
+COLUMNS = (
+    "method",
+    "params",
+    "scenario",
+    "quality",
+    "observed_wall_recall",
+    "passages_detected",
+    "f1_all",
+    "precision_all",
+)
+
+
 def issue14(which: str, out: Path, settings: Sequence[dict[str, Any]]) -> None:
     """Issue 14's training ``which`` scenes (seeds 0-4), the inverse at its defaults and
     at each of ``settings``, into ``out`` (an ``experiment`` folder)."""
-    import sonarmap.experiments as e
-
-    specs = [e.MethodSpec("inverse", "inverse", {})]
+    specs = [MethodSpec("inverse", "inverse", {})]
     for s in settings:
         label = "inverse-" + "-".join(f"{k}{v}" for k, v in sorted(s.items()))
-        specs.append(e.MethodSpec(label, "inverse", dict(s)))
-    e.METHODS = tuple(specs)
-    e.run_experiment(which, out, seed=0, seeds=5)
+        specs.append(MethodSpec(label, "inverse", dict(s)))
+    run_experiment(which, out, seed=0, seeds=5, methods=specs)
 
 
 def _setting(text: str) -> dict[str, Any]:
+    """``K=V,K=V`` (numbers) as inverse parameters.
+
+    Raises
+    ------
+    ValueError
+        Not of that form, a value not a number, or parameters the inverse refuses.
+    """
     out: dict[str, Any] = {}
     for part in text.split(","):
-        k, _, v = part.partition("=")
-        if not v:
-            raise SystemExit(f"--setting {text!r}: want K=V,K=V")
-        out[k.strip()] = float(v)
+        k, _, v = (x.strip() for x in part.partition("="))
+        try:
+            if not k:
+                raise ValueError
+            out[k] = float(v)
+        except ValueError:
+            raise ValueError(f"--setting {text!r}: want K=V,K=V with numbers") from None
+    try:
+        make_mapper("inverse", **out)
+    except ConfigError as e:
+        raise ValueError(f"--setting {text!r}: {e}") from None
     return out
 
 
 def main(argv: Sequence[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("results", type=Path, nargs="*", help="sweep results.csv files")
+    ap.add_argument("results", type=Path, nargs="?", help="one sweep's results.csv")
     ap.add_argument("--issue14", choices=("passages", "doorways"))
     ap.add_argument("-o", "--out", type=Path)
     ap.add_argument("--setting", nargs="*", default=[], help="K=V,K=V (numbers)")
     args = ap.parse_args(argv)
     if args.issue14:
         if args.out is None:
-            raise SystemExit("--issue14 needs -o DIR")
-        issue14(args.issue14, args.out, [_setting(s) for s in args.setting])
+            ap.error("--issue14 needs -o DIR")
+        try:
+            settings = [_setting(s) for s in args.setting]
+        except ValueError as e:
+            ap.error(str(e))
+        issue14(args.issue14, args.out, settings)
         return
-    if not args.results:
-        raise SystemExit("give sweep results.csv files, or --issue14")
-    df = pd.concat([pd.read_csv(p) for p in args.results], ignore_index=True)
+    if args.results is None:
+        ap.error("give a sweep's results.csv, or --issue14")
+    if not args.results.is_file():
+        ap.error(f"{args.results}: no such file")
+    df = pd.read_csv(args.results)
+    missing = [c for c in COLUMNS if c not in df.columns]
+    if missing:
+        ap.error(f"{args.results}: not a sweep's results.csv (no {', '.join(missing)})")
+    try:
+        table = verdicts(figures(df))
+    except ValueError as e:
+        ap.error(f"{args.results}: {e}")
     with pd.option_context("display.width", 250, "display.max_columns", 30):
-        print(verdicts(figures(df)).round(3).to_string(index=False))
+        print(table.round(3).to_string(index=False))
 
 
 if __name__ == "__main__":

@@ -88,19 +88,20 @@ def diagnose(scene: Scenario, inv: InverseMapper) -> dict[str, float]:
         with_bearing=True,
         free_stop=inv.free_stop_for(sensor),
     )
-    sigma = math.radians(inv.falloff_deg)
-    # The free increment's own fall-off, when the mapper has one (falloff_free_deg).
-    free_deg = inv.falloff_deg if inv.falloff_free_deg is None else inv.falloff_free_deg
 
-    def fall(b: np.ndarray[Any, np.dtype[np.float32]] | None, sigma: float) -> np.ndarray[Any, Any]:
+    def fall(b: np.ndarray[Any, np.dtype[np.float32]] | None, deg: float) -> np.ndarray[Any, Any]:
         assert b is not None
-        if sigma == 0:
+        if deg == 0:
             return np.ones(len(b))
+        s = math.radians(deg)
         bb = b.astype(np.float64)
-        return np.exp(-(bb * bb) / (2 * sigma * sigma))
+        return np.exp(-(bb * bb) / (2 * s * s))
 
-    w_occ = np.bincount(fp.occ.cells, weights=fall(fp.occ.bearing, sigma), minlength=g.size)
-    wf = fall(fp.free.bearing, math.radians(free_deg))
+    w_occ = np.bincount(
+        fp.occ.cells, weights=fall(fp.occ.bearing, inv.falloff_deg), minlength=g.size
+    )
+    # The free increment's own fall-off, when the mapper has one (falloff_free_deg).
+    wf = fall(fp.free.bearing, inv.free_falloff_deg)
     beyond = r.range[echo][fp.free.reading_index()] - fp.free.distance.astype(np.float64)
     near, mid = BEYOND
     parts = {
@@ -178,27 +179,43 @@ RIG_OF = {
 }
 
 
+#: The training maps' rigs, in the order the tables give them.
+RIGS = ("ez1-six", "hcsr04-six", "ring16")
+
+
+def rig_figures(d: pd.DataFrame) -> dict[str, Any]:
+    """The acceptance rules' training figures of one setting's sweep rows ``d``.
+
+    Returns the mean quality, the mean observed-wall recall on ``hall-ez1`` and over
+    the MaxSonar maps, the passages detected in all and per rig (``passages_RIG``) and
+    the mean wall F1 per rig (``f1_RIG``), for each rig of :data:`RIGS`. A figure of
+    a scene or rig ``d`` has no rows of is NaN.
+    """
+    rig = d["scenario"].map(RIG_OF)
+    row: dict[str, Any] = {
+        "quality": d["quality"].mean(),
+        "ez1_hall_observed": d.loc[d.scenario == "hall-ez1", "observed_wall_recall"].mean(),
+        "ez1_observed": d.loc[rig == "ez1-six", "observed_wall_recall"].mean(),
+        "passages": int(d["passages_detected"].sum()),
+    }
+    for r in RIGS:
+        mine = d[rig == r]
+        row[f"passages_{r}"] = int(mine["passages_detected"].sum()) if len(mine) else math.nan
+    for r in RIGS:
+        row[f"f1_{r}"] = d.loc[rig == r, "f1_all"].mean()
+    return row
+
+
 def rule_table(inverse: pd.DataFrame, gradient: pd.DataFrame) -> pd.DataFrame:
     """Per inverse setting of sweep results ``inverse``, the acceptance rule's training
     figures (docs/results/2026-12-07-inverse-walls.md), the forward margin against the
     gradient rows of ``gradient``; the defaults' row first."""
-    inv = inverse.assign(rig=inverse["scenario"].map(RIG_OF))
     grad = gradient.assign(rig=gradient["scenario"].map(RIG_OF)).groupby("rig")["f1_all"].mean()
     rows = []
-    for setting, d in inv.groupby("params", sort=False):
-        per_rig = d.groupby("rig")
-        f1 = per_rig["f1_all"].mean()
-        row: dict[str, Any] = {
-            "setting": setting,
-            "quality": d["quality"].mean(),
-            "ez1_hall_observed": d.loc[d.scenario == "hall-ez1", "observed_wall_recall"].mean(),
-            "ez1_observed": d.loc[d.rig == "ez1-six", "observed_wall_recall"].mean(),
-            "passages": int(d["passages_detected"].sum()),
-        }
-        for rig in ("ez1-six", "hcsr04-six", "ring16"):
-            row[f"f1_{rig}"] = f1[rig]
-            row[f"passages_{rig}"] = int(per_rig["passages_detected"].sum()[rig])
-            row[f"margin_{rig}"] = grad[rig] - f1[rig]
+    for setting, d in inverse.groupby("params", sort=False):
+        row: dict[str, Any] = {"setting": setting, **rig_figures(d)}
+        for r in RIGS:
+            row[f"margin_{r}"] = grad.get(r, math.nan) - row[f"f1_{r}"]
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -13,9 +13,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from sonarmap import experiments
 from sonarmap.cli import main
-from sonarmap.errors import InputError
-from sonarmap.experiments import EXPERIMENTS, METHODS, run_experiment
+from sonarmap.errors import ConfigError, InputError
+from sonarmap.experiments import EXPERIMENTS, METHODS, MethodSpec, run_experiment
 from sonarmap.sweep import load_sweep, run_sweep, summarise
 
 
@@ -100,6 +101,25 @@ def test_other_experiments_quick(name: str, tmp_path: Path) -> None:
         assert {r["map"] for r in rows} == {"layout1", "layout2"}
         assert "stochastic-thesis002" in {r["method"] for r in rows}
         assert (tmp_path / "boxes-layout2.png").is_file()
+
+
+def test_an_experiment_maps_the_methods_it_is_given(tmp_path: Path) -> None:
+    specs = [MethodSpec("inv", "inverse"), MethodSpec("inv-flat", "inverse", {"falloff_deg": 0.0})]
+    before = experiments.METHODS
+    run_experiment("passages", tmp_path / "a", quick=True, methods=specs)
+    rows = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    assert [r["method"] for r in rows] == ["inv", "inv-flat"]
+    assert sorted(p.name for p in (tmp_path / "a" / "maps" / "seed1000").glob("*.yaml")) == [
+        "inv-flat.yaml",
+        "inv.yaml",
+    ]
+    # The two settings map differently, and the module's list is left as it was.
+    assert rows[0]["f1_all"] != rows[1]["f1_all"]
+    assert experiments.METHODS is before
+    for bad in ([], [specs[0], MethodSpec("inv", "counting")]):
+        with pytest.raises(ConfigError, match="methods: want one or more distinct labels"):
+            run_experiment("passages", tmp_path / "b", quick=True, methods=bad)
+    assert not (tmp_path / "b").exists()
 
 
 def test_unknown_experiment(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

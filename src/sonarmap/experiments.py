@@ -118,6 +118,8 @@ class _Run:
     #: lower-left corner.
     truth_resolution: float | None = None
     truth_origin: tuple[float, float] = (0.0, 0.0)
+    #: The methods mapped, in order.
+    methods: tuple[MethodSpec, ...] = METHODS
 
     def make(self, kind: str, seed: int, *, resimulate: bool = False, **defaults: Any) -> Scenario:
         """The experiment's scene: the user's folder, or the built-in one. With
@@ -263,12 +265,12 @@ def _maps_over_seeds(
     caption: str,
 ) -> None:
     """Every method on every scene; the first scene's maps drawn; tables per method."""
-    total = len(scenes) * len(METHODS)
+    total = len(scenes) * len(run.methods)
     done = 0
     for k, scene in enumerate(scenes):
         sd = scene.params.get("seed", k)
         maps: dict[str, OccupancyMap] = {}
-        for spec in METHODS:
+        for spec in run.methods:
             m, seconds = _build(spec, scene)
             maps[spec.label] = m
             folder = run.out / "maps" / (f"seed{sd}" if len(scenes) > 1 else "")
@@ -280,7 +282,7 @@ def _maps_over_seeds(
         if k == 0:
             fig = save_side_by_side(maps, run.out / f"{name}.png", truth=scene.truth)
             run.report.figure(fig, caption)
-    labels = [s.label for s in METHODS]
+    labels = [s.label for s in run.methods]
     summary = _per_method(run.rows, labels)
     atomic_write_text(run.out / "summary.json", json_dumps(summary))
     run.report.table(
@@ -422,12 +424,12 @@ def _passages(run: _Run, quick: bool, seed: int | None, progress: Progress | Non
         + _scene_note(run, family, seeds)
     )
     per: list[dict[str, Any]] = []
-    total = len(scenes) * len(METHODS)
+    total = len(scenes) * len(run.methods)
     done = 0
     first_maps: dict[str, OccupancyMap] = {}
     for scene in scenes:
         sd = scene.params.get("seed", 0)
-        for spec in METHODS:
+        for spec in run.methods:
             m, seconds = _build(spec, scene)
             if scene is scenes[0]:
                 first_maps[spec.label] = m
@@ -448,7 +450,7 @@ def _passages(run: _Run, quick: bool, seed: int | None, progress: Progress | Non
             done += 1
             if progress is not None:
                 progress(done, total)
-    labels = [s.label for s in METHODS]
+    labels = [s.label for s in run.methods]
     summary = _passage_summary(per, run.rows, labels)
     atomic_write_text(run.out / "passages.json", json_dumps(per))
     atomic_write_text(run.out / "summary.json", json_dumps(summary))
@@ -599,9 +601,9 @@ def _noise(run: _Run, quick: bool, seed: int | None, progress: Progress | None) 
         }
     )
     methods = (
-        [m for m in METHODS if m.label not in ("counting", "em-inverse-start")]
+        [m for m in run.methods if m.label not in ("counting", "em-inverse-start")]
         if quick
-        else list(METHODS)
+        else list(run.methods)
     )
     run.params.update({"levels": levels, "seed": sd, "scenario": base.params})
     run.report.text(
@@ -744,7 +746,7 @@ def _real(run: _Run, quick: bool, seed: int | None, progress: Progress | None) -
     )
     write_map(reference, run.out / "maps" / "laser-reference")
     maps: dict[str, OccupancyMap] = {}
-    for k, spec in enumerate(METHODS):
+    for k, spec in enumerate(run.methods):
         mapper = make_mapper(spec.method, **spec.params)
         t0 = time.perf_counter()
         maps[spec.label] = mapper.fit(sonar, grid, kept).result()
@@ -753,7 +755,7 @@ def _real(run: _Run, quick: bool, seed: int | None, progress: Progress | None) -
         sc = score(reference, maps[spec.label]).as_dict()
         run.rows.append({"method": spec.label, "seconds": seconds, **sc})
         if progress is not None:
-            progress(k + 1, len(METHODS))
+            progress(k + 1, len(run.methods))
     fig = save_side_by_side(
         maps, run.out / "real.png", truth=reference, truth_label="laser reference", outline=False
     )
@@ -787,7 +789,7 @@ def _real_sonar(run: _Run, readings: Any, rig: Any, what: str, progress: Progres
         "its random component."
     )
     maps: dict[str, OccupancyMap] = {}
-    for k, spec in enumerate(METHODS):
+    for k, spec in enumerate(run.methods):
         mapper = make_mapper(spec.method, **spec.params)
         t0 = time.perf_counter()
         mapper.fit(readings, grid, rig)
@@ -805,7 +807,7 @@ def _real_sonar(run: _Run, readings: Any, rig: Any, what: str, progress: Progres
         run.rows.append(row)
         write_map(maps[spec.label], run.out / "maps" / spec.label)
         if progress is not None:
-            progress(k + 1, len(METHODS))
+            progress(k + 1, len(run.methods))
     labels = list(maps)
     agree = []
     for a in labels:
@@ -858,13 +860,13 @@ def _boxes(run: _Run, quick: bool, seed: int | None, progress: Progress | None) 
         "model. The gaps between neighbouring boxes are the passages. A training scene "
         "read with the mappers' own model: a reproduction, not a claim."
     )
-    labels = [m.label for m in BOX_METHODS]
-    total = len(scenes) * len(BOX_METHODS)
+    labels = [m.label for m in run.methods]
+    total = len(scenes) * len(run.methods)
     done = 0
     for scene in scenes:
         name = f"layout{scene.params['layout']}" if "layout" in scene.params else scene.name
         maps: dict[str, OccupancyMap] = {}
-        for spec in BOX_METHODS:
+        for spec in run.methods:
             m, seconds = _build(spec, scene)
             maps[spec.label] = m
             write_map(m, run.out / "maps" / name / spec.label)
@@ -935,6 +937,7 @@ def run_experiment(
     resolution: float = 0.1,
     truth_resolution: float | None = None,
     truth_origin: tuple[float, float] = (0.0, 0.0),
+    methods: Sequence[MethodSpec] | None = None,
 ) -> Path:
     """Run an experiment into folder ``out``; return the path of its ``report.html``.
 
@@ -963,6 +966,9 @@ def run_experiment(
     truth_resolution, truth_origin : float and (float, float), optional
         For a ``scene`` folder whose truth is a bare image (``truth.png``): metres per
         pixel, and the world position of its lower-left corner (metres).
+    methods : sequence of MethodSpec, optional
+        The methods mapped, in order, each under its own label (default: the module's
+        :data:`METHODS`; ``boxes``: :data:`BOX_METHODS`).
     """
     if scene is not None and scene_params:
         raise ConfigError("give either a scene folder or scene parameters, not both")
@@ -974,6 +980,14 @@ def run_experiment(
         body = EXPERIMENTS[name]
     except KeyError:
         raise ConfigError(f"unknown experiment '{name}'; valid: {', '.join(EXPERIMENTS)}") from None
+    if methods is None:
+        specs = BOX_METHODS if name == "boxes" else METHODS
+    else:
+        specs = tuple(methods)
+        labels = [m.label for m in specs]
+        if not specs or len(set(labels)) != len(labels):
+            # Each method's maps are written into a folder named by its label.
+            raise ConfigError(f"methods: want one or more distinct labels, got {labels}")
     folder = Path(out)
     run = _Run(
         folder,
@@ -988,6 +1002,7 @@ def run_experiment(
         resolution=resolution,
         truth_resolution=truth_resolution,
         truth_origin=truth_origin,
+        methods=specs,
     )
     run.params.update(
         {
@@ -996,10 +1011,7 @@ def run_experiment(
             "paper": paper,
             "seed": seed,
             "model": model_to_dict(model) if model is not None else "the scene's default",
-            "methods": [
-                {"label": m.label, "method": m.method, "params": m.params}
-                for m in (BOX_METHODS if name == "boxes" else METHODS)
-            ],
+            "methods": [{"label": m.label, "method": m.method, "params": m.params} for m in specs],
         }
     )
     run.report.text(

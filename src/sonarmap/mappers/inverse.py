@@ -86,13 +86,17 @@ class InverseMapper(Mapper):
         it, so that an echo's range says most surely "nothing nearer" near the axis,
         while where on its arc the echo came from is not known: a narrower free
         fall-off confines the free evidence to where the no-wall claim is surest. With
-        a value other than ``falloff_deg`` each chunk of readings is rasterised with
-        its bearings and inserted from that footprint, slower than the insertion
-        kernel, which weighs both increments with one fall-off. Off by default: a
-        narrower free fall-off keeps the walls a wide beam meets at a slant but leaves
-        more cells in front of the walls occupied and closes doorways
+        a value other than ``falloff_deg`` each chunk of readings (``chunk_size``,
+        50,000 readings) is rasterised with its bearings and inserted from that
+        footprint: slower than the insertion kernel, which weighs both increments with
+        one fall-off, and it holds, per chunk, the footprint (each entry's cell,
+        distance, sensitivity and bearing) and two float64 arrays of weights (one
+        weight per free entry, one per occupied entry), which the kernel does not. Off
+        by default: a narrower free fall-off keeps the walls a wide beam meets at a
+        slant but leaves more cells in front of the walls occupied and closes doorways
         (docs/results/2026-12-07-inverse-free-falloff.md). Streams with the ``all``
-        strategy only.
+        strategy only, unless unset or 0 (a bounded window also needs
+        ``falloff_deg=0``).
     no_echo : {"free", "ignore"}
         A reading with no echo clears its beam up to ``no_echo_reach - dr`` (``free``) or
         is skipped (``ignore``).
@@ -232,6 +236,12 @@ class InverseMapper(Mapper):
             return 1.0 - math.cos(a)
         return float(self.free_stop)
 
+    @property
+    def free_falloff_deg(self) -> float:
+        """The free increment's fall-off in effect, degrees: ``falloff_free_deg`` when
+        set, else ``falloff_deg``."""
+        return self.falloff_deg if self.falloff_free_deg is None else self.falloff_free_deg
+
     def _reset(self) -> None:
         self._logodds = np.zeros(self.grid.size, dtype=np.float64)
         self._touched = np.zeros(self.grid.size, dtype=np.bool_)
@@ -262,7 +272,7 @@ class InverseMapper(Mapper):
                 readings,
                 dr=self.dr,
                 offset=self.band_offset_for(self.grid),
-                with_bearing=self.falloff_deg > 0 or self._free_sigma() > 0,
+                with_bearing=self.falloff_deg > 0 or self.free_falloff_deg > 0,
                 no_echo_reach=self.no_echo_reach,
                 free_stop=self.free_stop_for(self.sensor),
                 advice="turn the incidence weighting off (specular_deg=0), map fewer "
@@ -273,7 +283,7 @@ class InverseMapper(Mapper):
             return
         if rebuild:
             self._reset()
-        if self._free_sigma() != math.radians(self.falloff_deg):
+        if self.free_falloff_deg != self.falloff_deg:
             self._insert_split(readings, weights, (l_free, l_occ), (lo, hi), progress)
             return
         # Nothing is stored per reading, fall-off or not: the insertion kernel weighs
@@ -299,12 +309,6 @@ class InverseMapper(Mapper):
                 free_stop=self.free_stop_for(self.sensor),
             )
 
-    def _free_sigma(self) -> float:
-        """The free increment's fall-off, radians (``falloff_free_deg``, else
-        ``falloff_deg``)."""
-        deg = self.falloff_deg if self.falloff_free_deg is None else self.falloff_free_deg
-        return math.radians(deg)
-
     def _insert_split(
         self,
         readings: Readings,
@@ -317,7 +321,7 @@ class InverseMapper(Mapper):
         fall-offs (``falloff_free_deg``): chunk by chunk from footprints with bearings,
         reading by reading and clamping after each, as
         :func:`~sonarmap.raster.accumulate` does; no footprint outlives its chunk."""
-        sig_free, sig_occ = self._free_sigma(), math.radians(self.falloff_deg)
+        sig_free, sig_occ = math.radians(self.free_falloff_deg), math.radians(self.falloff_deg)
         for a, fp in self._footprints(
             readings,
             dr=self.dr,
@@ -360,7 +364,7 @@ class InverseMapper(Mapper):
         """
         x, y = readings.x, readings.y
         sh = shield(self.grid, fps, x, y, math.radians(self.specular_deg))
-        sigma, sig_free = math.radians(self.falloff_deg), self._free_sigma()
+        sigma, sig_free = math.radians(self.falloff_deg), math.radians(self.free_falloff_deg)
         a = 0
         for fp in fps:
             b = a + fp.free.n_readings
@@ -474,9 +478,10 @@ class InverseStream(StreamEngine):
     strategy a cell's log-odds are the sum of the increments of the readings in play
     that touch it -- added as readings enter, subtracted as they leave -- clamped when
     read; a cell that no reading in play touches keeps its last value. That forgets old
-    evidence, which lets the map follow a changing scene. The fall-off option needs
-    the ``all`` strategy. The incidence weighting (``specular_deg``) is refused: it
-    needs every echo's band before the first free increment.
+    evidence, which lets the map follow a changing scene. The fall-off options need
+    the ``all`` strategy: a bounded window needs ``falloff_deg=0`` and
+    ``falloff_free_deg`` unset (or 0). The incidence weighting (``specular_deg``) is
+    refused: it needs every echo's band before the first free increment.
     """
 
     keeps_readings = False
@@ -497,7 +502,7 @@ class InverseStream(StreamEngine):
                 "inverse fall-off streams only with the 'all' strategy; for a bounded "
                 "window set falloff_deg=0"
             )
-        if strategy.bounded and mapper.falloff_free_deg:
+        if strategy.bounded and mapper.free_falloff_deg > 0:
             raise ConfigError(
                 "inverse falloff_free_deg streams only with the 'all' strategy; for a "
                 "bounded window leave it unset"
