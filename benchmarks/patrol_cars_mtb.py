@@ -2,7 +2,8 @@
 
 One run of :mod:`benchmarks.patrol_cars`'s command-line setting (the library's car
 defaults, :func:`benchmarks.patrol_fallback.fallback_config`; ``--one-way off`` drives
-every street both ways also for teams) per team size. Sampled every 10 s of the run:
+every street both ways also for teams; ``--leftover M`` as the benchmark's) per team
+size. Sampled every 10 s of the run:
 
 - ``all_seen_s``: when the last place of the site was first seen (None: never);
 - ``mean_mtb``: the benchmark's mean MTB (after a fifth of the run), s;
@@ -54,7 +55,9 @@ KNOBS = (
 EVERY_S = 10.0
 
 
-def watch_run(site: int, cars: int, duration: float, oneway: bool) -> dict[str, Any]:
+def watch_run(
+    site: int, cars: int, duration: float, oneway: bool, leftover: float = 0.0
+) -> dict[str, Any]:
     """One run's MTB record (see the module's notes)."""
     base = fallback_config(cars, duration)
     # Built anew, not replaced: the configuration settles its car defaults once.
@@ -65,6 +68,7 @@ def watch_run(site: int, cars: int, duration: float, oneway: bool) -> dict[str, 
         duration,
         **{k: getattr(base, k) for k in KNOBS},
         one_way=oneway and cars > 1,
+        leftover=leftover,
     )
     t = street_territory(site)
     w = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision)
@@ -99,6 +103,7 @@ def watch_run(site: int, cars: int, duration: float, oneway: bool) -> dict[str, 
         "site": site,
         "cars": cars,
         "one_way": oneway and cars > 1,
+        "leftover": leftover,
         "duration": duration,
         "dvt": round(float(s["dvt"]), 2),
         "never_seen": round(100 * float(s["never_seen"]), 3),
@@ -120,10 +125,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cars", type=int, nargs="+", default=[1, 3, 5])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--one-way", choices=["teams", "off"], default="teams")
+    ap.add_argument("--leftover", type=float, default=0.0)
     a = ap.parse_args(argv)
     for site in a.sites:
         for cars in a.cars:
-            print(json.dumps(watch_run(site, cars, a.duration, a.one_way == "teams")), flush=True)
+            print(
+                json.dumps(watch_run(site, cars, a.duration, a.one_way == "teams", a.leftover)),
+                flush=True,
+            )
     return 0
 
 

@@ -31,6 +31,7 @@ one process, one core (``NUMBA_NUM_THREADS=1``).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 import os
@@ -79,7 +80,7 @@ def shape(arcs: list[tuple[float, float]]) -> dict[str, Any]:
     """Cusps and metres in reverse and forwards of ``arcs``."""
     gears = [math.copysign(1.0, a) for a, _ in arcs]
     return {
-        "cusps": sum(1 for a, b in zip(gears, gears[1:], strict=False) if a != b),
+        "cusps": sum(1 for a, b in itertools.pairwise(gears) if a != b),
         "rev_m": round(sum(-a for a, _ in arcs if a < 0), 1),
         "fwd_m": round(sum(a for a, _ in arcs if a > 0), 1),
     }
