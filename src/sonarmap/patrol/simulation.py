@@ -323,13 +323,13 @@ class PatrolConfig:
     #: ``duration``. Needs ``line_of_sight`` False; with it or ``stub_sight``, ``vision``
     #: must be at least :data:`SIGHT_MARGIN`.
     stub_delay: float = 0.0
-    #: Track: metres round the place a car went for within which, once that place is
-    #: seen, the places its look missed and that had been seen no later than it had
-    #: when chosen (never seen, or as stale) are its next place, the nearest first
-    #: (:func:`_leftover`): a car that drives into a dead-end stub for its end sees the
-    #: end's middle from 10 m and would choose afresh, leaving the far corners 1 m
-    #: beyond its vision for good (two cells of pull lose the mode's vote). 0 (the
-    #: default): it chooses afresh.
+    #: Track: metres round the place a car chose within which, once that place is
+    #: seen, the places no wave reaches that its looks missed and that had been seen no
+    #: later than it had when chosen (never seen, or as stale) are its next places, the
+    #: nearest first, until none is left (:func:`_leftover`): a car that drives into a
+    #: dead-end stub for its end sees the end's middle from 10 m and would choose
+    #: afresh, leaving the far corners 1 m beyond its vision for good (two cells of pull
+    #: lose the mode's vote). 0 (the default): it chooses afresh.
     leftover: float = 0.0
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
@@ -1654,6 +1654,8 @@ def run_patrol(
     # chose it, and the cell its wave goes to for a leftover no wave reaches.
     aim_last = np.full(len(team), -np.inf)
     via: list[tuple[int, int] | None] = [None] * len(team)
+    # The place each car chose (not a leftover): leftovers are looked for round it only.
+    chosen: list[tuple[int, int] | None] = [None] * len(team)
     anchors = (
         _wave_anchors(passable, watched) if tracking and hold_fast and config.leftover > 0 else None
     )
@@ -1695,11 +1697,17 @@ def run_patrol(
             mine_fog = own[0 if shared else i]
             if anchors is not None and held is not None and mine_fog.last[held] >= aimed_at[i]:
                 left = _leftover(
-                    mine_fog, targets, held, float(aim_last[i]), config.leftover, anchors[2]
+                    mine_fog,
+                    targets,
+                    chosen[i] or held,
+                    float(aim_last[i]),
+                    config.leftover,
+                    anchors[2],
                 )
                 if left is not None:
-                    # aim_last stays the first place's: a leftover's leftovers must be as
-                    # stale as it was.
+                    # aim_last and the centre stay the chosen place's: the leftovers
+                    # along a street's wall-side cells (none of which a wave reaches)
+                    # would otherwise lead a car on from one to the next.
                     aims[i], aimed_at[i], held = left, mine_fog.t, left
                     via[i] = (int(anchors[0][left]), int(anchors[1][left]))
             closed: npt.NDArray[np.intp] | None = None
@@ -1832,7 +1840,7 @@ def run_patrol(
                         )
                     ):
                         aims[i], aimed_at[i] = place, own[j].t
-                        aim_last[i], via[i] = own[j].last[place], None
+                        aim_last[i], via[i], chosen[i] = own[j].last[place], None, place
                         directions.append(way)
                         goals.append(_path_goal(team, i, place, waver, g, passable, config))
                         continue
@@ -1988,7 +1996,7 @@ def run_patrol(
                 goal = None if pick is None else (int(rr[pick]), int(cc[pick]))
                 aims[i], aimed_at[i] = goal, mine.t
                 aim_last[i] = mine.last[goal] if goal is not None else -np.inf
-                via[i] = None
+                via[i], chosen[i] = None, goal
             if tracking:
                 goals.append(
                     _car_carrot(
