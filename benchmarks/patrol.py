@@ -16,7 +16,8 @@ direction choice, one core. For each cell size (``--cells``, default the thesis'
   final positions must be identical;
 - mean MTB, DVT and the share never seen, so the two cell sizes can be compared.
 
-Run with ``python -m benchmarks.patrol [--cells 0.1 0.5] [--duration 1200] [--json F]``.
+Run with ``python -m benchmarks.patrol [--cells 0.1 0.5] [--duration 1200] [--leftover 0]
+[--json F]`` (``--leftover M``: the cars' ``PatrolConfig.leftover``, off by default).
 
 With ``--profile SECONDS`` it measures nothing of the above: for each cell size it runs
 5 simulated seconds untimed (numba's kernels compiled or loaded, the territory built),
@@ -49,12 +50,14 @@ from sonarmap.patrol.territory import Territory
 
 
 def table4(
-    cell: float, duration: float, prune: bool = True
+    cell: float, duration: float, prune: bool = True, leftover: float = 0.0
 ) -> tuple[Territory, PatrolConfig, npt.NDArray[np.float64]]:
     """Table 4's setting: the ``fig3-10`` map at ``cell`` metres, the car defaults with
     refinement, crowding by obstacles and the mode's direction, ``duration`` seconds,
     and the map's first 5 starts (world x, y, heading). ``prune``: waves limited to
-    what they need (default True; False: whole-map waves, the reference)."""
+    what they need (default True; False: whole-map waves, the reference).
+    ``leftover``: :attr:`~sonarmap.patrol.simulation.PatrolConfig.leftover`, metres
+    (default 0: none)."""
     territory, starts = builtin_territory("fig3-10", cell)
     config = PatrolConfig(
         model="car",
@@ -65,12 +68,15 @@ def table4(
         duration=duration,
         cell=cell,
         prune=prune,
+        leftover=leftover,
     )
     return territory, config, starts_from_dm(starts[:5], territory)
 
 
-def _run(cell: float, duration: float, prune: bool, seed: int) -> tuple[PatrolResult, float, float]:
-    territory, config, starts = table4(cell, duration, prune)
+def _run(
+    cell: float, duration: float, prune: bool, seed: int, leftover: float = 0.0
+) -> tuple[PatrolResult, float, float]:
+    territory, config, starts = table4(cell, duration, prune, leftover)
     t0, c0 = time.perf_counter(), time.process_time()
     res = run_patrol(territory, config, starts=starts, seed=seed)
     return res, time.perf_counter() - t0, time.process_time() - c0
@@ -84,13 +90,15 @@ def _same(a: PatrolResult, b: PatrolResult) -> bool:
     )
 
 
-def measure(cell: float, duration: float, check: float, seed: int) -> dict[str, Any]:
+def measure(
+    cell: float, duration: float, check: float, seed: int, leftover: float = 0.0
+) -> dict[str, Any]:
     """One cell size: speed over ``duration``, identity with whole-map waves over
-    ``check`` seconds."""
-    _run(cell, 5.0, True, seed)  # compile and build the territory before timing
-    res, wall, cpu = _run(cell, duration, True, seed)
-    short, _, _ = _run(cell, check, True, seed)
-    full, full_wall, _ = _run(cell, check, False, seed)
+    ``check`` seconds (``leftover``: the cars' option, metres; default 0)."""
+    _run(cell, 5.0, True, seed, leftover)  # compile and build the territory before timing
+    res, wall, cpu = _run(cell, duration, True, seed, leftover)
+    short, _, _ = _run(cell, check, True, seed, leftover)
+    full, full_wall, _ = _run(cell, check, False, seed, leftover)
     s = res.summary()
     return {
         "cell_m": cell,
@@ -132,6 +140,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
     parser.add_argument(
+        "--leftover", type=float, default=0.0, help="The cars' leftover option, metres."
+    )
+    parser.add_argument(
         "--profile",
         type=float,
         metavar="SECONDS",
@@ -144,7 +155,7 @@ def main() -> None:
         for c in args.cells:
             profile(c, args.profile, args.seed)
         return
-    rows = [measure(c, args.duration, args.check, args.seed) for c in args.cells]
+    rows = [measure(c, args.duration, args.check, args.seed, args.leftover) for c in args.cells]
     head = (
         f"{'cell':>5} {'x real time':>11} {'CPU s':>7} {'x per CPU s':>11} {'target':>7} "
         f"{'same':>5} {'whole-map x':>11} "

@@ -21,7 +21,9 @@ in the runs of more than one car (``all``: every run; ``off``: none); ``--stub-s
 has a car look down a dead-end stub
 from its junction rather than drive in for a place it sees from there, and
 ``--stub-delay S`` has the places it must enter a stub to see pull as if seen S
-seconds later (:mod:`sonarmap.patrol.stubs`; both off by default). For each site,
+seconds later (:mod:`sonarmap.patrol.stubs`; both off by default); ``--leftover M``
+has a car whose place was seen go next for the places within M metres of it its look
+missed (``PatrolConfig.leftover``; 0, the default: none). For each site,
 planner, team size and seed one run of ``--duration`` simulated seconds, reporting:
 
 - ``DVT``: the team's mean share of time in the dead-end escape mode, %;
@@ -44,7 +46,7 @@ Run with ``python -m benchmarks.patrol_cars [--sites 1000 1001] [--cars 1 3 5]
 [--forward-stale 10] [--give-up 3]
 [--turn-penalty 10] [--turn-time 30] [--no-out-of-sight] [--round-block 60]
 [--one-way off|teams|all]
-[--stub-sight] [--stub-delay 0]
+[--stub-sight] [--stub-delay 0] [--leftover 0]
 [--seeds 0]
 [--duration 3600]
 [--json F]``; one process, one core (``NUMBA_NUM_THREADS=1``). Each run prints one
@@ -85,6 +87,7 @@ def car_config(
     one_way: bool = False,
     stub_sight: bool = False,
     stub_delay: float = 0.0,
+    leftover: float = 0.0,
 ) -> PatrolConfig:
     """The cars' configuration of one run (see the module's notes): ``crowding`` only
     with more than one car, refined paths. Every knob is given, with this function's
@@ -104,6 +107,7 @@ def car_config(
         one_way=one_way,
         stub_sight=stub_sight,
         stub_delay=stub_delay,
+        leftover=leftover,
         refine=True,
         crowding=crowding if cars > 1 else "none",
         duration=duration,
@@ -124,6 +128,7 @@ RECORDED = {
     "one_way": "one_way",
     "stub_sight": "stub_sight",
     "stub_delay": "stub_delay",
+    "leftover": "leftover",
 }
 
 
@@ -188,6 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--one-way", choices=["off", "teams", "all"], default="teams")
     ap.add_argument("--stub-sight", action="store_true")
     ap.add_argument("--stub-delay", type=float, default=0.0)
+    ap.add_argument("--leftover", type=float, default=0.0)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--json", type=Path)
@@ -218,6 +224,7 @@ def main(argv: list[str] | None = None) -> int:
                         one_way=a.one_way == "all" or (a.one_way == "teams" and cars > 1),
                         stub_sight=a.stub_sight,
                         stub_delay=a.stub_delay,
+                        leftover=a.leftover,
                     )
                     row = run_one(site, cars, seed, config)
                     print(json.dumps(row), flush=True)

@@ -323,6 +323,14 @@ class PatrolConfig:
     #: ``duration``. Needs ``line_of_sight`` False; with it or ``stub_sight``, ``vision``
     #: must be at least :data:`SIGHT_MARGIN`.
     stub_delay: float = 0.0
+    #: Track: metres round the place a car chose within which, once that place is
+    #: seen, the places no wave reaches that its looks missed and that had been seen no
+    #: later than it had when chosen (never seen, or as stale) are its next places, the
+    #: nearest first, until none is left (:func:`_leftover`): a car that drives into a
+    #: dead-end stub for its end sees the end's middle from 10 m and would choose
+    #: afresh, leaving the far corners 1 m beyond its vision for good (two cells of pull
+    #: lose the mode's vote). 0 (the default): it chooses afresh.
+    leftover: float = 0.0
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
     vision: float = 10.0
@@ -492,6 +500,15 @@ class PatrolConfig:
                 "stub_delay applies to tracking cars seeing a disc (model 'car', "
                 "car_planner 'track', line_of_sight False)",
                 field="stub_delay",
+            )
+        if not (math.isfinite(self.leftover) and self.leftover >= 0):
+            raise ConfigError(
+                f"leftover must be >= 0 metres, got {self.leftover}", field="leftover"
+            )
+        if self.leftover > 0 and not (self.model == "car" and self.car_planner == "track"):
+            raise ConfigError(
+                "leftover applies to tracking cars only (model 'car', car_planner 'track')",
+                field="leftover",
             )
         if self.stub_delay > self.duration:
             # A delay past the mission's end never wears off: the place never pulls.
@@ -961,6 +978,58 @@ def _stale(top: float, ratio: float, fog: Fog) -> bool:
     if math.isfinite(line) and abs(top - line) <= 1e-6 * max(abs(top), abs(line), 1.0):
         return top > ratio * _mean_seen_tb(fog)
     return top > line
+
+
+def _wave_anchors(
+    passable: npt.NDArray[np.bool_], watched: npt.NDArray[np.bool_]
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.bool_]]:
+    """Per cell, the row and column of the nearest watched cell a wave over
+    ``passable`` with the watched cells as its targets can end at (a passable cell, or
+    a watched one a step from one): where a car's wave goes for a place that no wave
+    reaches (a stub's far corner beyond the last cell its centre may be on), and the
+    watched cells that are no such end (a wave's places pull for them from their
+    anchors)."""
+    from scipy import ndimage
+
+    ends = watched & ndimage.binary_dilation(passable, structure=np.ones((3, 3), dtype=bool))
+    if not ends.any():
+        own: npt.NDArray[np.intp] = np.indices(passable.shape, dtype=np.intp)
+        return own[0], own[1], np.zeros_like(watched)
+    _, (ar, ac) = ndimage.distance_transform_edt(~ends, return_indices=True)
+    return ar.astype(np.intp), ac.astype(np.intp), watched & ~ends
+
+
+def _leftover(
+    fog: Fog,
+    targets: npt.NDArray[np.bool_],
+    place: tuple[int, int],
+    before: float,
+    radius: float,
+    shade: npt.NDArray[np.bool_],
+) -> tuple[int, int] | None:
+    """The nearest of the ``targets`` in ``shade`` (the places no wave reaches:
+    beyond the last cell a car's centre may be on and the step past it) within
+    ``radius`` metres of ``place`` last seen
+    no later than ``before`` (the time ``place`` had last been seen when a car chose it;
+    never-seen places are last seen before every time), by ``fog``: a place the look
+    that saw ``place`` missed and as worth the trip as it was; None when there is none
+    (``config.leftover``)."""
+    res = fog.grid.resolution
+    k = math.floor(radius / res + 1e-9)
+    r0, c0 = place
+    rows, cols = fog.last.shape
+    ra, rb, ca, cb = max(0, r0 - k), min(rows, r0 + k + 1), max(0, c0 - k), min(cols, c0 + k + 1)
+    window = (fog.last[ra:rb, ca:cb] <= before) & targets[ra:rb, ca:cb] & fog.watched[ra:rb, ca:cb]
+    window &= shade[ra:rb, ca:cb]
+    rr, cc = np.nonzero(window)
+    if not len(rr):
+        return None
+    d = np.hypot(rr + ra - r0, cc + ca - c0) * res
+    near = d <= radius + 1e-9
+    if not near.any():
+        return None
+    j = int(np.flatnonzero(near)[np.argmin(d[near])])
+    return int(rr[j] + ra), int(cc[j] + ca)
 
 
 def _held_goal(
@@ -1581,6 +1650,15 @@ def run_patrol(
     # Path motion: the place each robot goes for, and when it chose it.
     aims: list[tuple[int, int] | None] = [None] * len(team)
     aimed_at = np.zeros(len(team))
+    # Leftovers (``config.leftover``): when each car's place was last seen before it
+    # chose it, and the cell its wave goes to for a leftover no wave reaches.
+    aim_last = np.full(len(team), -np.inf)
+    via: list[tuple[int, int] | None] = [None] * len(team)
+    # The place each car chose (not a leftover): leftovers are looked for round it only.
+    chosen: list[tuple[int, int] | None] = [None] * len(team)
+    anchors = (
+        _wave_anchors(passable, watched) if tracking and hold_fast and config.leftover > 0 else None
+    )
     # The places the robots go for: the watched ones but those the cars gave up.
     targets = watched
     giving_up = tracking and config.give_up > 0
@@ -1617,6 +1695,21 @@ def run_patrol(
         for i in range(len(team)):
             held = aims[i]
             mine_fog = own[0 if shared else i]
+            if anchors is not None and held is not None and mine_fog.last[held] >= aimed_at[i]:
+                left = _leftover(
+                    mine_fog,
+                    targets,
+                    chosen[i] or held,
+                    float(aim_last[i]),
+                    config.leftover,
+                    anchors[2],
+                )
+                if left is not None:
+                    # aim_last and the centre stay the chosen place's: the leftovers
+                    # along a street's wall-side cells (none of which a wave reaches)
+                    # would otherwise lead a car on from one to the next.
+                    aims[i], aimed_at[i], held = left, mine_fog.t, left
+                    via[i] = (int(anchors[0][left]), int(anchors[1][left]))
             closed: npt.NDArray[np.intp] | None = None
             if (
                 hold_fast
@@ -1632,7 +1725,7 @@ def run_patrol(
                     team,
                     i,
                     start,
-                    held,
+                    via[i] or held,
                     waver,
                     g,
                     passable,
@@ -1747,6 +1840,7 @@ def run_patrol(
                         )
                     ):
                         aims[i], aimed_at[i] = place, own[j].t
+                        aim_last[i], via[i], chosen[i] = own[j].last[place], None, place
                         directions.append(way)
                         goals.append(_path_goal(team, i, place, waver, g, passable, config))
                         continue
@@ -1901,6 +1995,8 @@ def run_patrol(
                 )
                 goal = None if pick is None else (int(rr[pick]), int(cc[pick]))
                 aims[i], aimed_at[i] = goal, mine.t
+                aim_last[i] = mine.last[goal] if goal is not None else -np.inf
+                via[i], chosen[i] = None, goal
             if tracking:
                 goals.append(
                     _car_carrot(
