@@ -246,9 +246,10 @@ def rasterise(
         How far short of the band an echo's Omega_free stops, as a fraction of its range,
         in [0, 1) (default 0: at the band's near edge). No-echo readings are not moved.
     band_growth : float
-        Growth of an echo's band half-width with its range, metres per metre (>= 0;
-        default 0: every band ``dr``). With g > 0 the echo at range r has the half-width
-        ``max(dr, g r)``; no-echo readings' free regions still end at ``reach - dr``.
+        Growth of an echo's band half-width with its range, metres per metre, in
+        [0, 1) (default 0: every band ``dr``). With g > 0 the echo at range r has the
+        half-width ``max(dr, g r)``; no-echo readings' free regions still end at
+        ``reach - dr``.
 
     Returns
     -------
@@ -296,9 +297,10 @@ def _limits(
         raise ConfigError(f"the band offset must be a non-negative number of metres, got {offset}")
     if no_echo_reach is not None and not (math.isfinite(no_echo_reach) and no_echo_reach > 0):
         raise ConfigError(f"no_echo_reach must be a positive number of metres, got {no_echo_reach}")
-    if not (math.isfinite(band_growth) and band_growth >= 0):
+    # At g >= 1 the band would reach back to the sensor: no free region, the beam all band.
+    if not (math.isfinite(band_growth) and 0.0 <= band_growth < 1.0):
         raise ConfigError(
-            f"band_growth must be a non-negative number of metres per metre, got {band_growth}"
+            f"band_growth must be a number of metres per metre in [0, 1), got {band_growth}"
         )
     echo = r < sensor.r_max
     # A no-echo reading has no band to move: its free region ends at r_max - dr, or

@@ -177,7 +177,8 @@ class GradientMapper(Mapper):
         (default): 0.75 of a cell. See :mod:`sonarmap.raster` for why.
     band_growth : float
         Growth of the Omega_occ band's half-width with the echo's range, metres per
-        metre (>= 0; default 0: every band ``dr`` wide either side). With g > 0 an echo
+        metre, in [0, 1) (default 0: every band ``dr`` wide either side; at 1 the band
+        would reach back to the sensor and swallow the beam). With g > 0 an echo
         at range r has the half-width ``max(dr, g r)``: a sonar's range error (the
         speed of sound, the timing of a weakening echo) grows with the range, and so
         does the patch of a wall across the beam whose points lie within a band of the
@@ -257,7 +258,9 @@ class GradientMapper(Mapper):
         ``[k 2 dr, (k + 1) 2 dr)``, one echo band's width deep (see
         :func:`~sonarmap.mappers._forward.shell_factors`), so that a cell passed by a
         beam weighs against it about g over its shell's size, as an echo band's cell
-        weighs for it one over the band's. Offline only: streaming refuses it.
+        weighs for it one over the band's. The shells stay ``2 dr`` deep whatever
+        ``band_growth``: far echoes' grown bands span several shells. Offline only:
+        streaming refuses it.
     polish : float
         Sparsity weight l1 >= 0 of a last pass over the solved map (0, off): each
         occupied cell, cheapest first, is emptied when that lowers ``S(x) + l1 sum x``,
@@ -366,7 +369,7 @@ class GradientMapper(Mapper):
             number("dr", dr, 0.0, None)
         if band_offset is not None:
             number("band_offset", band_offset, 0.0, None)
-        number("band_growth", band_growth, 0.0, None)
+        number("band_growth", band_growth, 0.0, 1.0, hi_open=True)
         number("robust", robust, 0.0, None)
         choice("robust_terms", robust_terms, ROBUST_TERMS)
         integer("robust_rounds", robust_rounds, 1)
