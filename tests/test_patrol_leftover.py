@@ -47,4 +47,16 @@ def test_leftover_is_for_tracking_cars_and_a_distance() -> None:
         PatrolConfig(leftover=2.0)
     with pytest.raises(ConfigError, match="leftover"):
         PatrolConfig(model="car", car_planner="thesis", leftover=2.0)
+    # A tracking car acts on leftovers only while it keeps a goal on the mode's wave
+    # paths: elsewhere the option would do nothing, so it is refused.
+    for other in (
+        {"keep_goal": False},
+        {"policy": "reactive"},
+        {"policy": "gravity"},
+        {"direction": "vector"},
+        {"paths": "straight"},
+    ):
+        assert PatrolConfig(model="car", **other).leftover == 0.0
+        with pytest.raises(ConfigError, match="leftover applies .*keep_goal True"):
+            PatrolConfig(model="car", leftover=2.0, **other)
     assert PatrolConfig(model="car", leftover=2.0).leftover == 2.0
