@@ -17,13 +17,12 @@ size. Sampled every 10 s of the run:
   each place's longest time unseen after a fifth of the run (never-seen places count
   from that time), s.
 
-Run with ``python -m benchmarks.patrol_cars_mtb --site 3 --cars 1 3 5 --duration 3600``;
+Run with ``python -m benchmarks.patrol_cars_mtb --sites 3 --cars 1 3 5 --duration 3600``;
 one process, one core (``NUMBA_NUM_THREADS=1``).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 from typing import Any
@@ -32,6 +31,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
+from benchmarks.patrol import OneLineParser, non_negative
 from benchmarks.patrol_cars import car_config
 from benchmarks.patrol_fallback import fallback_config
 from sonarmap.patrol import run_patrol
@@ -120,12 +120,12 @@ def watch_run(
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.patrol_cars_mtb", description=__doc__)
+    ap = OneLineParser(prog="python -m benchmarks.patrol_cars_mtb", description=__doc__)
     ap.add_argument("--sites", type=int, nargs="+", default=[3])
     ap.add_argument("--cars", type=int, nargs="+", default=[1, 3, 5])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--one-way", choices=["teams", "off"], default="teams")
-    ap.add_argument("--leftover", type=float, default=0.0)
+    ap.add_argument("--leftover", type=non_negative, default=0.0)
     a = ap.parse_args(argv)
     for site in a.sites:
         for cars in a.cars:
