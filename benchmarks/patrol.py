@@ -31,11 +31,12 @@ from __future__ import annotations
 import argparse
 import cProfile
 import json
+import math
 import os
 import platform
 import pstats
 import time
-from typing import Any
+from typing import Any, NoReturn
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -47,6 +48,24 @@ from sonarmap.patrol.maps import builtin_territory
 from sonarmap.patrol.simulation import PatrolResult
 from sonarmap.patrol.starts import starts_from_dm
 from sonarmap.patrol.territory import Territory
+
+
+def non_negative(text: str) -> float:
+    """An ``argparse`` type: ``text`` as a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose refusal is one line (the problem and the option), exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message}\n")
 
 
 def table4(
@@ -117,30 +136,34 @@ def measure(
     }
 
 
-def profile(cell: float, duration: float, seed: int, lines: int = 30) -> None:
+def profile(
+    cell: float, duration: float, seed: int, leftover: float = 0.0, lines: int = 30
+) -> None:
     """Print the CPU seconds and the ``lines`` largest ``tottime`` entries of a profiled
-    run of ``duration`` simulated seconds at ``cell`` metres (after an untimed 5 s)."""
-    _run(cell, 5.0, True, seed)
+    run of ``duration`` simulated seconds at ``cell`` metres (after an untimed 5 s;
+    ``leftover``: the cars' option, metres; default 0)."""
+    _run(cell, 5.0, True, seed, leftover)
     prof = cProfile.Profile()
     prof.enable()
-    _, wall, cpu = _run(cell, duration, True, seed)
+    _, wall, cpu = _run(cell, duration, True, seed, leftover)
     prof.disable()
     print(
-        f"profile: fig3-10 at {cell} m, {duration:g} simulated s, seed {seed}: "
+        f"profile: fig3-10 at {cell} m, {duration:g} simulated s, seed {seed}, "
+        f"leftover {leftover:g} m: "
         f"{cpu:.1f} s CPU, {wall:.1f} s wall (under the profiler)"
     )
     pstats.Stats(prof).sort_stats("tottime").print_stats(lines)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
+def main(argv: list[str] | None = None) -> None:
+    parser = OneLineParser(prog="python -m benchmarks.patrol", description=__doc__)
     parser.add_argument("--cells", type=float, nargs="+", default=[0.1, 0.5])
     parser.add_argument("--duration", type=float, default=1200.0)
     parser.add_argument("--check", type=float, default=120.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
     parser.add_argument(
-        "--leftover", type=float, default=0.0, help="The cars' leftover option, metres."
+        "--leftover", type=non_negative, default=0.0, help="The cars' leftover option, metres."
     )
     parser.add_argument(
         "--profile",
@@ -148,12 +171,12 @@ def main() -> None:
         metavar="SECONDS",
         help="Profile a run of this many simulated seconds per cell size instead.",
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.profile is not None:
         if not args.profile > 0:
             parser.error(f"--profile must be > 0 simulated seconds, got {args.profile}")
         for c in args.cells:
-            profile(c, args.profile, args.seed)
+            profile(c, args.profile, args.seed, args.leftover)
         return
     rows = [measure(c, args.duration, args.check, args.seed, args.leftover) for c in args.cells]
     head = (

@@ -65,6 +65,7 @@ from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
+from benchmarks.patrol import OneLineParser, non_negative
 from sonarmap.patrol import PatrolConfig, run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
@@ -169,7 +170,7 @@ def run_one(site: int, cars: int, seed: int, config: PatrolConfig) -> dict[str, 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.patrol_cars", description=__doc__)
+    ap = OneLineParser(prog="python -m benchmarks.patrol_cars", description=__doc__)
     ap.add_argument("--sites", type=int, nargs="+", default=[1000])
     ap.add_argument("--cars", type=int, nargs="+", default=[1, 3, 5])
     ap.add_argument("--planners", nargs="+", default=["track"])
@@ -192,8 +193,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--round-block", type=float, default=float(CAR_DEFAULTS["round_block"]))
     ap.add_argument("--one-way", choices=["off", "teams", "all"], default="teams")
     ap.add_argument("--stub-sight", action="store_true")
-    ap.add_argument("--stub-delay", type=float, default=0.0)
-    ap.add_argument("--leftover", type=float, default=0.0)
+    ap.add_argument("--stub-delay", type=non_negative, default=0.0)
+    ap.add_argument("--leftover", type=non_negative, default=0.0)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--json", type=Path)

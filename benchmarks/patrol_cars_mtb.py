@@ -15,15 +15,18 @@ size. Sampled every 10 s of the run:
   share of the places;
 - ``gap_stub`` / ``gap_other``: the mean, over the places in stubs and the others, of
   each place's longest time unseen after a fifth of the run (never-seen places count
-  from that time), s.
+  from that time), s;
+- ``unreached_share``: the share of the places no wave reaches (more than a step from
+  every cell a car's centre may be on; ``PatrolConfig.leftover``'s places), %;
+- ``never_seen_closest_m``: per group of places never seen in the run (8-connected),
+  the closest any car's point came to a cell centre of it, metres, sampled every step.
 
-Run with ``python -m benchmarks.patrol_cars_mtb --site 3 --cars 1 3 5 --duration 3600``;
+Run with ``python -m benchmarks.patrol_cars_mtb --sites 3 --cars 1 3 5 --duration 3600``;
 one process, one core (``NUMBA_NUM_THREADS=1``).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 from typing import Any
@@ -31,7 +34,11 @@ from typing import Any
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+from scipy.spatial import cKDTree
 
+from benchmarks.patrol import OneLineParser, non_negative
 from benchmarks.patrol_cars import car_config
 from benchmarks.patrol_fallback import fallback_config
 from sonarmap.patrol import run_patrol
@@ -76,8 +83,10 @@ def watch_run(
     in_stub = stub_places(w.passable, w.watched, ow)
     warm = duration / 5
     rec: dict[str, Any] = {"all_seen": None, "worst": [], "gap": None}
+    points: list[npt.NDArray[np.float64]] = []
 
-    def on_step(now: float, _team: Team, fog: Fog) -> None:
+    def on_step(now: float, team: Team, fog: Fog) -> None:
+        points.append(np.column_stack([team.x, team.y]).astype(np.float64))
         if round(now / cfg.dt) % round(EVERY_S / cfg.dt):
             return
         if rec["all_seen"] is None and not fog.never_seen().any():
@@ -99,6 +108,14 @@ def watch_run(
     watched = w.watched & (gap >= 0)
     other = watched & ~in_stub
     stubs = watched & in_stub
+    unreached = w.watched & ~ndimage.binary_dilation(w.passable, structure=np.ones((3, 3)))
+    closest = []
+    if result.never_seen is not None and result.never_seen.any():
+        groups, n_groups = ndimage.label(result.never_seen, structure=np.ones((3, 3)))
+        tree = cKDTree(np.concatenate(points))
+        for label in range(1, n_groups + 1):
+            gx, gy = t.grid.cell_centres(*np.nonzero(groups == label))
+            closest.append(round(float(tree.query(np.column_stack([gx, gy]))[0].min()), 2))
     return {
         "site": site,
         "cars": cars,
@@ -115,17 +132,19 @@ def watch_run(
         "worst_in_stub": round(100 * float(np.mean(rec["worst"])), 1),
         "gap_stub": round(float(gap[stubs].mean()), 1) if stubs.any() else None,
         "gap_other": round(float(gap[other].mean()), 1),
+        "unreached_share": round(100 * float(unreached.sum() / max(1, w.watched.sum())), 1),
+        "never_seen_closest_m": closest,
         "wall_seconds": round(float(s["wall_seconds"]), 1),
     }
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.patrol_cars_mtb", description=__doc__)
+    ap = OneLineParser(prog="python -m benchmarks.patrol_cars_mtb", description=__doc__)
     ap.add_argument("--sites", type=int, nargs="+", default=[3])
     ap.add_argument("--cars", type=int, nargs="+", default=[1, 3, 5])
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--one-way", choices=["teams", "off"], default="teams")
-    ap.add_argument("--leftover", type=float, default=0.0)
+    ap.add_argument("--leftover", type=non_negative, default=0.0)
     a = ap.parse_args(argv)
     for site in a.sites:
         for cars in a.cars:

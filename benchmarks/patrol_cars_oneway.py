@@ -24,7 +24,6 @@ one process, one core (``NUMBA_NUM_THREADS=1``); prints one JSON line.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 from typing import Any
@@ -33,6 +32,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
+from benchmarks.patrol import OneLineParser, non_negative
 from benchmarks.patrol_cars import car_config
 from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
@@ -115,14 +115,12 @@ def watch_run(
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m benchmarks.patrol_cars_oneway", description=__doc__
-    )
+    ap = OneLineParser(prog="python -m benchmarks.patrol_cars_oneway", description=__doc__)
     ap.add_argument("--site", type=int, default=3)
     ap.add_argument("--cars", type=int, default=5)
     ap.add_argument("--duration", type=float, default=1200.0)
     ap.add_argument("--stub-sight", action="store_true")
-    ap.add_argument("--stub-delay", type=float, default=0.0)
+    ap.add_argument("--stub-delay", type=non_negative, default=0.0)
     a = ap.parse_args(argv)
     print(json.dumps(watch_run(a.site, a.cars, a.duration, a.stub_sight, a.stub_delay)))
     return 0

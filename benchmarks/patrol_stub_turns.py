@@ -11,18 +11,26 @@ stands in a dead-end stub (:func:`sonarmap.patrol.stubs.stub_cells`) is recorded
 - the plan: ``cusps`` (changes of gear), metres in reverse and forwards;
 - ``out_m``: how far along its route the car is from the stub's mouth (the first route
   point off the stub's cells), and the street's width there (twice the clearance);
-- ``tail``: the steps driven once every arc left is forwards (past the last
-  cusp: the car has turned round and drives on, still counted as the manoeuvre's, so
-  as DVT), and ``tail_aligned`` those with the route's pursuit point within
-  :data:`ALIGNED` of the heading;
+- ``tail``: the steps of a recorded turn driven once every arc left is forwards (past
+  the last cusp), and ``tail_aligned`` those with the route's pursuit point within
+  :data:`ALIGNED` of the heading. A manoeuvre stops counting as DVT, and a turn stops
+  being recorded, once no reversing arc is left, so the forward tail is not DVT and
+  ``tail`` stays 0 unless that rule changes (a check, not a cost);
 - ``alt``: the manoeuvre a search finds from the same pose (the same other cars in
   the way) to the route 1-8 m beyond the stub's mouth rather than 3-10 m on: the
   car may back straight out and turn into the street it came from, as a
   Reeds-Shepp path with one cusp does; its cusps, metres and ``alt_est`` steps, and
   ``alt_rev_est``, the steps up to and including its last reversing arc.
 
-Printed: one JSON line per turn and a summary line (turns, mean steps, mean estimated
-steps of the plan and of ``alt``, how many turns ``alt`` would take fewer steps).
+Printed: one JSON line per turn and a summary line: ``stub_turns``, ``stub_turn_dvt``
+(their steps, % of the car-steps), ``mean_steps``, ``mean_cusps``, ``mean_out_m`` and
+``width_m`` (min, median, max) over every turn; over the turns where ``alt`` was found
+(``alt_found``), the like-for-like reversing steps: ``plan_mean_rev_est``, the mean of
+each plan's steps up to its last reversing arc (``rev_est``: the arcs left after the
+first step, estimated, plus that step), ``alt_mean_rev_est`` the same of ``alt``, and
+``alt_fewer_reversing``, the turns whose ``alt`` has fewer of them than the plan;
+``alt_mean_est`` and ``alt_fewer`` compare ``alt``'s total estimated steps (forward
+arcs included) with the steps measured (reversing only), not like with like.
 
 Run with ``python -m benchmarks.patrol_stub_turns --site 11 --cars 3 --duration 1200``;
 one process, one core (``NUMBA_NUM_THREADS=1``).
@@ -174,7 +182,12 @@ def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
         # The plan as driven: the arcs left after the first step plus that step.
         arcs = rec.pop("arcs_left")
         est, rev = steps_of(arcs, rec["per_step_m"])
-        rec["plan"] = {**shape(arcs), "est_after_first": est, "rev_est_after_first": rev}
+        rec["plan"] = {
+            **shape(arcs),
+            "est_after_first": est,
+            "rev_est_after_first": rev,
+            "rev_est": rev + 1,
+        }
     n = cars * len(result.t)
     alt_ok = [r for r in turns if r["alt"] is not None]
     return {
@@ -199,6 +212,15 @@ def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
             round(float(np.mean([r["alt"]["rev_est"] for r in alt_ok])), 1) if alt_ok else None
         ),
         "alt_fewer": sum(1 for r in alt_ok if r["alt"]["est"] < r["steps"]),
+        "plan_mean_rev_est": (
+            round(float(np.mean([r["plan"]["rev_est"] for r in alt_ok])), 1) if alt_ok else None
+        ),
+        "alt_fewer_reversing": sum(1 for r in alt_ok if r["alt"]["rev_est"] < r["plan"]["rev_est"]),
+        "width_m": (
+            [round(float(f([r["width_m"] for r in turns])), 1) for f in (np.min, np.median, np.max)]
+            if turns
+            else None
+        ),
         "turns": turns,
     }
 

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import importlib
 import math
 
 import numpy as np
@@ -47,4 +48,39 @@ def test_leftover_is_for_tracking_cars_and_a_distance() -> None:
         PatrolConfig(leftover=2.0)
     with pytest.raises(ConfigError, match="leftover"):
         PatrolConfig(model="car", car_planner="thesis", leftover=2.0)
+    # A tracking car acts on leftovers only while it keeps a goal on the mode's wave
+    # paths: elsewhere the option would do nothing, so it is refused.
+    for other in (
+        {"keep_goal": False},
+        {"policy": "reactive"},
+        {"policy": "gravity"},
+        {"direction": "vector"},
+        {"paths": "straight"},
+    ):
+        assert PatrolConfig(model="car", **other).leftover == 0.0
+        with pytest.raises(ConfigError, match=r"leftover applies .*keep_goal True"):
+            PatrolConfig(model="car", leftover=2.0, **other)
     assert PatrolConfig(model="car", leftover=2.0).leftover == 2.0
+
+
+@pytest.mark.parametrize(
+    ("module", "option"),
+    [
+        ("benchmarks.patrol_cars", "--leftover"),
+        ("benchmarks.patrol_cars", "--stub-delay"),
+        ("benchmarks.patrol_cars_mtb", "--leftover"),
+        ("benchmarks.patrol_cars_oneway", "--stub-delay"),
+        ("benchmarks.patrol", "--leftover"),
+    ],
+)
+@pytest.mark.parametrize("bad", ["-1", "nan", "inf", "two"])
+def test_the_benchmarks_refuse_a_bad_distance_or_delay_in_one_line(
+    module: str, option: str, bad: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    main = importlib.import_module(module).main
+    with pytest.raises(SystemExit) as e:
+        main([f"{option}={bad}"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert option in err, err

@@ -324,12 +324,16 @@ class PatrolConfig:
     #: must be at least :data:`SIGHT_MARGIN`.
     stub_delay: float = 0.0
     #: Track: metres round the place a car chose within which, once that place is
-    #: seen, the places no wave reaches that its looks missed and that had been seen no
-    #: later than it had when chosen (never seen, or as stale) are its next places, the
-    #: nearest first, until none is left (:func:`_leftover`): a car that drives into a
-    #: dead-end stub for its end sees the end's middle from 10 m and would choose
-    #: afresh, leaving the far corners 1 m beyond its vision for good (two cells of pull
-    #: lose the mode's vote). 0 (the default): it chooses afresh.
+    #: seen, the places no wave reaches (beyond the last cell a car's centre may be on
+    #: and the step past it) that its looks missed and that had been seen no later than
+    #: the chosen place had when chosen (never seen, or as stale) are its next places,
+    #: the nearest first, until none is left; then it chooses afresh. The car's wave
+    #: goes for such a place's anchor, the nearest cell a wave ends at; a leftover whose
+    #: anchor cannot be reached on a step is dropped for a fresh choice. Leftovers are
+    #: looked for round the chosen place only, never round a leftover. 0 (the default):
+    #: none, the car chooses afresh once its place is seen. Needs ``model`` 'car',
+    #: ``car_planner`` 'track', ``keep_goal``, ``policy`` 'potential', ``direction``
+    #: 'mode' and ``paths`` 'wave'.
     leftover: float = 0.0
     #: The car's speed rule: (nearest obstacle closer than metres, km/h), in order.
     speed_bands: tuple[tuple[float, float], ...] = SPEED_BANDS
@@ -505,9 +509,20 @@ class PatrolConfig:
             raise ConfigError(
                 f"leftover must be >= 0 metres, got {self.leftover}", field="leftover"
             )
-        if self.leftover > 0 and not (self.model == "car" and self.car_planner == "track"):
+        if self.leftover > 0 and not (
+            self.model == "car"
+            and self.car_planner == "track"
+            and self.keep_goal
+            and self.policy == "potential"
+            and self.direction == "mode"
+            and self.paths == "wave"
+        ):
+            # Leftovers are the next places a car keeps going for: without a kept goal
+            # on the mode's wave paths there is nothing to act on.
             raise ConfigError(
-                "leftover applies to tracking cars only (model 'car', car_planner 'track')",
+                "leftover applies to tracking cars keeping their goal (model 'car', "
+                "car_planner 'track', keep_goal True, policy 'potential', direction 'mode', "
+                "paths 'wave')",
                 field="leftover",
             )
         if self.stub_delay > self.duration:
