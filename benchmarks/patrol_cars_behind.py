@@ -45,14 +45,11 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 import numpy.typing as npt
 
-from benchmarks.patrol_fallback import fallback_config
+from benchmarks.patrol_fallback import fallback_site
 from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.manoeuvre import behind_cells, carrot
-from sonarmap.patrol.maps import street_territory
-from sonarmap.patrol.oneway import one_way
 from sonarmap.patrol.paths import Wave, nearest_step
-from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Car, Team
 
 #: Seconds from the run's start within which a car's first turn counts as ``start``.
@@ -61,11 +58,8 @@ START_S = 20.0
 
 def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
     """One run's classes of ``behind`` turns (see the module's notes)."""
-    cfg = fallback_config(cars, duration)
-    t = street_territory(site)
+    cfg, t, passable, ow = fallback_site(site, cars, duration)
     g = t.grid
-    passable = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision).passable
-    ow = one_way(passable, t.clearance, g.resolution, cfg.turn_radius)
     oneway_on = cars > 1
     wave = Wave(passable.shape, ow.steps if oneway_on else None)
     seen: dict[int, object] = {}

@@ -37,17 +37,19 @@ from typing import Any
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
+import numpy.typing as npt
 
 from benchmarks.patrol_cars import car_config
 from benchmarks.patrol_cars_oneway import cell_class
 from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
-from sonarmap.patrol.oneway import one_way
+from sonarmap.patrol.oneway import OneWay, one_way
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Car, Team
 from sonarmap.patrol.simulation import CAR_DEFAULTS, PatrolConfig, car_starts
 from sonarmap.patrol.starts import spread_starts
+from sonarmap.patrol.territory import Territory
 
 #: Seconds a step lasts in the simulation (the simulation's 0.5 s step).
 STEP = 0.5
@@ -96,13 +98,23 @@ def fallback_config(cars: int, duration: float) -> PatrolConfig:
     )
 
 
+def fallback_site(
+    site: int, cars: int, duration: float
+) -> tuple[PatrolConfig, Territory, npt.NDArray[np.bool_], OneWay]:
+    """The runs' setting on street site ``site``: the config, the territory, the cells a
+    car's centre may take and the streets' one-way analysis (whether or not the config
+    uses it)."""
+    config = fallback_config(cars, duration)
+    t = street_territory(site)
+    passable = reach(t, config.radius, mode=config.reach, vision=config.vision).passable
+    ow = one_way(passable, t.clearance, t.grid.resolution, config.turn_radius)
+    return config, t, passable, ow
+
+
 def watch_run(site: int, cars: int, duration: float) -> tuple[dict[str, Any], list[Any], Any]:
     """One run's fallback record (see the module's notes): the summary, the steps and
     the territory's passable cells with the grid."""
-    config = fallback_config(cars, duration)
-    t = street_territory(site)
-    where = reach(t, config.radius, mode=config.reach, vision=config.vision)
-    ow = one_way(where.passable, t.clearance, t.grid.resolution, config.turn_radius)
+    config, t, passable, ow = fallback_site(site, cars, duration)
     before = np.zeros(cars, dtype=np.int64)
     last_xy: list[np.ndarray[Any, Any]] = []
     steps: list[dict[str, Any]] = []
@@ -151,7 +163,7 @@ def watch_run(site: int, cars: int, duration: float) -> tuple[dict[str, Any], li
             "dvt": round(float(result.summary()["dvt"]), 2),
         }
     )
-    return summary, steps, (where.passable, t.grid)
+    return summary, steps, (passable, t.grid)
 
 
 def boxed_starts(site: int, cars: int, plus_x: bool = False) -> list[dict[str, Any]]:

@@ -50,13 +50,10 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 import numpy.typing as npt
 
-from benchmarks.patrol_fallback import fallback_config
+from benchmarks.patrol_fallback import fallback_site
 from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.manoeuvre import carrot, plan_manoeuvre, route_goals
-from sonarmap.patrol.maps import street_territory
-from sonarmap.patrol.oneway import one_way
-from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Car, Team, wrap_angle
 from sonarmap.patrol.stubs import stub_cells
 
@@ -96,11 +93,8 @@ def shape(arcs: list[tuple[float, float]]) -> dict[str, Any]:
 
 def watch_run(site: int, cars: int, duration: float) -> dict[str, Any]:
     """One run's stub turns (see the module's notes)."""
-    cfg = fallback_config(cars, duration)
-    t = street_territory(site)
+    cfg, t, passable, ow = fallback_site(site, cars, duration)
     g = t.grid
-    passable = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision).passable
-    ow = one_way(passable, t.clearance, g.resolution, cfg.turn_radius)
     stub = stub_cells(passable, ow)
     prev: dict[int, tuple[float, float, float]] = {}
     prev_xy: list[npt.NDArray[np.float64]] = []
