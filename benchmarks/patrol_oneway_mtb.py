@@ -1,0 +1,307 @@
+"""Why a car team on one-way streets can be slower than one car: distances to the stalest place.
+
+One run of :mod:`benchmarks.patrol_cars_mtb`'s setting (the library's car defaults;
+``--one-way teams`` drives the streets narrower than the turning circle one way for
+teams only, as the library does; ``all`` also for a lone car; ``off`` never;
+``--leftover M`` as the benchmark's) per team size. The one-way street system is
+:func:`sonarmap.patrol.oneway.one_way` on the run's passable cells; "one-way distance"
+is the shortest path along the wave's steps that system allows, "two-way distance" the
+same path with every step allowed (the car's heading and turning are left out of both).
+
+Printed per run (one JSON line), besides ``benchmarks.patrol_cars_mtb``'s DVT,
+never-seen share, ``all_seen_s``, ``mean_mtb`` and ``mtb_late``:
+
+- ``detour``: the site's one-way street network against two-way streets, over
+  ``SOURCES`` passable cells drawn with seed 0 to every passable cell: the mean ratio
+  of one-way to two-way distance, and the share of pairs at least twice as far
+  one-way, %;
+- every ``EVERY_S`` seconds after a fifth of the run, the worst place (the watched
+  place longest unseen; never-seen places count from that time) and the passable cells
+  within the cars' sight of it (``vision - SIGHT_MARGIN``, walls left out); from them:
+  ``worst_age``, the worst place's mean time unseen, s; ``near_oneway_m`` /
+  ``near_twoway_m``, the mean over the samples of the nearest car's one-way / two-way
+  distance to a cell that sees it, m; ``near_ratio``, the mean of their per-sample
+  ratio; ``behind_share``, the samples whose nearest car is at least twice as far
+  one-way as two-way, %; ``worst_on_one_way``, the samples whose worst place's nearest
+  passable cell is on the one-way part of a one-way street, %; ``worst_streak_s``, the
+  longest time the worst place stayed within sight of the last sample's, s;
+  ``streak_closest_m``, within that time, the sample whose nearest car was closest to
+  it two-way: that distance and the nearest car's one-way distance then, m;
+  ``pass_by_share``, the samples where a car is within ``PASS_NEAR_M`` of it two-way
+  but every car at least ``PASS_FAR_M`` one-way, %;
+- ``follow_share``: the samples where two cars are within ``FOLLOW_M`` of each other
+  heading within 45 degrees of each other (one behind the other), %;
+  ``pair_gap_m``: the mean over samples of the closest two cars' distance, m;
+- ``driven_m``: the mean distance a car drove, m (speed times time on the move).
+
+With ``--network``, only the one-way system's figures per site, without a run:
+streets, one-way streets, the share of the passable cells on them, the turning circle's
+diameter (``2 * turn_radius``, the width below which a street is one-way), the streets'
+smallest, median and largest width (m) and ``detour``.
+
+Run with ``python -m benchmarks.patrol_oneway_mtb --sites 0 --cars 3 --duration 3600
+--leftover 2`` (or ``--sites 0 1 2 --network``); one process, one core (``NUMBA_NUM_THREADS=1``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import os
+from typing import Any
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+from benchmarks.patrol import OneLineParser, non_negative
+from benchmarks.patrol_cars import car_config
+from benchmarks.patrol_cars_mtb import KNOBS
+from benchmarks.patrol_fallback import fallback_config
+from sonarmap.patrol import run_patrol
+from sonarmap.patrol.fog import Fog
+from sonarmap.patrol.graph import cell_graph
+from sonarmap.patrol.maps import street_territory
+from sonarmap.patrol.oneway import one_way
+from sonarmap.patrol.paths import STEPS
+from sonarmap.patrol.reach import reach
+from sonarmap.patrol.robots import Team
+from sonarmap.patrol.simulation import SIGHT_MARGIN
+
+#: Seconds between samples.
+EVERY_S = 10.0
+#: Passable cells drawn for the network's detour.
+SOURCES = 40
+#: A car this close to a cell that sees the worst place two-way (metres), but at least
+#: ``PASS_FAR_M`` from one one-way, passes it by.
+PASS_NEAR_M = 20.0
+PASS_FAR_M = 60.0
+#: Two cars this close (metres), heading the same way, count as one following the other.
+FOLLOW_M = 20.0
+
+F64 = npt.NDArray[np.float64]
+
+
+def allowed_graph(
+    graph: csr_matrix, index: npt.NDArray[np.int64], steps: npt.NDArray[np.uint8]
+) -> csr_matrix:
+    """The edges of ``graph`` (:func:`cell_graph`, nodes ``index``) whose step its tail
+    cell's ``steps`` allows (bit j for :data:`STEPS` [j])."""
+    coo = graph.tocoo()
+    rc = np.argwhere(index >= 0)
+    dr = rc[coo.col, 0] - rc[coo.row, 0]
+    dc = rc[coo.col, 1] - rc[coo.row, 1]
+    code = np.full(9, -1, dtype=np.int64)
+    for j, (a, b) in enumerate(STEPS.tolist()):
+        code[(a + 1) * 3 + b + 1] = j
+    j = code[(dr + 1) * 3 + dc + 1]
+    bits = steps[rc[coo.row, 0], rc[coo.row, 1]].astype(np.int64)
+    keep = ((bits >> j) & 1) == 1
+    out = csr_matrix((coo.data[keep], (coo.row[keep], coo.col[keep])), shape=graph.shape)
+    return out
+
+
+def detour(two: csr_matrix, one: csr_matrix, n: int) -> dict[str, float]:
+    """The one-way network's detour (see the module's notes): mean and median ratio of
+    one-way to two-way distance, share of pairs at least twice as far one-way, %."""
+    src = np.random.default_rng(0).choice(n, size=min(SOURCES, n), replace=False)
+    d2 = dijkstra(two, directed=False, indices=src)
+    d1 = dijkstra(one, directed=True, indices=src)
+    ok = (d2 > 0) & np.isfinite(d2) & np.isfinite(d1)
+    ratio = d1[ok] / d2[ok]
+    return {
+        "ratio": round(float(ratio.mean()), 3),
+        "median": round(float(np.median(ratio)), 3),
+        "twice_share": round(float(100.0 * np.mean(ratio >= 2.0)), 1),
+    }
+
+
+def network(site: int, cars: int) -> dict[str, Any]:
+    """The one-way street system of training or test site ``site`` as the cars' setting
+    builds it, and its detour (no run)."""
+    cfg = fallback_config(cars, 60.0)
+    t = street_territory(site)
+    w = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision)
+    ow = one_way(w.passable, t.clearance, t.grid.resolution, cfg.turn_radius)
+    two, index = cell_graph(w.passable, t.grid.resolution)
+    n = int(w.passable.sum())
+    return {
+        "site": site,
+        "one_way_streets": int(ow.one_way.sum()),
+        "streets": len(ow.one_way),
+        "one_way_cell_share": round(100.0 * float(np.isfinite(ow.along).sum()) / max(1, n), 1),
+        "turn_circle_m": round(2.0 * cfg.turn_radius, 2),
+        "street_width_m": [round(float(q), 2) for q in np.percentile(ow.widths, [0, 50, 100])],
+        "detour": detour(two, allowed_graph(two, index, ow.steps), n),
+    }
+
+
+def watch_run(
+    site: int, cars: int, duration: float, oneway: str, leftover: float = 0.0
+) -> dict[str, Any]:
+    """One run's record (see the module's notes)."""
+    base = fallback_config(cars, duration)
+    use = oneway == "all" or (oneway == "teams" and cars > 1)
+    cfg = car_config(
+        "track",
+        cars,
+        "obstacles",
+        duration,
+        **{k: getattr(base, k) for k in KNOBS},
+        one_way=use,
+        leftover=leftover,
+    )
+    t = street_territory(site)
+    w = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision)
+    ow = one_way(w.passable, t.clearance, t.grid.resolution, cfg.turn_radius)
+    two, index = cell_graph(w.passable, t.grid.resolution)
+    one = allowed_graph(two, index, ow.steps)
+    one_t = one.T.tocsr()  # distances *to* a set: from it along reversed steps
+    n = int(w.passable.sum())
+    # The passable cell nearest every cell (a car's centre may round off the mask).
+    _, (near_r, near_c) = ndimage.distance_transform_edt(~w.passable, return_indices=True)
+    pr, pc = np.nonzero(w.passable)
+    px, py = t.grid.cell_centres(pr, pc)
+    tree = cKDTree(np.column_stack([px, py]))
+    sight = cfg.vision - SIGHT_MARGIN
+    warm = duration / 5
+    rec: dict[str, list[float]] = {
+        k: [] for k in ("age", "d1", "d2", "ratio", "behind", "follow", "gap")
+    }
+    first: dict[str, float | None] = {"all_seen": None}
+    # The worst place of each sample (x, y) and whether its nearest passable cell is on
+    # the one-way part of a street.
+    worst: list[tuple[float, float, bool, float, float]] = []
+    driven = np.zeros(cars)
+    last: list[F64] = []
+
+    def on_step(now: float, team: Team, fog: Fog) -> None:
+        xy = np.column_stack([team.x, team.y]).astype(np.float64)
+        if last:
+            driven[:] += np.hypot(*(xy - last[0]).T)
+            last[0] = xy
+        else:
+            last.append(xy)
+        if round(now / cfg.dt) % round(EVERY_S / cfg.dt):
+            return
+        if first["all_seen"] is None and not fog.never_seen().any():
+            first["all_seen"] = now
+        if now <= warm:
+            return
+        tb = np.minimum(fog.tb, now - warm + np.where(fog.never_seen(), 0.0, np.inf))
+        tb = np.where(fog.watched, tb, -1.0)
+        wr, wc = np.unravel_index(int(np.argmax(tb)), tb.shape)
+        wx, wy = t.grid.cell_centres(np.array([wr]), np.array([wc]))
+        targets = tree.query_ball_point([float(wx[0]), float(wy[0])], sight)
+        if not targets:
+            return
+        tnodes = index[pr[targets], pc[targets]]
+        r, c = t.grid.world_to_cell(team.x, team.y)
+        r = np.clip(r, 0, w.passable.shape[0] - 1)
+        c = np.clip(c, 0, w.passable.shape[1] - 1)
+        cn = index[near_r[r, c], near_c[r, c]]
+        d1 = dijkstra(one_t, directed=True, indices=tnodes, min_only=True)[cn]
+        d2 = dijkstra(two, directed=False, indices=tnodes, min_only=True)[cn]
+        near = int(np.argmin(d2))
+        on = bool(np.isfinite(ow.along[near_r[wr, wc], near_c[wr, wc]]))
+        on &= not bool(ow.two_way[near_r[wr, wc], near_c[wr, wc]])
+        worst.append((float(wx[0]), float(wy[0]), on, float(d1.min()), float(d2.min())))
+        rec["age"].append(float(tb[wr, wc]))
+        rec["d1"].append(float(d1.min()))
+        rec["d2"].append(float(d2.min()))
+        if d2[near] > 0 and np.isfinite(d1[near]):
+            rec["ratio"].append(float(d1[near] / d2[near]))
+            rec["behind"].append(float(d1[near] >= 2.0 * d2[near]))
+        follow = False
+        gap = math.inf
+        for i in range(cars):
+            for k in range(i + 1, cars):
+                dd = float(np.hypot(xy[i, 0] - xy[k, 0], xy[i, 1] - xy[k, 1]))
+                gap = min(gap, dd)
+                dh = abs(math.remainder(float(team.heading[i] - team.heading[k]), 2 * math.pi))
+                follow |= dd <= FOLLOW_M and dh <= math.pi / 4
+        rec["follow"].append(float(follow))
+        if cars > 1:
+            rec["gap"].append(gap)
+
+    result = run_patrol(t, cfg, robots=cars, seed=0, on_step=on_step)
+    s = result.summary()
+    late = result.t > duration / 2
+
+    # The longest time the worst place stays within sight of the previous sample's.
+    streak = best = 0.0
+    end = 0
+    for k, (a, b) in enumerate(itertools.pairwise(worst)):
+        streak = streak + EVERY_S if math.hypot(a[0] - b[0], a[1] - b[1]) <= sight else 0.0
+        if streak > best:
+            best, end = streak, k + 1
+    # Within that streak, the sample whose nearest car (two-way) came closest.
+    run = worst[end - round(best / EVERY_S) : end + 1]
+    close = min(run, key=lambda v: v[4]) if run else None
+    passby = [v[4] <= PASS_NEAR_M and v[3] >= PASS_FAR_M for v in worst]
+
+    def mean(k: str, scale: float = 1.0) -> float | None:
+        return round(scale * float(np.mean(rec[k])), 2) if rec[k] else None
+
+    return {
+        "site": site,
+        "cars": cars,
+        "one_way": use,
+        "leftover": leftover,
+        "duration": duration,
+        "dvt": round(float(s["dvt"]), 2),
+        "never_seen": round(100 * float(s["never_seen"]), 3),
+        "all_seen_s": first["all_seen"],
+        "mean_mtb": round(float(s["mean_mtb"]), 1),
+        "mtb_late": round(float(result.mtb[late].mean()), 1),
+        "one_way_streets": int(ow.one_way.sum()),
+        "streets": len(ow.one_way),
+        "one_way_cell_share": round(100.0 * float(np.isfinite(ow.along).sum()) / max(1, n), 1),
+        "detour": detour(two, one, n),
+        "worst_age": mean("age"),
+        "near_oneway_m": mean("d1"),
+        "near_twoway_m": mean("d2"),
+        "near_ratio": mean("ratio"),
+        "behind_share": mean("behind", 100.0),
+        "worst_on_one_way": (
+            round(100.0 * float(np.mean([v[2] for v in worst])), 1) if worst else None
+        ),
+        "worst_streak_s": best,
+        "streak_closest_m": (
+            {"twoway": round(close[4], 1), "oneway": round(close[3], 1)} if close else None
+        ),
+        "pass_by_share": round(100.0 * float(np.mean(passby)), 1) if passby else None,
+        "follow_share": mean("follow", 100.0),
+        "pair_gap_m": mean("gap"),
+        "driven_m": round(float(driven.mean()), 1),
+        "wall_seconds": round(float(s["wall_seconds"]), 1),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = OneLineParser(prog="python -m benchmarks.patrol_oneway_mtb", description=__doc__)
+    ap.add_argument("--sites", type=int, nargs="+", default=[0])
+    ap.add_argument("--cars", type=int, nargs="+", default=[3])
+    ap.add_argument("--duration", type=float, default=3600.0)
+    ap.add_argument("--one-way", choices=["teams", "all", "off"], default="teams")
+    ap.add_argument("--leftover", type=non_negative, default=0.0)
+    ap.add_argument("--network", action="store_true")
+    a = ap.parse_args(argv)
+    if a.network:
+        for site in a.sites:
+            print(json.dumps(network(site, max(a.cars))), flush=True)
+        return 0
+    for site in a.sites:
+        for cars in a.cars:
+            print(json.dumps(watch_run(site, cars, a.duration, a.one_way, a.leftover)), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
