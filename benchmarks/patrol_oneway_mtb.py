@@ -11,10 +11,13 @@ same path with every step allowed (the car's heading and turning are left out of
 Printed per run (one JSON line), besides ``benchmarks.patrol_cars_mtb``'s DVT,
 never-seen share, ``all_seen_s``, ``mean_mtb`` and ``mtb_late``:
 
-- ``detour``: the site's one-way street network against two-way streets, over
-  ``SOURCES`` passable cells drawn with seed 0 to every passable cell: the mean ratio
-  of one-way to two-way distance, and the share of pairs at least twice as far
-  one-way, %;
+- ``detour``: the site's one-way street network against two-way streets, over the
+  pairs from ``SOURCES`` passable cells drawn with seed 0 to every passable cell:
+  ``summed``, the summed one-way distances over the summed two-way ones (the headline:
+  close pairs behind each other on a one-way street do not dominate it);
+  ``mean_ratio``, the mean of the pairs' one-way to two-way ratios (such close pairs
+  blow it up); ``median``, their median; ``twice_share``, the share of pairs at least
+  twice as far one-way, %;
 - every ``EVERY_S`` seconds after a fifth of the run, the worst place (the watched
   place longest unseen; never-seen places count from that time) and the passable cells
   within the cars' sight of it (``vision - SIGHT_MARGIN``, walls left out); from them:
@@ -22,17 +25,24 @@ never-seen share, ``all_seen_s``, ``mean_mtb`` and ``mtb_late``:
   ``near_twoway_m``, the mean over the samples of the nearest car's one-way / two-way
   distance to a cell that sees it, m; ``near_ratio``, the mean of their per-sample
   ratio; ``behind_share``, the samples whose nearest car is at least twice as far
-  one-way as two-way, %; ``worst_on_one_way``, the samples whose worst place's nearest
+  one-way as two-way, %; both leave out the samples where the nearest car already
+  sees the place (two-way distance 0) or cannot reach it one-way;
+  ``worst_on_one_way``, the samples whose worst place's nearest
   passable cell is on the one-way part of a one-way street, %; ``worst_streak_s``, the
-  longest time the worst place stayed within sight of the last sample's, s;
-  ``streak_closest_m``, within that time, the sample whose nearest car was closest to
+  longest chain of samples whose worst place is within sight of the previous sample's
+  (:func:`streak`: the place may drift along the chain, and samples whose worst place
+  has no passable cell in sight are left out, joining the samples either side; each
+  link counts ``EVERY_S``), s; ``worst_stay_s``, the longest run of samples whose worst
+  place is within sight of the run's first one, s; ``streak_closest_m``, within the
+  chain, the sample whose nearest car was closest to
   it two-way: that distance and the nearest car's one-way distance then, m;
   ``pass_by_share``, the samples where a car is within ``PASS_NEAR_M`` of it two-way
   but every car at least ``PASS_FAR_M`` one-way, %;
 - ``follow_share``: the samples where two cars are within ``FOLLOW_M`` of each other
   heading within 45 degrees of each other (one behind the other), %;
   ``pair_gap_m``: the mean over samples of the closest two cars' distance, m;
-- ``driven_m``: the mean distance a car drove, m (speed times time on the move).
+- ``driven_m``: the mean over the cars of the distance a car moved, summed over the
+  steps (the straight line between its positions at consecutive steps), m.
 
 With ``--network``, only the one-way system's figures per site, without a run:
 streets, one-way streets, the share of the passable cells on them, the turning circle's
@@ -45,7 +55,6 @@ Run with ``python -m benchmarks.patrol_oneway_mtb --sites 0 --cars 3 --duration 
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 import os
@@ -62,20 +71,16 @@ from scipy.spatial import cKDTree
 
 from benchmarks.patrol import OneLineParser, non_negative
 from benchmarks.patrol_cars import car_config
-from benchmarks.patrol_cars_mtb import KNOBS
-from benchmarks.patrol_fallback import fallback_config
+from benchmarks.patrol_cars_mtb import EVERY_S, KNOBS
+from benchmarks.patrol_fallback import fallback_site
 from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.graph import cell_graph
-from sonarmap.patrol.maps import street_territory
-from sonarmap.patrol.oneway import one_way
+from sonarmap.patrol.oneway import OneWay
 from sonarmap.patrol.paths import STEPS
-from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Team
 from sonarmap.patrol.simulation import SIGHT_MARGIN
 
-#: Seconds between samples.
-EVERY_S = 10.0
 #: Passable cells drawn for the network's detour.
 SOURCES = 40
 #: A car this close to a cell that sees the worst place two-way (metres), but at least
@@ -92,7 +97,11 @@ def allowed_graph(
     graph: csr_matrix, index: npt.NDArray[np.int64], steps: npt.NDArray[np.uint8]
 ) -> csr_matrix:
     """The edges of ``graph`` (:func:`cell_graph`, nodes ``index``) whose step its tail
-    cell's ``steps`` allows (bit j for :data:`STEPS` [j])."""
+    cell's ``steps`` allows (bit j for :data:`STEPS` [j]).
+
+    Relies on :func:`cell_graph` numbering the cells in ``np.argwhere`` order (row-major,
+    ``index[mask] = arange(n)``): node k is the k-th row of ``np.argwhere(index >= 0)``.
+    """
     coo = graph.tocoo()
     rc = np.argwhere(index >= 0)
     dr = rc[coo.col, 0] - rc[coo.row, 0]
@@ -108,34 +117,58 @@ def allowed_graph(
 
 
 def detour(two: csr_matrix, one: csr_matrix, n: int) -> dict[str, float]:
-    """The one-way network's detour (see the module's notes): mean and median ratio of
-    one-way to two-way distance, share of pairs at least twice as far one-way, %."""
+    """The one-way network's detour (see the module's notes): summed one-way over summed
+    two-way distance, mean and median of the pairs' ratios, share of pairs at least
+    twice as far one-way, %. Pairs one cell apart or unreachable either way are left out."""
     src = np.random.default_rng(0).choice(n, size=min(SOURCES, n), replace=False)
     d2 = dijkstra(two, directed=False, indices=src)
     d1 = dijkstra(one, directed=True, indices=src)
     ok = (d2 > 0) & np.isfinite(d2) & np.isfinite(d1)
     ratio = d1[ok] / d2[ok]
     return {
-        "ratio": round(float(ratio.mean()), 3),
+        "summed": round(float(d1[ok].sum() / d2[ok].sum()), 3),
+        "mean_ratio": round(float(ratio.mean()), 3),
         "median": round(float(np.median(ratio)), 3),
         "twice_share": round(float(100.0 * np.mean(ratio >= 2.0)), 1),
     }
 
 
+def one_way_cell_share(ow: OneWay, passable: npt.NDArray[np.bool_]) -> float:
+    """The share of the ``passable`` cells on one-way streets (their two-way ends
+    included), %."""
+    return round(100.0 * float(np.isfinite(ow.along).sum()) / max(1, int(passable.sum())), 1)
+
+
+def streak(
+    xy: list[tuple[float, float]], near_m: float, every_s: float, anchored: bool = False
+) -> tuple[float, int, int]:
+    """The longest chain of consecutive samples' worst places ``xy`` each within
+    ``near_m`` of the previous one's (``anchored``: of the chain's first), in seconds
+    (``every_s`` per link), with its first and last sample's index; ``(0.0, 0, 0)``
+    for fewer than two samples or no link."""
+    best, first, last = 0.0, 0, 0
+    start = 0
+    for k in range(1, len(xy)):
+        ref = xy[start] if anchored else xy[k - 1]
+        if math.hypot(xy[k][0] - ref[0], xy[k][1] - ref[1]) > near_m:
+            start = k
+            continue
+        if (k - start) * every_s > best:
+            best, first, last = (k - start) * every_s, start, k
+    return best, first, last
+
+
 def network(site: int, cars: int) -> dict[str, Any]:
     """The one-way street system of training or test site ``site`` as the cars' setting
     builds it, and its detour (no run)."""
-    cfg = fallback_config(cars, 60.0)
-    t = street_territory(site)
-    w = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision)
-    ow = one_way(w.passable, t.clearance, t.grid.resolution, cfg.turn_radius)
-    two, index = cell_graph(w.passable, t.grid.resolution)
-    n = int(w.passable.sum())
+    cfg, t, passable, ow = fallback_site(site, cars, 60.0)
+    two, index = cell_graph(passable, t.grid.resolution)
+    n = int(passable.sum())
     return {
         "site": site,
         "one_way_streets": int(ow.one_way.sum()),
         "streets": len(ow.one_way),
-        "one_way_cell_share": round(100.0 * float(np.isfinite(ow.along).sum()) / max(1, n), 1),
+        "one_way_cell_share": one_way_cell_share(ow, passable),
         "turn_circle_m": round(2.0 * cfg.turn_radius, 2),
         "street_width_m": [round(float(q), 2) for q in np.percentile(ow.widths, [0, 50, 100])],
         "detour": detour(two, allowed_graph(two, index, ow.steps), n),
@@ -146,7 +179,7 @@ def watch_run(
     site: int, cars: int, duration: float, oneway: str, leftover: float = 0.0
 ) -> dict[str, Any]:
     """One run's record (see the module's notes)."""
-    base = fallback_config(cars, duration)
+    base, t, passable, ow = fallback_site(site, cars, duration)
     use = oneway == "all" or (oneway == "teams" and cars > 1)
     cfg = car_config(
         "track",
@@ -157,16 +190,13 @@ def watch_run(
         one_way=use,
         leftover=leftover,
     )
-    t = street_territory(site)
-    w = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision)
-    ow = one_way(w.passable, t.clearance, t.grid.resolution, cfg.turn_radius)
-    two, index = cell_graph(w.passable, t.grid.resolution)
+    two, index = cell_graph(passable, t.grid.resolution)
     one = allowed_graph(two, index, ow.steps)
     one_t = one.T.tocsr()  # distances *to* a set: from it along reversed steps
-    n = int(w.passable.sum())
+    n = int(passable.sum())
     # The passable cell nearest every cell (a car's centre may round off the mask).
-    _, (near_r, near_c) = ndimage.distance_transform_edt(~w.passable, return_indices=True)
-    pr, pc = np.nonzero(w.passable)
+    _, (near_r, near_c) = ndimage.distance_transform_edt(~passable, return_indices=True)
+    pr, pc = np.nonzero(passable)
     px, py = t.grid.cell_centres(pr, pc)
     tree = cKDTree(np.column_stack([px, py]))
     sight = cfg.vision - SIGHT_MARGIN
@@ -175,8 +205,8 @@ def watch_run(
         k: [] for k in ("age", "d1", "d2", "ratio", "behind", "follow", "gap")
     }
     first: dict[str, float | None] = {"all_seen": None}
-    # The worst place of each sample (x, y) and whether its nearest passable cell is on
-    # the one-way part of a street.
+    # Per sample: the worst place (x, y), whether its nearest passable cell is on the
+    # one-way part of a street, and the nearest car's one-way and two-way distance, m.
     worst: list[tuple[float, float, bool, float, float]] = []
     driven = np.zeros(cars)
     last: list[F64] = []
@@ -203,8 +233,8 @@ def watch_run(
             return
         tnodes = index[pr[targets], pc[targets]]
         r, c = t.grid.world_to_cell(team.x, team.y)
-        r = np.clip(r, 0, w.passable.shape[0] - 1)
-        c = np.clip(c, 0, w.passable.shape[1] - 1)
+        r = np.clip(r, 0, passable.shape[0] - 1)
+        c = np.clip(c, 0, passable.shape[1] - 1)
         cn = index[near_r[r, c], near_c[r, c]]
         d1 = dijkstra(one_t, directed=True, indices=tnodes, min_only=True)[cn]
         d2 = dijkstra(two, directed=False, indices=tnodes, min_only=True)[cn]
@@ -234,15 +264,11 @@ def watch_run(
     s = result.summary()
     late = result.t > duration / 2
 
-    # The longest time the worst place stays within sight of the previous sample's.
-    streak = best = 0.0
-    end = 0
-    for k, (a, b) in enumerate(itertools.pairwise(worst)):
-        streak = streak + EVERY_S if math.hypot(a[0] - b[0], a[1] - b[1]) <= sight else 0.0
-        if streak > best:
-            best, end = streak, k + 1
-    # Within that streak, the sample whose nearest car (two-way) came closest.
-    run = worst[end - round(best / EVERY_S) : end + 1]
+    places = [(v[0], v[1]) for v in worst]
+    best, begin, end = streak(places, sight, EVERY_S)
+    stay, _, _ = streak(places, sight, EVERY_S, anchored=True)
+    # Within the chain, the sample whose nearest car (two-way) came closest.
+    run = worst[begin : end + 1]
     close = min(run, key=lambda v: v[4]) if run else None
     passby = [v[4] <= PASS_NEAR_M and v[3] >= PASS_FAR_M for v in worst]
 
@@ -262,7 +288,7 @@ def watch_run(
         "mtb_late": round(float(result.mtb[late].mean()), 1),
         "one_way_streets": int(ow.one_way.sum()),
         "streets": len(ow.one_way),
-        "one_way_cell_share": round(100.0 * float(np.isfinite(ow.along).sum()) / max(1, n), 1),
+        "one_way_cell_share": one_way_cell_share(ow, passable),
         "detour": detour(two, one, n),
         "worst_age": mean("age"),
         "near_oneway_m": mean("d1"),
@@ -273,6 +299,7 @@ def watch_run(
             round(100.0 * float(np.mean([v[2] for v in worst])), 1) if worst else None
         ),
         "worst_streak_s": best,
+        "worst_stay_s": stay,
         "streak_closest_m": (
             {"twoway": round(close[4], 1), "oneway": round(close[3], 1)} if close else None
         ),
