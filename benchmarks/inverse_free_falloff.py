@@ -29,7 +29,6 @@ missing is refused).
 from __future__ import annotations
 
 import argparse
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -40,7 +39,7 @@ if __name__ == "__main__":
 
 import pandas as pd
 
-from benchmarks.inverse_walls import RIGS, rig_figures
+from benchmarks.inverse_walls import DEFAULTS, RIGS, refuse_uneven, rig_figures
 from sonarmap.errors import ConfigError
 from sonarmap.experiments import MethodSpec, run_experiment
 from sonarmap.mappers import make_mapper
@@ -53,7 +52,6 @@ F1_DROP = 0.01
 PRECISION_DROP = 0.05
 #: Rule 5: how far the mean quality may fall.
 QUALITY_DROP = 0.005
-DEFAULTS = "(defaults)"
 
 
 def figures(df: pd.DataFrame) -> pd.DataFrame:
@@ -73,24 +71,12 @@ def verdicts(fig: pd.DataFrame) -> pd.DataFrame:
     Raises
     ------
     ValueError
-        No row of the defaults; a setting mapped on a number of maps other than the
-        defaults' (e.g. the rows of several sweeps pooled, or a sweep cut short); a
-        figure that is NaN (a scene or rig with no rows), which no comparison would
-        catch.
+        As :func:`benchmarks.inverse_walls.refuse_uneven`: no row of the defaults, a
+        setting mapped on a number of maps other than the defaults', a figure that is
+        NaN.
     """
-    base = fig.loc[fig.setting == DEFAULTS]
-    if len(base) != 1:
-        raise ValueError("no row of the defaults: run the sweep with include_defaults")
-    b = base.iloc[0]
-    for _, r in fig.iterrows():
-        if r.maps != b.maps:
-            raise ValueError(
-                f"setting {r.setting!r} has {r.maps} maps, the defaults {b.maps}: "
-                "give one complete sweep's results.csv"
-            )
-        nan = [str(k) for k, v in r.items() if isinstance(v, float) and math.isnan(v)]
-        if nan:
-            raise ValueError(f"setting {r.setting!r}: no figure for {', '.join(nan)}")
+    refuse_uneven(fig)
+    b = fig.loc[fig.setting == DEFAULTS].iloc[0]
     fails = []
     for _, r in fig.iterrows():
         f = []

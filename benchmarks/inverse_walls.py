@@ -28,6 +28,10 @@ recall the unclamped sums would give with each part of the free weight taken awa
 
 Run with ``python -m benchmarks.inverse_walls [--sweep FILE] [--scenes NAME ...]
 [--param K=V ...] -o out/inverse-walls``; writes ``walls.csv`` and prints the table.
+``--rule GRADIENT_CSV INVERSE_CSV ...`` prints the acceptance rule's training figures
+per inverse setting instead (:func:`rule_table`); inverse files whose settings were
+mapped on different maps (several sweeps' files each with its defaults' rows, a sweep
+cut short, a scene missing) are refused.
 """
 
 from __future__ import annotations
@@ -206,18 +210,61 @@ def rig_figures(d: pd.DataFrame) -> dict[str, Any]:
     return row
 
 
+#: The ``params`` of the defaults' rows in a sweep's results.csv.
+DEFAULTS = "(defaults)"
+
+
+def refuse_uneven(fig: pd.DataFrame) -> None:
+    """Refuse per-setting figures ``fig`` (columns ``setting``, ``maps`` and figures)
+    that compare settings mapped on different maps.
+
+    Raises
+    ------
+    ValueError
+        No row of the defaults; a setting mapped on a number of maps other than the
+        defaults' (e.g. the rows of several sweeps pooled, each with its defaults, or a
+        sweep cut short); a figure that is NaN (a scene or rig with no rows), which no
+        comparison would catch.
+    """
+    base = fig.loc[fig.setting == DEFAULTS]
+    if len(base) != 1:
+        raise ValueError("no row of the defaults: run the sweep with include_defaults")
+    b = base.iloc[0]
+    for _, r in fig.iterrows():
+        if r.maps != b.maps:
+            raise ValueError(
+                f"setting {r.setting!r} has {r.maps} maps, the defaults {b.maps}: "
+                "give one complete sweep's results.csv"
+            )
+        nan = [str(k) for k, v in r.items() if isinstance(v, float) and math.isnan(v)]
+        if nan:
+            raise ValueError(f"setting {r.setting!r}: no figure for {', '.join(nan)}")
+
+
 def rule_table(inverse: pd.DataFrame, gradient: pd.DataFrame) -> pd.DataFrame:
     """Per inverse setting of sweep results ``inverse``, the acceptance rule's training
     figures (docs/results/2026-12-07-inverse-walls.md), the forward margin against the
-    gradient rows of ``gradient``; the defaults' row first."""
+    gradient rows of ``gradient``; the defaults' row first.
+
+    Raises
+    ------
+    ValueError
+        As :func:`refuse_uneven` (the margins counted as figures), or gradient rows on
+        a number of maps other than the inverse defaults'.
+    """
     grad = gradient.assign(rig=gradient["scenario"].map(RIG_OF)).groupby("rig")["f1_all"].mean()
     rows = []
     for setting, d in inverse.groupby("params", sort=False):
-        row: dict[str, Any] = {"setting": setting, **rig_figures(d)}
+        row: dict[str, Any] = {"setting": setting, "maps": len(d), **rig_figures(d)}
         for r in RIGS:
             row[f"margin_{r}"] = grad.get(r, math.nan) - row[f"f1_{r}"]
         rows.append(row)
-    return pd.DataFrame(rows)
+    table = pd.DataFrame(rows)
+    refuse_uneven(table)
+    base = int(table.loc[table.setting == DEFAULTS, "maps"].iloc[0])
+    if len(gradient) != base:
+        raise ValueError(f"the gradient has {len(gradient)} maps, the inverse defaults {base}")
+    return table.drop(columns="maps")
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -235,12 +282,19 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     args = ap.parse_args(argv)
     if args.rule:
+        if len(args.rule) < 2:
+            ap.error("--rule needs GRADIENT_CSV and at least one INVERSE_CSV")
+        for p in args.rule:
+            if not p.is_file():
+                ap.error(f"{p}: no such file")
         grad = pd.read_csv(args.rule[0])
         inv = pd.concat([pd.read_csv(p) for p in args.rule[1:]], ignore_index=True)
+        try:
+            table = rule_table(inv[inv.method == "inverse"], grad[grad.method == "gradient"])
+        except ValueError as e:
+            ap.error(f"--rule {' '.join(map(str, args.rule[1:]))}: {e}")
         with pd.option_context("display.width", 250, "display.max_columns", 30):
-            print(
-                rule_table(inv[inv.method == "inverse"], grad[grad.method == "gradient"]).round(3)
-            )
+            print(table.round(3))
         return
     _, params = parse_variant(" ".join(["inverse", *args.param]))
     df = run(args.sweep, args.scenes, params)

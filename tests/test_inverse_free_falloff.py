@@ -10,8 +10,8 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 import pytest
-from benchmarks.inverse_free_falloff import DEFAULTS, figures, main, verdicts
-from benchmarks.inverse_walls import RIG_OF
+from benchmarks.inverse_free_falloff import figures, main, verdicts
+from benchmarks.inverse_walls import DEFAULTS, RIG_OF
 
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
