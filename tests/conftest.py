@@ -5,8 +5,10 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pandas as pd
 import pytest
 from hypothesis import settings
 from hypothesis import strategies as st
@@ -85,3 +87,31 @@ def walled_site(
         # Rows grow downwards: y = h at row 0.
         occ[int((h - y1) / res) : int((h - y0) / res), int(x0 / res) : int(x1 / res)] = 1.0
     return Territory.from_map(OccupancyMap(g, occ))
+
+
+def training_sweep(method: str, settings: dict[str, dict[str, Any]]) -> pd.DataFrame:
+    """A made-up sweep's results.csv for the training-rule scorers: each setting of
+    ``method`` on the 16 training maps (seeds 0 and 1), every map with the setting's
+    figures (keys ``quality``, ``recall``, ``f1``, ``precision``; defaults 0.2, 0.5, 0.3,
+    0.7) and one passage, a hall-ring16 map's passages by ``ring_passages`` (default 1)."""
+    from benchmarks.inverse_walls import RIG_OF
+
+    rows = []
+    for setting, f in settings.items():
+        for scenario in RIG_OF:
+            for seed in (0, 1):
+                ring = scenario == "hall-ring16"
+                rows.append(
+                    {
+                        "scenario": scenario,
+                        "seed": seed,
+                        "method": method,
+                        "params": setting,
+                        "quality": f.get("quality", 0.2),
+                        "observed_wall_recall": f.get("recall", 0.5),
+                        "passages_detected": f.get("ring_passages", 1) if ring else 1,
+                        "f1_all": f.get("f1", 0.3),
+                        "precision_all": f.get("precision", 0.7),
+                    }
+                )
+    return pd.DataFrame(rows)

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import pandas as pd
 import pytest
 from benchmarks.inverse_free_falloff import figures, main, verdicts
-from benchmarks.inverse_walls import DEFAULTS, RIG_OF
+from benchmarks.inverse_walls import DEFAULTS
 
+from conftest import training_sweep
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.mappers import make_mapper
@@ -192,30 +192,6 @@ def test_bad_values_and_a_bounded_stream_are_refused() -> None:
     )
 
 
-def _sweep(settings: dict[str, dict[str, Any]]) -> pd.DataFrame:
-    """A sweep's results: each setting on the training maps (seeds 0 and 1), every map
-    with the setting's figures, a hall-ring16 map's passages by ``ring_passages``."""
-    rows = []
-    for setting, f in settings.items():
-        for scenario in RIG_OF:
-            for seed in (0, 1):
-                ring = scenario == "hall-ring16"
-                rows.append(
-                    {
-                        "scenario": scenario,
-                        "seed": seed,
-                        "method": "inverse",
-                        "params": setting,
-                        "quality": f.get("quality", 0.2),
-                        "observed_wall_recall": f.get("recall", 0.5),
-                        "passages_detected": f.get("ring_passages", 1) if ring else 1,
-                        "f1_all": f.get("f1", 0.3),
-                        "precision_all": f.get("precision", 0.7),
-                    }
-                )
-    return pd.DataFrame(rows)
-
-
 SWEEP = {
     DEFAULTS: {},
     "walls": {"recall": 0.8, "f1": 0.305, "precision": 0.66},
@@ -225,7 +201,7 @@ SWEEP = {
 
 
 def test_the_rule_scores_each_setting_against_the_defaults() -> None:
-    got = verdicts(figures(_sweep(SWEEP))).set_index("setting")
+    got = verdicts(figures(training_sweep("inverse", SWEEP))).set_index("setting")
     assert got["maps"].tolist() == [16] * 4
     assert got.loc["walls", "passages_ring16"] == 4
     assert got.loc[DEFAULTS, "passages"] == 16
@@ -240,9 +216,9 @@ def test_the_rule_scores_each_setting_against_the_defaults() -> None:
 def test_pooled_sweeps_and_missing_scenes_are_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    one = _sweep(SWEEP)
+    one = training_sweep("inverse", SWEEP)
     # Two sweeps' files pooled: the defaults on 32 maps, each candidate on 16.
-    pooled = pd.concat([one, _sweep({DEFAULTS: {}})], ignore_index=True)
+    pooled = pd.concat([one, training_sweep("inverse", {DEFAULTS: {}})], ignore_index=True)
     with pytest.raises(ValueError, match="'walls' has 16 maps, the defaults 32"):
         verdicts(figures(pooled))
     # The MaxSonar hall missing from every setting: NaN, which no comparison fails.

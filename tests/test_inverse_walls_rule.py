@@ -4,38 +4,15 @@ incomplete sweeps refused (issue 39)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import pandas as pd
 import pytest
-from benchmarks.inverse_walls import DEFAULTS, RIG_OF, main, rule_table
+from benchmarks.inverse_walls import DEFAULTS, main, rule_table
 
+from conftest import training_sweep
 
-def _sweep(method: str, settings: dict[str, dict[str, Any]]) -> pd.DataFrame:
-    """A sweep's results: each setting on the 16 training maps (seeds 0 and 1), every
-    map with the setting's figures, a hall-ring16 map's passages by ``ring_passages``."""
-    rows = []
-    for setting, f in settings.items():
-        for scenario in RIG_OF:
-            for seed in (0, 1):
-                ring = scenario == "hall-ring16"
-                rows.append(
-                    {
-                        "scenario": scenario,
-                        "seed": seed,
-                        "method": method,
-                        "params": setting,
-                        "quality": f.get("quality", 0.2),
-                        "observed_wall_recall": f.get("recall", 0.5),
-                        "passages_detected": f.get("ring_passages", 1) if ring else 1,
-                        "f1_all": f.get("f1", 0.3),
-                    }
-                )
-    return pd.DataFrame(rows)
-
-
-GRADIENT = _sweep("gradient", {DEFAULTS: {"f1": 0.4}})
-INVERSE = _sweep("inverse", {DEFAULTS: {}, "walls": {"recall": 0.8, "f1": 0.25}})
+GRADIENT = training_sweep("gradient", {DEFAULTS: {"f1": 0.4}})
+INVERSE = training_sweep("inverse", {DEFAULTS: {}, "walls": {"recall": 0.8, "f1": 0.25}})
 
 
 def test_one_sweep_gives_each_settings_figures() -> None:
@@ -53,7 +30,7 @@ def test_pooled_sweeps_and_missing_scenes_are_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     # A second sweep's file with its own defaults' rows: the defaults on 32 maps.
-    other = _sweep("inverse", {DEFAULTS: {}, "stop": {"recall": 0.9}})
+    other = training_sweep("inverse", {DEFAULTS: {}, "stop": {"recall": 0.9}})
     with pytest.raises(ValueError, match="'walls' has 16 maps, the defaults 32"):
         rule_table(pd.concat([INVERSE, other], ignore_index=True), GRADIENT)
     # The MaxSonar hall missing: NaN, which no comparison would fail.
