@@ -41,7 +41,7 @@ from scipy.spatial import cKDTree
 from benchmarks.patrol import OneLineParser, non_negative
 from benchmarks.patrol_cars import car_config
 from benchmarks.patrol_fallback import fallback_config
-from sonarmap.patrol import run_patrol
+from sonarmap.patrol import PatrolResult, run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
 from sonarmap.patrol.oneway import one_way
@@ -60,6 +60,21 @@ KNOBS = (
 )
 #: Seconds between samples.
 EVERY_S = 10.0
+
+
+def run_figures(result: PatrolResult, duration: float, all_seen: float | None) -> dict[str, Any]:
+    """The run's figures every row of these benchmarks starts with (the module's notes):
+    DVT %, never-seen %, when every place was first seen (s, None: never), mean MTB and
+    the mean MTB over the run's second half (s)."""
+    s = result.summary()
+    late = result.t > duration / 2
+    return {
+        "dvt": round(float(s["dvt"]), 2),
+        "never_seen": round(100 * float(s["never_seen"]), 3),
+        "all_seen_s": all_seen,
+        "mean_mtb": round(float(s["mean_mtb"]), 1),
+        "mtb_late": round(float(result.mtb[late].mean()), 1),
+    }
 
 
 def watch_run(
@@ -103,7 +118,6 @@ def watch_run(
 
     result = run_patrol(t, cfg, robots=cars, seed=0, on_step=on_step)
     s = result.summary()
-    late = result.t > duration / 2
     gap = rec["gap"]
     watched = w.watched & (gap >= 0)
     other = watched & ~in_stub
@@ -122,11 +136,7 @@ def watch_run(
         "one_way": oneway and cars > 1,
         "leftover": leftover,
         "duration": duration,
-        "dvt": round(float(s["dvt"]), 2),
-        "never_seen": round(100 * float(s["never_seen"]), 3),
-        "all_seen_s": rec["all_seen"],
-        "mean_mtb": round(float(s["mean_mtb"]), 1),
-        "mtb_late": round(float(result.mtb[late].mean()), 1),
+        **run_figures(result, duration, rec["all_seen"]),
         "mean_idleness": round(float(s["mean_idleness"]), 1),
         "stub_share": round(100 * float(in_stub.sum() / max(1, w.watched.sum())), 1),
         "worst_in_stub": round(100 * float(np.mean(rec["worst"])), 1),

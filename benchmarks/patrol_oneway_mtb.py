@@ -71,7 +71,7 @@ from scipy.spatial import cKDTree
 
 from benchmarks.patrol import OneLineParser, non_negative
 from benchmarks.patrol_cars import car_config
-from benchmarks.patrol_cars_mtb import EVERY_S, KNOBS
+from benchmarks.patrol_cars_mtb import EVERY_S, KNOBS, run_figures
 from benchmarks.patrol_fallback import fallback_site
 from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
@@ -262,7 +262,6 @@ def watch_run(
 
     result = run_patrol(t, cfg, robots=cars, seed=0, on_step=on_step)
     s = result.summary()
-    late = result.t > duration / 2
 
     places = [(v[0], v[1]) for v in worst]
     best, begin, end = streak(places, sight, EVERY_S)
@@ -281,11 +280,7 @@ def watch_run(
         "one_way": use,
         "leftover": leftover,
         "duration": duration,
-        "dvt": round(float(s["dvt"]), 2),
-        "never_seen": round(100 * float(s["never_seen"]), 3),
-        "all_seen_s": first["all_seen"],
-        "mean_mtb": round(float(s["mean_mtb"]), 1),
-        "mtb_late": round(float(result.mtb[late].mean()), 1),
+        **run_figures(result, duration, first["all_seen"]),
         "one_way_streets": int(ow.one_way.sum()),
         "streets": len(ow.one_way),
         "one_way_cell_share": one_way_cell_share(ow, passable),
