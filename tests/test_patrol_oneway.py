@@ -511,3 +511,14 @@ def test_an_unknown_orientation_is_refused_naming_the_field() -> None:
     t = _ring()
     with pytest.raises(ValueError, match="unknown orient 'fast'"):
         one_way(t.passable(1.0), t.clearance, RES, turn_radius=3.5, orient="fast")
+
+
+def test_a_two_way_loop_street_keeps_its_half_length_to_its_midpoint() -> None:
+    # A loop street wide enough to stay two-way: node 0 to its midpoint (node 1) is half
+    # its length either way round, not the two halves summed.
+    graph, mid = oneway._midpoint_graph(
+        1, np.array([[0, 0]]), np.array([5.0]), np.array([True]), np.array([False])
+    )
+    assert mid.tolist() == [1]
+    assert graph[0, 1] == pytest.approx(5.0)
+    assert graph[1, 0] == pytest.approx(5.0)

@@ -265,7 +265,8 @@ def _midpoint_graph(
     mid = n_nodes + k
     tail = np.where(forward, ends[:, 0], ends[:, 1])
     head = np.where(forward, ends[:, 1], ends[:, 0])
-    two = ~directed
+    # A loop's two halves already go both ways; listed again, csr_matrix would sum them.
+    two = ~directed & (tail != head)
     rows = np.concatenate([tail, mid, head[two], mid[two]])
     cols = np.concatenate([mid, head, mid[two], tail[two]])
     w = np.concatenate([half, half, half[two], half[two]])
