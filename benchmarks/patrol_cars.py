@@ -89,6 +89,7 @@ def car_config(
     stub_sight: bool = False,
     stub_delay: float = 0.0,
     leftover: float = 0.0,
+    one_way_orient: str = "dfs",
 ) -> PatrolConfig:
     """The cars' configuration of one run (see the module's notes): ``crowding`` only
     with more than one car, refined paths. Every knob is given, with this function's
@@ -106,6 +107,7 @@ def car_config(
         out_of_sight=out_of_sight,
         round_block=round_block,
         one_way=one_way,
+        one_way_orient=one_way_orient,
         stub_sight=stub_sight,
         stub_delay=stub_delay,
         leftover=leftover,

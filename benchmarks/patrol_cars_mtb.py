@@ -2,8 +2,9 @@
 
 One run of :mod:`benchmarks.patrol_cars`'s command-line setting (the library's car
 defaults, :func:`benchmarks.patrol_fallback.fallback_config`; ``--one-way off`` drives
-every street both ways also for teams; ``--leftover M`` as the benchmark's) per team
-size. Sampled every 10 s of the run:
+every street both ways also for teams; ``--orient short`` orients the teams' one-way
+streets for shorter detours, :attr:`~sonarmap.patrol.PatrolConfig.one_way_orient`;
+``--leftover M`` as the benchmark's) per team size. Sampled every 10 s of the run:
 
 - ``all_seen_s``: when the last place of the site was first seen (None: never);
 - ``mean_mtb``: the benchmark's mean MTB (after a fifth of the run), s;
@@ -44,7 +45,7 @@ from benchmarks.patrol_fallback import fallback_config
 from sonarmap.patrol import PatrolResult, run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.maps import street_territory
-from sonarmap.patrol.oneway import one_way
+from sonarmap.patrol.oneway import ORIENTS, one_way
 from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Team
 from sonarmap.patrol.stubs import stub_places
@@ -78,9 +79,15 @@ def run_figures(result: PatrolResult, duration: float, all_seen: float | None) -
 
 
 def watch_run(
-    site: int, cars: int, duration: float, oneway: bool, leftover: float = 0.0
+    site: int,
+    cars: int,
+    duration: float,
+    oneway: bool,
+    leftover: float = 0.0,
+    orient: str = "dfs",
 ) -> dict[str, Any]:
-    """One run's MTB record (see the module's notes)."""
+    """One run's MTB record (see the module's notes); ``orient``: the one-way streets'
+    :attr:`~sonarmap.patrol.PatrolConfig.one_way_orient`."""
     base = fallback_config(cars, duration)
     # Built anew, not replaced: the configuration settles its car defaults once.
     cfg = car_config(
@@ -91,6 +98,7 @@ def watch_run(
         **{k: getattr(base, k) for k in KNOBS},
         one_way=oneway and cars > 1,
         leftover=leftover,
+        one_way_orient=orient,
     )
     t = street_territory(site)
     w = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision)
@@ -134,6 +142,7 @@ def watch_run(
         "site": site,
         "cars": cars,
         "one_way": oneway and cars > 1,
+        "one_way_orient": orient,
         "leftover": leftover,
         "duration": duration,
         **run_figures(result, duration, rec["all_seen"]),
@@ -155,13 +164,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--one-way", choices=["teams", "off"], default="teams")
     ap.add_argument("--leftover", type=non_negative, default=0.0)
+    ap.add_argument("--orient", choices=list(ORIENTS), default="dfs")
     a = ap.parse_args(argv)
     for site in a.sites:
         for cars in a.cars:
-            print(
-                json.dumps(watch_run(site, cars, a.duration, a.one_way == "teams", a.leftover)),
-                flush=True,
-            )
+            row = watch_run(site, cars, a.duration, a.one_way == "teams", a.leftover, a.orient)
+            print(json.dumps(row), flush=True)
     return 0
 
 

@@ -3,8 +3,10 @@
 One run of :mod:`benchmarks.patrol_cars_mtb`'s setting (the library's car defaults;
 ``--one-way teams`` drives the streets narrower than the turning circle one way for
 teams only, as the library does; ``all`` also for a lone car; ``off`` never;
-``--leftover M`` as the benchmark's) per team size. The one-way street system is
-:func:`sonarmap.patrol.oneway.one_way` on the run's passable cells; "one-way distance"
+``--leftover M`` as the benchmark's; ``--orient short`` orients the one-way streets for
+shorter detours, :attr:`~sonarmap.patrol.PatrolConfig.one_way_orient`) per team size.
+The one-way street system is :func:`sonarmap.patrol.oneway.one_way` on the run's
+passable cells; "one-way distance"
 is the shortest path along the wave's steps that system allows, "two-way distance" the
 same path with every step allowed (the car's heading and turning are left out of both).
 
@@ -76,7 +78,7 @@ from benchmarks.patrol_fallback import fallback_site
 from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.graph import cell_graph
-from sonarmap.patrol.oneway import OneWay
+from sonarmap.patrol.oneway import ORIENTS, OneWay, one_way
 from sonarmap.patrol.paths import STEPS
 from sonarmap.patrol.robots import Team
 from sonarmap.patrol.simulation import SIGHT_MARGIN
@@ -158,14 +160,17 @@ def streak(
     return best, first, last
 
 
-def network(site: int, cars: int) -> dict[str, Any]:
+def network(site: int, cars: int, orient: str = "dfs") -> dict[str, Any]:
     """The one-way street system of training or test site ``site`` as the cars' setting
-    builds it, and its detour (no run)."""
+    builds it with ``orient`` (:func:`one_way`), and its detour (no run)."""
     cfg, t, passable, ow = fallback_site(site, cars, 60.0)
+    if orient != "dfs":
+        ow = one_way(passable, t.clearance, t.grid.resolution, cfg.turn_radius, orient=orient)
     two, index = cell_graph(passable, t.grid.resolution)
     n = int(passable.sum())
     return {
         "site": site,
+        "orient": orient,
         "one_way_streets": int(ow.one_way.sum()),
         "streets": len(ow.one_way),
         "one_way_cell_share": one_way_cell_share(ow, passable),
@@ -176,10 +181,18 @@ def network(site: int, cars: int) -> dict[str, Any]:
 
 
 def watch_run(
-    site: int, cars: int, duration: float, oneway: str, leftover: float = 0.0
+    site: int,
+    cars: int,
+    duration: float,
+    oneway: str,
+    leftover: float = 0.0,
+    orient: str = "dfs",
 ) -> dict[str, Any]:
-    """One run's record (see the module's notes)."""
+    """One run's record (see the module's notes); ``orient``: the one-way streets'
+    :attr:`~sonarmap.patrol.PatrolConfig.one_way_orient`."""
     base, t, passable, ow = fallback_site(site, cars, duration)
+    if orient != "dfs":
+        ow = one_way(passable, t.clearance, t.grid.resolution, base.turn_radius, orient=orient)
     use = oneway == "all" or (oneway == "teams" and cars > 1)
     cfg = car_config(
         "track",
@@ -189,6 +202,7 @@ def watch_run(
         **{k: getattr(base, k) for k in KNOBS},
         one_way=use,
         leftover=leftover,
+        one_way_orient=orient,
     )
     two, index = cell_graph(passable, t.grid.resolution)
     one = allowed_graph(two, index, ow.steps)
@@ -278,6 +292,7 @@ def watch_run(
         "site": site,
         "cars": cars,
         "one_way": use,
+        "one_way_orient": orient,
         "leftover": leftover,
         "duration": duration,
         **run_figures(result, duration, first["all_seen"]),
@@ -313,15 +328,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=3600.0)
     ap.add_argument("--one-way", choices=["teams", "all", "off"], default="teams")
     ap.add_argument("--leftover", type=non_negative, default=0.0)
+    ap.add_argument("--orient", choices=list(ORIENTS), default="dfs")
     ap.add_argument("--network", action="store_true")
     a = ap.parse_args(argv)
     if a.network:
         for site in a.sites:
-            print(json.dumps(network(site, max(a.cars))), flush=True)
+            print(json.dumps(network(site, max(a.cars), a.orient)), flush=True)
         return 0
     for site in a.sites:
         for cars in a.cars:
-            print(json.dumps(watch_run(site, cars, a.duration, a.one_way, a.leftover)), flush=True)
+            row = watch_run(site, cars, a.duration, a.one_way, a.leftover, a.orient)
+            print(json.dumps(row), flush=True)
     return 0
 
 

@@ -417,3 +417,108 @@ def test_one_way_is_the_whole_map_references(case: str, monkeypatch: pytest.Monk
     assert got.one_way.any() or case == "pinch"
     for name in OneWay.__dataclass_fields__:
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+def _city(cols: int, rows: int, street: float = 3.0, block: float = 12.0) -> Territory:
+    """A made-up grid of ``cols`` x ``rows`` square blocks of ``block`` metres between
+    ``street``-metre streets, walled round."""
+    blocks = [
+        (street + i * (block + street), street + j * (block + street))
+        for i in range(cols)
+        for j in range(rows)
+    ]
+    w, h = street + cols * (block + street), street + rows * (block + street)
+    return _site([(x, y, x + block, y + block) for x, y in blocks], w, h)
+
+
+def _summed_detour(passable: npt.NDArray[np.bool_], steps: npt.NDArray[np.uint8]) -> float:
+    """Summed shortest one-way path over summed two-way path along the wave's steps
+    (:func:`cell_graph`), from every 50th passable cell to every passable cell."""
+    from scipy.sparse.csgraph import dijkstra
+
+    from sonarmap.patrol.graph import cell_graph
+
+    graph, _ = cell_graph(passable, 1.0)
+    coo = graph.tocoo()
+    rc = np.argwhere(passable)
+    bits = steps[rc[coo.row, 0], rc[coo.row, 1]].astype(np.int64)
+    code = {tuple(s): j for j, s in enumerate(STEPS.tolist())}
+    j = np.array(
+        [code[(int(a), int(b))] for a, b in (rc[coo.col] - rc[coo.row]).tolist()],
+        dtype=np.int64,
+    )
+    keep = ((bits >> j) & 1) == 1
+    n = len(rc)
+    one = coo_matrix((coo.data[keep], (coo.row[keep], coo.col[keep])), shape=(n, n))
+    src = np.arange(0, n, 50)
+    d2 = dijkstra(graph, directed=True, indices=src)
+    d1 = dijkstra(one.tocsr(), directed=True, indices=src)
+    assert np.isfinite(d1).all()
+    assert np.isfinite(d2).all()
+    return float(d1.sum() / d2.sum())
+
+
+def test_short_orientation_shortens_the_detours_of_a_grid_of_streets() -> None:
+    # A 4 x 3 grid of blocks between 3 m streets (narrower than the 7 m turning
+    # circle): every street is one-way either way; the local search must keep every
+    # place reachable and make the one-way paths shorter than the depth-first ones.
+    t = _city(4, 3)
+    passable = t.passable(1.0)
+    dfs = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    short = one_way(passable, t.clearance, RES, turn_radius=3.5, orient="short")
+    assert short.one_way.sum() == dfs.one_way.sum() > 20
+    np.testing.assert_array_equal(short.bridges, dfs.bridges)
+    assert not np.array_equal(short.steps, dfs.steps)
+    assert _strongly_connected(passable, short.steps)
+    before, after = _summed_detour(passable, dfs.steps), _summed_detour(passable, short.steps)
+    assert after < 0.9 * before
+
+
+@pytest.mark.parametrize("seed", [3, 47])
+def test_short_orientation_keeps_random_streets_strongly_connected(seed: int) -> None:
+    passable, t = _random_streets(seed)
+    ow = one_way(passable, t.clearance, RES, turn_radius=3.5, orient="short")
+    assert _strongly_connected(passable, ow.steps)
+
+
+def test_short_orientation_is_deterministic() -> None:
+    t = _four_blocks()
+    passable = t.passable(1.0)
+    a = one_way(passable, t.clearance, RES, turn_radius=3.5, orient="short")
+    b = one_way(passable.copy(), t.clearance.copy(), RES, turn_radius=3.5, orient="short")
+    np.testing.assert_array_equal(a.steps, b.steps)
+    np.testing.assert_array_equal(a.along, b.along)
+
+
+def test_the_flips_never_break_strong_connectivity() -> None:
+    # A ring of four streets with a chord: any single flip of a ring street would cut a
+    # node off; the search may only take flips that keep every midpoint reachable.
+    ends = [(0, 1), (1, 2), (2, 3), (3, 0), (0, 2)]
+    forward = np.array([True, True, True, True, True])
+    directed = np.ones(5, dtype=bool)
+    out = oneway._shorten(4, ends, np.array([10.0, 10.0, 10.0, 10.0, 14.0]), forward, directed)
+    adj = np.zeros((4, 4))
+    for (u, v), f in zip(ends, out.tolist(), strict=True):
+        adj[(u, v) if f else (v, u)] = 1.0
+    n, _ = connected_components(coo_matrix(adj), directed=True, connection="strong")
+    assert n == 1
+
+
+def test_an_unknown_orientation_is_refused_naming_the_field() -> None:
+    with pytest.raises(ConfigError, match="one_way_orient") as e:
+        PatrolConfig(model="car", one_way_orient="fast")
+    assert e.value.field == "one_way_orient"
+    t = _ring()
+    with pytest.raises(ValueError, match="unknown orient 'fast'"):
+        one_way(t.passable(1.0), t.clearance, RES, turn_radius=3.5, orient="fast")
+
+
+def test_a_two_way_loop_street_keeps_its_half_length_to_its_midpoint() -> None:
+    # A loop street wide enough to stay two-way: node 0 to its midpoint (node 1) is half
+    # its length either way round, not the two halves summed.
+    graph, mid = oneway._midpoint_graph(
+        1, np.array([[0, 0]]), np.array([5.0]), np.array([True]), np.array([False])
+    )
+    assert mid.tolist() == [1]
+    assert graph[0, 1] == pytest.approx(5.0)
+    assert graph[1, 0] == pytest.approx(5.0)

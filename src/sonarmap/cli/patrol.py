@@ -269,6 +269,12 @@ PATROL_OPTIONS = (
         unset_as=None,
     ),
     Opt(
+        "one_way_orient",
+        "Tracking cars on one-way streets: how the streets' directions are chosen: dfs "
+        "(any that keeps every place reachable) or short (one with shorter detours).",
+        flag="--one-way-orient",
+    ),
+    Opt(
         "stub_sight",
         "Tracking cars: a place in a dead-end stub seen from the junction it opens on "
         "(within the vision less 1 m of it) is looked at from there, not driven to; "

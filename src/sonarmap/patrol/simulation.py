@@ -44,7 +44,7 @@ from .manoeuvre import DeadEnds, behind_cells, carrot, drop_fresh_behind, turn_w
 from .marching import Marching
 from .monitor import Monitor
 from .network import NETWORKS, components
-from .oneway import one_way
+from .oneway import ORIENTS, one_way
 from .paths import STEP_UNITS, Wave, nearest_step, path_to, shadows, straight_paths
 from .policies import POLICIES, choose, goal_pulls, reactive_pick
 from .reach import MODES as REACH_MODES
@@ -308,6 +308,12 @@ class PatrolConfig:
     #: stays None, on the configuration and in :meth:`as_dict` (a run's summary holds
     #: the settled value, its configuration having been through :meth:`for_team`).
     one_way: bool | None = None
+    #: Track: the directions of the one-way streets (``one_way``), each strongly
+    #: connected (:data:`~sonarmap.patrol.oneway.ORIENTS`): 'dfs' (the default), a
+    #: depth-first search's, with no regard to detours; 'short', that one improved by a
+    #: local search that shortens the paths between the streets
+    #: (:func:`~sonarmap.patrol.oneway.one_way`). Read only when ``one_way`` is on.
+    one_way_orient: str = "dfs"
     #: Track: a car does not drive into a dead-end stub (narrower than the turning
     #: circle, :attr:`~sonarmap.patrol.oneway.OneWay.stubs`) for a place it can see from
     #: the junction the stub opens on: its route to a place in a stub within ``vision``
@@ -482,6 +488,11 @@ class PatrolConfig:
         if not (math.isfinite(self.round_block) and self.round_block >= 0):
             raise ConfigError(
                 f"round_block must be >= 0 metres, got {self.round_block}", field="round_block"
+            )
+        if self.one_way_orient not in ORIENTS:
+            raise ConfigError(
+                f"unknown one_way_orient {self.one_way_orient!r}; valid: {', '.join(ORIENTS)}",
+                field="one_way_orient",
             )
         if self.one_way and not (self.model == "car" and self.car_planner == "track"):
             raise ConfigError(
@@ -1585,7 +1596,13 @@ def run_patrol(
         # Robots spread evenly along the tour: robot k joins it at the k-th share.
         target = (np.arange(len(team)) * len(tour)) // len(team)
     streets = (
-        one_way(passable, territory.clearance, g.resolution, config.turn_radius)
+        one_way(
+            passable,
+            territory.clearance,
+            g.resolution,
+            config.turn_radius,
+            orient=config.one_way_orient if config.one_way else "dfs",
+        )
         if config.one_way or config.stub_sight or config.stub_delay > 0
         else None
     )
