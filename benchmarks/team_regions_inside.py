@@ -140,14 +140,14 @@ def draw(
     g = plan.grid
     x0, y0 = g.origin
     extent = (x0, x0 + g.cols * g.resolution, y0, y0 + g.rows * g.resolution)
-    rng = np.random.default_rng(0)
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
     for ax, labels, title in zip(
         axes, (whole, inside), ("cut from the whole prior", "cut inside the territory"),
         strict=True,
     ):  # fmt: skip
         k = int(labels.max()) + 1
-        colours = rng.uniform(0.35, 0.95, size=(max(k, 1), 3))
+        # The same colour for the same label number in both panels.
+        colours = np.random.default_rng(0).uniform(0.35, 0.95, size=(max(k, 1), 3))
         img = np.ones((*labels.shape, 3))
         img[labels >= 0] = colours[labels[labels >= 0]]
         img[plan.classes() == OCCUPIED] = 0.0
