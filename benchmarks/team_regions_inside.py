@@ -17,7 +17,9 @@ Run with ``python -m benchmarks.team_regions_inside --out DIR [--pictures]``:
   passes through (:func:`sonarmap.team.survey.survey`'s ``regions_cuts``,
   ``regions_cuts_at_doors``, ``regions_on_route``), and the local layer's configured
   bound (:func:`sonarmap.team.store.local_bound` at the default store settings) with
-  the regions' own sum of limits;
+  the regions' own sum of limits; then, per map, how many of the inside cut's regions
+  are cell for cell regions of the whole prior's cut, and by how many cells on the
+  territory each other one differs from the whole cut's region it overlaps most;
 - with ``--pictures``, draws ``DIR/regions-NAME.png`` per map: the regions of both cuts
   in colours over the plan's walls, the territory's outline in red.
 
@@ -71,6 +73,26 @@ def outside_count(labels: npt.NDArray[np.int32], mask: npt.NDArray[np.bool_] | N
     return int((off > MOSTLY * cells).sum())
 
 
+def same_regions(
+    whole: npt.NDArray[np.int32], inside: npt.NDArray[np.int32], mask: npt.NDArray[np.bool_]
+) -> tuple[int, list[int]]:
+    """Of the inside cut's regions, how many are cell for cell a region of the whole
+    prior's cut, and for each other one the cells by which it differs, on the mask, from
+    the whole cut's region it overlaps most (cells it gained plus cells it lost)."""
+    k = int(inside.max()) + 1
+    same, diffs = 0, []
+    for lab in range(k):
+        mine = inside == lab
+        ws, n = np.unique(whole[mine], return_counts=True)
+        w = int(ws[np.argmax(n)])
+        theirs = whole == w
+        if w >= 0 and np.array_equal(mine, theirs):
+            same += 1
+            continue
+        diffs.append(int((mine & ~theirs).sum() + (theirs & mask & ~mine).sum()))
+    return same, diffs
+
+
 def _row(
     plan: OccupancyMap,
     labels: npt.NDArray[np.int32],
@@ -94,6 +116,10 @@ def _row(
     return " | ".join(cells)
 
 
+def _regions(labels: npt.NDArray[np.int32]) -> int:
+    return int(labels.max()) + 1
+
+
 def regions_table(maps: dict[str, OccupancyMap], pictures: Path | None) -> None:
     """Print the regions of each map cut from the whole prior and inside its territory."""
     print(
@@ -102,6 +128,7 @@ def regions_table(maps: dict[str, OccupancyMap], pictures: Path | None) -> None:
         "| cuts at a door | on robot 0's route | regions' limits, kB | own layer's bound, kB |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
+    changes: list[str] = []
     for name, plan in maps.items():
         terr = default_territory(plan)
         mask = None if terr is None else terr.region
@@ -119,8 +146,17 @@ def regions_table(maps: dict[str, OccupancyMap], pictures: Path | None) -> None:
         same = " (the same cells)" if np.array_equal(whole, inside) else ""
         row = _row(plan, inside, mask, world, route)
         print(f"| {name} | {what} | inside{same} | {row} |", flush=True)
+        on = np.ones(plan.grid.shape, dtype=bool) if mask is None else mask
+        kept, diffs = same_regions(whole, inside, on)
+        changes.append(
+            f"{name}: {kept} of {_regions(inside)} regions of the inside cut are cell for "
+            f"cell regions of the whole prior's; the others differ on the territory by "
+            f"{diffs} cells"
+        )
         if pictures is not None:
             draw(plan, name, whole, inside, mask, pictures / f"regions-{name}.png")
+    print()
+    print("\n".join(changes))
 
 
 def draw(
