@@ -298,10 +298,6 @@ class RobotAgent:
         :data:`~.world.ODOMETRY_NOISE`). The robot's own model of it, for the edges'
         covariance, stays :data:`~.world.ODOMETRY_MODEL` and :attr:`heading_bias_sd`:
         to test the calibration against an odometry it does not expect.
-    territory : ndarray of bool, optional
-        The mission's territory mask on the plan's cells (:mod:`.territory`): the
-        prior's regions are cut inside it (:func:`~.regions.mission_regions`; on the
-        prior's cells by :func:`~.territory.mask_on`). Default None: the whole prior.
     bias_sd : {"prior", "remaining"}
         The heading-bias standard deviation a calibrating robot's new odometry edges
         carry after its first batch (:attr:`heading_bias_sd`): ``"prior"`` (default) the
@@ -310,6 +306,10 @@ class RobotAgent:
         turn); ``"remaining"`` what the calibration leaves
         (:func:`~.calibration.remaining_bias_sd`). The bias estimate corrects the edges
         either way.
+    territory : ndarray of bool, optional
+        The mission's territory mask on the plan's cells (:mod:`.territory`): the
+        prior's regions are cut inside it (:func:`~.regions.mission_regions`; on the
+        prior's cells by :func:`~.territory.mask_on`). Default None: the whole prior.
 
     Attributes
     ----------
