@@ -113,8 +113,8 @@ TerritoryOption = Annotated[
         "footprint, its walls bridged across openings up to 1.5 m, so the outside is left "
         "out (unless --route is given; with --world, the mask 'team world' made it in); "
         "elsewhere the whole map. A --route must keep to a given mask's area (refused "
-        "otherwise); --world is refused with a mask. The store's regions are not masked: "
-        "they are still cut from the whole prior, outside included.",
+        "otherwise); --world is refused with a mask. The store's regions are cut inside the "
+        "territory too.",
     ),
 ]
 NodeTerritoryOption = Annotated[
@@ -903,6 +903,7 @@ def run_cmd(
                     "record": animate,
                     "on_tick": publisher,
                     "prior": prior,
+                    "territory": region,
                 }
                 with progress("team") as update:
                     team_args["progress"] = partial(_tick, update, f"{robots} robots")
@@ -920,6 +921,7 @@ def run_cmd(
                         progress=partial(_tick, update, "robot 0"),
                         record=animate,
                         on_step=None if publisher is None else publisher.robot_step,
+                        territory=region,
                     )
             if publisher is not None:
                 publisher.finish()

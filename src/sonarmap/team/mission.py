@@ -121,6 +121,7 @@ from .records import (
 from .regions import mission_regions, region_of, region_sizes
 from .sensing import RobotSensing
 from .store import RobotStore, local_bound, region_limits
+from .territory import mask_on
 from .world import (
     ODOMETRY_MODEL,
     World,
@@ -305,6 +306,10 @@ class RobotAgent:
         turn); ``"remaining"`` what the calibration leaves
         (:func:`~.calibration.remaining_bias_sd`). The bias estimate corrects the edges
         either way.
+    territory : ndarray of bool, optional
+        The mission's territory mask on the plan's cells (:mod:`.territory`): the
+        prior's regions are cut inside it (:func:`~.regions.mission_regions`; on the
+        prior's cells by :func:`~.territory.mask_on`). Default None: the whole prior.
 
     Attributes
     ----------
@@ -351,6 +356,7 @@ class RobotAgent:
         calibrate: bool = False,
         odometry_noise: Mapping[str, float] | None = None,
         bias_sd: BiasSd = "prior",
+        territory: npt.NDArray[np.bool_] | None = None,
     ) -> None:
         if bias_sd not in BIAS_SD_CHOICES:
             raise InputError(
@@ -378,7 +384,8 @@ class RobotAgent:
         self.odo = sensing.odometry()
         self.rig = sensing.rig
         self.start_believed = sensing.start_believed
-        self.labels = mission_regions(prior)
+        inside = None if territory is None else mask_on(territory, plan.grid, prior.grid)
+        self.labels = mission_regions(prior, region=inside)
         self.region_of_step: npt.NDArray[np.intp] = np.array(
             [region_of(self.labels, prior.grid, float(x), float(y)) for x, y in self.route[:, 1:3]],
             dtype=np.intp,
@@ -940,6 +947,7 @@ def run_mission(
     progress: Progress | None = None,
     record: bool = False,
     on_step: Callable[[float, RobotAgent], None] | None = None,
+    territory: npt.NDArray[np.bool_] | None = None,
 ) -> MissionResult:
     """Run robot ``robot``'s mission on the floor ``plan``.
 
@@ -948,8 +956,10 @@ def run_mission(
     route (random waypoints drawn from the seed and the robot's number). ``record``
     keeps a :class:`~sonarmap.team.animation.Frame` per pose made, for an animation;
     ``on_step(t, agent)`` is called after each route step (:meth:`RobotAgent.run`).
-    A thin loop over a :class:`RobotAgent` that calibrates its odometry (alone, it
-    offers its edges to no one).
+    ``territory`` (a mask on the plan's cells) is where the prior's regions are cut
+    (:class:`RobotAgent`; None: the whole prior). A thin loop over a
+    :class:`RobotAgent` that calibrates its odometry (alone, it offers its edges to no
+    one).
     """
     agent = RobotAgent(
         plan,
@@ -960,6 +970,7 @@ def run_mission(
         robot=robot,
         record=record,
         calibrate=True,
+        territory=territory,
     )
     agent.run(progress, on_step)
     return agent.finish()

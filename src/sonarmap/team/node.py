@@ -279,7 +279,7 @@ def _fingerprint(
     region: npt.NDArray[np.bool_] | None = None,
 ) -> str:
     """What a state file must belong to: the same plan, prior, mission, team, routes,
-    exchange and territory mask (the landmarks are drawn inside it)."""
+    exchange and territory mask (the landmarks are drawn and the regions cut inside it)."""
     h = hashlib.sha256()
     for m in (plan,) if prior is None else (plan, prior):
         # The frame too: the same cells at another origin or resolution are another map.
@@ -293,6 +293,9 @@ def _fingerprint(
         # Only with a mask: the state files of missions without one keep their prints.
         h.update(b"territory")
         h.update(np.packbits(region).tobytes())
+        # The regions are cut inside the mask: a state saved while they were cut from the
+        # whole prior numbers its poses' regions otherwise, and must not resume.
+        h.update(b"regions inside")
     return h.hexdigest()
 
 
@@ -397,7 +400,14 @@ class _Node:
             ]
         own = None if given is None else given[robot]
         self.agent = agent = RobotAgent(
-            plan, cfg, prior=prior, world=world, robot=robot, route=own, calibrate=False
+            plan,
+            cfg,
+            prior=prior,
+            world=world,
+            robot=robot,
+            route=own,
+            calibrate=False,
+            territory=region,
         )
         routes = [agent.route]
         others_truth: dict[int, F64] = {}
@@ -689,7 +699,8 @@ def run_node(
         regions and the frame of its global map; scored against ``plan`` all the same.
     region : ndarray of bool, optional
         A user's territory mask on the plan's cells (:mod:`.territory`): the world's
-        landmarks and the routes the node draws stay inside it. None: the whole plan.
+        landmarks and the routes the node draws stay inside it, and the prior's regions
+        are cut inside it. None: the whole plan.
 
     Returns
     -------

@@ -303,7 +303,13 @@ def cut_regions(
     return _renumber(labels)
 
 
-def mission_regions(prior: OccupancyMap, radius: float = 0.3, min_area: float = 4.0) -> I32:
+def mission_regions(
+    prior: OccupancyMap,
+    radius: float = 0.3,
+    min_area: float = 4.0,
+    *,
+    region: Mask | None = None,
+) -> I32:
     """The regions a mission cuts its prior map into: :func:`cut_regions`, at the
     defaults, of the free cells a robot of ``radius`` metres (0.3) can be on.
 
@@ -314,16 +320,39 @@ def mission_regions(prior: OccupancyMap, radius: float = 0.3, min_area: float = 
     covers (a strip outside a wall, a SLAM map's specks of free) and pieces smaller than
     ``min_area`` (the inside of a shelf drawn as an outline). A map where the robot
     fits nowhere is cut on all its free cells.
+
+    Parameters
+    ----------
+    prior : OccupancyMap
+        The prior map.
+    radius : float
+        The robot's radius, metres (0.3).
+    min_area : float
+        Smallest piece kept and smallest region, m^2 (4).
+    region : ndarray of bool, optional
+        The mission's territory mask on the prior's cells (default None: the whole
+        prior). The robot's centre stays inside it and no free cell outside it is in a
+        region, so a drawn plan's free outside is not cut. When the robot fits nowhere
+        inside it, its free cells are cut; when it holds no free cell, the whole prior
+        is cut as without a mask.
     """
     free = prior.classes() == FREE
+    if region is not None:
+        region = np.asarray(region, dtype=bool)
+        if region.shape != free.shape:
+            raise ValueError(f"a territory mask of {region.shape} for a prior of {free.shape}")
+        if not (free & region).any():
+            region = None
     terr = Territory.from_map(prior)
     ok = terr.passable(radius)
+    if region is not None:
+        ok = ok & region
     pieces, n = ndimage.label(ok, structure=_EIGHT)
     if n == 0:
-        return cut_regions(free, prior.grid.resolution)
+        return cut_regions(free if region is None else free & region, prior.grid.resolution)
     ids, first = np.unique(pieces.ravel(), return_index=True)
     starts = np.column_stack(np.unravel_index(first[ids > 0], ok.shape)).astype(np.intp)
-    watched = reach(terr, radius, starts=starts).watched
+    watched = reach(terr, radius, starts=starts, region=region).watched
     parts, m = ndimage.label(watched, structure=_EIGHT)
     area = np.bincount(parts.ravel(), minlength=m + 1) * prior.grid.resolution**2
     big = area >= min_area

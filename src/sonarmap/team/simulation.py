@@ -279,6 +279,7 @@ def run_team(
     phase: Callable[[str], None] | None = None,
     on_tick: Callable[[TeamTick], None] | None = None,
     prior: OccupancyMap | None = None,
+    territory: npt.NDArray[np.bool_] | None = None,
 ) -> TeamResult:
     """Run ``robots`` robots' missions together, exchanging over a simulated network.
 
@@ -329,6 +330,10 @@ def run_team(
     prior : OccupancyMap, optional
         Every robot's prior map (:mod:`.prior`): its regions and the frame its global
         map is aligned to; the plan unless given. The truth stays the plan.
+    territory : ndarray of bool, optional
+        The mission's territory mask on the plan's cells (:mod:`.territory`): every
+        robot cuts the prior's regions inside it (:class:`~.mission.RobotAgent`).
+        Default None: the whole prior.
 
     Returns
     -------
@@ -352,6 +357,7 @@ def run_team(
             route=None if routes is None else routes[i],
             record=record,
             calibrate=False,
+            territory=territory,
         )
         for i in range(robots)
     ]
