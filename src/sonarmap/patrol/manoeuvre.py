@@ -100,18 +100,61 @@ def behind_cells(
     along its ``heading``: closed on the car's wave, its paths leave forwards, and a
     place behind it is reached around the block rather than by turning on the spot
     (a turn a car can only make by reversing on streets narrower than its turning
-    circle). The car's own cell is never among them."""
-    res = grid.resolution
+    circle). The car's own cell is never among them. Rows in row-major order of the
+    square of cells round the car's."""
+    ox, oy = grid.origin
+    return _behind_cells(
+        float(x),
+        float(y),
+        math.cos(heading),
+        math.sin(heading),
+        grid.rows,
+        grid.cols,
+        float(ox),
+        float(oy),
+        grid.resolution,
+        radius,
+        gap,
+    )
+
+
+@nb.njit(cache=True)
+def _behind_cells(
+    x: float,
+    y: float,
+    hx: float,
+    hy: float,
+    rows: int,
+    cols: int,
+    ox: float,
+    oy: float,
+    res: float,
+    radius: float,
+    gap: float,
+) -> npt.NDArray[np.intp]:
+    # behind_cells' test cell by cell, with the same floating-point operations as its
+    # numpy form (the car's cell as Grid.world_to_cell, cell centres as
+    # Grid.cell_centres, libm's hypot as np.hypot), so the same cells.
+    r0 = rows - 1 - int(math.floor((y - oy) / res))
+    c0 = int(math.floor((x - ox) / res))
     k = math.ceil(radius / res)
-    r0, c0 = (int(v) for v in grid.world_to_cell(x, y))
-    dr, dc = np.mgrid[-k : k + 1, -k : k + 1]
-    rr, cc = (r0 + dr).ravel(), (c0 + dc).ravel()
-    px, py = grid.cell_centres(rr, cc)
-    dx, dy = px - x, py - y
-    along = dx * math.cos(heading) + dy * math.sin(heading)
-    keep = (np.hypot(dx, dy) <= radius) & (along < -gap) & grid.contains(rr, cc)
-    keep &= (rr != r0) | (cc != c0)
-    return np.column_stack([rr[keep], cc[keep]]).astype(np.intp)
+    out = np.empty(((2 * k + 1) ** 2, 2), dtype=np.intp)
+    n = 0
+    for dr in range(-k, k + 1):
+        r = r0 + dr
+        if r < 0 or r >= rows:
+            continue
+        dy = oy + (float(rows - 1 - r) + 0.5) * res - y
+        for dc in range(-k, k + 1):
+            c = c0 + dc
+            if c < 0 or c >= cols or (dr == 0 and dc == 0):
+                continue
+            dx = ox + (float(c) + 0.5) * res - x
+            if dx * hx + dy * hy < -gap and math.hypot(dx, dy) <= radius:
+                out[n, 0] = r
+                out[n, 1] = c
+                n += 1
+    return out[:n].copy()
 
 
 def turn_weights(heading: float, behind: float, penalty: float) -> F64:
