@@ -346,7 +346,8 @@ def _whole_map_one_way(
     monkeypatch: pytest.MonkeyPatch,
 ) -> tuple[OneWay, int]:
     """The former ``one_way`` (main 3a5fca8), which looked for each street's and
-    junction's cells over the whole label map and filtered the allowed steps in numpy:
+    junction's cells over the whole label map and filtered the allowed steps in numpy
+    (the graph's edges as COO, then back to CSR for the strongly connected sets):
     the same code with every bounding box the whole map and the numpy filter put back.
     Also how many bounding boxes were asked for (none would mean the code no longer
     takes them, and this reference no longer differs from it)."""
@@ -358,25 +359,29 @@ def _whole_map_one_way(
         n = int(labels.max()) if labels.size else 0
         return [(slice(0, labels.shape[0]), slice(0, labels.shape[1]))] * max(n, 0)
 
-    def numpy_kept_steps(
-        row: npt.NDArray[np.int32],
-        col: npt.NDArray[np.int32],
-        rc: npt.NDArray[np.int64],
-        steps: npt.NDArray[np.uint8],
-        step_index: npt.NDArray[np.int64],
-    ) -> npt.NDArray[np.bool_]:
-        d = rc[col] - rc[row]
-        j = step_index[(d[:, 0] + 1) * 3 + d[:, 1] + 1]
-        keep: npt.NDArray[np.bool_] = (
-            (steps[rc[row, 0], rc[row, 1]].astype(np.int64) >> j) & 1
-        ).astype(bool)
-        return keep
+    def coo_labels(
+        graph: Any, index: npt.NDArray[np.int64], steps: npt.NDArray[np.uint8]
+    ) -> npt.NDArray[np.int64]:
+        # The former labels: the graph's edges as COO, filtered in numpy, back to CSR.
+        coo = graph.tocoo()
+        rc = np.argwhere(index >= 0)
+        d = rc[coo.col] - rc[coo.row]
+        step_of = np.full(9, -1, dtype=np.int64)
+        for k, (dr, dc) in enumerate(STEPS.tolist()):
+            step_of[(dr + 1) * 3 + dc + 1] = k
+        j = step_of[(d[:, 0] + 1) * 3 + d[:, 1] + 1]
+        keep = ((steps[rc[coo.row, 0], rc[coo.row, 1]].astype(np.int64) >> j) & 1).astype(bool)
+        n = len(rc)
+        m = coo_matrix((np.ones(int(keep.sum())), (coo.row[keep], coo.col[keep])), shape=(n, n))
+        _, label = connected_components(m.tocsr(), directed=True, connection="strong")
+        out: npt.NDArray[np.int64] = label.astype(np.int64)
+        return out
 
     fake: Any = SimpleNamespace(**{k: getattr(ndimage, k) for k in dir(ndimage) if k[0] != "_"})
     fake.find_objects = whole_map_boxes
     with monkeypatch.context() as m:
         m.setattr(oneway, "ndimage", fake)
-        m.setattr("sonarmap.patrol.oneway._kept_steps", numpy_kept_steps)
+        m.setattr(oneway, "_labels", coo_labels)
         ref = one_way(passable, clearance, resolution, turn_radius)
     return ref, asked[0]
 
