@@ -722,7 +722,7 @@ def test_drop_fresh_behind_takes_a_block_wholly_behind_without_an_angle_per_cell
     monkeypatch.setattr(manoeuvre, "math", fake)
     n, k = manoeuvre._drop_fresh_behind.py_func(
         mask, last, latest, 32, 100.0, 10.0, -1.0, 30.0, 12.0, 1.0, 0.0,
-        math.cos(behind), 0.0, 0.0, 0.25, unsure,
+        math.cos(behind), manoeuvre._cone_sides(0.0, behind), 0.0, 0.0, 0.25, unsure,
     )  # fmt: skip
     monkeypatch.undo()
     assert (n, k) == (1024, 0)
@@ -733,6 +733,52 @@ def test_drop_fresh_behind_takes_a_block_wholly_behind_without_an_angle_per_cell
     g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
     want = ~fresh_behind(last, 100.0, 30.0, 12.0, 0.0, g, behind, 10.0)
     np.testing.assert_array_equal(mask, want)
+
+
+@pytest.mark.parametrize("angle", [1.62, 4.66])
+def test_drop_fresh_behind_passes_over_a_block_beside_the_cone_unread(
+    monkeypatch: pytest.MonkeyPatch, angle: float
+) -> None:
+    # One block (32 x 32 cells of 0.25 m) seen 5 s ago, the rest long ago; the car
+    # about 60 m from it, heading east, the block's centre ``angle`` radians from the
+    # heading: just past a right angle on either side, so behind the car's side line
+    # but short of ``behind`` (1.75): none of its cells is behind. The kernel's Python
+    # twin, math.sqrt counted, passes it over after its 4 corner distances (the
+    # per-cell path would take one a cell), and drops nothing, as fresh_behind.
+    import types
+
+    import sonarmap.patrol.manoeuvre as manoeuvre
+
+    calls = [0]
+
+    def sqrt(v: float) -> float:
+        calls[0] += 1
+        return math.sqrt(v)
+
+    fake = types.SimpleNamespace(
+        **{k: getattr(math, k) for k in dir(math) if not k.startswith("_")}
+    )
+    fake.sqrt = sqrt
+    shape = (512, 512)
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
+    last = np.zeros(shape)
+    last[224:256, 224:256] = 95.0
+    latest = np.zeros((16, 16))
+    latest[7, 7] = 95.0
+    bx, by = (float(v[0]) for v in g.cell_centres([240], [240]))
+    x, y = bx - 60.0 * math.cos(angle), by - 60.0 * math.sin(angle)
+    mask = np.ones(shape, dtype=np.bool_)
+    unsure = np.empty(16, dtype=np.int64)
+    monkeypatch.setattr(manoeuvre, "math", fake)
+    n, k = manoeuvre._drop_fresh_behind.py_func(
+        mask, last, latest, 32, 100.0, 10.0, -1.0, x, y, 1.0, 0.0,
+        math.cos(1.75), manoeuvre._cone_sides(0.0, 1.75), 0.0, 0.0, 0.25, unsure,
+    )  # fmt: skip
+    monkeypatch.undo()
+    assert (n, k) == (0, 0)
+    assert mask.all()
+    assert calls[0] == 4
+    assert not fresh_behind(last, 100.0, x, y, 0.0, g, 1.75, 10.0).any()
 
 
 @pytest.mark.parametrize("heading", [math.pi / 2, -2.5])

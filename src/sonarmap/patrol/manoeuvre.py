@@ -234,6 +234,63 @@ def _off_heading(
 UNSURE_CELLS = 4096
 
 
+#: How far, in cosine of the angle off the heading, every cell of a block must lie
+#: from ``behind`` for :func:`drop_fresh_behind` to pass the block over unread: a
+#: thousand times the band whose cells it leaves to numpy's ``arctan2``.
+OFF_CONE_MARGIN = 1e-6
+
+
+def _cone_sides(heading: float, behind: float) -> npt.NDArray[np.float64]:
+    """The two sides of the cone of directions more than ``behind`` radians (between a
+    right angle and pi) off ``heading``, for :func:`_off_cone`: rows 0 and 1 the inward
+    unit normals (x, y) of its two edges, and [2, 0] the factor min(sin(behind), 0.7)
+    (see :func:`_off_cone`)."""
+    back = heading + math.pi
+    edge = math.pi - behind
+    out = np.zeros((3, 2), dtype=np.float64)
+    # Edge 1 at back + edge (the cone lies clockwise of it), edge 2 at back - edge.
+    out[0] = math.sin(back + edge), -math.cos(back + edge)
+    out[1] = -math.sin(back - edge), math.cos(back - edge)
+    out[2, 0] = min(math.sin(behind), 0.7)
+    return out
+
+
+@nb.njit(cache=True)
+def _off_cone(
+    sides: npt.NDArray[np.float64],
+    ox: float,
+    oy: float,
+    res: float,
+    rows: int,
+    x: float,
+    y: float,
+    r_lo: int,
+    r_hi: int,
+    c_lo: int,
+    c_hi: int,
+) -> bool:
+    # Whether every cell centre of the block (rows r_lo..r_hi, columns c_lo..c_hi) lies
+    # outside one edge's half-plane of the cone behind (``sides``, _cone_sides) far
+    # enough that its angle test is not near ``behind``: a cell at distance s outside
+    # an edge's line and at most D from the car is at least asin(s / D) (or a right
+    # angle) short of ``behind`` off the heading, so its cosine test exceeds
+    # cos(behind) by at least 2 min(sin(behind), 0.7) (s / D) / pi. The half-plane
+    # being convex, the block's corner cells bound its other cells.
+    far = 0.0
+    short = np.full(2, np.inf)
+    for r in (r_lo, r_hi):
+        for c in (c_lo, c_hi):
+            dx = ox + (c + 0.5) * res - x
+            dy = oy + (rows - 1 - r + 0.5) * res - y
+            far = max(far, math.sqrt(dx * dx + dy * dy))
+            for e in range(2):
+                short[e] = min(short[e], -(dx * sides[e, 0] + dy * sides[e, 1]))
+    for e in range(2):
+        if short[e] > 0.0 and 2.0 * sides[2, 0] * (short[e] / far) / math.pi > OFF_CONE_MARGIN:
+            return True
+    return False
+
+
 @nb.njit(cache=True)
 def _drop_fresh_behind(
     mask: npt.NDArray[np.bool_],
@@ -248,6 +305,7 @@ def _drop_fresh_behind(
     hx: float,
     hy: float,
     cos_behind: float,
+    sides: npt.NDArray[np.float64],
     ox: float,
     oy: float,
     res: float,
@@ -290,6 +348,8 @@ def _drop_fresh_behind(
                     if not (d * -cos_behind > 2e-6 and dot / d - cos_behind < -1e-6):
                         inside = False
             if ahead_is_out and lowest > 1e-6:
+                continue
+            if ahead_is_out and _off_cone(sides, ox, oy, res, rows, x, y, r_lo, r_hi, c_lo, c_hi):
                 continue
             if inside:
                 for r in range(r_lo, r_hi + 1):
@@ -357,6 +417,7 @@ def drop_fresh_behind(
         math.cos(heading),
         math.sin(heading),
         math.cos(behind),
+        _cone_sides(heading, behind),
         float(ox),
         float(oy),
         grid.resolution,
