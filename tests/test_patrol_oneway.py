@@ -422,3 +422,27 @@ def test_one_way_is_the_whole_map_references(case: str, monkeypatch: pytest.Monk
     assert got.one_way.any() or case == "pinch"
     for name in OneWay.__dataclass_fields__:
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+
+
+def test_symmetric_dijkstra_is_scipys_undirected_one() -> None:
+    # Grid graphs full of equal lengths (ties between starts everywhere), several
+    # starts: the same lengths and the same nearest start as scipy's undirected
+    # dijkstra, for whole-cell and 0.1 m steps, with and without corner cutting.
+    from scipy.sparse.csgraph import dijkstra
+
+    from sonarmap.patrol.graph import cell_graph
+
+    rng = np.random.default_rng(11)
+    for k in range(60):
+        mask = rng.random((int(rng.integers(2, 40)), int(rng.integers(2, 40)))) < 0.8
+        if not mask.any():
+            continue
+        graph, _ = cell_graph(mask, 1.0 if k % 2 else 0.1, corners=k % 3 == 0)
+        n = graph.shape[0]
+        starts = rng.choice(n, size=min(n, int(rng.integers(1, 8))), replace=False)
+        want_d, _, want_src = dijkstra(
+            graph, directed=False, indices=starts, min_only=True, return_predecessors=True
+        )
+        got_d, got_src = oneway._symmetric_dijkstra(graph, starts.astype(np.int64))
+        np.testing.assert_array_equal(got_d, want_d)
+        np.testing.assert_array_equal(got_src, want_src)

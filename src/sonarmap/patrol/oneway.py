@@ -441,6 +441,20 @@ def _touches(segment: I64, node_of: I64, n_segments: int) -> list[set[int]]:
     return touches
 
 
+def _symmetric_dijkstra(graph: csr_matrix, starts: I64) -> tuple[F64, I64]:
+    """Length of the shortest path to each node of the symmetric ``graph`` from the
+    nearest of ``starts``, and which start that is (-1: none reaches it).
+
+    As scipy's undirected ``dijkstra(..., min_only=True)``, without its transpose: on
+    a symmetric graph that scans each edge twice, the second time finding the very
+    same length, which never lowers one (scipy lowers only a strictly longer length),
+    so the lengths and starts are the same."""
+    d, _, source = dijkstra(
+        graph, directed=True, indices=starts, min_only=True, return_predecessors=True
+    )
+    return d, source.astype(np.int64)
+
+
 def one_way(
     passable: B,
     clearance: F64,
@@ -611,20 +625,14 @@ def one_way(
             near_tail[tuple(cand[0])] = True
         g_s, idx_s = cell_graph(pix, 1.0, corners=True)
         starts = idx_s[near_tail]
-        d = dijkstra(g_s, directed=False, indices=starts, min_only=True)
+        d = _symmetric_dijkstra(g_s, starts)[0]
         along_skel[win][pix] = d[idx_s[pix]]
         ends_reach = [reach[x] if x < n_junctions else 0.0 for x in (tail, head)]
         seg_margin[s] = max(ends_reach) / resolution
     # Every passable cell takes the skeleton cell nearest it along the grid's paths.
     g_all, idx_all = cell_graph(mask, resolution)
     sk = np.argwhere(skel & mask)
-    _, _, source = dijkstra(
-        g_all,
-        directed=False,
-        indices=idx_all[sk[:, 0], sk[:, 1]],
-        min_only=True,
-        return_predecessors=True,
-    )
+    source = _symmetric_dijkstra(g_all, idx_all[sk[:, 0], sk[:, 1]])[1]
     flat_rc = np.argwhere(mask)
     street = np.full(mask.shape, -1, dtype=np.int64)
     along = np.full(mask.shape, np.nan)
