@@ -36,6 +36,7 @@ from .paths import STEP_UNITS
 
 __all__ = [
     "DeadEnds",
+    "FreshAhead",
     "Manoeuvre",
     "behind_cells",
     "carrot",
@@ -310,9 +311,11 @@ def _drop_fresh_behind(
     oy: float,
     res: float,
     unsure: npt.NDArray[np.int64],
+    dropped: npt.NDArray[np.int64],
 ) -> tuple[int, int]:
     # fresh_behind's cells set False in ``mask``, looking only in the blocks seen less
-    # than ``turn_time`` before ``now``. The angle off the heading is compared by its
+    # than ``turn_time`` before ``now``; the first of them (as many as ``dropped``
+    # holds) listed there by flat index. The angle off the heading is compared by its
     # cosine, (d . h) / |d| against cos(behind); a cell within 1e-9 of that (or at the
     # car) is noted in ``unsure`` for numpy's arctan2 to decide, so that every answer
     # is fresh_behind's. Returns the cells set False and the unsure ones.
@@ -358,6 +361,8 @@ def _drop_fresh_behind(
                             v = last[r, c]
                             if now - v < turn_time and np.isfinite(v) and v != never:
                                 mask[r, c] = False
+                                if n < dropped.shape[0]:
+                                    dropped[n] = r * cols + c
                                 n += 1
                 continue
             for r in range(r_lo, r_hi + 1):
@@ -380,6 +385,8 @@ def _drop_fresh_behind(
                         k += 1
                     elif diff < 0.0:
                         mask[r, c] = False
+                        if n < dropped.shape[0]:
+                            dropped[n] = r * cols + c
                         n += 1
     return n, k
 
@@ -393,6 +400,7 @@ def drop_fresh_behind(
     grid: Grid,
     behind: float,
     turn_time: float,
+    dropped: npt.NDArray[np.int64] | None = None,
 ) -> int:
     """Set to False, in ``mask`` (written in place), the cells of
     :func:`fresh_behind` for ``fog``'s last-seen times at its time, never-seen cells
@@ -401,8 +409,12 @@ def drop_fresh_behind(
     The same cells as ``mask & fresh_behind(fog.last, fog.t, x, y, heading, grid,
     behind, turn_time, fog.never_seen())``, found in the fog's blocks seen less than
     ``turn_time`` seconds ago (:meth:`~sonarmap.patrol.fog.Fog.latest_blocks`), without
-    a pass over the whole map."""
+    a pass over the whole map. ``dropped`` (optional, int64): when the count returned
+    is at most its length, its first that many entries are the flat (row-major)
+    indices of the cells set False, in no particular order; otherwise its contents are
+    undefined."""
     unsure = np.empty(UNSURE_CELLS, dtype=np.int64)
+    out = dropped if dropped is not None else np.empty(0, dtype=np.int64)
     ox, oy = grid.origin
     n, k = _drop_fresh_behind(
         mask,
@@ -422,6 +434,7 @@ def drop_fresh_behind(
         float(oy),
         grid.resolution,
         unsure,
+        out,
     )
     if k > len(unsure):
         # Too many to note: fresh_behind decides every cell.
@@ -429,13 +442,71 @@ def drop_fresh_behind(
             fog.last, fog.t, x, y, heading, grid, behind, turn_time, fog.never_seen()
         )
         mask &= ~fresh
-        return n + int(np.count_nonzero(fresh))
-    if k:
+        more = np.flatnonzero(fresh)
+    elif k:
         rr, cc = np.divmod(unsure[:k], mask.shape[1])
         keep = _off_heading(rr, cc, x, y, heading, grid, behind)
         mask[rr[keep], cc[keep]] = False
-        n += int(np.count_nonzero(keep))
-    return int(n)
+        more = unsure[:k][keep]
+    else:
+        return int(n)
+    if n + len(more) <= len(out):
+        out[n : n + len(more)] = more
+    return int(n + len(more))
+
+
+class FreshAhead:
+    """A map-sized mask kept for a run: a source mask less the fresh cells behind one
+    car (:func:`drop_fresh_behind`), made for one car after another.
+
+    While the source stays the same array and the caller's ``version`` of it the same,
+    the next car's mask is made by setting back the cells the last car's dropped,
+    instead of copying the whole source again (a map-sized copy per car and step).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The grid's (rows, columns).
+    record : int
+        How many dropped cells are noted for setting back (default 2**20); when a car
+        drops more, the next mask is copied whole.
+    """
+
+    def __init__(self, shape: tuple[int, int], record: int = 1 << 20) -> None:
+        self._mask = np.zeros(shape, dtype=np.bool_)
+        self._dropped = np.empty(record, dtype=np.int64)
+        self._n = -1  # cells to set back; -1: the mask is to be copied whole
+        self._source: npt.NDArray[np.bool_] | None = None
+        self._version: object = None
+
+    def make(
+        self,
+        source: npt.NDArray[np.bool_],
+        version: object,
+        fog: Fog,
+        x: float,
+        y: float,
+        heading: float,
+        grid: Grid,
+        behind: float,
+        turn_time: float,
+    ) -> tuple[npt.NDArray[np.bool_], int]:
+        """``source`` less :func:`drop_fresh_behind`'s cells for a car at (x, y),
+        ``heading``, and how many of ``source``'s True cells those were.
+
+        ``version``: anything the caller changes whenever ``source``'s contents may
+        have changed since the last call (e.g. the step). The mask returned is this
+        object's own, valid until the next call; it must not be written to."""
+        if source is self._source and version == self._version and self._n >= 0:
+            self._mask.reshape(-1)[self._dropped[: self._n]] = True
+        else:
+            np.copyto(self._mask, source)
+            self._source, self._version = source, version
+        n = drop_fresh_behind(
+            self._mask, fog, x, y, heading, grid, behind, turn_time, self._dropped
+        )
+        self._n = n if n <= len(self._dropped) else -1
+        return self._mask, n
 
 
 @nb.njit(cache=True)
