@@ -446,3 +446,20 @@ def test_symmetric_dijkstra_is_scipys_undirected_one() -> None:
         got_d, got_src = oneway._symmetric_dijkstra(graph, starts.astype(np.int64))
         np.testing.assert_array_equal(got_d, want_d)
         np.testing.assert_array_equal(got_src, want_src)
+
+
+def test_parts_are_the_grid_graphs_connected_components() -> None:
+    # Random masks full of diagonal-only touches (which the wave's graph does not join)
+    # and corridors: the same cells together as scipy's connected components of
+    # cell_graph, however either numbers them.
+    from sonarmap.patrol.graph import cell_graph
+
+    rng = np.random.default_rng(29)
+    for _ in range(200):
+        mask = rng.random((int(rng.integers(1, 40)), int(rng.integers(1, 40)))) < 0.55
+        if not mask.any():
+            continue
+        got = oneway._parts(mask)
+        _, want = connected_components(cell_graph(mask, 0.1)[0], directed=False)
+        pairs = set(zip(got.tolist(), want.tolist(), strict=True))
+        assert len(pairs) == len(set(got.tolist())) == len(set(want.tolist()))

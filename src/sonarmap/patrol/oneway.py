@@ -441,6 +441,19 @@ def _touches(segment: I64, node_of: I64, n_segments: int) -> list[set[int]]:
     return touches
 
 
+def _parts(mask: B) -> I64:
+    """The connected part of each cell of ``mask`` (row-major, as :func:`cell_graph`
+    numbers its nodes) in the wave's grid graph, numbered from 0.
+
+    A diagonal step of that graph joins two cells only when both cells beside it are
+    in ``mask``, i.e. through two side steps: its parts are the 4-connected parts of
+    ``mask`` (the same cells together as the graph's own connected components, which
+    number them otherwise)."""
+    labels, _ = ndimage.label(mask)
+    out: I64 = labels[mask].astype(np.int64) - 1
+    return out
+
+
 def _symmetric_dijkstra(graph: csr_matrix, starts: I64) -> tuple[F64, I64]:
     """Length of the shortest path to each node of the symmetric ``graph`` from the
     nearest of ``starts``, and which start that is (-1: none reaches it).
@@ -651,8 +664,7 @@ def one_way(
         length[s] = float(np.nanmax(along_skel[box][pix]))
     m = seg_margin[np.maximum(street, 0)]
     ln = length[np.maximum(street, 0)]
-    _, weak = connected_components(g_all, directed=False)
-    weak = weak.astype(np.int64)
+    weak = _parts(mask)
     # Each round opens at least one street (the last resort all of a part): bounded.
     for _ in range(n_segments + 1):
         is_dir = (street >= 0) & directed[np.maximum(street, 0)]
