@@ -455,6 +455,13 @@ def drop_fresh_behind(
     return int(n + len(more))
 
 
+@nb.njit(cache=True)
+def _set_back(flat: npt.NDArray[np.bool_], cells: npt.NDArray[np.int64], n: int) -> None:
+    # flat[cells[:n]] = True, without numpy's fancy-index set-up.
+    for k in range(n):
+        flat[cells[k]] = True
+
+
 class FreshAhead:
     """A map-sized mask kept for a run: a source mask less the fresh cells behind one
     car (:func:`drop_fresh_behind`), made for one car after another.
@@ -498,7 +505,7 @@ class FreshAhead:
         have changed since the last call (e.g. the step). The mask returned is this
         object's own, valid until the next call; it must not be written to."""
         if source is self._source and version == self._version and self._n >= 0:
-            self._mask.reshape(-1)[self._dropped[: self._n]] = True
+            _set_back(self._mask.reshape(-1), self._dropped, self._n)
         else:
             np.copyto(self._mask, source)
             self._source, self._version = source, version
