@@ -223,8 +223,8 @@ def test_cell_graph_is_the_former_coo_graph() -> None:
     # with and without corner cutting.
     rng = np.random.default_rng(5)
     for _ in range(300):
-        mask = rng.random((int(rng.integers(0, 25)), int(rng.integers(0, 25))))
-        mask = mask < rng.uniform(0.0, 1.0)
+        draw = rng.random((int(rng.integers(0, 25)), int(rng.integers(0, 25))))
+        mask = draw < rng.uniform(0.0, 1.0)
         for corners in (False, True):
             got, index = cell_graph(mask, 0.3, corners=corners)
             ref, ref_index = _coo_cell_graph(mask, 0.3, corners)

@@ -43,6 +43,7 @@ I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 
+
 def lattice_cells(territory: Territory, passable: B, vision: float) -> I64:
     """The lattice points of the offline tour, moved onto passable cells.
 
@@ -114,7 +115,7 @@ def cell_graph(mask: B, resolution: float, *, corners: bool = False) -> tuple[cs
     nnz = int(indptr[-1])
     # scipy's own choice of index type for such a matrix (as coo_matrix.tocsr makes it).
     kind = np.int32 if max(nnz, n) <= np.iinfo(np.int32).max else np.int64
-    indices = np.empty(nnz, dtype=kind)
+    indices: npt.NDArray[np.integer[Any]] = np.empty(nnz, dtype=kind)
     data = np.empty(nnz, dtype=np.float64)
     _fill_edges(mask, index, corners, resolution, resolution * math.sqrt(2.0), indices, data)
     graph = csr_matrix((data, indices, indptr.astype(kind)), shape=(n, n))
@@ -426,8 +427,8 @@ def _edges(
         lengths[j].append(d)
     out_n: list[I64] = []
     out_l: list[F64] = []
-    for nb, ln in zip(neighbours, lengths, strict=True):
-        o = np.argsort(nb, kind="stable")
-        out_n.append(np.asarray(nb, dtype=np.int64)[o])
+    for nbrs, ln in zip(neighbours, lengths, strict=True):
+        o = np.argsort(nbrs, kind="stable")
+        out_n.append(np.asarray(nbrs, dtype=np.int64)[o])
         out_l.append(np.asarray(ln, dtype=np.float64)[o])
     return out_n, out_l

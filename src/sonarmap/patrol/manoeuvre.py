@@ -136,8 +136,8 @@ def _behind_cells(
     # behind_cells' test cell by cell, with the same floating-point operations as its
     # numpy form (the car's cell as Grid.world_to_cell, cell centres as
     # Grid.cell_centres, libm's hypot as np.hypot), so the same cells.
-    r0 = rows - 1 - int(math.floor((y - oy) / res))
-    c0 = int(math.floor((x - ox) / res))
+    r0 = rows - 1 - math.floor((y - oy) / res)
+    c0 = math.floor((x - ox) / res)
     k = math.ceil(radius / res)
     out = np.empty(((2 * k + 1) ** 2, 2), dtype=np.intp)
     n = 0
