@@ -18,6 +18,7 @@ from sonarmap.patrol.fog import Fog, disc_cells, disc_offsets, disc_side
 from sonarmap.patrol.giveup import GiveUp
 from sonarmap.patrol.manoeuvre import (
     DeadEnds,
+    FreshAhead,
     behind_cells,
     carrot,
     clear_goals,
@@ -61,6 +62,47 @@ def _block_site(width: float, west: float, east: float, res: float = 0.5) -> Ter
 def _ring_map(res: float = 0.5) -> Territory:
     """A 40 x 30 m yard round a 30 x 20 m block: a ring of 5 m streets."""
     return _block_site(40.0, 5.0, 35.0, res)
+
+
+def _numpy_behind_cells(
+    x: float, y: float, heading: float, grid: Grid, radius: float, gap: float
+) -> npt.NDArray[np.intp]:
+    """The former ``behind_cells`` (main 74e644f), in numpy over the square of cells."""
+    k = math.ceil(radius / grid.resolution)
+    r0, c0 = (int(v) for v in grid.world_to_cell(x, y))
+    dr, dc = np.mgrid[-k : k + 1, -k : k + 1]
+    rr, cc = (r0 + dr).ravel(), (c0 + dc).ravel()
+    px, py = grid.cell_centres(rr, cc)
+    dx, dy = px - x, py - y
+    along = dx * math.cos(heading) + dy * math.sin(heading)
+    keep = (np.hypot(dx, dy) <= radius) & (along < -gap) & grid.contains(rr, cc)
+    keep &= (rr != r0) | (cc != c0)
+    return np.column_stack([rr[keep], cc[keep]]).astype(np.intp)
+
+
+def test_behind_cells_are_the_former_numpy_cells() -> None:
+    # Cars anywhere (off the map too), at cell centres heading along the axes and the
+    # diagonals (cells exactly on the radius or the gap line), several cell sizes,
+    # radii and gaps: the same cells in the same order as the numpy form.
+    rng = np.random.default_rng(31)
+    for k in range(3000):
+        res = float(rng.choice([0.1, 0.05, 0.25, 0.5]))
+        shape = (int(rng.integers(5, 120)), int(rng.integers(5, 120)))
+        g = Grid(resolution=res, origin=(float(rng.uniform(-5, 5)), 1.0), shape=shape)
+        if k % 3 == 0:
+            cx, cy = g.cell_centres([int(rng.integers(0, shape[0]))], [0])
+            x, y = float(cx[0]) + res * int(rng.integers(0, shape[1])), float(cy[0])
+            heading = float(rng.choice([0.0, math.pi / 2, math.pi, -math.pi / 2, math.pi / 4]))
+        else:
+            x = g.origin[0] + float(rng.uniform(-2.0, shape[1] * res + 2.0))
+            y = 1.0 + float(rng.uniform(-2.0, shape[0] * res + 2.0))
+            heading = float(rng.uniform(-4.0, 4.0))
+        radius = float(rng.choice([4.0, 1.0, 0.5]))
+        gap = float(rng.choice([0.5, 0.0, 0.25]))
+        got = behind_cells(x, y, heading, g, radius=radius, gap=gap)
+        want = _numpy_behind_cells(x, y, heading, g, radius, gap)
+        assert got.dtype == want.dtype
+        np.testing.assert_array_equal(got, want)
 
 
 def test_behind_cells_lie_behind_the_car_within_the_radius() -> None:
@@ -722,7 +764,8 @@ def test_drop_fresh_behind_takes_a_block_wholly_behind_without_an_angle_per_cell
     monkeypatch.setattr(manoeuvre, "math", fake)
     n, k = manoeuvre._drop_fresh_behind.py_func(
         mask, last, latest, 32, 100.0, 10.0, -1.0, 30.0, 12.0, 1.0, 0.0,
-        math.cos(behind), 0.0, 0.0, 0.25, unsure,
+        math.cos(behind), manoeuvre._cone_sides(0.0, behind), 0.0, 0.0, 0.25, unsure,
+        np.empty(0, dtype=np.int64),
     )  # fmt: skip
     monkeypatch.undo()
     assert (n, k) == (1024, 0)
@@ -733,6 +776,139 @@ def test_drop_fresh_behind_takes_a_block_wholly_behind_without_an_angle_per_cell
     g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
     want = ~fresh_behind(last, 100.0, 30.0, 12.0, 0.0, g, behind, 10.0)
     np.testing.assert_array_equal(mask, want)
+
+
+@pytest.mark.parametrize("angle", [1.62, 4.66])
+def test_drop_fresh_behind_passes_over_a_block_beside_the_cone_unread(
+    monkeypatch: pytest.MonkeyPatch, angle: float
+) -> None:
+    # One block (32 x 32 cells of 0.25 m) seen 5 s ago, the rest long ago; the car
+    # about 60 m from it, heading east, the block's centre ``angle`` radians from the
+    # heading: just past a right angle on either side, so behind the car's side line
+    # but short of ``behind`` (1.75): none of its cells is behind. The kernel's Python
+    # twin, math.sqrt counted, passes it over after its 4 corner distances (the
+    # per-cell path would take one a cell), and drops nothing, as fresh_behind.
+    import types
+
+    import sonarmap.patrol.manoeuvre as manoeuvre
+
+    calls = [0]
+
+    def sqrt(v: float) -> float:
+        calls[0] += 1
+        return math.sqrt(v)
+
+    fake = types.SimpleNamespace(
+        **{k: getattr(math, k) for k in dir(math) if not k.startswith("_")}
+    )
+    fake.sqrt = sqrt
+    shape = (512, 512)
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
+    last = np.zeros(shape)
+    last[224:256, 224:256] = 95.0
+    latest = np.zeros((16, 16))
+    latest[7, 7] = 95.0
+    bx, by = (float(v[0]) for v in g.cell_centres([240], [240]))
+    x, y = bx - 60.0 * math.cos(angle), by - 60.0 * math.sin(angle)
+    mask = np.ones(shape, dtype=np.bool_)
+    unsure = np.empty(16, dtype=np.int64)
+    monkeypatch.setattr(manoeuvre, "math", fake)
+    n, k = manoeuvre._drop_fresh_behind.py_func(
+        mask, last, latest, 32, 100.0, 10.0, -1.0, x, y, 1.0, 0.0,
+        math.cos(1.75), manoeuvre._cone_sides(0.0, 1.75), 0.0, 0.0, 0.25, unsure,
+        np.empty(0, dtype=np.int64),
+    )  # fmt: skip
+    monkeypatch.undo()
+    assert (n, k) == (0, 0)
+    assert mask.all()
+    assert calls[0] == 4
+    assert not fresh_behind(last, 100.0, x, y, 0.0, g, 1.75, 10.0).any()
+
+
+def test_drop_fresh_behind_lists_the_cells_it_drops(monkeypatch: pytest.MonkeyPatch) -> None:
+    # The flat indices listed are exactly the cells set False: those of the kernel,
+    # of the unsure cells numpy decides (cars at cell centres, headings along the
+    # axes, behind a right angle) and of the whole-map fallback (UNSURE_CELLS 0).
+    import sonarmap.patrol.manoeuvre as manoeuvre
+
+    rng = np.random.default_rng(17)
+    shape = (90, 75)
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
+    watched = rng.random(shape) > 0.2
+    fog = Fog(g, watched, 0.0)
+    disc = disc_offsets(3.0, 0.25)
+    for k in range(30):
+        if k == 15:
+            monkeypatch.setattr(manoeuvre, "UNSURE_CELLS", 0)
+        fog.advance(1.0)
+        fog.observe(rng.integers(0, shape[0], 3), rng.integers(0, shape[1], 3), disc)
+        x, y = (float(v[0]) for v in g.cell_centres([rng.integers(0, 90)], [37]))
+        for heading, behind in ((0.0, math.pi / 2), (rng.uniform(-4, 4), 1.75)):
+            mask = watched.copy()
+            listed = np.full(shape[0] * shape[1], -1, dtype=np.int64)
+            n = drop_fresh_behind(mask, fog, x, y, heading, g, behind, 10.0, listed)
+            want = np.flatnonzero(watched & ~mask)
+            assert n == len(want)
+            np.testing.assert_array_equal(np.sort(listed[:n]), want)
+            short = np.empty(max(n - 1, 0), dtype=np.int64)
+            again = watched.copy()
+            assert drop_fresh_behind(again, fog, x, y, heading, g, behind, 10.0, short) == n
+            np.testing.assert_array_equal(again, mask)
+
+
+def test_fresh_ahead_is_a_fresh_copy_less_the_fresh_cells_every_time() -> None:
+    # Cars one after another on one source and version (cells set back), a new version
+    # after the source changed in place (copied again), another source array, and a
+    # record too short for what a car drops (copied again): each mask equals the
+    # source copied and dropped from afresh, with the same count.
+    rng = np.random.default_rng(23)
+    shape = (70, 90)
+    g = Grid(resolution=0.25, origin=(-1.0, 2.0), shape=shape)
+    watched = rng.random(shape) > 0.1
+    fog = Fog(g, watched, 0.0)
+    disc = disc_offsets(4.0, 0.25)
+    other = watched & (rng.random(shape) > 0.5)
+    for record in (1 << 20, 50):
+        ahead = FreshAhead(shape, record=record)
+        source = watched.copy()
+        set_back = 0
+        for step in range(8):
+            fog.advance(1.0)
+            fog.observe(rng.integers(0, shape[0], 3), rng.integers(0, shape[1], 3), disc)
+            source &= rng.random(shape) > 0.05  # changed in place between steps
+            for car in range(4):
+                src = other if car == 3 else source
+                x, y = rng.uniform(-1.0, 21.5), rng.uniform(2.0, 19.5)
+                heading = float(rng.uniform(-4, 4))
+                want = src.copy()
+                n_want = drop_fresh_behind(want, fog, x, y, heading, g, 1.75, 10.0)
+                got, n = ahead.make(src, step, fog, x, y, heading, g, 1.75, 10.0)
+                np.testing.assert_array_equal(got, want)
+                assert n == n_want
+                set_back += car in (1, 2) and n_want > 0
+        assert set_back > 0
+
+
+def test_fresh_ahead_sets_cells_back_within_a_version_and_copies_on_a_new_one() -> None:
+    # Within one version the source is not read again (its cells are set back): a cell
+    # cleared in the source behind FreshAhead's back (which its contract forbids) still
+    # shows; a new version copies the source, and the cell is gone.
+    shape = (64, 64)
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
+    watched = np.ones(shape, dtype=np.bool_)
+    fog = Fog(g, watched, 0.0)
+    fog.advance(1.0)
+    fog.observe(np.array([32]), np.array([20]), disc_offsets(3.0, 0.25))
+    source = watched.copy()
+    ahead = FreshAhead(shape)
+    got, n = ahead.make(source, 0, fog, 8.0, 8.0, 0.0, g, 1.75, 10.0)
+    assert n > 0
+    source[0, 63] = False
+    got, n_again = ahead.make(source, 0, fog, 8.0, 8.0, 0.0, g, 1.75, 10.0)
+    assert n_again == n
+    assert got[0, 63]
+    got, _ = ahead.make(source, 1, fog, 8.0, 8.0, 0.0, g, 1.75, 10.0)
+    assert not got[0, 63]
 
 
 @pytest.mark.parametrize("heading", [math.pi / 2, -2.5])

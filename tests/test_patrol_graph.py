@@ -4,10 +4,12 @@ across walls, lengths of the wave's paths."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import pytest
+from scipy.sparse import coo_matrix
 from scipy.spatial import cKDTree
 
 from conftest import SHARED_DATA
@@ -189,6 +191,50 @@ def test_cell_graph_is_the_waves_graph() -> None:
     np.testing.assert_allclose(got, ref, atol=1e-9)
     reach = reachable_cells(mask, [(int(r), int(c))])
     np.testing.assert_array_equal(reach, np.isfinite(ref))
+
+
+def _coo_cell_graph(
+    mask: npt.NDArray[np.bool_], resolution: float, corners: bool
+) -> tuple[Any, npt.NDArray[np.int64]]:
+    """The former ``cell_graph`` (main 74e644f): each forward step's edges by array
+    slices, both directions as COO, then ``tocsr``."""
+    index = np.full(mask.shape, -1, dtype=np.int64)
+    n = int(mask.sum())
+    index[mask] = np.arange(n)
+    rows, cols = mask.shape
+    src, dst, w = [], [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        r0, r1 = 0, rows - dr
+        c0, c1 = max(0, -dc), cols - max(0, dc)
+        ok = mask[r0:r1, c0:c1] & mask[r0 + dr : r1 + dr, c0 + dc : c1 + dc]
+        if dr and dc and not corners:
+            ok &= mask[r0:r1, c0 + dc : c1 + dc] & mask[r0 + dr : r1 + dr, c0:c1]
+        src.append(index[r0:r1, c0:c1][ok])
+        dst.append(index[r0 + dr : r1 + dr, c0 + dc : c1 + dc][ok])
+        w.append(np.full(int(ok.sum()), resolution * (math.sqrt(2.0) if dr and dc else 1.0)))
+    s, d, ww = np.concatenate(src), np.concatenate(dst), np.concatenate(w)
+    pairs = (np.concatenate([s, d]), np.concatenate([d, s]))
+    return coo_matrix((np.concatenate([ww, ww]), pairs), shape=(n, n)).tocsr(), index
+
+
+def test_cell_graph_is_the_former_coo_graph() -> None:
+    # Same rows, columns in the same order, step lengths, index types and node numbers
+    # as the COO formulation, on random masks of every density (empty ones included),
+    # with and without corner cutting.
+    rng = np.random.default_rng(5)
+    for _ in range(300):
+        draw = rng.random((int(rng.integers(0, 25)), int(rng.integers(0, 25))))
+        mask = draw < rng.uniform(0.0, 1.0)
+        for corners in (False, True):
+            got, index = cell_graph(mask, 0.3, corners=corners)
+            ref, ref_index = _coo_cell_graph(mask, 0.3, corners)
+            assert got.shape == ref.shape
+            assert got.indptr.dtype == ref.indptr.dtype
+            assert got.indices.dtype == ref.indices.dtype
+            np.testing.assert_array_equal(got.indptr, ref.indptr)
+            np.testing.assert_array_equal(got.indices, ref.indices)
+            np.testing.assert_array_equal(got.data, ref.data)
+            np.testing.assert_array_equal(index, ref_index)
 
 
 @pytest.mark.skipif(not DEPOT.is_file(), reason="shared data (../shared/data/maps) not present")

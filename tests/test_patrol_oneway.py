@@ -346,7 +346,8 @@ def _whole_map_one_way(
     monkeypatch: pytest.MonkeyPatch,
 ) -> tuple[OneWay, int]:
     """The former ``one_way`` (main 3a5fca8), which looked for each street's and
-    junction's cells over the whole label map and filtered the allowed steps in numpy:
+    junction's cells over the whole label map and filtered the allowed steps in numpy
+    (the graph's edges as COO, then back to CSR for the strongly connected sets):
     the same code with every bounding box the whole map and the numpy filter put back.
     Also how many bounding boxes were asked for (none would mean the code no longer
     takes them, and this reference no longer differs from it)."""
@@ -358,25 +359,29 @@ def _whole_map_one_way(
         n = int(labels.max()) if labels.size else 0
         return [(slice(0, labels.shape[0]), slice(0, labels.shape[1]))] * max(n, 0)
 
-    def numpy_kept_steps(
-        row: npt.NDArray[np.int32],
-        col: npt.NDArray[np.int32],
-        rc: npt.NDArray[np.int64],
-        steps: npt.NDArray[np.uint8],
-        step_index: npt.NDArray[np.int64],
-    ) -> npt.NDArray[np.bool_]:
-        d = rc[col] - rc[row]
-        j = step_index[(d[:, 0] + 1) * 3 + d[:, 1] + 1]
-        keep: npt.NDArray[np.bool_] = (
-            (steps[rc[row, 0], rc[row, 1]].astype(np.int64) >> j) & 1
-        ).astype(bool)
-        return keep
+    def coo_labels(
+        graph: Any, index: npt.NDArray[np.int64], steps: npt.NDArray[np.uint8]
+    ) -> npt.NDArray[np.int64]:
+        # The former labels: the graph's edges as COO, filtered in numpy, back to CSR.
+        coo = graph.tocoo()
+        rc = np.argwhere(index >= 0)
+        d = rc[coo.col] - rc[coo.row]
+        step_of = np.full(9, -1, dtype=np.int64)
+        for k, (dr, dc) in enumerate(STEPS.tolist()):
+            step_of[(dr + 1) * 3 + dc + 1] = k
+        j = step_of[(d[:, 0] + 1) * 3 + d[:, 1] + 1]
+        keep = ((steps[rc[coo.row, 0], rc[coo.row, 1]].astype(np.int64) >> j) & 1).astype(bool)
+        n = len(rc)
+        m = coo_matrix((np.ones(int(keep.sum())), (coo.row[keep], coo.col[keep])), shape=(n, n))
+        _, label = connected_components(m.tocsr(), directed=True, connection="strong")
+        out: npt.NDArray[np.int64] = label.astype(np.int64)
+        return out
 
     fake: Any = SimpleNamespace(**{k: getattr(ndimage, k) for k in dir(ndimage) if k[0] != "_"})
     fake.find_objects = whole_map_boxes
     with monkeypatch.context() as m:
         m.setattr(oneway, "ndimage", fake)
-        m.setattr("sonarmap.patrol.oneway._kept_steps", numpy_kept_steps)
+        m.setattr(oneway, "_labels", coo_labels)
         ref = one_way(passable, clearance, resolution, turn_radius)
     return ref, asked[0]
 
@@ -522,3 +527,44 @@ def test_a_two_way_loop_street_keeps_its_half_length_to_its_midpoint() -> None:
     assert mid.tolist() == [1]
     assert graph[0, 1] == pytest.approx(5.0)
     assert graph[1, 0] == pytest.approx(5.0)
+
+
+def test_symmetric_dijkstra_is_scipys_undirected_one() -> None:
+    # Grid graphs full of equal lengths (ties between starts everywhere), several
+    # starts: the same lengths and the same nearest start as scipy's undirected
+    # dijkstra, for whole-cell and 0.1 m steps, with and without corner cutting.
+    from scipy.sparse.csgraph import dijkstra
+
+    from sonarmap.patrol.graph import cell_graph
+
+    rng = np.random.default_rng(11)
+    for k in range(60):
+        mask = rng.random((int(rng.integers(2, 40)), int(rng.integers(2, 40)))) < 0.8
+        if not mask.any():
+            continue
+        graph, _ = cell_graph(mask, 1.0 if k % 2 else 0.1, corners=k % 3 == 0)
+        n = graph.shape[0]
+        starts = rng.choice(n, size=min(n, int(rng.integers(1, 8))), replace=False)
+        want_d, _, want_src = dijkstra(
+            graph, directed=False, indices=starts, min_only=True, return_predecessors=True
+        )
+        got_d, got_src = oneway._symmetric_dijkstra(graph, starts.astype(np.int64))
+        np.testing.assert_array_equal(got_d, want_d)
+        np.testing.assert_array_equal(got_src, want_src)
+
+
+def test_parts_are_the_grid_graphs_connected_components() -> None:
+    # Random masks full of diagonal-only touches (which the wave's graph does not join)
+    # and corridors: the same cells together as scipy's connected components of
+    # cell_graph, however either numbers them.
+    from sonarmap.patrol.graph import cell_graph
+
+    rng = np.random.default_rng(29)
+    for _ in range(200):
+        mask = rng.random((int(rng.integers(1, 40)), int(rng.integers(1, 40)))) < 0.55
+        if not mask.any():
+            continue
+        got = oneway._parts(mask)
+        _, want = connected_components(cell_graph(mask, 0.1)[0], directed=False)
+        pairs = set(zip(got.tolist(), want.tolist(), strict=True))
+        assert len(pairs) == len(set(got.tolist())) == len(set(want.tolist()))

@@ -22,7 +22,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
+import numba as nb
 import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
@@ -40,9 +42,6 @@ __all__ = ["PatrolGraph", "cell_graph", "lattice_cells", "reachable_cells"]
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
-
-# The four forward steps of the 8-neighbourhood (the other four are their reverses).
-_FORWARD = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 
 def lattice_cells(territory: Territory, passable: B, vision: float) -> I64:
@@ -106,30 +105,79 @@ def cell_graph(mask: B, resolution: float, *, corners: bool = False) -> tuple[cs
     index : ndarray of int64, shape mask.shape
         Node of every cell of ``mask`` (row-major order), -1 elsewhere.
     """
+    mask = np.ascontiguousarray(mask, dtype=np.bool_)
     index = np.full(mask.shape, -1, dtype=np.int64)
     n = int(mask.sum())
     index[mask] = np.arange(n)
-    rows, cols = mask.shape
-    src: list[I64] = []
-    dst: list[I64] = []
-    w: list[F64] = []
-    for dr, dc in _FORWARD:
-        # Cells (r, c) and their neighbour (r + dr, c + dc), both inside the grid.
-        r0, r1 = 0, rows - dr
-        c0, c1 = max(0, -dc), cols - max(0, dc)
-        a = mask[r0:r1, c0:c1]
-        b = mask[r0 + dr : r1 + dr, c0 + dc : c1 + dc]
-        ok = a & b
-        if dr and dc and not corners:
-            ok &= mask[r0:r1, c0 + dc : c1 + dc] & mask[r0 + dr : r1 + dr, c0:c1]
-        src.append(index[r0:r1, c0:c1][ok])
-        dst.append(index[r0 + dr : r1 + dr, c0 + dc : c1 + dc][ok])
-        w.append(np.full(int(ok.sum()), resolution * (math.sqrt(2.0) if dr and dc else 1.0)))
-    s, d, ww = np.concatenate(src), np.concatenate(dst), np.concatenate(w)
-    graph = coo_matrix(
-        (np.concatenate([ww, ww]), (np.concatenate([s, d]), np.concatenate([d, s]))), shape=(n, n)
-    ).tocsr()
+    degree = _degrees(mask, corners)
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(degree, out=indptr[1:])
+    nnz = int(indptr[-1])
+    # scipy's own choice of index type for such a matrix (as coo_matrix.tocsr makes it).
+    kind = np.int32 if max(nnz, n) <= np.iinfo(np.int32).max else np.int64
+    indices: npt.NDArray[np.integer[Any]] = np.empty(nnz, dtype=kind)
+    data = np.empty(nnz, dtype=np.float64)
+    _fill_edges(mask, index, corners, resolution, resolution * math.sqrt(2.0), indices, data)
+    graph = csr_matrix((data, indices, indptr.astype(kind)), shape=(n, n))
     return graph, index
+
+
+@nb.njit(cache=True)
+def _neighbour_ok(mask: B, r: int, c: int, dr: int, dc: int, corners: bool) -> bool:
+    # Whether cell (r, c) of ``mask`` has an edge to (r + dr, c + dc) in cell_graph.
+    rows, cols = mask.shape
+    rr, cc = r + dr, c + dc
+    if rr < 0 or rr >= rows or cc < 0 or cc >= cols or not mask[rr, cc]:
+        return False
+    if dr != 0 and dc != 0 and not corners:
+        return bool(mask[r, cc]) and bool(mask[rr, c])
+    return True
+
+
+@nb.njit(cache=True)
+def _degrees(mask: B, corners: bool) -> I64:
+    """Edges of each cell of ``mask`` (row-major) in :func:`cell_graph`."""
+    rows, cols = mask.shape
+    out = np.zeros(rows * cols, dtype=np.int64)
+    n = 0
+    for r in range(rows):
+        for c in range(cols):
+            if not mask[r, c]:
+                continue
+            k = 0
+            for dr in range(-1, 2):
+                for dc in range(-1, 2):
+                    if (dr != 0 or dc != 0) and _neighbour_ok(mask, r, c, dr, dc, corners):
+                        k += 1
+            out[n] = k
+            n += 1
+    return out[:n].copy()
+
+
+@nb.njit(cache=True)
+def _fill_edges(
+    mask: B,
+    index: I64,
+    corners: bool,
+    side: float,
+    diagonal: float,
+    indices: npt.NDArray[np.integer[Any]],
+    data: F64,
+) -> None:
+    """:func:`cell_graph`'s CSR columns and step lengths, each row's in rising order
+    of the neighbour's node (row-major: the 8 neighbours from the upper left)."""
+    rows, cols = mask.shape
+    p = 0
+    for r in range(rows):
+        for c in range(cols):
+            if not mask[r, c]:
+                continue
+            for dr in range(-1, 2):
+                for dc in range(-1, 2):
+                    if (dr != 0 or dc != 0) and _neighbour_ok(mask, r, c, dr, dc, corners):
+                        indices[p] = index[r + dr, c + dc]
+                        data[p] = diagonal if dr != 0 and dc != 0 else side
+                        p += 1
 
 
 def reachable_cells(passable: B, starts: Sequence[tuple[int, int]], resolution: float = 1.0) -> B:
@@ -379,8 +427,8 @@ def _edges(
         lengths[j].append(d)
     out_n: list[I64] = []
     out_l: list[F64] = []
-    for nb, ln in zip(neighbours, lengths, strict=True):
-        o = np.argsort(nb, kind="stable")
-        out_n.append(np.asarray(nb, dtype=np.int64)[o])
+    for nbrs, ln in zip(neighbours, lengths, strict=True):
+        o = np.argsort(nbrs, kind="stable")
+        out_n.append(np.asarray(nbrs, dtype=np.int64)[o])
         out_l.append(np.asarray(ln, dtype=np.float64)[o])
     return out_n, out_l

@@ -36,6 +36,7 @@ from .paths import STEP_UNITS
 
 __all__ = [
     "DeadEnds",
+    "FreshAhead",
     "Manoeuvre",
     "behind_cells",
     "carrot",
@@ -100,18 +101,61 @@ def behind_cells(
     along its ``heading``: closed on the car's wave, its paths leave forwards, and a
     place behind it is reached around the block rather than by turning on the spot
     (a turn a car can only make by reversing on streets narrower than its turning
-    circle). The car's own cell is never among them."""
-    res = grid.resolution
+    circle). The car's own cell is never among them. Rows in row-major order of the
+    square of cells round the car's."""
+    ox, oy = grid.origin
+    return _behind_cells(
+        float(x),
+        float(y),
+        math.cos(heading),
+        math.sin(heading),
+        grid.rows,
+        grid.cols,
+        float(ox),
+        float(oy),
+        grid.resolution,
+        radius,
+        gap,
+    )
+
+
+@nb.njit(cache=True)
+def _behind_cells(
+    x: float,
+    y: float,
+    hx: float,
+    hy: float,
+    rows: int,
+    cols: int,
+    ox: float,
+    oy: float,
+    res: float,
+    radius: float,
+    gap: float,
+) -> npt.NDArray[np.intp]:
+    # behind_cells' test cell by cell, with the same floating-point operations as its
+    # numpy form (the car's cell as Grid.world_to_cell, cell centres as
+    # Grid.cell_centres, libm's hypot as np.hypot), so the same cells.
+    r0 = rows - 1 - math.floor((y - oy) / res)
+    c0 = math.floor((x - ox) / res)
     k = math.ceil(radius / res)
-    r0, c0 = (int(v) for v in grid.world_to_cell(x, y))
-    dr, dc = np.mgrid[-k : k + 1, -k : k + 1]
-    rr, cc = (r0 + dr).ravel(), (c0 + dc).ravel()
-    px, py = grid.cell_centres(rr, cc)
-    dx, dy = px - x, py - y
-    along = dx * math.cos(heading) + dy * math.sin(heading)
-    keep = (np.hypot(dx, dy) <= radius) & (along < -gap) & grid.contains(rr, cc)
-    keep &= (rr != r0) | (cc != c0)
-    return np.column_stack([rr[keep], cc[keep]]).astype(np.intp)
+    out = np.empty(((2 * k + 1) ** 2, 2), dtype=np.intp)
+    n = 0
+    for dr in range(-k, k + 1):
+        r = r0 + dr
+        if r < 0 or r >= rows:
+            continue
+        dy = oy + (float(rows - 1 - r) + 0.5) * res - y
+        for dc in range(-k, k + 1):
+            c = c0 + dc
+            if c < 0 or c >= cols or (dr == 0 and dc == 0):
+                continue
+            dx = ox + (float(c) + 0.5) * res - x
+            if dx * hx + dy * hy < -gap and math.hypot(dx, dy) <= radius:
+                out[n, 0] = r
+                out[n, 1] = c
+                n += 1
+    return out[:n].copy()
 
 
 def turn_weights(heading: float, behind: float, penalty: float) -> F64:
@@ -191,6 +235,63 @@ def _off_heading(
 UNSURE_CELLS = 4096
 
 
+#: How far, in cosine of the angle off the heading, every cell of a block must lie
+#: from ``behind`` for :func:`drop_fresh_behind` to pass the block over unread: a
+#: thousand times the band whose cells it leaves to numpy's ``arctan2``.
+OFF_CONE_MARGIN = 1e-6
+
+
+def _cone_sides(heading: float, behind: float) -> npt.NDArray[np.float64]:
+    """The two sides of the cone of directions more than ``behind`` radians (between a
+    right angle and pi) off ``heading``, for :func:`_off_cone`: rows 0 and 1 the inward
+    unit normals (x, y) of its two edges, and [2, 0] the factor min(sin(behind), 0.7)
+    (see :func:`_off_cone`)."""
+    back = heading + math.pi
+    edge = math.pi - behind
+    out = np.zeros((3, 2), dtype=np.float64)
+    # Edge 1 at back + edge (the cone lies clockwise of it), edge 2 at back - edge.
+    out[0] = math.sin(back + edge), -math.cos(back + edge)
+    out[1] = -math.sin(back - edge), math.cos(back - edge)
+    out[2, 0] = min(math.sin(behind), 0.7)
+    return out
+
+
+@nb.njit(cache=True)
+def _off_cone(
+    sides: npt.NDArray[np.float64],
+    ox: float,
+    oy: float,
+    res: float,
+    rows: int,
+    x: float,
+    y: float,
+    r_lo: int,
+    r_hi: int,
+    c_lo: int,
+    c_hi: int,
+) -> bool:
+    # Whether every cell centre of the block (rows r_lo..r_hi, columns c_lo..c_hi) lies
+    # outside one edge's half-plane of the cone behind (``sides``, _cone_sides) far
+    # enough that its angle test is not near ``behind``: a cell at distance s outside
+    # an edge's line and at most D from the car is at least asin(s / D) (or a right
+    # angle) short of ``behind`` off the heading, so its cosine test exceeds
+    # cos(behind) by at least 2 min(sin(behind), 0.7) (s / D) / pi. The half-plane
+    # being convex, the block's corner cells bound its other cells.
+    far = 0.0
+    short = np.full(2, np.inf)
+    for r in (r_lo, r_hi):
+        for c in (c_lo, c_hi):
+            dx = ox + (c + 0.5) * res - x
+            dy = oy + (rows - 1 - r + 0.5) * res - y
+            far = max(far, math.sqrt(dx * dx + dy * dy))
+            for e in range(2):
+                short[e] = min(short[e], -(dx * sides[e, 0] + dy * sides[e, 1]))
+    for e in range(2):
+        if short[e] > 0.0 and 2.0 * sides[2, 0] * (short[e] / far) / math.pi > OFF_CONE_MARGIN:
+            return True
+    return False
+
+
 @nb.njit(cache=True)
 def _drop_fresh_behind(
     mask: npt.NDArray[np.bool_],
@@ -205,13 +306,16 @@ def _drop_fresh_behind(
     hx: float,
     hy: float,
     cos_behind: float,
+    sides: npt.NDArray[np.float64],
     ox: float,
     oy: float,
     res: float,
     unsure: npt.NDArray[np.int64],
+    dropped: npt.NDArray[np.int64],
 ) -> tuple[int, int]:
     # fresh_behind's cells set False in ``mask``, looking only in the blocks seen less
-    # than ``turn_time`` before ``now``. The angle off the heading is compared by its
+    # than ``turn_time`` before ``now``; the first of them (as many as ``dropped``
+    # holds) listed there by flat index. The angle off the heading is compared by its
     # cosine, (d . h) / |d| against cos(behind); a cell within 1e-9 of that (or at the
     # car) is noted in ``unsure`` for numpy's arctan2 to decide, so that every answer
     # is fresh_behind's. Returns the cells set False and the unsure ones.
@@ -248,6 +352,8 @@ def _drop_fresh_behind(
                         inside = False
             if ahead_is_out and lowest > 1e-6:
                 continue
+            if ahead_is_out and _off_cone(sides, ox, oy, res, rows, x, y, r_lo, r_hi, c_lo, c_hi):
+                continue
             if inside:
                 for r in range(r_lo, r_hi + 1):
                     for c in range(c_lo, c_hi + 1):
@@ -255,6 +361,8 @@ def _drop_fresh_behind(
                             v = last[r, c]
                             if now - v < turn_time and np.isfinite(v) and v != never:
                                 mask[r, c] = False
+                                if n < dropped.shape[0]:
+                                    dropped[n] = r * cols + c
                                 n += 1
                 continue
             for r in range(r_lo, r_hi + 1):
@@ -277,6 +385,8 @@ def _drop_fresh_behind(
                         k += 1
                     elif diff < 0.0:
                         mask[r, c] = False
+                        if n < dropped.shape[0]:
+                            dropped[n] = r * cols + c
                         n += 1
     return n, k
 
@@ -290,6 +400,7 @@ def drop_fresh_behind(
     grid: Grid,
     behind: float,
     turn_time: float,
+    dropped: npt.NDArray[np.int64] | None = None,
 ) -> int:
     """Set to False, in ``mask`` (written in place), the cells of
     :func:`fresh_behind` for ``fog``'s last-seen times at its time, never-seen cells
@@ -298,8 +409,12 @@ def drop_fresh_behind(
     The same cells as ``mask & fresh_behind(fog.last, fog.t, x, y, heading, grid,
     behind, turn_time, fog.never_seen())``, found in the fog's blocks seen less than
     ``turn_time`` seconds ago (:meth:`~sonarmap.patrol.fog.Fog.latest_blocks`), without
-    a pass over the whole map."""
+    a pass over the whole map. ``dropped`` (optional, int64): when the count returned
+    is at most its length, its first that many entries are the flat (row-major)
+    indices of the cells set False, in no particular order; otherwise its contents are
+    undefined."""
     unsure = np.empty(UNSURE_CELLS, dtype=np.int64)
+    out = dropped if dropped is not None else np.empty(0, dtype=np.int64)
     ox, oy = grid.origin
     n, k = _drop_fresh_behind(
         mask,
@@ -314,10 +429,12 @@ def drop_fresh_behind(
         math.cos(heading),
         math.sin(heading),
         math.cos(behind),
+        _cone_sides(heading, behind),
         float(ox),
         float(oy),
         grid.resolution,
         unsure,
+        out,
     )
     if k > len(unsure):
         # Too many to note: fresh_behind decides every cell.
@@ -325,13 +442,78 @@ def drop_fresh_behind(
             fog.last, fog.t, x, y, heading, grid, behind, turn_time, fog.never_seen()
         )
         mask &= ~fresh
-        return n + int(np.count_nonzero(fresh))
-    if k:
+        more = np.flatnonzero(fresh)
+    elif k:
         rr, cc = np.divmod(unsure[:k], mask.shape[1])
         keep = _off_heading(rr, cc, x, y, heading, grid, behind)
         mask[rr[keep], cc[keep]] = False
-        n += int(np.count_nonzero(keep))
-    return int(n)
+        more = unsure[:k][keep]
+    else:
+        return int(n)
+    if n + len(more) <= len(out):
+        out[n : n + len(more)] = more
+    return int(n + len(more))
+
+
+@nb.njit(cache=True)
+def _set_back(flat: npt.NDArray[np.bool_], cells: npt.NDArray[np.int64], n: int) -> None:
+    # flat[cells[:n]] = True, without numpy's fancy-index set-up.
+    for k in range(n):
+        flat[cells[k]] = True
+
+
+class FreshAhead:
+    """A map-sized mask kept for a run: a source mask less the fresh cells behind one
+    car (:func:`drop_fresh_behind`), made for one car after another.
+
+    While the source stays the same array and the caller's ``version`` of it the same,
+    the next car's mask is made by setting back the cells the last car's dropped,
+    instead of copying the whole source again (a map-sized copy per car and step).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The grid's (rows, columns).
+    record : int
+        How many dropped cells are noted for setting back (default 2**20); when a car
+        drops more, the next mask is copied whole.
+    """
+
+    def __init__(self, shape: tuple[int, int], record: int = 1 << 20) -> None:
+        self._mask = np.zeros(shape, dtype=np.bool_)
+        self._dropped = np.empty(record, dtype=np.int64)
+        self._n = -1  # cells to set back; -1: the mask is to be copied whole
+        self._source: npt.NDArray[np.bool_] | None = None
+        self._version: object = None
+
+    def make(
+        self,
+        source: npt.NDArray[np.bool_],
+        version: object,
+        fog: Fog,
+        x: float,
+        y: float,
+        heading: float,
+        grid: Grid,
+        behind: float,
+        turn_time: float,
+    ) -> tuple[npt.NDArray[np.bool_], int]:
+        """``source`` less :func:`drop_fresh_behind`'s cells for a car at (x, y),
+        ``heading``, and how many of ``source``'s True cells those were.
+
+        ``version``: anything the caller changes whenever ``source``'s contents may
+        have changed since the last call (e.g. the step). The mask returned is this
+        object's own, valid until the next call; it must not be written to."""
+        if source is self._source and version == self._version and self._n >= 0:
+            _set_back(self._mask.reshape(-1), self._dropped, self._n)
+        else:
+            np.copyto(self._mask, source)
+            self._source, self._version = source, version
+        n = drop_fresh_behind(
+            self._mask, fog, x, y, heading, grid, behind, turn_time, self._dropped
+        )
+        self._n = n if n <= len(self._dropped) else -1
+        return self._mask, n
 
 
 @nb.njit(cache=True)

@@ -59,7 +59,7 @@ import numba as nb
 import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
-from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from .graph import cell_graph
@@ -437,34 +437,43 @@ def _step_index() -> I64:
 
 
 @nb.njit(cache=True)
-def _kept_steps(
-    row: npt.NDArray[np.int32],
-    col: npt.NDArray[np.int32],
+def _kept_graph(
+    indptr: npt.NDArray[np.int32],
+    indices: npt.NDArray[np.int32],
     rc: I64,
     steps: npt.NDArray[np.uint8],
     step_index: I64,
-) -> B:
-    """Whether each edge (``row`` -> ``col``, nodes at cells ``rc``) is a step its
-    tail cell's ``steps`` allows (bit :func:`_step_index` of the step)."""
-    out = np.empty(len(row), dtype=np.bool_)
-    for k in range(len(row)):
-        a, b = row[k], col[k]
-        dr = rc[b, 0] - rc[a, 0]
-        dc = rc[b, 1] - rc[a, 1]
-        j = step_index[(dr + 1) * 3 + dc + 1]
-        out[k] = ((np.int64(steps[rc[a, 0], rc[a, 1]]) >> j) & 1) == 1
-    return out
+) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.int32]]:
+    """The CSR structure (``indptr``, ``indices``) of a graph over cells ``rc`` keeping
+    only the edges that are steps their tail cell's ``steps`` allows (bit
+    :func:`_step_index` of the step), each row's edges in their order."""
+    n = len(indptr) - 1
+    out_ptr = np.zeros(n + 1, dtype=np.int32)
+    out_idx = np.empty(len(indices), dtype=np.int32)
+    m = 0
+    for a in range(n):
+        allowed = np.int64(steps[rc[a, 0], rc[a, 1]])
+        for p in range(indptr[a], indptr[a + 1]):
+            b = indices[p]
+            dr = rc[b, 0] - rc[a, 0]
+            dc = rc[b, 1] - rc[a, 1]
+            j = step_index[(dr + 1) * 3 + dc + 1]
+            if (allowed >> j) & 1:
+                out_idx[m] = b
+                m += 1
+        out_ptr[a + 1] = m
+    return out_ptr, out_idx[:m].copy()
 
 
 def _labels(graph: csr_matrix, index: I64, steps: npt.NDArray[np.uint8]) -> I64:
     """Strongly connected set of each node of the wave's ``graph`` (:func:`cell_graph`,
-    cells ``index``) keeping only the steps ``steps`` allows."""
-    coo = graph.tocoo()
+    cells ``index``; its rows' columns sorted, as ``tocsr`` leaves them) keeping only
+    the steps ``steps`` allows."""
     rc = np.argwhere(index >= 0)
-    keep = _kept_steps(coo.row, coo.col, rc, steps, _step_index())
     n = len(rc)
-    m = coo_matrix((np.ones(int(keep.sum())), (coo.row[keep], coo.col[keep])), shape=(n, n))
-    _, label = connected_components(m.tocsr(), directed=True, connection="strong")
+    indptr, indices = _kept_graph(graph.indptr, graph.indices, rc, steps, _step_index())
+    m = csr_matrix((np.ones(len(indices)), indices, indptr), shape=(n, n))
+    _, label = connected_components(m, directed=True, connection="strong")
     out: I64 = label.astype(np.int64)
     return out
 
@@ -506,17 +515,27 @@ def _trapped(graph: csr_matrix, index: I64, weak: I64, steps: npt.NDArray[np.uin
     n = len(strong)
     # Size of each strong set, and the largest within each weak part.
     size = np.bincount(strong)[strong]
-    # The largest set of each part; ties go to the set of the lowest node.
-    order = np.lexsort((np.arange(n), -size, weak))
-    keep = np.full(int(weak.max()) + 1 if n else 0, -1, dtype=np.int64)
-    for node in order.tolist():
-        if keep[weak[node]] < 0:
-            keep[weak[node]] = strong[node]
+    keep = _largest_sets(strong, weak, size, int(weak.max()) + 1 if n else 0)
     out = np.zeros(index.shape, dtype=bool)
     rc = np.argwhere(index >= 0)
     bad = strong != keep[weak]
     out[rc[bad, 0], rc[bad, 1]] = True
     return out
+
+
+@nb.njit(cache=True)
+def _largest_sets(strong: I64, weak: I64, size: I64, n_weak: int) -> I64:
+    """The largest strong set (``strong``, of ``size`` cells, per node) of each weak
+    part (``weak``, per node, 0..``n_weak`` - 1); ties go to the set of the lowest
+    node."""
+    keep = np.full(n_weak, -1, dtype=np.int64)
+    best = np.zeros(n_weak, dtype=np.int64)
+    for node in range(len(strong)):
+        w = weak[node]
+        if size[node] > best[w]:
+            best[w] = size[node]
+            keep[w] = strong[node]
+    return keep
 
 
 def _touches(segment: I64, node_of: I64, n_segments: int) -> list[set[int]]:
@@ -534,6 +553,33 @@ def _touches(segment: I64, node_of: I64, n_segments: int) -> list[set[int]]:
         ):
             touches[s].add(n)
     return touches
+
+
+def _parts(mask: B) -> I64:
+    """The connected part of each cell of ``mask`` (row-major, as :func:`cell_graph`
+    numbers its nodes) in the wave's grid graph, numbered from 0.
+
+    A diagonal step of that graph joins two cells only when both cells beside it are
+    in ``mask``, i.e. through two side steps: its parts are the 4-connected parts of
+    ``mask`` (the same cells together as the graph's own connected components, which
+    number them otherwise)."""
+    labels, _ = ndimage.label(mask)
+    out: I64 = labels[mask].astype(np.int64) - 1
+    return out
+
+
+def _symmetric_dijkstra(graph: csr_matrix, starts: I64) -> tuple[F64, I64]:
+    """Length of the shortest path to each node of the symmetric ``graph`` from the
+    nearest of ``starts``, and which start that is (-1: none reaches it).
+
+    As scipy's undirected ``dijkstra(..., min_only=True)``, without its transpose: on
+    a symmetric graph that scans each edge twice, the second time finding the very
+    same length, which never lowers one (scipy lowers only a strictly longer length),
+    so the lengths and starts are the same."""
+    d, _, source = dijkstra(
+        graph, directed=True, indices=starts, min_only=True, return_predecessors=True
+    )
+    return d, source.astype(np.int64)
 
 
 def one_way(
@@ -719,20 +765,14 @@ def one_way(
             near_tail[tuple(cand[0])] = True
         g_s, idx_s = cell_graph(pix, 1.0, corners=True)
         starts = idx_s[near_tail]
-        d = dijkstra(g_s, directed=False, indices=starts, min_only=True)
+        d = _symmetric_dijkstra(g_s, starts)[0]
         along_skel[win][pix] = d[idx_s[pix]]
         ends_reach = [reach[x] if x < n_junctions else 0.0 for x in (tail, head)]
         seg_margin[s] = max(ends_reach) / resolution
     # Every passable cell takes the skeleton cell nearest it along the grid's paths.
     g_all, idx_all = cell_graph(mask, resolution)
     sk = np.argwhere(skel & mask)
-    _, _, source = dijkstra(
-        g_all,
-        directed=False,
-        indices=idx_all[sk[:, 0], sk[:, 1]],
-        min_only=True,
-        return_predecessors=True,
-    )
+    source = _symmetric_dijkstra(g_all, idx_all[sk[:, 0], sk[:, 1]])[1]
     flat_rc = np.argwhere(mask)
     street = np.full(mask.shape, -1, dtype=np.int64)
     along = np.full(mask.shape, np.nan)
@@ -751,8 +791,7 @@ def one_way(
         length[s] = float(np.nanmax(along_skel[box][pix]))
     m = seg_margin[np.maximum(street, 0)]
     ln = length[np.maximum(street, 0)]
-    _, weak = connected_components(g_all, directed=False)
-    weak = weak.astype(np.int64)
+    weak = _parts(mask)
     # Each round opens at least one street (the last resort all of a part): bounded.
     for _ in range(n_segments + 1):
         is_dir = (street >= 0) & directed[np.maximum(street, 0)]

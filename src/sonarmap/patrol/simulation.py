@@ -40,7 +40,7 @@ from .fog import Fog, Vision, dilate, disc_cells, disc_offsets, disc_side
 from .forces import Force, sector_pulls, step_direction
 from .giveup import GiveUp
 from .graph import PatrolGraph
-from .manoeuvre import DeadEnds, behind_cells, carrot, drop_fresh_behind, turn_weights
+from .manoeuvre import DeadEnds, FreshAhead, behind_cells, carrot, turn_weights
 from .marching import Marching
 from .monitor import Monitor
 from .network import NETWORKS, components
@@ -1705,7 +1705,7 @@ def run_patrol(
     unseen_of = [np.empty_like(watched) for _ in own] if pulls_masks else []
     n_unseen = np.zeros(len(own), dtype=np.int64)
     unseen_step = np.full(len(own), -1, dtype=np.int64)
-    ahead_buffer = np.empty_like(watched) if pulls_masks else None
+    ahead_buffer = FreshAhead(watched.shape) if pulls_masks else None
     for k in range(steps):
         directions: list[tuple[float, float] | None] = []
         goals: list[tuple[float, float] | None] = []
@@ -1816,12 +1816,12 @@ def run_patrol(
             if tracking and config.turn_time > 0:
                 assert isinstance(team, Car)
                 mine_fog = own[0 if shared else i]
-                # pulling & ~fresh_behind(...), without a pass over the whole map.
-                ahead = ahead_buffer
-                assert ahead is not None
-                np.copyto(ahead, pulling)
-                n_dropped = drop_fresh_behind(
-                    ahead,
+                # pulling & ~fresh_behind(...), without a pass over the whole map. The
+                # places pulling change only between steps (out of sight: once a step).
+                assert ahead_buffer is not None
+                ahead, n_dropped = ahead_buffer.make(
+                    pulling,
+                    k,
                     mine_fog,
                     float(team.x[i]),
                     float(team.y[i]),
