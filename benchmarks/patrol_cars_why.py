@@ -2,10 +2,10 @@
 
 For one run of :mod:`benchmarks.patrol_cars`'s setting (street site, cars, refinement,
 artificial obstacles for teams, places out of sight, a turn penalty of 10, driving on
-round the block when ``--round-block`` metres allow it, 0 by default: the shortest
-path), every reversing manoeuvre a car begins because its path leaves
-behind it (cause ``behind``) is put in one class, by the shortest route to the same
-place that leaves forwards (the cells up to 4 m behind the car closed,
+round the block rather than turning round when that is at most ``--round-block``
+metres longer, 0 by default: the shortest path), every reversing manoeuvre a car
+begins because its path leaves behind it (cause ``behind``) is put in one class, by the
+shortest route to the same place that leaves forwards (the cells up to 4 m behind the car closed,
 :func:`sonarmap.patrol.manoeuvre.behind_cells`):
 
 - ``near``: the place is under 4 m away along the path;
