@@ -16,8 +16,9 @@ direction choice, one core. For each cell size (``--cells``, default the thesis'
   final positions must be identical;
 - mean MTB, DVT and the share never seen, so the two cell sizes can be compared.
 
-Run with ``python -m benchmarks.patrol [--cells 0.1 0.5] [--duration 1200] [--leftover 0]
-[--json F]`` (``--leftover M``: the cars' ``PatrolConfig.leftover``, off by default).
+Run with ``python -m benchmarks.patrol [--cells 0.1 0.5] [--duration 1200] [--check 120]
+[--seed 0] [--leftover 0] [--json F]`` (``--leftover M``: the cars'
+``PatrolConfig.leftover``, off by default).
 
 With ``--profile SECONDS`` it measures nothing of the above: for each cell size it runs
 5 simulated seconds untimed (numba's kernels compiled or loaded, the territory built),

@@ -12,7 +12,7 @@ version (e.g. the older one from a snapshot of its ``src`` on ``PYTHONPATH``), t
 differs).
 
 Run with ``python -m benchmarks.patrol_answers --save A.npz [--duration 300]
-[--cell 0.1]`` and ``python -m benchmarks.patrol_answers --compare A.npz B.npz``.
+[--cell 0.1] [--seed 0]`` and ``python -m benchmarks.patrol_answers --compare A.npz B.npz``.
 """
 
 from __future__ import annotations

@@ -1,10 +1,11 @@
 """Why tracking cars turn round, and whether they stand: one street-site run, watched.
 
 For one run of :mod:`benchmarks.patrol_cars`'s setting (street site, cars, refinement,
-artificial obstacles for teams, places out of sight, ``--turn-penalty 10``,
-``--round-block``), every reversing manoeuvre a car begins because its path leaves
-behind it (cause ``behind``) is put in one class, by the shortest route to the same
-place that leaves forwards (the cells up to 4 m behind the car closed,
+artificial obstacles for teams, places out of sight, a turn penalty of 10, driving on
+round the block rather than turning round when that is at most ``--round-block``
+metres longer, 0 by default: the shortest path), every reversing manoeuvre a car
+begins because its path leaves behind it (cause ``behind``) is put in one class, by the
+shortest route to the same place that leaves forwards (the cells up to 4 m behind the car closed,
 :func:`sonarmap.patrol.manoeuvre.behind_cells`):
 
 - ``near``: the place is under 4 m away along the path;
@@ -26,7 +27,7 @@ the metres driven and the steps it stood still (a car standing for good is a
 deadlock the DVT does not show).
 
 Run with ``python -m benchmarks.patrol_cars_why --site 0 --cars 5 --duration 600
-[--round-block 60]``; one process, one core.
+[--round-block 0]``; one process, one core.
 """
 
 from __future__ import annotations

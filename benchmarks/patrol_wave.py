@@ -21,7 +21,8 @@ The heap and bucket waves are checked to agree on every distance (to 1e-9 m) bef
 timing. The time budget of the target (one simulated hour in 3 minutes, 7200 steps of
 0.5 s, five robots) is about 5 ms per wave.
 
-Run with ``python -m benchmarks.patrol_wave [--repeat 5] [--json out.json]``.
+Run with ``python -m benchmarks.patrol_wave [--repeat 5] [--cells 0.1,0.2,0.25,0.5]
+[--json out.json]`` (``--cells``: the cell sizes, metres, comma-separated).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ Readings are HC-SR04 poses spread uniformly over the floor, ranges uniform in
 0.2-2 m (about 150 cells each). The table gives seconds and the slope of log time
 against log size between the two largest points (1 = linear).
 
-Run alone with ``python -m benchmarks.scaling [--quick]``; ``make bench`` runs it too.
+Run alone with ``python -m benchmarks.scaling [--quick] [--json F]``; ``make bench`` runs it too.
 """
 
 from __future__ import annotations

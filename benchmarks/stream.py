@@ -15,8 +15,9 @@ long, so the offline problem over 10 minutes, 655 M entries, does not fit in 24 
 The offline problem (far larger than the caches) also gives the DRAM-bound rate of the
 sparse products, as a fraction of the copy bandwidth.
 
-Run alone with ``python -m benchmarks.stream [--minutes 10]``; ``make bench`` runs it
-with the kernel benchmarks.
+Run alone with ``python -m benchmarks.stream [--minutes 10] [--stochastic-minutes 2]
+[--offline-minutes 2] [--json F]`` (``--offline-minutes 0``: no offline comparison);
+``make bench`` runs it with the kernel benchmarks.
 """
 
 from __future__ import annotations

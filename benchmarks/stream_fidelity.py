@@ -18,7 +18,10 @@ first ``--seconds`` of the tour) or ``corridor`` (six MaxSonar EZ1s); both are h
 families, so report with ``--seed`` 1000 or above. Tune on training scenes
 (``doorways``, ``hall``, ``suite``, seeds below 1000; ``--rig`` names the preset).
 
-Run with ``python -m benchmarks.stream_fidelity --scene office --seconds 60``.
+Run with ``python -m benchmarks.stream_fidelity --scene office --seconds 60``; also
+``[--seed 1000] [--methods inverse,gradient,em-thrun] [--param K=V ...] [--period 0.25]
+[--no-offline] [--profile N] [--json F]`` (``--no-offline``: stream only; ``--profile
+N``: print the stream's N costliest functions).
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ stages table says what voting, the odometry pre-check, RANSAC, the gate on RANSA
 transform and the graph removed.
 
 Run with ``python -m benchmarks.team [--base 300] [--scales 1 4 10] [--plan office]
-[--json F] [--plot F.png]``.
+[--seed 0] [--json F] [--plot F.png]``.
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ when the routes ended (what a hold keeps back). Then the issue's targets, each `
 ``FAILS``. Nothing here is tuned to make a target hold.
 
 Run with ``python -m benchmarks.team_exchange [--plan office] [--robots 3]
-[--duration 300] [--caps 65536 16384 4096 1024 256] [--budgets 2000 1000 500]
+[--duration 300] [--seed 0] [--caps 65536 16384 4096 1024 256] [--budgets 2000 1000 500]
 [--lean 4:30 8:30 8:60 8:120] [--quantised 3:1]
 [--groups main caps budgets lean quantised] [--jobs 2] [--plot FILE]
 [--json FILE]``.

@@ -12,7 +12,10 @@ exchanger's decoder; half the answers carry a closure,
 tick and a ``bye``, sending again what the node asks for. The node must exit 0 within
 the time limit, having counted the rejections in its summary, with bounded peak RSS.
 
-Run with ``python -m benchmarks.team_fuzz [--frames 50000] [--seed 0]``; prints a
+Run with ``python -m benchmarks.team_fuzz [--frames 50000] [--seed 0] [--timeout 300]
+[--folder DIR]`` (``--timeout``: seconds the node waits for its peer, and the bound on
+each phase of a run; ``--folder``: keep the runs' plans, keys and logs there, a
+temporary folder otherwise); prints a
 markdown table row: frames sent, rejected (the node's ``rejected_frames``), crashes,
 hangs, peak RSS and its growth. Every socket is on 127.0.0.1; every loop is bounded in
 count and in time.

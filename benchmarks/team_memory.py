@@ -14,7 +14,7 @@ plus the closures, and each robot's peaks of the two longest missions (4x and 10
 within 10 %. Each length's figures are printed as soon as it is done.
 
 Run with ``python -m benchmarks.team_memory [--robots 3] [--base 300] [--scales 1 4 10]
-[--plan office] [--json F] [--plot F.png]``.
+[--plan office] [--seed 2] [--json F] [--plot F.png]``.
 """
 
 from __future__ import annotations

@@ -9,7 +9,9 @@ robot's id, another destination, a NaN pose inside a numbered answer, headers de
 multi-part frames. Robot 0's summary is then compared, field by field (timings left
 out), with the same mission undisturbed.
 
-Run with ``python -m benchmarks.team_strangers [--identities 7,0,none] [--seed 3]``;
+Run with ``python -m benchmarks.team_strangers [--identities 7,0,none] [--seed 3]
+[--folder DIR]`` (``--folder``: where the runs' plans and logs go, a new temporary
+folder otherwise);
 prints the exit codes, the frames sent by category, robot 0's ``rejected_frames`` and
 the summary fields that differ. ``none`` is a socket without an identity (zmq gives it
 a random one). Every loop is bounded in count (400 rounds) and time (120 s a run).

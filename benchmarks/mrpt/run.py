@@ -6,7 +6,8 @@ against the Debian packages) feeds it the readings one observation each and time
 insertion loop; sonarmap's inverse mapper (rasteriser included) is timed on the same
 readings, and the two maps are compared cell by cell and against the truth.
 
-Run with ``python -m benchmarks.mrpt.run [--install] [--minutes 2]`` (``make bench-mrpt``).
+Run with ``python -m benchmarks.mrpt.run [--install] [--minutes 2] [--scene office]
+[--repeat 3] [--json F]`` (``make bench-mrpt``: ``--install --minutes 10``).
 ``--install`` installs ``libmrpt-maps-dev``, ``libmrpt-obs-dev`` and ``g++`` with apt
 (root needed). Without MRPT the command says so and exits with status 77.
 """
