@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -528,3 +529,60 @@ def test_a_two_way_loop_street_keeps_its_half_length_to_its_midpoint() -> None:
     assert mid.tolist() == [1]
     assert graph[0, 1] == pytest.approx(5.0)
     assert graph[1, 0] == pytest.approx(5.0)
+
+
+@pytest.mark.parametrize(
+    ("on", "orient", "want"),
+    [(True, "short", "short"), (True, "dfs", "dfs"), (False, "short", "dfs")],
+)
+def test_the_orientation_asked_for_is_the_one_the_run_builds(
+    on: bool, orient: str, want: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Two cars on the ring, a few seconds: the run builds its one-way streets with the
+    # configuration's orientation when it drives them, and the plain one when it
+    # builds them only to look down stubs.
+    from sonarmap.patrol import simulation
+
+    asked: list[str] = []
+
+    def recorder(*args: Any, **kwargs: Any) -> OneWay:
+        asked.append(str(kwargs.get("orient", "dfs")))
+        return one_way(*args, **kwargs)
+
+    monkeypatch.setattr(simulation, "one_way", recorder)
+    cfg = PatrolConfig(
+        model="car",
+        duration=2.0,
+        vision=5.0,
+        crowding="obstacles",
+        one_way=on,
+        stub_sight=not on,
+        one_way_orient=orient,
+    )
+    run_patrol(_ring(), cfg, robots=2, seed=0)
+    assert asked == [want]
+
+
+def test_the_command_line_orientation_reaches_the_configuration(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The run itself is replaced by a recorder that stops the command (as Ctrl-C would)
+    # once it has the configuration.
+    import sonarmap.patrol
+    from sonarmap.cli import main
+
+    seen: list[PatrolConfig] = []
+
+    def recorder(territory: object, config: PatrolConfig, **kwargs: object) -> None:
+        seen.append(config)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sonarmap.patrol, "run_patrol", recorder)
+    args = ["patrol", "run", "--map", "fig3-10", "--model", "car", "--robots", "2"]
+    for extra, want in (([], "dfs"), (["--one-way-orient", "short"], "short")):
+        with pytest.raises(SystemExit) as e:
+            main([*args, *extra, "-o", str(tmp_path / "out")])
+        assert e.value.code == 130
+        assert seen[-1].one_way_orient == want
+    capsys.readouterr()
+    assert not (tmp_path / "out").exists()
