@@ -473,6 +473,12 @@ def test_short_orientation_shortens_the_detours_of_a_grid_of_streets() -> None:
     assert _strongly_connected(passable, short.steps)
     before, after = _summed_detour(passable, dfs.steps), _summed_detour(passable, short.steps)
     assert after < 0.9 * before
+    # The search's record: its own model's detour fell, by flipping some streets.
+    assert dfs.search is None
+    assert short.search is not None
+    assert short.search.streets == short.one_way.sum()
+    assert 0 < short.search.flipped <= short.search.streets
+    assert 1.0 < short.search.after < short.search.before
 
 
 @pytest.mark.parametrize("seed", [35, 113])
@@ -503,7 +509,9 @@ def test_the_flips_never_break_strong_connectivity() -> None:
     ends = [(0, 1), (1, 2), (2, 3), (3, 0), (0, 2)]
     forward = np.array([True, True, True, True, True])
     directed = np.ones(5, dtype=bool)
-    out = oneway._shorten(4, ends, np.array([10.0, 10.0, 10.0, 10.0, 14.0]), forward, directed)
+    out, _, _ = oneway._shorten(
+        4, ends, np.array([10.0, 10.0, 10.0, 10.0, 14.0]), forward, directed
+    )
     adj = np.zeros((4, 4))
     for (u, v), f in zip(ends, out.tolist(), strict=True):
         adj[(u, v) if f else (v, u)] = 1.0
