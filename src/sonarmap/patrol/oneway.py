@@ -158,7 +158,8 @@ class Search:
     before, after : float
         The model's summed one-way over two-way shortest path between the midpoints
         (each pair weighted by the two streets' lengths) at the depth-first directions
-        and at the search's; inf when the depth-first directions leave a pair unjoined.
+        and at the search's; inf when the depth-first directions leave a pair unjoined,
+        1.0 with no one-way street.
     """
 
     streets: int
