@@ -98,7 +98,7 @@ def watch_run(
         **{k: getattr(base, k) for k in KNOBS},
         one_way=oneway and cars > 1,
         leftover=leftover,
-        one_way_orient=orient,
+        one_way_orient=orient if oneway and cars > 1 else "dfs",
     )
     t = street_territory(site)
     w = reach(t, cfg.radius, mode=cfg.reach, vision=cfg.vision)
@@ -142,7 +142,8 @@ def watch_run(
         "site": site,
         "cars": cars,
         "one_way": oneway and cars > 1,
-        "one_way_orient": orient,
+        # None where the run drives no one-way street (a lone car, --one-way off).
+        "one_way_orient": orient if oneway and cars > 1 else None,
         "leftover": leftover,
         "duration": duration,
         **run_figures(result, duration, rec["all_seen"]),

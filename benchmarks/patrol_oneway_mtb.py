@@ -51,8 +51,21 @@ streets, one-way streets, the share of the passable cells on them, the turning c
 diameter (``2 * turn_radius``, the width below which a street is one-way), the streets'
 smallest, median and largest width (m) and ``detour``.
 
+With ``--orient-report``, per site the 'short' orientation's search against the
+depth-first one, without a run (one JSON line each): the one-way streets it could flip,
+how many it flipped, and its own model's summed detour (the midpoint graph's, weighted
+by the streets' lengths) before and after (:class:`~sonarmap.patrol.oneway.Search`);
+and the CPU seconds of ``REPEATS`` whole builds of the system with each orientation,
+alternated (``build_s``, each build's; ``extra_s``, the median 'short' build less the
+median 'dfs' one: the search's cost). ``--table4`` adds Table 4's territory
+(:func:`benchmarks.patrol.table4` at a 0.1 m cell, the first 5 starts' reach) and
+``--city N ...`` made-up grids of N x N square 12 m blocks between 3 m streets (0.5 m
+cells, all one-way with the 3.5 m turning radius given), where the search's cost grows
+with the number of one-way streets.
+
 Run with ``python -m benchmarks.patrol_oneway_mtb --sites 0 --cars 3 --duration 3600
---leftover 2`` (or ``--sites 0 1 2 --network``); one process, one core (``NUMBA_NUM_THREADS=1``).
+--leftover 2`` (or ``--sites 0 1 2 --network``, or ``--sites 0 5 --orient-report
+--table4 --city 4 6``); one process, one core (``NUMBA_NUM_THREADS=1``).
 """
 
 from __future__ import annotations
@@ -60,6 +73,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import time
 from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
@@ -71,17 +85,21 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from benchmarks.patrol import OneLineParser, non_negative
+from benchmarks.patrol import OneLineParser, non_negative, table4
 from benchmarks.patrol_cars import car_config
 from benchmarks.patrol_cars_mtb import EVERY_S, KNOBS, run_figures
 from benchmarks.patrol_fallback import fallback_site
+from sonarmap.grid import Grid
+from sonarmap.io.rosmap import OccupancyMap
 from sonarmap.patrol import run_patrol
 from sonarmap.patrol.fog import Fog
 from sonarmap.patrol.graph import cell_graph
 from sonarmap.patrol.oneway import ORIENTS, OneWay, one_way
 from sonarmap.patrol.paths import STEPS
+from sonarmap.patrol.reach import reach
 from sonarmap.patrol.robots import Team
 from sonarmap.patrol.simulation import SIGHT_MARGIN
+from sonarmap.patrol.territory import Territory
 
 #: Passable cells drawn for the network's detour.
 SOURCES = 40
@@ -91,6 +109,11 @@ PASS_NEAR_M = 20.0
 PASS_FAR_M = 60.0
 #: Two cars this close (metres), heading the same way, count as one following the other.
 FOLLOW_M = 20.0
+#: Builds of the one-way system per orientation timed by ``--orient-report``.
+REPEATS = 3
+#: The made-up city grids of ``--orient-report --city``: cell, street and block side,
+#: the cars' turning radius (metres; streets narrower than twice it are one-way).
+CITY_CELL, CITY_STREET, CITY_BLOCK, CITY_TURN = 0.5, 3.0, 12.0, 3.5
 
 F64 = npt.NDArray[np.float64]
 
@@ -180,6 +203,80 @@ def network(site: int, cars: int, orient: str = "dfs") -> dict[str, Any]:
     }
 
 
+def city(n: int) -> Territory:
+    """A made-up grid of ``n`` x ``n`` square blocks (``CITY_BLOCK`` m) between
+    ``CITY_STREET``-metre streets, walled round, ``CITY_CELL`` m cells."""
+    side = CITY_STREET + n * (CITY_BLOCK + CITY_STREET)
+    cells = int(side / CITY_CELL)
+    occ = np.zeros((cells, cells), np.float32)
+    occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
+    step = round((CITY_BLOCK + CITY_STREET) / CITY_CELL)
+    first, size = round(CITY_STREET / CITY_CELL), round(CITY_BLOCK / CITY_CELL)
+    for i in range(n):
+        for j in range(n):
+            r, c = first + i * step, first + j * step
+            occ[r : r + size, c : c + size] = 1.0
+    g = Grid(resolution=CITY_CELL, origin=(0.0, 0.0), shape=occ.shape)
+    return Territory.from_map(OccupancyMap(g, occ))
+
+
+def orient_report(
+    name: str,
+    passable: npt.NDArray[np.bool_],
+    clearance: F64,
+    resolution: float,
+    turn_radius: float,
+) -> dict[str, Any]:
+    """The 'short' search's record and the builds' CPU seconds on one map (the module's
+    notes)."""
+    times: dict[str, list[float]] = {o: [] for o in ORIENTS}
+    short: OneWay | None = None
+    for _ in range(REPEATS):
+        for orient in ORIENTS:
+            c0 = time.process_time()
+            ow = one_way(passable, clearance, resolution, turn_radius, orient=orient)
+            times[orient].append(time.process_time() - c0)
+            if orient == "short":
+                short = ow
+    assert short is not None
+    assert short.search is not None
+    s = short.search
+    return {
+        "map": name,
+        "streets": len(short.one_way),
+        "one_way_streets": int(short.one_way.sum()),
+        "search_streets": s.streets,
+        "flipped": s.flipped,
+        "model_before": round(s.before, 3),
+        "model_after": round(s.after, 3),
+        "build_s": {o: [round(v, 3) for v in times[o]] for o in ORIENTS},
+        "extra_s": round(float(np.median(times["short"]) - np.median(times["dfs"])), 3),
+    }
+
+
+def orient_reports(sites: list[int], cars: int, with_table4: bool, grids: list[int]) -> None:
+    """Print :func:`orient_report` for the street ``sites`` (the cars' setting for
+    ``cars``), Table 4's territory and the city grids ``grids``."""
+    for site in sites:
+        cfg, t, passable, _ = fallback_site(site, cars, 60.0)
+        row = orient_report(
+            f"site {site}", passable, t.clearance, t.grid.resolution, cfg.turn_radius
+        )
+        print(json.dumps(row), flush=True)
+    if with_table4:
+        t, cfg, starts = table4(0.1, 300.0)
+        rc = np.column_stack(t.grid.world_to_cell(starts[:, 0], starts[:, 1]))
+        where = reach(t, cfg.radius, starts=rc, mode=cfg.reach, vision=cfg.vision)
+        row = orient_report(
+            "table4", where.passable, t.clearance, t.grid.resolution, cfg.turn_radius
+        )
+        print(json.dumps(row), flush=True)
+    for n in grids:
+        t = city(n)
+        row = orient_report(f"city {n}x{n}", t.passable(1.0), t.clearance, CITY_CELL, CITY_TURN)
+        print(json.dumps(row), flush=True)
+
+
 def watch_run(
     site: int,
     cars: int,
@@ -191,9 +288,12 @@ def watch_run(
     """One run's record (see the module's notes); ``orient``: the one-way streets'
     :attr:`~sonarmap.patrol.PatrolConfig.one_way_orient`."""
     base, t, passable, ow = fallback_site(site, cars, duration)
-    if orient != "dfs":
-        ow = one_way(passable, t.clearance, t.grid.resolution, base.turn_radius, orient=orient)
     use = oneway == "all" or (oneway == "teams" and cars > 1)
+    # Unused, the orientation is not recorded and its system not built: the distances
+    # are then the depth-first system's, as the run's own would be.
+    used_orient = orient if use else None
+    if use and orient != "dfs":
+        ow = one_way(passable, t.clearance, t.grid.resolution, base.turn_radius, orient=orient)
     cfg = car_config(
         "track",
         cars,
@@ -202,7 +302,7 @@ def watch_run(
         **{k: getattr(base, k) for k in KNOBS},
         one_way=use,
         leftover=leftover,
-        one_way_orient=orient,
+        one_way_orient=used_orient or "dfs",
     )
     two, index = cell_graph(passable, t.grid.resolution)
     one = allowed_graph(two, index, ow.steps)
@@ -292,7 +392,7 @@ def watch_run(
         "site": site,
         "cars": cars,
         "one_way": use,
-        "one_way_orient": orient,
+        "one_way_orient": used_orient,
         "leftover": leftover,
         "duration": duration,
         **run_figures(result, duration, first["all_seen"]),
@@ -330,7 +430,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--leftover", type=non_negative, default=0.0)
     ap.add_argument("--orient", choices=list(ORIENTS), default="dfs")
     ap.add_argument("--network", action="store_true")
+    ap.add_argument("--orient-report", action="store_true")
+    ap.add_argument("--table4", action="store_true")
+    ap.add_argument("--city", type=int, nargs="*", default=[])
     a = ap.parse_args(argv)
+    if a.orient_report:
+        orient_reports(a.sites, max(a.cars), a.table4, a.city)
+        return 0
     if a.network:
         for site in a.sites:
             print(json.dumps(network(site, max(a.cars), a.orient)), flush=True)

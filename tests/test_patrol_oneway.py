@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
@@ -477,12 +478,24 @@ def test_short_orientation_shortens_the_detours_of_a_grid_of_streets() -> None:
     assert _strongly_connected(passable, short.steps)
     before, after = _summed_detour(passable, dfs.steps), _summed_detour(passable, short.steps)
     assert after < 0.9 * before
+    # The search's record: its own model's detour fell, by flipping some streets.
+    assert dfs.search is None
+    assert short.search is not None
+    assert short.search.streets == short.one_way.sum()
+    assert 0 < short.search.flipped <= short.search.streets
+    assert 1.0 < short.search.after < short.search.before
 
 
-@pytest.mark.parametrize("seed", [3, 47])
+@pytest.mark.parametrize("seed", [35, 113])
 def test_short_orientation_keeps_random_streets_strongly_connected(seed: int) -> None:
+    # Maps where the search flips streets (its steps differ from the depth-first ones)
+    # and keeps as many one-way: a flip that cut a place off would be repaired by the
+    # final check reopening streets both ways, which the count catches.
     passable, t = _random_streets(seed)
+    dfs = one_way(passable, t.clearance, RES, turn_radius=3.5)
     ow = one_way(passable, t.clearance, RES, turn_radius=3.5, orient="short")
+    assert not np.array_equal(ow.steps, dfs.steps)
+    assert ow.one_way.sum() == dfs.one_way.sum() >= 10
     assert _strongly_connected(passable, ow.steps)
 
 
@@ -501,7 +514,9 @@ def test_the_flips_never_break_strong_connectivity() -> None:
     ends = [(0, 1), (1, 2), (2, 3), (3, 0), (0, 2)]
     forward = np.array([True, True, True, True, True])
     directed = np.ones(5, dtype=bool)
-    out = oneway._shorten(4, ends, np.array([10.0, 10.0, 10.0, 10.0, 14.0]), forward, directed)
+    out, _, _ = oneway._shorten(
+        4, ends, np.array([10.0, 10.0, 10.0, 10.0, 14.0]), forward, directed
+    )
     adj = np.zeros((4, 4))
     for (u, v), f in zip(ends, out.tolist(), strict=True):
         adj[(u, v) if f else (v, u)] = 1.0
@@ -568,3 +583,60 @@ def test_parts_are_the_grid_graphs_connected_components() -> None:
         _, want = connected_components(cell_graph(mask, 0.1)[0], directed=False)
         pairs = set(zip(got.tolist(), want.tolist(), strict=True))
         assert len(pairs) == len(set(got.tolist())) == len(set(want.tolist()))
+
+
+@pytest.mark.parametrize(
+    ("on", "orient", "want"),
+    [(True, "short", "short"), (True, "dfs", "dfs"), (False, "short", "dfs")],
+)
+def test_the_orientation_asked_for_is_the_one_the_run_builds(
+    on: bool, orient: str, want: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Two cars on the ring, a few seconds: the run builds its one-way streets with the
+    # configuration's orientation when it drives them, and the plain one when it
+    # builds them only to look down stubs.
+    from sonarmap.patrol import simulation
+
+    asked: list[str] = []
+
+    def recorder(*args: Any, **kwargs: Any) -> OneWay:
+        asked.append(str(kwargs.get("orient", "dfs")))
+        return one_way(*args, **kwargs)
+
+    monkeypatch.setattr(simulation, "one_way", recorder)
+    cfg = PatrolConfig(
+        model="car",
+        duration=2.0,
+        vision=5.0,
+        crowding="obstacles",
+        one_way=on,
+        stub_sight=not on,
+        one_way_orient=orient,
+    )
+    run_patrol(_ring(), cfg, robots=2, seed=0)
+    assert asked == [want]
+
+
+def test_the_command_line_orientation_reaches_the_configuration(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The run itself is replaced by a recorder that stops the command (as Ctrl-C would)
+    # once it has the configuration.
+    import sonarmap.patrol
+    from sonarmap.cli import main
+
+    seen: list[PatrolConfig] = []
+
+    def recorder(territory: object, config: PatrolConfig, **kwargs: object) -> None:
+        seen.append(config)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sonarmap.patrol, "run_patrol", recorder)
+    args = ["patrol", "run", "--map", "fig3-10", "--model", "car", "--robots", "2"]
+    for extra, want in (([], "dfs"), (["--one-way-orient", "short"], "short")):
+        with pytest.raises(SystemExit) as e:
+            main([*args, *extra, "-o", str(tmp_path / "out")])
+        assert e.value.code == 130
+        assert seen[-1].one_way_orient == want
+    capsys.readouterr()
+    assert not (tmp_path / "out").exists()

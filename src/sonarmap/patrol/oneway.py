@@ -65,7 +65,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from .graph import cell_graph
 from .paths import STEPS
 
-__all__ = ["ORIENTS", "OneWay", "one_way", "strong_sets", "thin"]
+__all__ = ["ORIENTS", "OneWay", "Search", "one_way", "strong_sets", "thin"]
 
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
@@ -145,6 +145,30 @@ def thin(mask: B) -> B:
 
 
 @dataclass(frozen=True)
+class Search:
+    """What the 'short' orientation's local search (:func:`_shorten`) did on the street
+    graph, in its own model (streets as midpoint nodes; see the module's notes).
+
+    Attributes
+    ----------
+    streets : int
+        One-way streets the search could flip.
+    flipped : int
+        Of them, those it left directed against the depth-first direction.
+    before, after : float
+        The model's summed one-way over two-way shortest path between the midpoints
+        (each pair weighted by the two streets' lengths) at the depth-first directions
+        and at the search's; inf when the depth-first directions leave a pair unjoined,
+        1.0 with no one-way street.
+    """
+
+    streets: int
+    flipped: int
+    before: float
+    after: float
+
+
+@dataclass(frozen=True)
 class OneWay:
     """A one-way street system on a grid (see the module's notes).
 
@@ -184,6 +208,9 @@ class OneWay:
         junction there, whose cells belong to no street but are as much a dead end.
         A junction touched by a street that is no stub (one a car turns round in, or
         one left out of the street graph) is none.
+    search : Search or None
+        With ``orient`` 'short' (:func:`one_way`), what its local search did; None with
+        'dfs' (the default).
     """
 
     steps: npt.NDArray[np.uint8]
@@ -196,6 +223,7 @@ class OneWay:
     in_graph: B
     two_way: B
     stub_ends: B
+    search: Search | None = None
 
     @property
     def share(self) -> float:
@@ -304,7 +332,9 @@ def _cycle_back(graph: csr_matrix, n_nodes: int, head: int, tail: int) -> list[i
     return []
 
 
-def _shorten(n_nodes: int, ends: list[tuple[int, int]], length: F64, forward: B, directed: B) -> B:
+def _shorten(
+    n_nodes: int, ends: list[tuple[int, int]], length: F64, forward: B, directed: B
+) -> tuple[B, float, float]:
     """A strongly connected orientation of the ``directed`` edges ``ends`` (u, v) of a
     multigraph over nodes 0..n-1 with shorter detours than ``forward`` (True: u -> v),
     itself strongly connected on each connected part: a local search (see the module's
@@ -315,11 +345,18 @@ def _shorten(n_nodes: int, ends: list[tuple[int, int]], length: F64, forward: B,
     and flipping the directed cycle it closes with the shortest path back from its head
     to its tail; a try is taken when it lowers the sum (by more than a relative 1e-9) and
     keeps every pair joined. At most :data:`SHORT_PASSES` passes, fewer when one takes
-    nothing. Deterministic: the same input gives the same directions."""
+    nothing. Deterministic: the same input gives the same directions.
+
+    Cost: each try runs a shortest-path search from every midpoint, so with s directed
+    edges (and the graph's nodes growing with the edges) a pass costs about s^3 log s,
+    cubic in the one-way streets.
+
+    Returns the directions and the summed one-way over two-way shortest path between
+    the midpoints (weighted as above) before and after (:class:`Search`)."""
     out = forward.copy()
     k_dir = np.flatnonzero(directed)
     if len(k_dir) == 0:
-        return out
+        return out, 1.0, 1.0
     e = np.asarray(ends, dtype=np.int64).reshape(-1, 2)
     half = np.maximum(np.asarray(length, dtype=np.float64), 1.0) / 2.0
     weight = 2.0 * half
@@ -327,10 +364,12 @@ def _shorten(n_nodes: int, ends: list[tuple[int, int]], length: F64, forward: B,
     d2 = dijkstra(two_way, directed=True, indices=mid)[:, mid]
     pairs = np.isfinite(d2)
     np.fill_diagonal(pairs, False)
+    two_cost = float((d2[pairs] * np.outer(weight, weight)[pairs]).sum())
     graph, _ = _midpoint_graph(n_nodes, e, half, out, directed)
     best = _detour_cost(graph, mid, weight, pairs)
+    start = best / two_cost if two_cost > 0 else 1.0
     if not math.isfinite(best):
-        return out  # not strongly connected to start with: nothing to keep
+        return out, math.inf, math.inf  # not strongly connected to start with
     for _ in range(SHORT_PASSES):
         taken = False
         for k in k_dir.tolist():
@@ -351,7 +390,7 @@ def _shorten(n_nodes: int, ends: list[tuple[int, int]], length: F64, forward: B,
                     break
         if not taken:
             break
-    return out
+    return out, start, best / two_cost if two_cost > 0 else 1.0
 
 
 def _multigraph(n_nodes: int, ends: list[tuple[int, int]], bridge: B) -> tuple[nx.MultiGraph, B]:
@@ -605,7 +644,9 @@ def one_way(
     orient : {'dfs', 'short'}
         The one-way streets' directions (:data:`ORIENTS`): 'dfs' (the default), a
         depth-first search's strongly connected orientation; 'short', that one with
-        shorter detours (:func:`_shorten`).
+        shorter detours (:func:`_shorten`), at a cost growing about with the cube of
+        the one-way streets' number (each flip tried runs a shortest-path search from
+        every street's midpoint), on top of the 'dfs' build.
 
     Returns
     -------
@@ -721,11 +762,21 @@ def one_way(
         box, pix = cells_of(segment, seg_box, s)
         widths[s] = 2.0 * float(np.median(clearance[box][pix]))
     directed = ~bridge & (widths < 2.0 * turn_radius)
+    search: Search | None = None
+    if orient == "short":
+        search = Search(streets=0, flipped=0, before=1.0, after=1.0)
     if orient == "short" and valid:
         # A street's length: its skeleton cells (a diagonal step counts as one).
         seg_len = np.bincount(segment[segment >= 0], minlength=n_segments).astype(np.float64)
-        forward[valid] = _shorten(
-            n_nodes, [ends[k] for k in valid], seg_len[valid], forward[valid], directed[valid]
+        dfs_forward = forward[valid].copy()
+        forward[valid], before, after = _shorten(
+            n_nodes, [ends[k] for k in valid], seg_len[valid], dfs_forward, directed[valid]
+        )
+        search = Search(
+            streets=int(directed[valid].sum()),
+            flipped=int((forward[valid] != dfs_forward).sum()),
+            before=before,
+            after=after,
         )
     stubs = dead_end & (widths < 2.0 * turn_radius)
     # A junction beyond a stub whose streets are all stubs: the stub's far end.
@@ -828,4 +879,5 @@ def one_way(
         in_graph=np.array([e[0] >= 0 for e in ends], dtype=bool),
         two_way=free & mask,
         stub_ends=stub_ends,
+        search=search,
     )

@@ -312,7 +312,9 @@ class PatrolConfig:
     #: connected (:data:`~sonarmap.patrol.oneway.ORIENTS`): 'dfs' (the default), a
     #: depth-first search's, with no regard to detours; 'short', that one improved by a
     #: local search that shortens the paths between the streets
-    #: (:func:`~sonarmap.patrol.oneway.one_way`). Read only when ``one_way`` is on.
+    #: (:func:`~sonarmap.patrol.oneway.one_way`), whose cost at the run's start grows
+    #: about with the cube of the number of one-way streets. Read only when
+    #: ``one_way`` is on.
     one_way_orient: str = "dfs"
     #: Track: a car does not drive into a dead-end stub (narrower than the turning
     #: circle, :attr:`~sonarmap.patrol.oneway.OneWay.stubs`) for a place it can see from
