@@ -11,38 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import building_cells, drawn_building
 from sonarmap.cli import main
-from sonarmap.grid import Grid
-from sonarmap.io.rosmap import FREE, OccupancyMap, write_map
+from sonarmap.io.rosmap import FREE, write_map
 from sonarmap.team.config import MissionConfig
 from sonarmap.team.mission import RobotAgent
 from sonarmap.team.regions import mission_regions
 from sonarmap.team.territory import default_territory
-
-#: An 8 x 6 m building of two rooms (a 1.2 m door between them, a 1.2 m entrance in
-#: the south wall), one-cell walls at 0.1 m, 5 m of outside all round.
-BUILDING = (0.0, 0.0, 8.0, 6.0)
-
-
-def _plan(outside: float) -> OccupancyMap:
-    """The building with its outside at occupancy ``outside`` (0 free, 0.5 unknown)."""
-    grid = Grid.from_bounds(-5.0, -5.0, 13.0, 11.0, 0.1)
-    occ = np.full(grid.shape, outside, dtype=np.float32)
-    x, y = grid.all_centres()
-    x0, y0, x1, y1 = BUILDING
-    ring = (x > x0) & (x < x1) & (y > y0) & (y < y1)
-    inner = (x > x0 + 0.1) & (x < x1 - 0.1) & (y > y0 + 0.1) & (y < y1 - 0.1)
-    occ[ring] = 0.0
-    occ[ring & ~inner] = 1.0
-    occ[ring & (y < y0 + 0.1) & (np.abs(x - 6.0) < 0.6)] = 0.0
-    occ[ring & (np.abs(x - 4.05) < 0.05) & ~((y > 2.4) & (y < 3.6))] = 1.0
-    return OccupancyMap(grid, occ)
-
-
-def _building(plan: OccupancyMap) -> np.ndarray:
-    x, y = plan.grid.all_centres()
-    x0, y0, x1, y1 = BUILDING
-    return np.asarray((x > x0) & (x < x1) & (y > y0) & (y < y1))
 
 
 def _regions(labels: np.ndarray) -> int:
@@ -50,12 +25,12 @@ def _regions(labels: np.ndarray) -> int:
 
 
 def test_a_drawn_plans_outside_is_in_no_region() -> None:
-    plan = _plan(outside=0.0)
+    plan = drawn_building(outside=0.0)
     terr = default_territory(plan)
     assert terr is not None
     whole = mission_regions(plan)
     inside = mission_regions(plan, region=terr.region)
-    building = _building(plan)
+    building = building_cells(plan)
     # The whole prior's cut sizes the outside (about 240 m^2 of free) in regions.
     assert (whole[~building] >= 0).sum() * 0.01 > 200
     assert ((inside >= 0) <= terr.region).all()
@@ -69,7 +44,7 @@ def test_a_drawn_plans_outside_is_in_no_region() -> None:
 
 
 def test_the_mission_cuts_its_regions_inside_the_territory_it_is_given() -> None:
-    plan = _plan(outside=0.0)
+    plan = drawn_building(outside=0.0)
     terr = default_territory(plan)
     assert terr is not None
     cfg = MissionConfig(duration=10.0, seed=0)
@@ -81,10 +56,10 @@ def test_the_mission_cuts_its_regions_inside_the_territory_it_is_given() -> None
 
 
 def test_a_slam_like_maps_regions_are_unchanged() -> None:
-    plan = _plan(outside=0.5)
+    plan = drawn_building(outside=0.5)
     assert default_territory(plan) is None
     free = plan.classes() == FREE
-    assert not (free & ~_building(plan)).any()
+    assert not (free & ~building_cells(plan)).any()
     agent = RobotAgent(plan, MissionConfig(duration=10.0, seed=0))
     np.testing.assert_array_equal(agent.labels, mission_regions(plan))
     # A mask over the whole map cuts what no mask cuts.
@@ -94,7 +69,7 @@ def test_a_slam_like_maps_regions_are_unchanged() -> None:
 
 @pytest.mark.parametrize("robots", [1, 2])
 def test_team_run_counts_only_the_territorys_regions(tmp_path: Path, robots: int) -> None:
-    plan = _plan(outside=0.0)
+    plan = drawn_building(outside=0.0)
     write_map(plan, tmp_path / "plan")
     terr = default_territory(plan)
     assert terr is not None
@@ -111,6 +86,6 @@ def test_team_run_counts_only_the_territorys_regions(tmp_path: Path, robots: int
 
 
 def test_a_mask_of_another_shape_is_refused() -> None:
-    plan = _plan(outside=0.0)
+    plan = drawn_building(outside=0.0)
     with pytest.raises(ValueError, match="territory mask"):
         mission_regions(plan, region=np.ones((3, 3), dtype=bool))
