@@ -15,7 +15,9 @@ from conftest import building_cells, drawn_building
 from sonarmap.cli import main
 from sonarmap.io.rosmap import FREE, write_map
 from sonarmap.team.config import MissionConfig
+from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.mission import RobotAgent
+from sonarmap.team.node import state_fingerprint
 from sonarmap.team.regions import mission_regions
 from sonarmap.team.territory import default_territory
 
@@ -89,3 +91,22 @@ def test_a_mask_of_another_shape_is_refused() -> None:
     plan = drawn_building(outside=0.0)
     with pytest.raises(ValueError, match="territory mask"):
         mission_regions(plan, region=np.ones((3, 3), dtype=bool))
+
+
+#: ``state_fingerprint`` of the test's inputs without a mask, and with the building's
+#: cells as the mask, computed at 185bcdf (before the regions were cut inside the
+#: territory) from a scratch ``git archive`` of that commit.
+BASE_PRINT = "81b02f87d03e3c05da851cb7527a79e7653eb3ea2d2240ae251edfdd71681915"
+BASE_PRINT_MASKED = "60ecafbb889cc5f11cc7ec533d2ffa73a9a6f526cd78c0995a8fb2a1a7939de5"
+
+
+def test_a_node_states_fingerprint_changes_only_with_a_mask() -> None:
+    """States saved without a mask resume as before; those saved with one before the
+    regions were cut inside it are another mission's."""
+    plan = drawn_building()
+    route = np.array([[0.0, 2.0, 3.0, 0.0], [1.0, 2.5, 3.0, 0.0]])
+    cfg = MissionConfig(duration=5.0, seed=1)
+    args = (plan, cfg, 0, [0], ExchangeParams(), [route])
+    assert state_fingerprint(*args) == BASE_PRINT
+    masked = state_fingerprint(*args, region=building_cells(plan))
+    assert masked not in (BASE_PRINT, BASE_PRINT_MASKED)
