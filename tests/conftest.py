@@ -122,11 +122,13 @@ def training_sweep(method: str, settings: dict[str, dict[str, Any]]) -> pd.DataF
 BUILDING = (0.0, 0.0, 8.0, 6.0)
 
 
-def drawn_building(outside: float = 0.0, entrance: bool = True, width: float = 1.2) -> OccupancyMap:
-    """The test building drawn at 0.1 m with 5 m of outside all round, the outside at
-    occupancy ``outside`` (0 free, 0.5 unknown) and the entrance ``width`` metres wide
-    (none when ``entrance`` is false)."""
-    grid = Grid.from_bounds(-5.0, -5.0, 13.0, 11.0, 0.1)
+def drawn_building(
+    outside: float = 0.0, entrance: bool = True, width: float = 1.2, res: float = 0.1
+) -> OccupancyMap:
+    """The test building drawn at ``res`` metres (0.1; walls 0.1 m thick at 0.05 too)
+    with 5 m of outside all round, the outside at occupancy ``outside`` (0 free, 0.5
+    unknown) and the entrance ``width`` metres wide (none when ``entrance`` is false)."""
+    grid = Grid.from_bounds(-5.0, -5.0, 13.0, 11.0, res)
     occ = np.full(grid.shape, outside, dtype=np.float32)
     x, y = grid.all_centres()
     x0, y0, x1, y1 = BUILDING

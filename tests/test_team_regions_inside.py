@@ -13,13 +13,13 @@ import pytest
 
 from conftest import building_cells, drawn_building
 from sonarmap.cli import main
-from sonarmap.io.rosmap import FREE, write_map
+from sonarmap.io.rosmap import FREE, OccupancyMap, read_map, write_map
 from sonarmap.team.config import MissionConfig
 from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.mission import RobotAgent
 from sonarmap.team.node import state_fingerprint
 from sonarmap.team.regions import mission_regions
-from sonarmap.team.territory import default_territory
+from sonarmap.team.territory import default_territory, mask_on
 
 
 def _regions(labels: np.ndarray) -> int:
@@ -110,3 +110,53 @@ def test_a_node_states_fingerprint_changes_only_with_a_mask() -> None:
     assert state_fingerprint(*args) == BASE_PRINT
     masked = state_fingerprint(*args, region=building_cells(plan))
     assert masked not in (BASE_PRINT, BASE_PRINT_MASKED)
+
+
+def _run_regions(plan_yaml: Path, out: Path, *extra: str) -> set[int]:
+    main(["team", "run", "--map", str(plan_yaml), "--duration", "8", "-o", str(out), *extra])
+    rows = json.loads((out / "summary.json").read_text())["robots"]
+    return {row["regions"] for row in rows}
+
+
+def test_a_prior_at_another_resolution_is_cut_inside_the_territory(tmp_path: Path) -> None:
+    """``--prior``: the plan's footprint put on the prior's cells is where its regions
+    are cut."""
+    plan = drawn_building()
+    write_map(plan, tmp_path / "plan")
+    write_map(drawn_building(res=0.05), tmp_path / "prior")
+    prior = read_map(tmp_path / "prior.yaml")
+    terr = default_territory(plan)
+    assert terr is not None
+    inside = mission_regions(prior, region=mask_on(terr.region, plan.grid, prior.grid))
+    prior_yaml = str(tmp_path / "prior.yaml")
+    got = _run_regions(tmp_path / "plan.yaml", tmp_path / "out", "--prior", prior_yaml)
+    assert got == {_regions(inside)}
+    assert got != {_regions(mission_regions(prior))}
+
+
+def test_team_run_on_a_slam_like_map_reports_the_whole_priors_regions(tmp_path: Path) -> None:
+    plan = drawn_building(outside=0.5)
+    write_map(plan, tmp_path / "plan")
+    got = _run_regions(tmp_path / "plan.yaml", tmp_path / "out")
+    assert got == {_regions(mission_regions(read_map(tmp_path / "plan.yaml")))}
+
+
+def test_a_prior_with_no_free_cell_inside_the_territory_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Its regions could not be cut inside the territory: one line naming --prior, exit
+    2, nothing written."""
+    plan = drawn_building()
+    write_map(plan, tmp_path / "plan")
+    # Free only outside the building: the prior does not match the plan.
+    occ = np.where(building_cells(plan), 1.0, 0.0).astype(np.float32)
+    write_map(OccupancyMap(plan.grid, occ), tmp_path / "prior")
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as e:
+        _run_regions(tmp_path / "plan.yaml", out, "--prior", str(tmp_path / "prior.yaml"))
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert "--prior" in err, err
+    assert "territory" in err, err
+    assert len(err.splitlines()) == 1, err
+    assert not out.exists()
