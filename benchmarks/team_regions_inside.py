@@ -23,6 +23,12 @@ Run with ``python -m benchmarks.team_regions_inside --out DIR [--pictures]``:
 - with ``--pictures``, draws ``DIR/regions-NAME.png`` per map: the regions of both cuts
   in colours over the plan's walls, the territory's outline in red.
 
+``python -m benchmarks.team_regions_inside --out DIR --prior-error SPEC...
+[--prior-map scanned:1] [--seed 0]`` prints, per spec, the regions of the prior
+``team run --prior-error SPEC --seed SEED`` makes of the stand-in, cut from the whole
+prior and inside the plan's footprint put on the prior's cells, with the prior's free
+area in a region inside and outside the prior's own footprint.
+
 ``python -m benchmarks.team_regions_inside --runs RUN...`` prints one row per
 ``sonarmap team run`` output folder (one robot): regions, regions used, the own layer's
 peak against its bound, ATE against odometry's, association precision and recall, map
@@ -41,12 +47,19 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 import numpy.typing as npt
 
-from benchmarks.team_territory import DURATION, SHARED, STANDINS, write_inputs
-from sonarmap.io.rosmap import OCCUPIED, OccupancyMap, read_map
+from benchmarks.team_territory import (
+    DURATION,
+    SHARED,
+    STANDINS,
+    pyplot_and_extent,
+    write_inputs,
+)
+from sonarmap.io.rosmap import FREE, OCCUPIED, OccupancyMap, read_map
+from sonarmap.team.prior import degrade_plan, parse_prior_error
 from sonarmap.team.regions import mission_regions, region_sizes
 from sonarmap.team.store import StoreParams, local_bound, region_limits
 from sonarmap.team.survey import survey
-from sonarmap.team.territory import default_territory
+from sonarmap.team.territory import default_territory, mask_on
 from sonarmap.team.world import World, make_world, patrol_route
 
 SHARED_MAPS = ("depot", "warehouse", "tb3_sandbox")
@@ -168,14 +181,7 @@ def draw(
     path: Path,
 ) -> None:
     """Both cuts side by side over the plan's walls, the territory's outline in red."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    g = plan.grid
-    x0, y0 = g.origin
-    extent = (x0, x0 + g.cols * g.resolution, y0, y0 + g.rows * g.resolution)
+    plt, extent = pyplot_and_extent(plan)
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
     for ax, labels, title in zip(
         axes, (whole, inside), ("cut from the whole prior", "cut inside the territory"),
@@ -199,6 +205,43 @@ def draw(
     fig.tight_layout()
     fig.savefig(path, dpi=70)
     plt.close(fig)
+
+
+def prior_error_table(folder: Path, specs: list[str], label: str, seed: int) -> None:
+    """Per ``--prior-error`` spec, the prior ``team run --seed SEED`` makes of the
+    stand-in ``label`` (:func:`sonarmap.team.prior.degrade_plan`), cut whole and inside
+    the plan's footprint put on the prior's cells (:func:`sonarmap.team.territory.mask_on`,
+    as the mission does): the regions, and the prior's free area in a region inside
+    and outside the prior's own footprint (:func:`default_territory` of the prior)."""
+    write_inputs(folder)
+    plan = read_map(folder / f"{STANDINS[label][0]}.yaml")
+    terr = default_territory(plan)
+    if terr is None:
+        raise SystemExit(f"--prior-map {label}: no default territory")
+    print(
+        "| map | seed | --prior-error | cut | regions | prior's building free area in a "
+        "region, m^2 | prior's outside free area in a region, m^2 |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for spec in specs:
+        prior, _ = degrade_plan(plan, parse_prior_error(spec, seed=seed))
+        own = default_territory(prior)
+        if own is None:
+            raise SystemExit(f"--prior-error {spec}: the prior has no footprint of its own")
+        free = prior.classes() == FREE
+        cell = prior.grid.resolution**2
+        mask = mask_on(terr.region, plan.grid, prior.grid)
+        for cut, labels in (
+            ("whole prior", mission_regions(prior)),
+            ("plan's footprint on the prior", mission_regions(prior, region=mask)),
+        ):
+            held = free & (labels >= 0)
+            cells = [
+                f"{_regions(labels)}",
+                f"{(held & own.region).sum() * cell:,.1f}",
+                f"{(held & ~own.region).sum() * cell:,.1f}",
+            ]
+            print(f"| {label} | {seed} | {spec} | {cut} | " + " | ".join(cells) + " |", flush=True)
 
 
 def runs_table(runs: list[Path]) -> None:
@@ -230,7 +273,22 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", type=Path, help="folder for the stand-in maps and pictures")
     p.add_argument("--pictures", action="store_true", help="draw DIR/regions-NAME.png")
     p.add_argument("--runs", type=Path, nargs="+", help="team run folders to summarise")
+    p.add_argument(
+        "--prior-error",
+        nargs="+",
+        metavar="SPEC",
+        help="with --out: the regions of the prior each spec makes (team run's --prior-error)",
+    )
+    p.add_argument(
+        "--prior-map", default="scanned:1", choices=list(STANDINS), help="for --prior-error"
+    )
+    p.add_argument("--seed", type=int, default=0, help="for --prior-error (team run's --seed)")
     a = p.parse_args(argv)
+    if a.prior_error:
+        if a.out is None:
+            p.error("--prior-error needs --out")
+        prior_error_table(a.out / "maps", a.prior_error, a.prior_map, a.seed)
+        return
     if a.runs:
         runs_table(a.runs)
         return

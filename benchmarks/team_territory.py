@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -148,11 +149,9 @@ def shares(folder: Path, seeds: list[int], picture: Path | None) -> None:
         pieces(plan, region)
 
 
-def _draw(
-    plan: OccupancyMap,
-    runs: list[tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]],
-    path: Path,
-) -> None:
+def pyplot_and_extent(plan: OccupancyMap) -> tuple[Any, tuple[float, float, float, float]]:
+    """Matplotlib's pyplot on the file-only backend, and ``plan``'s extent (x min, x
+    max, y min, y max, metres) for ``imshow`` with ``origin="upper"``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -160,7 +159,15 @@ def _draw(
 
     g = plan.grid
     x0, y0 = g.origin
-    extent = (x0, x0 + g.cols * g.resolution, y0, y0 + g.rows * g.resolution)
+    return plt, (x0, x0 + g.cols * g.resolution, y0, y0 + g.rows * g.resolution)
+
+
+def _draw(
+    plan: OccupancyMap,
+    runs: list[tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]],
+    path: Path,
+) -> None:
+    plt, extent = pyplot_and_extent(plan)
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
     titles = ("no mask", "--territory (outline)")
     for ax, (route, points), title in zip(axes, runs, titles, strict=True):

@@ -115,3 +115,35 @@ def training_sweep(method: str, settings: dict[str, dict[str, Any]]) -> pd.DataF
                     }
                 )
     return pd.DataFrame(rows)
+
+
+#: The drawn test building (x0, y0, x1, y1 metres): 8 x 6 m, one-cell walls, a 1.2 m
+#: door between its two rooms and an entrance in its south wall centred at x = 6 m.
+BUILDING = (0.0, 0.0, 8.0, 6.0)
+
+
+def drawn_building(
+    outside: float = 0.0, entrance: bool = True, width: float = 1.2, res: float = 0.1
+) -> OccupancyMap:
+    """The test building drawn at ``res`` metres (0.1; walls 0.1 m thick at 0.05 too)
+    with 5 m of outside all round, the outside at occupancy ``outside`` (0 free, 0.5
+    unknown) and the entrance ``width`` metres wide (none when ``entrance`` is false)."""
+    grid = Grid.from_bounds(-5.0, -5.0, 13.0, 11.0, res)
+    occ = np.full(grid.shape, outside, dtype=np.float32)
+    x, y = grid.all_centres()
+    x0, y0, x1, y1 = BUILDING
+    ring = (x > x0) & (x < x1) & (y > y0) & (y < y1)
+    inner = (x > x0 + 0.1) & (x < x1 - 0.1) & (y > y0 + 0.1) & (y < y1 - 0.1)
+    occ[ring] = 0.0
+    occ[ring & ~inner] = 1.0
+    if entrance:
+        occ[ring & (y < y0 + 0.1) & (np.abs(x - 6.0) < 0.5 * width)] = 0.0
+    occ[ring & (np.abs(x - 4.05) < 0.05) & ~((y > 2.4) & (y < 3.6))] = 1.0
+    return OccupancyMap(grid, occ)
+
+
+def building_cells(plan: OccupancyMap) -> np.ndarray:
+    """The cells of ``plan`` inside the test building's outer outline, walls included."""
+    x, y = plan.grid.all_centres()
+    x0, y0, x1, y1 = BUILDING
+    return np.asarray((x > x0) & (x < x1) & (y > y0) & (y < y1))

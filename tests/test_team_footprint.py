@@ -12,53 +12,26 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from conftest import building_cells, drawn_building
 from sonarmap.cli import main
-from sonarmap.grid import Grid
 from sonarmap.io.rosmap import FREE, OccupancyMap, write_map
 from sonarmap.team.launcher import node_territory
 from sonarmap.team.territory import default_territory, footprint, read_territory, territory_of
 from sonarmap.team.world import make_world, patrol_route, world_territory
 
-#: The building: 8 x 6 m, one-cell walls, a 1.2 m entrance in its south wall and a
-#: 1.2 m door between its two rooms, drawn at 0.1 m with 5 m of free outside all round.
-BUILDING = (0.0, 0.0, 8.0, 6.0)
-
-
-def _plan(outside: float = 0.0, entrance: bool = True, width: float = 1.2) -> OccupancyMap:
-    """The building drawn with its outside at ``outside`` (0 free, 0.5 unknown) and its
-    entrance ``width`` metres wide (centred at x = 6 m)."""
-    grid = Grid.from_bounds(-5.0, -5.0, 13.0, 11.0, 0.1)
-    occ = np.full(grid.shape, outside, dtype=np.float32)
-    x, y = grid.all_centres()
-    x0, y0, x1, y1 = BUILDING
-    ring = (x > x0) & (x < x1) & (y > y0) & (y < y1)
-    inner = (x > x0 + 0.1) & (x < x1 - 0.1) & (y > y0 + 0.1) & (y < y1 - 0.1)
-    occ[ring] = 0.0
-    occ[ring & ~inner] = 1.0
-    if entrance:
-        occ[ring & (y < y0 + 0.1) & (np.abs(x - 6.0) < 0.5 * width)] = 0.0
-    occ[ring & (np.abs(x - 4.05) < 0.05) & ~((y > 2.4) & (y < 3.6))] = 1.0
-    return OccupancyMap(grid, occ)
-
-
-def _inside(plan: OccupancyMap) -> np.ndarray:
-    x, y = plan.grid.all_centres()
-    x0, y0, x1, y1 = BUILDING
-    return np.asarray((x > x0) & (x < x1) & (y > y0) & (y < y1))
-
 
 def test_the_entrance_joins_inside_and_outside() -> None:
     """Why a flood fill from the border is not enough: every free cell reaches it."""
-    free = _plan().classes() == FREE
+    free = drawn_building().classes() == FREE
     _, n = ndimage.label(free, structure=np.ones((3, 3), dtype=bool))
     assert n == 1
 
 
 def test_the_footprint_leaves_out_a_drawn_outside_through_an_open_entrance() -> None:
-    plan = _plan()
+    plan = drawn_building()
     fp = footprint(plan)
     assert fp.drawn, fp.why
-    free, inside = plan.classes() == FREE, _inside(plan)
+    free, inside = plan.classes() == FREE, building_cells(plan)
     left = free & ~fp.region
     assert (left & ~inside).sum() / (free & ~inside).sum() > 0.99
     # At most the notch at the entrance: under 1 % of the inside's free area.
@@ -82,13 +55,13 @@ def test_the_footprint_leaves_out_a_drawn_outside_through_an_open_entrance() -> 
 
 def _walled_border() -> OccupancyMap:
     """The plan with walls on the image's edge: no free margin all round."""
-    occ = np.asarray(_plan().occupancy).copy()
+    occ = np.asarray(drawn_building().occupancy).copy()
     occ[0, :] = occ[-1, :] = occ[:, 0] = occ[:, -1] = 1.0
-    return OccupancyMap(_plan().grid, occ)
+    return OccupancyMap(drawn_building().grid, occ)
 
 
 @pytest.mark.parametrize(
-    ("plan", "why"), [(_plan(outside=0.5), "unknown cells"), (_walled_border(), "border")]
+    ("plan", "why"), [(drawn_building(outside=0.5), "unknown cells"), (_walled_border(), "border")]
 )
 def test_maps_that_are_not_drawn_plans_are_left_whole(plan: OccupancyMap, why: str) -> None:
     fp = footprint(plan)
@@ -98,7 +71,7 @@ def test_maps_that_are_not_drawn_plans_are_left_whole(plan: OccupancyMap, why: s
 
 
 def test_a_drawing_with_its_walls_in_pieces_is_left_whole() -> None:
-    plan = _plan()
+    plan = drawn_building()
     occ = np.asarray(plan.occupancy).copy()
     # 0.3 m posts over the outside north of the building, 2 m apart (farther than a
     # door): not one building.
@@ -113,7 +86,7 @@ def test_a_drawing_with_its_walls_in_pieces_is_left_whole() -> None:
 def test_team_run_takes_the_footprint_by_default_and_none_turns_it_off(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    write_map(_plan(), tmp_path / "plan")
+    write_map(drawn_building(), tmp_path / "plan")
     out = tmp_path / "run"
     main(["team", "run", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
           "-o", str(out)])  # fmt: skip
@@ -136,7 +109,7 @@ def test_team_run_takes_the_footprint_by_default_and_none_turns_it_off(
 
 
 def test_a_users_route_skips_the_default_and_says_so(tmp_path: Path) -> None:
-    plan = _plan()
+    plan = drawn_building()
     write_map(plan, tmp_path / "plan")
     route = patrol_route(plan, 8.0, seed=0)
     path = tmp_path / "route.csv"
@@ -153,7 +126,7 @@ def test_a_users_route_skips_the_default_and_says_so(tmp_path: Path) -> None:
 
 def test_a_world_made_inside_the_footprint_keeps_it_in_team_run(tmp_path: Path) -> None:
     """'team world' applies the default; 'team run --world' reuses the mask it wrote."""
-    plan = _plan()
+    plan = drawn_building()
     write_map(plan, tmp_path / "plan")
     world = tmp_path / "world"
     main(["team", "world", "--map", str(tmp_path / "plan.yaml"), "--duration", "8",
@@ -177,7 +150,7 @@ def test_a_world_made_inside_the_footprint_keeps_it_in_team_run(tmp_path: Path) 
 def test_the_launchers_node_arguments_give_the_nodes_its_mask(tmp_path: Path) -> None:
     """The mask the launcher draws routes in is the one its nodes' --territory (as
     'team node' reads it) gives, for no option, 'none' and a file."""
-    plan = _plan()
+    plan = drawn_building()
     outline = tmp_path / "inside.txt"
     outline.write_text("0 0\n8 0\n8 6\n0 6\n")
     for value in (None, "none", outline):
@@ -196,9 +169,9 @@ def test_an_entrance_wider_than_a_door_leaves_the_plan_whole(width: float) -> No
     """The door-wide disc does not bridge it, so its footprint would leave the rooms
     behind out with the outside; the 4 m disc's footprint keeps them, and the two
     disagree."""
-    plan = _plan(width=width)
+    plan = drawn_building(width=width)
     fp = footprint(plan)
-    free, inside = plan.classes() == FREE, _inside(plan)
+    free, inside = plan.classes() == FREE, building_cells(plan)
     # What the footprint alone would cut: over a third of the inside's free area.
     assert (free & inside & ~fp.region).sum() / (free & inside).sum() > 0.3
     assert not fp.drawn
@@ -207,7 +180,7 @@ def test_an_entrance_wider_than_a_door_leaves_the_plan_whole(width: float) -> No
 
 
 def test_a_door_wide_entrance_is_still_cut() -> None:
-    fp = footprint(_plan(width=1.2))
+    fp = footprint(drawn_building(width=1.2))
     assert fp.drawn, fp.why
     assert fp.disagreement < 0.01
     assert fp.reach is not None

@@ -18,6 +18,7 @@ from sonarmap.team.launcher import run_zmq_team
 from sonarmap.team.mission import MissionConfig
 from sonarmap.team.node import load_routes, run_node
 from sonarmap.team.patrolling import patrol_routes
+from sonarmap.team.regions import mission_regions
 from sonarmap.team.territory import mask_on, read_territory
 from sonarmap.team.world import make_world, patrol_route
 
@@ -205,6 +206,11 @@ def test_a_node_state_belongs_to_its_territory_mask(files: Path, tmp_path: Path)
                         insecure=True)  # fmt: skip
 
     first = node(mask)
+    # The node cuts the prior's regions inside its mask, as the simulated team does.
+    row = first["row"]
+    assert isinstance(row, dict)
+    assert row["regions"] == int(mission_regions(plan, region=mask).max()) + 1
+    assert row["regions"] < int(mission_regions(plan).max()) + 1
     for other in (left, None):
         with pytest.raises(InputError, match="territory mask"):
             node(other)

@@ -15,7 +15,7 @@ import typer
 from ..errors import ConfigError, InputError, quote
 from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..io.record import make_recorder
-from ..io.rosmap import OccupancyMap, write_map
+from ..io.rosmap import FREE, OccupancyMap, write_map
 from ..team.config import MAX_DURATION, MAX_ROBOTS, team_size_problem
 from ..team.exchange import ExchangeParams
 from ..team.mission import MissionConfig, run_mission
@@ -33,6 +33,7 @@ from ..team.territory import (
     default_territory,
     is_no_territory,
     load_territory,
+    mask_on,
     territory_of,
 )
 from ..team.world import (
@@ -667,6 +668,25 @@ def _prior(
     return prior, desc
 
 
+def _prior_in_territory(
+    plan: OccupancyMap,
+    prior: OccupancyMap | None,
+    region: npt.NDArray[np.bool_] | None,
+    where: str,
+) -> None:
+    """Refuse, in one line naming ``where``, a prior none of whose free cells lies
+    inside the territory ``region`` (a mask on the plan's cells) put on its cells: its
+    regions could not be cut inside the territory (a prior that does not match the
+    plan). Nothing to check without a prior or a mask."""
+    if prior is None or region is None:
+        return
+    if not ((prior.classes() == FREE) & mask_on(region, plan.grid, prior.grid)).any():
+        raise ConfigError(
+            f"{where}: no free cell of the prior lies inside the territory, so its "
+            "regions cannot be cut inside it (does the prior match the map?)"
+        )
+
+
 def _drawn(
     plan: OccupancyMap,
     map_: Path,
@@ -827,6 +847,12 @@ def run_cmd(
     mask, territory_desc = _run_territory(territory, plan, route, world_dir)
     region = None if mask is None else mask.region
     prior, prior_desc = _prior(plan, prior_path, prior_error, seed, resolution, origin)
+    _prior_in_territory(
+        plan,
+        prior,
+        region,
+        f"--prior-error {prior_error}" if prior_error is not None else f"--prior {prior_path}",
+    )
     world = None
     routes: dict[int, Any] = {}
     if world_dir is not None:
@@ -1095,6 +1121,7 @@ def node_cmd(
     mask = _territory(territory, plan)
     region = None if mask is None else mask.region
     prior, _ = _prior(plan, prior_path, None, seed, resolution, origin)
+    _prior_in_territory(plan, prior, region, f"--prior {prior_path}")
     config = _mission_config(duration, seed, store, pcm)
     with progress(f"robot {robot}") as update:
         s = run_node(

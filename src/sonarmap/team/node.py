@@ -107,6 +107,7 @@ __all__ = [
     "route_truth",
     "run_node",
     "save_routes",
+    "state_fingerprint",
     "store_digest",
 ]
 
@@ -268,7 +269,7 @@ def store_digest(store: RobotStore) -> str:
     return h.hexdigest()
 
 
-def _fingerprint(
+def state_fingerprint(
     plan: OccupancyMap,
     cfg: MissionConfig,
     robot: int,
@@ -278,8 +279,36 @@ def _fingerprint(
     prior: OccupancyMap | None = None,
     region: npt.NDArray[np.bool_] | None = None,
 ) -> str:
-    """What a state file must belong to: the same plan, prior, mission, team, routes,
-    exchange and territory mask (the landmarks are drawn and the regions cut inside it)."""
+    """The fingerprint a node's state file is tied to: what it must belong to.
+
+    A state resumes only under the same plan, prior, mission, team, routes, exchange
+    and territory mask (the landmarks are drawn and the regions cut inside the mask).
+
+    Parameters
+    ----------
+    plan : OccupancyMap
+        The floor plan (its cells and frame: origin, resolution, shape).
+    cfg : MissionConfig
+        The mission's settings.
+    robot : int
+        The node's robot number.
+    ids : sequence of int
+        The team's robot numbers.
+    ex : ExchangeParams
+        The exchange's settings.
+    routes : sequence of ndarray
+        The team's routes, one ``(n, 4)`` array of ``t, x, y, theta`` per robot.
+    prior : OccupancyMap, optional
+        The robots' prior map, when it is not the plan (default None).
+    region : ndarray of bool, optional
+        The territory mask on the plan's cells (default None: no mask). Without a
+        mask neither the mask nor the marker of regions cut inside it is hashed.
+
+    Returns
+    -------
+    str
+        The SHA-256 hex digest.
+    """
     h = hashlib.sha256()
     for m in (plan,) if prior is None else (plan, prior):
         # The frame too: the same cells at another origin or resolution are another map.
@@ -446,7 +475,9 @@ class _Node:
             settle=self.settle,
             request_every=self.exchange.request_every,
         )
-        self.fingerprint = _fingerprint(plan, cfg, robot, ids, self.exchange, routes, prior, region)
+        self.fingerprint = state_fingerprint(
+            plan, cfg, robot, ids, self.exchange, routes, prior, region
+        )
         self.last_checkpoint = time.monotonic()
 
     def _views(self) -> None:

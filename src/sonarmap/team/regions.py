@@ -334,7 +334,7 @@ def mission_regions(
         prior). The robot's centre stays inside it and no free cell outside it is in a
         region, so a drawn plan's free outside is not cut. When the robot fits nowhere
         inside it, its free cells are cut; when it holds no free cell, the whole prior
-        is cut as without a mask.
+        is cut as without a mask (``team run`` and ``team node`` refuse such a prior).
     """
     free = prior.classes() == FREE
     if region is not None:
