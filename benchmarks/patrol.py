@@ -25,6 +25,12 @@ With ``--profile SECONDS`` it measures nothing of the above: for each cell size 
 then ``SECONDS`` simulated seconds of the same setting under ``cProfile``, and prints
 that run's CPU seconds and the profile's 30 lines of most time spent in a function
 itself (``tottime``).
+
+With ``--setup REPEAT`` it measures nothing of the above either: for each cell size it
+runs 5 simulated seconds untimed, then ``REPEAT`` runs of 0.5 simulated seconds (5
+steps) timed as the speed run is (``time.process_time`` over the ``run_patrol`` call):
+about what a run's own set-up (the territory's one-way streets, reach and the rest
+``run_patrol`` builds) adds to the CPU seconds above.
 """
 
 from __future__ import annotations
@@ -156,6 +162,14 @@ def profile(
     pstats.Stats(prof).sort_stats("tottime").print_stats(lines)
 
 
+def setup(cell: float, repeat: int, seed: int, leftover: float = 0.0) -> list[float]:
+    """The CPU seconds of ``repeat`` timed ``run_patrol`` calls of 0.5 simulated seconds
+    at ``cell`` metres, after an untimed 5 s (``leftover``: the cars' option, metres;
+    default 0)."""
+    _run(cell, 5.0, True, seed, leftover)
+    return [_run(cell, 0.5, True, seed, leftover)[2] for _ in range(repeat)]
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(prog="python -m benchmarks.patrol", description=__doc__)
     parser.add_argument("--cells", type=float, nargs="+", default=[0.1, 0.5])
@@ -172,7 +186,23 @@ def main(argv: list[str] | None = None) -> None:
         metavar="SECONDS",
         help="Profile a run of this many simulated seconds per cell size instead.",
     )
+    parser.add_argument(
+        "--setup",
+        type=int,
+        metavar="REPEAT",
+        help="Time this many 0.5 s runs per cell size (the set-up's CPU) instead.",
+    )
     args = parser.parse_args(argv)
+    if args.setup is not None:
+        if args.setup < 1:
+            parser.error(f"--setup must be >= 1 runs, got {args.setup}")
+        for c in args.cells:
+            cpu = setup(c, args.setup, args.seed, args.leftover)
+            print(
+                f"setup: fig3-10 at {c} m, 0.5 simulated s, seed {args.seed}: CPU s "
+                + ", ".join(f"{v:.2f}" for v in cpu)
+            )
+        return
     if args.profile is not None:
         if not args.profile > 0:
             parser.error(f"--profile must be > 0 simulated seconds, got {args.profile}")

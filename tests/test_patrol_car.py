@@ -732,15 +732,11 @@ def test_drop_fresh_behind_on_blocks_wholly_behind(behind: float) -> None:
     assert dropped > 20000
 
 
-@pytest.mark.parametrize("behind", [1.75, 2.9])
-def test_drop_fresh_behind_takes_a_block_wholly_behind_without_an_angle_per_cell(
-    monkeypatch: pytest.MonkeyPatch, behind: float
-) -> None:
-    # One block (32 x 32 cells, the top-left one) seen 5 s ago, the rest long ago; the
-    # car 22 m east of it heading east: the block lies wholly behind it. The kernel's
-    # Python twin, with math.sqrt counted, drops all 1024 cells after working out only
-    # the block's 4 corner distances, where the per-cell path would need one a cell:
-    # it fails if the whole-block path is removed or never taken.
+@pytest.fixture
+def counted_sqrt(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """For the test's length, ``patrol.manoeuvre``'s ``math`` is a copy whose
+    ``sqrt`` adds one to the returned list's only entry at each call: what the Python
+    twin (``py_func``) of its kernel calls (compiled code still calls the real one)."""
     import types
 
     import sonarmap.patrol.manoeuvre as manoeuvre
@@ -755,23 +751,39 @@ def test_drop_fresh_behind_takes_a_block_wholly_behind_without_an_angle_per_cell
         **{k: getattr(math, k) for k in dir(math) if not k.startswith("_")}
     )
     fake.sqrt = sqrt
+    # The compiled helper the twin calls is compiled now, with the real math: numba
+    # cannot compile it against the copy (as it would on a cold cache).
+    manoeuvre._off_cone(manoeuvre._cone_sides(0.0, 1.75), 0.0, 0.0, 0.25, 4, 0.0, 0.0, 0, 1, 0, 1)
+    monkeypatch.setattr(manoeuvre, "math", fake)
+    return calls
+
+
+@pytest.mark.parametrize("behind", [1.75, 2.9])
+def test_drop_fresh_behind_takes_a_block_wholly_behind_without_an_angle_per_cell(
+    counted_sqrt: list[int], behind: float
+) -> None:
+    # One block (32 x 32 cells, the top-left one) seen 5 s ago, the rest long ago; the
+    # car 22 m east of it heading east: the block lies wholly behind it. The kernel's
+    # Python twin, with math.sqrt counted, drops all 1024 cells after working out only
+    # the block's 4 corner distances, where the per-cell path would need one a cell:
+    # it fails if the whole-block path is removed or never taken.
+    import sonarmap.patrol.manoeuvre as manoeuvre
+
     shape = (64, 64)
     last = np.zeros(shape)
     last[:32, :32] = 95.0
     latest = np.array([[95.0, 0.0], [0.0, 0.0]])
     mask = np.ones(shape, dtype=np.bool_)
     unsure = np.empty(16, dtype=np.int64)
-    monkeypatch.setattr(manoeuvre, "math", fake)
     n, k = manoeuvre._drop_fresh_behind.py_func(
         mask, last, latest, 32, 100.0, 10.0, -1.0, 30.0, 12.0, 1.0, 0.0,
         math.cos(behind), manoeuvre._cone_sides(0.0, behind), 0.0, 0.0, 0.25, unsure,
         np.empty(0, dtype=np.int64),
     )  # fmt: skip
-    monkeypatch.undo()
     assert (n, k) == (1024, 0)
     assert not mask[:32, :32].any()
     assert mask.sum() == 64 * 64 - 1024
-    assert calls[0] == 4
+    assert counted_sqrt[0] == 4
     # The same cells as fresh_behind names.
     g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
     want = ~fresh_behind(last, 100.0, 30.0, 12.0, 0.0, g, behind, 10.0)
@@ -780,7 +792,7 @@ def test_drop_fresh_behind_takes_a_block_wholly_behind_without_an_angle_per_cell
 
 @pytest.mark.parametrize("angle", [1.62, 4.66])
 def test_drop_fresh_behind_passes_over_a_block_beside_the_cone_unread(
-    monkeypatch: pytest.MonkeyPatch, angle: float
+    counted_sqrt: list[int], angle: float
 ) -> None:
     # One block (32 x 32 cells of 0.25 m) seen 5 s ago, the rest long ago; the car
     # about 60 m from it, heading east, the block's centre ``angle`` radians from the
@@ -788,20 +800,8 @@ def test_drop_fresh_behind_passes_over_a_block_beside_the_cone_unread(
     # but short of ``behind`` (1.75): none of its cells is behind. The kernel's Python
     # twin, math.sqrt counted, passes it over after its 4 corner distances (the
     # per-cell path would take one a cell), and drops nothing, as fresh_behind.
-    import types
-
     import sonarmap.patrol.manoeuvre as manoeuvre
 
-    calls = [0]
-
-    def sqrt(v: float) -> float:
-        calls[0] += 1
-        return math.sqrt(v)
-
-    fake = types.SimpleNamespace(
-        **{k: getattr(math, k) for k in dir(math) if not k.startswith("_")}
-    )
-    fake.sqrt = sqrt
     shape = (512, 512)
     g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
     last = np.zeros(shape)
@@ -812,17 +812,80 @@ def test_drop_fresh_behind_passes_over_a_block_beside_the_cone_unread(
     x, y = bx - 60.0 * math.cos(angle), by - 60.0 * math.sin(angle)
     mask = np.ones(shape, dtype=np.bool_)
     unsure = np.empty(16, dtype=np.int64)
-    monkeypatch.setattr(manoeuvre, "math", fake)
     n, k = manoeuvre._drop_fresh_behind.py_func(
         mask, last, latest, 32, 100.0, 10.0, -1.0, x, y, 1.0, 0.0,
         math.cos(1.75), manoeuvre._cone_sides(0.0, 1.75), 0.0, 0.0, 0.25, unsure,
         np.empty(0, dtype=np.int64),
     )  # fmt: skip
-    monkeypatch.undo()
     assert (n, k) == (0, 0)
     assert mask.all()
-    assert calls[0] == 4
+    assert counted_sqrt[0] == 4
     assert not fresh_behind(last, 100.0, x, y, 0.0, g, 1.75, 10.0).any()
+
+
+def _one_block_beside(
+    x: float, y: float, counted: list[int]
+) -> tuple[int, int, int, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    # The kernel's Python twin on one block (rows and columns 224-255 of 512, 0.25 m)
+    # seen 5 s ago, the rest long ago, for a car at (x, y) heading east with behind
+    # 1.75: the cells dropped, the unsure ones, math.sqrt's calls, the mask left and
+    # fresh_behind's cells.
+    import sonarmap.patrol.manoeuvre as manoeuvre
+
+    shape = (512, 512)
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
+    last = np.zeros(shape)
+    last[224:256, 224:256] = 95.0
+    latest = np.zeros((16, 16))
+    latest[7, 7] = 95.0
+    mask = np.ones(shape, dtype=np.bool_)
+    sides = manoeuvre._cone_sides(0.0, 1.75)
+    before = counted[0]
+    n, k = manoeuvre._drop_fresh_behind.py_func(
+        mask, last, latest, 32, 100.0, 10.0, -1.0, x, y, 1.0, 0.0,
+        math.cos(1.75), sides, 0.0, 0.0, 0.25, np.empty(16, dtype=np.int64),
+        np.empty(0, dtype=np.int64),
+    )  # fmt: skip
+    used = counted[0] - before
+    return n, k, used, mask, fresh_behind(last, 100.0, x, y, 0.0, g, 1.75, 10.0)
+
+
+def test_drop_fresh_behind_reads_a_block_across_the_cones_edge(counted_sqrt: list[int]) -> None:
+    # The block's centre 60 m from the car 1.7503 rad off its heading, a hair past
+    # behind (1.75; exactly on it, that cell would be left to numpy as unsure): the
+    # cone's edge cuts the block, so it is neither passed over nor taken whole.
+    # Every cell's angle is worked out (4 corners + 1024 cells) and the cells dropped
+    # are fresh_behind's, some of the block but not all.
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=(512, 512))
+    bx, by = (float(v[0]) for v in g.cell_centres([240], [240]))
+    x, y = bx - 60.0 * math.cos(1.7503), by - 60.0 * math.sin(1.7503)
+    n, k, used, mask, want = _one_block_beside(x, y, counted_sqrt)
+    assert k == 0
+    assert used == 4 + 1024
+    assert 0 < n < 1024
+    assert n == int(want.sum())
+    np.testing.assert_array_equal(mask, ~want)
+
+
+@pytest.mark.parametrize(("gap", "read"), [(5e-5, True), (5e-4, False)])
+def test_drop_fresh_behind_passes_over_a_block_only_clear_of_the_margin(
+    counted_sqrt: list[int], gap: float, read: bool
+) -> None:
+    # The block's cell nearest the cone (its bottom-left one, 60 m from the car) lies
+    # ``gap`` metres outside the cone's edge, the rest further out: no cell is behind.
+    # At 5e-5 m the bound on its cosine test is under OFF_CONE_MARGIN (1e-6; about
+    # 2 * 0.7 * gap / 66 m / pi, the far corner about 66 m away), so the block is read
+    # cell by cell; at 5e-4 m it is over, so the block is passed over after its four
+    # corners. Either way nothing is dropped.
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=(512, 512))
+    px, py = (float(v[0]) for v in g.cell_centres([255], [224]))
+    a = 1.75 - math.asin(gap / 60.0)
+    x, y = px - 60.0 * math.cos(a), py - 60.0 * math.sin(a)
+    n, k, used, mask, want = _one_block_beside(x, y, counted_sqrt)
+    assert (n, k) == (0, 0)
+    assert mask.all()
+    assert not want.any()
+    assert used == (4 + 1024 if read else 4)
 
 
 def test_drop_fresh_behind_lists_the_cells_it_drops(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -860,7 +923,9 @@ def test_fresh_ahead_is_a_fresh_copy_less_the_fresh_cells_every_time() -> None:
     # Cars one after another on one source and version (cells set back), a new version
     # after the source changed in place (copied again), another source array, and a
     # record too short for what a car drops (copied again): each mask equals the
-    # source copied and dropped from afresh, with the same count.
+    # source copied and dropped from afresh, with the same count. Both kinds of
+    # second and third car are met: after a car whose dropped cells fit the record
+    # (set back) and, with the 50-cell record, after one that dropped more (copied).
     rng = np.random.default_rng(23)
     shape = (70, 90)
     g = Grid(resolution=0.25, origin=(-1.0, 2.0), shape=shape)
@@ -871,7 +936,7 @@ def test_fresh_ahead_is_a_fresh_copy_less_the_fresh_cells_every_time() -> None:
     for record in (1 << 20, 50):
         ahead = FreshAhead(shape, record=record)
         source = watched.copy()
-        set_back = 0
+        set_back = overflowed = last_n = 0
         for step in range(8):
             fog.advance(1.0)
             fog.observe(rng.integers(0, shape[0], 3), rng.integers(0, shape[1], 3), disc)
@@ -885,8 +950,13 @@ def test_fresh_ahead_is_a_fresh_copy_less_the_fresh_cells_every_time() -> None:
                 got, n = ahead.make(src, step, fog, x, y, heading, g, 1.75, 10.0)
                 np.testing.assert_array_equal(got, want)
                 assert n == n_want
-                set_back += car in (1, 2) and n_want > 0
+                if car in (1, 2):
+                    # The car before, on the same source and step, dropped last_n.
+                    set_back += 0 < last_n <= record
+                    overflowed += last_n > record
+                last_n = n_want
         assert set_back > 0
+        assert overflowed == 0 if record == 1 << 20 else overflowed > 0
 
 
 def test_fresh_ahead_sets_cells_back_within_a_version_and_copies_on_a_new_one() -> None:

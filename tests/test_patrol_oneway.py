@@ -640,3 +640,41 @@ def test_the_command_line_orientation_reaches_the_configuration(
         assert seen[-1].one_way_orient == want
     capsys.readouterr()
     assert not (tmp_path / "out").exists()
+
+
+def _largest_sets_by_lexsort(
+    strong: npt.NDArray[np.int64],
+    weak: npt.NDArray[np.int64],
+    size: npt.NDArray[np.int64],
+    n_weak: int,
+) -> npt.NDArray[np.int64]:
+    # The form _largest_sets replaced: nodes sorted by part, set size (largest first)
+    # and node, then the first node of each part names its set.
+    order = np.lexsort((np.arange(len(strong)), -size, weak))
+    keep = np.full(n_weak, -1, dtype=np.int64)
+    for node in order.tolist():
+        if keep[weak[node]] < 0:
+            keep[weak[node]] = strong[node]
+    return keep
+
+
+def test_largest_sets_is_the_former_lexsort_form() -> None:
+    # Random parts split into a few strong sets of one to three nodes each (so equal
+    # sizes, i.e. ties, in most parts), some part numbers unused, no nodes at all:
+    # the same set kept for every part as the sort it replaced.
+    rng = np.random.default_rng(41)
+    ties = 0
+    for k in range(400):
+        n = 0 if k == 0 else int(rng.integers(1, 60))
+        n_weak = int(rng.integers(1, 12))
+        weak = rng.integers(0, n_weak, n).astype(np.int64)
+        split = weak * 8 + rng.integers(0, 1 + int(rng.integers(1, 8)), n)
+        _, strong = np.unique(split, return_inverse=True)
+        strong = strong.astype(np.int64).reshape(-1)
+        size = np.bincount(strong)[strong].astype(np.int64) if n else strong.copy()
+        got = oneway._largest_sets(strong, weak, size, n_weak)
+        np.testing.assert_array_equal(got, _largest_sets_by_lexsort(strong, weak, size, n_weak))
+        for w in range(n_weak):
+            sets = set(strong[(weak == w) & (size == size[weak == w].max(initial=0))].tolist())
+            ties += len(sets) > 1
+    assert ties > 200

@@ -467,8 +467,9 @@ class FreshAhead:
     car (:func:`drop_fresh_behind`), made for one car after another.
 
     While the source stays the same array and the caller's ``version`` of it the same,
-    the next car's mask is made by setting back the cells the last car's dropped,
-    instead of copying the whole source again (a map-sized copy per car and step).
+    the next car's mask is made by setting back the cells the last car dropped; a new
+    source array or version, or a last car that dropped more cells than ``record``
+    notes, has the source copied whole. The masks are the same either way.
 
     Parameters
     ----------
