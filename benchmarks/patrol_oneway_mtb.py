@@ -56,8 +56,8 @@ depth-first one, without a run (one JSON line each): the one-way streets it coul
 how many it flipped, and its own model's summed detour (the midpoint graph's, weighted
 by the streets' lengths) before and after (:class:`~sonarmap.patrol.oneway.Search`);
 and the CPU seconds of ``REPEATS`` whole builds of the system with each orientation,
-alternated (``build_s``, each build's; ``extra_s``, the median 'short' build less the
-median 'dfs' one: the search's cost). ``--table4`` adds Table 4's territory
+alternated after one untimed build of each (``build_s``, each build's; ``extra_s``,
+the median 'short' build less the median 'dfs' one: the search's cost). ``--table4`` adds Table 4's territory
 (:func:`benchmarks.patrol.table4` at a 0.1 m cell, the first 5 starts' reach) and
 ``--city N ...`` made-up grids of N x N square 12 m blocks between 3 m streets (0.5 m
 cells, all one-way with the 3.5 m turning radius given), where the search's cost grows
@@ -231,6 +231,10 @@ def orient_report(
     notes)."""
     times: dict[str, list[float]] = {o: [] for o in ORIENTS}
     short: OneWay | None = None
+    # One untimed build of each first: the first build of a process pays for caches and
+    # compiled code, and would always fall to whichever orientation comes first.
+    for orient in ORIENTS:
+        one_way(passable, clearance, resolution, turn_radius, orient=orient)
     for _ in range(REPEATS):
         for orient in ORIENTS:
             c0 = time.process_time()
@@ -434,6 +438,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table4", action="store_true")
     ap.add_argument("--city", type=int, nargs="*", default=[])
     a = ap.parse_args(argv)
+    if min(a.sites) < 0:
+        ap.error(f"--sites: a site is a seed >= 0, got {min(a.sites)}")
+    if min(a.cars) < 1:
+        ap.error(f"--cars: a team has at least one car, got {min(a.cars)}")
+    if a.city and min(a.city) < 1:
+        ap.error(f"--city: a city grid has at least 1 x 1 blocks, got {min(a.city)}")
     if a.orient_report:
         orient_reports(a.sites, max(a.cars), a.table4, a.city)
         return 0

@@ -54,6 +54,7 @@ from benchmarks.team_territory import (
     pyplot_and_extent,
     write_inputs,
 )
+from sonarmap.errors import ConfigError
 from sonarmap.io.rosmap import FREE, OCCUPIED, OccupancyMap, read_map
 from sonarmap.team.prior import degrade_plan, parse_prior_error
 from sonarmap.team.regions import mission_regions, region_sizes
@@ -287,6 +288,11 @@ def main(argv: list[str] | None = None) -> None:
     if a.prior_error:
         if a.out is None:
             p.error("--prior-error needs --out")
+        for spec in a.prior_error:  # every spec checked before anything is written
+            try:
+                parse_prior_error(spec, seed=a.seed)
+            except ConfigError as e:
+                p.error(str(e))
         prior_error_table(a.out / "maps", a.prior_error, a.prior_map, a.seed)
         return
     if a.runs:

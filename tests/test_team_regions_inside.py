@@ -141,19 +141,25 @@ def test_team_run_on_a_slam_like_map_reports_the_whole_priors_regions(tmp_path: 
     assert got == {_regions(mission_regions(read_map(tmp_path / "plan.yaml")))}
 
 
+@pytest.mark.parametrize("command", ["run", "node"])
 def test_a_prior_with_no_free_cell_inside_the_territory_is_refused(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str
 ) -> None:
-    """Its regions could not be cut inside the territory: one line naming --prior, exit
-    2, nothing written."""
+    """Its regions could not be cut inside the territory: ``team run`` and ``team node``
+    print one line naming --prior, exit 2, write nothing."""
     plan = drawn_building()
     write_map(plan, tmp_path / "plan")
     # Free only outside the building: the prior does not match the plan.
     occ = np.where(building_cells(plan), 1.0, 0.0).astype(np.float32)
     write_map(OccupancyMap(plan.grid, occ), tmp_path / "prior")
     out = tmp_path / "out"
+    argv = ["team", command, "--map", str(tmp_path / "plan.yaml"), "-o", str(out)]
+    if command == "run":
+        argv += ["--duration", "8"]
+    else:
+        argv += ["--id", "0", "--listen", "tcp://127.0.0.1:0", "--peers", "1=tcp://127.0.0.1:9"]
     with pytest.raises(SystemExit) as e:
-        _run_regions(tmp_path / "plan.yaml", out, "--prior", str(tmp_path / "prior.yaml"))
+        main([*argv, "--prior", str(tmp_path / "prior.yaml")])
     assert e.value.code == 2
     err = capsys.readouterr().err.strip()
     assert "--prior" in err, err
