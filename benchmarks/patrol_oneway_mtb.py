@@ -56,12 +56,12 @@ depth-first one, without a run (one JSON line each): the one-way streets it coul
 how many it flipped, and its own model's summed detour (the midpoint graph's, weighted
 by the streets' lengths) before and after (:class:`~sonarmap.patrol.oneway.Search`);
 and the CPU seconds of ``REPEATS`` whole builds of the system with each orientation,
-alternated after one untimed build of each (``build_s``, each build's; ``extra_s``,
-the median 'short' build less the median 'dfs' one: the search's cost). ``--table4``
-adds Table 4's territory (:func:`benchmarks.patrol.table4` at a 0.1 m cell, the first 5 starts' reach) and
-``--city N ...`` made-up grids of N x N square 12 m blocks between 3 m streets (0.5 m
-cells, all one-way with the 3.5 m turning radius given), where the search's cost grows
-with the number of one-way streets.
+alternated after one untimed build of each (``build_s``, each build's; ``extra_s``, the
+median 'short' build less the median 'dfs' one: the search's cost). ``--table4`` adds
+Table 4's territory (:func:`benchmarks.patrol.table4` at a 0.1 m cell, the first 5
+starts' reach) and ``--city N ...`` made-up grids of N x N square 12 m blocks between
+3 m streets (0.5 m cells, all one-way with the 3.5 m turning radius given), where the
+search's cost grows with the number of one-way streets.
 
 Run with ``python -m benchmarks.patrol_oneway_mtb --sites 0 --cars 3 --duration 3600
 --leftover 2`` (or ``--sites 0 1 2 --network``, or ``--sites 0 5 --orient-report
