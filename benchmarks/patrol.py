@@ -68,6 +68,17 @@ def non_negative(text: str) -> float:
     return value
 
 
+def positive(text: str) -> float:
+    """An ``argparse`` type: ``text`` as a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
 class OneLineParser(argparse.ArgumentParser):
     """An argument parser whose refusal is one line (the problem and the option), exit 2."""
 
@@ -172,8 +183,8 @@ def setup(cell: float, repeat: int, seed: int, leftover: float = 0.0) -> list[fl
 
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(prog="python -m benchmarks.patrol", description=__doc__)
-    parser.add_argument("--cells", type=float, nargs="+", default=[0.1, 0.5])
-    parser.add_argument("--duration", type=float, default=1200.0)
+    parser.add_argument("--cells", type=positive, nargs="+", default=[0.1, 0.5])
+    parser.add_argument("--duration", type=positive, default=1200.0)
     parser.add_argument("--check", type=float, default=120.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", help="Also write the rows to this JSON file.")
@@ -193,6 +204,8 @@ def main(argv: list[str] | None = None) -> None:
         help="Time this many 0.5 s runs per cell size (the set-up's CPU) instead.",
     )
     args = parser.parse_args(argv)
+    if args.setup is not None and args.profile is not None:
+        parser.error("--setup and --profile: give one of them")
     if args.setup is not None:
         if args.setup < 1:
             parser.error(f"--setup must be >= 1 runs, got {args.setup}")

@@ -1,4 +1,5 @@
-"""``benchmarks.patrol --setup``: the option's refusals (its runs are the benchmark's)."""
+"""``benchmarks.patrol``'s refusals: ``--setup`` below one, absurd cells and durations,
+two modes at once (its runs are the benchmark's)."""
 
 from __future__ import annotations
 
@@ -16,3 +17,23 @@ def test_setup_refuses_a_count_below_one_in_one_line(
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1, err
     assert "--setup" in err, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["--cells", "0"], "--cells"),
+        (["--cells", "nan"], "--cells"),
+        (["--duration", "-1"], "--duration"),
+        (["--setup", "1", "--profile", "5"], "--profile"),
+    ],
+)
+def test_absurd_cells_durations_and_two_modes_are_one_line(
+    argv: list[str], named: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as e:
+        patrol.main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    assert named in err, err
