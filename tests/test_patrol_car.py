@@ -800,27 +800,14 @@ def test_drop_fresh_behind_passes_over_a_block_beside_the_cone_unread(
     # but short of ``behind`` (1.75): none of its cells is behind. The kernel's Python
     # twin, math.sqrt counted, passes it over after its 4 corner distances (the
     # per-cell path would take one a cell), and drops nothing, as fresh_behind.
-    import sonarmap.patrol.manoeuvre as manoeuvre
-
-    shape = (512, 512)
-    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=shape)
-    last = np.zeros(shape)
-    last[224:256, 224:256] = 95.0
-    latest = np.zeros((16, 16))
-    latest[7, 7] = 95.0
+    g = Grid(resolution=0.25, origin=(0.0, 0.0), shape=(512, 512))
     bx, by = (float(v[0]) for v in g.cell_centres([240], [240]))
     x, y = bx - 60.0 * math.cos(angle), by - 60.0 * math.sin(angle)
-    mask = np.ones(shape, dtype=np.bool_)
-    unsure = np.empty(16, dtype=np.int64)
-    n, k = manoeuvre._drop_fresh_behind.py_func(
-        mask, last, latest, 32, 100.0, 10.0, -1.0, x, y, 1.0, 0.0,
-        math.cos(1.75), manoeuvre._cone_sides(0.0, 1.75), 0.0, 0.0, 0.25, unsure,
-        np.empty(0, dtype=np.int64),
-    )  # fmt: skip
+    n, k, used, mask, want = _one_block_beside(x, y, counted_sqrt)
     assert (n, k) == (0, 0)
     assert mask.all()
-    assert counted_sqrt[0] == 4
-    assert not fresh_behind(last, 100.0, x, y, 0.0, g, 1.75, 10.0).any()
+    assert used == 4
+    assert not want.any()
 
 
 def _one_block_beside(
