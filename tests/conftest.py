@@ -117,6 +117,19 @@ def training_sweep(method: str, settings: dict[str, dict[str, Any]]) -> pd.DataF
     return pd.DataFrame(rows)
 
 
+def refused_in_one_line(
+    main: Any, args: list[str], why: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Assert that the argparse command ``main(args)`` exits 2 with argparse's usage and
+    then one error line that holds ``why``."""
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert why in err[-1]
+    assert sum("error:" in line for line in err) == 1
+
+
 #: The drawn test building (x0, y0, x1, y1 metres): 8 x 6 m, one-cell walls, a 1.2 m
 #: door between its two rooms and an entrance in its south wall centred at x = 6 m.
 BUILDING = (0.0, 0.0, 8.0, 6.0)

@@ -12,7 +12,7 @@ import pytest
 from benchmarks.inverse_free_falloff import figures, main, verdicts
 from benchmarks.inverse_walls import DEFAULTS
 
-from conftest import training_sweep
+from conftest import refused_in_one_line, training_sweep
 from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.mappers import make_mapper
@@ -248,11 +248,5 @@ def test_pooled_sweeps_and_missing_scenes_are_refused(
         args = ["--issue14", "passages", "-o", str(tmp_path / "x"), "--setting", setting]
         bad.append((args, why))
     for args, why in bad:
-        with pytest.raises(SystemExit) as e:
-            main(args)
-        assert e.value.code == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        # argparse's usage, then one line naming the problem.
-        assert why in err[-1]
-        assert sum("error:" in line for line in err) == 1
+        refused_in_one_line(main, args, why, capsys)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.csv", "pooled.csv"]

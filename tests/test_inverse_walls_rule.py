@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from benchmarks.inverse_walls import DEFAULTS, main, rule_table
 
-from conftest import training_sweep
+from conftest import refused_in_one_line, training_sweep
 
 GRADIENT = training_sweep("gradient", {DEFAULTS: {"f1": 0.4}})
 INVERSE = training_sweep("inverse", {DEFAULTS: {}, "walls": {"recall": 0.8, "f1": 0.25}})
@@ -54,10 +54,4 @@ def test_pooled_sweeps_and_missing_scenes_are_refused(
         (["--rule", grad, str(tmp_path / "none.csv")], "none.csv: no such file"),
         (["--rule", grad], "needs GRADIENT_CSV and at least one INVERSE_CSV"),
     ):
-        with pytest.raises(SystemExit) as e:
-            main(args)
-        assert e.value.code == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        # argparse's usage, then one line naming the problem.
-        assert why in err[-1]
-        assert sum("error:" in line for line in err) == 1
+        refused_in_one_line(main, args, why, capsys)
