@@ -2,15 +2,26 @@
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 import numpy.typing as npt
 
 from ..readings import Readings
 from ._base import Mapper
+from ._correlated import reading_weights
 from ._thrun import BeamIndex, build_index, flip_delta, init_state
 
-__all__ = ["index_readings", "model_sigma", "posterior", "scatter"]
+__all__ = [
+    "held_posterior",
+    "index_readings",
+    "model_inputs",
+    "model_sigma",
+    "posterior",
+    "probability",
+    "scatter",
+]
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -33,6 +44,44 @@ def index_readings(mapper: Mapper, readings: Readings, sigma: float) -> BeamInde
     fps = mapper.kept_footprints(readings, dr=3.0 * sigma, offset=offset)
     r = np.minimum(readings.range, mapper.sensor.r_max)
     return build_index(fps, np.asarray(r, dtype=np.float64), offset)
+
+
+def model_inputs(
+    mapper: Mapper, readings: Readings, sigma: float | None, correlated: float
+) -> tuple[float, BeamIndex, F64 | None]:
+    """What a mapper of the model fits ``readings`` with: the range noise
+    (:func:`model_sigma` of ``sigma``), the index of the readings
+    (:func:`index_readings`), and each reading's weight
+    (:func:`~._correlated.reading_weights` with ``correlated``-metre bins, mean 1), or
+    None when ``correlated`` is 0 (every reading counts once)."""
+    sigma_m = model_sigma(mapper, sigma)
+    index = index_readings(mapper, readings, sigma_m)
+    weight = None
+    if correlated > 0:
+        weight = reading_weights(readings, correlated, mapper.sensor.r_max)
+    return sigma_m, index, weight
+
+
+def probability(log_odds: F64, prior: float) -> F64:
+    """Occupancy probability from a log-likelihood ratio (occupied to free) and the
+    prior occupancy probability ``prior``, in (0, 1)."""
+    return np.asarray(
+        0.5 * (1.0 + np.tanh(0.5 * (log_odds + math.log(prior / (1.0 - prior))))),
+        dtype=np.float64,
+    )
+
+
+def held_posterior(
+    occ: npt.NDArray[np.bool_],
+    index: BeamIndex,
+    model: tuple[float, float, float, float],
+    weight: F64 | None,
+    prior: float,
+) -> F64:
+    """Each local cell's occupancy probability with every other cell held at ``occ``:
+    :func:`posterior` under ``model`` (p_rand, p_hit, sigma and r_max, as it takes
+    them) and ``weight``, with the prior ``prior`` (see :func:`probability`)."""
+    return probability(posterior(occ, index.posterior_arrays(), *model, weight), prior)
 
 
 def scatter(

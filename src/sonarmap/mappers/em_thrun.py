@@ -50,10 +50,9 @@ from ..errors import ConfigError
 from ..readings import Readings
 from ._base import Mapper, Progress, register
 from ._checks import choice, integer, number
-from ._correlated import reading_weights
 from ._stream import StreamEngine
 from ._thrun import BeamIndex, apply_flip, flip_delta, init_state, loglik_of
-from ._thrun_common import index_readings, model_sigma, posterior, scatter
+from ._thrun_common import held_posterior, model_inputs, model_sigma, probability, scatter
 
 __all__ = ["ThrunEMMapper"]
 
@@ -317,16 +316,11 @@ class ThrunEMMapper(Mapper):
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         everything = self._accumulate(readings)
-        sigma = model_sigma(self, self.sigma)
-        ix = index_readings(self, everything, sigma)
+        # The weights' mean 1: a flip's sign does not see a common scale, but the final
+        # posterior's log-odds grow with it against the prior's (and the gains against
+        # MIN_GAIN); mean 1 gives the data the weight of as many readings as there are.
+        sigma, ix, weight = model_inputs(self, everything, self.sigma, self.correlated)
         r_max = self.sensor.r_max
-        weight = None
-        if self.correlated > 0:
-            # Mean 1: a flip's sign does not see a common scale, but the final
-            # posterior's log-odds grow with it against the prior's (and the gains
-            # against MIN_GAIN); mean 1 gives the data the weight of as many readings
-            # as there are.
-            weight = reading_weights(everything, self.correlated, r_max)
         occ = self._initial_map(everything, ix)
         model = (self.p_rand, self.p_hit, sigma, r_max)
         beams = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)
@@ -362,10 +356,7 @@ class ThrunEMMapper(Mapper):
         self.loglik_.append(ll)
         self.n_iter_ = k
         self.outlier_prob_ = outlier
-        arrays = ix.posterior_arrays()
-        log_odds = posterior(occ, arrays, *model, weight)
-        log_odds += math.log(self.prior / (1.0 - self.prior))
-        self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))
+        self._post = held_posterior(occ, ix, model, weight, self.prior)
         self._occ = occ
         self._index = ix
 
@@ -674,7 +665,6 @@ class ThrunEMStream(StreamEngine):
         self.dr = 3.0 * self.sigma
         self.occ = np.zeros(self.grid.size, np.bool_)
         self.post = np.full(self.grid.size, m.prior)
-        self._prior_log_odds = math.log(m.prior / (1.0 - m.prior))
         #: Per cell, the log-likelihood ratio (occupied to free) of the readings that
         #: have left, each taken with the rest of the map as it was when it left.
         self.bias = np.zeros(self.grid.size)
@@ -756,7 +746,7 @@ class ThrunEMStream(StreamEngine):
             log_odds,
         )
         self.occ[cells] = occ[cand]
-        self.post[cells] = 0.5 * (1.0 + np.tanh(0.5 * (log_odds + self._prior_log_odds)))
+        self.post[cells] = probability(log_odds, m.prior)
 
     def improve(self, budget: float) -> int:
         """One M-step sweep at a time over every cell in play, for up to ``budget`` s."""
