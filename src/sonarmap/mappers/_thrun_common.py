@@ -11,7 +11,7 @@ import numpy.typing as npt
 from ..readings import Readings
 from ._base import Mapper
 from ._correlated import reading_weights
-from ._thrun import BeamIndex, build_index, flip_delta, init_state
+from ._thrun import BeamIndex, IndexArrays, apply_flip, build_index, flip_delta, init_state
 
 __all__ = [
     "held_posterior",
@@ -21,6 +21,7 @@ __all__ = [
     "posterior",
     "probability",
     "scatter",
+    "sweep",
 ]
 
 F64 = npt.NDArray[np.float64]
@@ -94,9 +95,97 @@ def scatter(
 
 
 @nb.njit(cache=True)
+def sweep(
+    cand: I64,
+    occ: npt.NDArray[np.bool_],
+    state: tuple[I64, F64, F64],
+    index_arrays: IndexArrays,
+    model: tuple[float, float, float, float],
+    weight: F64 | None,
+    bias: F64 | None,
+    log_odds: F64,
+    min_gain: float,
+) -> int:
+    """One pass over the local cells ``cand``, in their order: each cell's log odds
+    (occupied to free) with every other cell held, and a flip where it pays.
+
+    Parameters
+    ----------
+    cand : ndarray of int64
+        Local cells of the index to visit.
+    occ : ndarray of bool, shape (cells,)
+        The map (local cells); a flip changes it in place.
+    state : tuple of ndarray
+        :func:`~._thrun.init_state`'s per-reading bookkeeping for ``occ``, kept up to
+        date by each flip.
+    index_arrays : tuple of ndarray
+        The beam index's arrays (:meth:`~._thrun.BeamIndex.posterior_arrays`).
+    model : tuple of float
+        p_rand, p_hit, sigma (metres) and r_max (metres).
+    weight : ndarray of float or None
+        Each reading's weight on its log-likelihood; None: 1 for all.
+    bias : ndarray of float or None
+        Per local cell, a fixed log-likelihood ratio (occupied to free) added to its
+        odds; None: none.
+    log_odds : ndarray of float, shape (len(cand),)
+        Out: each candidate's log odds, aligned with ``cand``, as the pass found them.
+    min_gain : float
+        A cell flips when that raises the log-likelihood (with its bias) by more than
+        this; ``inf``: no cell flips.
+
+    Returns
+    -------
+    int
+        The flips made.
+    """
+    band_off, band_cell, band_dist, cell_off, cell_reading, cell_kind, z = index_arrays[2:]
+    n_before, bsum, loglik = state
+    p_rand, p_hit, sigma, r_max = model
+    max_deg = 1
+    for c in cand:
+        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
+    new_ll = np.empty(max_deg)
+    new_b = np.empty(max_deg)
+    flips = 0
+    for k in range(cand.shape[0]):
+        c = cand[k]
+        d = flip_delta(
+            c,
+            occ,
+            n_before,
+            bsum,
+            loglik,
+            new_ll,
+            new_b,
+            cell_off,
+            cell_reading,
+            cell_kind,
+            band_off,
+            band_cell,
+            band_dist,
+            z,
+            p_rand,
+            p_hit,
+            sigma,
+            r_max,
+            weight,
+        )
+        odds = -d if occ[c] else d
+        if bias is not None:
+            odds += bias[c]
+        log_odds[k] = odds
+        if (-odds if occ[c] else odds) > min_gain:
+            apply_flip(
+                c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading, cell_kind
+            )
+            flips += 1
+    return flips
+
+
+@nb.njit(cache=True)
 def posterior(
     occ: npt.NDArray[np.bool_],
-    index_arrays: tuple[I64, I64, I64, I64, F64, I64, I64, npt.NDArray[np.int8], F64],
+    index_arrays: IndexArrays,
     p_rand: float,
     p_hit: float,
     sigma: float,
@@ -127,39 +216,13 @@ def posterior(
     ndarray of float, shape (cells,)
         log p(Z | m_i = 1, m_-i) - log p(Z | m_i = 0, m_-i) for every cell i.
     """
-    (free_off, free_cell, band_off, band_cell, band_dist, cell_off, cell_reading, cell_kind, z) = (
-        index_arrays
-    )
-    n_before, bsum, loglik = init_state(
+    free_off, free_cell, band_off, band_cell, band_dist = index_arrays[:5]
+    z = index_arrays[8]
+    state = init_state(
         occ, free_off, free_cell, band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max
     )
-    max_deg = 1
-    for c in range(occ.shape[0]):
-        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
-    new_ll = np.empty(max_deg)
-    new_b = np.empty(max_deg)
-    out = np.empty(occ.shape[0])
-    for c in range(occ.shape[0]):
-        d = flip_delta(
-            c,
-            occ,
-            n_before,
-            bsum,
-            loglik,
-            new_ll,
-            new_b,
-            cell_off,
-            cell_reading,
-            cell_kind,
-            band_off,
-            band_cell,
-            band_dist,
-            z,
-            p_rand,
-            p_hit,
-            sigma,
-            r_max,
-            weight,
-        )
-        out[c] = -d if occ[c] else d
+    n = occ.shape[0]
+    out = np.empty(n)
+    model = (p_rand, p_hit, sigma, r_max)
+    sweep(np.arange(n), occ, state, index_arrays, model, weight, None, out, np.inf)
     return out
