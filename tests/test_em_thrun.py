@@ -10,7 +10,13 @@ from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.mappers import make_mapper
 from sonarmap.mappers._thrun import init_state
-from sonarmap.mappers._thrun_common import index_readings, model_inputs, model_sigma, probability
+from sonarmap.mappers._thrun_common import (
+    index_readings,
+    model_inputs,
+    model_sigma,
+    probability,
+    scatter,
+)
 from sonarmap.mappers.em import EMMapper
 from sonarmap.mappers.em import _e_step as relaxed_e_step
 from sonarmap.mappers.em_thrun import ThrunEMMapper
@@ -141,8 +147,7 @@ def test_model_inputs_weigh_readings_only_when_correlated() -> None:
     are the correlation weights, one per reading; sigma is the mapper's."""
     grid = Grid(resolution=0.1, origin=(-0.5, -1.0), shape=(20, 20))
     readings = one_place([1.0, 1.0, 1.0, 0.5])
-    mapper = ThrunEMMapper()
-    mapper.attach(grid, SENSOR)
+    mapper = _attached(grid)
     sigma, ix, weight = model_inputs(mapper, readings, 0.05, 0.0)
     assert sigma == 0.05
     assert weight is None
@@ -150,3 +155,22 @@ def test_model_inputs_weigh_readings_only_when_correlated() -> None:
     _, _, weight = model_inputs(mapper, readings, None, 0.05)
     assert weight is not None
     np.testing.assert_allclose(weight, [2 / 3, 2 / 3, 2 / 3, 2.0])
+
+
+def test_scatter_puts_local_values_on_the_grid_and_nan_before_a_fit() -> None:
+    """The index's cells take the values, every other cell NaN; with no index or no
+    values (nothing fitted yet) every cell is NaN."""
+    grid = Grid(resolution=0.1, origin=(-0.5, -1.0), shape=(20, 20))
+    ix = index_readings(_attached(grid), one_place([1.0]), 0.05)
+    values = np.linspace(0.0, 1.0, ix.n_cells)
+    flat = scatter(ix, values, grid.size)
+    np.testing.assert_array_equal(flat[ix.cells], values.astype(np.float32))
+    assert np.isnan(np.delete(flat, ix.cells)).all()
+    assert np.isnan(scatter(None, values, grid.size)).all()
+    assert np.isnan(scatter(ix, None, grid.size)).all()
+
+
+def _attached(grid: Grid) -> ThrunEMMapper:
+    mapper = ThrunEMMapper()
+    mapper.attach(grid, SENSOR)
+    return mapper

@@ -86,11 +86,13 @@ def held_posterior(
 
 
 def scatter(
-    index: BeamIndex, values: npt.NDArray[np.float64], size: int
+    index: BeamIndex | None, values: npt.NDArray[np.float64] | None, size: int
 ) -> npt.NDArray[np.float32]:
-    """Local cell values onto a flat grid, NaN elsewhere."""
+    """Local cell values onto a flat grid of ``size`` cells, NaN elsewhere; NaN
+    everywhere when ``index`` or ``values`` is None (nothing fitted yet)."""
     out = np.full(size, np.nan, dtype=np.float32)
-    out[index.cells] = values
+    if index is not None and values is not None:
+        out[index.cells] = values
     return out
 
 

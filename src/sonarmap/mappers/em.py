@@ -313,6 +313,4 @@ class EMMapper(Mapper):
         return scatter(self._index, self._m, self.grid.size).reshape(self.grid.shape)
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
-        if self._index is None or self._post is None:
-            return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._post, self.grid.size)

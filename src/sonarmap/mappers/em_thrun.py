@@ -304,14 +304,10 @@ class ThrunEMMapper(Mapper):
 
     @property
     def binary_map_(self) -> npt.NDArray[np.float32]:
-        if self._index is None or self._occ is None:
-            return np.full(self.grid.shape, np.nan, dtype=np.float32)
-        values = self._occ.astype(np.float64)
+        values = None if self._occ is None else self._occ.astype(np.float64)
         return scatter(self._index, values, self.grid.size).reshape(self.grid.shape)
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
-        if self._index is None or self._post is None:
-            return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._post, self.grid.size)
 
 

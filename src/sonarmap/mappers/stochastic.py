@@ -435,8 +435,6 @@ class StochasticMapper(Mapper):
         return self._occ
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
-        if self._occ is None or self._index is None:
-            return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._occ, self.grid.size)
 
 
