@@ -865,6 +865,29 @@ EPS = float(np.finfo(np.float64).eps)
 
 
 @nb.njit(cache=True, inline="always")
+def _slot_term(
+    s: int,
+    part: int,
+    fs_start: npt.NDArray[np.int64],
+    fs_len: npt.NDArray[np.int64],
+    os_start: npt.NDArray[np.int64],
+    os_len: npt.NDArray[np.int64],
+    f_len: npt.NDArray[np.int64],
+    o_len: npt.NDArray[np.int64],
+    f_sum: F64,
+    o_sum: F64,
+    echo: npt.NDArray[np.bool_],
+) -> tuple[int, int, int, float]:
+    """Slot ``s``'s free (``part`` 0) or occ (1) term as the pool's spans: its first
+    span, spans, entries and total weight; no entries for a no-echo reading's occ term."""
+    if part == 0:
+        return fs_start[s], fs_len[s], f_len[s], f_sum[s]
+    if not echo[s]:
+        return 0, 0, 0, 0.0
+    return os_start[s], os_len[s], o_len[s], o_sum[s]
+
+
+@nb.njit(cache=True, inline="always")
 def _side_unknown(known_x: float, known_at: float, drift: float, m: int, x0: float) -> bool:
     """Whether a term's X, known as ``known_x`` when the moves totalled ``known_at``,
     may since have crossed X0 = ``x0`` (the moves now total ``drift``; ``m`` entries):
@@ -958,12 +981,9 @@ def _stream_steps(
     t_part = np.empty(2 * sel.shape[0], np.int64)
     for s in sel:
         for part in range(2):
-            if part == 0:
-                a, n, m, tot = fs_start[s], fs_len[s], f_len[s], f_sum[s]
-            else:
-                if not echo[s]:
-                    continue
-                a, n, m, tot = os_start[s], os_len[s], o_len[s], o_sum[s]
+            a, n, m, tot = _slot_term(
+                s, part, fs_start, fs_len, os_start, os_len, f_len, o_len, f_sum, o_sum, echo
+            )
             if m == 0 or tot <= 0.0:
                 continue
             t_start[n_terms] = a
@@ -1062,12 +1082,9 @@ def _fold_terms(
     tell its side."""
     for s in gone:
         for part in range(2):
-            if part == 0:
-                a, n, m, tot = fs_start[s], fs_len[s], f_len[s], f_sum[s]
-            else:
-                if not echo[s]:
-                    continue
-                a, n, m, tot = os_start[s], os_len[s], o_len[s], o_sum[s]
+            a, n, m, tot = _slot_term(
+                s, part, fs_start, fs_len, os_start, os_len, f_len, o_len, f_sum, o_sum, echo
+            )
             if m == 0 or tot <= 0.0:
                 continue
             x0 = 1.0 / tot
