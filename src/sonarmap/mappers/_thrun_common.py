@@ -1,4 +1,7 @@
-"""Parameter handling and the posterior kernel shared by the two mappers of Thrun's model."""
+"""What the mappers of Thrun's model (``em``, ``em-thrun``, ``stochastic``) share: their
+inputs (range noise, beam index, reading weights), the sweep over cells that gives each
+its log odds with the rest of the map held and flips it where that pays, the held
+posterior, and the scatter of local cells onto the grid."""
 
 from __future__ import annotations
 
