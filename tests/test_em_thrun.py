@@ -10,7 +10,13 @@ from sonarmap.errors import ConfigError
 from sonarmap.grid import Grid
 from sonarmap.mappers import make_mapper
 from sonarmap.mappers._thrun import init_state
-from sonarmap.mappers._thrun_common import index_readings, model_sigma
+from sonarmap.mappers._thrun_common import (
+    index_readings,
+    model_inputs,
+    model_sigma,
+    probability,
+    scatter,
+)
 from sonarmap.mappers.em import EMMapper
 from sonarmap.mappers.em import _e_step as relaxed_e_step
 from sonarmap.mappers.em_thrun import ThrunEMMapper
@@ -126,3 +132,45 @@ def test_relaxed_e_step_counts_passes_when_chance_dominates() -> None:
 def test_binary_em_parameter_ranges(params: dict[str, object], match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         make_mapper("em-thrun", **params)
+
+
+def test_probability_adds_the_prior_to_the_data_log_odds() -> None:
+    """No evidence gives the prior; log 3 of evidence for occupied at an even prior
+    gives 3 : 1 odds, and against it 1 : 3."""
+    got = probability(np.array([0.0, np.log(3.0), -np.log(3.0)]), 0.5)
+    np.testing.assert_allclose(got, [0.5, 0.75, 0.25], rtol=1e-12)
+    np.testing.assert_allclose(probability(np.zeros(2), 0.2), [0.2, 0.2], rtol=1e-12)
+
+
+def test_model_inputs_weigh_readings_only_when_correlated() -> None:
+    """``correlated`` 0 leaves every reading at weight 1 (None); above 0 the weights
+    are the correlation weights, one per reading; sigma is the mapper's."""
+    grid = Grid(resolution=0.1, origin=(-0.5, -1.0), shape=(20, 20))
+    readings = one_place([1.0, 1.0, 1.0, 0.5])
+    mapper = _attached(grid)
+    sigma, ix, weight = model_inputs(mapper, readings, 0.05, 0.0)
+    assert sigma == 0.05
+    assert weight is None
+    assert ix.n_readings == 4
+    _, _, weight = model_inputs(mapper, readings, None, 0.05)
+    assert weight is not None
+    np.testing.assert_allclose(weight, [2 / 3, 2 / 3, 2 / 3, 2.0])
+
+
+def test_scatter_puts_local_values_on_the_grid_and_nan_before_a_fit() -> None:
+    """The index's cells take the values, every other cell NaN; with no index or no
+    values (nothing fitted yet) every cell is NaN."""
+    grid = Grid(resolution=0.1, origin=(-0.5, -1.0), shape=(20, 20))
+    ix = index_readings(_attached(grid), one_place([1.0]), 0.05)
+    values = np.linspace(0.0, 1.0, ix.n_cells)
+    flat = scatter(ix, values, grid.size)
+    np.testing.assert_array_equal(flat[ix.cells], values.astype(np.float32))
+    assert np.isnan(np.delete(flat, ix.cells)).all()
+    assert np.isnan(scatter(None, values, grid.size)).all()
+    assert np.isnan(scatter(ix, None, grid.size)).all()
+
+
+def _attached(grid: Grid) -> ThrunEMMapper:
+    mapper = ThrunEMMapper()
+    mapper.attach(grid, SENSOR)
+    return mapper

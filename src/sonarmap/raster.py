@@ -160,6 +160,47 @@ def _poses(
     return tuple(arrays)
 
 
+def _beams(
+    grid: Grid,
+    sensor: SensorModel,
+    sx: npt.NDArray[np.float64],
+    sy: npt.NDArray[np.float64],
+    st: npt.NDArray[np.float64],
+    free_lim: npt.NDArray[np.float64],
+    occ_hi: npt.NDArray[np.float64],
+) -> tuple[
+    float,
+    float,
+    float,
+    int,
+    int,
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    npt.NDArray[np.float64],
+    float,
+]:
+    """The arguments both kernels start their beams with, in their order: the grid
+    (resolution, origin x and y, rows, cols), the poses, each reading's free limit and
+    band end, and the beam's half-planes and radius."""
+    return (
+        grid.resolution,
+        grid.origin[0],
+        grid.origin[1],
+        grid.rows,
+        grid.cols,
+        sx,
+        sy,
+        st,
+        free_lim,
+        occ_hi,
+        np.ascontiguousarray(sensor.beam.halfplanes),
+        float(sensor.beam.radius),
+    )
+
+
 def _run(
     grid: Grid,
     sensor: SensorModel,
@@ -182,18 +223,7 @@ def _run(
     guess = np.sum(half * reach**2) / h**2 + np.sum((2.0 + 2.0 * half) * reach) / h
     capacity = int(min(guess, 2e8)) + 1024
     out = rasterise_kernel(
-        grid.resolution,
-        grid.origin[0],
-        grid.origin[1],
-        grid.rows,
-        grid.cols,
-        sx,
-        sy,
-        st,
-        free_lim,
-        occ_hi,
-        np.ascontiguousarray(sensor.beam.halfplanes),
-        float(sensor.beam.radius),
+        *_beams(grid, sensor, sx, sy, st, free_lim, occ_hi),
         zp,
         zr,
         zw,
@@ -399,18 +429,7 @@ def accumulate(
     args = (
         values,
         touched,
-        grid.resolution,
-        grid.origin[0],
-        grid.origin[1],
-        grid.rows,
-        grid.cols,
-        sx,
-        sy,
-        st,
-        free_lim,
-        occ_hi,
-        np.ascontiguousarray(sensor.beam.halfplanes),
-        float(sensor.beam.radius),
+        *_beams(grid, sensor, sx, sy, st, free_lim, occ_hi),
         inc_free,
         inc_occ,
         clamp[0],

@@ -30,6 +30,10 @@ from ..raster import Footprint
 I64 = npt.NDArray[np.int64]
 F64 = npt.NDArray[np.float64]
 
+#: A beam index's arrays in the order the kernels take them
+#: (:meth:`BeamIndex.posterior_arrays`).
+IndexArrays = tuple[I64, I64, I64, I64, F64, I64, I64, npt.NDArray[np.int8], F64]
+
 KIND_FREE = 0
 KIND_BAND = 1
 
@@ -67,11 +71,9 @@ class BeamIndex:
     def n_cells(self) -> int:
         return len(self.cells)
 
-    def posterior_arrays(
-        self,
-    ) -> tuple[I64, I64, I64, I64, F64, I64, I64, npt.NDArray[np.int8], F64]:
-        """The arrays :func:`._thrun_common.posterior` takes, in its order: both
-        directions of the index and ``z``."""
+    def posterior_arrays(self) -> IndexArrays:
+        """The arrays :func:`._thrun_common.posterior` and :func:`._thrun_common.sweep`
+        take, in their order: both directions of the index and ``z``."""
         return (
             self.free_off,
             self.free_cell,

@@ -43,9 +43,8 @@ import numpy.typing as npt
 from ..readings import Readings
 from ._base import Mapper, Progress, register
 from ._checks import choice, integer, number
-from ._correlated import reading_weights
 from ._thrun import BeamIndex
-from ._thrun_common import index_readings, model_sigma, posterior, scatter
+from ._thrun_common import held_posterior, model_inputs, scatter
 
 __all__ = ["EMMapper"]
 
@@ -248,15 +247,11 @@ class EMMapper(Mapper):
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         everything = self._accumulate(readings)
-        sigma = model_sigma(self, self.sigma)
-        ix = index_readings(self, everything, sigma)
+        # The weights' mean 1: the M-step's ratio a / (a + b) does not see a common
+        # scale, but the final posterior's log-odds grow with it against the prior's;
+        # mean 1 gives the data the weight of as many readings as there are.
+        sigma, ix, weight = model_inputs(self, everything, self.sigma, self.correlated)
         r_max = self.sensor.r_max
-        weight = None
-        if self.correlated > 0:
-            # Mean 1: the M-step's ratio a / (a + b) does not see a common scale, but
-            # the final posterior's log-odds grow with it against the prior's; mean 1
-            # gives the data the weight of as many readings as there are.
-            weight = reading_weights(everything, self.correlated, r_max)
         m = self._initial_map(everything, ix)
         self.loglik_ = []
         k = 0
@@ -287,11 +282,8 @@ class EMMapper(Mapper):
                 break
         self.n_iter_ = k
         self.outlier_prob_ = outlier
-        occ = m >= 0.5
-        arrays = ix.posterior_arrays()
-        log_odds = posterior(occ, arrays, self.p_rand, self.p_hit, sigma, r_max, weight)
-        log_odds += math.log(self.prior / (1.0 - self.prior))
-        self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))
+        model = (self.p_rand, self.p_hit, sigma, r_max)
+        self._post = held_posterior(m >= 0.5, ix, model, weight, self.prior)
         self._m = m
         self._index = ix
 
@@ -321,6 +313,4 @@ class EMMapper(Mapper):
         return scatter(self._index, self._m, self.grid.size).reshape(self.grid.shape)
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
-        if self._index is None or self._post is None:
-            return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._post, self.grid.size)

@@ -50,10 +50,9 @@ from ..errors import ConfigError
 from ..readings import Readings
 from ._base import Mapper, Progress, register
 from ._checks import choice, integer, number
-from ._correlated import reading_weights
 from ._stream import StreamEngine
-from ._thrun import BeamIndex, apply_flip, flip_delta, init_state, loglik_of
-from ._thrun_common import index_readings, model_sigma, posterior, scatter
+from ._thrun import BeamIndex, IndexArrays, init_state, loglik_of
+from ._thrun_common import held_posterior, model_inputs, model_sigma, probability, scatter, sweep
 
 __all__ = ["ThrunEMMapper"]
 
@@ -135,63 +134,6 @@ def _e_step(
                 q_total += wi * (e * lj[q])
         outlier[i] = math.exp(lj[0] - log_z)
     return q_total, l_total, outlier
-
-
-@nb.njit(cache=True)
-def _m_step(
-    occ: B,
-    n_before: I64,
-    bsum: F64,
-    loglik: F64,
-    cell_off: I64,
-    cell_reading: I64,
-    cell_kind: npt.NDArray[np.int8],
-    band_off: I64,
-    band_cell: I64,
-    band_dist: F64,
-    z: F64,
-    p_rand: float,
-    p_hit: float,
-    sigma: float,
-    r_max: float,
-    weight: F64 | None = None,
-) -> int:
-    """One hill-climbing sweep over the cells in index order; returns the flips made
-    (each reading's log-likelihood times its ``weight``, when given)."""
-    max_deg = 1
-    for c in range(occ.shape[0]):
-        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
-    new_ll = np.empty(max_deg)
-    new_b = np.empty(max_deg)
-    flips = 0
-    for c in range(occ.shape[0]):
-        gain = flip_delta(
-            c,
-            occ,
-            n_before,
-            bsum,
-            loglik,
-            new_ll,
-            new_b,
-            cell_off,
-            cell_reading,
-            cell_kind,
-            band_off,
-            band_cell,
-            band_dist,
-            z,
-            p_rand,
-            p_hit,
-            sigma,
-            r_max,
-            weight,
-        )
-        if gain > MIN_GAIN:
-            apply_flip(
-                c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading, cell_kind
-            )
-            flips += 1
-    return flips
 
 
 @register
@@ -317,41 +259,26 @@ class ThrunEMMapper(Mapper):
 
     def _add(self, readings: Readings, progress: Progress | None) -> None:
         everything = self._accumulate(readings)
-        sigma = model_sigma(self, self.sigma)
-        ix = index_readings(self, everything, sigma)
+        # The weights' mean 1: a flip's sign does not see a common scale, but the final
+        # posterior's log-odds grow with it against the prior's (and the gains against
+        # MIN_GAIN); mean 1 gives the data the weight of as many readings as there are.
+        sigma, ix, weight = model_inputs(self, everything, self.sigma, self.correlated)
         r_max = self.sensor.r_max
-        weight = None
-        if self.correlated > 0:
-            # Mean 1: a flip's sign does not see a common scale, but the final
-            # posterior's log-odds grow with it against the prior's (and the gains
-            # against MIN_GAIN); mean 1 gives the data the weight of as many readings
-            # as there are.
-            weight = reading_weights(everything, self.correlated, r_max)
         occ = self._initial_map(everything, ix)
         model = (self.p_rand, self.p_hit, sigma, r_max)
         beams = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)
-        n_before, bsum, loglik = init_state(occ, *beams, *model)
+        state = init_state(occ, *beams, *model)
+        # The M-step: one hill-climbing sweep over every cell in index order.
+        cells = np.arange(ix.n_cells, dtype=np.int64)
+        arrays = ix.posterior_arrays()
+        odds = np.empty(ix.n_cells)
         self.loglik_, self.expected_loglik_, self.flips_ = [], [], []
         k = 0
         for k in range(1, self.max_iter + 1):
             q, ll, _ = _e_step(occ, *beams, *model, weight)
             self.expected_loglik_.append(q)
             self.loglik_.append(ll)
-            flips = _m_step(
-                occ,
-                n_before,
-                bsum,
-                loglik,
-                ix.cell_off,
-                ix.cell_reading,
-                ix.cell_kind,
-                ix.band_off,
-                ix.band_cell,
-                ix.band_dist,
-                ix.z,
-                *model,
-                weight,
-            )
+            flips = sweep(cells, occ, state, arrays, model, weight, None, odds, MIN_GAIN)
             self.flips_.append(flips)
             if progress is not None:
                 progress(k, self.max_iter)
@@ -362,10 +289,7 @@ class ThrunEMMapper(Mapper):
         self.loglik_.append(ll)
         self.n_iter_ = k
         self.outlier_prob_ = outlier
-        arrays = ix.posterior_arrays()
-        log_odds = posterior(occ, arrays, *model, weight)
-        log_odds += math.log(self.prior / (1.0 - self.prior))
-        self._post = 0.5 * (1.0 + np.tanh(0.5 * log_odds))
+        self._post = held_posterior(occ, ix, model, weight, self.prior)
         self._occ = occ
         self._index = ix
 
@@ -380,14 +304,10 @@ class ThrunEMMapper(Mapper):
 
     @property
     def binary_map_(self) -> npt.NDArray[np.float32]:
-        if self._index is None or self._occ is None:
-            return np.full(self.grid.shape, np.nan, dtype=np.float32)
-        values = self._occ.astype(np.float64)
+        values = None if self._occ is None else self._occ.astype(np.float64)
         return scatter(self._index, values, self.grid.size).reshape(self.grid.shape)
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
-        if self._index is None or self._post is None:
-            return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._post, self.grid.size)
 
 
@@ -395,20 +315,9 @@ class ThrunEMMapper(Mapper):
 def _climb(
     cand: I64,
     occ: B,
-    n_before: I64,
-    bsum: F64,
-    loglik: F64,
-    cell_off: I64,
-    cell_reading: I64,
-    cell_kind: npt.NDArray[np.int8],
-    band_off: I64,
-    band_cell: I64,
-    band_dist: F64,
-    z: F64,
-    p_rand: float,
-    p_hit: float,
-    sigma: float,
-    r_max: float,
+    state: tuple[I64, F64, F64],
+    index_arrays: IndexArrays,
+    model: tuple[float, float, float, float],
     max_sweeps: int,
     bias: F64,
     log_odds: F64,
@@ -423,28 +332,9 @@ def _climb(
     on its own state, only on the other cells', which that sweep may still have
     changed after it; a second pass for the exact odds would double the work.
     """
-    max_deg = 1
-    for c in cand:
-        max_deg = max(max_deg, cell_off[c + 1] - cell_off[c])
-    new_ll = np.empty(max_deg)
-    new_b = np.empty(max_deg)
     flips = 0
     for _ in range(max_sweeps):
-        made = 0
-        for k in range(cand.shape[0]):
-            c = cand[k]
-            d = flip_delta(
-                c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading,
-                cell_kind, band_off, band_cell, band_dist, z, p_rand, p_hit, sigma, r_max, None,
-            )  # fmt: skip
-            odds = (-d if occ[c] else d) + bias[c]
-            log_odds[k] = odds
-            if (odds if not occ[c] else -odds) > MIN_GAIN:
-                apply_flip(
-                    c, occ, n_before, bsum, loglik, new_ll, new_b, cell_off, cell_reading,
-                    cell_kind,
-                )  # fmt: skip
-                made += 1
+        made = sweep(cand, occ, state, index_arrays, model, None, bias, log_odds, MIN_GAIN)
         flips += made
         if made == 0:
             break
@@ -674,7 +564,6 @@ class ThrunEMStream(StreamEngine):
         self.dr = 3.0 * self.sigma
         self.occ = np.zeros(self.grid.size, np.bool_)
         self.post = np.full(self.grid.size, m.prior)
-        self._prior_log_odds = math.log(m.prior / (1.0 - m.prior))
         #: Per cell, the log-likelihood ratio (occupied to free) of the readings that
         #: have left, each taken with the rest of the map as it was when it left.
         self.bias = np.zeros(self.grid.size)
@@ -735,28 +624,14 @@ class ThrunEMStream(StreamEngine):
         occ = self.occ[ix.cells]
         model = (m.p_rand, m.p_hit, self.sigma, self.sensor.r_max)
         beams = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)
-        n_before, bsum, loglik = init_state(occ, *beams, *model)
+        state = init_state(occ, *beams, *model)
         log_odds = np.empty(len(cand))
+        arrays = ix.posterior_arrays()
         self.flips_ += _climb(
-            cand,
-            occ,
-            n_before,
-            bsum,
-            loglik,
-            ix.cell_off,
-            ix.cell_reading,
-            ix.cell_kind,
-            ix.band_off,
-            ix.band_cell,
-            ix.band_dist,
-            ix.z,
-            *model,
-            sweeps,
-            self.bias[ix.cells],
-            log_odds,
+            cand, occ, state, arrays, model, sweeps, self.bias[ix.cells], log_odds
         )
         self.occ[cells] = occ[cand]
-        self.post[cells] = 0.5 * (1.0 + np.tanh(0.5 * (log_odds + self._prior_log_odds)))
+        self.post[cells] = probability(log_odds, m.prior)
 
     def improve(self, budget: float) -> int:
         """One M-step sweep at a time over every cell in play, for up to ``budget`` s."""

@@ -864,6 +864,55 @@ def _term_sums(
 EPS = float(np.finfo(np.float64).eps)
 
 
+@nb.njit(cache=True, inline="always")
+def _slot_term(
+    s: int,
+    part: int,
+    fs_start: npt.NDArray[np.int64],
+    fs_len: npt.NDArray[np.int64],
+    os_start: npt.NDArray[np.int64],
+    os_len: npt.NDArray[np.int64],
+    f_len: npt.NDArray[np.int64],
+    o_len: npt.NDArray[np.int64],
+    f_sum: F64,
+    o_sum: F64,
+    echo: npt.NDArray[np.bool_],
+) -> tuple[int, int, int, float]:
+    """Slot ``s``'s free (``part`` 0) or occ (1) term as the pool's spans: its first
+    span, spans, entries and total weight; no entries for a no-echo reading's occ term."""
+    if part == 0:
+        return fs_start[s], fs_len[s], f_len[s], f_sum[s]
+    if not echo[s]:
+        return 0, 0, 0, 0.0
+    return os_start[s], os_len[s], o_len[s], o_sum[s]
+
+
+@nb.njit(cache=True, inline="always")
+def _side_unknown(known_x: float, known_at: float, drift: float, m: int, x0: float) -> bool:
+    """Whether a term's X, known as ``known_x`` when the moves totalled ``known_at``,
+    may since have crossed X0 = ``x0`` (the moves now total ``drift``; ``m`` entries):
+    then it must be summed again. See :func:`_stream_steps`."""
+    moved = (drift - known_at) * (1.0 + 1e-6)
+    return not abs(known_x - x0) > moved + 4.0 * (m + 4) * EPS
+
+
+@nb.njit(cache=True, inline="always")
+def _term_slope(part: int, big_x: float, x0: float, a1: float, a2: float) -> tuple[bool, float]:
+    """The slope of a free (``part`` 0) or occ (1) term in X on the side of X0 = ``x0``
+    where ``big_x`` lies, and False at X0 itself (no side: the term adds nothing)."""
+    if part == 0:
+        below = a1
+        above = (1.0 - a1 * x0) / (1.0 - x0) if x0 < 1.0 else a1
+    else:
+        below = -(1.0 - a2 + a2 * x0) / x0
+        above = -a2
+    if big_x < x0:
+        return True, below
+    if big_x > x0:
+        return True, above
+    return False, 0.0
+
+
 @nb.njit(cache=True)
 def _stream_steps(
     sel: npt.NDArray[np.int64],
@@ -932,12 +981,9 @@ def _stream_steps(
     t_part = np.empty(2 * sel.shape[0], np.int64)
     for s in sel:
         for part in range(2):
-            if part == 0:
-                a, n, m, tot = fs_start[s], fs_len[s], f_len[s], f_sum[s]
-            else:
-                if not echo[s]:
-                    continue
-                a, n, m, tot = os_start[s], os_len[s], o_len[s], o_sum[s]
+            a, n, m, tot = _slot_term(
+                s, part, fs_start, fs_len, os_start, os_len, f_len, o_len, f_sum, o_sum, echo
+            )
             if m == 0 or tot <= 0.0:
                 continue
             t_start[n_terms] = a
@@ -956,8 +1002,7 @@ def _stream_steps(
         for t in range(n_terms):
             s, part = t_slot[t], t_part[t]
             x0 = 1.0 / t_tot[t]
-            moved = (drift[0] - known_at[s, part]) * (1.0 + 1e-6)
-            if not abs(known[s, part] - x0) > moved + 4.0 * (t_len[t] + 4) * EPS:
+            if _side_unknown(known[s, part], known_at[s, part], drift[0], t_len[t], x0):
                 due[n_due] = t
                 n_due += 1
                 longest = max(longest, t_len[t])
@@ -972,19 +1017,8 @@ def _stream_steps(
         hi = 0
         for t in range(n_terms):
             tot = t_tot[t]
-            big_x = known[t_slot[t], t_part[t]]
-            x0 = 1.0 / tot
-            if t_part[t] == 0:
-                below = a1
-                above = (1.0 - a1 * x0) / (1.0 - x0) if x0 < 1.0 else a1
-            else:
-                below = -(1.0 - a2 + a2 * x0) / x0
-                above = -a2
-            if big_x < x0:
-                slope = below
-            elif big_x > x0:
-                slope = above
-            else:
+            sided, slope = _term_slope(t_part[t], known[t_slot[t], t_part[t]], 1.0 / tot, a1, a2)
+            if not sided:
                 continue
             f = slope / tot
             for q in range(t_start[t], t_start[t] + t_spans[t]):
@@ -1048,18 +1082,14 @@ def _fold_terms(
     tell its side."""
     for s in gone:
         for part in range(2):
-            if part == 0:
-                a, n, m, tot = fs_start[s], fs_len[s], f_len[s], f_sum[s]
-            else:
-                if not echo[s]:
-                    continue
-                a, n, m, tot = os_start[s], os_len[s], o_len[s], o_sum[s]
+            a, n, m, tot = _slot_term(
+                s, part, fs_start, fs_len, os_start, os_len, f_len, o_len, f_sum, o_sum, echo
+            )
             if m == 0 or tot <= 0.0:
                 continue
             x0 = 1.0 / tot
             big_x = known[s, part]
-            moved = (drift[0] - known_at[s, part]) * (1.0 + 1e-6)
-            if not abs(big_x - x0) > moved + 4.0 * (m + 4) * EPS:
+            if _side_unknown(big_x, known_at[s, part], drift[0], m, x0):
                 big = 0.0
                 for q in range(a, a + n):
                     c0 = sp_cell[q]
@@ -1067,17 +1097,8 @@ def _fold_terms(
                     for i in range(sp_len[q]):
                         big += w * x[c0 + i]
                 big_x = big / tot
-            if part == 0:
-                below = a1
-                above = (1.0 - a1 * x0) / (1.0 - x0) if x0 < 1.0 else a1
-            else:
-                below = -(1.0 - a2 + a2 * x0) / x0
-                above = -a2
-            if big_x < x0:
-                slope = below
-            elif big_x > x0:
-                slope = above
-            else:
+            sided, slope = _term_slope(part, big_x, x0, a1, a2)
+            if not sided:
                 continue
             f = slope / tot
             for q in range(a, a + n):

@@ -27,10 +27,9 @@ from ..readings import Readings
 from ..sensors import SensorModel
 from ._base import Mapper, Progress, register
 from ._checks import choice, integer, number
-from ._correlated import reading_weights
 from ._stream import StreamEngine
 from ._thrun import BeamIndex, apply_flip, flip_delta, index_arrays, init_state
-from ._thrun_common import index_readings, model_sigma, scatter
+from ._thrun_common import model_inputs, model_sigma, scatter
 
 __all__ = ["StochasticMapper"]
 
@@ -345,8 +344,9 @@ class StochasticMapper(Mapper):
         # The score couples every reading; batches accumulate and the search restarts
         # from the current map.
         everything = self._accumulate(readings)
-        sigma = model_sigma(self, self.sigma)
-        index = index_readings(self, everything, sigma)
+        # The weights' mean 1: the log-likelihood is weighed against w_occ, w_border and
+        # the annealing temperatures, all tuned with each reading counting once.
+        sigma, index, weight = model_inputs(self, everything, self.sigma, self.correlated)
         full = np.zeros(self.grid.size, dtype=np.bool_)
         if self._occ is not None and self._index is not None:
             full[self._index.cells] = self._occ >= 0.5
@@ -354,11 +354,6 @@ class StochasticMapper(Mapper):
             full[index.cells] = True
         occ = full[index.cells].copy()
         n_flips = round(self.sweeps * index.n_cells)
-        weight = None
-        if self.correlated > 0:
-            # Mean 1: the log-likelihood is weighed against w_occ, w_border and the
-            # annealing temperatures, all tuned with each reading counting once.
-            weight = reading_weights(everything, self.correlated, self.sensor.r_max)
         self.accepted_, self.loglik_ = self.search(
             index,
             occ,
@@ -440,8 +435,6 @@ class StochasticMapper(Mapper):
         return self._occ
 
     def _occupancy(self) -> npt.NDArray[np.float32]:
-        if self._occ is None or self._index is None:
-            return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._occ, self.grid.size)
 
 
