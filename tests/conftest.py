@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 import pandas as pd
 import pytest
@@ -21,6 +22,11 @@ from sonarmap.sensors import Region, SensorModel
 
 # CI replays a fixed sequence of examples so that a run is reproducible; developers'
 # runs explore new ones each time.
+# Benchmark modules that tests import set NUMBA_NUM_THREADS=1 (setdefault) for their own
+# runs, and numba refuses a new value once its threads have started: pin the value numba
+# already chose, so that importing one mid-session changes nothing.
+os.environ.setdefault("NUMBA_NUM_THREADS", str(numba.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]
+
 settings.register_profile("ci", derandomize=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")
