@@ -34,6 +34,7 @@ from ..team.prior import ERROR_KEYS, check_prior_inside, make_prior
 from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
 from ..team.store import StoreParams
+from ..team.summary import naive_share_note
 from ..team.territory import (
     MissionTerritory,
     check_route_inside,
@@ -171,20 +172,6 @@ def _run_territory(
     return chosen
 
 
-#: Summary figures averaged over the robots at the top level of summary.json.
-MEAN_KEYS = (
-    "association_precision",
-    "association_recall",
-    "ate_m",
-    "ate_odometry_m",
-    "map_f1",
-    "map_f1_true_poses",
-    "map_f1_odometry_poses",
-    "alignment_error_m",
-    "alignment_error_deg",
-)
-
-
 @team_app.command("world", epilog=EPILOG)
 def world_cmd(
     out: OutOption,
@@ -270,13 +257,6 @@ def _phase(update: Any, name: str) -> None:
 
 #: Transports of ``--transport``.
 TRANSPORTS = ("sim", "zmq")
-
-
-def _share(s: dict[str, Any]) -> str:
-    share = s.get("share_of_naive")
-    if share is None or s["exchange"]["mode"] == "naive":
-        return ""
-    return f" ({100 * share:.1f} % of the naive baseline's, quiet phase included)"
 
 
 #: Options that set :class:`~sonarmap.team.network.NetworkParams`.
@@ -791,7 +771,8 @@ def run_cmd(
                 territory_desc=territory_desc,
             )
         console.print(
-            f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
+            f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute"
+            f"{naive_share_note(s)}, "
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}: {out}"
         )
         return
@@ -865,7 +846,7 @@ def run_cmd(
         convergence = s["convergence_s"]
         console.print(
             f"team F1 {s['map_f1_team']:.3f} (central {s['map_f1_central']:.3f}), "
-            f"{s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
+            f"{s['bytes_per_robot_minute']:.0f} B per robot-minute{naive_share_note(s)}, "
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}, "
             f"converged {'never' if convergence is None else f'{convergence:.1f} s'}"
         )
