@@ -13,9 +13,9 @@ import numpy.typing as npt
 import typer
 
 from ..errors import ConfigError, InputError, quote
-from ..files import atomic_folder, atomic_write_text, json_dumps
+from ..files import atomic_folder
 from ..io.record import make_recorder
-from ..io.rosmap import OccupancyMap, write_map
+from ..io.rosmap import OccupancyMap
 from ..team.config import MAX_DURATION, MAX_ROBOTS, team_size_problem
 from ..team.exchange import ExchangeParams
 from ..team.inputs import (
@@ -25,9 +25,10 @@ from ..team.inputs import (
     mission_routes,
     run_territory,
 )
+from ..team.launcher import run_zmq_team_into
 from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
-from ..team.outputs import write_missions, write_team
+from ..team.outputs import write_run
 from ..team.patrolling import patrol_routes
 from ..team.presets import DEFAULT_PRESET, PRESETS, PresetClashError, TeamPreset, team_settings
 from ..team.prior import ERROR_KEYS, check_prior_inside, make_prior
@@ -513,60 +514,6 @@ def opts_of(fields: tuple[str, ...]) -> list[str]:
     return [names[f] for f in fields if f in names]
 
 
-def _run_zmq_team(
-    out: Path,
-    plan: OccupancyMap,
-    config: MissionConfig,
-    robots: int,
-    *,
-    network: NetworkParams,
-    exchange: ExchangeParams,
-    seed: int,
-    progress: Any,
-    preset: str | None,
-    routes: list[Any],
-    prior: OccupancyMap | None,
-    prior_desc: dict[str, Any] | None,
-    territory: Path | None = None,
-    territory_desc: dict[str, Any] | None = None,
-) -> dict[str, Any]:
-    """The team as local ZeroMQ processes (:func:`sonarmap.team.launcher.run_zmq_team`):
-    the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json``.
-
-    ``preset`` is the preset applied (None for none); ``routes`` one route (ndarray
-    (T, 4): t, x, y, theta) or None per robot (None: the node's seeded patrol route);
-    ``prior`` the robots' prior map (None: the plan) and ``prior_desc`` what the
-    summary records of it, as the simulated team's; ``territory`` the --territory file
-    the launcher hands every node, ``territory_desc`` what the summary records of it."""
-    # Imported here: the node module pulls in the process machinery only zmq needs.
-    from ..team.launcher import run_zmq_team
-
-    with atomic_folder(out) as tmp:
-        result = run_zmq_team(
-            plan,
-            config,
-            robots,
-            network=network,
-            exchange=exchange,
-            seed=seed,
-            progress=progress,
-            folder=tmp / "nodes",
-            routes=routes,
-            prior=prior,
-            territory=territory,
-        )
-        result.summary["preset"] = preset
-        if territory_desc is not None:
-            result.summary["territory"] = territory_desc
-        if prior_desc is not None:
-            result.summary["prior"] = prior_desc
-        if prior is not None:
-            # The prior the robots were given, beside the truth they were scored on.
-            write_map(prior, tmp / "prior")
-        atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
-    return result.summary
-
-
 def _drawn(
     plan: OccupancyMap,
     map_: Path,
@@ -752,7 +699,7 @@ def run_cmd(
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
         with progress("team") as update:
             tick = partial(_tick, update, f"{robots} nodes")
-            s = _run_zmq_team(
+            s = run_zmq_team_into(
                 out,
                 plan,
                 config,
@@ -764,11 +711,11 @@ def run_cmd(
                 preset=preset_used,
                 routes=[routes.get(i) for i in range(robots)],
                 prior=prior,
-                prior_desc=prior_desc,
+                prior_record=prior_desc,
                 # The nodes work the default footprint out as this command did; none
                 # when it did not apply (a --route of the user's, say).
                 territory=chosen.node_value(),
-                territory_desc=territory_desc,
+                territory_record=territory_desc,
             )
         console.print(
             f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute"
@@ -822,25 +769,19 @@ def run_cmd(
                     )
             if publisher is not None:
                 publisher.finish()
+        written: dict[str, Any] = {
+            "prior": prior,
+            "prior_record": prior_desc,
+            "territory_record": territory_desc,
+            "preset": preset_used,
+            "animate": animate,
+        }
         if robots > 1:
             with progress("writing") as update:
                 update(0, 0, "maps, pictures" + (" and animations" if animate else ""))
-                if prior_desc is not None:
-                    team.summary["prior"] = prior_desc
-                if territory_desc is not None:
-                    team.summary["territory"] = territory_desc
-                team.summary["preset"] = preset_used
-                write_team(tmp, plan, team, animate=animate)
+                write_run(tmp, plan, team, **written)
         else:
-            extra: dict[str, Any] = {}
-            if prior_desc is not None:
-                extra["prior"] = prior_desc
-            if territory_desc is not None:
-                extra["territory"] = territory_desc
-            s0, _ = write_missions(tmp, plan, [result], animate=animate, extra=extra or None)
-        if prior is not None:
-            # The prior the robots were given, beside the truth they were scored on.
-            write_map(prior, tmp / "prior")
+            s0 = write_run(tmp, plan, result, **written)
     if robots > 1:
         s = team.summary
         convergence = s["convergence_s"]
