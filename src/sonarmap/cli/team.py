@@ -30,7 +30,15 @@ from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
 from ..team.outputs import write_run
 from ..team.patrolling import patrol_routes
-from ..team.presets import DEFAULT_PRESET, PRESETS, PresetClashError, TeamPreset, team_settings
+from ..team.presets import (
+    DEFAULT_PRESET,
+    PRESETS,
+    PresetClashError,
+    TeamPreset,
+    check_preset,
+    default_mode,
+    team_settings,
+)
 from ..team.prior import ERROR_KEYS, check_prior_inside, make_prior
 from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
@@ -367,13 +375,10 @@ def _team_options(
     if "r_max" in given(ctx, NETWORK_OPTIONS) and net.kind != "limited":
         raise ConfigError(f"--link-range is the limited network's; --network is {net.kind}")
 
-    def protocol(mode: str | None) -> str:
-        # A link that may break or be slow is what the limited protocol was designed for.
-        return mode if mode is not None else ("good" if net.kind == "full" else "limited")
-
+    protocol = partial(default_mode, network=net.kind)
     chosen: str | None = ctx.params.get("preset")
     flag = None if chosen is None else f"--preset {chosen}"
-    _check_preset(chosen)
+    check_preset(chosen)
     if ctx.params.get("lean"):
         if chosen not in (None, "lean"):
             raise ConfigError(f"--lean is --preset lean: drop it or {flag}")
@@ -428,16 +433,10 @@ def _under_preset(
     :func:`config_from_options`, by ``"exchange"`` and ``"store"``)."""
     out = dict(params)
     fixed: dict[str, dict[str, Any]] = {"exchange": {}, "store": {}}
-    own = [f for f in preset.sets() if f not in preset.store]
-    values = {
-        "exchange": {f: getattr(preset.exchange, f) for f in own},
-        "store": dict(preset.store),
-    }
+    values = preset.values(given_fields)
     for kind, opts in (("exchange", EXCHANGE_OPTIONS), ("store", STORE_OPTIONS)):
         by_field = {o.field: o for o in opts}
         for f, v in values[kind].items():
-            if f in given_fields:
-                continue
             if f in by_field:
                 out[by_field[f].param] = v
             else:
@@ -453,7 +452,7 @@ def _node_settings(
     applied; a clash names the options."""
     from ..team.node import parse_exchange
 
-    _check_preset(chosen)
+    check_preset(chosen)
     store_given = given(ctx, STORE_OPTIONS)
     names = {item.partition("=")[0].strip(): f"--exchange {item}" for item in items}
     names.update(store_given)
@@ -474,14 +473,6 @@ def _node_settings(
                 "the thesis's)"
             ) from None
         raise ConfigError(f"--preset {chosen}: {err}") from None
-
-
-def _check_preset(chosen: str | None) -> None:
-    """A ``--preset`` that names no preset fails in one line naming the ones there are."""
-    if chosen is not None and chosen not in PRESETS:
-        raise ConfigError(
-            f"--preset must be one of {', '.join(sorted(PRESETS))}, got {quote(chosen)}"
-        )
 
 
 PcmOption = Annotated[
