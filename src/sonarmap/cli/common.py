@@ -159,12 +159,11 @@ def say_order(order: TimeOrder) -> None:
 
 
 def read_plan(path: Path, resolution: float | None, origin: tuple[float, float]) -> OccupancyMap:
-    """A map from a map_server YAML, or from a bare image with its resolution."""
-    from ..io.rosmap import IMAGE_SUFFIXES, read_map
+    """A map from a map_server YAML, or from a bare image with its resolution
+    (:func:`sonarmap.io.rosmap.read_plan`)."""
+    from ..io.rosmap import read_plan as read
 
-    if path.suffix.lower() in IMAGE_SUFFIXES:
-        return read_map(path, resolution=resolution, origin=origin)
-    return read_map(path)
+    return read(path, resolution, origin)
 
 
 def resolve_map(

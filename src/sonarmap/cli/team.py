@@ -13,28 +13,41 @@ import numpy.typing as npt
 import typer
 
 from ..errors import ConfigError, InputError, quote
-from ..files import atomic_folder, atomic_write_text, json_dumps
+from ..files import atomic_folder
 from ..io.record import make_recorder
-from ..io.rosmap import FREE, OccupancyMap, write_map
+from ..io.rosmap import OccupancyMap
 from ..team.config import MAX_DURATION, MAX_ROBOTS, team_size_problem
 from ..team.exchange import ExchangeParams
+from ..team.inputs import (
+    RunTerritory,
+    check_world_territory,
+    draw_world,
+    mission_routes,
+    run_territory,
+)
+from ..team.launcher import run_zmq_team_into
 from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
-from ..team.outputs import write_missions, write_team
+from ..team.outputs import write_run
 from ..team.patrolling import patrol_routes
-from ..team.presets import DEFAULT_PRESET, PRESETS, PresetClashError, TeamPreset, team_settings
-from ..team.prior import ERROR_KEYS, check_prior, degrade_plan, parse_prior_error
+from ..team.presets import (
+    DEFAULT_PRESET,
+    PRESETS,
+    PresetClashError,
+    TeamPreset,
+    check_preset,
+    default_mode,
+    team_settings,
+)
+from ..team.prior import ERROR_KEYS, check_prior_inside, make_prior
 from ..team.publish import TeamPublisher
 from ..team.simulation import run_team
 from ..team.store import StoreParams
+from ..team.summary import naive_share_note
 from ..team.territory import (
-    NO_TERRITORY,
     MissionTerritory,
-    default_territory,
-    is_no_territory,
-    load_territory,
-    mask_on,
-    territory_of,
+    check_route_inside,
+    territory_option,
 )
 from ..team.world import (
     load_world,
@@ -42,7 +55,6 @@ from ..team.world import (
     patrol_route,
     read_route,
     save_world,
-    world_territory,
 )
 from .common import (
     BagOption,
@@ -58,7 +70,6 @@ from .common import (
     console,
     given,
     progress,
-    read_plan,
     resolve_map,
     writable,
     wrote,
@@ -134,100 +145,40 @@ NodeTerritoryOption = Annotated[
 
 
 def _territory(path: Path | None, plan: OccupancyMap) -> MissionTerritory | None:
-    """``--territory``: the mask read onto the plan's cells, what a robot reaches inside
-    it and what summary.json records of it
-    (:func:`~sonarmap.team.territory.territory_of`). Without the option, the default
-    (:func:`~sonarmap.team.territory.default_territory`: the building's footprint on a
-    drawn plan whose outside is free, told in one line; None elsewhere);
-    ``--territory none``: None, the whole map. Its errors name the option and the file
-    (and the line, for a malformed one)."""
-    if path is None:
-        mask = territory_of(None, plan)
-        if mask is not None:
-            r = mask.record
-            console.print(
-                f"territory: {r['why']}; left out its free outside, "
-                f"{r['left_out_free_area_m2']:,.1f} m^2 (the building's footprint; "
-                "--territory none keeps the whole map)",
-                markup=False,
-            )
-        return mask
-    try:
-        return territory_of(path, plan)
-    except InputError as err:
-        where = str(err) if err.path is not None else f"{path}: {err.reason}"
-        raise ConfigError(f"--territory {where}") from None
+    """``--territory`` (:func:`~sonarmap.team.territory.territory_option`), the default
+    told in one line when it applies."""
+    mask = territory_option(path, plan)
+    if path is None and mask is not None:
+        _say_footprint(mask)
+    return mask
 
 
-def _territory_file(path: Path | None) -> Path | None:
-    """The --territory file itself, None for the default or ``none``."""
-    return None if path is None or is_no_territory(path) else path
+def _say_footprint(mask: MissionTerritory) -> None:
+    r = mask.record
+    console.print(
+        f"territory: {r['why']}; left out its free outside, "
+        f"{r['left_out_free_area_m2']:,.1f} m^2 (the building's footprint; "
+        "--territory none keeps the whole map)",
+        markup=False,
+    )
 
 
 def _run_territory(
     territory: Path | None, plan: OccupancyMap, route: Path | None, world_dir: Path | None
-) -> tuple[MissionTerritory | None, dict[str, Any] | None]:
-    """``team run``'s territory mask and what summary.json records of it: a mask file;
-    ``none`` (recorded as ``"default": "none"``); with the user's ``--route`` the default
-    is skipped (recorded, with why, when the plan is a drawn one); with ``--world`` the
-    mask 'team world' made the world in (none when it was made on the whole map);
-    otherwise the default (:func:`_territory`)."""
-    if is_no_territory(territory):
-        return None, {"file": None, "default": NO_TERRITORY}
-    if territory is not None:
-        mask = _territory(territory, plan)
-        return mask, None if mask is None else mask.record
-    if route is not None:
-        skipped = default_territory(plan)
-        if skipped is None:
-            return None, None
-        return None, {
-            "file": None,
-            "default": "skipped",
-            "why": "a --route of the user's: followed as given, on the whole map",
-            "footprint_would_leave_out_free_area_m2": skipped.record["left_out_free_area_m2"],
-        }
-    if world_dir is not None:
-        saved = world_territory(world_dir)
-        if saved is None:
-            return None, None
-        mask = load_territory(saved[0], plan)
+) -> RunTerritory:
+    """``team run``'s territory (:func:`~sonarmap.team.inputs.run_territory`), the
+    default or the --world's told in one line."""
+    chosen = run_territory(territory, plan, route_given=route is not None, world=world_dir)
+    if chosen.how == "default" and chosen.mask is not None:
+        _say_footprint(chosen.mask)
+    if chosen.how == "world" and chosen.record is not None:
+        r = chosen.record
         console.print(
-            f"territory: the --world's, made inside {saved[1] or 'a mask'} ({saved[0]})",
+            f"territory: the --world's, made inside {r['world_territory_from'] or 'a mask'} "
+            f"({r['file']})",
             markup=False,
         )
-        return mask, {**mask.record, "default": "world", "world_territory_from": saved[1]}
-    mask = _territory(None, plan)
-    return mask, None if mask is None else mask.record
-
-
-def _check_route_inside(
-    route: Any, plan: OccupancyMap, mask: MissionTerritory, path: Path, territory: Any
-) -> None:
-    """Refuse a ``--route`` (ndarray (T, 4): t, x, y, theta) with a pose off the area a
-    robot reaches inside the ``--territory`` mask: the mission would map a place the
-    mask leaves out while summary.json records the mask."""
-    i = mask.first_outside(plan, route[:, 1], route[:, 2])
-    if i >= 0:
-        raise ConfigError(
-            f"--route {path}: pose {i + 1} (t = {route[i, 0]:g} s) at ({route[i, 1]:g}, "
-            f"{route[i, 2]:g}) m is off the area a robot reaches inside --territory "
-            f"{territory}"
-        )
-
-
-#: Summary figures averaged over the robots at the top level of summary.json.
-MEAN_KEYS = (
-    "association_precision",
-    "association_recall",
-    "ate_m",
-    "ate_odometry_m",
-    "map_f1",
-    "map_f1_true_poses",
-    "map_f1_odometry_poses",
-    "alignment_error_m",
-    "alignment_error_deg",
-)
+    return chosen
 
 
 @team_app.command("world", epilog=EPILOG)
@@ -315,13 +266,6 @@ def _phase(update: Any, name: str) -> None:
 
 #: Transports of ``--transport``.
 TRANSPORTS = ("sim", "zmq")
-
-
-def _share(s: dict[str, Any]) -> str:
-    share = s.get("share_of_naive")
-    if share is None or s["exchange"]["mode"] == "naive":
-        return ""
-    return f" ({100 * share:.1f} % of the naive baseline's, quiet phase included)"
 
 
 #: Options that set :class:`~sonarmap.team.network.NetworkParams`.
@@ -431,13 +375,10 @@ def _team_options(
     if "r_max" in given(ctx, NETWORK_OPTIONS) and net.kind != "limited":
         raise ConfigError(f"--link-range is the limited network's; --network is {net.kind}")
 
-    def protocol(mode: str | None) -> str:
-        # A link that may break or be slow is what the limited protocol was designed for.
-        return mode if mode is not None else ("good" if net.kind == "full" else "limited")
-
+    protocol = partial(default_mode, network=net.kind)
     chosen: str | None = ctx.params.get("preset")
     flag = None if chosen is None else f"--preset {chosen}"
-    _check_preset(chosen)
+    check_preset(chosen)
     if ctx.params.get("lean"):
         if chosen not in (None, "lean"):
             raise ConfigError(f"--lean is --preset lean: drop it or {flag}")
@@ -492,16 +433,10 @@ def _under_preset(
     :func:`config_from_options`, by ``"exchange"`` and ``"store"``)."""
     out = dict(params)
     fixed: dict[str, dict[str, Any]] = {"exchange": {}, "store": {}}
-    own = [f for f in preset.sets() if f not in preset.store]
-    values = {
-        "exchange": {f: getattr(preset.exchange, f) for f in own},
-        "store": dict(preset.store),
-    }
+    values = preset.values(given_fields)
     for kind, opts in (("exchange", EXCHANGE_OPTIONS), ("store", STORE_OPTIONS)):
         by_field = {o.field: o for o in opts}
         for f, v in values[kind].items():
-            if f in given_fields:
-                continue
             if f in by_field:
                 out[by_field[f].param] = v
             else:
@@ -517,7 +452,7 @@ def _node_settings(
     applied; a clash names the options."""
     from ..team.node import parse_exchange
 
-    _check_preset(chosen)
+    check_preset(chosen)
     store_given = given(ctx, STORE_OPTIONS)
     names = {item.partition("=")[0].strip(): f"--exchange {item}" for item in items}
     names.update(store_given)
@@ -538,14 +473,6 @@ def _node_settings(
                 "the thesis's)"
             ) from None
         raise ConfigError(f"--preset {chosen}: {err}") from None
-
-
-def _check_preset(chosen: str | None) -> None:
-    """A ``--preset`` that names no preset fails in one line naming the ones there are."""
-    if chosen is not None and chosen not in PRESETS:
-        raise ConfigError(
-            f"--preset must be one of {', '.join(sorted(PRESETS))}, got {quote(chosen)}"
-        )
 
 
 PcmOption = Annotated[
@@ -578,115 +505,6 @@ def opts_of(fields: tuple[str, ...]) -> list[str]:
     return [names[f] for f in fields if f in names]
 
 
-def _run_zmq_team(
-    out: Path,
-    plan: OccupancyMap,
-    config: MissionConfig,
-    robots: int,
-    *,
-    network: NetworkParams,
-    exchange: ExchangeParams,
-    seed: int,
-    progress: Any,
-    preset: str | None,
-    routes: list[Any],
-    prior: OccupancyMap | None,
-    prior_desc: dict[str, Any] | None,
-    territory: Path | None = None,
-    territory_desc: dict[str, Any] | None = None,
-) -> dict[str, Any]:
-    """The team as local ZeroMQ processes (:func:`sonarmap.team.launcher.run_zmq_team`):
-    the nodes' outputs in ``OUT/nodes``, the team's summary in ``OUT/summary.json``.
-
-    ``preset`` is the preset applied (None for none); ``routes`` one route (ndarray
-    (T, 4): t, x, y, theta) or None per robot (None: the node's seeded patrol route);
-    ``prior`` the robots' prior map (None: the plan) and ``prior_desc`` what the
-    summary records of it, as the simulated team's; ``territory`` the --territory file
-    the launcher hands every node, ``territory_desc`` what the summary records of it."""
-    # Imported here: the node module pulls in the process machinery only zmq needs.
-    from ..team.launcher import run_zmq_team
-
-    with atomic_folder(out) as tmp:
-        result = run_zmq_team(
-            plan,
-            config,
-            robots,
-            network=network,
-            exchange=exchange,
-            seed=seed,
-            progress=progress,
-            folder=tmp / "nodes",
-            routes=routes,
-            prior=prior,
-            territory=territory,
-        )
-        result.summary["preset"] = preset
-        if territory_desc is not None:
-            result.summary["territory"] = territory_desc
-        if prior_desc is not None:
-            result.summary["prior"] = prior_desc
-        if prior is not None:
-            # The prior the robots were given, beside the truth they were scored on.
-            write_map(prior, tmp / "prior")
-        atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
-    return result.summary
-
-
-def _prior(
-    plan: OccupancyMap,
-    prior_path: Path | None,
-    prior_error: str | None,
-    seed: int,
-    resolution: float | None,
-    origin: tuple[float, float],
-) -> tuple[OccupancyMap | None, dict[str, Any] | None]:
-    """``--prior`` and ``--prior-error``: the robots' prior map (None: the plan itself)
-    and what summary.json records of it. A prior file that cannot be matched to the
-    plan, or a bad error spec, fails in one line naming the option."""
-    if prior_path is None and prior_error is None:
-        return None, None
-    base, source = plan, "the map"
-    if prior_path is not None:
-        if not prior_path.is_file():
-            raise ConfigError(f"--prior {prior_path}: no such file")
-        base, source = read_plan(prior_path, resolution, origin), str(prior_path)
-        check_prior(plan, base, f"--prior {prior_path}")
-    desc: dict[str, Any] = {"source": source}
-    if prior_error is None:
-        return base, desc
-    prior, report = degrade_plan(base, parse_prior_error(prior_error, seed=seed))
-    # The same rule as for a user's file, so that both transports take the same priors
-    # (a node checks the prior it is handed).
-    try:
-        check_prior(plan, prior, "prior")
-    except InputError as err:
-        raise ConfigError(
-            f"--prior-error {prior_error}: the prior it makes no longer matches the map "
-            f"({err.reason}; a smaller scale?)"
-        ) from None
-    desc.update(report.to_dict())
-    return prior, desc
-
-
-def _prior_in_territory(
-    plan: OccupancyMap,
-    prior: OccupancyMap | None,
-    region: npt.NDArray[np.bool_] | None,
-    where: str,
-) -> None:
-    """Refuse, in one line naming ``where``, a prior none of whose free cells lies
-    inside the territory ``region`` (a mask on the plan's cells) put on its cells: its
-    regions could not be cut inside the territory (a prior that does not match the
-    plan). Nothing to check without a prior or a mask."""
-    if prior is None or region is None:
-        return
-    if not ((prior.classes() == FREE) & mask_on(region, plan.grid, prior.grid)).any():
-        raise ConfigError(
-            f"{where}: no free cell of the prior lies inside the territory, so its "
-            "regions cannot be cut inside it (does the prior match the map?)"
-        )
-
-
 def _drawn(
     plan: OccupancyMap,
     map_: Path,
@@ -696,17 +514,11 @@ def _drawn(
     robots: int,
     region: npt.NDArray[np.bool_] | None = None,
     territory: Path | None = None,
-) -> Any:
-    """The world and the missing seeded routes the missions would draw themselves (the
-    same seeds, so the same runs), inside the --territory mask ``region`` (read from the
-    file ``territory``) when given, drawn here so that a map with no wall for a landmark
-    or no territory for a route fails in one line naming --map (and --territory) before
-    any work."""
+) -> tuple[Any, dict[int, Any]]:
+    """:func:`~sonarmap.team.inputs.draw_world`, a plan with no wall for a landmark or no
+    territory for a route failing in one line naming --map (and --territory)."""
     try:
-        world = make_world(plan, seed=seed, duration=duration, region=region)
-        for i in range(robots):
-            if routes.get(i) is None:
-                routes[i] = patrol_route(plan, duration, seed=seed + 7919 * i, region=region)
+        return draw_world(plan, duration, seed=seed, robots=robots, region=region, routes=routes)
     except (InputError, ConfigError) as err:
         # The reason itself says when the mask is what left no room.
         within = "" if territory is None else f", --territory {territory}"
@@ -715,7 +527,6 @@ def _drawn(
                 ", inside the building's footprint (the default; --territory none: the whole map)"
             )
         raise ConfigError(f"--map {map_}{within}: {err.reason}") from None
-    return world
 
 
 @team_app.command("run", epilog=EPILOG)
@@ -838,16 +649,14 @@ def run_cmd(
         )
     if not (math.isfinite(map_every) and map_every > 0):
         raise ConfigError(f"--map-every must be > 0 seconds, got {map_every}")
-    if _territory_file(territory) is not None and world_dir is not None:
-        raise ConfigError(
-            "--world carries its own landmarks and route: give --territory to 'team world' "
-            "instead, or drop --world"
-        )
+    check_world_territory(territory, world_dir)
     plan = resolve_map(map_, resolution, origin)
-    mask, territory_desc = _run_territory(territory, plan, route, world_dir)
-    region = None if mask is None else mask.region
-    prior, prior_desc = _prior(plan, prior_path, prior_error, seed, resolution, origin)
-    _prior_in_territory(
+    chosen = _run_territory(territory, plan, route, world_dir)
+    mask, territory_desc, region = chosen.mask, chosen.record, chosen.region
+    prior, prior_desc = make_prior(
+        plan, prior_path, prior_error, seed=seed, resolution=resolution, origin=origin
+    )
+    check_prior_inside(
         plan,
         prior,
         region,
@@ -863,25 +672,25 @@ def run_cmd(
         routes[0] = read_route(route)
         check_inside_plan(routes[0][:, 0], routes[0][:, 1], routes[0][:, 2], plan.grid, route)
         if mask is not None:
-            _check_route_inside(routes[0], plan, mask, route, territory)
+            check_route_inside(
+                plan, mask, routes[0], where=f"--route {route}", inside=f"--territory {territory}"
+            )
     config = _mission_config(duration, seed, store, pcm)
     if tour:
-        # Each robot's seed as the mission draws its own route (seed + 7919 x robot).
-        routes = {
-            i: patrol_route(plan, duration, seed=seed + 7919 * i, style="tour", region=region)
-            for i in range(robots)
-        }
+        routes = mission_routes(
+            plan, duration, seed=seed, robots=robots, style="tour", region=region
+        )
     if patrol:
         # The patrol replaces any route, a saved world's included.
         patrolled, _ = patrol_routes(plan, robots, duration, seed=seed, region=region)
         routes = dict(enumerate(patrolled))
     if transport == "sim" and world is None:
-        world = _drawn(plan, map_, duration, seed, routes, robots, region, territory)
+        world, routes = _drawn(plan, map_, duration, seed, routes, robots, region, territory)
     if transport == "zmq":
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
         with progress("team") as update:
             tick = partial(_tick, update, f"{robots} nodes")
-            s = _run_zmq_team(
+            s = run_zmq_team_into(
                 out,
                 plan,
                 config,
@@ -893,15 +702,15 @@ def run_cmd(
                 preset=preset_used,
                 routes=[routes.get(i) for i in range(robots)],
                 prior=prior,
-                prior_desc=prior_desc,
+                prior_record=prior_desc,
                 # The nodes work the default footprint out as this command did; none
                 # when it did not apply (a --route of the user's, say).
-                territory=_territory_file(territory)
-                or (None if mask is not None else Path(NO_TERRITORY)),
-                territory_desc=territory_desc,
+                territory=chosen.node_value(),
+                territory_record=territory_desc,
             )
         console.print(
-            f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
+            f"{robots} nodes: {s['bytes_per_robot_minute']:.0f} B per robot-minute"
+            f"{naive_share_note(s)}, "
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}: {out}"
         )
         return
@@ -951,31 +760,25 @@ def run_cmd(
                     )
             if publisher is not None:
                 publisher.finish()
+        written: dict[str, Any] = {
+            "prior": prior,
+            "prior_record": prior_desc,
+            "territory_record": territory_desc,
+            "preset": preset_used,
+            "animate": animate,
+        }
         if robots > 1:
             with progress("writing") as update:
                 update(0, 0, "maps, pictures" + (" and animations" if animate else ""))
-                if prior_desc is not None:
-                    team.summary["prior"] = prior_desc
-                if territory_desc is not None:
-                    team.summary["territory"] = territory_desc
-                team.summary["preset"] = preset_used
-                write_team(tmp, plan, team, animate=animate)
+                write_run(tmp, plan, team, **written)
         else:
-            extra: dict[str, Any] = {}
-            if prior_desc is not None:
-                extra["prior"] = prior_desc
-            if territory_desc is not None:
-                extra["territory"] = territory_desc
-            s0, _ = write_missions(tmp, plan, [result], animate=animate, extra=extra or None)
-        if prior is not None:
-            # The prior the robots were given, beside the truth they were scored on.
-            write_map(prior, tmp / "prior")
+            s0 = write_run(tmp, plan, result, **written)
     if robots > 1:
         s = team.summary
         convergence = s["convergence_s"]
         console.print(
             f"team F1 {s['map_f1_team']:.3f} (central {s['map_f1_central']:.3f}), "
-            f"{s['bytes_per_robot_minute']:.0f} B per robot-minute{_share(s)}, "
+            f"{s['bytes_per_robot_minute']:.0f} B per robot-minute{naive_share_note(s)}, "
             f"{s['duplicate_poses']} duplicate poses, identical maps {s['identical_maps']}, "
             f"converged {'never' if convergence is None else f'{convergence:.1f} s'}"
         )
@@ -1120,8 +923,8 @@ def node_cmd(
     plan = resolve_map(map_, resolution, origin)
     mask = _territory(territory, plan)
     region = None if mask is None else mask.region
-    prior, _ = _prior(plan, prior_path, None, seed, resolution, origin)
-    _prior_in_territory(plan, prior, region, f"--prior {prior_path}")
+    prior, _ = make_prior(plan, prior_path, seed=seed, resolution=resolution, origin=origin)
+    check_prior_inside(plan, prior, region, f"--prior {prior_path}")
     config = _mission_config(duration, seed, store, pcm)
     with progress(f"robot {robot}") as update:
         s = run_node(

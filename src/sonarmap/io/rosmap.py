@@ -35,7 +35,16 @@ from ..errors import InputError, quote
 from ..files import atomic_outputs, dump_yaml, need_file, read_yaml
 from ..grid import Grid
 
-__all__ = ["FREE", "OCCUPIED", "UNKNOWN", "OccupancyMap", "classify", "read_map", "write_map"]
+__all__ = [
+    "FREE",
+    "OCCUPIED",
+    "UNKNOWN",
+    "OccupancyMap",
+    "classify",
+    "read_map",
+    "read_plan",
+    "write_map",
+]
 
 F32 = npt.NDArray[np.float32]
 
@@ -138,6 +147,17 @@ MAX_EXTENT = 1e7
 
 #: Suffixes read as a bare image (a floor plan without its YAML).
 IMAGE_SUFFIXES = (".png", ".pgm", ".bmp", ".jpg", ".jpeg", ".gif", ".tif", ".tiff")
+
+
+def read_plan(
+    path: str | Path, resolution: float | None, origin: tuple[float, float]
+) -> OccupancyMap:
+    """A plan as every ``--map`` takes one: :func:`read_map` of a map_server YAML (which
+    has its own resolution and origin, so ``resolution`` and ``origin`` are not used),
+    or of a bare image with ``resolution`` (metres per pixel) and ``origin`` (metres)."""
+    if Path(path).suffix.lower() in IMAGE_SUFFIXES:
+        return read_map(path, resolution=resolution, origin=origin)
+    return read_map(path)
 
 
 def read_map(

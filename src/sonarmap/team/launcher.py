@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError, InputError
-from ..files import atomic_write_text
+from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap, read_map, write_map
 from .config import check_team_size
 from .exchange import ExchangeParams
@@ -41,7 +41,7 @@ from .territory import NO_TERRITORY, is_no_territory, territory_of
 from .transport import DEFAULT_MAX_MESSAGE
 from .world import patrol_route
 
-__all__ = ["KEY_FILE", "ZmqTeamResult", "node_args", "run_zmq_team"]
+__all__ = ["KEY_FILE", "ZmqTeamResult", "node_args", "run_zmq_team", "run_zmq_team_into"]
 
 logger = logging.getLogger("sonarmap.team.node")
 
@@ -317,6 +317,70 @@ def run_zmq_team(
             python,
             progress,
         )
+
+
+def run_zmq_team_into(
+    out: Path,
+    plan: OccupancyMap,
+    cfg: MissionConfig,
+    robots: int,
+    *,
+    preset: str | None,
+    prior: OccupancyMap | None = None,
+    prior_record: dict[str, Any] | None = None,
+    territory: str | Path | None = None,
+    territory_record: dict[str, Any] | None = None,
+    **kwargs: Any,
+) -> dict[str, Any]:
+    """:func:`run_zmq_team` with its outputs in the folder ``out``, written at once at the
+    end (or nothing): the nodes' in ``out/nodes``, the team's summary in
+    ``out/summary.json`` and the prior the robots were given (if any) in ``out/prior.*``.
+
+    Parameters
+    ----------
+    out : Path
+        The folder, replaced as a whole.
+    plan, cfg, robots
+        As :func:`run_zmq_team`.
+    preset : str or None
+        The exchange and store preset applied (:mod:`.presets`; None for none),
+        recorded in the summary as ``preset``.
+    prior : OccupancyMap, optional
+        The robots' prior map (:func:`~.prior.make_prior`; None: the plan).
+    prior_record, territory_record : dict, optional
+        What the summary records of the prior and the territory (as ``prior`` and
+        ``territory``; nothing when None).
+    territory : str or Path, optional
+        As :func:`run_zmq_team`.
+    **kwargs
+        :func:`run_zmq_team`'s other keywords (``network``, ``exchange``, ``seed``,
+        ``progress``, ``routes``, ...).
+
+    Returns
+    -------
+    dict
+        The team's summary, as written.
+    """
+    with atomic_folder(out) as tmp:
+        result = run_zmq_team(
+            plan,
+            cfg,
+            robots,
+            folder=tmp / "nodes",
+            prior=prior,
+            territory=territory,
+            **kwargs,
+        )
+        result.summary["preset"] = preset
+        if territory_record is not None:
+            result.summary["territory"] = territory_record
+        if prior_record is not None:
+            result.summary["prior"] = prior_record
+        if prior is not None:
+            # The prior the robots were given, beside the truth they were scored on.
+            write_map(prior, tmp / "prior")
+        atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
+    return result.summary
 
 
 def _launch(

@@ -23,7 +23,7 @@ from .records import compose
 from .simulation import TeamResult
 from .summary import mission_figures
 
-__all__ = ["memory_csv", "write_missions", "write_team"]
+__all__ = ["memory_csv", "write_missions", "write_run", "write_team"]
 
 #: ``note(text)``: told each phase as it starts (a progress line).
 Note = Callable[[str], None]
@@ -160,3 +160,65 @@ def write_team(
                 )
         files = _files(out, tmp)
     return files
+
+
+def write_run(
+    out: Path,
+    plan: OccupancyMap,
+    result: MissionResult | TeamResult,
+    *,
+    prior: OccupancyMap | None = None,
+    prior_record: Mapping[str, Any] | None = None,
+    territory_record: Mapping[str, Any] | None = None,
+    preset: str | None = None,
+    animate: bool = False,
+) -> dict[str, Any]:
+    """Write what ``team run`` writes of one robot's mission or a team's into the
+    folder ``out``: :func:`write_missions` or :func:`write_team`, their summary adding
+    what it records of the prior and the territory, and the prior the robots were given.
+
+    Parameters
+    ----------
+    out : Path
+        The folder.
+    plan : OccupancyMap
+        The truth the robots were scored on.
+    result : MissionResult or TeamResult
+        One robot's mission (:func:`~.mission.run_mission`) or a team's
+        (:func:`~.simulation.run_team`).
+    prior : OccupancyMap, optional
+        The robots' prior map (:func:`~.prior.make_prior`), written as ``prior.*``
+        beside the maps; None (the plan itself): nothing.
+    prior_record, territory_record : mapping, optional
+        What the summary records of the prior and of the territory (as ``prior`` and
+        ``territory``; nothing when None).
+    preset : str or None
+        A team's exchange and store preset (:mod:`.presets`; None for none), recorded
+        in its summary as ``preset``; a single mission records none.
+    animate : bool
+        Write the animations too. Default False.
+
+    Returns
+    -------
+    dict
+        The summary written.
+    """
+    if isinstance(result, TeamResult):
+        if prior_record is not None:
+            result.summary["prior"] = prior_record
+        if territory_record is not None:
+            result.summary["territory"] = territory_record
+        result.summary["preset"] = preset
+        write_team(out, plan, result, animate=animate)
+        summary = result.summary
+    else:
+        extra: dict[str, Any] = {}
+        if prior_record is not None:
+            extra["prior"] = prior_record
+        if territory_record is not None:
+            extra["territory"] = territory_record
+        summary, _ = write_missions(out, plan, [result], animate=animate, extra=extra or None)
+    if prior is not None:
+        # The prior the robots were given, beside the truth they were scored on.
+        write_map(prior, out / "prior")
+    return summary

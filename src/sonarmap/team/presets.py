@@ -17,11 +17,19 @@ from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
-from ..errors import ConfigError
+from ..errors import ConfigError, quote
 from .exchange import LEAN, LEAN_MERGE_ON_CLOSURE, ExchangeParams
 from .store import StoreParams
 
-__all__ = ["DEFAULT_PRESET", "PRESETS", "PresetClashError", "TeamPreset", "team_settings"]
+__all__ = [
+    "DEFAULT_PRESET",
+    "PRESETS",
+    "PresetClashError",
+    "TeamPreset",
+    "check_preset",
+    "default_mode",
+    "team_settings",
+]
 
 
 @dataclass(frozen=True)
@@ -59,6 +67,26 @@ class TeamPreset:
         override, in ``given``'s order."""
         sets = set(self.sets())
         return [g for g in given if g in sets]
+
+    def values(self, given: Collection[str] = ()) -> dict[str, dict[str, Any]]:
+        """The preset's value of every field it sets but those in ``given``.
+
+        Parameters
+        ----------
+        given : collection of str
+            Fields the caller set explicitly, whose values stand.
+
+        Returns
+        -------
+        dict
+            ``{"exchange": {field: value}, "store": {field: value}}``, in :meth:`sets`'
+            order.
+        """
+        own = [f for f in self.sets() if f not in self.store]
+        return {
+            "exchange": {f: getattr(self.exchange, f) for f in own if f not in given},
+            "store": {f: v for f, v in self.store.items() if f not in given},
+        }
 
     def apply(
         self, exchange: ExchangeParams, store: StoreParams
@@ -108,6 +136,40 @@ PRESETS = {
 #: The preset of a team that names none (two or more robots, a protocol, not the naive
 #: baseline): the one that meets the team's goal (docs/results, the team pages).
 DEFAULT_PRESET = "lean"
+
+
+def check_preset(name: str | None, option: str = "--preset") -> None:
+    """Refuse a preset name that names none of :data:`PRESETS` (None: no preset named).
+
+    Raises
+    ------
+    ConfigError
+        ``"--preset must be one of classic, lean, got 'x'"`` (``option`` naming it).
+    """
+    if name is not None and name not in PRESETS:
+        raise ConfigError(
+            f"{option} must be one of {', '.join(sorted(PRESETS))}, got {quote(name)}"
+        )
+
+
+def default_mode(mode: str | None, network: str) -> str:
+    """The exchange protocol of a team whose caller named none: ``"good"`` on a full
+    network, ``"limited"`` on any other (a link that may break or be slow is what the
+    limited protocol was designed for).
+
+    Parameters
+    ----------
+    mode : str or None
+        The protocol named by the caller (kept as it is), or None.
+    network : str
+        The network's kind (:class:`~.network.NetworkParams`' ``kind``).
+
+    Returns
+    -------
+    str
+        The protocol (:class:`~.exchange.ExchangeParams`' ``mode``).
+    """
+    return mode if mode is not None else ("good" if network == "full" else "limited")
 
 
 class PresetClashError(ConfigError):

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -46,7 +47,8 @@ from scipy import ndimage
 
 from ..errors import ConfigError, InputError
 from ..grid import Grid
-from ..io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap
+from ..io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap, read_plan
+from .territory import mask_on
 
 __all__ = [
     "MAX_RESOLUTION_RATIO",
@@ -55,10 +57,12 @@ __all__ = [
     "PriorError",
     "PriorReport",
     "check_prior",
+    "check_prior_inside",
     "degrade_plan",
     "find_doors",
     "find_furniture",
     "find_walls_to_open",
+    "make_prior",
     "parse_prior_error",
     "scale_plan",
 ]
@@ -526,3 +530,105 @@ def check_prior(truth: OccupancyMap, prior: OccupancyMap, where: str) -> None:
         )
     if not (prior.classes() == FREE).any():
         raise InputError("the prior has no free cell", path=where)
+
+
+def make_prior(
+    plan: OccupancyMap,
+    path: str | Path | None = None,
+    error: str | None = None,
+    *,
+    seed: int = 0,
+    resolution: float | None = None,
+    origin: tuple[float, float] = (0.0, 0.0),
+) -> tuple[OccupancyMap | None, dict[str, Any] | None]:
+    """The robots' prior map, as ``team run --prior PATH --prior-error SPEC`` makes it.
+
+    Parameters
+    ----------
+    plan : OccupancyMap
+        The truth the robots drive, sense and are scored on.
+    path : str or Path, optional
+        A prior map file (:func:`~sonarmap.io.rosmap.read_plan`: a map_server YAML, or
+        an image with ``resolution`` and ``origin``), checked against ``plan``
+        (:func:`check_prior`). Default: ``plan`` itself.
+    error : str, optional
+        Errors to put into the prior (:func:`parse_prior_error`'s spec, drawn from
+        ``seed`` unless it gives its own); the result must still match ``plan``.
+    seed : int
+        The mission's seed. Default 0.
+    resolution : float, optional
+        Metres per pixel of a bare image ``path``.
+    origin : (float, float)
+        Metres: the world position of a bare image's lower-left corner.
+
+    Returns
+    -------
+    (OccupancyMap or None, dict or None)
+        The prior (None with neither ``path`` nor ``error``: the plan itself) and what
+        ``summary.json`` records of it: its ``source`` and :meth:`PriorReport.to_dict`.
+
+    Raises
+    ------
+    ConfigError
+        No such file, a bad spec, or a spec whose prior no longer matches ``plan``, in
+        one line naming ``--prior`` or ``--prior-error``.
+    InputError
+        A file that cannot be read or matched to ``plan``, naming ``--prior PATH``.
+    """
+    if path is None and error is None:
+        return None, None
+    base, source = plan, "the map"
+    if path is not None:
+        if not Path(path).is_file():
+            raise ConfigError(f"--prior {path}: no such file")
+        base, source = read_plan(path, resolution, origin), str(path)
+        check_prior(plan, base, f"--prior {path}")
+    desc: dict[str, Any] = {"source": source}
+    if error is None:
+        return base, desc
+    prior, report = degrade_plan(base, parse_prior_error(error, seed=seed))
+    # The same rule as for a user's file, so that both transports take the same priors
+    # (a node checks the prior it is handed).
+    try:
+        check_prior(plan, prior, "prior")
+    except InputError as err:
+        raise ConfigError(
+            f"--prior-error {error}: the prior it makes no longer matches the map "
+            f"({err.reason}; a smaller scale?)"
+        ) from None
+    desc.update(report.to_dict())
+    return prior, desc
+
+
+def check_prior_inside(
+    plan: OccupancyMap,
+    prior: OccupancyMap | None,
+    region: npt.NDArray[np.bool_] | None,
+    where: str,
+) -> None:
+    """Refuse a prior none of whose free cells lies inside the territory: its regions
+    could not be cut inside it (a prior that does not match the plan).
+
+    Parameters
+    ----------
+    plan : OccupancyMap
+        The plan ``region`` is on.
+    prior : OccupancyMap or None
+        The prior (None: the plan itself, nothing to check).
+    region : ndarray of bool or None
+        The territory mask on the plan's cells (None: the whole plan, nothing to check).
+    where : str
+        The prior's name in the message (``"--prior FILE"``).
+
+    Raises
+    ------
+    ConfigError
+        In one line naming ``where``.
+    """
+    if prior is None or region is None:
+        return
+    if not ((prior.classes() == FREE) & mask_on(region, plan.grid, prior.grid)).any():
+        raise ConfigError(
+            f"{where}: no free cell of the prior lies inside the territory, so its "
+            "regions cannot be cut inside it (does the prior match the map?)"
+        )

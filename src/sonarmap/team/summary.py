@@ -18,7 +18,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
-__all__ = ["MEAN_KEYS", "SUM_KEYS", "mission_figures", "robot_row", "team_figures"]
+__all__ = [
+    "MEAN_KEYS",
+    "SUM_KEYS",
+    "mission_figures",
+    "naive_share_note",
+    "robot_row",
+    "team_figures",
+]
 
 #: Scores averaged over the robots at the top level of a summary (NaNs left out).
 MEAN_KEYS = (
@@ -187,3 +194,24 @@ def team_figures(
         "settle_seconds": settle_seconds,
         "settled": settled,
     }
+
+
+def naive_share_note(summary: Mapping[str, Any]) -> str:
+    """The bytes a team sent as a share of the naive baseline's, as a note for a line
+    of text: ``" (12.3 % of the naive baseline's, quiet phase included)"``.
+
+    Parameters
+    ----------
+    summary : mapping
+        A team's summary (:func:`team_figures`, with its ``exchange``).
+
+    Returns
+    -------
+    str
+        The note with its leading space; empty for the naive baseline itself or a
+        summary without the share.
+    """
+    share = summary.get("share_of_naive")
+    if share is None or summary["exchange"]["mode"] == "naive":
+        return ""
+    return f" ({100 * share:.1f} % of the naive baseline's, quiet phase included)"

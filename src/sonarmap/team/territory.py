@@ -28,7 +28,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
-from ..errors import InputError
+from ..errors import ConfigError, InputError
 from ..grid import Grid
 from ..io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 from ..patrol.reach import Reach, reach
@@ -42,13 +42,16 @@ __all__ = [
     "Footprint",
     "MissionTerritory",
     "building_footprint",
+    "check_route_inside",
     "default_territory",
     "footprint",
     "is_no_territory",
     "load_territory",
+    "mask_file",
     "mask_on",
     "read_territory",
     "territory_of",
+    "territory_option",
     "territory_reach",
     "territory_record",
 ]
@@ -382,3 +385,80 @@ def territory_of(value: str | Path | None, plan: OccupancyMap) -> MissionTerrito
     if is_no_territory(value):
         return None
     return load_territory(value, plan)
+
+
+def mask_file(value: str | Path | None) -> Path | None:
+    """The mask file a ``--territory`` value names: None for the default (None) and for
+    :data:`NO_TERRITORY`."""
+    return None if value is None or is_no_territory(value) else Path(value)
+
+
+def territory_option(
+    value: str | Path | None, plan: OccupancyMap, option: str = "--territory"
+) -> MissionTerritory | None:
+    """:func:`territory_of` for a value given as ``option``: a bad mask file fails as a
+    configuration error naming the option.
+
+    Parameters
+    ----------
+    value : str or Path or None
+        None (the default), :data:`NO_TERRITORY` or a mask file.
+    plan : OccupancyMap
+        The plan the mask goes on.
+    option : str
+        What the value was given as, for the message (default ``"--territory"``).
+
+    Returns
+    -------
+    MissionTerritory or None
+        As :func:`territory_of`.
+
+    Raises
+    ------
+    ConfigError
+        ``"--territory FILE[:LINE]: reason"`` for a file :func:`load_territory` refuses.
+    """
+    if value is None:
+        return territory_of(None, plan)
+    try:
+        return territory_of(value, plan)
+    except InputError as err:
+        where = str(err) if err.path is not None else f"{value}: {err.reason}"
+        raise ConfigError(f"{option} {where}") from None
+
+
+def check_route_inside(
+    plan: OccupancyMap,
+    mask: MissionTerritory,
+    route: npt.NDArray[np.float64],
+    *,
+    where: str,
+    inside: str,
+) -> None:
+    """Refuse a route with a pose off the area a robot reaches inside ``mask``: the
+    mission would map a place the mask leaves out while ``summary.json`` records the mask.
+
+    Parameters
+    ----------
+    plan : OccupancyMap
+        The plan the mask is on.
+    mask : MissionTerritory
+        The territory.
+    route : ndarray, shape (T, 4)
+        ``t`` (s), ``x``, ``y`` (m), ``theta`` (rad) a row.
+    where : str
+        The route's name in the message (``"--route FILE"``).
+    inside : str
+        The mask's name in the message (``"--territory FILE"``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the first pose outside, its time and position.
+    """
+    i = mask.first_outside(plan, route[:, 1], route[:, 2])
+    if i >= 0:
+        raise ConfigError(
+            f"{where}: pose {i + 1} (t = {route[i, 0]:g} s) at ({route[i, 1]:g}, "
+            f"{route[i, 2]:g}) m is off the area a robot reaches inside {inside}"
+        )
