@@ -519,13 +519,15 @@ class FreshAhead:
 
 @nb.njit(cache=True)
 def _block_pieces(
-    passable: npt.NDArray[np.bool_], b: int
+    passable: npt.NDArray[np.bool_], shift: int
 ) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-    # The pieces of every b x b block: the 8-connected components of its passable cells
-    # joined inside the block. Returns each cell's piece (-1 off ``passable``), and each
-    # piece's block (flat, row-major over the blocks) and cell count.
+    # The pieces of every b x b block (b = 2**shift: a cell's block by shifts, as in
+    # _reaches): the 8-connected components of its passable cells joined inside the
+    # block. Returns each cell's piece (-1 off ``passable``), and each piece's block
+    # (flat, row-major over the blocks) and cell count.
     rows, cols = passable.shape
-    nbc = (cols + b - 1) // b
+    b = 1 << shift
+    nbc = (cols + b - 1) >> shift
     piece = np.full((rows, cols), -1, dtype=np.int32)
     block = np.empty(rows * cols, dtype=np.int64)
     size = np.empty(rows * cols, dtype=np.int64)
@@ -535,7 +537,7 @@ def _block_pieces(
         for c in range(cols):
             if not passable[r, c] or piece[r, c] >= 0:
                 continue
-            br, bc = r // b, c // b
+            br, bc = r >> shift, c >> shift
             piece[r, c] = n
             stack[0] = r * cols + c
             top = 1
@@ -547,11 +549,11 @@ def _block_pieces(
                 count += 1
                 for dr in range(-1, 2):
                     r2 = rr + dr
-                    if r2 < 0 or r2 >= rows or r2 // b != br:
+                    if r2 < 0 or r2 >= rows or r2 >> shift != br:
                         continue
                     for dc in range(-1, 2):
                         c2 = cc + dc
-                        if c2 < 0 or c2 >= cols or c2 // b != bc:
+                        if c2 < 0 or c2 >= cols or c2 >> shift != bc:
                             continue
                         if passable[r2, c2] and piece[r2, c2] < 0:
                             piece[r2, c2] = n
@@ -565,14 +567,14 @@ def _block_pieces(
 
 @nb.njit(cache=True)
 def _piece_links(
-    piece: npt.NDArray[np.int32], n: int, b: int
+    piece: npt.NDArray[np.int32], n: int, shift: int
 ) -> tuple[
     npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]
 ]:
     # The pieces of neighbouring blocks that touch (8-connected): for each piece u,
     # links[link_ptr[u]:link_ptr[u + 1]] are the pieces it touches, and for each of
     # those links, cells[cell_ptr[k]:cell_ptr[k + 1]] the cells (flat) of the other
-    # piece next to a cell of u.
+    # piece next to a cell of u. Blocks are 2**shift cells a side.
     rows, cols = piece.shape
     # Every (u, cell of another block next to u) pair, once per pair.
     m = 0
@@ -585,7 +587,7 @@ def _piece_links(
                     r2, c2 = r + dr, c + dc
                     if r2 < 0 or r2 >= rows or c2 < 0 or c2 >= cols or piece[r2, c2] < 0:
                         continue
-                    if r2 // b != r // b or c2 // b != c // b:
+                    if r2 >> shift != r >> shift or c2 >> shift != c >> shift:
                         m += 1
     pu = np.empty(m, dtype=np.int64)
     pv = np.empty(m, dtype=np.int64)
@@ -600,7 +602,7 @@ def _piece_links(
                     r2, c2 = r + dr, c + dc
                     if r2 < 0 or r2 >= rows or c2 < 0 or c2 >= cols or piece[r2, c2] < 0:
                         continue
-                    if r2 // b != r // b or c2 // b != c // b:
+                    if r2 >> shift != r >> shift or c2 >> shift != c >> shift:
                         pu[k] = piece[r, c]
                         pv[k] = piece[r2, c2]
                         pc[k] = r2 * cols + c2
@@ -779,13 +781,15 @@ class DeadEnds:
     def __init__(self, passable: npt.NDArray[np.bool_]) -> None:
         self.passable = np.ascontiguousarray(passable, dtype=np.bool_)
         b = self.BLOCK
-        # The flood finds a cell's block by a shift: the side is a power of two.
+        # The build and the flood find a cell's block by shifts: a power of two.
         self._shift = b.bit_length() - 1
         if b != 1 << self._shift:
             raise ValueError(f"DeadEnds.BLOCK must be a power of two, got {b}")
-        self.piece, self.piece_block, self.piece_size = _block_pieces(self.passable, b)
+        self.piece, self.piece_block, self.piece_size = _block_pieces(self.passable, self._shift)
         n = len(self.piece_size)
-        self.link_ptr, self.links, self.cell_ptr, self.cells = _piece_links(self.piece, n, b)
+        self.link_ptr, self.links, self.cell_ptr, self.cells = _piece_links(
+            self.piece, n, self._shift
+        )
         self.n_passable = int(self.piece_size.sum())
         rows, cols = passable.shape
         self.mark = np.zeros(passable.shape, dtype=np.int8)
