@@ -688,14 +688,25 @@ def _reaches(
             mark[r, c] = 1
     touched[(r0 >> shift) * nbc + (c0 >> shift)] = True
     mark[r0, c0] = 2
+    # Cells queue from the front of ``queue``, pieces from its back (pieces[i] at
+    # queue[last - i]), and pieces go first: the flood's count, and so its answer,
+    # is the same in any order, and a way ahead that leads on reaches ``need``
+    # through whole pieces mostly, leaving the touched blocks' cells unflooded.
+    last = queue.shape[0] - 1
     queue[0] = r0 * cols + c0
     tail = 1
     head = 0
+    tail_p = 0
+    head_p = 0
     count = 1
     result = count >= need
-    while not result and head < tail:
-        q = queue[head]
-        head += 1
+    while not result and (head_p < tail_p or head < tail):
+        if head_p < tail_p:
+            q = queue[last - head_p]
+            head_p += 1
+        else:
+            q = queue[head]
+            head += 1
         if q >= 0:
             r = int((q + 0.5) * inv_cols)
             c = q - r * cols
@@ -717,8 +728,8 @@ def _reaches(
                         if seen[v]:
                             continue
                         seen[v] = True
-                        queue[tail] = -1 - v
-                        tail += 1
+                        queue[last - tail_p] = -1 - v
+                        tail_p += 1
                         count += piece_size[v]
         else:
             u = -1 - q
@@ -727,8 +738,8 @@ def _reaches(
                 if not touched[piece_block[v]]:
                     if not seen[v]:
                         seen[v] = True
-                        queue[tail] = -1 - v
-                        tail += 1
+                        queue[last - tail_p] = -1 - v
+                        tail_p += 1
                         count += piece_size[v]
                     continue
                 for j in range(cell_ptr[k], cell_ptr[k + 1]):
@@ -742,11 +753,10 @@ def _reaches(
         result = count >= need
     for k in range(tail):
         q = queue[k]
-        if q >= 0:
-            r = int((q + 0.5) * inv_cols)
-            mark[r, q - r * cols] = 0
-        else:
-            seen[-1 - q] = False
+        r = int((q + 0.5) * inv_cols)
+        mark[r, q - r * cols] = 0
+    for k in range(tail_p):
+        seen[-1 - queue[last - k]] = False
     for k in range(n_closed):
         r, c = closed[k, 0], closed[k, 1]
         r = r + rows if r < 0 else r
