@@ -39,10 +39,16 @@ from sonarmap.patrol.starts import starts_from_dm
 
 
 def digest(ow: OneWay) -> str:
-    """SHA-256 (first 16 hex digits) over every field of ``ow``: dtype, shape, bytes."""
+    """SHA-256 (first 16 hex digits) over every field of ``ow``: dtype, shape, bytes of
+    the arrays, the ``repr`` of the rest (``search``: None or a ``Search``)."""
     h = hashlib.sha256()
     for f in dataclasses.fields(ow):
-        a = np.ascontiguousarray(getattr(ow, f.name))
+        value = getattr(ow, f.name)
+        if not isinstance(value, np.ndarray):
+            # As an object array its bytes would be a pointer: another each process.
+            h.update(f"{f.name}:{value!r}".encode())
+            continue
+        a = np.ascontiguousarray(value)
         h.update(f"{f.name}:{a.dtype}:{a.shape}".encode())
         h.update(a.tobytes())
     return h.hexdigest()[:16]

@@ -33,7 +33,7 @@ from sonarmap.patrol import (
 )
 from sonarmap.patrol.experiments import run_experiment
 from sonarmap.patrol.fog import Vision, dilate, disc_cells, disc_offsets
-from sonarmap.patrol.forces import sector_pulls, step_direction
+from sonarmap.patrol.forces import _top_two, sector_pulls, step_direction
 from sonarmap.patrol.paths import STEP_UNITS, STEPS, Wave, nearest_step, shadows
 from sonarmap.patrol.robots import SPEED_BANDS, Car, arc, band_speed, parse_speed_bands
 from sonarmap.patrol.territory import move_clear
@@ -1038,6 +1038,27 @@ def test_move_clear_samples_both_ends_and_the_pieces_midpoints() -> None:
         assert move_clear(float(x0), float(y0), float(x1), float(y1), clear, g) == want
         agree[want] += 1
     assert min(agree.values()) > 20  # both answers were tried
+
+
+def test_top_two_is_numpys_argmax_and_max_of_the_rest() -> None:
+    # The visitor's certification reads the weighted sums without an array: the same
+    # index, value and runner-up as numpy's argmax and max, ties (first wins), -inf,
+    # zero weights and NaN included.
+    rng = np.random.default_rng(3)
+    for k in range(3000):
+        sums = rng.choice([0.0, 0.5, 1.0, 2.0, -np.inf], 8) if k % 2 else rng.random(8)
+        weights = rng.choice([0.0, 0.5, 1.0], 8) if k % 3 else rng.random(8)
+        if k % 97 == 0:
+            sums[int(rng.integers(8))] = np.nan
+        with np.errstate(invalid="ignore"):  # -inf x 0: NaN, as in the kernel
+            w = sums * weights
+        want_k = int(np.argmax(w))
+        top = w[want_k]
+        w[want_k] = -np.inf
+        got_k, got_top, rest = _top_two(sums, weights)
+        assert got_k == want_k
+        np.testing.assert_equal(got_top, top)
+        np.testing.assert_equal(rest, w.max())
 
 
 def test_sector_pulls_names_each_steps_strongest_place() -> None:

@@ -38,7 +38,7 @@ from sonarmap.patrol.simulation import (
     obstacle_discs,
     run_patrol,
 )
-from sonarmap.patrol.territory import Territory, move_clear
+from sonarmap.patrol.territory import Territory, move_clear, points_clear
 
 
 def _corridor_map(res: float = 0.5) -> Territory:
@@ -188,6 +188,12 @@ def test_the_dead_end_test_reads_indices_as_numpy_does() -> None:
     for cell in ([rows, 0], [0, cols], [-rows - 1, 0], [0, -cols - 1], [rows + 40, cols + 9]):
         with pytest.raises(IndexError, match="outside the 20 x 37 map"):
             ends.leads_on(np.array([[1, 1], cell], dtype=np.intp), (5, 5))
+        # The first cell off the map is named, before a start off it too.
+        two = np.array([[1, 1], cell, [rows + 1, 1]], dtype=np.intp)
+        with pytest.raises(IndexError, match=rf"cell \({cell[0]}, {cell[1]}\) is outside"):
+            ends.leads_on(two, (5, 5))
+        with pytest.raises(IndexError, match=rf"cell \({cell[0]}, {cell[1]}\) is outside"):
+            ends.leads_on(two, (rows, 5))
     for start in ((rows, 2), (2, cols), (-rows - 1, 2), (2, -cols - 1)):
         with pytest.raises(IndexError, match="outside"):
             ends.leads_on(inside, start)
@@ -212,6 +218,8 @@ def test_one_dead_end_test_answers_many_questions_of_a_map_as_labelling_does() -
                 passable[: int(rng.integers(1, rows)), c : c + int(rng.integers(1, 4))] = True
         passable[rng.random((rows, cols)) < 0.03] = False  # speckle
         ends = DeadEnds(passable)
+        # Blocks smaller than these maps too: floods through many blocks' pieces.
+        small = _SmallBlocks(passable)
         rr, cc = np.nonzero(passable)
         dr, dc = np.mgrid[-4:5, -4:5]
         for _ in range(60):
@@ -229,7 +237,21 @@ def test_one_dead_end_test_answers_many_questions_of_a_map_as_labelling_does() -
             for share in (0.05, 0.3, 0.5):
                 want = _leads_on_by_labels(passable, closed, start, share)
                 assert ends.leads_on(closed, start, share) == want
+                assert small.leads_on(closed, start, share) == want
         _assert_clean(ends)
+        _assert_clean(small)
+
+
+class _SmallBlocks(DeadEnds):
+    BLOCK = 4
+
+
+def test_the_dead_end_tests_blocks_are_a_power_of_two() -> None:
+    class Odd(DeadEnds):
+        BLOCK = 12
+
+    with pytest.raises(ValueError, match="power of two"):
+        Odd(np.ones((10, 10), dtype=bool))
 
 
 def _assert_clean(ends: DeadEnds) -> None:
@@ -1238,6 +1260,51 @@ def test_disc_side_is_numpys_disc_and_half() -> None:
         halves += 0 < len(want) < len(cells)
     assert halves > 50
     assert not halves_discs(PatrolConfig())
+
+
+def test_disc_side_far_planning_robot_is_numpys_half() -> None:
+    # The planning robot's cell so far off that the squared offsets pass 2**40: the
+    # kernel compares libm's hypots there, and keeps numpy's cells either way.
+    disc = disc_offsets(12.0, 1.0)
+    shape = (60, 60)
+    for mine in [(2**20 + 3, 7), (-(2**21), 2**20), (30, 2**22), (2**19, 2**19)]:
+        cells = np.column_stack(disc_cells(disc, 30, 30, shape))
+        near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
+        want = cells[np.hypot(cells[:, 0] - 30, cells[:, 1] - 30) < near_me]
+        np.testing.assert_array_equal(disc_side(disc, 30, 30, shape, mine), want)
+    # Lattice points at equal squared distances from both cells by different offsets
+    # ((5, 0) and (3, 4), (7, 1) and (5, 5)): the hypots decide, as numpy's do.
+    for mine in [(35, 30), (33, 34), (37, 31), (35, 35), (30, 30)]:
+        cells = np.column_stack(disc_cells(disc, 30, 30, shape))
+        near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
+        want = cells[np.hypot(cells[:, 0] - 30, cells[:, 1] - 30) < near_me]
+        np.testing.assert_array_equal(disc_side(disc, 30, 30, shape, mine), want)
+
+
+def test_points_clear_is_the_grid_lookup() -> None:
+    # Random points on and off a map with its origin off zero, many on cell edges:
+    # points_clear is world_to_cell, contains and the clear lookup, all().
+    rng = np.random.default_rng(5)
+    g = Grid(resolution=0.1, origin=(-1.3, 2.7), shape=(40, 30))
+    trues = 0
+    for k in range(2000):
+        clear = rng.random(g.shape) < (0.5 if k % 2 else 0.995)
+        n = int(rng.integers(0, 12))
+        x = rng.uniform(-1.6, 1.9, n)
+        y = rng.uniform(2.4, 7.0, n)
+        if k % 3 == 0:
+            # Cell edges exactly, as a car's arc rarely but may land.
+            x = -1.3 + 0.1 * rng.integers(-2, 33, n).astype(np.float64)
+            y = 2.7 + 0.1 * rng.integers(-2, 43, n).astype(np.float64)
+        r, c = g.world_to_cell(x, y)
+        inside = g.contains(r, c)
+        want = bool(inside.all() and clear[r[inside], c[inside]].all())
+        assert points_clear(x, y, clear, g) is want
+        trues += want
+    assert 100 < trues < 1900
+    clear = np.ones(g.shape, dtype=bool)
+    assert points_clear(np.array([np.nan]), np.array([3.0]), clear, g) is False
+    assert points_clear(np.empty(0), np.empty(0), clear, g) is True
 
 
 def _crossroads(res: float = 0.5) -> Territory:

@@ -678,3 +678,21 @@ def test_largest_sets_is_the_former_lexsort_form() -> None:
             sets = set(strong[(weak == w) & (size == size[weak == w].max(initial=0))].tolist())
             ties += len(sets) > 1
     assert ties > 200
+
+
+def test_the_one_way_benchmarks_digest_reads_values_not_objects() -> None:
+    # benchmarks.one_way compares builds by digest, across processes: a field that is no
+    # array (search: None or a Search) counts by its value, not the object's address.
+    from benchmarks.one_way import digest
+
+    t = _four_blocks()
+    passable = t.passable(1.0)
+    a = one_way(passable, t.clearance, RES, turn_radius=3.5, orient="short")
+    b = one_way(passable, t.clearance, RES, turn_radius=3.5, orient="short")
+    assert a.search is not None
+    assert a.search is not b.search
+    assert digest(a) == digest(b)
+    c = one_way(passable, t.clearance, RES, turn_radius=3.5)
+    assert c.search is None
+    assert digest(c) == digest(one_way(passable, t.clearance, RES, turn_radius=3.5))
+    assert digest(c) != digest(a)

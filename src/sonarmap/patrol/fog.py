@@ -59,10 +59,19 @@ def _disc_side(
         cc = disc[k, 1] + c
         if rr < 0 or rr >= rows or cc < 0 or cc >= cols:
             continue
-        # libm's hypot, as numpy's: the same comparison as np.hypot's.
         if halve:
-            them = math.hypot(float(rr - r), float(cc - c))
-            if not them < math.hypot(float(rr - mine_r), float(cc - mine_c)):
+            # Squared offsets are exact integers. Where they differ and lie below
+            # 2**40, their square roots differ by more than 2**-22, and libm's hypot
+            # (as numpy's np.hypot) is within an ulp of them, at most 2**-32 there: the
+            # same order. Otherwise the two hypots are compared as numpy does.
+            a, b = rr - r, cc - c
+            e, f = rr - mine_r, cc - mine_c
+            s_them = a * a + b * b
+            s_mine = e * e + f * f
+            if s_them != s_mine and max(s_them, s_mine) < 2**40:
+                if s_them > s_mine:
+                    continue
+            elif not math.hypot(float(a), float(b)) < math.hypot(float(e), float(f)):
                 continue
         out[n, 0] = rr
         out[n, 1] = cc

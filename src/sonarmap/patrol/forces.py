@@ -168,6 +168,27 @@ def _block_log_f(
 
 
 @nb.njit(cache=True)
+def _top_two(sums: F64, weights: F64) -> tuple[int, float, float]:
+    """Of the weighted sums ``sums * weights``: the index of the largest (the first
+    among equals, as ``np.argmax``), its value and the largest of the others, without
+    an array for the products (NaN, as ``np.argmax`` and ``max`` take it, wins)."""
+    k = 0
+    top = sums[0] * weights[0]
+    for j in range(1, len(sums)):
+        v = sums[j] * weights[j]
+        if v > top or (v != v and top == top):
+            k = j
+            top = v
+    rest = -np.inf
+    for j in range(len(sums)):
+        if j != k:
+            v = sums[j] * weights[j]
+            if v > rest or v != v:
+                rest = v
+    return k, top, rest
+
+
+@nb.njit(cache=True)
 def _pull_visit(
     order: npt.NDArray[np.int32],
     lo: int,
@@ -189,7 +210,9 @@ def _pull_visit(
     inv_top = 1.0 / top if top > 0 else 0.0
     best = acc[_BEST]
     taken = acc[_TAKEN]
-    sums = acc[_SUMS : _SUMS + 8].copy()
+    # Views into ``acc``, written in place: the visitor runs once per bucket of the
+    # wave (hundreds per wave), where a copy would be an allocation each time.
+    sums = acc[_SUMS : _SUMS + 8]
     step_best = acc[_STEP_BEST : _STEP_BEST + 8]
     inv_width = 1.0 / width
     for i in range(lo, hi):
@@ -245,7 +268,6 @@ def _pull_visit(
                 acc[_STEP_COL + step] = c
     acc[_BEST] = best
     acc[_TAKEN] = taken
-    acc[_SUMS : _SUMS + 8] = sums
     if p[_PRUNE] == 0.0:
         return np.inf
     share = NEGLIGIBLE
@@ -253,11 +275,9 @@ def _pull_visit(
         # The mode's choice cannot change once the places left could not lift any other
         # step's weighted sum to within TIE of the chosen one's, even all together (a
         # weight is at most 1).
-        w = sums * p[_WEIGHTS : _WEIGHTS + 8]
-        k = int(np.argmax(w))
-        top_w = w[k] * (1.0 - TIE)
-        w[k] = -np.inf
-        gap = top_w - w.max()
+        k, top_w, rest = _top_two(sums, p[_WEIGHTS : _WEIGHTS + 8])
+        top_w *= 1.0 - TIE
+        gap = top_w - rest
         if gap > 0.0:
             share = max(share, math.log(gap))
         if p[_CERTIFY] == 2.0 and gap > 0.0:

@@ -519,13 +519,15 @@ class FreshAhead:
 
 @nb.njit(cache=True)
 def _block_pieces(
-    passable: npt.NDArray[np.bool_], b: int
+    passable: npt.NDArray[np.bool_], shift: int
 ) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-    # The pieces of every b x b block: the 8-connected components of its passable cells
-    # joined inside the block. Returns each cell's piece (-1 off ``passable``), and each
-    # piece's block (flat, row-major over the blocks) and cell count.
+    # The pieces of every b x b block (b = 2**shift: a cell's block by shifts, as in
+    # _reaches): the 8-connected components of its passable cells joined inside the
+    # block. Returns each cell's piece (-1 off ``passable``), and each piece's block
+    # (flat, row-major over the blocks) and cell count.
     rows, cols = passable.shape
-    nbc = (cols + b - 1) // b
+    b = 1 << shift
+    nbc = (cols + b - 1) >> shift
     piece = np.full((rows, cols), -1, dtype=np.int32)
     block = np.empty(rows * cols, dtype=np.int64)
     size = np.empty(rows * cols, dtype=np.int64)
@@ -535,7 +537,7 @@ def _block_pieces(
         for c in range(cols):
             if not passable[r, c] or piece[r, c] >= 0:
                 continue
-            br, bc = r // b, c // b
+            br, bc = r >> shift, c >> shift
             piece[r, c] = n
             stack[0] = r * cols + c
             top = 1
@@ -547,11 +549,11 @@ def _block_pieces(
                 count += 1
                 for dr in range(-1, 2):
                     r2 = rr + dr
-                    if r2 < 0 or r2 >= rows or r2 // b != br:
+                    if r2 < 0 or r2 >= rows or r2 >> shift != br:
                         continue
                     for dc in range(-1, 2):
                         c2 = cc + dc
-                        if c2 < 0 or c2 >= cols or c2 // b != bc:
+                        if c2 < 0 or c2 >= cols or c2 >> shift != bc:
                             continue
                         if passable[r2, c2] and piece[r2, c2] < 0:
                             piece[r2, c2] = n
@@ -565,14 +567,14 @@ def _block_pieces(
 
 @nb.njit(cache=True)
 def _piece_links(
-    piece: npt.NDArray[np.int32], n: int, b: int
+    piece: npt.NDArray[np.int32], n: int, shift: int
 ) -> tuple[
     npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]
 ]:
     # The pieces of neighbouring blocks that touch (8-connected): for each piece u,
     # links[link_ptr[u]:link_ptr[u + 1]] are the pieces it touches, and for each of
     # those links, cells[cell_ptr[k]:cell_ptr[k + 1]] the cells (flat) of the other
-    # piece next to a cell of u.
+    # piece next to a cell of u. Blocks are 2**shift cells a side.
     rows, cols = piece.shape
     # Every (u, cell of another block next to u) pair, once per pair.
     m = 0
@@ -585,7 +587,7 @@ def _piece_links(
                     r2, c2 = r + dr, c + dc
                     if r2 < 0 or r2 >= rows or c2 < 0 or c2 >= cols or piece[r2, c2] < 0:
                         continue
-                    if r2 // b != r // b or c2 // b != c // b:
+                    if r2 >> shift != r >> shift or c2 >> shift != c >> shift:
                         m += 1
     pu = np.empty(m, dtype=np.int64)
     pv = np.empty(m, dtype=np.int64)
@@ -600,7 +602,7 @@ def _piece_links(
                     r2, c2 = r + dr, c + dc
                     if r2 < 0 or r2 >= rows or c2 < 0 or c2 >= cols or piece[r2, c2] < 0:
                         continue
-                    if r2 // b != r // b or c2 // b != c // b:
+                    if r2 >> shift != r >> shift or c2 >> shift != c >> shift:
                         pu[k] = piece[r, c]
                         pv[k] = piece[r2, c2]
                         pc[k] = r2 * cols + c2
@@ -643,7 +645,7 @@ def _reaches(
     links: npt.NDArray[np.int64],
     cell_ptr: npt.NDArray[np.int64],
     cells: npt.NDArray[np.int64],
-    b: int,
+    shift: int,
     mark: npt.NDArray[np.int8],
     seen: npt.NDArray[np.bool_],
     touched: npt.NDArray[np.bool_],
@@ -652,38 +654,61 @@ def _reaches(
     r0: int,
     c0: int,
     need: float,
-) -> bool:
+) -> int:
+    # 1 when the flood reaches ``need`` cells, 0 when not; -1 - k with nothing
+    # written when closed cell k lies off the map (as numpy indexes: -rows..rows - 1).
     # A flood from (r0, c0) over the open cells (passable, not closed; the start always
     # open) that stops at ``need`` cells. Cell by cell in the blocks the closed cells
     # (and the start) touch, a block's piece at a time elsewhere: a piece of an
     # untouched block is open and joined through, so reaching one of its cells
     # reaches all. ``mark`` (1 closed, 2 reached), ``seen`` (pieces) and ``touched``
     # (blocks) are all False on entry and left so. ``queue`` holds cells (flat) as
-    # k >= 0 and pieces as -1 - u.
+    # k >= 0 and pieces as -1 - u. Blocks are 2**shift cells a side: the block of a
+    # row or column (never negative here) is a shift, not a division, on every
+    # neighbour of every cell flooded; a cell's row from its flat index is a float
+    # product, as in the wave (exact: (q + 0.5) / cols is at least 0.5 / cols away
+    # from a whole number, far more than the product's rounding).
     rows, cols = passable.shape
-    nbc = (cols + b - 1) // b
+    b = 1 << shift
+    nbc = (cols + b - 1) >> shift
+    inv_cols = 1.0 / cols
     n_closed = closed.shape[0]
+    for k in range(n_closed):
+        r, c = closed[k, 0], closed[k, 1]
+        if r < -rows or r >= rows or c < -cols or c >= cols:
+            return -1 - k
     for k in range(n_closed):
         r, c = closed[k, 0], closed[k, 1]
         if r < 0:  # as numpy indexes
             r += rows
         if c < 0:
             c += cols
-        touched[(r // b) * nbc + c // b] = True
+        touched[(r >> shift) * nbc + (c >> shift)] = True
         if r != r0 or c != c0:
             mark[r, c] = 1
-    touched[(r0 // b) * nbc + c0 // b] = True
+    touched[(r0 >> shift) * nbc + (c0 >> shift)] = True
     mark[r0, c0] = 2
+    # Cells queue from the front of ``queue``, pieces from its back (pieces[i] at
+    # queue[last - i]), and pieces go first: the flood's count, and so its answer,
+    # is the same in any order, and a way ahead that leads on reaches ``need``
+    # through whole pieces mostly, leaving the touched blocks' cells unflooded.
+    last = queue.shape[0] - 1
     queue[0] = r0 * cols + c0
     tail = 1
     head = 0
+    tail_p = 0
+    head_p = 0
     count = 1
     result = count >= need
-    while not result and head < tail:
-        q = queue[head]
-        head += 1
+    while not result and (head_p < tail_p or head < tail):
+        if head_p < tail_p:
+            q = queue[last - head_p]
+            head_p += 1
+        else:
+            q = queue[head]
+            head += 1
         if q >= 0:
-            r = q // cols
+            r = int((q + 0.5) * inv_cols)
             c = q - r * cols
             for dr in range(-1, 2):
                 r2 = r + dr
@@ -693,7 +718,7 @@ def _reaches(
                     c2 = c + dc
                     if c2 < 0 or c2 >= cols or not passable[r2, c2] or mark[r2, c2]:
                         continue
-                    if touched[(r2 // b) * nbc + c2 // b]:
+                    if touched[(r2 >> shift) * nbc + (c2 >> shift)]:
                         mark[r2, c2] = 2
                         queue[tail] = r2 * cols + c2
                         tail += 1
@@ -703,8 +728,8 @@ def _reaches(
                         if seen[v]:
                             continue
                         seen[v] = True
-                        queue[tail] = -1 - v
-                        tail += 1
+                        queue[last - tail_p] = -1 - v
+                        tail_p += 1
                         count += piece_size[v]
         else:
             u = -1 - q
@@ -713,12 +738,12 @@ def _reaches(
                 if not touched[piece_block[v]]:
                     if not seen[v]:
                         seen[v] = True
-                        queue[tail] = -1 - v
-                        tail += 1
+                        queue[last - tail_p] = -1 - v
+                        tail_p += 1
                         count += piece_size[v]
                     continue
                 for j in range(cell_ptr[k], cell_ptr[k + 1]):
-                    r2 = cells[j] // cols
+                    r2 = int((cells[j] + 0.5) * inv_cols)
                     c2 = cells[j] - r2 * cols
                     if not mark[r2, c2]:
                         mark[r2, c2] = 2
@@ -728,18 +753,18 @@ def _reaches(
         result = count >= need
     for k in range(tail):
         q = queue[k]
-        if q >= 0:
-            mark[q // cols, q % cols] = 0
-        else:
-            seen[-1 - q] = False
+        r = int((q + 0.5) * inv_cols)
+        mark[r, q - r * cols] = 0
+    for k in range(tail_p):
+        seen[-1 - queue[last - k]] = False
     for k in range(n_closed):
         r, c = closed[k, 0], closed[k, 1]
         r = r + rows if r < 0 else r
         c = c + cols if c < 0 else c
         mark[r, c] = 0
-        touched[(r // b) * nbc + c // b] = False
-    touched[(r0 // b) * nbc + c0 // b] = False
-    return result
+        touched[(r >> shift) * nbc + (c >> shift)] = False
+    touched[(r0 >> shift) * nbc + (c0 >> shift)] = False
+    return 1 if result else 0
 
 
 class DeadEnds:
@@ -760,15 +785,21 @@ class DeadEnds:
         later changes to it are not seen.
     """
 
-    #: Side of the blocks, in cells.
-    BLOCK = 16
+    #: Side of the blocks, in cells (a power of two).
+    BLOCK = 32
 
     def __init__(self, passable: npt.NDArray[np.bool_]) -> None:
         self.passable = np.ascontiguousarray(passable, dtype=np.bool_)
         b = self.BLOCK
-        self.piece, self.piece_block, self.piece_size = _block_pieces(self.passable, b)
+        # The build and the flood find a cell's block by shifts: a power of two.
+        self._shift = b.bit_length() - 1
+        if b != 1 << self._shift:
+            raise ValueError(f"DeadEnds.BLOCK must be a power of two, got {b}")
+        self.piece, self.piece_block, self.piece_size = _block_pieces(self.passable, self._shift)
         n = len(self.piece_size)
-        self.link_ptr, self.links, self.cell_ptr, self.cells = _piece_links(self.piece, n, b)
+        self.link_ptr, self.links, self.cell_ptr, self.cells = _piece_links(
+            self.piece, n, self._shift
+        )
         self.n_passable = int(self.piece_size.sum())
         rows, cols = passable.shape
         self.mark = np.zeros(passable.shape, dtype=np.int8)
@@ -803,13 +834,15 @@ class DeadEnds:
         shut = np.ascontiguousarray(closed, dtype=np.int64)
         rows, cols = self.passable.shape
         r0, c0 = int(start[0]), int(start[1])
-        # The kernel writes its scratch at these cells unchecked: one check here.
-        bad = (shut[:, 0] < -rows) | (shut[:, 0] >= rows) | (shut[:, 1] < -cols)
-        bad |= shut[:, 1] >= cols
-        if bad.any() or not (-rows <= r0 < rows and -cols <= c0 < cols):
+        if not (-rows <= r0 < rows and -cols <= c0 < cols):
+            # A closed cell off the map is named before the start.
+            bad = (shut[:, 0] < -rows) | (shut[:, 0] >= rows) | (shut[:, 1] < -cols)
+            bad |= shut[:, 1] >= cols
             at = (r0, c0) if not bad.any() else tuple(shut[int(np.argmax(bad))].tolist())
             raise IndexError(f"cell {at} is outside the {rows} x {cols} map")
-        return bool(
+        # The kernel checks the closed cells (before writing its scratch at them): a
+        # numpy pass over thousands of them each call cost more than the kernel's.
+        got = int(
             _reaches(
                 self.passable,
                 self.piece,
@@ -819,7 +852,7 @@ class DeadEnds:
                 self.links,
                 self.cell_ptr,
                 self.cells,
-                self.BLOCK,
+                self._shift,
                 self.mark,
                 self.seen,
                 self.touched,
@@ -830,6 +863,10 @@ class DeadEnds:
                 share * self.n_passable,
             )
         )
+        if got < 0:
+            at = tuple(shut[-1 - got].tolist())
+            raise IndexError(f"cell {at} is outside the {rows} x {cols} map")
+        return got == 1
 
 
 def leads_on(

@@ -717,6 +717,8 @@ def one_way(
     segment = segment.astype(np.int64) - 1
     # Each segment's junctions (the nodes touching it) and ends (skeleton ends).
     touches = _touches(segment, node_of, n_segments)
+    seg_box = ndimage.find_objects(segment + 1)
+    node_box = ndimage.find_objects(node_of + 1)
     n_nodes = n_junctions
     ends: list[tuple[int, int]] = []
     tails: list[int] = []
@@ -727,8 +729,10 @@ def one_way(
         elif len(t) == 1:
             # A stub to a skeleton end, or a loop back to the same junction: a new node
             # for the end keeps it a bridge; a loop is its own cycle.
-            pix = segment == s
-            is_end = bool((pix & (nbrs == 1)).any())
+            # In the segment's bounding box: the whole map's test once per street.
+            box = seg_box[s]
+            assert box is not None
+            is_end = bool(((segment[box] == s) & (nbrs[box] == 1)).any())
             if is_end:
                 ends.append((t[0], n_nodes))
                 n_nodes += 1
@@ -748,8 +752,6 @@ def one_way(
         forward[valid] = f
         bridge[valid] = b
         dead_end[valid] = _dead_ends(n_nodes, [ends[k] for k in valid], b)
-    seg_box = ndimage.find_objects(segment + 1)
-    node_box = ndimage.find_objects(node_of + 1)
 
     def cells_of(labels: I64, boxes: list[Any], k: int) -> tuple[tuple[slice, slice], B]:
         # Label k's bounding box and its cells there (row-major, as in the map).

@@ -455,14 +455,18 @@ def _reached_in(
     cols = np.empty(n, dtype=np.intp)
     steps = np.empty(n, dtype=np.int8)
     lengths = np.empty(n, dtype=np.float64)
+    # Row by a float product, as in the wave (exact for these sizes), not a division
+    # per cell.
+    inv_width = 1.0 / width
     k = 0
     for i in range(n):
         u = order[i]
         f = first[u]
         if f > 7:
             continue  # the start (-1)
-        r = u // width - 1
-        c = u % width - 1
+        r = int((u + 0.5) * inv_width)
+        c = u - r * width - 1
+        r -= 1
         if not mask[r, c]:
             continue
         rows[k] = r

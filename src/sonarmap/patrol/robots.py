@@ -30,7 +30,7 @@ from ..errors import ConfigError
 from ..grid import Grid
 from .manoeuvre import Manoeuvre, carrot, clear_goals, plan_manoeuvre, route_goals
 from .paths import STEPS, nearest_step
-from .territory import move_clear
+from .territory import move_clear, points_clear
 
 __all__ = [
     "SPEED_BANDS",
@@ -543,8 +543,7 @@ class Car(Team):
             px, py, h = arc(
                 float(self.x[i]), float(self.y[i]), float(self.heading[i]), length, k, n
             )
-            r, c = grid.world_to_cell(px, py)
-            if bool(grid.contains(r, c).all()) and bool(passable[r, c].all()):
+            if points_clear(px, py, passable, grid):
                 return float(px[-1]), float(py[-1]), h
         return None
 

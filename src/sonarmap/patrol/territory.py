@@ -21,7 +21,7 @@ from ..errors import ConfigError, InputError
 from ..grid import Grid
 from ..io.rosmap import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 
-__all__ = ["Territory", "move_clear", "segment_clear"]
+__all__ = ["Territory", "move_clear", "points_clear", "segment_clear"]
 
 
 def segment_clear(
@@ -86,8 +86,32 @@ def _points_clear(
 ) -> bool:
     """The points at fractions ``t`` of the segment all lie inside the map on ``clear``
     cells."""
-    r, c = grid.world_to_cell(x0 + t * (x1 - x0), y0 + t * (y1 - y0))
-    return bool(grid.contains(r, c).all() and clear[r, c].all())
+    return points_clear(x0 + t * (x1 - x0), y0 + t * (y1 - y0), clear, grid)
+
+
+def points_clear(
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    clear: npt.NDArray[np.bool_],
+    grid: Grid,
+) -> bool:
+    """Whether every world point (``x``, ``y``; metres, 1-D arrays of one length) lies
+    inside the map on a ``clear`` cell: ``grid.contains(r, c).all()`` and
+    ``clear[r, c].all()`` for ``r, c = grid.world_to_cell(x, y)``, in one pass that
+    stops at the first point off them (True for no points)."""
+    ox, oy = grid.origin
+    # Called for each arc a car tries, several a step: a kernel rather than the half
+    # dozen small numpy arrays of world_to_cell, contains and the lookup.
+    return bool(
+        _all_clear(
+            np.ascontiguousarray(x, dtype=np.float64).reshape(-1),
+            np.ascontiguousarray(y, dtype=np.float64).reshape(-1),
+            clear,
+            float(ox),
+            float(oy),
+            float(grid.resolution),
+        )
+    )
 
 
 @nb.njit(cache=True)
@@ -100,6 +124,22 @@ def _cell_clear(
     c = math.floor((x - ox) / res)
     r = rows - 1 - math.floor((y - oy) / res)
     return bool(0 <= r < rows and 0 <= c < cols and clear[r, c])
+
+
+@nb.njit(cache=True)
+def _all_clear(
+    x: npt.NDArray[np.float64],
+    y: npt.NDArray[np.float64],
+    clear: npt.NDArray[np.bool_],
+    ox: float,
+    oy: float,
+    res: float,
+) -> bool:
+    """Every point (``x[k]``, ``y[k]``) lies on a ``clear`` cell (:func:`_cell_clear`)."""
+    for k in range(x.shape[0]):  # noqa: SIM110 -- numba compiles loops, not all()
+        if not _cell_clear(x[k], y[k], clear, ox, oy, res):
+            return False
+    return True
 
 
 @nb.njit(cache=True)
