@@ -273,17 +273,6 @@ def test_a_reversed_true_pair_within_one_layer_passes() -> None:
     assert fails <= 0.05 * runs
 
 
-def test_interleaved_revisits_within_one_layer_are_untestable() -> None:
-    rng = np.random.default_rng(0)
-    truth, edges = _noisy_lap_twice(rng)
-    # Oriented, the loop's stretches are 5..25 and 20..40: they share the edges 20..25.
-    c1 = _closure(5, 20, truth[5], truth[20], rng)
-    c2 = _closure(25, 40, truth[25], truth[40], rng, off=(4.0, 0.0))
-    result = pcm_gate([c1, c2], dict.fromkeys(range(len(truth)), 0), {0: LayerChain(edges)})
-    assert (result.loops_tested, result.loops_untestable) == (0, 1)
-    assert result.rejected == []
-
-
 def test_the_zmq_nodes_get_the_pcm_setting() -> None:
     from sonarmap.team.config import MissionConfig
     from sonarmap.team.exchange import ExchangeParams

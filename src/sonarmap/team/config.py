@@ -127,8 +127,9 @@ class MissionConfig:
     #: (docs/results/2026-12-07-team-received-closures.md).
     layer_gate: bool = False
     #: Pairwise consistency (:mod:`~sonarmap.team.pcm`): before each batch's graph,
-    #: keep each pair of layers' largest set of closures whose loops with the layers'
-    #: odometry pass a chi-square test at 99 %, reject the rest.
+    #: judge each new closure once by its loops with the other closures of its pair of
+    #: layers through the layers' odometry (chi-square at 99 %), and reject it when
+    #: two or more of those loops fail.
     pcm: bool = False
 
     def __post_init__(self) -> None:

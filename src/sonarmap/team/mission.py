@@ -585,9 +585,11 @@ class RobotAgent:
 
     def _pcm(self) -> None:
         """Leave out the closures pairwise consistency rejects (:func:`~.pcm.pcm_gate`,
-        every layer's loops through its own odometry), remember them in the store so that
-        no peer brings them back (:meth:`~.store.RobotStore.reject_closures`), and tell
-        the evaluator those rejected for the first time."""
+        every layer's loops through its own odometry, each closure judged once), remember
+        them in the store so that no peer brings them back
+        (:meth:`~.store.RobotStore.reject_closures`) and those kept so that they are not
+        judged again (:meth:`~.store.RobotStore.keep_judged`), and tell the evaluator
+        those rejected for the first time."""
         store = self.store
         layers = {self.robot: store.local, **store.received}
         layer_of = {u: s for s, layer in layers.items() for u in layer.poses}
@@ -595,11 +597,13 @@ class RobotAgent:
             store.closures,
             layer_of,
             {s: LayerChain(layer.edges) for s, layer in layers.items()},
+            frozen=store.judged_pairs,
         )
         new: list[ClosureEdge] = []
         if result.rejected:
             store.closures = result.kept
             new = store.reject_closures(result.rejected)
+        store.keep_judged(result.newly_kept)
         loops = {
             "judged": result.judged,
             "loops_tested": result.loops_tested,

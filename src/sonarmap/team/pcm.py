@@ -1,31 +1,32 @@
 """Pairwise consistency maximisation (PCM, Mangelson et al., ICRA 2018) over a robot's
-loop closures: keep, for each pair of layers, the largest set of mutually consistent
-closures, reject the rest.
+loop closures: keep, for each pair of layers, the closures consistent with each other,
+reject the rest.
 
 Two closures joining the same two layers (robot A's and robot B's, or A's with
 itself) close a loop with those layers' trajectories: ``a1 -> b1`` by the first
 closure, ``b1 -> b2`` along B, ``b2 -> a2`` by the second closure inverted, ``a2 ->
 a1`` along A. The relative poses along a layer, mean and covariance, are the layer's
-odometry edges composed between the two poses (:meth:`LayerChain.relative`), what
-those poses would be with no closure at all (PCM's choice: a closure is not judged by
-the closures it is judged against, nor by a graph they have moved). The two
-closures are consistent when the loop's squared Mahalanobis distance is within the
-chi-square quantile at 99 % for 3 degrees of freedom (:data:`~.globalmap.CHI2_99_3DOF`,
-the graph's own), a fact of the test, not a tuned number. Two poses with no odometry
-chain between them (a layer received with a gap, different layers' chains) give a loop
-that cannot be tested: the two closures count as consistent.
+odometry edges composed between the two poses (:class:`LayerChain`), what those poses
+would be with no closure at all (PCM's choice: a closure is not judged by the closures
+it is judged against, nor by a graph they have moved). The two closures are consistent
+when the loop's squared Mahalanobis distance is within the chi-square quantile at 99 %
+for 3 degrees of freedom (:data:`~.globalmap.CHI2_99_3DOF`, the graph's own), a fact
+of the test, not a tuned number. Two poses joined by no odometry (a layer received with
+a gap, different layers) give a loop that cannot be tested: it counts as consistent.
+Within one layer the loop's two odometry stretches are one walk
+(:func:`loop_residual`): edges walked both ways cancel, so every pair of revisits is
+tested.
 
-Within one layer each closure is oriented from its earlier pose to its later one (by
-their places on the chain), so that the loop's two odometry stretches are apart for
-two revisits of one place however they were stored; two closures whose stretches still
-share edges (the revisits interleave) give a loop that is not tested either, since the
-stretches would not be independent.
+Which closures go (:func:`pcm_gate`): PCM as published keeps a maximum clique of the
+consistency graph (:func:`networkx.max_weight_clique`, exact, unweighted), every pass
+judging each window again; a chance failure (1 % of true loops) then costs a true
+closure in every pass that tests it. Judged once instead (``frozen``, what
+:mod:`.mission` uses), a closure is judged in the first pass that sees it, kept
+thereafter if kept, and rejected only when it fails with more than one partner.
 
-The closures kept are a maximum clique of the consistency graph
-(:func:`networkx.max_weight_clique`, exact, unweighted). Exact maximum clique is
-exponential in the worst case, so each pair of layers is judged on its
-``max_per_pair`` newest closures only (:data:`MAX_PER_PAIR`, 40: 780 loops a pair);
-older closures are left as earlier batches judged them.
+Each pair of layers is judged on its ``max_per_pair`` newest closures only
+(:data:`MAX_PER_PAIR`, 40: 780 loops a pair; exact maximum clique is exponential in the
+worst case); older closures are left as earlier passes judged them.
 
 Why PCM and not gtsam's GNC: the robot's graph already runs GNC over every closure
 (:func:`~.globalmap.optimise_graph`), and that is where the held-out wrong closures
@@ -38,7 +39,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Set as AbstractSet
+from dataclasses import dataclass, field
 
 import networkx as nx
 import numpy as np
@@ -49,16 +51,17 @@ from .records import (
     ClosureEdge,
     OdometryEdge,
     compose,
-    compose_covariance,
     invert,
     invert_covariance,
 )
 
 __all__ = [
     "MAX_PER_PAIR",
+    "MIN_FAILURES",
     "LayerChain",
     "PcmResult",
     "loop_distance",
+    "loop_residual",
     "pcm_gate",
 ]
 
@@ -68,118 +71,119 @@ F64 = npt.NDArray[np.float64]
 #: maximum clique's size (40 nodes, 780 pairwise loops).
 MAX_PER_PAIR = 40
 
-_J2 = np.array([[0.0, -1.0], [1.0, 0.0]])
-
-
-def _rot3(theta: float) -> F64:
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+#: Loops a new closure must fail, with closures still kept, to be rejected when
+#: closures are judged once (:func:`pcm_gate` with ``frozen``): one failure is what a
+#: true pair shows by chance.
+MIN_FAILURES = 2
 
 
 class LayerChain:
-    """The odometry chains of one layer, for the relative pose (mean and covariance)
-    of any two of its poses on one chain by the odometry alone.
+    """The odometry of one layer, for the relative pose (mean and covariance) of any
+    two of its poses, and of a loop's two stretches together, by the odometry alone.
 
-    Each chain is dead-reckoned from its first pose (its own frame); the noise of edge
-    ``k`` (covariance in its end's frame, as every edge keeps it) moves pose ``j > k``
-    by ``B_k delta + delta_theta (J2 t_j, 0)``. The sums over edges of the terms of
-    that product are kept as prefix sums, so a pair costs O(1).
+    The layer's odometry edges are a graph, not one chain: a merge at a closure
+    (``StoreParams.merge_on_closure``) gives the merged pose the edges of both poses,
+    and deleting a pose chains its neighbours by time. The poses are joined by a
+    spanning forest of those edges (breadth first from the lowest UID of each
+    connected part; an edge closing a cycle is left out), each tree dead-reckoned from
+    its root. A path between two poses of one tree is the tree's; its edges' noise
+    (each edge's covariance in its end's frame) is kept per edge as that covariance
+    moved to the root's frame, and each pose knows the edges on its path from the root,
+    so the edges of a path, or of two paths at once, are a difference of those sets.
+
+    A pose merged at a closure carries that closure in its edges (the store reframed
+    them through it), so a path through it holds the merge's transform, not its noise.
 
     Parameters
     ----------
     edges : iterable of OdometryEdge
-        The layer's odometry edges; a pose with two edges out or in breaks its chain
-        there (only the first is followed).
+        The layer's odometry edges.
     """
 
     def __init__(self, edges: Iterable[OdometryEdge]) -> None:
-        nxt: dict[int, OdometryEdge] = {}
-        has_in: set[int] = set()
+        adj: dict[int, list[tuple[int, F64, F64]]] = {}
         for e in edges:
-            if e.a in nxt or e.b in has_in or e.a == e.b:
+            if e.a == e.b:
                 continue
-            nxt[e.a] = e
-            has_in.add(e.b)
-        #: Pose UID -> (chain, index on it).
+            t = np.asarray(e.transform, dtype=np.float64)
+            q = e.cov()
+            adj.setdefault(e.a, []).append((e.b, t, q))
+            # Walked backwards: the inverse, its covariance in its own end's frame.
+            adj.setdefault(e.b, []).append((e.a, np.asarray(invert(t)), invert_covariance(t, q)))
+        #: Pose UID -> (tree, row in that tree's arrays).
         self.where: dict[int, tuple[int, int]] = {}
         self._pose: list[F64] = []
-        self._m: list[F64] = []
-        self._v: list[F64] = []
-        self._s: list[F64] = []
-        for start in sorted(set(nxt) - has_in):
-            chain = len(self._pose)
-            poses = [np.zeros(3)]
-            m, v, s = [np.zeros((3, 3))], [np.zeros(3)], [0.0]
-            uid = start
-            self.where[uid] = (chain, 0)
-            while uid in nxt:
-                e = nxt[uid]
-                x = compose(poses[-1], np.asarray(e.transform, dtype=np.float64))
-                q = e.cov()
-                b = _rot3(float(x[2]))
-                b[:2, 2] = -_J2 @ x[:2]
-                bq = b @ q
-                m.append(m[-1] + bq @ b.T)
-                v.append(v[-1] + bq[:, 2])
-                s.append(s[-1] + float(q[2, 2]))
-                poses.append(np.asarray(x, dtype=np.float64))
-                uid = e.b
-                if uid in self.where:  # a cycle: stop
-                    break
-                self.where[uid] = (chain, len(poses) - 1)
+        self._paths: list[npt.NDArray[np.int8]] = []
+        self._noise: list[F64] = []
+        for root in sorted(adj):
+            if root in self.where:
+                continue
+            tree = len(self._pose)
+            self.where[root] = (tree, 0)
+            poses, parent_row, parent_edge = [np.zeros(3)], [-1], [-1]
+            noise: list[F64] = []
+            queue = [root]
+            for uid in queue:  # breadth first; the queue grows as it is read
+                row = self.where[uid][1]
+                for other, t, q in sorted(adj[uid], key=lambda n: n[0]):
+                    if other in self.where:
+                        continue
+                    x = compose(poses[row], t)
+                    self.where[other] = (tree, len(poses))
+                    poses.append(np.asarray(x, dtype=np.float64))
+                    parent_row.append(row)
+                    parent_edge.append(len(noise))
+                    # Edge noise at its end, as a perturbation at the root's origin.
+                    noise.append(invert_covariance(x, q))
+                    queue.append(other)
+            paths = np.zeros((len(poses), len(noise)), dtype=np.int8)
+            for row in range(1, len(poses)):  # parents come first (breadth first)
+                paths[row] = paths[parent_row[row]]
+                paths[row, parent_edge[row]] = 1
             self._pose.append(np.array(poses))
-            self._m.append(np.array(m))
-            self._v.append(np.array(v))
-            self._s.append(np.array(s))
+            self._paths.append(paths)
+            self._noise.append(np.array(noise).reshape(-1, 3, 3))
 
-    def covariance(self, u: int, w: int) -> F64 | None:
-        """The covariance of pose ``w`` relative to pose ``u`` by the odometry between
-        them, in ``w``'s frame (as a closure ``u -> w`` keeps its own); None when the
-        two are not on one chain. ``w`` may come before ``u``."""
-        if u == w:
-            return np.zeros((3, 3))
-        cu, cw = self.where.get(u), self.where.get(w)
-        if cu is None or cw is None or cu[0] != cw[0]:
+    def pose(self, uid: int) -> tuple[int, F64] | None:
+        """Pose ``uid``'s tree and its dead-reckoned pose in the tree's root frame; None
+        for a pose with no odometry edge."""
+        at = self.where.get(uid)
+        if at is None:
             return None
-        chain, i, j = cu[0], cu[1], cw[1]
-        lo, hi = min(i, j), max(i, j)
-        poses = self._pose[chain]
-        c = np.zeros(3)
-        c[:2] = _J2 @ poses[hi, :2]
-        m = self._m[chain][hi] - self._m[chain][lo]
-        v = self._v[chain][hi] - self._v[chain][lo]
-        s = float(self._s[chain][hi] - self._s[chain][lo])
-        sig = m + np.outer(v, c) + np.outer(c, v) + s * np.outer(c, c)
-        # From the chain's frame to the later pose's (a perturbation on its right).
-        r = _rot3(float(poses[hi, 2]))
-        cov = r.T @ sig @ r
-        if i <= j:
-            return np.asarray(cov, dtype=np.float64)
-        rel = compose(invert(poses[j]), poses[i])
-        return invert_covariance(rel, cov)
+        return at[0], self._pose[at[0]][at[1]]
+
+    def path(self, u: int, w: int) -> npt.NDArray[np.int8]:
+        """The signed edges walked from pose ``u`` to ``w`` on their tree (+1 away from
+        the root, -1 towards it, 0 off the path); both must be on one tree."""
+        (tree, i), (_, j) = self.where[u], self.where[w]
+        paths = self._paths[tree]
+        return np.asarray(paths[j] - paths[i], dtype=np.int8)
+
+    def noise(self, tree: int, counts: npt.NDArray[np.int8]) -> F64:
+        """The covariance, as a perturbation at tree ``tree``'s root origin, of a walk
+        that takes each edge ``counts`` times (signed): an edge walked once each way
+        cancels, to first order, in a walk that comes back to where it was."""
+        n2 = counts.astype(np.float64) ** 2
+        return np.asarray(np.einsum("k,kij->ij", n2, self._noise[tree]), dtype=np.float64)
 
     def relative(self, u: int, w: int) -> tuple[F64, F64] | None:
         """Pose ``w`` in pose ``u``'s frame by the odometry between them (the
-        dead-reckoned chain, not any estimate a graph has moved) and its covariance in
-        ``w``'s frame; None when the two are not on one chain. ``w`` may come before
+        dead-reckoned tree, not any estimate a graph has moved) and its covariance in
+        ``w``'s frame; None when the two are not on one tree. ``w`` may come before
         ``u``."""
-        if u == w:  # the same pose, on a chain or not (as covariance() has it)
+        if u == w:  # the same pose, on a tree or not
             return np.zeros(3), np.zeros((3, 3))
-        cov = self.covariance(u, w)
-        if cov is None:
+        pu, pw = self.pose(u), self.pose(w)
+        if pu is None or pw is None or pu[0] != pw[0]:
             return None
-        (chain, i), (_, j) = self.where[u], self.where[w]
-        poses = self._pose[chain]
-        mean = np.asarray(compose(invert(poses[i]), poses[j]), dtype=np.float64)
-        return mean, cov
+        mean = np.asarray(compose(invert(pu[1]), pw[1]), dtype=np.float64)
+        at_root = self.noise(pu[0], self.path(u, w))
+        return mean, invert_covariance(invert(pw[1]), at_root)
 
-    def stretch(self, u: int, w: int) -> tuple[int, int, int] | None:
-        """The chain holding poses ``u`` and ``w`` and their places on it, lower first;
-        None when they are not on one chain."""
-        cu, cw = self.where.get(u), self.where.get(w)
-        if cu is None or cw is None or cu[0] != cw[0]:
-            return None
-        return cu[0], min(cu[1], cw[1]), max(cu[1], cw[1])
+    def covariance(self, u: int, w: int) -> F64 | None:
+        """The covariance of :meth:`relative`, or None when it has none."""
+        rel = self.relative(u, w)
+        return None if rel is None else rel[1]
 
 
 def _oriented(c: ClosureEdge, flip: bool) -> tuple[int, int, F64, F64]:
@@ -189,16 +193,69 @@ def _oriented(c: ClosureEdge, flip: bool) -> tuple[int, int, F64, F64]:
     return c.b, c.a, np.asarray(invert(t), dtype=np.float64), invert_covariance(t, c.cov())
 
 
-def _orient(
-    c: ClosureEdge, la: int, layer_of: Mapping[int, int], chain: LayerChain
-) -> tuple[int, int, F64, F64]:
-    """Closure ``c`` from layer ``la`` to the other; within layer ``la`` itself, from
-    its earlier pose to its later one on their chain (as stored when on none)."""
-    if layer_of[c.a] != layer_of[c.b]:
-        return _oriented(c, layer_of[c.a] != la)
-    ca, cb = chain.where.get(c.a), chain.where.get(c.b)
-    flip = ca is not None and cb is not None and ca[0] == cb[0] and ca[1] > cb[1]
-    return _oriented(c, flip)
+def _orient(c: ClosureEdge, la: int, layer_of: Mapping[int, int]) -> tuple[int, int, F64, F64]:
+    """Closure ``c`` from layer ``la`` to the other (as stored within one layer)."""
+    return _oriented(c, layer_of[c.a] != la)
+
+
+def loop_residual(
+    c1: tuple[int, int, F64, F64],
+    c2: tuple[int, int, F64, F64],
+    chain_a: LayerChain,
+    chain_b: LayerChain,
+) -> tuple[F64, F64] | None:
+    """The loop two closures close and its first-order covariance, or None when it
+    cannot be tested (a pair of poses on no common tree of their layer).
+
+    The loop is ``a1 -> b1 -> b2 -> a2 -> a1``: closure 1, B's odometry from ``b1`` to
+    ``b2``, closure 2 inverted, A's odometry from ``a2`` to ``a1``. Its covariance is
+    taken where the loop holds (the null hypothesis): each noise, a perturbation at
+    the place the loop passes it, moved to the loop's end. Within one tree of one
+    layer, the two stretches are one walk, so an edge walked once each way cancels and
+    one walked twice the same way counts four times its covariance (two revisits in a
+    row, or interleaved, are tested like any other pair).
+
+    Parameters
+    ----------
+    c1, c2 : (a, b, transform, covariance)
+        Closures oriented from layer A's pose ``a`` to layer B's pose ``b``
+        (``transform`` ``b`` in ``a``'s frame, covariance in ``b``'s).
+    chain_a, chain_b : LayerChain
+        The two layers' odometry (the same object for a layer with itself).
+
+    Returns
+    -------
+    (residual, covariance) : tuple of ndarray or None
+        The loop as a transform (x, y in metres, theta in radians wrapped to
+        (-pi, pi]) in ``a1``'s frame, and its 3 x 3 covariance there.
+    """
+    a1, b1, t1, s1 = c1
+    a2, b2, t2, s2 = c2
+    ends = [chain_b.pose(b1), chain_b.pose(b2), chain_a.pose(a2), chain_a.pose(a1)]
+    along_b = chain_b.relative(b1, b2)
+    along_a = chain_a.relative(a2, a1)
+    if along_b is None or along_a is None:
+        return None
+    loop = compose(compose(compose(t1, along_b[0]), invert(t2)), along_a[0])
+    r = np.asarray(loop, dtype=np.float64).copy()
+    r[2] = math.remainder(float(r[2]), 2 * math.pi)
+    # Where each noise enters, in a1's frame: closure 1 at b1, closure 2 at b2.
+    at_b2 = compose(t1, along_b[0])
+    cov = invert_covariance(t1, s1) + invert_covariance(at_b2, s2)
+    pb1, pb2, pa2, pa1 = ends
+    if b1 != b2 and pb1 is not None and pb2 is not None:
+        root_b = compose(t1, invert(pb1[1]))  # B's tree root in a1's frame
+        walk_b = chain_b.path(b1, b2)
+        one_tree = chain_a is chain_b and pa1 is not None and pa1[0] == pb1[0]
+        if a1 != a2 and one_tree and pa1 is not None:  # one walk: shared edges cancel
+            walk = walk_b + chain_a.path(a2, a1)
+            root = invert(pa1[1])
+            return r, cov + invert_covariance(root, chain_a.noise(pa1[0], walk))
+        cov = cov + invert_covariance(root_b, chain_b.noise(pb1[0], walk_b))
+    if a1 != a2 and pa1 is not None and pa2 is not None:
+        root_a = invert(pa1[1])
+        cov = cov + invert_covariance(root_a, chain_a.noise(pa1[0], chain_a.path(a2, a1)))
+    return r, cov
 
 
 def loop_distance(
@@ -207,49 +264,13 @@ def loop_distance(
     chain_a: LayerChain,
     chain_b: LayerChain,
 ) -> float | None:
-    """The squared Mahalanobis distance of the loop two closures close, or None when it
-    cannot be tested (a pair of poses on no common chain, or, within one layer, two
-    odometry stretches that share edges).
-
-    Parameters
-    ----------
-    c1, c2 : (a, b, transform, covariance)
-        Closures oriented from layer A's pose ``a`` to layer B's pose ``b``
-        (``transform`` ``b`` in ``a``'s frame, covariance in ``b``'s).
-    chain_a, chain_b : LayerChain
-        The two layers' chains (the same object for a layer with itself); the loop's
-        stretches along them are the odometry's (:meth:`LayerChain.relative`).
-
-    Returns
-    -------
-    float or None
-        ``r^T S^-1 r``, ``r`` the loop ``a1 -> b1 -> b2 -> a2 -> a1`` (theta wrapped)
-        and ``S`` its first-order covariance.
-    """
-    a1, b1, t1, s1 = c1
-    a2, b2, t2, s2 = c2
-    along_b = chain_b.relative(b1, b2)
-    along_a = chain_a.relative(a2, a1)
-    if along_b is None or along_a is None:
+    """The squared Mahalanobis distance ``r^T S^-1 r`` of the loop two closures close
+    (:func:`loop_residual`), or None when it cannot be tested (no common tree, or a
+    singular covariance). Parameters as :func:`loop_residual`'s."""
+    found = loop_residual(c1, c2, chain_a, chain_b)
+    if found is None:
         return None
-    if chain_a is chain_b:
-        sa, sb = chain_a.stretch(a1, a2), chain_b.stretch(b1, b2)
-        # Stretches sharing an edge are not independent: their covariances don't add.
-        if sa and sb and sa[0] == sb[0] and sa[1] < sb[2] and sb[1] < sa[2]:
-            return None
-    rel_b, cov_b = along_b
-    rel_a, cov_a = along_a
-    inv_t2 = invert(t2)
-    loop, cov = t1, s1
-    for step, step_cov in (
-        (rel_b, cov_b),
-        (inv_t2, invert_covariance(t2, s2)),
-        (rel_a, cov_a),
-    ):
-        cov = compose_covariance(loop, cov, step, step_cov)
-        loop = compose(loop, step)
-    r = np.asarray(loop, dtype=np.float64).copy()
-    r[2] = math.remainder(float(r[2]), 2 * math.pi)
+    r, cov = found
     try:
         return float(r @ np.linalg.solve(cov, r))
     except np.linalg.LinAlgError:
@@ -270,6 +291,27 @@ class PcmResult:
     loops_tested: int
     #: Pairs of closures whose loop could not be tested (counted consistent).
     loops_untestable: int = 0
+    #: The closures judged in this pass for the first time and kept (not frozen before).
+    newly_kept: list[ClosureEdge] = field(default_factory=list)
+
+
+def _most_failing(failing: Mapping[int, set[int]], movable: Iterable[int], least: int) -> set[int]:
+    """Remove, one at a time, the movable closure failing the most loops with the
+    closures still in (ties: the newest), while it fails at least ``least``; the removed
+    are returned."""
+    fails = {p: set(q) for p, q in failing.items()}
+    out: set[int] = set()
+    movable = set(movable)
+    while True:
+        worst = max(
+            (p for p in movable if p not in out), key=lambda p: (len(fails[p]), p), default=None
+        )
+        if worst is None or len(fails[worst]) < least:
+            return out
+        out.add(worst)
+        for q in fails.pop(worst):
+            fails[q].discard(worst)
+        fails[worst] = set()
 
 
 def pcm_gate(
@@ -279,8 +321,22 @@ def pcm_gate(
     *,
     max_per_pair: int = MAX_PER_PAIR,
     threshold: float = CHI2_99_3DOF,
+    frozen: AbstractSet[frozenset[int]] | None = None,
+    min_failures: int = MIN_FAILURES,
 ) -> PcmResult:
-    """Keep each pair of layers' largest set of mutually consistent closures.
+    """Keep each pair of layers' consistent closures, reject the rest.
+
+    Two ways to judge. Without ``frozen`` (None, PCM as published): every closure of
+    each window is judged again in every pass, and the set kept is a maximum clique of
+    the consistency graph. With ``frozen`` (the pose pairs of closures judged in an
+    earlier pass and kept): a closure is judged once, in the first pass that sees it,
+    against every closure of its window (frozen or new; loops between two frozen
+    closures are not tested again), and is rejected only when its loops fail with
+    ``min_failures`` or more of the closures still in: the new closure failing the
+    most is rejected first (its failures then leave the others' counts), until none
+    fails so often. A frozen closure is never rejected. One failing loop is what a
+    true pair shows by chance (1 % of loops at the default ``threshold``); a closure
+    out of place fails with every true partner it can be tested with.
 
     Parameters
     ----------
@@ -290,13 +346,19 @@ def pcm_gate(
         Each pose's layer (its source robot). A closure with a pose in none is kept,
         unjudged.
     chains : mapping of int to LayerChain
-        Each layer's odometry chains (the loops' means and covariances).
+        Each layer's odometry (the loops' means and covariances).
     max_per_pair : int
         Newest closures of a pair of layers judged (default :data:`MAX_PER_PAIR`, at
         least 1); the older ones are kept.
     threshold : float
         Largest squared Mahalanobis distance of a consistent loop; default the 0.99
         chi-square quantile with 3 degrees of freedom.
+    frozen : set of frozenset of int, optional
+        Pose pairs judged and kept before (:attr:`PcmResult.newly_kept` of earlier
+        passes); None (default) judges every window afresh by maximum clique.
+    min_failures : int
+        With ``frozen``: failing loops that reject a new closure (default
+        :data:`MIN_FAILURES`, at least 1).
 
     Returns
     -------
@@ -305,10 +367,12 @@ def pcm_gate(
     Raises
     ------
     ValueError
-        If ``max_per_pair`` is below 1.
+        If ``max_per_pair`` or ``min_failures`` is below 1.
     """
     if max_per_pair < 1:
         raise ValueError(f"pcm_gate: max_per_pair must be at least 1, got {max_per_pair}")
+    if min_failures < 1:
+        raise ValueError(f"pcm_gate: min_failures must be at least 1, got {min_failures}")
     groups: dict[tuple[int, int], list[int]] = {}
     for i, c in enumerate(closures):
         la, lb = layer_of.get(c.a), layer_of.get(c.b)
@@ -316,27 +380,43 @@ def pcm_gate(
             continue
         groups.setdefault((min(la, lb), max(la, lb)), []).append(i)
     rejected: set[int] = set()
+    newly: set[int] = set()
     judged = tested = untestable = 0
     for (la, lb), idx in sorted(groups.items()):
         window = idx[-max_per_pair:]
-        judged += len(window)
-        if len(window) < 2:
+        old = (
+            set()
+            if frozen is None
+            else {p for p, i in enumerate(window) if closures[i].pair in frozen}
+        )
+        new = [p for p in range(len(window)) if p not in old]
+        judged += len(new)
+        newly.update(window[p] for p in new)
+        if len(window) < 2 or not new:
             continue
-        oriented = [_orient(closures[i], la, layer_of, chains[la]) for i in window]
-        g: nx.Graph = nx.Graph()
-        g.add_nodes_from(range(len(window)))
+        oriented = [_orient(closures[i], la, layer_of) for i in window]
+        failing: dict[int, set[int]] = {p: set() for p in range(len(window))}
         for p in range(len(window)):
             for q in range(p + 1, len(window)):
+                if p in old and q in old:
+                    continue
                 d2 = loop_distance(oriented[p], oriented[q], chains[la], chains[lb])
-                if d2 is not None:
-                    tested += 1
-                else:
+                if d2 is None:
                     untestable += 1
-                if d2 is None or d2 <= threshold:
-                    g.add_edge(p, q)
-        clique, _ = nx.max_weight_clique(g, weight=None)
-        keep = set(clique)
-        rejected.update(window[p] for p in range(len(window)) if p not in keep)
+                    continue
+                tested += 1
+                if d2 > threshold:
+                    failing[p].add(q)
+                    failing[q].add(p)
+        if frozen is None:
+            g: nx.Graph = nx.complement(nx.Graph(failing))
+            g.add_nodes_from(range(len(window)))
+            clique, _ = nx.max_weight_clique(g, weight=None)
+            out = set(range(len(window))) - set(clique)
+        else:
+            out = _most_failing(failing, new, min_failures)
+        rejected.update(window[p] for p in out)
     kept = [c for i, c in enumerate(closures) if i not in rejected]
     gone = [c for i, c in enumerate(closures) if i in rejected]
-    return PcmResult(kept, gone, judged, tested, untestable)
+    fresh = [c for i, c in enumerate(closures) if i in newly and i not in rejected]
+    return PcmResult(kept, gone, judged, tested, untestable, fresh)

@@ -802,6 +802,8 @@ class RobotStore:
         self._shared: set[int] = set()
         #: Pose pairs whose closure pairwise consistency rejected (:meth:`reject_closures`).
         self._rejected_pairs: set[frozenset[int]] = set()
+        #: Pose pairs whose closure pairwise consistency judged and kept (:meth:`keep_judged`).
+        self._judged_pairs: set[frozenset[int]] = set()
 
     # state
 
@@ -817,6 +819,7 @@ class RobotStore:
             "newest": self._newest,
             "shared": sorted(self._shared),
             "rejected_pairs": sorted(sorted(p) for p in self._rejected_pairs),
+            "judged_pairs": sorted(sorted(p) for p in self._judged_pairs),
         }
 
     def restore(self, state: Mapping[str, Any]) -> None:
@@ -836,6 +839,7 @@ class RobotStore:
         self._rejected_pairs = {
             frozenset(int(u) for u in p) for p in state.get("rejected_pairs", ())
         }
+        self._judged_pairs = {frozenset(int(u) for u in p) for p in state.get("judged_pairs", ())}
 
     def region_limit(self, region: int) -> int:
         """Bytes region ``region`` of the local layer may hold: :func:`region_limits` of
@@ -993,6 +997,20 @@ class RobotStore:
                 self._rejected_pairs.add(c.pair)
                 new.append(c)
         return new
+
+    def keep_judged(self, closures: Iterable[ClosureEdge]) -> None:
+        """Remember the pose pairs of closures pairwise consistency judged and kept
+        (:mod:`.pcm`, closures judged once), and forget those of closures the store no
+        longer holds, so that the set stays within the closure store's size."""
+        held = {c.pair for c in self.closures}
+        self._judged_pairs = {p for p in self._judged_pairs if p in held}
+        self._judged_pairs.update(c.pair for c in closures if c.pair in held)
+
+    @property
+    def judged_pairs(self) -> frozenset[frozenset[int]]:
+        """Pose pairs of the closures pairwise consistency judged and kept
+        (:meth:`keep_judged`)."""
+        return frozenset(self._judged_pairs)
 
     def add_peer_closures(self, closures: Iterable[ClosureEdge]) -> tuple[int, int, int]:
         """Closures another robot found, as they arrive with its poses

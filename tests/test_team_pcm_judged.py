@@ -1,0 +1,204 @@
+"""PCM's loop over one walk of a layer's odometry, its odometry forest, and closures
+judged once (sonarmap.team.pcm, RobotStore.keep_judged)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from sonarmap.team.globalmap import CHI2_99_3DOF
+from sonarmap.team.pcm import LayerChain, loop_distance, loop_residual, pcm_gate
+from sonarmap.team.records import ClosureEdge, OdometryEdge, compose, invert
+from sonarmap.team.store import RobotStore
+from test_team_pcm import _corridor, _noisy_lap_twice, _t3
+
+F64 = npt.NDArray[np.float64]
+
+#: A closure's covariance here: 3 cm and 0.01 rad, as its noise is drawn.
+CLOSURE_COV = np.diag([0.03**2, 0.03**2, 0.01**2])
+
+
+def _drawn(a: int, b: int, truth: F64, rng: np.random.Generator) -> tuple[int, int, F64, F64]:
+    """A true closure ``a -> b`` with noise drawn from its own covariance (isotropic
+    in x and y, so the same on either side of the transform)."""
+    t = compose(invert(truth[a]), truth[b]) + np.linalg.cholesky(CLOSURE_COV) @ rng.normal(size=3)
+    return a, b, np.asarray(t), CLOSURE_COV.copy()
+
+
+def _reversed(c: tuple[int, int, F64, F64]) -> tuple[int, int, F64, F64]:
+    a, b, t, _ = c
+    # Isotropic in x and y: the inverse's covariance is the same matrix.
+    return b, a, np.asarray(invert(t)), CLOSURE_COV.copy()
+
+
+# Pairs of true revisits on the lap driven twice (pose k and k + 31 are one place):
+# in a row (the two stretches share edges 20..25, walked once each way), interleaved,
+# nested, and one whose loop walks edges 12..36 twice the same way (four times their
+# covariance).
+PAIRS = {
+    "in a row": ((5, 36), (10, 41)),
+    "apart": ((5, 36), (25, 56)),
+    "nested": ((3, 34), (8, 39)),
+    "twice one way": ((5, 36), (43, 12)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PAIRS))
+@pytest.mark.parametrize("stored", ["forward", "reversed"])
+def test_the_loop_over_one_walk_has_its_noise_covariance(name: str, stored: str) -> None:
+    """Over 300 draws of odometry and closure noise, the loop's squared Mahalanobis
+    distance has the chi-square mean (3 for 3 degrees of freedom) and fails about 1 %
+    of the time, whichever way round the closures are stored: a covariance that
+    counts a shared edge wrongly, or a loop formed with a closure the wrong way round,
+    moves the mean far out of the band."""
+    (a1, b1), (a2, b2) = PAIRS[name]
+    d2 = []
+    for seed in range(300):
+        rng = np.random.default_rng(seed)
+        truth, edges = _noisy_lap_twice(rng)
+        chain = LayerChain(edges)
+        c1, c2 = _drawn(a1, b1, truth, rng), _drawn(a2, b2, truth, rng)
+        if stored == "reversed":
+            c1 = _reversed(c1)
+        d = loop_distance(c1, c2, chain, chain)
+        assert d is not None
+        d2.append(d)
+    mean = float(np.mean(d2))
+    assert 2.4 < mean < 3.6, mean
+    assert np.mean(np.array(d2) > CHI2_99_3DOF) <= 0.04
+
+
+def test_a_loop_over_one_walk_rejects_a_forged_closure() -> None:
+    rng = np.random.default_rng(0)
+    truth, edges = _noisy_lap_twice(rng)
+    chain = LayerChain(edges)
+    c1 = _drawn(5, 36, truth, rng)
+    c2 = _drawn(10, 41, truth, rng)
+    forged = (c2[0], c2[1], c2[2] + np.array([0.8, 0.0, 0.0]), c2[3])
+    d_true, d_bad = loop_distance(c1, c2, chain, chain), loop_distance(c1, forged, chain, chain)
+    assert d_true is not None
+    assert d_true < CHI2_99_3DOF
+    assert d_bad is not None
+    assert d_bad > 5 * CHI2_99_3DOF
+
+
+def test_the_forest_joins_a_merged_pose_and_a_chain_broken_by_it() -> None:
+    """A pose with two edges out (a merge at a closure gives the merged pose both
+    poses' edges) no longer breaks the chain: every pose is on one tree, the path
+    through the merged pose is the composed odometry, and an edge closing a cycle is
+    left out."""
+    step = (1.0, 0.0, 0.1)
+    cov = tuple(float(v) for v in np.diag([4e-4, 4e-4, 1e-4]).ravel())
+    merged = 100
+    edges = [
+        OdometryEdge(0, 1, step, cov, 10.0),
+        OdometryEdge(1, merged, step, cov, 10.0),
+        OdometryEdge(merged, 3, step, cov, 10.0),
+        OdometryEdge(merged, 7, step, cov, 10.0),  # the other pose's next edge
+        OdometryEdge(6, merged, step, cov, 10.0),
+        OdometryEdge(3, 7, (0.0, 0.0, 0.0), cov, 10.0),  # closes a cycle: left out
+    ]
+    chain = LayerChain(edges)
+    trees = {u: chain.where[u][0] for u in (0, 1, merged, 3, 6, 7)}
+    assert set(trees.values()) == {0}
+    rel = chain.relative(0, 3)
+    assert rel is not None
+    np.testing.assert_allclose(rel[0], compose(compose(step, step), step), atol=1e-12)
+    rel6 = chain.relative(6, 3)
+    assert rel6 is not None
+    np.testing.assert_allclose(rel6[0], compose(step, step), atol=1e-12)
+    # Two poses with no edge between any of their trees: untestable.
+    assert chain.relative(0, 99) is None
+    assert (
+        loop_residual((0, 3, np.zeros(3), np.eye(3)), (99, 3, np.zeros(3), np.eye(3)), chain, chain)
+        is None
+    )
+
+
+# --- judged once --------------------------------------------------------------------
+
+
+def _window(result_rejected: list[ClosureEdge], closures: list[ClosureEdge]) -> set[int]:
+    return {i for i, c in enumerate(closures) if any(c is r for r in result_rejected)}
+
+
+def test_judged_once_rejects_the_forged_and_freezes_the_kept() -> None:
+    _, layer_of, chains, closures, forged = _corridor()
+    result = pcm_gate(closures, layer_of, chains, frozen=set())
+    assert _window(result.rejected, closures) == forged
+    assert [id(c) for c in result.newly_kept] == [
+        id(c) for i, c in enumerate(closures) if i not in forged
+    ]
+    # Judged again with the kept ones frozen: nothing new, nothing judged or tested.
+    again = pcm_gate(result.kept, layer_of, chains, frozen={c.pair for c in result.newly_kept})
+    assert (again.judged, again.loops_tested, again.rejected, again.newly_kept) == (0, 0, [], [])
+
+
+def test_frozen_truth_outvotes_repeated_structure_that_arrives_later() -> None:
+    """The last 8 closures: 3 true, then the 5 forged ones, which agree with each other.
+    Judged afresh, the 5 win (PCM's limit); with the 3 true ones judged and kept in an
+    earlier pass, each forged one fails with all 3 and goes, and a frozen closure is
+    never rejected."""
+    _, layer_of, chains, closures, forged = _corridor()
+    fresh = pcm_gate(closures, layer_of, chains, max_per_pair=8, frozen=set())
+    assert _window(fresh.rejected, closures) == {
+        i for i in range(len(closures) - 8, len(closures)) if i not in forged
+    }
+    truth = {closures[i].pair for i in range(len(closures) - 8, len(closures)) if i not in forged}
+    held = pcm_gate(closures, layer_of, chains, max_per_pair=8, frozen=truth)
+    assert _window(held.rejected, closures) == forged
+    assert held.judged == 5
+
+
+def test_one_failing_loop_does_not_reject_a_closure() -> None:
+    """A forged closure with one true partner fails one loop: kept when two failures
+    are needed (one is what a true pair shows by chance), rejected when one is."""
+    _, layer_of, chains, closures, forged = _corridor()
+    pair = [closures[0], closures[min(forged)]]
+    assert pcm_gate(pair, layer_of, chains, frozen=set()).rejected == []
+    assert [
+        c is pair[1]
+        for c in pcm_gate(pair, layer_of, chains, frozen=set(), min_failures=1).rejected
+    ] == [True]
+    with pytest.raises(ValueError, match="min_failures"):
+        pcm_gate(pair, layer_of, chains, frozen=set(), min_failures=0)
+
+
+def test_the_store_keeps_the_judged_pairs_through_state_and_restore() -> None:
+    store = RobotStore(0)
+    cov = tuple(float(v) for v in CLOSURE_COV.ravel())
+    c1 = ClosureEdge(1, 2, _t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
+    c2 = ClosureEdge(3, 4, _t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
+    gone = ClosureEdge(5, 6, _t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
+    store.closures = [c1, c2]
+    store.keep_judged([c1, gone])  # a pair the store does not hold is not kept
+    assert store.judged_pairs == {c1.pair}
+    state = store.state()
+    other = RobotStore(0)
+    other.restore(state)
+    assert other.judged_pairs == {c1.pair}
+    # Pairs of closures that left the store are forgotten at the next call.
+    other.closures = [c2]
+    other.keep_judged([c2])
+    assert other.judged_pairs == {c2.pair}
+    # A state saved before the judged pairs were kept restores with none.
+    other.restore({k: v for k, v in state.items() if k != "judged_pairs"})
+    assert other.judged_pairs == frozenset()
+
+
+def test_the_mission_judges_each_closure_once() -> None:
+    """MissionConfig.pcm: the robot's pass freezes what it kept (a second pass judges
+    nothing), through the store."""
+    _, layer_of, chains, closures, forged = _corridor()
+    store = RobotStore(0)
+    store.closures = list(closures)
+    first = pcm_gate(store.closures, layer_of, chains, frozen=store.judged_pairs)
+    store.closures = first.kept
+    store.keep_judged(first.newly_kept)
+    second = pcm_gate(store.closures, layer_of, chains, frozen=store.judged_pairs)
+    assert len(first.rejected) == len(forged)
+    assert (second.judged, second.rejected) == (0, [])
+    assert math.isfinite(float(len(store.judged_pairs)))
