@@ -1264,7 +1264,9 @@ def test_disc_side_is_numpys_disc_and_half() -> None:
 
 def test_disc_side_far_planning_robot_is_numpys_half() -> None:
     # The planning robot's cell so far off that the squared offsets pass 2**40: the
-    # kernel compares libm's hypots there, and keeps numpy's cells either way.
+    # kernel keeps numpy's cells there. Both of its branches would keep the same cells
+    # for these cells (no square wraps), so this checks the answer, not which branch
+    # gave it.
     disc = disc_offsets(12.0, 1.0)
     shape = (60, 60)
     for mine in [(2**20 + 3, 7), (-(2**21), 2**20), (30, 2**22), (2**19, 2**19)]:
@@ -1278,6 +1280,19 @@ def test_disc_side_far_planning_robot_is_numpys_half() -> None:
         cells = np.column_stack(disc_cells(disc, 30, 30, shape))
         near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
         want = cells[np.hypot(cells[:, 0] - 30, cells[:, 1] - 30) < near_me]
+        np.testing.assert_array_equal(disc_side(disc, 30, 30, shape, mine), want)
+
+
+def test_disc_side_wrapping_squares_is_numpys_half() -> None:
+    # The planning robot's cell about 2**32 cells off: the int64 squares of its offsets
+    # wrap (2**32 squares to 0), so an integer comparison would keep the wrong cells.
+    disc = disc_offsets(12.0, 1.0)
+    shape = (60, 60)
+    cells = np.column_stack(disc_cells(disc, 30, 30, shape))
+    for mine in [(30 + 2**32, 30), (30 + 2**32 + 3, 27), (30, 30 - 2**32), (2**32, 2**32 + 5)]:
+        near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
+        want = cells[np.hypot(cells[:, 0] - 30, cells[:, 1] - 30) < near_me]
+        assert len(want) == len(cells)  # so far off, every cell is nearer (30, 30)
         np.testing.assert_array_equal(disc_side(disc, 30, 30, shape, mine), want)
 
 
