@@ -1322,6 +1322,19 @@ def test_points_clear_is_the_grid_lookup() -> None:
     assert points_clear(np.empty(0), np.empty(0), clear, g) is True
 
 
+def test_points_clear_refuses_mismatched_inputs() -> None:
+    # A y shorter than x would be read past its end; a clear of another shape would be
+    # looked up with the grid's cells.
+    g = Grid(resolution=0.1, origin=(-1.3, 2.7), shape=(40, 30))
+    clear = np.ones(g.shape, dtype=bool)
+    with pytest.raises(ValueError, match="x has 3 points, y has 2"):
+        points_clear(np.zeros(3), np.full(2, 3.0), clear, g)
+    with pytest.raises(ValueError, match=r"clear has shape \(30, 40\)"):
+        points_clear(np.zeros(1), np.full(1, 3.0), np.ones((30, 40), dtype=bool), g)
+    with pytest.raises(ValueError, match=r"clear has shape \(1200,\)"):
+        points_clear(np.zeros(1), np.full(1, 3.0), clear.reshape(-1), g)
+
+
 def _crossroads(res: float = 0.5) -> Territory:
     """A 30 x 30 m site: a 5.5 m street west to east (y 12.5-18 m) crossed by a 3 m one
     south to north (x 13.5-16.5 m), whose passable cells are two wide."""
