@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -200,6 +201,24 @@ def test_the_dead_end_test_reads_indices_as_numpy_does() -> None:
         with pytest.raises(IndexError, match="outside"):
             leads_on(passable, inside, start)
     assert ends.leads_on(inside, (5, 5)) == _leads_on_by_labels(passable, inside, (5, 5))
+
+
+def test_the_dead_end_test_refuses_closed_cells_not_k_by_2() -> None:
+    passable = np.ones((20, 37), dtype=bool)
+    ends = DeadEnds(passable)
+    for closed in (
+        np.array([[3], [4]], dtype=np.intp),
+        np.array([3, 4], dtype=np.intp),
+        np.empty(0, dtype=np.intp),
+        np.zeros((2, 3), dtype=np.intp),
+        np.zeros((1, 2, 2), dtype=np.intp),
+    ):
+        shape = re.escape(str(closed.shape))
+        with pytest.raises(ValueError, match=rf"shape \(K, 2\).*got {shape}"):
+            ends.leads_on(closed, (5, 5))
+        with pytest.raises(ValueError, match=rf"shape \(K, 2\).*got {shape}"):
+            leads_on(passable, closed, (5, 5))
+    assert ends.leads_on(np.empty((0, 2), dtype=np.intp), (5, 5))
 
 
 def test_one_dead_end_test_answers_many_questions_of_a_map_as_labelling_does() -> None:
