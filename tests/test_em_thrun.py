@@ -232,6 +232,16 @@ def test_scatter_puts_local_values_on_the_grid_and_nan_before_a_fit() -> None:
     assert np.isnan(scatter(ix, None, grid.size)).all()
 
 
+def test_em_map_has_the_grids_shape_before_and_after_a_fit() -> None:
+    grid = Grid(resolution=0.1, origin=(-0.5, -1.0), shape=(20, 30))
+    m = EMMapper().start(grid, SENSOR)
+    assert m.em_map_.shape == grid.shape
+    assert np.isnan(m.em_map_).all()
+    m.fit(one_place([1.0]), grid, SENSOR)
+    assert m.em_map_.shape == grid.shape
+    assert np.isfinite(m.em_map_).any()
+
+
 def _attached(grid: Grid) -> ThrunEMMapper:
     mapper = ThrunEMMapper()
     mapper.attach(grid, SENSOR)
