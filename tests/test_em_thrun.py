@@ -14,12 +14,15 @@ from sonarmap.mappers._thrun_common import (
     index_readings,
     model_inputs,
     model_sigma,
+    posterior,
     probability,
     scatter,
+    sweep,
 )
 from sonarmap.mappers.em import EMMapper
 from sonarmap.mappers.em import _e_step as relaxed_e_step
-from sonarmap.mappers.em_thrun import ThrunEMMapper
+from sonarmap.mappers.em_thrun import MIN_GAIN, ThrunEMMapper
+from sonarmap.mappers.em_thrun import _climb as climb
 from sonarmap.mappers.em_thrun import _e_step as binary_e_step
 from sonarmap.metrics import score
 from sonarmap.readings import Readings
@@ -95,6 +98,65 @@ def test_binary_e_step_agrees_with_the_flip_bookkeeping(small_passages: Scenario
     assert np.all((outlier >= 0) & (outlier <= 1))
 
 
+def test_sweep_gives_held_odds_plus_bias_and_flips_only_above_min_gain(
+    small_passages: Scenario,
+) -> None:
+    """The shared sweep kernel's contract: with ``min_gain`` inf it changes neither the
+    map nor the bookkeeping and its odds are :func:`posterior`'s, which are the change
+    of the E-step's L when the cell alone turns occupied; a bias adds to them; the
+    M-step's climb stops after ``max_sweeps`` sweeps or the first sweep with no flip."""
+    m = ThrunEMMapper().start(small_passages.truth.grid, small_passages.rig)
+    sigma = model_sigma(m, m.sigma)
+    ix = index_readings(m, small_passages.readings, sigma)
+    n = ix.n_cells
+    rng = np.random.default_rng(4)
+    occ = rng.random(n) < 0.2
+    model = (m.p_rand, m.p_hit, sigma, m.sensor.r_max)
+    beams = (ix.free_off, ix.free_cell, ix.band_off, ix.band_cell, ix.band_dist, ix.z)
+    arrays = ix.posterior_arrays()
+    cand = rng.choice(n, 40, replace=False).astype(np.int64)
+
+    state = init_state(occ, *beams, *model)
+    before = (occ.copy(), *(a.copy() for a in state))
+    held = np.empty(len(cand))
+    assert sweep(cand, occ, state, arrays, model, None, None, held, np.inf) == 0
+    for a, b in zip((occ, *state), before, strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(held, posterior(occ, arrays, *model)[cand])
+    for k, c in enumerate(cand[:8]):
+        on, off = occ.copy(), occ.copy()
+        on[c], off[c] = True, False
+        gain = binary_e_step(on, *beams, *model)[1] - binary_e_step(off, *beams, *model)[1]
+        assert held[k] == pytest.approx(gain, rel=1e-6, abs=1e-9)
+
+    bias = rng.normal(0.0, 3.0, n)
+    biased = np.empty(len(cand))
+    sweep(cand, occ, state, arrays, model, None, bias, biased, np.inf)
+    np.testing.assert_array_equal(biased, held + bias[cand])
+
+    # The climb against sweeps made one at a time from the same map.
+    cells = np.arange(n, dtype=np.int64)
+    zero = np.zeros(n)
+    by_hand = occ.copy()
+    hand_state = init_state(by_hand, *beams, *model)
+    out = np.empty(n)
+    made = [sweep(cells, by_hand, hand_state, arrays, model, None, zero, out, MIN_GAIN)]
+    while made[-1] and len(made) < 50:
+        made.append(sweep(cells, by_hand, hand_state, arrays, model, None, zero, out, MIN_GAIN))
+    assert made[0] > 0
+    assert made[1] > 0  # so that stopping after one sweep shows
+    assert made[-1] == 0
+    for sweeps in (0, 1, len(made) + 5):
+        climbed = occ.copy()
+        flips = climb(
+            cells, climbed, init_state(climbed, *beams, *model), arrays, model, sweeps, zero, out
+        )
+        assert flips == sum(made[:sweeps])
+        if sweeps == 0:
+            np.testing.assert_array_equal(climbed, occ)
+    np.testing.assert_array_equal(climbed, by_hand)
+
+
 def test_relaxed_e_step_counts_passes_when_chance_dominates() -> None:
     """The bug behind "em learns nothing from its neutral start": a cell a beam crosses
     was credited 1 - P(random) passes, which is exactly 0 in floating point once the
@@ -168,6 +230,16 @@ def test_scatter_puts_local_values_on_the_grid_and_nan_before_a_fit() -> None:
     assert np.isnan(np.delete(flat, ix.cells)).all()
     assert np.isnan(scatter(None, values, grid.size)).all()
     assert np.isnan(scatter(ix, None, grid.size)).all()
+
+
+def test_em_map_has_the_grids_shape_before_and_after_a_fit() -> None:
+    grid = Grid(resolution=0.1, origin=(-0.5, -1.0), shape=(20, 30))
+    m = EMMapper().start(grid, SENSOR)
+    assert m.em_map_.shape == grid.shape
+    assert np.isnan(m.em_map_).all()
+    m.fit(one_place([1.0]), grid, SENSOR)
+    assert m.em_map_.shape == grid.shape
+    assert np.isfinite(m.em_map_).any()
 
 
 def _attached(grid: Grid) -> ThrunEMMapper:

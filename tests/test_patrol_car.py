@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -200,6 +201,24 @@ def test_the_dead_end_test_reads_indices_as_numpy_does() -> None:
         with pytest.raises(IndexError, match="outside"):
             leads_on(passable, inside, start)
     assert ends.leads_on(inside, (5, 5)) == _leads_on_by_labels(passable, inside, (5, 5))
+
+
+def test_the_dead_end_test_refuses_closed_cells_not_k_by_2() -> None:
+    passable = np.ones((20, 37), dtype=bool)
+    ends = DeadEnds(passable)
+    for closed in (
+        np.array([[3], [4]], dtype=np.intp),
+        np.array([3, 4], dtype=np.intp),
+        np.empty(0, dtype=np.intp),
+        np.zeros((2, 3), dtype=np.intp),
+        np.zeros((1, 2, 2), dtype=np.intp),
+    ):
+        shape = re.escape(str(closed.shape))
+        with pytest.raises(ValueError, match=rf"shape \(K, 2\).*got {shape}"):
+            ends.leads_on(closed, (5, 5))
+        with pytest.raises(ValueError, match=rf"shape \(K, 2\).*got {shape}"):
+            leads_on(passable, closed, (5, 5))
+    assert ends.leads_on(np.empty((0, 2), dtype=np.intp), (5, 5))
 
 
 def test_one_dead_end_test_answers_many_questions_of_a_map_as_labelling_does() -> None:
@@ -1264,7 +1283,9 @@ def test_disc_side_is_numpys_disc_and_half() -> None:
 
 def test_disc_side_far_planning_robot_is_numpys_half() -> None:
     # The planning robot's cell so far off that the squared offsets pass 2**40: the
-    # kernel compares libm's hypots there, and keeps numpy's cells either way.
+    # kernel keeps numpy's cells there. Both of its branches would keep the same cells
+    # for these cells (no square wraps), so this checks the answer, not which branch
+    # gave it.
     disc = disc_offsets(12.0, 1.0)
     shape = (60, 60)
     for mine in [(2**20 + 3, 7), (-(2**21), 2**20), (30, 2**22), (2**19, 2**19)]:
@@ -1278,6 +1299,19 @@ def test_disc_side_far_planning_robot_is_numpys_half() -> None:
         cells = np.column_stack(disc_cells(disc, 30, 30, shape))
         near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
         want = cells[np.hypot(cells[:, 0] - 30, cells[:, 1] - 30) < near_me]
+        np.testing.assert_array_equal(disc_side(disc, 30, 30, shape, mine), want)
+
+
+def test_disc_side_wrapping_squares_is_numpys_half() -> None:
+    # The planning robot's cell about 2**32 cells off: the int64 squares of its offsets
+    # wrap (2**32 squares to 0), so an integer comparison would keep the wrong cells.
+    disc = disc_offsets(12.0, 1.0)
+    shape = (60, 60)
+    cells = np.column_stack(disc_cells(disc, 30, 30, shape))
+    for mine in [(30 + 2**32, 30), (30 + 2**32 + 3, 27), (30, 30 - 2**32), (2**32, 2**32 + 5)]:
+        near_me = np.hypot(cells[:, 0] - mine[0], cells[:, 1] - mine[1])
+        want = cells[np.hypot(cells[:, 0] - 30, cells[:, 1] - 30) < near_me]
+        assert len(want) == len(cells)  # so far off, every cell is nearer (30, 30)
         np.testing.assert_array_equal(disc_side(disc, 30, 30, shape, mine), want)
 
 
@@ -1305,6 +1339,19 @@ def test_points_clear_is_the_grid_lookup() -> None:
     clear = np.ones(g.shape, dtype=bool)
     assert points_clear(np.array([np.nan]), np.array([3.0]), clear, g) is False
     assert points_clear(np.empty(0), np.empty(0), clear, g) is True
+
+
+def test_points_clear_refuses_mismatched_inputs() -> None:
+    # A y shorter than x would be read past its end; a clear of another shape would be
+    # looked up with the grid's cells.
+    g = Grid(resolution=0.1, origin=(-1.3, 2.7), shape=(40, 30))
+    clear = np.ones(g.shape, dtype=bool)
+    with pytest.raises(ValueError, match="x has 3 points, y has 2"):
+        points_clear(np.zeros(3), np.full(2, 3.0), clear, g)
+    with pytest.raises(ValueError, match=r"clear has shape \(30, 40\)"):
+        points_clear(np.zeros(1), np.full(1, 3.0), np.ones((30, 40), dtype=bool), g)
+    with pytest.raises(ValueError, match=r"clear has shape \(1200,\)"):
+        points_clear(np.zeros(1), np.full(1, 3.0), clear.reshape(-1), g)
 
 
 def _crossroads(res: float = 0.5) -> Territory:

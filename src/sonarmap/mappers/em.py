@@ -187,8 +187,8 @@ class EMMapper(Mapper):
 
     Attributes
     ----------
-    em_map_ : ndarray
-        The EM estimate m (flat, NaN where untouched).
+    em_map_ : ndarray of float32, shape ``grid.shape``
+        The EM estimate m, NaN where untouched (NaN everywhere before a fit).
     loglik_ : list of float
         Log-likelihood of the data at each iteration (non-decreasing); with
         ``correlated``, the weighted log-likelihood EM maximises.
@@ -308,8 +308,6 @@ class EMMapper(Mapper):
 
     @property
     def em_map_(self) -> npt.NDArray[np.float32]:
-        if self._index is None or self._m is None:
-            return np.full(self.grid.size, np.nan, dtype=np.float32)
         return scatter(self._index, self._m, self.grid.size).reshape(self.grid.shape)
 
     def _occupancy(self) -> npt.NDArray[np.float32]:

@@ -271,6 +271,9 @@ class ThrunEMMapper(Mapper):
         # The M-step: one hill-climbing sweep over every cell in index order.
         cells = np.arange(ix.n_cells, dtype=np.int64)
         arrays = ix.posterior_arrays()
+        # The sweep's out array for each cell's odds, not read here (the posterior is
+        # taken once after the last sweep, with every cell held at the final map):
+        # allocated once, each sweep overwrites it.
         odds = np.empty(ix.n_cells)
         self.loglik_, self.expected_loglik_, self.flips_ = [], [], []
         k = 0

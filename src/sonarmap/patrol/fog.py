@@ -63,12 +63,15 @@ def _disc_side(
             # Squared offsets are exact integers. Where they differ and lie below
             # 2**40, their square roots differ by more than 2**-22, and libm's hypot
             # (as numpy's np.hypot) is within an ulp of them, at most 2**-32 there: the
-            # same order. Otherwise the two hypots are compared as numpy does.
+            # same order. Otherwise the two hypots are compared as numpy does. The
+            # squares are only formed for offsets below 2**20, as int64 squares of
+            # offsets past about 3e9 cells wrap (2**32 squares to 0).
             a, b = rr - r, cc - c
             e, f = rr - mine_r, cc - mine_c
-            s_them = a * a + b * b
-            s_mine = e * e + f * f
-            if s_them != s_mine and max(s_them, s_mine) < 2**40:
+            small = max(abs(a), abs(b), abs(e), abs(f)) < 2**20
+            s_them = a * a + b * b if small else 0
+            s_mine = e * e + f * f if small else 0
+            if small and s_them != s_mine and max(s_them, s_mine) < 2**40:
                 if s_them > s_mine:
                     continue
             elif not math.hypot(float(a), float(b)) < math.hypot(float(e), float(f)):

@@ -828,10 +828,12 @@ class DeadEnds:
         block's piece at a time (nothing is closed there, so a piece reached is reached
         whole). A way ahead that leads on costs about half the map's pieces, not half
         its cells.
+
+        Raises :class:`ValueError` when ``closed`` is not of shape (K, 2).
         """
-        if not len(closed):
+        shut = _closed_cells(closed)
+        if not len(shut):
             return True
-        shut = np.ascontiguousarray(closed, dtype=np.int64)
         rows, cols = self.passable.shape
         r0, c0 = int(start[0]), int(start[1])
         if not (-rows <= r0 < rows and -cols <= c0 < cols):
@@ -869,6 +871,15 @@ class DeadEnds:
         return got == 1
 
 
+def _closed_cells(closed: npt.NDArray[np.intp]) -> npt.NDArray[np.int64]:
+    """``closed`` as a contiguous int64 (K, 2) array; ValueError for any other shape
+    (the kernel reads two columns)."""
+    shut = np.ascontiguousarray(closed, dtype=np.int64)
+    if shut.ndim != 2 or shut.shape[1] != 2:
+        raise ValueError(f"leads_on: closed must have shape (K, 2) (row, column), got {shut.shape}")
+    return shut
+
+
 def leads_on(
     passable: npt.NDArray[np.bool_],
     closed: npt.NDArray[np.intp],
@@ -901,9 +912,11 @@ def leads_on(
     ------
     IndexError
         If a cell of ``closed`` or ``start`` lies outside the map.
+    ValueError
+        If ``closed`` is not of shape (K, 2).
     """
     del n_passable  # accepted for the callers of the former signature, not used
-    if not len(closed):
+    if not len(_closed_cells(closed)):
         return True
     return DeadEnds(passable).leads_on(closed, start, share)
 

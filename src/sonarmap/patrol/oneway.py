@@ -699,16 +699,20 @@ def one_way(
     off_junction = ndimage.distance_transform_edt(~junction)
     seg_box = ndimage.find_objects(segment + 1)
     node_box = ndimage.find_objects(node_of + 1)
-    for s in range(n_segments):
-        box = seg_box[s]
+
+    def cells_of(labels: I64, boxes: list[Any], k: int) -> tuple[tuple[slice, slice], B]:
+        # Label k's bounding box and its cells there (row-major, as in the map).
+        box = boxes[k]
         assert box is not None
-        pix = segment[box] == s
+        return box, labels[box] == k
+
+    for s in range(n_segments):
+        box, pix = cells_of(segment, seg_box, s)
         if len(touches[s]) != 1 or (pix & (nbrs[box] == 1)).any():
             continue
         (n,) = touches[s]
-        nbox = node_box[n]
-        assert nbox is not None
-        reach_cells = float(clearance[nbox][node_of[nbox] == n].max()) / resolution + 1.0
+        nbox, npix = cells_of(node_of, node_box, n)
+        reach_cells = float(clearance[nbox][npix].max()) / resolution + 1.0
         if float(off_junction[box][pix].max()) <= reach_cells:
             junction[box] |= pix
     node_of, n_junctions = ndimage.label(junction, structure=eight)
@@ -730,9 +734,8 @@ def one_way(
             # A stub to a skeleton end, or a loop back to the same junction: a new node
             # for the end keeps it a bridge; a loop is its own cycle.
             # In the segment's bounding box: the whole map's test once per street.
-            box = seg_box[s]
-            assert box is not None
-            is_end = bool(((segment[box] == s) & (nbrs[box] == 1)).any())
+            box, pix = cells_of(segment, seg_box, s)
+            is_end = bool((pix & (nbrs[box] == 1)).any())
             if is_end:
                 ends.append((t[0], n_nodes))
                 n_nodes += 1
@@ -752,12 +755,6 @@ def one_way(
         forward[valid] = f
         bridge[valid] = b
         dead_end[valid] = _dead_ends(n_nodes, [ends[k] for k in valid], b)
-
-    def cells_of(labels: I64, boxes: list[Any], k: int) -> tuple[tuple[slice, slice], B]:
-        # Label k's bounding box and its cells there (row-major, as in the map).
-        box = boxes[k]
-        assert box is not None
-        return box, labels[box] == k
 
     widths = np.zeros(n_segments)
     for s in range(n_segments):

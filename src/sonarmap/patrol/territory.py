@@ -98,14 +98,27 @@ def points_clear(
     """Whether every world point (``x``, ``y``; metres, 1-D arrays of one length) lies
     inside the map on a ``clear`` cell: ``grid.contains(r, c).all()`` and
     ``clear[r, c].all()`` for ``r, c = grid.world_to_cell(x, y)``, in one pass that
-    stops at the first point off them (True for no points)."""
+    stops at the first point off them (True for no points).
+
+    Raises
+    ------
+    ValueError
+        When ``x`` and ``y`` differ in size, or ``clear``'s shape is not
+        ``grid.shape``.
+    """
+    xs = np.ascontiguousarray(x, dtype=np.float64).reshape(-1)
+    ys = np.ascontiguousarray(y, dtype=np.float64).reshape(-1)
+    if xs.shape != ys.shape:
+        raise ValueError(f"points_clear: x has {xs.size} points, y has {ys.size}")
+    if clear.shape != grid.shape:
+        raise ValueError(f"points_clear: clear has shape {clear.shape}, the grid {grid.shape}")
     ox, oy = grid.origin
     # Called for each arc a car tries, several a step: a kernel rather than the half
     # dozen small numpy arrays of world_to_cell, contains and the lookup.
     return bool(
         _all_clear(
-            np.ascontiguousarray(x, dtype=np.float64).reshape(-1),
-            np.ascontiguousarray(y, dtype=np.float64).reshape(-1),
+            xs,
+            ys,
             clear,
             float(ox),
             float(oy),
