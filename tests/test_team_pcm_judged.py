@@ -9,11 +9,11 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from pcm_helpers import corridor, noisy_lap_twice, t3
 from sonarmap.team.globalmap import CHI2_99_3DOF
 from sonarmap.team.pcm import LayerChain, loop_distance, loop_residual, pcm_gate
 from sonarmap.team.records import ClosureEdge, OdometryEdge, compose, invert
 from sonarmap.team.store import RobotStore
-from test_team_pcm import _corridor, _noisy_lap_twice, _t3
 
 F64 = npt.NDArray[np.float64]
 
@@ -58,7 +58,7 @@ def test_the_loop_over_one_walk_has_its_noise_covariance(name: str, stored: str)
     d2 = []
     for seed in range(300):
         rng = np.random.default_rng(seed)
-        truth, edges = _noisy_lap_twice(rng)
+        truth, edges = noisy_lap_twice(rng)
         chain = LayerChain(edges)
         c1, c2 = _drawn(a1, b1, truth, rng), _drawn(a2, b2, truth, rng)
         if stored == "reversed":
@@ -73,7 +73,7 @@ def test_the_loop_over_one_walk_has_its_noise_covariance(name: str, stored: str)
 
 def test_a_loop_over_one_walk_rejects_a_forged_closure() -> None:
     rng = np.random.default_rng(0)
-    truth, edges = _noisy_lap_twice(rng)
+    truth, edges = noisy_lap_twice(rng)
     chain = LayerChain(edges)
     c1 = _drawn(5, 36, truth, rng)
     c2 = _drawn(10, 41, truth, rng)
@@ -126,7 +126,7 @@ def _window(result_rejected: list[ClosureEdge], closures: list[ClosureEdge]) -> 
 
 
 def test_judged_once_rejects_the_forged_and_freezes_the_kept() -> None:
-    _, layer_of, chains, closures, forged = _corridor()
+    _, layer_of, chains, closures, forged = corridor()
     result = pcm_gate(closures, layer_of, chains, frozen=set())
     assert _window(result.rejected, closures) == forged
     assert [id(c) for c in result.newly_kept] == [
@@ -142,7 +142,7 @@ def test_frozen_truth_outvotes_repeated_structure_that_arrives_later() -> None:
     Judged afresh, the 5 win (PCM's limit); with the 3 true ones judged and kept in an
     earlier pass, each forged one fails with all 3 and goes, and a frozen closure is
     never rejected."""
-    _, layer_of, chains, closures, forged = _corridor()
+    _, layer_of, chains, closures, forged = corridor()
     fresh = pcm_gate(closures, layer_of, chains, max_per_pair=8, frozen=set())
     assert _window(fresh.rejected, closures) == {
         i for i in range(len(closures) - 8, len(closures)) if i not in forged
@@ -156,7 +156,7 @@ def test_frozen_truth_outvotes_repeated_structure_that_arrives_later() -> None:
 def test_one_failing_loop_does_not_reject_a_closure() -> None:
     """A forged closure with one true partner fails one loop: kept when two failures
     are needed (one is what a true pair shows by chance), rejected when one is."""
-    _, layer_of, chains, closures, forged = _corridor()
+    _, layer_of, chains, closures, forged = corridor()
     pair = [closures[0], closures[min(forged)]]
     assert pcm_gate(pair, layer_of, chains, frozen=set()).rejected == []
     assert [
@@ -170,9 +170,9 @@ def test_one_failing_loop_does_not_reject_a_closure() -> None:
 def test_the_store_keeps_the_judged_pairs_through_state_and_restore() -> None:
     store = RobotStore(0)
     cov = tuple(float(v) for v in CLOSURE_COV.ravel())
-    c1 = ClosureEdge(1, 2, _t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
-    c2 = ClosureEdge(3, 4, _t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
-    gone = ClosureEdge(5, 6, _t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
+    c1 = ClosureEdge(1, 2, t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
+    c2 = ClosureEdge(3, 4, t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
+    gone = ClosureEdge(5, 6, t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
     store.closures = [c1, c2]
     store.keep_judged([c1, gone])  # a pair the store does not hold is not kept
     assert store.judged_pairs == {c1.pair}
@@ -192,7 +192,7 @@ def test_the_store_keeps_the_judged_pairs_through_state_and_restore() -> None:
 def test_the_mission_judges_each_closure_once() -> None:
     """MissionConfig.pcm: the robot's pass freezes what it kept (a second pass judges
     nothing), through the store."""
-    _, layer_of, chains, closures, forged = _corridor()
+    _, layer_of, chains, closures, forged = corridor()
     store = RobotStore(0)
     store.closures = list(closures)
     first = pcm_gate(store.closures, layer_of, chains, frozen=store.judged_pairs)
