@@ -3,14 +3,15 @@ judged once (sonarmap.team.pcm, RobotStore.keep_judged)."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import numpy.typing as npt
 import pytest
 
 from pcm_helpers import corridor, noisy_lap_twice, t3
+from sonarmap.scenarios import office
+from sonarmap.sensors import Noise
 from sonarmap.team.globalmap import CHI2_99_3DOF
+from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.pcm import LayerChain, loop_distance, loop_residual, pcm_gate
 from sonarmap.team.records import ClosureEdge, OdometryEdge, compose, invert
 from sonarmap.team.store import RobotStore
@@ -153,6 +154,69 @@ def test_frozen_truth_outvotes_repeated_structure_that_arrives_later() -> None:
     assert held.judged == 5
 
 
+def _judge(
+    store: RobotStore, layer_of: dict[int, int], chains: dict[int, LayerChain]
+) -> list[ClosureEdge]:
+    """One judged-once pass over the store's closures, kept in the store as the
+    mission keeps it; returns the closures rejected for the first time."""
+    result = pcm_gate(store.closures, layer_of, chains, frozen=store.judged_pairs)
+    store.closures = result.kept
+    gone = store.reject_closures(result.rejected)
+    store.keep_judged(result.newly_kept)
+    return gone
+
+
+def test_forged_closures_that_arrive_first_do_not_lock_out_the_true_ones() -> None:
+    """The reviewer's scenario: one forged closure alone, then a second that agrees
+    with it, then the 15 true ones, then the other 3 forged. A closure is frozen only
+    once tested against two closures still in, so the first two forged ones are still
+    new when the true ones arrive, fail with all 15 and go; every true closure is
+    held and none rejected."""
+    _, layer_of, chains, closures, forged = corridor()
+    bad = [closures[i] for i in sorted(forged)]
+    good = [c for i, c in enumerate(closures) if i not in forged]
+    store = RobotStore(0)
+    rejected: list[ClosureEdge] = []
+    for arriving in ([bad[0]], [bad[1]], good, bad[2:]):
+        store.closures = store.closures + list(arriving)
+        rejected += _judge(store, layer_of, chains)
+    held = {c.pair for c in store.closures}
+    assert sum(c.pair in held for c in good) == len(good)
+    assert sum(c.pair in held for c in bad) == 0
+    assert {c.pair for c in rejected} == {c.pair for c in bad}
+    assert store.judged_pairs == {c.pair for c in good}
+
+
+def test_three_agreeing_forged_closures_established_first_reject_the_truth() -> None:
+    """The other direction, PCM's limit as the rule stands: three forged closures that
+    agree with each other, judged before any true one, are frozen (each tested against
+    two still in), and every true closure that arrives later fails with all three."""
+    _, layer_of, chains, closures, forged = corridor()
+    bad = [closures[i] for i in sorted(forged)]
+    good = [c for i, c in enumerate(closures) if i not in forged]
+    store = RobotStore(0)
+    for arriving in (bad[:3], good):
+        store.closures = store.closures + list(arriving)
+        _judge(store, layer_of, chains)
+    held = {c.pair for c in store.closures}
+    assert sum(c.pair in held for c in bad[:3]) == 3
+    assert sum(c.pair in held for c in good) == 0
+
+
+def test_a_closure_alone_or_untested_is_not_frozen() -> None:
+    """The first closure of a pair of layers, or one with a single tested partner, is
+    kept but not frozen, and not counted as judged; with two partners it is."""
+    _, layer_of, chains, closures, forged = corridor()
+    good = [c for i, c in enumerate(closures) if i not in forged]
+    alone = pcm_gate(good[:1], layer_of, chains, frozen=set())
+    assert (alone.judged, alone.newly_kept, alone.rejected) == (0, [], [])
+    two = pcm_gate(good[:2], layer_of, chains, frozen=set())
+    assert (two.judged, two.newly_kept, two.loops_tested) == (0, [], 1)
+    three = pcm_gate(good[:3], layer_of, chains, frozen=set())
+    assert three.judged == 3
+    assert [c.pair for c in three.newly_kept] == [c.pair for c in good[:3]]
+
+
 def test_one_failing_loop_does_not_reject_a_closure() -> None:
     """A forged closure with one true partner fails one loop: kept when two failures
     are needed (one is what a true pair shows by chance), rejected when one is."""
@@ -190,15 +254,18 @@ def test_the_store_keeps_the_judged_pairs_through_state_and_restore() -> None:
 
 
 def test_the_mission_judges_each_closure_once() -> None:
-    """MissionConfig.pcm: the robot's pass freezes what it kept (a second pass judges
-    nothing), through the store."""
-    _, layer_of, chains, closures, forged = corridor()
-    store = RobotStore(0)
-    store.closures = list(closures)
-    first = pcm_gate(store.closures, layer_of, chains, frozen=store.judged_pairs)
-    store.closures = first.kept
-    store.keep_judged(first.newly_kept)
-    second = pcm_gate(store.closures, layer_of, chains, frozen=store.judged_pairs)
-    assert len(first.rejected) == len(forged)
-    assert (second.judged, second.rejected) == (0, [])
-    assert math.isfinite(float(len(store.judged_pairs)))
+    """MissionConfig.pcm through the robot itself (RobotAgent.batch): a 60 s mission
+    alone freezes the closures it kept in its store, and once every closure held has
+    been judged, a further batch judges and tests nothing; judged afresh, or with
+    nothing frozen, it would judge them all again."""
+    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    agent = RobotAgent(plan, MissionConfig(duration=60.0, seed=1, pcm=True))
+    agent.run()
+    agent.batch()  # the closures found after the mission's last batch
+    settled = dict(agent.evaluator.pcm_loops)
+    frozen = agent.store.judged_pairs
+    assert settled["judged"] >= len(frozen) > 10
+    assert frozen <= {c.pair for c in agent.store.closures}
+    agent.batch()
+    assert agent.evaluator.pcm_loops == settled
+    assert agent.store.judged_pairs == frozen
