@@ -3,6 +3,8 @@ judged once (sonarmap.team.pcm, RobotStore.keep_judged)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -13,7 +15,7 @@ from sonarmap.sensors import Noise
 from sonarmap.team.globalmap import CHI2_99_3DOF
 from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.pcm import LayerChain, loop_distance, loop_residual, pcm_gate
-from sonarmap.team.records import ClosureEdge, OdometryEdge, compose, invert
+from sonarmap.team.records import ClosureEdge, OdometryEdge, compose, invert, invert_covariance
 from sonarmap.team.store import RobotStore
 
 F64 = npt.NDArray[np.float64]
@@ -269,3 +271,63 @@ def test_the_mission_judges_each_closure_once() -> None:
     agent.batch()
     assert agent.evaluator.pcm_loops == settled
     assert agent.store.judged_pairs == frozen
+
+
+# --- the loop's covariance, anisotropic and correlated --------------------------------
+
+#: A noise much larger along one axis than across it, and correlated (x, y).
+LOUD = np.array([[2e-3, 4e-4, 1e-6], [4e-4, 1e-4, -1e-6], [1e-6, -1e-6, 4e-6]])
+#: A noise small next to :data:`LOUD`, so that the loud one's frame decides the loop's.
+QUIET = np.diag([1e-6, 1e-6, 1e-7])
+
+
+def _perturbed(t: F64, q: F64, rng: np.random.Generator) -> F64:
+    """``t`` with noise of covariance ``q`` in its end's frame (what a stored
+    covariance means)."""
+    return np.asarray(compose(t, np.linalg.cholesky(q) @ rng.normal(size=3)))
+
+
+def _arc_layer(
+    source: int, truth: F64, q: F64, rng: np.random.Generator, reverse: bool
+) -> list[OdometryEdge]:
+    """Odometry edges between poses ``source * 1000 + k`` along ``truth``, with noise
+    drawn from ``q``; ``reverse`` stores each edge from its later pose to its earlier
+    one (the inverse, its covariance moved to that end)."""
+    edges = []
+    for k in range(len(truth) - 1):
+        t = _perturbed(compose(invert(truth[k]), truth[k + 1]), q, rng)
+        a, b, qk = source * 1000 + k, source * 1000 + k + 1, q
+        if reverse:
+            a, b, t, qk = b, a, np.asarray(invert(t)), invert_covariance(t, q)
+        edges.append(OdometryEdge(a, b, t3(t), tuple(float(v) for v in qk.ravel()), 1))
+    return edges
+
+
+@pytest.mark.parametrize("loud", ["robot 0's odometry", "the closures"])
+def test_a_loop_between_two_layers_has_its_noise_covariance(loud: str) -> None:
+    """Robot 0 (its edges stored backwards) and robot 1 drive the same arc, 0.5 rad a
+    step, each in its own frame; two closures join them two steps apart. One noise is
+    loud and anisotropic (robot 0's odometry, or the closures'), the rest quiet, so the
+    loop's covariance is as anisotropic as that noise and placed by its frame. Over
+    300 draws, the loop's squared Mahalanobis distance has the chi-square mean, 3:
+    an edge walked backwards with its covariance left unmoved, closure 2's noise
+    entered at closure 1's end, or robot 0's noise moved from the wrong end each move
+    it far out of the band."""
+    q0, qc = (LOUD, QUIET) if loud == "robot 0's odometry" else (QUIET, LOUD)
+    arc = np.array([[2 * math.sin(0.5 * k), 2 - 2 * math.cos(0.5 * k), 0.5 * k] for k in range(8)])
+    frame1 = np.array([1.0, -2.0, 0.6])  # robot 1's layer origin in the world
+    truth1 = np.array([compose(invert(frame1), p) for p in arc])
+    d2 = []
+    for seed in range(300):
+        rng = np.random.default_rng(seed)
+        chain0 = LayerChain(_arc_layer(0, arc, q0, rng, reverse=True))
+        chain1 = LayerChain(_arc_layer(1, truth1, QUIET, rng, reverse=False))
+        c1, c2 = (
+            (a, 1000 + b, _perturbed(compose(invert(arc[a]), arc[b]), qc, rng), qc)
+            for a, b in ((2, 3), (4, 5))
+        )
+        d = loop_distance(c1, c2, chain0, chain1)
+        assert d is not None
+        d2.append(d)
+    mean = float(np.mean(d2))
+    assert 2.5 < mean < 3.5, mean
