@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import pytest
 
+from pcm_helpers import STEP_COV, closure, corridor, layer, noisy_lap_twice, t3
 from sonarmap.team.globalmap import CHI2_99_3DOF
 from sonarmap.team.pcm import LayerChain, loop_distance, pcm_gate
 from sonarmap.team.records import (
@@ -24,78 +24,11 @@ F64 = npt.NDArray[np.float64]
 Oriented = tuple[int, int, F64, F64]
 
 
-def _t3(v: Any) -> tuple[float, float, float]:
-    return (float(v[0]), float(v[1]), float(v[2]))
-
-
-#: An odometry step's covariance (its end's frame): 2 cm and 0.01 rad a metre.
-STEP_COV = np.diag([0.02**2, 0.02**2, 0.01**2])
-#: A closure's covariance: 3 cm and 0.01 rad.
-CLOSURE_COV = np.diag([0.03**2, 0.03**2, 0.01**2])
-
-
-def _layer(source: int, truth: F64, frame: F64) -> tuple[dict[int, F64], list[OdometryEdge]]:
-    """Poses ``source * 1000 + k`` at ``truth`` seen from ``frame`` (their layer's
-    origin in the world), chained by exact odometry edges."""
-    est = {source * 1000 + k: compose(invert(frame), t) for k, t in enumerate(truth)}
-    uids = sorted(est)
-    edges = [
-        OdometryEdge(
-            u,
-            w,
-            _t3(compose(invert(est[u]), est[w])),
-            tuple(float(v) for v in STEP_COV.ravel()),
-            10.0,
-        )
-        for u, w in itertools.pairwise(uids)
-    ]
-    return est, edges
-
-
-def _closure(
-    a: int,
-    b: int,
-    ta: F64,
-    tb: F64,
-    rng: np.random.Generator,
-    off: tuple[float, float] = (0.0, 0.0),
-) -> ClosureEdge:
-    t = compose(invert(ta), tb) + np.r_[rng.normal(0, 0.01, 2), rng.normal(0, 0.003)]
-    t[:2] += off
-    return ClosureEdge(a, b, _t3(t), tuple(float(v) for v in CLOSURE_COV.ravel()), 12, 0.0)
-
-
-def _corridor() -> tuple[
-    dict[int, F64], dict[int, int], dict[int, LayerChain], list[ClosureEdge], set[int]
-]:
-    """Robot 0 and robot 1 drive the same 30 m corridor (1 m steps), robot 1 a metre
-    aside, each in its own frame; closures join poses side by side, and five forged ones
-    put robot 1's pose 5 m (a shelf's period) along the corridor from where it is."""
-    rng = np.random.default_rng(3)
-    n = 30
-    truth0 = np.array([[float(k), 0.0, 0.0] for k in range(n)])
-    truth1 = np.array([[float(k), 1.0, 0.02] for k in range(n)])
-    est0, edges0 = _layer(0, truth0, np.array([0.0, 0.0, 0.0]))
-    est1, edges1 = _layer(1, truth1, np.array([3.0, -2.0, 0.7]))
-    closures = []
-    forged = set()
-    for k in range(0, n, 2):
-        closures.append(_closure(k, 1000 + k, truth0[k], truth1[k], rng))
-    for k in (5, 11, 17, 21, 27):
-        forged.add(len(closures))
-        # Robot 0's pose k matched to robot 1's pose k - 5: 5 m off along the corridor.
-        closures.append(_closure(k, 1000 + k - 5, truth0[k], truth1[k], rng))
-    estimates = {**est0, **est1}
-    layer_of = {u: u // 1000 for u in estimates}
-    chains = {0: LayerChain(edges0), 1: LayerChain(edges1)}
-    return estimates, layer_of, chains, closures, forged
-
-
 def test_chain_covariance_is_the_composed_odometry_covariance() -> None:
     rng = np.random.default_rng(1)
     edges = []
     for k in range(20):
-        t = _t3((rng.uniform(0.5, 1.2), rng.normal(0, 0.1), rng.normal(0, 0.3)))
+        t = t3((rng.uniform(0.5, 1.2), rng.normal(0, 0.1), rng.normal(0, 0.3)))
         q = np.diag([rng.uniform(1e-4, 1e-3), rng.uniform(1e-4, 1e-3), rng.uniform(1e-5, 1e-4)])
         edges.append(OdometryEdge(k, k + 1, t, tuple(q.ravel()), 10.0))
     chain = LayerChain(edges)
@@ -120,7 +53,7 @@ def test_chain_covariance_is_the_composed_odometry_covariance() -> None:
 
 
 def test_pcm_keeps_the_consistent_closures_and_rejects_the_forged() -> None:
-    _, layer_of, chains, closures, forged = _corridor()
+    _, layer_of, chains, closures, forged = corridor()
     result = pcm_gate(closures, layer_of, chains)
     rejected = {i for i, c in enumerate(closures) if any(c is r for r in result.rejected)}
     assert rejected == forged
@@ -129,7 +62,7 @@ def test_pcm_keeps_the_consistent_closures_and_rejects_the_forged() -> None:
 
 
 def test_a_forged_closure_fails_its_loop_with_a_true_neighbour() -> None:
-    _, _, chains, closures, forged = _corridor()
+    _, _, chains, closures, forged = corridor()
 
     def oriented(c: ClosureEdge) -> Oriented:
         return (c.a, c.b, np.asarray(c.transform), c.cov())
@@ -153,29 +86,29 @@ def test_pcm_within_one_layer_and_orientation() -> None:
         for a in np.linspace(0, 2 * math.pi, 32)[:-1]
     ]
     truth = np.array(lap + lap)
-    est, edges = _layer(0, truth, np.zeros(3))
+    est, edges = layer(0, truth, np.zeros(3))
     closures = []
     for k in range(0, 31, 3):
         a, b = k, 31 + k
-        c = _closure(a, b, truth[a], truth[b], rng)
+        c = closure(a, b, truth[a], truth[b], rng)
         if k % 2:
             c = ClosureEdge(
                 b,
                 a,
-                _t3(invert(np.asarray(c.transform))),
+                t3(invert(np.asarray(c.transform))),
                 c.covariance,
                 12,
                 0.0,
             )
         closures.append(c)
-    forged = _closure(10, 31 + 10, truth[10], truth[31 + 10], rng, off=(4.0, 0.0))
+    forged = closure(10, 31 + 10, truth[10], truth[31 + 10], rng, off=(4.0, 0.0))
     closures.insert(5, forged)
     result = pcm_gate(closures, dict.fromkeys(est, 0), {0: LayerChain(edges)})
     assert [c is forged for c in result.rejected] == [True]
 
 
 def test_only_the_newest_closures_of_a_pair_are_judged() -> None:
-    _, layer_of, chains, closures, forged = _corridor()
+    _, layer_of, chains, closures, forged = corridor()
     result = pcm_gate(closures, layer_of, chains, max_per_pair=8)
     assert result.judged == 8
     # The window is the last 8: 3 true closures and the 5 forged ones, which agree with
@@ -187,14 +120,14 @@ def test_only_the_newest_closures_of_a_pair_are_judged() -> None:
 
 
 def test_too_few_to_judge_keeps_all() -> None:
-    _, layer_of, chains, closures, _ = _corridor()
+    _, layer_of, chains, closures, _ = corridor()
     assert pcm_gate(closures, layer_of, chains, max_per_pair=1).rejected == []
     assert pcm_gate(closures[:1], layer_of, chains).rejected == []
 
 
 @pytest.mark.parametrize("max_per_pair", [0, -3])
 def test_max_per_pair_below_one_is_refused(max_per_pair: int) -> None:
-    _, layer_of, chains, closures, _ = _corridor()
+    _, layer_of, chains, closures, _ = corridor()
     with pytest.raises(ValueError, match="max_per_pair"):
         pcm_gate(closures, layer_of, chains, max_per_pair=max_per_pair)
 
@@ -203,7 +136,7 @@ def test_the_loop_goes_through_the_odometry_not_the_estimates() -> None:
     """A graph pulled by forged closures moves robot 1's later poses 5 m along the
     corridor; a loop through those estimates finds a forged closure consistent with a
     true one, the loop through the odometry does not."""
-    estimates, layer_of, chains, closures, forged = _corridor()
+    estimates, layer_of, chains, closures, forged = corridor()
     first_forged = min(forged)
     c_true = closures[2]  # robot 0's pose 4 with robot 1's pose 1004
     c_bad = closures[first_forged]  # robot 0's pose 5 with robot 1's pose 1000
@@ -218,7 +151,7 @@ def test_the_loop_goes_through_the_odometry_not_the_estimates() -> None:
         OdometryEdge(
             u,
             w,
-            _t3(compose(invert(pulled[u]), pulled[w])),
+            t3(compose(invert(pulled[u]), pulled[w])),
             tuple(float(v) for v in STEP_COV.ravel()),
             10.0,
         )
@@ -238,34 +171,18 @@ def test_the_loop_goes_through_the_odometry_not_the_estimates() -> None:
     assert [c is c_bad for c in result.rejected] == [True]
 
 
-def _noisy_lap_twice(rng: np.random.Generator) -> tuple[F64, list[OdometryEdge]]:
-    """A 5 m circle driven twice (62 poses), odometry edges the truth plus their noise."""
-    lap = [
-        [5 * math.cos(a), 5 * math.sin(a), a + math.pi / 2]
-        for a in np.linspace(0, 2 * math.pi, 32)[:-1]
-    ]
-    truth = np.array(lap + lap)
-    chol = np.linalg.cholesky(STEP_COV)
-    edges = []
-    for k in range(len(truth) - 1):
-        t = compose(invert(truth[k]), truth[k + 1]) + chol @ rng.normal(size=3)
-        edges.append(OdometryEdge(k, k + 1, _t3(t), tuple(float(v) for v in STEP_COV.ravel()), 1))
-    return truth, edges
-
-
 def test_a_reversed_true_pair_within_one_layer_passes() -> None:
-    """Two true revisits stored one each way, (5 -> 36) and (41 -> 10): as stored, the
-    loop's two odometry stretches (10..36 and 5..41) overlap and are taken as
-    independent (30 of these 200 draws fail then); oriented earlier to later, the
-    stretches (5..10 and 36..41) are apart and the pair fails about as often as the
-    1 % the quantile allows."""
+    """Two true revisits stored one each way, (5 -> 36) and (41 -> 10): the loop's two
+    odometry stretches (10..36 and 5..41) overlap, and as one walk the edges walked
+    once each way cancel, so the pair fails about as often as the 1 % the quantile
+    allows and no loop is untestable, whichever way round the closures are stored."""
     fails = untestable = 0
     runs = 200
     for seed in range(runs):
         rng = np.random.default_rng(seed)
-        truth, edges = _noisy_lap_twice(rng)
-        c1 = _closure(5, 36, truth[5], truth[36], rng)
-        c2 = _closure(41, 10, truth[41], truth[10], rng)
+        truth, edges = noisy_lap_twice(rng)
+        c1 = closure(5, 36, truth[5], truth[36], rng)
+        c2 = closure(41, 10, truth[41], truth[10], rng)
         result = pcm_gate([c1, c2], dict.fromkeys(range(len(truth)), 0), {0: LayerChain(edges)})
         fails += bool(result.rejected)
         untestable += result.loops_untestable

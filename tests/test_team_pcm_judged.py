@@ -9,11 +9,14 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from pcm_helpers import corridor, noisy_lap_twice, t3
+from sonarmap.scenarios import office
+from sonarmap.sensors import Noise
 from sonarmap.team.globalmap import CHI2_99_3DOF
+from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.pcm import LayerChain, loop_distance, loop_residual, pcm_gate
-from sonarmap.team.records import ClosureEdge, OdometryEdge, compose, invert
+from sonarmap.team.records import ClosureEdge, OdometryEdge, compose, invert, invert_covariance
 from sonarmap.team.store import RobotStore
-from test_team_pcm import _corridor, _noisy_lap_twice, _t3
 
 F64 = npt.NDArray[np.float64]
 
@@ -58,7 +61,7 @@ def test_the_loop_over_one_walk_has_its_noise_covariance(name: str, stored: str)
     d2 = []
     for seed in range(300):
         rng = np.random.default_rng(seed)
-        truth, edges = _noisy_lap_twice(rng)
+        truth, edges = noisy_lap_twice(rng)
         chain = LayerChain(edges)
         c1, c2 = _drawn(a1, b1, truth, rng), _drawn(a2, b2, truth, rng)
         if stored == "reversed":
@@ -73,7 +76,7 @@ def test_the_loop_over_one_walk_has_its_noise_covariance(name: str, stored: str)
 
 def test_a_loop_over_one_walk_rejects_a_forged_closure() -> None:
     rng = np.random.default_rng(0)
-    truth, edges = _noisy_lap_twice(rng)
+    truth, edges = noisy_lap_twice(rng)
     chain = LayerChain(edges)
     c1 = _drawn(5, 36, truth, rng)
     c2 = _drawn(10, 41, truth, rng)
@@ -126,7 +129,7 @@ def _window(result_rejected: list[ClosureEdge], closures: list[ClosureEdge]) -> 
 
 
 def test_judged_once_rejects_the_forged_and_freezes_the_kept() -> None:
-    _, layer_of, chains, closures, forged = _corridor()
+    _, layer_of, chains, closures, forged = corridor()
     result = pcm_gate(closures, layer_of, chains, frozen=set())
     assert _window(result.rejected, closures) == forged
     assert [id(c) for c in result.newly_kept] == [
@@ -142,7 +145,7 @@ def test_frozen_truth_outvotes_repeated_structure_that_arrives_later() -> None:
     Judged afresh, the 5 win (PCM's limit); with the 3 true ones judged and kept in an
     earlier pass, each forged one fails with all 3 and goes, and a frozen closure is
     never rejected."""
-    _, layer_of, chains, closures, forged = _corridor()
+    _, layer_of, chains, closures, forged = corridor()
     fresh = pcm_gate(closures, layer_of, chains, max_per_pair=8, frozen=set())
     assert _window(fresh.rejected, closures) == {
         i for i in range(len(closures) - 8, len(closures)) if i not in forged
@@ -153,10 +156,73 @@ def test_frozen_truth_outvotes_repeated_structure_that_arrives_later() -> None:
     assert held.judged == 5
 
 
+def _judge(
+    store: RobotStore, layer_of: dict[int, int], chains: dict[int, LayerChain]
+) -> list[ClosureEdge]:
+    """One judged-once pass over the store's closures, kept in the store as the
+    mission keeps it; returns the closures rejected for the first time."""
+    result = pcm_gate(store.closures, layer_of, chains, frozen=store.judged_pairs)
+    store.closures = result.kept
+    gone = store.reject_closures(result.rejected)
+    store.keep_judged(result.newly_kept)
+    return gone
+
+
+def test_forged_closures_that_arrive_first_do_not_lock_out_the_true_ones() -> None:
+    """The reviewer's scenario: one forged closure alone, then a second that agrees
+    with it, then the 15 true ones, then the other 3 forged. A closure is frozen only
+    once tested against two closures still in, so the first two forged ones are still
+    new when the true ones arrive, fail with all 15 and go; every true closure is
+    held and none rejected."""
+    _, layer_of, chains, closures, forged = corridor()
+    bad = [closures[i] for i in sorted(forged)]
+    good = [c for i, c in enumerate(closures) if i not in forged]
+    store = RobotStore(0)
+    rejected: list[ClosureEdge] = []
+    for arriving in ([bad[0]], [bad[1]], good, bad[2:]):
+        store.closures = store.closures + list(arriving)
+        rejected += _judge(store, layer_of, chains)
+    held = {c.pair for c in store.closures}
+    assert sum(c.pair in held for c in good) == len(good)
+    assert sum(c.pair in held for c in bad) == 0
+    assert {c.pair for c in rejected} == {c.pair for c in bad}
+    assert store.judged_pairs == {c.pair for c in good}
+
+
+def test_three_agreeing_forged_closures_established_first_reject_the_truth() -> None:
+    """The other direction, PCM's limit as the rule stands: three forged closures that
+    agree with each other, judged before any true one, are frozen (each tested against
+    two still in), and every true closure that arrives later fails with all three."""
+    _, layer_of, chains, closures, forged = corridor()
+    bad = [closures[i] for i in sorted(forged)]
+    good = [c for i, c in enumerate(closures) if i not in forged]
+    store = RobotStore(0)
+    for arriving in (bad[:3], good):
+        store.closures = store.closures + list(arriving)
+        _judge(store, layer_of, chains)
+    held = {c.pair for c in store.closures}
+    assert sum(c.pair in held for c in bad[:3]) == 3
+    assert sum(c.pair in held for c in good) == 0
+
+
+def test_a_closure_alone_or_untested_is_not_frozen() -> None:
+    """The first closure of a pair of layers, or one with a single tested partner, is
+    kept but not frozen, and not counted as judged; with two partners it is."""
+    _, layer_of, chains, closures, forged = corridor()
+    good = [c for i, c in enumerate(closures) if i not in forged]
+    alone = pcm_gate(good[:1], layer_of, chains, frozen=set())
+    assert (alone.judged, alone.newly_kept, alone.rejected) == (0, [], [])
+    two = pcm_gate(good[:2], layer_of, chains, frozen=set())
+    assert (two.judged, two.newly_kept, two.loops_tested) == (0, [], 1)
+    three = pcm_gate(good[:3], layer_of, chains, frozen=set())
+    assert three.judged == 3
+    assert [c.pair for c in three.newly_kept] == [c.pair for c in good[:3]]
+
+
 def test_one_failing_loop_does_not_reject_a_closure() -> None:
     """A forged closure with one true partner fails one loop: kept when two failures
     are needed (one is what a true pair shows by chance), rejected when one is."""
-    _, layer_of, chains, closures, forged = _corridor()
+    _, layer_of, chains, closures, forged = corridor()
     pair = [closures[0], closures[min(forged)]]
     assert pcm_gate(pair, layer_of, chains, frozen=set()).rejected == []
     assert [
@@ -170,9 +236,9 @@ def test_one_failing_loop_does_not_reject_a_closure() -> None:
 def test_the_store_keeps_the_judged_pairs_through_state_and_restore() -> None:
     store = RobotStore(0)
     cov = tuple(float(v) for v in CLOSURE_COV.ravel())
-    c1 = ClosureEdge(1, 2, _t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
-    c2 = ClosureEdge(3, 4, _t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
-    gone = ClosureEdge(5, 6, _t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
+    c1 = ClosureEdge(1, 2, t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
+    c2 = ClosureEdge(3, 4, t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
+    gone = ClosureEdge(5, 6, t3((1.0, 0.0, 0.0)), cov, 12, 0.0)
     store.closures = [c1, c2]
     store.keep_judged([c1, gone])  # a pair the store does not hold is not kept
     assert store.judged_pairs == {c1.pair}
@@ -190,15 +256,78 @@ def test_the_store_keeps_the_judged_pairs_through_state_and_restore() -> None:
 
 
 def test_the_mission_judges_each_closure_once() -> None:
-    """MissionConfig.pcm: the robot's pass freezes what it kept (a second pass judges
-    nothing), through the store."""
-    _, layer_of, chains, closures, forged = _corridor()
-    store = RobotStore(0)
-    store.closures = list(closures)
-    first = pcm_gate(store.closures, layer_of, chains, frozen=store.judged_pairs)
-    store.closures = first.kept
-    store.keep_judged(first.newly_kept)
-    second = pcm_gate(store.closures, layer_of, chains, frozen=store.judged_pairs)
-    assert len(first.rejected) == len(forged)
-    assert (second.judged, second.rejected) == (0, [])
-    assert math.isfinite(float(len(store.judged_pairs)))
+    """MissionConfig.pcm through the robot itself (RobotAgent.batch): a 60 s mission
+    alone freezes the closures it kept in its store, and once every closure held has
+    been judged, a further batch judges and tests nothing; judged afresh, or with
+    nothing frozen, it would judge them all again."""
+    plan = office(duration=1.0, rate=1.0, model=Noise(), resolution=0.1).truth
+    agent = RobotAgent(plan, MissionConfig(duration=60.0, seed=1, pcm=True))
+    agent.run()
+    agent.batch()  # the closures found after the mission's last batch
+    settled = dict(agent.evaluator.pcm_loops)
+    frozen = agent.store.judged_pairs
+    assert settled["judged"] >= len(frozen) > 10
+    assert frozen <= {c.pair for c in agent.store.closures}
+    agent.batch()
+    assert agent.evaluator.pcm_loops == settled
+    assert agent.store.judged_pairs == frozen
+
+
+# --- the loop's covariance, anisotropic and correlated --------------------------------
+
+#: A noise much larger along one axis than across it, and correlated (x, y).
+LOUD = np.array([[2e-3, 4e-4, 1e-6], [4e-4, 1e-4, -1e-6], [1e-6, -1e-6, 4e-6]])
+#: A noise small next to :data:`LOUD`, so that the loud one's frame decides the loop's.
+QUIET = np.diag([1e-6, 1e-6, 1e-7])
+
+
+def _perturbed(t: F64, q: F64, rng: np.random.Generator) -> F64:
+    """``t`` with noise of covariance ``q`` in its end's frame (what a stored
+    covariance means)."""
+    return np.asarray(compose(t, np.linalg.cholesky(q) @ rng.normal(size=3)))
+
+
+def _arc_layer(
+    source: int, truth: F64, q: F64, rng: np.random.Generator, reverse: bool
+) -> list[OdometryEdge]:
+    """Odometry edges between poses ``source * 1000 + k`` along ``truth``, with noise
+    drawn from ``q``; ``reverse`` stores each edge from its later pose to its earlier
+    one (the inverse, its covariance moved to that end)."""
+    edges = []
+    for k in range(len(truth) - 1):
+        t = _perturbed(compose(invert(truth[k]), truth[k + 1]), q, rng)
+        a, b, qk = source * 1000 + k, source * 1000 + k + 1, q
+        if reverse:
+            a, b, t, qk = b, a, np.asarray(invert(t)), invert_covariance(t, q)
+        edges.append(OdometryEdge(a, b, t3(t), tuple(float(v) for v in qk.ravel()), 1))
+    return edges
+
+
+@pytest.mark.parametrize("loud", ["robot 0's odometry", "the closures"])
+def test_a_loop_between_two_layers_has_its_noise_covariance(loud: str) -> None:
+    """Robot 0 (its edges stored backwards) and robot 1 drive the same arc, 0.5 rad a
+    step, each in its own frame; two closures join them two steps apart. One noise is
+    loud and anisotropic (robot 0's odometry, or the closures'), the rest quiet, so the
+    loop's covariance is as anisotropic as that noise and placed by its frame. Over
+    300 draws, the loop's squared Mahalanobis distance has the chi-square mean, 3:
+    an edge walked backwards with its covariance left unmoved, closure 2's noise
+    entered at closure 1's end, or robot 0's noise moved from the wrong end each move
+    it far out of the band."""
+    q0, qc = (LOUD, QUIET) if loud == "robot 0's odometry" else (QUIET, LOUD)
+    arc = np.array([[2 * math.sin(0.5 * k), 2 - 2 * math.cos(0.5 * k), 0.5 * k] for k in range(8)])
+    frame1 = np.array([1.0, -2.0, 0.6])  # robot 1's layer origin in the world
+    truth1 = np.array([compose(invert(frame1), p) for p in arc])
+    d2 = []
+    for seed in range(300):
+        rng = np.random.default_rng(seed)
+        chain0 = LayerChain(_arc_layer(0, arc, q0, rng, reverse=True))
+        chain1 = LayerChain(_arc_layer(1, truth1, QUIET, rng, reverse=False))
+        c1, c2 = (
+            (a, 1000 + b, _perturbed(compose(invert(arc[a]), arc[b]), qc, rng), qc)
+            for a, b in ((2, 3), (4, 5))
+        )
+        d = loop_distance(c1, c2, chain0, chain1)
+        assert d is not None
+        d2.append(d)
+    mean = float(np.mean(d2))
+    assert 2.5 < mean < 3.5, mean

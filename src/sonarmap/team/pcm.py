@@ -21,8 +21,9 @@ Which closures go (:func:`pcm_gate`): PCM as published keeps a maximum clique of
 consistency graph (:func:`networkx.max_weight_clique`, exact, unweighted), every pass
 judging each window again; a chance failure (1 % of true loops) then costs a true
 closure in every pass that tests it. Judged once instead (``frozen``, what
-:mod:`.mission` uses), a closure is judged in the first pass that sees it, kept
-thereafter if kept, and rejected only when it fails with more than one partner.
+:mod:`.mission` uses), a closure is judged until it has been tested against
+``min_failures`` closures still in (two by default), then kept for good if kept, and is
+rejected only when it fails with ``min_failures`` of them.
 
 Each pair of layers is judged on its ``max_per_pair`` newest closures only
 (:data:`MAX_PER_PAIR`, 40: 780 loops a pair; exact maximum clique is exponential in the
@@ -285,13 +286,18 @@ class PcmResult:
     kept: list[ClosureEdge]
     #: The closures rejected, in the order given.
     rejected: list[ClosureEdge]
-    #: Closures judged (in a window of some pair of layers).
+    #: Closures judged. Without ``frozen``: those of the windows with at least one
+    #: tested loop. With ``frozen``: those settled in this pass, rejected or frozen
+    #: (:attr:`newly_kept`), each once; a new closure with fewer tested partners is
+    #: not counted (it is judged again in the next pass).
     judged: int
     #: Pairs of closures whose loop could be tested.
     loops_tested: int
     #: Pairs of closures whose loop could not be tested (counted consistent).
     loops_untestable: int = 0
-    #: The closures judged in this pass for the first time and kept (not frozen before).
+    #: The closures to freeze: with ``frozen``, those judged in this pass for the first
+    #: time, kept, and tested against at least ``min_failures`` closures still in;
+    #: without, every kept closure of the windows.
     newly_kept: list[ClosureEdge] = field(default_factory=list)
 
 
@@ -329,12 +335,14 @@ def pcm_gate(
     Two ways to judge. Without ``frozen`` (None, PCM as published): every closure of
     each window is judged again in every pass, and the set kept is a maximum clique of
     the consistency graph. With ``frozen`` (the pose pairs of closures judged in an
-    earlier pass and kept): a closure is judged once, in the first pass that sees it,
-    against every closure of its window (frozen or new; loops between two frozen
-    closures are not tested again), and is rejected only when its loops fail with
-    ``min_failures`` or more of the closures still in: the new closure failing the
-    most is rejected first (its failures then leave the others' counts), until none
-    fails so often. A frozen closure is never rejected. One failing loop is what a
+    earlier pass and kept): a new closure is judged against every closure of its
+    window (frozen or new; loops between two frozen closures are not tested again),
+    and is rejected only when its loops fail with ``min_failures`` or more of the
+    closures still in: the new closure failing the most is rejected first (its
+    failures then leave the others' counts), until none fails so often. A kept closure
+    is frozen (:attr:`PcmResult.newly_kept`) once its loops with ``min_failures`` or
+    more of the closures still in were tested; until then it stays new and is judged
+    again in the next pass. A frozen closure is never rejected. One failing loop is what a
     true pair shows by chance (1 % of loops at the default ``threshold``); a closure
     out of place fails with every true partner it can be tested with.
 
@@ -357,8 +365,8 @@ def pcm_gate(
         Pose pairs judged and kept before (:attr:`PcmResult.newly_kept` of earlier
         passes); None (default) judges every window afresh by maximum clique.
     min_failures : int
-        With ``frozen``: failing loops that reject a new closure (default
-        :data:`MIN_FAILURES`, at least 1).
+        With ``frozen``: failing loops that reject a new closure, and tested loops
+        that freeze a kept one (default :data:`MIN_FAILURES`, at least 1).
 
     Returns
     -------
@@ -390,12 +398,12 @@ def pcm_gate(
             else {p for p, i in enumerate(window) if closures[i].pair in frozen}
         )
         new = [p for p in range(len(window)) if p not in old]
-        judged += len(new)
-        newly.update(window[p] for p in new)
         if len(window) < 2 or not new:
+            # Nothing to test against: a lone new closure waits, unjudged, for partners.
             continue
         oriented = [_orient(closures[i], la, layer_of) for i in window]
         failing: dict[int, set[int]] = {p: set() for p in range(len(window))}
+        partners: dict[int, set[int]] = {p: set() for p in range(len(window))}
         for p in range(len(window)):
             for q in range(p + 1, len(window)):
                 if p in old and q in old:
@@ -405,6 +413,8 @@ def pcm_gate(
                     untestable += 1
                     continue
                 tested += 1
+                partners[p].add(q)
+                partners[q].add(p)
                 if d2 > threshold:
                     failing[p].add(q)
                     failing[q].add(p)
@@ -413,8 +423,16 @@ def pcm_gate(
             g.add_nodes_from(range(len(window)))
             clique, _ = nx.max_weight_clique(g, weight=None)
             out = set(range(len(window))) - set(clique)
+            newly.update(window[p] for p in new)
+            judged += sum(1 for p in new if partners[p])
         else:
             out = _most_failing(failing, new, min_failures)
+            # Frozen only once tested against enough closures still in to have been
+            # rejected: a closure first of its pair (or untestable so far) would
+            # otherwise be frozen unjudged, and lock out every later closure it fails.
+            settled = {p for p in new if p not in out and len(partners[p] - out) >= min_failures}
+            newly.update(window[p] for p in settled)
+            judged += len(settled) + len(out)
         rejected.update(window[p] for p in out)
     kept = [c for i, c in enumerate(closures) if i not in rejected]
     gone = [c for i, c in enumerate(closures) if i in rejected]

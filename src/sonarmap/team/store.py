@@ -839,6 +839,8 @@ class RobotStore:
         self._rejected_pairs = {
             frozenset(int(u) for u in p) for p in state.get("rejected_pairs", ())
         }
+        # A state saved before the judged pairs were kept has none: its closures are
+        # judged again, once, in the next pass.
         self._judged_pairs = {frozenset(int(u) for u in p) for p in state.get("judged_pairs", ())}
 
     def region_limit(self, region: int) -> int:
