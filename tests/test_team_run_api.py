@@ -220,7 +220,7 @@ def test_the_naive_share_note() -> None:
     assert naive_share_note({"exchange": {"mode": "good"}}) == ""
 
 
-@pytest.mark.slow  # two node processes, each importing and compiling: about 25 s at load 4
+@pytest.mark.slow  # two node processes, each importing and compiling: about 50 s wall at load 4
 def test_run_zmq_team_into_writes_the_prior_and_the_records(tmp_path: Path) -> None:
     from sonarmap.team.launcher import run_zmq_team_into
 
