@@ -16,9 +16,8 @@ from conftest import drawn_building
 from sonarmap.builtins import builtin_plan
 from sonarmap.cli import main
 from sonarmap.errors import ConfigError
-from sonarmap.io.rosmap import FREE, write_map
+from sonarmap.io.rosmap import FREE, read_map, write_map
 from sonarmap.team.inputs import (
-    ROUTE_SEED_STEP,
     check_world_territory,
     draw_world,
     mission_routes,
@@ -28,9 +27,10 @@ from sonarmap.team.mission import MissionConfig, run_mission
 from sonarmap.team.outputs import write_run
 from sonarmap.team.presets import PRESETS, check_preset, default_mode
 from sonarmap.team.prior import check_prior_inside, make_prior
+from sonarmap.team.sensing import RobotSensing
 from sonarmap.team.summary import naive_share_note
 from sonarmap.team.territory import NO_TERRITORY, check_route_inside, territory_option
-from sonarmap.team.world import patrol_route
+from sonarmap.team.world import make_world, patrol_route
 
 #: Wall-clock figures of a robot's row, which differ from run to run.
 TIMED = ("association_ms_median", "association_ms_p99", "global_map_batch_s", "wall_seconds")
@@ -129,9 +129,43 @@ def test_mission_routes_are_the_missions_own_and_keep_the_given_ones() -> None:
     routes = mission_routes(plan, 30.0, seed=2, robots=3, given={0: mine, 1: None})
     assert sorted(routes) == [0, 1, 2]
     assert routes[0] is mine
+    world = make_world(plan, seed=2, duration=30.0)
     for i in (1, 2):
-        expected = patrol_route(plan, 30.0, seed=2 + ROUTE_SEED_STEP * i)
-        np.testing.assert_array_equal(routes[i], expected)
+        # The route robot i's mission draws by itself when given none.
+        own = RobotSensing(plan, MissionConfig(duration=30.0, seed=2), world, i).route
+        drawn = routes[i][routes[i][:, 0] <= routes[i][0, 0] + 30.0]
+        np.testing.assert_array_equal(drawn, own)
+        # The rule written out: robot i's seed is the mission's + 7919 i.
+        np.testing.assert_array_equal(routes[i], patrol_route(plan, 30.0, seed=2 + 7919 * i))
+    assert not np.array_equal(routes[1], routes[2])
+
+
+def test_draw_world_keeps_every_route_inside_the_territory() -> None:
+    plan = drawn_building()
+    chosen = run_territory(None, plan)
+    region = chosen.region
+    assert chosen.how == "default"
+    assert region is not None
+
+    def outside(route: np.ndarray) -> int:
+        r, c = plan.grid.world_to_cell(route[:, 1], route[:, 2])
+        return int((~region[r, c]).sum())
+
+    _, routes = draw_world(plan, 120.0, seed=1, robots=2, region=region)
+    assert sorted(routes) == [0, 1]
+    for route in routes.values():
+        assert outside(route) == 0
+    # The mask matters here: on the whole plan the same routes leave the building.
+    _, free = draw_world(plan, 120.0, seed=1, robots=2, region=None)
+    assert sum(outside(r) for r in free.values()) > 0
+
+
+def test_draw_world_and_mission_routes_check_the_team_size() -> None:
+    plan = builtin_plan("office")
+    with pytest.raises(ConfigError, match=r"^robots 65: at most 64 robots in a team$"):
+        draw_world(plan, 20.0, seed=0, robots=65)
+    with pytest.raises(ConfigError, match=r"^robots 0: expected an int >= 1$"):
+        mission_routes(plan, 20.0, seed=0, robots=0)
 
 
 def test_make_prior(tmp_path: Path) -> None:
@@ -145,6 +179,11 @@ def test_make_prior(tmp_path: Path) -> None:
     assert record == {"source": str(tmp_path / "prior.yaml")}
     with pytest.raises(ConfigError, match=r"^--prior-error: expected KEY=VALUE"):
         make_prior(plan, error="doors=1")
+    # A caller's own names for the two inputs, in the same messages.
+    with pytest.raises(ConfigError, match=r"^path .*nowhere.yaml: no such file$"):
+        make_prior(plan, tmp_path / "nowhere.yaml", option="path")
+    with pytest.raises(ConfigError, match=r"^error: expected KEY=VALUE"):
+        make_prior(plan, error="doors=1", error_option="error")
 
 
 def test_a_prior_with_no_free_cell_inside_the_territory_is_refused() -> None:
@@ -179,3 +218,35 @@ def test_the_naive_share_note() -> None:
     assert naive_share_note(s) == " (12.3 % of the naive baseline's, quiet phase included)"
     assert naive_share_note({**s, "exchange": {"mode": "naive"}}) == ""
     assert naive_share_note({"exchange": {"mode": "good"}}) == ""
+
+
+@pytest.mark.slow  # two node processes, each importing and compiling: about 50 s wall at load 4
+def test_run_zmq_team_into_writes_the_prior_and_the_records(tmp_path: Path) -> None:
+    from sonarmap.team.launcher import run_zmq_team_into
+
+    plan = builtin_plan("office")
+    chosen = run_territory(NO_TERRITORY, plan)
+    prior, prior_record = make_prior(plan, error="scale=0.01", seed=0)
+    assert prior is not None
+    assert prior_record is not None
+    out = tmp_path / "zmq"
+    summary = run_zmq_team_into(
+        str(out),
+        plan,
+        MissionConfig(duration=8.0, seed=0),
+        2,
+        preset=None,
+        prior=prior,
+        prior_record=prior_record,
+        territory=chosen.node_value(),
+        territory_record=chosen.record,
+        timeout=300.0,
+    )
+    assert json.loads((out / "summary.json").read_text()) == json.loads(json.dumps(summary))
+    assert summary["prior"] == prior_record
+    assert summary["territory"] == {"file": None, "default": "none"}
+    assert summary["preset"] is None
+    assert (out / "prior.yaml").is_file()
+    assert (out / "nodes").is_dir()
+    written = read_map(out / "prior.yaml")
+    np.testing.assert_array_equal(written.classes(), prior.classes())

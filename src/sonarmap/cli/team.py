@@ -25,7 +25,6 @@ from ..team.inputs import (
     mission_routes,
     run_territory,
 )
-from ..team.launcher import run_zmq_team_into
 from ..team.mission import MissionConfig, run_mission
 from ..team.network import NetworkParams
 from ..team.outputs import write_run
@@ -687,6 +686,9 @@ def run_cmd(
     if transport == "sim" and world is None:
         world, routes = _drawn(plan, map_, duration, seed, routes, robots, region, territory)
     if transport == "zmq":
+        # Imported here: the node module pulls in the process machinery only zmq needs.
+        from ..team.launcher import run_zmq_team_into
+
         # The ZeroMQ team: one process per robot (sonarmap.team.node), its own outputs.
         with progress("team") as update:
             tick = partial(_tick, update, f"{robots} nodes")

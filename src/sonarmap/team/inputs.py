@@ -12,13 +12,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..io.rosmap import OccupancyMap
+from .config import check_team_size
 from .territory import (
     NO_TERRITORY,
     MissionTerritory,
@@ -28,11 +29,12 @@ from .territory import (
     mask_file,
     territory_option,
 )
-from .world import World, make_world, patrol_route, world_territory
+from .world import ROUTE_SEED_STEP, World, make_world, patrol_route, world_territory
 
 __all__ = [
     "ROUTE_SEED_STEP",
     "RunTerritory",
+    "TerritoryHow",
     "check_world_territory",
     "draw_world",
     "mission_routes",
@@ -41,9 +43,8 @@ __all__ = [
 
 F64 = npt.NDArray[np.float64]
 
-#: Robot ``i``'s route is drawn from the mission's seed + ``ROUTE_SEED_STEP`` x ``i``, as
-#: each mission draws its own (:class:`~.sensing.RobotSensing`).
-ROUTE_SEED_STEP = 7919
+#: Where a run's territory came from (:attr:`RunTerritory.how`).
+TerritoryHow = Literal["file", "none", "skipped", "world", "default"]
 
 
 @dataclass(frozen=True)
@@ -56,7 +57,7 @@ class RunTerritory:
         The mask, None for the whole map.
     record : dict or None
         What ``summary.json`` records of it (None: nothing).
-    how : str
+    how : {"file", "none", "skipped", "world", "default"}
         Where it came from: ``"file"`` (a mask file), ``"none"`` (:data:`NO_TERRITORY`),
         ``"skipped"`` (a route of the user's: the whole map), ``"world"`` (the mask a
         saved world was made in) or ``"default"`` (:func:`default_territory`, which may
@@ -67,7 +68,7 @@ class RunTerritory:
 
     mask: MissionTerritory | None
     record: dict[str, Any] | None
-    how: str
+    how: TerritoryHow
     file: Path | None = None
 
     @property
@@ -127,7 +128,13 @@ def run_territory(
     Returns
     -------
     RunTerritory
-        Otherwise the default (:func:`~.territory.default_territory`).
+        By the first rule that applies: ``territory`` :data:`NO_TERRITORY` -> no mask,
+        ``how="none"``; a mask file -> that mask, ``how="file"``, ``file`` set;
+        ``route_given`` -> no mask, ``how="skipped"`` (recorded only when the default
+        would have applied); ``world`` -> the mask it was made in (none if on the whole
+        map), ``how="world"``; otherwise the default footprint
+        (:func:`~.territory.default_territory`, None on a plan that has none),
+        ``how="default"``. ``record`` is what ``summary.json`` records of it.
 
     Raises
     ------
@@ -200,7 +207,13 @@ def mission_routes(
     -------
     dict
         Robot id -> route, for every robot.
+
+    Raises
+    ------
+    ConfigError
+        ``robots`` not a team size ``team run`` takes (:func:`~.config.check_team_size`).
     """
+    check_team_size(robots)
     routes = {i: r for i, r in (given or {}).items() if r is not None}
     for i in range(robots):
         if routes.get(i) is None:
@@ -245,8 +258,11 @@ def draw_world(
     Raises
     ------
     InputError, ConfigError
-        A plan with no wall for a landmark or no room for a route inside ``region``.
+        A plan with no wall for a landmark or no room for a route inside ``region``;
+        ``robots`` not a team size ``team run`` takes (:func:`~.config.check_team_size`,
+        before any work).
     """
+    check_team_size(robots)
     world = make_world(plan, seed=seed, duration=duration, region=region)
     drawn = mission_routes(plan, duration, seed=seed, robots=robots, region=region, given=routes)
     return world, drawn

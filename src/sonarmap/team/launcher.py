@@ -29,17 +29,18 @@ from ..files import atomic_folder, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap, read_map, write_map
 from .config import check_team_size
 from .exchange import ExchangeParams
+from .inputs import mission_routes
 from .keys import make_team_key
 from .mission import MissionConfig
 from .network import NetworkParams
 from .node import MIB, SUMMARY_FILE, LockstepParams, save_routes
+from .outputs import run_inputs, write_prior
 from .prior import check_prior
 from .simulation import map_agreement
 from .store import StoreParams
 from .summary import mission_figures, team_figures
 from .territory import NO_TERRITORY, is_no_territory, territory_of
 from .transport import DEFAULT_MAX_MESSAGE
-from .world import patrol_route
 
 __all__ = ["KEY_FILE", "ZmqTeamResult", "node_args", "run_zmq_team", "run_zmq_team_into"]
 
@@ -286,13 +287,17 @@ def run_zmq_team(
         if routes is not None and len(routes) != robots:
             raise ConfigError(f"routes: {len(routes)} given for {robots} robots")
         region, territory_args = node_territory(territory, plan)
-        drawn = [
-            patrol_route(plan, cfg.duration, seed=cfg.seed + 7919 * i, region=region)
-            if routes is None or routes[i] is None
-            else routes[i]
-            for i in range(robots)
-        ]
-        save_routes(where / "routes", [np.asarray(r, dtype=np.float64) for r in drawn])
+        drawn = mission_routes(
+            plan,
+            cfg.duration,
+            seed=cfg.seed,
+            robots=robots,
+            region=region,
+            given=None if routes is None else dict(enumerate(routes)),
+        )
+        save_routes(
+            where / "routes", [np.asarray(drawn[i], dtype=np.float64) for i in range(robots)]
+        )
         # A fresh key per team: even on loopback, another process of this machine must
         # not be able to join it or pose as one of its robots.
         make_team_key(robots).write(where / KEY_FILE)
@@ -320,8 +325,8 @@ def run_zmq_team(
 
 
 def run_zmq_team_into(
-    out: Path,
-    plan: OccupancyMap,
+    out: str | Path,
+    plan: OccupancyMap | Path,
     cfg: MissionConfig,
     robots: int,
     *,
@@ -330,7 +335,18 @@ def run_zmq_team_into(
     prior_record: dict[str, Any] | None = None,
     territory: str | Path | None = None,
     territory_record: dict[str, Any] | None = None,
-    **kwargs: Any,
+    network: NetworkParams | None = None,
+    exchange: ExchangeParams | None = None,
+    seed: int = 0,
+    progress: Progress | None = None,
+    lookahead: float = 30.0,
+    quiet: float | None = None,
+    settle: float = 120.0,
+    timing: LockstepParams | None = None,
+    restarts: int = 3,
+    timeout: float | None = None,
+    python: str | None = None,
+    routes: Sequence[F64 | None] | None = None,
 ) -> dict[str, Any]:
     """:func:`run_zmq_team` with its outputs in the folder ``out``, written at once at the
     end (or nothing): the nodes' in ``out/nodes``, the team's summary in
@@ -338,7 +354,7 @@ def run_zmq_team_into(
 
     Parameters
     ----------
-    out : Path
+    out : str or Path
         The folder, replaced as a whole.
     plan, cfg, robots
         As :func:`run_zmq_team`.
@@ -352,33 +368,40 @@ def run_zmq_team_into(
         ``territory``; nothing when None).
     territory : str or Path, optional
         As :func:`run_zmq_team`.
-    **kwargs
-        :func:`run_zmq_team`'s other keywords (``network``, ``exchange``, ``seed``,
-        ``progress``, ``routes``, ...).
+    network, exchange, seed, progress, lookahead, quiet, settle, timing, restarts
+        As :func:`run_zmq_team` (same defaults).
+    timeout, python, routes
+        As :func:`run_zmq_team` (same defaults).
 
     Returns
     -------
     dict
         The team's summary, as written.
     """
-    with atomic_folder(out) as tmp:
+    with atomic_folder(Path(out)) as tmp:
         result = run_zmq_team(
             plan,
             cfg,
             robots,
+            network=network,
+            exchange=exchange,
+            seed=seed,
+            progress=progress,
+            lookahead=lookahead,
+            quiet=quiet,
+            settle=settle,
             folder=tmp / "nodes",
+            timing=timing,
+            restarts=restarts,
+            timeout=timeout,
+            python=python,
+            routes=routes,
             prior=prior,
             territory=territory,
-            **kwargs,
         )
         result.summary["preset"] = preset
-        if territory_record is not None:
-            result.summary["territory"] = territory_record
-        if prior_record is not None:
-            result.summary["prior"] = prior_record
-        if prior is not None:
-            # The prior the robots were given, beside the truth they were scored on.
-            write_map(prior, tmp / "prior")
+        result.summary.update(run_inputs(prior_record, territory_record))
+        write_prior(tmp, prior)
         atomic_write_text(tmp / "summary.json", json_dumps(result.summary))
     return result.summary
 

@@ -75,6 +75,7 @@ from ..files import atomic_folder, atomic_outputs, atomic_write_text, json_dumps
 from ..io.rosmap import OccupancyMap, write_map
 from .checkpoint import StateLock, read_state, write_state
 from .exchange import ExchangeParams, Exchanger
+from .inputs import mission_routes
 from .keys import TeamKey
 from .link import DEFAULT_MAX_QUEUE, LOCK_SLACK, ExchangerPort, ReliableLink
 from .lockstep import LockstepClock, quiet_seconds, team_ticks
@@ -94,7 +95,7 @@ from .store import RobotStore
 from .summary import robot_row
 from .transport import DEFAULT_MAX_MESSAGE, Message, ZmqTransport
 from .wire import MODES
-from .world import ODOMETRY_NOISE, make_world, odometry, patrol_route
+from .world import ODOMETRY_NOISE, ROUTE_SEED_STEP, make_world, odometry, patrol_route
 
 __all__ = [
     "MIB",
@@ -337,7 +338,7 @@ def route_truth(
     """Another robot's route and the true pose of every pose it makes, by UID (what
     :meth:`RobotAgent.step` decides from odometry alone), for scoring received
     closures as the simulation does."""
-    seed = cfg.seed + 7919 * robot
+    seed = cfg.seed + ROUTE_SEED_STEP * robot
     true = patrol_route(plan, cfg.duration, seed=seed) if route is None else route
     true = np.asarray(true, dtype=np.float64)
     true = true[true[:, 0] <= true[0, 0] + cfg.duration]
@@ -421,12 +422,15 @@ class _Node:
         world = make_world(plan, seed=cfg.seed, duration=cfg.duration, region=region)
         if region is not None:
             # Every route drawn here inside the mask, as the launcher draws them.
-            given = [
-                patrol_route(plan, cfg.duration, seed=cfg.seed + 7919 * j, region=region)
-                if given is None or given[k] is None
-                else given[k]
-                for k, j in enumerate(ids)
-            ]
+            drawn = mission_routes(
+                plan,
+                cfg.duration,
+                seed=cfg.seed,
+                robots=len(ids),
+                region=region,
+                given=None if given is None else dict(enumerate(given)),
+            )
+            given = [drawn[j] for j in ids]
         own = None if given is None else given[robot]
         self.agent = agent = RobotAgent(
             plan,
@@ -696,7 +700,7 @@ def run_node(
         The floor (also the prior map unless ``prior`` is given).
     cfg : MissionConfig
         The team's mission (every node the same); the robot's route and sensors are
-        seeded from ``cfg.seed + 7919 robot_id``, as in :func:`~.simulation.run_team`.
+        seeded from ``cfg.seed + ROUTE_SEED_STEP robot_id``, as in :func:`~.simulation.run_team`.
     robot_id : int
         This robot; the team is robots 0..N-1, this one and ``peers``.
     listen : str

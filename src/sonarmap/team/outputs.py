@@ -23,7 +23,7 @@ from .records import compose
 from .simulation import TeamResult
 from .summary import mission_figures
 
-__all__ = ["memory_csv", "write_missions", "write_run", "write_team"]
+__all__ = ["memory_csv", "run_inputs", "write_missions", "write_prior", "write_run", "write_team"]
 
 #: ``note(text)``: told each phase as it starts (a progress line).
 Note = Callable[[str], None]
@@ -203,22 +203,41 @@ def write_run(
     dict
         The summary written.
     """
+    extra = run_inputs(prior_record, territory_record)
     if isinstance(result, TeamResult):
-        if prior_record is not None:
-            result.summary["prior"] = prior_record
-        if territory_record is not None:
-            result.summary["territory"] = territory_record
+        result.summary.update(extra)
         result.summary["preset"] = preset
         write_team(out, plan, result, animate=animate)
         summary = result.summary
     else:
-        extra: dict[str, Any] = {}
-        if prior_record is not None:
-            extra["prior"] = prior_record
-        if territory_record is not None:
-            extra["territory"] = territory_record
         summary, _ = write_missions(out, plan, [result], animate=animate, extra=extra or None)
-    if prior is not None:
-        # The prior the robots were given, beside the truth they were scored on.
-        write_map(prior, out / "prior")
+    # After the run's own files: a failed write leaves no prior behind.
+    write_prior(out, prior)
     return summary
+
+
+def run_inputs(
+    prior_record: Mapping[str, Any] | None, territory_record: Mapping[str, Any] | None
+) -> dict[str, Any]:
+    """What a run's summary records of its inputs: ``prior`` and ``territory``, each
+    only when given (not None), in that order.
+
+    Parameters
+    ----------
+    prior_record, territory_record : mapping or None
+        What :func:`~.prior.make_prior` and :func:`~.inputs.run_territory` record.
+
+    Returns
+    -------
+    dict
+        The summary's entries (empty when both are None).
+    """
+    records = {"prior": prior_record, "territory": territory_record}
+    return {k: v for k, v in records.items() if v is not None}
+
+
+def write_prior(folder: Path, prior: OccupancyMap | None) -> None:
+    """Write the prior the robots were given as ``prior.*`` in ``folder``, beside the
+    truth they were scored on; nothing when ``prior`` is None (the plan itself)."""
+    if prior is not None:
+        write_map(prior, folder / "prior")

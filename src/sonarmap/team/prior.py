@@ -540,6 +540,8 @@ def make_prior(
     seed: int = 0,
     resolution: float | None = None,
     origin: tuple[float, float] = (0.0, 0.0),
+    option: str = "--prior",
+    error_option: str = "--prior-error",
 ) -> tuple[OccupancyMap | None, dict[str, Any] | None]:
     """The robots' prior map, as ``team run --prior PATH --prior-error SPEC`` makes it.
 
@@ -560,6 +562,9 @@ def make_prior(
         Metres per pixel of a bare image ``path``.
     origin : (float, float)
         Metres: the world position of a bare image's lower-left corner.
+    option, error_option : str
+        What ``path`` and ``error`` were given as, for the messages (default
+        ``"--prior"`` and ``"--prior-error"``).
 
     Returns
     -------
@@ -571,29 +576,29 @@ def make_prior(
     ------
     ConfigError
         No such file, a bad spec, or a spec whose prior no longer matches ``plan``, in
-        one line naming ``--prior`` or ``--prior-error``.
+        one line naming ``option`` or ``error_option``.
     InputError
-        A file that cannot be read or matched to ``plan``, naming ``--prior PATH``.
+        A file that cannot be read or matched to ``plan``, naming ``option PATH``.
     """
     if path is None and error is None:
         return None, None
     base, source = plan, "the map"
     if path is not None:
         if not Path(path).is_file():
-            raise ConfigError(f"--prior {path}: no such file")
+            raise ConfigError(f"{option} {path}: no such file")
         base, source = read_plan(path, resolution, origin), str(path)
-        check_prior(plan, base, f"--prior {path}")
+        check_prior(plan, base, f"{option} {path}")
     desc: dict[str, Any] = {"source": source}
     if error is None:
         return base, desc
-    prior, report = degrade_plan(base, parse_prior_error(error, seed=seed))
+    prior, report = degrade_plan(base, parse_prior_error(error, seed=seed, option=error_option))
     # The same rule as for a user's file, so that both transports take the same priors
     # (a node checks the prior it is handed).
     try:
         check_prior(plan, prior, "prior")
     except InputError as err:
         raise ConfigError(
-            f"--prior-error {error}: the prior it makes no longer matches the map "
+            f"{error_option} {error}: the prior it makes no longer matches the map "
             f"({err.reason}; a smaller scale?)"
         ) from None
     desc.update(report.to_dict())

@@ -21,7 +21,15 @@ from ..readings import Readings
 from ..rig import get_rig
 from .config import MissionConfig
 from .records import Landmarks, compose, invert
-from .world import ODOMETRY_NOISE, World, observe, odometry, patrol_route, sonar_readings
+from .world import (
+    ODOMETRY_NOISE,
+    ROUTE_SEED_STEP,
+    World,
+    observe,
+    odometry,
+    patrol_route,
+    sonar_readings,
+)
 
 __all__ = ["RobotSensing"]
 
@@ -40,7 +48,8 @@ class RobotSensing:
     world : World
         The landmarks.
     robot : int
-        The robot's id: its seeds are ``config.seed + 7919 robot`` and the next three.
+        The robot's id: its seeds are ``config.seed + ROUTE_SEED_STEP robot``
+        (:data:`~.world.ROUTE_SEED_STEP`) and the next three.
     route : ndarray (T, 4), optional
         ``t, x, y, theta``; replaces the patrol route drawn from the seed.
     odometry_noise : mapping of str to float, optional
@@ -78,7 +87,7 @@ class RobotSensing:
     ) -> None:
         cfg = config
         self.world = world
-        self.seed = seed = cfg.seed + 7919 * robot
+        self.seed = seed = cfg.seed + ROUTE_SEED_STEP * robot
         true = patrol_route(plan, cfg.duration, seed=seed) if route is None else route
         true = np.asarray(true, dtype=np.float64)
         true = true[true[:, 0] <= true[0, 0] + cfg.duration]

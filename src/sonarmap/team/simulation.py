@@ -6,7 +6,7 @@ over a simulated network (:class:`~.network.SimNetwork` through a
 Choices where the thesis is silent:
 
 - **One world, own routes.** The robots share the world's landmarks (made from the
-  mission seed); robot ``i`` drives the patrol route drawn from ``seed + 7919 i``, or
+  mission seed); robot ``i`` drives the patrol route drawn from ``seed + ROUTE_SEED_STEP i``, or
   the route given to it (``routes``: e.g. the potential-field patroller's,
   :mod:`.patrolling`), and its sensors are seeded alike (as
   :func:`~.mission.run_mission` does for ``robot=i``).
@@ -289,7 +289,7 @@ def run_team(
         The floor (also the prior map unless ``prior`` is given).
     cfg : MissionConfig
         Every robot's mission settings; robot ``i`` seeds its route and sensors from
-        ``cfg.seed + 7919 i``.
+        ``cfg.seed + ROUTE_SEED_STEP i``.
     robots : int
         Robots in the team (ids 0 .. robots - 1), >= 1.
     network : NetworkParams

@@ -65,6 +65,7 @@ __all__ = [
     "ODOMETRY_MODEL",
     "ODOMETRY_NOISE",
     "ROUTE_COLUMNS",
+    "ROUTE_SEED_STEP",
     "ROUTE_STYLES",
     "World",
     "builtin_plan",
@@ -669,6 +670,12 @@ def route_from_waypoints(
 
 #: How :func:`patrol_route` draws its route.
 ROUTE_STYLES = ("tour", "waypoints")
+
+#: Robot ``i``'s route and sensor seeds start at the mission's seed +
+#: ``ROUTE_SEED_STEP`` x ``i``: every place that draws a robot's route by itself
+#: (:class:`~.sensing.RobotSensing`, :func:`~.inputs.mission_routes`, the nodes) uses it,
+#: so a route drawn up front is the one the mission would draw.
+ROUTE_SEED_STEP = 7919
 
 
 def _largest_area(ok: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
