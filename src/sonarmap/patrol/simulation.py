@@ -37,12 +37,13 @@ from .crowding import ONCOMING_NEAR, earlier_near, give_way, halves_discs, obsta
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
 from .forces import sector_pulls, step_direction
 from .giveup import GiveUp
+from .goals import aim, goal_index, nearest_leftover, stale, wave_anchors
 from .graph import PatrolGraph
 from .manoeuvre import DeadEnds, FreshAhead, behind_cells, carrot, turn_weights
 from .monitor import Monitor
 from .network import components
 from .oneway import one_way
-from .paths import STEP_UNITS, Wave, nearest_step, path_to, shadows, straight_paths
+from .paths import STEP_UNITS, Wave, path_to, shadows, straight_paths
 from .policies import choose, goal_pulls, reactive_pick
 from .reach import Reach, reach
 from .refine import obstacle_penalty, refine_direction, sector_weakening
@@ -146,19 +147,6 @@ def _walk(
     return float(STEP_UNITS[k, 0]), float(STEP_UNITS[k, 1])
 
 
-def _goal_index(
-    direction: tuple[float, float] | None, step: npt.NDArray[np.int8], lp: F64
-) -> int | None:
-    """The place with the strongest pull ``lp`` among those whose first step is the
-    one nearest ``direction`` (None when there is none)."""
-    if direction is None or not len(lp):
-        return None
-    mine = np.flatnonzero(step == nearest_step(*direction))
-    if not len(mine):
-        return None
-    return int(mine[int(np.argmax(lp[mine]))])
-
-
 def _path_goal(
     team: Team,
     i: int,
@@ -192,81 +180,6 @@ def _path_goal(
     return reach
 
 
-def _mean_seen_tb(fog: Fog) -> float:
-    """The mean time since seen over ``fog``'s watched places seen at least once
-    (inf when none has been)."""
-    seen = fog.watched & ~fog.never_seen()
-    if not seen.any():
-        return math.inf
-    return float(fog.t - fog.last[seen].mean())
-
-
-def _stale(top: float, ratio: float, fog: Fog) -> bool:
-    """Whether ``top`` (the fog's MTB) exceeds ``ratio`` times the mean time since seen
-    of the places ``fog`` has seen (:func:`_mean_seen_tb`; ``config.forward_stale``).
-
-    Decided on the fog's running mean (:meth:`~sonarmap.patrol.fog.Fog.mean_seen_tb`)
-    unless that is within a millionth of the line, where its last bits could matter:
-    then on the mean of the cells, as the rule is stated."""
-    mean = fog.mean_seen_tb()
-    line = ratio * mean
-    if math.isfinite(line) and abs(top - line) <= 1e-6 * max(abs(top), abs(line), 1.0):
-        return top > ratio * _mean_seen_tb(fog)
-    return top > line
-
-
-def _wave_anchors(
-    passable: npt.NDArray[np.bool_], watched: npt.NDArray[np.bool_]
-) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp], npt.NDArray[np.bool_]]:
-    """Per cell, the row and column of the nearest watched cell a wave over
-    ``passable`` with the watched cells as its targets can end at (a passable cell, or
-    a watched one a step from one): where a car's wave goes for a place that no wave
-    reaches (a stub's far corner beyond the last cell its centre may be on), and the
-    watched cells that are no such end (a wave's places pull for them from their
-    anchors)."""
-    from scipy import ndimage
-
-    ends = watched & ndimage.binary_dilation(passable, structure=np.ones((3, 3), dtype=bool))
-    if not ends.any():
-        own: npt.NDArray[np.intp] = np.indices(passable.shape, dtype=np.intp)
-        return own[0], own[1], np.zeros_like(watched)
-    _, (ar, ac) = ndimage.distance_transform_edt(~ends, return_indices=True)
-    return ar.astype(np.intp), ac.astype(np.intp), watched & ~ends
-
-
-def _leftover(
-    fog: Fog,
-    targets: npt.NDArray[np.bool_],
-    place: tuple[int, int],
-    before: float,
-    radius: float,
-    shade: npt.NDArray[np.bool_],
-) -> tuple[int, int] | None:
-    """The nearest of the ``targets`` in ``shade`` (the places no wave reaches:
-    beyond the last cell a car's centre may be on and the step past it) within
-    ``radius`` metres of ``place`` last seen
-    no later than ``before`` (the time ``place`` had last been seen when a car chose it;
-    never-seen places are last seen before every time), by ``fog``: a place the look
-    that saw ``place`` missed and as worth the trip as it was; None when there is none
-    (``config.leftover``)."""
-    res = fog.grid.resolution
-    k = math.floor(radius / res + 1e-9)
-    r0, c0 = place
-    rows, cols = fog.last.shape
-    ra, rb, ca, cb = max(0, r0 - k), min(rows, r0 + k + 1), max(0, c0 - k), min(cols, c0 + k + 1)
-    window = (fog.last[ra:rb, ca:cb] <= before) & targets[ra:rb, ca:cb] & fog.watched[ra:rb, ca:cb]
-    window &= shade[ra:rb, ca:cb]
-    rr, cc = np.nonzero(window)
-    if not len(rr):
-        return None
-    d = np.hypot(rr + ra - r0, cc + ca - c0) * res
-    near = d <= radius + 1e-9
-    if not near.any():
-        return None
-    j = int(np.flatnonzero(near)[np.argmin(d[near])])
-    return int(rr[j] + ra), int(cc[j] + ca)
-
-
 def _held_goal(
     team: Team,
     i: int,
@@ -293,36 +206,6 @@ def _held_goal(
     ):
         return None
     return point
-
-
-def _aim(
-    i: int,
-    way: tuple[float, float] | None,
-    places: npt.NDArray[np.int64],
-    waver: Wave,
-    fog: Fog,
-    aims: list[tuple[int, int] | None],
-    aimed_at: F64,
-    config: PatrolConfig,
-) -> tuple[int, int] | None:
-    """The place robot i goes for on the path motion: the one it keeps while unseen
-    since chosen and reachable, else the strongest place along its step ``way``
-    (``places`` per step, from :func:`sector_pulls`), noted in ``aims`` and
-    ``aimed_at``."""
-    held = aims[i]
-    if (
-        config.keep_goal
-        and held is not None
-        and np.isfinite(waver.dist[held])
-        and fog.last[held] < aimed_at[i]
-    ):
-        return held
-    goal = None
-    if way is not None:
-        r, c = places[nearest_step(*way)]
-        goal = None if r < 0 else (int(r), int(c))
-    aims[i], aimed_at[i] = goal, fog.t
-    return goal
 
 
 def _unit_towards(team: Team, i: int, point: tuple[float, float]) -> tuple[float, float]:
@@ -817,7 +700,7 @@ def run_patrol(
     # The place each car chose (not a leftover): leftovers are looked for round it only.
     chosen: list[tuple[int, int] | None] = [None] * len(team)
     anchors = (
-        _wave_anchors(passable, watched) if tracking and hold_fast and config.leftover > 0 else None
+        wave_anchors(passable, watched) if tracking and hold_fast and config.leftover > 0 else None
     )
     # The places the robots go for: the watched ones but those the cars gave up.
     targets = watched
@@ -848,7 +731,7 @@ def run_patrol(
         tops = [f.mtb() for f in own]
         if forward and config.forward_stale > 0:
             for j, f in enumerate(own):
-                lifted[j] = _stale(tops[j], config.forward_stale, f)
+                lifted[j] = stale(tops[j], config.forward_stale, f)
         if targets is not counted:
             counted, n_targets = targets, int(np.count_nonzero(targets))
 
@@ -856,7 +739,7 @@ def run_patrol(
             held = aims[i]
             mine_fog = own[0 if shared else i]
             if anchors is not None and held is not None and mine_fog.last[held] >= aimed_at[i]:
-                left = _leftover(
+                left = nearest_leftover(
                     mine_fog,
                     targets,
                     chosen[i] or held,
@@ -1064,7 +947,7 @@ def run_patrol(
                             _path_goal(
                                 team,
                                 i,
-                                _aim(i, way, places, waver, own[j], aims, aimed_at, config),
+                                aim(i, way, places, waver, own[j], aims, aimed_at, config),
                                 waver,
                                 g,
                                 passable,
@@ -1147,7 +1030,7 @@ def run_patrol(
                 pick = (
                     reactive_pick(tbv, lengths)
                     if config.policy == "reactive"
-                    else _goal_index(
+                    else goal_index(
                         directions[-1],
                         step,
                         goal_pulls(config.policy, config.force, tbv, lengths, top),
