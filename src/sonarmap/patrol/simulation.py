@@ -31,7 +31,6 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError
-from ..grid import Grid
 from .coarse import CoarseChoice
 from .crowding import ONCOMING_NEAR, earlier_near, give_way, halves_discs, obstacle_discs
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
@@ -39,11 +38,11 @@ from .forces import sector_pulls, step_direction
 from .giveup import GiveUp
 from .goals import aim, goal_index, nearest_leftover, stale, wave_anchors
 from .graph import PatrolGraph
-from .manoeuvre import DeadEnds, FreshAhead, behind_cells, carrot, turn_weights
+from .manoeuvre import DeadEnds, FreshAhead, behind_cells, turn_weights
 from .monitor import Monitor
 from .network import components
 from .oneway import one_way
-from .paths import STEP_UNITS, Wave, path_to, shadows, straight_paths
+from .paths import STEP_UNITS, Wave, shadows, straight_paths
 from .policies import choose, goal_pulls, reactive_pick
 from .reach import Reach, reach
 from .refine import obstacle_penalty, refine_direction, sector_weakening
@@ -65,8 +64,9 @@ from .settings import (
     PatrolConfig,
 )
 from .starts import CarStarts, StartSource, check_starts, spread_starts
+from .steering import car_carrot, follow_tour, held_goal, path_goal, unit_towards, walk_step
 from .stubs import stand_points, stub_places
-from .territory import Territory, move_clear
+from .territory import Territory
 from .tour import plan_tour
 from .walkers import WALKERS, GraphWalkers
 
@@ -96,201 +96,6 @@ F64 = npt.NDArray[np.float64]
 #: the blocks' path plus these metres (the blocks' 8-connected paths run up to a block
 #: off the cells' at either end).
 COARSE_SLACK = (1.25, 2.0)
-
-
-def _follow_tour(
-    i: int,
-    tour: npt.NDArray[np.int64],
-    target: npt.NDArray[np.int64],
-    dist: F64,
-    first: npt.NDArray[np.int8],
-    config: PatrolConfig,
-) -> tuple[float, float] | None:
-    """Robot i's step along the tour: towards its waypoint, the next one once there."""
-    for _ in range(len(tour)):
-        tr, tc = tour[target[i]]
-        # Within one step counts as there: a move of a full step along one of 8
-        # directions could otherwise circle the waypoint for ever.
-        if first[tr, tc] >= 0 and dist[tr, tc] > config.speed * config.dt:
-            k = int(first[tr, tc])
-            return float(STEP_UNITS[k, 0]), float(STEP_UNITS[k, 1])
-        target[i] = (target[i] + 1) % len(tour)
-    return None
-
-
-def _walk(
-    i: int,
-    walkers: GraphWalkers,
-    waver: Wave,
-    fog: Fog,
-    config: PatrolConfig,
-    heard: npt.NDArray[np.bool_],
-    stuck: bool,
-) -> tuple[float, float] | None:
-    """Robot i's step towards its graph vertex, the next one once within a step of it,
-    another one when it cannot be reached or ``stuck`` (it gave way and was blocked
-    again: two walkers head-on on one edge push against each other for good otherwise);
-    None (stand) while no neighbour can be reached. ``heard``: the robots whose
-    intentions robot i hears."""
-    r, c = walkers.goal_cell(i)
-    cells = walkers.graph.cells
-    if waver.dist[r, c] <= config.speed * config.dt:
-        walkers.arrive(i, fog.t, fog.last[cells[:, 0], cells[:, 1]], heard)
-        r, c = walkers.goal_cell(i)
-    if stuck or not np.isfinite(waver.dist[r, c]):
-        reachable = np.isfinite(waver.dist[cells[:, 0], cells[:, 1]])
-        walkers.reroute(i, fog.t, fog.last[cells[:, 0], cells[:, 1]], reachable, heard)
-        r, c = walkers.goal_cell(i)
-    k = int(waver.first[r, c])
-    if k < 0:
-        return None
-    return float(STEP_UNITS[k, 0]), float(STEP_UNITS[k, 1])
-
-
-def _path_goal(
-    team: Team,
-    i: int,
-    cell: tuple[int, int] | None,
-    waver: Wave,
-    g: Grid,
-    passable: npt.NDArray[np.bool_],
-    config: PatrolConfig,
-) -> tuple[float, float] | None:
-    """Where robot i gets to in one step along the wave's shortest path to ``cell``
-    (path motion; None when there is no cell or no clear step)."""
-    if cell is None or not np.isfinite(waver.dist[cell]) or waver.dist[cell] <= 0:
-        return None
-    cells = path_to(waver.dist, cell, g.resolution, passable, waver.allowed)
-    px, py = g.cell_centres(cells[1:, 0], cells[1:, 1])
-    x0, y0 = float(team.x[i]), float(team.y[i])
-    x, y = x0, y0
-    left = config.speed * config.dt
-    # The farthest point a step along the path reaches that the robot can go to in a
-    # straight line (a corner of the path may hide the rest).
-    reach: tuple[float, float] | None = None
-    for qx, qy in zip(px.tolist(), py.tolist(), strict=True):
-        d = math.hypot(qx - x, qy - y)
-        end = (x + (qx - x) * left / d, y + (qy - y) * left / d) if d >= left else (qx, qy)
-        if not move_clear(x0, y0, end[0], end[1], passable, g):
-            break
-        reach = end
-        if d >= left:
-            break
-        x, y, left = qx, qy, left - d
-    return reach
-
-
-def _held_goal(
-    team: Team,
-    i: int,
-    start: tuple[int, int],
-    held: tuple[int, int],
-    waver: Wave,
-    g: Grid,
-    passable: npt.NDArray[np.bool_],
-    watched: npt.NDArray[np.bool_],
-    closed: npt.NDArray[np.intp] | None,
-    config: PatrolConfig,
-    towards: Callable[..., tuple[float, float] | None],
-) -> tuple[float, float] | None:
-    """Robot i's point ahead towards the place it keeps going for, from a wave run only
-    as far as that place: ``towards`` (:func:`_path_goal` or :func:`_car_carrot`) of
-    that wave; None when the place cannot be reached or there is no point off the
-    robot."""
-    if not np.isfinite(waver.to(passable, start, held, g.resolution, watched, closed)):
-        return None
-    point: tuple[float, float] | None = towards(team, i, held, waver, g, passable, config)
-    if (
-        point is None
-        or math.hypot(point[0] - float(team.x[i]), point[1] - float(team.y[i])) <= 1e-9
-    ):
-        return None
-    return point
-
-
-def _unit_towards(team: Team, i: int, point: tuple[float, float]) -> tuple[float, float]:
-    """The unit vector from robot i to ``point`` (not at the robot)."""
-    dx, dy = point[0] - float(team.x[i]), point[1] - float(team.y[i])
-    n = math.hypot(dx, dy)
-    return dx / n, dy / n
-
-
-def _car_carrot(
-    team: Team,
-    i: int,
-    cell: tuple[int, int] | None,
-    waver: Wave,
-    g: Grid,
-    passable: npt.NDArray[np.bool_],
-    config: PatrolConfig,
-    targets: npt.NDArray[np.bool_] | None = None,
-    closed: Callable[[], npt.NDArray[np.intp] | None] | None = None,
-    stand: npt.NDArray[np.int64] | None = None,
-) -> tuple[float, float] | None:
-    """Car i's route (the wave's shortest path to ``cell``, set on the car) and its
-    pure-pursuit point ``config.lookahead`` metres along it; None when there is none.
-
-    ``stand`` (:func:`~sonarmap.patrol.stubs.stand_points`): a place in a stub with a
-    stand point the wave has reached (not the car's own cell) is gone for by the route
-    to that point instead, from which the car sees it.
-
-    With ``config.round_block`` a route whose pursuit point lies behind the car is
-    replaced by the shortest one that leaves forwards (:func:`_forward_route`), when
-    that is at most ``round_block`` metres longer: ``targets`` are the wave's targets
-    and ``closed()`` the cells closed on it (without the discs round the cars ahead
-    going the car's way, which it follows). ``waver`` may then hold that wave."""
-    assert isinstance(team, Car)
-    team.routes[i] = None
-    if stand is not None and cell is not None and stand[cell] >= 0:
-        at = (int(stand[cell]) // stand.shape[1], int(stand[cell]) % stand.shape[1])
-        if np.isfinite(waver.dist[at]) and waver.dist[at] > 0:
-            cell = at
-    if cell is None or not np.isfinite(waver.dist[cell]) or waver.dist[cell] <= 0:
-        return None
-    x, y = float(team.x[i]), float(team.y[i])
-    route = _route(team, i, path_to(waver.dist, cell, g.resolution, passable, waver.allowed), g)
-    point = carrot(route, x, y, config.lookahead)
-    if config.round_block > 0 and team.is_behind(i, point):
-        shut = closed() if closed is not None else None
-        forward = _forward_route(team, i, cell, waver, g, passable, config, targets, shut)
-        if forward is not None:
-            route = forward
-            point = carrot(route, x, y, config.lookahead)
-    team.routes[i] = route
-    return point
-
-
-def _route(team: Team, i: int, cells: npt.NDArray[np.int64], g: Grid) -> F64:
-    """World points (K, 2) of a path's ``cells``, the first at robot i itself."""
-    px, py = g.cell_centres(cells[:, 0], cells[:, 1])
-    route = np.column_stack([px, py]).astype(np.float64)
-    route[0] = team.x[i], team.y[i]
-    return route
-
-
-def _forward_route(
-    team: Car,
-    i: int,
-    cell: tuple[int, int],
-    waver: Wave,
-    g: Grid,
-    passable: npt.NDArray[np.bool_],
-    config: PatrolConfig,
-    targets: npt.NDArray[np.bool_] | None,
-    closed: npt.NDArray[np.intp] | None,
-) -> F64 | None:
-    """Car i's shortest route to ``cell`` with the cells up to 4 m behind it closed (it
-    drives on and round the block), if that is at most ``config.round_block`` metres
-    longer than the shortest (``waver.dist`` on entry); None otherwise, or at a dead
-    end (no such route). Runs a wave on ``waver``."""
-    r, c = (int(v) for v in g.world_to_cell(team.x[i], team.y[i]))
-    back = behind_cells(float(team.x[i]), float(team.y[i]), float(team.heading[i]), g)
-    shut = back if closed is None else np.concatenate([closed, back])
-    limit = float(waver.dist[cell]) + config.round_block
-    length = waver.to(passable, (r, c), cell, g.resolution, targets, shut, limit=limit)
-    if not np.isfinite(length):
-        return None
-    return _route(team, i, path_to(waver.dist, cell, g.resolution, passable, waver.allowed), g)
 
 
 def car_starts(
@@ -764,7 +569,7 @@ def run_patrol(
             ):
                 start = (int(r[i]), int(c[i]))
                 closed = closed_only(i, r, c, k)
-                towards = _held_goal(
+                towards = held_goal(
                     team,
                     i,
                     start,
@@ -776,16 +581,16 @@ def run_patrol(
                     closed,
                     config,
                     partial(
-                        _car_carrot,
+                        car_carrot,
                         targets=targets,
                         closed=partial(closed_only, i, r, c, k, True),
                         stand=stand,
                     )
                     if tracking
-                    else _path_goal,
+                    else path_goal,
                 )
                 if towards is not None:
-                    directions.append(_unit_towards(team, i, towards))
+                    directions.append(unit_towards(team, i, towards))
                     goals.append(towards)
                     continue
             top = tops[0 if shared else i]
@@ -885,7 +690,7 @@ def run_patrol(
                         aims[i], aimed_at[i] = place, own[j].t
                         aim_last[i], via[i], chosen[i] = own[j].last[place], None, place
                         directions.append(way)
-                        goals.append(_path_goal(team, i, place, waver, g, passable, config))
+                        goals.append(path_goal(team, i, place, waver, g, passable, config))
                         continue
                 if config.policy == "potential":
                     # Only the places near the robot can change its choice (see
@@ -944,7 +749,7 @@ def run_patrol(
                         way = step_direction(strength, "mode", weights)
                         directions.append(way)
                         goals.append(
-                            _path_goal(
+                            path_goal(
                                 team,
                                 i,
                                 aim(i, way, places, waver, own[j], aims, aimed_at, config),
@@ -973,7 +778,7 @@ def run_patrol(
                 lengths, ux, uy = dist[rr, cc], gx[rr, cc], gy[rr, cc]
             if walkers is not None:
                 directions.append(
-                    _walk(
+                    walk_step(
                         i,
                         walkers,
                         waver,
@@ -984,16 +789,16 @@ def run_patrol(
                     )
                 )
                 goals.append(
-                    _path_goal(team, i, walkers.goal_cell(i), waver, g, passable, config)
+                    path_goal(team, i, walkers.goal_cell(i), waver, g, passable, config)
                     if along_path
                     else None
                 )
                 continue
             if config.policy == "cycle":
-                directions.append(_follow_tour(i, tour, target, waver.dist, waver.first, config))
+                directions.append(follow_tour(i, tour, target, waver.dist, waver.first, config))
                 way = (int(tour[target[i], 0]), int(tour[target[i], 1]))
                 goals.append(
-                    _path_goal(team, i, way, waver, g, passable, config) if along_path else None
+                    path_goal(team, i, way, waver, g, passable, config) if along_path else None
                 )
                 continue
             directions.append(
@@ -1042,7 +847,7 @@ def run_patrol(
                 via[i], chosen[i] = None, goal
             if tracking:
                 goals.append(
-                    _car_carrot(
+                    car_carrot(
                         team,
                         i,
                         goal,
@@ -1063,7 +868,7 @@ def run_patrol(
                     if norm > 1e-9:
                         directions[-1] = (vx / norm, vy / norm)
                 continue
-            goals.append(_path_goal(team, i, goal, waver, g, passable, config))
+            goals.append(path_goal(team, i, goal, waver, g, passable, config))
         if penalty is not None:
             directions = [
                 d
