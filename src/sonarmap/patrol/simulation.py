@@ -38,13 +38,13 @@ from .forces import sector_pulls, step_direction
 from .giveup import GiveUp
 from .goals import aim, goal_index, nearest_leftover, stale, wave_anchors
 from .graph import PatrolGraph
+from .launch import build_team, car_starts, check_given_starts, place_robots
 from .manoeuvre import DeadEnds, FreshAhead, behind_cells, turn_weights
 from .monitor import Monitor
 from .network import components
 from .oneway import one_way
 from .paths import STEP_UNITS, Wave, shadows, straight_paths
 from .policies import choose, goal_pulls, reactive_pick
-from .reach import Reach, reach
 from .refine import obstacle_penalty, refine_direction, sector_weakening
 from .result import PatrolResult
 from .robots import Car, Holonomic, Team
@@ -63,7 +63,7 @@ from .settings import (
     SIGHT_MARGIN,
     PatrolConfig,
 )
-from .starts import CarStarts, StartSource, check_starts, spread_starts
+from .starts import StartSource
 from .steering import car_carrot, follow_tour, held_goal, path_goal, unit_towards, walk_step
 from .stubs import stand_points, stub_places
 from .territory import Territory
@@ -96,71 +96,6 @@ F64 = npt.NDArray[np.float64]
 #: the blocks' path plus these metres (the blocks' 8-connected paths run up to a block
 #: off the cells' at either end).
 COARSE_SLACK = (1.25, 2.0)
-
-
-def car_starts(
-    territory: Territory, passable: npt.NDArray[np.bool_], config: PatrolConfig
-) -> CarStarts:
-    """Where ``config``'s cars can start on ``passable`` and facing where
-    (:class:`~sonarmap.patrol.starts.CarStarts`: its turning radius, speed rule and
-    step)."""
-    return CarStarts(territory, passable, config.turn_radius, config.speed_bands, config.dt)
-
-
-def check_given_starts(
-    starts: F64,
-    territory: Territory,
-    config: PatrolConfig,
-    region: npt.NDArray[np.bool_] | None = None,
-    source: StartSource | None = None,
-) -> Reach:
-    """Refuse given starts the run cannot use; the territory reachable from them.
-
-    Every start inside the map (and ``region``), on a free cell the robot's radius fits,
-    ``config.min_separation`` from the others; for cars, a pose some step's arc leaves
-    (:meth:`~sonarmap.patrol.starts.CarStarts.check`).
-
-    Parameters
-    ----------
-    starts : ndarray (N, 3)
-        World (x, y, heading) per robot.
-    territory : Territory
-        The map.
-    config : PatrolConfig
-        The run's configuration (radius, separation, reach, the car's turning).
-    region : ndarray of bool, optional
-        The user's territory mask on the territory's grid; default None (the whole map).
-    source : StartSource, optional
-        Where the starts came from, for the message (a start file's path and lines);
-        default: world poses.
-
-    Returns
-    -------
-    Reach
-        What the team can patrol from these starts (:func:`~sonarmap.patrol.reach.reach`).
-
-    Raises
-    ------
-    InputError
-        The first start refused, naming the robot and its pose (and file and line).
-    """
-    inside = territory.passable(config.radius)
-    if region is not None:
-        inside = inside & region
-    check_starts(starts, territory, inside, config.min_separation, source)
-    rc = np.column_stack(territory.grid.world_to_cell(starts[:, 0], starts[:, 1]))
-    where = reach(
-        territory,
-        config.radius,
-        starts=rc,
-        region=region,
-        mode=config.reach,
-        vision=config.vision,
-    )
-    if config.model == "car":
-        # A car that can never move from its start would waste the run.
-        car_starts(territory, where.passable, config).check(starts, source)
-    return where
 
 
 def run_patrol(
@@ -215,47 +150,11 @@ def run_patrol(
     if starts is not None or robots is not None:
         config = config.for_team(len(starts) if starts is not None else int(robots or 0))
     sems = Semaphores(semaphores or [])
-    if starts is None:
-        if robots is None or robots < 1:
-            raise ConfigError("give start positions or a number of robots >= 1")
-        where = reach(
-            territory, config.radius, region=region, mode=config.reach, vision=config.vision
-        )
-        if config.model == "car":
-            starts = car_starts(territory, where.passable, config).spread(
-                robots, config.min_separation, seed
-            )
-        else:
-            starts = spread_starts(robots, territory, where.passable, config.min_separation, seed)
-    else:
-        where = check_given_starts(starts, territory, config, region, start_source)
+    starts, where = place_robots(
+        territory, config, starts, robots, seed, region=region, start_source=start_source
+    )
     passable = where.passable
-    team: Team
-    if config.model == "car":
-        team = Car(
-            starts[:, 0].copy(),
-            starts[:, 1].copy(),
-            starts[:, 2].copy(),
-            radius=config.radius,
-            min_separation=config.min_separation,
-            p_random=config.p_random,
-            give_way=config.traffic == "give-way",
-            clearance=territory.clearance,
-            turn_radius=config.turn_radius,
-            bands=config.speed_bands,
-            planner=config.car_planner,
-        )
-    else:
-        team = Holonomic(
-            starts[:, 0].copy(),
-            starts[:, 1].copy(),
-            starts[:, 2].copy(),
-            radius=config.radius,
-            speed=config.speed,
-            min_separation=config.min_separation,
-            p_random=config.p_random,
-            give_way=config.traffic == "give-way",
-        )
+    team = build_team(starts, territory, config)
     g = territory.grid
     watched = where.watched
     fog = Fog(g, watched, config.start_fog)  # the true fog: the metric
