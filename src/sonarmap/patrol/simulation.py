@@ -8,6 +8,13 @@ radius. Each robot keeps its own fog, built from the positions it hears of
 (:mod:`.network`); with the full network every robot's fog is the true fog. The metric
 is always the true fog.
 
+The run's pieces live by concept: its settings in :mod:`.settings`
+(:class:`~sonarmap.patrol.settings.PatrolConfig`), its starts and team in :mod:`.launch`,
+the cells a robot closes round the others in :mod:`.crowding`, the place it goes for in
+:mod:`.goals` and its way there in :mod:`.steering`, what it measured in :mod:`.result`
+(:class:`~sonarmap.patrol.result.PatrolResult`). Their public names are importable from
+here too, as they always were.
+
 Decisions where the thesis is silent (docs/patrol.md marks them UNCLEAR):
 
 - the start fog is 0 (the territory just seen) and the reported MTB is the time average
