@@ -591,52 +591,10 @@ class _Run:
                 and self.targets is self.watched
                 and (held is None or own[j].last[held] >= aimed_at[i])
             ):
-                way, place, length = self.coarse.choose(
-                    start,
-                    config.force,
-                    top,
-                    weights=weights,
-                    **(
-                        {"tb": dilated[j]}
-                        if dilated is not None
-                        else {"last_seen": own[j].last, "now": own[j].t}
-                    ),
-                )
-                # The fine path to it; a place the fine wave cannot reach, or
-                # only by a path much longer than the blocks' (the blocks join what
-                # the cells do not; a shadow's anchor behind a wall), falls back on
-                # the fine choice.
-                if place is not None and np.isfinite(
-                    waver.to(
-                        passable,
-                        start,
-                        place,
-                        g.resolution,
-                        self.targets,
-                        limit=COARSE_SLACK[0] * length + COARSE_SLACK[1],
-                    )
-                ):
-                    aims[i], aimed_at[i] = place, own[j].t
-                    self.aim_last[i], self.via[i], self.chosen[i] = own[j].last[place], None, place
-                    return way, path_goal(team, i, place, waver, g, passable, config)
+                decided = self._coarse(i, start, top, weights, dilated)
+                if decided is not None:
+                    return decided
             if config.policy == "potential":
-                # Only the places near the robot can change its choice (see
-                # Force.pull_limit): the wave stops there unless told not to.
-                j = 0 if self.shared else i
-                pull_args: dict[str, Any] = {
-                    "closed": closed,
-                    "prune": config.prune,
-                    "certify": config.direction == "mode" and (self.direct or self.certify_goal),
-                    "weights": weights,
-                    "goal": self.certify_goal,
-                    "places": self.places,
-                    "shadows": self.shade,
-                    **(
-                        {"tb": dilated[j]}
-                        if dilated is not None
-                        else {"last_seen": own[j].last, "now": own[j].t}
-                    ),
-                }
                 # When only places just seen behind the car are within its reach (a
                 # car nose to nose with another), they pull as before, or it would
                 # stand until they age.
@@ -645,29 +603,9 @@ class _Run:
                     if unmasked is None
                     else [(pulling, n_pulling), (unmasked, n_unmasked)]
                 )
-                # The dead-end test floods the passable cells, not the wave's
-                # allowed steps: a car facing the wrong way into a one-way street
-                # passes it while its forward wave, keeping to the one-way steps,
-                # reaches only a pocket of places in sight. Then nothing pulls and
-                # it would stand for good, so its wave runs in every direction.
-                for _ in range(2):
-                    for pulling, n_pulling in tries:
-                        strength = sector_pulls(
-                            waver,
-                            passable,
-                            start,
-                            g.resolution,
-                            pulling,
-                            config.force,
-                            top,
-                            n_watched=n_pulling,
-                            **pull_args,
-                        )
-                        if strength.any():
-                            break
-                    if strength.any() or not behind:
-                        break
-                    pull_args["closed"], behind = self.closed_cells(i, r, c, k, open_behind=True)
+                strength, pulling = self._pulls(
+                    i, k, r, c, start, closed, behind, weights, tries, dilated, top
+                )
                 if self.direct:
                     return step_direction(strength, config.direction, weights), None
                 if self.direct_path:
@@ -733,6 +671,110 @@ class _Run:
         if self.tracking:
             return self._pursue(i, k, r, c, direction, goal, pulling)
         return direction, path_goal(team, i, goal, waver, g, passable, config)
+
+    def _coarse(
+        self,
+        i: int,
+        start: tuple[int, int],
+        top: float,
+        weights: F64 | None,
+        dilated: list[F64] | None,
+    ) -> tuple[Way, Way] | None:
+        """Robot i's new place chosen on blocks of cells (``choice_cell``) and its step
+        towards it, the fine wave run only as far as it; None when the blocks give no
+        place the fine wave reaches within :data:`COARSE_SLACK`."""
+        config, own, waver, g = self.config, self.own, self.waver, self.g
+        assert self.coarse is not None
+        j = 0 if self.shared else i
+        way, place, length = self.coarse.choose(
+            start,
+            config.force,
+            top,
+            weights=weights,
+            **(
+                {"tb": dilated[j]}
+                if dilated is not None
+                else {"last_seen": own[j].last, "now": own[j].t}
+            ),
+        )
+        # The fine path to it; a place the fine wave cannot reach, or only by a path
+        # much longer than the blocks' (the blocks join what the cells do not; a
+        # shadow's anchor behind a wall), falls back on the fine choice.
+        if place is None or not np.isfinite(
+            waver.to(
+                self.passable,
+                start,
+                place,
+                g.resolution,
+                self.targets,
+                limit=COARSE_SLACK[0] * length + COARSE_SLACK[1],
+            )
+        ):
+            return None
+        self.aims[i], self.aimed_at[i] = place, own[j].t
+        self.aim_last[i], self.via[i], self.chosen[i] = own[j].last[place], None, place
+        return way, path_goal(self.team, i, place, waver, g, self.passable, config)
+
+    def _pulls(
+        self,
+        i: int,
+        k: int,
+        r: npt.NDArray[np.intp],
+        c: npt.NDArray[np.intp],
+        start: tuple[int, int],
+        closed: npt.NDArray[np.intp] | None,
+        behind: bool,
+        weights: F64 | None,
+        tries: list[tuple[npt.NDArray[np.bool_], int]],
+        dilated: list[F64] | None,
+        top: float,
+    ) -> tuple[F64, npt.NDArray[np.bool_]]:
+        """The potential field's pulls on robot i per wave step
+        (:func:`~sonarmap.patrol.forces.sector_pulls`), from the first of the places
+        ``tries`` (the places pulling and how many) that pull at all, the cells behind
+        a car opened when none does; and the places that pulled."""
+        config, own, waver, g = self.config, self.own, self.waver, self.g
+        # Only the places near the robot can change its choice (see Force.pull_limit):
+        # the wave stops there unless told not to.
+        j = 0 if self.shared else i
+        pull_args: dict[str, Any] = {
+            "closed": closed,
+            "prune": config.prune,
+            "certify": config.direction == "mode" and (self.direct or self.certify_goal),
+            "weights": weights,
+            "goal": self.certify_goal,
+            "places": self.places,
+            "shadows": self.shade,
+            **(
+                {"tb": dilated[j]}
+                if dilated is not None
+                else {"last_seen": own[j].last, "now": own[j].t}
+            ),
+        }
+        # The dead-end test floods the passable cells, not the wave's allowed steps: a
+        # car facing the wrong way into a one-way street passes it while its forward
+        # wave, keeping to the one-way steps, reaches only a pocket of places in sight.
+        # Then nothing pulls and it would stand for good, so its wave runs in every
+        # direction.
+        for _ in range(2):
+            for pulling, n_pulling in tries:
+                strength = sector_pulls(
+                    waver,
+                    self.passable,
+                    start,
+                    g.resolution,
+                    pulling,
+                    config.force,
+                    top,
+                    n_watched=n_pulling,
+                    **pull_args,
+                )
+                if strength.any():
+                    break
+            if strength.any() or not behind:
+                break
+            pull_args["closed"], behind = self.closed_cells(i, r, c, k, open_behind=True)
+        return strength, pulling
 
     def _leftover(self, i: int) -> tuple[int, int] | None:
         """Robot i's place, after a car whose place was seen takes the nearest leftover
