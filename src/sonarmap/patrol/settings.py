@@ -265,9 +265,10 @@ class PatrolConfig:
     #: keeps to the allowed steps). False: every street two-way. None (the default):
     #: True for a team of more than one tracking car on the potential field's wave
     #: paths (:data:`CAR_DEFAULTS`), else False, settled by :meth:`for_team`
-    #: (:func:`run_patrol` does) once the number of robots is known: until then it
-    #: stays None, on the configuration and in :meth:`as_dict` (a run's summary holds
-    #: the settled value, its configuration having been through :meth:`for_team`).
+    #: (:func:`~sonarmap.patrol.simulation.run_patrol` does) once the number of robots is
+    #: known: until then it stays None, on the configuration and in :meth:`as_dict` (a
+    #: run's summary holds the settled value, its configuration having been through
+    #: :meth:`for_team`).
     one_way: bool | None = None
     #: Track: the directions of the one-way streets (``one_way``), each strongly
     #: connected (:data:`~sonarmap.patrol.oneway.ORIENTS`): 'dfs' (the default), a
