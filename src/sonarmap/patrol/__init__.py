@@ -18,7 +18,12 @@ falling with the length of the path to it. One module per concept:
 - :mod:`.graph`, :mod:`.monitor` -- the patrol graph derived from the map, and the graph
   patrolling literature's metrics on it (visit intervals, cycles, interference);
 - :mod:`.maps`, :mod:`.config` -- the built-in territories, the thesis's file formats;
-- :mod:`.simulation` -- the step loop and what a run measured;
+- :mod:`.settings`, :mod:`.launch` -- a run's settings (:class:`PatrolConfig`), its starts
+  and team;
+- :mod:`.crowding`, :mod:`.goals`, :mod:`.steering` -- the cells a robot closes round the
+  others, the place it goes for and how it heads there;
+- :mod:`.simulation`, :mod:`.result` -- the step loop (:func:`run_patrol`) and what a run
+  measured (:class:`PatrolResult`);
 - :mod:`.experiments` -- the thesis's experiments, on Dask.
 """
 
