@@ -607,9 +607,7 @@ def _parts(mask: B) -> I64:
     return out
 
 
-def _farthest_from(
-    junction: B, box: tuple[slice, slice], pix: B, bound: float
-) -> float:
+def _farthest_from(junction: B, box: tuple[slice, slice], pix: B, bound: float) -> float:
     """The largest distance (cells) from a cell ``pix`` of ``box`` to the nearest
     ``junction`` cell, as the whole map's ``distance_transform_edt(~junction)`` gives
     it, when that is at most ``bound``; some value > ``bound`` otherwise.
@@ -621,7 +619,7 @@ def _farthest_from(
     float), and a cell with none that near is more than m > ``bound`` from every
     junction either way."""
     rows, cols = junction.shape
-    m = int(math.ceil(bound)) + 1
+    m = math.ceil(bound) + 1
     r0, r1 = max(box[0].start - m, 0), min(box[0].stop + m, rows)
     c0, c1 = max(box[1].start - m, 0), min(box[1].stop + m, cols)
     window = junction[r0:r1, c0:c1]
