@@ -696,3 +696,33 @@ def test_the_one_way_benchmarks_digest_reads_values_not_objects() -> None:
     assert c.search is None
     assert digest(c) == digest(one_way(passable, t.clearance, RES, turn_radius=3.5))
     assert digest(c) != digest(a)
+
+
+def test_farthest_from_the_junctions_is_the_whole_map_distance_transform() -> None:
+    # Random junction masks and random boxes with random cells in them, bounds from 0
+    # to past the farthest cell: where the whole map's distance transform says the
+    # cells' largest distance is at most the bound, the window gives that very float;
+    # otherwise something over the bound (a box on the map's edge, junctions only
+    # outside the window, none at all included).
+    rng = np.random.default_rng(5)
+    exact = over = 0
+    for k in range(300):
+        rows, cols = int(rng.integers(3, 60)), int(rng.integers(3, 60))
+        junction = rng.random((rows, cols)) < [0.0, 0.002, 0.02, 0.2][k % 4]
+        r0, c0 = int(rng.integers(0, rows)), int(rng.integers(0, cols))
+        r1, c1 = int(rng.integers(r0 + 1, rows + 1)), int(rng.integers(c0 + 1, cols + 1))
+        box = (slice(r0, r1), slice(c0, c1))
+        pix = rng.random((r1 - r0, c1 - c0)) < 0.5
+        pix.flat[int(rng.integers(0, pix.size))] = True
+        whole = ndimage.distance_transform_edt(~junction) if junction.any() else None
+        want = float(whole[box][pix].max()) if whole is not None else np.inf
+        for bound in (0.0, 1.0, 2.5, float(rng.uniform(0, 30)), 100.0):
+            got = oneway._farthest_from(junction, box, pix, bound)
+            if want <= bound:
+                assert got == want
+                exact += 1
+            else:
+                assert got > bound
+                over += 1
+    assert exact > 200
+    assert over > 200

@@ -607,6 +607,30 @@ def _parts(mask: B) -> I64:
     return out
 
 
+def _farthest_from(junction: B, box: tuple[slice, slice], pix: B, bound: float) -> float:
+    """The largest distance (cells) from a cell ``pix`` of ``box`` to the nearest
+    ``junction`` cell, as the whole map's ``distance_transform_edt(~junction)`` gives
+    it, when that is at most ``bound``; some value > ``bound`` otherwise.
+
+    Worked out in ``box`` widened by m = ceil(bound) + 1 cells on every side instead of
+    over the whole map: a junction cell outside that window lies more than m cells from
+    every cell of ``box``, so a cell whose nearest junction in the window is at most m
+    away has that nearest junction in the whole map too (the same offset, so the same
+    float), and a cell with none that near is more than m > ``bound`` from every
+    junction either way."""
+    rows, cols = junction.shape
+    m = math.ceil(bound) + 1
+    r0, r1 = max(box[0].start - m, 0), min(box[0].stop + m, rows)
+    c0, c1 = max(box[1].start - m, 0), min(box[1].stop + m, cols)
+    window = junction[r0:r1, c0:c1]
+    if not window.any():
+        return math.inf
+    near = ndimage.distance_transform_edt(~window)
+    inner = near[box[0].start - r0 : box[0].stop - r0, box[1].start - c0 : box[1].stop - c0]
+    far = float(inner[pix].max())
+    return far if far <= m else math.inf
+
+
 def _symmetric_dijkstra(graph: csr_matrix, starts: I64) -> tuple[F64, I64]:
     """Length of the shortest path to each node of the symmetric ``graph`` from the
     nearest of ``starts``, and which start that is (-1: none reaches it).
@@ -696,7 +720,9 @@ def one_way(
     node_of = node_of.astype(np.int64) - 1
     segment = segment.astype(np.int64) - 1
     touches = _touches(segment, node_of, n_segments)
-    off_junction = ndimage.distance_transform_edt(~junction)
+    # The junctions as they are before the loop below adds to them: its test reads
+    # each cell's distance to those.
+    junction_before = junction.copy()
     seg_box = ndimage.find_objects(segment + 1)
     node_box = ndimage.find_objects(node_of + 1)
 
@@ -713,7 +739,7 @@ def one_way(
         (n,) = touches[s]
         nbox, npix = cells_of(node_of, node_box, n)
         reach_cells = float(clearance[nbox][npix].max()) / resolution + 1.0
-        if float(off_junction[box][pix].max()) <= reach_cells:
+        if _farthest_from(junction_before, box, pix, reach_cells) <= reach_cells:
             junction[box] |= pix
     node_of, n_junctions = ndimage.label(junction, structure=eight)
     segment, n_segments = ndimage.label(skel & ~junction, structure=eight)

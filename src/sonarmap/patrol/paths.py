@@ -312,6 +312,14 @@ def _dial(
                 if not (au >> j) & 1:
                     continue
                 v = u + step[j]
+                # The length first: about half the neighbours were taken before (or
+                # are as near), and a step that cannot lower a length or tie with it
+                # needs no codes read. A code read is only kept (``_resolve``), never
+                # an answer, so reading fewer changes no length or first step.
+                nd = d + (w2 if j & 1 else w1)
+                od = dist[v]
+                if not nd < od + tol:
+                    continue
                 cv = code[v]
                 if cv == _RIM:
                     cv = _resolve(code, target, v, width, inv_width, done, n_done)
@@ -327,26 +335,21 @@ def _dial(
                     cb = _corner(code, target, u + side_b[j], cv, width, inv_width, done, n_done)
                     if ca < cv or cb < cv:
                         continue
-                    nd = d + w2
+                f = mu if mu else (1 << j)
+                if nd <= od - tol:
+                    # Shorter: into its bucket, unless already there.
+                    first[v] = f
+                    dist[v] = nd
+                    b = int(nd * inv + TIE)
+                    if od == np.inf or int(od * inv + TIE) != b:
+                        s = b % 3
+                        ring[s, count[s]] = v
+                        count[s] += 1
                 else:
-                    nd = d + w1
-                od = dist[v]
-                if nd < od + tol:
-                    f = mu if mu else (1 << j)
-                    if nd <= od - tol:
-                        # Shorter: into its bucket, unless already there.
-                        first[v] = f
+                    # As short (rounding aside): more first steps.
+                    first[v] |= f
+                    if nd < od:
                         dist[v] = nd
-                        b = int(nd * inv + TIE)
-                        if od == np.inf or int(od * inv + TIE) != b:
-                            s = b % 3
-                            ring[s, count[s]] = v
-                            count[s] += 1
-                    else:
-                        # As short (rounding aside): more first steps.
-                        first[v] |= f
-                        if nd < od:
-                            dist[v] = nd
         count[slot] = 0
         k += 1
         if n > lo:
