@@ -34,6 +34,7 @@ import numpy.typing as npt
 
 from ..errors import ConfigError
 from ..grid import Grid
+from .claims import Claims
 from .coarse import CoarseChoice
 from .finders import PathFinder
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets, disc_side
@@ -214,6 +215,13 @@ class PatrolConfig:
     #: place stands for cells it may not see): the choice's wave runs on the fog's own
     #: cells.
     choice_cell: float = 0.3
+    #: Path motion with the potential field and the full network: while a robot makes
+    #: a new choice of place, the watched places within this many metres of a place
+    #: another robot goes for (not seen since that robot chose it) pull as if just
+    #: seen, so that two robots do not go for the same stale place
+    #: (:mod:`~sonarmap.patrol.claims`). 0: every robot chooses from the fog alone, as
+    #: the thesis has it.
+    claim: float = 0.0
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
     r_obst: float = math.nan
     refine: bool = False
@@ -604,6 +612,11 @@ class PatrolConfig:
             raise ConfigError(
                 f"min_hold must be >= 0 seconds, got {self.min_hold}", field="min_hold"
             )
+        if not (math.isfinite(self.claim) and self.claim >= 0):
+            raise ConfigError(f"claim must be >= 0 metres, got {self.claim}", field="claim")
+        if self.claim > 0 and self.network != "full":
+            # A robot knows where the others go only when it hears them all.
+            raise ConfigError(f"claim needs network 'full', got {self.network!r}", field="claim")
         if not (math.isfinite(self.choice_cell) and self.choice_cell >= 0):
             raise ConfigError(
                 f"choice_cell must be >= 0 metres, got {self.choice_cell}", field="choice_cell"
@@ -1681,6 +1694,8 @@ def run_patrol(
         if direct_path and hold_fast and config.choice_cell > 0 and not config.line_of_sight
         else None
     )
+    # Places the other robots go for pull a robot's new choice as if seen (claim).
+    claims = Claims(config.claim, g.resolution) if config.claim > 0 and shared else None
     # Path motion: the place each robot goes for, and when it chose it.
     aims: list[tuple[int, int] | None] = [None] * len(team)
     aimed_at = np.zeros(len(team))
@@ -1848,6 +1863,13 @@ def run_patrol(
                     and targets is watched
                     and (held is None or own[j].last[held] >= aimed_at[i])
                 ):
+                    marks = (
+                        claims.mark(
+                            own[j].last, own[j].t, claims.others(i, aims, aimed_at, own[j].last)
+                        )
+                        if claims is not None
+                        else []
+                    )
                     way, place, length = coarse.choose(
                         start,
                         config.force,
@@ -1859,6 +1881,7 @@ def run_patrol(
                             else {"last_seen": own[j].last, "now": own[j].t}
                         ),
                     )
+                    Claims.restore(own[j].last, marks)
                     # The fine path to it; a place the fine wave cannot reach, or
                     # only by a path much longer than the blocks' (the blocks join what
                     # the cells do not; a shadow's anchor behind a wall), falls back on
@@ -1909,6 +1932,13 @@ def run_patrol(
                     # passes it while its forward wave, keeping to the one-way steps,
                     # reaches only a pocket of places in sight. Then nothing pulls and
                     # it would stand for good, so its wave runs in every direction.
+                    marks = (
+                        claims.mark(
+                            own[j].last, own[j].t, claims.others(i, aims, aimed_at, own[j].last)
+                        )
+                        if claims is not None
+                        else []
+                    )
                     for _ in range(2):
                         for pulling, n_pulling in tries:
                             strength = sector_pulls(
@@ -1927,6 +1957,7 @@ def run_patrol(
                         if strength.any() or not behind:
                             break
                         pull_args["closed"], behind = closed_cells(i, r, c, k, open_behind=True)
+                    Claims.restore(own[j].last, marks)
                     if direct:
                         directions.append(step_direction(strength, config.direction, weights))
                         goals.append(None)
