@@ -25,6 +25,11 @@ the run):
 ``--choice-cell``, ``--claim``: as :class:`~sonarmap.patrol.PatrolConfig`'s fields.
 Run with ``python -m benchmarks.patrol_team_size [--maps depot warehouse] [--buildings 0 1]
 [--size 40 30] [--robots 1 2 4] [--seeds 0 1 2] [--duration 1800] [--json F]``.
+
+``--judge BASE.json CLAIM.json OTHERS.json`` runs nothing: it checks the rule of
+``docs/results/2026-12-08-patrol-team-size.md`` on the ``--json`` files of a run without
+and one with ``--claim``, and ``benchmarks.patrol_indoor``'s ``--json`` of the random
+walk and the reactive baseline (:func:`judge`).
 """
 
 from __future__ import annotations
@@ -47,7 +52,7 @@ from sonarmap.floorplan import random_building
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import read_map
 from sonarmap.patrol import PatrolConfig, run_patrol
-from sonarmap.patrol.baselines import INDOOR
+from sonarmap.patrol.baselines import INDOOR, baseline_claims, baseline_table
 from sonarmap.patrol.fog import Fog, disc_offsets
 from sonarmap.patrol.robots import Team
 from sonarmap.patrol.territory import Territory
@@ -165,6 +170,8 @@ def diagnose(territory: Territory, config: PatrolConfig, robots: int, seed: int)
     t0 = time.process_time()
     s = run_patrol(territory, config, robots=robots, seed=seed, on_step=rec).summary()
     return {
+        "policy": config.policy,
+        "traffic": config.traffic,
         "robots": robots,
         "seed": seed,
         "mean_mtb": s["mean_mtb"],
@@ -196,6 +203,71 @@ def territories(
     return out
 
 
+#: The rule's thresholds: a map's 1-to-2 ratio is weak above WEAK and must fall by at
+#: least GAIN; no mean MTB with 2 or 4 robots may exceed NOISE x the base's.
+WEAK, GAIN, NOISE = 0.6, 0.05, 1.05
+
+
+def judge(
+    base: list[dict[str, Any]], claim: list[dict[str, Any]], others: list[dict[str, Any]]
+) -> list[tuple[str, bool]]:
+    """The rule's checks, each (what was checked and measured, whether it holds): the
+    1-to-2 ratio on the weak maps, nothing worse by more than the noise, one robot's
+    runs the same, ``baseline_claims``' comparisons that hold for ``base`` also holding
+    for ``claim`` (with ``others``' policies beside each), blocked and never seen."""
+
+    def potential(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        # Rows written before the diagnostics named their policy are the field's.
+        return [{"policy": "potential", "traffic": "give-way", **r} for r in rows]
+
+    def means(rows: list[dict[str, Any]]) -> dict[tuple[str, int], float]:
+        runs: dict[tuple[str, int], list[float]] = {}
+        for r in rows:
+            runs.setdefault((r["map"], int(r["robots"])), []).append(float(r["mean_mtb"]))
+        return {k: sum(v) / len(v) for k, v in runs.items()}
+
+    out: list[tuple[str, bool]] = []
+    mb, mc = means(base), means(claim)
+    for m in dict.fromkeys(r["map"] for r in base):
+        rb, rc = mb[(m, 2)] / mb[(m, 1)], mc[(m, 2)] / mc[(m, 1)]
+        if rb > WEAK:
+            out.append((f"{m}: 2/1 ratio {rb:.3f} -> {rc:.3f}", rc <= rb - GAIN))
+        for n in (2, 4):
+            q = mc[(m, n)] / mb[(m, n)]
+            out.append(
+                (f"{m}: {n} robots {mb[(m, n)]:.1f} -> {mc[(m, n)]:.1f} s ({q:.2f}x)", q <= NOISE)
+            )
+        falls = mc[(m, 1)] > mc[(m, 2)] > mc[(m, 4)]
+        out.append((f"{m}: mean MTB falls from 1 to 2 to 4 robots with claims", falls))
+        one_b = [r["mean_mtb"] for r in base if r["map"] == m and r["robots"] == 1]
+        one_c = [r["mean_mtb"] for r in claim if r["map"] == m and r["robots"] == 1]
+        out.append((f"{m}: one robot's runs the same", one_b == one_c))
+        worst = max(float(r["blocked"]) for r in claim if r["map"] == m)
+        out.append((f"{m}: blocked, worst run {100 * worst:.1f} %", worst < 0.05))
+        unseen = max(float(r["never_seen"]) for r in claim if r["map"] == m and r["robots"] == 4)
+        out.append((f"{m}: never seen with 4 robots, worst {unseen:.3f}", unseen == 0))
+    maps = {r["map"] for r in others}
+    before = {
+        c["claim"]: c
+        for c in baseline_claims(baseline_table(potential(base) + others))
+        if c["claim"].split(":")[0] in maps
+    }
+    after = {c["claim"]: c for c in baseline_claims(baseline_table(potential(claim) + others))}
+    for text, c in before.items():
+        if "potential" not in text or any(w in text for w in ("blocked", "seen", "falls")):
+            continue
+        now = after[text]
+        kept = c["verdict"] != "holds" or now["verdict"] == "holds"
+        out.append(
+            (
+                f"{text}: base {c['verdict']} ({c['measured']}), "
+                f"claims {now['verdict']} ({now['measured']})",
+                kept,
+            )
+        )
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--maps", nargs="*", default=["depot", "warehouse"])
@@ -207,7 +279,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--choice-cell", type=float, help="metres (PatrolConfig.choice_cell)")
     ap.add_argument("--claim", type=float, help="metres (PatrolConfig.claim)")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--judge", type=Path, nargs=3, metavar=("BASE", "CLAIM", "OTHERS"))
     args = ap.parse_args(argv)
+    if args.judge is not None:
+        base, claim, others = (json.loads(p.read_text())["runs"] for p in args.judge)
+        checks = judge(base, claim, others)
+        for text, ok in checks:
+            print(f"{'holds' if ok else 'FAILS'}: {text}")
+        print("rule " + ("passes" if all(ok for _, ok in checks) else "fails"))
+        return
     rows: list[dict[str, Any]] = []
     print(
         "| map | robots | seed | mean MTB, s | blocked | never seen | near | redundant "

@@ -215,7 +215,8 @@ class PatrolConfig:
     #: place stands for cells it may not see): the choice's wave runs on the fog's own
     #: cells.
     choice_cell: float = 0.3
-    #: Path motion with the potential field and the full network: while a robot makes
+    #: Path motion (holonomic robots on the wave's paths; read by no other motion) with
+    #: the potential field and the full network: while a robot makes
     #: a new choice of place, the watched places within this many metres of a place
     #: another robot goes for (not seen since that robot chose it) pull as if just
     #: seen, so that two robots do not go for the same stale place
@@ -1695,7 +1696,9 @@ def run_patrol(
         else None
     )
     # Places the other robots go for pull a robot's new choice as if seen (claim).
-    claims = Claims(config.claim, g.resolution) if config.claim > 0 and shared else None
+    claims = (
+        Claims(config.claim, g.resolution) if config.claim > 0 and shared and along_path else None
+    )
     # Path motion: the place each robot goes for, and when it chose it.
     aims: list[tuple[int, int] | None] = [None] * len(team)
     aimed_at = np.zeros(len(team))
