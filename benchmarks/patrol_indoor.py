@@ -14,8 +14,9 @@ count, traffic rule and seed one run of ``--duration`` simulated seconds, report
 
 Run with ``python -m benchmarks.patrol_indoor [--maps depot warehouse] [--robots 1 2 4]
 [--policies potential] [--traffic thesis give-way] [--seeds 0 1] [--duration 600]
-[--min-hold S] [--json F] [--figure F.png]``; ``--maps`` takes names in the data folder
-or paths to map YAML files. ``--replot F.json [G.json ...] [--figure F.png]`` tabulates earlier runs
+[--min-hold S] [--choice-cell M] [--claim M] [--json F] [--figure F.png]``; ``--maps``
+takes names in the data folder or paths to map YAML files. ``--replot F.json [G.json ...]
+[--figure F.png]`` tabulates earlier runs
 (``--json`` files, or ``runs.json`` of ``sonarmap patrol experiment baselines --map``)
 together with issue 36's claims, and draws their figure, without running anything: the
 mean MTB against the team's size, one line per policy and traffic rule and one panel per
@@ -63,9 +64,11 @@ def run_one(
     duration: float,
     min_hold: float = 0.0,
     choice_cell: float | None = None,
+    claim: float | None = None,
 ) -> dict[str, Any]:
     """One run's figures (:func:`sonarmap.patrol.baselines.baseline_run`); ``min_hold``,
-    ``choice_cell``: :class:`~sonarmap.patrol.PatrolConfig`'s (None: its default)."""
+    ``choice_cell``, ``claim``: :class:`~sonarmap.patrol.PatrolConfig`'s (None: its
+    default)."""
     config = PatrolConfig(
         min_hold=min_hold,
         policy=policy,
@@ -78,6 +81,8 @@ def run_one(
     )
     if choice_cell is not None:
         config = dataclasses.replace(config, choice_cell=choice_cell)
+    if claim is not None:
+        config = dataclasses.replace(config, claim=claim)
     return baseline_run(territory, config, robots, seed)
 
 
@@ -93,6 +98,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--choice-cell", type=float, help="metres (PatrolConfig.choice_cell; default its default)"
     )
+    ap.add_argument("--claim", type=float, help="metres (PatrolConfig.claim; default its default)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--figure", type=Path)
     ap.add_argument(
@@ -138,6 +144,7 @@ def main(argv: list[str] | None = None) -> None:
                                 args.duration,
                                 args.min_hold,
                                 args.choice_cell,
+                                args.claim,
                             ),
                         }
                         rows.append(row)

@@ -173,6 +173,11 @@ PATROL_OPTIONS = (
         "run the fine wave only as far as it (0: choose on the map's own cells).",
     ),
     Opt(
+        "claim",
+        "Path motion, full network: while a robot chooses, the places within this many "
+        "metres of a place another robot goes for pull as if just seen (0: off).",
+    ),
+    Opt(
         "r_obst", "Artificial obstacles' radius, metres (default 3 x --radius).", unset_as=math.nan
     ),
     Opt(

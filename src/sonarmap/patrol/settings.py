@@ -175,6 +175,14 @@ class PatrolConfig:
     #: place stands for cells it may not see): the choice's wave runs on the fog's own
     #: cells.
     choice_cell: float = 0.3
+    #: Path motion (holonomic robots on the wave's paths; read by no other motion) with
+    #: the potential field and the full network: while a robot makes
+    #: a new choice of place, the watched places within this many metres of a place
+    #: another robot goes for (not seen since that robot chose it) pull as if just
+    #: seen, so that two robots do not go for the same stale place
+    #: (:mod:`~sonarmap.patrol.claims`). 0: every robot chooses from the fog alone, as
+    #: the thesis has it.
+    claim: float = 0.0
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
     r_obst: float = math.nan
     refine: bool = False
@@ -564,6 +572,11 @@ class PatrolConfig:
             raise ConfigError(
                 f"min_hold must be >= 0 seconds, got {self.min_hold}", field="min_hold"
             )
+        if not (math.isfinite(self.claim) and self.claim >= 0):
+            raise ConfigError(f"claim must be >= 0 metres, got {self.claim}", field="claim")
+        if self.claim > 0 and self.network != "full":
+            # A robot knows where the others go only when it hears them all.
+            raise ConfigError(f"claim needs network 'full', got {self.network!r}", field="claim")
         if not (math.isfinite(self.choice_cell) and self.choice_cell >= 0):
             raise ConfigError(
                 f"choice_cell must be >= 0 metres, got {self.choice_cell}", field="choice_cell"

@@ -38,6 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError
+from .claims import Claims, Marks
 from .coarse import CoarseChoice
 from .crowding import ONCOMING_NEAR, earlier_near, give_way, halves_discs, obstacle_discs
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
@@ -384,6 +385,12 @@ class _Run:
             if direct_path and hold_fast and config.choice_cell > 0 and not config.line_of_sight
             else None
         )
+        # Places the other robots go for pull a robot's new choice as if seen (claim).
+        self.claims = (
+            Claims(config.claim, g.resolution)
+            if config.claim > 0 and self.shared and along_path
+            else None
+        )
         # Path motion: the place each robot goes for, and when it chose it.
         self.aims: list[tuple[int, int] | None] = [None] * len(team)
         self.aimed_at = np.zeros(len(team))
@@ -686,6 +693,7 @@ class _Run:
         config, own, waver, g = self.config, self.own, self.waver, self.g
         assert self.coarse is not None
         j = 0 if self.shared else i
+        marks = self._claim(i, j)
         way, place, length = self.coarse.choose(
             start,
             config.force,
@@ -697,6 +705,7 @@ class _Run:
                 else {"last_seen": own[j].last, "now": own[j].t}
             ),
         )
+        Claims.restore(own[j].last, marks)
         # The fine path to it; a place the fine wave cannot reach, or only by a path
         # much longer than the blocks' (the blocks join what the cells do not; a
         # shadow's anchor behind a wall), falls back on the fine choice.
@@ -756,6 +765,7 @@ class _Run:
         # wave, keeping to the one-way steps, reaches only a pocket of places in sight.
         # Then nothing pulls and it would stand for good, so its wave runs in every
         # direction.
+        marks = self._claim(i, j)
         for _ in range(2):
             for pulling, n_pulling in tries:
                 strength = sector_pulls(
@@ -774,7 +784,16 @@ class _Run:
             if strength.any() or not behind:
                 break
             pull_args["closed"], behind = self.closed_cells(i, r, c, k, open_behind=True)
+        Claims.restore(own[j].last, marks)
         return strength, pulling
+
+    def _claim(self, i: int, j: int) -> Marks:
+        """Mark, in fog j, the places round the others' aims as just seen for robot i's
+        choice (``config.claim``); the marks to restore after it (none without claims)."""
+        if self.claims is None:
+            return []
+        last, now = self.own[j].last, self.own[j].t
+        return self.claims.mark(last, now, self.claims.others(i, self.aims, self.aimed_at, last))
 
     def _leftover(self, i: int) -> tuple[int, int] | None:
         """Robot i's place, after a car whose place was seen takes the nearest leftover
