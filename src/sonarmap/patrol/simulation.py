@@ -60,6 +60,7 @@ from .robots import Car, Holonomic, Team
 from .semaphores import Semaphores
 from .settings import (
     CAR_DEFAULTS,
+    CAR_PLANNERS,
     CROWDING,
     FINDERS,
     FOLLOW_TIME,
@@ -67,9 +68,13 @@ from .settings import (
     GIVE_WAY_TIME,
     MAX_STEPS,
     MODELS,
+    MOTIONS,
+    PATH_POLICIES,
+    PATHS,
     PLAIN_DEFAULTS,
     REACH_FIELDS,
     SIGHT_MARGIN,
+    TRAFFIC,
     PatrolConfig,
 )
 from .starts import StartSource
@@ -83,13 +88,18 @@ from .walkers import WALKERS, GraphWalkers
 # have always imported them from.
 __all__ = [
     "CAR_DEFAULTS",
+    "CAR_PLANNERS",
     "CROWDING",
     "MAX_STEPS",
     "MODELS",
+    "MOTIONS",
     "ONCOMING_NEAR",
+    "PATHS",
+    "PATH_POLICIES",
     "PLAIN_DEFAULTS",
     "REACH_FIELDS",
     "SIGHT_MARGIN",
+    "TRAFFIC",
     "PatrolConfig",
     "PatrolResult",
     "car_starts",
@@ -182,7 +192,8 @@ class _Run:
 
     Each step (:meth:`step`) every robot decides where to head (:meth:`decide`), the
     team moves (:meth:`move`), time passes and the robots look (:meth:`look`); the
-    true fog's metrics are recorded per step.
+    true fog's metrics are recorded per step. It lives inside one :func:`run_patrol`
+    call and is never saved or resumed, so it has no ``state()``/``restore()``.
     """
 
     def __init__(
