@@ -47,10 +47,12 @@ import networkx as nx
 import numpy as np
 import numpy.typing as npt
 
+from .calibration import HEADING_BIAS_PRIOR
 from .globalmap import CHI2_99_3DOF
 from .records import (
     ClosureEdge,
     OdometryEdge,
+    adjoint,
     compose,
     invert,
     invert_covariance,
@@ -63,6 +65,7 @@ __all__ = [
     "PcmResult",
     "loop_distance",
     "loop_residual",
+    "orient",
     "pcm_gate",
 ]
 
@@ -101,21 +104,39 @@ class LayerChain:
         The layer's odometry edges.
     """
 
-    def __init__(self, edges: Iterable[OdometryEdge]) -> None:
-        adj: dict[int, list[tuple[int, F64, F64]]] = {}
+    def __init__(
+        self, edges: Iterable[OdometryEdge], *, bias_sd: float = HEADING_BIAS_PRIOR
+    ) -> None:
+        if not (math.isfinite(bias_sd) and bias_sd >= 0.0):
+            raise ValueError(f"LayerChain: bias_sd must be finite and >= 0, got {bias_sd}")
+        #: Radians per metre: the standard deviation of the heading bias shared by every
+        #: edge of the layer (:meth:`bias`).
+        self.bias_sd = float(bias_sd)
+        adj: dict[int, list[tuple[int, F64, F64, F64]]] = {}
         for e in edges:
             if e.a == e.b:
                 continue
             t = np.asarray(e.transform, dtype=np.float64)
             q = e.cov()
-            adj.setdefault(e.a, []).append((e.b, t, q))
-            # Walked backwards: the inverse, its covariance in its own end's frame.
-            adj.setdefault(e.b, []).append((e.a, np.asarray(invert(t)), invert_covariance(t, q)))
+            # A heading bias turns the robot by bias x metres driven, the same sign on
+            # every edge driven forward (a to b): a perturbation at b of (0, 0, s) per
+            # unit of bias, s the edge's chord (poses are a metre apart or less).
+            turn = np.array([0.0, 0.0, math.hypot(float(t[0]), float(t[1]))])
+            adj.setdefault(e.a, []).append((e.b, t, q, turn))
+            # Walked backwards: the inverse, its covariance in its own end's frame, and
+            # the bias's perturbation at the inverse's end (exp(-e) T^-1 = T^-1 exp(-Ad e)).
+            back = -adjoint(t) @ turn
+            adj.setdefault(e.b, []).append(
+                (e.a, np.asarray(invert(t)), invert_covariance(t, q), back)
+            )
         #: Pose UID -> (tree, row in that tree's arrays).
         self.where: dict[int, tuple[int, int]] = {}
         self._pose: list[F64] = []
         self._paths: list[npt.NDArray[np.int8]] = []
         self._noise: list[F64] = []
+        self._turn: list[F64] = []
+        self._length: list[F64] = []
+        self._ends: list[npt.NDArray[np.int64]] = []
         for root in sorted(adj):
             if root in self.where:
                 continue
@@ -123,10 +144,12 @@ class LayerChain:
             self.where[root] = (tree, 0)
             poses, parent_row, parent_edge = [np.zeros(3)], [-1], [-1]
             noise: list[F64] = []
+            turns: list[F64] = []
+            ends: list[tuple[int, int]] = []
             queue = [root]
             for uid in queue:  # breadth first; the queue grows as it is read
                 row = self.where[uid][1]
-                for other, t, q in sorted(adj[uid], key=lambda n: n[0]):
+                for other, t, q, turn in sorted(adj[uid], key=lambda n: n[0]):
                     if other in self.where:
                         continue
                     x = compose(poses[row], t)
@@ -136,6 +159,8 @@ class LayerChain:
                     parent_edge.append(len(noise))
                     # Edge noise at its end, as a perturbation at the root's origin.
                     noise.append(invert_covariance(x, q))
+                    turns.append(adjoint(x) @ turn)
+                    ends.append((uid, other))
                     queue.append(other)
             paths = np.zeros((len(poses), len(noise)), dtype=np.int8)
             for row in range(1, len(poses)):  # parents come first (breadth first)
@@ -144,6 +169,9 @@ class LayerChain:
             self._pose.append(np.array(poses))
             self._paths.append(paths)
             self._noise.append(np.array(noise).reshape(-1, 3, 3))
+            self._turn.append(np.array(turns).reshape(-1, 3))
+            self._length.append(np.abs(self._turn[-1][:, 2]))
+            self._ends.append(np.array(ends, dtype=np.int64).reshape(-1, 2))
 
     def pose(self, uid: int) -> tuple[int, F64] | None:
         """Pose ``uid``'s tree and its dead-reckoned pose in the tree's root frame; None
@@ -165,7 +193,30 @@ class LayerChain:
         that takes each edge ``counts`` times (signed): an edge walked once each way
         cancels, to first order, in a walk that comes back to where it was."""
         n2 = counts.astype(np.float64) ** 2
-        return np.asarray(np.einsum("k,kij->ij", n2, self._noise[tree]), dtype=np.float64)
+        independent = np.einsum("k,kij->ij", n2, self._noise[tree])
+        return np.asarray(independent + self.bias(tree, counts), dtype=np.float64)
+
+    def walk_metres(self, tree: int, counts: npt.NDArray[np.int8]) -> float:
+        """Metres a walk taking each edge of tree ``tree`` ``counts`` times (signed)
+        drives, each edge's chord counted once per time it is walked."""
+        return float(np.abs(counts.astype(np.float64)) @ self._length[tree])
+
+    def walk_poses(self, tree: int, counts: npt.NDArray[np.int8]) -> set[int]:
+        """The UIDs of the poses at either end of the edges a walk on tree ``tree``
+        takes (``counts`` nonzero)."""
+        ends = self._ends[tree][np.flatnonzero(counts)]
+        return {int(u) for u in ends.ravel()}
+
+    def bias(self, tree: int, counts: npt.NDArray[np.int8]) -> F64:
+        """The covariance, at tree ``tree``'s root origin, that the layer's heading bias
+        (:attr:`bias_sd` radians per metre, unknown, the same on every edge) gives a
+        walk taking each edge ``counts`` times: one direction, so it grows with the
+        square of the metres walked one way, where the edges' own noise grows with the
+        metres. The edges' covariances count the bias as independent per edge
+        (:func:`~.world.odometry_covariance`), which a walk of n metres understates n
+        times; this term is added on top (a metre's worth counted twice)."""
+        g = counts.astype(np.float64) @ self._turn[tree]
+        return np.asarray(self.bias_sd**2 * np.outer(g, g), dtype=np.float64)
 
     def relative(self, u: int, w: int) -> tuple[F64, F64] | None:
         """Pose ``w`` in pose ``u``'s frame by the odometry between them (the
@@ -194,8 +245,10 @@ def _oriented(c: ClosureEdge, flip: bool) -> tuple[int, int, F64, F64]:
     return c.b, c.a, np.asarray(invert(t), dtype=np.float64), invert_covariance(t, c.cov())
 
 
-def _orient(c: ClosureEdge, la: int, layer_of: Mapping[int, int]) -> tuple[int, int, F64, F64]:
-    """Closure ``c`` from layer ``la`` to the other (as stored within one layer)."""
+def orient(c: ClosureEdge, la: int, layer_of: Mapping[int, int]) -> tuple[int, int, F64, F64]:
+    """Closure ``c`` as :func:`loop_residual` takes it: ``(a, b, transform,
+    covariance)`` from layer ``la``'s pose to the other layer's (as stored within one
+    layer); ``layer_of`` gives each pose's layer."""
     return _oriented(c, layer_of[c.a] != la)
 
 
@@ -401,7 +454,7 @@ def pcm_gate(
         if len(window) < 2 or not new:
             # Nothing to test against: a lone new closure waits, unjudged, for partners.
             continue
-        oriented = [_orient(closures[i], la, layer_of) for i in window]
+        oriented = [orient(closures[i], la, layer_of) for i in window]
         failing: dict[int, set[int]] = {p: set() for p in range(len(window))}
         partners: dict[int, set[int]] = {p: set() for p in range(len(window))}
         for p in range(len(window)):
