@@ -12,20 +12,25 @@ layers as PCM does, and tests pairs of them: within the ``--window`` newest of a
 ``--window 0``, up to ``--max-pairs`` pairs drawn at random from all of the group's
 (seeded: the same pairs every run).
 
-Each loop is tested under two loop models, on the same pairs:
+Each loop is tested under three loop models, on the same pairs:
 
 - ``independent``: :class:`~sonarmap.team.pcm.LayerChain` with ``bias_sd=0``, the
   odometry edges' own covariances only (the model PCM had before 2026-12-08: the
   heading bias counted as an independent error per edge);
 - ``shared_bias``: the default ``bias_sd`` (:data:`~sonarmap.team.calibration.
-  HEADING_BIAS_PRIOR`), one unknown heading bias per layer across every edge.
+  HEADING_BIAS_PRIOR`), one unknown heading bias per layer across every edge;
+- ``shared_bias_least``: the same, the layer's forest grown by least x and y variance
+  (``forest="least"``) instead of fewest edges (suspect: breadth first prefers
+  shortcuts through merged poses).
+
+The walk's length and merged poses are those of ``shared_bias``'s forest.
 
 Printed as JSON: the runs' figures (team F1, ATE, whether the robots calibrated their
 odometry: a team's never do, so no stored edge is rewritten), then rows of loops split
 by kind (``own``: a robot's own layer; ``received``: a received layer with itself;
 ``between``: two layers), walk length (metres of odometry the loop's walk or walks
-drive), whether the walk touches a pose merged at a closure
-(``StoreParams.merge_on_closure``), with for each model the loops, the share failing
+drive), how many poses merged at a closure (``StoreParams.merge_on_closure``) the walk
+passes through (0, 1, 2, 3+), with for each model the loops, the share failing
 at 99 % and the mean squared distance (3 if the model were exact).
 
 Run with ``python -m benchmarks.team_pcm_loops --map PLAN [--robots 2] [--duration 120]
@@ -65,8 +70,12 @@ from sonarmap.team.store import MERGE_COUNTER_BASE, StoreParams
 
 F64 = npt.NDArray[np.float64]
 
-#: The loop models compared: name -> LayerChain's bias_sd.
-MODELS = {"independent": 0.0, "shared_bias": HEADING_BIAS_PRIOR}
+#: The loop models compared: name -> LayerChain's bias_sd and forest.
+MODELS = {
+    "independent": (0.0, "hops"),
+    "shared_bias": (HEADING_BIAS_PRIOR, "hops"),
+    "shared_bias_least": (HEADING_BIAS_PRIOR, "least"),
+}
 #: Walk lengths (m) the loops are split by.
 LENGTHS = ((0.0, 10.0), (10.0, 30.0), (30.0, 100.0), (100.0, 300.0), (300.0, float("inf")))
 
@@ -83,8 +92,8 @@ def _walk(
     c2: tuple[int, int, F64, F64],
     chain_a: LayerChain,
     chain_b: LayerChain,
-) -> tuple[float, bool]:
-    """Metres the loop's odometry walks drive, and whether they touch a merged pose
+) -> tuple[float, int]:
+    """Metres the loop's odometry walks drive, and the merged poses they pass through
     (as :func:`~sonarmap.team.pcm.loop_residual` forms them: one walk within one tree
     of one layer, else one per layer)."""
     a1, b1, _, _ = c1
@@ -99,22 +108,27 @@ def _walk(
         if a1 != a2 and pa1 is not None:
             walks.append((chain_a, pa1[0], chain_a.path(a2, a1)))
     metres = sum(ch.walk_metres(t, w) for ch, t, w in walks)
-    merged = any(
-        counter_of(u) >= MERGE_COUNTER_BASE for ch, t, w in walks for u in ch.walk_poses(t, w)
+    # Through a merged pose: two of the walk's edges meet there (not a closure's end
+    # alone, which merges often are).
+    through = sum(
+        1
+        for ch, t, w in walks
+        for u, n in ch.walk_poses(t, w).items()
+        if n >= 2 and counter_of(u) >= MERGE_COUNTER_BASE
     )
-    return metres, merged
+    return metres, through
 
 
 def robot_loops(agent: RobotAgent, window: int, max_pairs: int, seed: int) -> list[dict[str, Any]]:
     """Every tested loop between two right closures of ``agent``'s store: its kind,
-    walk length, whether it touches a merged pose, and its squared distance under each
+    walk length, the merged poses it passes through, and its squared distance under each
     model (:data:`MODELS`)."""
     store = agent.store
     layers = {agent.robot: store.local, **store.received}
     layer_of = {u: s for s, layer in layers.items() for u in layer.poses}
     chains = {
-        name: {s: LayerChain(layer.edges, bias_sd=sd) for s, layer in layers.items()}
-        for name, sd in MODELS.items()
+        name: {s: LayerChain(layer.edges, bias_sd=sd, forest=f) for s, layer in layers.items()}
+        for name, (sd, f) in MODELS.items()
     }
     groups: dict[tuple[int, int], list[int]] = defaultdict(list)
     for i, c in enumerate(store.closures):
@@ -156,7 +170,7 @@ def _summary(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
 def split(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """The loops' failure shares, all together and split by kind, walk length and
-    merged pose touched."""
+    merged poses passed through."""
     by: dict[str, dict[str, list[dict[str, Any]]]] = {
         "kind": defaultdict(list),
         "length": defaultdict(list),
@@ -165,7 +179,12 @@ def split(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
     }
     for r in rows:
         length = _length_bin(r["metres"])
-        merged = "touches merged" if r["merged"] else "no merged"
+        k = r["merged"]
+        merged = (
+            "through no merged pose"
+            if k == 0
+            else f"through {min(k, 3)}{'+' if k >= 3 else ''} merged"
+        )
         by["kind"][r["kind"]].append(r)
         by["length"][length].append(r)
         by["merged"][merged].append(r)

@@ -15,7 +15,14 @@ from sonarmap.sensors import Noise
 from sonarmap.team.globalmap import CHI2_99_3DOF
 from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.pcm import LayerChain, loop_distance, loop_residual, pcm_gate
-from sonarmap.team.records import ClosureEdge, OdometryEdge, compose, invert, invert_covariance
+from sonarmap.team.records import (
+    ClosureEdge,
+    OdometryEdge,
+    compose,
+    compose_covariance,
+    invert,
+    invert_covariance,
+)
 from sonarmap.team.store import RobotStore
 
 F64 = npt.NDArray[np.float64]
@@ -362,3 +369,30 @@ def test_the_loop_counts_a_heading_bias_shared_by_every_edge() -> None:
 def test_layer_chain_refuses_a_negative_bias() -> None:
     with pytest.raises(ValueError, match="bias_sd"):
         LayerChain([], bias_sd=-0.001)
+
+
+def test_the_least_variance_forest_goes_round_a_loud_edge() -> None:
+    """A square 0-1-2-3 of quiet edges closed by a loud edge 3-0: breadth first joins
+    pose 3 to 0 by the loud edge (one hop), ``forest="least"`` by the quiet three; each
+    path's covariance is that edge chain's composed covariance."""
+    quiet = np.diag([1e-4, 1e-4, 1e-5])
+    loud = np.diag([1e-1, 1e-1, 1e-2])
+    steps = [(0, 1, (1.0, 0.0, math.pi / 2), quiet)] + [
+        (k, k + 1, (1.0, 0.0, math.pi / 2), quiet) for k in (1, 2)
+    ]
+    edges = [OdometryEdge(a, b, t, tuple(q.ravel()), 10.0) for a, b, t, q in steps]
+    edges.append(OdometryEdge(0, 3, (0.0, 1.0, -math.pi / 2), tuple(loud.ravel()), 10.0))
+    hops = LayerChain(edges, bias_sd=0.0)
+    least = LayerChain(edges, bias_sd=0.0, forest="least")
+    via_loud = hops.covariance(0, 3)
+    via_quiet = least.covariance(0, 3)
+    assert via_loud is not None
+    assert via_quiet is not None
+    np.testing.assert_allclose(via_loud, loud, atol=1e-12)
+    x, c = np.zeros(3), np.zeros((3, 3))
+    for _, _, t, q in steps:
+        c = compose_covariance(x, c, np.asarray(t), q)
+        x = compose(x, np.asarray(t))
+    np.testing.assert_allclose(via_quiet, c, rtol=1e-6, atol=1e-12)  # float32 edges
+    with pytest.raises(ValueError, match="forest"):
+        LayerChain(edges, forest="widest")

@@ -38,6 +38,7 @@ PCM judges closures against each other, through the odometry alone, before the g
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from collections.abc import Set as AbstractSet
@@ -59,6 +60,7 @@ from .records import (
 )
 
 __all__ = [
+    "FORESTS",
     "MAX_PER_PAIR",
     "MIN_FAILURES",
     "LayerChain",
@@ -70,10 +72,17 @@ __all__ = [
 ]
 
 F64 = npt.NDArray[np.float64]
+#: An odometry edge as walked from a pose: the other pose, the transform, its
+#: covariance and the heading bias's perturbation, both at the other pose.
+_Step = tuple[int, F64, F64, F64]
 
 #: Closures of one pair of layers that a batch judges (the newest): the bound on the
 #: maximum clique's size (40 nodes, 780 pairwise loops).
 MAX_PER_PAIR = 40
+
+#: How :class:`LayerChain` spans a layer's odometry graph: ``"hops"`` breadth first
+#: (fewest edges from the root), ``"least"`` by least summed x and y variance.
+FORESTS = ("hops", "least")
 
 #: Loops a new closure must fail, with closures still kept, to be rejected when
 #: closures are judged once (:func:`pcm_gate` with ``frozen``): one failure is what a
@@ -105,14 +114,22 @@ class LayerChain:
     """
 
     def __init__(
-        self, edges: Iterable[OdometryEdge], *, bias_sd: float = HEADING_BIAS_PRIOR
+        self,
+        edges: Iterable[OdometryEdge],
+        *,
+        bias_sd: float = HEADING_BIAS_PRIOR,
+        forest: str = "hops",
     ) -> None:
         if not (math.isfinite(bias_sd) and bias_sd >= 0.0):
             raise ValueError(f"LayerChain: bias_sd must be finite and >= 0, got {bias_sd}")
+        if forest not in FORESTS:
+            raise ValueError(
+                f"LayerChain: forest must be one of {', '.join(FORESTS)}, got {forest!r}"
+            )
         #: Radians per metre: the standard deviation of the heading bias shared by every
         #: edge of the layer (:meth:`bias`).
         self.bias_sd = float(bias_sd)
-        adj: dict[int, list[tuple[int, F64, F64, F64]]] = {}
+        adj: dict[int, list[_Step]] = {}
         for e in edges:
             if e.a == e.b:
                 continue
@@ -141,29 +158,9 @@ class LayerChain:
             if root in self.where:
                 continue
             tree = len(self._pose)
-            self.where[root] = (tree, 0)
-            poses, parent_row, parent_edge = [np.zeros(3)], [-1], [-1]
-            noise: list[F64] = []
-            turns: list[F64] = []
-            ends: list[tuple[int, int]] = []
-            queue = [root]
-            for uid in queue:  # breadth first; the queue grows as it is read
-                row = self.where[uid][1]
-                for other, t, q, turn in sorted(adj[uid], key=lambda n: n[0]):
-                    if other in self.where:
-                        continue
-                    x = compose(poses[row], t)
-                    self.where[other] = (tree, len(poses))
-                    poses.append(np.asarray(x, dtype=np.float64))
-                    parent_row.append(row)
-                    parent_edge.append(len(noise))
-                    # Edge noise at its end, as a perturbation at the root's origin.
-                    noise.append(invert_covariance(x, q))
-                    turns.append(adjoint(x) @ turn)
-                    ends.append((uid, other))
-                    queue.append(other)
+            poses, parent_row, parent_edge, noise, turns, ends = self._grow(root, tree, adj, forest)
             paths = np.zeros((len(poses), len(noise)), dtype=np.int8)
-            for row in range(1, len(poses)):  # parents come first (breadth first)
+            for row in range(1, len(poses)):  # parents come first (either forest)
                 paths[row] = paths[parent_row[row]]
                 paths[row, parent_edge[row]] = 1
             self._pose.append(np.array(poses))
@@ -172,6 +169,58 @@ class LayerChain:
             self._turn.append(np.array(turns).reshape(-1, 3))
             self._length.append(np.abs(self._turn[-1][:, 2]))
             self._ends.append(np.array(ends, dtype=np.int64).reshape(-1, 2))
+
+    def _grow(
+        self, root: int, tree: int, adj: Mapping[int, list[_Step]], forest: str
+    ) -> tuple[list[F64], list[int], list[int], list[F64], list[F64], list[tuple[int, int]]]:
+        """Tree ``tree`` spanning ``root``'s connected part, each pose in :attr:`where`:
+        the poses (root frame), each row's parent row and edge, and each edge's noise
+        and bias perturbation at the root's origin and its two ends."""
+        self.where[root] = (tree, 0)
+        poses, parent_row, parent_edge = [np.zeros(3)], [-1], [-1]
+        noise: list[F64] = []
+        turns: list[F64] = []
+        ends: list[tuple[int, int]] = []
+
+        def attach(uid: int, other: int, t: F64, q: F64, turn: F64) -> None:
+            row = self.where[uid][1]
+            x = compose(poses[row], t)
+            self.where[other] = (tree, len(poses))
+            poses.append(np.asarray(x, dtype=np.float64))
+            parent_row.append(row)
+            parent_edge.append(len(noise))
+            # Edge noise at its end, as a perturbation at the root's origin.
+            noise.append(invert_covariance(x, q))
+            turns.append(adjoint(x) @ turn)
+            ends.append((uid, other))
+
+        if forest == "hops":
+            queue = [root]
+            for uid in queue:  # breadth first; the queue grows as it is read
+                for other, t, q, turn in sorted(adj[uid], key=lambda n: n[0]):
+                    if other not in self.where:
+                        attach(uid, other, t, q, turn)
+                        queue.append(other)
+        else:
+            # Least position variance from the root (Dijkstra): each pose joins by the
+            # path whose edges' summed x and y variance is least.
+            best = {root: 0.0}
+            via: dict[int, _Step] = {}
+            heap = [(0.0, root)]
+            while heap:
+                d, uid = heapq.heappop(heap)
+                if uid != root:
+                    if uid in self.where:
+                        continue
+                    parent, t, q, turn = via[uid]
+                    attach(parent, uid, t, q, turn)
+                for other, t, q, turn in adj[uid]:
+                    nd = d + float(q[0, 0] + q[1, 1])
+                    if other not in self.where and nd < best.get(other, math.inf):
+                        best[other] = nd
+                        via[other] = (uid, t, q, turn)
+                        heapq.heappush(heap, (nd, other))
+        return poses, parent_row, parent_edge, noise, turns, ends
 
     def pose(self, uid: int) -> tuple[int, F64] | None:
         """Pose ``uid``'s tree and its dead-reckoned pose in the tree's root frame; None
@@ -201,11 +250,13 @@ class LayerChain:
         drives, each edge's chord counted once per time it is walked."""
         return float(np.abs(counts.astype(np.float64)) @ self._length[tree])
 
-    def walk_poses(self, tree: int, counts: npt.NDArray[np.int8]) -> set[int]:
-        """The UIDs of the poses at either end of the edges a walk on tree ``tree``
-        takes (``counts`` nonzero)."""
-        ends = self._ends[tree][np.flatnonzero(counts)]
-        return {int(u) for u in ends.ravel()}
+    def walk_poses(self, tree: int, counts: npt.NDArray[np.int8]) -> dict[int, int]:
+        """The poses at either end of the edges a walk on tree ``tree`` takes
+        (``counts`` nonzero), by UID, each with how many of those edges meet at it (two
+        or more: the walk passes through it)."""
+        ends = self._ends[tree][np.flatnonzero(counts)].ravel()
+        uids, n = np.unique(ends, return_counts=True)
+        return {int(u): int(k) for u, k in zip(uids, n, strict=True)}
 
     def bias(self, tree: int, counts: npt.NDArray[np.int8]) -> F64:
         """The covariance, at tree ``tree``'s root origin, that the layer's heading bias
