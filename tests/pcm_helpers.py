@@ -83,8 +83,10 @@ def corridor() -> tuple[
     return estimates, layer_of, chains, closures, forged
 
 
-def noisy_lap_twice(rng: np.random.Generator) -> tuple[F64, list[OdometryEdge]]:
-    """A 5 m circle driven twice (62 poses), odometry edges the truth plus their noise."""
+def noisy_lap_twice(rng: np.random.Generator, bias: float = 0.0) -> tuple[F64, list[OdometryEdge]]:
+    """A 5 m circle driven twice (62 poses), odometry edges the truth plus their noise,
+    and ``bias`` radians per metre driven on every edge's heading (a systematic turn,
+    as :func:`~sonarmap.team.world.odometry`'s ``bias_theta``)."""
     lap = [
         [5 * math.cos(a), 5 * math.sin(a), a + math.pi / 2]
         for a in np.linspace(0, 2 * math.pi, 32)[:-1]
@@ -94,5 +96,6 @@ def noisy_lap_twice(rng: np.random.Generator) -> tuple[F64, list[OdometryEdge]]:
     edges = []
     for k in range(len(truth) - 1):
         t = compose(invert(truth[k]), truth[k + 1]) + chol @ rng.normal(size=3)
+        t[2] += bias * math.hypot(float(t[0]), float(t[1]))
         edges.append(OdometryEdge(k, k + 1, t3(t), tuple(float(v) for v in STEP_COV.ravel()), 1))
     return truth, edges

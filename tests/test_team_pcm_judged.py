@@ -15,7 +15,14 @@ from sonarmap.sensors import Noise
 from sonarmap.team.globalmap import CHI2_99_3DOF
 from sonarmap.team.mission import MissionConfig, RobotAgent
 from sonarmap.team.pcm import LayerChain, loop_distance, loop_residual, pcm_gate
-from sonarmap.team.records import ClosureEdge, OdometryEdge, compose, invert, invert_covariance
+from sonarmap.team.records import (
+    ClosureEdge,
+    OdometryEdge,
+    compose,
+    compose_covariance,
+    invert,
+    invert_covariance,
+)
 from sonarmap.team.store import RobotStore
 
 F64 = npt.NDArray[np.float64]
@@ -62,7 +69,7 @@ def test_the_loop_over_one_walk_has_its_noise_covariance(name: str, stored: str)
     for seed in range(300):
         rng = np.random.default_rng(seed)
         truth, edges = noisy_lap_twice(rng)
-        chain = LayerChain(edges)
+        chain = LayerChain(edges, bias_sd=0.0)  # this odometry has no heading bias
         c1, c2 = _drawn(a1, b1, truth, rng), _drawn(a2, b2, truth, rng)
         if stored == "reversed":
             c1 = _reversed(c1)
@@ -320,8 +327,9 @@ def test_a_loop_between_two_layers_has_its_noise_covariance(loud: str) -> None:
     d2 = []
     for seed in range(300):
         rng = np.random.default_rng(seed)
-        chain0 = LayerChain(_arc_layer(0, arc, q0, rng, reverse=True))
-        chain1 = LayerChain(_arc_layer(1, truth1, QUIET, rng, reverse=False))
+        # This odometry has no heading bias: the edges' own noise only.
+        chain0 = LayerChain(_arc_layer(0, arc, q0, rng, reverse=True), bias_sd=0.0)
+        chain1 = LayerChain(_arc_layer(1, truth1, QUIET, rng, reverse=False), bias_sd=0.0)
         c1, c2 = (
             (a, 1000 + b, _perturbed(compose(invert(arc[a]), arc[b]), qc, rng), qc)
             for a, b in ((2, 3), (4, 5))
@@ -331,3 +339,60 @@ def test_a_loop_between_two_layers_has_its_noise_covariance(loud: str) -> None:
         d2.append(d)
     mean = float(np.mean(d2))
     assert 2.5 < mean < 3.5, mean
+
+
+def test_the_loop_counts_a_heading_bias_shared_by_every_edge() -> None:
+    """Odometry turned by a heading bias drawn once per draw (0.003 rad per metre, the
+    simulator's, the same on every edge), on the loop that walks 24 edges twice the
+    same way: its squared distance has the chi-square mean when the chain counts that
+    bias as one unknown (``bias_sd``), and fails far more than 1 % of the time when it
+    counts only the edges' own noise (``bias_sd=0``, an independent error per edge:
+    the walk's turn grows with its metres, not their square root)."""
+    (a1, b1), (a2, b2) = PAIRS["twice one way"]
+    with_bias: list[float] = []
+    without: list[float] = []
+    for seed in range(300):
+        rng = np.random.default_rng(seed)
+        truth, edges = noisy_lap_twice(rng, bias=0.003 * float(rng.normal()))
+        c1, c2 = _drawn(a1, b1, truth, rng), _drawn(a2, b2, truth, rng)
+        for d2, bias_sd in ((with_bias, 0.003), (without, 0.0)):
+            chain = LayerChain(edges, bias_sd=bias_sd)
+            d = loop_distance(c1, c2, chain, chain)
+            assert d is not None
+            d2.append(d)
+    assert 2.4 < float(np.mean(with_bias)) < 3.6, np.mean(with_bias)
+    assert np.mean(np.array(with_bias) > CHI2_99_3DOF) <= 0.03
+    assert float(np.mean(without)) > 4.5, np.mean(without)
+    assert np.mean(np.array(without) > CHI2_99_3DOF) > 0.08
+
+
+def test_layer_chain_refuses_a_negative_bias() -> None:
+    with pytest.raises(ValueError, match="bias_sd"):
+        LayerChain([], bias_sd=-0.001)
+
+
+def test_the_least_variance_forest_goes_round_a_loud_edge() -> None:
+    """A square 0-1-2-3 of quiet edges closed by a loud edge 3-0: breadth first joins
+    pose 3 to 0 by the loud edge (one hop), ``forest="least"`` by the quiet three; each
+    path's covariance is that edge chain's composed covariance."""
+    quiet = np.diag([1e-4, 1e-4, 1e-5])
+    loud = np.diag([1e-1, 1e-1, 1e-2])
+    steps = [(0, 1, (1.0, 0.0, math.pi / 2), quiet)] + [
+        (k, k + 1, (1.0, 0.0, math.pi / 2), quiet) for k in (1, 2)
+    ]
+    edges = [OdometryEdge(a, b, t, tuple(q.ravel()), 10.0) for a, b, t, q in steps]
+    edges.append(OdometryEdge(0, 3, (0.0, 1.0, -math.pi / 2), tuple(loud.ravel()), 10.0))
+    hops = LayerChain(edges, bias_sd=0.0)
+    least = LayerChain(edges, bias_sd=0.0, forest="least")
+    via_loud = hops.covariance(0, 3)
+    via_quiet = least.covariance(0, 3)
+    assert via_loud is not None
+    assert via_quiet is not None
+    np.testing.assert_allclose(via_loud, loud, atol=1e-12)
+    x, c = np.zeros(3), np.zeros((3, 3))
+    for _, _, t, q in steps:
+        c = compose_covariance(x, c, np.asarray(t), q)
+        x = compose(x, np.asarray(t))
+    np.testing.assert_allclose(via_quiet, c, rtol=1e-6, atol=1e-12)  # float32 edges
+    with pytest.raises(ValueError, match="forest"):
+        LayerChain(edges, forest="widest")

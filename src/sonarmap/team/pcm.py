@@ -38,6 +38,7 @@ PCM judges closures against each other, through the odometry alone, before the g
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from collections.abc import Set as AbstractSet
@@ -47,30 +48,41 @@ import networkx as nx
 import numpy as np
 import numpy.typing as npt
 
+from .calibration import HEADING_BIAS_PRIOR
 from .globalmap import CHI2_99_3DOF
 from .records import (
     ClosureEdge,
     OdometryEdge,
+    adjoint,
     compose,
     invert,
     invert_covariance,
 )
 
 __all__ = [
+    "FORESTS",
     "MAX_PER_PAIR",
     "MIN_FAILURES",
     "LayerChain",
     "PcmResult",
     "loop_distance",
     "loop_residual",
+    "orient",
     "pcm_gate",
 ]
 
 F64 = npt.NDArray[np.float64]
+#: An odometry edge as walked from a pose: the other pose, the transform, its
+#: covariance and the heading bias's perturbation, both at the other pose.
+_Step = tuple[int, F64, F64, F64]
 
 #: Closures of one pair of layers that a batch judges (the newest): the bound on the
 #: maximum clique's size (40 nodes, 780 pairwise loops).
 MAX_PER_PAIR = 40
+
+#: How :class:`LayerChain` spans a layer's odometry graph: ``"hops"`` breadth first
+#: (fewest edges from the root), ``"least"`` by least summed x and y variance.
+FORESTS = ("hops", "least")
 
 #: Loops a new closure must fail, with closures still kept, to be rejected when
 #: closures are judged once (:func:`pcm_gate` with ``frozen``): one failure is what a
@@ -101,49 +113,114 @@ class LayerChain:
         The layer's odometry edges.
     """
 
-    def __init__(self, edges: Iterable[OdometryEdge]) -> None:
-        adj: dict[int, list[tuple[int, F64, F64]]] = {}
+    def __init__(
+        self,
+        edges: Iterable[OdometryEdge],
+        *,
+        bias_sd: float = HEADING_BIAS_PRIOR,
+        forest: str = "hops",
+    ) -> None:
+        if not (math.isfinite(bias_sd) and bias_sd >= 0.0):
+            raise ValueError(f"LayerChain: bias_sd must be finite and >= 0, got {bias_sd}")
+        if forest not in FORESTS:
+            raise ValueError(
+                f"LayerChain: forest must be one of {', '.join(FORESTS)}, got {forest!r}"
+            )
+        #: Radians per metre: the standard deviation of the heading bias shared by every
+        #: edge of the layer (:meth:`bias`).
+        self.bias_sd = float(bias_sd)
+        adj: dict[int, list[_Step]] = {}
         for e in edges:
             if e.a == e.b:
                 continue
             t = np.asarray(e.transform, dtype=np.float64)
             q = e.cov()
-            adj.setdefault(e.a, []).append((e.b, t, q))
-            # Walked backwards: the inverse, its covariance in its own end's frame.
-            adj.setdefault(e.b, []).append((e.a, np.asarray(invert(t)), invert_covariance(t, q)))
+            # A heading bias turns the robot by bias x metres driven, the same sign on
+            # every edge driven forward (a to b): a perturbation at b of (0, 0, s) per
+            # unit of bias, s the edge's chord (poses are a metre apart or less).
+            turn = np.array([0.0, 0.0, math.hypot(float(t[0]), float(t[1]))])
+            adj.setdefault(e.a, []).append((e.b, t, q, turn))
+            # Walked backwards: the inverse, its covariance in its own end's frame, and
+            # the bias's perturbation at the inverse's end (exp(-e) T^-1 = T^-1 exp(-Ad e)).
+            back = -adjoint(t) @ turn
+            adj.setdefault(e.b, []).append(
+                (e.a, np.asarray(invert(t)), invert_covariance(t, q), back)
+            )
         #: Pose UID -> (tree, row in that tree's arrays).
         self.where: dict[int, tuple[int, int]] = {}
         self._pose: list[F64] = []
         self._paths: list[npt.NDArray[np.int8]] = []
         self._noise: list[F64] = []
+        self._turn: list[F64] = []
+        self._length: list[F64] = []
+        self._ends: list[npt.NDArray[np.int64]] = []
         for root in sorted(adj):
             if root in self.where:
                 continue
             tree = len(self._pose)
-            self.where[root] = (tree, 0)
-            poses, parent_row, parent_edge = [np.zeros(3)], [-1], [-1]
-            noise: list[F64] = []
-            queue = [root]
-            for uid in queue:  # breadth first; the queue grows as it is read
-                row = self.where[uid][1]
-                for other, t, q in sorted(adj[uid], key=lambda n: n[0]):
-                    if other in self.where:
-                        continue
-                    x = compose(poses[row], t)
-                    self.where[other] = (tree, len(poses))
-                    poses.append(np.asarray(x, dtype=np.float64))
-                    parent_row.append(row)
-                    parent_edge.append(len(noise))
-                    # Edge noise at its end, as a perturbation at the root's origin.
-                    noise.append(invert_covariance(x, q))
-                    queue.append(other)
+            poses, parent_row, parent_edge, noise, turns, ends = self._grow(root, tree, adj, forest)
             paths = np.zeros((len(poses), len(noise)), dtype=np.int8)
-            for row in range(1, len(poses)):  # parents come first (breadth first)
+            for row in range(1, len(poses)):  # parents come first (either forest)
                 paths[row] = paths[parent_row[row]]
                 paths[row, parent_edge[row]] = 1
             self._pose.append(np.array(poses))
             self._paths.append(paths)
             self._noise.append(np.array(noise).reshape(-1, 3, 3))
+            self._turn.append(np.array(turns).reshape(-1, 3))
+            self._length.append(np.abs(self._turn[-1][:, 2]))
+            self._ends.append(np.array(ends, dtype=np.int64).reshape(-1, 2))
+
+    def _grow(
+        self, root: int, tree: int, adj: Mapping[int, list[_Step]], forest: str
+    ) -> tuple[list[F64], list[int], list[int], list[F64], list[F64], list[tuple[int, int]]]:
+        """Tree ``tree`` spanning ``root``'s connected part, each pose in :attr:`where`:
+        the poses (root frame), each row's parent row and edge, and each edge's noise
+        and bias perturbation at the root's origin and its two ends."""
+        self.where[root] = (tree, 0)
+        poses, parent_row, parent_edge = [np.zeros(3)], [-1], [-1]
+        noise: list[F64] = []
+        turns: list[F64] = []
+        ends: list[tuple[int, int]] = []
+
+        def attach(uid: int, other: int, t: F64, q: F64, turn: F64) -> None:
+            row = self.where[uid][1]
+            x = compose(poses[row], t)
+            self.where[other] = (tree, len(poses))
+            poses.append(np.asarray(x, dtype=np.float64))
+            parent_row.append(row)
+            parent_edge.append(len(noise))
+            # Edge noise at its end, as a perturbation at the root's origin.
+            noise.append(invert_covariance(x, q))
+            turns.append(adjoint(x) @ turn)
+            ends.append((uid, other))
+
+        if forest == "hops":
+            queue = [root]
+            for uid in queue:  # breadth first; the queue grows as it is read
+                for other, t, q, turn in sorted(adj[uid], key=lambda n: n[0]):
+                    if other not in self.where:
+                        attach(uid, other, t, q, turn)
+                        queue.append(other)
+        else:
+            # Least position variance from the root (Dijkstra): each pose joins by the
+            # path whose edges' summed x and y variance is least.
+            best = {root: 0.0}
+            via: dict[int, _Step] = {}
+            heap = [(0.0, root)]
+            while heap:
+                d, uid = heapq.heappop(heap)
+                if uid != root:
+                    if uid in self.where:
+                        continue
+                    parent, t, q, turn = via[uid]
+                    attach(parent, uid, t, q, turn)
+                for other, t, q, turn in adj[uid]:
+                    nd = d + float(q[0, 0] + q[1, 1])
+                    if other not in self.where and nd < best.get(other, math.inf):
+                        best[other] = nd
+                        via[other] = (uid, t, q, turn)
+                        heapq.heappush(heap, (nd, other))
+        return poses, parent_row, parent_edge, noise, turns, ends
 
     def pose(self, uid: int) -> tuple[int, F64] | None:
         """Pose ``uid``'s tree and its dead-reckoned pose in the tree's root frame; None
@@ -165,7 +242,32 @@ class LayerChain:
         that takes each edge ``counts`` times (signed): an edge walked once each way
         cancels, to first order, in a walk that comes back to where it was."""
         n2 = counts.astype(np.float64) ** 2
-        return np.asarray(np.einsum("k,kij->ij", n2, self._noise[tree]), dtype=np.float64)
+        independent = np.einsum("k,kij->ij", n2, self._noise[tree])
+        return np.asarray(independent + self.bias(tree, counts), dtype=np.float64)
+
+    def walk_metres(self, tree: int, counts: npt.NDArray[np.int8]) -> float:
+        """Metres a walk taking each edge of tree ``tree`` ``counts`` times (signed)
+        drives, each edge's chord counted once per time it is walked."""
+        return float(np.abs(counts.astype(np.float64)) @ self._length[tree])
+
+    def walk_poses(self, tree: int, counts: npt.NDArray[np.int8]) -> dict[int, int]:
+        """The poses at either end of the edges a walk on tree ``tree`` takes
+        (``counts`` nonzero), by UID, each with how many of those edges meet at it (two
+        or more: the walk passes through it)."""
+        ends = self._ends[tree][np.flatnonzero(counts)].ravel()
+        uids, n = np.unique(ends, return_counts=True)
+        return {int(u): int(k) for u, k in zip(uids, n, strict=True)}
+
+    def bias(self, tree: int, counts: npt.NDArray[np.int8]) -> F64:
+        """The covariance, at tree ``tree``'s root origin, that the layer's heading bias
+        (:attr:`bias_sd` radians per metre, unknown, the same on every edge) gives a
+        walk taking each edge ``counts`` times: one direction, so it grows with the
+        square of the metres walked one way, where the edges' own noise grows with the
+        metres. The edges' covariances count the bias as independent per edge
+        (:func:`~.world.odometry_covariance`), which a walk of n metres understates n
+        times; this term is added on top (a metre's worth counted twice)."""
+        g = counts.astype(np.float64) @ self._turn[tree]
+        return np.asarray(self.bias_sd**2 * np.outer(g, g), dtype=np.float64)
 
     def relative(self, u: int, w: int) -> tuple[F64, F64] | None:
         """Pose ``w`` in pose ``u``'s frame by the odometry between them (the
@@ -194,8 +296,10 @@ def _oriented(c: ClosureEdge, flip: bool) -> tuple[int, int, F64, F64]:
     return c.b, c.a, np.asarray(invert(t), dtype=np.float64), invert_covariance(t, c.cov())
 
 
-def _orient(c: ClosureEdge, la: int, layer_of: Mapping[int, int]) -> tuple[int, int, F64, F64]:
-    """Closure ``c`` from layer ``la`` to the other (as stored within one layer)."""
+def orient(c: ClosureEdge, la: int, layer_of: Mapping[int, int]) -> tuple[int, int, F64, F64]:
+    """Closure ``c`` as :func:`loop_residual` takes it: ``(a, b, transform,
+    covariance)`` from layer ``la``'s pose to the other layer's (as stored within one
+    layer); ``layer_of`` gives each pose's layer."""
     return _oriented(c, layer_of[c.a] != la)
 
 
@@ -401,7 +505,7 @@ def pcm_gate(
         if len(window) < 2 or not new:
             # Nothing to test against: a lone new closure waits, unjudged, for partners.
             continue
-        oriented = [_orient(closures[i], la, layer_of) for i in window]
+        oriented = [orient(closures[i], la, layer_of) for i in window]
         failing: dict[int, set[int]] = {p: set() for p in range(len(window))}
         partners: dict[int, set[int]] = {p: set() for p in range(len(window))}
         for p in range(len(window)):

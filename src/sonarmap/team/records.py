@@ -42,6 +42,7 @@ __all__ = [
     "Pose",
     "RecordError",
     "UnpackError",
+    "adjoint",
     "compose",
     "compose_covariance",
     "counter_of",
@@ -372,8 +373,10 @@ class ClosureEdge:
 _DTYPES = ("uint8", "int8", "int64", "float32", "float64")
 
 
-def _adjoint(t: npt.ArrayLike) -> F64:
-    """SE(2) adjoint of ``t`` (tangent order x, y, theta, as gtsam's Pose2)."""
+def adjoint(t: npt.ArrayLike) -> F64:
+    """SE(2) adjoint of ``t`` (tangent order x, y, theta, as gtsam's Pose2): a
+    perturbation on the right of ``t`` (in its end's frame) as one on the left (at its
+    start)."""
     x, y, th = (float(v) for v in np.asarray(t, dtype=np.float64))
     c, s = math.cos(th), math.sin(th)
     return np.array([[c, -s, y], [s, c, -x], [0.0, 0.0, 1.0]])
@@ -386,13 +389,13 @@ def compose_covariance(a: npt.ArrayLike, ca: F64, b: npt.ArrayLike, cb: F64) -> 
     the right, as gtsam's BetweenFactor takes it): a's error reaches the end of b
     through the adjoint of b's inverse.
     """
-    j = _adjoint(invert(np.asarray(b, dtype=np.float64)))
+    j = adjoint(invert(np.asarray(b, dtype=np.float64)))
     return np.asarray(j @ ca @ j.T + cb, dtype=np.float64)
 
 
 def invert_covariance(a: npt.ArrayLike, ca: F64) -> F64:
     """First-order covariance of invert(a), in the inverse's end frame (a's start)."""
-    j = _adjoint(a)
+    j = adjoint(a)
     return np.asarray(j @ ca @ j.T, dtype=np.float64)
 
 
