@@ -54,6 +54,22 @@ def test_a_claim_radius_must_be_a_finite_length_of_at_least_zero(bad: float) -> 
         Claims(bad, 0.1)
 
 
+@pytest.mark.parametrize(
+    "setting",
+    [
+        {"direction": "vector"},
+        {"dilation": 1},
+        {"policy": "random"},
+        {"motion": "straight"},
+        {"sectors": 12},
+        {"model": "car"},
+    ],
+)
+def test_claims_are_refused_where_the_choice_never_reads_them(setting: dict[str, object]) -> None:
+    with pytest.raises(ConfigError, match="claim needs"):
+        PatrolConfig(claim=5.0, **setting)  # type: ignore[arg-type]
+
+
 def test_claims_need_the_full_network() -> None:
     with pytest.raises(ConfigError, match="claim needs network 'full'"):
         PatrolConfig(claim=5.0, network="limited")
@@ -89,3 +105,29 @@ def test_one_robot_runs_the_same_with_claims_and_two_part_company() -> None:
     near_claim, mtb = _near_share(t, claimed)
     assert near_claim < near_base
     assert np.all(np.isfinite(mtb))
+
+
+@pytest.mark.slow
+def test_the_marks_never_reach_the_fog_the_run_is_measured_on() -> None:
+    """A cell the fog says was seen at a step's time was within sight of a robot then:
+    marks left in the fog (a claimed place far from every robot) would break this."""
+    t = _building()
+    cfg = PatrolConfig(radius=0.3, speed=1.0, vision=3.0, duration=120.0, cell=0.1, claim=3.0)
+    g = t.grid
+    reach = cfg.vision + 2 * g.resolution
+    where: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+    marked_far: list[int] = []
+
+    def on_step(time: float, team: Team, fog: Fog) -> None:
+        where[time] = (team.x.copy(), team.y.copy())
+        for seen_at, (x, y) in list(where.items())[-3:]:
+            rows, cols = np.nonzero(fog.last == seen_at)
+            px, py = g.cell_centres(rows, cols)
+            near = np.zeros(len(rows), dtype=bool)
+            for xi, yi in zip(x, y, strict=True):
+                near |= np.hypot(px - xi, py - yi) <= reach
+            marked_far.append(int(np.count_nonzero(~near)))
+
+    run_patrol(t, cfg, robots=3, seed=0, on_step=on_step)
+    assert len(marked_far) > 100
+    assert max(marked_far) == 0

@@ -175,13 +175,13 @@ class PatrolConfig:
     #: place stands for cells it may not see): the choice's wave runs on the fog's own
     #: cells.
     choice_cell: float = 0.3
-    #: Path motion (holonomic robots on the wave's paths; read by no other motion) with
-    #: the potential field and the full network: while a robot makes
-    #: a new choice of place, the watched places within this many metres of a place
-    #: another robot goes for (not seen since that robot chose it) pull as if just
-    #: seen, so that two robots do not go for the same stale place
-    #: (:mod:`~sonarmap.patrol.claims`). 0: every robot chooses from the fog alone, as
-    #: the thesis has it.
+    #: Path motion (holonomic robots on the wave's paths) with the potential field (the
+    #: mode of 8 steps, no dilation) and the full network, refused with any other
+    #: setting: while a robot makes a new choice of place, the watched places within
+    #: this many metres of a place another robot goes for (not seen since that robot
+    #: chose it) pull as if just seen, so that two robots do not go for the same stale
+    #: place (:mod:`~sonarmap.patrol.claims`). 0: every robot chooses from the fog
+    #: alone, as the thesis has it.
     claim: float = 0.0
     #: Artificial obstacles' radius; NaN: three times the robot's radius (3 m).
     r_obst: float = math.nan
@@ -577,6 +577,20 @@ class PatrolConfig:
         if self.claim > 0 and self.network != "full":
             # A robot knows where the others go only when it hears them all.
             raise ConfigError(f"claim needs network 'full', got {self.network!r}", field="claim")
+        if self.claim > 0:
+            # Claims act on the potential field's own choice of place from the fog's
+            # times (the mode's 8 steps); every other setting chooses from values they
+            # never reach, and a claim there would be silently ignored.
+            needs: tuple[tuple[str, object, object], ...] = (
+                ("motion", self.motion, "path"),
+                ("policy", self.policy, "potential"),
+                ("direction", self.direction, "mode"),
+                ("sectors", self.sectors, 8),
+                ("dilation", self.dilation, 0),
+            )
+            for option, got, wanted in needs:
+                if got != wanted:
+                    raise ConfigError(f"claim needs {option} {wanted!r}, got {got!r}", field=option)
         if not (math.isfinite(self.choice_cell) and self.choice_cell >= 0):
             raise ConfigError(
                 f"choice_cell must be >= 0 metres, got {self.choice_cell}", field="choice_cell"
