@@ -43,7 +43,9 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 import os
+import sys
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
@@ -55,6 +57,7 @@ import numpy as np
 import numpy.typing as npt
 
 from sonarmap.cli.common import resolve_map
+from sonarmap.errors import SonarmapError
 from sonarmap.team.calibration import HEADING_BIAS_PRIOR
 from sonarmap.team.exchange import ExchangeParams
 from sonarmap.team.globalmap import CHI2_99_3DOF
@@ -207,16 +210,26 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.robots < 2 or args.window < 0 or args.max_pairs < 1:
         parser.error("--robots must be >= 2, --window >= 0 and --max-pairs >= 1")
-    plan = resolve_map(Path(args.map))
-    # As `team run --patrol --lean` (PCM off): its territory, routes, world and settings.
-    region = run_territory(None, plan).region
-    patrolled, _ = patrol_routes(plan, args.robots, args.duration, seed=args.seed, region=region)
-    routes = dict(enumerate(patrolled))
-    world, routes = draw_world(
-        plan, args.duration, seed=args.seed, robots=args.robots, region=region, routes=routes
-    )
-    exchange, store = PRESETS["lean"].apply(ExchangeParams(), StoreParams())
-    cfg = MissionConfig(duration=args.duration, seed=args.seed, store=store)
+    if not (math.isfinite(args.duration) and args.duration > 0) or args.seed < 0:
+        parser.error("--duration must be a finite number of seconds > 0 and --seed >= 0")
+    if args.json and not Path(args.json).parent.is_dir():
+        parser.error(f"--json: no folder {Path(args.json).parent}")
+    try:
+        plan = resolve_map(Path(args.map))
+        # As `team run --patrol --lean` (PCM off): its territory, routes, world, settings.
+        region = run_territory(None, plan).region
+        patrolled, _ = patrol_routes(
+            plan, args.robots, args.duration, seed=args.seed, region=region
+        )
+        routes = dict(enumerate(patrolled))
+        world, routes = draw_world(
+            plan, args.duration, seed=args.seed, robots=args.robots, region=region, routes=routes
+        )
+        exchange, store = PRESETS["lean"].apply(ExchangeParams(), StoreParams())
+        cfg = MissionConfig(duration=args.duration, seed=args.seed, store=store)
+    except SonarmapError as exc:
+        print(f"team_pcm_loops: --map {args.map}: {exc}", file=sys.stderr)
+        return 2
     team = run_team(
         plan,
         cfg,

@@ -366,6 +366,36 @@ def test_the_loop_counts_a_heading_bias_shared_by_every_edge() -> None:
     assert np.mean(np.array(without) > CHI2_99_3DOF) > 0.08
 
 
+def test_the_shared_bias_keeps_its_sign_on_edges_walked_backwards() -> None:
+    """The same bias-turned laps with the poses renamed so that the forest's root (the
+    lowest UID) sits mid-route: tree edges are then walked both ways and the walk's
+    counts have mixed signs. The chi-square mean still holds; a bias whose sign is
+    lost on a backward edge (or counted by the edges' absolute counts) gives a mean
+    near 5 and about 9 % failing."""
+    (a1, b1), (a2, b2) = PAIRS["twice one way"]
+
+    def uid(k: int) -> int:
+        return (k + 31) % 62
+
+    d2: list[float] = []
+    for seed in range(300):
+        rng = np.random.default_rng(seed)
+        truth, edges = noisy_lap_twice(rng, bias=0.003 * float(rng.normal()))
+        renamed = [
+            OdometryEdge(uid(e.a), uid(e.b), e.transform, e.covariance, e.max_distance)
+            for e in edges
+        ]
+        c1, c2 = _drawn(a1, b1, truth, rng), _drawn(a2, b2, truth, rng)
+        c1 = (uid(c1[0]), uid(c1[1]), c1[2], c1[3])
+        c2 = (uid(c2[0]), uid(c2[1]), c2[2], c2[3])
+        chain = LayerChain(renamed, bias_sd=0.003)
+        d = loop_distance(c1, c2, chain, chain)
+        assert d is not None
+        d2.append(d)
+    assert 2.4 < float(np.mean(d2)) < 3.6, np.mean(d2)
+    assert np.mean(np.array(d2) > CHI2_99_3DOF) <= 0.03
+
+
 def test_layer_chain_refuses_a_negative_bias() -> None:
     with pytest.raises(ValueError, match="bias_sd"):
         LayerChain([], bias_sd=-0.001)

@@ -98,7 +98,8 @@ class LayerChain:
     (``StoreParams.merge_on_closure``) gives the merged pose the edges of both poses,
     and deleting a pose chains its neighbours by time. The poses are joined by a
     spanning forest of those edges (breadth first from the lowest UID of each
-    connected part; an edge closing a cycle is left out), each tree dead-reckoned from
+    connected part, or by least position variance with ``forest="least"``; an edge
+    closing a cycle is left out), each tree dead-reckoned from
     its root. A path between two poses of one tree is the tree's; its edges' noise
     (each edge's covariance in its end's frame) is kept per edge as that covariance
     moved to the root's frame, and each pose knows the edges on its path from the root,
@@ -111,6 +112,17 @@ class LayerChain:
     ----------
     edges : iterable of OdometryEdge
         The layer's odometry edges.
+    bias_sd : float, optional
+        Radians per metre: the standard deviation of one heading bias shared by every
+        edge of the layer (each edge driven forward turns by the bias times its chord
+        length), added to the edges' own noise. Default
+        :data:`~sonarmap.team.calibration.HEADING_BIAS_PRIOR` (0.003, the uncalibrated
+        prior, also for a robot that calibrates: conservative); 0 counts the edges' own
+        noise only. Two walks in one layer but on different trees each get their own
+        bias term (their cross term is left out).
+    forest : {"hops", "least"}, optional
+        How the spanning forest is grown: fewest edges from the root (``"hops"``,
+        default) or least x/y variance (``"least"``, Dijkstra on the edges' variances).
     """
 
     def __init__(
