@@ -39,6 +39,7 @@ import dataclasses
 import json
 import math
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -48,6 +49,7 @@ import numpy.typing as npt
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
+from sonarmap.errors import InputError, SonarmapError
 from sonarmap.floorplan import random_building
 from sonarmap.grid import Grid
 from sonarmap.io.rosmap import read_map
@@ -191,11 +193,11 @@ def territories(
         p = Path(name)
         path = p if p.suffix in (".yaml", ".yml") else MAPS / f"{name}.yaml"
         if not path.is_file():
-            raise SystemExit(f"{path}: no such map (see ../shared/data/README)")
+            raise InputError("no such map (see ../shared/data/README)", path=path)
         out.append((path.stem, Territory.from_map(read_map(path), cell=0.1)))
     for seed in buildings:
         if seed >= 1000:
-            raise SystemExit(f"--buildings {seed}: seeds from 1000 are held out")
+            raise InputError(f"--buildings {seed}: seeds from 1000 are held out")
         w, h = size
         plan = random_building(w, h, seed=seed, max_room=10.0, door=(1.0, 1.5))
         grid = Grid.from_bounds(0, 0, w, h, 0.1)
@@ -268,7 +270,7 @@ def judge(
     return out
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--maps", nargs="*", default=["depot", "warehouse"])
     ap.add_argument("--buildings", nargs="*", type=int, default=[])
@@ -282,20 +284,31 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--judge", type=Path, nargs=3, metavar=("BASE", "CLAIM", "OTHERS"))
     args = ap.parse_args(argv)
     if args.judge is not None:
-        base, claim, others = (json.loads(p.read_text())["runs"] for p in args.judge)
+        try:
+            base, claim, others = (json.loads(p.read_text())["runs"] for p in args.judge)
+        except (OSError, KeyError, TypeError, json.JSONDecodeError) as exc:
+            print(f"patrol_team_size: --judge: not a runs file ({exc})", file=sys.stderr)
+            return 2
         checks = judge(base, claim, others)
         for text, ok in checks:
             print(f"{'holds' if ok else 'FAILS'}: {text}")
         print("rule " + ("passes" if all(ok for _, ok in checks) else "fails"))
-        return
+        return 0
+    if args.json is not None and not args.json.parent.is_dir():
+        ap.error(f"--json: no folder {args.json.parent}")
+    try:
+        config = config_for(args.duration, choice_cell=args.choice_cell, claim=args.claim)
+        places = list(territories(args.maps, args.buildings, tuple(args.size)))
+    except SonarmapError as exc:
+        print(f"patrol_team_size: {exc}", file=sys.stderr)
+        return 2
     rows: list[dict[str, Any]] = []
     print(
         "| map | robots | seed | mean MTB, s | blocked | never seen | near | redundant "
         "| stood | worst together | worst age, s | split | cpu s |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    config = config_for(args.duration, choice_cell=args.choice_cell, claim=args.claim)
-    for name, territory in territories(args.maps, args.buildings, tuple(args.size)):
+    for name, territory in places:
         for robots in args.robots:
             for seed in args.seeds:
                 row = {"map": name, **diagnose(territory, config, robots, seed)}
@@ -309,7 +322,8 @@ def main(argv: list[str] | None = None) -> None:
                 )
     if args.json is not None:
         args.json.write_text(json.dumps({"duration": args.duration, "runs": rows}, indent=2))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
