@@ -14,7 +14,8 @@ so the fog, the metric and every other robot's choice are as before.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 
 import numpy as np
 import numpy.typing as npt
@@ -82,3 +83,13 @@ class Claims:
         """Undo :meth:`mark` (discs that overlap are put back last marked first)."""
         for rows, cols, old in reversed(marks):
             last[rows, cols] = old
+
+    @contextmanager
+    def held(self, last: F64, now: float, places: Sequence[tuple[int, int]]) -> Iterator[None]:
+        """:meth:`mark` for the body of a ``with`` block, then :meth:`restore`, also when
+        the body raises: the fog is marked only while a choice reads it."""
+        marks = self.mark(last, now, places)
+        try:
+            yield
+        finally:
+            self.restore(last, marks)

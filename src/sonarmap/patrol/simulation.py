@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from functools import partial
 from typing import Any
 
@@ -38,7 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import ConfigError
-from .claims import Claims, Marks
+from .claims import Claims
 from .coarse import CoarseChoice
 from .crowding import ONCOMING_NEAR, earlier_near, give_way, halves_discs, obstacle_discs
 from .fog import Fog, Vision, dilate, disc_cells, disc_offsets
@@ -704,19 +705,18 @@ class _Run:
         config, own, waver, g = self.config, self.own, self.waver, self.g
         assert self.coarse is not None
         j = 0 if self.shared else i
-        marks = self._claim(i, j)
-        way, place, length = self.coarse.choose(
-            start,
-            config.force,
-            top,
-            weights=weights,
-            **(
-                {"tb": dilated[j]}
-                if dilated is not None
-                else {"last_seen": own[j].last, "now": own[j].t}
-            ),
-        )
-        Claims.restore(own[j].last, marks)
+        with self._claimed(i, j):
+            way, place, length = self.coarse.choose(
+                start,
+                config.force,
+                top,
+                weights=weights,
+                **(
+                    {"tb": dilated[j]}
+                    if dilated is not None
+                    else {"last_seen": own[j].last, "now": own[j].t}
+                ),
+            )
         # The fine path to it; a place the fine wave cannot reach, or only by a path
         # much longer than the blocks' (the blocks join what the cells do not; a
         # shadow's anchor behind a wall), falls back on the fine choice.
@@ -776,35 +776,34 @@ class _Run:
         # wave, keeping to the one-way steps, reaches only a pocket of places in sight.
         # Then nothing pulls and it would stand for good, so its wave runs in every
         # direction.
-        marks = self._claim(i, j)
-        for _ in range(2):
-            for pulling, n_pulling in tries:
-                strength = sector_pulls(
-                    waver,
-                    self.passable,
-                    start,
-                    g.resolution,
-                    pulling,
-                    config.force,
-                    top,
-                    n_watched=n_pulling,
-                    **pull_args,
-                )
-                if strength.any():
+        with self._claimed(i, j):
+            for _ in range(2):
+                for pulling, n_pulling in tries:
+                    strength = sector_pulls(
+                        waver,
+                        self.passable,
+                        start,
+                        g.resolution,
+                        pulling,
+                        config.force,
+                        top,
+                        n_watched=n_pulling,
+                        **pull_args,
+                    )
+                    if strength.any():
+                        break
+                if strength.any() or not behind:
                     break
-            if strength.any() or not behind:
-                break
-            pull_args["closed"], behind = self.closed_cells(i, r, c, k, open_behind=True)
-        Claims.restore(own[j].last, marks)
+                pull_args["closed"], behind = self.closed_cells(i, r, c, k, open_behind=True)
         return strength, pulling
 
-    def _claim(self, i: int, j: int) -> Marks:
-        """Mark, in fog j, the places round the others' aims as just seen for robot i's
-        choice (``config.claim``); the marks to restore after it (none without claims)."""
+    def _claimed(self, i: int, j: int) -> AbstractContextManager[None]:
+        """While the block runs, the places round the others' aims count as just seen in
+        fog j for robot i's choice (``config.claim``); nothing without claims."""
         if self.claims is None:
-            return []
+            return nullcontext()
         last, now = self.own[j].last, self.own[j].t
-        return self.claims.mark(last, now, self.claims.others(i, self.aims, self.aimed_at, last))
+        return self.claims.held(last, now, self.claims.others(i, self.aims, self.aimed_at, last))
 
     def _leftover(self, i: int) -> tuple[int, int] | None:
         """Robot i's place, after a car whose place was seen takes the nearest leftover
